@@ -1,0 +1,463 @@
+"""SPDP participant announcements: DATA(p) and its dispose form DATA(p[UD]).
+
+What goes on the wire follows the reference's validated layout (shared reference section
+1.14): INFO_DST (directed replies only) + INFO_TS + DATA(p) with a PL_CDR_LE payload. The
+dispose DATA(p[UD]) carries KEY_HASH and STATUS_INFO=3 inline plus the key payload
+(flags E|Q|K), a shape both Cyclone DDS and Fast DDS act on (section 1.11).
+
+swarmd's own data travels in vendor-specific PIDs 0x8A01..0x8A03 under vendor id 53.57
+("SW"); they are interpreted only when the sender's vendor id is swarmd's, and stock stacks
+skip them (0x8000 set, 0x4000 clear). See docs/wire.md.
+
+Invariant: ``decode_spdp`` raises ``DecodeError`` and nothing else, for any input.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Final
+
+from swarmd.rtps.buffer import Reader, Writer
+from swarmd.rtps.errors import DecodeError
+from swarmd.rtps.locator import Locator
+from swarmd.rtps.message import (
+    Data,
+    Header,
+    InfoDst,
+    InfoTs,
+    Submessage,
+    decode_message,
+    encode_message,
+)
+from swarmd.rtps.parameters import (
+    Parameter,
+    ParameterList,
+    Pid,
+    pack_duration,
+    pack_locator,
+    pack_octets,
+    pack_properties,
+    pack_string,
+    pack_u32,
+    pull_parameter_list,
+    push_parameter_list,
+    value_duration,
+    value_locator,
+    value_octets,
+    value_properties,
+    value_string,
+    value_u32,
+)
+from swarmd.rtps.types import (
+    ENTITYID_PARTICIPANT,
+    ENTITYID_SPDP_READER,
+    ENTITYID_SPDP_WRITER,
+    PROTOCOLVERSION_SWARMD,
+    UNKNOWN_GUID_PREFIX,
+    VENDORID_SWARMD,
+    Duration,
+    GuidPrefix,
+    ProtocolVersion,
+    Time,
+    VendorId,
+)
+
+# Encapsulation identifiers (spec 10.5; always big-endian on the wire)
+PL_CDR_BE: Final = b"\x00\x02"
+PL_CDR_LE: Final = b"\x00\x03"
+
+# PID_BUILTIN_ENDPOINT_SET bits (spec 8.5.3.1; reference section 1.7)
+BES_PARTICIPANT_ANNOUNCER: Final = 1 << 0
+BES_PARTICIPANT_DETECTOR: Final = 1 << 1
+BES_PUBLICATION_ANNOUNCER: Final = 1 << 2
+BES_PUBLICATION_DETECTOR: Final = 1 << 3
+BES_SUBSCRIPTION_ANNOUNCER: Final = 1 << 4
+BES_SUBSCRIPTION_DETECTOR: Final = 1 << 5
+BES_PARTICIPANT_MESSAGE_WRITER: Final = 1 << 10
+BES_PARTICIPANT_MESSAGE_READER: Final = 1 << 11
+# SPDP writer and reader only: stock peers then never start SEDP with us (reference 1.7)
+BES_SPDP_ONLY: Final = BES_PARTICIPANT_ANNOUNCER | BES_PARTICIPANT_DETECTOR
+
+# Spec default when PID_PARTICIPANT_LEASE_DURATION is absent (Cyclone 0.10 assumes the same)
+DEFAULT_LEASE_DURATION: Final = Duration(100, 0)
+
+STATUS_INFO_DISPOSED: Final = 0x01
+STATUS_INFO_UNREGISTERED: Final = 0x02
+
+# swarmd's vendor-specific PIDs: 0x8000 set (vendor range), 0x4000 clear (stock stacks
+# must be free to ignore them; Cyclone rejects a whole sample for an unknown 0x4000 PID).
+PID_SWARMD_BUNDLE_DIGEST: Final = 0x8A01
+PID_SWARMD_HEARD: Final = 0x8A02
+PID_SWARMD_LINK_QUALITY: Final = 0x8A03
+SWARMD_PIDS: Final = frozenset({PID_SWARMD_BUNDLE_DIGEST, PID_SWARMD_HEARD, PID_SWARMD_LINK_QUALITY})
+
+MAX_LINK_QUALITY_PERMILLE: Final = 1000
+
+# PIDs that SpdpParticipant models as fields; anything else lands in extra_parameters
+_MODELLED: Final = frozenset(
+    {
+        Pid.PROTOCOL_VERSION,
+        Pid.VENDORID,
+        Pid.DOMAIN_ID,
+        Pid.DOMAIN_TAG,
+        Pid.PARTICIPANT_GUID,
+        Pid.METATRAFFIC_UNICAST_LOCATOR,
+        Pid.METATRAFFIC_MULTICAST_LOCATOR,
+        Pid.DEFAULT_UNICAST_LOCATOR,
+        Pid.DEFAULT_MULTICAST_LOCATOR,
+        Pid.PARTICIPANT_LEASE_DURATION,
+        Pid.BUILTIN_ENDPOINT_SET,
+        Pid.PARTICIPANT_BUILTIN_ENDPOINTS,
+        Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT,
+        Pid.ENTITY_NAME,
+        Pid.USER_DATA,
+        Pid.PROPERTY_LIST,
+    }
+)
+
+
+_SINGULAR_FIELDS: Final[dict[int, str]] = {
+    Pid.PROTOCOL_VERSION: "protocol_version",
+    Pid.VENDORID: "vendor_id",
+    Pid.DOMAIN_ID: "domain_id",
+    Pid.DOMAIN_TAG: "domain_tag",
+    Pid.PARTICIPANT_LEASE_DURATION: "lease_duration",
+    Pid.BUILTIN_ENDPOINT_SET: "builtin_endpoints",
+    Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT: "manual_liveliness_count",
+    Pid.ENTITY_NAME: "entity_name",
+    Pid.USER_DATA: "user_data",
+    Pid.PROPERTY_LIST: "properties",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class SpdpParticipant:
+    """The content of one participant's DATA(p) (SPDPdiscoveredParticipantData)."""
+
+    guid_prefix: GuidPrefix
+    protocol_version: ProtocolVersion = PROTOCOLVERSION_SWARMD
+    vendor_id: VendorId = VENDORID_SWARMD
+    domain_id: int | None = 0
+    domain_tag: str | None = None
+    metatraffic_unicast_locators: tuple[Locator, ...] = ()
+    metatraffic_multicast_locators: tuple[Locator, ...] = ()
+    default_unicast_locators: tuple[Locator, ...] = ()
+    default_multicast_locators: tuple[Locator, ...] = ()
+    lease_duration: Duration = DEFAULT_LEASE_DURATION
+    builtin_endpoints: int = BES_SPDP_ONLY
+    manual_liveliness_count: int | None = None
+    entity_name: str | None = None
+    user_data: bytes | None = None
+    properties: tuple[tuple[str, str], ...] = ()
+    # swarmd vendor PIDs (only read when vendor_id is swarmd's)
+    bundle_digest: bytes | None = None
+    heard: bytes | None = None  # bitmap over bundle participant indices, LSB of byte 0 = index 0
+    link_quality_permille: int | None = None
+    # every other parameter, in wire order (stock vendors' PIDs, security tokens, ...)
+    extra_parameters: tuple[Parameter, ...] = field(default=())
+
+    @property
+    def is_swarmd(self) -> bool:
+        return self.vendor_id == VENDORID_SWARMD
+
+    def to_parameters(self, little: bool = True) -> tuple[Parameter, ...]:
+        """The parameter list in swarmd's canonical order (reference section 1.14)."""
+        pv, vid = self.protocol_version, self.vendor_id
+        out = [
+            Parameter(Pid.PROTOCOL_VERSION, bytes((pv.major, pv.minor, 0, 0))),
+            Parameter(Pid.VENDORID, vid.value + b"\x00\x00"),
+        ]
+        if self.domain_id is not None:
+            out.append(Parameter(Pid.DOMAIN_ID, pack_u32(self.domain_id, little)))
+        if self.domain_tag is not None:
+            out.append(Parameter(Pid.DOMAIN_TAG, pack_string(self.domain_tag, little)))
+        out.append(
+            Parameter(Pid.PARTICIPANT_GUID, self.guid_prefix.value + ENTITYID_PARTICIPANT.value)
+        )
+        for pid, locators in (
+            (Pid.METATRAFFIC_UNICAST_LOCATOR, self.metatraffic_unicast_locators),
+            (Pid.METATRAFFIC_MULTICAST_LOCATOR, self.metatraffic_multicast_locators),
+            (Pid.DEFAULT_UNICAST_LOCATOR, self.default_unicast_locators),
+            (Pid.DEFAULT_MULTICAST_LOCATOR, self.default_multicast_locators),
+        ):
+            out.extend(Parameter(pid, pack_locator(loc, little)) for loc in locators)
+        out.append(Parameter(Pid.PARTICIPANT_LEASE_DURATION, pack_duration(self.lease_duration, little)))
+        out.append(Parameter(Pid.BUILTIN_ENDPOINT_SET, pack_u32(self.builtin_endpoints, little)))
+        if self.manual_liveliness_count is not None:
+            out.append(
+                Parameter(
+                    Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT,
+                    self.manual_liveliness_count.to_bytes(4, "little" if little else "big", signed=True),
+                )
+            )
+        if self.entity_name is not None:
+            out.append(Parameter(Pid.ENTITY_NAME, pack_string(self.entity_name, little)))
+        if self.user_data is not None:
+            out.append(Parameter(Pid.USER_DATA, pack_octets(self.user_data, little)))
+        if self.properties:
+            out.append(Parameter(Pid.PROPERTY_LIST, pack_properties(self.properties, little)))
+        out.extend(self.extra_parameters)
+        if self.bundle_digest is not None:
+            out.append(Parameter(PID_SWARMD_BUNDLE_DIGEST, pack_octets(self.bundle_digest, little)))
+        if self.heard is not None:
+            out.append(Parameter(PID_SWARMD_HEARD, pack_octets(self.heard, little)))
+        if self.link_quality_permille is not None:
+            out.append(Parameter(PID_SWARMD_LINK_QUALITY, pack_u32(self.link_quality_permille, little)))
+        return tuple(out)
+
+    @classmethod
+    def from_parameters(cls, plist: ParameterList) -> SpdpParticipant:
+        """Interpret a DATA(p) parameter list. Raises ``DecodeError`` only."""
+        little = plist.little
+        guid_prefix: GuidPrefix | None = None
+        kw: dict[str, object] = {}
+        meta_uc: list[Locator] = []
+        meta_mc: list[Locator] = []
+        def_uc: list[Locator] = []
+        def_mc: list[Locator] = []
+        extras: list[Parameter] = []
+        vendor_params: list[Parameter] = []
+        legacy_bes: int | None = None
+        for p in plist.params:
+            pid = p.pid
+            if pid not in _MODELLED:
+                (vendor_params if pid in SWARMD_PIDS else extras).append(p)
+                continue
+            if pid in _SINGULAR_FIELDS and _SINGULAR_FIELDS[pid] in kw:
+                continue  # a repeated singular PID: the first one wins, as in Cyclone
+            if pid == Pid.PARTICIPANT_GUID:
+                if guid_prefix is None:
+                    if len(p.value) < 16:
+                        raise DecodeError(f"PID_PARTICIPANT_GUID has {len(p.value)} bytes")
+                    guid_prefix = GuidPrefix(p.value[:12])
+            elif pid == Pid.PROTOCOL_VERSION:
+                if len(p.value) < 2:
+                    raise DecodeError("PID_PROTOCOL_VERSION too short")
+                kw["protocol_version"] = ProtocolVersion(p.value[0], p.value[1])
+            elif pid == Pid.VENDORID:
+                if len(p.value) < 2:
+                    raise DecodeError("PID_VENDORID too short")
+                kw["vendor_id"] = VendorId(p.value[:2])
+            elif pid == Pid.DOMAIN_ID:
+                kw["domain_id"] = value_u32(p, little)
+            elif pid == Pid.DOMAIN_TAG:
+                kw["domain_tag"] = value_string(p, little)
+            elif pid == Pid.METATRAFFIC_UNICAST_LOCATOR:
+                meta_uc.append(value_locator(p, little))
+            elif pid == Pid.METATRAFFIC_MULTICAST_LOCATOR:
+                meta_mc.append(value_locator(p, little))
+            elif pid == Pid.DEFAULT_UNICAST_LOCATOR:
+                def_uc.append(value_locator(p, little))
+            elif pid == Pid.DEFAULT_MULTICAST_LOCATOR:
+                def_mc.append(value_locator(p, little))
+            elif pid == Pid.PARTICIPANT_LEASE_DURATION:
+                kw["lease_duration"] = value_duration(p, little)
+            elif pid == Pid.BUILTIN_ENDPOINT_SET:
+                kw["builtin_endpoints"] = value_u32(p, little)
+            elif pid == Pid.PARTICIPANT_BUILTIN_ENDPOINTS:
+                legacy_bes = value_u32(p, little) if legacy_bes is None else legacy_bes
+            elif pid == Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT:
+                kw["manual_liveliness_count"] = Reader(p.value, little=little).pull_i32("count")
+            elif pid == Pid.ENTITY_NAME:
+                kw["entity_name"] = value_string(p, little)
+            elif pid == Pid.USER_DATA:
+                kw["user_data"] = value_octets(p, little)
+            elif pid == Pid.PROPERTY_LIST:
+                kw["properties"] = value_properties(p, little)
+        if guid_prefix is None:
+            raise DecodeError("DATA(p) without PID_PARTICIPANT_GUID")
+        if "builtin_endpoints" not in kw and legacy_bes is not None:
+            kw["builtin_endpoints"] = legacy_bes
+        kw.setdefault("builtin_endpoints", 0)
+        # Absent PID_DOMAIN_ID means "the receiver's own domain" (spec 9.6.2.2)
+        kw.setdefault("domain_id", None)
+        vendor = kw.get("vendor_id")
+        if vendor == VENDORID_SWARMD:
+            for p in vendor_params:
+                if p.pid == PID_SWARMD_BUNDLE_DIGEST and "bundle_digest" not in kw:
+                    kw["bundle_digest"] = value_octets(p, little)
+                elif p.pid == PID_SWARMD_HEARD and "heard" not in kw:
+                    kw["heard"] = value_octets(p, little)
+                elif p.pid == PID_SWARMD_LINK_QUALITY and "link_quality_permille" not in kw:
+                    q = value_u32(p, little)
+                    if q > MAX_LINK_QUALITY_PERMILLE:
+                        raise DecodeError(f"swarmd link quality {q} exceeds {MAX_LINK_QUALITY_PERMILLE}")
+                    kw["link_quality_permille"] = q
+        else:
+            # another vendor's 0x8A0x PIDs mean something else to it: keep them opaque
+            extras.extend(vendor_params)
+            extras.sort(key=lambda p: plist.params.index(p))
+        return cls(
+            guid_prefix,
+            metatraffic_unicast_locators=tuple(meta_uc),
+            metatraffic_multicast_locators=tuple(meta_mc),
+            default_unicast_locators=tuple(def_uc),
+            default_multicast_locators=tuple(def_mc),
+            extra_parameters=tuple(extras),
+            **kw,  # type: ignore[arg-type]
+        )
+
+
+
+
+@dataclass(frozen=True, slots=True)
+class SpdpAlive:
+    """A DATA(p) as received: the participant and the context its message gave it."""
+
+    participant: SpdpParticipant
+    sequence_number: int
+    destination: GuidPrefix | None = None  # INFO_DST, None when sent to everyone
+    timestamp: Time | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SpdpDisposed:
+    """A DATA(p[UD]): the participant with this prefix has left."""
+
+    guid_prefix: GuidPrefix
+    sequence_number: int
+    destination: GuidPrefix | None = None
+    timestamp: Time | None = None
+
+
+SpdpSample = SpdpAlive | SpdpDisposed
+
+
+def _decode_payload_plist(payload: bytes) -> ParameterList:
+    encapsulation = payload[:2]
+    if encapsulation == PL_CDR_LE:
+        little = True
+    elif encapsulation == PL_CDR_BE:
+        little = False
+    else:
+        raise DecodeError(f"SPDP payload encapsulation {encapsulation.hex()} is not PL_CDR")
+    return pull_parameter_list(Reader(payload, 4, little=little))
+
+
+def _spdp_sample(
+    header: Header, data: Data, destination: GuidPrefix | None, timestamp: Time | None
+) -> SpdpSample:
+    status = 0
+    key_hash: bytes | None = None
+    if data.inline_qos is not None:
+        info = data.inline_qos.get(Pid.STATUS_INFO)
+        if info is not None:
+            if len(info.value) < 4:
+                raise DecodeError("PID_STATUS_INFO too short")
+            status = info.value[3]
+        kh = data.inline_qos.get(Pid.KEY_HASH)
+        if kh is not None:
+            if len(kh.value) < 16:
+                raise DecodeError("PID_KEY_HASH too short")
+            key_hash = kh.value[:16]
+    if status & (STATUS_INFO_DISPOSED | STATUS_INFO_UNREGISTERED):
+        if key_hash is None and data.serialized_payload is not None:
+            key_plist = _decode_payload_plist(data.serialized_payload)
+            guid = key_plist.get(Pid.PARTICIPANT_GUID)
+            if guid is not None and len(guid.value) >= 16:
+                key_hash = guid.value[:16]
+        if key_hash is None:
+            raise DecodeError("DATA(p[UD]) carries neither PID_KEY_HASH nor a participant GUID key")
+        prefix = GuidPrefix(key_hash[:12])
+        if prefix != header.guid_prefix:
+            raise DecodeError(f"DATA(p[UD]) for {prefix} sent by {header.guid_prefix}")
+        return SpdpDisposed(prefix, data.writer_sn, destination, timestamp)
+    if data.serialized_payload is None or data.key:
+        raise DecodeError("DATA(p) without serialized data")
+    participant = SpdpParticipant.from_parameters(_decode_payload_plist(data.serialized_payload))
+    if participant.guid_prefix != header.guid_prefix:
+        # Cyclone ignores such a sample too ("mismatch with RTPS source", ddsi_discovery_spdp.c)
+        raise DecodeError(
+            f"participant GUID {participant.guid_prefix} differs from RTPS source {header.guid_prefix}"
+        )
+    return SpdpAlive(participant, data.writer_sn, destination, timestamp)
+
+
+def decode_spdp(datagram: bytes) -> tuple[Header, list[SpdpSample]]:
+    """Decode a datagram and return its header and every SPDP sample in it.
+
+    Submessages other than SPDP DATA are ignored (but must be well-formed). Raises
+    ``DecodeError`` and nothing else, for any input.
+    """
+    try:
+        message = decode_message(datagram)
+        destination: GuidPrefix | None = None
+        timestamp: Time | None = None
+        samples: list[SpdpSample] = []
+        for sm in message.submessages:
+            if isinstance(sm, InfoDst):
+                destination = None if sm.guid_prefix == UNKNOWN_GUID_PREFIX else sm.guid_prefix
+            elif isinstance(sm, InfoTs):
+                timestamp = sm.timestamp
+            elif isinstance(sm, Data) and sm.writer_id == ENTITYID_SPDP_WRITER:
+                samples.append(_spdp_sample(message.header, sm, destination, timestamp))
+        return message.header, samples
+    except DecodeError:
+        raise
+    except (ValueError, IndexError, struct.error, OverflowError, TypeError) as exc:  # pragma: no cover
+        raise DecodeError(f"malformed SPDP message: {exc}") from None
+
+
+def _prefix_submessages(
+    destination: GuidPrefix | None, timestamp: Time | None
+) -> list[Submessage]:
+    out: list[Submessage] = []
+    if destination is not None:
+        out.append(InfoDst(destination))
+    out.append(InfoTs(timestamp))
+    return out
+
+
+def encode_spdp(
+    participant: SpdpParticipant,
+    *,
+    sequence_number: int,
+    timestamp: Time | None,
+    destination: GuidPrefix | None = None,
+) -> bytes:
+    """One datagram: [INFO_DST] + INFO_TS + DATA(p). ``timestamp`` None sends INFO_TS with I set."""
+    if sequence_number < 1:
+        raise ValueError("SPDP sequence numbers start at 1 (Fast DDS drops SN <= 0)")
+    w = Writer(little=True)
+    w.push_bytes(PL_CDR_LE + b"\x00\x00")
+    push_parameter_list(w, participant.to_parameters(little=True))
+    data = Data(
+        ENTITYID_SPDP_READER,
+        ENTITYID_SPDP_WRITER,
+        sequence_number,
+        serialized_payload=w.getvalue(),
+    )
+    header = Header(participant.protocol_version, participant.vendor_id, participant.guid_prefix)
+    return encode_message(header, [*_prefix_submessages(destination, timestamp), data])
+
+
+def encode_spdp_dispose(
+    guid_prefix: GuidPrefix,
+    *,
+    sequence_number: int,
+    timestamp: Time | None,
+    destination: GuidPrefix | None = None,
+    vendor_id: VendorId = VENDORID_SWARMD,
+    protocol_version: ProtocolVersion = PROTOCOLVERSION_SWARMD,
+) -> bytes:
+    """One datagram: [INFO_DST] + INFO_TS + DATA(p[UD]) (flags E|Q|K, reference 1.11)."""
+    if sequence_number < 1:
+        raise ValueError("SPDP sequence numbers start at 1")
+    guid = guid_prefix.value + ENTITYID_PARTICIPANT.value
+    key = Writer(little=True)
+    key.push_bytes(PL_CDR_LE + b"\x00\x00")
+    push_parameter_list(key, (Parameter(Pid.PARTICIPANT_GUID, guid),))
+    status = STATUS_INFO_DISPOSED | STATUS_INFO_UNREGISTERED
+    data = Data(
+        ENTITYID_SPDP_READER,
+        ENTITYID_SPDP_WRITER,
+        sequence_number,
+        inline_qos=ParameterList(
+            (Parameter(Pid.KEY_HASH, guid), Parameter(Pid.STATUS_INFO, bytes((0, 0, 0, status)))),
+        ),
+        serialized_payload=key.getvalue(),
+        key=True,
+    )
+    header = Header(protocol_version, vendor_id, guid_prefix)
+    return encode_message(header, [*_prefix_submessages(destination, timestamp), data])
