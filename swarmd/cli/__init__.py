@@ -1,0 +1,1 @@
+"""Command-line entry points: ``swarmd`` (the daemon) and ``swarmctl`` (the operator tool)."""

@@ -1,0 +1,44 @@
+"""``swarmctl``: the operator's tool, on the ground laptop and over SSH on each drone.
+
+Each command group lives in its own module with a ``register(subparsers)`` function that adds
+its parser and sets ``func`` (returning the exit code). Exit codes follow sysexits where one
+fits: 0 ok, 1 a check failed, 2 usage or daemon not reachable, 65 bad input data, 78 bad
+configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from swarmd import __version__
+from swarmd.cli import bundle_cmd, status_cmd
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="swarmctl",
+        description="Operate swarmd: build and flash firmware bundles, inspect discovery, "
+        "command the swarm.",
+    )
+    parser.add_argument("--version", action="version", version=f"swarmctl {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for module in (bundle_cmd, status_cmd):
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func = getattr(args, "func", None)
+    if func is None:
+        parser.print_help(sys.stderr)
+        return 2
+    code: int = func(args)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
