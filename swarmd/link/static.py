@@ -1,0 +1,23 @@
+"""A fixed link quality: the last resort, and the bench/testbed setting."""
+
+from __future__ import annotations
+
+from swarmd.link.quality import clamp01
+from swarmd.link.sample import LinkSample
+
+
+class StaticSource:
+    """Always reports ``q``."""
+
+    name = "static"
+
+    def __init__(self, q: float) -> None:
+        if not 0.0 <= q <= 1.0:
+            raise ValueError(f"static link quality must be in [0, 1], not {q}")
+        self._sample = LinkSample(q=clamp01(q), source=self.name)
+
+    async def read(self) -> LinkSample:
+        return self._sample
+
+    def close(self) -> None:
+        pass
