@@ -1,0 +1,143 @@
+"""Mission -> bundle: derive every identity SEDP would have announced, then seal.
+
+Everything is derived, nothing drawn (paper section 4.2: endpoint data decided before
+flight): GUID prefixes from (swarm, domain, index) via ``derive_guid_prefix``, entity ids
+from the topic's position via ``endpoint_entity_id``, ports from the participant index via
+the standard RTPS port mapping. The only inputs beyond the mission are the per-node public
+keys and the signing key, so the same mission and keys give byte-identical bundles.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from swarmd.bundle.encoding import body_value, canonical_json, seal
+from swarmd.bundle.errors import KeyFileError
+from swarmd.bundle.keys import (
+    dev_node_key,
+    dev_signing_key,
+    load_private_key,
+    load_public_key,
+    node_public_path,
+    raw_public,
+)
+from swarmd.bundle.mission import Mission
+from swarmd.bundle.model import (
+    Bundle,
+    Endpoint,
+    EndpointKind,
+    Participant,
+    Topic,
+    derive_guid_prefix,
+    endpoint_entity_id,
+)
+from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
+
+
+@dataclass(frozen=True, slots=True)
+class Built:
+    """A sealed bundle: its file bytes and the model the daemon will load from them."""
+
+    data: bytes
+    bundle: Bundle
+    dev: bool
+
+
+def build_bundle(
+    mission: Mission,
+    signing_key: Ed25519PrivateKey,
+    node_public_keys: Mapping[str, bytes],
+    *,
+    dev: bool = False,
+) -> Built:
+    """Seal ``mission`` with ``signing_key``; ``node_public_keys`` maps every name -> 32 bytes."""
+    topics = tuple(Topic(t.name, t.type_name, t.qos, t.index) for t in mission.topics)
+    # (topic index, writer before reader) keeps each participant's endpoint list canonical
+    endpoints: dict[str, list[Endpoint]] = {p.name: [] for p in mission.participants}
+    for t in mission.topics:
+        for kind, names in ((EndpointKind.WRITER, t.writers), (EndpointKind.READER, t.readers)):
+            entity_id = endpoint_entity_id(t.index, kind)
+            for name in names:
+                endpoints[name].append(Endpoint(t.name, kind, entity_id))
+    participants = tuple(
+        Participant(
+            name=p.name,
+            index=p.index,
+            role=p.role,
+            mavlink_sysid=p.mavlink_sysid,
+            ipv4=p.ipv4,
+            guid_prefix=derive_guid_prefix(mission.swarm, mission.domain_id, p.index),
+            announce_public_key=node_public_keys[p.name],
+            endpoints=tuple(endpoints[p.name]),
+        )
+        for p in mission.participants
+    )
+    ports = {
+        p.index: (
+            metatraffic_unicast_port(mission.domain_id, p.index),
+            user_unicast_port(mission.domain_id, p.index),
+        )
+        for p in mission.participants
+    }
+    body = canonical_json(
+        body_value(
+            mission.swarm, mission.domain_id, mission.discovery, topics, participants, ports
+        )
+    )
+    data = seal(body, signing_key, dev=dev)
+    bundle = Bundle(
+        swarm=mission.swarm,
+        domain_id=mission.domain_id,
+        discovery=mission.discovery,
+        topics=topics,
+        participants=participants,
+        content_sha256=hashlib.sha256(body).digest(),
+        signing_public_key=raw_public(signing_key),
+    )
+    return Built(data, bundle, dev)
+
+
+def build_dev_bundle(mission: Mission) -> Built:
+    """A bundle signed with the publicly derivable dev keys (``--unsigned-dev``)."""
+    node_keys = {p.name: raw_public(dev_node_key(mission.swarm, p.name)) for p in mission.participants}
+    return build_bundle(mission, dev_signing_key(mission.swarm), node_keys, dev=True)
+
+
+def read_node_public_keys(mission: Mission, keys_dir: str | Path) -> dict[str, bytes]:
+    """Every participant's announcement public key from ``keys_dir/nodes/<name>.pub``."""
+    out: dict[str, bytes] = {}
+    for p in mission.participants:
+        path = node_public_path(keys_dir, p.name)
+        if not path.exists():
+            raise KeyFileError(
+                str(path),
+                f"no announcement key for participant {p.name!r}",
+                f"run 'swarmctl bundle keygen --out {keys_dir} --mission {mission.source}' "
+                "(existing keys are kept)",
+            )
+        out[p.name] = load_public_key(path)
+    return out
+
+
+def build_from_files(
+    mission: Mission,
+    sign_key: str | Path | None,
+    keys_dir: str | Path | None,
+    *,
+    dev: bool = False,
+) -> Built:
+    """The CLI's build: keys from files, or the dev keys when ``dev``."""
+    if dev:
+        return build_dev_bundle(mission)
+    if sign_key is None:
+        raise KeyFileError(
+            "-", "no signing key", "pass --sign-key KEY, or --unsigned-dev for a lab bundle"
+        )
+    key = load_private_key(sign_key)
+    directory = Path(keys_dir) if keys_dir is not None else Path(sign_key).parent
+    return build_bundle(mission, key, read_node_public_keys(mission, directory))

@@ -1,0 +1,71 @@
+"""The two ways a firmware bundle goes wrong, each told in one line.
+
+``MissionError``: the operator's mission file is bad (exit 65, EX_DATAERR). Its ``str()`` is
+``FILE:LINE: field PATH: problem; fix: ...`` so an editor can jump to the line.
+
+``BundleError``: a bundle file fails verification (exit 78, EX_CONFIG): tampered, truncated,
+wrongly signed, or not trusted. Its ``str()`` is ``FILE: problem; fix: ...``. The daemon
+stops on it with that one line and no traceback.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+EX_OK: Final = 0
+EX_USAGE: Final = 2  # argparse's own code for a bad command line
+EX_DATAERR: Final = 65  # sysexits.h: the input data was incorrect (a bad mission)
+EX_CANTCREAT: Final = 73  # sysexits.h: an output file cannot be created (flash target)
+EX_CONFIG: Final = 78  # sysexits.h: configuration error (a bundle that fails verification)
+
+
+def _one_line(text: str) -> str:
+    # A message that names user input may carry newlines (a YAML scalar, a path); the
+    # promise is one line, so fold them.
+    return " ".join(text.split())
+
+
+class MissionError(ValueError):
+    """A mission file that cannot become a bundle; nothing has been written."""
+
+    def __init__(self, file: str, line: int | None, field: str, problem: str, fix: str) -> None:
+        self.file = file
+        self.line = line
+        self.field = field
+        self.problem = problem
+        self.fix = fix
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}" if self.line is not None else self.file
+        return _one_line(f"{where}: field {self.field}: {self.problem}; fix: {self.fix}")
+
+
+class BundleError(ValueError):
+    """A bundle that must not be used: its ``str()`` is one line naming file, problem, fix."""
+
+    def __init__(self, file: str, problem: str, fix: str) -> None:
+        self.file = file
+        self.problem = problem
+        self.fix = fix
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        return _one_line(f"{self.file}: {self.problem}; fix: {self.fix}")
+
+
+class FlashError(RuntimeError):
+    """Writing a bundle to a drone failed; the previous bundle is still in place."""
+
+
+class KeyFileError(ValueError):
+    """A key file that is missing, unreadable or not an Ed25519 key; one line, like the rest."""
+
+    def __init__(self, file: str, problem: str, fix: str) -> None:
+        self.file = file
+        self.problem = problem
+        self.fix = fix
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        return _one_line(f"{self.file}: {self.problem}; fix: {self.fix}")

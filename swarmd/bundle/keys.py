@@ -1,0 +1,198 @@
+"""Ed25519 keys for the bundle: the swarm signing key and one announcement key per node.
+
+Layout of a keys directory (``swarmctl bundle keygen --out DIR``)::
+
+    DIR/swarm-signing.key     PKCS#8 PEM, mode 0600   signs bundles (stays on the ground laptop)
+    DIR/swarm-signing.pub     SubjectPublicKeyInfo PEM the trust anchor each drone is given
+    DIR/nodes/<name>.key      PKCS#8 PEM, mode 0600   flashed to that drone only
+    DIR/nodes/<name>.pub      PEM                     embedded in the bundle for every node
+
+Embedding every node's public key in the signed bundle is what lets later authenticated
+discovery run without any key exchange on the air (paper Appendix B measured how much a
+runtime Diffie-Hellman exchange costs on the channel).
+
+Dev keys (``--unsigned-dev``) are derived from public strings, so anyone can recompute them:
+they only make dev bundles byte-for-byte reproducible and catch accidental corruption.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final
+
+from cryptography.exceptions import UnsupportedAlgorithm
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+
+from swarmd.bundle.errors import KeyFileError
+
+SIGNING_KEY_FILE: Final = "swarm-signing.key"
+SIGNING_PUB_FILE: Final = "swarm-signing.pub"
+NODES_DIR: Final = "nodes"
+PRIVATE_MODE: Final = 0o600
+PUBLIC_MODE: Final = 0o644
+PUBLIC_KEY_BYTES: Final = 32
+_DEV_DOMAIN: Final = b"swarmd insecure dev key v1|"
+
+
+def raw_public(key: Ed25519PrivateKey | Ed25519PublicKey) -> bytes:
+    """The 32 raw bytes of a public key (RFC 8032 encoding)."""
+    pub = key.public_key() if isinstance(key, Ed25519PrivateKey) else key
+    return pub.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+
+
+def fingerprint(public_key: bytes) -> str:
+    """A short, stable label for a public key: ``SHA256:`` + the first 8 bytes in hex."""
+    return "SHA256:" + hashlib.sha256(public_key).digest()[:8].hex()
+
+
+def private_pem(key: Ed25519PrivateKey) -> bytes:
+    return key.private_bytes(
+        serialization.Encoding.PEM,
+        serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption(),
+    )
+
+
+def public_pem(public_key: bytes) -> bytes:
+    return Ed25519PublicKey.from_public_bytes(public_key).public_bytes(
+        serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo
+    )
+
+
+def dev_signing_key(swarm: str) -> Ed25519PrivateKey:
+    """The publicly derivable signing key of ``--unsigned-dev`` bundles (no secrecy at all)."""
+    return Ed25519PrivateKey.from_private_bytes(
+        hashlib.sha256(_DEV_DOMAIN + b"signing|" + swarm.encode()).digest()
+    )
+
+
+def dev_node_key(swarm: str, name: str) -> Ed25519PrivateKey:
+    """A node's publicly derivable announcement key in a dev bundle (no secrecy at all)."""
+    return Ed25519PrivateKey.from_private_bytes(
+        hashlib.sha256(_DEV_DOMAIN + b"node|" + swarm.encode() + b"|" + name.encode()).digest()
+    )
+
+
+def load_private_key(path: str | Path) -> Ed25519PrivateKey:
+    """Read a PKCS#8 PEM Ed25519 private key; ``KeyFileError`` (one line) otherwise."""
+    data = _read(path, "run 'swarmctl bundle keygen --out DIR' to make keys")
+    try:
+        key = serialization.load_pem_private_key(data, password=None)
+    except (ValueError, TypeError, UnsupportedAlgorithm):
+        raise KeyFileError(
+            str(path),
+            "not an unencrypted PEM private key",
+            "give a key file written by 'swarmctl bundle keygen'",
+        ) from None
+    if not isinstance(key, Ed25519PrivateKey):
+        raise KeyFileError(str(path), "not an Ed25519 key", "use 'swarmctl bundle keygen' keys")
+    return key
+
+
+def load_public_key(path: str | Path) -> bytes:
+    """Read a public key as raw bytes: PEM (SubjectPublicKeyInfo) or 64 hex digits."""
+    data = _read(path, "give the swarm's swarm-signing.pub")
+    text = data.strip()
+    if len(text) == 2 * PUBLIC_KEY_BYTES:
+        with contextlib.suppress(ValueError):
+            return bytes.fromhex(text.decode("ascii", "replace"))
+    try:
+        key = serialization.load_pem_public_key(text)
+    except (ValueError, TypeError, UnsupportedAlgorithm):
+        raise KeyFileError(
+            str(path),
+            "not a PEM public key or 64 hex digits",
+            "give the swarm-signing.pub written by 'swarmctl bundle keygen'",
+        ) from None
+    if not isinstance(key, Ed25519PublicKey):
+        raise KeyFileError(str(path), "not an Ed25519 public key", "use keygen's .pub file")
+    return raw_public(key)
+
+
+def node_key_path(keys_dir: str | Path, name: str) -> Path:
+    return Path(keys_dir) / NODES_DIR / f"{name}.key"
+
+
+def node_public_path(keys_dir: str | Path, name: str) -> Path:
+    return Path(keys_dir) / NODES_DIR / f"{name}.pub"
+
+
+def _read(path: str | Path, fix: str) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise KeyFileError(str(path), "key file not found", fix) from None
+    except OSError as exc:
+        raise KeyFileError(str(path), f"cannot read key file: {exc.strerror}", fix) from None
+
+
+def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
+    """Write ``data`` to ``path`` via a same-directory temp file, fsync and rename.
+
+    The temp file is created with ``mode`` already set, so a private key is never readable
+    by others, not even for the instant between create and chmod.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, mode)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fchmod(f.fileno(), mode)  # O_CREAT's mode is masked by the umask
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    fsync_dir(path.parent)
+
+
+def fsync_dir(directory: Path) -> None:
+    """Make a rename in ``directory`` durable (POSIX: the directory entry needs its own fsync)."""
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@dataclass
+class KeygenResult:
+    created: list[Path] = field(default_factory=list)
+    kept: list[Path] = field(default_factory=list)
+
+
+def _make_pair(key_path: Path, pub_path: Path, force: bool, result: KeygenResult) -> None:
+    if key_path.exists() and not force:
+        # Keeping existing keys means adding a drone to a mission never rotates the others.
+        key = load_private_key(key_path)
+        if not pub_path.exists():
+            write_file_atomic(pub_path, public_pem(raw_public(key)), PUBLIC_MODE)
+            result.created.append(pub_path)
+        result.kept.append(key_path)
+        return
+    key = Ed25519PrivateKey.generate()
+    write_file_atomic(key_path, private_pem(key), PRIVATE_MODE)
+    write_file_atomic(pub_path, public_pem(raw_public(key)), PUBLIC_MODE)
+    result.created.extend([key_path, pub_path])
+
+
+def generate_keys(
+    out_dir: str | Path, node_names: list[str] | None = None, *, force: bool = False
+) -> KeygenResult:
+    """Create the swarm signing key and a key per node name; existing keys are kept unless
+    ``force``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = KeygenResult()
+    _make_pair(out / SIGNING_KEY_FILE, out / SIGNING_PUB_FILE, force, result)
+    for name in node_names or []:
+        _make_pair(node_key_path(out, name), node_public_path(out, name), force, result)
+    return result

@@ -1,0 +1,545 @@
+"""The mission file: the operator's YAML description of one swarm, checked field by field.
+
+The schema is documented in ``firmware_bundle/README.md``. Checking walks PyYAML's composed
+node tree rather than the plain loaded dict, because only the nodes keep their line marks:
+every rejection names the file, the line, the field path and the fix, and comes before any
+output is written (issue 3, "Bad input").
+
+Parsing is a pure function of the text (``parse_mission(text, file)``), so the builder's
+determinism (same mission, same bytes) can be tested on generated missions without files.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final, NoReturn, TypeVar
+
+import yaml
+
+from swarmd.bundle.errors import MissionError
+from swarmd.bundle.model import (
+    DiscoveryParams,
+    Durability,
+    Liveliness,
+    Qos,
+    Reliability,
+    Role,
+)
+from swarmd.rtps.ports import (
+    DOMAIN_GAIN,
+    MAX_DOMAIN_ID,
+    MAX_PORT,
+    OFFSET_D3,
+    PARTICIPANT_GAIN,
+    PORT_BASE,
+    max_participant_index,
+)
+
+# Names that become file names (keys/nodes/<name>.key) and DDS entity names: keep them to a
+# portable, shell-safe alphabet.
+NAME_RE: Final = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+# An IDL scoped name (IDL 4.2 7.2.3 identifiers joined by ``::``), which is what DDS type names
+# are; IDL forbids a leading underscore in an unescaped identifier.
+TYPE_NAME_RE: Final = re.compile(r"[A-Za-z][A-Za-z0-9_]*(::[A-Za-z][A-Za-z0-9_]*)*")
+# DDS topic names: letters, digits, '_' and the '/' that ROS 2 and PX4 topic names use
+# ("rt/fmu/in/..."); no leading digit, no empty path segment.
+TOPIC_NAME_RE: Final = re.compile(r"[A-Za-z_/][A-Za-z0-9_/]*")
+MAX_NAME_CHARS: Final = 255
+MAX_HISTORY_DEPTH: Final = 100_000
+# entity keys are 24 bits and key 0 is reserved (endpoint_entity_id uses topic index + 1)
+MAX_TOPICS: Final = (1 << 24) - 2
+MAVLINK_SYSID_MIN: Final = 1  # 0 is MAVLink's broadcast id
+MAVLINK_SYSID_MAX: Final = 254  # 255 is the ground station by convention
+SELECTOR_ALL: Final = "all"
+RESERVED_NAMES: Final = frozenset({Role.COMMANDER.value, Role.MEMBER.value, SELECTOR_ALL})
+
+_TOP_FIELDS: Final = ("swarm", "domain_id", "discovery", "participants", "topics")
+_DISCOVERY_FIELDS: Final = ("t_min_s", "t_max_s", "lease_s")
+_PARTICIPANT_FIELDS: Final = ("name", "index", "role", "mavlink_sysid", "ipv4")
+_TOPIC_FIELDS: Final = (
+    "name",
+    "type",
+    "reliability",
+    "durability",
+    "history_depth",
+    "liveliness",
+    "liveliness_lease_s",
+    "writers",
+    "readers",
+)
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True, slots=True)
+class MissionParticipant:
+    name: str
+    index: int
+    role: Role
+    mavlink_sysid: int
+    ipv4: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class MissionTopic:
+    name: str
+    type_name: str
+    qos: Qos
+    index: int
+    writers: tuple[str, ...]  # participant names, mission order
+    readers: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Mission:
+    """A checked mission: every invariant the bundle relies on already holds."""
+
+    swarm: str
+    domain_id: int
+    discovery: DiscoveryParams
+    participants: tuple[MissionParticipant, ...]  # sorted by index
+    topics: tuple[MissionTopic, ...]  # mission order; the order keys the entity ids
+    source: str
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read and check a mission file; raises ``MissionError`` (one line) on any problem."""
+    file = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise MissionError(
+            file, None, "-", "file not found", "give the path of a mission YAML file"
+        ) from None
+    except UnicodeDecodeError as exc:
+        raise MissionError(
+            file, None, "-", f"not UTF-8 text ({exc.reason})", "save the mission as UTF-8"
+        ) from None
+    except OSError as exc:
+        raise MissionError(
+            file, None, "-", f"cannot read: {exc.strerror}", "check the path and permissions"
+        ) from None
+    return parse_mission(text, file)
+
+
+def parse_mission(text: str, file: str = "<mission>") -> Mission:
+    """Check a mission given as YAML text; ``file`` only labels the error messages."""
+    loader = yaml.SafeLoader(text)
+    try:
+        try:
+            root = loader.get_single_node()
+        except yaml.MarkedYAMLError as exc:
+            mark = exc.problem_mark or exc.context_mark
+            line = mark.line + 1 if mark is not None else None
+            problem = exc.problem or exc.context or "malformed YAML"
+            raise MissionError(
+                file,
+                line,
+                "<yaml>",
+                f"malformed YAML: {problem}",
+                "correct the YAML syntax at this line (indentation, ':' after keys, quotes)",
+            ) from None
+        except yaml.YAMLError as exc:
+            raise MissionError(
+                file, None, "<yaml>", f"malformed YAML: {exc}", "correct the YAML syntax"
+            ) from None
+        if root is None:
+            raise MissionError(
+                file, 1, "<document>", "the file is empty", "write a mission (see README)"
+            )
+        return _Checker(file, loader).mission(root)
+    finally:
+        loader.dispose()
+
+
+class _Checker:
+    """Walks the node tree once; the first problem raises ``MissionError``."""
+
+    def __init__(self, file: str, loader: yaml.SafeLoader) -> None:
+        self.file = file
+        self.loader = loader
+
+    # -- failure -------------------------------------------------------------------------
+
+    def fail(self, node: yaml.Node, field: str, problem: str, fix: str) -> NoReturn:
+        raise MissionError(self.file, node.start_mark.line + 1, field, problem, fix)
+
+    # -- node shapes ---------------------------------------------------------------------
+
+    def mapping(
+        self, node: yaml.Node, field: str, allowed: tuple[str, ...]
+    ) -> dict[str, tuple[yaml.Node, yaml.Node]]:
+        """Key name -> (key node, value node); rejects non-mappings, duplicate and unknown keys."""
+        if not isinstance(node, yaml.MappingNode):
+            self.fail(node, field, "expected a mapping (key: value lines)", "write it as a mapping")
+        out: dict[str, tuple[yaml.Node, yaml.Node]] = {}
+        for key_node, value_node in node.value:
+            key = self.loader.construct_object(key_node, deep=True)
+            path = f"{field}.{key}" if field != "<top>" else str(key)
+            if not isinstance(key, str):
+                self.fail(key_node, path, "keys must be strings", f"use one of {allowed}")
+            if key not in allowed:
+                self.fail(
+                    key_node,
+                    path,
+                    f"unknown field {key!r}",
+                    f"remove it or correct the spelling; known fields: {', '.join(allowed)}",
+                )
+            if key in out:
+                self.fail(
+                    key_node,
+                    path,
+                    "duplicate key (YAML would silently keep the last one)",
+                    "keep one",
+                )
+            out[key] = (key_node, value_node)
+        return out
+
+    def sequence(self, node: yaml.Node, field: str) -> list[yaml.Node]:
+        if not isinstance(node, yaml.SequenceNode):
+            self.fail(node, field, "expected a list", "write it as a YAML list ('- item' lines)")
+        items: list[yaml.Node] = node.value
+        return items
+
+    def scalar(self, node: yaml.Node, field: str) -> object:
+        if not isinstance(node, yaml.ScalarNode):
+            self.fail(node, field, "expected a single value", "write a plain value, not a list/map")
+        try:
+            return self.loader.construct_object(node, deep=True)
+        except yaml.YAMLError as exc:
+            self.fail(node, field, f"unreadable value ({exc})", "write a plain value")
+
+    def string(self, node: yaml.Node, field: str, what: str) -> str:
+        value = self.scalar(node, field)
+        if not isinstance(value, str) or not value:
+            self.fail(node, field, f"expected {what}, got {value!r}", f"write {what}")
+        return value
+
+    def integer(self, node: yaml.Node, field: str, low: int, high: int, fix: str) -> int:
+        value = self.scalar(node, field)
+        # bool is an int in Python, but "index: yes" is a mistake, not 1
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(node, field, f"expected an integer, got {value!r}", fix)
+        if not low <= value <= high:
+            self.fail(node, field, f"{value} is outside {low}..{high}", fix)
+        return value
+
+    def seconds(self, node: yaml.Node, field: str, *, nullable: bool = False) -> float | None:
+        value = self.scalar(node, field)
+        if value is None and nullable:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            self.fail(node, field, f"expected a duration in seconds, got {value!r}", "write e.g. 8")
+        ms = round(value * 1000)
+        # the bundle stores integer milliseconds, so a finer value would change silently
+        if not 0 < ms <= 86_400_000 or abs(value * 1000 - ms) > 1e-6:
+            self.fail(
+                node,
+                field,
+                f"{value} s is not a positive whole number of milliseconds up to one day",
+                "give a positive duration with at most 3 decimals",
+            )
+        return ms / 1000
+
+    def enum(self, node: yaml.Node, field: str, kind: Callable[[str], T], names: list[str]) -> T:
+        value = self.scalar(node, field)
+        if not isinstance(value, str) or value not in names:
+            self.fail(node, field, f"unknown value {value!r}", f"use one of: {', '.join(names)}")
+        return kind(value)
+
+    def required(
+        self, fields: dict[str, tuple[yaml.Node, yaml.Node]], owner: yaml.Node, path: str, key: str
+    ) -> yaml.Node:
+        if key not in fields:
+            where = f"{path}.{key}" if path != "<top>" else key
+            self.fail(owner, where, "missing required field", f"add '{key}:'")
+        return fields[key][1]
+
+    # -- the mission ---------------------------------------------------------------------
+
+    def mission(self, root: yaml.Node) -> Mission:
+        top = self.mapping(root, "<top>", _TOP_FIELDS)
+        swarm_node = self.required(top, root, "<top>", "swarm")
+        swarm = self.string(swarm_node, "swarm", "a swarm name")
+        if not NAME_RE.fullmatch(swarm):
+            self.fail(
+                swarm_node,
+                "swarm",
+                f"invalid swarm name {swarm!r}",
+                "use 1-64 letters, digits, '_', '.', '-', starting with a letter or digit",
+            )
+        domain_id = self.integer(
+            self.required(top, root, "<top>", "domain_id"),
+            "domain_id",
+            0,
+            MAX_DOMAIN_ID,
+            f"use a DDS domain id in 0..{MAX_DOMAIN_ID} (the RTPS port mapping's limit)",
+        )
+        discovery = self.discovery(top["discovery"][1]) if "discovery" in top else DiscoveryParams()
+        participants = self.participants(self.required(top, root, "<top>", "participants"), domain_id)
+        topics = self.topics(self.required(top, root, "<top>", "topics"), participants)
+        return Mission(
+            swarm=swarm,
+            domain_id=domain_id,
+            discovery=discovery,
+            participants=tuple(sorted(participants, key=lambda p: p.index)),
+            topics=tuple(topics),
+            source=self.file,
+        )
+
+    def discovery(self, node: yaml.Node) -> DiscoveryParams:
+        fields = self.mapping(node, "discovery", _DISCOVERY_FIELDS)
+        defaults = DiscoveryParams()
+        values: dict[str, float] = {}
+        for key in _DISCOVERY_FIELDS:
+            if key in fields:
+                seconds = self.seconds(fields[key][1], f"discovery.{key}")
+                assert seconds is not None  # noqa: S101 - seconds() returns None only if nullable
+                values[key] = seconds
+        params = DiscoveryParams(
+            t_min_s=values.get("t_min_s", defaults.t_min_s),
+            t_max_s=values.get("t_max_s", defaults.t_max_s),
+            lease_s=values.get("lease_s", defaults.lease_s),
+        )
+        if params.t_max_s < params.t_min_s:
+            bad = fields.get("t_max_s", fields.get("t_min_s"))
+            self.fail(
+                bad[1] if bad is not None else node,
+                "discovery.t_max_s",
+                f"Tmax {params.t_max_s} s is below Tmin {params.t_min_s} s",
+                "make t_max_s >= t_min_s (paper section 4.1 draws the timer in [Tmin, Tmax])",
+            )
+        return params
+
+    def participants(self, node: yaml.Node, domain_id: int) -> list[MissionParticipant]:
+        items = self.sequence(node, "participants")
+        if not items:
+            self.fail(node, "participants", "no participants", "list at least one participant")
+        out: list[MissionParticipant] = []
+        seen_name: dict[str, int] = {}
+        seen_index: dict[int, str] = {}
+        seen_sysid: dict[int, str] = {}
+        seen_ip: dict[str, str] = {}
+        top_index = max_participant_index(domain_id)
+        for i, item in enumerate(items):
+            path = f"participants[{i}]"
+            f = self.mapping(item, path, _PARTICIPANT_FIELDS)
+            name_node = self.required(f, item, path, "name")
+            name = self.string(name_node, f"{path}.name", "a participant name")
+            if not NAME_RE.fullmatch(name):
+                self.fail(
+                    name_node,
+                    f"{path}.name",
+                    f"invalid participant name {name!r}",
+                    "use 1-64 letters, digits, '_', '.', '-', starting with a letter or digit",
+                )
+            if name in RESERVED_NAMES:
+                self.fail(
+                    name_node,
+                    f"{path}.name",
+                    f"{name!r} is reserved for writers/readers selectors",
+                    "pick another name",
+                )
+            if name in seen_name:
+                self.fail(
+                    name_node,
+                    f"{path}.name",
+                    f"duplicate participant name {name!r} (also participants[{seen_name[name]}])",
+                    "give every participant a unique name",
+                )
+            seen_name[name] = i
+            index_node = self.required(f, item, path, "index")
+            index = self._participant_index(index_node, f"{path}.index", domain_id, top_index)
+            if index in seen_index:
+                self.fail(
+                    index_node,
+                    f"{path}.index",
+                    f"duplicate participant index {index} (also {seen_index[index]!r})",
+                    "give every participant a unique index",
+                )
+            seen_index[index] = name
+            role = self.enum(
+                self.required(f, item, path, "role"), f"{path}.role", Role, [r.value for r in Role]
+            )
+            sysid_node = self.required(f, item, path, "mavlink_sysid")
+            sysid = self.integer(
+                sysid_node,
+                f"{path}.mavlink_sysid",
+                MAVLINK_SYSID_MIN,
+                MAVLINK_SYSID_MAX,
+                "use the vehicle's MAV_SYS_ID, 1..254 (0 is broadcast, 255 the ground station)",
+            )
+            if sysid in seen_sysid:
+                self.fail(
+                    sysid_node,
+                    f"{path}.mavlink_sysid",
+                    f"duplicate MAVLink system id {sysid} (also {seen_sysid[sysid]!r})",
+                    "give every vehicle its own MAV_SYS_ID",
+                )
+            seen_sysid[sysid] = name
+            ipv4 = None
+            if "ipv4" in f and self.scalar(f["ipv4"][1], f"{path}.ipv4") is not None:
+                ipv4 = self._ipv4(f["ipv4"][1], f"{path}.ipv4")
+                if ipv4 in seen_ip:
+                    self.fail(
+                        f["ipv4"][1],
+                        f"{path}.ipv4",
+                        f"duplicate address {ipv4} (also {seen_ip[ipv4]!r})",
+                        "give every drone its own address or leave ipv4 out",
+                    )
+                seen_ip[ipv4] = name
+            out.append(MissionParticipant(name, index, role, sysid, ipv4))
+        return out
+
+    def _participant_index(self, node: yaml.Node, field: str, domain_id: int, top: int) -> int:
+        value = self.scalar(node, field)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            self.fail(node, field, f"expected an index >= 0, got {value!r}", "write e.g. 3")
+        if value > top:
+            port = PORT_BASE + DOMAIN_GAIN * domain_id + OFFSET_D3 + PARTICIPANT_GAIN * value
+            self.fail(
+                node,
+                field,
+                f"index {value} overflows the port range of domain {domain_id} "
+                f"(its user unicast port would be {port} > {MAX_PORT})",
+                f"use an index <= {top} in domain {domain_id}, or a lower domain_id",
+            )
+        return value
+
+    def _ipv4(self, node: yaml.Node, field: str) -> str:
+        value = self.scalar(node, field)
+        try:
+            address = ipaddress.IPv4Address(str(value))
+        except ValueError:
+            self.fail(node, field, f"{value!r} is not an IPv4 address", "write e.g. 10.42.0.11")
+        if address.is_multicast or address.is_unspecified or address == ipaddress.IPv4Address(
+            "255.255.255.255"
+        ):
+            self.fail(node, field, f"{address} is not a unicast address", "use the drone's address")
+        return str(address)
+
+    def topics(self, node: yaml.Node, participants: list[MissionParticipant]) -> list[MissionTopic]:
+        items = self.sequence(node, "topics")
+        if not items:
+            self.fail(node, "topics", "no topics", "list at least one topic")
+        if len(items) > MAX_TOPICS:
+            self.fail(node, "topics", f"{len(items)} topics", f"use at most {MAX_TOPICS}")
+        out: list[MissionTopic] = []
+        seen: dict[str, int] = {}
+        for i, item in enumerate(items):
+            path = f"topics[{i}]"
+            f = self.mapping(item, path, _TOPIC_FIELDS)
+            name_node = self.required(f, item, path, "name")
+            name = self.string(name_node, f"{path}.name", "a topic name")
+            if (
+                not TOPIC_NAME_RE.fullmatch(name)
+                or "//" in name
+                or name.endswith("/")
+                or len(name) > MAX_NAME_CHARS
+            ):
+                self.fail(
+                    name_node,
+                    f"{path}.name",
+                    f"{name!r} is not a valid DDS topic name",
+                    "use letters, digits, '_' and single '/' separators, no leading digit, "
+                    f"at most {MAX_NAME_CHARS} characters (e.g. swarm/ready)",
+                )
+            if name in seen:
+                self.fail(
+                    name_node,
+                    f"{path}.name",
+                    f"duplicate topic {name!r} (also topics[{seen[name]}])",
+                    "list each topic once; one entry can name several writers and readers",
+                )
+            seen[name] = i
+            type_node = self.required(f, item, path, "type")
+            type_name = self.string(type_node, f"{path}.type", "a DDS type name")
+            if not TYPE_NAME_RE.fullmatch(type_name) or len(type_name) > MAX_NAME_CHARS:
+                self.fail(
+                    type_node,
+                    f"{path}.type",
+                    f"{type_name!r} is not a valid DDS type name",
+                    "use an IDL scoped name: identifiers of letters, digits and '_' (starting "
+                    "with a letter) joined by '::', e.g. swarmd::Readiness",
+                )
+            qos = self.qos(f, path)
+            writers = self.selectors(f, item, path, "writers", participants)
+            readers = self.selectors(f, item, path, "readers", participants)
+            out.append(MissionTopic(name, type_name, qos, i, writers, readers))
+        return out
+
+    def qos(self, f: dict[str, tuple[yaml.Node, yaml.Node]], path: str) -> Qos:
+        default = Qos()
+        reliability = default.reliability
+        if "reliability" in f:
+            names = [r.value for r in Reliability]
+            reliability = self.enum(f["reliability"][1], f"{path}.reliability", Reliability, names)
+        durability = default.durability
+        if "durability" in f:
+            names = [d.value for d in Durability]
+            durability = self.enum(f["durability"][1], f"{path}.durability", Durability, names)
+        depth = default.history_depth
+        if "history_depth" in f:
+            depth = self.integer(
+                f["history_depth"][1],
+                f"{path}.history_depth",
+                1,
+                MAX_HISTORY_DEPTH,
+                f"use a KEEP_LAST depth in 1..{MAX_HISTORY_DEPTH}",
+            )
+        liveliness = default.liveliness
+        if "liveliness" in f:
+            names = [v.value for v in Liveliness]
+            liveliness = self.enum(f["liveliness"][1], f"{path}.liveliness", Liveliness, names)
+        lease = default.liveliness_lease_s
+        if "liveliness_lease_s" in f:
+            lease = self.seconds(
+                f["liveliness_lease_s"][1], f"{path}.liveliness_lease_s", nullable=True
+            )
+        return Qos(reliability, durability, depth, liveliness, lease)
+
+    def selectors(
+        self,
+        f: dict[str, tuple[yaml.Node, yaml.Node]],
+        owner: yaml.Node,
+        path: str,
+        key: str,
+        participants: list[MissionParticipant],
+    ) -> tuple[str, ...]:
+        field = f"{path}.{key}"
+        node = self.required(f, owner, path, key)
+        entries: list[tuple[yaml.Node, object]]
+        if isinstance(node, yaml.SequenceNode):
+            entries = [(n, self.scalar(n, field)) for n in node.value]
+        else:
+            entries = [(node, self.scalar(node, field))]
+        by_name = {p.name: p for p in participants}
+        chosen: set[str] = set()
+        for entry_node, value in entries:
+            if value == SELECTOR_ALL:
+                chosen.update(by_name)
+            elif value in (Role.COMMANDER.value, Role.MEMBER.value):
+                chosen.update(p.name for p in participants if p.role.value == value)
+            elif isinstance(value, str) and value in by_name:
+                chosen.add(value)
+            else:
+                self.fail(
+                    entry_node,
+                    field,
+                    f"{value!r} is neither a role nor a participant name",
+                    "use 'commander', 'member', 'all' or a participant's name",
+                )
+        if not chosen:
+            verb = "written" if key == "writers" else "read"
+            self.fail(
+                node,
+                field,
+                f"the topic is {verb} by nobody (the selectors match no participant)",
+                f"name at least one participant or a role that some participant has in '{key}'",
+            )
+        return tuple(p.name for p in participants if p.name in chosen)
+
