@@ -36,7 +36,9 @@ class Reader:
     def _need(self, n: int, what: str) -> int:
         pos = self.pos
         if n < 0 or pos + n > self.end:
-            raise DecodeError(f"truncated {what}: need {n} bytes at offset {pos}, have {self.end - pos}")
+            raise DecodeError(
+                f"truncated {what}: need {n} bytes at offset {pos}, have {self.end - pos}"
+            )
         self.pos = pos + n
         return pos
 

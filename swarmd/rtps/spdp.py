@@ -15,6 +15,7 @@ Invariant: ``decode_spdp`` raises ``DecodeError`` and nothing else, for any inpu
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -43,6 +44,7 @@ from swarmd.rtps.parameters import (
     pull_parameter_list,
     push_parameter_list,
     value_duration,
+    value_i32,
     value_locator,
     value_octets,
     value_properties,
@@ -90,45 +92,11 @@ STATUS_INFO_UNREGISTERED: Final = 0x02
 PID_SWARMD_BUNDLE_DIGEST: Final = 0x8A01
 PID_SWARMD_HEARD: Final = 0x8A02
 PID_SWARMD_LINK_QUALITY: Final = 0x8A03
-SWARMD_PIDS: Final = frozenset({PID_SWARMD_BUNDLE_DIGEST, PID_SWARMD_HEARD, PID_SWARMD_LINK_QUALITY})
-
-MAX_LINK_QUALITY_PERMILLE: Final = 1000
-
-# PIDs that SpdpParticipant models as fields; anything else lands in extra_parameters
-_MODELLED: Final = frozenset(
-    {
-        Pid.PROTOCOL_VERSION,
-        Pid.VENDORID,
-        Pid.DOMAIN_ID,
-        Pid.DOMAIN_TAG,
-        Pid.PARTICIPANT_GUID,
-        Pid.METATRAFFIC_UNICAST_LOCATOR,
-        Pid.METATRAFFIC_MULTICAST_LOCATOR,
-        Pid.DEFAULT_UNICAST_LOCATOR,
-        Pid.DEFAULT_MULTICAST_LOCATOR,
-        Pid.PARTICIPANT_LEASE_DURATION,
-        Pid.BUILTIN_ENDPOINT_SET,
-        Pid.PARTICIPANT_BUILTIN_ENDPOINTS,
-        Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT,
-        Pid.ENTITY_NAME,
-        Pid.USER_DATA,
-        Pid.PROPERTY_LIST,
-    }
+SWARMD_PIDS: Final = frozenset(
+    {PID_SWARMD_BUNDLE_DIGEST, PID_SWARMD_HEARD, PID_SWARMD_LINK_QUALITY}
 )
 
-
-_SINGULAR_FIELDS: Final[dict[int, str]] = {
-    Pid.PROTOCOL_VERSION: "protocol_version",
-    Pid.VENDORID: "vendor_id",
-    Pid.DOMAIN_ID: "domain_id",
-    Pid.DOMAIN_TAG: "domain_tag",
-    Pid.PARTICIPANT_LEASE_DURATION: "lease_duration",
-    Pid.BUILTIN_ENDPOINT_SET: "builtin_endpoints",
-    Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT: "manual_liveliness_count",
-    Pid.ENTITY_NAME: "entity_name",
-    Pid.USER_DATA: "user_data",
-    Pid.PROPERTY_LIST: "properties",
-}
+MAX_LINK_QUALITY_PERMILLE: Final = 1000
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,13 +150,17 @@ class SpdpParticipant:
             (Pid.DEFAULT_MULTICAST_LOCATOR, self.default_multicast_locators),
         ):
             out.extend(Parameter(pid, pack_locator(loc, little)) for loc in locators)
-        out.append(Parameter(Pid.PARTICIPANT_LEASE_DURATION, pack_duration(self.lease_duration, little)))
+        out.append(
+            Parameter(Pid.PARTICIPANT_LEASE_DURATION, pack_duration(self.lease_duration, little))
+        )
         out.append(Parameter(Pid.BUILTIN_ENDPOINT_SET, pack_u32(self.builtin_endpoints, little)))
         if self.manual_liveliness_count is not None:
             out.append(
                 Parameter(
                     Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT,
-                    self.manual_liveliness_count.to_bytes(4, "little" if little else "big", signed=True),
+                    self.manual_liveliness_count.to_bytes(
+                        4, "little" if little else "big", signed=True
+                    ),
                 )
             )
         if self.entity_name is not None:
@@ -203,102 +175,114 @@ class SpdpParticipant:
         if self.heard is not None:
             out.append(Parameter(PID_SWARMD_HEARD, pack_octets(self.heard, little)))
         if self.link_quality_permille is not None:
-            out.append(Parameter(PID_SWARMD_LINK_QUALITY, pack_u32(self.link_quality_permille, little)))
+            out.append(
+                Parameter(PID_SWARMD_LINK_QUALITY, pack_u32(self.link_quality_permille, little))
+            )
         return tuple(out)
 
     @classmethod
     def from_parameters(cls, plist: ParameterList) -> SpdpParticipant:
-        """Interpret a DATA(p) parameter list. Raises ``DecodeError`` only."""
+        """Interpret a DATA(p) parameter list. Raises ``DecodeError`` only.
+
+        A repeated singular PID keeps its first value, as Cyclone does; locator PIDs repeat.
+        """
         little = plist.little
-        guid_prefix: GuidPrefix | None = None
         kw: dict[str, object] = {}
-        meta_uc: list[Locator] = []
-        meta_mc: list[Locator] = []
-        def_uc: list[Locator] = []
-        def_mc: list[Locator] = []
+        locators: dict[str, list[Locator]] = {}
         extras: list[Parameter] = []
         vendor_params: list[Parameter] = []
-        legacy_bes: int | None = None
         for p in plist.params:
-            pid = p.pid
-            if pid not in _MODELLED:
-                (vendor_params if pid in SWARMD_PIDS else extras).append(p)
+            handler = _FIELD_DECODERS.get(p.pid)
+            if handler is None:
+                (vendor_params if p.pid in SWARMD_PIDS else extras).append(p)
                 continue
-            if pid in _SINGULAR_FIELDS and _SINGULAR_FIELDS[pid] in kw:
-                continue  # a repeated singular PID: the first one wins, as in Cyclone
-            if pid == Pid.PARTICIPANT_GUID:
-                if guid_prefix is None:
-                    if len(p.value) < 16:
-                        raise DecodeError(f"PID_PARTICIPANT_GUID has {len(p.value)} bytes")
-                    guid_prefix = GuidPrefix(p.value[:12])
-            elif pid == Pid.PROTOCOL_VERSION:
-                if len(p.value) < 2:
-                    raise DecodeError("PID_PROTOCOL_VERSION too short")
-                kw["protocol_version"] = ProtocolVersion(p.value[0], p.value[1])
-            elif pid == Pid.VENDORID:
-                if len(p.value) < 2:
-                    raise DecodeError("PID_VENDORID too short")
-                kw["vendor_id"] = VendorId(p.value[:2])
-            elif pid == Pid.DOMAIN_ID:
-                kw["domain_id"] = value_u32(p, little)
-            elif pid == Pid.DOMAIN_TAG:
-                kw["domain_tag"] = value_string(p, little)
-            elif pid == Pid.METATRAFFIC_UNICAST_LOCATOR:
-                meta_uc.append(value_locator(p, little))
-            elif pid == Pid.METATRAFFIC_MULTICAST_LOCATOR:
-                meta_mc.append(value_locator(p, little))
-            elif pid == Pid.DEFAULT_UNICAST_LOCATOR:
-                def_uc.append(value_locator(p, little))
-            elif pid == Pid.DEFAULT_MULTICAST_LOCATOR:
-                def_mc.append(value_locator(p, little))
-            elif pid == Pid.PARTICIPANT_LEASE_DURATION:
-                kw["lease_duration"] = value_duration(p, little)
-            elif pid == Pid.BUILTIN_ENDPOINT_SET:
-                kw["builtin_endpoints"] = value_u32(p, little)
-            elif pid == Pid.PARTICIPANT_BUILTIN_ENDPOINTS:
-                legacy_bes = value_u32(p, little) if legacy_bes is None else legacy_bes
-            elif pid == Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT:
-                kw["manual_liveliness_count"] = Reader(p.value, little=little).pull_i32("count")
-            elif pid == Pid.ENTITY_NAME:
-                kw["entity_name"] = value_string(p, little)
-            elif pid == Pid.USER_DATA:
-                kw["user_data"] = value_octets(p, little)
-            elif pid == Pid.PROPERTY_LIST:
-                kw["properties"] = value_properties(p, little)
-        if guid_prefix is None:
+            name, decode = handler
+            if name in _LOCATOR_FIELDS:
+                locators.setdefault(name, []).append(value_locator(p, little))
+            elif name not in kw:
+                kw[name] = decode(p, little)
+        guid = kw.pop("guid_prefix", None)
+        if not isinstance(guid, GuidPrefix):
             raise DecodeError("DATA(p) without PID_PARTICIPANT_GUID")
-        if "builtin_endpoints" not in kw and legacy_bes is not None:
-            kw["builtin_endpoints"] = legacy_bes
-        kw.setdefault("builtin_endpoints", 0)
+        legacy_bes = kw.pop("legacy_builtin_endpoints", None)
+        if "builtin_endpoints" not in kw:
+            kw["builtin_endpoints"] = legacy_bes if legacy_bes is not None else 0
         # Absent PID_DOMAIN_ID means "the receiver's own domain" (spec 9.6.2.2)
         kw.setdefault("domain_id", None)
-        vendor = kw.get("vendor_id")
-        if vendor == VENDORID_SWARMD:
+        for name, values in locators.items():
+            kw[name] = tuple(values)
+        if kw.get("vendor_id") == VENDORID_SWARMD:
             for p in vendor_params:
-                if p.pid == PID_SWARMD_BUNDLE_DIGEST and "bundle_digest" not in kw:
-                    kw["bundle_digest"] = value_octets(p, little)
-                elif p.pid == PID_SWARMD_HEARD and "heard" not in kw:
-                    kw["heard"] = value_octets(p, little)
-                elif p.pid == PID_SWARMD_LINK_QUALITY and "link_quality_permille" not in kw:
-                    q = value_u32(p, little)
-                    if q > MAX_LINK_QUALITY_PERMILLE:
-                        raise DecodeError(f"swarmd link quality {q} exceeds {MAX_LINK_QUALITY_PERMILLE}")
-                    kw["link_quality_permille"] = q
-        else:
+                name, decode = _SWARMD_DECODERS[p.pid]
+                if name not in kw:
+                    kw[name] = decode(p, little)
+        elif vendor_params:
             # another vendor's 0x8A0x PIDs mean something else to it: keep them opaque
             extras.extend(vendor_params)
-            extras.sort(key=lambda p: plist.params.index(p))
-        return cls(
-            guid_prefix,
-            metatraffic_unicast_locators=tuple(meta_uc),
-            metatraffic_multicast_locators=tuple(meta_mc),
-            default_unicast_locators=tuple(def_uc),
-            default_multicast_locators=tuple(def_mc),
-            extra_parameters=tuple(extras),
-            **kw,  # type: ignore[arg-type]
-        )
+            extras.sort(key=plist.params.index)
+        return cls(guid, extra_parameters=tuple(extras), **kw)  # type: ignore[arg-type]
 
 
+def _decode_guid_prefix(p: Parameter, little: bool) -> GuidPrefix:
+    if len(p.value) < 16:
+        raise DecodeError(f"PID_PARTICIPANT_GUID has {len(p.value)} bytes, needs 16")
+    return GuidPrefix(p.value[:12])
+
+
+def _decode_protocol_version(p: Parameter, little: bool) -> ProtocolVersion:
+    if len(p.value) < 2:
+        raise DecodeError("PID_PROTOCOL_VERSION too short")
+    return ProtocolVersion(p.value[0], p.value[1])
+
+
+def _decode_vendor_id(p: Parameter, little: bool) -> VendorId:
+    if len(p.value) < 2:
+        raise DecodeError("PID_VENDORID too short")
+    return VendorId(p.value[:2])
+
+
+def _decode_link_quality(p: Parameter, little: bool) -> int:
+    q = value_u32(p, little)
+    if q > MAX_LINK_QUALITY_PERMILLE:
+        raise DecodeError(f"swarmd link quality {q} exceeds {MAX_LINK_QUALITY_PERMILLE}")
+    return q
+
+
+_Decoder = Callable[[Parameter, bool], object]
+_LOCATOR_FIELDS: Final = frozenset(
+    {
+        "metatraffic_unicast_locators",
+        "metatraffic_multicast_locators",
+        "default_unicast_locators",
+        "default_multicast_locators",
+    }
+)
+# PID -> (SpdpParticipant field, decoder). Dispatch by dict: one lookup per parameter.
+_FIELD_DECODERS: Final[dict[int, tuple[str, _Decoder]]] = {
+    Pid.PARTICIPANT_GUID: ("guid_prefix", _decode_guid_prefix),
+    Pid.PROTOCOL_VERSION: ("protocol_version", _decode_protocol_version),
+    Pid.VENDORID: ("vendor_id", _decode_vendor_id),
+    Pid.DOMAIN_ID: ("domain_id", value_u32),
+    Pid.DOMAIN_TAG: ("domain_tag", value_string),
+    Pid.METATRAFFIC_UNICAST_LOCATOR: ("metatraffic_unicast_locators", value_locator),
+    Pid.METATRAFFIC_MULTICAST_LOCATOR: ("metatraffic_multicast_locators", value_locator),
+    Pid.DEFAULT_UNICAST_LOCATOR: ("default_unicast_locators", value_locator),
+    Pid.DEFAULT_MULTICAST_LOCATOR: ("default_multicast_locators", value_locator),
+    Pid.PARTICIPANT_LEASE_DURATION: ("lease_duration", value_duration),
+    Pid.BUILTIN_ENDPOINT_SET: ("builtin_endpoints", value_u32),
+    Pid.PARTICIPANT_BUILTIN_ENDPOINTS: ("legacy_builtin_endpoints", value_u32),
+    Pid.PARTICIPANT_MANUAL_LIVELINESS_COUNT: ("manual_liveliness_count", value_i32),
+    Pid.ENTITY_NAME: ("entity_name", value_string),
+    Pid.USER_DATA: ("user_data", value_octets),
+    Pid.PROPERTY_LIST: ("properties", value_properties),
+}
+_SWARMD_DECODERS: Final[dict[int, tuple[str, _Decoder]]] = {
+    PID_SWARMD_BUNDLE_DIGEST: ("bundle_digest", value_octets),
+    PID_SWARMD_HEARD: ("heard", value_octets),
+    PID_SWARMD_LINK_QUALITY: ("link_quality_permille", _decode_link_quality),
+}
+# PIDs that SpdpParticipant models as fields; anything else lands in extra_parameters
+_MODELLED: Final = frozenset(_FIELD_DECODERS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -369,7 +353,8 @@ def _spdp_sample(
     if participant.guid_prefix != header.guid_prefix:
         # Cyclone ignores such a sample too ("mismatch with RTPS source", ddsi_discovery_spdp.c)
         raise DecodeError(
-            f"participant GUID {participant.guid_prefix} differs from RTPS source {header.guid_prefix}"
+            f"participant GUID {participant.guid_prefix} differs from RTPS source "
+            f"{header.guid_prefix}"
         )
     return SpdpAlive(participant, data.writer_sn, destination, timestamp)
 
@@ -395,13 +380,17 @@ def decode_spdp(datagram: bytes) -> tuple[Header, list[SpdpSample]]:
         return message.header, samples
     except DecodeError:
         raise
-    except (ValueError, IndexError, struct.error, OverflowError, TypeError) as exc:  # pragma: no cover
+    except (
+        ValueError,
+        IndexError,
+        struct.error,
+        OverflowError,
+        TypeError,
+    ) as exc:  # pragma: no cover
         raise DecodeError(f"malformed SPDP message: {exc}") from None
 
 
-def _prefix_submessages(
-    destination: GuidPrefix | None, timestamp: Time | None
-) -> list[Submessage]:
+def _prefix_submessages(destination: GuidPrefix | None, timestamp: Time | None) -> list[Submessage]:
     out: list[Submessage] = []
     if destination is not None:
         out.append(InfoDst(destination))

@@ -1,0 +1,51 @@
+"""swarmd's own golden SPDP packets: the participant they encode and how to regenerate them.
+
+The ``.bin`` files under ``tests/fixtures/swarmd/`` were produced by
+``python -m tests.golden_swarmd`` and checked by tshark (see tests/test_tshark.py); the
+golden tests assert that today's encoder still produces exactly these bytes, so any wire
+change is deliberate.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from swarmd.rtps import Duration, GuidPrefix, Locator, SpdpParticipant, Time, encode_spdp
+from swarmd.rtps.spdp import encode_spdp_dispose
+
+FIXTURES = Path(__file__).parent / "fixtures" / "swarmd"
+PREFIX = GuidPrefix(bytes.fromhex("5357968cdf45098f00000003"))
+PEER = GuidPrefix(bytes.fromhex("5357968cdf45098f00000001"))
+TIMESTAMP = Time(1795247086, 0x80000000)
+
+PARTICIPANT = SpdpParticipant(
+    guid_prefix=PREFIX,
+    domain_id=0,
+    metatraffic_unicast_locators=(Locator.udpv4("10.77.0.3", 7416),),
+    metatraffic_multicast_locators=(Locator.udpv4("239.255.0.1", 7400),),
+    default_unicast_locators=(Locator.udpv4("10.77.0.3", 7417),),
+    lease_duration=Duration(20, 0),
+    entity_name="alpha/uav3",
+    bundle_digest=bytes(range(16)),
+    heard=bytes([0b0000_0101]),
+    link_quality_permille=830,
+)
+
+PACKETS: dict[str, bytes] = {
+    "spdp-alive.bin": encode_spdp(PARTICIPANT, sequence_number=1, timestamp=TIMESTAMP),
+    "spdp-directed.bin": encode_spdp(
+        PARTICIPANT, sequence_number=2, timestamp=TIMESTAMP, destination=PEER
+    ),
+    "spdp-dispose.bin": encode_spdp_dispose(PREFIX, sequence_number=3, timestamp=TIMESTAMP),
+}
+
+
+def main() -> None:
+    FIXTURES.mkdir(parents=True, exist_ok=True)
+    for name, data in PACKETS.items():
+        (FIXTURES / name).write_bytes(data)
+        print(f"wrote {FIXTURES / name} ({len(data)} bytes)")
+
+
+if __name__ == "__main__":
+    main()
