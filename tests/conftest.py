@@ -1,0 +1,75 @@
+"""Shared fixtures.
+
+netns: ``lan_factory`` builds isolated LANs of network namespaces (``swarmd.netns.Lan``)
+and removes them after the test, failing the test if any namespace leaked; tests that
+use it carry ``@pytest.mark.netns`` and are skipped, with the reason, when not root or
+without iproute2. ``cyclone_factory`` starts stock Cyclone DDS participants in them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from swarmd.netns import Lan, Namespace, cleanup_dead_runs, list_namespaces, unavailable_reason
+from tests.peers.cyclone import CyclonePeer
+
+LanFactory = Callable[..., Lan]
+CycloneFactory = Callable[[Namespace], CyclonePeer]
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    if item.get_closest_marker("netns") is not None:
+        reason = unavailable_reason()
+        if reason is not None:
+            pytest.skip(reason)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _sweep_dead_namespaces() -> None:
+    """Remove namespaces left by killed earlier runs (only those whose creator is gone)."""
+    if unavailable_reason() is None:
+        cleanup_dead_runs()
+
+
+@pytest.fixture
+def lan_factory() -> Iterator[LanFactory]:
+    """``make(n, subnet=None) -> Lan``: an entered LAN of n hosts, closed after the test."""
+    lans: list[Lan] = []
+
+    def make(size: int, subnet: str | None = None) -> Lan:
+        lan = Lan(size, subnet=subnet)
+        lans.append(lan)
+        return lan.__enter__()
+
+    yield make
+    for lan in reversed(lans):
+        lan.close()
+    leaked = [n for n in list_namespaces() for lan in lans if n.startswith(lan.prefix + "-")]
+    assert not leaked, f"network namespaces leaked: {leaked}"
+
+
+@pytest.fixture
+def lan2(lan_factory: LanFactory) -> Lan:
+    """Two hosts on one bridge: ``lan2[0]`` (10.77.X.1) and ``lan2[1]`` (10.77.X.2)."""
+    return lan_factory(2)
+
+
+@pytest.fixture
+def cyclone_factory(tmp_path: Path, lan_factory: LanFactory) -> Iterator[CycloneFactory]:
+    """``start(ns) -> CyclonePeer``: a running stock Cyclone participant, stopped after the test.
+
+    Depends on ``lan_factory`` so the peers stop (and send DATA(p[UD])) before the LAN goes.
+    """
+    peers: list[CyclonePeer] = []
+
+    def start(ns: Namespace) -> CyclonePeer:
+        peer = CyclonePeer(ns, tmp_path / f"cyclone-{len(peers)}.trace")
+        peers.append(peer)
+        return peer.start()
+
+    yield start
+    for peer in peers:
+        peer.stop()
