@@ -192,5 +192,7 @@ def _prefix_index(bundle: Bundle, prefix: GuidPrefix) -> int | None:
 
 def endpoint_entity_id(topic_index: int, kind: EndpointKind) -> EntityId:
     """Entity key = topic index + 1 (24 bits); kind byte = keyless writer/reader (spec 9.3.1.2)."""
-    entity_kind = EntityKind.WRITER_NO_KEY if kind == EndpointKind.WRITER else EntityKind.READER_NO_KEY
+    entity_kind = (
+        EntityKind.WRITER_NO_KEY if kind == EndpointKind.WRITER else EntityKind.READER_NO_KEY
+    )
     return EntityId.user(topic_index + 1, entity_kind)
