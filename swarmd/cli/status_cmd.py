@@ -1,11 +1,198 @@
-"""``swarmctl status | peers | watch``: ask the local daemon over its control socket."""
+"""``swarmctl status | peers | watch``: ask the local daemon over its control socket.
+
+A daemon that is not running gives one line on stderr and exit code 2. ``--json`` prints
+the daemon's status object unchanged (schema in docs/operations.md), for scripts and
+``ssh drone swarmctl status --json | jq``.
+"""
 
 from __future__ import annotations
 
 import argparse
-from typing import Any
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any, Final, TextIO
+
+from swarmd.config import DEFAULT_SOCKET
+from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+
+EXIT_OK: Final = 0
+EXIT_UNREACHABLE: Final = 2
+SOCKET_ENV: Final = "SWARMD_SOCKET"
+CLEAR_SCREEN: Final = "\x1b[H\x1b[2J"
 
 
 def register(sub: Any) -> None:
-    parser: argparse.ArgumentParser = sub.add_parser("status", help="show this drone's discovery state")
-    parser.set_defaults(func=lambda _args: (parser.print_help(), 2)[1])
+    status = sub.add_parser("status", help="show this drone's discovery state")
+    _common(status)
+    status.set_defaults(func=_status)
+    peers = sub.add_parser("peers", help="list the bundle's peers and their discovery state")
+    _common(peers)
+    peers.set_defaults(func=_peers)
+    watch = sub.add_parser("watch", help="refresh the status until interrupted")
+    _common(watch)
+    watch.add_argument(
+        "--interval", type=float, default=1.0, metavar="S", help="seconds between refreshes"
+    )
+    watch.add_argument(
+        "--count", type=int, default=0, metavar="N", help="stop after N refreshes (0 = never)"
+    )
+    watch.set_defaults(func=_watch)
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--socket",
+        default=os.environ.get(SOCKET_ENV, DEFAULT_SOCKET),
+        metavar="PATH",
+        help=f"daemon control socket (default ${SOCKET_ENV} or {DEFAULT_SOCKET})",
+    )
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _fail(message: str) -> int:
+    print(f"swarmctl: {message}", file=sys.stderr)
+    return EXIT_UNREACHABLE
+
+
+def _status(args: argparse.Namespace) -> int:
+    try:
+        with ControlClient(args.socket) as client:
+            status = client.request("status")
+    except (DaemonUnreachable, RequestError) as exc:
+        return _fail(str(exc))
+    _print_status(status, args.json, sys.stdout)
+    return EXIT_OK
+
+
+def _peers(args: argparse.Namespace) -> int:
+    try:
+        with ControlClient(args.socket) as client:
+            status = client.request("status")
+    except (DaemonUnreachable, RequestError) as exc:
+        return _fail(str(exc))
+    peers = status.get("peers", []) if isinstance(status, dict) else []
+    if args.json:
+        print(json.dumps(peers, indent=2))
+    else:
+        print("\n".join(render_peers(peers)))
+    return EXIT_OK
+
+
+def _watch(args: argparse.Namespace) -> int:
+    frames = 0
+    tty = sys.stdout.isatty()
+    try:
+        with ControlClient(args.socket) as client:
+            while True:
+                status = client.request("status")
+                if tty and not args.json:
+                    sys.stdout.write(CLEAR_SCREEN)
+                _print_status(status, args.json, sys.stdout, compact_json=True)
+                sys.stdout.flush()
+                frames += 1
+                if args.count and frames >= args.count:
+                    return EXIT_OK
+                time.sleep(max(0.1, args.interval))
+    except (DaemonUnreachable, RequestError) as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        return EXIT_OK
+
+
+def _print_status(status: Any, as_json: bool, out: TextIO, *, compact_json: bool = False) -> None:
+    if as_json:
+        out.write(json.dumps(status, indent=None if compact_json else 2) + "\n")
+    else:
+        out.write("\n".join(render_status(status if isinstance(status, dict) else {})) + "\n")
+
+
+# -- rendering (pure: status dict -> lines) ----------------------------------------------
+
+
+def _num(value: Any, fmt: str, unit: str = "") -> str:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return "-"
+    return f"{value:{fmt}}{unit}"
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], indent: str = "  ") -> list[str]:
+    widths = [
+        max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(headers)
+    ]
+    lines = [indent + "  ".join(h.ljust(w) for h, w in zip(headers, widths, strict=True)).rstrip()]
+    for row in rows:
+        cells = (c.ljust(w) for c, w in zip(row, widths, strict=True))
+        lines.append(indent + "  ".join(cells).rstrip())
+    return lines
+
+
+def _yes_no(value: Any) -> str:
+    return "yes" if value is True else "no" if value is False else "-"
+
+
+def render_peers(peers: Sequence[Any]) -> list[str]:
+    """The peer table: name, state, last heard, locator, matched endpoints."""
+    rows = []
+    for p in peers:
+        if not isinstance(p, dict):
+            continue
+        rows.append(
+            [
+                str(p.get("name", "?")),
+                str(p.get("state", "?")),
+                _num(p.get("last_heard_s"), ".1f", " s ago"),
+                str(p.get("locator") or "-"),
+                _num(p.get("matched_endpoints"), "d"),
+                _yes_no(p.get("lists_me")),
+            ]
+        )
+    return _table(["PEER", "STATE", "LAST HEARD", "LOCATOR", "ENDPOINTS", "HEARS ME"], rows)
+
+
+def render_status(status: dict[str, Any]) -> list[str]:
+    """The human view of ``swarmctl status``."""
+    link = status.get("link") or {}
+    lines = [
+        f"node {status.get('node', '?')}  swarm {status.get('swarm', '?')}  "
+        f"phase {status.get('phase', '?')}  mode {status.get('mode', '?')}",
+        f"link Q {_num(link.get('q'), '.2f')}  SNR {_num(link.get('snr_db'), '.1f', ' dB')}  "
+        f"source {link.get('source') or '-'}",
+    ]
+    timer = status.get("passive_timer_s")
+    lines.append(
+        "passive timer: " + (f"{_num(timer, '.1f')} s remaining" if timer is not None else "-")
+    )
+    peers = [p for p in status.get("peers", []) if isinstance(p, dict)]
+    found = status.get("peers_discovered", sum(p.get("state") == "discovered" for p in peers))
+    total = status.get("peers_total", len(peers))
+    lines.append(f"peers discovered {found}/{total}")
+    if peers:
+        lines += render_peers(peers)
+    foreign = [f for f in status.get("foreign", []) if isinstance(f, dict)]
+    lines.append(f"foreign participants {len(foreign)}")
+    if foreign:
+        rows = [
+            [str(f.get("guid", "?")), str(f.get("vendor", "?")), str(f.get("name") or "-")]
+            for f in foreign
+        ]
+        lines += _table(["GUID", "VENDOR", "NAME"], rows)
+    lines.append(render_counters(status.get("counters") or {}))
+    return lines
+
+
+def render_counters(counters: dict[str, Any]) -> str:
+    dropped = counters.get("dropped") or {}
+    drops = (
+        {k: v for k, v in dropped.items() if isinstance(v, int) and v}
+        if isinstance(dropped, dict)
+        else {}
+    )
+    detail = ", ".join(f"{k} {v}" for k, v in sorted(drops.items()))
+    return (
+        f"packets in {counters.get('rx_datagrams', 0)}  out {counters.get('tx_datagrams', 0)} "
+        f"(multicast {counters.get('tx_multicast', 0)}, unicast {counters.get('tx_unicast', 0)})  "
+        f"dropped {sum(drops.values())}" + (f" ({detail})" if detail else "")
+    )

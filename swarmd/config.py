@@ -1,0 +1,412 @@
+"""The daemon's configuration file (``swarmd run --config FILE``), checked field by field.
+
+The documented default is ``config/swarmd.yaml``. Checking walks PyYAML's composed node tree
+(the plain loaded dict has no line numbers), so every rejection is one line of the form
+``FILE:LINE: field PATH: problem; fix: ...`` and the daemon stops with exit 78 (EX_CONFIG)
+before it opens a socket. Relative paths are taken relative to the config file's folder.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final, NoReturn
+
+import yaml
+
+EX_CONFIG: Final = 78  # sysexits.h: configuration error
+
+LINK_SOURCES: Final = ("nl80211", "wext", "file", "static")
+ENGINE_MODES: Final = ("paper", "adaptive")
+LOG_LEVELS: Final = ("debug", "info", "warning", "error")
+LOG_FORMATS: Final = ("auto", "json", "console")
+DEFAULT_SOCKET: Final = "/run/swarmd/swarmd.sock"
+DEFAULT_BUNDLE: Final = "/var/lib/swarmd/bundle.swb"
+MIN_POLL_S: Final = 0.05  # faster polling would only burn CPU: drivers average over ~1 s
+MAX_POLL_S: Final = 60.0
+
+
+class ConfigError(ValueError):
+    """A config file the daemon refuses; ``str()`` is one line naming file, line, field, fix."""
+
+    def __init__(self, file: str, line: int | None, field: str, problem: str, fix: str) -> None:
+        self.file = file
+        self.line = line
+        self.field = field
+        self.problem = problem
+        self.fix = fix
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}" if self.line is not None else self.file
+        return " ".join(f"{where}: field {self.field}: {self.problem}; fix: {self.fix}".split())
+
+
+@dataclass(frozen=True, slots=True)
+class BundleConfig:
+    path: str = DEFAULT_BUNDLE
+    trusted_key: str | None = None  # swarm-signing.pub (PEM or hex)
+    expected_sha256: bytes | None = None  # a pinned content hash, the other trust anchor
+    allow_dev: bool = False  # accept --unsigned-dev bundles (lab benches only)
+
+
+@dataclass(frozen=True, slots=True)
+class LinkConfig:
+    sources: tuple[str, ...] = ("nl80211", "wext", "static")
+    poll_interval_s: float = 1.0
+    file: str = "/run/swarmd/link.json"
+    file_max_age_s: float | None = None
+    wext_path: str = "/proc/net/wireless"
+    wext_max_quality: float = 70.0
+    static_q: float = 0.5
+    snr_floor_db: float = 0.0  # paper eq. 2 as printed; 25 for the text's 25-40 dB reading
+
+
+@dataclass(frozen=True, slots=True)
+class DaemonConfig:
+    """A checked daemon config. ``lines`` maps a field path to its line, for later errors."""
+
+    file: str
+    node: str
+    interface: str
+    bundle: BundleConfig = BundleConfig()
+    ipv4: str | None = None  # None: the interface's first IPv4 address
+    control_socket: str = DEFAULT_SOCKET
+    control_socket_mode: int = 0o660
+    link: LinkConfig = LinkConfig()
+    engine_mode: str = "adaptive"
+    engine_overrides: dict[str, float] = field(default_factory=dict)
+    log_level: str = "info"
+    log_format: str = "auto"
+    lines: dict[str, int] = field(default_factory=dict, compare=False, repr=False)
+
+    def error(self, path: str, problem: str, fix: str) -> ConfigError:
+        """A ``ConfigError`` pointing at ``path``'s line (for checks made after loading)."""
+        return ConfigError(self.file, self.lines.get(path), path, problem, fix)
+
+
+_FIELDS: Final[dict[str, tuple[str, ...]]] = {
+    "<top>": ("node", "bundle", "network", "control", "link", "discovery", "logging"),
+    "bundle": ("path", "trusted_key", "expected_sha256", "allow_dev"),
+    "network": ("interface", "ipv4"),
+    "control": ("socket", "mode"),
+    "link": (
+        "sources",
+        "poll_interval_s",
+        "file",
+        "file_max_age_s",
+        "wext_path",
+        "wext_max_quality",
+        "static_q",
+        "snr_floor_db",
+    ),
+    "discovery": ("mode", "overrides"),
+    "logging": ("level", "format"),
+}
+
+Nodes = dict[str, yaml.Node]
+
+
+def load_config(path: str | Path, *, engine_fields: frozenset[str] | None = None) -> DaemonConfig:
+    """Read and check ``path``; raises ``ConfigError`` (one line) on any problem.
+
+    ``engine_fields``: the names ``discovery.overrides`` may set (the engine config's
+    fields); None skips that check.
+    """
+    file = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(
+            file, None, "-", "config file not found", "give the path of swarmd.yaml"
+        ) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
+        raise ConfigError(file, None, "-", f"cannot read: {reason}", "check the file") from None
+    return parse_config(text, file, base=Path(path).parent, engine_fields=engine_fields)
+
+
+def parse_config(
+    text: str,
+    file: str = "<config>",
+    *,
+    base: Path | None = None,
+    engine_fields: frozenset[str] | None = None,
+) -> DaemonConfig:
+    """Check a config given as YAML text; relative paths resolve against ``base``."""
+    loader = yaml.SafeLoader(text)
+    try:
+        try:
+            root = loader.get_single_node()
+        except yaml.MarkedYAMLError as exc:
+            mark = exc.problem_mark or exc.context_mark
+            raise ConfigError(
+                file,
+                mark.line + 1 if mark is not None else None,
+                "<yaml>",
+                f"malformed YAML: {exc.problem or exc.context}",
+                "correct the YAML syntax at this line (indentation, ':' after keys, quotes)",
+            ) from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(
+                file, None, "<yaml>", f"malformed YAML: {exc}", "fix the syntax"
+            ) from None
+        if root is None:
+            raise ConfigError(file, 1, "<document>", "the file is empty", "see config/swarmd.yaml")
+        return _Checker(file, loader, base, engine_fields).config(root)
+    finally:
+        loader.dispose()
+
+
+class _Checker:
+    def __init__(
+        self,
+        file: str,
+        loader: yaml.SafeLoader,
+        base: Path | None,
+        engine_fields: frozenset[str] | None,
+    ) -> None:
+        self.file = file
+        self.loader = loader
+        self.base = base
+        self.engine_fields = engine_fields
+        self.lines: dict[str, int] = {}
+
+    def fail(self, node: yaml.Node, path: str, problem: str, fix: str) -> NoReturn:
+        raise ConfigError(self.file, node.start_mark.line + 1, path, problem, fix)
+
+    def mapping(self, node: yaml.Node, section: str) -> Nodes:
+        allowed = _FIELDS[section]
+        if not isinstance(node, yaml.MappingNode):
+            self.fail(node, section, "expected a mapping (key: value lines)", "indent its fields")
+        out: Nodes = {}
+        for key_node, value_node in node.value:
+            key = self.loader.construct_object(key_node, deep=True)
+            path = str(key) if section == "<top>" else f"{section}.{key}"
+            if not isinstance(key, str) or key not in allowed:
+                self.fail(
+                    key_node,
+                    path,
+                    f"unknown field {key!r}",
+                    f"remove it or correct the spelling; known fields: {', '.join(allowed)}",
+                )
+            if key in out:
+                self.fail(key_node, path, "duplicate key", "keep one of them")
+            out[key] = value_node
+            self.lines[path] = value_node.start_mark.line + 1
+        return out
+
+    def value(self, node: yaml.Node, path: str) -> object:
+        if not isinstance(node, yaml.ScalarNode):
+            self.fail(node, path, "expected a single value", "write a plain value, not a list/map")
+        return self.loader.construct_object(node, deep=True)
+
+    def string(self, node: yaml.Node, path: str, what: str, *, nullable: bool = False) -> str:
+        value = self.value(node, path)
+        if value is None and nullable:
+            return ""
+        if not isinstance(value, str) or not value:
+            self.fail(node, path, f"expected {what}, got {value!r}", f"write {what}")
+        return value
+
+    def path(self, node: yaml.Node, key: str, *, nullable: bool = False) -> str | None:
+        text = self.string(node, key, "a file path", nullable=nullable)
+        if not text:
+            return None
+        p = Path(text)
+        return str(self.base / p) if self.base is not None and not p.is_absolute() else str(p)
+
+    def number(self, node: yaml.Node, path: str, low: float, high: float, unit: str = "") -> float:
+        value = self.value(node, path)
+        if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+            self.fail(node, path, f"expected a number, got {value!r}", f"write e.g. {low}{unit}")
+        if not low <= value <= high:
+            self.fail(node, path, f"{value} is outside {low}..{high}", f"use {low}..{high}{unit}")
+        return float(value)
+
+    def boolean(self, node: yaml.Node, path: str) -> bool:
+        value = self.value(node, path)
+        if not isinstance(value, bool):
+            self.fail(node, path, f"expected true or false, got {value!r}", "write true or false")
+        return value
+
+    def choice(self, node: yaml.Node, path: str, names: tuple[str, ...]) -> str:
+        value = self.value(node, path)
+        if not isinstance(value, str) or value not in names:
+            self.fail(node, path, f"unknown value {value!r}", f"use one of: {', '.join(names)}")
+        return value
+
+    def section(self, top: Nodes, name: str, parse: Callable[[Nodes], None]) -> None:
+        if name in top:
+            parse(self.mapping(top[name], name))
+
+    # -- the config ----------------------------------------------------------------------
+
+    def config(self, root: yaml.Node) -> DaemonConfig:
+        top = self.mapping(root, "<top>")
+        if "node" not in top:
+            self.fail(root, "node", "missing required field", "add 'node: NAME' (this drone)")
+        node = self.string(top["node"], "node", "this drone's participant name")
+        values: dict[str, object] = {"node": node}
+        bundle = BundleConfig()
+
+        def bundle_section(f: Nodes) -> None:
+            nonlocal bundle
+            sha: bytes | None = None
+            if "expected_sha256" in f:
+                text = self.string(f["expected_sha256"], "bundle.expected_sha256", "64 hex digits")
+                try:
+                    sha = bytes.fromhex(text)
+                except ValueError:
+                    sha = b""
+                if len(sha) != 32:
+                    self.fail(
+                        f["expected_sha256"],
+                        "bundle.expected_sha256",
+                        "not a SHA-256 in hex",
+                        "paste the hash 'swarmctl bundle show' prints (64 hex digits)",
+                    )
+            bundle = BundleConfig(
+                path=self.path(f["path"], "bundle.path") or DEFAULT_BUNDLE
+                if "path" in f
+                else DEFAULT_BUNDLE,
+                trusted_key=self.path(f["trusted_key"], "bundle.trusted_key", nullable=True)
+                if "trusted_key" in f
+                else None,
+                expected_sha256=sha,
+                allow_dev=self.boolean(f["allow_dev"], "bundle.allow_dev")
+                if "allow_dev" in f
+                else False,
+            )
+            if bundle.trusted_key is None and bundle.expected_sha256 is None:
+                self.fail(
+                    f.get("trusted_key", top["bundle"]),
+                    "bundle.trusted_key",
+                    "no trust anchor: a bundle would be accepted from anyone",
+                    "set bundle.trusted_key to the swarm-signing.pub path "
+                    "(or bundle.expected_sha256)",
+                )
+
+        if "bundle" not in top:
+            self.fail(root, "bundle", "missing required section", "add 'bundle:' with trusted_key")
+        self.section(top, "bundle", bundle_section)
+
+        if "network" not in top:
+            self.fail(
+                root, "network", "missing required section", "add 'network: {interface: wlan0}'"
+            )
+
+        def network(f: Nodes) -> None:
+            if "interface" not in f:
+                self.fail(top["network"], "network.interface", "missing", "add 'interface: wlan0'")
+            values["interface"] = self.string(f["interface"], "network.interface", "a name")
+            if "ipv4" in f:
+                raw = self.value(f["ipv4"], "network.ipv4")
+                if raw is not None:
+                    try:
+                        values["ipv4"] = str(ipaddress.IPv4Address(str(raw)))
+                    except ValueError:
+                        self.fail(
+                            f["ipv4"],
+                            "network.ipv4",
+                            f"{raw!r} is not an IPv4 address",
+                            "write e.g. 10.0.0.2, or null to use the interface's address",
+                        )
+
+        self.section(top, "network", network)
+
+        def control(f: Nodes) -> None:
+            if "socket" in f:
+                values["control_socket"] = self.path(f["socket"], "control.socket")
+            if "mode" in f:
+                raw = self.value(f["mode"], "control.mode")
+                try:
+                    mode = int(str(raw), 8)
+                except ValueError:
+                    mode = -1
+                if not 0 <= mode <= 0o777:
+                    self.fail(
+                        f["mode"], "control.mode", f"{raw!r} is not a file mode", 'write "0660"'
+                    )
+                values["control_socket_mode"] = mode
+
+        self.section(top, "control", control)
+        values["link"] = LinkConfig()
+
+        def link(f: Nodes) -> None:
+            d = LinkConfig()
+            sources = d.sources
+            if "sources" in f:
+                n = f["sources"]
+                if not isinstance(n, yaml.SequenceNode) or not n.value:
+                    self.fail(
+                        n, "link.sources", "expected a non-empty list", "e.g. [nl80211, static]"
+                    )
+                sources = tuple(self.choice(item, "link.sources", LINK_SOURCES) for item in n.value)
+                if len(set(sources)) != len(sources):
+                    self.fail(n, "link.sources", "a source is listed twice", "list each once")
+            num = self.number
+            values["link"] = LinkConfig(
+                sources=sources,
+                poll_interval_s=num(
+                    f["poll_interval_s"], "link.poll_interval_s", MIN_POLL_S, MAX_POLL_S, " s"
+                )
+                if "poll_interval_s" in f
+                else d.poll_interval_s,
+                file=(self.path(f["file"], "link.file") or d.file) if "file" in f else d.file,
+                file_max_age_s=num(f["file_max_age_s"], "link.file_max_age_s", 0.1, 86400, " s")
+                if "file_max_age_s" in f and self.value(f["file_max_age_s"], "-") is not None
+                else None,
+                wext_path=(self.path(f["wext_path"], "link.wext_path") or d.wext_path)
+                if "wext_path" in f
+                else d.wext_path,
+                wext_max_quality=num(f["wext_max_quality"], "link.wext_max_quality", 1, 255)
+                if "wext_max_quality" in f
+                else d.wext_max_quality,
+                static_q=num(f["static_q"], "link.static_q", 0.0, 1.0)
+                if "static_q" in f
+                else d.static_q,
+                snr_floor_db=num(f["snr_floor_db"], "link.snr_floor_db", -20.0, 39.0, " dB")
+                if "snr_floor_db" in f
+                else d.snr_floor_db,
+            )
+
+        self.section(top, "link", link)
+
+        def discovery(f: Nodes) -> None:
+            if "mode" in f:
+                values["engine_mode"] = self.choice(f["mode"], "discovery.mode", ENGINE_MODES)
+            if "overrides" in f:
+                values["engine_overrides"] = self.overrides(f["overrides"])
+
+        self.section(top, "discovery", discovery)
+
+        def logging(f: Nodes) -> None:
+            if "level" in f:
+                values["log_level"] = self.choice(f["level"], "logging.level", LOG_LEVELS)
+            if "format" in f:
+                values["log_format"] = self.choice(f["format"], "logging.format", LOG_FORMATS)
+
+        self.section(top, "logging", logging)
+        return DaemonConfig(file=self.file, bundle=bundle, lines=self.lines, **values)  # type: ignore[arg-type]
+
+    def overrides(self, node: yaml.Node) -> dict[str, float]:
+        if not isinstance(node, yaml.MappingNode):
+            self.fail(
+                node, "discovery.overrides", "expected a mapping", "write 'name: value' lines"
+            )
+        out: dict[str, float] = {}
+        for key_node, value_node in node.value:
+            key = self.loader.construct_object(key_node, deep=True)
+            path = f"discovery.overrides.{key}"
+            if not isinstance(key, str) or (
+                self.engine_fields is not None and key not in self.engine_fields
+            ):
+                known = ", ".join(sorted(self.engine_fields or ()))
+                self.fail(key_node, path, f"unknown engine setting {key!r}", f"use one of: {known}")
+            out[key] = self.number(value_node, path, 0.0, 1e6)
+            self.lines[path] = value_node.start_mark.line + 1
+        return out

@@ -1,0 +1,244 @@
+"""The control socket: newline-delimited JSON between ``swarmctl`` and the daemon.
+
+One request per line, one reply per line, any number of requests per connection (``swarmctl
+watch`` keeps one open)::
+
+    -> {"cmd": "status"}
+    <- {"ok": true, "result": {...}}
+    <- {"ok": false, "error": "unknown command 'x'; known: peers, ping, status"}
+
+The socket is a Unix stream socket (default ``/run/swarmd/swarmd.sock``, mode 0660), so
+access is file permissions: root and the ``swarmd`` group. It works over ``ssh drone
+swarmctl status`` because swarmctl runs on the drone. The server side is asyncio (it lives
+in the daemon's loop); the client side is plain blocking sockets, so swarmctl needs no loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import socket
+import stat
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Final
+
+MAX_LINE_BYTES: Final = 64 * 1024  # a request is tiny; this bounds a hostile client's buffer
+MAX_CLIENTS: Final = 16  # stops a local user from exhausting the daemon's file descriptors
+CLIENT_TIMEOUT_S: Final = 2.0  # swarmctl's wait for one reply
+
+Handler = Callable[[Mapping[str, Any]], Any]
+
+
+class ControlSocketBusy(RuntimeError):
+    """Another live process already answers on the control socket path."""
+
+
+class DaemonUnreachable(RuntimeError):
+    """swarmctl cannot talk to the daemon; ``str()`` is one line saying why and what to do."""
+
+
+class RequestError(RuntimeError):
+    """The daemon answered ``ok: false``."""
+
+
+def encode_line(obj: Any) -> bytes:
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode() + b"\n"
+
+
+class ControlServer:
+    """Serves ``handlers`` (command name -> function of the request) on a Unix socket."""
+
+    def __init__(self, path: str, handlers: Mapping[str, Handler], *, mode: int = 0o660) -> None:
+        self.path = path
+        self.mode = mode
+        self.handlers = dict(handlers)
+        self.requests = 0
+        self.rejected_clients = 0
+        self._server: asyncio.Server | None = None
+        self._clients: set[asyncio.Task[None]] = set()
+
+    async def start(self) -> None:
+        """Bind, replacing a stale socket file; ``ControlSocketBusy`` when one is live."""
+        _remove_stale(self.path)
+        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        # umask-independent: create, then chmod before anyone can race in via the group bit
+        self._server = await asyncio.start_unix_server(
+            self._serve, path=self.path, limit=MAX_LINE_BYTES
+        )
+        os.chmod(self.path, self.mode)
+
+    async def close(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            for task in list(self._clients):
+                task.cancel()
+            await asyncio.gather(*self._clients, return_exceptions=True)
+            await self._server.wait_closed()
+            self._server = None
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.path)
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        if len(self._clients) >= MAX_CLIENTS or task is None:
+            self.rejected_clients += 1
+            writer.write(encode_line({"ok": False, "error": "too many control clients"}))
+            await _close_writer(writer)
+            return
+        self._clients.add(task)
+        try:
+            while True:
+                try:
+                    line = await reader.readline()
+                except ValueError:  # longer than MAX_LINE_BYTES without a newline
+                    writer.write(encode_line({"ok": False, "error": "request line too long"}))
+                    break
+                if not line:
+                    break
+                writer.write(encode_line(self.dispatch(line)))
+                await writer.drain()
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            self._clients.discard(task)
+            await _close_writer(writer)
+
+    def dispatch(self, line: bytes) -> dict[str, Any]:
+        """One request line -> the reply object. Never raises."""
+        self.requests += 1
+        try:
+            request = json.loads(line)
+        except ValueError:
+            return {"ok": False, "error": "request is not JSON"}
+        if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
+            return {"ok": False, "error": 'request must be an object like {"cmd": "status"}'}
+        handler = self.handlers.get(request["cmd"])
+        if handler is None:
+            known = ", ".join(sorted(self.handlers))
+            return {"ok": False, "error": f"unknown command {request['cmd']!r}; known: {known}"}
+        try:
+            return {"ok": True, "result": handler(request)}
+        except Exception as exc:  # a handler bug must not take the daemon down
+            return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
+
+
+async def _close_writer(writer: asyncio.StreamWriter) -> None:
+    writer.close()
+    with contextlib.suppress(ConnectionError, asyncio.CancelledError):
+        await writer.wait_closed()
+
+
+def _remove_stale(path: str) -> None:
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        raise ControlSocketBusy(f"{path} exists and is not a socket")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(0.5)
+        probe.connect(path)
+    except (ConnectionRefusedError, FileNotFoundError):
+        os.unlink(path)  # left behind by a daemon that died without cleaning up
+        return
+    except OSError:
+        pass
+    finally:
+        probe.close()
+    raise ControlSocketBusy(f"another swarmd answers on {path}")
+
+
+class ControlClient:
+    """A blocking client for one connection; use as a context manager."""
+
+    def __init__(self, path: str, *, timeout: float = CLIENT_TIMEOUT_S) -> None:
+        self.path = path
+        self.timeout = timeout
+        self._sock: socket.socket | None = None
+        self._buffer = b""
+
+    def __enter__(self) -> ControlClient:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def connect(self) -> None:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.settimeout(self.timeout)
+        try:
+            sock.connect(self.path)
+        except FileNotFoundError:
+            sock.close()
+            raise DaemonUnreachable(
+                f"swarmd is not running (no control socket at {self.path}); "
+                "start it with 'systemctl start swarmd'"
+            ) from None
+        except ConnectionRefusedError:
+            sock.close()
+            raise DaemonUnreachable(
+                f"swarmd is not running (stale control socket {self.path}); "
+                "start it with 'systemctl start swarmd'"
+            ) from None
+        except PermissionError:
+            sock.close()
+            raise DaemonUnreachable(
+                f"permission denied on {self.path}; run as root or join group swarmd "
+                "('sudo usermod -aG swarmd $USER', then log in again)"
+            ) from None
+        except OSError as exc:
+            sock.close()
+            raise DaemonUnreachable(f"cannot connect to {self.path}: {exc.strerror}") from None
+        self._sock = sock
+
+    def request(self, cmd: str, **args: Any) -> Any:
+        """Send one command and return its ``result``; raises on transport or daemon error."""
+        if self._sock is None:
+            self.connect()
+        assert self._sock is not None  # noqa: S101 - connect() sets it or raises
+        try:
+            self._sock.sendall(encode_line({"cmd": cmd, **args}))
+            line = self._readline()
+        except TimeoutError:
+            raise DaemonUnreachable(
+                f"swarmd did not answer within {self.timeout:g} s on {self.path}"
+            ) from None
+        except OSError as exc:
+            raise DaemonUnreachable(f"lost the connection to swarmd: {exc.strerror}") from None
+        try:
+            reply = json.loads(line)
+        except ValueError:
+            raise DaemonUnreachable(f"swarmd sent a malformed reply on {self.path}") from None
+        if not isinstance(reply, dict) or "ok" not in reply:
+            raise DaemonUnreachable(f"swarmd sent a malformed reply on {self.path}")
+        if not reply["ok"]:
+            raise RequestError(str(reply.get("error", "request failed")))
+        return reply.get("result")
+
+    def _readline(self) -> bytes:
+        assert self._sock is not None  # noqa: S101 - only called after connect()
+        while b"\n" not in self._buffer:
+            chunk = self._sock.recv(65536)
+            if not chunk:
+                raise ConnectionResetError(0, "swarmd closed the connection")
+            self._buffer += chunk
+            if len(self._buffer) > 64 * MAX_LINE_BYTES:
+                raise ConnectionResetError(0, "reply too long")
+        line, _, self._buffer = self._buffer.partition(b"\n")
+        return line
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+def request(path: str, cmd: str, *, timeout: float = CLIENT_TIMEOUT_S, **args: Any) -> Any:
+    """One-shot: connect, send ``cmd``, return the result, close."""
+    with ControlClient(path, timeout=timeout) as client:
+        return client.request(cmd, **args)

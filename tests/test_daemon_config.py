@@ -1,0 +1,103 @@
+"""Daemon config: the documented default loads; every bad field is one line with its line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from swarmd.config import ConfigError, load_config, parse_config
+
+REPO = Path(__file__).resolve().parent.parent
+
+MINIMAL = """\
+node: uav1
+bundle:
+  path: bundle.swb
+  trusted_key: keys/swarm-signing.pub
+network:
+  interface: eth0
+"""
+
+
+def test_documented_default_config_loads() -> None:
+    cfg = load_config(REPO / "config" / "swarmd.yaml")
+    assert cfg.node == "uav1"
+    assert cfg.interface == "wlan0"
+    assert cfg.bundle.path == "/var/lib/swarmd/bundle.swb"
+    assert cfg.bundle.trusted_key == "/etc/swarmd/swarm-signing.pub"
+    assert cfg.control_socket == "/run/swarmd/swarmd.sock"
+    assert cfg.control_socket_mode == 0o660
+    assert cfg.link.sources == ("nl80211", "wext", "static")
+    assert (cfg.engine_mode, cfg.log_format) == ("adaptive", "auto")
+
+
+def test_minimal_config_resolves_relative_paths_and_defaults() -> None:
+    cfg = parse_config(MINIMAL, "/etc/swarmd/swarmd.yaml", base=Path("/etc/swarmd"))
+    assert cfg.bundle.path == "/etc/swarmd/bundle.swb"
+    assert cfg.bundle.trusted_key == "/etc/swarmd/keys/swarm-signing.pub"
+    assert cfg.ipv4 is None
+    assert cfg.link.static_q == 0.5
+    assert cfg.lines["network.interface"] == 6
+    assert cfg.error("network.interface", "p", "f").line == 6
+
+
+@pytest.mark.parametrize(
+    ("extra", "line", "field", "problem"),
+    [
+        ("nodee: x\n", 7, "nodee", "unknown field 'nodee'"),
+        ("link:\n  poll_interval_s: 0\n", 8, "link.poll_interval_s", "0 is outside"),
+        ("link:\n  sources: [nl80211, radar]\n", 8, "link.sources", "unknown value 'radar'"),
+        ("link:\n  sources: [file, file]\n", 8, "link.sources", "listed twice"),
+        ("link:\n  static_q: high\n", 8, "link.static_q", "expected a number"),
+        ("control:\n  mode: 999\n", 8, "control.mode", "is not a file mode"),
+        ("discovery:\n  mode: fast\n", 8, "discovery.mode", "unknown value 'fast'"),
+        ("logging:\n  level: loud\n", 8, "logging.level", "unknown value 'loud'"),
+        ("discovery:\n  overrides:\n    lease: 3\n", 9, "discovery.overrides.lease", "unknown"),
+    ],
+)
+def test_bad_field_is_one_line_with_file_line_field_and_fix(
+    extra: str, line: int, field: str, problem: str
+) -> None:
+    with pytest.raises(ConfigError) as info:
+        parse_config(MINIMAL + extra, "swarmd.yaml", engine_fields=frozenset({"lease_s"}))
+    text = str(info.value)
+    assert "\n" not in text
+    assert text.startswith(f"swarmd.yaml:{line}: field {field}: ")
+    assert problem in text
+    assert "; fix: " in text
+
+
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [
+        ("bundle: {trusted_key: k}\nnetwork: {interface: eth0}\n", "node"),
+        ("node: a\nnetwork: {interface: eth0}\n", "bundle"),
+        ("node: a\nbundle: {path: b}\nnetwork: {interface: eth0}\n", "bundle.trusted_key"),
+        ("node: a\nbundle: {trusted_key: k}\n", "network"),
+        ("node: a\nbundle: {trusted_key: k}\nnetwork: {ipv4: 10.0.0.1}\n", "network.interface"),
+        (
+            "node: a\nbundle: {trusted_key: k}\nnetwork: {interface: e, ipv4: 10.0.0}\n",
+            "network.ipv4",
+        ),
+        ("node: [a]\n", "node"),
+        ("node: a\n  bad: indent\n", "<yaml>"),
+        ("", "<document>"),
+    ],
+)
+def test_missing_and_malformed(text: str, field: str) -> None:
+    with pytest.raises(ConfigError, match=f"field {field}: ") as info:
+        parse_config(text, "c.yaml")
+    assert "; fix: " in str(info.value)
+
+
+def test_expected_sha256_is_a_trust_anchor_and_checked() -> None:
+    good = "node: a\nbundle: {expected_sha256: '" + "ab" * 32 + "'}\nnetwork: {interface: e}\n"
+    assert parse_config(good).bundle.expected_sha256 == bytes.fromhex("ab" * 32)
+    with pytest.raises(ConfigError, match="not a SHA-256"):
+        parse_config(good.replace("ab" * 32, "xyz"))
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(tmp_path / "nope.yaml")
