@@ -6,9 +6,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
-APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client)
+APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client systemd)
 # command that proves each package is present (same order as APT_PACKAGES)
-APT_PROBES=(tshark ip nft pgrep sshd ssh)
+APT_PROBES=(tshark ip nft pgrep sshd ssh systemd-analyze)
 
 missing=()
 for i in "${!APT_PACKAGES[@]}"; do
