@@ -85,9 +85,7 @@ def build_bundle(
         for p in mission.participants
     }
     body = canonical_json(
-        body_value(
-            mission.swarm, mission.domain_id, mission.discovery, topics, participants, ports
-        )
+        body_value(mission.swarm, mission.domain_id, mission.discovery, topics, participants, ports)
     )
     data = seal(body, signing_key, dev=dev)
     bundle = Bundle(
@@ -104,7 +102,9 @@ def build_bundle(
 
 def build_dev_bundle(mission: Mission) -> Built:
     """A bundle signed with the publicly derivable dev keys (``--unsigned-dev``)."""
-    node_keys = {p.name: raw_public(dev_node_key(mission.swarm, p.name)) for p in mission.participants}
+    node_keys = {
+        p.name: raw_public(dev_node_key(mission.swarm, p.name)) for p in mission.participants
+    }
     return build_bundle(mission, dev_signing_key(mission.swarm), node_keys, dev=True)
 
 

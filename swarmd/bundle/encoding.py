@@ -127,7 +127,9 @@ def _endpoint_value(e: Endpoint) -> dict[str, Any]:
 
 def encode_body(bundle: Bundle) -> bytes:
     """The canonical body of an existing bundle model (round-trip: equals the loaded body)."""
-    ports = {p.index: (bundle.metatraffic_port(p), bundle.user_port(p)) for p in bundle.participants}
+    ports = {
+        p.index: (bundle.metatraffic_port(p), bundle.user_port(p)) for p in bundle.participants
+    }
     return canonical_json(
         body_value(
             bundle.swarm,
@@ -185,7 +187,9 @@ def split(data: bytes) -> Envelope:
     if magic != MAGIC:
         raise EnvelopeError(f"not a swarmd bundle (magic {magic!r}, expected {MAGIC!r})")
     if version != FORMAT_VERSION:
-        raise EnvelopeError(f"unsupported bundle format version {version} (this is {FORMAT_VERSION})")
+        raise EnvelopeError(
+            f"unsupported bundle format version {version} (this is {FORMAT_VERSION})"
+        )
     if flags & ~KNOWN_FLAGS:
         raise EnvelopeError(f"unknown header flags 0x{flags:04x}")
     if length > MAX_BODY_BYTES:

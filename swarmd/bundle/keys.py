@@ -81,22 +81,31 @@ def dev_node_key(swarm: str, name: str) -> Ed25519PrivateKey:
 def load_private_key(path: str | Path) -> Ed25519PrivateKey:
     """Read a PKCS#8 PEM Ed25519 private key; ``KeyFileError`` (one line) otherwise."""
     data = _read(path, "run 'swarmctl bundle keygen --out DIR' to make keys")
+    return parse_private_key(data, str(path))
+
+
+def parse_private_key(data: bytes, source: str) -> Ed25519PrivateKey:
+    """An Ed25519 private key from unencrypted PKCS#8 PEM; ``source`` labels errors."""
     try:
         key = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError, UnsupportedAlgorithm):
         raise KeyFileError(
-            str(path),
+            source,
             "not an unencrypted PEM private key",
             "give a key file written by 'swarmctl bundle keygen'",
         ) from None
     if not isinstance(key, Ed25519PrivateKey):
-        raise KeyFileError(str(path), "not an Ed25519 key", "use 'swarmctl bundle keygen' keys")
+        raise KeyFileError(source, "not an Ed25519 key", "use 'swarmctl bundle keygen' keys")
     return key
 
 
 def load_public_key(path: str | Path) -> bytes:
-    """Read a public key as raw bytes: PEM (SubjectPublicKeyInfo) or 64 hex digits."""
-    data = _read(path, "give the swarm's swarm-signing.pub")
+    """Read a public key file as raw bytes: PEM (SubjectPublicKeyInfo) or 64 hex digits."""
+    return parse_public_key(_read(path, "give the swarm's swarm-signing.pub"), str(path))
+
+
+def parse_public_key(data: bytes, source: str) -> bytes:
+    """Raw bytes of a public key given as PEM or 64 hex digits; ``source`` labels errors."""
     text = data.strip()
     if len(text) == 2 * PUBLIC_KEY_BYTES:
         with contextlib.suppress(ValueError):
@@ -105,12 +114,12 @@ def load_public_key(path: str | Path) -> bytes:
         key = serialization.load_pem_public_key(text)
     except (ValueError, TypeError, UnsupportedAlgorithm):
         raise KeyFileError(
-            str(path),
+            source,
             "not a PEM public key or 64 hex digits",
             "give the swarm-signing.pub written by 'swarmctl bundle keygen'",
         ) from None
     if not isinstance(key, Ed25519PublicKey):
-        raise KeyFileError(str(path), "not an Ed25519 public key", "use keygen's .pub file")
+        raise KeyFileError(source, "not an Ed25519 public key", "use keygen's .pub file")
     return raw_public(key)
 
 

@@ -51,7 +51,9 @@ from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import GuidPrefix
 
 REBUILD = "rebuild it with 'swarmctl bundle build' and flash it again"
-REFLASH = "flash the bundle again with 'swarmctl bundle flash' (the previous one is bundle.swb.prev)"
+REFLASH = (
+    "flash the bundle again with 'swarmctl bundle flash' (the previous one is bundle.swb.prev)"
+)
 
 
 def verify_envelope(
@@ -159,7 +161,9 @@ def load_bundle(
             source, "bundle file not found", "flash one with 'swarmctl bundle flash'"
         ) from None
     except OSError as exc:
-        raise BundleError(source, f"cannot read: {exc.strerror}", "check path and permissions") from None
+        raise BundleError(
+            source, f"cannot read: {exc.strerror}", "check path and permissions"
+        ) from None
     return read_bundle(
         data,
         source=source,
@@ -179,9 +183,7 @@ def load_bundle_or_exit(
 ) -> Bundle:
     """``load_bundle`` for a process entry point: on failure print one line, exit 78."""
     try:
-        return load_bundle(
-            path, trusted_key, expected_sha256=expected_sha256, allow_dev=allow_dev
-        )
+        return load_bundle(path, trusted_key, expected_sha256=expected_sha256, allow_dev=allow_dev)
     except BundleError as exc:
         _exit_config(prog, exc)
 

@@ -280,7 +280,9 @@ class _Checker:
             f"use a DDS domain id in 0..{MAX_DOMAIN_ID} (the RTPS port mapping's limit)",
         )
         discovery = self.discovery(top["discovery"][1]) if "discovery" in top else DiscoveryParams()
-        participants = self.participants(self.required(top, root, "<top>", "participants"), domain_id)
+        participants = self.participants(
+            self.required(top, root, "<top>", "participants"), domain_id
+        )
         topics = self.topics(self.required(top, root, "<top>", "topics"), participants)
         return Mission(
             swarm=swarm,
@@ -416,8 +418,10 @@ class _Checker:
             address = ipaddress.IPv4Address(str(value))
         except ValueError:
             self.fail(node, field, f"{value!r} is not an IPv4 address", "write e.g. 10.42.0.11")
-        if address.is_multicast or address.is_unspecified or address == ipaddress.IPv4Address(
-            "255.255.255.255"
+        if (
+            address.is_multicast
+            or address.is_unspecified
+            or address == ipaddress.IPv4Address("255.255.255.255")
         ):
             self.fail(node, field, f"{address} is not a unicast address", "use the drone's address")
         return str(address)
@@ -542,4 +546,3 @@ class _Checker:
                 f"name at least one participant or a role that some participant has in '{key}'",
             )
         return tuple(p.name for p in participants if p.name in chosen)
-

@@ -1,0 +1,469 @@
+"""Flashing: put a verified bundle, the trust anchor and one node's private key on a drone.
+
+Files in the target directory (``/var/lib/swarmd`` on a drone)::
+
+    bundle.swb        the bundle the daemon loads            0644
+    bundle.swb.prev   the one it replaced, for rollback      0644
+    node.key          this node's announcement private key  0600  (node.key.prev on rotation)
+    node.name         this node's participant name           0644
+    swarm.pub         the trusted swarm signing public key   0644  (written once; see below)
+
+Every file goes in by temp file + fsync + rename, so a power cut leaves either the old or the
+new file, never a torn one; the previous bundle is hard-linked to ``bundle.swb.prev`` before
+the rename, so ``bundle.swb`` never disappears, not even for an instant. After writing, the
+files are read back and verified the way the daemon will (trust anchor on the target, hash,
+signature, node key matching the bundle, key mode 0600); if that fails, the previous bundle
+is restored.
+
+Trust on first flash: ``swarm.pub`` is written when the target has none. When it has one and
+the bundle is signed by another key, flashing refuses unless ``replace_trust`` (key rotation),
+so a laptop with the wrong keys cannot silently re-anchor a drone.
+
+The ssh form uses the system ``ssh``/``scp`` (the operator's agent, known_hosts and config
+apply) and needs only POSIX sh, coreutils and tar on the drone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import os
+import re
+import shlex
+import subprocess
+import tarfile
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from swarmd.bundle.errors import BundleError, FlashError, KeyFileError
+from swarmd.bundle.keys import (
+    PRIVATE_MODE,
+    PUBLIC_MODE,
+    fingerprint,
+    fsync_dir,
+    parse_private_key,
+    parse_public_key,
+    public_pem,
+    raw_public,
+    write_file_atomic,
+)
+from swarmd.bundle.loader import read_bundle
+from swarmd.bundle.model import Bundle
+
+BUNDLE_FILE: Final = "bundle.swb"
+PREVIOUS_SUFFIX: Final = ".prev"
+NODE_KEY_FILE: Final = "node.key"
+NODE_NAME_FILE: Final = "node.name"
+TRUST_FILE: Final = "swarm.pub"
+DEFAULT_TARGET_DIR: Final = "/var/lib/swarmd"
+# scp's remote side may hand the path to a shell (legacy protocol); a plain alphabet keeps
+# quoting out of the picture entirely
+_REMOTE_DIR_RE: Final = re.compile(r"[A-Za-z0-9_./+-]+")
+_SSH_TIMEOUT_S: Final = 60.0
+# options every flash passes: never prompt (a flash runs unattended from a checklist)
+_SSH_DEFAULTS: Final = ("BatchMode=yes", "ConnectTimeout=10")
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """Where to flash: a local directory (``host is None``) or ``[user@]host:DIR``."""
+
+    directory: str
+    host: str | None = None
+
+    def __str__(self) -> str:
+        return self.directory if self.host is None else f"{self.host}:{self.directory}"
+
+
+def parse_target(text: str) -> Target:
+    """``DIR`` or ``[user@]host:DIR`` (scp's rule: a ':' before any '/' means a host)."""
+    colon = text.find(":")
+    slash = text.find("/")
+    if colon > 0 and (slash == -1 or colon < slash):
+        host, directory = text[:colon], text[colon + 1 :]
+        if not directory:
+            directory = DEFAULT_TARGET_DIR
+        if not _REMOTE_DIR_RE.fullmatch(directory):
+            raise FlashError(
+                f"{text}: remote directory {directory!r} has characters flash does not quote; "
+                "fix: use letters, digits and ._/+-"
+            )
+        if host.startswith("-") or not host:
+            raise FlashError(f"{text}: {host!r} is not a host; fix: write [user@]host:DIR")
+        return Target(directory, host)
+    return Target(text)
+
+
+@dataclass(frozen=True, slots=True)
+class FlashPayload:
+    """What one node receives."""
+
+    node: str
+    bundle_data: bytes
+    bundle: Bundle
+    node_key_pem: bytes
+    dev: bool
+
+    @property
+    def trust_pem(self) -> bytes:
+        return public_pem(self.bundle.signing_public_key)
+
+
+@dataclass(frozen=True, slots=True)
+class FlashResult:
+    node: str
+    target: str
+    content_sha256: str
+    replaced_previous: bool
+    trust_written: bool
+
+
+@dataclass(frozen=True, slots=True)
+class TargetState:
+    """What a drone carries, verified the way its daemon will load it."""
+
+    target: str
+    node: str
+    content_sha256: str
+    swarm: str
+
+
+def read_back(target: Target, ssh: Ssh | None = None) -> dict[str, tuple[bytes, int]]:
+    """name -> (bytes, mode) of the flashed files (absent files are left out)."""
+    names = (BUNDLE_FILE, TRUST_FILE, NODE_KEY_FILE, NODE_NAME_FILE)
+    if target.host is None:
+        d = Path(target.directory)
+        out: dict[str, tuple[bytes, int]] = {}
+        for name in names:
+            with contextlib.suppress(FileNotFoundError):
+                out[name] = ((d / name).read_bytes(), os.stat(d / name).st_mode & 0o7777)
+        return out
+    # one round trip: tar keeps the bytes and the key's mode; missing files are skipped
+    listing = " ".join(names)
+    raw = (ssh or Ssh()).run(
+        target.host,
+        f"cd {_q(target.directory)} && set -- && for f in {listing}; do "
+        '[ -f "$f" ] && set -- "$@" "$f"; done; tar -cf - "$@"\n',
+        "read back",
+    )
+    members: dict[str, tuple[bytes, int]] = {}
+    try:
+        with tarfile.open(fileobj=io.BytesIO(raw), mode="r:") as tar:
+            for info in tar.getmembers():
+                f = tar.extractfile(info)
+                if f is not None and info.name in names:
+                    members[info.name] = (f.read(), info.mode)
+    except tarfile.TarError as exc:
+        raise FlashError(f"{target}: cannot read the files back: {exc}") from None
+    return members
+
+
+def check_target(
+    target: Target,
+    *,
+    expected_node: str | None = None,
+    allow_dev: bool = False,
+    ssh: Ssh | None = None,
+) -> TargetState:
+    """Verify a flashed drone: bundle against its own swarm.pub, node key against the
+    bundle, key mode 0600. Raises ``FlashError`` (one line) naming the first problem."""
+    files = read_back(target, ssh)
+    where = str(target)
+    for name in (BUNDLE_FILE, TRUST_FILE, NODE_KEY_FILE, NODE_NAME_FILE):
+        if name not in files:
+            raise FlashError(f"{where}: {name} is missing; fix: flash this node")
+    trusted = _parse_trust(files[TRUST_FILE][0], where)
+    try:
+        bundle = read_bundle(
+            files[BUNDLE_FILE][0],
+            source=f"{where}/{BUNDLE_FILE}",
+            trusted_key=trusted,
+            allow_dev=allow_dev,
+        )
+    except BundleError as exc:
+        raise FlashError(str(exc)) from None
+    node = files[NODE_NAME_FILE][0].decode(errors="replace").strip()
+    if expected_node is not None and node != expected_node:
+        raise FlashError(f"{where}: carries node {node!r}, expected {expected_node!r}")
+    try:
+        participant = bundle.participant(node)
+    except KeyError:
+        raise FlashError(f"{where}: node {node!r} is not in the flashed bundle") from None
+    key_pem, mode = files[NODE_KEY_FILE]
+    try:
+        key = parse_private_key(key_pem, f"{where}/{NODE_KEY_FILE}")
+    except KeyFileError as exc:
+        raise FlashError(str(exc)) from None
+    if raw_public(key) != participant.announce_public_key:
+        raise FlashError(
+            f"{where}/{NODE_KEY_FILE}: does not match {node!r}'s announcement key in the bundle; "
+            "fix: flash the node with the keys directory the bundle was built from"
+        )
+    if mode & 0o777 != PRIVATE_MODE:
+        raise FlashError(
+            f"{where}/{NODE_KEY_FILE}: mode {mode & 0o777:o}, expected 600; fix: chmod 600"
+        )
+    return TargetState(where, node, bundle.content_sha256.hex(), bundle.swarm)
+
+
+def _verify_flashed(payload: FlashPayload, target: Target, ssh: Ssh | None) -> None:
+    try:
+        state = check_target(target, expected_node=payload.node, allow_dev=payload.dev, ssh=ssh)
+    except FlashError as exc:
+        raise FlashError(f"verification after writing failed: {exc}") from None
+    if state.content_sha256 != payload.bundle.content_sha256.hex():
+        raise FlashError(f"{target}: the flashed bundle's hash differs from the one sent")
+
+
+def _parse_trust(pem: bytes, where: str) -> bytes:
+    try:
+        return parse_public_key(pem, f"{where}/{TRUST_FILE}")
+    except KeyFileError as exc:
+        raise FlashError(f"{exc.file}: {exc.problem}; fix: remove it and flash again") from None
+
+
+def _check_trust(existing: bytes | None, payload: FlashPayload, where: str, replace: bool) -> bool:
+    """True when swarm.pub must be (re)written."""
+    if existing is None:
+        return True
+    current = _parse_trust(existing, where)
+    if current == payload.bundle.signing_public_key:
+        return False
+    if replace:
+        return True
+    raise FlashError(
+        f"{where}: the drone trusts swarm key {fingerprint(current)} but the bundle is signed by "
+        f"{fingerprint(payload.bundle.signing_public_key)}; fix: sign with the swarm key, or pass "
+        "--replace-trust-key if you are rotating the swarm key"
+    )
+
+
+# -- local ------------------------------------------------------------------------------------
+
+
+def flash_local(
+    payload: FlashPayload, target: Target, *, replace_trust: bool = False
+) -> FlashResult:
+    """Flash into a local directory (a mounted SD card, a bench, a test)."""
+    d = Path(target.directory)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        trust_path = d / TRUST_FILE
+        existing = trust_path.read_bytes() if trust_path.exists() else None
+        write_trust = _check_trust(existing, payload, str(target), replace_trust)
+        if write_trust:
+            write_file_atomic(trust_path, payload.trust_pem, PUBLIC_MODE)
+        write_file_atomic(d / NODE_NAME_FILE, f"{payload.node}\n".encode(), PUBLIC_MODE)
+        _keep_previous(d / NODE_KEY_FILE, payload.node_key_pem)
+        write_file_atomic(d / NODE_KEY_FILE, payload.node_key_pem, PRIVATE_MODE)
+        replaced = _keep_previous(d / BUNDLE_FILE, payload.bundle_data)
+        write_file_atomic(d / BUNDLE_FILE, payload.bundle_data, PUBLIC_MODE)
+    except OSError as exc:
+        raise FlashError(f"{target}: cannot write: {exc.strerror} ({exc.filename})") from None
+    try:
+        _verify_flashed(payload, target, None)
+    except FlashError:
+        if replaced:
+            rollback_local(target)
+        raise
+    return FlashResult(
+        payload.node, str(target), payload.bundle.content_sha256.hex(), replaced, write_trust
+    )
+
+
+def _keep_previous(path: Path, new: bytes) -> bool:
+    """Hard-link the current file to ``<path>.prev`` (atomically) unless it equals ``new``."""
+    if not path.exists() or path.read_bytes() == new:
+        return False
+    tmp = path.with_name(f".{path.name}.prev.tmp-{os.getpid()}")
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()
+    os.link(path, tmp)
+    os.replace(tmp, path.with_name(path.name + PREVIOUS_SUFFIX))
+    fsync_dir(path.parent)
+    return True
+
+
+def rollback_local(target: Target) -> None:
+    """Put ``bundle.swb.prev`` (and ``node.key.prev``) back in place."""
+    d = Path(target.directory)
+    prev = d / (BUNDLE_FILE + PREVIOUS_SUFFIX)
+    if not prev.exists():
+        raise FlashError(f"{target}: no {prev.name} to roll back to")
+    for name in (NODE_KEY_FILE, BUNDLE_FILE):
+        old = d / (name + PREVIOUS_SUFFIX)
+        if old.exists():
+            os.replace(old, d / name)
+    fsync_dir(d)
+
+
+# -- ssh --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Ssh:
+    """The system ssh/scp with the operator's extra ``-o`` options."""
+
+    options: tuple[str, ...] = ()
+
+    def _opts(self) -> list[str]:
+        out: list[str] = []
+        # ssh keeps the first value it sees per option, so the operator's options come first
+        for opt in (*self.options, *_SSH_DEFAULTS):
+            out += ["-o", opt]
+        return out
+
+    def run(self, host: str, script: str, what: str) -> bytes:
+        """Run ``script`` with ``sh`` on ``host`` (script on stdin: no remote quoting)."""
+        argv = ["ssh", *self._opts(), "--", host, "sh", "-s"]
+        return self._call(argv, script.encode(), what, host)
+
+    def copy(self, files: Sequence[Path], host: str, remote_dir: str, what: str) -> None:
+        argv = ["scp", "-q", "-p", *self._opts(), "--", *map(str, files), f"{host}:{remote_dir}/"]
+        self._call(argv, b"", what, host)
+
+    def _call(self, argv: list[str], stdin: bytes, what: str, host: str) -> bytes:
+        try:
+            proc = subprocess.run(  # noqa: S603 - argv list; the host and paths are validated
+                argv, input=stdin, capture_output=True, timeout=_SSH_TIMEOUT_S, check=False
+            )
+        except FileNotFoundError:
+            raise FlashError(f"{argv[0]} not found; fix: install openssh-client") from None
+        except subprocess.TimeoutExpired:
+            raise FlashError(f"{host}: {what}: timed out after {_SSH_TIMEOUT_S:g} s") from None
+        if proc.returncode != 0:
+            err = proc.stderr.decode(errors="replace").strip().splitlines()
+            detail = err[-1] if err else f"exit status {proc.returncode}"
+            raise FlashError(
+                f"{host}: {what} failed: {detail}; fix: check that 'ssh {host}' works "
+                "(address, key, --ssh-option)"
+            )
+        return proc.stdout
+
+
+def _q(text: str) -> str:
+    return shlex.quote(text)
+
+
+def flash_ssh(
+    payload: FlashPayload, target: Target, ssh: Ssh, *, replace_trust: bool = False
+) -> FlashResult:
+    """Flash over ssh: stage with scp in the target directory, then rename into place."""
+    assert target.host is not None  # noqa: S101 - callers dispatch on host
+    host, d = target.host, target.directory
+    # 1. make the directory and a staging dir on the same filesystem (rename stays atomic);
+    #    report the current trust anchor and bundle digest
+    out = ssh.run(
+        host,
+        f'set -eu\nd={_q(d)}\nmkdir -p "$d"\nmktemp -d "$d/.flash.XXXXXX"\n'
+        f'if [ -f "$d/{BUNDLE_FILE}" ]; then sha256sum "$d/{BUNDLE_FILE}"; else echo none; fi\n'
+        f'if [ -f "$d/{NODE_KEY_FILE}" ]; then sha256sum "$d/{NODE_KEY_FILE}"; else echo none; fi\n'
+        f'cat "$d/{TRUST_FILE}" 2>/dev/null || true\n',
+        "prepare",
+    )
+    lines = out.decode(errors="replace").split("\n", 3)
+    if len(lines) < 4:
+        raise FlashError(f"{host}: unexpected answer from the drone's shell: {out[:80]!r}")
+    staging, bundle_sum, key_sum, trust_text = lines
+    existing_trust = trust_text.encode() if trust_text.strip() else None
+    try:
+        write_trust = _check_trust(existing_trust, payload, str(target), replace_trust)
+    except FlashError:
+        ssh.run(host, f"rm -rf {_q(staging)}\n", "clean up")
+        raise
+    replaced = bundle_sum != "none" and bundle_sum.split()[0] != _sha(payload.bundle_data)
+    key_rotated = key_sum != "none" and key_sum.split()[0] != _sha(payload.node_key_pem)
+
+    # 2. copy the files into the staging dir
+    with tempfile.TemporaryDirectory(prefix="swarmd-flash-") as tmp:
+        t = Path(tmp)
+        files = {
+            BUNDLE_FILE: (payload.bundle_data, PUBLIC_MODE),
+            NODE_KEY_FILE: (payload.node_key_pem, PRIVATE_MODE),
+            NODE_NAME_FILE: (f"{payload.node}\n".encode(), PUBLIC_MODE),
+            TRUST_FILE: (payload.trust_pem, PUBLIC_MODE),
+        }
+        for name, (data, mode) in files.items():
+            write_file_atomic(t / name, data, mode)
+        ssh.copy([t / n for n in files], host, staging, "copy")
+
+    # 3. fsync, keep the previous files, rename into place
+    script = [
+        "set -eu",
+        f"d={_q(d)}",
+        f"s={_q(staging)}",
+        f'chmod 600 "$s/{NODE_KEY_FILE}"',
+        f'chmod 644 "$s/{BUNDLE_FILE}" "$s/{NODE_NAME_FILE}" "$s/{TRUST_FILE}"',
+        'sync "$s"/*',  # coreutils sync FILE... fsyncs each file
+    ]
+    if key_rotated:
+        script += _link_prev_sh(NODE_KEY_FILE)
+    if replaced:
+        script += _link_prev_sh(BUNDLE_FILE)
+    if write_trust:
+        script.append(f'mv -f "$s/{TRUST_FILE}" "$d/{TRUST_FILE}"')
+    script += [
+        f'mv -f "$s/{NODE_NAME_FILE}" "$d/{NODE_NAME_FILE}"',
+        f'mv -f "$s/{NODE_KEY_FILE}" "$d/{NODE_KEY_FILE}"',
+        f'mv -f "$s/{BUNDLE_FILE}" "$d/{BUNDLE_FILE}"',
+        'sync "$d"',
+        'rm -rf "$s"',
+    ]
+    ssh.run(host, "\n".join(script) + "\n", "install")
+
+    # 4. read back and verify
+    try:
+        _verify_flashed(payload, target, ssh)
+    except FlashError:
+        if replaced:
+            rollback_ssh(target, ssh)
+        raise
+    return FlashResult(
+        payload.node, str(target), payload.bundle.content_sha256.hex(), replaced, write_trust
+    )
+
+
+def _link_prev_sh(name: str) -> list[str]:
+    return [
+        f'ln -f "$d/{name}" "$d/.{name}.prev.tmp"',
+        f'mv -f "$d/.{name}.prev.tmp" "$d/{name}{PREVIOUS_SUFFIX}"',
+    ]
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def rollback_ssh(target: Target, ssh: Ssh) -> None:
+    assert target.host is not None  # noqa: S101 - callers dispatch on host
+    prev = BUNDLE_FILE + PREVIOUS_SUFFIX
+    script = [
+        "set -eu",
+        f"d={_q(target.directory)}",
+        f'[ -f "$d/{prev}" ] || {{ echo "no {prev} to roll back to" >&2; exit 1; }}',
+        f'if [ -f "$d/{NODE_KEY_FILE}{PREVIOUS_SUFFIX}" ]; then '
+        f'mv -f "$d/{NODE_KEY_FILE}{PREVIOUS_SUFFIX}" "$d/{NODE_KEY_FILE}"; fi',
+        f'mv -f "$d/{prev}" "$d/{BUNDLE_FILE}"',
+        'sync "$d"',
+    ]
+    ssh.run(target.host, "\n".join(script) + "\n", "roll back")
+
+
+def flash(
+    payload: FlashPayload, target: Target, *, ssh: Ssh | None = None, replace_trust: bool = False
+) -> FlashResult:
+    """Flash ``payload`` to ``target`` (local directory or ssh)."""
+    if target.host is None:
+        return flash_local(payload, target, replace_trust=replace_trust)
+    return flash_ssh(payload, target, ssh or Ssh(), replace_trust=replace_trust)
+
+
+def rollback(target: Target, *, ssh: Ssh | None = None) -> None:
+    if target.host is None:
+        rollback_local(target)
+    else:
+        rollback_ssh(target, ssh or Ssh())
