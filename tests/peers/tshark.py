@@ -208,9 +208,7 @@ def _collect(elem: ET.Element, fields: FieldMap, params: list[TsharkParam], sect
         if name:
             if name == "rtps.parameter_data":
                 show = show.replace(":", "")
-            _add(
-                fields, name, show if child.get("value") is None or show else child.get("value", "")
-            )
+            _add(fields, name, show)
         _collect(child, fields, params, section)
 
 
