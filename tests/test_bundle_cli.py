@@ -1,0 +1,284 @@
+"""``swarmctl bundle`` end to end in a temp dir: keygen, build, verify, show --json, flash into
+directories (atomic, previous kept, key 0600, trust pinning), check and rollback."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from swarmd.bundle.errors import EX_CANTCREAT, EX_CONFIG, EX_DATAERR, EX_USAGE
+from swarmd.bundle.loader import load_bundle
+from swarmd.cli.swarmctl import main as swarmctl
+
+REPO = Path(__file__).resolve().parent.parent
+SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
+SWARM10 = REPO / "firmware_bundle" / "missions" / "swarm10.yaml"
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = swarmctl(["bundle", *argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture
+def keys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:
+    k = tmp_path / "keys"
+    code, _, _ = run(capsys, "keygen", "--out", str(k), "--mission", str(SWARM3))
+    assert code == 0
+    return k
+
+
+@pytest.fixture
+def bundle(tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]) -> Path:
+    out = tmp_path / "swarm3.swb"
+    code, stdout, _ = run(
+        capsys, "build", str(SWARM3), "-o", str(out), "--sign-key", str(keys / "swarm-signing.key")
+    )
+    assert code == 0 and stdout.startswith(f"wrote {out}: swarm field-test-3, 3 participants")
+    return out
+
+
+def test_keygen_writes_private_keys_0600_and_keeps_existing(
+    keys: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for path in [keys / "swarm-signing.key", *sorted((keys / "nodes").glob("*.key"))]:
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600, path
+    assert sorted(p.name for p in (keys / "nodes").iterdir()) == [
+        "drone-1.key", "drone-1.pub", "drone-2.key", "drone-2.pub", "lead.key", "lead.pub",
+    ]  # fmt: skip
+    before = (keys / "nodes" / "lead.key").read_bytes()
+    code, out, _ = run(capsys, "keygen", "--out", str(keys), "--mission", str(SWARM3))
+    assert code == 0 and "kept" in out and "created" not in out
+    assert (keys / "nodes" / "lead.key").read_bytes() == before
+
+
+def test_build_is_deterministic_and_verifies(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    again = tmp_path / "again.swb"
+    run(
+        capsys,
+        "build",
+        str(SWARM3),
+        "-o",
+        str(again),
+        "--sign-key",
+        str(keys / "swarm-signing.key"),
+    )
+    assert again.read_bytes() == bundle.read_bytes()
+    code, out, _ = run(
+        capsys, "verify", str(bundle), "--trusted-key", str(keys / "swarm-signing.pub"), "--json"
+    )
+    assert code == 0
+    result = json.loads(out)
+    assert result["ok"] and result["trust"] == "trusted-key" and result["participants"] == 3
+    assert (
+        result["content_sha256"]
+        == load_bundle(bundle, keys / "swarm-signing.pub").content_sha256.hex()
+    )
+
+
+def test_show_json_has_swarm_hash_participants_topics_and_matches(
+    bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, _ = run(capsys, "show", str(bundle), "--json")
+    assert code == 0
+    s = json.loads(out)
+    assert s["swarm"] == "field-test-3" and len(s["content_sha256"]) == 64
+    assert [p["name"] for p in s["participants"]] == ["lead", "drone-1", "drone-2"]
+    ready = next(t for t in s["topics"] if t["name"] == "swarm/ready")
+    assert ready["writers"] == ["drone-1", "drone-2"] and ready["readers"] == ["lead"]
+    lead_ready = next(r for r in s["matches"]["lead"] if r["topic"] == "swarm/ready")
+    assert lead_ready["kind"] == "reader" and lead_ready["peers"] == ["drone-1", "drone-2"]
+    code, out, _ = run(capsys, "show", str(bundle))
+    assert code == 0 and "swarm/command" in out and "field-test-3" in out
+
+
+def test_build_usage_and_key_errors(
+    tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "x.swb"
+    code, _, err = run(capsys, "build", str(SWARM3), "-o", str(out))
+    assert code == EX_USAGE and "--sign-key" in err
+    (keys / "nodes" / "drone-2.pub").unlink()
+    code, _, err = run(
+        capsys, "build", str(SWARM3), "-o", str(out), "--sign-key", str(keys / "swarm-signing.key")
+    )
+    assert code == EX_DATAERR
+    assert err.count("\n") == 1 and "no announcement key for participant 'drone-2'" in err
+    assert not out.exists()
+
+
+def test_flash_local_writes_files_atomically_and_keeps_previous(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    drone = tmp_path / "drone-1"
+    code, out, err = run(
+        capsys,
+        "flash",
+        str(bundle),
+        "--node",
+        "drone-1",
+        "--target",
+        str(drone),
+        "--keys",
+        str(keys),
+    )
+    assert code == 0, err
+    assert "verified" in out
+    assert sorted(p.name for p in drone.iterdir()) == [
+        "bundle.swb",
+        "node.key",
+        "node.name",
+        "swarm.pub",
+    ]
+    assert stat.S_IMODE((drone / "node.key").stat().st_mode) == 0o600
+    assert (drone / "node.key").read_bytes() == (keys / "nodes" / "drone-1.key").read_bytes()
+    assert (drone / "node.name").read_text() == "drone-1\n"
+    first = load_bundle(drone / "bundle.swb", drone / "swarm.pub")
+
+    # same bundle again: nothing to roll back to is invented
+    run(
+        capsys,
+        "flash",
+        str(bundle),
+        "--node",
+        "drone-1",
+        "--target",
+        str(drone),
+        "--keys",
+        str(keys),
+    )
+    assert not (drone / "bundle.swb.prev").exists()
+    first_inode = (drone / "bundle.swb").stat().st_ino
+
+    # a changed mission: the new bundle replaces the file by rename; the old one is kept
+    mission2 = tmp_path / "m2.yaml"
+    mission2.write_text(SWARM3.read_text().replace("history_depth: 8", "history_depth: 9"))
+    b2 = tmp_path / "b2.swb"
+    assert (
+        swarmctl(
+            [
+                "bundle",
+                "build",
+                str(mission2),
+                "-o",
+                str(b2),
+                "--sign-key",
+                str(keys / "swarm-signing.key"),
+            ]
+        )
+        == 0
+    )
+    code, out, _ = run(
+        capsys, "flash", str(b2), "--node", "drone-1", "--target", str(drone), "--keys", str(keys)
+    )
+    assert code == 0 and "previous kept" in out
+    assert (drone / "bundle.swb.prev").stat().st_ino == first_inode
+    assert (drone / "bundle.swb").read_bytes() == b2.read_bytes()
+    assert not [p for p in drone.iterdir() if ".tmp" in p.name]
+
+    code, _, _ = run(capsys, "rollback", "--target", str(drone))
+    assert code == 0
+    assert load_bundle(drone / "bundle.swb", drone / "swarm.pub") == first
+
+
+def test_flash_refuses_wrong_node_key_before_writing(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (keys / "nodes" / "drone-1.key").write_bytes((keys / "nodes" / "lead.key").read_bytes())
+    drone = tmp_path / "d"
+    code, _, err = run(
+        capsys,
+        "flash",
+        str(bundle),
+        "--node",
+        "drone-1",
+        "--target",
+        str(drone),
+        "--keys",
+        str(keys),
+    )
+    assert code == EX_DATAERR and "not 'drone-1''s announcement key" in err
+    assert not drone.exists()
+
+
+def test_flash_refuses_bundle_from_another_swarm_key_unless_rotating(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    drone = tmp_path / "d"
+    run(capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys))
+    other = tmp_path / "other-keys"
+    run(capsys, "keygen", "--out", str(other), "--mission", str(SWARM3))
+    b2 = tmp_path / "b2.swb"
+    run(capsys, "build", str(SWARM3), "-o", str(b2), "--sign-key", str(other / "swarm-signing.key"))
+    before = (drone / "bundle.swb").read_bytes()
+    code, _, err = run(
+        capsys, "flash", str(b2), "--node", "lead", "--target", str(drone), "--keys", str(other)
+    )
+    assert code == EX_CANTCREAT and "--replace-trust-key" in err and err.count("\n") == 1
+    assert (drone / "bundle.swb").read_bytes() == before
+    code, _, _ = run(
+        capsys, "flash", str(b2), "--node", "lead", "--target", str(drone), "--keys", str(other),
+        "--replace-trust-key",
+    )  # fmt: skip
+    assert code == 0
+    assert load_bundle(drone / "bundle.swb", other / "swarm-signing.pub").swarm == "field-test-3"
+
+
+def test_flash_all_uses_the_template_and_skips_nodes_without_address(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    template = str(tmp_path / "fleet" / "{name}-{index}")
+    code, out, err = run(
+        capsys, "flash", str(bundle), "--all", "--target", template, "--keys", str(keys)
+    )
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "fleet").iterdir()) == ["drone-1-1", "lead-0"]
+    code, out, _ = run(capsys, "check", str(bundle), "--all", "--target", template, "--json")
+    assert code == 0 and json.loads(out)["ok"]
+
+    # one drone carrying another bundle is caught by the fleet check
+    mission2 = tmp_path / "m2.yaml"
+    mission2.write_text(SWARM3.read_text().replace("lease_s: 20", "lease_s: 21"))
+    b2 = tmp_path / "b2.swb"
+    run(
+        capsys, "build", str(mission2), "-o", str(b2), "--sign-key", str(keys / "swarm-signing.key")
+    )
+    lead = str(tmp_path / "fleet" / "lead-0")
+    run(capsys, "flash", str(b2), "--node", "lead", "--target", lead, "--keys", str(keys))
+    code, out, _ = run(capsys, "check", str(bundle), "--all", "--target", template)
+    assert code == 1
+    assert "FAIL lead" in out and "OK   drone-1" in out and "1/2 drones" in out
+
+
+def test_check_reports_a_key_left_readable(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    drone = tmp_path / "d"
+    run(capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys))
+    os.chmod(drone / "node.key", 0o644)
+    code, out, _ = run(capsys, "check", str(bundle), "--node", "lead", "--target", str(drone))
+    assert code == 1 and "mode 644, expected 600" in out
+
+
+def test_dev_bundle_flashes_with_derived_keys_and_shows_as_dev(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    dev = tmp_path / "dev.swb"
+    code, _, err = run(capsys, "build", str(SWARM10), "-o", str(dev), "--unsigned-dev")
+    assert code == 0 and "warning" in err
+    code, _, err = run(capsys, "verify", str(dev))
+    assert code == EX_CONFIG and "unsigned-dev" in err
+    assert run(capsys, "verify", str(dev), "--allow-dev")[0] == 0
+    drone = tmp_path / "d"
+    code, _, err = run(capsys, "flash", str(dev), "--node", "drone-03", "--target", str(drone))
+    assert code == 0, err
+    code, out, _ = run(capsys, "show", str(dev), "--json", "--node", "drone-03")
+    s = json.loads(out)
+    assert s["dev"] and list(s["matches"]) == ["drone-03"]
