@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import socket
 import subprocess
 import sys
 import tempfile
@@ -114,7 +115,19 @@ def tshark_summary(pcap: Path) -> tuple[str, str]:
     return f"{src} \N{RIGHTWARDS ARROW} {dst} {proto} {length} {info}", info
 
 
-def capture(workdir: Path) -> tuple[dict[str, Datagram], CyclonePeer, dict[str, str]]:
+def record_replies(sock: socket.socket, prefix: GuidPrefix, since: float, window: float) -> None:
+    """Print when each further directed DATA(p) from ``prefix`` arrives (docs/interop.md)."""
+    accept = _first_from(prefix, "alive", directed_to=OUR_PREFIX)
+    arrivals = []
+    while (remaining := since + window - time.monotonic()) > 0:
+        if receive_until(sock, accept, remaining) is not None:
+            arrivals.append(f"+{time.monotonic() - since:.3f}s")
+    print(f"directed replies after the first, within {window:.1f} s: {', '.join(arrivals)}")
+
+
+def capture(
+    workdir: Path, reply_window: float
+) -> tuple[dict[str, Datagram], CyclonePeer, dict[str, str]]:
     packets: dict[str, Datagram] = {}
     group = (SPDP_MULTICAST_GROUP, spdp_multicast_port(0))
     with Lan(2, subnet=SUBNET) as lan:
@@ -138,6 +151,7 @@ def capture(workdir: Path) -> tuple[dict[str, Datagram], CyclonePeer, dict[str, 
                     builtin_endpoints=BES_SPDP_ONLY,
                     entity_name="capture/swarmd",
                 )
+                sent_at = time.monotonic()
                 sock.sendto(
                     encode_spdp(
                         ours, sequence_number=1, timestamp=Duration.from_seconds(time.time())
@@ -150,6 +164,9 @@ def capture(workdir: Path) -> tuple[dict[str, Datagram], CyclonePeer, dict[str, 
                 if got is None:
                     raise SystemExit("capture: no directed DATA(p) reply from Cyclone")
                 packets["data-p-directed"] = Datagram(got[0], got[1], (our_ns.address, META_PORT))
+                print(f"first directed reply: +{time.monotonic() - sent_at:.3f}s after our DATA(p)")
+                if reply_window > 0:
+                    record_replies(sock, cyclone.prefix, sent_at, reply_window)
                 own = cyclone.trace.wait_for(
                     own_participant_pattern(cyclone.prefix), WAIT_S, "own PARTICIPANT line"
                 )
@@ -176,6 +193,12 @@ def capture(workdir: Path) -> tuple[dict[str, Datagram], CyclonePeer, dict[str, 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--out", type=Path, default=REPO / "tests" / "fixtures" / "cyclone-live")
+    parser.add_argument(
+        "--reply-window",
+        type=float,
+        default=0.0,
+        help="also print arrival times of Cyclone's directed replies for this many seconds",
+    )
     args = parser.parse_args(argv)
     reason = unavailable_reason()
     if reason is not None:
@@ -187,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="swarmd-capture-") as tmp:
         workdir = Path(tmp)
-        packets, cyclone, trace = capture(workdir)
+        packets, cyclone, trace = capture(workdir, args.reply_window)
         ts_version = tshark_version()
         for name, dgram in packets.items():
             pcap = workdir / f"{name}.pcap"
@@ -225,7 +248,9 @@ def main(argv: list[str] | None = None) -> int:
                 "cyclone_trace": trace,
             }
             (args.out / f"{name}.bin").write_bytes(dgram.payload)
-            (args.out / f"{name}.json").write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n")
+            (args.out / f"{name}.json").write_text(
+                json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n"
+            )
             kinds = ", ".join(str(s["kind"]) for s in samples)
             print(f"{name}: {len(dgram.payload)} B, {sidecar['tshark_summary']} [{kinds}]")
     return 0

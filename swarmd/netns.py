@@ -12,7 +12,7 @@ interface with them (a veth dies with either end's namespace). Multicast snoopin
 on the bridge, so a group is flooded to every port whether or not an IGMP querier exists
 (there is none on a lab bridge; with snooping on, forwarding would depend on timing).
 
-Names carry a per-run prefix (``swt-<pid>-<counter>`` by default) so parallel runs never
+Names carry a per-run prefix (``swn-<pid>-<counter>`` by default) so parallel runs never
 collide, and ``cleanup_stale`` removes what a killed run left behind.
 
 Needs root (CAP_SYS_ADMIN + CAP_NET_ADMIN) and iproute2's ``ip``; ``unavailable_reason()``
@@ -39,7 +39,7 @@ from types import TracebackType
 from typing import IO, Final
 
 NETNS_DIR: Final = "/run/netns"
-DEFAULT_BASE: Final = "swt"
+DEFAULT_BASE: Final = "swn"  # swarmd netns; distinct from hand-made "swt-*" names
 HUB_SUFFIX: Final = "hub"
 BRIDGE: Final = "br0"
 IFNAME: Final = "eth0"
@@ -114,7 +114,7 @@ def delete_namespace(name: str) -> None:
 def cleanup_stale(prefix: str) -> list[str]:
     """Delete every namespace whose name starts with ``prefix``; return the names removed.
 
-    Pass a full run prefix (``swt-1234-1``) or ``swt-1234-`` for one dead process; to sweep
+    Pass a full run prefix (``swn-1234-1``) or ``swn-1234-`` for one dead process; to sweep
     up after any dead run without touching live parallel runs use ``cleanup_dead_runs``.
     """
     if not prefix:
