@@ -75,7 +75,7 @@ def missions(draw: st.DrawFn) -> dict[str, Any]:
     )
     topics = []
     for t in topic_names:
-        topic = {
+        topic: dict[str, Any] = {
             "name": t,
             "type": draw(st.sampled_from(["swarmd::Readiness", "a::b::C", "Plain"])),
             "writers": draw(selector),
