@@ -25,7 +25,7 @@ def test_documented_default_config_loads() -> None:
     assert cfg.node == "uav1"
     assert cfg.interface == "wlan0"
     assert cfg.bundle.path == "/var/lib/swarmd/bundle.swb"
-    assert cfg.bundle.trusted_key == "/etc/swarmd/swarm-signing.pub"
+    assert cfg.bundle.trusted_key == "/var/lib/swarmd/swarm.pub"
     assert cfg.control_socket == "/run/swarmd/swarmd.sock"
     assert cfg.control_socket_mode == 0o660
     assert cfg.link.sources == ("nl80211", "wext", "static")

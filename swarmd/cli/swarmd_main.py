@@ -1,12 +1,21 @@
-"""``swarmd``: the daemon entry point (``swarmd run --config FILE``)."""
+"""``swarmd``: the daemon entry point (``swarmd run --config FILE``).
+
+Exit codes (sysexits): 0 clean stop (SIGTERM/SIGINT), 2 usage, 69 the control socket is
+held by another live swarmd, 71 a UDP socket cannot be bound or joined, 78 bad config or a
+rejected bundle (systemd's ``RestartPreventExitStatus=78`` stops a restart loop on those).
+Every failure before the loop runs is one line on stderr, never a traceback.
+"""
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import sys
 from collections.abc import Sequence
+from dataclasses import fields
 
 from swarmd import __version__
+from swarmd.config import EX_CONFIG, ConfigError, load_config
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -15,17 +24,66 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     run = sub.add_parser("run", help="run the daemon in the foreground (systemd Type=notify)")
     run.add_argument("--config", required=True, help="daemon config file (YAML)")
+    check = sub.add_parser("check-config", help="check a config file (and its bundle), then exit")
+    check.add_argument("--config", required=True, help="daemon config file (YAML)")
     return parser
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"swarmd: {message}", file=sys.stderr)
+    return code
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command != "run":
+    if args.command not in ("run", "check-config"):
         parser.print_help(sys.stderr)
         return 2
-    print("swarmd: the daemon is not built yet", file=sys.stderr)
-    return 69
+    # imported here so `swarmd --help` stays fast and works without the engine's deps
+    from swarmd import logging as swarmd_logging
+    from swarmd.bundle.errors import BundleError
+    from swarmd.bundle.loader import load_bundle
+    from swarmd.daemon import Daemon, StartupError, run
+    from swarmd.discovery.config import EngineConfig
+
+    engine_fields = frozenset(f.name for f in fields(EngineConfig)) - {"mode"}
+    try:
+        config = load_config(args.config, engine_fields=engine_fields)
+    except ConfigError as exc:
+        return _fail(f"config rejected: {exc}", EX_CONFIG)
+    swarmd_logging.configure(config.log_level, config.log_format)
+    log = swarmd_logging.get_logger(node=config.node)
+    try:
+        bundle = load_bundle(
+            config.bundle.path,
+            config.bundle.trusted_key,
+            expected_sha256=config.bundle.expected_sha256,
+            allow_dev=config.bundle.allow_dev,
+        )
+    except BundleError as exc:
+        return _fail(f"bundle rejected: {exc}", EX_CONFIG)
+    if config.node not in {p.name for p in bundle.participants}:
+        names = ", ".join(p.name for p in bundle.participants[:8])
+        bad_node = config.error(
+            "node",
+            f"{config.node!r} is not a participant of swarm {bundle.swarm!r}",
+            f"use one of the bundle's names ({names}{', ...' if bundle.size > 8 else ''})",
+        )
+        return _fail(f"config rejected: {bad_node}", EX_CONFIG)
+    if args.command == "check-config":
+        try:
+            Daemon(config, bundle, log=log)
+        except ConfigError as exc:
+            return _fail(f"config rejected: {exc}", EX_CONFIG)
+        print(f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm})")
+        return 0
+    try:
+        return asyncio.run(run(config, bundle, log=log))
+    except ConfigError as exc:
+        return _fail(f"config rejected: {exc}", EX_CONFIG)
+    except StartupError as exc:
+        return _fail(str(exc), exc.exit_code)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,533 @@
+"""The daemon: the only asyncio in swarmd, a thin adapter around the sans-IO engine.
+
+aioquic's shape (style.md rule 11): every input goes to the engine with ``loop.time()`` as
+``now`` and is followed by the same three steps: drain events, send what the engine queued,
+re-arm the single ``TimerHandle`` at ``engine.get_timer()``. The three inputs are
+
+- datagrams on the SPDP multicast socket (239.255.0.1:7400+250*domain, joined on the
+  configured interface) and on the unicast metatraffic socket (port from the bundle index;
+  every send leaves from this socket, so peers see one source port per participant);
+- the engine timer;
+- link-quality samples from the link monitor, polled every ``link.poll_interval_s``.
+
+Around it: the control socket (``swarmctl``), sd_notify (``READY=1`` once the bundle is
+verified and the sockets are bound, ``STATUS=`` on phase/peer changes, ``WATCHDOG=1`` at half
+``WATCHDOG_USEC`` only while the loop is healthy) and SIGTERM/SIGINT for a clean shutdown
+that tells every peer we leave (DATA(p[UD])).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import os
+import random
+import secrets
+import signal
+import socket
+import struct
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import fields
+from typing import Any, Final
+
+from swarmd import __version__
+from swarmd.bundle.model import Bundle
+from swarmd.config import DaemonConfig
+from swarmd.control import ControlServer
+from swarmd.discovery.config import EngineConfig
+from swarmd.discovery.engine import DiscoveryEngine
+from swarmd.discovery.events import (
+    Event,
+    ForeignParticipantSeen,
+    PacketDropped,
+    PeerDiscovered,
+    PeerLost,
+    PhaseChanged,
+)
+from swarmd.link.file import FileSource
+from swarmd.link.monitor import LinkMonitor
+from swarmd.link.nl80211 import Nl80211Source
+from swarmd.link.sample import LinkSample
+from swarmd.link.source import LinkSource
+from swarmd.link.static import StaticSource
+from swarmd.link.wext import WextSource
+from swarmd.sdnotify import Notifier, watchdog_interval_s
+
+SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
+IFNAMSIZ: Final = 16
+IP_MULTICAST_ALL: Final = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
+# Linux's default IP_MULTICAST_ALL=1 delivers every group any socket joined to every socket
+# bound to the port; off, the SPDP socket hears only 239.255.0.1 joined on our interface.
+RECV_BUFFER_BYTES: Final = 1 << 20  # a burst of 50 peers' DATA(p) (~300 B each) fits easily
+
+
+class StartupError(Exception):
+    """Start-up failed for a reason outside the config file; one line, with an exit code."""
+
+    def __init__(self, message: str, exit_code: int) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+def interface_ipv4(ifname: str) -> str:
+    """The interface's (first) IPv4 address; ``OSError`` when it has none or does not exist."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        req = struct.pack("256s", ifname.encode()[: IFNAMSIZ - 1])
+        packed = fcntl.ioctl(s.fileno(), SIOCGIFADDR, req)
+    return socket.inet_ntoa(packed[20:24])
+
+
+def resolve_ipv4(config: DaemonConfig) -> str:
+    """The local IPv4 the engine announces: configured, else the interface's own."""
+    try:
+        socket.if_nametoindex(config.interface)
+    except OSError:
+        raise config.error(
+            "network.interface",
+            f"no interface {config.interface!r} on this host",
+            "name an existing interface ('ip -br link' lists them)",
+        ) from None
+    if config.ipv4 is not None:
+        return config.ipv4
+    try:
+        return interface_ipv4(config.interface)
+    except OSError:
+        raise config.error(
+            "network.interface",
+            f"interface {config.interface!r} has no IPv4 address",
+            "bring the link up with an address, or set network.ipv4",
+        ) from None
+
+
+def engine_config(config: DaemonConfig) -> EngineConfig:
+    """``EngineConfig`` from ``discovery.mode`` and ``discovery.overrides``."""
+    types = {f.name: f.type for f in fields(EngineConfig)}
+    values: dict[str, Any] = {}
+    for name, value in config.engine_overrides.items():
+        path = f"discovery.overrides.{name}"
+        if name not in types or name == "mode":
+            raise config.error(path, f"unknown engine setting {name!r}", "see EngineConfig")
+        if types[name] in ("int", int):
+            if value != int(value):
+                raise config.error(path, f"{value} is not a whole number", "use an integer")
+            value = int(value)
+        values[name] = value
+    try:
+        return EngineConfig(mode=config.engine_mode, **values)  # type: ignore[arg-type]
+    except ValueError as exc:
+        problem, _, fix = str(exc).partition("; fix: ")
+        path = next((f"discovery.overrides.{n}" for n in values if n in problem), "discovery")
+        raise config.error(path, problem, fix or "see docs/operations.md") from None
+
+
+def link_sources(config: DaemonConfig) -> list[LinkSource]:
+    """The configured link sources, in order."""
+    link = config.link
+    make: dict[str, Callable[[], LinkSource]] = {
+        "nl80211": lambda: Nl80211Source(config.interface, snr_floor_db=link.snr_floor_db),
+        "wext": lambda: WextSource(
+            config.interface,
+            path=link.wext_path,
+            max_quality=link.wext_max_quality,
+            snr_floor_db=link.snr_floor_db,
+        ),
+        "file": lambda: FileSource(
+            link.file, max_age_s=link.file_max_age_s, snr_floor_db=link.snr_floor_db
+        ),
+        "static": lambda: StaticSource(link.static_q),
+    }
+    return [make[name]() for name in link.sources]
+
+
+def open_spdp_socket(group: str, port: int, ipv4: str) -> socket.socket:
+    """The SPDP multicast socket: ``group:port`` joined on the interface owning ``ipv4``."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        # several participants on one host (tests, a ground station) share the SPDP port
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER_BYTES)
+        s.bind(("", port))
+        mreq = socket.inet_aton(group) + socket.inet_aton(ipv4)
+        s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
+        s.setsockopt(socket.IPPROTO_IP, IP_MULTICAST_ALL, 0)
+        _multicast_send_options(s, ipv4)
+        s.setblocking(False)
+    except BaseException:
+        s.close()
+        raise
+    return s
+
+
+def open_unicast_socket(port: int, ipv4: str) -> socket.socket:
+    """The metatraffic unicast socket; every datagram the engine queues leaves from it."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER_BYTES)
+        s.bind(("", port))  # not ipv4: a re-addressed interface must not deafen us
+        _multicast_send_options(s, ipv4)
+        s.setblocking(False)
+    except BaseException:
+        s.close()
+        raise
+    return s
+
+
+def _multicast_send_options(s: socket.socket, ipv4: str) -> None:
+    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(ipv4))
+    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)  # the swarm is one hop
+    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)  # co-hosted participants
+
+
+class _Endpoint(asyncio.DatagramProtocol):
+    """One UDP socket feeding the engine; which one only matters for the counters."""
+
+    def __init__(self, daemon: Daemon, name: str) -> None:
+        self.daemon = daemon
+        self.name = name
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.daemon.datagram_received(data, addr, self.name)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable from a peer that left, or ENOBUFS on a saturated channel
+        self.daemon.count(f"socket_error_{self.name}")
+
+
+class Daemon:
+    """One swarmd process: the engine, its sockets, link polling, control and sd_notify."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        bundle: Bundle,
+        *,
+        log: Any,
+        notifier: Notifier | None = None,
+        sources: list[LinkSource] | None = None,
+        rng: random.Random | None = None,
+        env: Mapping[str, str] | None = None,
+    ) -> None:
+        self.config = config
+        self.bundle = bundle
+        self.log = log
+        self.notifier = notifier if notifier is not None else Notifier(env)
+        self.monitor = LinkMonitor(sources if sources is not None else link_sources(config), log)
+        # seeded from the OS: two drones booting together must not draw the same timers
+        self.rng = rng if rng is not None else random.Random(secrets.randbits(64))  # noqa: S311 - timer jitter, not cryptography
+        self.engine_config = engine_config(config)
+        self.local_ipv4 = resolve_ipv4(config)
+        self.watchdog_s = watchdog_interval_s(env)
+        self.counters: dict[str, int] = {}
+        self.engine: DiscoveryEngine | None = None
+        self.stopped = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._transports: dict[str, asyncio.DatagramTransport] = {}
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_deadline: float | None = None
+        self._watchdog: asyncio.TimerHandle | None = None
+        self._link_task: asyncio.Task[None] | None = None
+        self._control: ControlServer | None = None
+        self._status_line = ""
+        self._started_wall = time.time()
+        self._started = 0.0
+
+    # -- life cycle ----------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Bind everything, then ``READY=1``. Raises ``StartupError`` with a one-line reason."""
+        loop = asyncio.get_running_loop()
+        self._loop = loop
+        self._started = loop.time()
+        # paper section 4.1: the passive timer is drawn from the link quality at start
+        first = await self.monitor.poll()
+        now = loop.time()
+        try:
+            self.engine = DiscoveryEngine(
+                self.bundle,
+                self.config.node,
+                config=self.engine_config,
+                rng=self.rng,
+                now=now,
+                local_ipv4=self.local_ipv4,
+                wallclock=time.time,  # INFO_TS only; every deadline uses loop.time()
+                link=first,
+            )
+        except ValueError as exc:
+            problem, _, fix = str(exc).partition("; fix: ")
+            raise self.config.error("node", problem, fix or "check node and the bundle") from None
+        group, mport = self.engine.spdp_multicast
+        uport = self.engine.metatraffic_port
+        try:
+            spdp = open_spdp_socket(group, mport, self.local_ipv4)
+        except OSError as exc:
+            raise StartupError(
+                f"cannot join {group}:{mport} on {self.config.interface} "
+                f"({self.local_ipv4}): {exc.strerror}",
+                71,
+            ) from None
+        try:
+            unicast = open_unicast_socket(uport, self.local_ipv4)
+        except OSError as exc:
+            spdp.close()
+            raise StartupError(
+                f"cannot bind metatraffic port {uport}: {exc.strerror} "
+                "(is another participant with the same bundle index running?)",
+                71,
+            ) from None
+        for name, sock in (("multicast", spdp), ("unicast", unicast)):
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda name=name: _Endpoint(self, name),  # type: ignore[misc]
+                sock=sock,
+            )
+            self._transports[name] = transport
+        self._control = ControlServer(
+            self.config.control_socket,
+            {
+                "status": lambda _r: self.status(),
+                "peers": lambda _r: self.status()["peers"],
+                "ping": lambda _r: "pong",
+            },
+            mode=self.config.control_socket_mode,
+        )
+        try:
+            await self._control.start()
+        except (OSError, RuntimeError) as exc:
+            self._control = None
+            await self._close_transports()
+            raise StartupError(f"control socket {self.config.control_socket}: {exc}", 69) from None
+        self._link_task = loop.create_task(self._poll_link(), name="swarmd-link")
+        self._after_input()
+        self.notifier.ready(self._status_text())
+        if self.watchdog_s is not None:
+            self._watchdog = loop.call_later(self.watchdog_s, self._watchdog_tick)
+        self.log.info(
+            "started",
+            version=__version__,
+            node=self.config.node,
+            swarm=self.bundle.swarm,
+            interface=self.config.interface,
+            ipv4=self.local_ipv4,
+            spdp=f"{group}:{mport}",
+            metatraffic_port=uport,
+            link=first.source if first else None,
+            q=first.q if first else None,
+            watchdog_s=self.watchdog_s,
+        )
+
+    async def stop(self, reason: str = "stop") -> None:
+        """Tell every peer we leave (DATA(p[UD])), then release everything."""
+        if self.stopped.is_set():
+            return
+        self.stopped.set()
+        self.notifier.stopping("stopping: " + reason)
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+        if self._link_task is not None:
+            self._link_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._link_task
+        if self.engine is not None and self._loop is not None:
+            self.engine.shutdown(self._loop.time())
+            self._after_input()
+        if self._timer is not None:
+            self._timer.cancel()
+        if self._control is not None:
+            await self._control.close()
+        await self._close_transports()
+        self.monitor.close()
+        self.notifier.close()
+        self.log.info("stopped", reason=reason)
+
+    async def _close_transports(self) -> None:
+        for transport in self._transports.values():
+            transport.close()
+        self._transports.clear()
+        await asyncio.sleep(0)  # let the transports' close callbacks run
+
+    # -- the adapter (rule 11) -----------------------------------------------------------
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int], via: str) -> None:
+        if self.engine is None or self._loop is None or self.stopped.is_set():
+            return
+        self.count(f"rx_{via}")
+        try:
+            self.engine.receive_datagram(data, addr, self._loop.time())
+        except Exception:  # the engine promises not to raise: this is a bug, not bad input
+            self.count("engine_exceptions")
+            self.log.exception("engine_receive_failed", source=f"{addr[0]}:{addr[1]}")
+        self._after_input()
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._timer_deadline = None
+        if self.engine is None or self._loop is None:
+            return
+        self.engine.handle_timer(self._loop.time())
+        self._after_input()
+
+    async def _poll_link(self) -> None:
+        engine, loop = self._core()
+        while True:
+            await asyncio.sleep(self.config.link.poll_interval_s)
+            sample = await self.monitor.poll()
+            if sample is not None and not self.stopped.is_set():
+                engine.update_link_quality(sample, loop.time())
+                self._after_input()
+
+    def _core(self) -> tuple[DiscoveryEngine, asyncio.AbstractEventLoop]:
+        if self.engine is None or self._loop is None:
+            raise RuntimeError("the daemon is not started")
+        return self.engine, self._loop
+
+    def _after_input(self) -> None:
+        engine, _ = self._core()
+        while (event := engine.next_event()) is not None:
+            self._log_event(event)
+        self._transmit()
+        text = self._status_text()
+        if text != self._status_line:
+            self._status_line = text
+            self.notifier.status(text)
+
+    def _transmit(self) -> None:
+        engine, loop = self._core()
+        out = self._transports.get("unicast")
+        for payload, dest in engine.datagrams_to_send(loop.time()):
+            if out is None:
+                self.count("tx_dropped_closed")
+                continue
+            out.sendto(payload, dest)
+        deadline = engine.get_timer()
+        if deadline != self._timer_deadline:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+            if deadline is not None and not self.stopped.is_set():
+                self._timer = loop.call_at(deadline, self._on_timer)
+            self._timer_deadline = deadline
+
+    def _log_event(self, event: Event) -> None:
+        match event:
+            case PeerDiscovered(name=name, matches=matches, via=via):
+                self.log.info("peer_discovered", peer=name, via=via, matched=len(matches))
+            case PeerLost(name=name, reason=reason):
+                self.log.info("peer_lost", peer=name, reason=reason)
+            case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
+                self.log.info(
+                    "foreign_participant", guid_prefix=str(prefix), vendor=vendor, name=name
+                )
+            case PhaseChanged(old=old, new=new, reason=reason):
+                self.log.info("phase_changed", old=str(old), new=str(new), reason=reason)
+            case PacketDropped(reason=reason, source=source):
+                self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
+            case _:  # Event is concrete, so match cannot be exhaustive; log what is new
+                self.log.info("engine_event", event_type=type(event).__name__)
+
+    # -- health and status ---------------------------------------------------------------
+
+    def count(self, name: str) -> None:
+        self.counters[name] = self.counters.get(name, 0) + 1
+
+    def healthy(self) -> bool:
+        """The loop runs, the link poller lives and the engine timer is not overdue."""
+        if self._loop is None or self.stopped.is_set():
+            return False
+        if self._link_task is None or self._link_task.done():
+            return False
+        if self._timer_deadline is not None and self.watchdog_s is not None:
+            # a timer more than one ping interval late means the loop is starved
+            return self._loop.time() - self._timer_deadline < self.watchdog_s
+        return True
+
+    def _watchdog_tick(self) -> None:
+        if self._loop is None or self.watchdog_s is None:
+            return
+        if self.healthy():
+            self.notifier.watchdog()
+        else:
+            self.count("watchdog_withheld")
+            self.log.warning("watchdog_withheld", reason="loop unhealthy")
+        if not self.stopped.is_set():
+            self._watchdog = self._loop.call_later(self.watchdog_s, self._watchdog_tick)
+
+    def _status_text(self) -> str:
+        if self.engine is None:
+            return "starting"
+        st = self.engine.status(self._loop.time() if self._loop else 0.0)
+        return (
+            f"phase {st.get('phase')}, peers {st.get('peers_discovered', 0)}/"
+            f"{st.get('peers_total', 0)} discovered"
+        )
+
+    def status(self) -> dict[str, Any]:
+        """The engine's status plus what only the daemon knows (schema: docs/operations.md)."""
+        engine, loop = self._core()
+        now = loop.time()
+        st = dict(engine.status(now))
+        st["node"] = self.config.node
+        latest: LinkSample | None = self.monitor.latest
+        link = dict(st.get("link") or {})
+        if latest is not None:
+            for key, value in (
+                ("q", latest.q),
+                ("snr_db", latest.snr_db),
+                ("source", latest.source),
+            ):
+                if link.get(key) is None:
+                    link[key] = value
+        link["active_source"] = self.monitor.active_source
+        link["retired_sources"] = self.monitor.retired
+        st["link"] = link
+        counters = dict(st.get("counters") or {})
+        counters["daemon"] = dict(self.counters)
+        st["counters"] = counters
+        st["daemon"] = {
+            "version": __version__,
+            "pid": os.getpid(),
+            "uptime_s": round(now - self._started, 3),
+            "started_at": self._started_wall,
+            "interface": self.config.interface,
+            "ipv4": self.local_ipv4,
+            "spdp": "{}:{}".format(*engine.spdp_multicast),
+            "metatraffic_port": engine.metatraffic_port,
+            "watchdog_s": self.watchdog_s,
+            "healthy": self.healthy(),
+        }
+        return st
+
+
+async def run(
+    config: DaemonConfig,
+    bundle: Bundle,
+    *,
+    log: Any,
+    env: Mapping[str, str] | None = None,
+    sources: list[LinkSource] | None = None,
+) -> int:
+    """Run until SIGTERM/SIGINT; the exit code. Config/start-up errors propagate."""
+    daemon = Daemon(config, bundle, log=log, env=env, sources=sources)
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    reasons: list[str] = []
+
+    def on_signal(name: str) -> None:
+        reasons.append(name)
+        stop.set()
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, on_signal, sig.name)
+    try:
+        try:
+            await daemon.start()
+        except BaseException:
+            await daemon.stop("start-up failed")
+            raise
+        await stop.wait()
+        await daemon.stop(reasons[0] if reasons else "stop")
+    finally:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.remove_signal_handler(sig)
+    return 0

@@ -1,0 +1,112 @@
+"""Helpers for the daemon tests: a dev bundle on disk, a config pointing at it."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
+from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.model import Bundle
+
+
+def run_domain() -> int:
+    """A domain id unlikely to collide with a parallel test run on the same host."""
+    return 100 + os.getpid() % 100
+
+
+@dataclass(frozen=True)
+class BundleFiles:
+    bundle: Bundle
+    path: Path
+    trusted_key: Path
+
+
+def write_bundle(
+    directory: Path,
+    n: int,
+    *,
+    domain_id: int,
+    lease_s: float = 20.0,
+    t_min_s: float = 0.2,
+    t_max_s: float = 0.5,
+    ipv4: list[str] | None = None,
+    swarm: str = "testswarm",
+) -> BundleFiles:
+    """A dev-signed bundle of ``n`` members uav1..uavN (uav1 commands) and its trust key."""
+    parts = []
+    for i in range(n):
+        role = "commander" if i == 0 else "member"
+        addr = f"\n    ipv4: {ipv4[i]}" if ipv4 else ""
+        parts.append(
+            f"  - name: uav{i + 1}\n    index: {i}\n    role: {role}\n"
+            f"    mavlink_sysid: {i + 1}{addr}"
+        )
+    mission = f"""\
+swarm: {swarm}
+domain_id: {domain_id}
+discovery:
+  t_min_s: {t_min_s}
+  t_max_s: {t_max_s}
+  lease_s: {lease_s}
+participants:
+{chr(10).join(parts)}
+topics:
+  - name: swarm/ready
+    type: swarm::Ready
+    reliability: reliable
+    writers: [member]
+    readers: [commander]
+  - name: swarm/command
+    type: swarm::Command
+    reliability: reliable
+    writers: [commander]
+    readers: [member]
+"""
+    built = build_dev_bundle(parse_mission(mission, "test-mission.yaml"))
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "bundle.swb"
+    path.write_bytes(built.data)
+    key = directory / "swarm.pub"
+    key.write_bytes(public_pem(raw_public(dev_signing_key(swarm))))
+    return BundleFiles(built.bundle, path, key)
+
+
+def write_config(
+    path: Path,
+    files: BundleFiles,
+    *,
+    node: str,
+    interface: str,
+    socket_path: str,
+    ipv4: str | None = None,
+    link_file: Path | None = None,
+    static_q: float = 0.8,
+    poll_s: float = 0.2,
+    level: str = "info",
+) -> Path:
+    sources = "[nl80211, file, static]" if link_file else "[nl80211, static]"
+    text = f"""\
+node: {node}
+bundle:
+  path: {files.path}
+  trusted_key: {files.trusted_key}
+  allow_dev: true
+network:
+  interface: {interface}
+  ipv4: {ipv4 if ipv4 else "null"}
+control:
+  socket: {socket_path}
+link:
+  sources: {sources}
+  poll_interval_s: {poll_s}
+  file: {link_file if link_file else "/nonexistent"}
+  static_q: {static_q}
+logging:
+  level: {level}
+  format: json
+"""
+    path.write_text(text)
+    return path

@@ -1,0 +1,176 @@
+"""The asyncio adapter, in-process: two daemons on the host loopback, real UDP sockets.
+
+A per-process domain id keeps parallel runs apart. Waiting for a condition (with a
+generous cap) is not a timing assertion: the tests assert states and counters only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import structlog
+from structlog.testing import capture_logs
+
+from swarmd.config import ConfigError, load_config
+from swarmd.control import request
+from swarmd.daemon import Daemon
+from swarmd.link.static import StaticSource
+from swarmd.sdnotify import Notifier
+from tests.daemon_support import BundleFiles, run_domain, write_bundle, write_config
+
+WAIT_S = 20.0
+
+
+@pytest.fixture
+def workdir(tmp_path: Path) -> Iterator[Path]:
+    # AF_UNIX socket paths must stay under 108 bytes
+    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")
+    short.mkdir(parents=True, exist_ok=True)
+    yield short
+    for child in short.iterdir():
+        child.unlink()
+    short.rmdir()
+
+
+@pytest.fixture
+def files(workdir: Path) -> BundleFiles:
+    return write_bundle(workdir, 2, domain_id=run_domain(), lease_s=20.0)
+
+
+def _daemon(workdir: Path, files: BundleFiles, node: str) -> Daemon:
+    cfg = write_config(
+        workdir / f"{node}.yaml",
+        files,
+        node=node,
+        interface="lo",
+        ipv4="127.0.0.1",
+        socket_path=str(workdir / f"{node}.sock"),
+    )
+    config = load_config(cfg)
+    return Daemon(
+        config,
+        files.bundle,
+        log=structlog.get_logger(node=node),
+        notifier=Notifier({}),
+        sources=[StaticSource(0.8)],
+        env={},
+    )
+
+
+async def _until(cond: Callable[[], bool], what: str | Callable[[], str]) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + WAIT_S
+    while not cond():
+        if loop.time() > deadline:
+            raise AssertionError(f"gave up waiting for {what if isinstance(what, str) else what()}")
+        await asyncio.sleep(0.05)
+
+
+def _peer(status: dict[str, Any], name: str) -> dict[str, Any]:
+    return next(p for p in status["peers"] if p["name"] == name)
+
+
+def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
+    workdir: Path, files: BundleFiles
+) -> None:
+    async def main() -> None:
+        a, b = _daemon(workdir, files, "uav1"), _daemon(workdir, files, "uav2")
+        with capture_logs() as logs:
+            await a.start()
+            await b.start()
+            try:
+                await _until(
+                    lambda: (
+                        _peer(a.status(), "uav2")["state"] == "discovered"
+                        and _peer(b.status(), "uav1")["state"] == "discovered"
+                    ),
+                    "mutual discovery",
+                )
+                st = a.status()
+                assert st["node"] == "uav1"
+                assert st["peers_discovered"] == 1
+                peer = _peer(st, "uav2")
+                assert (
+                    peer["matched_endpoints"] == 2
+                )  # ready (uav2 -> uav1), command (uav1 -> uav2)
+                assert peer["locator"] == f"udp/127.0.0.1:{b.engine.metatraffic_port}"  # type: ignore[union-attr]
+                assert st["link"]["source"] == "static"
+                assert st["daemon"]["healthy"]
+
+                # garbage on both of a's ports: counted, dropped, a keeps running. The SPDP
+                # port is shared (SO_REUSEPORT), so the kernel may hand those to b instead.
+                def garbage_drops() -> int:
+                    return sum(
+                        v
+                        for d in (a, b)
+                        for k, v in d.status()["counters"]["dropped"].items()
+                        if k != "own"
+                    )
+
+                before, rx_before = garbage_drops(), a.counters.get("rx_unicast", 0)
+                junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                _, mport = a.engine.spdp_multicast  # type: ignore[union-attr]
+                payloads = (b"", b"RTPS", b"\xff" * 300, b"RTPS\x02\x03" + b"\x00" * 40)
+                for payload in payloads:
+                    junk.sendto(payload, ("127.0.0.1", a.engine.metatraffic_port))  # type: ignore[union-attr]
+                    junk.sendto(payload, ("127.0.0.1", mport))
+                junk.close()
+                await _until(
+                    lambda: (
+                        a.counters.get("rx_unicast", 0) == rx_before + len(payloads)
+                        and garbage_drops() == before + 2 * len(payloads)
+                    ),
+                    lambda: f"garbage counted: {a.status()['counters']}",
+                )
+                assert a.counters.get("engine_exceptions", 0) == 0
+                assert a.status()["daemon"]["healthy"]
+
+                # the control socket answers the same status
+                reply = await asyncio.to_thread(request, str(workdir / "uav1.sock"), "status")
+                assert reply["node"] == "uav1"
+                assert _peer(reply, "uav2")["state"] == "discovered"
+
+                # a clean stop sends DATA(p[UD]): the peer drops it at once, not after the lease
+                await b.stop("test")
+                await _until(lambda: _peer(a.status(), "uav2")["state"] == "lost", "uav2 lost")
+            finally:
+                await a.stop("test")
+                await b.stop("test")
+        events = [e["event"] for e in logs]
+        assert "started" in events
+        assert "peer_discovered" in events
+        lost = [e for e in logs if e["event"] == "peer_lost"]
+        assert lost[0]["peer"] == "uav2"
+        assert lost[0]["reason"] == "disposed"
+
+    asyncio.run(main())
+    assert not os.path.exists(workdir / "uav1.sock")
+
+
+def test_unknown_node_is_a_config_error_naming_the_node_line(
+    workdir: Path, files: BundleFiles
+) -> None:
+    daemon = _daemon(workdir, files, "uav9")
+
+    async def main() -> None:
+        try:
+            await daemon.start()
+        finally:
+            await daemon.stop("test")
+
+    with pytest.raises(ConfigError, match=r"uav9.yaml:1: field node: .*uav9"):
+        asyncio.run(main())
+
+
+def test_missing_interface_is_a_config_error(workdir: Path, files: BundleFiles) -> None:
+    cfg = write_config(
+        workdir / "c.yaml", files, node="uav1", interface="nosuchif0", socket_path="/x"
+    )
+    with pytest.raises(ConfigError, match=r"c.yaml:7: field network.interface: no interface"):
+        Daemon(load_config(cfg), files.bundle, log=structlog.get_logger(), env={})
