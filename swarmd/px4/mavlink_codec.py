@@ -1,0 +1,231 @@
+"""MAVLink 2 bytes <-> ``swarmd.px4.messages``, through pymavlink's generated codec only.
+
+pymavlink's ``dialects.v20.common.MAVLink(file=None)`` is a pure codec: ``parse_buffer``
+turns bytes into message objects, ``<msg>_encode(...).pack(mav)`` turns fields into a
+MAVLink 2 frame (0xFD). We never use ``mavutil``: its connections poll and block (reference
+section 1.7). ``common`` holds every message the PX4 readiness predicate needs.
+
+Network input never raises out of ``feed``: corrupt frames are counted in ``bad_frames``
+(``robust_parsing`` turns them into ``MAVLink_bad_data``), unmodelled messages in
+``ignored``, and an unexpected parser exception resets the parser and is counted too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from swarmd.px4.messages import (
+    CommandAck,
+    ExtendedSysState,
+    GlobalPositionInt,
+    GpsRawInt,
+    Heartbeat,
+    HomePosition,
+    Observation,
+    StatusText,
+    SysStatus,
+    VehicleCommand,
+)
+
+Message = Observation | VehicleCommand
+
+_UINT16_MAX = 0xFFFF
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One decoded message and who sent it (MAVLink header)."""
+
+    msg: Message
+    src_system: int
+    src_component: int
+
+
+class MavlinkCodec:
+    """Stateful (sequence numbers, partial frames) MAVLink 2 encoder/decoder for one link."""
+
+    def __init__(self, src_system: int, src_component: int) -> None:
+        self._tx: Any = mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
+        self._rx: Any = self._new_parser()
+        self.bad_frames = 0
+        self.ignored = 0
+        self.decoded = 0
+
+    @staticmethod
+    def _new_parser() -> Any:
+        rx = mavlink.MAVLink(None)
+        rx.robust_parsing = True  # bad CRC / garbage -> MAVLink_bad_data, not an exception
+        return rx
+
+    # ---- decode -------------------------------------------------------------------------
+
+    def feed(self, data: bytes) -> list[Frame]:
+        """All complete frames in ``data`` (plus bytes kept from earlier calls)."""
+        try:
+            raw = self._rx.parse_buffer(data) or []
+        except Exception:  # a pymavlink corner we did not foresee: drop, count, resync
+            self.bad_frames += 1
+            self._rx = self._new_parser()
+            return []
+        frames: list[Frame] = []
+        for m in raw:
+            if m.get_type() == "BAD_DATA":
+                self.bad_frames += 1
+                continue
+            try:
+                msg = decode_message(m)
+            except (AttributeError, TypeError, ValueError):
+                self.bad_frames += 1
+                continue
+            if msg is None:
+                self.ignored += 1
+                continue
+            self.decoded += 1
+            frames.append(Frame(msg, m.get_srcSystem(), m.get_srcComponent()))
+        return frames
+
+    # ---- encode -------------------------------------------------------------------------
+
+    def encode(self, msg: Message) -> bytes:
+        """One MAVLink 2 frame for ``msg`` from this codec's (system, component)."""
+        packed: bytes = _encoder(self._tx, msg).pack(self._tx)
+        return packed
+
+
+def decode_message(m: Any) -> Message | None:
+    """A pymavlink message object -> our dataclass, or None for messages we do not model."""
+    match m.get_type():
+        case "HEARTBEAT":
+            return Heartbeat(
+                autopilot=m.autopilot,
+                vehicle_type=m.type,
+                base_mode=m.base_mode,
+                custom_mode=m.custom_mode,
+                system_status=m.system_status,
+            )
+        case "SYS_STATUS":
+            return SysStatus(
+                sensors_health=m.onboard_control_sensors_health,
+                battery_remaining=m.battery_remaining,
+                voltage_battery_mv=m.voltage_battery,
+                sensors_present=m.onboard_control_sensors_present,
+                sensors_enabled=m.onboard_control_sensors_enabled,
+            )
+        case "EXTENDED_SYS_STATE":
+            return ExtendedSysState(landed_state=m.landed_state, vtol_state=m.vtol_state)
+        case "GPS_RAW_INT":
+            return GpsRawInt(
+                fix_type=m.fix_type,
+                satellites_visible=m.satellites_visible,
+                eph_cm=m.eph,
+                lat_e7=m.lat,
+                lon_e7=m.lon,
+                alt_mm=m.alt,
+            )
+        case "HOME_POSITION":
+            return HomePosition(
+                latitude_e7=m.latitude, longitude_e7=m.longitude, altitude_mm=m.altitude
+            )
+        case "GLOBAL_POSITION_INT":
+            return GlobalPositionInt(
+                lat_e7=m.lat,
+                lon_e7=m.lon,
+                alt_mm=m.alt,
+                relative_alt_mm=m.relative_alt,
+                time_boot_ms=m.time_boot_ms,
+            )
+        case "COMMAND_ACK":
+            return CommandAck(
+                command=m.command,
+                result=m.result,
+                progress=m.progress,
+                target_system=m.target_system,
+                target_component=m.target_component,
+            )
+        case "STATUSTEXT":
+            text = m.text
+            if isinstance(text, bytes | bytearray):
+                text = bytes(text).split(b"\0", 1)[0].decode("utf-8", "replace")
+            return StatusText(severity=m.severity, text=str(text))
+        case "COMMAND_LONG":
+            p = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
+            return VehicleCommand(
+                command=m.command,
+                params=tuple(float(x) for x in p),  # type: ignore[arg-type]
+                confirmation=m.confirmation,
+                target_system=m.target_system,
+                target_component=m.target_component,
+            )
+    return None
+
+
+def _encoder(tx: Any, msg: Message) -> Any:
+    match msg:
+        case Heartbeat():
+            return tx.heartbeat_encode(
+                msg.vehicle_type, msg.autopilot, msg.base_mode, msg.custom_mode, msg.system_status
+            )
+        case SysStatus():
+            return tx.sys_status_encode(
+                msg.sensors_present,
+                msg.sensors_enabled,
+                msg.sensors_health,
+                0,  # load
+                msg.voltage_battery_mv,
+                -1,  # current_battery: not measured
+                msg.battery_remaining,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
+        case ExtendedSysState():
+            return tx.extended_sys_state_encode(msg.vtol_state, msg.landed_state)
+        case GpsRawInt():
+            return tx.gps_raw_int_encode(
+                0,  # time_usec
+                msg.fix_type,
+                msg.lat_e7,
+                msg.lon_e7,
+                msg.alt_mm,
+                msg.eph_cm,
+                _UINT16_MAX,  # epv unknown
+                _UINT16_MAX,  # vel unknown
+                _UINT16_MAX,  # cog unknown
+                msg.satellites_visible,
+            )
+        case HomePosition():
+            return tx.home_position_encode(
+                msg.latitude_e7,
+                msg.longitude_e7,
+                msg.altitude_mm,
+                0.0,
+                0.0,
+                0.0,
+                [1.0, 0.0, 0.0, 0.0],
+                math.nan,
+                math.nan,
+                math.nan,
+            )
+        case GlobalPositionInt():
+            return tx.global_position_int_encode(
+                msg.time_boot_ms, msg.lat_e7, msg.lon_e7, msg.alt_mm, msg.relative_alt_mm, 0, 0, 0,
+                _UINT16_MAX,
+            )  # fmt: skip
+        case CommandAck():
+            return tx.command_ack_encode(
+                msg.command, msg.result, msg.progress, 0, msg.target_system, msg.target_component
+            )
+        case StatusText():
+            return tx.statustext_encode(msg.severity, msg.text.encode("utf-8")[:50])
+        case VehicleCommand():
+            return tx.command_long_encode(
+                msg.target_system, msg.target_component, msg.command, msg.confirmation, *msg.params
+            )
+    raise TypeError(f"cannot encode {type(msg).__name__}")

@@ -1,0 +1,225 @@
+"""The backend-neutral vocabulary between a flight-controller backend and swarmd's logic.
+
+Readiness and take-off never see a pymavlink object: a backend translates what it receives
+into these frozen dataclasses (named after the MAVLink messages whose fields they carry,
+because the readiness predicate is specified in those fields) and turns ``VehicleCommand``
+into whatever its wire wants (COMMAND_LONG for MAVLink, ``/fmu/in/vehicle_command`` for
+XRCE-DDS). A future XRCE-DDS backend maps ``VehicleStatus``/``VehicleLandDetected``/
+``SensorGps``/``HomePosition``/``BatteryStatus`` onto the same classes (docs/px4.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from swarmd.px4.constants import (
+    MODE_FLAG_SAFETY_ARMED,
+    SENSOR_PREARM_CHECK,
+    MavCmd,
+    Px4AutoSubMode,
+    Px4MainMode,
+)
+
+NAN = math.nan
+
+
+@dataclass(frozen=True, slots=True)
+class Px4Mode:
+    """A PX4 flight mode: ``custom_mode = main << 16 | sub << 24`` (px4_custom_mode.h union)."""
+
+    main: int
+    sub: int = 0
+
+    @classmethod
+    def from_custom_mode(cls, custom_mode: int) -> Px4Mode:
+        return cls(main=(custom_mode >> 16) & 0xFF, sub=(custom_mode >> 24) & 0xFF)
+
+    @property
+    def custom_mode(self) -> int:
+        return (self.main & 0xFF) << 16 | (self.sub & 0xFF) << 24
+
+    @property
+    def name(self) -> str:
+        """``AUTO.TAKEOFF``, ``POSCTL``, or ``MODE(main,sub)`` for numbers PX4 did not define."""
+        try:
+            main = Px4MainMode(self.main).name
+        except ValueError:
+            return f"MODE({self.main},{self.sub})"
+        if self.main != Px4MainMode.AUTO:
+            return main
+        try:
+            return f"AUTO.{Px4AutoSubMode(self.sub).name}"
+        except ValueError:
+            return f"AUTO.{self.sub}"
+
+    def __str__(self) -> str:
+        return self.name
+
+
+MODE_TAKEOFF = Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.TAKEOFF)
+MODE_LOITER = Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)  # "Hold"
+MODE_LAND = Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND)
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """HEARTBEAT (0) from the autopilot."""
+
+    autopilot: int
+    vehicle_type: int
+    base_mode: int
+    custom_mode: int
+    system_status: int
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.base_mode & MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def mode(self) -> Px4Mode:
+        # PX4 always sets CUSTOM_MODE_ENABLED; the custom mode alone identifies the mode
+        return Px4Mode.from_custom_mode(self.custom_mode)
+
+
+@dataclass(frozen=True, slots=True)
+class SysStatus:
+    """SYS_STATUS (1): PX4's arming verdict and the battery."""
+
+    sensors_health: int
+    battery_remaining: int  # percent, -1 unknown
+    voltage_battery_mv: int  # UINT16_MAX unknown
+    sensors_present: int = 0
+    sensors_enabled: int = 0
+
+    @property
+    def prearm_ok(self) -> bool:
+        # health bit only: PX4 >= 1.14 never sets PREARM in present/enabled (SYS_STATUS.hpp)
+        return bool(self.sensors_health & SENSOR_PREARM_CHECK)
+
+
+@dataclass(frozen=True, slots=True)
+class ExtendedSysState:
+    """EXTENDED_SYS_STATE (245)."""
+
+    landed_state: int
+    vtol_state: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class GpsRawInt:
+    """GPS_RAW_INT (24)."""
+
+    fix_type: int
+    satellites_visible: int
+    eph_cm: int = 0xFFFF
+    lat_e7: int = 0
+    lon_e7: int = 0
+    alt_mm: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class HomePosition:
+    """HOME_POSITION (242): latitude/longitude in 1e-7 degrees, altitude in mm AMSL."""
+
+    latitude_e7: int
+    longitude_e7: int
+    altitude_mm: int
+
+    @property
+    def altitude_amsl_m(self) -> float:
+        return self.altitude_mm / 1000.0
+
+
+@dataclass(frozen=True, slots=True)
+class GlobalPositionInt:
+    """GLOBAL_POSITION_INT (33): altitudes in mm (AMSL and above home)."""
+
+    lat_e7: int
+    lon_e7: int
+    alt_mm: int
+    relative_alt_mm: int
+    time_boot_ms: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class CommandAck:
+    """COMMAND_ACK (77)."""
+
+    command: int
+    result: int
+    progress: int = 0
+    target_system: int = 0
+    target_component: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class StatusText:
+    """STATUSTEXT (253): PX4's human-readable reasons ("Preflight Fail: ...")."""
+
+    severity: int
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleCommand:
+    """A command for the autopilot (COMMAND_LONG 76 on MAVLink, VehicleCommand on DDS).
+
+    ``params`` holds param1..param7; PX4 wants NaN in every parameter a command does not use
+    (MAVSDK ``maybe_reserved``), so that is the default. ``target_system`` 0 means "the
+    backend's vehicle"; the backend fills it in. ``confirmation`` counts retransmissions
+    (MAVLink command protocol: 0 first, then 1, 2, ...).
+    """
+
+    command: int
+    params: tuple[float, float, float, float, float, float, float] = (NAN,) * 7
+    confirmation: int = 0
+    target_system: int = 0
+    target_component: int = 1
+
+    @classmethod
+    def make(
+        cls,
+        command: int,
+        *,
+        p1: float = NAN,
+        p2: float = NAN,
+        p3: float = NAN,
+        p4: float = NAN,
+        p5: float = NAN,
+        p6: float = NAN,
+        p7: float = NAN,
+        confirmation: int = 0,
+    ) -> VehicleCommand:
+        return cls(command, (p1, p2, p3, p4, p5, p6, p7), confirmation)
+
+    def retransmission(self, confirmation: int) -> VehicleCommand:
+        return VehicleCommand(
+            self.command, self.params, min(confirmation, 255), self.target_system,
+            self.target_component,
+        )  # fmt: skip
+
+    @property
+    def label(self) -> str:
+        return command_name(self.command)
+
+
+Observation = (
+    Heartbeat
+    | SysStatus
+    | ExtendedSysState
+    | GpsRawInt
+    | HomePosition
+    | GlobalPositionInt
+    | CommandAck
+    | StatusText
+)
+"""What a backend hands to the vehicle state and the take-off sequence."""
+
+
+def command_name(command: int) -> str:
+    """``NAV_TAKEOFF`` for 22; ``MAV_CMD(n)`` for ids swarmd does not name."""
+    try:
+        return MavCmd(command).name
+    except ValueError:
+        return f"MAV_CMD({command})"

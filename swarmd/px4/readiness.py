@@ -1,0 +1,316 @@
+"""Is the vehicle ready for take-off? Judged only from PX4's own messages.
+
+Theory of operation: a backend decodes what the autopilot streams (HEARTBEAT 1 Hz, SYS_STATUS
+5 Hz, EXTENDED_SYS_STATE 5 Hz, GPS_RAW_INT, HOME_POSITION 0.5 Hz in PX4's ONBOARD mavlink
+mode) into ``swarmd.px4.messages`` observations and feeds them to ``VehicleState.observe``.
+``readiness(state, now, config)`` is a pure function of that state and the time: it walks
+the conditions of ``CONDITIONS`` in order and reports the first that fails, so an operator
+always sees one stable reason code and one human line. Order matters: a dead link makes every
+other field stale, so it comes first; "armed" and "not in STANDBY" explain a missing PREARM
+bit, so they come before it; PX4's own verdict (PREARM) comes before swarmd's stricter
+checks (3D fix, home, battery) because PX4 arms without GNSS by default (COM_ARM_WO_GPS=1)
+and a swarm needs global position, hence both.
+
+Sans-IO: no clock, no I/O. ``now`` is monotonic seconds (the driver's ``loop.time()``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any, Final
+
+from swarmd.px4.constants import (
+    MAV_AUTOPILOT_PX4,
+    GpsFixType,
+    LandedState,
+    MavSeverity,
+    MavState,
+)
+from swarmd.px4.messages import (
+    CommandAck,
+    ExtendedSysState,
+    GlobalPositionInt,
+    GpsRawInt,
+    Heartbeat,
+    HomePosition,
+    Observation,
+    StatusText,
+    SysStatus,
+)
+
+# PX4 telemetry_status.HEARTBEAT_TIMEOUT_US = 2.5 s ("tolerate one missing + jitter"); also
+# keeps "link loss flips readiness within 3 s" true with a 1 Hz heartbeat.
+DEFAULT_HEARTBEAT_TIMEOUT_S: Final = 2.5
+
+
+@dataclass(frozen=True, slots=True)
+class ReadinessConfig:
+    """Thresholds of the readiness predicate (the daemon config's ``px4`` section)."""
+
+    heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S
+    min_battery_pct: float = 30.0
+    min_fix_type: int = GpsFixType.FIX_3D
+    require_home: bool = True
+    # SYS_STATUS.battery_remaining = -1 means "no estimate": refuse unless told otherwise
+    allow_unknown_battery: bool = False
+
+
+class Reason(StrEnum):
+    """Stable reason codes, in the order they are checked (docs/px4.md has the table)."""
+
+    NO_HEARTBEAT = "no_heartbeat"
+    HEARTBEAT_STALE = "heartbeat_stale"
+    NOT_PX4 = "not_px4"
+    ARMED = "armed"
+    NOT_STANDBY = "not_standby"
+    PREARM_FAILED = "prearm_failed"
+    NOT_ON_GROUND = "not_on_ground"
+    NO_3D_FIX = "no_3d_fix"
+    NO_HOME = "no_home"
+    BATTERY_UNKNOWN = "battery_unknown"
+    BATTERY_LOW = "battery_low"
+
+
+@dataclass(slots=True)
+class VehicleState:
+    """The latest of each autopilot message and when it arrived (monotonic seconds)."""
+
+    heartbeat: Heartbeat | None = None
+    heartbeat_at: float | None = None
+    sys_status: SysStatus | None = None
+    sys_status_at: float | None = None
+    extended: ExtendedSysState | None = None
+    gps: GpsRawInt | None = None
+    home: HomePosition | None = None
+    position: GlobalPositionInt | None = None
+    last_ack: CommandAck | None = None
+    last_warning: StatusText | None = None  # latest STATUSTEXT of severity WARNING or worse
+    last_warning_at: float | None = None
+    received: int = 0
+
+    def observe(self, obs: Observation, now: float) -> None:
+        """Record one decoded autopilot message received at ``now``."""
+        self.received += 1
+        match obs:
+            case Heartbeat():
+                self.heartbeat, self.heartbeat_at = obs, now
+            case SysStatus():
+                self.sys_status, self.sys_status_at = obs, now
+            case ExtendedSysState():
+                self.extended = obs
+            case GpsRawInt():
+                self.gps = obs
+            case HomePosition():
+                self.home = obs
+            case GlobalPositionInt():
+                self.position = obs
+            case CommandAck():
+                self.last_ack = obs
+            case StatusText():
+                if obs.severity <= MavSeverity.WARNING:
+                    self.last_warning, self.last_warning_at = obs, now
+
+    def link_alive(self, now: float, timeout_s: float) -> bool:
+        return self.heartbeat_at is not None and now - self.heartbeat_at < timeout_s
+
+    @property
+    def armed(self) -> bool | None:
+        return None if self.heartbeat is None else self.heartbeat.armed
+
+    @property
+    def landed_state(self) -> LandedState | None:
+        if self.extended is None:
+            return None
+        try:
+            return LandedState(self.extended.landed_state)
+        except ValueError:
+            return LandedState.UNDEFINED
+
+    def next_deadline(self, config: ReadinessConfig) -> float | None:
+        """When readiness will change by time alone (the heartbeat going stale), or None."""
+        if self.heartbeat_at is None:
+            return None
+        return self.heartbeat_at + config.heartbeat_timeout_s
+
+
+@dataclass(frozen=True, slots=True)
+class Readiness:
+    """The verdict plus the facts behind it, JSON-ready through ``as_dict``."""
+
+    ready: bool
+    reason: Reason | None  # the first failing condition; None when ready
+    detail: str  # one line for humans
+    heartbeat_age_s: float | None
+    armed: bool | None
+    mode: str | None
+    system_status: str | None
+    prearm: bool | None
+    landed_state: str | None
+    gps_fix: int | None
+    satellites: int | None
+    home: bool
+    battery_pct: int | None
+    px4_says: str | None  # latest PX4 warning text, e.g. "Preflight Fail: ..."
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "ready": self.ready,
+            "reason": None if self.reason is None else str(self.reason),
+            "detail": self.detail,
+            "heartbeat_age_s": (
+                None if self.heartbeat_age_s is None else round(self.heartbeat_age_s, 3)
+            ),
+            "armed": self.armed,
+            "mode": self.mode,
+            "system_status": self.system_status,
+            "prearm": self.prearm,
+            "landed_state": self.landed_state,
+            "gps_fix": self.gps_fix,
+            "satellites": self.satellites,
+            "home": self.home,
+            "battery_pct": self.battery_pct,
+            "px4_says": self.px4_says,
+        }
+
+
+Check = Callable[[VehicleState, float, ReadinessConfig], tuple[Reason, str] | None]
+
+
+def _link(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.heartbeat_at is None:
+        return Reason.NO_HEARTBEAT, "no HEARTBEAT from the autopilot yet"
+    age = now - s.heartbeat_at
+    if age >= c.heartbeat_timeout_s:
+        return Reason.HEARTBEAT_STALE, (
+            f"last HEARTBEAT {age:.1f} s ago (limit {c.heartbeat_timeout_s:g} s)"
+        )
+    return None
+
+
+def _px4(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.heartbeat is None:  # _link reported it already
+        return None
+    if s.heartbeat.autopilot != MAV_AUTOPILOT_PX4:
+        return Reason.NOT_PX4, f"HEARTBEAT.autopilot={s.heartbeat.autopilot}, expected 12 (PX4)"
+    return None
+
+
+def _disarmed(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.heartbeat is None:
+        return None
+    if s.heartbeat.armed:
+        return Reason.ARMED, f"already armed (mode {s.heartbeat.mode})"
+    return None
+
+
+def _standby(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.heartbeat is None:
+        return None
+    status = s.heartbeat.system_status
+    if status != MavState.STANDBY:
+        return Reason.NOT_STANDBY, f"system_status={_state_name(status)}, expected STANDBY"
+    return None
+
+
+def _prearm(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.sys_status is None:
+        return Reason.PREARM_FAILED, "no SYS_STATUS yet"
+    if not s.sys_status.prearm_ok:
+        said = f": PX4 says {s.last_warning.text!r}" if s.last_warning is not None else ""
+        return Reason.PREARM_FAILED, f"PREARM_CHECK not set in SYS_STATUS health{said}"
+    return None
+
+
+def _ground(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    landed = s.landed_state
+    if landed is None:
+        return Reason.NOT_ON_GROUND, "no EXTENDED_SYS_STATE yet"
+    if landed != LandedState.ON_GROUND:
+        return Reason.NOT_ON_GROUND, f"landed_state={landed.name}, expected ON_GROUND"
+    return None
+
+
+def _fix(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.gps is None:
+        return Reason.NO_3D_FIX, "no GPS_RAW_INT yet"
+    if s.gps.fix_type < c.min_fix_type:
+        return Reason.NO_3D_FIX, (
+            f"GPS fix_type={_fix_name(s.gps.fix_type)} with {s.gps.satellites_visible} "
+            f"satellites, need >= {_fix_name(c.min_fix_type)}"
+        )
+    return None
+
+
+def _home(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if c.require_home and s.home is None:
+        return Reason.NO_HOME, "no HOME_POSITION received"
+    return None
+
+
+def _battery(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.sys_status is None:  # _prearm reported it already
+        return None
+    pct = s.sys_status.battery_remaining
+    if pct < 0:
+        if c.allow_unknown_battery:
+            return None
+        return Reason.BATTERY_UNKNOWN, "SYS_STATUS.battery_remaining=-1 (no estimate)"
+    if pct < c.min_battery_pct:
+        return Reason.BATTERY_LOW, f"battery {pct}% < {c.min_battery_pct:g}%"
+    return None
+
+
+CONDITIONS: Final[tuple[Check, ...]] = (
+    _link,
+    _px4,
+    _disarmed,
+    _standby,
+    _prearm,
+    _ground,
+    _fix,
+    _home,
+    _battery,
+)
+
+
+def readiness(state: VehicleState, now: float, config: ReadinessConfig) -> Readiness:
+    """The take-off verdict at ``now``: ready, or the first failing condition."""
+    failure: tuple[Reason, str] | None = None
+    for check in CONDITIONS:
+        failure = check(state, now, config)
+        if failure is not None:
+            break
+    hb, sys, gps = state.heartbeat, state.sys_status, state.gps
+    landed = state.landed_state
+    return Readiness(
+        ready=failure is None,
+        reason=None if failure is None else failure[0],
+        detail="ready for take-off" if failure is None else failure[1],
+        heartbeat_age_s=None if state.heartbeat_at is None else now - state.heartbeat_at,
+        armed=None if hb is None else hb.armed,
+        mode=None if hb is None else hb.mode.name,
+        system_status=None if hb is None else _state_name(hb.system_status),
+        prearm=None if sys is None else sys.prearm_ok,
+        landed_state=None if landed is None else landed.name,
+        gps_fix=None if gps is None else gps.fix_type,
+        satellites=None if gps is None else gps.satellites_visible,
+        home=state.home is not None,
+        battery_pct=None if sys is None or sys.battery_remaining < 0 else sys.battery_remaining,
+        px4_says=None if state.last_warning is None else state.last_warning.text,
+    )
+
+
+def _state_name(value: int) -> str:
+    try:
+        return MavState(value).name
+    except ValueError:
+        return f"MAV_STATE({value})"
+
+
+def _fix_name(value: int) -> str:
+    try:
+        return GpsFixType(value).name
+    except ValueError:
+        return f"FIX({value})"

@@ -1,0 +1,417 @@
+"""The take-off sequence as a sans-IO state machine: arm, NAV_TAKEOFF, confirm by state.
+
+Theory of operation
+-------------------
+Three sources drive it: ``start(now)``, autopilot observations (``observe(obs, now)``, after
+the driver has fed the same observation to the shared ``VehicleState``), and the one timer
+(``get_timer()`` / ``handle_timer(now)``). It emits ``VehicleCommand``s through
+``commands_to_send()`` and ``TakeoffEvent``s through ``next_event()``; it never sleeps,
+never reads a clock and never touches a socket.
+
+Which sequence, and why (reference section 1.5): **(A) ARM, then NAV_TAKEOFF**, MAVSDK's
+``arm()`` + ``takeoff()`` for PX4, sent back to back with NAV_TAKEOFF leaving the moment the
+arm is confirmed. The alternative, (B) DO_SET_MODE AUTO.TAKEOFF while disarmed then ARM, is
+only documented from PX4 1.16 on and carries the altitude in the ``MIS_TAKEOFF_ALT``
+parameter (a PARAM_SET round trip that changes the vehicle's stored config); (A) works on
+PX4 1.14 to main and puts the altitude in the command itself. (A)'s risk is PX4's pre-flight
+auto-disarm (``COM_DISARM_PRFLT`` = 10 s: armed, on the ground, no take-off -> disarm, the
+"arms then disarms in a loop" reports). Our worst case from ARM accepted to NAV_TAKEOFF
+accepted is (1 + retries) x ack timeout = 2 s with the defaults, well inside 10 s, and
+``TakeoffConfig.check`` refuses budgets that are not. After any failure once ARM has gone
+out we send one DISARM (param1 = 0, not forced; PX4 refuses a non-forced disarm in the air,
+so this can only stop a vehicle sitting armed on the ground).
+
+Altitude (``alt_m``, metres above home): NAV_TAKEOFF param7 is **AMSL** (navigator), so
+param7 = HOME_POSITION.altitude + alt_m. ``alt_m=None`` sends NaN, and PX4 climbs to
+``MIS_TAKEOFF_ALT`` (default 2.5 m above home). Params 1-6 are NaN (PX4: "unused"; lat/lon
+NaN = take off where you are). A relative altitude without a home position is refused.
+
+Retries (reference 1.6, MAVSDK mavlink_command_sender): each command gets 0.5 s for its
+COMMAND_ACK and at most 3 retransmissions, ``confirmation`` counting 1, 2, 3.
+TEMPORARILY_REJECTED (PX4's answer to a denied arm or mode switch) waits ``retry_backoff_s``
+and retransmits from the same budget; IN_PROGRESS stretches the wait to 3 s; any other
+result ends the sequence. An ACK can be lost, so every step is also confirmed by state:
+the armed bit in HEARTBEAT for ARM, mode AUTO.TAKEOFF or leaving the ground for NAV_TAKEOFF,
+and success itself is only declared from state: armed and ``landed_state`` TAKEOFF or
+IN_AIR (EXTENDED_SYS_STATE), never from an ACK alone.
+
+Phases (all transitions are in ``_TRANSITIONS``)::
+
+    IDLE --ready--> ARMING --armed--> TAKING_OFF --accepted--> LIFTING --airborne--> SUCCEEDED
+      \\--not ready--> FAILED        any phase --rejected/timeout/disarmed--> FAILED
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Final
+
+from swarmd.px4.constants import LandedState, MavCmd, MavResult
+from swarmd.px4.messages import (
+    MODE_TAKEOFF,
+    CommandAck,
+    Observation,
+    VehicleCommand,
+)
+from swarmd.px4.readiness import ReadinessConfig, VehicleState, readiness
+
+COM_DISARM_PRFLT_S: Final = 10.0  # PX4 commander default: pre-flight auto-disarm
+MIS_TAKEOFF_ALT_M: Final = 2.5  # PX4 navigator default, used when param7 is NaN
+MAX_TAKEOFF_ALT_M: Final = 120.0  # common legal ceiling for small UAS (EU/FAA); a typo guard
+AIRBORNE: Final = frozenset({LandedState.TAKEOFF, LandedState.IN_AIR})
+
+
+@dataclass(frozen=True, slots=True)
+class TakeoffConfig:
+    """Timing of the sequence; defaults are MAVSDK's command sender and PX4's parameters."""
+
+    ack_timeout_s: float = 0.5
+    retries: int = 3  # retransmissions after the first send
+    in_progress_timeout_s: float = 3.0
+    retry_backoff_s: float = 0.5  # wait after TEMPORARILY_REJECTED
+    liftoff_timeout_s: float = 8.0  # NAV_TAKEOFF accepted -> landed_state TAKEOFF/IN_AIR
+    auto_disarm_window_s: float = COM_DISARM_PRFLT_S
+
+    def check(self) -> None:
+        """Raise ValueError (one line) when the budget cannot beat PX4's auto-disarm."""
+        step = (1 + self.retries) * max(self.ack_timeout_s, self.retry_backoff_s)
+        if self.retries < 0 or self.ack_timeout_s <= 0 or self.liftoff_timeout_s <= 0:
+            raise ValueError("takeoff: retries must be >= 0 and timeouts > 0")
+        if step >= self.auto_disarm_window_s:
+            raise ValueError(
+                f"takeoff: NAV_TAKEOFF may need {step:g} s after arming, but PX4 disarms after "
+                f"{self.auto_disarm_window_s:g} s (COM_DISARM_PRFLT); fix: fewer retries or "
+                "a shorter ack_timeout_s"
+            )
+
+
+class Phase(StrEnum):
+    IDLE = "idle"
+    ARMING = "arming"
+    TAKING_OFF = "taking_off"
+    LIFTING = "lifting"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+
+
+class FailReason(StrEnum):
+    """Stable codes for ``TakeoffFailed.reason``."""
+
+    NOT_READY = "not_ready"  # refused before sending anything; ``cause`` = readiness reason
+    BAD_ALTITUDE = "bad_altitude"
+    ARM_REJECTED = "arm_rejected"  # ``cause`` = the last MAV_RESULT name
+    ARM_NO_ACK = "arm_no_ack"
+    TAKEOFF_REJECTED = "takeoff_rejected"
+    TAKEOFF_NO_ACK = "takeoff_no_ack"
+    DISARMED = "disarmed"  # the vehicle disarmed itself (auto-disarm, failsafe, RC)
+    NO_LIFTOFF = "no_liftoff"
+    CANCELLED = "cancelled"
+
+
+_TRANSITIONS: Final[dict[Phase, frozenset[Phase]]] = {
+    Phase.IDLE: frozenset({Phase.ARMING, Phase.FAILED}),
+    Phase.ARMING: frozenset({Phase.TAKING_OFF, Phase.FAILED}),
+    Phase.TAKING_OFF: frozenset({Phase.LIFTING, Phase.SUCCEEDED, Phase.FAILED}),
+    Phase.LIFTING: frozenset({Phase.SUCCEEDED, Phase.FAILED}),
+    Phase.SUCCEEDED: frozenset(),
+    Phase.FAILED: frozenset(),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class TakeoffEvent:
+    """Base of everything ``next_event`` returns."""
+
+
+@dataclass(frozen=True, slots=True)
+class PhaseChanged(TakeoffEvent):
+    old: Phase
+    new: Phase
+    why: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandSent(TakeoffEvent):
+    command: str
+    confirmation: int
+
+
+@dataclass(frozen=True, slots=True)
+class AckReceived(TakeoffEvent):
+    command: str
+    result: str
+
+
+@dataclass(frozen=True, slots=True)
+class TakeoffSucceeded(TakeoffEvent):
+    elapsed_s: float  # start() to airborne confirmed by state
+    landed_state: str
+    mode: str
+    target_amsl_m: float | None  # None: PX4's MIS_TAKEOFF_ALT
+
+
+@dataclass(frozen=True, slots=True)
+class TakeoffFailed(TakeoffEvent):
+    reason: FailReason
+    cause: str | None  # readiness reason or MAV_RESULT name, when there is one
+    detail: str
+    elapsed_s: float
+
+
+@dataclass(slots=True)
+class _Pending:
+    """One command awaiting its ACK (one outstanding command per id, as MAVSDK)."""
+
+    command: VehicleCommand
+    sent: int
+    deadline: float
+    last_result: MavResult | None = None
+
+
+class TakeoffSequence:
+    """One take-off attempt. Create, ``start(now)``, then drive until ``done``.
+
+    Driven by ``start``, ``observe`` and ``handle_timer``; outputs ``commands_to_send``,
+    ``get_timer`` and ``next_event``. Never raises on autopilot input.
+    """
+
+    def __init__(
+        self,
+        vehicle: VehicleState,
+        alt_m: float | None = None,
+        *,
+        config: TakeoffConfig | None = None,
+        readiness_config: ReadinessConfig | None = None,
+    ) -> None:
+        self.vehicle = vehicle
+        self.alt_m = alt_m
+        self.config = config or TakeoffConfig()
+        self.config.check()
+        self.readiness_config = readiness_config or ReadinessConfig()
+        self.phase = Phase.IDLE
+        self.target_amsl_m: float | None = None
+        self.outcome: TakeoffSucceeded | TakeoffFailed | None = None
+        self._t0 = 0.0
+        self._pending: _Pending | None = None
+        self._lift_deadline: float | None = None
+        self._arm_sent = False
+        self._seen_armed = False
+        self._out: list[VehicleCommand] = []
+        self._events: deque[TakeoffEvent] = deque()
+
+    # ---- inputs -------------------------------------------------------------------------
+
+    def start(self, now: float) -> None:
+        """Check readiness and altitude; send ARM or fail at once (nothing sent)."""
+        if self.phase is not Phase.IDLE:
+            return
+        self._t0 = now
+        verdict = readiness(self.vehicle, now, self.readiness_config)
+        if not verdict.ready:
+            cause = None if verdict.reason is None else str(verdict.reason)
+            self._fail(now, FailReason.NOT_READY, cause, verdict.detail)
+            return
+        if self.alt_m is not None:
+            if not (math.isfinite(self.alt_m) and 0.0 < self.alt_m <= MAX_TAKEOFF_ALT_M):
+                self._fail(
+                    now,
+                    FailReason.BAD_ALTITUDE,
+                    None,
+                    f"altitude {self.alt_m} m above home is outside (0, {MAX_TAKEOFF_ALT_M:g}]",
+                )
+                return
+            if self.vehicle.home is None:
+                self._fail(
+                    now,
+                    FailReason.NOT_READY,
+                    "no_home",
+                    "a relative altitude needs HOME_POSITION to become NAV_TAKEOFF's AMSL",
+                )
+                return
+            self.target_amsl_m = self.vehicle.home.altitude_amsl_m + self.alt_m
+        self._set_phase(Phase.ARMING, now, f"ready ({verdict.detail})")
+        self._arm_sent = True
+        self._send(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=1.0), now)
+
+    def observe(self, obs: Observation, now: float) -> None:
+        """An autopilot message (already fed to the shared ``VehicleState``)."""
+        if self._finished():
+            return
+        if isinstance(obs, CommandAck):
+            self._on_ack(obs, now)
+        if not self._finished():
+            self._check_state(now)
+
+    def handle_timer(self, now: float) -> None:
+        """Call at (or after) ``get_timer()``; early calls are harmless."""
+        if self._finished():
+            return
+        self._check_state(now)
+        if self._finished():
+            return
+        pending = self._pending
+        if pending is not None and now >= pending.deadline:
+            if pending.sent <= self.config.retries:
+                self._send(pending.command, now)
+            else:
+                self._give_up(pending, now)
+        elif self._lift_deadline is not None and now >= self._lift_deadline:
+            landed = self.vehicle.landed_state
+            self._fail(
+                now,
+                FailReason.NO_LIFTOFF,
+                None,
+                f"landed_state still {landed.name if landed else 'unknown'} "
+                f"{self.config.liftoff_timeout_s:g} s after NAV_TAKEOFF was accepted",
+            )
+
+    def cancel(self, now: float, why: str = "cancelled by caller") -> None:
+        if not self._finished():
+            self._fail(now, FailReason.CANCELLED, None, why)
+
+    # ---- outputs ------------------------------------------------------------------------
+
+    def commands_to_send(self) -> list[VehicleCommand]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        if self._finished():
+            return None
+        if self._pending is not None:
+            return self._pending.deadline
+        return self._lift_deadline
+
+    def next_event(self) -> TakeoffEvent | None:
+        return self._events.popleft() if self._events else None
+
+    @property
+    def done(self) -> bool:
+        return self._finished()
+
+    def _finished(self) -> bool:
+        # a method, not the property: mypy narrows a property across calls that change it
+        return self.phase in (Phase.SUCCEEDED, Phase.FAILED)
+
+    # ---- internals ----------------------------------------------------------------------
+
+    def _send(self, command: VehicleCommand, now: float) -> None:
+        pending = self._pending
+        if pending is None or pending.command.command != command.command:
+            pending = self._pending = _Pending(command, sent=0, deadline=now)
+        cmd = command.retransmission(pending.sent)
+        pending.sent += 1
+        pending.deadline = now + self.config.ack_timeout_s
+        self._out.append(cmd)
+        self._events.append(CommandSent(cmd.label, cmd.confirmation))
+
+    def _on_ack(self, ack: CommandAck, now: float) -> None:
+        pending = self._pending
+        if pending is None or ack.command != pending.command.command:
+            return  # an answer to someone else's command, or to one we finished with
+        try:
+            result = MavResult(ack.result)
+        except ValueError:
+            result = MavResult.FAILED
+        self._events.append(AckReceived(pending.command.label, result.name))
+        pending.last_result = result
+        match result:
+            case MavResult.ACCEPTED:
+                self._step_done(now, "COMMAND_ACK ACCEPTED")
+            case MavResult.IN_PROGRESS:
+                pending.deadline = now + self.config.in_progress_timeout_s
+            case MavResult.TEMPORARILY_REJECTED:
+                if pending.sent <= self.config.retries:
+                    pending.deadline = now + self.config.retry_backoff_s
+                else:
+                    self._give_up(pending, now)
+            case _:
+                self._give_up(pending, now)
+
+    def _give_up(self, pending: _Pending, now: float) -> None:
+        arm = pending.command.command == MavCmd.COMPONENT_ARM_DISARM
+        result = pending.last_result
+        said = self.vehicle.last_warning
+        tail = f"; PX4 says {said.text!r}" if said is not None else ""
+        if result is None:
+            reason = FailReason.ARM_NO_ACK if arm else FailReason.TAKEOFF_NO_ACK
+            detail = f"no COMMAND_ACK for {pending.command.label} after {pending.sent} sends"
+        else:
+            reason = FailReason.ARM_REJECTED if arm else FailReason.TAKEOFF_REJECTED
+            detail = f"{pending.command.label} answered {result.name} after {pending.sent} sends"
+        self._fail(now, reason, None if result is None else result.name, detail + tail)
+
+    def _check_state(self, now: float) -> None:
+        """Confirm steps by what the vehicle reports, whatever happened to the ACKs."""
+        v = self.vehicle
+        armed = bool(v.armed)
+        if armed:
+            self._seen_armed = True
+        elif self._seen_armed and self.phase in (Phase.TAKING_OFF, Phase.LIFTING):
+            self._fail(
+                now,
+                FailReason.DISARMED,
+                None,
+                "the vehicle disarmed before lifting off (PX4 auto-disarms "
+                f"{self.config.auto_disarm_window_s:g} s after arming without take-off)",
+            )
+            return
+        airborne = v.landed_state in AIRBORNE
+        if self.phase is Phase.ARMING and armed:
+            self._step_done(now, "armed bit set in HEARTBEAT")
+        elif self.phase is Phase.TAKING_OFF and armed:
+            mode = v.heartbeat.mode if v.heartbeat is not None else None
+            if airborne or mode == MODE_TAKEOFF:
+                self._step_done(now, f"mode {mode}, landed_state {_name(v.landed_state)}")
+        if self.phase is Phase.LIFTING and armed and airborne:
+            self._succeed(now)
+
+    def _step_done(self, now: float, why: str) -> None:
+        if self.phase is Phase.ARMING:
+            self._set_phase(Phase.TAKING_OFF, now, f"arm confirmed: {why}")
+            self._pending = None
+            alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
+            self._send(VehicleCommand.make(MavCmd.NAV_TAKEOFF, p7=alt), now)
+        elif self.phase is Phase.TAKING_OFF:
+            self._pending = None
+            self._lift_deadline = now + self.config.liftoff_timeout_s
+            self._set_phase(Phase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
+            self._check_state(now)
+
+    def _succeed(self, now: float) -> None:
+        v = self.vehicle
+        landed = _name(v.landed_state)
+        self.outcome = TakeoffSucceeded(
+            elapsed_s=now - self._t0,
+            landed_state=landed,
+            # AUTO.TAKEOFF, or AUTO.LOITER once PX4 reached the altitude; another mode means
+            # a pilot took over, and the vehicle is still off the ground: a success
+            mode="unknown" if v.heartbeat is None else v.heartbeat.mode.name,
+            target_amsl_m=self.target_amsl_m,
+        )
+        self._set_phase(Phase.SUCCEEDED, now, f"airborne: landed_state {landed}")
+        self._events.append(self.outcome)
+
+    def _fail(self, now: float, reason: FailReason, cause: str | None, detail: str) -> None:
+        self._pending = None
+        self._lift_deadline = None
+        if self._arm_sent:
+            # leave nothing armed on the ground; PX4 refuses a non-forced disarm in the air
+            self._out.append(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0))
+            self._events.append(CommandSent(MavCmd.COMPONENT_ARM_DISARM.name, 0))
+        self.outcome = TakeoffFailed(reason, cause, detail, now - self._t0)
+        self._set_phase(Phase.FAILED, now, f"{reason}: {detail}")
+        self._events.append(self.outcome)
+
+    def _set_phase(self, new: Phase, now: float, why: str) -> None:
+        if new not in _TRANSITIONS[self.phase]:
+            raise AssertionError(f"takeoff: illegal transition {self.phase} -> {new}")
+        self._events.append(PhaseChanged(self.phase, new, why))
+        self.phase = new
+
+
+def _name(landed: LandedState | None) -> str:
+    return "unknown" if landed is None else landed.name
