@@ -231,6 +231,7 @@ class Daemon:
         self._link_task: asyncio.Task[None] | None = None
         self._control: ControlServer | None = None
         self._status_line = ""
+        self._ready = False  # STATUS= updates start with READY=1, which carries the first
         self._started_wall = time.time()
         self._started = 0.0
 
@@ -300,7 +301,9 @@ class Daemon:
             raise StartupError(f"control socket {self.config.control_socket}: {exc}", 69) from None
         self._link_task = loop.create_task(self._poll_link(), name="swarmd-link")
         self._after_input()
-        self.notifier.ready(self._status_text())
+        self._status_line = self._status_text()
+        self._ready = True
+        self.notifier.ready(self._status_line)
         if self.watchdog_s is not None:
             self._watchdog = loop.call_later(self.watchdog_s, self._watchdog_tick)
         self.log.info(
@@ -388,7 +391,7 @@ class Daemon:
             self._log_event(event)
         self._transmit()
         text = self._status_text()
-        if text != self._status_line:
+        if self._ready and text != self._status_line:
             self._status_line = text
             self.notifier.status(text)
 
