@@ -109,6 +109,7 @@ class FailReason(StrEnum):
     DISARMED = "disarmed"  # the vehicle disarmed itself (auto-disarm, failsafe, RC)
     NO_LIFTOFF = "no_liftoff"
     CANCELLED = "cancelled"
+    BUSY = "busy"  # another take-off is running (the driver's answer; never from a sequence)
 
 
 _TRANSITIONS: Final[dict[Phase, frozenset[Phase]]] = {

@@ -1,0 +1,313 @@
+"""Byte links to a flight controller for asyncio: ``udpin:``, ``udpout:`` and ``serial:``.
+
+Connection strings follow pymavlink/MAVSDK usage (reference section 1.7):
+
+- ``udpin:HOST:PORT``  bind and listen; replies go to whoever sent last (PX4 SITL sends to
+  14540+i; mavlink-router's ``[UdpEndpoint] Mode=Normal`` sends to us).
+- ``udpout:HOST:PORT`` send to a listener (PX4 SITL listens on 14580+i); bound to an
+  ephemeral port, so the peer learns us from our first heartbeat.
+- ``serial:DEVICE:BAUD`` e.g. ``serial:/dev/ttyTHS1:921600`` (Jetson J41 UART to TELEM2).
+  Opened non-blocking, raw 8N1 without flow control through ``termios`` and read with
+  ``loop.add_reader``: no pyserial needed for one UART on Linux.
+
+A link never raises on I/O once open: errors are counted and the last one kept, so the
+heartbeat going stale (readiness) is what reports a dead link.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import os
+import termios
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Final, Literal, Protocol, cast
+
+MAX_TX_BACKLOG: Final = 64 * 1024  # serial bytes queued while the UART drains; more is dropped
+SERIAL_REOPEN_S: Final = 1.0  # retry a vanished serial device (USB adapter re-plugged)
+
+Kind = Literal["udpin", "udpout", "serial"]
+OnBytes = Callable[[bytes], None]
+
+
+class BadConnectionString(ValueError):
+    """A connection string swarmd cannot use; ``str()`` is one line with the fix."""
+
+
+@dataclass(frozen=True, slots=True)
+class Endpoint:
+    kind: Kind
+    host: str = ""
+    port: int = 0
+    device: str = ""
+    baud: int = 0
+
+    def __str__(self) -> str:
+        if self.kind == "serial":
+            return f"serial:{self.device}:{self.baud}"
+        return f"{self.kind}:{self.host}:{self.port}"
+
+
+def parse_connection(text: str, field: str = "px4.connection") -> Endpoint:
+    """``udpin:0.0.0.0:14540`` | ``udpout:127.0.0.1:14580`` | ``serial:/dev/ttyTHS1:921600``."""
+    example = "udpin:0.0.0.0:14540, udpout:127.0.0.1:14580 or serial:/dev/ttyTHS1:921600"
+    kind, sep, rest = text.partition(":")
+    if kind.endswith("//"):  # tolerate MAVSDK's udpin:// spelling
+        kind = kind[:-2]
+    rest = rest.removeprefix("//")
+    if not sep or kind not in ("udpin", "udpout", "serial"):
+        raise BadConnectionString(
+            f"{field}: {text!r} has no known scheme (udpin, udpout, serial); fix: e.g. {example}"
+        )
+    head, sep, tail = rest.rpartition(":")
+    if not sep or not head or not tail.isdigit():
+        what = "DEVICE:BAUD" if kind == "serial" else "HOST:PORT"
+        raise BadConnectionString(f"{field}: {text!r} is not {kind}:{what}; fix: e.g. {example}")
+    number = int(tail)
+    if kind == "serial":
+        if not hasattr(termios, f"B{number}"):
+            raise BadConnectionString(
+                f"{field}: baud {number} is not a termios speed; fix: use 57600, 115200 or "
+                "921600 (PX4 SER_TEL2_BAUD)"
+            )
+        return Endpoint("serial", device=head, baud=number)
+    lowest = 0 if kind == "udpin" else 1  # udpin port 0: any free port (tests)
+    if not lowest <= number < 65536:
+        raise BadConnectionString(f"{field}: port {number} is out of range; fix: 1..65535")
+    return Endpoint(kind, host=head.strip("[]"), port=number)  # type: ignore[arg-type]
+
+
+class ByteLink(Protocol):
+    """An open link: send bytes, learn who the peer is, close."""
+
+    def send(self, data: bytes) -> None: ...
+
+    @property
+    def peer(self) -> str | None: ...
+
+    def stats(self) -> dict[str, object]: ...
+
+    def close(self) -> None: ...
+
+
+async def open_link(endpoint: Endpoint, on_bytes: OnBytes) -> ByteLink:
+    """Open ``endpoint``; received bytes go to ``on_bytes`` on the event loop."""
+    if endpoint.kind == "serial":
+        link = SerialLink(endpoint, on_bytes)
+        link.open()
+        return link
+    loop = asyncio.get_running_loop()
+    local = (endpoint.host, endpoint.port) if endpoint.kind == "udpin" else ("0.0.0.0", 0)  # noqa: S104
+    remote = None if endpoint.kind == "udpin" else (endpoint.host, endpoint.port)
+    _, protocol = await loop.create_datagram_endpoint(
+        lambda: UdpLink(on_bytes, remote), local_addr=local
+    )
+    return protocol
+
+
+class UdpLink(asyncio.DatagramProtocol):
+    """One UDP socket; ``remote`` fixed (udpout) or learned from the last sender (udpin)."""
+
+    def __init__(self, on_bytes: OnBytes, remote: tuple[str, int] | None) -> None:
+        self._on_bytes = on_bytes
+        self._fixed = remote is not None
+        self._remote = remote
+        self._transport: asyncio.DatagramTransport | None = None
+        self.rx_datagrams = 0
+        self.tx_datagrams = 0
+        self.tx_unroutable = 0  # udpin before anyone spoke to us
+        self.errors = 0
+        self.last_error: str | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        # cast, not isinstance: CPython 3.11's selector UDP transport does not subclass
+        # DatagramTransport
+        self._transport = cast(asyncio.DatagramTransport, transport)
+
+    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
+        self.rx_datagrams += 1
+        if not self._fixed:
+            self._remote = (str(addr[0]), int(addr[1]))
+        self._on_bytes(data)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable on loopback when the peer is not up yet: harmless
+        self.errors += 1
+        self.last_error = str(exc)
+
+    def send(self, data: bytes) -> None:
+        if self._transport is None or self._transport.is_closing() or self._remote is None:
+            self.tx_unroutable += 1
+            return
+        self._transport.sendto(data, self._remote)
+        self.tx_datagrams += 1
+
+    @property
+    def peer(self) -> str | None:
+        return None if self._remote is None else f"{self._remote[0]}:{self._remote[1]}"
+
+    @property
+    def local_port(self) -> int | None:
+        if self._transport is None:
+            return None
+        port: int = self._transport.get_extra_info("sockname")[1]
+        return port
+
+    def stats(self) -> dict[str, object]:
+        return {
+            "peer": self.peer,
+            "rx_datagrams": self.rx_datagrams,
+            "tx_datagrams": self.tx_datagrams,
+            "tx_unroutable": self.tx_unroutable,
+            "errors": self.errors,
+            "last_error": self.last_error,
+        }
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+
+
+class SerialLink:
+    """A raw UART through ``termios`` and ``add_reader``/``add_writer`` (no threads)."""
+
+    def __init__(self, endpoint: Endpoint, on_bytes: OnBytes) -> None:
+        self.endpoint = endpoint
+        self._on_bytes = on_bytes
+        self._loop = asyncio.get_running_loop()
+        self._fd: int | None = None
+        self._backlog = bytearray()
+        self._reopen: asyncio.TimerHandle | None = None
+        self._closed = False
+        self.rx_bytes = 0
+        self.tx_bytes = 0
+        self.tx_dropped = 0
+        self.errors = 0
+        self.last_error: str | None = None
+
+    def open(self) -> None:
+        """Open and configure the device; raises OSError on the first attempt only."""
+        fd = os.open(self.endpoint.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            configure_raw(fd, self.endpoint.baud)
+        except (OSError, termios.error):
+            os.close(fd)
+            raise
+        self._fd = fd
+        self._loop.add_reader(fd, self._readable)
+
+    def _readable(self) -> None:
+        fd = self._fd
+        if fd is None:
+            return
+        try:
+            data = os.read(fd, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:  # EIO: the device went away (or a pty's other end closed)
+            self._lost(exc)
+            return
+        if not data:
+            return
+        self.rx_bytes += len(data)
+        self._on_bytes(data)
+
+    def send(self, data: bytes) -> None:
+        if self._fd is None:
+            self.tx_dropped += len(data)
+            return
+        if self._backlog:
+            self._queue(data)
+            return
+        try:
+            n = os.write(self._fd, data)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:
+            self._lost(exc)
+            return
+        self.tx_bytes += n
+        if n < len(data):
+            self._queue(data[n:])
+            self._loop.add_writer(self._fd, self._writable)
+
+    def _queue(self, data: bytes) -> None:
+        if len(self._backlog) + len(data) > MAX_TX_BACKLOG:
+            self.tx_dropped += len(data)  # a stuck UART must not grow memory without bound
+            return
+        self._backlog += data
+
+    def _writable(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            n = os.write(self._fd, self._backlog)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._lost(exc)
+            return
+        self.tx_bytes += n
+        del self._backlog[:n]
+        if not self._backlog:
+            self._loop.remove_writer(self._fd)
+
+    def _lost(self, exc: OSError) -> None:
+        self.errors += 1
+        self.last_error = f"{self.endpoint.device}: {os.strerror(exc.errno or errno.EIO)}"
+        self._release()
+        if not self._closed:
+            self._reopen = self._loop.call_later(SERIAL_REOPEN_S, self._try_reopen)
+
+    def _try_reopen(self) -> None:
+        self._reopen = None
+        if self._closed:
+            return
+        try:
+            self.open()
+        except (OSError, termios.error) as exc:
+            self.errors += 1
+            self.last_error = f"{self.endpoint.device}: {exc}"
+            self._reopen = self._loop.call_later(SERIAL_REOPEN_S, self._try_reopen)
+
+    def _release(self) -> None:
+        fd, self._fd = self._fd, None
+        self._backlog.clear()
+        if fd is not None:
+            self._loop.remove_reader(fd)
+            self._loop.remove_writer(fd)
+            os.close(fd)
+
+    @property
+    def peer(self) -> str | None:
+        return self.endpoint.device if self._fd is not None else None
+
+    def stats(self) -> dict[str, object]:
+        return {
+            "peer": self.peer,
+            "rx_bytes": self.rx_bytes,
+            "tx_bytes": self.tx_bytes,
+            "tx_dropped": self.tx_dropped,
+            "errors": self.errors,
+            "last_error": self.last_error,
+        }
+
+    def close(self) -> None:
+        self._closed = True
+        if self._reopen is not None:
+            self._reopen.cancel()
+        self._release()
+
+
+def configure_raw(fd: int, baud: int) -> None:
+    """Raw 8N1, no flow control, reads return what is there (VMIN=0, VTIME=0)."""
+    tty.setraw(fd)
+    attrs = termios.tcgetattr(fd)
+    speed = getattr(termios, f"B{baud}")
+    attrs[2] = (attrs[2] | termios.CLOCAL | termios.CREAD) & ~termios.CRTSCTS  # cflag
+    attrs[4] = attrs[5] = speed  # ispeed, ospeed
+    attrs[6][termios.VMIN] = 0
+    attrs[6][termios.VTIME] = 0
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)

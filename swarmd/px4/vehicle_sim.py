@@ -1,0 +1,236 @@
+"""``swarmd-vehicle-sim``: the MAVLink vehicle **simulator** on a UDP socket.
+
+It is a simulator, not PX4 (``sim_model.py`` says what it copies and docs/px4.md where it
+departs). The adapter is the thin asyncio shell style.md asks for: datagrams in ->
+``SimVehicle.receive``; one ``TimerHandle`` at ``SimVehicle.get_timer()``; everything the
+model queues goes out as MAVLink 2 frames from (sysid, component 1).
+
+Like PX4 SITL it sends to a companion listening on 14540 by default
+(``--connect udpout:127.0.0.1:14540``, swarmd's ``udpin:0.0.0.0:14540``); with
+``--listen udpin:0.0.0.0:14580`` it waits for the companion to speak first and answers
+whoever spoke last (swarmd ``udpout:127.0.0.1:14580``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import random
+import signal
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any, cast
+
+from swarmd.px4.constants import COMP_ID_AUTOPILOT1
+from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.sim_model import SimConfig, SimVehicle
+from swarmd.px4.transport import BadConnectionString, Endpoint, parse_connection
+
+LogSink = Callable[[str, dict[str, Any]], None]
+
+
+class SimProtocol(asyncio.DatagramProtocol):
+    """Joins one ``SimVehicle`` to one UDP socket."""
+
+    def __init__(
+        self,
+        config: SimConfig,
+        rng: random.Random,
+        remote: tuple[str, int] | None,
+        log: LogSink | None = None,
+    ) -> None:
+        self._config = config
+        self._rng = rng
+        self._remote = remote
+        self._learn = remote is None
+        self._log = log
+        self._loop = asyncio.get_running_loop()
+        self.codec = MavlinkCodec(config.sysid, COMP_ID_AUTOPILOT1)
+        self.model = SimVehicle(config, rng, self._loop.time())
+        self._transport: asyncio.DatagramTransport | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self.sent = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        # cast, not isinstance: CPython 3.11's selector UDP transport does not subclass
+        # DatagramTransport
+        self._transport = cast(asyncio.DatagramTransport, transport)
+        self._pump()
+
+    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
+        if self._learn:
+            self._remote = (str(addr[0]), int(addr[1]))
+        now = self._loop.time()
+        for frame in self.codec.feed(data):
+            self.model.receive(frame.msg, (frame.src_system, frame.src_component), now)
+        self._pump()
+
+    def error_received(self, exc: Exception) -> None:
+        pass  # ICMP unreachable while nobody listens yet, as PX4 SITL shrugs it off
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self.model.handle_timer(self._loop.time())
+        self._pump()
+
+    def _pump(self) -> None:
+        for msg in self.model.messages_to_send():
+            if self._transport is not None and self._remote is not None:
+                self._transport.sendto(self.codec.encode(msg), self._remote)
+                self.sent += 1
+        while (record := self.model.next_log()) is not None:
+            if self._log is not None:
+                self._log(*record)
+        if self._timer is not None:
+            self._timer.cancel()
+        if self._transport is not None and not self._transport.is_closing():
+            self._timer = self._loop.call_at(self.model.get_timer(), self._on_timer)
+
+    @property
+    def local_port(self) -> int:
+        if self._transport is None:
+            return 0
+        port: int = self._transport.get_extra_info("sockname")[1]
+        return port
+
+    def close(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._transport is not None:
+            self._transport.close()
+
+
+async def start_sim(
+    config: SimConfig,
+    endpoint: Endpoint,
+    *,
+    seed: int = 0,
+    log: LogSink | None = None,
+) -> SimProtocol:
+    """Start a simulator on ``endpoint`` (``udpout:`` sends to it, ``udpin:`` binds it)."""
+    loop = asyncio.get_running_loop()
+    rng = random.Random(seed)  # noqa: S311 - simulation noise, reproducible by design
+    if endpoint.kind == "udpout":
+        remote: tuple[str, int] | None = (endpoint.host, endpoint.port)
+        local = ("127.0.0.1" if endpoint.host.startswith("127.") else "0.0.0.0", 0)  # noqa: S104
+    elif endpoint.kind == "udpin":
+        remote, local = None, (endpoint.host, endpoint.port)
+    else:
+        raise BadConnectionString(
+            f"--connect/--listen: {endpoint} is not UDP; fix: the simulator speaks UDP only"
+        )
+    _, protocol = await loop.create_datagram_endpoint(
+        lambda: SimProtocol(config, rng, remote, log), local_addr=local
+    )
+    return protocol
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="swarmd-vehicle-sim",
+        description="A PX4-like MAVLink vehicle SIMULATOR for swarmd tests and demos (not PX4).",
+    )
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--connect",
+        metavar="udpout:HOST:PORT",
+        help="send to a companion listening there (default udpout:127.0.0.1:14540, as SITL)",
+    )
+    where.add_argument(
+        "--listen",
+        metavar="udpin:HOST:PORT",
+        help="bind here and answer whoever speaks (like SITL's 14580 port)",
+    )
+    p.add_argument("--sysid", type=int, default=1, help="MAV_SYS_ID (1..255)")
+    p.add_argument("--gps-fix-after", type=float, default=2.0, metavar="S",
+                   help="seconds until the simulated 3D GPS fix (and home) arrive")  # fmt: skip
+    p.add_argument("--battery", type=float, default=90.0, metavar="PCT",
+                   help="battery remaining in percent")  # fmt: skip
+    p.add_argument("--fail-prearm", action="store_true",
+                   help="a sensor never passes its pre-flight check (no PREARM bit)")  # fmt: skip
+    p.add_argument("--no-home", action="store_true", help="never publish HOME_POSITION")
+    p.add_argument("--reject-arms", type=int, default=0, metavar="N",
+                   help="answer the first N arm commands TEMPORARILY_REJECTED")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed for stream phases and GPS noise")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="exit after S seconds (default: run until SIGINT/SIGTERM)")  # fmt: skip
+    p.add_argument("--json-log", action="store_true", help="JSON lines on stderr")
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> tuple[SimConfig, Endpoint]:
+    """Checked options; raises BadConnectionString/ValueError with one line."""
+    if not 1 <= args.sysid <= 255:
+        raise ValueError(f"--sysid {args.sysid}: out of range; fix: 1..255")
+    if not 0.0 <= args.battery <= 100.0:
+        raise ValueError(f"--battery {args.battery}: out of range; fix: 0..100")
+    if args.gps_fix_after < 0 or args.reject_arms < 0:
+        raise ValueError("--gps-fix-after and --reject-arms must be >= 0")
+    if args.listen is not None:
+        text = args.listen if args.listen.startswith("udp") else f"udpin:{args.listen}"
+        endpoint = parse_connection(text, "--listen")
+        if endpoint.kind != "udpin":
+            raise BadConnectionString(f"--listen {args.listen}: fix: udpin:HOST:PORT")
+    else:
+        endpoint = parse_connection(args.connect or "udpout:127.0.0.1:14540", "--connect")
+        if endpoint.kind != "udpout":
+            raise BadConnectionString(f"--connect {args.connect}: fix: udpout:HOST:PORT")
+    config = SimConfig(
+        sysid=args.sysid,
+        gps_fix_after_s=args.gps_fix_after,
+        battery_pct=args.battery,
+        fail_prearm=args.fail_prearm,
+        no_home=args.no_home,
+        reject_arms=args.reject_arms,
+    )
+    return config, endpoint
+
+
+async def _run(config: SimConfig, endpoint: Endpoint, args: argparse.Namespace) -> int:
+    from swarmd.logging import configure, get_logger
+
+    configure("info", "json" if args.json_log else "auto")
+    log = get_logger(component="vehicle-sim", simulator=True, sysid=config.sysid)
+
+    def sink(event: str, fields: dict[str, Any]) -> None:
+        log.info(event, **fields)
+
+    sim = await start_sim(config, endpoint, seed=args.seed, log=sink)
+    log.info(
+        "vehicle_sim_started",
+        note="MAVLink vehicle SIMULATOR, not PX4",
+        endpoint=str(endpoint),
+        local_port=sim.local_port,
+        config=repr(config),
+    )
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), timeout=args.duration)
+    finally:
+        log.info("vehicle_sim_stopped", sent=sim.sent, **sim.model.snapshot())
+        sim.close()
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        config, endpoint = config_from_args(args)
+    except ValueError as exc:
+        print(f"swarmd-vehicle-sim: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(_run(config, endpoint, args))
+    except OSError as exc:
+        print(f"swarmd-vehicle-sim: cannot open {endpoint}: {exc.strerror}", file=sys.stderr)
+        return 71  # EX_OSERR
+
+
+if __name__ == "__main__":
+    sys.exit(main())
