@@ -1,0 +1,53 @@
+"""The RTPS user-data plane: readiness, commands and outcomes between preloaded endpoints.
+
+Sans-IO (no asyncio, socket or time); ``DataPlane`` is the one class an owner drives.
+See docs/dataplane.md.
+"""
+
+from swarmd.dataplane.events import (
+    CommandReceived,
+    DataPlaneEvent,
+    Event,
+    OutcomeReceived,
+    PacketDropped,
+    ReadinessReceived,
+)
+from swarmd.dataplane.plane import (
+    MAX_EXECUTED_COMMANDS,
+    TOPIC_COMMAND,
+    TOPIC_OUTCOME,
+    TOPIC_READY,
+    DataPlane,
+)
+from swarmd.dataplane.types import (
+    Command,
+    CommandKind,
+    CommandOutcome,
+    CommandResult,
+    PayloadError,
+    Readiness,
+    decode_sample,
+    encode_sample,
+)
+
+__all__ = [
+    "MAX_EXECUTED_COMMANDS",
+    "TOPIC_COMMAND",
+    "TOPIC_OUTCOME",
+    "TOPIC_READY",
+    "Command",
+    "CommandKind",
+    "CommandOutcome",
+    "CommandReceived",
+    "CommandResult",
+    "DataPlane",
+    "DataPlaneEvent",
+    "Event",
+    "OutcomeReceived",
+    "PacketDropped",
+    "PayloadError",
+    "Readiness",
+    "ReadinessReceived",
+    "decode_sample",
+    "encode_sample",
+]

@@ -1,0 +1,55 @@
+"""What the data plane tells its owner: frozen, slotted, past-tense events with one base."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from swarmd.dataplane.types import Command, CommandOutcome, Readiness
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """Base of every data-plane event."""
+
+
+@dataclass(frozen=True, slots=True)
+class ReadinessReceived(Event):
+    """A member's readiness sample reached this (commander) node.
+
+    ``count`` is how many distinct samples of ``node`` arrived so far, this one included:
+    the paper's success criterion is ``count == 20`` for every publisher (section 5).
+    """
+
+    node: str
+    sample: Readiness
+    count: int
+
+
+@dataclass(frozen=True, slots=True)
+class CommandReceived(Event):
+    """A command to execute. Emitted once per command id for this node's lifetime (and
+    across restarts if the owner persists ``DataPlane.executed_command_ids``)."""
+
+    commander: str
+    command: Command
+
+
+@dataclass(frozen=True, slots=True)
+class OutcomeReceived(Event):
+    """A member's report on a command; once per (node, command id, result)."""
+
+    node: str
+    outcome: CommandOutcome
+
+
+@dataclass(frozen=True, slots=True)
+class PacketDropped(Event):
+    """Input that was not acted on; ``reason`` is a short snake_case tag also counted in
+    ``DataPlane.status()``."""
+
+    reason: str
+    source: tuple[str, int] | None = None
+    detail: str = ""
+
+
+DataPlaneEvent = ReadinessReceived | CommandReceived | OutcomeReceived | PacketDropped

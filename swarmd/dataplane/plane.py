@@ -1,0 +1,528 @@
+"""The user-data plane of one node: RTPS DATA between the endpoints the bundle preloaded.
+
+Sans-IO, like the discovery engine (docs/dataplane.md). Three sources drive it:
+
+* received datagrams: ``receive_datagram(data, source, now)`` on the node's user unicast port;
+* timer expiry: ``handle_timer(now)`` at ``get_timer()`` (reliable writers' heartbeats);
+* calls from its owner: discovery's ``peer_up``/``peer_down`` and the application's
+  ``publish_readiness``, ``send_command``, ``report_outcome``.
+
+It answers with ``datagrams_to_send()`` (payload, (host, port)) and ``next_event()``.
+
+Theory of operation. There is no SEDP: the bundle says which endpoint of which participant
+talks to which (``Bundle.matches``). A match becomes live when discovery reports the peer
+(``peer_up``, with the default unicast locator from its SPDP) and dies with ``peer_down``.
+Each local endpoint is an RTPS writer or reader chosen by the topic's QoS in the bundle
+(``writer.py``, ``reader.py``). Every datagram to a peer is ``Header + INFO_DST(peer) +
+submessages``; every datagram from a peer must carry a bundle participant's GUID prefix that
+discovery reported up, and each submessage must address a matched endpoint pair.
+
+Exactly-once commands: the reliable reader delivers each SN of a writer life at most once;
+above it, a bounded set of executed ``(commander, command_id)`` pairs turns re-deliveries
+(a commander resending the same id, a proxy reset after ``peer_down``/``peer_up``) into
+no-ops. Command ids carry the commander's incarnation in their high 32 bits, so a restarted
+commander never reuses one (docs/dataplane.md, "Exactly once").
+
+Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input becomes a
+``PacketDropped`` event and a counter. Any other exception escaping it is a bug.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, OrderedDict, deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from swarmd.bundle.model import Bundle, Durability, EndpointKind, Participant, Reliability, Topic
+from swarmd.dataplane.events import (
+    CommandReceived,
+    DataPlaneEvent,
+    OutcomeReceived,
+    PacketDropped,
+    ReadinessReceived,
+)
+from swarmd.dataplane.outgoing import Outgoing
+from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
+from swarmd.dataplane.types import (
+    MAX_REASON_CHARS,
+    TYPES_BY_NAME,
+    Command,
+    CommandKind,
+    CommandOutcome,
+    CommandResult,
+    PayloadError,
+    Readiness,
+    Sample,
+    decode_sample,
+    encode_sample,
+)
+from swarmd.dataplane.writer import (
+    MAX_HISTORY_DEPTH,
+    MAX_INCARNATION,
+    BestEffortWriter,
+    ReliableWriter,
+    first_sequence_number,
+)
+from swarmd.rtps.errors import DecodeError
+from swarmd.rtps.message import (
+    AckNack,
+    Data,
+    Gap,
+    Header,
+    Heartbeat,
+    InfoDst,
+    Submessage,
+    decode_message,
+    encode_header,
+    encode_submessage,
+)
+from swarmd.rtps.types import (
+    ENTITYID_UNKNOWN,
+    PROTOCOLVERSION_SWARMD,
+    UNKNOWN_GUID_PREFIX,
+    VENDORID_SWARMD,
+    EntityId,
+    Guid,
+    GuidPrefix,
+)
+
+TOPIC_READY: Final = "swarm/ready"
+TOPIC_COMMAND: Final = "swarm/command"
+TOPIC_OUTCOME: Final = "swarm/outcome"
+# The type each well-known topic must declare in the bundle.
+TOPIC_TYPES: Final = {
+    TOPIC_READY: "swarmd::Readiness",
+    TOPIC_COMMAND: "swarmd::Command",
+    TOPIC_OUTCOME: "swarmd::CommandOutcome",
+}
+
+# Stay under a Wi-Fi MTU (1500 - IPv4 20 - UDP 8) with margin: never IP-fragment user data.
+MAX_DATAGRAM_BYTES: Final = 1400
+# Executed (commander, command id) pairs remembered for dedup. A reliable writer keeps at most
+# MAX_HISTORY_DEPTH samples, so an id older than this many commands can no longer be resent by
+# an honest commander; the cap stops a flood of fresh ids from growing memory without bound.
+MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
+# (node, command id, result) outcomes already reported up, same reasoning on the commander.
+MAX_SEEN_OUTCOMES: Final = 4096
+# Undrained events kept; past it drop reports are counted, not queued (samples always are).
+MAX_PENDING_EVENTS: Final = 4096
+
+
+@dataclass(slots=True)
+class _Peer:
+    participant: Participant
+    locator: tuple[str, int]
+    matched: list[tuple[EntityId, Guid]] = field(default_factory=list)  # (local entity, remote)
+
+
+@dataclass(slots=True)
+class _ReadinessStats:
+    count: int = 0
+    last: Readiness | None = None
+    last_rx: float = 0.0
+
+
+Writer = BestEffortWriter | ReliableWriter
+Reader = BestEffortReader | ReliableReader
+
+
+class DataPlane:
+    """RTPS user data for one node of a bundle. Sans-IO; see the module docstring."""
+
+    def __init__(
+        self,
+        bundle: Bundle,
+        local_name: str,
+        *,
+        incarnation: int = 0,
+        executed_command_ids: Iterable[tuple[str, int]] = (),
+    ) -> None:
+        """``incarnation`` must grow with every restart of this node (a persisted boot
+        counter, or wall-clock seconds); it keeps sequence numbers and command ids unique
+        across restarts. ``executed_command_ids`` restores the dedup set a previous life
+        saved from ``executed_command_ids``."""
+        if not 0 <= incarnation <= MAX_INCARNATION:
+            raise ValueError(f"incarnation {incarnation} outside 0..{MAX_INCARNATION}")
+        self.bundle = bundle
+        self.local = bundle.participant(local_name)
+        self.prefix = self.local.guid_prefix
+        self.incarnation = incarnation
+        self._writers: dict[EntityId, tuple[Topic, Writer]] = {}
+        self._readers: dict[EntityId, tuple[Topic, Reader]] = {}
+        self._writer_by_topic: dict[str, Writer] = {}
+        for endpoint in self.local.endpoints:
+            topic = bundle.topic(endpoint.topic)
+            expected = TOPIC_TYPES.get(topic.name)
+            if expected is not None and topic.type_name != expected:
+                raise ValueError(
+                    f"bundle topic {topic.name!r} declares type {topic.type_name!r}; "
+                    f"swarmd's data plane carries {expected!r} on it: fix the mission's topics"
+                )
+            if topic.type_name not in TYPES_BY_NAME:
+                continue  # a topic the data plane does not carry (e.g. swarm/position)
+            guid = self.local.guid(endpoint)
+            if endpoint.kind == EndpointKind.WRITER:
+                writer = _make_writer(guid, topic, incarnation)
+                self._writers[guid.entity_id] = (topic, writer)
+                self._writer_by_topic[topic.name] = writer
+            else:
+                reader = _make_reader(guid, topic)
+                self._readers[guid.entity_id] = (topic, reader)
+        self._peers: dict[str, _Peer] = {}
+        self._peer_by_prefix: dict[GuidPrefix, str] = {}
+        self._pending: dict[GuidPrefix, list[Submessage]] = {}
+        self._events: deque[DataPlaneEvent] = deque()
+        self.counters: Counter[str] = Counter()
+        self._executed: OrderedDict[tuple[str, int], None] = OrderedDict()
+        for key in executed_command_ids:
+            self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
+        self._outcomes: OrderedDict[tuple[str, int, int], None] = OrderedDict()
+        self._readiness: dict[str, _ReadinessStats] = {}
+        self._next_command = 0
+
+    # --- discovery inputs -------------------------------------------------------------------
+
+    def peer_up(self, name: str, locator: tuple[str, int], now: float) -> None:
+        """Discovery found ``name`` (a bundle participant) at its default unicast locator:
+        its matched endpoints become live. Again for a known peer: only the locator moves."""
+        known = self._peers.get(name)
+        if known is not None:
+            known.locator = locator
+            return
+        peer = self.bundle.participant(name)
+        if peer.name == self.local.name:
+            raise ValueError(f"peer_up({name!r}) names this node itself")
+        state = _Peer(peer, locator)
+        self._peers[name] = state
+        self._peer_by_prefix[peer.guid_prefix] = name
+        for match in self.bundle.matches(self.local, peer):
+            entity = match.local.entity_id
+            if match.local_kind == EndpointKind.WRITER and entity in self._writers:
+                self._queue(self._writers[entity][1].add_reader(match.remote, now))
+            elif match.local_kind == EndpointKind.READER and entity in self._readers:
+                self._readers[entity][1].add_writer(match.remote)
+            else:
+                continue
+            state.matched.append((entity, match.remote))
+
+    def peer_down(self, name: str, now: float) -> None:
+        """Discovery lost ``name`` (lease expiry or dispose): drop its proxies and traffic."""
+        state = self._peers.pop(name, None)
+        if state is None:
+            return
+        self._peer_by_prefix.pop(state.participant.guid_prefix, None)
+        self._pending.pop(state.participant.guid_prefix, None)
+        for entity, remote in state.matched:
+            if entity in self._writers:
+                self._writers[entity][1].remove_reader(remote)
+            else:
+                self._readers[entity][1].remove_writer(remote)
+
+    @property
+    def peers_up(self) -> list[str]:
+        return sorted(self._peers)
+
+    # --- application inputs -----------------------------------------------------------------
+
+    def publish_readiness(self, sample: Readiness, now: float) -> int:
+        """Publish this member's readiness (best effort, keep last 1). Returns the RTPS SN.
+
+        ``sample.node`` must be this node; ``sample.seq`` is the caller's 1-based counter.
+        """
+        if sample.node != self.local.name:
+            raise ValueError(f"readiness of {sample.node!r} published by {self.local.name!r}")
+        return self._publish(TOPIC_READY, sample, now)
+
+    def make_command(
+        self, kind: CommandKind, *, altitude_m: float = 0.0, targets: Iterable[str] = ()
+    ) -> Command:
+        """A command with a fresh id: ``incarnation << 32 | counter``, never reused."""
+        self._next_command += 1
+        command_id = (self.incarnation << 32) | self._next_command
+        return Command(command_id, kind, float(altitude_m), list(targets))
+
+    def send_command(self, command: Command, now: float) -> int:
+        """Send ``command`` reliably to every matched member (commander only).
+
+        Resending a command with the same id is safe: members execute an id once.
+        """
+        return self._publish(TOPIC_COMMAND, command, now)
+
+    def report_outcome(
+        self, command_id: int, result: CommandResult, now: float, reason: str = ""
+    ) -> int:
+        """Tell the commander(s) what this member did with ``command_id`` (reliable)."""
+        reason = reason.encode("utf-8")[:MAX_REASON_CHARS].decode("utf-8", "ignore")
+        outcome = CommandOutcome(command_id, self.local.name, result, reason)
+        return self._publish(TOPIC_OUTCOME, outcome, now)
+
+    @property
+    def executed_command_ids(self) -> list[tuple[str, int]]:
+        """The dedup set, oldest first; persist it to keep exactly-once across restarts."""
+        return list(self._executed)
+
+    # --- network and timer inputs -----------------------------------------------------------
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        """One UDP datagram from the user unicast socket. Never raises."""
+        self.counters["rx_datagrams"] += 1
+        try:
+            message = decode_message(data)
+        except DecodeError as exc:
+            self._drop("decode_error", source, str(exc))
+            return
+        prefix = message.header.guid_prefix
+        if prefix == self.prefix:
+            self._drop("own", source)
+            return
+        if self.bundle.by_prefix(prefix) is None:
+            self._drop("unknown_participant", source, str(prefix))
+            return
+        peer_name = self._peer_by_prefix.get(prefix)
+        if peer_name is None:
+            self._drop("peer_not_up", source, str(prefix))
+            return
+        for_us = True
+        for sm in message.submessages:
+            if isinstance(sm, InfoDst):
+                for_us = sm.guid_prefix in (self.prefix, UNKNOWN_GUID_PREFIX)
+            elif not isinstance(sm, Data | Heartbeat | AckNack | Gap):
+                continue  # INFO_TS, and submessages the codec skips (DATA_FRAG, PAD, ...)
+            elif not for_us:
+                self._drop("not_for_us", source)
+            elif isinstance(sm, AckNack):
+                self._on_acknack(prefix, sm, source, now)
+            else:
+                self._on_reader_input(peer_name, prefix, sm, source, now)
+
+    def handle_timer(self, now: float) -> None:
+        """Send the heartbeats that are due."""
+        for _, writer in self._writers.values():
+            self._queue(writer.on_timer(now))
+
+    # --- outputs ----------------------------------------------------------------------------
+
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
+        """Everything queued, as ``(payload, (host, port))`` to the peers' unicast locators."""
+        out: list[tuple[bytes, tuple[str, int]]] = []
+        header = encode_header(Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, self.prefix))
+        for prefix, submessages in self._pending.items():
+            name = self._peer_by_prefix.get(prefix)
+            if name is None:
+                continue
+            locator = self._peers[name].locator
+            head = header + encode_submessage(InfoDst(prefix))
+            chunk = head
+            for sm in submessages:
+                encoded = encode_submessage(sm)
+                if len(chunk) + len(encoded) > MAX_DATAGRAM_BYTES and chunk != head:
+                    out.append((chunk, locator))
+                    chunk = head
+                chunk += encoded
+            if chunk != head:
+                out.append((chunk, locator))
+        self._pending.clear()
+        self.counters["tx_datagrams"] += len(out)
+        return out
+
+    def get_timer(self) -> float | None:
+        """The earliest heartbeat deadline, on the caller's clock; None when all is acked."""
+        deadlines = [d for _, w in self._writers.values() if (d := w.deadline()) is not None]
+        return min(deadlines) if deadlines else None
+
+    def next_event(self) -> DataPlaneEvent | None:
+        return self._events.popleft() if self._events else None
+
+    def status(self, now: float) -> dict[str, Any]:
+        """A JSON-ready snapshot for ``swarmctl status``."""
+        return {
+            "incarnation": self.incarnation,
+            "peers_up": self.peers_up,
+            "writers": {t.name: _writer_status(w) for t, w in self._writers.values()},
+            "readers": {t.name: vars_of(r.counters) for t, r in self._readers.values()},
+            "readiness": {
+                node: {
+                    "count": s.count,
+                    "seq": s.last.seq if s.last else None,
+                    "ready": s.last.ready if s.last else None,
+                    "reason": s.last.reason if s.last else None,
+                    "age_s": round(now - s.last_rx, 3),
+                }
+                for node, s in sorted(self._readiness.items())
+            },
+            "executed_commands": len(self._executed),
+            "counters": dict(sorted(self.counters.items())),
+        }
+
+    # --- internals --------------------------------------------------------------------------
+
+    def _publish(self, topic: str, sample: Sample, now: float) -> int:
+        writer = self._writer_by_topic.get(topic)
+        if writer is None:
+            raise ValueError(f"{self.local.name!r} has no writer on {topic!r} in the bundle")
+        sn, out = writer.write(encode_sample(sample), now)
+        self._queue(out)
+        return sn
+
+    def _queue(self, out: list[Outgoing]) -> None:
+        for item in out:
+            self._pending.setdefault(item.peer, []).append(item.submessage)
+
+    def _drop(self, reason: str, source: tuple[str, int] | None, detail: str = "") -> None:
+        self.counters[f"dropped_{reason}"] += 1
+        if len(self._events) < MAX_PENDING_EVENTS:
+            self._events.append(PacketDropped(reason, source, detail))
+        else:
+            self.counters["events_overflow"] += 1
+
+    def _on_acknack(
+        self, prefix: GuidPrefix, ack: AckNack, source: tuple[str, int], now: float
+    ) -> None:
+        entry = self._writers.get(ack.writer_id)
+        remote = Guid(prefix, ack.reader_id)
+        if entry is None or not entry[1].matched(remote):
+            self._drop("unmatched_acknack", source, f"{remote} -> {ack.writer_id}")
+            return
+        self._queue(entry[1].on_acknack(remote, ack, now))
+
+    def _on_reader_input(
+        self,
+        peer_name: str,
+        prefix: GuidPrefix,
+        sm: Data | Heartbeat | Gap,
+        source: tuple[str, int],
+        now: float,
+    ) -> None:
+        remote = Guid(prefix, sm.writer_id)
+        entry = self._find_reader(sm.reader_id, remote)
+        if entry is None:
+            self._drop("unmatched_writer", source, f"{remote} -> {sm.reader_id}")
+            return
+        topic, reader = entry
+        result: ReaderResult
+        if isinstance(sm, Data):
+            if sm.writer_sn < 1:
+                self._drop("invalid_sn", source, str(sm.writer_sn))
+                return
+            result = reader.on_data(remote, sm)
+        elif isinstance(sm, Heartbeat):
+            if sm.first_sn < 1 or sm.last_sn < sm.first_sn - 1:
+                self._drop("invalid_heartbeat", source, f"[{sm.first_sn}, {sm.last_sn}]")
+                return
+            result = reader.on_heartbeat(remote, sm)
+        else:
+            if sm.gap_start < 1 or sm.gap_list.base < sm.gap_start:
+                self._drop("invalid_gap", source, f"{sm.gap_start} {sm.gap_list.base}")
+                return
+            result = reader.on_gap(remote, sm)
+        if result.dropped is not None:
+            self.counters[result.dropped] += 1  # normal protocol noise, not an event
+        self._queue(result.replies)
+        for delivered in result.delivered:
+            self._deliver(peer_name, topic, delivered, source, now)
+
+    def _find_reader(self, reader_id: EntityId, remote: Guid) -> tuple[Topic, Reader] | None:
+        if reader_id == ENTITYID_UNKNOWN:  # spec 8.4.15.3: to every matched reader of it
+            for entry in self._readers.values():
+                if entry[1].matched(remote):
+                    return entry
+            return None
+        found = self._readers.get(reader_id)
+        if found is None or not found[1].matched(remote):
+            return None
+        return found
+
+    def _deliver(
+        self,
+        peer_name: str,
+        topic: Topic,
+        delivered: Delivered,
+        source: tuple[str, int],
+        now: float,
+    ) -> None:
+        if delivered.payload is None:
+            self._drop("no_payload", source, f"{topic.name} sn {delivered.sn}")
+            return
+        cls = TYPES_BY_NAME[topic.type_name]
+        try:
+            sample = decode_sample(delivered.payload, cls)
+        except PayloadError as exc:
+            self._drop("bad_payload", source, f"{topic.name}: {exc}")
+            return
+        if isinstance(sample, Readiness):
+            self._on_readiness(peer_name, sample, source, now)
+        elif isinstance(sample, Command):
+            self._on_command(peer_name, sample)
+        else:
+            self._on_outcome(peer_name, sample, source)
+
+    def _on_readiness(
+        self, peer_name: str, sample: Readiness, source: tuple[str, int], now: float
+    ) -> None:
+        if sample.node != peer_name:
+            self._drop("node_mismatch", source, f"{peer_name} sent readiness of {sample.node}")
+            return
+        stats = self._readiness.setdefault(peer_name, _ReadinessStats())
+        stats.count += 1
+        stats.last = sample
+        stats.last_rx = now
+        self._events.append(ReadinessReceived(peer_name, sample, stats.count))
+
+    def _on_command(self, commander: str, command: Command) -> None:
+        if command.targets and self.local.name not in command.targets:
+            self.counters["command_not_targeted"] += 1
+            return
+        key = (commander, command.command_id)
+        if key in self._executed:
+            self.counters["command_duplicate"] += 1
+            return
+        self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
+        self.counters["commands_received"] += 1
+        self._events.append(CommandReceived(commander, command))
+
+    def _on_outcome(self, peer_name: str, outcome: CommandOutcome, source: tuple[str, int]) -> None:
+        if outcome.node != peer_name:
+            self._drop("node_mismatch", source, f"{peer_name} sent outcome of {outcome.node}")
+            return
+        key = (peer_name, outcome.command_id, int(outcome.result.value))
+        if key in self._outcomes:
+            self.counters["outcome_duplicate"] += 1
+            return
+        self._remember(self._outcomes, key, MAX_SEEN_OUTCOMES)
+        self._events.append(OutcomeReceived(peer_name, outcome))
+
+    def _remember(self, table: OrderedDict[Any, None], key: Any, cap: int) -> None:
+        table[key] = None
+        while len(table) > cap:
+            table.popitem(last=False)
+            self.counters["dedup_evicted"] += 1
+
+
+def _make_writer(guid: Guid, topic: Topic, incarnation: int) -> Writer:
+    if topic.qos.reliability == Reliability.RELIABLE:
+        return ReliableWriter(
+            guid,
+            depth=min(max(topic.qos.history_depth, 1), MAX_HISTORY_DEPTH),
+            transient_local=topic.qos.durability == Durability.TRANSIENT_LOCAL,
+            incarnation=incarnation,
+        )
+    return BestEffortWriter(guid, next_sn=first_sequence_number(incarnation))
+
+
+def _make_reader(guid: Guid, topic: Topic) -> Reader:
+    if topic.qos.reliability == Reliability.RELIABLE:
+        return ReliableReader(guid)
+    return BestEffortReader(guid)
+
+
+def vars_of(obj: Any) -> dict[str, Any]:
+    """The fields of a slotted counters dataclass as a dict."""
+    return {name: getattr(obj, name) for name in obj.__slots__}
+
+
+def _writer_status(writer: Writer) -> dict[str, Any]:
+    out: dict[str, Any] = {"last_sn": writer.last_sn, **vars_of(writer.counters)}
+    if isinstance(writer, ReliableWriter):
+        out["unacked_readers"] = sum(1 for p in writer.proxies.values() if p.acked < writer.last_sn)
+    return out

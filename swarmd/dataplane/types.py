@@ -1,0 +1,212 @@
+"""The user-data types of a swarm, as IDL structs, and their CDR payload encoding.
+
+IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
+
+    enum CommandKind { TAKEOFF, LAND, HOLD, ABORT };
+    enum CommandResult { ACCEPTED, COMPLETED, REJECTED, FAILED };
+    struct Readiness {                 // swarm/ready, member -> commander
+      string<64> node; uint32 seq; boolean ready; string<128> reason; boolean armed;
+      uint8 landed_state; uint8 gps_fix; uint8 satellites; int8 battery_pct;
+      uint16 link_q_permille;
+    };
+    struct Command {                   // swarm/command, commander -> members
+      uint64 command_id; CommandKind kind; float altitude_m;
+      sequence<string<64>, 255> targets;   // empty = every member
+    };
+    struct CommandOutcome {            // swarm/outcome, member -> commander
+      uint64 command_id; string<64> node; CommandResult result; string<128> reason;
+    };
+
+The payload is a SerializedPayload (DDSI-RTPS 2.5 section 10.2): a 4-byte encapsulation
+header (CDR_LE ``00 01``, options) followed by the XCDR1 body; the body is padded to a
+multiple of 4 and the two low bits of the options' second byte say how many padding octets
+were added (section 10.2, "representation options", RTPS 2.3 and later).
+
+Invariant: ``decode_sample`` raises ``PayloadError`` and nothing else for any input, and
+every value it returns has passed ``validate``.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Annotated, Final, TypeVar
+
+from cyclonedds_idl import IdlEnum, IdlStruct
+from cyclonedds_idl._support import Endianness  # not re-exported by the package
+from cyclonedds_idl.types import bounded_str, float32, int8, sequence, uint8, uint16, uint32, uint64
+
+MAX_NAME_CHARS: Final = 64  # a participant name in the bundle; also bounds the wire string
+MAX_REASON_CHARS: Final = 128
+MAX_TARGETS: Final = 255  # explicit targets of one command (the paper's swarms have <= 30)
+MAX_ALTITUDE_M: Final = 500.0  # above any legal small-UAS ceiling; rejects garbage altitudes
+MAX_LINK_Q_PERMILLE: Final = 1000
+
+NodeName = Annotated[str, bounded_str(MAX_NAME_CHARS)]
+Reason = Annotated[str, bounded_str(MAX_REASON_CHARS)]
+
+# Encapsulation identifiers (DDSI-RTPS 2.5 section 10.5, table 10.3); always big-endian octets.
+ENCAPSULATION_CDR_BE: Final = b"\x00\x00"
+ENCAPSULATION_CDR_LE: Final = b"\x00\x01"
+ENCAPSULATION_HEADER_SIZE: Final = 4
+PADDING_MASK: Final = 0x03  # low bits of options[1]: number of padding octets at the end
+
+
+class PayloadError(ValueError):
+    """A serialized payload that is not a valid sample of the expected type."""
+
+
+class CommandKind(IdlEnum, typename="swarmd::CommandKind"):
+    TAKEOFF = 0
+    LAND = 1
+    HOLD = 2
+    ABORT = 3
+
+
+class CommandResult(IdlEnum, typename="swarmd::CommandResult"):
+    ACCEPTED = 0  # received and handed to the autopilot (PX4 COMMAND_ACK accepted)
+    COMPLETED = 1  # the vehicle reached the commanded state
+    REJECTED = 2  # refused before execution (not ready, not a target of this command...)
+    FAILED = 3  # tried and failed (autopilot denied, timed out)
+
+
+@dataclass
+class Readiness(IdlStruct, typename="swarmd::Readiness"):
+    """One member's pre-flight verdict, published at 1 Hz on ``swarm/ready``."""
+
+    node: NodeName
+    seq: uint32  # publisher's sample counter from 1: "the 20th message" of the paper's benchmark
+    ready: bool
+    reason: Reason  # the first failing check, "" when ready
+    armed: bool
+    landed_state: uint8  # MAV_LANDED_STATE (0 undefined, 1 on ground, 2 in air, 3/4 take-off/land)
+    gps_fix: uint8  # GPS_FIX_TYPE (0 no GPS .. 3 3D fix .. 6 RTK fixed)
+    satellites: uint8  # 255 = unknown, as MAVLink GPS_RAW_INT
+    battery_pct: int8  # -1 = unknown, as MAVLink SYS_STATUS.battery_remaining
+    link_q_permille: uint16  # the link quality Q of paper eq. 2, in thousandths
+
+
+@dataclass
+class Command(IdlStruct, typename="swarmd::Command"):
+    """A swarm command. ``command_id`` is unique per commander across restarts, see
+    ``docs/dataplane.md`` (exactly-once)."""
+
+    command_id: uint64
+    kind: CommandKind
+    altitude_m: float32  # TAKEOFF only; 0 otherwise
+    targets: Annotated[Sequence[NodeName], sequence(NodeName, MAX_TARGETS)]  # empty = all
+
+
+@dataclass
+class CommandOutcome(IdlStruct, typename="swarmd::CommandOutcome"):
+    """What a member did with one command, sent back on ``swarm/outcome``."""
+
+    command_id: uint64
+    node: NodeName
+    result: CommandResult
+    reason: Reason
+
+
+Sample = Readiness | Command | CommandOutcome
+SampleT = TypeVar("SampleT", bound=Readiness | Command | CommandOutcome)
+
+# The type names a bundle may declare, and the struct that carries each.
+TYPES_BY_NAME: Final[dict[str, type[Readiness] | type[Command] | type[CommandOutcome]]] = {
+    "swarmd::Readiness": Readiness,
+    "swarmd::Command": Command,
+    "swarmd::CommandOutcome": CommandOutcome,
+}
+
+_U8: Final = range(0, 1 << 8)
+_I8: Final = range(-(1 << 7), 1 << 7)
+_U32: Final = range(0, 1 << 32)
+_U64: Final = range(0, 1 << 64)
+
+
+def _check_str(value: object, field: str, limit: int) -> None:
+    if not isinstance(value, str):
+        raise PayloadError(f"{field} must be a string")
+    if len(value.encode("utf-8")) > limit or "\x00" in value:
+        raise PayloadError(f"{field} longer than {limit} octets or holding NUL")
+
+
+def _check_int(value: object, field: str, allowed: range) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value not in allowed:
+        raise PayloadError(f"{field}={value!r} outside {allowed.start}..{allowed.stop - 1}")
+
+
+def validate(sample: Sample) -> None:
+    """Check every field against the IDL bounds and swarmd's value ranges.
+
+    The Cyclone IDL layer does not enforce string bounds or value ranges on decode, so a
+    peer's sample passes here before the application sees it. Raises ``PayloadError``.
+    """
+    if isinstance(sample, Readiness):
+        _check_str(sample.node, "node", MAX_NAME_CHARS)
+        _check_int(sample.seq, "seq", _U32)
+        _check_str(sample.reason, "reason", MAX_REASON_CHARS)
+        for name in ("landed_state", "gps_fix", "satellites"):
+            _check_int(getattr(sample, name), name, _U8)
+        _check_int(sample.battery_pct, "battery_pct", range(-1, 101))
+        _check_int(sample.link_q_permille, "link_q_permille", range(MAX_LINK_Q_PERMILLE + 1))
+        flags: tuple[object, object] = (sample.ready, sample.armed)
+        if not all(isinstance(flag, bool) for flag in flags):
+            raise PayloadError("ready and armed must be booleans")
+    elif isinstance(sample, Command):
+        _check_int(sample.command_id, "command_id", _U64)
+        kind: object = sample.kind
+        if not isinstance(kind, CommandKind):
+            raise PayloadError(f"kind={kind!r} is not a CommandKind")
+        alt: object = sample.altitude_m
+        if not isinstance(alt, float | int) or not math.isfinite(alt):
+            raise PayloadError(f"altitude_m={alt!r} is not a finite number")
+        if sample.kind == CommandKind.TAKEOFF and not 0.0 < alt <= MAX_ALTITUDE_M:
+            raise PayloadError(f"TAKEOFF altitude_m={alt} outside (0, {MAX_ALTITUDE_M}]")
+        if len(sample.targets) > MAX_TARGETS:
+            raise PayloadError(f"{len(sample.targets)} targets exceed {MAX_TARGETS}")
+        for target in sample.targets:
+            _check_str(target, "targets[]", MAX_NAME_CHARS)
+    else:
+        _check_int(sample.command_id, "command_id", _U64)
+        _check_str(sample.node, "node", MAX_NAME_CHARS)
+        result: object = sample.result
+        if not isinstance(result, CommandResult):
+            raise PayloadError(f"result={result!r} is not a CommandResult")
+        _check_str(sample.reason, "reason", MAX_REASON_CHARS)
+
+
+def encode_sample(sample: Sample) -> bytes:
+    """The SerializedPayload of ``sample``: CDR_LE header, XCDR1 body, padded to 4 octets.
+
+    Raises ``PayloadError`` if the sample breaks a bound (a caller's bug, never network input).
+    """
+    validate(sample)
+    try:
+        raw = sample.serialize(endianness=Endianness.Little, use_version_2=False)
+    except Exception as exc:  # the IDL layer raises bare Exception for out-of-range values
+        raise PayloadError(f"cannot serialize {type(sample).__name__}: {exc}") from None
+    if raw[:2] != ENCAPSULATION_CDR_LE:
+        raise PayloadError(f"IDL layer wrote encapsulation {raw[:2].hex()}, expected 0001")
+    padding = -len(raw) % 4
+    options = bytes((0, padding))
+    return ENCAPSULATION_CDR_LE + options + raw[ENCAPSULATION_HEADER_SIZE:] + bytes(padding)
+
+
+def decode_sample(payload: bytes, cls: type[SampleT]) -> SampleT:
+    """Parse a SerializedPayload as ``cls``. Raises ``PayloadError`` and nothing else."""
+    if len(payload) < ENCAPSULATION_HEADER_SIZE:
+        raise PayloadError(f"payload of {len(payload)} octets has no encapsulation header")
+    kind = payload[:2]
+    if kind not in (ENCAPSULATION_CDR_LE, ENCAPSULATION_CDR_BE):
+        raise PayloadError(f"encapsulation {kind.hex()} is not CDR_LE/CDR_BE (XCDR1)")
+    padding = payload[3] & PADDING_MASK
+    body_end = len(payload) - padding
+    if body_end < ENCAPSULATION_HEADER_SIZE:
+        raise PayloadError(f"{padding} padding octets exceed the payload")
+    try:
+        sample = cls.deserialize(payload[:body_end], has_header=True)
+    except Exception as exc:  # struct.error, UnicodeDecodeError, enum ValueError, bare Exception
+        raise PayloadError(f"malformed {cls.__name__} payload: {exc}") from None
+    if not isinstance(sample, cls):  # pragma: no cover - the IDL layer builds cls or raises
+        raise PayloadError(f"IDL layer returned {type(sample).__name__}, not {cls.__name__}")
+    validate(sample)
+    return sample

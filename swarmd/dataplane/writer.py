@@ -1,0 +1,291 @@
+"""RTPS writers for user data: best-effort (stateless push) and reliable (stateful, spec 8.4.9).
+
+Theory of operation (reliable writer, DDSI-RTPS 2.5 section 8.4.9 "Reliable StatefulWriter"):
+
+* One ``ReaderProxy`` per matched remote reader, created when discovery reports the peer.
+  A VOLATILE writer treats every sample written before the match as irrelevant to that
+  reader (``relevant_from``); TRANSIENT_LOCAL makes the whole history relevant.
+* ``write`` stores the sample in a keep-last-N history and pushes DATA to every proxy, with a
+  HEARTBEAT piggy-backed in the same datagram so the reader acknowledges at once.
+* While a proxy has unacknowledged samples the writer HEARTBEATs it periodically; the period
+  doubles on every heartbeat that brings no progress (up to ``max_period_s``), so a reader
+  that vanished without discovery noticing costs a few packets, not a stream.
+* An ACKNACK acknowledges everything below its bitmap base and requests the bitmap's
+  members: each is resent as DATA if still in history and relevant, or covered by a GAP
+  (evicted from keep-last history, or written before a volatile match; spec 8.4.9.2.8).
+* Heartbeats are sent per reader (INFO_DST-directed, unicast) and announce
+  ``[max(first in history, relevant_from), last written]``.
+
+Sequence numbers start at ``(incarnation << 32) + 1``: a restarted writer (new incarnation)
+continues above every number its previous life used, so readers never see a sequence number
+go backwards and need no restart heuristics (docs/dataplane.md, "Writer restarts").
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Final
+
+from swarmd.dataplane.outgoing import Outgoing
+from swarmd.rtps.message import MAX_SN_SET_BITS, AckNack, Data, Gap, Heartbeat, SequenceNumberSet
+from swarmd.rtps.types import Guid
+
+HEARTBEAT_PERIOD_S: Final = 0.2  # first retry of an unacknowledged sample (Cyclone: 100 ms)
+MAX_HEARTBEAT_PERIOD_S: Final = 3.2  # backoff ceiling (Fast DDS' generic writer default: 3 s)
+# Heartbeats a reader may leave unanswered by a fresh-count ACKNACK before an old-count one is
+# taken as a restarted reader rather than a reordered duplicate.
+STALE_ACKNACK_HEARTBEATS: Final = 3
+MAX_INCARNATION: Final = (1 << 31) - 1  # SequenceNumber_t.high is an int32 (spec 9.3.2)
+MAX_HISTORY_DEPTH: Final = 1024  # keep-last N bound a bundle may ask for; caps writer memory
+
+
+def first_sequence_number(incarnation: int) -> int:
+    """The first SN of a writer in life ``incarnation`` (0 = the standard 1)."""
+    if not 0 <= incarnation <= MAX_INCARNATION:
+        raise ValueError(f"incarnation {incarnation} outside 0..{MAX_INCARNATION}")
+    return (incarnation << 32) + 1
+
+
+@dataclass(slots=True)
+class ReaderProxy:
+    """What a reliable writer knows about one remote reader (spec 8.4.7.5)."""
+
+    guid: Guid
+    relevant_from: int  # SNs below are irrelevant to this reader (volatile match point)
+    acked: int  # every SN <= acked is acknowledged
+    last_acknack_count: int = 0
+    heartbeats_unanswered: int = 0  # heartbeats since the last accepted ACKNACK
+    period_s: float = HEARTBEAT_PERIOD_S
+    next_heartbeat: float = 0.0
+
+
+@dataclass(slots=True)
+class WriterCounters:
+    written: int = 0
+    data_sent: int = 0
+    data_resent: int = 0
+    heartbeats_sent: int = 0
+    gaps_sent: int = 0
+    acknacks_received: int = 0
+    acknacks_stale: int = 0
+    evicted_unacked: int = 0
+
+
+@dataclass(slots=True)
+class BestEffortWriter:
+    """Stateless best-effort writer: each sample goes once to every matched reader."""
+
+    guid: Guid
+    next_sn: int = 1
+    readers: dict[Guid, None] = field(default_factory=dict)
+    counters: WriterCounters = field(default_factory=WriterCounters)
+
+    @property
+    def last_sn(self) -> int:
+        return self.next_sn - 1
+
+    def add_reader(self, reader: Guid, now: float) -> list[Outgoing]:
+        self.readers[reader] = None
+        return []
+
+    def remove_reader(self, reader: Guid) -> None:
+        self.readers.pop(reader, None)
+
+    def matched(self, reader: Guid) -> bool:
+        return reader in self.readers
+
+    def write(self, payload: bytes, now: float) -> tuple[int, list[Outgoing]]:
+        sn = self.next_sn
+        self.next_sn += 1
+        self.counters.written += 1
+        out = [
+            Outgoing(r.prefix, Data(r.entity_id, self.guid.entity_id, sn, None, payload))
+            for r in self.readers
+        ]
+        self.counters.data_sent += len(out)
+        return sn, out
+
+    def on_acknack(self, reader: Guid, acknack: AckNack, now: float) -> list[Outgoing]:
+        # a best-effort writer keeps no state to repair from (spec 8.4.7.1)
+        return []
+
+    def on_timer(self, now: float) -> list[Outgoing]:
+        return []
+
+    def deadline(self) -> float | None:
+        return None
+
+
+class ReliableWriter:
+    """Reliable stateful writer with keep-last-``depth`` history. See the module docstring."""
+
+    def __init__(
+        self,
+        guid: Guid,
+        *,
+        depth: int,
+        transient_local: bool = False,
+        incarnation: int = 0,
+        period_s: float = HEARTBEAT_PERIOD_S,
+        max_period_s: float = MAX_HEARTBEAT_PERIOD_S,
+    ) -> None:
+        if not 1 <= depth <= MAX_HISTORY_DEPTH:
+            raise ValueError(f"history depth {depth} outside 1..{MAX_HISTORY_DEPTH}")
+        self.guid = guid
+        self.depth = depth
+        self.transient_local = transient_local
+        self.period_s = period_s
+        self.max_period_s = max_period_s
+        self.first_ever = first_sequence_number(incarnation)
+        self.last_sn = self.first_ever - 1
+        self.history: OrderedDict[int, bytes] = OrderedDict()
+        self.proxies: dict[Guid, ReaderProxy] = {}
+        self.heartbeat_count = 0
+        self.counters = WriterCounters()
+
+    # --- matching ---------------------------------------------------------------------------
+
+    def add_reader(self, reader: Guid, now: float) -> list[Outgoing]:
+        """Match a remote reader; a second call for the same reader keeps its state."""
+        if reader in self.proxies:
+            return []
+        relevant_from = self.first_ever if self.transient_local else self.last_sn + 1
+        proxy = ReaderProxy(reader, relevant_from=relevant_from, acked=relevant_from - 1)
+        self.proxies[reader] = proxy
+        if self._unacked(proxy):  # transient-local history to hand over: announce it now
+            proxy.next_heartbeat = now
+            return self._heartbeat_due(proxy, now)
+        return []
+
+    def remove_reader(self, reader: Guid) -> None:
+        self.proxies.pop(reader, None)
+
+    def matched(self, reader: Guid) -> bool:
+        return reader in self.proxies
+
+    # --- writing ----------------------------------------------------------------------------
+
+    def write(self, payload: bytes, now: float) -> tuple[int, list[Outgoing]]:
+        self.last_sn += 1
+        sn = self.last_sn
+        self.counters.written += 1
+        self.history[sn] = payload
+        while len(self.history) > self.depth:
+            old, _ = self.history.popitem(last=False)
+            self.counters.evicted_unacked += sum(
+                1 for p in self.proxies.values() if p.relevant_from <= old and p.acked < old
+            )
+        out: list[Outgoing] = []
+        for proxy in self.proxies.values():
+            out.append(self._data(proxy, sn, payload))
+            self.counters.data_sent += 1
+            out.append(self._heartbeat(proxy))
+            proxy.period_s = self.period_s
+            proxy.next_heartbeat = now + self.period_s
+        return sn, out
+
+    @property
+    def first_available(self) -> int:
+        return next(iter(self.history)) if self.history else self.last_sn + 1
+
+    # --- inputs -----------------------------------------------------------------------------
+
+    def on_acknack(self, reader: Guid, acknack: AckNack, now: float) -> list[Outgoing]:
+        """Acknowledge, then repair what the reader asks for (spec 8.4.9.2.8)."""
+        proxy = self.proxies.get(reader)
+        if proxy is None:
+            return []
+        self.counters.acknacks_received += 1
+        if (
+            acknack.count <= proxy.last_acknack_count
+            and proxy.heartbeats_unanswered < STALE_ACKNACK_HEARTBEATS
+        ):
+            # a duplicate or a reordered older ACKNACK (spec 8.3.7.1 "count")
+            self.counters.acknacks_stale += 1
+            return []
+        # Old counts that keep coming while heartbeats go unanswered mean the reader's
+        # process restarted with the same bundle GUID and counts from 1 again: resync.
+        proxy.last_acknack_count = acknack.count
+        proxy.heartbeats_unanswered = 0
+        state = acknack.reader_sn_state
+        # a base beyond last_sn would acknowledge samples never written: clamp, don't trust
+        acked = min(max(proxy.acked, state.base - 1), self.last_sn)
+        if acked > proxy.acked:
+            proxy.acked = acked
+            proxy.period_s = self.period_s
+            proxy.next_heartbeat = now + self.period_s
+        out: list[Outgoing] = []
+        irrelevant: list[int] = []
+        for sn in state.members():
+            # resend even below ``acked``: a reader that restarted lost what it had acked
+            if sn > self.last_sn:
+                continue
+            payload = self.history.get(sn)
+            if payload is None or sn < proxy.relevant_from:
+                irrelevant.append(sn)
+            else:
+                out.append(self._data(proxy, sn, payload))
+                self.counters.data_resent += 1
+        if irrelevant:
+            out.append(self._gap(proxy, irrelevant))
+        if out:
+            out.append(self._heartbeat(proxy))
+        return out
+
+    def on_timer(self, now: float) -> list[Outgoing]:
+        out: list[Outgoing] = []
+        for proxy in self.proxies.values():
+            if self._unacked(proxy) and proxy.next_heartbeat <= now:
+                out += self._heartbeat_due(proxy, now)
+        return out
+
+    def deadline(self) -> float | None:
+        pending = [p.next_heartbeat for p in self.proxies.values() if self._unacked(p)]
+        return min(pending) if pending else None
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _unacked(self, proxy: ReaderProxy) -> bool:
+        return proxy.acked < self.last_sn
+
+    def _heartbeat_due(self, proxy: ReaderProxy, now: float) -> list[Outgoing]:
+        proxy.next_heartbeat = now + proxy.period_s
+        proxy.period_s = min(proxy.period_s * 2, self.max_period_s)
+        return [self._heartbeat(proxy)]
+
+    def _data(self, proxy: ReaderProxy, sn: int, payload: bytes) -> Outgoing:
+        r = proxy.guid
+        return Outgoing(r.prefix, Data(r.entity_id, self.guid.entity_id, sn, None, payload))
+
+    def _heartbeat(self, proxy: ReaderProxy) -> Outgoing:
+        self.heartbeat_count += 1
+        self.counters.heartbeats_sent += 1
+        proxy.heartbeats_unanswered += 1
+        first = max(self.first_available, proxy.relevant_from)
+        hb = Heartbeat(
+            proxy.guid.entity_id,
+            self.guid.entity_id,
+            first_sn=first,
+            last_sn=self.last_sn,
+            count=self.heartbeat_count,
+        )
+        return Outgoing(proxy.guid.prefix, hb)
+
+    def _gap(self, proxy: ReaderProxy, irrelevant: list[int]) -> Outgoing:
+        """One GAP: the contiguous run from the lowest irrelevant SN, then a bitmap."""
+        irrelevant.sort()
+        start = irrelevant[0]
+        end = start
+        while end + 1 in irrelevant:
+            end += 1
+        base = end + 1
+        rest = [sn for sn in irrelevant if sn > end and sn - base < MAX_SN_SET_BITS]
+        self.counters.gaps_sent += 1
+        gap = Gap(
+            proxy.guid.entity_id,
+            self.guid.entity_id,
+            gap_start=start,
+            gap_list=SequenceNumberSet.of(base, rest),
+        )
+        return Outgoing(proxy.guid.prefix, gap)

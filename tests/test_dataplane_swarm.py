@@ -1,0 +1,470 @@
+"""A commander and ten members on a lossy in-process network, on virtual time.
+
+The network (``LossyNet``) drops, duplicates and delays every datagram independently with a
+seeded ``random.Random``; independent delays reorder. Nothing here sleeps: the loop jumps to
+the next datagram arrival, timer or application tick.
+"""
+
+from __future__ import annotations
+
+import heapq
+import random
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import pytest
+
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.model import Bundle, Role
+from swarmd.dataplane import (
+    TOPIC_COMMAND,
+    TOPIC_READY,
+    Command,
+    CommandKind,
+    CommandReceived,
+    CommandResult,
+    DataPlane,
+    OutcomeReceived,
+    PacketDropped,
+    Readiness,
+    ReadinessReceived,
+)
+from swarmd.rtps import AckNack, Data, Gap, Heartbeat, InfoDst, decode_message
+from swarmd.rtps.types import VENDORID_SWARMD
+
+Address = tuple[str, int]
+Tick = tuple[float, Callable[[], object]]
+
+
+def mission_text(members: int, command_depth: int = 8) -> str:
+    lines = ["swarm: dp-test", "domain_id: 0", "participants:"]
+    lines += ["  - {name: lead, index: 0, role: commander, mavlink_sysid: 1}"]
+    for i in range(1, members + 1):
+        lines += [f"  - {{name: m{i:02d}, index: {i}, role: member, mavlink_sysid: {i + 1}}}"]
+    lines += [
+        "topics:",
+        "  - {name: swarm/ready, type: 'swarmd::Readiness', reliability: best_effort,",
+        "     history_depth: 1, writers: member, readers: commander}",
+        "  - {name: swarm/command, type: 'swarmd::Command', reliability: reliable,",
+        f"     history_depth: {command_depth}, writers: commander, readers: member}}",
+        "  - {name: swarm/outcome, type: 'swarmd::CommandOutcome', reliability: reliable,",
+        "     history_depth: 16, writers: member, readers: commander}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def make_bundle(members: int, command_depth: int = 8) -> Bundle:
+    return build_dev_bundle(parse_mission(mission_text(members, command_depth))).bundle
+
+
+def address_of(bundle: Bundle, name: str) -> Address:
+    p = bundle.participant(name)
+    return (f"10.0.0.{p.index + 1}", bundle.user_port(p))
+
+
+@dataclass
+class LossyNet:
+    """Datagrams between ``DataPlane``s: seeded loss, duplication and random delay."""
+
+    rng: random.Random
+    drop: float = 0.0
+    duplicate: float = 0.0
+    min_delay_s: float = 0.001
+    max_delay_s: float = 0.001
+    sent: int = 0
+    dropped: int = 0
+    duplicated: int = 0
+    reordered: int = 0
+    log: list[tuple[bytes, Address, Address]] = field(default_factory=list)
+    _queue: list[tuple[float, int, bytes, Address, Address]] = field(default_factory=list)
+    _seq: int = 0
+    _last_arrival: dict[tuple[Address, Address], float] = field(default_factory=dict)
+
+    def send(self, payload: bytes, source: Address, destination: Address, now: float) -> None:
+        self.sent += 1
+        self.log.append((payload, source, destination))
+        if self.rng.random() < self.drop:
+            self.dropped += 1
+            return
+        copies = 2 if self.rng.random() < self.duplicate else 1
+        self.duplicated += copies - 1
+        for _ in range(copies):
+            at = now + self.rng.uniform(self.min_delay_s, self.max_delay_s)
+            link = (source, destination)
+            if at < self._last_arrival.get(link, 0.0):
+                self.reordered += 1
+            self._last_arrival[link] = max(at, self._last_arrival.get(link, 0.0))
+            self._seq += 1
+            heapq.heappush(self._queue, (at, self._seq, payload, source, destination))
+
+    def next_arrival(self) -> float | None:
+        return self._queue[0][0] if self._queue else None
+
+    def pop(self) -> tuple[float, bytes, Address, Address]:
+        at, _, payload, source, destination = heapq.heappop(self._queue)
+        return at, payload, source, destination
+
+
+@dataclass
+class Swarm:
+    """Every node's DataPlane, its address and what its application saw."""
+
+    bundle: Bundle
+    net: LossyNet
+    planes: dict[str, DataPlane]
+    executed: Counter[tuple[str, int]] = field(default_factory=Counter)  # (member, id)
+    outcomes: dict[tuple[str, int], list[CommandResult]] = field(default_factory=dict)
+    readiness: dict[str, list[tuple[float, int, int]]] = field(default_factory=dict)
+    drops: Counter[str] = field(default_factory=Counter)
+    now: float = 0.0
+
+    @property
+    def members(self) -> list[str]:
+        return [p.name for p in self.bundle.participants if p.role == Role.MEMBER]
+
+    def flush(self, name: str) -> None:
+        plane = self.planes[name]
+        src = address_of(self.bundle, name)
+        for payload, dst in plane.datagrams_to_send():
+            self.net.send(payload, src, dst, self.now)
+        while (event := plane.next_event()) is not None:
+            self.handle(name, event)
+        for payload, dst in plane.datagrams_to_send():  # outcomes the handler queued
+            self.net.send(payload, src, dst, self.now)
+
+    def handle(self, name: str, event: object) -> None:
+        match event:
+            case CommandReceived(command=cmd):
+                self.executed[(name, cmd.command_id)] += 1
+                plane = self.planes[name]
+                plane.report_outcome(cmd.command_id, CommandResult.ACCEPTED, self.now)
+                plane.report_outcome(cmd.command_id, CommandResult.COMPLETED, self.now, "ok")
+            case OutcomeReceived(node=node, outcome=o):
+                self.outcomes.setdefault((node, o.command_id), []).append(o.result)
+            case ReadinessReceived(node=node, sample=s, count=count):
+                self.readiness.setdefault(node, []).append((self.now, s.seq, count))
+            case PacketDropped(reason=reason):
+                self.drops[reason] += 1
+            case _:
+                raise AssertionError(f"unexpected event {event!r}")
+
+    def run_until(self, end: float, ticks: list[Tick] | None = None) -> None:
+        """Advance virtual time to ``end``, delivering datagrams, timers and app ticks."""
+        agenda = sorted(ticks or [], key=lambda t: t[0])
+        while True:
+            candidates: list[float] = []
+            if (arrival := self.net.next_arrival()) is not None:
+                candidates.append(arrival)
+            timers = {n: t for n, p in self.planes.items() if (t := p.get_timer()) is not None}
+            candidates += timers.values()
+            if agenda:
+                candidates.append(agenda[0][0])
+            if not candidates or min(candidates) > end:
+                self.now = end
+                return
+            self.now = max(self.now, min(candidates))
+            if agenda and agenda[0][0] <= self.now:
+                agenda.pop(0)[1]()
+                for name in self.planes:
+                    self.flush(name)
+                continue
+            if arrival is not None and arrival <= self.now:
+                _, payload, source, destination = self.net.pop()
+                name = self.name_at(destination)
+                self.planes[name].receive_datagram(payload, source, self.now)
+                self.flush(name)
+                continue
+            for name, deadline in timers.items():
+                if deadline <= self.now:
+                    self.planes[name].handle_timer(self.now)
+                    self.flush(name)
+
+    def name_at(self, address: Address) -> str:
+        for p in self.bundle.participants:
+            if address_of(self.bundle, p.name) == address:
+                return p.name
+        raise AssertionError(f"no node at {address}")
+
+    def discover_all(self) -> None:
+        for a in self.planes:
+            for b in self.planes:
+                if a != b:
+                    self.planes[a].peer_up(b, address_of(self.bundle, b), self.now)
+
+
+def make_swarm(
+    members: int = 10,
+    *,
+    seed: int = 1,
+    drop: float = 0.0,
+    duplicate: float = 0.0,
+    max_delay_s: float = 0.001,
+    command_depth: int = 8,
+) -> Swarm:
+    bundle = make_bundle(members, command_depth)
+    net = LossyNet(random.Random(seed), drop=drop, duplicate=duplicate, max_delay_s=max_delay_s)
+    planes = {p.name: DataPlane(bundle, p.name) for p in bundle.participants}
+    return Swarm(bundle, net, planes)
+
+
+def readiness_ticks(swarm: Swarm, start: float, seconds: int) -> list[Tick]:
+    """Every member publishes readiness at 1 Hz, staggered by 10 ms per member."""
+    ticks: list[Tick] = []
+    for k, member in enumerate(swarm.members):
+        for seq in range(1, seconds + 1):
+            sample = Readiness(member, seq, True, "", False, 1, 3, 14, 87, 800)
+
+            def publish(m: str = member, s: Readiness = sample) -> None:
+                swarm.planes[m].publish_readiness(s, swarm.now)
+
+            ticks.append((start + (seq - 1) + 0.01 * k, publish))
+    return ticks
+
+
+def send_at(swarm: Swarm, at: float, command: Command, by: str = "lead") -> Tick:
+    """An application tick: ``by`` sends ``command`` at virtual time ``at``."""
+    return (at, lambda: swarm.planes[by].send_command(command, swarm.now))
+
+
+# --- exactly once under loss --------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
+def test_every_member_executes_every_command_exactly_once_under_30_percent_loss(
+    seed: int,
+) -> None:
+    swarm = make_swarm(10, seed=seed, drop=0.3, duplicate=0.1, max_delay_s=0.08)
+    swarm.discover_all()
+    lead = swarm.planes["lead"]
+    kinds = [CommandKind.TAKEOFF, CommandKind.HOLD, CommandKind.LAND, CommandKind.ABORT]
+    commands = [
+        lead.make_command(k, altitude_m=12.5 if k == CommandKind.TAKEOFF else 0.0) for k in kinds
+    ]
+    ticks = [send_at(swarm, 1.0 + 0.05 * i, c) for i, c in enumerate(commands)]
+    # the operator retries the take-off with the same id: members must not run it twice
+    ticks.append(send_at(swarm, 2.0, commands[0]))
+    swarm.run_until(60.0, ticks)
+
+    ids = [c.command_id for c in commands]
+    assert len(set(ids)) == len(ids)
+    assert swarm.executed == Counter({(m, i): 1 for m in swarm.members for i in ids})
+    for m in swarm.members:
+        for i in ids:
+            assert swarm.outcomes[(m, i)] == [CommandResult.ACCEPTED, CommandResult.COMPLETED]
+    # the network really was hostile, and the protocol really repaired and deduplicated
+    assert 0.25 < swarm.net.dropped / swarm.net.sent < 0.35
+    assert swarm.net.duplicated > 0 and swarm.net.reordered > 0
+    member_counters = sum((swarm.planes[m].counters for m in swarm.members), Counter[str]())
+    assert member_counters["command_duplicate"] > 0  # the retried take-off at least
+    status = lead.status(swarm.now)
+    assert status["writers"][TOPIC_COMMAND]["data_resent"] > 0
+    # once everything is acknowledged nothing is pending: the writer falls silent
+    assert lead.get_timer() is None
+    assert all(swarm.planes[m].get_timer() is None for m in swarm.members)
+
+
+def test_commands_reach_members_that_discover_the_commander_late() -> None:
+    """Discovery is asymmetric: a member may drop DATA from a commander it has not yet
+    discovered; the commander's heartbeats repair it once the member has."""
+    swarm = make_swarm(4, seed=7, drop=0.3, max_delay_s=0.02)
+    lead = swarm.planes["lead"]
+    for m in swarm.members:
+        lead.peer_up(m, address_of(swarm.bundle, m), 0.0)
+    cmd = lead.make_command(CommandKind.TAKEOFF, altitude_m=5.0)
+    ticks: list[Tick] = [send_at(swarm, 0.5, cmd)]
+    for k, m in enumerate(swarm.members):
+
+        def up(m: str = m) -> None:
+            swarm.planes[m].peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now)
+
+        ticks.append((1.0 + k, up))
+    swarm.run_until(30.0, ticks)
+    assert swarm.drops["peer_not_up"] > 0
+    assert swarm.executed == Counter({(m, cmd.command_id): 1 for m in swarm.members})
+
+
+def test_commander_restart_with_new_incarnation_keeps_exactly_once() -> None:
+    swarm = make_swarm(5, seed=11, drop=0.3, duplicate=0.1, max_delay_s=0.05)
+    swarm.discover_all()
+    old = swarm.planes["lead"]
+    first = old.make_command(CommandKind.TAKEOFF, altitude_m=8.0)
+    swarm.run_until(20.0, [(1.0, lambda: old.send_command(first, swarm.now))])
+    assert all(swarm.executed[(m, first.command_id)] == 1 for m in swarm.members)
+
+    # The commander restarts (same GUIDs, from the bundle) faster than any lease expires:
+    # the members never see peer_down. Its new life resends the last command it had on
+    # record, then issues a new one.
+    new = DataPlane(swarm.bundle, "lead", incarnation=1)
+    swarm.planes["lead"] = new
+    for m in swarm.members:
+        new.peer_up(m, address_of(swarm.bundle, m), swarm.now)
+    second = new.make_command(CommandKind.LAND)
+    assert second.command_id >> 32 == 1 and second.command_id != first.command_id
+    swarm.run_until(
+        60.0,
+        [
+            (21.0, lambda: new.send_command(first, swarm.now)),
+            (21.5, lambda: new.send_command(second, swarm.now)),
+        ],
+    )
+    expected = {(m, c.command_id): 1 for m in swarm.members for c in (first, second)}
+    assert swarm.executed == Counter(expected)
+    assert new.status(swarm.now)["writers"][TOPIC_COMMAND]["last_sn"] == (1 << 32) + 2
+
+
+def test_member_side_proxy_reset_redelivers_but_does_not_reexecute() -> None:
+    """peer_down/peer_up on a member resets its reader state; the commander, which noticed
+    nothing, repairs from its history: SN-level dedup is gone, the id set still holds."""
+    swarm = make_swarm(3, seed=5)
+    swarm.discover_all()
+    lead = swarm.planes["lead"]
+    cmd = lead.make_command(CommandKind.HOLD)
+    swarm.run_until(5.0, [send_at(swarm, 1.0, cmd)])
+    member = swarm.members[0]
+    plane = swarm.planes[member]
+    plane.peer_down("lead", swarm.now)
+    plane.peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now)
+    # the next command makes the commander heartbeat from the start of its history
+    nxt = lead.make_command(CommandKind.LAND)
+    swarm.run_until(20.0, [send_at(swarm, 6.0, nxt)])
+    assert swarm.executed[(member, cmd.command_id)] == 1
+    assert swarm.executed[(member, nxt.command_id)] == 1
+    assert plane.counters["command_duplicate"] >= 1
+
+
+@pytest.mark.parametrize("persisted", [True, False])
+def test_executed_ids_survive_a_member_restart_only_when_persisted(persisted: bool) -> None:
+    """A member process restart loses its reader state; the commander resends what is still
+    in its history. Only the persisted id set keeps the member from running it again
+    (docs/dataplane.md, "Member restarts")."""
+    swarm = make_swarm(2, seed=3)
+    swarm.discover_all()
+    lead = swarm.planes["lead"]
+    cmd = lead.make_command(CommandKind.TAKEOFF, altitude_m=3.0)
+    swarm.run_until(5.0, [send_at(swarm, 1.0, cmd)])
+    member = swarm.members[0]
+    saved = swarm.planes[member].executed_command_ids
+    assert saved == [("lead", cmd.command_id)]
+    reborn = DataPlane(
+        swarm.bundle, member, incarnation=1, executed_command_ids=saved if persisted else ()
+    )
+    swarm.planes[member] = reborn
+    reborn.peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now)
+    swarm.run_until(10.0, [send_at(swarm, 6.0, cmd)])
+    assert swarm.executed[(member, cmd.command_id)] == (1 if persisted else 2)
+    # persisted: the redelivered SN and the resend are both duplicates of the saved id
+    assert reborn.counters["command_duplicate"] == (2 if persisted else 1)
+
+
+def test_targeted_command_runs_only_on_its_targets() -> None:
+    swarm = make_swarm(4, seed=2)
+    swarm.discover_all()
+    lead = swarm.planes["lead"]
+    cmd = lead.make_command(CommandKind.LAND, targets=["m02", "m04"])
+    swarm.run_until(5.0, [send_at(swarm, 1.0, cmd)])
+    assert swarm.executed == Counter({("m02", cmd.command_id): 1, ("m04", cmd.command_id): 1})
+    assert swarm.planes["m01"].counters["command_not_targeted"] == 1
+
+
+def test_keep_last_history_gaps_samples_a_slow_member_missed() -> None:
+    """More commands than the history holds while one member is cut off: it gets the
+    newest ``depth`` and a GAP (or a heartbeat's firstSN) for the rest, never stalls."""
+    swarm = make_swarm(2, seed=9, command_depth=2)
+    swarm.discover_all()
+    lead = swarm.planes["lead"]
+    cut = swarm.members[0]
+    commands = [lead.make_command(CommandKind.HOLD) for _ in range(5)]
+    cut_plane = swarm.planes.pop(cut)  # unreachable: its datagrams are lost
+    ticks = [send_at(swarm, 1.0 + 0.1 * i, c) for i, c in enumerate(commands)]
+    swarm.net.drop = 0.0
+    original_send = swarm.net.send
+
+    def send(payload: bytes, source: Address, destination: Address, now: float) -> None:
+        if destination != address_of(swarm.bundle, cut):
+            original_send(payload, source, destination, now)
+
+    swarm.net.send = send  # type: ignore[method-assign]
+    swarm.run_until(3.0, ticks)
+    swarm.planes[cut] = cut_plane
+    swarm.net.send = original_send  # type: ignore[method-assign]
+    swarm.run_until(30.0)
+    got = [i for (m, i) in swarm.executed if m == cut]
+    assert got == [c.command_id for c in commands[-2:]]
+    reader = cut_plane.status(swarm.now)["readers"][TOPIC_COMMAND]
+    assert reader["skipped"] + reader["gapped"] == 3
+    assert lead.get_timer() is None
+
+
+# --- readiness: the paper's 1 Hz workload ---------------------------------------------------
+
+
+def test_readiness_20th_message_from_every_member_on_a_clean_channel() -> None:
+    swarm = make_swarm(10, seed=1)
+    swarm.discover_all()
+    swarm.run_until(30.0, readiness_ticks(swarm, start=0.5, seconds=25))
+    for m in swarm.members:
+        rx = swarm.readiness[m]
+        assert [count for _, _, count in rx] == list(range(1, 26))
+        t20, seq20, _ = rx[19]
+        assert seq20 == 20 and 19.5 <= t20 < 19.7  # sent at 19.5 s + stagger + 1 ms
+    status = swarm.planes["lead"].status(swarm.now)
+    assert status["readiness"]["m03"]["count"] == 25 and status["readiness"]["m03"]["ready"]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_readiness_under_loss_counts_each_sample_once_and_never_goes_back(seed: int) -> None:
+    swarm = make_swarm(10, seed=seed, drop=0.3, duplicate=0.2, max_delay_s=1.5)
+    swarm.discover_all()
+    swarm.run_until(45.0, readiness_ticks(swarm, start=0.5, seconds=40))
+    for m in swarm.members:
+        rx = swarm.readiness[m]
+        seqs = [seq for _, seq, _ in rx]
+        assert seqs == sorted(set(seqs)), "a duplicate or an older sample was delivered"
+        assert [c for _, _, c in rx] == list(range(1, len(rx) + 1))
+        assert len(rx) >= 20  # 40 sent at 70 %: the 20th arrives
+    lead_counters = swarm.planes["lead"].counters
+    assert lead_counters["stale_sample"] > 0  # duplicates and late arrivals were filtered
+    assert swarm.planes["lead"].get_timer() is None  # best effort: no heartbeats
+
+
+# --- on the wire ----------------------------------------------------------------------------
+
+
+def test_datagrams_decode_and_carry_the_bundle_guids() -> None:
+    swarm = make_swarm(2, seed=4, drop=0.3)
+    swarm.discover_all()
+    lead = swarm.planes["lead"]
+    cmd = lead.make_command(CommandKind.TAKEOFF, altitude_m=10.0)
+    ticks = readiness_ticks(swarm, 0.5, 3) + [send_at(swarm, 1.0, cmd)]
+    swarm.run_until(20.0, ticks)
+    b = swarm.bundle
+    lead_p = b.participant("lead")
+    seen: Counter[str] = Counter()
+    for payload, source, destination in swarm.net.log:
+        msg = decode_message(payload)
+        sender = b.by_prefix(msg.header.guid_prefix)
+        receiver = b.participant(swarm.name_at(destination))
+        assert sender is not None and address_of(b, sender.name) == source
+        assert msg.header.vendor_id == VENDORID_SWARMD
+        assert destination[1] == b.user_port(receiver)
+        assert msg.submessages[0] == InfoDst(receiver.guid_prefix)
+        for sm in msg.submessages[1:]:
+            assert isinstance(sm, Data | Heartbeat | AckNack | Gap)
+            seen[type(sm).__name__] += 1
+            writer_side, reader_side = (
+                (receiver, sender) if isinstance(sm, AckNack) else (sender, receiver)
+            )
+            matches = b.matches(writer_side, reader_side)
+            writer_guids = {m.local.entity_id for m in matches}
+            reader_guids = {m.remote.entity_id for m in matches}
+            assert sm.writer_id in writer_guids and sm.reader_id in reader_guids
+            if isinstance(sm, Data):
+                topic = next(m.topic for m in matches if m.local.entity_id == sm.writer_id)
+                assert topic != TOPIC_COMMAND or sender == lead_p
+                assert topic != TOPIC_READY or receiver == lead_p
+                assert sm.serialized_payload is not None
+                assert sm.serialized_payload[:2] == b"\x00\x01"  # CDR_LE
+                assert len(sm.serialized_payload) % 4 == 0
+    assert seen["Data"] and seen["Heartbeat"] and seen["AckNack"]
