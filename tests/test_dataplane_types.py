@@ -1,0 +1,198 @@
+"""CDR payloads of the user-data types: exact bytes, padding, bounds, round trips, garbage."""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import pytest
+from cyclonedds_idl._support import Endianness
+from hypothesis import given
+from hypothesis import strategies as st
+
+from swarmd.dataplane.plane import TOPIC_TYPES
+from swarmd.dataplane.types import (
+    MAX_ALTITUDE_M,
+    MAX_NAME_CHARS,
+    MAX_REASON_CHARS,
+    MAX_TARGETS,
+    TYPES_BY_NAME,
+    Command,
+    CommandKind,
+    CommandOutcome,
+    CommandResult,
+    PayloadError,
+    Readiness,
+    Sample,
+    decode_sample,
+    encode_sample,
+)
+
+
+def ready(**changes: Any) -> Readiness:
+    fields: dict[str, Any] = {
+        "node": "uav1",
+        "seq": 1,
+        "ready": True,
+        "reason": "",
+        "armed": False,
+        "landed_state": 1,
+        "gps_fix": 3,
+        "satellites": 12,
+        "battery_pct": 80,
+        "link_q_permille": 900,
+    }
+    fields.update(changes)
+    return Readiness(**fields)
+
+
+def test_type_names_match_the_bundle_declarations() -> None:
+    assert {cls.__idl_typename__ for cls in TYPES_BY_NAME.values()} == set(TYPES_BY_NAME)
+    assert set(TOPIC_TYPES.values()) == set(TYPES_BY_NAME)
+
+
+def test_readiness_bytes_follow_xcdr1_alignment() -> None:
+    body = struct.pack(
+        "<I5s3xI?3xI1s?BBBbH", 5, b"uav1\0", 1, True, 1, b"\0", False, 1, 3, 12, 80, 900
+    )
+    assert encode_sample(ready()) == b"\x00\x01\x00\x00" + body  # CDR_LE, no padding needed
+
+
+def test_command_body_is_padded_and_options_say_by_how_much() -> None:
+    cmd = Command(1, CommandKind.TAKEOFF, 10.0, ["a"])
+    # u64 id, enum as u32, float32, sequence length, string length, "a\0": 26 octets
+    body = struct.pack("<QIfII2s", 1, 0, 10.0, 1, 2, b"a\0")
+    payload = encode_sample(cmd)
+    assert payload == b"\x00\x01\x00\x02" + body + b"\x00\x00"
+    assert decode_sample(payload, Command) == cmd
+
+
+@pytest.mark.parametrize("padding", [1, 2, 3])
+def test_decoder_strips_exactly_the_announced_padding(padding: int) -> None:
+    out = CommandOutcome(7, "uav1", CommandResult.REJECTED, "x")
+    raw = out.serialize(endianness=Endianness.Little)
+    payload = raw[:3] + bytes([padding]) + raw[4:] + bytes(padding)
+    assert decode_sample(payload, CommandOutcome) == out
+
+
+def test_big_endian_cdr_from_a_peer_is_accepted() -> None:
+    cmd = Command(2**40 + 3, CommandKind.ABORT, 0.0, ["m1", "m2"])
+    raw = cmd.serialize(endianness=Endianness.Big, use_version_2=False)
+    assert raw[:2] == b"\x00\x00"
+    assert decode_sample(raw, Command) == cmd
+
+
+@pytest.mark.parametrize("encapsulation", [b"\x00\x03", b"\x00\x07", b"\x00\x09", b"\xff\xff"])
+def test_other_encapsulations_are_refused(encapsulation: bytes) -> None:
+    payload = encapsulation + encode_sample(ready())[2:]
+    with pytest.raises(PayloadError, match="encapsulation"):
+        decode_sample(payload, Readiness)
+
+
+@pytest.mark.parametrize(
+    ("sample", "field"),
+    [
+        (ready(node="n" * (MAX_NAME_CHARS + 1)), "node"),
+        (ready(reason="r" * (MAX_REASON_CHARS + 1)), "reason"),
+        (ready(node="a\0b"), "node"),
+        (ready(battery_pct=101), "battery_pct"),
+        (ready(battery_pct=-2), "battery_pct"),
+        (ready(link_q_permille=1001), "link_q_permille"),
+        (ready(gps_fix=256), "gps_fix"),
+        (ready(seq=-1), "seq"),
+        (Command(1, CommandKind.TAKEOFF, 0.0, []), "altitude"),
+        (Command(1, CommandKind.TAKEOFF, MAX_ALTITUDE_M + 1, []), "altitude"),
+        (Command(1, CommandKind.LAND, math.nan, []), "altitude"),
+        (Command(1, CommandKind.LAND, 0.0, ["m"] * (MAX_TARGETS + 1)), "targets"),
+        (Command(2**64, CommandKind.LAND, 0.0, []), "command_id"),
+        (CommandOutcome(1, "", CommandResult.FAILED, "f" * 200), "reason"),
+    ],
+)
+def test_encode_refuses_out_of_bounds_fields(sample: Sample, field: str) -> None:
+    with pytest.raises(PayloadError, match=field):
+        encode_sample(sample)
+
+
+def test_decode_validates_what_the_idl_layer_lets_through() -> None:
+    # The IDL layer does not enforce string<64>: a peer's over-long name must still fail.
+    name = b"x" * (MAX_NAME_CHARS + 4) + b"\0"  # 69 octets: a 3-octet pad follows
+    raw = struct.pack(f"<QI{len(name)}s3xII1s", 1, len(name), name, 0, 1, b"\0")
+    with pytest.raises(PayloadError, match="node"):
+        decode_sample(b"\x00\x01\x00\x00" + raw, CommandOutcome)
+    short = struct.pack("<QI5s3xII1s", 1, 5, b"uav1\0", 0, 1, b"\0")
+    assert decode_sample(b"\x00\x01\x00\x00" + short, CommandOutcome).node == "uav1"
+
+
+names = st.text(st.characters(blacklist_characters="\0", codec="utf-8"), max_size=16)
+readiness_st = st.builds(
+    Readiness,
+    node=names,
+    seq=st.integers(0, 2**32 - 1),
+    ready=st.booleans(),
+    reason=names,
+    armed=st.booleans(),
+    landed_state=st.integers(0, 255),
+    gps_fix=st.integers(0, 255),
+    satellites=st.integers(0, 255),
+    battery_pct=st.integers(-1, 100),
+    link_q_permille=st.integers(0, 1000),
+)
+command_st = st.one_of(
+    st.builds(
+        Command,
+        command_id=st.integers(0, 2**64 - 1),
+        kind=st.just(CommandKind.TAKEOFF),
+        altitude_m=st.floats(0.5, MAX_ALTITUDE_M, width=32),
+        targets=st.lists(names, max_size=5),
+    ),
+    st.builds(
+        Command,
+        command_id=st.integers(0, 2**64 - 1),
+        kind=st.sampled_from([CommandKind.LAND, CommandKind.HOLD, CommandKind.ABORT]),
+        altitude_m=st.just(0.0),
+        targets=st.lists(names, max_size=5),
+    ),
+)
+outcome_st = st.builds(
+    CommandOutcome,
+    command_id=st.integers(0, 2**64 - 1),
+    node=names,
+    result=st.sampled_from(list(CommandResult)),
+    reason=names,
+)
+
+
+@given(st.one_of(readiness_st, command_st, outcome_st))
+def test_round_trip(sample: Sample) -> None:
+    payload = encode_sample(sample)
+    assert payload[:2] == b"\x00\x01" and len(payload) % 4 == 0
+    assert payload[3] & 0x03 == -len(sample.serialize()) % 4
+    assert decode_sample(payload, type(sample)) == sample
+
+
+@given(st.binary(max_size=120), st.sampled_from(sorted(TYPES_BY_NAME)))
+def test_garbage_payload_raises_only_payload_error(data: bytes, type_name: str) -> None:
+    try:
+        decode_sample(data, TYPES_BY_NAME[type_name])
+    except PayloadError:
+        pass
+
+
+@given(
+    st.one_of(readiness_st, command_st, outcome_st),
+    st.lists(st.tuples(st.integers(0, 200), st.integers(0, 255)), min_size=1, max_size=4),
+    st.integers(0, 200),
+)
+def test_corrupted_payload_decodes_valid_or_raises_payload_error(
+    sample: Sample, flips: list[tuple[int, int]], cut: int
+) -> None:
+    payload = bytearray(encode_sample(sample))
+    for offset, value in flips:
+        if offset < len(payload):
+            payload[offset] = value
+    try:
+        decoded = decode_sample(bytes(payload[: len(payload) - cut % 8]), type(sample))
+    except PayloadError:
+        return
+    encode_sample(decoded)  # whatever got through is a valid sample again
