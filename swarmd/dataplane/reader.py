@@ -137,9 +137,14 @@ class ReliableReader:
         if sn < proxy.next_expected or sn in proxy.buffer:
             self.counters.duplicates += 1
             return ReaderResult(dropped="duplicate_sample")
-        if len(proxy.buffer) >= MAX_BUFFERED_SAMPLES:
+        if sn != proxy.next_expected and len(proxy.buffer) >= MAX_BUFFERED_SAMPLES:
+            # Full: keep the SNs closest to the hole, they are delivered first; the one
+            # evicted (or refused) is simply requested again by a later ACKNACK.
             self.counters.buffer_full += 1
-            return ReaderResult(dropped="reorder_buffer_full")
+            highest = max(proxy.buffer)
+            if sn > highest:
+                return ReaderResult(dropped="reorder_buffer_full")
+            del proxy.buffer[highest]
         payload = _payload(data)
         proxy.buffer[sn] = payload
         return ReaderResult(self._drain(proxy))
