@@ -55,6 +55,7 @@ class MavlinkBackend:
         self.compid = compid
         self.heartbeat_interval_s = heartbeat_interval_s
         self.codec = MavlinkCodec(sysid, compid)
+        self._datagrams = self.endpoint.kind != "serial"  # UDP: frames never span datagrams
         self._link: ByteLink | None = None
         self._sink: ObservationSink | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -142,7 +143,7 @@ class MavlinkBackend:
         if self._loop is None or self._sink is None:
             return  # not started
         now = self._loop.time()
-        for frame in self.codec.feed(data):
+        for frame in self.codec.feed(data, datagram=self._datagrams):
             msg = frame.msg
             if frame.src_system != self.sysid or frame.src_component != COMP_ID_AUTOPILOT1:
                 self.foreign += 1

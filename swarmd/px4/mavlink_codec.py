@@ -63,8 +63,16 @@ class MavlinkCodec:
 
     # ---- decode -------------------------------------------------------------------------
 
-    def feed(self, data: bytes) -> list[Frame]:
-        """All complete frames in ``data`` (plus bytes kept from earlier calls)."""
+    def feed(self, data: bytes, *, datagram: bool = False) -> list[Frame]:
+        """All complete frames in ``data`` (plus bytes kept from earlier calls).
+
+        ``datagram=True`` (UDP): a datagram holds whole frames, so bytes left over from the
+        previous one are junk and are dropped first. Without that, one stray 0xFD makes the
+        parser wait for a 255-byte "frame" and swallow the next dozen real ones.
+        """
+        if datagram and len(self._rx.buf) > self._rx.buf_index:
+            self.bad_frames += 1
+            self._rx = self._new_parser()
         try:
             raw = self._rx.parse_buffer(data) or []
         except Exception:  # a pymavlink corner we did not foresee: drop, count, resync

@@ -62,7 +62,7 @@ class SimProtocol(asyncio.DatagramProtocol):
         if self._learn:
             self._remote = (str(addr[0]), int(addr[1]))
         now = self._loop.time()
-        for frame in self.codec.feed(data):
+        for frame in self.codec.feed(data, datagram=True):
             self.model.receive(frame.msg, (frame.src_system, frame.src_component), now)
         self._pump()
 

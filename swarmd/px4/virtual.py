@@ -122,11 +122,11 @@ class VirtualLink:
 
     def _deliver(self, d: _Delivery) -> None:
         if d.direction == "down":
-            for frame in self._vehicle_codec.feed(d.data):
+            for frame in self._vehicle_codec.feed(d.data, datagram=True):
                 self.sim.receive(frame.msg, (frame.src_system, frame.src_component), self.now)
             self._pump_sim()
             return
-        for frame in self._companion_codec.feed(d.data):
+        for frame in self._companion_codec.feed(d.data, datagram=True):
             if isinstance(frame.msg, VehicleCommand):
                 continue
             self.state.observe(frame.msg, self.now)
