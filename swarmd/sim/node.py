@@ -1,0 +1,91 @@
+"""What every simulated drone's protocol looks like to the simulator, and the discovery ledger.
+
+A protocol node (swarmd's real engine behind an adapter, or a frame-level baseline model)
+gets a ``NodeContext``: the virtual clock, a ``send`` into its MAC queue and the ``Ledger``
+it reports discoveries to. The channel calls ``receive`` for every datagram the node's
+radio decoded.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarmd.sim.channel import Datagram
+from swarmd.sim.clock import VirtualClock
+
+
+class Ledger:
+    """Who knows whom, and since when: ``first[i, j]`` is when ``i`` first discovered ``j``.
+
+    A pair counts as discovered while ``i`` holds ``j`` as a discovered peer with its
+    endpoints matched (for swarmd: ``PeerDiscovered``; for the DDS models: SPDP and SEDP
+    both complete; for zenoh: the session is open and ``j``'s declarations arrived).
+    """
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.known = np.zeros((n, n), dtype=np.bool_)
+        self.first = np.full((n, n), math.nan)
+        self.count = 0
+        self.all_discovered_s: float | None = None
+        self.lost_events = 0
+        self._listeners: list[Callable[[int, int, float], None]] = []
+
+    @property
+    def pairs(self) -> int:
+        return self.n * (self.n - 1)
+
+    def on_discovered(self, listener: Callable[[int, int, float], None]) -> None:
+        self._listeners.append(listener)
+
+    def discovered(self, i: int, j: int, now: float) -> None:
+        if i == j or self.known[i, j]:
+            return
+        self.known[i, j] = True
+        self.count += 1
+        if math.isnan(self.first[i, j]):
+            self.first[i, j] = now
+        if self.count == self.pairs and self.all_discovered_s is None:
+            self.all_discovered_s = now
+        for listener in self._listeners:
+            listener(i, j, now)
+
+    def lost(self, i: int, j: int, now: float) -> None:
+        if not self.known[i, j]:
+            return
+        self.known[i, j] = False
+        self.count -= 1
+        self.lost_events += 1
+
+
+@dataclass(slots=True)
+class NodeContext:
+    """The simulator as one node sees it."""
+
+    index: int
+    n: int
+    clock: VirtualClock
+    send: Callable[[Datagram], None]
+    ledger: Ledger
+    seed: int
+
+
+class SimNode(ABC):
+    """One drone's discovery protocol in the simulator."""
+
+    def __init__(self, ctx: NodeContext) -> None:
+        self.ctx = ctx
+        self.index = ctx.index
+
+    @abstractmethod
+    def start(self, now: float) -> None:
+        """The drone powers up at ``now``."""
+
+    @abstractmethod
+    def receive(self, dgram: Datagram, now: float) -> None:
+        """The radio decoded ``dgram`` (multicast, or unicast addressed to this node)."""

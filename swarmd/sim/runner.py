@@ -1,0 +1,197 @@
+"""One simulated run: N drones, one protocol, one seed, a 60 s window of virtual time.
+
+``run(scenario)`` is a pure function of the scenario: the same scenario (seed included)
+gives the same result dictionary, and ``json.dumps(result, sort_keys=True)`` the same bytes.
+Wall-clock time is measured by the caller (``__main__``), never inside the run.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any, Final
+
+import numpy as np
+
+from swarmd.sim.channel import Channel, ChannelConfig, Datagram, Kind
+from swarmd.sim.clock import VirtualClock
+from swarmd.sim.node import Ledger, NodeContext, SimNode
+from swarmd.sim.placement import PLACEMENTS, place
+from swarmd.sim.protocols import PROTOCOLS, build_nodes
+from swarmd.sim.workload import Workload
+
+WINDOW_S: Final = 60.0
+Progress = Callable[[float], None]
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    """Everything a run depends on. ``placement``/``spacing_m`` place the drones;
+    ``start_spread_s``: drones power up at U(0, spread) (containers never start at once)."""
+
+    protocol: str
+    n: int
+    seed: int
+    window_s: float = WINDOW_S
+    placement: str = "grid"
+    spacing_m: float = 2.0
+    start_spread_s: float = 1.0
+    workload: bool = True
+    swarmd_mode: str = "adaptive"
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
+
+    def check(self) -> None:
+        """Raise ``ValueError`` with one line naming the option and the fix."""
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(
+                f"--protocol {self.protocol!r} is unknown; use one of {', '.join(PROTOCOLS)}"
+            )
+        if self.n < 2:
+            raise ValueError(f"--n {self.n}: discovery needs at least 2 drones")
+        if self.placement not in PLACEMENTS:
+            raise ValueError(f"--placement {self.placement!r}: use one of {', '.join(PLACEMENTS)}")
+        if not self.window_s > 0:
+            raise ValueError(f"--window {self.window_s}: use a positive number of seconds")
+        if self.start_spread_s < 0:
+            raise ValueError(f"--start-spread {self.start_spread_s}: use a value >= 0")
+        if self.swarmd_mode not in ("paper", "adaptive"):
+            raise ValueError(f"--swarmd-mode {self.swarmd_mode!r}: use 'paper' or 'adaptive'")
+
+
+def run(scenario: Scenario, progress: Progress | None = None) -> dict[str, Any]:
+    """Simulate ``scenario`` and return its JSON-ready result (see ``docs/simulator.md``)."""
+    scenario.check()
+    n, seed = scenario.n, scenario.seed
+    clock = VirtualClock()
+    ledger = Ledger(n)
+    layout_rng = random.Random(f"{seed}/layout")
+    positions = place(scenario.placement, n, scenario.spacing_m, layout_rng)
+    nodes: list[SimNode] = []
+    workload: Workload | None = None
+
+    def deliver(j: int, dgram: Datagram, now: float) -> None:
+        if dgram.kind == Kind.DATA:
+            if workload is not None:
+                workload.receive(j, dgram, now)
+            return
+        nodes[j].receive(dgram, now)
+
+    channel = Channel(clock, positions, scenario.channel, seed=seed, deliver=deliver)
+    contexts = [NodeContext(i, n, clock, channel.send, ledger, seed) for i in range(n)]
+    nodes.extend(build_nodes(scenario, contexts, channel))
+    if scenario.workload:
+        workload = Workload(clock, ledger, channel.send, n)
+    start_rng = random.Random(f"{seed}/start")
+    starts = [start_rng.uniform(0.0, scenario.start_spread_s) for _ in range(n)]
+    for i, t0 in enumerate(starts):
+        clock.call_at(t0, _starter(nodes[i], workload, i, clock))
+
+    window = scenario.window_s
+    next_report = 1.0
+    while True:
+        te = clock.next_time()
+        ta = channel.next_access()
+        if ta is not None and (te is None or ta < te):
+            if ta >= window:
+                break
+            channel.access()
+        elif te is not None:
+            if te >= window:
+                break
+            clock.run_next()
+        else:
+            break
+        if progress is not None and clock.now >= next_report:
+            progress(min(1.0, clock.now / window))
+            next_report = math.floor(clock.now) + 1.0
+    if progress is not None:
+        progress(1.0)
+    return _result(scenario, channel, ledger, workload, starts)
+
+
+def _starter(
+    node: SimNode, workload: Workload | None, i: int, clock: VirtualClock
+) -> Callable[[], None]:
+    def start() -> None:
+        node.start(clock.now)
+        if workload is not None:
+            workload.start_member(i, clock.now)
+
+    return start
+
+
+def _result(
+    scenario: Scenario,
+    channel: Channel,
+    ledger: Ledger,
+    workload: Workload | None,
+    starts: list[float],
+) -> dict[str, Any]:
+    n = scenario.n
+    c = channel.counters
+    bins = int(math.ceil(scenario.window_s / scenario.channel.bin_s))
+    disc = (c.bins[Kind.DISCOVERY] + [0] * bins)[:bins]
+    data = (c.bins[Kind.DATA] + [0] * bins)[:bins]
+    total = [a + b for a, b in zip(disc, data, strict=True)]
+    discovery_frames = sum(disc)
+    first = ledger.first[~np.eye(n, dtype=np.bool_)]
+    found = first[~np.isnan(first)]
+    per_s = 1.0 / scenario.channel.bin_s
+    return {
+        "protocol": scenario.protocol,
+        "n": n,
+        "seed": scenario.seed,
+        "placement": scenario.placement,
+        "spacing_m": scenario.spacing_m,
+        "window_s": scenario.window_s,
+        "success_rate": round(ledger.count / ledger.pairs, 6),
+        "all_discovered": ledger.all_discovered_s is not None,
+        "all_discovered_s": _round(ledger.all_discovered_s),
+        "median_pair_discovery_s": _round(float(np.median(found)) if len(found) else None),
+        "pairs_lost_events": ledger.lost_events,
+        "delivery_success": round(workload.delivery_success(), 6) if workload else None,
+        "frames_per_node_60s": round(discovery_frames / n, 4),
+        "discovery_tx_per_node": round(c.tx_by_kind[Kind.DISCOVERY] / n, 4),
+        "peak_pps": max(total) * per_s if total else 0.0,
+        "peak_discovery_pps": max(disc) * per_s if disc else 0.0,
+        "total_frames": sum(total),
+        "discovery_frames": discovery_frames,
+        "counters": {
+            "mac_enqueued": c.mac_enqueued,
+            "mac_tx": c.mac_tx,
+            "mac_drop_overflow": c.mac_drop_overflow,
+            "mac_drop_expired": c.mac_drop_expired,
+            "phy_tx": c.phy_tx,
+            "phy_retx": c.phy_retx,
+            "phy_rx": c.phy_rx,
+            "phy_rx_fail_collision": c.phy_rx_fail_collision,
+            "phy_rx_fail_error": c.phy_rx_fail_error,
+            "phy_drop_retry": c.phy_drop_retry,
+            "collisions": c.collisions,
+            "tx_discovery": c.tx_by_kind[Kind.DISCOVERY],
+            "tx_data": c.tx_by_kind[Kind.DATA],
+            "ack_discovery": c.ack_by_kind[Kind.DISCOVERY],
+            "ack_data": c.ack_by_kind[Kind.DATA],
+            "data_sent": workload.sent if workload else 0,
+            "data_received": workload.received if workload else 0,
+        },
+        "series": {"bin_s": scenario.channel.bin_s, "discovery": disc, "data": data},
+        "scenario": {
+            "start_spread_s": scenario.start_spread_s,
+            "swarmd_mode": scenario.swarmd_mode,
+            "workload": scenario.workload,
+            "last_start_s": _round(max(starts)),
+            "channel": _channel_dict(scenario.channel),
+        },
+    }
+
+
+def _channel_dict(cfg: ChannelConfig) -> dict[str, Any]:
+    d = asdict(cfg)
+    return {k: v for k, v in sorted(d.items())}
+
+
+def _round(x: float | None) -> float | None:
+    return None if x is None else round(x, 6)
