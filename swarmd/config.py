@@ -62,7 +62,7 @@ class LinkConfig:
     wext_path: str = "/proc/net/wireless"
     wext_max_quality: float = 70.0
     static_q: float = 0.5
-    snr_floor_db: float = 0.0  # paper eq. 2 as printed; 25 for the text's 25-40 dB reading
+    snr_floor_db: float = 25.0  # paper eq. 2: Q = clamp((SNR - 25) / 15); 0 = garbled print
 
 
 @dataclass(frozen=True, slots=True)

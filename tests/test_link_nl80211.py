@@ -101,7 +101,7 @@ def test_snr_from_signal_and_noise_follows_paper_eq2() -> None:
     sample = nl.sample_from_nl80211(stations, -92.0)
     assert sample is not None
     assert sample.snr_db == 30.0
-    assert sample.q == pytest.approx(30 / 40)
+    assert sample.q == pytest.approx((30 - 25) / 15)
     assert (sample.signal_dbm, sample.noise_dbm, sample.source) == (-62.0, -92.0, "nl80211")
 
 
@@ -172,7 +172,7 @@ def test_source_reads_through_async_iw(fake_iw: type[_FakeIW]) -> None:
     fake_iw.surveys = _kernel_roundtrip(_survey(5180, noise=-95, in_use=True))
     src = nl.Nl80211Source("lo")
     sample = asyncio.run(src.read())
-    assert sample.q == pytest.approx(38 / 40)
+    assert sample.q == pytest.approx((38 - 25) / 15)
     assert (sample.snr_db, sample.source) == (38.0, "nl80211")
     assert [s.mac for s in src.stations] == ["02:00:00:00:00:01"]
     src.close()

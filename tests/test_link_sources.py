@@ -30,8 +30,8 @@ Inter-| sta-|   Quality        |   Discarded packets               | Missed | WE
 def test_paper_eq1_and_eq2() -> None:
     assert quality.q_from_lq(49, 70) == pytest.approx(0.7)
     assert quality.q_from_lq(80, 70) == 1.0
-    assert quality.q_from_snr(30) == pytest.approx(0.75)  # eq. 2 as printed: SNR / 40
-    assert quality.q_from_snr(32.5, floor_db=25) == pytest.approx(0.5)  # the text's 25-40 dB
+    assert quality.q_from_snr(30, floor_db=0) == pytest.approx(0.75)  # garbled print: SNR / 40
+    assert quality.q_from_snr(32.5) == pytest.approx(0.5)  # eq. 2: (SNR - 25) / 15
     assert quality.q_from_snr(-3) == 0.0
     assert quality.q_from_snr(55) == 1.0
     with pytest.raises(ValueError, match="empty"):

@@ -1,10 +1,10 @@
 """From raw radio readings to the paper's normalised link quality Q in [0, 1].
 
 Paper section 4.1: when the driver reports a link quality LQ, ``Q = LQ / LQmax`` (eq. 1);
-when it reports only signal and noise, Q comes from the SNR (eq. 2). The equation as printed
-is ``Q = clamp(SNR / 40, 0, 1)``; the text around it speaks of a 25-40 dB range, so the
-floor is a parameter: 0 dB reproduces the printed equation (the default), 25 dB the text's
-reading ``(SNR - 25) / 15``.
+when it reports only signal and noise, Q comes from the SNR normalised "within the 25-40 dB
+range" (eq. 2): ``Q = clamp((SNR - 25) / 15, 0, 1)``, the reading the project's issue fixes.
+The plain-text copy of the paper prints eq. 2 garbled as ``clamp(SNR / 40, 0, 1)``; a floor of
+0 dB (``link.snr_floor_db: 0``) reproduces that literal form for comparison.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Final
 from swarmd.link.sample import LinkSample
 
 SNR_CEIL_DB: Final = 40.0  # paper eq. 2: link improvements saturate beyond 40 dB
-SNR_FLOOR_DB: Final = 0.0  # paper eq. 2 as printed (clamp(SNR / 40, 0, 1))
+SNR_FLOOR_DB: Final = 25.0  # paper eq. 2: communication is stable above 25 dB
 # cfg80211_wireless_stats (net/wireless/wext-compat.c): qual = clamp(signal, -110, -40) + 110,
 # max_qual 70. The same mapping gives nl80211 readings without a noise figure an LQ/LQmax.
 CFG80211_SIGNAL_MIN_DBM: Final = -110.0
