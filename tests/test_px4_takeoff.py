@@ -1,0 +1,365 @@
+"""The take-off sequence on virtual time: against the vehicle simulator and scripted vehicles."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarmd.px4.constants import (
+    SENSOR_PREARM_CHECK,
+    GpsFixType,
+    LandedState,
+    MavCmd,
+    MavResult,
+    MavState,
+)
+from swarmd.px4.mavlink_codec import Message
+from swarmd.px4.messages import (
+    MODE_LOITER,
+    MODE_TAKEOFF,
+    CommandAck,
+    ExtendedSysState,
+    GpsRawInt,
+    Heartbeat,
+    HomePosition,
+    Observation,
+    SysStatus,
+    VehicleCommand,
+)
+from swarmd.px4.readiness import VehicleState
+from swarmd.px4.sim_model import SimConfig, SimVehicle
+from swarmd.px4.takeoff import (
+    AckReceived,
+    CommandSent,
+    FailReason,
+    Phase,
+    TakeoffConfig,
+    TakeoffFailed,
+    TakeoffSequence,
+    TakeoffSucceeded,
+)
+from swarmd.px4.virtual import DropFilter, VirtualLink
+
+HOME_AMSL_M = 488.0
+
+
+def ready_link(
+    sim_config: SimConfig | None = None, drop: DropFilter | None = None, warmup_s: float = 5.0
+) -> VirtualLink:
+    sim = SimVehicle(sim_config or SimConfig(gps_fix_after_s=1.0), random.Random(3), 0.0)
+    link = VirtualLink(sim, VehicleState(), 0.0, drop=drop)
+    link.run_until(warmup_s)
+    return link
+
+
+def fly(link: VirtualLink, alt_m: float | None, *, budget_s: float = 30.0) -> TakeoffSequence:
+    seq = TakeoffSequence(link.state, alt_m)
+    link.start(seq)
+    link.run_until(link.now + budget_s, stop=lambda: seq.done)
+    return seq
+
+
+def commands(link: VirtualLink, command: MavCmd) -> list[VehicleCommand]:
+    return [c for c in link.sent_down if c.command == command]
+
+
+def test_takeoff_succeeds_against_the_simulator() -> None:
+    link = ready_link()
+    seq = fly(link, 10.0)
+    assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
+    assert seq.outcome.landed_state in ("TAKEOFF", "IN_AIR")
+    assert seq.outcome.target_amsl_m == HOME_AMSL_M + 10.0
+    (arm,) = commands(link, MavCmd.COMPONENT_ARM_DISARM)
+    assert arm.params[0] == 1.0 and all(math.isnan(p) for p in arm.params[1:])
+    assert (arm.target_system, arm.target_component) == (1, 1)
+    (takeoff,) = commands(link, MavCmd.NAV_TAKEOFF)
+    assert all(math.isnan(p) for p in takeoff.params[:6])  # PX4: NaN = unused / here
+    assert takeoff.params[6] == pytest.approx(HOME_AMSL_M + 10.0)  # param7 is AMSL
+    # arm first, NAV_TAKEOFF right after (well inside COM_DISARM_PRFLT)
+    assert link.sent_down.index(arm) < link.sent_down.index(takeoff)
+    link.run_until(link.now + 15.0)
+    assert link.sim.landed == LandedState.IN_AIR and link.sim.armed
+    assert link.sim.alt_m == pytest.approx(10.0)
+    assert link.sim.mode == MODE_LOITER  # PX4 holds after the take-off
+
+
+def test_no_altitude_means_nan_and_mis_takeoff_alt() -> None:
+    link = ready_link()
+    seq = fly(link, None)
+    assert isinstance(seq.outcome, TakeoffSucceeded)
+    (takeoff,) = commands(link, MavCmd.NAV_TAKEOFF)
+    assert math.isnan(takeoff.params[6])
+    link.run_until(link.now + 10.0)
+    assert link.sim.alt_m == pytest.approx(2.5)  # MIS_TAKEOFF_ALT
+
+
+@pytest.mark.parametrize(
+    ("sim_config", "cause"),
+    [
+        (SimConfig(gps_fix_after_s=100.0), "prearm_failed"),  # Hold needs a global position
+        (SimConfig(gps_fix_after_s=1.0, no_home=True), "no_home"),
+        (SimConfig(gps_fix_after_s=1.0, battery_pct=20.0), "battery_low"),
+        (SimConfig(gps_fix_after_s=1.0, fail_prearm=True), "prearm_failed"),
+    ],
+)
+def test_not_ready_vehicle_is_refused_with_its_reason(sim_config: SimConfig, cause: str) -> None:
+    link = ready_link(sim_config)
+    seq = fly(link, 10.0)
+    assert isinstance(seq.outcome, TakeoffFailed)
+    assert seq.outcome.reason is FailReason.NOT_READY
+    assert seq.outcome.cause == cause
+    assert link.sent_down == []  # refused before a single command
+    assert not link.sim.armed
+
+
+def test_link_down_is_refused() -> None:
+    link = ready_link(drop=lambda msg, direction, now: now > 2.0)
+    seq = fly(link, 5.0)
+    assert isinstance(seq.outcome, TakeoffFailed)
+    assert seq.outcome.cause == "heartbeat_stale"
+
+
+def test_temporarily_rejected_then_retry_succeeds() -> None:
+    link = ready_link(SimConfig(gps_fix_after_s=1.0, reject_arms=2))
+    seq = fly(link, 5.0)
+    assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
+    arms = commands(link, MavCmd.COMPONENT_ARM_DISARM)
+    assert [c.confirmation for c in arms] == [0, 1, 2]  # MAVLink command protocol
+    acks = [e.result for e in link.events if isinstance(e, AckReceived)]
+    assert acks[:3] == ["TEMPORARILY_REJECTED", "TEMPORARILY_REJECTED", "ACCEPTED"]
+
+
+def test_rejected_on_every_retry_fails_and_leaves_vehicle_disarmed() -> None:
+    link = ready_link(SimConfig(gps_fix_after_s=1.0, reject_arms=10))
+    seq = fly(link, 5.0)
+    assert isinstance(seq.outcome, TakeoffFailed)
+    assert seq.outcome.reason is FailReason.ARM_REJECTED
+    assert seq.outcome.cause == "TEMPORARILY_REJECTED"
+    assert "simulated rejection" in seq.outcome.detail  # PX4's STATUSTEXT is quoted
+    arms = commands(link, MavCmd.COMPONENT_ARM_DISARM)
+    assert [c.params[0] for c in arms] == [1.0, 1.0, 1.0, 1.0, 0.0]  # 1 + 3 retries, disarm
+    assert not link.sim.armed
+
+
+def test_lost_acks_are_confirmed_by_state() -> None:
+    def drop_acks(msg: Message, direction: str, now: float) -> bool:
+        return isinstance(msg, CommandAck)
+
+    link = ready_link(drop=drop_acks)
+    seq = fly(link, 5.0)
+    assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
+    assert not any(isinstance(e, AckReceived) for e in link.events)
+    link.run_until(link.now + 10.0)
+    assert link.sim.landed == LandedState.IN_AIR
+
+
+def test_lost_commands_run_out_of_retries() -> None:
+    link = ready_link(drop=lambda msg, direction, now: direction == "down")
+    t0 = link.now
+    seq = fly(link, 5.0)
+    assert isinstance(seq.outcome, TakeoffFailed)
+    assert seq.outcome.reason is FailReason.ARM_NO_ACK
+    arms = [c for c in commands(link, MavCmd.COMPONENT_ARM_DISARM) if c.params[0] == 1.0]
+    assert [c.confirmation for c in arms] == [0, 1, 2, 3]
+    assert seq.outcome.elapsed_s == pytest.approx(4 * 0.5)  # virtual time: 4 x ack timeout
+    assert link.now - t0 == pytest.approx(2.0)
+
+
+# ---- scripted vehicle: exact control over what the autopilot says ------------------------
+
+
+class Scripted:
+    """A VehicleState + sequence fed by hand; the test plays PX4."""
+
+    def __init__(self, alt_m: float | None = 5.0, config: TakeoffConfig | None = None) -> None:
+        self.now = 0.0
+        self.state = VehicleState()
+        self.armed = False
+        self.mode = MODE_LOITER
+        self.landed = LandedState.ON_GROUND
+        self.seq = TakeoffSequence(self.state, alt_m, config=config)
+        self.sent: list[VehicleCommand] = []
+        self.telemetry()
+
+    def heartbeat(self) -> Heartbeat:
+        return Heartbeat(
+            12,
+            2,
+            1 | (128 if self.armed else 0),
+            self.mode.custom_mode,
+            MavState.ACTIVE if self.armed else MavState.STANDBY,
+        )
+
+    def telemetry(self) -> None:
+        for obs in (
+            self.heartbeat(),
+            SysStatus(SENSOR_PREARM_CHECK, 90, 16000),
+            ExtendedSysState(self.landed),
+            GpsRawInt(GpsFixType.FIX_3D, 12),
+            HomePosition(0, 0, round(HOME_AMSL_M * 1000)),
+        ):
+            self.feed(obs)
+
+    def feed(self, obs: Observation) -> None:
+        self.state.observe(obs, self.now)
+        self.seq.observe(obs, self.now)
+        self.sent += self.seq.commands_to_send()
+
+    # methods, not properties: mypy would narrow a property across the calls that change it
+    def phase(self) -> Phase:
+        return self.seq.phase
+
+    def outcome(self) -> TakeoffSucceeded | TakeoffFailed | None:
+        return self.seq.outcome
+
+    def failure(self) -> TakeoffFailed:
+        out = self.seq.outcome
+        assert isinstance(out, TakeoffFailed), out
+        return out
+
+    def start(self) -> None:
+        self.seq.start(self.now)
+        self.sent += self.seq.commands_to_send()
+
+    def ack(self, command: MavCmd, result: MavResult) -> None:
+        self.feed(CommandAck(command, result, 0, 1, 191))
+
+    def advance_to_timer(self) -> None:
+        timer = self.seq.get_timer()
+        assert timer is not None
+        self.now = timer
+        self.seq.handle_timer(self.now)
+        self.sent += self.seq.commands_to_send()
+
+
+def test_retry_schedule_after_temporarily_rejected() -> None:
+    v = Scripted()
+    v.start()
+    assert [c.command for c in v.sent] == [MavCmd.COMPONENT_ARM_DISARM]
+    assert v.seq.get_timer() == 0.5  # ack timeout
+    v.now = 0.1
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.TEMPORARILY_REJECTED)
+    assert v.seq.get_timer() == pytest.approx(0.6)  # retry_backoff_s after the rejection
+    v.advance_to_timer()
+    assert [c.confirmation for c in v.sent] == [0, 1]
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)
+    assert v.phase() is Phase.TAKING_OFF
+    assert v.sent[-1].command == MavCmd.NAV_TAKEOFF
+
+
+def test_denied_is_final_and_not_retried() -> None:
+    v = Scripted()
+    v.start()
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.DENIED)
+    assert isinstance(v.outcome(), TakeoffFailed)
+    assert (v.failure().reason, v.failure().cause) == (FailReason.ARM_REJECTED, "DENIED")
+    assert [c.params[0] for c in v.sent] == [1.0, 0.0]  # one arm, then the safety disarm
+    assert v.seq.get_timer() is None
+
+
+def test_in_progress_stretches_the_wait() -> None:
+    v = Scripted()
+    v.start()
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.IN_PROGRESS)
+    assert v.seq.get_timer() == pytest.approx(3.0)
+
+
+def test_acks_for_other_commands_are_ignored() -> None:
+    v = Scripted()
+    v.start()
+    v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
+    assert v.phase() is Phase.ARMING
+
+
+def test_auto_disarm_when_takeoff_does_not_follow_arming() -> None:
+    """PX4 accepts ARM, swallows NAV_TAKEOFF's effect, and auto-disarms after 10 s."""
+    v = Scripted(config=TakeoffConfig(liftoff_timeout_s=12.0))
+    v.start()
+    v.armed = True
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)
+    v.feed(v.heartbeat())
+    v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
+    assert v.phase() is Phase.LIFTING
+    v.now = 10.0  # COM_DISARM_PRFLT: still on the ground
+    v.armed = False
+    v.feed(v.heartbeat())
+    assert isinstance(v.outcome(), TakeoffFailed)
+    assert v.failure().reason is FailReason.DISARMED
+
+
+def test_no_liftoff_times_out_and_disarms() -> None:
+    v = Scripted()
+    v.start()
+    v.armed = True
+    v.feed(v.heartbeat())  # armed bit: ARM confirmed by state, no ACK needed
+    assert v.phase() is Phase.TAKING_OFF
+    v.mode = MODE_TAKEOFF
+    v.feed(v.heartbeat())  # mode AUTO.TAKEOFF: NAV_TAKEOFF confirmed by state
+    assert v.phase() is Phase.LIFTING
+    v.advance_to_timer()
+    assert v.now == pytest.approx(8.0)
+    assert isinstance(v.outcome(), TakeoffFailed)
+    assert v.failure().reason is FailReason.NO_LIFTOFF
+    last = v.sent[-1]
+    assert last.command == MavCmd.COMPONENT_ARM_DISARM and last.params[0] == 0.0
+
+
+def test_success_needs_armed_and_airborne_state_not_just_acks() -> None:
+    v = Scripted()
+    v.start()
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)
+    v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
+    assert v.phase() is Phase.LIFTING and v.outcome() is None
+    v.landed = LandedState.TAKEOFF
+    v.feed(ExtendedSysState(v.landed))
+    assert v.outcome() is None  # airborne but the armed bit was never seen
+    v.armed = True
+    v.feed(v.heartbeat())
+    assert isinstance(v.outcome(), TakeoffSucceeded)
+    assert [type(e).__name__ for e in iter(v.seq.next_event, None)].count("TakeoffSucceeded") == 1
+
+
+@pytest.mark.parametrize("alt", [0.0, -3.0, math.nan, math.inf, 500.0])
+def test_bad_altitude_is_refused(alt: float) -> None:
+    v = Scripted(alt_m=alt)
+    v.start()
+    assert isinstance(v.outcome(), TakeoffFailed)
+    assert v.failure().reason is FailReason.BAD_ALTITUDE
+    assert v.sent == []
+
+
+def test_budget_that_cannot_beat_auto_disarm_is_rejected() -> None:
+    with pytest.raises(ValueError, match="COM_DISARM_PRFLT"):
+        TakeoffConfig(retries=30).check()
+
+
+def test_events_tell_the_story() -> None:
+    link = ready_link()
+    fly(link, 5.0)
+    sent = [e.command for e in link.events if isinstance(e, CommandSent)]
+    assert sent == ["COMPONENT_ARM_DISARM", "NAV_TAKEOFF"]
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), loss=st.floats(0.0, 0.6))
+def test_lossy_link_never_leaves_the_vehicle_armed_on_the_ground(seed: int, loss: float) -> None:
+    """Whatever the channel loses, the outcome is consistent with the simulator's state."""
+    rng = random.Random(seed)
+
+    def lossy(msg: Message, direction: str, now: float) -> bool:
+        return rng.random() < loss
+
+    link = ready_link(drop=lossy)
+    seq = TakeoffSequence(link.state, 5.0)
+    link.start(seq)
+    link.run_until(link.now + 30.0, stop=lambda: seq.done)
+    assert seq.done
+    link.run_until(link.now + 15.0)  # let auto-disarm / the climb play out
+    if isinstance(seq.outcome, TakeoffSucceeded):
+        assert link.sim.armed and link.sim.landed != LandedState.ON_GROUND
+    else:
+        assert not (link.sim.armed and link.sim.landed == LandedState.ON_GROUND)
