@@ -105,6 +105,10 @@ MAX_DATAGRAM_BYTES: Final = 1400
 MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
 # (node, command id, result) outcomes already reported up, same reasoning on the commander.
 MAX_SEEN_OUTCOMES: Final = 4096
+# Highest SN accepted from the wire. A reader's ACKNACK base is one above the last SN it
+# delivered and must still fit SequenceNumber_t (int32 high word, spec 9.3.2); a writer's
+# incarnation scheme stays far below (writer.MAX_INCARNATION << 32).
+MAX_SEQUENCE_NUMBER: Final = (1 << 63) - (1 << 32)
 # Undrained events kept; past it drop reports are counted, not queued (samples always are).
 MAX_PENDING_EVENTS: Final = 4096
 
@@ -402,18 +406,19 @@ class DataPlane:
         topic, reader = entry
         result: ReaderResult
         if isinstance(sm, Data):
-            if sm.writer_sn < 1:
+            if not 1 <= sm.writer_sn <= MAX_SEQUENCE_NUMBER:
                 self._drop("invalid_sn", source, str(sm.writer_sn))
                 return
             result = reader.on_data(remote, sm)
         elif isinstance(sm, Heartbeat):
-            if sm.first_sn < 1 or sm.last_sn < sm.first_sn - 1:
-                self._drop("invalid_heartbeat", source, f"[{sm.first_sn}, {sm.last_sn}]")
+            # spec 8.3.7.5: firstSN >= 1, lastSN >= firstSN - 1
+            if not 1 <= sm.first_sn <= sm.last_sn + 1 <= MAX_SEQUENCE_NUMBER + 1:
+                self._drop("invalid_sn", source, f"HEARTBEAT [{sm.first_sn}, {sm.last_sn}]")
                 return
             result = reader.on_heartbeat(remote, sm)
         else:
-            if sm.gap_start < 1 or sm.gap_list.base < sm.gap_start:
-                self._drop("invalid_gap", source, f"{sm.gap_start} {sm.gap_list.base}")
+            if not 1 <= sm.gap_start <= sm.gap_list.base <= MAX_SEQUENCE_NUMBER:
+                self._drop("invalid_sn", source, f"GAP {sm.gap_start} {sm.gap_list.base}")
                 return
             result = reader.on_gap(remote, sm)
         if result.dropped is not None:
