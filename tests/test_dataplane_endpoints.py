@@ -173,7 +173,7 @@ def test_write_pushes_data_with_a_piggybacked_heartbeat_to_every_reader() -> Non
     assert writer.deadline() == 1.0 + HEARTBEAT_PERIOD_S
 
 
-def test_heartbeat_backoff_doubles_to_the_ceiling_and_resets_on_progress() -> None:
+def test_unanswered_heartbeats_back_off_and_carry_the_lost_data_again() -> None:
     writer = ReliableWriter(W, depth=4)
     writer.add_reader(R, 0.0)
     writer.write(payload(1), 0.0)
@@ -184,11 +184,16 @@ def test_heartbeat_backoff_doubles_to_the_ceiling_and_resets_on_progress() -> No
         assert deadline is not None
         gaps.append(round(deadline - now, 6))
         now = deadline
-        (h,) = subs(writer.on_timer(now))
-        assert isinstance(h, Heartbeat)
-    assert gaps == [0.2, 0.2, 0.4, 0.8, 1.6, 3.2, 3.2, 3.2]
+        out = subs(writer.on_timer(now))
+        assert [type(s).__name__ for s in out] == ["Data", "Heartbeat"]  # eager repair
+    assert gaps == [0.2, 0.2, 0.3, 0.45, 0.675, 1.0, 1.0, 1.0]
     assert max(gaps) == MAX_HEARTBEAT_PERIOD_S
-    assert writer.on_acknack(R, acknack(2, [], count=1), now) == []
+    # a live reader answers: back to the short period, and nothing is pushed unasked
+    writer.write(payload(2), now)
+    assert writer.on_acknack(R, acknack(2, [], count=1), now) == []  # acks 1, has not seen 2
+    assert writer.deadline() == now + HEARTBEAT_PERIOD_S
+    assert [type(s).__name__ for s in subs(writer.on_timer(now + 0.2))] == ["Heartbeat"]
+    assert writer.on_acknack(R, acknack(3, [], count=2), now + 0.3) == []
     assert writer.deadline() is None  # all acknowledged: silence
 
 

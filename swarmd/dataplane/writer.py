@@ -8,8 +8,11 @@ Theory of operation (reliable writer, DDSI-RTPS 2.5 section 8.4.9 "Reliable Stat
 * ``write`` stores the sample in a keep-last-N history and pushes DATA to every proxy, with a
   HEARTBEAT piggy-backed in the same datagram so the reader acknowledges at once.
 * While a proxy has unacknowledged samples the writer HEARTBEATs it periodically; the period
-  doubles on every heartbeat that brings no progress (up to ``max_period_s``), so a reader
-  that vanished without discovery noticing costs a few packets, not a stream.
+  grows by half on every heartbeat that no ACKNACK answers (up to ``max_period_s``) and drops back
+  to the base period on any fresh ACKNACK, so a lossy but live reader is repaired at full
+  pace while one that vanished without discovery noticing costs a few packets, not a stream.
+* A heartbeat that follows an unanswered one carries the oldest unacked samples again
+  (at most ``MAX_EAGER_RESEND``): on a lossy link the DATA was probably lost too.
 * An ACKNACK acknowledges everything below its bitmap base and requests the bitmap's
   members: each is resent as DATA if still in history and relevant, or covered by a GAP
   (evicted from keep-last history, or written before a volatile match; spec 8.4.9.2.8).
@@ -32,7 +35,14 @@ from swarmd.rtps.message import MAX_SN_SET_BITS, AckNack, Data, Gap, Heartbeat, 
 from swarmd.rtps.types import Guid
 
 HEARTBEAT_PERIOD_S: Final = 0.2  # first retry of an unacknowledged sample (Cyclone: 100 ms)
-MAX_HEARTBEAT_PERIOD_S: Final = 3.2  # backoff ceiling (Fast DDS' generic writer default: 3 s)
+# Backoff while heartbeats go unanswered. At 30 % loss a heartbeat/ACKNACK round trip fails
+# half the time, so doubling up to seconds stalls live readers; x1.5 up to 1 s still limits a
+# reader that vanished unnoticed to about one heartbeat a second until its lease expires.
+HEARTBEAT_BACKOFF: Final = 1.5
+MAX_HEARTBEAT_PERIOD_S: Final = 1.0
+# Unacked samples pushed again with a heartbeat that follows an unanswered one; small, so a
+# dead reader costs little and a big history is still repaired through ACKNACK.
+MAX_EAGER_RESEND: Final = 4
 # Heartbeats a reader may leave unanswered by a fresh-count ACKNACK before an old-count one is
 # taken as a restarted reader rather than a reordered duplicate.
 STALE_ACKNACK_HEARTBEATS: Final = 3
@@ -210,11 +220,11 @@ class ReliableWriter:
         proxy.heartbeats_unanswered = 0
         state = acknack.reader_sn_state
         # a base beyond last_sn would acknowledge samples never written: clamp, don't trust
-        acked = min(max(proxy.acked, state.base - 1), self.last_sn)
-        if acked > proxy.acked:
-            proxy.acked = acked
-            proxy.period_s = self.period_s
-            proxy.next_heartbeat = now + self.period_s
+        proxy.acked = min(max(proxy.acked, state.base - 1), self.last_sn)
+        # Any fresh ACKNACK proves the reader alive: back to the short period, so a lossy
+        # link is repaired at full pace and only a silent reader is backed off.
+        proxy.period_s = self.period_s
+        proxy.next_heartbeat = now + self.period_s
         out: list[Outgoing] = []
         irrelevant: list[int] = []
         for sn in state.members():
@@ -251,8 +261,19 @@ class ReliableWriter:
 
     def _heartbeat_due(self, proxy: ReaderProxy, now: float) -> list[Outgoing]:
         proxy.next_heartbeat = now + proxy.period_s
-        proxy.period_s = min(proxy.period_s * 2, self.max_period_s)
-        return [self._heartbeat(proxy)]
+        proxy.period_s = min(proxy.period_s * HEARTBEAT_BACKOFF, self.max_period_s)
+        out: list[Outgoing] = []
+        if proxy.heartbeats_unanswered > 0:
+            # The last heartbeat went unanswered: the DATA most likely never arrived either.
+            # Resending the oldest unacked samples with this heartbeat repairs in one datagram
+            # instead of a HEARTBEAT -> ACKNACK -> DATA round trip (three chances to lose).
+            first = max(proxy.acked + 1, proxy.relevant_from)
+            for sn, payload in self.history.items():
+                if sn >= first and len(out) < MAX_EAGER_RESEND:
+                    out.append(self._data(proxy, sn, payload))
+            self.counters.data_resent += len(out)
+        out.append(self._heartbeat(proxy))
+        return out
 
     def _data(self, proxy: ReaderProxy, sn: int, payload: bytes) -> Outgoing:
         r = proxy.guid
