@@ -8,6 +8,7 @@ the next datagram arrival, timer or application tick.
 from __future__ import annotations
 
 import heapq
+import json
 import random
 from collections import Counter
 from collections.abc import Callable
@@ -115,6 +116,7 @@ class Swarm:
     net: LossyNet
     planes: dict[str, DataPlane]
     executed: Counter[tuple[str, int]] = field(default_factory=Counter)  # (member, id)
+    executed_at: dict[tuple[str, int], float] = field(default_factory=dict)  # first execution
     outcomes: dict[tuple[str, int], list[CommandResult]] = field(default_factory=dict)
     readiness: dict[str, list[tuple[float, int, int]]] = field(default_factory=dict)
     drops: Counter[str] = field(default_factory=Counter)
@@ -138,6 +140,7 @@ class Swarm:
         match event:
             case CommandReceived(command=cmd):
                 self.executed[(name, cmd.command_id)] += 1
+                self.executed_at.setdefault((name, cmd.command_id), self.now)
                 plane = self.planes[name]
                 plane.report_outcome(cmd.command_id, CommandResult.ACCEPTED, self.now)
                 plane.report_outcome(cmd.command_id, CommandResult.COMPLETED, self.now, "ok")
@@ -411,6 +414,7 @@ def test_readiness_20th_message_from_every_member_on_a_clean_channel() -> None:
         assert seq20 == 20 and 19.5 <= t20 < 19.7  # sent at 19.5 s + stagger + 1 ms
     status = swarm.planes["lead"].status(swarm.now)
     assert status["readiness"]["m03"]["count"] == 25 and status["readiness"]["m03"]["ready"]
+    assert json.loads(json.dumps(status)) == status  # what swarmctl status prints
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -468,3 +472,42 @@ def test_datagrams_decode_and_carry_the_bundle_guids() -> None:
                 assert sm.serialized_payload[:2] == b"\x00\x01"  # CDR_LE
                 assert len(sm.serialized_payload) % 4 == 0
     assert seen["Data"] and seen["Heartbeat"] and seen["AckNack"]
+
+
+# --- take-off latency on virtual time (docs/dataplane.md, "Numbers") ------------------------
+
+
+def command_latencies(members: int, drop: float, seed: int) -> tuple[list[float], int]:
+    """Virtual seconds from ``send_command`` to each member's execution, and datagrams sent."""
+    swarm = make_swarm(members, seed=seed, drop=drop, max_delay_s=0.005)
+    swarm.discover_all()
+    cmd = swarm.planes["lead"].make_command(CommandKind.TAKEOFF, altitude_m=10.0)
+    swarm.run_until(60.0, [send_at(swarm, 1.0, cmd)])
+    assert len(swarm.executed) == members
+    return [t - 1.0 for t in swarm.executed_at.values()], swarm.net.sent
+
+
+def test_latency_driver_sees_every_member_execute() -> None:
+    latencies, sent = command_latencies(10, 0.3, seed=1)
+    assert len(latencies) == 10 and all(t >= 0.0 for t in latencies) and sent > 10
+
+
+if __name__ == "__main__":  # python -m tests.test_dataplane_swarm
+    import statistics
+
+    print("| loss | per member, median | all 10, median | all 10, p95 | all 10, max | datagrams |")
+    for loss in (0.0, 0.1, 0.3):
+        each: list[float] = []
+        worst: list[float] = []
+        sent: list[int] = []
+        for s in range(1, 51):
+            lat, n = command_latencies(10, loss, s)
+            each += lat
+            worst.append(max(lat))
+            sent.append(n)
+        p95 = statistics.quantiles(worst, n=20)[18]
+        print(
+            f"| {loss:.0%} | {statistics.median(each) * 1e3:.0f} ms "
+            f"| {statistics.median(worst) * 1e3:.0f} ms | {p95 * 1e3:.0f} ms "
+            f"| {max(worst) * 1e3:.0f} ms | {statistics.median(sent):.0f} |"
+        )
