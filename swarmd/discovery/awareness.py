@@ -1,0 +1,71 @@
+"""Network awareness (paper section 4.1): from link quality Q to discovery timing.
+
+Q itself comes from the link monitor (``swarmd.link.quality``: eq. 1 ``Q = LQ / LQmax``,
+eq. 2 the SNR normalised over 25-40 dB). Here Q becomes
+
+* the passive window, the upper bound of the passive timer (eq. 3; ``passive_window_s``),
+* the lease-renewal period during flight (continuous awareness; ``renewal_period_s``).
+
+Pure functions: no clock, randomness only through the ``random.Random`` passed in.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+from swarmd.discovery.config import Mode
+
+
+def normalise_q(q: float) -> float:
+    """Q clamped to [0, 1]; NaN (a broken reading) counts as the worst link."""
+    if math.isnan(q):
+        return 0.0
+    return min(1.0, max(0.0, q))
+
+
+def passive_window_s(
+    mode: Mode,
+    q: float,
+    *,
+    swarm_size: int,
+    t_min_s: float,
+    t_max_s: float,
+    announce_budget_fps: float,
+    q_floor: float,
+) -> float:
+    """The upper bound W of the passive timer T_passive ~ U(0, W).
+
+    paper (eq. 3):  W = Tmin + (Tmax - Tmin) * (1 - Q)
+    adaptive:       W = min(eq. 3, N / (budget * max(Q, q_floor)))
+
+    The adaptive bound spreads the swarm's N first announcements at no more than
+    ``budget * Q`` frames per second, so the channel load at start is the same for any N
+    and a 10-drone swarm does not sit 8-20 s in silence waiting for nothing. It never
+    exceeds the paper's window: adaptive only ever shortens the wait.
+    """
+    q = normalise_q(q)
+    paper = t_min_s + (t_max_s - t_min_s) * (1.0 - q)
+    if mode == "paper":
+        return paper
+    return min(paper, max(1, swarm_size) / (announce_budget_fps * max(q, q_floor)))
+
+
+def draw_passive_timer_s(rng: random.Random, window_s: float) -> float:
+    """Paper eq. 3: T_passive(i) ~ U(0, W)."""
+    return rng.uniform(0.0, window_s)
+
+
+def renewal_period_s(
+    q: float, *, lease_s: float, per_lease_min: float, per_lease_max: float
+) -> float:
+    """Seconds between lease renewals: lease / n(Q), n = min + (max - min) * (1 - Q).
+
+    On a clean link two renewals per lease suffice (one may be lost); as Q drops the
+    renewals get denser, so a peer misses all of them within one lease with probability
+    about p_loss ** n. This is the paper's "continuous awareness" (section 4.1, Network
+    Monitor feeding RTPS) applied after start-up, not only to the first announcement.
+    """
+    q = normalise_q(q)
+    n = per_lease_min + (per_lease_max - per_lease_min) * (1.0 - q)
+    return lease_s / n

@@ -1,0 +1,827 @@
+"""The sans-IO discovery engine: network-aware SPDP with preloaded endpoints.
+
+Theory of operation
+===================
+
+Every drone runs one ``DiscoveryEngine``. The signed bundle lists all N participants and
+all their endpoints, so discovery reduces to one question per pair: "have we heard each
+other?". SPDP ``DATA(p)`` answers it; SEDP is never sent (paper section 4.2): a peer's
+endpoints are matched from the bundle (``Bundle.matches``) the moment it is heard.
+
+Each DATA(p) we send carries, in swarmd's vendor PIDs, the bundle digest (peers flashed
+with another bundle are foreign) and the *heard digest*: a bitmap over bundle indices of
+the participants we currently hear. From a peer's latest DATA(p) we know whether it lists
+us (``Peer.lists_me``); from our own sends whether we have listed it to it (``Peer.told``).
+A frame is owed to a discovered peer while either is false, and to an undiscovered one
+while the announcement campaign lasts. The engine's whole job is to pay those debts with
+as few frames as possible:
+
+* owed replies wait a short holdoff (paper mode: U(0, 0.1 s), the paper's immediate
+  directed reply; adaptive: U(W, 2W), so a passive node's own announcement, which lists
+  the peer, replaces the reply, and acks to several late announcers collapse into one);
+* owing frames to ``multicast_threshold`` or more peers at once, one multicast replaces
+  the directed frames (never in BOOT/PASSIVE: the passive phase never multicasts);
+* while a debt persists it is retried with exponential backoff, at most ``max_attempts``;
+* a peer that repeats a directed DATA(p) unchanged (same sequence number) has not seen us
+  list it: that, and only that, makes us answer a peer that already lists us, so two
+  engines never ping-pong.
+
+With no loss, N engines send about 2N discovery frames in all: N announcements (each
+listing the earlier ones) and about N acks (each listing the later ones). Lease renewals
+(multicast, ``renewal_period_s``: denser when Q is low) then keep everyone alive.
+
+Phases (``phases.TRANSITIONS`` is the whole table)::
+
+    BOOT ──link sample / boot timeout──▶ PASSIVE ──timer, debts──▶ ANNOUNCE ──settled──▶ STEADY
+                                            └──────timer, nothing owed────────────────────▲
+    any ──shutdown()──▶ STOPPED   (DATA(p[UD]) to the multicast group and every known peer)
+
+PASSIVE lasts T_passive ~ U(0, W) (paper eq. 3, ``awareness.passive_window_s``).
+
+Driving sources (aioquic style): ``receive_datagram``, ``handle_timer``,
+``update_link_quality``; plus the ``shutdown`` command. Outputs: ``datagrams_to_send``,
+``get_timer`` (one earliest absolute deadline), ``next_event``. Time is the ``now``
+argument (seconds, the driver's monotonic clock); randomness the injected ``rng``.
+
+Invariant: ``receive_datagram`` never raises for any input; malformed input becomes a
+``PacketDropped`` event and a counter. Any other exception escaping it is a bug.
+"""
+
+from __future__ import annotations
+
+import functools
+import heapq
+import random
+from collections import deque
+from collections.abc import Callable
+from typing import Any, Final
+
+from swarmd.bundle.model import Bundle, Participant
+from swarmd.discovery.awareness import (
+    draw_passive_timer_s,
+    normalise_q,
+    passive_window_s,
+    renewal_period_s,
+)
+from swarmd.discovery.config import EngineConfig, resolve_timing
+from swarmd.discovery.digest import encode_heard, lists
+from swarmd.discovery.events import (
+    Event,
+    ForeignParticipantSeen,
+    PacketDropped,
+    PeerDiscovered,
+    PeerLost,
+    PhaseChanged,
+)
+from swarmd.discovery.peers import MAX_FOREIGN, ForeignTable, Peer, PeerState, clamp_lease
+from swarmd.discovery.phases import Phase, Trigger, next_phase
+from swarmd.discovery.timers import Backoff, MinInterval, Periodic, RetrySchedule
+from swarmd.link.sample import LinkSample
+from swarmd.rtps.errors import DecodeError
+from swarmd.rtps.locator import Locator, LOCATOR_KIND_UDPv4
+from swarmd.rtps.message import Header
+from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
+from swarmd.rtps.spdp import (
+    BES_SPDP_ONLY,
+    SpdpAlive,
+    SpdpDisposed,
+    SpdpParticipant,
+    SpdpSample,
+    decode_spdp,
+    encode_spdp,
+    encode_spdp_dispose,
+)
+from swarmd.rtps.types import Duration, GuidPrefix, Time
+
+# A driver that stops draining events (or a garbage flood, one PacketDropped per datagram)
+# must not grow memory without bound: keep the newest 1024, count the rest.
+MAX_PENDING_EVENTS: Final = 1024
+# The same for datagrams the driver has not collected yet.
+MAX_PENDING_DATAGRAMS: Final = 4096
+BUNDLE_DIGEST_BYTES: Final = 16
+
+Wallclock = Callable[[], float]
+
+
+class DiscoveryEngine:
+    """Sans-IO SPDP discovery for one bundle participant.
+
+    Driven by three sources: received datagrams (``receive_datagram``), timer expiry
+    (``handle_timer`` at ``get_timer()``) and link-quality readings
+    (``update_link_quality``). Never performs I/O, never reads a clock.
+    """
+
+    def __init__(
+        self,
+        bundle: Bundle,
+        local_name: str,
+        *,
+        config: EngineConfig,
+        rng: random.Random,
+        now: float,
+        local_ipv4: str,
+        wallclock: Wallclock | None = None,
+        link: LinkSample | None = None,
+    ) -> None:
+        """``wallclock`` (e.g. ``time.time``) stamps INFO_TS; None sends INFO_TS with the
+        invalidate flag. ``link``: a first link sample, which skips the BOOT wait."""
+        try:
+            me = bundle.participant(local_name)
+        except KeyError:
+            names = ", ".join(p.name for p in bundle.participants)
+            raise ValueError(
+                f"node {local_name!r} is not a participant of bundle {bundle.swarm!r}; "
+                f"fix: use one of {names}"
+            ) from None
+        if len(bundle.content_sha256) < BUNDLE_DIGEST_BYTES:
+            raise ValueError("bundle content_sha256 is shorter than 16 bytes; fix: rebuild it")
+        self._bundle = bundle
+        self._me: Participant = me
+        self._config = config
+        self._rng = rng
+        self._wallclock = wallclock
+        self._timing = resolve_timing(bundle.discovery, config)
+        self._local_ipv4 = local_ipv4
+        self._size = max(p.index for p in bundle.participants) + 1
+        self._digest = bundle.content_sha256[:BUNDLE_DIGEST_BYTES]
+        self.metatraffic_port: int = bundle.metatraffic_port(me)
+        self.user_port: int = bundle.user_port(me)
+        self.spdp_multicast: tuple[str, int] = (
+            SPDP_MULTICAST_GROUP,
+            spdp_multicast_port(bundle.domain_id),
+        )
+        self._static_locators = (
+            (Locator.udpv4(local_ipv4, self.metatraffic_port),),
+            (Locator.udpv4(*self.spdp_multicast),),
+            (Locator.udpv4(local_ipv4, self.user_port),),
+        )
+        self._by_prefix: dict[GuidPrefix, int] = {
+            p.guid_prefix: p.index for p in bundle.participants
+        }
+        self._peers: dict[int, Peer] = {}
+        for p in bundle.participants:
+            if p.index == me.index:
+                continue
+            self._peers[p.index] = Peer(
+                participant=p,
+                matches=tuple(bundle.matches(me, p)),
+                bundle_locator=(p.ipv4, bundle.metatraffic_port(p)) if p.ipv4 else None,
+                retry=RetrySchedule(config.max_attempts),
+                reack=MinInterval(config.retransmit_min_gap_s),
+            )
+        self.phase: Phase = Phase.BOOT
+        self._started = now
+        self._boot_deadline: float | None = now + config.boot_link_timeout_s
+        self._passive_deadline: float | None = None
+        self._passive_window: float | None = None
+        self._passive_timer: float | None = None
+        self._link: LinkSample | None = None
+        self._q = normalise_q(config.default_link_quality)
+        self._advertised_permille = round(self._q * 1000)
+        self._renewal = Periodic(self._renewal_period(), config.renewal_jitter)
+        self._last_multicast: float | None = None
+        self._sn = 0
+        self._content: SpdpParticipant | None = None
+        self._encoded: dict[GuidPrefix | None, bytes] = {}
+        # peers whose RetrySchedule is armed, and a lazy min-heap of (deadline, seq, index,
+        # kind) for retries and leases: get_timer() stays O(log N) per input at N = 200
+        self._armed: set[int] = set()
+        self._deadlines: list[tuple[float, int, int, str]] = []
+        self._heap_seq = 0
+        self._events: deque[Event] = deque()
+        self._outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
+        self._foreign = ForeignTable(MAX_FOREIGN)
+        self._counters: dict[str, int] = {
+            "rx_datagrams": 0,
+            "tx_datagrams": 0,
+            "tx_multicast": 0,
+            "tx_unicast": 0,
+            "events_dropped": 0,
+            "datagrams_dropped": 0,
+        }
+        self._tx_kind: dict[str, int] = {"announce": 0, "reply": 0, "renewal": 0, "dispose": 0}
+        self._dropped: dict[str, int] = {
+            "decode_error": 0,
+            "wrong_domain": 0,
+            "own": 0,
+            "not_spdp": 0,
+            "not_for_me": 0,
+            "not_in_bundle": 0,
+            "digest_mismatch": 0,
+            "vendor_mismatch": 0,
+            "stopped": 0,
+        }
+        if link is not None:
+            self.update_link_quality(link, now)
+
+    # ------------------------------------------------------------------ inputs
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        """Handle one UDP payload from ``source``. Never raises for any ``data``."""
+        self._counters["rx_datagrams"] += 1
+        if self.phase == Phase.STOPPED:
+            self._dropped["stopped"] += 1
+            return
+        try:
+            header, samples = _decode(bytes(data))
+        except DecodeError:
+            self._drop("decode_error", source)
+            return
+        if header.guid_prefix == self._me.guid_prefix:
+            # our own multicast, looped back by the kernel (IP_MULTICAST_LOOP): count only
+            self._dropped["own"] += 1
+            return
+        if not samples:
+            self._drop("not_spdp", source)
+            return
+        for sample in samples:
+            if isinstance(sample, SpdpAlive):
+                self._on_alive(sample, source, now)
+            else:
+                self._on_disposed(sample, source, now)
+        self._settle_if_done()
+
+    def handle_timer(self, now: float) -> None:
+        """Act on every deadline at or before ``now`` (call at ``get_timer()``)."""
+        if self.phase == Phase.STOPPED:
+            return
+        if (
+            self.phase == Phase.BOOT
+            and self._boot_deadline is not None
+            and now >= self._boot_deadline
+        ):
+            self._start_passive(now, "no link sample before the boot timeout; default Q")
+        self._expire_leases(now)
+        if (
+            self.phase == Phase.PASSIVE
+            and self._passive_deadline is not None
+            and now >= self._passive_deadline
+        ):
+            self._end_passive(now)
+        self._flush(now)
+        self._settle_if_done()
+
+    def update_link_quality(self, sample: LinkSample, now: float) -> None:
+        """A new link reading: first one draws the passive timer (paper section 4.1);
+        later ones steer the renewal period and the advertised link quality."""
+        if self.phase == Phase.STOPPED:
+            return
+        self._link = sample
+        self._q = normalise_q(sample.q)
+        permille = round(self._q * 1000)
+        step = round(self._config.link_report_step * 1000)
+        if abs(permille - self._advertised_permille) >= max(1, step):
+            # hysteresis: a jittery reading must not bump our SN on every poll
+            self._advertised_permille = permille
+            period = self._renewal_period()
+            if self._renewal.deadline() is not None and period != self._renewal.period_s:
+                last = self._last_multicast if self._last_multicast is not None else now
+                self._renewal.reschedule(period, last, self._rng)
+            else:
+                self._renewal.period_s = period
+        if self.phase == Phase.BOOT:
+            self._start_passive(now, f"link quality read (Q={self._q:.2f}, {sample.source})")
+
+    def shutdown(self, now: float) -> None:
+        """Leave: queue DATA(p[UD]) to the multicast group and every discovered peer."""
+        if self.phase == Phase.STOPPED:
+            return
+        self._sn += 1
+        prefix, timestamp = self._me.guid_prefix, self._timestamp()
+        payload = encode_spdp_dispose(prefix, sequence_number=self._sn, timestamp=timestamp)
+        self._queue(payload, self.spdp_multicast, multicast=True)
+        self._tx_kind["dispose"] += 1
+        for p in self._peers.values():
+            target = p.target()
+            if not p.discovered or target is None:
+                continue
+            payload = encode_spdp_dispose(
+                prefix,
+                sequence_number=self._sn,
+                timestamp=timestamp,
+                destination=p.participant.guid_prefix,
+            )
+            self._queue(payload, target, multicast=False)
+            self._tx_kind["dispose"] += 1
+        for p in self._peers.values():
+            self._disarm(p)
+        self._renewal.stop()
+        self._transition(Trigger.SHUTDOWN, "shutdown requested")
+
+    # ----------------------------------------------------------------- outputs
+
+    def datagrams_to_send(self, now: float) -> list[tuple[bytes, tuple[str, int]]]:
+        """Every queued (payload, (host, port)); the queue is emptied."""
+        out = list(self._outbox)
+        self._outbox.clear()
+        return out
+
+    def get_timer(self) -> float | None:
+        """The earliest absolute deadline (same clock as ``now``), or None."""
+        if self.phase == Phase.STOPPED:
+            return None
+        deadlines: list[float] = []
+        if self.phase == Phase.BOOT and self._boot_deadline is not None:
+            deadlines.append(self._boot_deadline)
+        if self.phase == Phase.PASSIVE and self._passive_deadline is not None:
+            deadlines.append(self._passive_deadline)
+        if self.phase in (Phase.ANNOUNCE, Phase.STEADY):
+            renewal = self._renewal.deadline()
+            if renewal is not None:
+                deadlines.append(renewal)
+        peer_deadline = self._next_peer_deadline()
+        if peer_deadline is not None:
+            deadlines.append(peer_deadline)
+        return min(deadlines) if deadlines else None
+
+    def next_event(self) -> Event | None:
+        return self._events.popleft() if self._events else None
+
+    # ------------------------------------------------------------------ status
+
+    @property
+    def guid_prefix(self) -> GuidPrefix:
+        return self._me.guid_prefix
+
+    @property
+    def passive_timer_s(self) -> float | None:
+        """The drawn T_passive (seconds after entering PASSIVE), None before it is drawn."""
+        return self._passive_timer
+
+    @property
+    def passive_window_s(self) -> float | None:
+        return self._passive_window
+
+    def discovered_names(self) -> frozenset[str]:
+        return frozenset(p.participant.name for p in self._peers.values() if p.discovered)
+
+    def lists_me_names(self) -> frozenset[str]:
+        return frozenset(
+            p.participant.name for p in self._peers.values() if p.discovered and p.lists_me
+        )
+
+    def counters(self) -> dict[str, Any]:
+        return {
+            **self._counters,
+            "tx_kind": dict(self._tx_kind),
+            "dropped": dict(self._dropped),
+            "foreign_evicted": self._foreign.evicted,
+        }
+
+    def status(self, now: float) -> dict[str, Any]:
+        """A JSON-ready snapshot (schema: notes/engine-api.md, docs/discovery.md)."""
+        self._foreign.prune(now)
+        link: dict[str, Any] = {"q": round(self._q, 3), "snr_db": None, "source": None}
+        if self._link is not None:
+            link = {
+                "q": round(self._q, 3),
+                "snr_db": self._link.snr_db,
+                "source": self._link.source,
+            }
+        passive_left = None
+        if self.phase == Phase.PASSIVE and self._passive_deadline is not None:
+            passive_left = round(max(0.0, self._passive_deadline - now), 3)
+        peers = []
+        for p in sorted(self._peers.values(), key=lambda x: x.index):
+            peers.append(
+                {
+                    "name": p.participant.name,
+                    "index": p.index,
+                    "state": str(p.state),
+                    "guid": f"{p.participant.guid_prefix}:1c1",
+                    "last_heard_s": None if p.last_heard is None else round(now - p.last_heard, 3),
+                    "locator": None if p.locator is None else f"udp/{p.locator[0]}:{p.locator[1]}",
+                    "matched_endpoints": len(p.matches) if p.discovered else 0,
+                    "lists_me": p.discovered and p.lists_me,
+                }
+            )
+        foreign = [
+            {"guid": f"{e.guid_prefix}:1c1", "vendor": e.vendor, "name": e.name, "reason": e.reason}
+            for e in self._foreign.entries.values()
+        ]
+        timing = self._timing
+        return {
+            "node": self._me.name,
+            "swarm": self._bundle.swarm,
+            "phase": str(self.phase),
+            "mode": self._config.mode,
+            "link": link,
+            "passive_timer_s": passive_left,
+            "passive_window_s": self._passive_window,
+            "timing": {
+                "t_min_s": timing.t_min_s,
+                "t_max_s": timing.t_max_s,
+                "lease_s": timing.lease_s,
+                "sources": dict(timing.sources),
+                "renewal_period_s": round(self._renewal.period_s, 3),
+            },
+            "peers_discovered": sum(1 for p in self._peers.values() if p.discovered),
+            "peers_total": len(self._peers),
+            "peers": peers,
+            "foreign": foreign,
+            "counters": self.counters(),
+        }
+
+    # ------------------------------------------------------------- receiving
+
+    def _on_alive(self, sample: SpdpAlive, source: tuple[str, int], now: float) -> None:
+        part = sample.participant
+        if (part.domain_id is not None and part.domain_id != self._bundle.domain_id) or (
+            part.domain_tag not in (None, "")
+        ):
+            self._drop("wrong_domain", source)
+            return
+        if sample.destination is not None and sample.destination != self._me.guid_prefix:
+            self._drop("not_for_me", source)
+            return
+        index = self._by_prefix.get(part.guid_prefix)
+        if index is None:
+            self._see_foreign(part, "not_in_bundle", now)
+            return
+        if not part.is_swarmd:
+            self._see_foreign(part, "vendor_mismatch", now)
+            return
+        if part.bundle_digest != self._digest:
+            self._see_foreign(part, "digest_mismatch", now)
+            return
+        peer = self._peers.get(index)
+        if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
+            self._drop("own", source)
+            return
+        self._heard(peer, sample, source, now)
+
+    def _heard(self, peer: Peer, sample: SpdpAlive, source: tuple[str, int], now: float) -> None:
+        part = sample.participant
+        directed = sample.destination is not None
+        repeat = (
+            peer.last_sn == sample.sequence_number
+            and peer.last_rx is not None
+            and now - peer.last_rx >= self._config.retransmit_min_gap_s
+        )
+        restarted = peer.last_sn is not None and sample.sequence_number < peer.last_sn
+        newly = not peer.discovered
+        peer.last_heard = now
+        peer.last_sn, peer.last_rx = sample.sequence_number, now
+        peer.lease_s = clamp_lease(part.lease_duration.total_seconds())
+        peer.locator = _unicast_target(part.metatraffic_unicast_locators) or source
+        peer.lists_me = lists(part.heard, self._me.index)
+        peer.link_quality_permille = part.link_quality_permille
+        self._push_deadline(peer.last_heard + peer.lease_s, peer.index, "lease")
+        if restarted and peer.discovered:
+            # its SN went back: it restarted and forgot us; answer it like a new peer
+            peer.told = False
+            self._disarm(peer)
+        elif newly:
+            peer.state = PeerState.DISCOVERED
+            peer.told = False
+            self._disarm(peer)
+            peer.times_discovered += 1
+            self._emit(
+                PeerDiscovered(
+                    peer.participant.name,
+                    peer.participant.guid_prefix,
+                    peer.matches,
+                    "directed" if directed else "multicast",
+                )
+            )
+        elif directed and repeat and peer.lists_me and peer.told and peer.reack.permits(now):
+            # the peer repeats a directed DATA(p) unchanged: it has not seen us list it
+            # (our frame was lost). Only a repeat triggers this, so two engines never
+            # ping-pong; MinInterval bounds what a spoofer can make us send.
+            peer.reack.mark(now)
+            peer.told = False
+        elif (
+            not peer.lists_me
+            and peer.told
+            and peer.told_at is not None
+            and now - peer.told_at > self._answer_window()
+        ):
+            # it still does not list us although it would have answered our last frame by
+            # now: that frame was lost. Answer now instead of waiting out the backoff.
+            peer.told = False
+        if not self._owes(peer):
+            self._disarm(peer)
+        elif not peer.told or peer.retry.deadline() is None:
+            # first answer after a holdoff; a peer we already told and are waiting on keeps
+            # its backoff, since its frame may simply have crossed ours in flight
+            self._arm(peer, now + self._reply_delay())
+
+    def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int], now: float) -> None:
+        if sample.destination is not None and sample.destination != self._me.guid_prefix:
+            self._drop("not_for_me", source)
+            return
+        index = self._by_prefix.get(sample.guid_prefix)
+        peer = self._peers.get(index) if index is not None else None
+        if peer is None:
+            self._foreign.remove(sample.guid_prefix)
+            return
+        if peer.discovered:
+            self._lose(peer, "disposed")
+
+    def _see_foreign(self, part: SpdpParticipant, reason: str, now: float) -> None:
+        self._dropped[reason] += 1
+        new = self._foreign.see(
+            part.guid_prefix,
+            vendor=part.vendor_id.name,
+            name=part.entity_name,
+            reason=reason,
+            lease_s=clamp_lease(part.lease_duration.total_seconds()),
+            now=now,
+        )
+        if new:
+            self._emit(
+                ForeignParticipantSeen(
+                    part.guid_prefix, part.vendor_id.name, part.entity_name, reason
+                )
+            )
+
+    # ---------------------------------------------------------------- phases
+
+    def _transition(self, trigger: Trigger, reason: str) -> None:
+        old = self.phase
+        self.phase = next_phase(old, trigger)
+        self._emit(PhaseChanged(old, self.phase, reason))
+
+    def _start_passive(self, now: float, reason: str) -> None:
+        window = passive_window_s(
+            self._config.mode,
+            self._q,
+            swarm_size=len(self._bundle.participants),
+            t_min_s=self._timing.t_min_s,
+            t_max_s=self._timing.t_max_s,
+            announce_budget_fps=self._config.announce_budget_fps,
+            q_floor=self._config.q_floor,
+        )
+        self._passive_window = window
+        self._passive_timer = draw_passive_timer_s(self._rng, window)
+        self._passive_deadline = now + self._passive_timer
+        self._boot_deadline = None
+        self._transition(Trigger.LINK_READ, reason)
+
+    def _end_passive(self, now: float) -> None:
+        self._passive_deadline = None
+        peers = self._peers.values()
+        if any(p.state == PeerState.UNDISCOVERED or self._owes(p) for p in peers):
+            self._transition(Trigger.TIMER_EXPIRED_NEEDED, "passive timer expired")
+        else:
+            self._transition(
+                Trigger.TIMER_EXPIRED_SETTLED, "passive timer expired; every peer lists us"
+            )
+        # the paper's "standard PDP procedure ... targeting UAVs that have not yet been
+        # discovered" (section 4.1); replies still held back ride on the same frame
+        for p in peers:
+            if p.state == PeerState.UNDISCOVERED or (p.discovered and not p.told):
+                self._arm(p, now)
+        self._renewal.restart(now, self._rng)
+
+    def _settle_if_done(self) -> None:
+        if self.phase != Phase.ANNOUNCE or self._any_pending():
+            return
+        missing = [p for p in self._peers.values() if not (p.discovered and p.lists_me)]
+        if missing:
+            reason = f"gave up on {len(missing)} peer(s) after {self._config.max_attempts} tries"
+        else:
+            reason = "every bundle peer lists us"
+        self._transition(Trigger.SETTLED, reason)
+
+    # ----------------------------------------------------------------- debts
+
+    def _owes(self, peer: Peer) -> bool:
+        """Whether a frame is owed to ``peer`` (see the theory of operation)."""
+        if peer.discovered:
+            return not peer.told or not peer.lists_me
+        return peer.state == PeerState.UNDISCOVERED and self.phase in (
+            Phase.ANNOUNCE,
+            Phase.STEADY,
+        )
+
+    def _pending_count(self) -> int:
+        """Peers with an armed retry whose debt still stands (stale ones are disarmed)."""
+        for index in [i for i in self._armed if not self._owes(self._peers[i])]:
+            self._disarm(self._peers[index])
+        return len(self._armed)
+
+    def _any_pending(self) -> bool:
+        for index in list(self._armed):
+            if self._owes(self._peers[index]):
+                return True
+            self._disarm(self._peers[index])
+        return False
+
+    def _arm(self, peer: Peer, at: float) -> None:
+        before = peer.retry.deadline()
+        peer.retry.arm(at)
+        after = peer.retry.deadline()
+        if after is not None and after != before:
+            self._armed.add(peer.index)
+            self._push_deadline(after, peer.index, "retry")
+
+    def _disarm(self, peer: Peer) -> None:
+        """The debt is paid or void: forget the deadline and the attempts."""
+        peer.retry.reset()
+        self._armed.discard(peer.index)
+
+    def _push_deadline(self, at: float, index: int, kind: str) -> None:
+        self._heap_seq += 1
+        heapq.heappush(self._deadlines, (at, self._heap_seq, index, kind))
+
+    def _next_peer_deadline(self) -> float | None:
+        """The earliest live retry or lease deadline; stale heap entries are dropped."""
+        heap = self._deadlines
+        while heap:
+            at, _, index, kind = heap[0]
+            peer = self._peers[index]
+            live = peer.retry.deadline() if kind == "retry" else peer.lease_deadline()
+            if live == at:
+                return at
+            heapq.heappop(heap)
+        return None
+
+    def _reply_delay(self) -> float:
+        if self._config.mode == "paper":
+            return self._rng.uniform(0.0, self._config.reply_delay_max_s)
+        spread = self._spread_s()
+        return self._rng.uniform(spread, 2.0 * spread)
+
+    def _spread_s(self) -> float:
+        """Adaptive mode's W at the current Q: the time N frames take at the budget rate."""
+        return passive_window_s(
+            "adaptive",
+            self._q,
+            swarm_size=len(self._bundle.participants),
+            t_min_s=self._timing.t_min_s,
+            t_max_s=self._timing.t_max_s,
+            announce_budget_fps=self._config.announce_budget_fps,
+            q_floor=self._config.q_floor,
+        )
+
+    def _answer_window(self) -> float:
+        """The longest a peer holds back its answer to a frame of ours (its reply delay)."""
+        if self._config.mode == "paper":
+            return self._config.reply_delay_max_s
+        return 2.0 * self._spread_s()
+
+    def _backoff(self) -> Backoff:
+        # a retry must wait out the peer's own reply holdoff, or it races the answer
+        base = max(self._config.retry_base_s, self._answer_window())
+        return Backoff(base, max(self._config.retry_max_s, base))
+
+    def _renewal_period(self) -> float:
+        return renewal_period_s(
+            self._advertised_permille / 1000,
+            lease_s=self._timing.lease_s,
+            per_lease_min=self._config.renewals_per_lease_min,
+            per_lease_max=self._config.renewals_per_lease_max,
+        )
+
+    def _flush(self, now: float) -> None:
+        """Pay the debts that are due: one multicast, or directed frames (section 4.1)."""
+        due: list[Peer] = []
+        for index in sorted(self._armed):
+            p = self._peers[index]
+            deadline = p.retry.deadline()
+            if deadline is None or deadline > now:
+                continue
+            if self._owes(p):
+                due.append(p)
+            else:
+                self._disarm(p)
+        renewal_due = self.phase in (Phase.ANNOUNCE, Phase.STEADY) and (
+            (d := self._renewal.deadline()) is not None and d <= now
+        )
+        if not due and not renewal_due:
+            return
+        silent = self.phase in (Phase.BOOT, Phase.PASSIVE)
+        pending = self._pending_count()
+        unreachable = any(p.target() is None for p in due)
+        if renewal_due or (
+            not silent and (pending >= self._config.multicast_threshold or unreachable)
+        ):
+            self._send(None, now, "renewal" if renewal_due and not due else "announce")
+            for p in self._peers.values():
+                self._covered(p, now)
+            return
+        for p in due:
+            target = p.target()
+            if target is None:  # an undiscovered peer without a bundle address, while silent
+                continue
+            self._send(p, now, "reply")
+            self._covered(p, now)
+
+    def _covered(self, peer: Peer, now: float) -> None:
+        """``peer`` was just sent a frame listing everyone we hear: count the attempt."""
+        if peer.discovered:
+            peer.told, peer.told_at = True, now
+        if peer.retry.deadline() is None:
+            return  # not in a retry cycle (settled, or given up): nothing to count
+        peer.retry.sent()
+        self._armed.discard(peer.index)
+        if not self._owes(peer):
+            self._disarm(peer)
+        elif not peer.retry.exhausted:
+            self._arm(peer, now + self._backoff().delay_s(peer.retry.attempts, self._rng))
+
+    # --------------------------------------------------------------- leases
+
+    def _expire_leases(self, now: float) -> None:
+        for p in self._peers.values():
+            deadline = p.lease_deadline()
+            if deadline is not None and now >= deadline:
+                self._lose(p, "lease")
+
+    def _lose(self, peer: Peer, reason: str) -> None:
+        peer.state = PeerState.LOST
+        peer.told = False
+        peer.lists_me = False
+        self._disarm(peer)
+        self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
+
+    # --------------------------------------------------------------- sending
+
+    def _participant_data(self) -> SpdpParticipant:
+        meta_uc, meta_mc, user_uc = self._static_locators
+        heard = encode_heard((p.index for p in self._peers.values() if p.discovered), self._size)
+        return SpdpParticipant(
+            self._me.guid_prefix,
+            domain_id=self._bundle.domain_id,
+            metatraffic_unicast_locators=meta_uc,
+            metatraffic_multicast_locators=meta_mc,
+            default_unicast_locators=user_uc,
+            lease_duration=Duration.from_seconds(self._timing.lease_s),
+            builtin_endpoints=BES_SPDP_ONLY,
+            entity_name=f"{self._bundle.swarm}/{self._me.name}",
+            bundle_digest=self._digest,
+            heard=heard,
+            link_quality_permille=self._advertised_permille,
+        )
+
+    def _send(self, peer: Peer | None, now: float, kind: str) -> None:
+        content = self._participant_data()
+        if content != self._content:
+            # SPDP is a keyed history of depth 1: a new SN whenever the content changes
+            self._content = content
+            self._sn += 1
+            self._encoded.clear()
+        destination = None if peer is None else peer.participant.guid_prefix
+        target = self.spdp_multicast if peer is None else peer.target()
+        if target is None:  # callers check; an undiscovered peer without an address
+            return
+        payload = self._encoded.get(destination) if self._wallclock is None else None
+        if payload is None:
+            payload = encode_spdp(
+                content,
+                sequence_number=self._sn,
+                timestamp=self._timestamp(),
+                destination=destination,
+            )
+            if self._wallclock is None:
+                self._encoded[destination] = payload
+        self._queue(payload, target, multicast=peer is None)
+        self._tx_kind[kind] += 1
+        if peer is None:
+            self._last_multicast = now
+            if self.phase in (Phase.ANNOUNCE, Phase.STEADY):
+                self._renewal.restart(now, self._rng)
+
+    def _queue(self, payload: bytes, target: tuple[str, int], *, multicast: bool) -> None:
+        if len(self._outbox) >= MAX_PENDING_DATAGRAMS:
+            self._outbox.popleft()
+            self._counters["datagrams_dropped"] += 1
+        self._outbox.append((payload, target))
+        self._counters["tx_datagrams"] += 1
+        self._counters["tx_multicast" if multicast else "tx_unicast"] += 1
+
+    def _timestamp(self) -> Time | None:
+        return None if self._wallclock is None else Time.from_seconds(self._wallclock())
+
+    # ----------------------------------------------------------------- misc
+
+    def _emit(self, event: Event) -> None:
+        if len(self._events) >= MAX_PENDING_EVENTS:
+            self._events.popleft()
+            self._counters["events_dropped"] += 1
+        self._events.append(event)
+
+    def _drop(self, reason: str, source: tuple[str, int]) -> None:
+        self._dropped[reason] += 1
+        self._emit(PacketDropped(reason, source))
+
+
+@functools.lru_cache(maxsize=256)
+def _decode(data: bytes) -> tuple[Header, tuple[SpdpSample, ...]]:
+    """``decode_spdp``, memoised: decoding is pure, and a simulator running N engines in one
+    process hands the same multicast datagram to N - 1 of them (a daemon sees each once).
+    Errors are not cached, so garbage costs a full decode each time, as it should."""
+    header, samples = decode_spdp(data)
+    return header, tuple(samples)
+
+
+def _unicast_target(locators: tuple[Locator, ...]) -> tuple[str, int] | None:
+    """The first usable UDPv4 unicast locator (DDSI-RTPS 8.5.3.1 metatrafficUnicastLocatorList)."""
+    for loc in locators:
+        if loc.kind != LOCATOR_KIND_UDPv4 or not 0 < loc.port <= 0xFFFF:
+            continue
+        if loc.is_multicast or loc.address[12:] in (b"\x00\x00\x00\x00", b"\xff\xff\xff\xff"):
+            continue
+        return loc.host, loc.port
+    return None

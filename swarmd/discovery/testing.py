@@ -1,0 +1,202 @@
+"""Test and simulation helpers: a synthetic bundle without the bundle builder.
+
+``make_bundle(n)`` builds the ``Bundle`` a mission with one commander (index 0) and n - 1
+members would yield: GUID prefixes from ``derive_guid_prefix``, endpoint entity ids from
+``endpoint_entity_id``, topics ``swarm/ready`` (members write, the commander reads) and
+``swarm/command`` (the commander writes, members read). Used by the discovery, daemon and
+simulator tests; never by the daemon itself.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from swarmd.bundle.model import (
+    Bundle,
+    DiscoveryParams,
+    Durability,
+    Endpoint,
+    EndpointKind,
+    Participant,
+    Qos,
+    Reliability,
+    Role,
+    Topic,
+    derive_guid_prefix,
+    endpoint_entity_id,
+)
+from swarmd.discovery.config import EngineConfig
+from swarmd.discovery.engine import DiscoveryEngine
+from swarmd.discovery.events import Event, PeerDiscovered, PeerLost
+from swarmd.discovery.memnet import Channel, MemNet
+from swarmd.link.sample import LinkSample
+
+READY = "swarm/ready"
+COMMAND = "swarm/command"
+
+
+def node_name(index: int) -> str:
+    return f"uav{index}"
+
+
+def node_ipv4(index: int) -> str:
+    """10.0.x.y with y = 1..250, one address per participant index."""
+    return f"10.0.{index // 250}.{index % 250 + 1}"
+
+
+def make_bundle(
+    n: int,
+    *,
+    swarm: str = "alpha",
+    domain_id: int = 0,
+    discovery: DiscoveryParams | None = None,
+    with_ipv4: bool = True,
+    content_sha256: bytes | None = None,
+) -> Bundle:
+    """A bundle of ``n`` participants ``uav0`` (commander) .. ``uav{n-1}`` (members)."""
+    if n < 1:
+        raise ValueError("a bundle needs at least one participant")
+    topics = (
+        Topic(READY, "swarmd::Readiness", Qos(), 0),
+        Topic(COMMAND, "swarmd::Command", Qos(Reliability.RELIABLE, Durability.VOLATILE, 8), 1),
+    )
+
+    def endpoint(topic: Topic, kind: EndpointKind) -> Endpoint:
+        return Endpoint(topic.name, kind, endpoint_entity_id(topic.index, kind))
+
+    participants = []
+    for i in range(n):
+        role = Role.COMMANDER if i == 0 else Role.MEMBER
+        if role == Role.COMMANDER:
+            eps = (
+                endpoint(topics[0], EndpointKind.READER),
+                endpoint(topics[1], EndpointKind.WRITER),
+            )
+        else:
+            eps = (
+                endpoint(topics[0], EndpointKind.WRITER),
+                endpoint(topics[1], EndpointKind.READER),
+            )
+        participants.append(
+            Participant(
+                name=node_name(i),
+                index=i,
+                role=role,
+                mavlink_sysid=i + 1,
+                ipv4=node_ipv4(i) if with_ipv4 else None,
+                guid_prefix=derive_guid_prefix(swarm, domain_id, i),
+                announce_public_key=hashlib.sha256(f"key/{swarm}/{i}".encode()).digest(),
+                endpoints=eps,
+            )
+        )
+    digest = content_sha256 or hashlib.sha256(f"bundle/{swarm}/{domain_id}/{n}".encode()).digest()
+    return Bundle(
+        swarm=swarm,
+        domain_id=domain_id,
+        discovery=discovery or DiscoveryParams(),
+        topics=topics,
+        participants=tuple(participants),
+        content_sha256=digest,
+        signing_public_key=hashlib.sha256(f"signing/{swarm}".encode()).digest(),
+    )
+
+
+@dataclass(slots=True)
+class Swarm:
+    """N engines joined by a ``MemNet``, with every event they emitted (for tests and bench)."""
+
+    bundle: Bundle
+    net: MemNet
+    engines: list[DiscoveryEngine]
+    events: list[list[tuple[float, Event]]]  # per node: (virtual time, event)
+    pairs: int = 0  # ordered (a, b) pairs where a currently has b discovered
+    full_at: float | None = None  # first virtual time every pair was discovered at once
+    met: set[tuple[int, int]] = field(default_factory=set)  # (a, b): a has ever heard b
+    all_met_at: float | None = None  # first virtual time every pair had met
+    lost: int = 0  # PeerLost events (lease expiry and disposal)
+    index_of: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def size(self) -> int:
+        return self.bundle.size
+
+    def all_discovered(self) -> bool:
+        return self.pairs == self.size * (self.size - 1)
+
+    def _on_input(self, node_id: int, now: float) -> None:
+        engine = self.engines[node_id] if node_id < len(self.engines) else None
+        if engine is None:
+            return
+        while (event := engine.next_event()) is not None:
+            self.events[node_id].append((now, event))
+            if isinstance(event, PeerDiscovered):
+                self.pairs += 1
+                self.met.add((node_id, self.index_of[event.name]))
+            elif isinstance(event, PeerLost):
+                self.pairs -= 1
+                self.lost += 1
+        if self.full_at is None and self.all_discovered():
+            self.full_at = now
+        if self.all_met_at is None and len(self.met) == self.size * (self.size - 1):
+            self.all_met_at = now
+
+    def run_until(self, end: float) -> None:
+        self.net.run_until(end)
+
+
+def build_swarm(
+    n: int,
+    *,
+    seed: int,
+    config: EngineConfig | None = None,
+    channel: Channel | None = None,
+    q: float = 1.0,
+    bundle: Bundle | None = None,
+    start_times: list[float] | None = None,
+) -> Swarm:
+    """``n`` engines (``uav0``..) on one in-memory network, each given a link sample of ``q``
+    when it starts (at ``start_times[i]``, default 0). One seed drives the network and, via
+    derived seeds, every engine's ``random.Random``."""
+    bundle = bundle or make_bundle(n)
+    cfg = config or EngineConfig()
+    # seeded on purpose: a run is a pure function of its seed (not for cryptography)
+    master = random.Random(seed)  # noqa: S311
+    net = MemNet(random.Random(master.getrandbits(64)), channel)  # noqa: S311
+    swarm = Swarm(bundle, net, [], [[] for _ in range(n)])
+    swarm.index_of = {p.name: p.index for p in bundle.participants}
+    net.after_input = swarm._on_input
+    seeds = [master.getrandbits(64) for _ in range(n)]
+    starts = start_times or [0.0] * n
+
+    def start(i: int) -> Callable[[float], None]:
+        def go(now: float) -> None:
+            p = bundle.participants[i]
+            engine = DiscoveryEngine(
+                bundle,
+                p.name,
+                config=cfg,
+                rng=random.Random(seeds[i]),  # noqa: S311
+                now=now,
+                local_ipv4=node_ipv4(p.index),
+                link=LinkSample(q=q, source="static"),
+            )
+            swarm.engines.append(engine)
+            net.add(
+                engine,
+                node_ipv4(p.index),
+                (engine.metatraffic_port, engine.spdp_multicast[1]),
+                groups=(engine.spdp_multicast,),
+                source_port=engine.metatraffic_port,
+            )
+
+        return go
+
+    order = sorted(range(n), key=lambda i: (starts[i], i))
+    if order != list(range(n)):
+        raise ValueError("start_times must be non-decreasing so node ids match indices")
+    for i in order:
+        net.call_at(starts[i], start(i))
+    return swarm
