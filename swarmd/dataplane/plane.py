@@ -344,7 +344,7 @@ class DataPlane:
             "incarnation": self.incarnation,
             "peers_up": self.peers_up,
             "writers": {t.name: _writer_status(w) for t, w in self._writers.values()},
-            "readers": {t.name: vars_of(r.counters) for t, r in self._readers.values()},
+            "readers": {t.name: _fields_of(r.counters) for t, r in self._readers.values()},
             "readiness": {
                 node: {
                     "count": s.count,
@@ -521,13 +521,13 @@ def _make_reader(guid: Guid, topic: Topic) -> Reader:
     return BestEffortReader(guid)
 
 
-def vars_of(obj: Any) -> dict[str, Any]:
+def _fields_of(obj: Any) -> dict[str, Any]:
     """The fields of a slotted counters dataclass as a dict."""
     return {name: getattr(obj, name) for name in obj.__slots__}
 
 
 def _writer_status(writer: Writer) -> dict[str, Any]:
-    out: dict[str, Any] = {"last_sn": writer.last_sn, **vars_of(writer.counters)}
+    out: dict[str, Any] = {"last_sn": writer.last_sn, **_fields_of(writer.counters)}
     if isinstance(writer, ReliableWriter):
         out["unacked_readers"] = sum(1 for p in writer.proxies.values() if p.acked < writer.last_sn)
     return out
