@@ -66,7 +66,8 @@ class EngineConfig:
                 need(math.isfinite(v), f.name, "use a finite number")
         need(self.mode in MODES, "mode", "use 'paper' or 'adaptive'")
         need(self.t_min_s >= 0, "t_min_s", "use a value >= 0 seconds")
-        need(self.t_max_s >= self.t_min_s, "t_max_s", "use a value >= t_min_s")
+        # t_max_s >= t_min_s is checked by resolve_timing, once the bundle's values are in
+        need(self.t_max_s >= 0, "t_max_s", "use a value >= 0 seconds")
         need(self.lease_s > 0, "lease_s", "use a positive number of seconds")
         need(self.announce_budget_fps > 0, "announce_budget_fps", "use a positive frame rate")
         need(0 < self.q_floor <= 1, "q_floor", "use a value in (0, 1]")

@@ -570,7 +570,7 @@ class DiscoveryEngine:
         # the paper's "standard PDP procedure ... targeting UAVs that have not yet been
         # discovered" (section 4.1); replies still held back ride on the same frame
         for p in peers:
-            if p.state == PeerState.UNDISCOVERED or (p.discovered and not p.told):
+            if p.state == PeerState.UNDISCOVERED or self._owes(p):
                 self._arm(p, now)
         self._renewal.restart(now, self._rng)
 
@@ -718,6 +718,8 @@ class DiscoveryEngine:
         self._armed.discard(peer.index)
         if not self._owes(peer):
             self._disarm(peer)
+        elif self.phase in (Phase.BOOT, Phase.PASSIVE):
+            pass  # the paper: one directed reply per frame heard; retries wait for ANNOUNCE
         elif not peer.retry.exhausted:
             self._arm(peer, now + self._backoff().delay_s(peer.retry.attempts, self._rng))
 

@@ -29,10 +29,15 @@ from swarmd.bundle.model import (
     endpoint_entity_id,
 )
 from swarmd.discovery.config import EngineConfig
+from swarmd.discovery.digest import encode_heard
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import Event, PeerDiscovered, PeerLost
 from swarmd.discovery.memnet import Channel, MemNet
 from swarmd.link.sample import LinkSample
+from swarmd.rtps.locator import Locator
+from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
+from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
+from swarmd.rtps.types import Duration, GuidPrefix
 
 READY = "swarm/ready"
 COMMAND = "swarm/command"
@@ -200,3 +205,39 @@ def build_swarm(
     for i in order:
         net.call_at(starts[i], start(i))
     return swarm
+
+
+def peer_datagram(
+    bundle: Bundle,
+    index: int,
+    *,
+    heard: tuple[int, ...] = (),
+    sequence_number: int = 1,
+    destination: GuidPrefix | None = None,
+    domain_id: int | None = None,
+    bundle_digest: bytes | None = None,
+    lease_s: float | None = None,
+) -> bytes:
+    """A DATA(p) as bundle participant ``index``'s engine would send it, for hand-driven
+    tests: ``heard`` lists indices, ``destination`` makes it directed (INFO_DST)."""
+    p = bundle.participants[index]
+    meta = bundle.metatraffic_port(p)
+    host = p.ipv4 or node_ipv4(index)
+    group = (SPDP_MULTICAST_GROUP, spdp_multicast_port(bundle.domain_id))
+    participant = SpdpParticipant(
+        p.guid_prefix,
+        domain_id=bundle.domain_id if domain_id is None else domain_id,
+        metatraffic_unicast_locators=(Locator.udpv4(host, meta),),
+        metatraffic_multicast_locators=(Locator.udpv4(*group),),
+        default_unicast_locators=(Locator.udpv4(host, bundle.user_port(p)),),
+        lease_duration=Duration.from_seconds(
+            bundle.discovery.lease_s if lease_s is None else lease_s
+        ),
+        entity_name=f"{bundle.swarm}/{p.name}",
+        bundle_digest=bundle.content_sha256[:16] if bundle_digest is None else bundle_digest,
+        heard=encode_heard(heard, bundle.size),
+        link_quality_permille=1000,
+    )
+    return encode_spdp(
+        participant, sequence_number=sequence_number, timestamp=None, destination=destination
+    )
