@@ -1,7 +1,7 @@
 """Discovery frames on the in-memory network: N real engines, virtual time, seeded loss.
 
     .venv/bin/python bench/discovery.py [--sizes 10 50 200] [--modes adaptive paper]
-                                        [--seconds 60] [--seed 1] [--json]
+                                        [--seconds 60] [--seed 1] [--json] [--json-out F]
 
 For each swarm size, engine mode and channel (clean: no loss, Q = 1; lossy: 10 % loss per
 receiver, 2 ms jitter, Q = 0.5) it runs ``swarmd.discovery.testing.build_swarm`` for
@@ -84,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="print one JSON document")
+    parser.add_argument("--json-out", type=Path, help="also write the JSON document to this file")
     args = parser.parse_args(argv)
     rows = [
         run(n, mode, ch, args.seconds, args.seed)
@@ -91,8 +92,11 @@ def main(argv: list[str] | None = None) -> int:
         for mode in args.modes
         for n in args.sizes
     ]
+    document = json.dumps({"python": sys.version.split()[0], "rows": rows}, indent=2)
+    if args.json_out is not None:
+        args.json_out.write_text(document + "\n")
     if args.json:
-        print(json.dumps({"python": sys.version.split()[0], "rows": rows}, indent=2))
+        print(document)
         return 0
     header = (
         f"{'channel':7} {'mode':8} {'N':>4} {'frames/node':>11} {'disc/node':>9} "
