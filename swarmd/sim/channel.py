@@ -56,6 +56,7 @@ from swarmd.sim.phy import (
     DIFS_S,
     MAX_UDP_PAYLOAD,
     PER_SLOPE_DB,
+    RATES_MBPS,
     SIFS_S,
     SLOT_S,
     SNR10_DB,
@@ -65,7 +66,6 @@ from swarmd.sim.phy import (
     ack_rate_mbps,
     ack_timeout_s,
     airtime_s,
-    RATES_MBPS,
     min_snr_db,
     per,
 )
@@ -133,7 +133,7 @@ class Counters:
     phy_rx_fail_collision: int = 0
     phy_rx_fail_error: int = 0
     phy_drop_retry: int = 0  # unicast frames given up after the retry limit
-    collisions: int = 0  # transmissions that started while another in range was on the air
+    collisions: int = 0  # transmissions that started while another was on the air
     tx_by_kind: list[int] = field(default_factory=lambda: [0, 0])
     ack_by_kind: list[int] = field(default_factory=lambda: [0, 0])
     bins: list[list[int]] = field(default_factory=lambda: [[], []])
@@ -198,7 +198,7 @@ class Channel:
         self.config = config
         self.n = n = len(positions)
         self._deliver = deliver
-        self._rng = random.Random(f"channel/{seed}")
+        self._rng = random.Random(f"channel/{seed}")  # noqa: S311 - seeded simulation
         self._np_rng = np.random.default_rng([seed, 0x5157])
         radio = config.radio
         diff = positions[:, None, :] - positions[None, :, :]
@@ -363,8 +363,7 @@ class Channel:
         for other in self._active:
             other.overlaps.append(tx)
             tx.overlaps.append(other)
-            if in_cs_s[other.sender] or self._in_cs[other.sender, s]:
-                self.counters.collisions += 1
+            self.counters.collisions += 1
         self._active.append(tx)
         # freeze the countdown of contenders that now sense the medium busy
         newly = in_cs_s & (self._busy == 0) & self._cont
@@ -437,7 +436,7 @@ class Channel:
         snr50 = SNR10_DB[tx.rate] - PER_SLOPE_DB * math.log(9.0)
         x = max(-50.0, min(50.0, (snr - snr50) / PER_SLOPE_DB))
         per_ref = 1.0 / (1.0 + math.exp(x))
-        return 1.0 - (1.0 - per_ref) ** (tx.mpdu / 1000.0)
+        return float(1.0 - (1.0 - per_ref) ** (tx.mpdu / 1000.0))
 
     def _end_multicast(self, tx: _Tx, now: float) -> None:
         frame = tx.frame
@@ -539,4 +538,3 @@ class Channel:
             q.popleft()
         self._cw[s] = self.config.cw_min
         self._contend(s, now, new_backoff=True)
-

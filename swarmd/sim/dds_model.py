@@ -28,13 +28,13 @@ GAP submessages, Cyclone's 100 ms second SPDP send, socket back-pressure.
 
 from __future__ import annotations
 
-import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
-from swarmd.sim.channel import MAX_UDP_PAYLOAD, MULTICAST, Datagram, Kind
+from swarmd.sim.channel import MULTICAST, Datagram, Kind
 from swarmd.sim.node import NodeContext, SimNode
+from swarmd.sim.phy import MAX_UDP_PAYLOAD
 
 PUB, SUB = 0, 1  # SEDP publications (DATA(w)) and subscriptions (DATA(r)) channels
 
@@ -158,13 +158,10 @@ class _Peer:
 class DdsNode(SimNode):
     """One ROS 2 participant with stock SPDP/SEDP discovery at ``timing``."""
 
-    def __init__(
-        self, ctx: NodeContext, timing: DdsTiming, *, writers: int, readers: int
-    ) -> None:
+    def __init__(self, ctx: NodeContext, timing: DdsTiming, *, writers: int, readers: int) -> None:
         super().__init__(ctx)
         self.t = timing
         self._samples = (writers + timing.ros2_writers, readers + timing.ros2_readers)
-        self._rng = random.Random(f"{ctx.seed}/dds/{ctx.index}")
         self._peers: dict[int, _Peer] = {}
         self._started = False
 

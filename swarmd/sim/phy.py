@@ -46,8 +46,9 @@ RATES_MBPS: Final = (6, 9, 12, 18, 24, 36, 48, 54)
 SNR10_DB: Final = {6: 4.0, 9: 6.0, 12: 7.0, 18: 9.5, 24: 12.5, 36: 16.5, 48: 20.5, 54: 22.0}
 # mandatory ERP basic rate set: multicast goes at the lowest, an ACK at the highest <= data
 BASIC_RATES_MBPS: Final = (6, 12, 24)
-# waterfall width: PER of a 1000-byte frame falls from 90 % to 10 % over ~4.4 * this (dB)
-PER_SLOPE_DB: Final = 1.0
+# waterfall width: PER of a 1000-byte frame falls from 90 % to 10 % over 4.4 * this (dB);
+# coded OFDM waterfalls are steep (about 2 dB from 90 % to 10 %)
+PER_SLOPE_DB: Final = 0.5
 PER_REFERENCE_BYTES: Final = 1000
 
 

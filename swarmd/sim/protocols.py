@@ -21,9 +21,7 @@ if TYPE_CHECKING:
 PROTOCOLS: Final = ("swarmd", "fastdds-model", "cyclone-model", "zenoh-model")
 
 
-def build_nodes(
-    scenario: Scenario, contexts: list[NodeContext], channel: Channel
-) -> list[SimNode]:
+def build_nodes(scenario: Scenario, contexts: list[NodeContext], channel: Channel) -> list[SimNode]:
     """One node per context, running ``scenario.protocol``."""
     name = scenario.protocol
     if name == "swarmd":
@@ -34,8 +32,7 @@ def build_nodes(
         # what each drone's link monitor reads: the median SNR of the others' frames
         medians = np.nanmedian(snr, axis=1) if scenario.n > 1 else np.zeros(1)
         return [
-            SwarmdNode(ctx, shared, link_sample_for(float(medians[ctx.index])))
-            for ctx in contexts
+            SwarmdNode(ctx, shared, link_sample_for(float(medians[ctx.index]))) for ctx in contexts
         ]
     if name in ("fastdds-model", "cyclone-model"):
         timing = FASTDDS if name == "fastdds-model" else CYCLONE

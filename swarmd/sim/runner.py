@@ -60,13 +60,32 @@ class Scenario:
             raise ValueError(f"--swarmd-mode {self.swarmd_mode!r}: use 'paper' or 'adaptive'")
 
 
-def run(scenario: Scenario, progress: Progress | None = None) -> dict[str, Any]:
-    """Simulate ``scenario`` and return its JSON-ready result (see ``docs/simulator.md``)."""
+def run(
+    scenario: Scenario,
+    progress: Progress | None = None,
+    *,
+    milestones: dict[str, float] | None = None,
+    wall: Callable[[], float] | None = None,
+) -> dict[str, Any]:
+    """Simulate ``scenario`` and return its JSON-ready result (see ``docs/simulator.md``).
+
+    ``progress`` is called with the fraction of virtual time done; ``milestones`` receives
+    ``wall()`` when every pair is discovered (the caller's clock; the result never sees it).
+    """
     scenario.check()
     n, seed = scenario.n, scenario.seed
     clock = VirtualClock()
     ledger = Ledger(n)
-    layout_rng = random.Random(f"{seed}/layout")
+    if milestones is not None and wall is not None:
+        clock_fn = wall
+        marks = milestones
+
+        def mark(_i: int, _j: int, _now: float) -> None:
+            if ledger.count == ledger.pairs and "all_discovered" not in marks:
+                marks["all_discovered"] = clock_fn()
+
+        ledger.on_discovered(mark)
+    layout_rng = random.Random(f"{seed}/layout")  # noqa: S311 - seeded simulation
     positions = place(scenario.placement, n, scenario.spacing_m, layout_rng)
     nodes: list[SimNode] = []
     workload: Workload | None = None
@@ -83,7 +102,7 @@ def run(scenario: Scenario, progress: Progress | None = None) -> dict[str, Any]:
     nodes.extend(build_nodes(scenario, contexts, channel))
     if scenario.workload:
         workload = Workload(clock, ledger, channel.send, n)
-    start_rng = random.Random(f"{seed}/start")
+    start_rng = random.Random(f"{seed}/start")  # noqa: S311 - seeded simulation
     starts = [start_rng.uniform(0.0, scenario.start_spread_s) for _ in range(n)]
     for i, t0 in enumerate(starts):
         clock.call_at(t0, _starter(nodes[i], workload, i, clock))

@@ -66,7 +66,7 @@ class SwarmdNode(SimNode):
             shared.bundle,
             p.name,
             config=shared.config,
-            rng=random.Random(f"{self.ctx.seed}/engine/{self.index}"),
+            rng=random.Random(f"{self.ctx.seed}/engine/{self.index}"),  # noqa: S311
             now=now,
             local_ipv4=shared.ip_of[self.index],
             link=self._link,
@@ -142,7 +142,7 @@ def shared_decode() -> Iterator[None]:
     (keyed by the bytes object, whose hash Python caches) for the engines it drives. The
     engine never mutates what the decoder returns, so results are unchanged.
     """
-    original = engine_module.decode_spdp
+    original = engine_module.decode_spdp  # type: ignore[attr-defined]
     memo: dict[bytes, _DecodeResult] = {}
 
     def memo_decode(datagram: bytes) -> tuple[Header, list[SpdpSample]]:
@@ -159,8 +159,8 @@ def shared_decode() -> Iterator[None]:
             raise hit
         return hit
 
-    engine_module.decode_spdp = memo_decode  # type: ignore[assignment]
+    engine_module.decode_spdp = memo_decode  # type: ignore[attr-defined]
     try:
         yield
     finally:
-        engine_module.decode_spdp = original  # type: ignore[assignment]
+        engine_module.decode_spdp = original  # type: ignore[attr-defined]

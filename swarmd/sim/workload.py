@@ -48,7 +48,9 @@ def data_datagram_size() -> int:
 class Workload:
     """Publishes the members' 1 Hz samples and tallies what the commander receives."""
 
-    def __init__(self, clock: VirtualClock, ledger: Ledger, send: Callable[[Datagram], None], n: int) -> None:
+    def __init__(
+        self, clock: VirtualClock, ledger: Ledger, send: Callable[[Datagram], None], n: int
+    ) -> None:
         self._clock = clock
         self._ledger = ledger
         self._send = send
@@ -74,7 +76,9 @@ class Workload:
         self._clock.call_at(now + PERIOD_S, lambda: self._publish(member))
 
     def receive(self, receiver: int, dgram: Datagram, now: float) -> None:
-        member, seq = dgram.payload  # type: ignore[misc]
+        payload = dgram.payload
+        assert isinstance(payload, tuple)  # noqa: S101 - the workload's own (member, seq)
+        member, seq = int(payload[0]), int(payload[1])
         if receiver != COMMANDER or not self._ledger.known[COMMANDER, member]:
             return
         self.received += 1

@@ -10,7 +10,8 @@ From ``shared/reference/rtps-and-baselines.md`` section 3 (zenoh 1.x defaults):
   TCP SYN/SYN-ACK/ACK, then InitSyn/InitAck/OpenSyn/OpenAck, each request retransmitted on
   TCP's timeout (1 s for SYN, 200 ms doubling after) until answered.
 * An open session carries each side's declarations (subscriber, publisher, liveliness token)
-  and a gossip message, each acknowledged by TCP; keep-alives every lease/4 = 2.5 s in each
+  and a gossip message, and each side gossips the new peer to its other open sessions; every
+  segment is acknowledged by TCP; keep-alives every lease/4 = 2.5 s in each
   direction; a session silent for the 10 s lease closes.
 
 The pair (i, j) counts as discovered at i once i's session to j is open and j's
@@ -40,6 +41,7 @@ HANDSHAKE: Final = ((0, 0), (48, 96), (64, 24))  # SYN/SYN-ACK, InitSyn/Ack, Ope
 DECLARE_BYTES: Final = 160
 GOSSIP_BYTES: Final = 48
 KEEPALIVE_BYTES: Final = 4
+MAX_SEGMENT_BYTES: Final = 1400
 
 
 class _Session:
@@ -112,8 +114,11 @@ class ZenohNode(SimNode):
             self._on_response(src, int(msg[1]), now)
         elif kind in ("declare", "gossip", "keepalive"):
             s = self._sessions.get(src)
-            if s is None or not s.open:
+            if s is None:
                 return
+            if not s.open:
+                # the peer completed the (merged) handshake first: its session is ours too
+                self._opened(s, now)
             s.last_rx = now
             if kind != "keepalive":
                 self._tcp(src, 0, ("ack",))
@@ -177,7 +182,14 @@ class ZenohNode(SimNode):
     def _opened(self, s: _Session, now: float) -> None:
         s.open = True
         self._tcp(s.peer, DECLARE_BYTES, ("declare",))
-        self._tcp(s.peer, GOSSIP_BYTES + 16 * len(self._sessions), ("gossip",))
+        # the peer list, capped at one segment (zenoh splits longer ones into batches)
+        gossip = min(GOSSIP_BYTES + 16 * len(self._sessions), MAX_SEGMENT_BYTES)
+        self._tcp(s.peer, gossip, ("gossip",))
+        # gossip (scouting.gossip, target peers): tell every other open session about it
+        for other in sorted(self._sessions):
+            o = self._sessions[other]
+            if other != s.peer and o.open:
+                self._tcp(other, GOSSIP_BYTES, ("gossip",))
 
     # ------------------------------------------------------------ liveness
 
