@@ -1,0 +1,327 @@
+"""The contenders: how each is started on every drone and how its commander is read.
+
+swarmd and its ablations are real ``swarmd run`` daemons (one per drone namespace) with
+a dev bundle of N members (uav1 commands, the paper's Tmin 8 s, Tmax 20 s, lease 20 s)
+and the ns-3 link file as link source. Stock Cyclone DDS and zenoh run the workload
+scripts in ``bench/wifi/peers/``.
+
+=================  =========  ==========================  =================================
+contender          mode       link quality (awareness)    timing
+=================  =========  ==========================  =================================
+swarmd             adaptive   ns-3 link file              bundle (Tmin 8, Tmax 20)
+swarmd-paper       paper      ns-3 link file              bundle (Tmin 8, Tmax 20)
+swarmd-noaware     adaptive   static Q = 0.5              bundle
+swarmd-stock       paper      static Q = 0.5              Tmin = Tmax = 0: announce at once
+=================  =========  ==========================  =================================
+
+"Preloading off" cannot be expressed: swarmd has no SEDP at all, its endpoints always come
+from the bundle. ``swarmd-stock`` (awareness off and stock-like immediate SPDP) is the
+closest ablation; the stock stacks are the preloading-off reference.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+from bench.wifi.bundle import write_bundle
+from swarmd.config import _FIELDS as CONFIG_FIELDS
+from swarmd.control import DaemonUnreachable, RequestError, request
+from swarmd.netns import Namespace
+
+REPO: Final = Path(__file__).resolve().parents[2]
+PEERS: Final = Path(__file__).resolve().parent / "peers"
+
+
+@dataclass(frozen=True)
+class SwarmdVariant:
+    mode: str
+    aware: bool
+    overrides: Mapping[str, float] = field(default_factory=dict)
+
+
+SWARMD_VARIANTS: Final[dict[str, SwarmdVariant]] = {
+    "swarmd": SwarmdVariant("adaptive", True),
+    "swarmd-paper": SwarmdVariant("paper", True),
+    "swarmd-noaware": SwarmdVariant("adaptive", False),
+    "swarmd-stock": SwarmdVariant("paper", False, {"t_min_s": 0.0, "t_max_s": 0.0}),
+}
+PEER_SCRIPTS: Final = {"cyclonedds": "cyclone_peer.py", "zenoh": "zenoh_peer.py"}
+CONTENDERS: Final = (*SWARMD_VARIANTS, *PEER_SCRIPTS)
+
+
+def family(contender: str) -> str:
+    """Which discovery frame class counts for this contender (metrics.DISCOVERY_CLASSES)."""
+    return "zenoh" if contender == "zenoh" else "rtps"
+
+
+def dataplane_supported() -> bool:
+    """Whether this swarmd's config has a ``dataplane`` section (the 1 Hz readiness stream)."""
+    return "dataplane" in CONFIG_FIELDS.get("<top>", ())
+
+
+def _clean_env() -> dict[str, str]:
+    drop = ("CYCLONEDDS_URI", "ZENOH_CONFIG", "RUST_LOG", "SWARMD_SOCKET")
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env["PYTHONPATH"] = str(REPO)
+    return env
+
+
+@dataclass
+class Observation:
+    """What the harness learnt about discovery and delivery during one run (wall times)."""
+
+    started: dict[int, float] = field(default_factory=dict)  # per drone: stack up
+    all_discovered: float | None = None
+    received: dict[str, dict[str, Any]] = field(default_factory=dict)
+    note: str = ""
+    success_pending: bool = False
+
+
+class Contender:
+    """Start a contender on every drone, then ``poll`` during the run and ``finish``."""
+
+    def __init__(
+        self, name: str, drones: list[Namespace], work: Path, *, window_s: float, messages: int
+    ) -> None:
+        self.name = name
+        self.drones = drones
+        self.work = work
+        self.window_s = window_s
+        self.messages = messages
+        self.n = len(drones)
+        self.obs = Observation()
+        self._logs: list[Any] = []
+
+    def start(self) -> None:
+        raise NotImplementedError
+
+    def poll(self, now: float) -> None:
+        """Called about every 0.25 s while the window runs."""
+
+    def finish(self) -> Observation:
+        raise NotImplementedError
+
+    def _log(self, name: str) -> Any:
+        f = (self.work / name).open("wb")
+        self._logs.append(f)
+        return f
+
+    def close(self) -> None:
+        for f in self._logs:
+            f.close()
+
+
+class PeerContender(Contender):
+    """Cyclone DDS or zenoh: one workload script per drone, results from their files."""
+
+    def start(self) -> None:
+        script = PEERS / PEER_SCRIPTS[self.name]
+        env = _clean_env()
+        for i, drone in enumerate(self.drones):
+            argv = [
+                sys.executable,
+                str(script),
+                "--index",
+                str(i),
+                "--n",
+                str(self.n),
+                "--duration",
+                str(self.window_s),
+                "--messages",
+                str(self.messages),
+                "--out",
+                str(self.work / f"peer-{i}.json"),
+            ]
+            drone.popen(argv, env=env, stdout=self._log(f"peer-{i}.log"), stderr=subprocess.STDOUT)
+
+    def finish(self) -> Observation:
+        deadline = time.monotonic() + 15.0
+        results: dict[int, dict[str, Any]] = {}
+        while time.monotonic() < deadline and len(results) < self.n:
+            for i in range(self.n):
+                path = self.work / f"peer-{i}.json"
+                if i not in results and path.exists():
+                    results[i] = json.loads(path.read_text())
+            time.sleep(0.2)
+        for i, r in results.items():
+            self.obs.started[i] = float(r["started"])
+        commander = results.get(0, {})
+        self.obs.received = dict(commander.get("received") or {})
+        ad = commander.get("all_discovered")
+        self.obs.all_discovered = float(ad) if isinstance(ad, int | float) else None
+        missing = sorted(set(range(self.n)) - set(results))
+        if missing:
+            self.obs.note = f"no result from drones {missing} (crashed or hung; see peer-*.log)"
+        return self.obs
+
+
+class SwarmdContender(Contender):
+    """Real ``swarmd run`` daemons; discovery and readiness from their control sockets."""
+
+    def __init__(
+        self,
+        name: str,
+        drones: list[Namespace],
+        work: Path,
+        *,
+        window_s: float,
+        messages: int,
+        link_dir: Path,
+    ) -> None:
+        super().__init__(name, drones, work, window_s=window_s, messages=messages)
+        self.variant = SWARMD_VARIANTS[name]
+        self.link_dir = link_dir
+        self.socks = [work / f"uav{i + 1}.sock" for i in range(self.n)]
+        self._nth: dict[str, float] = {}
+        self._first: dict[str, float] = {}
+        self._counts: dict[str, int] = {}
+        self._last_full_poll = 0.0
+
+    def _config(self, i: int, bundle: Path, key: Path) -> Path:
+        v = self.variant
+        sources = "[file, static]" if v.aware else "[static]"
+        overrides = (
+            "{" + ", ".join(f"{k}: {val}" for k, val in v.overrides.items()) + "}"
+            if v.overrides
+            else "{}"
+        )
+        dataplane = (
+            f"dataplane:\n  enabled: true\n  state_dir: {self.work / f'state-uav{i + 1}'}\n"
+            if dataplane_supported()
+            else ""
+        )
+        text = f"""\
+node: uav{i + 1}
+bundle:
+  path: {bundle}
+  trusted_key: {key}
+  allow_dev: true
+network:
+  interface: eth0
+control:
+  socket: {self.socks[i]}
+link:
+  sources: {sources}
+  poll_interval_s: 1.0
+  file: {self.link_dir / f"link-{i}.json"}
+  static_q: 0.5
+discovery:
+  mode: {v.mode}
+  overrides: {overrides}
+{dataplane}logging:
+  level: info
+  format: json
+"""
+        path = self.work / f"uav{i + 1}.yaml"
+        path.write_text(text)
+        return path
+
+    def start(self) -> None:
+        files = write_bundle(self.work / "bundle", [d.address for d in self.drones])
+        swarmd = str(Path(sys.executable).parent / "swarmd")
+        env = _clean_env()
+        for i, drone in enumerate(self.drones):
+            cfg = self._config(i, files.path, files.trusted_key)
+            drone.popen(
+                [swarmd, "run", "--config", str(cfg)],
+                env=env,
+                stdout=self._log(f"uav{i + 1}.log"),
+                stderr=subprocess.STDOUT,
+            )
+        if not dataplane_supported():
+            self.obs.success_pending = True
+            self.obs.note = (
+                "success pending workload: this swarmd has no dataplane config section yet"
+            )
+
+    def _status(self, i: int) -> dict[str, Any] | None:
+        try:
+            st: Any = request(str(self.socks[i]), "status")
+        except (DaemonUnreachable, RequestError, OSError, ValueError):
+            return None
+        return st if isinstance(st, dict) else None
+
+    def _readiness(self, st: Mapping[str, Any]) -> Mapping[str, Any]:
+        try:  # the commander's own table (swarmctl readiness); older daemons: in status
+            table: Any = request(str(self.socks[0]), "readiness")
+        except (DaemonUnreachable, RequestError, OSError, ValueError):
+            table = None
+        if isinstance(table, Mapping):
+            return table
+        for holder in (st.get("dataplane"), st):
+            if isinstance(holder, Mapping) and isinstance(holder.get("readiness"), Mapping):
+                found: Mapping[str, Any] = holder["readiness"]
+                return found
+        return {}
+
+    def poll(self, now: float) -> None:
+        full = self.obs.all_discovered is None or now - self._last_full_poll >= 5.0
+        indices = range(self.n) if full else range(1)
+        discovered = 0
+        for i in indices:
+            st = self._status(i)
+            if st is None:
+                continue
+            daemon = st.get("daemon") or {}
+            if i not in self.obs.started and isinstance(daemon.get("uptime_s"), int | float):
+                self.obs.started[i] = now - float(daemon["uptime_s"])
+            if st.get("peers_discovered") == self.n - 1:
+                discovered += 1
+            if i == 0:
+                self._read_commander(st, now)
+        if full:
+            self._last_full_poll = now
+            if self.obs.all_discovered is None and discovered == self.n:
+                self.obs.all_discovered = now
+
+    def _read_commander(self, st: Mapping[str, Any], now: float) -> None:
+        for node, entry in self._readiness(st).items():
+            count = entry.get("count") if isinstance(entry, Mapping) else None
+            if not isinstance(count, int):
+                continue
+            self._counts[node] = count
+            if count >= 1:
+                self._first.setdefault(node, now)
+            if count >= self.messages:
+                self._nth.setdefault(node, now)
+
+    def finish(self) -> Observation:
+        if not self._counts and not self.obs.success_pending:
+            self.obs.success_pending = True
+            self.obs.note = "success pending workload: the commander reported no readiness table"
+        for node, count in self._counts.items():
+            index = node[3:] if node.startswith("uav") else node
+            key = str(int(index) - 1) if index.isdigit() else node
+            self.obs.received[key] = {
+                "count": count,
+                "first": self._first.get(node),
+                "nth": self._nth.get(node),
+            }
+        return self.obs
+
+
+def make(
+    name: str,
+    drones: list[Namespace],
+    work: Path,
+    *,
+    window_s: float,
+    messages: int,
+    link_dir: Path,
+) -> Contender:
+    """The contender called ``name`` (one of ``CONTENDERS``)."""
+    if name in SWARMD_VARIANTS:
+        return SwarmdContender(
+            name, drones, work, window_s=window_s, messages=messages, link_dir=link_dir
+        )
+    if name in PEER_SCRIPTS:
+        return PeerContender(name, drones, work, window_s=window_s, messages=messages)
+    raise ValueError(f"unknown contender {name!r}; use one of: {', '.join(CONTENDERS)}")

@@ -1,0 +1,148 @@
+"""Smoke run of the emulated 802.11 testbed (bench/wifi): N=3, swarmd against Cyclone DDS.
+
+Real processes in network namespaces on a real-time ns-3 802.11g channel. Asserts that
+the harness ran and produced complete per-run JSON, that everything it created is gone,
+and that swarmd discovered every pair; never on timings (the machine is shared).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.wifi.metrics import frame_series, layer_counters, percentile, success
+from bench.wifi.ns3_loader import unavailable_reason
+from bench.wifi.topology import ns3_mac
+from swarmd.netns import list_namespaces
+
+REPO = Path(__file__).resolve().parents[1]
+FIELDS = (
+    "contender",
+    "n",
+    "run",
+    "peak_pps",
+    "discovery_frames_60s",
+    "success_rate",
+    "all_discovered_s",
+    "mac_drop_ratio",
+    "phy_drop_density",
+    "rt_lag_p99_ms",
+    "valid",
+    "pps",
+    "counters",
+)
+
+
+def test_ns3_mac_matches_ns3_allocation_order() -> None:
+    assert ns3_mac(0) == "00:00:00:00:00:01"
+    assert ns3_mac(255) == "00:00:00:00:01:00"
+
+
+def _stats() -> dict[str, object]:
+    return {
+        "classes": ["rtps_discovery", "rtps_user", "zenoh", "other", "ack"],
+        "per_second": [[5, 0, 0, 1, 2], [1, 3, 0, 0, 1]],
+        "acks_per_second_by_class": [[2, 0, 0, 0, 0], [0, 1, 0, 0, 0]],
+        "nodes": [
+            {
+                "mac_tx": 10,
+                "mac_tx_drop": 1,
+                "mac_dropped_mpdu": 2,
+                "phy_tx": 20,
+                "phy_retx": 4,
+                "phy_rx_end": 30,
+                "phy_rx_drop": 5,
+                "phy_tx_drop": 0,
+            }
+        ],
+    }
+
+
+def test_frame_series_folds_acks_into_the_acked_class() -> None:
+    stats = _stats()
+    assert frame_series(stats, 0, 3, None) == [8, 5, 0]
+    assert frame_series(stats, 0, 2, ("rtps_discovery",)) == [7, 1]
+    assert frame_series(stats, 1, 1, ("rtps_user",)) == [4]
+
+
+def test_layer_counters_follow_table_2() -> None:
+    assert layer_counters(_stats()) == {
+        "n_tx_mac": 10,
+        "n_drop_mac": 3,
+        "n_tx_phy": 20,
+        "n_retx_phy": 4,
+        "n_rx_phy": 30,
+        "n_drop_phy": 5,
+    }
+
+
+def test_success_needs_the_nth_message_inside_the_window() -> None:
+    received: dict[str, dict[str, float | None]] = {
+        "1": {"nth": 110.0},
+        "2": {"nth": 200.0},
+        "3": {"nth": None},
+    }
+    rate, failed = success(received, [1, 2, 3, 4], launch_wall=100.0, window_s=60)
+    assert rate == 0.25
+    assert failed == [2, 3, 4]
+
+
+def test_percentile_nearest_rank() -> None:
+    assert percentile([3.0, 1.0, 2.0], 50) == 2.0
+    assert percentile(list(map(float, range(1, 101))), 99) == 99.0
+    assert math.isnan(percentile([], 99))
+
+
+@pytest.mark.netns
+@pytest.mark.interop
+@pytest.mark.timeout(600)
+def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
+    reason = unavailable_reason()
+    if reason is not None:
+        pytest.skip(f"wifi testbed unavailable: {reason}")
+    before = set(list_namespaces())
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "bench" / "wifi" / "run.py"),
+            "--n",
+            "3",
+            "--contenders",
+            "swarmd,cyclonedds",
+            "--window-s",
+            "20",
+            "--messages",
+            "5",
+            "--max-lag-ms",
+            "1000",
+            "--out",
+            str(tmp_path),
+        ],  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=540,
+        check=False,
+        cwd=REPO,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert set(list_namespaces()) == before, "the harness left namespaces behind"
+    runs = {p.name: json.loads(p.read_text()) for p in (tmp_path / "runs").glob("*.json")}
+    assert set(runs) == {"swarmd-n3-r1.json", "cyclonedds-n3-r1.json"}
+    for r in runs.values():
+        missing = [f for f in FIELDS if f not in r]
+        assert not missing, f"{r['contender']}: missing {missing}"
+        assert r["n"] == 3
+        assert len(r["pps"]) == 20
+        assert r["counters"]["n_tx_phy"] > 0, "no frame crossed the emulated channel"
+    swarmd = runs["swarmd-n3-r1.json"]
+    assert swarmd["all_discovered_s"] is not None, "swarmd did not discover every pair"
+    assert swarmd["discovery_frames_60s"] > 0
+    cyclone = runs["cyclonedds-n3-r1.json"]
+    assert cyclone["success_rate"] is not None
+    assert (tmp_path / "summary.json").exists()
+    assert (tmp_path / "table.md").read_text().count("| swarmd | 3 |") == 1
