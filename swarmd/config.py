@@ -25,6 +25,8 @@ LOG_LEVELS: Final = ("debug", "info", "warning", "error")
 LOG_FORMATS: Final = ("auto", "json", "console")
 DEFAULT_SOCKET: Final = "/run/swarmd/swarmd.sock"
 DEFAULT_BUNDLE: Final = "/var/lib/swarmd/bundle.swb"
+DEFAULT_STATE_DIR: Final = "/var/lib/swarmd"  # systemd StateDirectory=swarmd
+DEFAULT_PX4_CONNECTION: Final = "udpin:0.0.0.0:14540"  # PX4 SITL / mavlink-router onboard link
 MIN_POLL_S: Final = 0.05  # faster polling would only burn CPU: drivers average over ~1 s
 MAX_POLL_S: Final = 60.0
 
@@ -66,6 +68,32 @@ class LinkConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class Px4Section:
+    """``px4:``: the vehicle this daemon flies (docs/px4.md). Absent or ``enabled: false``:
+    a node without PX4 (a ground station, a benchmark node); it reports ``px4_disabled``."""
+
+    enabled: bool = False
+    connection: str = DEFAULT_PX4_CONNECTION
+    sysid: int | None = None  # None: the bundle participant's mavlink_sysid
+    heartbeat_timeout_s: float = 2.5  # PX4 HEARTBEAT_TIMEOUT_US; keeps link loss within 3 s
+    min_battery_pct: float = 30.0
+    allow_unknown_battery: bool = False
+    require_home: bool = True
+    takeoff_alt_m: float = 10.0  # metres above home when swarmctl takeoff has no --alt
+
+
+@dataclass(frozen=True, slots=True)
+class DataplaneSection:
+    """``dataplane:``: RTPS user data (docs/dataplane.md). Absent: off (discovery only)."""
+
+    enabled: bool = False
+    readiness_period_s: float = 1.0  # swarm/ready: the paper's 1 Hz workload
+    # the commander counts a member whose last report is older than this as not ready
+    stale_after_s: float = 3.0
+    state_dir: str = DEFAULT_STATE_DIR  # boot counter + executed command ids survive restarts
+
+
+@dataclass(frozen=True, slots=True)
 class DaemonConfig:
     """A checked daemon config. ``lines`` maps a field path to its line, for later errors."""
 
@@ -79,6 +107,8 @@ class DaemonConfig:
     link: LinkConfig = LinkConfig()
     engine_mode: str = "adaptive"
     engine_overrides: dict[str, float] = field(default_factory=dict)
+    px4: Px4Section = Px4Section()
+    dataplane: DataplaneSection = DataplaneSection()
     log_level: str = "info"
     log_format: str = "auto"
     lines: dict[str, int] = field(default_factory=dict, compare=False, repr=False)
@@ -89,7 +119,17 @@ class DaemonConfig:
 
 
 _FIELDS: Final[dict[str, tuple[str, ...]]] = {
-    "<top>": ("node", "bundle", "network", "control", "link", "discovery", "logging"),
+    "<top>": (
+        "node",
+        "bundle",
+        "network",
+        "control",
+        "link",
+        "discovery",
+        "px4",
+        "dataplane",
+        "logging",
+    ),
     "bundle": ("path", "trusted_key", "expected_sha256", "allow_dev"),
     "network": ("interface", "ipv4"),
     "control": ("socket", "mode"),
@@ -104,6 +144,17 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "snr_floor_db",
     ),
     "discovery": ("mode", "overrides"),
+    "px4": (
+        "enabled",
+        "connection",
+        "sysid",
+        "heartbeat_timeout_s",
+        "min_battery_pct",
+        "allow_unknown_battery",
+        "require_home",
+        "takeoff_alt_m",
+    ),
+    "dataplane": ("enabled", "readiness_period_s", "stale_after_s", "state_dir"),
     "logging": ("level", "format"),
 }
 
@@ -383,6 +434,8 @@ class _Checker:
                 values["engine_overrides"] = self.overrides(f["overrides"])
 
         self.section(top, "discovery", discovery)
+        self.section(top, "px4", lambda f: values.__setitem__("px4", self.px4(f)))
+        self.section(top, "dataplane", lambda f: values.__setitem__("dataplane", self.dataplane(f)))
 
         def logging(f: Nodes) -> None:
             if "level" in f:
@@ -392,6 +445,72 @@ class _Checker:
 
         self.section(top, "logging", logging)
         return DaemonConfig(file=self.file, bundle=bundle, lines=self.lines, **values)  # type: ignore[arg-type]
+
+    def px4(self, f: Nodes) -> Px4Section:
+        d = Px4Section()
+        connection = d.connection
+        if "connection" in f:
+            connection = self.string(f["connection"], "px4.connection", "a connection string")
+            from swarmd.px4.transport import parse_connection  # only px4 configs pay for it
+
+            try:
+                parse_connection(connection, "px4.connection")
+            except ValueError as exc:
+                problem, _, fix = str(exc).removeprefix("px4.connection: ").partition("; fix: ")
+                self.fail(f["connection"], "px4.connection", problem, fix or "see docs/px4.md")
+        sysid: int | None = None
+        if "sysid" in f and self.value(f["sysid"], "px4.sysid") is not None:
+            number = self.number(f["sysid"], "px4.sysid", 1, 255)
+            if number != int(number):
+                self.fail(f["sysid"], "px4.sysid", f"{number} is not a whole number", "1..255")
+            sysid = int(number)
+
+        def num(key: str, low: float, high: float, unit: str, default: float) -> float:
+            return self.number(f[key], f"px4.{key}", low, high, unit) if key in f else default
+
+        def flag(key: str, default: bool) -> bool:
+            return self.boolean(f[key], f"px4.{key}") if key in f else default
+
+        return Px4Section(
+            enabled=flag("enabled", True),
+            connection=connection,
+            sysid=sysid,
+            heartbeat_timeout_s=num("heartbeat_timeout_s", 0.5, 30.0, " s", d.heartbeat_timeout_s),
+            min_battery_pct=num("min_battery_pct", 0.0, 100.0, " %", d.min_battery_pct),
+            allow_unknown_battery=flag("allow_unknown_battery", d.allow_unknown_battery),
+            require_home=flag("require_home", d.require_home),
+            takeoff_alt_m=num("takeoff_alt_m", 0.5, 120.0, " m", d.takeoff_alt_m),
+        )
+
+    def dataplane(self, f: Nodes) -> DataplaneSection:
+        d = DataplaneSection()
+        period = (
+            self.number(f["readiness_period_s"], "dataplane.readiness_period_s", 0.05, 60.0, " s")
+            if "readiness_period_s" in f
+            else d.readiness_period_s
+        )
+        stale = (
+            self.number(f["stale_after_s"], "dataplane.stale_after_s", 0.1, 600.0, " s")
+            if "stale_after_s" in f
+            else max(d.stale_after_s, 3 * period)
+        )
+        if stale <= period:
+            where = f["stale_after_s"] if "stale_after_s" in f else f["readiness_period_s"]
+            self.fail(
+                where,
+                "dataplane.stale_after_s",
+                f"{stale:g} s does not exceed readiness_period_s {period:g} s: every member "
+                "would look stale between two reports",
+                "make stale_after_s at least 2-3 readiness periods",
+            )
+        return DataplaneSection(
+            enabled=self.boolean(f["enabled"], "dataplane.enabled") if "enabled" in f else True,
+            readiness_period_s=period,
+            stale_after_s=stale,
+            state_dir=(self.path(f["state_dir"], "dataplane.state_dir") or d.state_dir)
+            if "state_dir" in f
+            else d.state_dir,
+        )
 
     def overrides(self, node: yaml.Node) -> dict[str, float]:
         if not isinstance(node, yaml.MappingNode):

@@ -44,6 +44,10 @@ class RequestError(RuntimeError):
     """The daemon answered ``ok: false``."""
 
 
+class RequestInvalid(ValueError):
+    """A handler refuses a request (bad argument, wrong node); ``str()`` goes to the client."""
+
+
 def encode_line(obj: Any) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode() + b"\n"
 
@@ -121,6 +125,8 @@ class ControlServer:
             return {"ok": False, "error": f"unknown command {request['cmd']!r}; known: {known}"}
         try:
             return {"ok": True, "result": handler(request)}
+        except RequestInvalid as exc:
+            return {"ok": False, "error": str(exc)}
         except Exception as exc:  # a handler bug must not take the daemon down
             return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 

@@ -10,6 +10,11 @@ re-arm the single ``TimerHandle`` at ``engine.get_timer()``. The three inputs ar
 - the engine timer;
 - link-quality samples from the link monitor, polled every ``link.poll_interval_s``.
 
+On top of discovery, ``SwarmApp`` (``swarmd/app.py``) runs the swarm itself when configured:
+the data plane on the user unicast port (its own adapter and timer, ``swarmd/userdata.py``),
+fed with discovery's ``PeerDiscovered``/``PeerLost``; the PX4 bridge; readiness reports,
+commands and outcomes.
+
 Around it: the control socket (``swarmctl``), sd_notify (``READY=1`` once the bundle is
 verified and the sockets are bound, ``STATUS=`` on phase/peer changes, ``WATCHDOG=1`` at half
 ``WATCHDOG_USEC`` only while the loop is healthy) and SIGTERM/SIGINT for a clean shutdown
@@ -33,6 +38,7 @@ from dataclasses import fields
 from typing import Any, Final
 
 from swarmd import __version__
+from swarmd.app import AppStartError, SwarmApp
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig
 from swarmd.control import ControlServer
@@ -230,6 +236,7 @@ class Daemon:
         self._watchdog: asyncio.TimerHandle | None = None
         self._link_task: asyncio.Task[None] | None = None
         self._control: ControlServer | None = None
+        self.app: SwarmApp | None = None  # made in start(), after the engine checked the node
         self._status_line = ""
         self._ready = False  # STATUS= updates start with READY=1, which carries the first
         self._started_wall = time.time()
@@ -259,6 +266,10 @@ class Daemon:
         except ValueError as exc:
             problem, _, fix = str(exc).partition("; fix: ")
             raise self.config.error("node", problem, fix or "check node and the bundle") from None
+        # before the first datagram can arrive: peers discovered while it starts are kept
+        # and replayed to the data plane once it is up
+        app = SwarmApp(self.config, self.bundle, log=self.log, link_q=self._link_q)
+        self.app = app
         group, mport = self.engine.spdp_multicast
         uport = self.engine.metatraffic_port
         try:
@@ -284,12 +295,22 @@ class Daemon:
                 sock=sock,
             )
             self._transports[name] = transport
+        try:
+            await app.start()
+        except AppStartError as exc:
+            self.app = None
+            await self._close_transports()
+            raise StartupError(str(exc), exc.exit_code) from None
         self._control = ControlServer(
             self.config.control_socket,
             {
                 "status": lambda _r: self.status(),
                 "peers": lambda _r: self.status()["peers"],
                 "ping": lambda _r: "pong",
+                "readiness": lambda _r: app.table.rows(loop.time()),
+                "takeoff": app.request_takeoff,
+                "command": app.request_command,
+                "outcomes": app.request_outcomes,
             },
             mode=self.config.control_socket_mode,
         )
@@ -297,6 +318,7 @@ class Daemon:
             await self._control.start()
         except (OSError, RuntimeError) as exc:
             self._control = None
+            await app.stop()
             await self._close_transports()
             raise StartupError(f"control socket {self.config.control_socket}: {exc}", 69) from None
         self._link_task = loop.create_task(self._poll_link(), name="swarmd-link")
@@ -318,6 +340,9 @@ class Daemon:
             link=first.source if first else None,
             q=first.q if first else None,
             watchdog_s=self.watchdog_s,
+            role="commander" if app.is_commander else "member",
+            dataplane=self.config.dataplane.enabled,
+            px4=self.config.px4.connection if self.config.px4.enabled else None,
         )
 
     async def stop(self, reason: str = "stop") -> None:
@@ -337,6 +362,8 @@ class Daemon:
             self._after_input()
         if self._timer is not None:
             self._timer.cancel()
+        if self.app is not None:
+            await self.app.stop()
         if self._control is not None:
             await self._control.close()
         await self._close_transports()
@@ -416,8 +443,12 @@ class Daemon:
         match event:
             case PeerDiscovered(name=name, matches=matches, via=via):
                 self.log.info("peer_discovered", peer=name, via=via, matched=len(matches))
+                if self.app is not None:
+                    self.app.peer_up(name, self._peer_ipv4(name))
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
+                if self.app is not None:
+                    self.app.peer_down(name)
             case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
                 self.log.info(
                     "foreign_participant", guid_prefix=str(prefix), vendor=vendor, name=name
@@ -428,6 +459,24 @@ class Daemon:
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _peer_ipv4(self, name: str) -> str | None:
+        """The address discovery heard ``name`` at (its SPDP metatraffic locator)."""
+        engine, loop = self._core()
+        # The engine reports locators only in its status snapshot ("udp/IP:PORT"); the data
+        # plane needs the host, and the port comes from the bundle (Bundle.user_port).
+        for peer in engine.status(loop.time()).get("peers", []):
+            locator = peer.get("locator")
+            if peer.get("name") == name and isinstance(locator, str):
+                host, _, _ = locator.removeprefix("udp/").rpartition(":")
+                return host or None
+        return None
+
+    def _link_q(self) -> float:
+        latest = self.monitor.latest
+        if latest is not None:
+            return latest.q
+        return self.config.link.static_q
 
     # -- health and status ---------------------------------------------------------------
 
@@ -487,6 +536,8 @@ class Daemon:
         counters = dict(st.get("counters") or {})
         counters["daemon"] = dict(self.counters)
         st["counters"] = counters
+        if self.app is not None:
+            st.update(self.app.status())
         st["daemon"] = {
             "version": __version__,
             "pid": os.getpid(),

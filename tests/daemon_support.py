@@ -35,7 +35,10 @@ def write_bundle(
     ipv4: list[str] | None = None,
     swarm: str = "testswarm",
 ) -> BundleFiles:
-    """A dev-signed bundle of ``n`` members uav1..uavN (uav1 commands) and its trust key."""
+    """A dev-signed bundle of ``n`` members uav1..uavN (uav1 commands) and its trust key.
+
+    Its topics are the data plane's three (docs/dataplane.md): a commander-member pair
+    matches three endpoint pairs (ready, command, outcome)."""
     parts = []
     for i in range(n):
         role = "commander" if i == 0 else "member"
@@ -55,15 +58,23 @@ participants:
 {chr(10).join(parts)}
 topics:
   - name: swarm/ready
-    type: swarm::Ready
-    reliability: reliable
+    type: swarmd::Readiness
+    reliability: best_effort
+    history_depth: 1
     writers: [member]
     readers: [commander]
   - name: swarm/command
-    type: swarm::Command
+    type: swarmd::Command
     reliability: reliable
+    history_depth: 8
     writers: [commander]
     readers: [member]
+  - name: swarm/outcome
+    type: swarmd::CommandOutcome
+    reliability: reliable
+    history_depth: 16
+    writers: [member]
+    readers: [commander]
 """
     built = build_dev_bundle(parse_mission(mission, "test-mission.yaml"))
     directory.mkdir(parents=True, exist_ok=True)
@@ -72,6 +83,16 @@ topics:
     key = directory / "swarm.pub"
     key.write_bytes(public_pem(raw_public(dev_signing_key(swarm))))
     return BundleFiles(built.bundle, path, key)
+
+
+def swarm_sections(state_dir: Path, px4: str | None, *, period_s: float = 1.0) -> str:
+    """``dataplane:`` (state in ``state_dir``) and ``px4:`` (``px4`` = connection, None: off)."""
+    text = (
+        f"dataplane:\n  enabled: true\n  readiness_period_s: {period_s}\n  state_dir: {state_dir}\n"
+    )
+    if px4 is None:
+        return text + "px4:\n  enabled: false\n"
+    return text + f"px4:\n  enabled: true\n  connection: {px4}\n  takeoff_alt_m: 5\n"
 
 
 def write_config(
@@ -86,7 +107,9 @@ def write_config(
     static_q: float = 0.8,
     poll_s: float = 0.2,
     level: str = "info",
+    extra: str = "",
 ) -> Path:
+    """A daemon config; ``extra`` is appended as is (e.g. ``px4:``/``dataplane:`` sections)."""
     sources = "[nl80211, file, static]" if link_file else "[nl80211, static]"
     text = f"""\
 node: {node}
@@ -107,6 +130,6 @@ link:
 logging:
   level: {level}
   format: json
-"""
+{extra}"""
     path.write_text(text)
     return path

@@ -96,9 +96,8 @@ def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
                 assert st["node"] == "uav1"
                 assert st["peers_discovered"] == 1
                 peer = _peer(st, "uav2")
-                assert (
-                    peer["matched_endpoints"] == 2
-                )  # ready (uav2 -> uav1), command (uav1 -> uav2)
+                # ready and outcome (uav2 -> uav1), command (uav1 -> uav2)
+                assert peer["matched_endpoints"] == 3
                 assert peer["locator"] == f"udp/127.0.0.1:{b.engine.metatraffic_port}"  # type: ignore[union-attr]
                 assert st["link"]["source"] == "static"
                 assert st["daemon"]["healthy"]

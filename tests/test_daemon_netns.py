@@ -111,8 +111,9 @@ def test_five_daemons_in_namespaces(
         assert st["peers_discovered"] == N - 1
         assert st["daemon"]["ipv4"] == lan[i].address
         for peer in st["peers"]:
-            # uav1 commands: every member pairs ready+command with it, members share nothing
-            expected = 2 if 0 in (i, peer["index"]) else 0
+            # uav1 commands: every member pairs ready+command+outcome with it, members
+            # share nothing
+            expected = 3 if 0 in (i, peer["index"]) else 0
             assert peer["matched_endpoints"] == expected, (names[i], peer)
             assert peer["locator"] == f"udp/{lan[peer['index']].address}:{7410 + 2 * peer['index']}"
 

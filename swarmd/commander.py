@@ -1,0 +1,240 @@
+"""The commander's bookkeeping: who is ready for take-off, and what became of each command.
+
+Sans-IO like the engines: time is a ``now: float`` argument (the daemon's ``loop.time()``),
+nothing here sends or sleeps. The daemon feeds it from the data plane's events
+(``ReadinessReceived``, ``OutcomeReceived``) and discovery's (``PeerDiscovered``/``PeerLost``);
+the control socket reads it (``swarmctl status``, ``swarmctl takeoff``).
+
+A member's *effective* readiness is stricter than what it last said: a member the commander
+never heard from, whose SPDP lease ran out, or whose last 1 Hz report is older than
+``stale_after_s`` is not ready, whatever its last report said. The order of those reasons is
+the order an operator checks things in: is it there at all, is it still there, is it quiet,
+and only then what the drone itself says.
+
+``count`` per member is the paper's success measure (section 5: "the 20th 1 Hz message
+received from every publisher"); its name and meaning are stable for the benchmarks.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from swarmd.dataplane.convert import LANDED_STATES
+from swarmd.dataplane.types import CommandResult, Readiness
+
+# Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
+# flight, the cap only stops a runaway script from growing the daemon.
+MAX_TRACKED_COMMANDS: Final = 64
+LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
+
+# Effective-readiness reasons the commander adds to the members' own codes (docs/operations.md)
+NO_REPORT: Final = "no_report"  # nothing received from this member yet
+PEER_LOST: Final = "peer_lost"  # discovery lost the member (lease expired or it left)
+REPORT_STALE: Final = "report_stale"  # reports stopped for longer than stale_after_s
+NOT_A_TARGET: Final = "not_a_member"  # --only named a node that does not report readiness
+
+
+@dataclass(slots=True)
+class _Member:
+    name: str
+    local: bool = False  # the commander's own vehicle, fed from its own PX4 bridge
+    count: int = 0
+    sample: Readiness | None = None
+    last_rx: float | None = None
+    changed_at: float | None = None  # when (ready, reason) of the reports last changed
+    peer_up: bool = False
+
+
+class ReadinessTable:
+    """Per member: its last readiness report, how many arrived, and the effective verdict."""
+
+    def __init__(self, members: Iterable[str], *, stale_after_s: float) -> None:
+        self.stale_after_s = stale_after_s
+        self._members: dict[str, _Member] = {name: _Member(name) for name in members}
+
+    @property
+    def names(self) -> list[str]:
+        return list(self._members)
+
+    def add_local(self, name: str) -> None:
+        """Track the commander's own vehicle too (it flies with the swarm)."""
+        self._members[name] = _Member(name, local=True, peer_up=True)
+
+    def on_report(self, name: str, sample: Readiness, count: int | None, now: float) -> None:
+        """A report arrived (``count``: the data plane's tally; None: count here)."""
+        member = self._members.get(name)
+        if member is None:
+            return  # a bundle participant that writes swarm/ready but is not tracked
+        previous = member.sample
+        if previous is None or (previous.ready, previous.reason) != (sample.ready, sample.reason):
+            member.changed_at = now
+        member.sample = sample
+        member.count = member.count + 1 if count is None else count
+        member.last_rx = now
+        if member.local:
+            member.peer_up = True
+
+    def on_peer(self, name: str, up: bool) -> None:
+        member = self._members.get(name)
+        if member is not None and not member.local:
+            member.peer_up = up
+
+    def verdict(self, name: str, now: float) -> tuple[bool, str | None]:
+        """``(ready, reason)`` as the commander sees it now; reason None when ready."""
+        member = self._members.get(name)
+        if member is None:
+            return False, NOT_A_TARGET
+        if member.sample is None or member.last_rx is None:
+            return False, NO_REPORT
+        if not member.peer_up:
+            return False, PEER_LOST
+        if now - member.last_rx > self.stale_after_s:
+            return False, REPORT_STALE
+        if not member.sample.ready:
+            return False, member.sample.reason or "not_ready"
+        return True, None
+
+    def split(self, targets: Sequence[str], now: float) -> tuple[list[str], dict[str, str]]:
+        """``targets`` into (ready, {not ready: reason}), keeping the given order."""
+        ready: list[str] = []
+        refused: dict[str, str] = {}
+        for name in targets:
+            ok, reason = self.verdict(name, now)
+            if ok:
+                ready.append(name)
+            else:
+                refused[name] = reason or "not_ready"
+        return ready, refused
+
+    def rows(self, now: float) -> dict[str, dict[str, Any]]:
+        """The JSON table of ``swarmctl status`` (schema: docs/operations.md)."""
+        out: dict[str, dict[str, Any]] = {}
+        for name, m in self._members.items():
+            ready, reason = self.verdict(name, now)
+            s = m.sample
+            out[name] = {
+                "ready": ready,
+                "reason": reason,
+                "count": m.count,
+                "seq": None if s is None else s.seq,
+                "age_s": None if m.last_rx is None else round(now - m.last_rx, 3),
+                "since_s": None if m.changed_at is None else round(now - m.changed_at, 3),
+                "local": m.local,
+                "peer_up": m.peer_up,
+                "reported_ready": None if s is None else s.ready,
+                "armed": None if s is None else s.armed,
+                "landed_state": None
+                if s is None
+                else LANDED_STATE_NAMES.get(s.landed_state, str(s.landed_state)),
+                "gps_fix": None if s is None else s.gps_fix,
+                "battery_pct": None if s is None or s.battery_pct < 0 else s.battery_pct,
+                "link_q": None if s is None else round(s.link_q_permille / 1000, 3),
+            }
+        return out
+
+
+@dataclass(slots=True)
+class _NodeOutcome:
+    accepted_at: float | None = None
+    result: CommandResult | None = None  # the final one: COMPLETED, REJECTED or FAILED
+    reason: str = ""
+    final_at: float | None = None
+
+
+@dataclass(slots=True)
+class _Tracked:
+    command_id: int
+    kind: str
+    altitude_m: float | None
+    targets: tuple[str, ...]
+    refused: dict[str, str]
+    sent_at: float
+    outcomes: dict[str, _NodeOutcome] = field(default_factory=dict)
+
+
+FINAL_RESULTS: Final = (CommandResult.COMPLETED, CommandResult.REJECTED, CommandResult.FAILED)
+
+
+class CommandTracker:
+    """What each targeted member answered to each command (commander side)."""
+
+    def __init__(self) -> None:
+        self._commands: OrderedDict[int, _Tracked] = OrderedDict()
+        self.evicted = 0
+        self.unknown_outcomes = 0
+
+    def sent(
+        self,
+        command_id: int,
+        kind: str,
+        targets: Sequence[str],
+        now: float,
+        *,
+        altitude_m: float | None = None,
+        refused: dict[str, str] | None = None,
+    ) -> None:
+        self._commands[command_id] = _Tracked(
+            command_id,
+            kind,
+            altitude_m,
+            tuple(targets),
+            dict(refused or {}),
+            now,
+            {name: _NodeOutcome() for name in targets},
+        )
+        while len(self._commands) > MAX_TRACKED_COMMANDS:
+            self._commands.popitem(last=False)
+            self.evicted += 1
+
+    def record(
+        self, command_id: int, node: str, result: CommandResult, reason: str, now: float
+    ) -> bool:
+        """A member's outcome; False when it answers no command we track (or not to it)."""
+        tracked = self._commands.get(command_id)
+        if tracked is None or node not in tracked.outcomes:
+            self.unknown_outcomes += 1
+            return False
+        entry = tracked.outcomes[node]
+        if result == CommandResult.ACCEPTED:
+            if entry.accepted_at is None:
+                entry.accepted_at = now
+        elif entry.result is None:
+            entry.result, entry.reason, entry.final_at = result, reason, now
+            if entry.accepted_at is None and result == CommandResult.COMPLETED:
+                entry.accepted_at = now  # the ACCEPTED report was overtaken or lost
+        return True
+
+    def snapshot(self, command_id: int, now: float) -> dict[str, Any] | None:
+        """The JSON view of one command (``swarmctl`` polls it), None if unknown."""
+        t = self._commands.get(command_id)
+        if t is None:
+            return None
+        nodes: dict[str, Any] = {}
+        for name, o in t.outcomes.items():
+            state = "pending" if o.accepted_at is None else "accepted"
+            if o.result is not None:
+                state = str(o.result.name).lower()
+            nodes[name] = {
+                "state": state,
+                "reason": o.reason,
+                "latency_s": None if o.accepted_at is None else round(o.accepted_at - t.sent_at, 4),
+                "done_s": None if o.final_at is None else round(o.final_at - t.sent_at, 4),
+            }
+        for name, reason in t.refused.items():
+            nodes[name] = {"state": "refused", "reason": reason, "latency_s": None, "done_s": None}
+        return {
+            "command_id": t.command_id,
+            "kind": t.kind,
+            "altitude_m": t.altitude_m,
+            "targets": list(t.targets),
+            "age_s": round(now - t.sent_at, 3),
+            "done": all(o.result is not None for o in t.outcomes.values()),
+            "nodes": nodes,
+        }
+
+    def recent(self, now: float, limit: int = 8) -> list[dict[str, Any]]:
+        ids = list(self._commands)[-limit:]
+        return [s for i in ids if (s := self.snapshot(i, now)) is not None]

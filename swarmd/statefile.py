@@ -1,0 +1,103 @@
+"""What a node keeps across restarts: its boot counter and the commands it executed.
+
+One small JSON file per node in the state directory (``dataplane.state_dir``, systemd's
+``StateDirectory=swarmd`` = ``/var/lib/swarmd``), named after the node so co-hosted daemons
+(tests, a ground station running several participants) never share one::
+
+    {"boot": 7, "executed": [["lead", 30064771073], ...]}
+
+Why: the data plane's exactly-once argument (docs/dataplane.md, "Exactly once") needs an
+``incarnation`` that grows with every restart (sequence numbers and command ids of a
+restarted commander stay above its earlier lives), and a member that restarts must not
+execute again a command the commander still holds in its history. The executed ids are
+written *before* the command reaches the autopilot (write-ahead): a crash between the two
+loses a command, never repeats one — for a take-off, the safe side.
+
+Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
+file, never half of one. An unreadable or corrupt file is reported and replaced: losing the
+dedup set is the documented degraded mode, refusing to start would ground the drone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final
+
+from swarmd.dataplane.writer import MAX_INCARNATION
+
+FILE_PATTERN: Final = "dataplane-{node}.json"
+_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
+
+
+class StateDirError(OSError):
+    """The state directory cannot be created or written; ``str()`` is one line."""
+
+
+@dataclass(slots=True)
+class NodeState:
+    """The persisted state of one node, and where it lives."""
+
+    path: Path
+    boot: int = 0
+    executed: list[tuple[str, int]] = field(default_factory=list)
+    recovered_from: str | None = None  # why an unreadable file was replaced, for the log
+
+    def save(self) -> None:
+        """Write atomically; raises ``StateDirError`` (one line) on failure."""
+        body = {"boot": self.boot, "executed": [[c, i] for c, i in self.executed]}
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            with open(tmp, "w", encoding="utf-8") as out:
+                json.dump(body, out, separators=(",", ":"))
+                out.flush()
+                os.fsync(out.fileno())
+            os.replace(tmp, self.path)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            raise StateDirError(f"cannot write {self.path}: {exc.strerror}") from None
+
+
+def state_path(state_dir: str | Path, node: str) -> Path:
+    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+
+
+def boot(state_dir: str | Path, node: str) -> NodeState:
+    """Load the node's state, count this boot and save it before anything is sent.
+
+    Raises ``StateDirError`` when the directory cannot be created or written.
+    """
+    directory = Path(state_dir)
+    try:
+        directory.mkdir(parents=True, exist_ok=True, mode=0o750)
+    except OSError as exc:
+        raise StateDirError(f"cannot create state directory {directory}: {exc.strerror}") from None
+    state = load(state_path(directory, node))
+    # wraps long after any drone's life (2^31 boots); 0 stays "never persisted"
+    state.boot = state.boot + 1 if state.boot < MAX_INCARNATION else 1
+    state.save()
+    return state
+
+
+def load(path: Path) -> NodeState:
+    """The state at ``path``; a missing file is a first boot, a corrupt one is replaced."""
+    try:
+        raw = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return NodeState(path)
+    except (OSError, UnicodeDecodeError) as exc:
+        return NodeState(path, recovered_from=f"unreadable ({exc})")
+    try:
+        body = json.loads(raw)
+        boot_count = body["boot"]
+        executed = [(str(c), int(i)) for c, i in body["executed"]]
+        if not isinstance(boot_count, int) or not 0 <= boot_count <= MAX_INCARNATION:
+            raise ValueError(f"boot {boot_count!r} out of range")
+    except (ValueError, KeyError, TypeError) as exc:
+        return NodeState(path, recovered_from=f"corrupt ({type(exc).__name__}: {exc})")
+    return NodeState(path, boot_count, executed)
