@@ -1,5 +1,8 @@
 """``swarmctl status | peers | watch``: ask the local daemon over its control socket.
 
+On the commander the human view ends with the swarm's readiness table (per drone: ready or
+the failing reason, reports received, age of the last one).
+
 A daemon that is not running gives one line on stderr and exit code 2. ``--json`` prints
 the daemon's status object unchanged (schema in docs/operations.md), for scripts and
 ``ssh drone swarmctl status --json | jq``.
@@ -42,13 +45,18 @@ def register(sub: Any) -> None:
     watch.set_defaults(func=_watch)
 
 
-def _common(parser: argparse.ArgumentParser) -> None:
+def socket_argument(parser: argparse.ArgumentParser) -> None:
+    """``--socket PATH`` (default ``$SWARMD_SOCKET`` or the documented path)."""
     parser.add_argument(
         "--socket",
         default=os.environ.get(SOCKET_ENV, DEFAULT_SOCKET),
         metavar="PATH",
         help=f"daemon control socket (default ${SOCKET_ENV} or {DEFAULT_SOCKET})",
     )
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    socket_argument(parser)
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
@@ -118,7 +126,8 @@ def _num(value: Any, fmt: str, unit: str = "") -> str:
     return f"{value:{fmt}}{unit}"
 
 
-def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], indent: str = "  ") -> list[str]:
+def table(headers: Sequence[str], rows: Sequence[Sequence[str]], indent: str = "  ") -> list[str]:
+    """Left-aligned columns, as wide as their widest cell."""
     widths = [
         max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(headers)
     ]
@@ -149,7 +158,7 @@ def render_peers(peers: Sequence[Any]) -> list[str]:
                 _yes_no(p.get("lists_me")),
             ]
         )
-    return _table(["PEER", "STATE", "LAST HEARD", "LOCATOR", "ENDPOINTS", "HEARS ME"], rows)
+    return table(["PEER", "STATE", "LAST HEARD", "LOCATOR", "ENDPOINTS", "HEARS ME"], rows)
 
 
 def render_status(status: dict[str, Any]) -> list[str]:
@@ -178,9 +187,65 @@ def render_status(status: dict[str, Any]) -> list[str]:
             [str(f.get("guid", "?")), str(f.get("vendor", "?")), str(f.get("name") or "-")]
             for f in foreign
         ]
-        lines += _table(["GUID", "VENDOR", "NAME"], rows)
+        lines += table(["GUID", "VENDOR", "NAME"], rows)
     lines.append(render_counters(status.get("counters") or {}))
+    lines += render_swarm(status)
     return lines
+
+
+def render_swarm(status: dict[str, Any]) -> list[str]:
+    """The swarm layer: this drone's PX4 verdict, the data plane, the readiness table."""
+    lines: list[str] = []
+    px4 = status.get("px4")
+    if isinstance(px4, dict):
+        verdict = px4.get("readiness") or {}
+        if not px4.get("enabled"):
+            lines.append("px4: disabled")
+        elif verdict.get("ready"):
+            lines.append(f"px4: ready for take-off  ({verdict.get('landed_state') or '-'})")
+        else:
+            lines.append(
+                f"px4: NOT READY {verdict.get('reason') or '?'}: {verdict.get('detail') or ''}"
+            )
+    dp = status.get("dataplane")
+    if isinstance(dp, dict):
+        if not dp.get("enabled"):
+            lines.append("data plane: disabled")
+        else:
+            c = dp.get("counters") or {}
+            lines.append(
+                f"data plane: {status.get('role', '?')}, incarnation {dp.get('incarnation')}, "
+                f"peers up {len(dp.get('peers_up') or [])}, datagrams in "
+                f"{c.get('rx_datagrams', 0)} out {c.get('tx_datagrams', 0)}, readiness sent "
+                f"{dp.get('readiness_published', 0)}"
+            )
+    rows = status.get("readiness")
+    if isinstance(rows, dict) and rows:
+        ready = sum(1 for r in rows.values() if isinstance(r, dict) and r.get("ready"))
+        lines.append(f"swarm readiness {ready}/{len(rows)} ready")
+        lines += render_readiness(rows)
+    return lines
+
+
+def render_readiness(rows: dict[str, Any]) -> list[str]:
+    """The commander's table: per drone ready or the reason, reports received, report age."""
+    out = []
+    for name, r in rows.items():
+        if not isinstance(r, dict):
+            continue
+        out.append(
+            [
+                name + (" (self)" if r.get("local") else ""),
+                "ready" if r.get("ready") else str(r.get("reason") or "not ready"),
+                _num(r.get("count"), "d"),
+                _num(r.get("age_s"), ".1f", " s"),
+                str(r.get("landed_state") or "-"),
+                _num(r.get("battery_pct"), "d", " %"),
+                _num(r.get("gps_fix"), "d"),
+                _num(r.get("link_q"), ".2f"),
+            ]
+        )
+    return table(["DRONE", "READY", "REPORTS", "AGE", "LANDED", "BATTERY", "GPS", "Q"], out)
 
 
 def render_counters(counters: dict[str, Any]) -> str:

@@ -1,0 +1,263 @@
+"""``swarmctl takeoff | land | hold | abort``: command the swarm from the commander's drone.
+
+``takeoff`` first waits, with a progress line whenever something changes, for readiness as
+asked: by default until every targeted drone has reported (then the ready ones are sent the
+command and the others are listed as refused with their reason); with ``--require-all``
+until every targeted drone is ready (nothing is sent if that does not happen within
+``--timeout``). Then it sends the command and follows each drone's outcome to the end.
+
+Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
+1 some drone refused, failed or did not answer in time; 2 the daemon is not reachable;
+3 ``--require-all`` and not every targeted drone became ready (nothing sent); 64 usage
+(not the commander, unknown node, bad altitude).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any, Final, TextIO
+
+from swarmd.cli.status_cmd import socket_argument, table
+from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+
+EXIT_OK: Final = 0
+EXIT_NOT_ALL: Final = 1
+EXIT_UNREACHABLE: Final = 2
+EXIT_NOT_READY: Final = 3
+EXIT_USAGE: Final = 64  # sysexits EX_USAGE
+POLL_S: Final = 0.2
+UNHEARD: Final = ("no_report", "peer_lost", "report_stale")
+
+
+def register(sub: Any) -> None:
+    takeoff = sub.add_parser(
+        "takeoff", help="take off the swarm's ready drones (run on the commander's drone)"
+    )
+    takeoff.add_argument(
+        "--alt", type=float, default=None, metavar="M",
+        help="metres above home (default: the commander's px4.takeoff_alt_m)",
+    )  # fmt: skip
+    _targets(takeoff)
+    takeoff.add_argument(
+        "--require-all", action="store_true",
+        help="wait until every targeted drone is ready; send nothing otherwise",
+    )  # fmt: skip
+    _common(takeoff, default_timeout=60.0)
+    takeoff.set_defaults(func=_takeoff)
+    for kind, text in (
+        ("land", "land the drones where they are (NAV_LAND)"),
+        ("hold", "hold position (PX4 Hold mode)"),
+        ("abort", "stop a take-off in progress: disarm on the ground, land in the air"),
+    ):
+        p = sub.add_parser(kind, help=text)
+        _targets(p)
+        _common(p, default_timeout=20.0)
+        p.set_defaults(func=_simple, kind=kind)
+
+
+def _targets(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--only", nargs="+", action="extend", default=None, metavar="NODE",
+        help="command only these drones (default: every drone of the swarm)",
+    )  # fmt: skip
+
+
+def _common(p: argparse.ArgumentParser, *, default_timeout: float) -> None:
+    socket_argument(p)
+    p.add_argument(
+        "--timeout", type=float, default=default_timeout, metavar="S",
+        help=f"give up after S seconds in all (default {default_timeout:g})",
+    )  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print one JSON object at the end")
+
+
+class _Run:
+    """One invocation: the connection, the clock and where progress lines go."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.deadline: float = time.monotonic() + max(0.0, float(args.timeout))
+        # with --json, stdout carries only the final object; progress goes to stderr
+        self.progress: TextIO = sys.stderr if args.json else sys.stdout
+        self._last = ""
+
+    def say(self, line: str) -> None:
+        if line != self._last:
+            self._last = line
+            print(line, file=self.progress, flush=True)
+
+    def expired(self) -> bool:
+        return time.monotonic() >= self.deadline
+
+
+def _takeoff(args: argparse.Namespace) -> int:
+    run = _Run(args)
+    try:
+        with ControlClient(args.socket) as client:
+            targets = _check_commander(client, args.only)
+            if isinstance(targets, int):
+                return targets
+            ready = _wait_for_readiness(client, run, targets, args.require_all)
+            if ready is None:
+                return EXIT_NOT_READY
+            request: dict[str, Any] = {"only": targets, "require_all": args.require_all}
+            if args.alt is not None:
+                request["alt_m"] = args.alt
+            try:
+                reply = client.request("takeoff", **request)
+            except RequestError as exc:
+                return _usage(str(exc))
+            if not reply["sent"]:  # nobody ready, or one fell back between wait and send
+                refused = reply.get("refused") or {}
+                code = EXIT_NOT_READY if args.require_all else EXIT_NOT_ALL
+                run.say("not sent, no drone is ready: " + _reasons(refused))
+                _final(args, None, {"refused": refused}, code)
+                return code
+            return _follow(client, run, reply, "takeoff")
+    except DaemonUnreachable as exc:
+        print(f"swarmctl: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+
+
+def _simple(args: argparse.Namespace) -> int:
+    run = _Run(args)
+    try:
+        with ControlClient(args.socket) as client:
+            targets = _check_commander(client, args.only)
+            if isinstance(targets, int):
+                return targets
+            try:
+                reply = client.request("command", kind=args.kind, only=targets)
+            except RequestError as exc:
+                return _usage(str(exc))
+            return _follow(client, run, reply, args.kind)
+    except DaemonUnreachable as exc:
+        print(f"swarmctl: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+
+
+def _usage(message: str) -> int:
+    print(f"swarmctl: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def _check_commander(client: ControlClient, only: list[str] | None) -> list[str] | int:
+    """The targeted drones, or an exit code after a one-line message."""
+    try:
+        status = client.request("status")
+    except RequestError as exc:
+        return _usage(str(exc))
+    if status.get("role") != "commander":
+        return _usage(
+            f"{status.get('node', 'this node')} is not the swarm's commander; "
+            "run this on the commander's drone"
+        )
+    if not (status.get("dataplane") or {}).get("enabled"):
+        return _usage("the data plane is disabled here (dataplane.enabled: false in swarmd.yaml)")
+    known = list(status.get("readiness") or {})
+    if not only:
+        if not known:
+            return _usage("the bundle names no drone that reports readiness to this commander")
+        return known
+    unknown = [n for n in only if n not in known]
+    if unknown:
+        return _usage(f"unknown drone {', '.join(unknown)}; known: {', '.join(known)}")
+    return list(dict.fromkeys(only))
+
+
+def _reasons(refused: dict[str, str]) -> str:
+    return ", ".join(f"{n} ({r})" for n, r in refused.items()) or "-"
+
+
+def _wait_for_readiness(
+    client: ControlClient, run: _Run, targets: Sequence[str], require_all: bool
+) -> list[str] | None:
+    """Wait as asked; the ready drones, or None when --require-all was not met."""
+    while True:
+        rows = client.request("readiness")
+        ready = [t for t in targets if (rows.get(t) or {}).get("ready")]
+        waiting = {
+            t: str((rows.get(t) or {}).get("reason") or "not_ready")
+            for t in targets
+            if t not in ready
+        }
+        unheard = {t: r for t, r in waiting.items() if r in UNHEARD}
+        run.say(
+            f"readiness: {len(ready)}/{len(targets)} ready"
+            + (f"; waiting for {_reasons(waiting)}" if waiting else "")
+        )
+        done = not waiting if require_all else not unheard
+        if done:
+            return ready
+        if run.expired():
+            if require_all:
+                run.say(f"gave up: not every drone became ready ({_reasons(waiting)}); not sent")
+                _final(run.args, None, {"not_ready": waiting}, EXIT_NOT_READY)
+                return None
+            return ready
+        time.sleep(POLL_S)
+
+
+def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) -> int:
+    cid = int(reply["command_id"])
+    refused = reply.get("refused") or {}
+    sent_to = reply.get("ready") or []
+    run.say(
+        f"{kind.upper()} command {cid:#x} sent to {len(sent_to)} drone(s): {', '.join(sent_to)}"
+        + (f"; refused: {_reasons(refused)}" if refused else "")
+    )
+    seen: dict[str, str] = {}
+    snap: dict[str, Any] = {}
+    while True:
+        snap = client.request("outcomes", command_id=cid)
+        for name, node in snap["nodes"].items():
+            state = node["state"]
+            if seen.get(name) != state and state != "pending":
+                seen[name] = state
+                extra = f" ({node['reason']})" if node.get("reason") else ""
+                at = node.get("done_s") if node.get("done_s") is not None else node["latency_s"]
+                when = f" after {at:.3f} s" if isinstance(at, int | float) else ""
+                run.say(f"  {name}: {state}{extra}{when}")
+        if snap["done"] or run.expired():
+            break
+        time.sleep(POLL_S)
+    nodes = snap["nodes"]
+    ok = all(n["state"] == "completed" for n in nodes.values())
+    code = EXIT_OK if ok else EXIT_NOT_ALL
+    if run.args.json:
+        _final(run.args, cid, snap, code)
+    else:
+        print("\n".join(render_outcomes(snap)))
+        print(
+            f"{kind}: {sum(n['state'] == 'completed' for n in nodes.values())}/{len(nodes)} "
+            + ("confirmed airborne" if kind == "takeoff" else "confirmed")
+            + ("" if snap["done"] else " (timed out waiting for the rest)")
+        )
+    return code
+
+
+def _final(args: argparse.Namespace, cid: int | None, body: dict[str, Any], code: int) -> None:
+    if args.json:
+        print(json.dumps({"command_id": cid, **body, "exit_code": code}, indent=2))
+
+
+def render_outcomes(snap: dict[str, Any]) -> list[str]:
+    """The per-drone outcome table."""
+    rows = []
+    for name, n in snap["nodes"].items():
+        latency = n.get("latency_s")
+        done = n.get("done_s")
+        rows.append(
+            [
+                name,
+                str(n["state"]).upper(),
+                str(n.get("reason") or "-"),
+                "-" if latency is None else f"{latency * 1000:.0f} ms",
+                "-" if done is None else f"{done:.2f} s",
+            ]
+        )
+    return table(["DRONE", "RESULT", "REASON", "LATENCY", "DONE AFTER"], rows)
