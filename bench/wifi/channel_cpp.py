@@ -88,8 +88,37 @@ static void Bump(int cls, bool ackOf)
     }
 }
 
-// The MPDU's class: RTPS discovery (metatraffic ports: PB+DG*d+{0, 10+2i}), RTPS user data
-// (+{1, 11+2i}), zenoh (TCP, or UDP 7446/7447: scouting), other (ARP, IGMP, ...).
+// RTPS: discovery when the first submessage naming an entity names a builtin one (entity
+// kind 0xC0 bits set: SPDP/SEDP writers and readers), user data otherwise. The port rule
+// (PB+DG*d+{0, 10+2i} metatraffic) is only the fallback: Cyclone's default participant
+// index "none" puts its unicast locators on ephemeral ports.
+static int RtpsClass(const uint8_t* m, uint32_t len, uint16_t dport)
+{
+    uint32_t off = 20;  // RTPS header
+    while (off + 4 <= len) {
+        uint8_t id = m[off];
+        bool le = m[off + 1] & 1;
+        uint16_t sublen = le ? (uint16_t)(m[off + 2] | m[off + 3] << 8)
+                             : (uint16_t)(m[off + 2] << 8 | m[off + 3]);
+        const uint8_t* body = m + off + 4;
+        int writerAt = -1;
+        if (id == 0x15 || id == 0x16) writerAt = 8;  // DATA, DATA_FRAG: flags, octets, rd
+        else if (id == 0x06 || id == 0x07 || id == 0x08 || id == 0x12 || id == 0x13)
+            writerAt = 4;  // ACKNACK, HEARTBEAT, GAP, NACK_FRAG, HEARTBEAT_FRAG: reader, writer
+        if (writerAt >= 0) {
+            if (off + 4 + writerAt + 4 > len) break;
+            uint8_t kind = body[writerAt + 3];
+            return (kind & 0xC0) == 0xC0 ? DISC : USER;
+        }
+        if (sublen == 0) break;
+        off += 4 + sublen;
+    }
+    int port = (dport - 7400) % 250;
+    return (dport >= 7400 && (port == 0 || (port >= 10 && port % 2 == 0))) ? DISC : USER;
+}
+
+// The MPDU's class: RTPS discovery or user data (RtpsClass), zenoh (TCP, or UDP 7446/7447:
+// scouting), other (ARP, IGMP, ...).
 static int Classify(Ptr<const Packet> p, WifiMacHeader& hdr, bool& isData)
 {
     Ptr<Packet> c = p->Copy();
@@ -98,7 +127,7 @@ static int Classify(Ptr<const Packet> p, WifiMacHeader& hdr, bool& isData)
     c->RemoveHeader(hdr);
     if (!hdr.IsData()) return OTHER;
     isData = true;
-    uint8_t buf[80];
+    uint8_t buf[320];
     uint32_t len = c->CopyData(buf, sizeof(buf));
     if (len < 8 || buf[0] != 0xAA || buf[1] != 0xAA) return OTHER;
     uint16_t et = (uint16_t)(buf[6] << 8 | buf[7]);
@@ -113,10 +142,8 @@ static int Classify(Ptr<const Packet> p, WifiMacHeader& hdr, bool& isData)
     uint16_t dport = (uint16_t)(udp[2] << 8 | udp[3]);
     if (sport == 7446 || dport == 7446 || sport == 7447 || dport == 7447) return ZENOH;
     const uint8_t* pl = udp + 8;
-    if (len >= 8 + ihl + 8 + 4 && std::memcmp(pl, "RTPS", 4) == 0 && dport >= 7400) {
-        int off = (dport - 7400) % 250;
-        return (off == 0 || (off >= 10 && off % 2 == 0)) ? DISC : USER;
-    }
+    uint32_t plLen = len - (8 + ihl + 8);
+    if (plLen >= 20 && std::memcmp(pl, "RTPS", 4) == 0) return RtpsClass(pl, plLen, dport);
     return OTHER;
 }
 

@@ -61,6 +61,10 @@ class Interrupted(Exception):
 
 
 def _on_sigterm(signum: int, frame: FrameType | None) -> None:
+    # once: a second SIGTERM (e.g. from `timeout` and a shell at once) must not abort the
+    # teardown the first one started
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise Interrupted()
 
 
@@ -302,12 +306,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _on_sigterm)
     progress = Progress(len(sizes) * args.repeat * len(names))
     written: list[Path] = []
+    failures = 0
     try:
         for n in sizes:
             for run in range(1, args.repeat + 1):
                 for name in names:
                     keep = args.out / "logs" if args.keep_logs else None
-                    result = run_one(name, n, run, opts, progress, keep)
+                    try:
+                        result = run_one(name, n, run, opts, progress, keep)
+                    except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
+                        # one broken run (a stack crashed, ns-3 died) must not lose the matrix
+                        progress.step()
+                        print(
+                            f"\nwifi bench: {name} n={n} run {run} failed: {exc}", file=sys.stderr
+                        )
+                        failures += 1
+                        continue
                     path = runs_dir / f"{name}-n{n}-r{run}.json"
                     path.write_text(json.dumps(result, indent=1) + "\n")
                     written.append(path)
@@ -321,7 +335,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for path in written:
         r = json.loads(path.read_text())
         print(report.one_line(r))
-    return 0
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
 
+import cyclonedds.idl.annotations as annotate  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
 from cyclonedds.pub import DataWriter  # noqa: E402
@@ -27,8 +28,14 @@ from bench.wifi.peers.common import Tally, parse_args, stop_event, write_result 
 
 
 @dataclass
+@annotate.keylist(["member"])
 class Ready(IdlStruct, typename="swarmbench::Ready"):
-    """The 1 Hz readiness sample, the same shape for every contender."""
+    """The 1 Hz readiness sample, keyed by member.
+
+    Keyed so each member is its own instance: with a keyless type the reader's default
+    history (keep last 1) would hold one sample for the whole swarm, and two members'
+    samples arriving between two ``take`` calls would overwrite each other.
+    """
 
     member: int
     seq: int

@@ -54,8 +54,12 @@ def main() -> int:
                 stop.wait(max(0.0, next_t - time.monotonic()))
             result.update(sent=seq)
     finally:
-        session.close()  # type: ignore[no-untyped-call]
-    write_result(args.out, result)
+        # the result first: zenoh's close can time out on a congested channel (ZError)
+        write_result(args.out, result)
+        try:
+            session.close()  # type: ignore[no-untyped-call]
+        except zenoh.ZError as exc:
+            print(f"zenoh close: {exc}", file=sys.stderr)
     return 0
 
 
