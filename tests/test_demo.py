@@ -1,0 +1,78 @@
+"""``make demo`` end to end with three drones: in namespaces (root) and on the loopback.
+
+The demo runs as a process, as ``make demo`` runs it, and must leave nothing behind: no
+namespace of its run, no process, no per-run directory. Its outputs are checked for content,
+not for speed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from swarmd.netns import list_namespaces
+
+N = 3
+FIELDS = ("discovered_all_s", "frames_sent", "ready", "airborne", "command_latency_s")
+
+
+def _run_demo(out: Path, *extra: str) -> tuple[subprocess.CompletedProcess[str], int]:
+    """The finished demo and its pid (its namespaces are named ``swn-<pid>-...``)."""
+    argv = [sys.executable, "-m", "swarmd.demo", "--n", str(N), "--out", str(out),
+            "--late-gps", "3", *extra]  # fmt: skip
+    with subprocess.Popen(  # noqa: S603 - our own module, argv list
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    ) as proc:
+        try:
+            stdout, stderr = proc.communicate(timeout=150)
+        except subprocess.TimeoutExpired:
+            proc.terminate()  # the demo cleans up on SIGTERM
+            stdout, stderr = proc.communicate(timeout=30)
+        return subprocess.CompletedProcess(argv, proc.returncode, stdout, stderr), proc.pid
+
+
+def _check(out: Path, proc: subprocess.CompletedProcess[str], mode: str) -> None:
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["mode"] == mode and summary["n"] == N
+    assert summary["takeoff"]["swarmctl_exit_code"] == 0
+    assert summary["takeoff"]["airborne"] == N
+    nodes = summary["nodes"]
+    assert sorted(nodes) == ["drone-01", "drone-02", "lead"]
+    for name, node in nodes.items():
+        assert all(k in node for k in FIELDS), (name, node)
+        assert node["ready"] and node["airborne"], (name, node)
+        assert node["discovered_all_s"] is not None and node["discovered_all_s"] >= 0
+        assert node["frames_sent"] > 0
+        assert node["command_latency_s"] is not None
+    assert nodes["lead"]["role"] == "commander"
+    assert (out / "timeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # plain progress lines (no TTY here): discovery, readiness, take-off, IN_AIR, the table
+    text = proc.stdout
+    assert "[" in text and "\x1b[H" not in text
+    assert "swarmctl: readiness:" in text and "TAKEOFF command" in text
+    assert f"IN_AIR {N}/{N}" in text
+    assert "CMD LATENCY (ms)" in text
+    leftover = [line for line in text.splitlines() if line.startswith("set up in ")]
+    run_dir = leftover[0].split()[3].rstrip(":")
+    assert not os.path.exists(run_dir), f"{run_dir} left behind"
+
+
+@pytest.mark.netns
+def test_demo_in_namespaces(tmp_path: Path) -> None:
+    proc, pid = _run_demo(tmp_path / "out")
+    _check(tmp_path / "out", proc, "namespaces")
+    assert "each a network namespace" in proc.stdout
+    leaked = [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]
+    assert not leaked, f"the demo left namespaces behind: {leaked}"
+
+
+def test_demo_on_loopback(tmp_path: Path) -> None:
+    proc, _ = _run_demo(tmp_path / "out", "--loopback")
+    _check(tmp_path / "out", proc, "loopback")
+    assert "running every drone on loopback (127.0.0.1) with distinct ports" in proc.stdout
