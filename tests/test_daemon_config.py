@@ -32,6 +32,28 @@ def test_documented_default_config_loads() -> None:
     assert (cfg.engine_mode, cfg.log_format) == ("adaptive", "auto")
 
 
+def test_documented_default_enables_px4_and_the_data_plane() -> None:
+    cfg = load_config(REPO / "config" / "swarmd.yaml")
+    assert cfg.px4.enabled and cfg.px4.connection == "udpin:0.0.0.0:14540"
+    assert cfg.px4.sysid is None  # from the bundle participant's mavlink_sysid
+    assert cfg.dataplane.enabled and cfg.dataplane.readiness_period_s == 1.0
+    assert cfg.dataplane.state_dir == "/var/lib/swarmd"
+
+
+def test_swarm_sections_absent_mean_off_present_mean_on() -> None:
+    off = parse_config(MINIMAL, "c.yaml")
+    assert not off.px4.enabled and not off.dataplane.enabled
+    on = parse_config(
+        MINIMAL + "px4:\n  sysid: 7\ndataplane:\n  readiness_period_s: 2\n  state_dir: st\n",
+        "/etc/swarmd/c.yaml",
+        base=Path("/etc/swarmd"),
+    )
+    assert on.px4.enabled and on.px4.sysid == 7
+    assert on.dataplane.enabled and on.dataplane.stale_after_s == 6.0  # 3 periods
+    assert on.dataplane.state_dir == "/etc/swarmd/st"
+    assert not parse_config(MINIMAL + "dataplane:\n  enabled: false\n").dataplane.enabled
+
+
 def test_minimal_config_resolves_relative_paths_and_defaults() -> None:
     cfg = parse_config(MINIMAL, "/etc/swarmd/swarmd.yaml", base=Path("/etc/swarmd"))
     assert cfg.bundle.path == "/etc/swarmd/bundle.swb"
@@ -54,6 +76,20 @@ def test_minimal_config_resolves_relative_paths_and_defaults() -> None:
         ("discovery:\n  mode: fast\n", 8, "discovery.mode", "unknown value 'fast'"),
         ("logging:\n  level: loud\n", 8, "logging.level", "unknown value 'loud'"),
         ("discovery:\n  overrides:\n    lease: 3\n", 9, "discovery.overrides.lease", "unknown"),
+        ("px4:\n  connection: tcp:1.2.3.4:5\n", 8, "px4.connection", "no known scheme"),
+        ("px4:\n  connection: serial:/dev/ttyTHS1:12345\n", 8, "px4.connection", "baud"),
+        ("px4:\n  sysid: 300\n", 8, "px4.sysid", "300 is outside 1..255"),
+        ("px4:\n  sysid: 1.5\n", 8, "px4.sysid", "not a whole number"),
+        ("px4:\n  takeoff_alt_m: 500\n", 8, "px4.takeoff_alt_m", "outside"),
+        ("px4:\n  enabled: yes please\n", 8, "px4.enabled", "expected true or false"),
+        ("px4:\n  rtl: true\n", 8, "px4.rtl", "unknown field 'rtl'"),
+        ("dataplane:\n  readiness_period_s: 0\n", 8, "dataplane.readiness_period_s", "0 is"),
+        (
+            "dataplane:\n  readiness_period_s: 2\n  stale_after_s: 1\n",
+            9,
+            "dataplane.stale_after_s",
+            "does not exceed readiness_period_s",
+        ),
     ],
 )
 def test_bad_field_is_one_line_with_file_line_field_and_fix(
