@@ -54,6 +54,7 @@ import heapq
 import random
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Final
 
 from swarmd.bundle.model import Bundle, Participant
@@ -64,7 +65,7 @@ from swarmd.discovery.awareness import (
     renewal_period_s,
 )
 from swarmd.discovery.config import EngineConfig, resolve_timing
-from swarmd.discovery.digest import encode_heard, lists
+from swarmd.discovery.digest import bitmap_size
 from swarmd.discovery.events import (
     Event,
     ForeignParticipantSeen,
@@ -86,7 +87,6 @@ from swarmd.rtps.spdp import (
     SpdpAlive,
     SpdpDisposed,
     SpdpParticipant,
-    SpdpSample,
     decode_spdp,
     encode_spdp,
     encode_spdp_dispose,
@@ -164,7 +164,6 @@ class DiscoveryEngine:
                 continue
             self._peers[p.index] = Peer(
                 participant=p,
-                matches=tuple(bundle.matches(me, p)),
                 bundle_locator=(p.ipv4, bundle.metatraffic_port(p)) if p.ipv4 else None,
                 retry=RetrySchedule(config.max_attempts),
                 reack=MinInterval(config.retransmit_min_gap_s),
@@ -183,11 +182,17 @@ class DiscoveryEngine:
         self._sn = 0
         self._content: SpdpParticipant | None = None
         self._encoded: dict[GuidPrefix | None, bytes] = {}
-        # peers whose RetrySchedule is armed, and a lazy min-heap of (deadline, seq, index,
-        # kind) for retries and leases: get_timer() stays O(log N) per input at N = 200
+        # our bit in a peer's heard digest (digest.py layout), looked up on every DATA(p)
+        self._my_octet, self._my_bit = me.index >> 3, 1 << (me.index & 7)
+        # the heard digest we send, kept up to date on discovery and loss rather than
+        # rebuilt from all N peers on every send
+        self._heard_bits = bytearray(bitmap_size(self._size))
+        # peers whose RetrySchedule is armed, and two lazy min-heaps of (deadline, index),
+        # one for retries and one for leases: get_timer() is O(1) amortised per input, and
+        # a lease renewal (the bulk of the traffic) touches no heap at all
         self._armed: set[int] = set()
-        self._deadlines: list[tuple[float, int, int, str]] = []
-        self._heap_seq = 0
+        self._retries: list[tuple[float, int]] = []
+        self._leases: list[tuple[float, int]] = []
         self._events: deque[Event] = deque()
         self._outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
         self._foreign = ForeignTable(MAX_FOREIGN)
@@ -223,7 +228,7 @@ class DiscoveryEngine:
             self._dropped["stopped"] += 1
             return
         try:
-            header, samples = _decode(bytes(data))
+            header, samples = _decode(data if type(data) is bytes else bytes(data))
         except DecodeError:
             self._drop("decode_error", source)
             return
@@ -235,11 +240,12 @@ class DiscoveryEngine:
             self._drop("not_spdp", source)
             return
         for sample in samples:
-            if isinstance(sample, SpdpAlive):
+            if isinstance(sample, _Alive):
                 self._on_alive(sample, source, now)
             else:
                 self._on_disposed(sample, source, now)
-        self._settle_if_done()
+        if self.phase == Phase.ANNOUNCE:
+            self._settle_if_done()
 
     def handle_timer(self, now: float) -> None:
         """Act on every deadline at or before ``now`` (call at ``get_timer()``)."""
@@ -318,21 +324,20 @@ class DiscoveryEngine:
 
     def get_timer(self) -> float | None:
         """The earliest absolute deadline (same clock as ``now``), or None."""
-        if self.phase == Phase.STOPPED:
+        phase = self.phase
+        if phase == Phase.STOPPED:
             return None
-        deadlines: list[float] = []
-        if self.phase == Phase.BOOT and self._boot_deadline is not None:
-            deadlines.append(self._boot_deadline)
-        if self.phase == Phase.PASSIVE and self._passive_deadline is not None:
-            deadlines.append(self._passive_deadline)
-        if self.phase in (Phase.ANNOUNCE, Phase.STEADY):
-            renewal = self._renewal.deadline()
-            if renewal is not None:
-                deadlines.append(renewal)
-        peer_deadline = self._next_peer_deadline()
-        if peer_deadline is not None:
-            deadlines.append(peer_deadline)
-        return min(deadlines) if deadlines else None
+        # called after every input (a simulator: ~10^6 times per run), so no temporaries
+        if phase == Phase.BOOT:
+            best = self._boot_deadline
+        elif phase == Phase.PASSIVE:
+            best = self._passive_deadline
+        else:
+            best = self._renewal.due
+        for at in (self._next_lease(), self._next_retry()):
+            if at is not None and (best is None or at < best):
+                best = at
+        return best
 
     def next_event(self) -> Event | None:
         return self._events.popleft() if self._events else None
@@ -391,7 +396,7 @@ class DiscoveryEngine:
                     "guid": f"{p.participant.guid_prefix}:1c1",
                     "last_heard_s": None if p.last_heard is None else round(now - p.last_heard, 3),
                     "locator": None if p.locator is None else f"udp/{p.locator[0]}:{p.locator[1]}",
-                    "matched_endpoints": len(p.matches) if p.discovered else 0,
+                    "matched_endpoints": len(p.matches or ()) if p.discovered else 0,
                     "lists_me": p.discovered and p.lists_me,
                 }
             )
@@ -424,7 +429,8 @@ class DiscoveryEngine:
 
     # ------------------------------------------------------------- receiving
 
-    def _on_alive(self, sample: SpdpAlive, source: tuple[str, int], now: float) -> None:
+    def _on_alive(self, alive: _Alive, source: tuple[str, int], now: float) -> None:
+        sample = alive.sample
         part = sample.participant
         if (part.domain_id is not None and part.domain_id != self._bundle.domain_id) or (
             part.domain_tag not in (None, "")
@@ -448,31 +454,44 @@ class DiscoveryEngine:
         if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
             self._drop("own", source)
             return
-        self._heard(peer, sample, source, now)
+        self._heard(peer, alive, source, now)
 
-    def _heard(self, peer: Peer, sample: SpdpAlive, source: tuple[str, int], now: float) -> None:
+    def _heard(self, peer: Peer, alive: _Alive, source: tuple[str, int], now: float) -> None:
+        # The hot path: at N = 1000 every engine runs this ~10^4 times a minute, almost
+        # always for a renewal that changes nothing but the lease. Everything the sender
+        # decides alike for all receivers (target, lease) was derived once in ``_decode``.
+        sample = alive.sample
         part = sample.participant
+        sn = sample.sequence_number
         directed = sample.destination is not None
+        last_sn, last_rx = peer.last_sn, peer.last_rx
         repeat = (
-            peer.last_sn == sample.sequence_number
-            and peer.last_rx is not None
-            and now - peer.last_rx >= self._config.retransmit_min_gap_s
+            last_sn == sn
+            and last_rx is not None
+            and now - last_rx >= self._config.retransmit_min_gap_s
         )
-        restarted = peer.last_sn is not None and sample.sequence_number < peer.last_sn
-        newly = not peer.discovered
-        peer.last_heard = now
-        peer.last_sn, peer.last_rx = sample.sequence_number, now
-        peer.lease_s = clamp_lease(part.lease_duration.total_seconds())
-        peer.locator = _unicast_target(part.metatraffic_unicast_locators) or source
-        peer.lists_me = lists(part.heard, self._me.index)
+        restarted = last_sn is not None and sn < last_sn
+        newly = peer.state != PeerState.DISCOVERED
+        peer.last_heard = peer.last_rx = now
+        peer.last_sn = sn
+        peer.lease_s = alive.lease_s
+        peer.locator = alive.target or source
+        heard, octet = part.heard, self._my_octet
+        peer.lists_me = (
+            heard is not None and octet < len(heard) and (heard[octet] & self._my_bit) != 0
+        )
         peer.link_quality_permille = part.link_quality_permille
-        self._push_deadline(peer.last_heard + peer.lease_s, peer.index, "lease")
-        if restarted and peer.discovered:
+        self._queue_lease(peer, now + alive.lease_s)
+        if restarted and not newly:
             # its SN went back: it restarted and forgot us; answer it like a new peer
             peer.told = False
             self._disarm(peer)
         elif newly:
             peer.state = PeerState.DISCOVERED
+            self._heard_bits[peer.index >> 3] |= 1 << (peer.index & 7)
+            matches = peer.matches
+            if matches is None:
+                matches = peer.matches = tuple(self._bundle.matches(self._me, peer.participant))
             peer.told = False
             self._disarm(peer)
             peer.times_discovered += 1
@@ -480,7 +499,7 @@ class DiscoveryEngine:
                 PeerDiscovered(
                     peer.participant.name,
                     peer.participant.guid_prefix,
-                    peer.matches,
+                    matches,
                     "directed" if directed else "multicast",
                 )
             )
@@ -614,27 +633,52 @@ class DiscoveryEngine:
         after = peer.retry.deadline()
         if after is not None and after != before:
             self._armed.add(peer.index)
-            self._push_deadline(after, peer.index, "retry")
+            heapq.heappush(self._retries, (after, peer.index))
 
     def _disarm(self, peer: Peer) -> None:
         """The debt is paid or void: forget the deadline and the attempts."""
         peer.retry.reset()
         self._armed.discard(peer.index)
 
-    def _push_deadline(self, at: float, index: int, kind: str) -> None:
-        self._heap_seq += 1
-        heapq.heappush(self._deadlines, (at, self._heap_seq, index, kind))
-
-    def _next_peer_deadline(self) -> float | None:
-        """The earliest live retry or lease deadline; stale heap entries are dropped."""
-        heap = self._deadlines
+    def _next_retry(self) -> float | None:
+        """The earliest armed retry; entries of disarmed or re-armed retries are dropped."""
+        heap = self._retries
         while heap:
-            at, _, index, kind = heap[0]
-            peer = self._peers[index]
-            live = peer.retry.deadline() if kind == "retry" else peer.lease_deadline()
-            if live == at:
+            at, index = heap[0]
+            if self._peers[index].retry.due == at:
                 return at
             heapq.heappop(heap)
+        return None
+
+    def _queue_lease(self, peer: Peer, deadline: float) -> None:
+        """``peer``'s lease now ends at ``deadline``. Only a deadline earlier than the one
+        queued needs a heap entry (a shorter advertised lease, a rediscovery); a later one
+        is picked up by ``_next_lease`` when the queued entry surfaces."""
+        queued = peer.lease_queued
+        if queued is None or deadline < queued:
+            peer.lease_queued = deadline
+            heapq.heappush(self._leases, (deadline, peer.index))
+
+    def _next_lease(self) -> float | None:
+        """The earliest live lease deadline. A surfacing entry whose peer was renewed since
+        is re-queued at the live deadline: one heap operation per peer per lease period,
+        instead of one per DATA(p) received."""
+        heap = self._leases
+        while heap:
+            at, index = heap[0]
+            peer = self._peers[index]
+            if peer.lease_queued != at:  # superseded by an earlier deadline
+                heapq.heappop(heap)
+                continue
+            live = peer.lease_deadline()
+            if live == at:
+                return at
+            if live is None:
+                peer.lease_queued = None
+                heapq.heappop(heap)
+            else:
+                peer.lease_queued = live
+                heapq.heapreplace(heap, (live, index))
         return None
 
     def _reply_delay(self) -> float:
@@ -726,13 +770,17 @@ class DiscoveryEngine:
     # --------------------------------------------------------------- leases
 
     def _expire_leases(self, now: float) -> None:
-        for p in self._peers.values():
-            deadline = p.lease_deadline()
-            if deadline is not None and now >= deadline:
-                self._lose(p, "lease")
+        expired: list[Peer] = []
+        while (at := self._next_lease()) is not None and now >= at:
+            peer = self._peers[heapq.heappop(self._leases)[1]]
+            peer.lease_queued = None
+            expired.append(peer)
+        for p in sorted(expired, key=lambda p: p.index):  # events in bundle order
+            self._lose(p, "lease")
 
     def _lose(self, peer: Peer, reason: str) -> None:
         peer.state = PeerState.LOST
+        self._heard_bits[peer.index >> 3] &= ~(1 << (peer.index & 7))
         peer.told = False
         peer.lists_me = False
         self._disarm(peer)
@@ -742,7 +790,7 @@ class DiscoveryEngine:
 
     def _participant_data(self) -> SpdpParticipant:
         meta_uc, meta_mc, user_uc = self._static_locators
-        heard = encode_heard((p.index for p in self._peers.values() if p.discovered), self._size)
+        heard = bytes(self._heard_bits)
         return SpdpParticipant(
             self._me.guid_prefix,
             domain_id=self._bundle.domain_id,
@@ -809,13 +857,31 @@ class DiscoveryEngine:
         self._emit(PacketDropped(reason, source))
 
 
+@dataclass(frozen=True, slots=True)
+class _Alive:
+    """A received DATA(p) with what every receiver derives from it alike, computed once."""
+
+    sample: SpdpAlive
+    target: tuple[str, int] | None  # its first usable unicast metatraffic locator
+    lease_s: float  # its advertised lease, clamped (peers.clamp_lease)
+
+
 @functools.lru_cache(maxsize=256)
-def _decode(data: bytes) -> tuple[Header, tuple[SpdpSample, ...]]:
-    """``decode_spdp``, memoised: decoding is pure, and a simulator running N engines in one
-    process hands the same multicast datagram to N - 1 of them (a daemon sees each once).
-    Errors are not cached, so garbage costs a full decode each time, as it should."""
+def _decode(data: bytes) -> tuple[Header, tuple[_Alive | SpdpDisposed, ...]]:
+    """``decode_spdp``, memoised with the per-datagram facts: decoding is pure, and a
+    simulator running N engines in one process hands the same multicast datagram to N - 1
+    of them (a daemon sees each once). Nothing returned is ever mutated. Errors are not
+    cached, so garbage costs a full decode each time, as it should."""
     header, samples = decode_spdp(data)
-    return header, tuple(samples)
+    out: list[_Alive | SpdpDisposed] = []
+    for sample in samples:
+        if isinstance(sample, SpdpAlive):
+            part = sample.participant
+            target = _unicast_target(part.metatraffic_unicast_locators)
+            out.append(_Alive(sample, target, clamp_lease(part.lease_duration.total_seconds())))
+        else:
+            out.append(sample)
+    return header, tuple(out)
 
 
 def _unicast_target(locators: tuple[Locator, ...]) -> tuple[str, int] | None:
@@ -823,7 +889,10 @@ def _unicast_target(locators: tuple[Locator, ...]) -> tuple[str, int] | None:
     for loc in locators:
         if loc.kind != LOCATOR_KIND_UDPv4 or not 0 < loc.port <= 0xFFFF:
             continue
-        if loc.is_multicast or loc.address[12:] in (b"\x00\x00\x00\x00", b"\xff\xff\xff\xff"):
+        octets = loc.address[12:]
+        # 224.0.0.0/4 is multicast (RFC 5771); 0.0.0.0 and the broadcast address name no peer.
+        # Plain bytes tests: this runs per datagram, and ipaddress objects cost ~10 us here
+        if 224 <= octets[0] <= 239 or octets in (b"\x00\x00\x00\x00", b"\xff\xff\xff\xff"):
             continue
-        return loc.host, loc.port
+        return ".".join(map(str, octets)), loc.port
     return None

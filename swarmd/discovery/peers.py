@@ -45,7 +45,6 @@ class Peer:
     """
 
     participant: Participant
-    matches: tuple[Match, ...]
     bundle_locator: tuple[str, int] | None  # bundle ipv4 + metatraffic port, if known
     retry: RetrySchedule
     reack: MinInterval
@@ -60,6 +59,13 @@ class Peer:
     last_rx: float | None = None
     link_quality_permille: int | None = None
     times_discovered: int = 0
+    # matched endpoints, computed when first discovered: a bundle row per peer would cost
+    # every engine O(N) ``Bundle.matches`` calls at start-up, mostly for nobody (sim at N=1000)
+    matches: tuple[Match, ...] | None = None
+    # the lease deadline this peer has in the engine's lease heap. A renewal only moves the
+    # lease later, so it leaves the queued entry alone; the engine re-queues the live
+    # deadline when the stale one surfaces (``DiscoveryEngine._next_lease``)
+    lease_queued: float | None = None
 
     @property
     def index(self) -> int:
