@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -76,3 +78,33 @@ def test_demo_on_loopback(tmp_path: Path) -> None:
     proc, _ = _run_demo(tmp_path / "out", "--loopback")
     _check(tmp_path / "out", proc, "loopback")
     assert "running every drone on loopback (127.0.0.1) with distinct ports" in proc.stdout
+
+
+@pytest.mark.netns
+def test_ctrl_c_stops_every_drone_and_removes_the_namespaces() -> None:
+    argv = [sys.executable, "-m", "swarmd.demo", "--n", "3", "--out", "/nonexistent-demo-out"]
+    proc = subprocess.Popen(  # noqa: S603 - our own module, argv list
+        argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    watchdog = threading.Timer(60.0, proc.kill)  # a hung demo fails the test, never the run
+    watchdog.start()
+    try:
+        assert proc.stdout is not None
+        seen: list[str] = []
+        for line in proc.stdout:
+            seen.append(line)
+            if "started 3 swarmd + 3 simulators" in line:
+                break
+        run_dir = next(ln.split()[3].rstrip(":") for ln in seen if ln.startswith("set up in "))
+        assert [n for n in list_namespaces() if n.startswith(f"swn-{proc.pid}-")]
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=45)
+    finally:
+        watchdog.cancel()
+    assert proc.returncode == 130, "".join(seen) + rest
+    assert "interrupted: stopping every drone" in rest
+    assert not [n for n in list_namespaces() if n.startswith(f"swn-{proc.pid}-")]
+    assert not os.path.exists(run_dir)
+    # every process of the run had its config (or socket) path in the run folder
+    left = subprocess.run(["pgrep", "-f", run_dir], capture_output=True, text=True, check=False)  # noqa: S607
+    assert left.stdout.strip() == "", left.stdout

@@ -29,6 +29,7 @@ EXIT_NOT_ALL: Final = 1
 EXIT_UNREACHABLE: Final = 2
 EXIT_NOT_READY: Final = 3
 EXIT_USAGE: Final = 64  # sysexits EX_USAGE
+EXIT_INTERRUPTED: Final = 130  # 128 + SIGINT, as a shell reports it
 POLL_S: Final = 0.2
 UNHEARD: Final = ("no_report", "peer_lost", "report_stale")
 
@@ -121,6 +122,9 @@ def _takeoff(args: argparse.Namespace) -> int:
     except DaemonUnreachable as exc:
         print(f"swarmctl: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
+    except KeyboardInterrupt:  # a command already sent keeps running on the drones
+        print("swarmctl: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 def _simple(args: argparse.Namespace) -> int:
@@ -138,6 +142,9 @@ def _simple(args: argparse.Namespace) -> int:
     except DaemonUnreachable as exc:
         print(f"swarmctl: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
+    except KeyboardInterrupt:  # a command already sent keeps running on the drones
+        print("swarmctl: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 def _usage(message: str) -> int:
