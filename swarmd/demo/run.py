@@ -315,14 +315,17 @@ class Demo:
         }
         report.write_json(out_dir / "summary.json", body)
         png = out_dir / "timeline.png"
-        report.write_timeline(
-            png,
-            [d.name for d in s.drones],
-            logs,
-            obs.in_air_at,
-            duration,
-            f"swarmd demo, {n} drones ({body['mode']}): discovery phases, readiness, take-off",
-        )
+        try:
+            report.write_timeline(
+                png,
+                [d.name for d in s.drones],
+                logs,
+                obs.in_air_at,
+                duration,
+                f"swarmd demo, {n} drones ({body['mode']}): discovery phases, readiness, take-off",
+            )
+        except ImportError:  # matplotlib comes with the dev extra (make demo installs it)
+            self.say("timeline skipped: matplotlib is not installed (pip install -e '.[dev]')")
         self.say("")
         self.say("\n".join(report.summary_rows(nodes)))
         self.say("")
