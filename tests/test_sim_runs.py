@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
+import swarmd.discovery.engine as engine_module
 from swarmd.sim.__main__ import main
 from swarmd.sim.calibrate import compare, load_testbed
 from swarmd.sim.runner import Scenario, run
-from swarmd.sim.swarmd_node import shared_decode
 
 
 def dumps(result: dict[str, object]) -> str:
@@ -20,22 +20,19 @@ def dumps(result: dict[str, object]) -> str:
 @pytest.mark.parametrize("protocol", ["swarmd", "cyclone-model", "zenoh-model"])
 def test_same_seed_gives_byte_identical_json(protocol: str) -> None:
     scenario = Scenario(protocol, 6, seed=7, window_s=20.0)
-    with shared_decode():
-        first, second = run(scenario), run(scenario)
+    first, second = run(scenario), run(scenario)
     assert dumps(first) == dumps(second)
 
 
 def test_another_seed_gives_another_run() -> None:
-    with shared_decode():
-        a = run(Scenario("swarmd", 6, seed=1, window_s=20.0))
-        b = run(Scenario("swarmd", 6, seed=2, window_s=20.0))
+    a = run(Scenario("swarmd", 6, seed=1, window_s=20.0))
+    b = run(Scenario("swarmd", 6, seed=2, window_s=20.0))
     assert dumps(a) != dumps(b)
 
 
 @pytest.mark.parametrize("n", [2, 5, 12])
 def test_swarmd_engines_converge(n: int) -> None:
-    with shared_decode():
-        r = run(Scenario("swarmd", n, seed=3))
+    r = run(Scenario("swarmd", n, seed=3))
     assert r["success_rate"] == 1.0
     assert r["all_discovered"] is True
     assert r["delivery_success"] == 1.0
@@ -43,28 +40,27 @@ def test_swarmd_engines_converge(n: int) -> None:
 
 @pytest.mark.parametrize("n", [5, 12])
 def test_swarmd_stays_under_ten_discovery_frames_per_node(n: int) -> None:
-    with shared_decode():
-        r = run(Scenario("swarmd", n, seed=3))
+    r = run(Scenario("swarmd", n, seed=3))
     # the target (PHY frames incl. ACKs, first 60 s); a baseline is far above it
     assert r["frames_per_node_60s"] < 10
-    with shared_decode():
-        stock = run(Scenario("cyclone-model", n, seed=3))
+    stock = run(Scenario("cyclone-model", n, seed=3))
     assert stock["frames_per_node_60s"] > 10
 
 
 def test_swarmd_on_a_paper_line_in_paper_mode_converges() -> None:
-    with shared_decode():
-        r = run(Scenario("swarmd", 8, seed=4, placement="line", spacing_m=1.0, swarmd_mode="paper"))
+    r = run(Scenario("swarmd", 8, seed=4, placement="line", spacing_m=1.0, swarmd_mode="paper"))
     assert r["success_rate"] == 1.0
     # paper mode waits out U(0, 8..20 s) before announcing
     assert r["all_discovered_s"] is not None and r["all_discovered_s"] > 0
 
 
-def test_the_decode_memo_changes_nothing() -> None:
+def test_the_engines_shared_decode_memo_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the engine memoises decoding per datagram (one multicast reaches N - 1 engines of a
+    # run); without the memo every receiver decodes its own copy, with the same outcome
     scenario = Scenario("swarmd", 5, seed=9, window_s=15.0)
+    memo = run(scenario)
+    monkeypatch.setattr(engine_module, "_decode", engine_module._decode_fresh)
     plain = run(scenario)
-    with shared_decode():
-        memo = run(scenario)
     assert dumps(plain) == dumps(memo)
 
 

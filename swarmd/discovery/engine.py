@@ -49,8 +49,8 @@ Invariant: ``receive_datagram`` never raises for any input; malformed input beco
 
 from __future__ import annotations
 
-import functools
 import heapq
+import math
 import random
 from collections import deque
 from collections.abc import Callable
@@ -76,7 +76,7 @@ from swarmd.discovery.events import (
 )
 from swarmd.discovery.peers import MAX_FOREIGN, ForeignTable, Peer, PeerState, clamp_lease
 from swarmd.discovery.phases import Phase, Trigger, next_phase
-from swarmd.discovery.timers import Backoff, MinInterval, Periodic, RetrySchedule
+from swarmd.discovery.timers import Backoff, LeaseQueue, MinInterval, Periodic, RetrySchedule
 from swarmd.link.sample import LinkSample
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator, LOCATOR_KIND_UDPv4
@@ -155,8 +155,9 @@ class DiscoveryEngine:
             (Locator.udpv4(*self.spdp_multicast),),
             (Locator.udpv4(local_ipv4, self.user_port),),
         )
-        self._by_prefix: dict[GuidPrefix, int] = {
-            p.guid_prefix: p.index for p in bundle.participants
+        # keyed by the prefix's 12 octets: bytes hash and compare in C, GuidPrefix does not
+        self._by_prefix: dict[bytes, int] = {
+            p.guid_prefix.value: p.index for p in bundle.participants
         }
         self._peers: dict[int, Peer] = {}
         for p in bundle.participants:
@@ -164,6 +165,7 @@ class DiscoveryEngine:
                 continue
             self._peers[p.index] = Peer(
                 participant=p,
+                index=p.index,
                 bundle_locator=(p.ipv4, bundle.metatraffic_port(p)) if p.ipv4 else None,
                 retry=RetrySchedule(config.max_attempts),
                 reack=MinInterval(config.retransmit_min_gap_s),
@@ -184,15 +186,18 @@ class DiscoveryEngine:
         self._encoded: dict[GuidPrefix | None, bytes] = {}
         # our bit in a peer's heard digest (digest.py layout), looked up on every DATA(p)
         self._my_octet, self._my_bit = me.index >> 3, 1 << (me.index & 7)
+        self._my_prefix = me.guid_prefix.value
         # the heard digest we send, kept up to date on discovery and loss rather than
         # rebuilt from all N peers on every send
         self._heard_bits = bytearray(bitmap_size(self._size))
-        # peers whose RetrySchedule is armed, and two lazy min-heaps of (deadline, index),
-        # one for retries and one for leases: get_timer() is O(1) amortised per input, and
-        # a lease renewal (the bulk of the traffic) touches no heap at all
+        # peers whose RetrySchedule is armed, a lazy min-heap of their (deadline, index), and
+        # the lease deadlines: get_timer() stays O(1) amortised per input, and a lease
+        # renewal (the bulk of the traffic) costs O(1)
         self._armed: set[int] = set()
         self._retries: list[tuple[float, int]] = []
-        self._leases: list[tuple[float, int]] = []
+        self._leases = LeaseQueue()
+        self._reack_gap_s = config.retransmit_min_gap_s
+        self._spread_at = (math.nan, 0.0)  # (Q, _spread_s() at that Q)
         self._events: deque[Event] = deque()
         self._outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
         self._foreign = ForeignTable(MAX_FOREIGN)
@@ -232,7 +237,7 @@ class DiscoveryEngine:
         except DecodeError:
             self._drop("decode_error", source)
             return
-        if header.guid_prefix == self._me.guid_prefix:
+        if header.guid_prefix.value == self._my_prefix:
             # our own multicast, looped back by the kernel (IP_MULTICAST_LOOP): count only
             self._dropped["own"] += 1
             return
@@ -318,6 +323,8 @@ class DiscoveryEngine:
 
     def datagrams_to_send(self, now: float) -> list[tuple[bytes, tuple[str, int]]]:
         """Every queued (payload, (host, port)); the queue is emptied."""
+        if not self._outbox:
+            return []
         out = list(self._outbox)
         self._outbox.clear()
         return out
@@ -440,11 +447,11 @@ class DiscoveryEngine:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
             self._drop("not_for_me", source)
             return
-        index = self._by_prefix.get(part.guid_prefix)
+        index = self._by_prefix.get(alive.prefix)
         if index is None:
             self._see_foreign(part, "not_in_bundle", now)
             return
-        if not part.is_swarmd:
+        if not alive.is_swarmd:
             self._see_foreign(part, "vendor_mismatch", now)
             return
         if part.bundle_digest != self._digest:
@@ -465,11 +472,7 @@ class DiscoveryEngine:
         sn = sample.sequence_number
         directed = sample.destination is not None
         last_sn, last_rx = peer.last_sn, peer.last_rx
-        repeat = (
-            last_sn == sn
-            and last_rx is not None
-            and now - last_rx >= self._config.retransmit_min_gap_s
-        )
+        repeat = last_sn == sn and last_rx is not None and now - last_rx >= self._reack_gap_s
         restarted = last_sn is not None and sn < last_sn
         newly = peer.state != PeerState.DISCOVERED
         peer.last_heard = peer.last_rx = now
@@ -481,7 +484,7 @@ class DiscoveryEngine:
             heard is not None and octet < len(heard) and (heard[octet] & self._my_bit) != 0
         )
         peer.link_quality_permille = part.link_quality_permille
-        self._queue_lease(peer, now + alive.lease_s)
+        self._leases.renew(peer.index, alive.lease_s, now)
         if restarted and not newly:
             # its SN went back: it restarted and forgot us; answer it like a new peer
             peer.told = False
@@ -518,8 +521,9 @@ class DiscoveryEngine:
             # it still does not list us although it would have answered our last frame by
             # now: that frame was lost. Answer now instead of waiting out the backoff.
             peer.told = False
-        if not self._owes(peer):
-            self._disarm(peer)
+        if peer.told and peer.lists_me:  # _owes(peer) for a discovered peer: the usual case
+            if peer.retry.due is not None or peer.retry.attempts:
+                self._disarm(peer)
         elif not peer.told or peer.retry.deadline() is None:
             # first answer after a holdoff; a peer we already told and are waiting on keeps
             # its backoff, since its frame may simply have crossed ours in flight
@@ -529,7 +533,7 @@ class DiscoveryEngine:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
             self._drop("not_for_me", source)
             return
-        index = self._by_prefix.get(sample.guid_prefix)
+        index = self._by_prefix.get(sample.guid_prefix.value)
         peer = self._peers.get(index) if index is not None else None
         if peer is None:
             self._foreign.remove(sample.guid_prefix)
@@ -621,11 +625,19 @@ class DiscoveryEngine:
         return len(self._armed)
 
     def _any_pending(self) -> bool:
-        for index in list(self._armed):
-            if self._owes(self._peers[index]):
-                return True
-            self._disarm(self._peers[index])
-        return False
+        # runs after every datagram while announcing: stop at the first debt that stands
+        # (no copy of the armed set), then disarm the stale ones seen before it
+        stale: list[Peer] = []
+        found = False
+        for index in self._armed:
+            peer = self._peers[index]
+            if self._owes(peer):
+                found = True
+                break
+            stale.append(peer)
+        for peer in stale:
+            self._disarm(peer)
+        return found
 
     def _arm(self, peer: Peer, at: float) -> None:
         before = peer.retry.deadline()
@@ -650,36 +662,9 @@ class DiscoveryEngine:
             heapq.heappop(heap)
         return None
 
-    def _queue_lease(self, peer: Peer, deadline: float) -> None:
-        """``peer``'s lease now ends at ``deadline``. Only a deadline earlier than the one
-        queued needs a heap entry (a shorter advertised lease, a rediscovery); a later one
-        is picked up by ``_next_lease`` when the queued entry surfaces."""
-        queued = peer.lease_queued
-        if queued is None or deadline < queued:
-            peer.lease_queued = deadline
-            heapq.heappush(self._leases, (deadline, peer.index))
-
     def _next_lease(self) -> float | None:
-        """The earliest live lease deadline. A surfacing entry whose peer was renewed since
-        is re-queued at the live deadline: one heap operation per peer per lease period,
-        instead of one per DATA(p) received."""
-        heap = self._leases
-        while heap:
-            at, index = heap[0]
-            peer = self._peers[index]
-            if peer.lease_queued != at:  # superseded by an earlier deadline
-                heapq.heappop(heap)
-                continue
-            live = peer.lease_deadline()
-            if live == at:
-                return at
-            if live is None:
-                peer.lease_queued = None
-                heapq.heappop(heap)
-            else:
-                peer.lease_queued = live
-                heapq.heapreplace(heap, (live, index))
-        return None
+        earliest = self._leases.earliest()
+        return None if earliest is None else earliest[0]
 
     def _reply_delay(self) -> float:
         if self._config.mode == "paper":
@@ -689,15 +674,20 @@ class DiscoveryEngine:
 
     def _spread_s(self) -> float:
         """Adaptive mode's W at the current Q: the time N frames take at the budget rate."""
-        return passive_window_s(
-            "adaptive",
-            self._q,
-            swarm_size=len(self._bundle.participants),
-            t_min_s=self._timing.t_min_s,
-            t_max_s=self._timing.t_max_s,
-            announce_budget_fps=self._config.announce_budget_fps,
-            q_floor=self._config.q_floor,
-        )
+        q, spread = self._spread_at
+        if q != self._q:  # computed once per Q: every held-back reply and retry asks
+            q = self._q
+            spread = passive_window_s(
+                "adaptive",
+                q,
+                swarm_size=len(self._bundle.participants),
+                t_min_s=self._timing.t_min_s,
+                t_max_s=self._timing.t_max_s,
+                announce_budget_fps=self._config.announce_budget_fps,
+                q_floor=self._config.q_floor,
+            )
+            self._spread_at = (q, spread)
+        return spread
 
     def _answer_window(self) -> float:
         """The longest a peer holds back its answer to a frame of ours (its reply delay)."""
@@ -742,8 +732,12 @@ class DiscoveryEngine:
             not silent and (pending >= self._config.multicast_threshold or unreachable)
         ):
             self._send(None, now, "renewal" if renewal_due and not due else "announce")
+            # _covered(p) for every peer, with its common case inline: O(N) per multicast
             for p in self._peers.values():
-                self._covered(p, now)
+                if p.state == PeerState.DISCOVERED:
+                    p.told, p.told_at = True, now
+                if p.retry.due is not None:
+                    self._covered(p, now)
             return
         for p in due:
             target = p.target()
@@ -771,15 +765,15 @@ class DiscoveryEngine:
 
     def _expire_leases(self, now: float) -> None:
         expired: list[Peer] = []
-        while (at := self._next_lease()) is not None and now >= at:
-            peer = self._peers[heapq.heappop(self._leases)[1]]
-            peer.lease_queued = None
-            expired.append(peer)
+        while (earliest := self._leases.earliest()) is not None and now >= earliest[0]:
+            self._leases.remove(earliest[1])
+            expired.append(self._peers[earliest[1]])
         for p in sorted(expired, key=lambda p: p.index):  # events in bundle order
             self._lose(p, "lease")
 
     def _lose(self, peer: Peer, reason: str) -> None:
         peer.state = PeerState.LOST
+        self._leases.remove(peer.index)
         self._heard_bits[peer.index >> 3] &= ~(1 << (peer.index & 7))
         peer.told = False
         peer.lists_me = False
@@ -862,23 +856,50 @@ class _Alive:
     """A received DATA(p) with what every receiver derives from it alike, computed once."""
 
     sample: SpdpAlive
+    prefix: bytes  # the participant's GUID prefix octets
+    is_swarmd: bool  # vendor id
     target: tuple[str, int] | None  # its first usable unicast metatraffic locator
     lease_s: float  # its advertised lease, clamped (peers.clamp_lease)
 
 
-@functools.lru_cache(maxsize=256)
-def _decode(data: bytes) -> tuple[Header, tuple[_Alive | SpdpDisposed, ...]]:
-    """``decode_spdp``, memoised with the per-datagram facts: decoding is pure, and a
-    simulator running N engines in one process hands the same multicast datagram to N - 1
-    of them (a daemon sees each once). Nothing returned is ever mutated. Errors are not
-    cached, so garbage costs a full decode each time, as it should."""
+_Decoded = tuple[Header, tuple[_Alive | SpdpDisposed, ...]]
+
+# Decoded datagrams kept for reuse, oldest evicted first. Decoding is pure and nothing
+# decoded is ever mutated, so engines may share it: a simulator running N engines in one
+# process hands the same multicast (the same bytes object) to N - 1 of them back to back.
+# A daemon sees each datagram once; the memo then costs one dict lookup.
+DECODE_MEMO_ENTRIES: Final = 256
+_decoded: dict[bytes, _Decoded] = {}
+
+
+def _decode(data: bytes) -> _Decoded:
+    """``_decode_fresh``, memoised. Errors are not cached: garbage costs a full decode each
+    time, as it should."""
+    hit = _decoded.get(data)
+    if hit is None:
+        hit = _decode_fresh(data)
+        if len(_decoded) >= DECODE_MEMO_ENTRIES:
+            del _decoded[next(iter(_decoded))]
+        _decoded[data] = hit
+    return hit
+
+
+def _decode_fresh(data: bytes) -> _Decoded:
+    """``decode_spdp`` plus the per-datagram facts of each DATA(p)."""
     header, samples = decode_spdp(data)
     out: list[_Alive | SpdpDisposed] = []
     for sample in samples:
         if isinstance(sample, SpdpAlive):
             part = sample.participant
-            target = _unicast_target(part.metatraffic_unicast_locators)
-            out.append(_Alive(sample, target, clamp_lease(part.lease_duration.total_seconds())))
+            out.append(
+                _Alive(
+                    sample,
+                    part.guid_prefix.value,
+                    part.is_swarmd,
+                    _unicast_target(part.metatraffic_unicast_locators),
+                    clamp_lease(part.lease_duration.total_seconds()),
+                )
+            )
         else:
             out.append(sample)
     return header, tuple(out)

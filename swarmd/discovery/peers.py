@@ -45,6 +45,7 @@ class Peer:
     """
 
     participant: Participant
+    index: int  # participant.index, read on every DATA(p) (a plain field, not a property)
     bundle_locator: tuple[str, int] | None  # bundle ipv4 + metatraffic port, if known
     retry: RetrySchedule
     reack: MinInterval
@@ -62,14 +63,6 @@ class Peer:
     # matched endpoints, computed when first discovered: a bundle row per peer would cost
     # every engine O(N) ``Bundle.matches`` calls at start-up, mostly for nobody (sim at N=1000)
     matches: tuple[Match, ...] | None = None
-    # the lease deadline this peer has in the engine's lease heap. A renewal only moves the
-    # lease later, so it leaves the queued entry alone; the engine re-queues the live
-    # deadline when the stale one surfaces (``DiscoveryEngine._next_lease``)
-    lease_queued: float | None = None
-
-    @property
-    def index(self) -> int:
-        return self.participant.index
 
     @property
     def discovered(self) -> bool:

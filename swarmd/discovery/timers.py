@@ -5,7 +5,8 @@ schedules anything (the engine folds their deadlines into its one ``get_timer()`
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,3 +94,51 @@ class Periodic:
 
     def deadline(self) -> float | None:
         return self.due
+
+
+@dataclass(slots=True)
+class LeaseQueue:
+    """Lease deadlines of the discovered peers, earliest first, at O(1) per renewal.
+
+    A renewal pushes a peer's deadline to ``now + lease``. Peers that advertise the same
+    lease length therefore expire in the order they were last heard, so each length keeps
+    an insertion-ordered table and a renewal moves the peer to its end; the earliest
+    deadline is the smallest head over the (few) lengths in use. A heap would cost a log N
+    operation on every DATA(p), since the next peer to renew is nearly always the one whose
+    lease ends first. Requires a non-decreasing ``now``, as everything keyed by ``now``.
+    """
+
+    _by_length: dict[float, OrderedDict[int, float]] = field(default_factory=dict)
+    _length_of: dict[int, float] = field(default_factory=dict)
+
+    def renew(self, index: int, lease_s: float, now: float) -> None:
+        """Peer ``index`` was heard at ``now``; its lease (``lease_s`` long) restarts."""
+        old = self._length_of.get(index)
+        if old is not None and old != lease_s:
+            self._drop(index, old)
+        self._length_of[index] = lease_s
+        table = self._by_length.get(lease_s)
+        if table is None:
+            table = self._by_length[lease_s] = OrderedDict()
+        table[index] = now + lease_s
+        table.move_to_end(index)
+
+    def remove(self, index: int) -> None:
+        old = self._length_of.pop(index, None)
+        if old is not None:
+            self._drop(index, old)
+
+    def earliest(self) -> tuple[float, int] | None:
+        """(deadline, index) of the lease that ends first, None when no lease runs."""
+        best: tuple[float, int] | None = None
+        for table in self._by_length.values():
+            index, deadline = next(iter(table.items()))
+            if best is None or (deadline, index) < best:
+                best = (deadline, index)
+        return best
+
+    def _drop(self, index: int, length: float) -> None:
+        table = self._by_length[length]
+        del table[index]
+        if not table:
+            del self._by_length[length]

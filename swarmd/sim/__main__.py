@@ -24,7 +24,6 @@ from swarmd.sim.progress import ProgressBar
 from swarmd.sim.protocols import PROTOCOLS
 from swarmd.sim.runner import WINDOW_S, Scenario, run
 from swarmd.sim.summary import summarise, summary_table
-from swarmd.sim.swarmd_node import shared_decode
 
 
 def _int_list(text: str) -> list[int]:
@@ -110,26 +109,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         runs_file = (args.out / "runs.jsonl").open("w", encoding="utf-8")
     try:
-        with shared_decode():
-            for i, s in enumerate(scenarios):
-                label = f"{s.protocol} n={s.n} seed={s.seed}"
-                report = None if bar is None else bar.reporter(i, label)
-                milestones: dict[str, float] = {}
-                t0 = time.perf_counter()
-                result = run(s, report, milestones=milestones, wall=time.perf_counter)
-                if not args.no_wall:
-                    result["wall_s"] = round(time.perf_counter() - t0, 3)
-                    done = milestones.get("all_discovered")
-                    result["wall_to_all_discovered_s"] = (
-                        None if done is None else round(done - t0, 3)
-                    )
-                results.append(result)
-                if runs_file is not None:
-                    runs_file.write(json.dumps(result, sort_keys=True) + "\n")
-                    runs_file.flush()
-                if args.json:
-                    brief = {k: v for k, v in result.items() if k != "series"}
-                    print(json.dumps(brief, sort_keys=True), flush=True)
+        for i, s in enumerate(scenarios):
+            label = f"{s.protocol} n={s.n} seed={s.seed}"
+            report = None if bar is None else bar.reporter(i, label)
+            milestones: dict[str, float] = {}
+            t0 = time.perf_counter()
+            result = run(s, report, milestones=milestones, wall=time.perf_counter)
+            if not args.no_wall:
+                result["wall_s"] = round(time.perf_counter() - t0, 3)
+                done = milestones.get("all_discovered")
+                result["wall_to_all_discovered_s"] = None if done is None else round(done - t0, 3)
+            results.append(result)
+            if runs_file is not None:
+                runs_file.write(json.dumps(result, sort_keys=True) + "\n")
+                runs_file.flush()
+            if args.json:
+                brief = {k: v for k, v in result.items() if k != "series"}
+                print(json.dumps(brief, sort_keys=True), flush=True)
     finally:
         if runs_file is not None:
             runs_file.close()

@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any, Final
 
 from swarmd.sim.runner import Scenario, run
-from swarmd.sim.swarmd_node import shared_decode
 
 # issue 6 prototype, stock implementations, N = 10, line at 2 m, 60 s
 SANITY: Final = (
@@ -127,13 +126,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     protocols = sorted({str(r["protocol"]) for r in reference})
     sim: list[dict[str, Any]] = []
-    with shared_decode():
-        for proto in protocols:
-            for n in sizes:
-                for k in range(args.repeat):
-                    # the testbed's geometry: a line, 2 m apart, all in range
-                    scenario = Scenario(proto, n, args.seed + k, placement="line", spacing_m=2.0)
-                    sim.append(run(scenario))
+    for proto in protocols:
+        for n in sizes:
+            for k in range(args.repeat):
+                # the testbed's geometry: a line, 2 m apart, all in range
+                scenario = Scenario(proto, n, args.seed + k, placement="line", spacing_m=2.0)
+                sim.append(run(scenario))
     rows = compare(sim, reference, args.tolerance)
     source = str(args.testbed) if args.testbed else "issue-6 prototype sanity figures"
     print(f"reference: {source}; tolerance +-{args.tolerance:.0%}")
