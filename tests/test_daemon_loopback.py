@@ -122,7 +122,7 @@ def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
                 junk.close()
                 await _until(
                     lambda: (
-                        a.counters.get("rx_unicast", 0) == rx_before + len(payloads)
+                        a.counters.get("rx_unicast", 0) >= rx_before + len(payloads)
                         # >=: a legitimate frame may also be dropped meanwhile (e.g. a
                         # renewal racing the stop); the garbage itself must all be counted
                         and garbage_drops() >= before + 2 * len(payloads)
