@@ -17,6 +17,8 @@ from typing import Final, NoReturn
 
 import yaml
 
+from swarmd.yamldoc import FieldError, composed, read_text
+
 EX_CONFIG: Final = 78  # sysexits.h: configuration error
 
 LINK_SOURCES: Final = ("nl80211", "wext", "file", "static")
@@ -31,20 +33,8 @@ MIN_POLL_S: Final = 0.05  # faster polling would only burn CPU: drivers average 
 MAX_POLL_S: Final = 60.0
 
 
-class ConfigError(ValueError):
+class ConfigError(FieldError):
     """A config file the daemon refuses; ``str()`` is one line naming file, line, field, fix."""
-
-    def __init__(self, file: str, line: int | None, field: str, problem: str, fix: str) -> None:
-        self.file = file
-        self.line = line
-        self.field = field
-        self.problem = problem
-        self.fix = fix
-        super().__init__(str(self))
-
-    def __str__(self) -> str:
-        where = f"{self.file}:{self.line}" if self.line is not None else self.file
-        return " ".join(f"{where}: field {self.field}: {self.problem}; fix: {self.fix}".split())
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,15 +158,9 @@ def load_config(path: str | Path, *, engine_fields: frozenset[str] | None = None
     fields); None skips that check.
     """
     file = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(
-            file, None, "-", "config file not found", "give the path of swarmd.yaml"
-        ) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) else "not UTF-8 text"
-        raise ConfigError(file, None, "-", f"cannot read: {reason}", "check the file") from None
+    text = read_text(
+        path, ConfigError, missing_fix="give the path of swarmd.yaml", what="config file"
+    )
     return parse_config(text, file, base=Path(path).parent, engine_fields=engine_fields)
 
 
@@ -188,28 +172,8 @@ def parse_config(
     engine_fields: frozenset[str] | None = None,
 ) -> DaemonConfig:
     """Check a config given as YAML text; relative paths resolve against ``base``."""
-    loader = yaml.SafeLoader(text)
-    try:
-        try:
-            root = loader.get_single_node()
-        except yaml.MarkedYAMLError as exc:
-            mark = exc.problem_mark or exc.context_mark
-            raise ConfigError(
-                file,
-                mark.line + 1 if mark is not None else None,
-                "<yaml>",
-                f"malformed YAML: {exc.problem or exc.context}",
-                "correct the YAML syntax at this line (indentation, ':' after keys, quotes)",
-            ) from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(
-                file, None, "<yaml>", f"malformed YAML: {exc}", "fix the syntax"
-            ) from None
-        if root is None:
-            raise ConfigError(file, 1, "<document>", "the file is empty", "see config/swarmd.yaml")
+    with composed(text, file, ConfigError, empty_fix="see config/swarmd.yaml") as (root, loader):
         return _Checker(file, loader, base, engine_fields).config(root)
-    finally:
-        loader.dispose()
 
 
 class _Checker:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import Final
 
+from swarmd.yamldoc import FieldError
+
 EX_OK: Final = 0
 EX_USAGE: Final = 2  # argparse's own code for a bad command line
 EX_DATAERR: Final = 65  # sysexits.h: the input data was incorrect (a bad mission)
@@ -25,20 +27,8 @@ def _one_line(text: str) -> str:
     return " ".join(text.split())
 
 
-class MissionError(ValueError):
+class MissionError(FieldError):
     """A mission file that cannot become a bundle; nothing has been written."""
-
-    def __init__(self, file: str, line: int | None, field: str, problem: str, fix: str) -> None:
-        self.file = file
-        self.line = line
-        self.field = field
-        self.problem = problem
-        self.fix = fix
-        super().__init__(str(self))
-
-    def __str__(self) -> str:
-        where = f"{self.file}:{self.line}" if self.line is not None else self.file
-        return _one_line(f"{where}: field {self.field}: {self.problem}; fix: {self.fix}")
 
 
 class BundleError(ValueError):

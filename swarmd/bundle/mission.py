@@ -38,6 +38,7 @@ from swarmd.rtps.ports import (
     PORT_BASE,
     max_participant_index,
 )
+from swarmd.yamldoc import composed, read_text
 
 # Names that become file names (keys/nodes/<name>.key) and DDS entity names: keep them to a
 # portable, shell-safe alphabet.
@@ -108,57 +109,17 @@ class Mission:
 
 def load_mission(path: str | Path) -> Mission:
     """Read and check a mission file; raises ``MissionError`` (one line) on any problem."""
-    file = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise MissionError(
-            file, None, "-", "file not found", "give the path of a mission YAML file"
-        ) from None
-    except UnicodeDecodeError as exc:
-        raise MissionError(
-            file, None, "-", f"not UTF-8 text ({exc.reason})", "save the mission as UTF-8"
-        ) from None
-    except OSError as exc:
-        raise MissionError(
-            file, None, "-", f"cannot read: {exc.strerror}", "check the path and permissions"
-        ) from None
-    return parse_mission(text, file)
-
-
-# libyaml's loader when PyYAML was built with it (10x faster on a 500-drone mission); both
-# keep line marks on every node
-_Loader: type[yaml.SafeLoader] = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    text = read_text(path, MissionError, missing_fix="give the path of a mission YAML file")
+    return parse_mission(text, str(path))
 
 
 def parse_mission(text: str, file: str = "<mission>") -> Mission:
     """Check a mission given as YAML text; ``file`` only labels the error messages."""
-    loader = _Loader(text)
-    try:
-        try:
-            root = loader.get_single_node()
-        except yaml.MarkedYAMLError as exc:
-            mark = exc.problem_mark or exc.context_mark
-            line = mark.line + 1 if mark is not None else None
-            problem = exc.problem or exc.context or "malformed YAML"
-            raise MissionError(
-                file,
-                line,
-                "<yaml>",
-                f"malformed YAML: {problem}",
-                "correct the YAML syntax at this line (indentation, ':' after keys, quotes)",
-            ) from None
-        except yaml.YAMLError as exc:
-            raise MissionError(
-                file, None, "<yaml>", f"malformed YAML: {exc}", "correct the YAML syntax"
-            ) from None
-        if root is None:
-            raise MissionError(
-                file, 1, "<document>", "the file is empty", "write a mission (see README)"
-            )
+    with composed(text, file, MissionError, empty_fix="write a mission (see README)") as (
+        root,
+        loader,
+    ):
         return _Checker(file, loader).mission(root)
-    finally:
-        loader.dispose()
 
 
 class _Checker:
