@@ -17,6 +17,7 @@ import pytest
 
 from bench.wifi.metrics import frame_series, layer_counters, percentile, success
 from bench.wifi.ns3_loader import unavailable_reason
+from bench.wifi.report import summarise, table
 from bench.wifi.topology import ns3_mac
 from swarmd.netns import list_namespaces
 
@@ -48,6 +49,7 @@ def _stats() -> dict[str, object]:
         "classes": ["rtps_discovery", "rtps_user", "zenoh", "other", "ack"],
         "per_second": [[5, 0, 0, 1, 2], [1, 3, 0, 0, 1]],
         "acks_per_second_by_class": [[2, 0, 0, 0, 0], [0, 1, 0, 0, 0]],
+        "lag_max_ms_per_second": [0.5, 1.0],
         "nodes": [
             {
                 "mac_tx": 10,
@@ -146,3 +148,32 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     assert cyclone["success_rate"] is not None
     assert (tmp_path / "summary.json").exists()
     assert (tmp_path / "table.md").read_text().count("| swarmd | 3 |") == 1
+
+
+def _run(contender: str, peak: int, *, valid: bool = True) -> dict[str, object]:
+    return {
+        "contender": contender,
+        "n": 10,
+        "run": 1,
+        "valid": valid,
+        "peak_pps": peak,
+        "peak_discovery_pps": peak,
+        "discovery_frames_60s": peak * 2,
+        "success": True,
+        "success_rate": 1.0,
+        "all_discovered_s": 0.5,
+        "mac_drop_ratio": 0.0,
+        "phy_drop_density": 0.1,
+        "retx_ratio": 0.2,
+        "rt_lag_p99_ms": 1.0,
+        "note": "",
+    }
+
+
+def test_report_leaves_invalid_runs_out_and_gives_ratios() -> None:
+    rows = summarise(
+        [_run("swarmd", 50), _run("cyclonedds", 1000), _run("cyclonedds", 9, valid=False)]
+    )
+    cyclone = next(r for r in rows if r["contender"] == "cyclonedds")
+    assert (cyclone["runs"], cyclone["valid_runs"], cyclone["peak_pps_mean"]) == (2, 1, 1000.0)
+    assert "| 10 | 5.0 % | - | 5.0 % | - |" in table(rows)

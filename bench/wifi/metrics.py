@@ -142,5 +142,8 @@ def run_measures(
         "mac_drop_ratio": _ratio(c["n_drop_mac"], c["n_tx_mac"]),
         "phy_drop_density": _ratio(c["n_drop_phy"], c["n_tx_phy"]),
         "retx_ratio": _ratio(c["n_retx_phy"], c["n_tx_phy"]),
+        "lag_max_ms_per_second": [
+            round(float(x), 1) for x in stats["lag_max_ms_per_second"][start_s : start_s + window_s]
+        ],
         **lag_stats(stats, float(start_s)),
     }
