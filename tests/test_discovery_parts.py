@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from swarmd.bundle.model import DiscoveryParams
 from swarmd.discovery.awareness import (
+    advertised_lease_s,
     draw_passive_timer_s,
     normalise_q,
     passive_window_s,
@@ -20,7 +21,7 @@ from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.digest import bitmap_size, decode_heard, encode_heard, lists
 from swarmd.discovery.memnet import Channel, MemNet
 from swarmd.discovery.phases import Phase, TransitionError, Trigger, next_phase
-from swarmd.discovery.timers import Backoff, MinInterval, Periodic, RetrySchedule
+from swarmd.discovery.timers import Backoff, LeaseQueue, MinInterval, Periodic, RetrySchedule
 
 WINDOW = {"t_min_s": 8.0, "t_max_s": 20.0, "announce_budget_fps": 50.0, "q_floor": 0.1}
 
@@ -67,6 +68,69 @@ def test_passive_timer_is_uniform_on_the_window() -> None:
 def test_renewals_get_denser_as_q_drops(q: float, period: float) -> None:
     got = renewal_period_s(q, lease_s=20.0, per_lease_min=2.0, per_lease_max=4.0)
     assert got == pytest.approx(period)
+
+
+@pytest.mark.parametrize(
+    ("n", "q", "period", "lease"),
+    [
+        (200, 1.0, 10.0, 20.0),  # 200 / 50 = 4 s < lease / 2: the budget does not bind
+        (500, 1.0, 10.0, 20.0),  # exactly at the budget
+        (1000, 1.0, 20.0, 40.0),  # N / budget, and two renewals per (longer) lease
+        (1000, 0.0, 20.0, 80.0),  # Q = 0 still gets four renewals per lease
+        (300, 0.0, 6.0, 24.0),
+    ],
+)
+def test_renewal_budget_stretches_the_period_and_the_lease_with_n(
+    n: int, q: float, period: float, lease: float
+) -> None:
+    got = renewal_period_s(
+        q,
+        lease_s=20.0,
+        per_lease_min=2.0,
+        per_lease_max=4.0,
+        swarm_size=n,
+        renewal_budget_fps=50.0,
+    )
+    assert got == pytest.approx(period)
+    # the swarm's renewal load stays within the budget
+    assert n / got <= 50.0 + 1e-9
+    advertised = advertised_lease_s(
+        q, lease_s=20.0, renewal_period_s=got, per_lease_min=2.0, per_lease_max=4.0
+    )
+    assert advertised == pytest.approx(lease)
+
+
+_lease_ops = st.lists(
+    st.tuples(
+        st.sampled_from(["renew", "remove"]),
+        st.integers(0, 7),
+        st.sampled_from([1.0, 5.0, 20.0, 40.0]),
+        st.floats(0.0, 3.0),
+    ),
+    max_size=60,
+)
+
+
+@given(_lease_ops)
+def test_lease_queue_always_yields_the_earliest_live_deadline(
+    ops: list[tuple[str, int, float, float]],
+) -> None:
+    queue, deadlines, now = LeaseQueue(), {}, 0.0
+    for op, index, lease_s, step in ops:
+        now += step  # non-decreasing, as the engine's now
+        if op == "renew":
+            queue.renew(index, lease_s, now)
+            deadlines[index] = now + lease_s
+        else:
+            queue.remove(index)
+            deadlines.pop(index, None)
+        earliest = queue.earliest()
+        if not deadlines:
+            assert earliest is None
+        else:
+            assert earliest is not None
+            assert earliest[0] == min(deadlines.values())
+            assert deadlines[earliest[1]] == earliest[0]
 
 
 @given(st.sets(st.integers(0, 199)), st.integers(200, 260))

@@ -57,7 +57,13 @@ def draw_passive_timer_s(rng: random.Random, window_s: float) -> float:
 
 
 def renewal_period_s(
-    q: float, *, lease_s: float, per_lease_min: float, per_lease_max: float
+    q: float,
+    *,
+    lease_s: float,
+    per_lease_min: float,
+    per_lease_max: float,
+    swarm_size: int = 1,
+    renewal_budget_fps: float | None = None,
 ) -> float:
     """Seconds between lease renewals: lease / n(Q), n = min + (max - min) * (1 - Q).
 
@@ -65,7 +71,32 @@ def renewal_period_s(
     renewals get denser, so a peer misses all of them within one lease with probability
     about p_loss ** n. This is the paper's "continuous awareness" (section 4.1, Network
     Monitor feeding RTPS) applied after start-up, not only to the first announcement.
+
+    With ``renewal_budget_fps`` (adaptive mode) the period is at least N / budget: N
+    drones renewing every P seconds put N / P frames per second on the shared channel, so
+    a large swarm renews less often rather than loading the channel with its own
+    renewals (``advertised_lease_s`` then stretches the lease to keep n(Q) per lease).
     """
     q = normalise_q(q)
-    n = per_lease_min + (per_lease_max - per_lease_min) * (1.0 - q)
-    return lease_s / n
+    period = lease_s / renewals_per_lease(
+        q, per_lease_min=per_lease_min, per_lease_max=per_lease_max
+    )
+    if renewal_budget_fps is not None:
+        period = max(period, max(1, swarm_size) / renewal_budget_fps)
+    return period
+
+
+def renewals_per_lease(q: float, *, per_lease_min: float, per_lease_max: float) -> float:
+    """n(Q) = min + (max - min) * (1 - Q): how many renewals a peer gets per lease."""
+    return per_lease_min + (per_lease_max - per_lease_min) * (1.0 - normalise_q(q))
+
+
+def advertised_lease_s(
+    q: float, *, lease_s: float, renewal_period_s: float, per_lease_min: float, per_lease_max: float
+) -> float:
+    """The lease we announce: the bundle's, or longer when the renewal budget stretched the
+    period, so that a peer still gets n(Q) renewals per lease and losing a few of them in a
+    row is as unlikely as at small N. A peer is never declared lost for our silence while
+    we are alive on a clean channel: the lease always spans n(Q) >= 2 renewal periods."""
+    n = renewals_per_lease(q, per_lease_min=per_lease_min, per_lease_max=per_lease_max)
+    return max(lease_s, n * renewal_period_s)

@@ -46,6 +46,10 @@ class EngineConfig:
     renewals_per_lease_min: float = 2.0
     renewals_per_lease_max: float = 4.0
     renewal_jitter: float = 0.1  # each renewal period is shortened by U(0, jitter)
+    # adaptive mode: lease-renewal frames per second the whole swarm may put on the channel;
+    # a swarm larger than budget * lease / n(Q) renews every N / budget seconds and
+    # advertises a lease n(Q) times that (docs/discovery.md, "renewal budget")
+    renewal_budget_fps: float = 50.0
     # BOOT waits this long for a link sample, then assumes default_link_quality
     boot_link_timeout_s: float = 2.0
     default_link_quality: float = 0.5
@@ -83,6 +87,7 @@ class EngineConfig:
             "use a value >= renewals_per_lease_min",
         )
         need(0 <= self.renewal_jitter < 1, "renewal_jitter", "use a fraction in [0, 1)")
+        need(self.renewal_budget_fps > 0, "renewal_budget_fps", "use a positive frame rate")
         need(self.boot_link_timeout_s >= 0, "boot_link_timeout_s", "use a value >= 0 seconds")
         need(0 <= self.default_link_quality <= 1, "default_link_quality", "use a value in [0, 1]")
         need(self.retransmit_min_gap_s >= 0, "retransmit_min_gap_s", "use a value >= 0")

@@ -59,6 +59,7 @@ from typing import Any, Final
 
 from swarmd.bundle.model import Bundle, Participant
 from swarmd.discovery.awareness import (
+    advertised_lease_s,
     draw_passive_timer_s,
     normalise_q,
     passive_window_s,
@@ -198,6 +199,8 @@ class DiscoveryEngine:
         self._leases = LeaseQueue()
         self._reack_gap_s = config.retransmit_min_gap_s
         self._spread_at = (math.nan, 0.0)  # (Q, _spread_s() at that Q)
+        self._backoff_now = Backoff(math.nan, math.nan)
+        self._domain_id = bundle.domain_id
         self._events: deque[Event] = deque()
         self._outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
         self._foreign = ForeignTable(MAX_FOREIGN)
@@ -341,9 +344,12 @@ class DiscoveryEngine:
             best = self._passive_deadline
         else:
             best = self._renewal.due
-        for at in (self._next_lease(), self._next_retry()):
-            if at is not None and (best is None or at < best):
-                best = at
+        lease = self._leases.earliest()
+        if lease is not None and (best is None or lease[0] < best):
+            best = lease[0]
+        retry = self._next_retry()
+        if retry is not None and (best is None or retry < best):
+            best = retry
         return best
 
     def next_event(self) -> Event | None:
@@ -426,6 +432,7 @@ class DiscoveryEngine:
                 "lease_s": timing.lease_s,
                 "sources": dict(timing.sources),
                 "renewal_period_s": round(self._renewal.period_s, 3),
+                "advertised_lease_s": round(self._lease_s(), 3),
             },
             "peers_discovered": sum(1 for p in self._peers.values() if p.discovered),
             "peers_total": len(self._peers),
@@ -439,7 +446,7 @@ class DiscoveryEngine:
     def _on_alive(self, alive: _Alive, source: tuple[str, int], now: float) -> None:
         sample = alive.sample
         part = sample.participant
-        if (part.domain_id is not None and part.domain_id != self._bundle.domain_id) or (
+        if (part.domain_id is not None and part.domain_id != self._domain_id) or (
             part.domain_tag not in (None, "")
         ):
             self._drop("wrong_domain", source)
@@ -640,12 +647,9 @@ class DiscoveryEngine:
         return found
 
     def _arm(self, peer: Peer, at: float) -> None:
-        before = peer.retry.deadline()
-        peer.retry.arm(at)
-        after = peer.retry.deadline()
-        if after is not None and after != before:
+        if peer.retry.arm(at):
             self._armed.add(peer.index)
-            heapq.heappush(self._retries, (after, peer.index))
+            heapq.heappush(self._retries, (at, peer.index))
 
     def _disarm(self, peer: Peer) -> None:
         """The debt is paid or void: forget the deadline and the attempts."""
@@ -661,10 +665,6 @@ class DiscoveryEngine:
                 return at
             heapq.heappop(heap)
         return None
-
-    def _next_lease(self) -> float | None:
-        earliest = self._leases.earliest()
-        return None if earliest is None else earliest[0]
 
     def _reply_delay(self) -> float:
         if self._config.mode == "paper":
@@ -698,12 +698,29 @@ class DiscoveryEngine:
     def _backoff(self) -> Backoff:
         # a retry must wait out the peer's own reply holdoff, or it races the answer
         base = max(self._config.retry_base_s, self._answer_window())
-        return Backoff(base, max(self._config.retry_max_s, base))
+        backoff = self._backoff_now
+        if backoff.base_s != base:  # Q moved (adaptive holdoff); one object per Q
+            backoff = self._backoff_now = Backoff(base, max(self._config.retry_max_s, base))
+        return backoff
 
     def _renewal_period(self) -> float:
+        config = self._config
         return renewal_period_s(
             self._advertised_permille / 1000,
             lease_s=self._timing.lease_s,
+            per_lease_min=config.renewals_per_lease_min,
+            per_lease_max=config.renewals_per_lease_max,
+            # paper mode keeps the bundle's lease and the plain n(Q) density
+            swarm_size=len(self._bundle.participants),
+            renewal_budget_fps=config.renewal_budget_fps if config.mode == "adaptive" else None,
+        )
+
+    def _lease_s(self) -> float:
+        """The lease we advertise (awareness.advertised_lease_s)."""
+        return advertised_lease_s(
+            self._advertised_permille / 1000,
+            lease_s=self._timing.lease_s,
+            renewal_period_s=self._renewal.period_s,
             per_lease_min=self._config.renewals_per_lease_min,
             per_lease_max=self._config.renewals_per_lease_max,
         )
@@ -791,7 +808,7 @@ class DiscoveryEngine:
             metatraffic_unicast_locators=meta_uc,
             metatraffic_multicast_locators=meta_mc,
             default_unicast_locators=user_uc,
-            lease_duration=Duration.from_seconds(self._timing.lease_s),
+            lease_duration=Duration.from_seconds(self._lease_s()),
             builtin_endpoints=BES_SPDP_ONLY,
             entity_name=f"{self._bundle.swarm}/{self._me.name}",
             bundle_digest=self._digest,

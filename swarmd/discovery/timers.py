@@ -4,6 +4,7 @@ schedules anything (the engine folds their deadlines into its one ``get_timer()`
 
 from __future__ import annotations
 
+import heapq
 import random
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -36,9 +37,13 @@ class RetrySchedule:
     due: float | None = None
     attempts: int = 0
 
-    def arm(self, at: float) -> None:
-        if not self.exhausted and (self.due is None or at < self.due):
+    def arm(self, at: float) -> bool:
+        """Keep the earlier of ``at`` and the current deadline; True if the deadline moved."""
+        due = self.due
+        if self.attempts < self.max_attempts and (due is None or at < due):
             self.due = at
+            return True
+        return False
 
     def sent(self) -> None:
         self.attempts += 1
@@ -102,43 +107,72 @@ class LeaseQueue:
 
     A renewal pushes a peer's deadline to ``now + lease``. Peers that advertise the same
     lease length therefore expire in the order they were last heard, so each length keeps
-    an insertion-ordered table and a renewal moves the peer to its end; the earliest
-    deadline is the smallest head over the (few) lengths in use. A heap would cost a log N
-    operation on every DATA(p), since the next peer to renew is nearly always the one whose
-    lease ends first. Requires a non-decreasing ``now``, as everything keyed by ``now``.
+    an insertion-ordered table and a renewal moves the peer to its end. A small lazy heap
+    holds each table's head deadline. (A heap of all peers would cost a log N operation on
+    nearly every DATA(p): the next peer to renew is usually the one whose lease ends first.)
+    Requires a non-decreasing ``now``, as everything keyed by ``now``.
     """
 
-    _by_length: dict[float, OrderedDict[int, float]] = field(default_factory=dict)
+    _tables: dict[float, OrderedDict[int, float]] = field(default_factory=dict)
     _length_of: dict[int, float] = field(default_factory=dict)
+    # (head deadline, length) of each table; stale entries are dropped by ``earliest``
+    _heads: list[tuple[float, float]] = field(default_factory=list)
+    # earliest()'s answer, kept until a table head changes (while a swarm is discovered,
+    # new peers join the tails and the answer stands)
+    _cached: tuple[float, int] | None = None
+    _stale: bool = True
 
     def renew(self, index: int, lease_s: float, now: float) -> None:
         """Peer ``index`` was heard at ``now``; its lease (``lease_s`` long) restarts."""
-        old = self._length_of.get(index)
-        if old is not None and old != lease_s:
-            self._drop(index, old)
-        self._length_of[index] = lease_s
-        table = self._by_length.get(lease_s)
+        table = self._tables.get(lease_s)
+        if table is not None and self._length_of.get(index) == lease_s:
+            # the usual case, a renewal at an unchanged lease length: move to the tail
+            head = next(iter(table))
+            table[index] = now + lease_s
+            table.move_to_end(index)
+            if head == index:
+                self._head_changed(table, lease_s)
+            return
+        if index in self._length_of:
+            self.remove(index)  # it advertises another lease length now
         if table is None:
-            table = self._by_length[lease_s] = OrderedDict()
+            table = self._tables[lease_s] = OrderedDict()
         table[index] = now + lease_s
-        table.move_to_end(index)
+        self._length_of[index] = lease_s
+        if len(table) == 1:
+            self._head_changed(table, lease_s)
 
     def remove(self, index: int) -> None:
-        old = self._length_of.pop(index, None)
-        if old is not None:
-            self._drop(index, old)
+        length = self._length_of.pop(index, None)
+        if length is None:
+            return
+        table = self._tables[length]
+        was_head = next(iter(table)) == index
+        del table[index]
+        if not table:
+            del self._tables[length]
+            self._stale = True
+        elif was_head:
+            self._head_changed(table, length)
 
     def earliest(self) -> tuple[float, int] | None:
         """(deadline, index) of the lease that ends first, None when no lease runs."""
-        best: tuple[float, int] | None = None
-        for table in self._by_length.values():
-            index, deadline = next(iter(table.items()))
-            if best is None or (deadline, index) < best:
-                best = (deadline, index)
-        return best
+        if not self._stale:
+            return self._cached
+        self._stale = False
+        heads = self._heads
+        while heads:
+            deadline, length = heads[0]
+            table = self._tables.get(length)
+            if table is not None:
+                index = next(iter(table))
+                if table[index] == deadline:
+                    self._cached = (deadline, index)
+                    return self._cached
+            heapq.heappop(heads)
+        self._cached = None
+        return None
 
-    def _drop(self, index: int, length: float) -> None:
-        table = self._by_length[length]
-        del table[index]
-        if not table:
-            del self._by_length[length]
+    def _head_changed(self, table: OrderedDict[int, float], length: float) -> None:
+        heapq.heappush(self._heads, (table[next(iter(table))], length))
+        self._stale = True

@@ -29,8 +29,11 @@ class Ledger:
 
     def __init__(self, n: int) -> None:
         self.n = n
-        self.known = np.zeros((n, n), dtype=np.bool_)
+        # known[i][j]: rows of bytes, not a numpy matrix: a run makes ~N^2 scalar lookups
+        # here (every PeerDiscovered), and numpy's scalar indexing costs ~10x a bytearray's
+        self.known = [bytearray(n) for _ in range(n)]
         self.first = np.full((n, n), math.nan)
+        self._seen = [bytearray(n) for _ in range(n)]  # first[i, j] is set
         self.count = 0
         self.all_discovered_s: float | None = None
         self.lost_events = 0
@@ -44,11 +47,14 @@ class Ledger:
         self._listeners.append(listener)
 
     def discovered(self, i: int, j: int, now: float) -> None:
-        if i == j or self.known[i, j]:
+        row = self.known[i]
+        if i == j or row[j]:
             return
-        self.known[i, j] = True
+        row[j] = 1
         self.count += 1
-        if math.isnan(self.first[i, j]):
+        seen = self._seen[i]
+        if not seen[j]:
+            seen[j] = 1
             self.first[i, j] = now
         if self.count == self.pairs and self.all_discovered_s is None:
             self.all_discovered_s = now
@@ -56,9 +62,10 @@ class Ledger:
             listener(i, j, now)
 
     def lost(self, i: int, j: int, now: float) -> None:
-        if not self.known[i, j]:
+        row = self.known[i]
+        if not row[j]:
             return
-        self.known[i, j] = False
+        row[j] = 0
         self.count -= 1
         self.lost_events += 1
 

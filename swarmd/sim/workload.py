@@ -70,7 +70,7 @@ class Workload:
         now = self._clock.now
         self._seq[member] += 1
         seq = self._seq[member]
-        if self._ledger.known[member, COMMANDER]:
+        if self._ledger.known[member][COMMANDER]:
             self.sent += 1
             self._send(Datagram(member, COMMANDER, self.size, Kind.DATA, (member, seq)))
         self._clock.call_at(now + PERIOD_S, lambda: self._publish(member))
@@ -79,7 +79,7 @@ class Workload:
         payload = dgram.payload
         assert isinstance(payload, tuple)  # noqa: S101 - the workload's own (member, seq)
         member, seq = int(payload[0]), int(payload[1])
-        if receiver != COMMANDER or not self._ledger.known[COMMANDER, member]:
+        if receiver != COMMANDER or not self._ledger.known[COMMANDER][member]:
             return
         self.received += 1
         if seq == TARGET_SEQ:
