@@ -156,10 +156,6 @@ class DiscoveryEngine:
             (Locator.udpv4(*self.spdp_multicast),),
             (Locator.udpv4(local_ipv4, self.user_port),),
         )
-        # keyed by the prefix's 12 octets: bytes hash and compare in C, GuidPrefix does not
-        self._by_prefix: dict[bytes, int] = {
-            p.guid_prefix.value: p.index for p in bundle.participants
-        }
         self._peers: dict[int, Peer] = {}
         for p in bundle.participants:
             if p.index == me.index:
@@ -171,6 +167,11 @@ class DiscoveryEngine:
                 retry=RetrySchedule(config.max_attempts),
                 reack=MinInterval(config.retransmit_min_gap_s),
             )
+        # bundle peers by GUID prefix octets (bytes hash and compare in C; GuidPrefix's
+        # dataclass methods do not): one lookup per DATA(p)
+        self._by_prefix: dict[bytes, Peer] = {
+            p.participant.guid_prefix.value: p for p in self._peers.values()
+        }
         self.phase: Phase = Phase.BOOT
         self._started = now
         self._boot_deadline: float | None = now + config.boot_link_timeout_s
@@ -454,8 +455,8 @@ class DiscoveryEngine:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
             self._drop("not_for_me", source)
             return
-        index = self._by_prefix.get(alive.prefix)
-        if index is None:
+        peer = self._by_prefix.get(alive.prefix)
+        if peer is None and alive.prefix != self._my_prefix:
             self._see_foreign(part, "not_in_bundle", now)
             return
         if not alive.is_swarmd:
@@ -464,7 +465,6 @@ class DiscoveryEngine:
         if part.bundle_digest != self._digest:
             self._see_foreign(part, "digest_mismatch", now)
             return
-        peer = self._peers.get(index)
         if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
             self._drop("own", source)
             return
@@ -540,8 +540,7 @@ class DiscoveryEngine:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
             self._drop("not_for_me", source)
             return
-        index = self._by_prefix.get(sample.guid_prefix.value)
-        peer = self._peers.get(index) if index is not None else None
+        peer = self._by_prefix.get(sample.guid_prefix.value)
         if peer is None:
             self._foreign.remove(sample.guid_prefix)
             return
