@@ -421,6 +421,31 @@ def test_lower_link_quality_makes_renewals_denser_during_flight() -> None:
     assert engine.status(80.0)["link"] == {"q": 0.0, "snr_db": 20.0, "source": "file"}
 
 
+@pytest.mark.parametrize(
+    ("mode", "period", "lease"),
+    [
+        # 10 drones at a 0.25 frames/s budget: N / B = 40 s > lease / n(1) = 10 s, so the
+        # period is 40 s and the advertised lease n(1) * 40 = 80 s
+        ("adaptive", 40.0, 80.0),
+        ("paper", 10.0, 20.0),  # paper mode keeps the bundle's lease and lease / n(Q)
+    ],
+)
+def test_renewal_budget_stretches_period_and_advertised_lease(
+    mode: str, period: float, lease: float
+) -> None:
+    engine = engine_for(10, mode=mode, seed=9, renewal_budget_fps=0.25)
+    sent = run_to(engine, 400.0)  # alone: announces, gives up, then renews
+    assert engine.phase == Phase.STEADY
+    timing = engine.status(400.0)["timing"]
+    assert timing["renewal_period_s"] == pytest.approx(period)
+    assert timing["advertised_lease_s"] == pytest.approx(lease)
+    multicasts = [(t, d) for t, d, a in sent if a == MCAST]
+    assert {alive(d).participant.lease_duration.total_seconds() for _, d in multicasts} == {lease}
+    tail = [t for t, _ in multicasts if t > 200.0]
+    gaps = [b - a for a, b in zip(tail, tail[1:], strict=False)]
+    assert gaps and all(0.9 * period <= g <= period for g in gaps)
+
+
 def test_status_follows_the_schema() -> None:
     engine = engine_for(3, mode="paper", seed=4)
     bundle = make_bundle(3)
