@@ -90,7 +90,12 @@ from swarmd.link.sample import LinkSample
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator, LOCATOR_KIND_UDPv4
 from swarmd.rtps.message import Header
-from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
+from swarmd.rtps.ports import (
+    PARTICIPANT_GAIN,
+    SPDP_MULTICAST_GROUP,
+    metatraffic_unicast_port,
+    spdp_multicast_port,
+)
 from swarmd.rtps.spdp import (
     BES_SPDP_ONLY,
     SpdpAlive,
@@ -151,7 +156,8 @@ class DiscoveryEngine:
         self._wallclock = wallclock
         self._timing = resolve_timing(bundle.discovery, config)
         self._local_ipv4 = local_ipv4
-        self._size = max(p.index for p in bundle.participants) + 1
+        last = max(bundle.participants, key=lambda p: p.index)
+        self._size = last.index + 1
         self._digest = bundle.content_sha256[:BUNDLE_DIGEST_BYTES]
         self.metatraffic_port: int = bundle.metatraffic_port(me)
         self.user_port: int = bundle.user_port(me)
@@ -164,6 +170,12 @@ class DiscoveryEngine:
             (Locator.udpv4(*self.spdp_multicast),),
             (Locator.udpv4(local_ipv4, self.user_port),),
         )
+        # A peer's bundle address: metatraffic port PB + DG * domain + d1 + PG * index
+        # (DDSI-RTPS 9.6.1.1), i.e. the port of index 0 plus PG per index. Linear, so one
+        # checked call for the highest index validates all: calling it per peer was 40 % of
+        # the construction of a 1000-peer engine (the simulator builds 1000 of them).
+        bundle.metatraffic_port(last)
+        port0 = metatraffic_unicast_port(bundle.domain_id, 0)
         self._peers: dict[int, Peer] = {}
         for p in bundle.participants:
             if p.index == me.index:
@@ -171,7 +183,7 @@ class DiscoveryEngine:
             self._peers[p.index] = Peer(
                 participant=p,
                 index=p.index,
-                bundle_locator=(p.ipv4, bundle.metatraffic_port(p)) if p.ipv4 else None,
+                bundle_locator=(p.ipv4, port0 + PARTICIPANT_GAIN * p.index) if p.ipv4 else None,
                 retry=RetrySchedule(config.max_attempts),
                 reack=MinInterval(config.retransmit_min_gap_s),
             )
