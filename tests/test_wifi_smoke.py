@@ -17,9 +17,9 @@ import pytest
 
 from bench.wifi.metrics import frame_series, layer_counters, percentile, success
 from bench.wifi.ns3_loader import unavailable_reason
-from bench.wifi.report import summarise, table
-from bench.wifi.topology import ns3_mac
-from swarmd.netns import list_namespaces
+from bench.wifi.report import paired_ratios, summarise, table
+from bench.wifi.topology import BASE, ns3_mac
+from swarmd.netns import delete_namespace, list_namespaces
 
 REPO = Path(__file__).resolve().parents[1]
 FIELDS = (
@@ -107,8 +107,7 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     reason = unavailable_reason()
     if reason is not None:
         pytest.skip(f"wifi testbed unavailable: {reason}")
-    before = set(list_namespaces())
-    proc = subprocess.run(
+    proc = subprocess.Popen(
         [
             sys.executable,
             str(REPO / "bench" / "wifi" / "run.py"),
@@ -125,14 +124,24 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
             "--out",
             str(tmp_path),
         ],  # fmt: skip
-        capture_output=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
-        timeout=540,
-        check=False,
         cwd=REPO,
     )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert set(list_namespaces()) == before, "the harness left namespaces behind"
+    try:
+        _, stderr = proc.communicate(timeout=540)
+    finally:
+        if proc.poll() is None:
+            proc.kill()  # SIGKILL: its namespaces are swept below by the harness's prefix
+            proc.communicate()
+    # only the harness's own namespaces (swf-<its pid>-...): other tests' come and go
+    own = f"{BASE}-{proc.pid}-"
+    left = [name for name in list_namespaces() if name.startswith(own)]
+    for name in left:
+        delete_namespace(name)
+    assert proc.returncode == 0, stderr[-3000:]
+    assert not left, f"the harness left namespaces behind: {left}"
     runs = {p.name: json.loads(p.read_text()) for p in (tmp_path / "runs").glob("*.json")}
     assert set(runs) == {"swarmd-n3-r1.json", "cyclonedds-n3-r1.json"}
     for r in runs.values():
@@ -144,6 +153,9 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     swarmd = runs["swarmd-n3-r1.json"]
     assert swarmd["all_discovered_s"] is not None, "swarmd did not discover every pair"
     assert swarmd["discovery_frames_60s"] > 0
+    # the fair start: both stacks waited at the barrier and were counted from the release
+    assert all(r["barrier_wait_s"] >= 0 for r in runs.values())
+    assert swarmd["tx_counters"].get("daemons_counted") == 3
     cyclone = runs["cyclonedds-n3-r1.json"]
     assert cyclone["success_rate"] is not None
     assert (tmp_path / "summary.json").exists()
@@ -177,3 +189,16 @@ def test_report_leaves_invalid_runs_out_and_gives_ratios() -> None:
     cyclone = next(r for r in rows if r["contender"] == "cyclonedds")
     assert (cyclone["runs"], cyclone["valid_runs"], cyclone["peak_pps_mean"]) == (2, 1, 1000.0)
     assert "| 10 | 5.0 % | - | 5.0 % | - |" in table(rows)
+
+
+def test_paired_ratios_only_pair_valid_runs_of_the_same_repeat() -> None:
+    runs = [
+        {**_run("swarmd", 50), "run": 1},
+        {**_run("cyclonedds", 1000), "run": 1},
+        {**_run("swarmd", 40), "run": 2},
+        {**_run("cyclonedds", 10, valid=False), "run": 2},
+        {**_run("swarmd", 30), "run": 3},
+        {**_run("cyclonedds", 600), "run": 3},
+    ]
+    assert paired_ratios(runs, "cyclonedds", "peak_pps") == {10: [0.05, 0.05]}
+    assert paired_ratios(runs, "zenoh", "peak_pps") == {}

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+from bench.wifi.barrier import LAUNCH_NICE
 from bench.wifi.bundle import write_bundle
 from swarmd.config import _FIELDS as CONFIG_FIELDS
 from swarmd.control import DaemonUnreachable, RequestError, request
@@ -83,10 +84,22 @@ class Observation:
     received: dict[str, dict[str, Any]] = field(default_factory=dict)
     note: str = ""
     success_pending: bool = False
+    # swarmd: the daemons' own send counters summed at the window's end (engine tx_kind:
+    # announce/reply/renewal/dispose datagrams; tx_multicast/tx_unicast)
+    tx_counters: dict[str, int] = field(default_factory=dict)
+
+
+def _niced(argv: list[str]) -> list[str]:
+    # start-up (imports, bundle check) at low priority; run.py restores it before release
+    return ["nice", "-n", str(LAUNCH_NICE), *argv]
 
 
 class Contender:
-    """Start a contender on every drone, then ``poll`` during the run and ``finish``."""
+    """Start a contender on every drone, then ``poll`` during the run and ``finish``.
+
+    ``start(barrier)`` launches every process; each blocks on the UNIX socket ``barrier``
+    after its start-up (bench/wifi/barrier.py) until the harness releases them all.
+    """
 
     def __init__(
         self, name: str, drones: list[Namespace], work: Path, *, window_s: float, messages: int
@@ -98,13 +111,17 @@ class Contender:
         self.messages = messages
         self.n = len(drones)
         self.obs = Observation()
+        self.procs: list[subprocess.Popen[bytes]] = []
         self._logs: list[Any] = []
 
-    def start(self) -> None:
+    def start(self, barrier: Path) -> None:
         raise NotImplementedError
 
     def poll(self, now: float) -> None:
         """Called about every 0.25 s while the window runs."""
+
+    def window_end(self) -> None:
+        """Called once when the window closes, before the channel stops."""
 
     def finish(self) -> Observation:
         raise NotImplementedError
@@ -122,7 +139,7 @@ class Contender:
 class PeerContender(Contender):
     """Cyclone DDS or zenoh: one workload script per drone, results from their files."""
 
-    def start(self) -> None:
+    def start(self, barrier: Path) -> None:
         script = PEERS / PEER_SCRIPTS[self.name]
         env = _clean_env()
         for i, drone in enumerate(self.drones):
@@ -139,8 +156,17 @@ class PeerContender(Contender):
                 str(self.messages),
                 "--out",
                 str(self.work / f"peer-{i}.json"),
+                "--barrier",
+                str(barrier),
             ]
-            drone.popen(argv, env=env, stdout=self._log(f"peer-{i}.log"), stderr=subprocess.STDOUT)
+            self.procs.append(
+                drone.popen(
+                    _niced(argv),
+                    env=env,
+                    stdout=self._log(f"peer-{i}.log"),
+                    stderr=subprocess.STDOUT,
+                )
+            )
 
     def finish(self) -> Observation:
         deadline = time.monotonic() + 15.0
@@ -224,17 +250,20 @@ discovery:
         path.write_text(text)
         return path
 
-    def start(self) -> None:
+    def start(self, barrier: Path) -> None:
         files = write_bundle(self.work / "bundle", [d.address for d in self.drones])
         swarmd = str(Path(sys.executable).parent / "swarmd")
         env = _clean_env()
+        env["SWARMD_START_BARRIER"] = str(barrier)
         for i, drone in enumerate(self.drones):
             cfg = self._config(i, files.path, files.trusted_key)
-            drone.popen(
-                [swarmd, "run", "--config", str(cfg)],
-                env=env,
-                stdout=self._log(f"uav{i + 1}.log"),
-                stderr=subprocess.STDOUT,
+            self.procs.append(
+                drone.popen(
+                    _niced([swarmd, "run", "--config", str(cfg)]),
+                    env=env,
+                    stdout=self._log(f"uav{i + 1}.log"),
+                    stderr=subprocess.STDOUT,
+                )
             )
         if not dataplane_supported():
             self.obs.success_pending = True
@@ -281,6 +310,24 @@ discovery:
             self._last_full_poll = now
             if self.obs.all_discovered is None and discovered == self.n:
                 self.obs.all_discovered = now
+
+    def window_end(self) -> None:
+        totals: dict[str, int] = {}
+        for i in range(self.n):
+            st = self._status(i)
+            counters = st.get("counters") if st else None
+            if not isinstance(counters, Mapping):
+                continue
+            kinds = counters.get("tx_kind")
+            flat = {
+                **(kinds if isinstance(kinds, Mapping) else {}),
+                **{k: counters.get(k) for k in ("tx_multicast", "tx_unicast", "tx_datagrams")},
+            }
+            for key, value in flat.items():
+                if isinstance(value, int):
+                    totals[key] = totals.get(key, 0) + value
+            totals["daemons_counted"] = totals.get("daemons_counted", 0) + 1
+        self.obs.tx_counters = totals
 
     def _read_commander(self, st: Mapping[str, Any], now: float) -> None:
         for node, entry in self._readiness(st).items():

@@ -117,6 +117,20 @@ def success(
     return (len(members) - len(failed)) / len(members), failed
 
 
+def discovery_breakdown(
+    stats: Mapping[str, Any], *, launch_wall: float, window_s: int, family: str
+) -> dict[str, int]:
+    """The discovery class's frames in the first 60 s split into data frames (first
+    transmissions and retries alike) and the ACKs answering the unicast ones."""
+    start_s = max(0, int(launch_wall - float(stats["wall_at_sim0"])))
+    names: list[str] = list(stats["classes"])
+    idx = [names.index(c) for c in DISCOVERY_CLASSES[family]]
+    end = min(start_s + min(window_s, 60), len(stats["per_second"]))
+    data = sum(stats["per_second"][s][i] for s in range(start_s, end) for i in idx)
+    acks = sum(stats["acks_per_second_by_class"][s][i] for s in range(start_s, end) for i in idx)
+    return {"data_frames": int(data), "acks": int(acks)}
+
+
 def run_measures(
     stats: Mapping[str, Any],
     *,

@@ -46,6 +46,11 @@ def _std(xs: Iterable[float | None]) -> float | None:
     return statistics.stdev(vals) if len(vals) > 1 else (0.0 if vals else None)
 
 
+def _median(xs: Iterable[float | None]) -> float | None:
+    vals = [float(x) for x in xs if isinstance(x, int | float) and not math.isnan(x)]
+    return statistics.median(vals) if vals else None
+
+
 def _max(xs: Iterable[float | None]) -> float | None:
     vals = [float(x) for x in xs if isinstance(x, int | float) and not math.isnan(x)]
     return max(vals) if vals else None
@@ -68,16 +73,22 @@ def summarise(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "valid_runs": len(valid),
                 "peak_pps_mean": _mean(r["peak_pps"] for r in valid),
                 "peak_pps_std": _std(r["peak_pps"] for r in valid),
+                "peak_pps_median": _median(r["peak_pps"] for r in valid),
                 "peak_discovery_pps_mean": _mean(r["peak_discovery_pps"] for r in valid),
                 "discovery_frames_60s_mean": _mean(r["discovery_frames_60s"] for r in valid),
+                "discovery_frames_60s_median": _median(r["discovery_frames_60s"] for r in valid),
                 "success_rate": (sum(1 for s in succ if s) / len(succ)) if succ else None,
                 "member_success_mean": _mean(r.get("success_rate") for r in valid),
                 "all_discovered_s_mean": _mean(r.get("all_discovered_s") for r in valid),
                 "all_discovered_s_max": _max(r.get("all_discovered_s") for r in valid),
+                "all_discovered_s_median": _median(r.get("all_discovered_s") for r in valid),
                 "mac_drop_ratio": _mean(r.get("mac_drop_ratio") for r in valid),
                 "phy_drop_density": _mean(r.get("phy_drop_density") for r in valid),
                 "retx_ratio": _mean(r.get("retx_ratio") for r in valid),
                 "rt_lag_p99_ms_max": _max(r.get("rt_lag_p99_ms") for r in group),
+                "invalid": [
+                    f"r{r['run']}: {r.get('invalid_reason')}" for r in group if not r.get("valid")
+                ],
                 "notes": sorted({r["note"] for r in group if r.get("note")}),
             }
         )
@@ -101,8 +112,9 @@ def _success_cell(row: Mapping[str, Any]) -> str:
 def table(rows: Sequence[Mapping[str, Any]]) -> str:
     """Markdown: the per-(contender, N) table and the swarmd ratios, paper beside."""
     lines = [
-        "| contender | N | valid/runs | peak frames/s mean ± sd | discovery frames 60 s "
-        "| success | all discovered s (mean / max) | MAC drop % | PHY drop % | retx % "
+        "| contender | N | valid/runs | peak frames/s mean ± sd (median) "
+        "| discovery frames 60 s mean (median) "
+        "| success | all discovered s (median / max) | MAC drop % | PHY drop % | retx % "
         "| lag p99 max ms |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
@@ -110,9 +122,11 @@ def table(rows: Sequence[Mapping[str, Any]]) -> str:
         lines.append(
             f"| {r['contender']} | {r['n']} | {r['valid_runs']}/{r['runs']} "
             f"| {_fmt(r['peak_pps_mean'])} ± {_fmt(r['peak_pps_std'])} "
+            f"({_fmt(r.get('peak_pps_median'))}) "
             f"| {_fmt(r['discovery_frames_60s_mean'])} "
+            f"({_fmt(r.get('discovery_frames_60s_median'))}) "
             f"| {_success_cell(r)} "
-            f"| {_fmt(r['all_discovered_s_mean'], '.2f')} "
+            f"| {_fmt(r.get('all_discovered_s_median'), '.2f')} "
             f"/ {_fmt(r['all_discovered_s_max'], '.2f')} "
             f"| {_fmt(r['mac_drop_ratio'], '.1f', 100)} "
             f"| {_fmt(r['phy_drop_density'], '.1f', 100)} "
@@ -142,6 +156,69 @@ def table(rows: Sequence[Mapping[str, Any]]) -> str:
             f"| {paper} |"
         )
     return "\n".join(lines + ratio_lines) + "\n"
+
+
+def paired_ratios(
+    runs: Sequence[Mapping[str, Any]], other: str, key: str
+) -> dict[int, list[float]]:
+    """Per N, swarmd / ``other`` of ``key`` within each repeat where both runs are valid
+    (the two ran back to back under the same machine load)."""
+    valid = {(r["contender"], int(r["n"]), int(r["run"])): r for r in runs if r.get("valid")}
+    out: dict[int, list[float]] = defaultdict(list)
+    for (contender, n, run), r in sorted(valid.items()):
+        o = valid.get((other, n, run))
+        if contender == "swarmd" and o is not None and o.get(key):
+            out[n].append(float(r[key]) / float(o[key]))
+    return dict(out)
+
+
+def paired_table(runs: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown: median (min-max) of the per-repeat ratios swarmd / Cyclone and / zenoh."""
+    lines = [
+        "| N | pairs | peak swarmd / Cyclone median (range) | discovery 60 s swarmd / Cyclone "
+        "| pairs | peak swarmd / zenoh | discovery 60 s swarmd / zenoh |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+
+    def cell(xs: list[float]) -> str:
+        if not xs:
+            return "-"
+        return f"{100 * statistics.median(xs):.1f} % ({100 * min(xs):.1f}-{100 * max(xs):.1f})"
+
+    sizes = sorted({int(r["n"]) for r in runs if r["contender"] == "swarmd"})
+    for n in sizes:
+        cp = paired_ratios(runs, "cyclonedds", "peak_pps").get(n, [])
+        cd = paired_ratios(runs, "cyclonedds", "discovery_frames_60s").get(n, [])
+        zp = paired_ratios(runs, "zenoh", "peak_pps").get(n, [])
+        zd = paired_ratios(runs, "zenoh", "discovery_frames_60s").get(n, [])
+        lines.append(
+            f"| {n} | {len(cp)} | {cell(cp)} | {cell(cd)} | {len(zp)} | {cell(zp)} | {cell(zd)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+BREAKDOWN_KEYS: Final = ("announce", "reply", "renewal", "dispose", "tx_multicast", "tx_unicast")
+
+
+def breakdown_table(runs: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown: where swarmd's discovery frames go (daemon send counters + channel ACKs)."""
+    lines = [
+        "| contender | N | run | discovery frames 60 s | data frames | ACKs | SPDP sent: "
+        "announce | reply | renewal | dispose | multicast | unicast |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in sorted(runs, key=lambda r: (r["contender"], r["n"], r["run"])):
+        tx = r.get("tx_counters") or {}
+        split = r.get("discovery_breakdown_60s") or {}
+        if not r.get("valid") or not tx:
+            continue
+        lines.append(
+            f"| {r['contender']} | {r['n']} | {r['run']} | {r['discovery_frames_60s']} "
+            f"| {split.get('data_frames', '-')} | {split.get('acks', '-')} | "
+            + " | ".join(str(tx.get(k, "-")) for k in BREAKDOWN_KEYS)
+            + " |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def plots(runs: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
@@ -204,7 +281,13 @@ def write_report(out: Path) -> list[Path]:
     runs = load_runs(out)
     rows = summarise(runs)
     (out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
-    (out / "table.md").write_text(table(rows))
+    (out / "table.md").write_text(
+        table(rows)
+        + "\nswarmd / stock stack within the same repeat (valid pairs only):\n\n"
+        + paired_table(runs)
+        + "\nswarmd's discovery frames, per valid run:\n\n"
+        + breakdown_table(runs)
+    )
     return [out / "summary.json", out / "table.md", *plots(runs, out)]
 
 

@@ -4,12 +4,20 @@ Exit codes (sysexits): 0 clean stop (SIGTERM/SIGINT), 2 usage, 69 the control so
 held by another live swarmd, 71 a UDP socket cannot be bound or joined, 78 bad config or a
 rejected bundle (systemd's ``RestartPreventExitStatus=78`` stops a restart loop on those).
 Every failure before the loop runs is one line on stderr, never a traceback.
+
+``SWARMD_START_BARRIER=PATH`` (opt-in, for benchmark harnesses such as bench/wifi): after
+the config and bundle are loaded but before any socket is opened, ``swarmd run`` connects
+to the UNIX stream socket at PATH and waits until the harness sends a byte or closes the
+connection, so N daemons can finish their start-up work first and then begin at one
+instant. Unset (the normal case), nothing changes. Unreachable PATH: exit 78.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import os
+import socket
 import sys
 from collections.abc import Sequence
 from dataclasses import fields
@@ -32,6 +40,17 @@ def build_parser() -> argparse.ArgumentParser:
 def _fail(message: str, code: int) -> int:
     print(f"swarmd: {message}", file=sys.stderr)
     return code
+
+
+def wait_start_barrier(path: str) -> None:
+    """Block until the harness listening on the UNIX socket ``path`` releases us.
+
+    Connecting registers this process as waiting (the harness counts connections); the
+    release is one byte or the connection closing. Raises ``OSError`` if nobody listens.
+    """
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.connect(path)
+        sock.recv(1)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -78,6 +97,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _fail(f"config rejected: {exc}", EX_CONFIG)
         print(f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm})")
         return 0
+    barrier = os.environ.get("SWARMD_START_BARRIER")
+    if barrier:
+        try:
+            wait_start_barrier(barrier)
+        except OSError as exc:
+            return _fail(
+                f"SWARMD_START_BARRIER={barrier}: cannot connect ({exc.strerror or exc}); "
+                "start the harness first or unset the variable",
+                EX_CONFIG,
+            )
     try:
         return asyncio.run(run(config, bundle, log=log))
     except ConfigError as exc:

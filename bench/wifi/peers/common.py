@@ -5,6 +5,8 @@ from seq 1; the commander (index 0) subscribes and records, per member, how many
 arrived and the wall time of the ``--messages``-th one (the paper's success criterion,
 section 5.1: the subscriber receives the 20th message of every publisher within the
 window). Each peer writes one JSON result file when ``--duration`` ends or on SIGTERM.
+With ``--barrier PATH`` a peer, once imported, waits on the harness's start barrier
+(bench/wifi/barrier.py) before it creates its participant or session.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import argparse
 import json
 import os
 import signal
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -56,7 +59,17 @@ def parse_args(doc: str) -> argparse.Namespace:
     p.add_argument("--messages", type=int, default=20, help="success = this many received")
     p.add_argument("--period", type=float, default=1.0, help="seconds between publications")
     p.add_argument("--out", type=Path, required=True, help="result JSON file")
+    p.add_argument("--barrier", type=Path, help="UNIX socket of the harness's start barrier")
     return p.parse_args()
+
+
+def wait_start_barrier(path: Path | None) -> None:
+    """Connect to the harness's barrier and block until it sends a byte or closes."""
+    if path is None:
+        return
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.connect(str(path))
+        sock.recv(1)
 
 
 def stop_event() -> threading.Event:

@@ -24,7 +24,13 @@ from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 
-from bench.wifi.peers.common import Tally, parse_args, stop_event, write_result  # noqa: E402
+from bench.wifi.peers.common import (  # noqa: E402
+    Tally,
+    parse_args,
+    stop_event,
+    wait_start_barrier,
+    write_result,
+)
 
 
 @dataclass
@@ -45,6 +51,7 @@ class Ready(IdlStruct, typename="swarmbench::Ready"):
 def main() -> int:
     args = parse_args(__doc__ or "")
     stop = stop_event()
+    wait_start_barrier(args.barrier)  # imports done; the participant starts SPDP at once
     participant = DomainParticipant(0)
     started = time.time()
     topic = Topic(participant, "swarm_ready", Ready)

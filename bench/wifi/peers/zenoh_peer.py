@@ -16,13 +16,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
 
 import zenoh  # noqa: E402
 
-from bench.wifi.peers.common import Tally, parse_args, stop_event, write_result  # noqa: E402
+from bench.wifi.peers.common import (  # noqa: E402
+    Tally,
+    parse_args,
+    stop_event,
+    wait_start_barrier,
+    write_result,
+)
 
 
 def main() -> int:
     args = parse_args(__doc__ or "")
     stop = stop_event()
-    session = zenoh.open(zenoh.Config())
+    config = zenoh.Config()
+    wait_start_barrier(args.barrier)  # imports done; opening the session starts scouting
+    session = zenoh.open(config)
     started = time.time()
     result: dict[str, object] = {"started": started, "index": args.index}
     deadline = time.monotonic() + args.duration

@@ -1,0 +1,187 @@
+"""The testbed's fair start (bench/wifi/barrier.py) and swarmd's opt-in hook for it.
+
+``SWARMD_START_BARRIER=PATH`` makes ``swarmd run`` load its config and bundle, then wait on
+the harness's UNIX socket before it opens any socket of its own; unset, nothing changes
+(the other daemon tests run without it).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from bench.wifi.barrier import BarrierError, StartBarrier, set_priority
+from bench.wifi.peers.common import wait_start_barrier as peer_wait
+from swarmd.cli.swarmd_main import wait_start_barrier as swarmd_wait
+from tests.daemon_support import BundleFiles, run_domain, write_bundle, write_config
+
+SWARMD = str(Path(sys.executable).parent / "swarmd")
+JOIN_S = 20.0  # a safety net for a hung thread or process, never a measured time
+
+
+@pytest.fixture
+def workdir() -> Iterator[Path]:
+    # AF_UNIX paths are limited to 108 bytes: pytest's tmp_path can be longer
+    short = Path(f"/tmp/swt-{os.getpid()}-barrier-{threading.get_ident() % 10_000}")
+    short.mkdir(parents=True, exist_ok=True)
+    try:
+        yield short
+    finally:
+        shutil.rmtree(short, ignore_errors=True)
+
+
+def _sleeper() -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+
+
+def test_nobody_goes_before_release_and_everyone_after(workdir: Path) -> None:
+    gone: list[str] = []
+    lock = threading.Lock()
+    path = workdir / "b.sock"
+
+    def client(name: str) -> None:
+        if name == "peer":
+            peer_wait(path)  # what cyclone_peer.py and zenoh_peer.py call
+        else:
+            swarmd_wait(str(path))  # what `swarmd run` calls
+        with lock:
+            gone.append(name)
+
+    stand_ins = [_sleeper(), _sleeper()]  # wait_all watches processes for early death
+    try:
+        with StartBarrier(path) as barrier:
+            threads = [
+                threading.Thread(target=client, args=("peer",)),
+                threading.Thread(target=client, args=("swarmd",)),
+            ]
+            for t in threads:
+                t.start()
+            barrier.wait_all(stand_ins, timeout_s=JOIN_S)
+            assert barrier.waiting == 2
+            threads[0].join(0.2)
+            assert gone == [], "a client passed the barrier before the release"
+            barrier.release()
+            for t in threads:
+                t.join(JOIN_S)
+            assert sorted(gone) == ["peer", "swarmd"]
+        assert not path.exists(), "the barrier socket was left behind"
+    finally:
+        for p in stand_ins:
+            p.kill()
+            p.wait()
+
+
+def test_a_contender_dying_before_the_barrier_is_named(workdir: Path) -> None:
+    dead = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    dead.wait()
+    alive = _sleeper()
+    try:
+        with StartBarrier(workdir / "b.sock") as barrier:
+            with pytest.raises(BarrierError, match="contender 1 exited with 3"):
+                barrier.wait_all([alive, dead], timeout_s=JOIN_S)
+    finally:
+        alive.kill()
+        alive.wait()
+
+
+def test_set_priority_reaches_every_thread() -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import threading, time\n"
+            "threading.Thread(target=time.sleep, args=(60,), daemon=True).start()\n"
+            "print('up', flush=True); time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == b"up\n"  # both threads exist now
+        set_priority(proc.pid, 7)
+        tids = [int(t) for t in os.listdir(f"/proc/{proc.pid}/task")]
+        assert len(tids) == 2
+        assert {os.getpriority(os.PRIO_PROCESS, t) for t in tids} == {7}
+    finally:
+        proc.kill()
+        proc.communicate()
+    set_priority(proc.pid, 0)  # an exited process is ignored, not an error
+
+
+@pytest.fixture
+def files(workdir: Path) -> BundleFiles:
+    return write_bundle(workdir, 2, domain_id=run_domain() + 7)
+
+
+def _config(workdir: Path, files: BundleFiles) -> Path:
+    return write_config(
+        workdir / "swarmd.yaml",
+        files,
+        node="uav1",
+        interface="lo",
+        ipv4="127.0.0.1",
+        socket_path=str(workdir / "ctl.sock"),
+    )
+
+
+def _env(**extra: str) -> dict[str, str]:
+    drop = ("NOTIFY_SOCKET", "JOURNAL_STREAM", "SWARMD_START_BARRIER")
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env.update(extra)
+    return env
+
+
+def test_swarmd_opens_no_socket_until_released(workdir: Path, files: BundleFiles) -> None:
+    with StartBarrier(workdir / "b.sock") as barrier:
+        proc = subprocess.Popen(
+            [SWARMD, "run", "--config", str(_config(workdir, files))],
+            env=_env(SWARMD_START_BARRIER=str(workdir / "b.sock")),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            barrier.wait_all([proc], timeout_s=JOIN_S)
+            # config and bundle are loaded (it connected), its control socket not yet bound
+            assert not (workdir / "ctl.sock").exists()
+            barrier.release()
+            for _ in range(int(JOIN_S / 0.05)):
+                if (workdir / "ctl.sock").exists():
+                    break
+                assert proc.poll() is None, proc.communicate()[1]
+                time.sleep(0.05)
+            assert (workdir / "ctl.sock").exists(), "released swarmd never bound its socket"
+            proc.terminate()
+            _, err = proc.communicate(timeout=JOIN_S)
+            assert proc.returncode == 0, err
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+def test_swarmd_with_no_barrier_listening_exits_78_in_one_line(
+    workdir: Path, files: BundleFiles
+) -> None:
+    missing = workdir / "nobody.sock"
+    proc = subprocess.run(
+        [SWARMD, "run", "--config", str(_config(workdir, files))],
+        env=_env(SWARMD_START_BARRIER=str(missing)),
+        capture_output=True,
+        text=True,
+        timeout=JOIN_S * 3,
+        check=False,
+    )
+    assert proc.returncode == 78
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert f"SWARMD_START_BARRIER={missing}: cannot connect" in lines[0]
+    assert not (workdir / "ctl.sock").exists()
