@@ -159,7 +159,9 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     cyclone = runs["cyclonedds-n3-r1.json"]
     assert cyclone["success_rate"] is not None
     assert (tmp_path / "summary.json").exists()
-    assert (tmp_path / "table.md").read_text().count("| swarmd | 3 |") == 1
+    text = (tmp_path / "table.md").read_text()
+    assert text.count("| swarmd | 3 | 1/1 |") == 1  # the summary row
+    assert text.count("| swarmd | 3 | 1 |") == 1  # the discovery breakdown row
 
 
 def _run(contender: str, peak: int, *, valid: bool = True) -> dict[str, object]:

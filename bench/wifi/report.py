@@ -246,7 +246,7 @@ def plots(runs: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
             mean = [statistics.fmean(s[t] for s in series) for t in range(length)]
             ax.plot(range(length), mean, label=f"{contender} ({len(series)} runs)")
         ax.set_yscale("symlog", linthresh=10)
-        ax.set_xlabel("time since launch (s)")
+        ax.set_xlabel("time since the start release (s)")
         ax.set_ylabel("frames/s on the channel (PHY tx incl. ACKs)")
         ax.set_title(f"Channel load during discovery, N = {n_fig} (cf. paper Fig. 10a)")
         ax.legend()
