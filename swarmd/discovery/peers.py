@@ -68,11 +68,6 @@ class Peer:
     def discovered(self) -> bool:
         return self.state == PeerState.DISCOVERED
 
-    def lease_deadline(self) -> float | None:
-        if self.state != PeerState.DISCOVERED or self.last_heard is None:
-            return None
-        return self.last_heard + self.lease_s
-
     def target(self) -> tuple[str, int] | None:
         """Where a directed frame to this peer goes."""
         return self.locator if self.locator is not None else self.bundle_locator
