@@ -523,7 +523,8 @@ class DiscoveryEngine:
             if matches is None:
                 matches = peer.matches = tuple(self._bundle.matches(self._me, peer.participant))
             peer.told = False
-            self._disarm(peer)
+            if peer.retry.due is not None or peer.retry.attempts:
+                self._disarm(peer)
             peer.times_discovered += 1
             self._emit(
                 PeerDiscovered(
@@ -637,12 +638,10 @@ class DiscoveryEngine:
 
     def _owes(self, peer: Peer) -> bool:
         """Whether a frame is owed to ``peer`` (see the theory of operation)."""
-        if peer.discovered:
+        state = peer.state  # asked after every datagram while announcing: no property calls
+        if state == PeerState.DISCOVERED:
             return not peer.told or not peer.lists_me
-        return peer.state == PeerState.UNDISCOVERED and self.phase in (
-            Phase.ANNOUNCE,
-            Phase.STEADY,
-        )
+        return state == PeerState.UNDISCOVERED and self.phase in (Phase.ANNOUNCE, Phase.STEADY)
 
     def _pending_count(self) -> int:
         """Peers with an armed retry whose debt still stands (stale ones are disarmed)."""

@@ -125,7 +125,8 @@ class LeaseQueue:
     def renew(self, index: int, lease_s: float, now: float) -> None:
         """Peer ``index`` was heard at ``now``; its lease (``lease_s`` long) restarts."""
         table = self._tables.get(lease_s)
-        if table is not None and self._length_of.get(index) == lease_s:
+        old = self._length_of.get(index)
+        if table is not None and old == lease_s:
             # the usual case, a renewal at an unchanged lease length: move to the tail
             head = next(iter(table))
             table[index] = now + lease_s
@@ -133,8 +134,8 @@ class LeaseQueue:
             if head == index:
                 self._head_changed(table, lease_s)
             return
-        if index in self._length_of:
-            self.remove(index)  # it advertises another lease length now
+        if old is not None:
+            self.remove(index)  # it advertises another lease length now (old != lease_s)
         if table is None:
             table = self._tables[lease_s] = OrderedDict()
         table[index] = now + lease_s

@@ -29,6 +29,7 @@ class Ledger:
 
     def __init__(self, n: int) -> None:
         self.n = n
+        self._pairs = n * (n - 1)  # read on every discovered pair
         # known[i][j]: rows of bytes, not a numpy matrix: a run makes ~N^2 scalar lookups
         # here (every PeerDiscovered), and numpy's scalar indexing costs ~10x a bytearray's
         self.known = [bytearray(n) for _ in range(n)]
@@ -41,7 +42,7 @@ class Ledger:
 
     @property
     def pairs(self) -> int:
-        return self.n * (self.n - 1)
+        return self._pairs
 
     def on_discovered(self, listener: Callable[[int, int, float], None]) -> None:
         self._listeners.append(listener)
@@ -56,7 +57,7 @@ class Ledger:
         if not seen[j]:
             seen[j] = 1
             self.first[i, j] = now
-        if self.count == self.pairs and self.all_discovered_s is None:
+        if self.count == self._pairs and self.all_discovered_s is None:
             self.all_discovered_s = now
         for listener in self._listeners:
             listener(i, j, now)
