@@ -149,6 +149,29 @@ def test_calibration_compares_matching_cells(tmp_path: Path) -> None:
     assert rows["discovery_frames"]["within_tolerance"] is False
 
 
+def test_calibration_reads_testbed_run_files_and_skips_invalid_runs(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "cyclonedds-n10-r1.json").write_text(
+        '{"contender": "cyclonedds", "n": 10, "valid": true, "peak_pps": 3000,'
+        ' "discovery_frames_60s": 4000}'
+    )
+    (runs / "cyclonedds-n10-r2.json").write_text(
+        '{"contender": "cyclonedds", "n": 10, "valid": false, "peak_pps": 9, '
+        '"discovery_frames_60s": 9}'
+    )
+    (runs / "notes.txt").write_text("ignored")
+    assert load_testbed(runs) == [
+        {
+            "protocol": "cyclone-model",
+            "n": 10,
+            "valid": True,
+            "peak_pps": 3000,
+            "discovery_frames": 4000,
+        }
+    ]
+
+
 def test_calibration_names_the_bad_line(tmp_path: Path) -> None:
     bad = tmp_path / "bad.jsonl"
     bad.write_text('{"protocol": "zenoh", "n": 5}\nnot json\n')

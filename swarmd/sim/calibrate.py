@@ -38,8 +38,22 @@ METRICS: Final = ("peak_pps", "discovery_frames", "success_rate")
 TOLERANCE: Final = 0.30  # |sim - testbed| / testbed, per metric
 
 
+# the testbed's run files (bench/wifi/run.py) name two fields differently
+FIELD_ALIASES: Final = {"contender": "protocol", "discovery_frames_60s": "discovery_frames"}
+
+
 def load_testbed(path: Path) -> list[dict[str, Any]]:
-    """Testbed runs from ``path``; one clear line on bad input."""
+    """Testbed runs from ``path``: a JSON-lines file, a JSON list, or a directory of
+    ``bench/wifi/run.py`` run files (``bench/results/wifi/runs``). Runs the testbed marked
+    invalid (ns-3 fell behind real time) are left out. One clear line on bad input."""
+    if path.is_dir():
+        runs: list[Any] = []
+        for f in sorted(path.glob("*.json")):
+            try:
+                runs.append(json.loads(f.read_text(encoding="utf-8")))
+            except (OSError, json.JSONDecodeError) as exc:
+                raise ValueError(f"{f}: unreadable run ({exc}); fix: rerun or remove it") from None
+        return _normalise(path, runs)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
@@ -65,11 +79,19 @@ def load_testbed(path: Path) -> list[dict[str, Any]]:
                 raise ValueError(
                     f"{path}: line {lineno}: not JSON; fix: one JSON object per line"
                 ) from None
-    out = []
-    for i, row in enumerate(rows, 1):
-        if not isinstance(row, dict) or "protocol" not in row or "n" not in row:
+    return _normalise(path, rows)
+
+
+def _normalise(path: Path, rows: list[Any]) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    for i, raw in enumerate(rows, 1):
+        if not isinstance(raw, dict):
+            raise ValueError(f"{path}: run {i} is not a JSON object; fix: one object per run")
+        row = {FIELD_ALIASES.get(str(k), str(k)): v for k, v in raw.items()}
+        if row.get("valid") is False:
+            continue
+        if "protocol" not in row or "n" not in row:
             raise ValueError(f"{path}: run {i} lacks 'protocol'/'n'; fix: add both fields")
-        row = dict(row)
         row["protocol"] = ALIASES.get(str(row["protocol"]).lower(), str(row["protocol"]))
         out.append(row)
     return out
@@ -111,11 +133,14 @@ def compare(
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m swarmd.sim.calibrate")
-    p.add_argument("--testbed", type=Path, default=None, help="testbed runs (JSON lines)")
+    p.add_argument(
+        "--testbed", type=Path, default=None, help="testbed runs: JSON lines, or a runs/ directory"
+    )
     p.add_argument("--n", default="5,10,20")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--tolerance", type=float, default=TOLERANCE)
+    p.add_argument("--spacing", type=float, default=2.0, help="metres between drones on the line")
     p.add_argument("--out", type=Path, default=None, help="write calibration.json here")
     args = p.parse_args(argv)
     try:
@@ -129,8 +154,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     for proto in protocols:
         for n in sizes:
             for k in range(args.repeat):
-                # the testbed's geometry: a line, 2 m apart, all in range
-                scenario = Scenario(proto, n, args.seed + k, placement="line", spacing_m=2.0)
+                # the testbed's geometry: a line, all in range
+                scenario = Scenario(
+                    proto, n, args.seed + k, placement="line", spacing_m=args.spacing
+                )
                 sim.append(run(scenario))
     rows = compare(sim, reference, args.tolerance)
     source = str(args.testbed) if args.testbed else "issue-6 prototype sanity figures"
