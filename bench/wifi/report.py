@@ -293,8 +293,9 @@ def write_report(out: Path) -> list[Path]:
         table(rows)
         + "\nswarmd / stock stack within the same repeat (valid pairs only):\n\n"
         + paired_table(runs)
-        + "\nThe same including runs over the lag bound (indicative only: a lagging channel"
-        " spreads a burst over more seconds, so a stock stack's peak is underestimated):\n\n"
+        + "\nThe same including runs over the lag bound (indicative only: ns-3 was behind"
+        " real time during the stock stacks' bursts, so their per-second counts are"
+        " distorted, in a direction not known):\n\n"
         + paired_table(runs, include_invalid=True)
         + "\nswarmd's discovery frames, per valid run:\n\n"
         + breakdown_table(runs)
