@@ -106,8 +106,10 @@ class Testbed:
     def _namespace(self, name: str) -> None:
         if name in list_namespaces():
             raise TopologyError(f"namespace {name} exists already; a stale run? remove it")
-        _ip("netns", "add", name)
+        # recorded first: a SIGTERM raised while `ip netns add` runs must not leak it
+        # (close() deletes absent names harmlessly)
         self._created.append(name)
+        _ip("netns", "add", name)
 
     def build(self) -> None:
         cleanup_dead_runs(BASE)
