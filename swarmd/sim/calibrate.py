@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
 
-from swarmd.sim.runner import Scenario, run
+from swarmd.sim.runner import PROTOCOLS, Scenario, run
 
 # issue 6 prototype, stock implementations, N = 10, line at 2 m, 60 s
 SANITY: Final = (
@@ -149,7 +149,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"swarmd.sim.calibrate: {exc}", file=sys.stderr)
         return 2
-    protocols = sorted({str(r["protocol"]) for r in reference})
+    # testbed-only contenders (swarmd-paper, ablations) have no simulator counterpart
+    protocols = sorted({str(r["protocol"]) for r in reference} & set(PROTOCOLS))
     sim: list[dict[str, Any]] = []
     for proto in protocols:
         for n in sizes:
