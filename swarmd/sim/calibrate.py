@@ -18,7 +18,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
 
-from swarmd.sim.runner import PROTOCOLS, Scenario, run
+from swarmd.sim.protocols import PROTOCOLS
+from swarmd.sim.runner import Scenario, run
 
 # issue 6 prototype, stock implementations, N = 10, line at 2 m, 60 s
 SANITY: Final = (
