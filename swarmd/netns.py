@@ -299,8 +299,10 @@ class Lan:
     def _add_namespace(self, name: str) -> None:
         if name in list_namespaces():
             raise NetnsError(f"namespace {name} already exists; remove it with cleanup_stale")
-        _ip("netns", "add", name)
+        # recorded first: a signal raised while `ip netns add` runs must not leak the
+        # namespace (close() deletes absent names harmlessly)
         self._created.append(name)
+        _ip("netns", "add", name)
         _ip("-n", name, "link", "set", "lo", "up")
 
     def _build(self) -> None:
