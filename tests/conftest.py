@@ -8,6 +8,8 @@ without iproute2. ``cyclone_factory`` starts stock Cyclone DDS participants in t
 
 from __future__ import annotations
 
+import os
+import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -73,3 +75,15 @@ def cyclone_factory(tmp_path: Path, lan_factory: LanFactory) -> Iterator[Cyclone
     yield start
     for peer in peers:
         peer.stop()
+
+
+@pytest.fixture
+def workdir(tmp_path: Path) -> Iterator[Path]:
+    """A short scratch directory: AF_UNIX socket paths must stay under 108 bytes, and
+    pytest's ``tmp_path`` can be longer."""
+    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")
+    short.mkdir(parents=True, exist_ok=True)
+    try:
+        yield short
+    finally:
+        shutil.rmtree(short, ignore_errors=True)

@@ -133,3 +133,24 @@ logging:
 {extra}"""
     path.write_text(text)
     return path
+
+
+def loopback_config(workdir: Path, files: BundleFiles, node: str = "uav1") -> Path:
+    """A daemon config for ``node`` on loopback, its control socket in ``workdir``."""
+    return write_config(
+        workdir / "swarmd.yaml",
+        files,
+        node=node,
+        interface="lo",
+        ipv4="127.0.0.1",
+        socket_path=str(workdir / "ctl.sock"),
+    )
+
+
+def clean_env(**extra: str) -> dict[str, str]:
+    """This process's environment without what would make a child daemon talk to systemd
+    or wait on a testbed start barrier, plus ``extra``."""
+    drop = ("NOTIFY_SOCKET", "JOURNAL_STREAM", "SWARMD_START_BARRIER")
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env.update(extra)
+    return env

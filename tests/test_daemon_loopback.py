@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import os
 import socket
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,17 +25,6 @@ from swarmd.sdnotify import Notifier
 from tests.daemon_support import BundleFiles, run_domain, write_bundle, write_config
 
 WAIT_S = 20.0
-
-
-@pytest.fixture
-def workdir(tmp_path: Path) -> Iterator[Path]:
-    # AF_UNIX socket paths must stay under 108 bytes
-    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")
-    short.mkdir(parents=True, exist_ok=True)
-    yield short
-    for child in short.iterdir():
-        child.unlink()
-    short.rmdir()
 
 
 @pytest.fixture

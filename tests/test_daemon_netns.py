@@ -8,12 +8,11 @@ Assertions are on states, counters and logged reasons, never on elapsed time.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,16 +29,6 @@ LEASE_S = 3.0  # short, so a SIGKILLed daemon is declared lost quickly
 WAIT_S = 30.0
 
 pytestmark = [pytest.mark.netns, pytest.mark.interop]
-
-
-@pytest.fixture
-def workdir(tmp_path: Path) -> Iterator[Path]:
-    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")
-    short.mkdir(parents=True, exist_ok=True)
-    yield short
-    for child in short.iterdir():
-        child.unlink()
-    short.rmdir()
 
 
 def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:

@@ -4,30 +4,24 @@ binds, JSON logs, SIGTERM, and one-line exit 78 on a bad config or bundle."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.daemon_support import BundleFiles, run_domain, write_bundle, write_config
+from tests.daemon_support import (
+    BundleFiles,
+    clean_env,
+    loopback_config,
+    run_domain,
+    write_bundle,
+)
 
 SWARMD = str(Path(sys.executable).parent / "swarmd")
 WAIT_S = 20.0
-
-
-@pytest.fixture
-def workdir(tmp_path: Path) -> Iterator[Path]:
-    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")
-    short.mkdir(parents=True, exist_ok=True)
-    yield short
-    for child in short.iterdir():
-        child.unlink()
-    short.rmdir()
 
 
 @pytest.fixture
@@ -37,20 +31,11 @@ def files(workdir: Path) -> BundleFiles:
 
 
 def _config(workdir: Path, files: BundleFiles) -> Path:
-    return write_config(
-        workdir / "swarmd.yaml",
-        files,
-        node="uav1",
-        interface="lo",
-        ipv4="127.0.0.1",
-        socket_path=str(workdir / "ctl.sock"),
-    )
+    return loopback_config(workdir, files)
 
 
 def _env(**extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "JOURNAL_STREAM")}
-    env.update(extra)
-    return env
+    return clean_env(**extra)
 
 
 def test_ready_watchdog_and_clean_sigterm(workdir: Path, files: BundleFiles) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import os
 import random
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,16 +35,6 @@ from tests.daemon_support import BundleFiles, run_domain, swarm_sections, write_
 
 N = 3
 WAIT_S = 30.0
-
-
-@pytest.fixture
-def workdir(tmp_path: Path) -> Iterator[Path]:
-    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")  # AF_UNIX paths <= 108 B
-    short.mkdir(parents=True, exist_ok=True)
-    yield short
-    for child in sorted(short.rglob("*"), reverse=True):
-        child.rmdir() if child.is_dir() else child.unlink()
-    short.rmdir()
 
 
 def _mavlink_port(i: int) -> int:

@@ -17,12 +17,11 @@ itself ran.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,16 +37,6 @@ WAIT_S = 40.0
 LINK_LOSS_BOUND_S = 3.0  # the bound: PX4 link loss flips readiness within 3 s
 
 pytestmark = [pytest.mark.netns]
-
-
-@pytest.fixture
-def workdir(tmp_path: Path) -> Iterator[Path]:
-    short = Path(f"/tmp/swt-{os.getpid()}-{tmp_path.name[-24:]}")  # AF_UNIX paths <= 108 B
-    short.mkdir(parents=True, exist_ok=True)
-    yield short
-    for child in sorted(short.rglob("*"), reverse=True):
-        child.rmdir() if child.is_dir() else child.unlink()
-    short.rmdir()
 
 
 class Drones:

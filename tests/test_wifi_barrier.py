@@ -8,12 +8,10 @@ the harness's UNIX socket before it opens any socket of its own; unset, nothing 
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -21,21 +19,16 @@ import pytest
 from bench.wifi.barrier import BarrierError, StartBarrier, set_priority
 from bench.wifi.peers.common import wait_start_barrier as peer_wait
 from swarmd.cli.swarmd_main import wait_start_barrier as swarmd_wait
-from tests.daemon_support import BundleFiles, run_domain, write_bundle, write_config
+from tests.daemon_support import (
+    BundleFiles,
+    clean_env,
+    loopback_config,
+    run_domain,
+    write_bundle,
+)
 
 SWARMD = str(Path(sys.executable).parent / "swarmd")
 JOIN_S = 20.0  # a safety net for a hung thread or process, never a measured time
-
-
-@pytest.fixture
-def workdir() -> Iterator[Path]:
-    # AF_UNIX paths are limited to 108 bytes: pytest's tmp_path can be longer
-    short = Path(f"/tmp/swt-{os.getpid()}-barrier-{threading.get_ident() % 10_000}")
-    short.mkdir(parents=True, exist_ok=True)
-    try:
-        yield short
-    finally:
-        shutil.rmtree(short, ignore_errors=True)
 
 
 def _sleeper() -> subprocess.Popen[bytes]:
@@ -122,21 +115,11 @@ def files(workdir: Path) -> BundleFiles:
 
 
 def _config(workdir: Path, files: BundleFiles) -> Path:
-    return write_config(
-        workdir / "swarmd.yaml",
-        files,
-        node="uav1",
-        interface="lo",
-        ipv4="127.0.0.1",
-        socket_path=str(workdir / "ctl.sock"),
-    )
+    return loopback_config(workdir, files)
 
 
 def _env(**extra: str) -> dict[str, str]:
-    drop = ("NOTIFY_SOCKET", "JOURNAL_STREAM", "SWARMD_START_BARRIER")
-    env = {k: v for k, v in os.environ.items() if k not in drop}
-    env.update(extra)
-    return env
+    return clean_env(**extra)
 
 
 def test_swarmd_opens_no_socket_until_released(workdir: Path, files: BundleFiles) -> None:
