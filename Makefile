@@ -25,7 +25,7 @@ test: setup
 	$(VENV)/bin/pytest $(PYTEST_ARGS)
 
 demo: setup
-	$(VENV)/bin/python -m swarmd.demo --n $(N)
+	$(VENV)/bin/python -m swarmd_lab.demo --n $(N)
 
 bench: setup
 	$(VENV)/bin/python bench/codec.py

@@ -3,7 +3,7 @@
     sudo .venv/bin/python bench/daemon_rss.py [--peers 50] [--measure-s 30] [--json]
 
 Starts peers + 1 real ``swarmd run`` processes, one per network namespace on one bridge
-(``swarmd.netns.Lan``), waits until the first one (uav1) has discovered all its peers, lets
+(``swarmd_lab.netns.Lan``), waits until the first one (uav1) has discovered all its peers, lets
 the swarm settle, then samples every daemon's ``/proc/PID`` over ``--measure-s`` seconds:
 VmRSS at the end, VmHWM (peak RSS), and CPU = (utime + stime) delta / wall time, in percent
 of one core. Reports uav1 and the median/max over all daemons. Targets (issue 4): RSS
@@ -26,8 +26,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from swarmd_lab.netns import Lan, unavailable_reason  # noqa: E402
+
 from swarmd.control import DaemonUnreachable, request  # noqa: E402
-from swarmd.netns import Lan, unavailable_reason  # noqa: E402
 from tests.daemon_support import write_bundle, write_config  # noqa: E402
 
 RSS_TARGET_MB = 60.0

@@ -33,7 +33,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # the Cyclone and tshark drivers live in tests/peers
 
-from swarmd.netns import Lan, unavailable_reason  # noqa: E402
+from swarmd_lab.netns import Lan, unavailable_reason  # noqa: E402
+
 from swarmd.rtps import (  # noqa: E402
     BES_SPDP_ONLY,
     DecodeError,

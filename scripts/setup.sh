@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up everything `make test` and `make demo` need on a fresh Debian machine:
 # the Debian tools the tests drive (tshark, iproute2, nftables, ...) and a Python 3.11 venv
-# with swarmd installed editable plus its dev extra. Idempotent; quiet when nothing is missing.
+# with swarmd installed editable plus its dev extra, and the lab tools (lab/) editable.
+# Idempotent; quiet when nothing is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -43,9 +44,11 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PY" -m venv "$VENV"
 fi
 stamp="$VENV/.installed"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  echo "setup: pip install -e '.[dev,testbed]'"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ lab/pyproject.toml -nt "$stamp" ]; then
+  # two distributions, both editable: swarmd (what flies) and swarmd-lab (lab/: simulator,
+  # demo, namespaces, vehicle simulator), which depends on swarmd and brings numpy/matplotlib
+  echo "setup: pip install -e '.[dev,testbed]' -e ./lab"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip
-  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e '.[dev,testbed]'
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e '.[dev,testbed]' -e ./lab
   touch "$stamp"
 fi

@@ -52,6 +52,7 @@ from swarmd.discovery.events import (
     PeerLost,
     PhaseChanged,
 )
+from swarmd.exitcodes import StartupError
 from swarmd.link.file import FileSource
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.nl80211 import Nl80211Source
@@ -67,14 +68,6 @@ IP_MULTICAST_ALL: Final = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
 # Linux's default IP_MULTICAST_ALL=1 delivers every group any socket joined to every socket
 # bound to the port; off, the SPDP socket hears only 239.255.0.1 joined on our interface.
 RECV_BUFFER_BYTES: Final = 1 << 20  # a burst of 50 peers' DATA(p) (~300 B each) fits easily
-
-
-class StartupError(Exception):
-    """Start-up failed for a reason outside the config file; one line, with an exit code."""
-
-    def __init__(self, message: str, exit_code: int) -> None:
-        super().__init__(message)
-        self.exit_code = exit_code
 
 
 def interface_ipv4(ifname: str) -> str:

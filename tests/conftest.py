@@ -1,6 +1,6 @@
 """Shared fixtures.
 
-netns: ``lan_factory`` builds isolated LANs of network namespaces (``swarmd.netns.Lan``)
+netns: ``lan_factory`` builds isolated LANs of network namespaces (``swarmd_lab.netns.Lan``)
 and removes them after the test, failing the test if any namespace leaked; tests that
 use it carry ``@pytest.mark.netns`` and are skipped, with the reason, when not root or
 without iproute2. ``cyclone_factory`` starts stock Cyclone DDS participants in them.
@@ -14,8 +14,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from swarmd_lab.netns import Lan, Namespace, cleanup_dead_runs, list_namespaces, unavailable_reason
 
-from swarmd.netns import Lan, Namespace, cleanup_dead_runs, list_namespaces, unavailable_reason
 from tests.peers.cyclone import CyclonePeer
 
 LanFactory = Callable[..., Lan]

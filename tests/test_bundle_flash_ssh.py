@@ -14,9 +14,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.loader import load_bundle
-from swarmd.netns import Lan, Namespace
 
 REPO = Path(__file__).resolve().parent.parent
 SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"

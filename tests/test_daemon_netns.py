@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from swarmd_lab.netns import Lan
 
 from swarmd.control import DaemonUnreachable, request
-from swarmd.netns import Lan
 from tests.conftest import CycloneFactory, LanFactory
 from tests.daemon_support import write_bundle, write_config
 

@@ -16,8 +16,7 @@ import threading
 from pathlib import Path
 
 import pytest
-
-from swarmd.netns import list_namespaces
+from swarmd_lab.netns import list_namespaces
 
 N = 3
 FIELDS = ("discovered_all_s", "frames_sent", "ready", "airborne", "command_latency_s")
@@ -25,7 +24,7 @@ FIELDS = ("discovered_all_s", "frames_sent", "ready", "airborne", "command_laten
 
 def _run_demo(out: Path, *extra: str) -> tuple[subprocess.CompletedProcess[str], int]:
     """The finished demo and its pid (its namespaces are named ``swn-<pid>-...``)."""
-    argv = [sys.executable, "-m", "swarmd.demo", "--n", str(N), "--out", str(out),
+    argv = [sys.executable, "-m", "swarmd_lab.demo", "--n", str(N), "--out", str(out),
             "--late-gps", "3", *extra]  # fmt: skip
     with subprocess.Popen(  # noqa: S603 - our own module, argv list
         argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -82,7 +81,7 @@ def test_demo_on_loopback(tmp_path: Path) -> None:
 
 @pytest.mark.netns
 def test_ctrl_c_stops_every_drone_and_removes_the_namespaces() -> None:
-    argv = [sys.executable, "-m", "swarmd.demo", "--n", "3", "--out", "/nonexistent-demo-out"]
+    argv = [sys.executable, "-m", "swarmd_lab.demo", "--n", "3", "--out", "/nonexistent-demo-out"]
     proc = subprocess.Popen(  # noqa: S603 - our own module, argv list
         argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )

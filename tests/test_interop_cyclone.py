@@ -15,8 +15,8 @@ from contextlib import closing
 from typing import Final
 
 import pytest
+from swarmd_lab.netns import Lan
 
-from swarmd.netns import Lan
 from swarmd.rtps import (
     BES_SPDP_ONLY,
     VENDORID_SWARMD,

@@ -1,4 +1,4 @@
-"""swarmd.netns: isolated LANs of namespaces, built and torn down on every exit path."""
+"""swarmd_lab.netns: isolated LANs of namespaces, built and torn down on every exit path."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import sys
 from contextlib import closing
 
 import pytest
+from swarmd_lab.netns import Lan, cleanup_stale, list_namespaces, run_prefix
 
-from swarmd.netns import Lan, cleanup_stale, list_namespaces, run_prefix
 from tests.peers.udp import group_listener, receive_until, unicast_socket
 
 pytestmark = pytest.mark.netns

@@ -16,16 +16,16 @@ import sys
 from collections.abc import Callable
 
 import pytest
+from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
+from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, LandedState
 from swarmd.px4.mavlink_backend import MavlinkBackend
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.readiness import Readiness, Reason
-from swarmd.px4.sim_model import SimConfig, SimVehicle
 from swarmd.px4.takeoff import FailReason, TakeoffFailed, TakeoffSucceeded
 from swarmd.px4.transport import UdpLink, parse_connection
-from swarmd.px4.vehicle_sim import start_sim
 
 BOUND_S = 20.0  # generous upper bound so a broken build fails instead of hanging
 
@@ -92,7 +92,7 @@ def test_simulator_process_prearm_failure_and_link_loss() -> None:
         bridge = Px4Bridge.from_config(Px4Config(connection="udpin:127.0.0.1:0"))
         await bridge.start()
         argv = [
-            sys.executable, "-m", "swarmd.px4.vehicle_sim",
+            sys.executable, "-m", "swarmd_lab.px4.vehicle_sim",
             "--connect", f"udpout:127.0.0.1:{udp_port(bridge)}",
             "--gps-fix-after", "0", "--fail-prearm", "--json-log", "--seed", "4",
         ]  # fmt: skip
@@ -126,7 +126,7 @@ def test_simulator_process_prearm_failure_and_link_loss() -> None:
 
 def test_bad_simulator_options_give_one_line() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "swarmd.px4.vehicle_sim", "--connect", "tcp:1.2.3.4:1"],
+        [sys.executable, "-m", "swarmd_lab.px4.vehicle_sim", "--connect", "tcp:1.2.3.4:1"],
         capture_output=True,
         text=True,
         timeout=BOUND_S,

@@ -233,7 +233,7 @@ def test_connection_strings() -> None:
 def test_pure_modules_import_no_io() -> None:
     """readiness, take-off and the simulator model stay sans-IO (style.md rule 1)."""
     code = (
-        "import sys; import swarmd.px4.readiness, swarmd.px4.takeoff, swarmd.px4.sim_model;"
+        "import sys; import swarmd.px4.readiness, swarmd.px4.takeoff, swarmd_lab.px4.sim_model;"
         "print(sorted(m for m in ('asyncio', 'socket', 'selectors', 'pymavlink')"
         " if m in sys.modules))"
     )

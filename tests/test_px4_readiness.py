@@ -7,6 +7,8 @@ import random
 from dataclasses import replace
 
 import pytest
+from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
+from swarmd_lab.px4.virtual import VirtualLink
 
 from swarmd.px4.constants import (
     SENSOR_PREARM_CHECK,
@@ -32,8 +34,6 @@ from swarmd.px4.readiness import (
     VehicleState,
     readiness,
 )
-from swarmd.px4.sim_model import SimConfig, SimVehicle
-from swarmd.px4.virtual import VirtualLink
 
 CONFIG = ReadinessConfig(min_battery_pct=30.0)
 GOOD_HB = Heartbeat(12, 2, 1, MODE_LOITER.custom_mode, MavState.STANDBY)

@@ -7,6 +7,7 @@ import random
 from collections import Counter
 
 import pytest
+from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
 
 from swarmd.px4.constants import (
     SENSOR_PREARM_CHECK,
@@ -27,7 +28,6 @@ from swarmd.px4.messages import (
     SysStatus,
     VehicleCommand,
 )
-from swarmd.px4.sim_model import SimConfig, SimVehicle
 
 COMPANION = (1, 191)
 

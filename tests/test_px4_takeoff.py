@@ -8,6 +8,8 @@ import random
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
+from swarmd_lab.px4.virtual import DropFilter, VirtualLink
 
 from swarmd.px4.constants import (
     SENSOR_PREARM_CHECK,
@@ -31,7 +33,6 @@ from swarmd.px4.messages import (
     VehicleCommand,
 )
 from swarmd.px4.readiness import VehicleState
-from swarmd.px4.sim_model import SimConfig, SimVehicle
 from swarmd.px4.takeoff import (
     AckReceived,
     CommandSent,
@@ -42,7 +43,6 @@ from swarmd.px4.takeoff import (
     TakeoffSequence,
     TakeoffSucceeded,
 )
-from swarmd.px4.virtual import DropFilter, VirtualLink
 
 HOME_AMSL_M = 488.0
 

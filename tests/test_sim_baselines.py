@@ -6,12 +6,11 @@ from collections import Counter
 from collections.abc import Callable
 
 import pytest
-
-from swarmd.sim.channel import MULTICAST, Datagram
-from swarmd.sim.clock import VirtualClock
-from swarmd.sim.dds_model import CYCLONE, FASTDDS, DdsNode, DdsTiming
-from swarmd.sim.node import Ledger, NodeContext, SimNode
-from swarmd.sim.zenoh_model import ZenohNode
+from swarmd_lab.sim.channel import MULTICAST, Datagram
+from swarmd_lab.sim.clock import VirtualClock
+from swarmd_lab.sim.dds_model import CYCLONE, FASTDDS, DdsNode, DdsTiming
+from swarmd_lab.sim.node import Ledger, NodeContext, SimNode
+from swarmd_lab.sim.zenoh_model import ZenohNode
 
 WINDOW = 60.0
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from swarmd.sim.channel import MULTICAST, Channel, ChannelConfig, Datagram, Kind
-from swarmd.sim.clock import VirtualClock
-from swarmd.sim.phy import ACK_BYTES, Radio, airtime_s, per
+from swarmd_lab.sim.channel import MULTICAST, Channel, ChannelConfig, Datagram, Kind
+from swarmd_lab.sim.clock import VirtualClock
+from swarmd_lab.sim.phy import ACK_BYTES, Radio, airtime_s, per
 
 Received = list[tuple[int, int, float]]
 

@@ -6,11 +6,11 @@ import json
 from pathlib import Path
 
 import pytest
+from swarmd_lab.sim.__main__ import main
+from swarmd_lab.sim.calibrate import compare, load_testbed
+from swarmd_lab.sim.runner import Scenario, run
 
 import swarmd.discovery.engine as engine_module
-from swarmd.sim.__main__ import main
-from swarmd.sim.calibrate import compare, load_testbed
-from swarmd.sim.runner import Scenario, run
 
 
 def dumps(result: dict[str, object]) -> str:

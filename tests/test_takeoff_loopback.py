@@ -19,6 +19,8 @@ from typing import Any
 
 import pytest
 import structlog
+from swarmd_lab.px4.sim_model import SimConfig
+from swarmd_lab.px4.vehicle_sim import SimProtocol, start_sim
 
 from swarmd.app import SwarmApp
 from swarmd.config import load_config
@@ -27,9 +29,7 @@ from swarmd.daemon import Daemon
 from swarmd.dataplane.types import Command, CommandKind
 from swarmd.link.static import StaticSource
 from swarmd.px4.constants import LandedState
-from swarmd.px4.sim_model import SimConfig
 from swarmd.px4.transport import parse_connection
-from swarmd.px4.vehicle_sim import SimProtocol, start_sim
 from swarmd.sdnotify import Notifier
 from tests.daemon_support import BundleFiles, run_domain, swarm_sections, write_bundle, write_config
 

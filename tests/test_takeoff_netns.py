@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from swarmd_lab.netns import Lan
 
 from swarmd.control import DaemonUnreachable, RequestError, request
-from swarmd.netns import Lan
 from tests.conftest import LanFactory
 from tests.daemon_support import BundleFiles, swarm_sections, write_bundle, write_config
 

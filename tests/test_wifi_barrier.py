@@ -1,8 +1,9 @@
 """The testbed's fair start (bench/wifi/barrier.py) and swarmd's opt-in hook for it.
 
-``SWARMD_START_BARRIER=PATH`` makes ``swarmd run`` load its config and bundle, then wait on
-the harness's UNIX socket before it opens any socket of its own; unset, nothing changes
-(the other daemon tests run without it).
+``SWARMD_START_BARRIER=PATH`` makes ``swarmd run`` behind the testbed's launcher
+(``python -m swarmd_lab.start_barrier``) load its config and bundle, then wait on the
+harness's UNIX socket before it opens any socket of its own; unset, nothing changes (the other
+daemon tests run plain ``swarmd``).
 """
 
 from __future__ import annotations
@@ -15,10 +16,10 @@ import time
 from pathlib import Path
 
 import pytest
+from swarmd_lab.start_barrier import wait_start_barrier as swarmd_wait
 
 from bench.wifi.barrier import BarrierError, StartBarrier, set_priority
 from bench.wifi.peers.common import wait_start_barrier as peer_wait
-from swarmd.cli.swarmd_main import wait_start_barrier as swarmd_wait
 from tests.daemon_support import (
     BundleFiles,
     clean_env,
@@ -27,7 +28,7 @@ from tests.daemon_support import (
     write_bundle,
 )
 
-SWARMD = str(Path(sys.executable).parent / "swarmd")
+SWARMD = [sys.executable, "-m", "swarmd_lab.start_barrier"]  # `swarmd` + the barrier hook
 JOIN_S = 20.0  # a safety net for a hung thread or process, never a measured time
 
 
@@ -125,7 +126,7 @@ def _env(**extra: str) -> dict[str, str]:
 def test_swarmd_opens_no_socket_until_released(workdir: Path, files: BundleFiles) -> None:
     with StartBarrier(workdir / "b.sock") as barrier:
         proc = subprocess.Popen(
-            [SWARMD, "run", "--config", str(_config(workdir, files))],
+            [*SWARMD, "run", "--config", str(_config(workdir, files))],
             env=_env(SWARMD_START_BARRIER=str(workdir / "b.sock")),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
@@ -156,7 +157,7 @@ def test_swarmd_with_no_barrier_listening_exits_78_in_one_line(
 ) -> None:
     missing = workdir / "nobody.sock"
     proc = subprocess.run(
-        [SWARMD, "run", "--config", str(_config(workdir, files))],
+        [*SWARMD, "run", "--config", str(_config(workdir, files))],
         env=_env(SWARMD_START_BARRIER=str(missing)),
         capture_output=True,
         text=True,

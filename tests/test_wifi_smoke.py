@@ -14,12 +14,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from swarmd_lab.netns import delete_namespace, list_namespaces
 
 from bench.wifi.metrics import frame_series, layer_counters, percentile, success
 from bench.wifi.ns3_loader import unavailable_reason
 from bench.wifi.report import paired_ratios, summarise, table
 from bench.wifi.topology import BASE, ns3_mac
-from swarmd.netns import delete_namespace, list_namespaces
 
 REPO = Path(__file__).resolve().parents[1]
 FIELDS = (

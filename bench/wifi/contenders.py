@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
+from swarmd_lab.netns import Namespace
+
 from bench.wifi.barrier import LAUNCH_NICE
 from bench.wifi.bundle import write_bundle
 from swarmd.config import _FIELDS as CONFIG_FIELDS
 from swarmd.control import DaemonUnreachable, RequestError, request
-from swarmd.netns import Namespace
 
 REPO: Final = Path(__file__).resolve().parents[2]
 PEERS: Final = Path(__file__).resolve().parent / "peers"
@@ -252,14 +253,15 @@ discovery:
 
     def start(self, barrier: Path) -> None:
         files = write_bundle(self.work / "bundle", [d.address for d in self.drones])
-        swarmd = str(Path(sys.executable).parent / "swarmd")
+        # `swarmd run` behind the testbed's fair-start hook (swarmd_lab.start_barrier)
+        swarmd = [sys.executable, "-m", "swarmd_lab.start_barrier"]
         env = _clean_env()
         env["SWARMD_START_BARRIER"] = str(barrier)
         for i, drone in enumerate(self.drones):
             cfg = self._config(i, files.path, files.trusted_key)
             self.procs.append(
                 drone.popen(
-                    _niced([swarmd, "run", "--config", str(cfg)]),
+                    _niced([*swarmd, "run", "--config", str(cfg)]),
                     env=env,
                     stdout=self._log(f"uav{i + 1}.log"),
                     stderr=subprocess.STDOUT,

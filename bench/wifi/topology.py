@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Final
 
-from swarmd.netns import Namespace, cleanup_dead_runs, delete_namespace, list_namespaces
+from swarmd_lab.netns import Namespace, cleanup_dead_runs, delete_namespace, list_namespaces
 
 BASE: Final = "swf"  # swarmd wifi testbed; cleanup_dead_runs("swf") sweeps killed runs
 MULTICAST_NET: Final = "224.0.0.0/4"

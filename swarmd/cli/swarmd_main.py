@@ -5,25 +5,24 @@ held by another live swarmd, 71 a UDP socket cannot be bound or joined, 78 bad c
 rejected bundle (systemd's ``RestartPreventExitStatus=78`` stops a restart loop on those).
 Every failure before the loop runs is one line on stderr, never a traceback.
 
-``SWARMD_START_BARRIER=PATH`` (opt-in, for benchmark harnesses such as bench/wifi): after
-the config and bundle are loaded but before any socket is opened, ``swarmd run`` connects
-to the UNIX stream socket at PATH and waits until the harness sends a byte or closes the
-connection, so N daemons can finish their start-up work first and then begin at one
-instant. Unset (the normal case), nothing changes. Unreachable PATH: exit 78.
+``main(argv, before_run=...)`` takes an optional hook called after the config and bundle
+are loaded and before any socket is opened; a ``StartupError`` it raises ends the run with
+that one line and its exit code. The daemon sets none; the testbed's fair start
+(``swarmd_lab.start_barrier``, ``SWARMD_START_BARRIER``) is such a hook, outside this entry
+point.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
-import os
-import socket
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 
 from swarmd import __version__
-from swarmd.config import EX_CONFIG, ConfigError, load_config
+from swarmd.config import ConfigError, load_config
+from swarmd.exitcodes import EX_CONFIG, EX_USAGE, StartupError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,28 +41,18 @@ def _fail(message: str, code: int) -> int:
     return code
 
 
-def wait_start_barrier(path: str) -> None:
-    """Block until the harness listening on the UNIX socket ``path`` releases us.
-
-    Connecting registers this process as waiting (the harness counts connections); the
-    release is one byte or the connection closing. Raises ``OSError`` if nobody listens.
-    """
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-        sock.connect(path)
-        sock.recv(1)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | None = None) -> int:
+    """``swarmd`` itself; ``before_run`` runs between loading and binding (see above)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command not in ("run", "check-config"):
         parser.print_help(sys.stderr)
-        return 2
+        return EX_USAGE
     # imported here so `swarmd --help` stays fast and works without the engine's deps
     from swarmd import logging as swarmd_logging
     from swarmd.bundle.errors import BundleError
     from swarmd.bundle.loader import load_bundle
-    from swarmd.daemon import Daemon, StartupError, run
+    from swarmd.daemon import Daemon, run
     from swarmd.discovery.config import EngineConfig
 
     engine_fields = frozenset(f.name for f in fields(EngineConfig)) - {"mode"}
@@ -97,16 +86,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _fail(f"config rejected: {exc}", EX_CONFIG)
         print(f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm})")
         return 0
-    barrier = os.environ.get("SWARMD_START_BARRIER")
-    if barrier:
+    if before_run is not None:
         try:
-            wait_start_barrier(barrier)
-        except OSError as exc:
-            return _fail(
-                f"SWARMD_START_BARRIER={barrier}: cannot connect ({exc.strerror or exc}); "
-                "start the harness first or unset the variable",
-                EX_CONFIG,
-            )
+            before_run()
+        except StartupError as exc:
+            return _fail(str(exc), exc.exit_code)
     try:
         return asyncio.run(run(config, bundle, log=log))
     except ConfigError as exc:

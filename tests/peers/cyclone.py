@@ -24,7 +24,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import Final
 
-from swarmd.netns import Namespace
+from swarmd_lab.netns import Namespace
+
 from swarmd.rtps import GuidPrefix
 
 SCRIPT: Final = Path(__file__).with_name("cyclone_participant.py")

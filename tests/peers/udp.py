@@ -7,7 +7,8 @@ import time
 from collections.abc import Callable
 from typing import TypeVar
 
-from swarmd.netns import Namespace
+from swarmd_lab.netns import Namespace
+
 from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
 
 T = TypeVar("T")

@@ -32,9 +32,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
-from swarmd.sim.channel import MULTICAST, Datagram, Kind
-from swarmd.sim.node import NodeContext, SimNode
-from swarmd.sim.phy import MAX_UDP_PAYLOAD
+from swarmd_lab.sim.channel import MULTICAST, Datagram, Kind
+from swarmd_lab.sim.node import NodeContext, SimNode
+from swarmd_lab.sim.phy import MAX_UDP_PAYLOAD
 
 PUB, SUB = 0, 1  # SEDP publications (DATA(w)) and subscriptions (DATA(r)) channels
 

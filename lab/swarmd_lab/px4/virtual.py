@@ -16,8 +16,8 @@ from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
 from swarmd.px4.mavlink_codec import MavlinkCodec, Message
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import VehicleState
-from swarmd.px4.sim_model import SimVehicle
 from swarmd.px4.takeoff import TakeoffEvent, TakeoffSequence
+from swarmd_lab.px4.sim_model import SimVehicle
 
 Direction = str  # "up" (vehicle -> companion) or "down" (companion -> vehicle)
 DropFilter = Callable[[Message, Direction, float], bool]

@@ -1,4 +1,4 @@
-"""``python -m swarmd.sim.calibrate``: the simulator against the emulated testbed, N = 5, 10, 20.
+"""``python -m swarmd_lab.sim.calibrate``: the simulator against the emulated testbed, N=5, 10, 20.
 
 The testbed (issue 6: ns-3 802.11g, drones on a line 2 m apart, all in range, frames = PHY
 transmissions including ACKs, 60 s window) writes one JSON object per run with at least
@@ -18,8 +18,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
 
-from swarmd.sim.protocols import PROTOCOLS
-from swarmd.sim.runner import Scenario, run
+from swarmd_lab.sim.protocols import PROTOCOLS
+from swarmd_lab.sim.runner import Scenario, run
 
 # issue 6 prototype, stock implementations, N = 10, line at 2 m, 60 s
 SANITY: Final = (
@@ -133,7 +133,7 @@ def compare(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m swarmd.sim.calibrate")
+    p = argparse.ArgumentParser(prog="python -m swarmd_lab.sim.calibrate")
     p.add_argument(
         "--testbed", type=Path, default=None, help="testbed runs: JSON lines, or a runs/ directory"
     )
@@ -148,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sizes = [int(x) for x in args.n.split(",")]
         reference = list(SANITY) if args.testbed is None else load_testbed(args.testbed)
     except ValueError as exc:
-        print(f"swarmd.sim.calibrate: {exc}", file=sys.stderr)
+        print(f"swarmd_lab.sim.calibrate: {exc}", file=sys.stderr)
         return 2
     # testbed-only contenders (swarmd-paper, ablations) have no simulator counterpart
     protocols = sorted({str(r["protocol"]) for r in reference} & set(PROTOCOLS))

@@ -17,9 +17,9 @@ from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import PeerDiscovered, PeerLost
 from swarmd.link.quality import q_from_snr
 from swarmd.link.sample import LinkSample
-from swarmd.sim.channel import MULTICAST, Datagram, Kind
-from swarmd.sim.clock import Timer
-from swarmd.sim.node import NodeContext, SimNode
+from swarmd_lab.sim.channel import MULTICAST, Datagram, Kind
+from swarmd_lab.sim.clock import Timer
+from swarmd_lab.sim.node import NodeContext, SimNode
 
 
 @dataclass(slots=True)

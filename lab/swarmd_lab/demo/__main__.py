@@ -1,4 +1,4 @@
-"""``python -m swarmd.demo [--n N]`` (``make demo N=...``): see ``swarmd/demo/__init__.py``."""
+"""``python -m swarmd_lab.demo [--n N]`` (``make demo N=...``): see ``swarmd_lab.demo``."""
 
 from __future__ import annotations
 
@@ -7,13 +7,13 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from swarmd.demo.run import Options, run
-from swarmd.demo.scenario import LATE_GPS_S
+from swarmd_lab.demo.run import Options, run
+from swarmd_lab.demo.scenario import LATE_GPS_S
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m swarmd.demo",
+        prog="python -m swarmd_lab.demo",
         description="Start an N-drone swarm on this machine (swarmd + a MAVLink vehicle "
         "SIMULATOR per drone), take it off, and report.",
     )

@@ -1,6 +1,6 @@
 """Where the demo's drones run: one network namespace each, or all on the loopback.
 
-Namespaces (root): ``swarmd.netns.Lan`` puts drone i in its own namespace with ``eth0`` =
+Namespaces (root): ``swarmd_lab.netns.Lan`` puts drone i in its own namespace with ``eth0`` =
 10.77.X.(i+1) on one bridge; its daemon and vehicle simulator talk MAVLink over the
 namespace's own loopback on PX4 SITL's port 14540, exactly like a companion computer and its
 flight controller.
@@ -22,8 +22,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import IO, Final
 
-from swarmd.demo.scenario import PX4_PORT, Drone
-from swarmd.netns import Lan
+from swarmd_lab.demo.scenario import PX4_PORT, Drone
+from swarmd_lab.netns import Lan
 
 STOP_TIMEOUT_S: Final = 5.0
 

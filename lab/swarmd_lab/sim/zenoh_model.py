@@ -23,9 +23,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Final
 
-from swarmd.sim.channel import MULTICAST, Datagram, Kind
-from swarmd.sim.node import NodeContext, SimNode
-from swarmd.sim.phy import TCP_FRAME_OVERHEAD, UDP_FRAME_OVERHEAD
+from swarmd_lab.sim.channel import MULTICAST, Datagram, Kind
+from swarmd_lab.sim.node import NodeContext, SimNode
+from swarmd_lab.sim.phy import TCP_FRAME_OVERHEAD, UDP_FRAME_OVERHEAD
 
 SCOUT_BYTES: Final = 12
 HELLO_BYTES: Final = 64  # zid, whatami, one TCP locator

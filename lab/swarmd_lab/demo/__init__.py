@@ -1,6 +1,6 @@
-"""``make demo`` (``python -m swarmd.demo --n N``): a whole swarm on one machine.
+"""``make demo`` (``python -m swarmd_lab.demo --n N``): a whole swarm on one machine.
 
-Each drone is a network namespace (``swarmd.netns.Lan``) running a real ``swarmd run`` and a
+Each drone is a network namespace (``swarmd_lab.netns.Lan``) running a real ``swarmd run`` and a
 ``swarmd-vehicle-sim`` (a PX4-like MAVLink vehicle SIMULATOR, not PX4), with its Wi-Fi link
 quality read from a file. The demo shows discovery, readiness, the commander's take-off and
 every drone reaching IN_AIR, then writes ``demo-out/summary.json`` and a timeline PNG.

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarmd.sim.channel import Datagram
-from swarmd.sim.clock import VirtualClock
+from swarmd_lab.sim.channel import Datagram
+from swarmd_lab.sim.clock import VirtualClock
 
 
 class Ledger:

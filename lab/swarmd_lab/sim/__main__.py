@@ -1,6 +1,6 @@
-"""``python -m swarmd.sim``: run the simulator over swarm sizes, protocols and seeds.
+"""``python -m swarmd_lab.sim``: run the simulator over swarm sizes, protocols and seeds.
 
-    python -m swarmd.sim --n 50,100,500,1000 --protocol swarmd,fastdds-model,cyclone-model \\
+    python -m swarmd_lab.sim --n 50,100,500,1000 --protocol swarmd,fastdds-model,cyclone-model \\
         --seed 1 --repeat 10 --out bench/results/sim --plots
 
 Run k of a (protocol, N) cell uses seed ``--seed + k``. ``--json`` prints one JSON object per
@@ -18,12 +18,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from swarmd.sim.channel import ChannelConfig
-from swarmd.sim.placement import PLACEMENTS
-from swarmd.sim.progress import ProgressBar
-from swarmd.sim.protocols import PROTOCOLS
-from swarmd.sim.runner import WINDOW_S, Scenario, run
-from swarmd.sim.summary import summarise, summary_table
+from swarmd_lab.sim.channel import ChannelConfig
+from swarmd_lab.sim.placement import PLACEMENTS
+from swarmd_lab.sim.progress import ProgressBar
+from swarmd_lab.sim.protocols import PROTOCOLS
+from swarmd_lab.sim.runner import WINDOW_S, Scenario, run
+from swarmd_lab.sim.summary import summarise, summary_table
 
 
 def _int_list(text: str) -> list[int]:
@@ -48,7 +48,7 @@ def _name_list(text: str) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m swarmd.sim",
+        prog="python -m swarmd_lab.sim",
         description="Deterministic swarm discovery simulator (docs/simulator.md).",
     )
     p.add_argument("--n", type=_int_list, default=[10], help="swarm sizes, e.g. 50,100")
@@ -73,10 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.repeat < 1:
-        print("swarmd.sim: --repeat must be >= 1", file=sys.stderr)
+        print("swarmd_lab.sim: --repeat must be >= 1", file=sys.stderr)
         return 2
     if args.plots and args.out is None:
-        print("swarmd.sim: --plots needs --out DIR", file=sys.stderr)
+        print("swarmd_lab.sim: --plots needs --out DIR", file=sys.stderr)
         return 2
     channel = ChannelConfig(unicast_rate_mbps=args.unicast_rate)
     cells = [(proto, n) for proto in args.protocol for n in args.n]
@@ -100,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for s in scenarios:
             s.check()
     except ValueError as exc:
-        print(f"swarmd.sim: {exc}", file=sys.stderr)
+        print(f"swarmd_lab.sim: {exc}", file=sys.stderr)
         return 2
     results: list[dict[str, Any]] = []
     bar = None if args.quiet else ProgressBar(len(scenarios), sys.stderr)
@@ -136,7 +136,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out is not None:
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
         if args.plots:
-            from swarmd.sim.plots import write_plots
+            from swarmd_lab.sim.plots import write_plots
 
             for path in write_plots(results, summary, args.out):
                 print(f"wrote {path}", file=sys.stderr)

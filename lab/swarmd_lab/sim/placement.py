@@ -9,7 +9,7 @@ from typing import Final
 
 import numpy as np
 
-from swarmd.sim.phy import FloatArray
+from swarmd_lab.sim.phy import FloatArray
 
 PLACEMENTS: Final = ("line", "grid", "random")
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from swarmd.cli.status_cmd import table
-from swarmd.demo.observe import NodeLog
+from swarmd_lab.demo.observe import NodeLog
 
 PHASE_COLOURS = {
     "boot": "#bbbbbb",

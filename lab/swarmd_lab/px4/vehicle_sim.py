@@ -24,8 +24,8 @@ from typing import Any, cast
 
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec
-from swarmd.px4.sim_model import SimConfig, SimVehicle
 from swarmd.px4.transport import BadConnectionString, Endpoint, parse_connection
+from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
 
 LogSink = Callable[[str, dict[str, Any]], None]
 

@@ -47,8 +47,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from swarmd.sim.clock import Timer, VirtualClock
-from swarmd.sim.phy import (
+from swarmd_lab.sim.clock import Timer, VirtualClock
+from swarmd_lab.sim.phy import (
     ACK_BYTES,
     CCA_WINDOW_S,
     CW_MAX,

@@ -8,15 +8,15 @@ import numpy as np
 
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.testing import make_bundle
-from swarmd.sim.dds_model import CYCLONE, FASTDDS, DdsNode
-from swarmd.sim.node import NodeContext, SimNode
-from swarmd.sim.swarmd_node import SwarmdNode, SwarmdShared, link_sample_for
-from swarmd.sim.workload import COMMANDER
-from swarmd.sim.zenoh_model import ZenohNode
+from swarmd_lab.sim.dds_model import CYCLONE, FASTDDS, DdsNode
+from swarmd_lab.sim.node import NodeContext, SimNode
+from swarmd_lab.sim.swarmd_node import SwarmdNode, SwarmdShared, link_sample_for
+from swarmd_lab.sim.workload import COMMANDER
+from swarmd_lab.sim.zenoh_model import ZenohNode
 
 if TYPE_CHECKING:
-    from swarmd.sim.channel import Channel
-    from swarmd.sim.runner import Scenario
+    from swarmd_lab.sim.channel import Channel
+    from swarmd_lab.sim.runner import Scenario
 
 PROTOCOLS: Final = ("swarmd", "fastdds-model", "cyclone-model", "zenoh-model")
 

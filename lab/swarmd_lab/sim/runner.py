@@ -15,12 +15,12 @@ from typing import Any, Final
 
 import numpy as np
 
-from swarmd.sim.channel import Channel, ChannelConfig, Datagram, Kind
-from swarmd.sim.clock import VirtualClock
-from swarmd.sim.node import Ledger, NodeContext, SimNode
-from swarmd.sim.placement import PLACEMENTS, place
-from swarmd.sim.protocols import PROTOCOLS, build_nodes
-from swarmd.sim.workload import Workload
+from swarmd_lab.sim.channel import Channel, ChannelConfig, Datagram, Kind
+from swarmd_lab.sim.clock import VirtualClock
+from swarmd_lab.sim.node import Ledger, NodeContext, SimNode
+from swarmd_lab.sim.placement import PLACEMENTS, place
+from swarmd_lab.sim.protocols import PROTOCOLS, build_nodes
+from swarmd_lab.sim.workload import Workload
 
 WINDOW_S: Final = 60.0
 Progress = Callable[[float], None]

@@ -20,12 +20,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO, Any, Final, NoReturn, TextIO
 
-from swarmd.demo import report
-from swarmd.demo.hosts import Hosts, NamespaceHosts
-from swarmd.demo.observe import NodeLog, Observer, milestones, read_log
-from swarmd.demo.scenario import LATE_GPS_S, TAKEOFF_ALT_M, Drone, Scenario, plan, write
-from swarmd.demo.view import LiveView
-from swarmd.netns import MAX_HOSTS, unavailable_reason
+from swarmd_lab.demo import report
+from swarmd_lab.demo.hosts import Hosts, NamespaceHosts
+from swarmd_lab.demo.observe import NodeLog, Observer, milestones, read_log
+from swarmd_lab.demo.scenario import LATE_GPS_S, TAKEOFF_ALT_M, Drone, Scenario, plan, write
+from swarmd_lab.demo.view import LiveView
+from swarmd_lab.netns import MAX_HOSTS, unavailable_reason
 
 POLL_S: Final = 0.5
 DISCOVERY_DEADLINE_S: Final = 60.0
@@ -153,7 +153,7 @@ class Demo:
 
     def start(self, s: Scenario) -> None:
         swarmd = _tool("swarmd", "swarmd.cli.swarmd_main")
-        sim = _tool("swarmd-vehicle-sim", "swarmd.px4.vehicle_sim")
+        sim = _tool("swarmd-vehicle-sim", "swarmd_lab.px4.vehicle_sim")
         for d in s.drones:
             log = s.log_path(d).open("wb")
             self.logs.append(log)
@@ -353,6 +353,6 @@ def _last_takeoff(obs: Observer) -> dict[str, Any] | None:
 def run(opts: Options, out: TextIO = sys.stdout) -> int:
     """Run the demo; the exit code (0: every drone airborne)."""
     if not 2 <= opts.n <= MAX_HOSTS:
-        print(f"swarmd.demo: --n {opts.n}: use 2..{MAX_HOSTS} drones", file=sys.stderr)
+        print(f"swarmd_lab.demo: --n {opts.n}: use 2..{MAX_HOSTS} drones", file=sys.stderr)
         return 2
     return Demo(opts, out).run()

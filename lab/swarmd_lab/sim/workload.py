@@ -22,9 +22,9 @@ from swarmd.rtps.types import (
     ProtocolVersion,
     Time,
 )
-from swarmd.sim.channel import Datagram, Kind
-from swarmd.sim.clock import VirtualClock
-from swarmd.sim.node import Ledger
+from swarmd_lab.sim.channel import Datagram, Kind
+from swarmd_lab.sim.clock import VirtualClock
+from swarmd_lab.sim.node import Ledger
 
 COMMANDER: Final = 0
 PERIOD_S: Final = 1.0

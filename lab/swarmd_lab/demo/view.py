@@ -11,7 +11,7 @@ from collections import deque
 from typing import Final, TextIO
 
 from swarmd.cli.status_cmd import table
-from swarmd.demo.observe import Observer
+from swarmd_lab.demo.observe import Observer
 
 HOME_CLEAR: Final = "\x1b[H\x1b[2J"
 EVENT_LINES: Final = 6  # the latest progress lines kept under the table
