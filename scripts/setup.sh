@@ -7,13 +7,21 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
-APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client systemd)
-# command that proves each package is present (same order as APT_PACKAGES)
-APT_PROBES=(tshark ip nft pgrep sshd ssh systemd-analyze)
+APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client systemd
+  cmake ninja-build gcc libfastrtps-dev libfastcdr-dev libspdlog-dev)
+# what proves each package is present (same order as APT_PACKAGES): a command, or a file
+# for the libraries the XRCE-DDS peers (MicroXRCEAgent) build against
+APT_PROBES=(tshark ip nft pgrep sshd ssh systemd-analyze
+  cmake ninja gcc /usr/include/fastdds/rtps/RTPSDomain.h /usr/include/fastcdr/Cdr.h
+  /usr/include/spdlog/spdlog.h)
 
 missing=()
 for i in "${!APT_PACKAGES[@]}"; do
   probe=${APT_PROBES[$i]}
+  if [[ $probe == /* ]]; then
+    [ -e "$probe" ] || missing+=("${APT_PACKAGES[$i]}")
+    continue
+  fi
   if ! command -v "$probe" >/dev/null 2>&1 && [ ! -x "/usr/sbin/$probe" ]; then
     missing+=("${APT_PACKAGES[$i]}")
   fi
@@ -25,10 +33,10 @@ if [ ${#missing[@]} -gt 0 ]; then
     exit 1
   fi
   export DEBIAN_FRONTEND=noninteractive
-  apt-get update -qq
+  apt-get -o DPkg::Lock::Timeout=600 update -qq
   # wireshark-common asks whether non-root users may capture: preseed "no" so the install never prompts
   echo "wireshark-common wireshark-common/install-setuid boolean false" | debconf-set-selections
-  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  apt-get install -o DPkg::Lock::Timeout=600 -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
 PY=""
@@ -51,4 +59,26 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ lab/pyproject.toml 
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e '.[dev,testbed]' -e ./lab
   touch "$stamp"
+fi
+
+# The XRCE-DDS test peers (issue 12): PX4's client library with px4_like_client and
+# cmd_sender, and eProsima's MicroXRCEAgent, built from ../shared/peers/xrce (beside the
+# clone) into the gitignored .cache/xrce. build.sh keeps what is already built; the stamp
+# skips even calling it. Tests skip only when the peers directory itself is absent.
+# A git worktree's shared/ sits beside the main checkout, found through the common git dir.
+if [ -z "${XRCE_PEERS:-}" ]; then
+  XRCE_PEERS=../shared/peers/xrce
+  common=$(git rev-parse --git-common-dir 2>/dev/null || true)
+  if [ ! -d "$XRCE_PEERS" ] && [ -n "$common" ] && [ -d "$common/../../shared/peers/xrce" ]; then
+    XRCE_PEERS=$common/../../shared/peers/xrce
+  fi
+fi
+XRCE_OUT=${XRCE_OUT:-.cache/xrce}
+if [ -x "$XRCE_PEERS/build.sh" ]; then
+  if [ ! -x "$XRCE_OUT/bin/px4_like_client" ] || [ ! -x "$XRCE_OUT/bin/MicroXRCEAgent" ]; then
+    echo "setup: building the XRCE-DDS peers from $XRCE_PEERS into $XRCE_OUT (agent: ~2 min)"
+    "$XRCE_PEERS/build.sh" "$XRCE_OUT" --agent >/dev/null
+  fi
+else
+  echo "setup: $XRCE_PEERS not found; XRCE-DDS peer tests will skip"
 fi
