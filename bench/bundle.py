@@ -88,7 +88,7 @@ def main() -> int:
             for _ in range(args.repeat):
                 t0 = time.perf_counter()
                 mission = parse_mission(text, f"bench-{n}.yaml")
-                keys = {p.name: trusted for p in mission.participants}
+                keys = {p.name: (trusted, trusted) for p in mission.participants}
                 data = build_bundle(mission, signing, keys).data
                 builds.append(time.perf_counter() - t0)
             path.write_bytes(data)

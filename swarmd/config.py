@@ -43,6 +43,13 @@ class BundleConfig:
     trusted_key: str | None = None  # swarm-signing.pub (PEM or hex)
     expected_sha256: bytes | None = None  # a pinned content hash, the other trust anchor
     allow_dev: bool = False  # accept --unsigned-dev bundles (lab benches only)
+    # this node's private keys (Ed25519 + X25519); None: node.key next to the bundle, where
+    # 'swarmctl bundle flash' writes it. Its folder also keeps the boot epoch (auth-epoch-*).
+    node_key: str | None = None
+
+    @property
+    def node_key_path(self) -> str:
+        return self.node_key or str(Path(self.path).parent / "node.key")
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,7 +127,7 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "dataplane",
         "logging",
     ),
-    "bundle": ("path", "trusted_key", "expected_sha256", "allow_dev"),
+    "bundle": ("path", "trusted_key", "expected_sha256", "allow_dev", "node_key"),
     "network": ("interface", "ipv4"),
     "control": ("socket", "mode"),
     "link": (
@@ -295,6 +302,9 @@ class _Checker:
                 allow_dev=self.boolean(f["allow_dev"], "bundle.allow_dev")
                 if "allow_dev" in f
                 else False,
+                node_key=self.path(f["node_key"], "bundle.node_key", nullable=True)
+                if "node_key" in f
+                else None,
             )
             if bundle.trusted_key is None and bundle.expected_sha256 is None:
                 self.fail(

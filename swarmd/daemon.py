@@ -39,6 +39,9 @@ from typing import Any, Final
 
 from swarmd import __version__
 from swarmd.app import AppStartError, SwarmApp
+from swarmd.auth.epoch import EpochError, EpochResult, next_epoch
+from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
+from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig
 from swarmd.control import ControlServer
@@ -52,7 +55,7 @@ from swarmd.discovery.events import (
     PeerLost,
     PhaseChanged,
 )
-from swarmd.exitcodes import StartupError
+from swarmd.exitcodes import EX_CANTCREAT, StartupError
 from swarmd.link.file import FileSource
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.nl80211 import Nl80211Source
@@ -68,6 +71,39 @@ IP_MULTICAST_ALL: Final = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
 # Linux's default IP_MULTICAST_ALL=1 delivers every group any socket joined to every socket
 # bound to the port; off, the SPDP socket hears only 239.255.0.1 joined on our interface.
 RECV_BUFFER_BYTES: Final = 1 << 20  # a burst of 50 peers' DATA(p) (~300 B each) fits easily
+
+
+class NodeSecretsError(ValueError):
+    """node.key is missing, of the old format, or not this node's; ``str()`` is one line."""
+
+
+def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
+    """This node's private keys: ``bundle.node_key`` (default node.key beside the bundle).
+
+    A dev bundle without a node key uses the publicly derivable dev keys, so
+    ``--unsigned-dev`` labs need no key files; a signed bundle always needs the file. The
+    keys must be the ones the bundle lists for ``config.node``. Raises ``NodeSecretsError``.
+    """
+    path = config.bundle.node_key_path
+    if bundle.dev and config.bundle.node_key is None and not os.path.exists(path):
+        secrets = NodeSecrets.dev(bundle.swarm, config.node)
+    else:
+        try:
+            secrets = NodeSecrets.load(path)
+        except KeyFileError as exc:
+            if exc.problem == "key file not found":
+                raise NodeSecretsError(
+                    f"{path}: node key not found; fix: flash this node with "
+                    "'swarmctl bundle flash BUNDLE --node NAME --keys DIR' (or set bundle.node_key)"
+                ) from None
+            raise NodeSecretsError(str(exc)) from None
+    try:
+        KeyRing.from_bundle(bundle, config.node, secrets)
+    except NodeKeyMismatch as exc:
+        raise NodeSecretsError(f"{path}: {exc}") from None
+    except KeyError:
+        pass  # a node outside the bundle is reported by the node check, naming its line
+    return secrets
 
 
 def interface_ipv4(ifname: str) -> str:
@@ -208,9 +244,21 @@ class Daemon:
         sources: list[LinkSource] | None = None,
         rng: random.Random | None = None,
         env: Mapping[str, str] | None = None,
+        node_secrets: NodeSecrets | None = None,
     ) -> None:
         self.config = config
         self.bundle = bundle
+        try:
+            # every datagram is signed with these (docs/security.md): no keys, no daemon
+            self._secrets = node_secrets or load_node_secrets(config, bundle)
+        except NodeSecretsError as exc:
+            raise config.error("bundle.node_key", str(exc), "see docs/security.md") from None
+        # made in start(), once the node is known to be in the bundle
+        self.keyring: KeyRing | None = None
+        # raised and made durable in start(), before the first send (swarmd.auth.epoch),
+        # in the folder of node.key (/var/lib/swarmd on a drone: the state directory)
+        self.epoch: EpochResult | None = None
+        self._epoch_dir = os.path.dirname(os.path.abspath(config.bundle.node_key_path))
         self.log = log
         self.notifier = notifier if notifier is not None else Notifier(env)
         self.monitor = LinkMonitor(sources if sources is not None else link_sources(config), log)
@@ -242,6 +290,28 @@ class Daemon:
         loop = asyncio.get_running_loop()
         self._loop = loop
         self._started = loop.time()
+        try:
+            self.keyring = KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
+        except KeyError:
+            names = ", ".join(p.name for p in self.bundle.participants[:8])
+            raise self.config.error(
+                "node",
+                f"node {self.config.node!r} is not a participant of bundle {self.bundle.swarm!r}",
+                f"use one of {names}",
+            ) from None
+        except NodeKeyMismatch as exc:
+            raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
+        try:
+            self.epoch = next_epoch(self._epoch_dir, self.config.node, time.time())
+        except EpochError as exc:
+            raise StartupError(str(exc), EX_CANTCREAT) from None
+        if self.epoch.recovered_from is not None:
+            self.log.warning(
+                "auth_epoch_recovered",
+                path=str(self.epoch.path),
+                problem=self.epoch.recovered_from,
+                epoch=self.epoch.epoch,
+            )
         # paper section 4.1: the passive timer is drawn from the link quality at start
         first = await self.monitor.poll()
         now = loop.time()
@@ -553,9 +623,10 @@ async def run(
     log: Any,
     env: Mapping[str, str] | None = None,
     sources: list[LinkSource] | None = None,
+    node_secrets: NodeSecrets | None = None,
 ) -> int:
     """Run until SIGTERM/SIGINT; the exit code. Config/start-up errors propagate."""
-    daemon = Daemon(config, bundle, log=log, env=env, sources=sources)
+    daemon = Daemon(config, bundle, log=log, env=env, sources=sources, node_secrets=node_secrets)
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     reasons: list[str] = []

@@ -204,7 +204,7 @@ def test_flash_refuses_wrong_node_key_before_writing(
         "--keys",
         str(keys),
     )
-    assert code == EX_DATAERR and "not 'drone-1''s announcement key" in err
+    assert code == EX_DATAERR and "not 'drone-1''s keys in the bundle" in err
     assert not drone.exists()
 
 

@@ -103,10 +103,13 @@ def _parse(doc: dict[str, Any]) -> Mission:
     return parse_mission(yaml.safe_dump(doc, sort_keys=False), "gen.yaml")
 
 
-def _node_keys(m: Mission) -> dict[str, bytes]:
+def _node_keys(m: Mission) -> dict[str, tuple[bytes, bytes]]:
     return {
-        p.name: raw_public(
-            Ed25519PrivateKey.from_private_bytes(hashlib.sha256(p.name.encode()).digest())
+        p.name: (
+            raw_public(
+                Ed25519PrivateKey.from_private_bytes(hashlib.sha256(p.name.encode()).digest())
+            ),
+            hashlib.sha256(b"x25519|" + p.name.encode()).digest(),
         )
         for p in m.participants
     }

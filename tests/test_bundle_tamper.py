@@ -26,7 +26,7 @@ from swarmd.bundle.encoding import (
     split,
 )
 from swarmd.bundle.errors import EX_CONFIG, BundleError
-from swarmd.bundle.keys import public_pem, raw_public
+from swarmd.bundle.keys import dev_node_keys, public_pem, raw_public
 from swarmd.bundle.loader import load_bundle, load_bundle_or_exit, read_bundle
 from swarmd.bundle.mission import load_mission
 
@@ -38,7 +38,7 @@ TRUSTED = raw_public(SIGNING)
 @pytest.fixture(scope="module")
 def built() -> bytes:
     mission = load_mission(REPO / "firmware_bundle" / "missions" / "swarm3.yaml")
-    keys = {p.name: raw_public(Ed25519PrivateKey.generate()) for p in mission.participants}
+    keys = {p.name: dev_node_keys("t", p.name).public for p in mission.participants}
     return build_bundle(mission, SIGNING, keys).data
 
 

@@ -1,4 +1,5 @@
-"""The sans-IO boundary: swarmd.rtps and swarmd.discovery never touch asyncio, sockets or time."""
+"""The sans-IO boundary: swarmd.rtps, swarmd.discovery and swarmd.auth never touch asyncio,
+sockets or time."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ def test_importing_the_core_pulls_in_no_asyncio_or_socket() -> None:
     code = (
         "import sys\n"
         "import swarmd.rtps, swarmd.discovery, swarmd.discovery.testing, swarmd.discovery.memnet\n"
+        "import swarmd.auth.keys, swarmd.auth.freshness, swarmd.auth.epoch\n"
         "bad = ('asyncio', 'socket', 'selectors')\n"
         "print(','.join(sorted(m for m in bad if m in sys.modules)))\n"
     )
@@ -28,7 +30,7 @@ def test_no_module_of_the_core_imports_io_or_clock_modules() -> None:
     # `time` is always in sys.modules (the interpreter imports it at start), so the runtime
     # check above cannot see it; this reads the import statements instead.
     offenders = []
-    for package in ("rtps", "discovery"):
+    for package in ("rtps", "discovery", "auth"):
         for path in sorted((ROOT / "swarmd" / package).glob("*.py")):
             tree = ast.parse(path.read_text(), str(path))
             for node in ast.walk(tree):

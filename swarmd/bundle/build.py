@@ -19,10 +19,10 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from swarmd.bundle.encoding import body_value, canonical_json, seal
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.keys import (
-    dev_node_key,
+    dev_node_keys,
     dev_signing_key,
+    load_node_public_keys,
     load_private_key,
-    load_public_key,
     node_public_path,
     raw_public,
 )
@@ -51,11 +51,12 @@ class Built:
 def build_bundle(
     mission: Mission,
     signing_key: Ed25519PrivateKey,
-    node_public_keys: Mapping[str, bytes],
+    node_public_keys: Mapping[str, tuple[bytes, bytes]],
     *,
     dev: bool = False,
 ) -> Built:
-    """Seal ``mission`` with ``signing_key``; ``node_public_keys`` maps every name -> 32 bytes."""
+    """Seal ``mission`` with ``signing_key``; ``node_public_keys`` maps every name to its
+    raw (Ed25519, X25519) public keys."""
     topics = tuple(Topic(t.name, t.type_name, t.qos, t.index) for t in mission.topics)
     # (topic index, writer before reader) keeps each participant's endpoint list canonical
     endpoints: dict[str, list[Endpoint]] = {p.name: [] for p in mission.participants}
@@ -72,8 +73,9 @@ def build_bundle(
             mavlink_sysid=p.mavlink_sysid,
             ipv4=p.ipv4,
             guid_prefix=derive_guid_prefix(mission.swarm, mission.domain_id, p.index),
-            announce_public_key=node_public_keys[p.name],
+            announce_public_key=node_public_keys[p.name][0],
             endpoints=tuple(endpoints[p.name]),
+            x25519_public_key=node_public_keys[p.name][1],
         )
         for p in mission.participants
     )
@@ -96,21 +98,20 @@ def build_bundle(
         participants=participants,
         content_sha256=hashlib.sha256(body).digest(),
         signing_public_key=raw_public(signing_key),
+        dev=dev,
     )
     return Built(data, bundle, dev)
 
 
 def build_dev_bundle(mission: Mission) -> Built:
     """A bundle signed with the publicly derivable dev keys (``--unsigned-dev``)."""
-    node_keys = {
-        p.name: raw_public(dev_node_key(mission.swarm, p.name)) for p in mission.participants
-    }
+    node_keys = {p.name: dev_node_keys(mission.swarm, p.name).public for p in mission.participants}
     return build_bundle(mission, dev_signing_key(mission.swarm), node_keys, dev=True)
 
 
-def read_node_public_keys(mission: Mission, keys_dir: str | Path) -> dict[str, bytes]:
-    """Every participant's announcement public key from ``keys_dir/nodes/<name>.pub``."""
-    out: dict[str, bytes] = {}
+def read_node_public_keys(mission: Mission, keys_dir: str | Path) -> dict[str, tuple[bytes, bytes]]:
+    """Every participant's (Ed25519, X25519) public keys from ``keys_dir/nodes/<name>.pub``."""
+    out: dict[str, tuple[bytes, bytes]] = {}
     for p in mission.participants:
         path = node_public_path(keys_dir, p.name)
         if not path.exists():
@@ -120,7 +121,7 @@ def read_node_public_keys(mission: Mission, keys_dir: str | Path) -> dict[str, b
                 f"run 'swarmctl bundle keygen --out {keys_dir} --mission {mission.source}' "
                 "(existing keys are kept)",
             )
-        out[p.name] = load_public_key(path)
+        out[p.name] = load_node_public_keys(path)
     return out
 
 

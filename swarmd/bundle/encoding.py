@@ -4,7 +4,7 @@
 
     offset  size  field
     0       4     magic "SWB1"
-    4       2     format version (u16 big-endian) = 1
+    4       2     format version (u16 big-endian) = 2 (1: before X25519 node keys, refused)
     6       2     flags (u16 BE): bit 0 = DEV (signed with the public dev key)
     8       4     body length L (u32 BE)
     12      32    content SHA-256 = SHA-256(body)
@@ -40,7 +40,9 @@ from swarmd.bundle.model import (
 )
 
 MAGIC: Final = b"SWB1"
-FORMAT_VERSION: Final = 1
+FORMAT_VERSION: Final = 2
+# format 1 had no per-node X25519 key; it still splits, so the loader can say what to do
+LEGACY_FORMAT_VERSIONS: Final = frozenset({1})
 FLAG_DEV: Final = 0x0001
 KNOWN_FLAGS: Final = FLAG_DEV
 _HEADER: Final = struct.Struct(">4sHHI32s32s")
@@ -114,6 +116,7 @@ def body_value(
                 "metatraffic_unicast_port": ports[p.index][0],
                 "user_unicast_port": ports[p.index][1],
                 "announce_public_key": p.announce_public_key.hex(),
+                "x25519_public_key": p.x25519_public_key.hex(),
                 "endpoints": [_endpoint_value(e) for e in p.endpoints],
             }
             for p in participants
@@ -186,7 +189,7 @@ def split(data: bytes) -> Envelope:
     magic, version, flags, length, digest, signer = _HEADER.unpack_from(data, 0)
     if magic != MAGIC:
         raise EnvelopeError(f"not a swarmd bundle (magic {magic!r}, expected {MAGIC!r})")
-    if version != FORMAT_VERSION:
+    if version != FORMAT_VERSION and version not in LEGACY_FORMAT_VERSIONS:
         raise EnvelopeError(
             f"unsupported bundle format version {version} (this is {FORMAT_VERSION})"
         )

@@ -4,7 +4,8 @@ Files in the target directory (``/var/lib/swarmd`` on a drone)::
 
     bundle.swb        the bundle the daemon loads            0644
     bundle.swb.prev   the one it replaced, for rollback      0644
-    node.key          this node's announcement private key  0600  (node.key.prev on rotation)
+    node.key          this node's private keys (Ed25519 +  0600  (node.key.prev on rotation)
+                      X25519, docs/bundle-format.md)
     node.name         this node's participant name           0644
     swarm.pub         the trusted swarm signing public key   0644  (written once; see below)
 
@@ -45,10 +46,9 @@ from swarmd.bundle.keys import (
     PUBLIC_MODE,
     fingerprint,
     fsync_dir,
-    parse_private_key,
+    parse_node_keys,
     parse_public_key,
     public_pem,
-    raw_public,
     write_file_atomic,
 )
 from swarmd.bundle.loader import read_bundle
@@ -195,12 +195,12 @@ def check_target(
         raise FlashError(f"{where}: node {node!r} is not in the flashed bundle") from None
     key_pem, mode = files[NODE_KEY_FILE]
     try:
-        key = parse_private_key(key_pem, f"{where}/{NODE_KEY_FILE}")
+        keys = parse_node_keys(key_pem, f"{where}/{NODE_KEY_FILE}")
     except KeyFileError as exc:
         raise FlashError(str(exc)) from None
-    if raw_public(key) != participant.announce_public_key:
+    if keys.public != (participant.announce_public_key, participant.x25519_public_key):
         raise FlashError(
-            f"{where}/{NODE_KEY_FILE}: does not match {node!r}'s announcement key in the bundle; "
+            f"{where}/{NODE_KEY_FILE}: does not match {node!r}'s keys in the bundle; "
             "fix: flash the node with the keys directory the bundle was built from"
         )
     if mode & 0o777 != PRIVATE_MODE:

@@ -1,15 +1,22 @@
-"""Ed25519 keys for the bundle: the swarm signing key and one announcement key per node.
+"""Keys for the bundle: the swarm signing key and two keys per node.
 
 Layout of a keys directory (``swarmctl bundle keygen --out DIR``)::
 
     DIR/swarm-signing.key     PKCS#8 PEM, mode 0600   signs bundles (stays on the ground laptop)
     DIR/swarm-signing.pub     SubjectPublicKeyInfo PEM the trust anchor each drone is given
-    DIR/nodes/<name>.key      PKCS#8 PEM, mode 0600   flashed to that drone only
-    DIR/nodes/<name>.pub      PEM                     embedded in the bundle for every node
+    DIR/nodes/<name>.key      two PKCS#8 PEM blocks,  flashed to that drone only (node.key):
+                              mode 0600               Ed25519 (signs its SPDP), then X25519
+                                                      (static Diffie-Hellman for pairwise MACs)
+    DIR/nodes/<name>.pub      two public PEM blocks   embedded in the bundle for every node
 
-Embedding every node's public key in the signed bundle is what lets later authenticated
-discovery run without any key exchange on the air (paper Appendix B measured how much a
-runtime Diffie-Hellman exchange costs on the channel).
+Embedding every node's public keys in the signed bundle is what lets authenticated discovery
+and data run without any key exchange on the air (paper Appendix B measured how much a
+runtime Diffie-Hellman exchange costs on the channel): a node signs with its Ed25519 key and
+derives a key shared with each peer from its X25519 key and the peer's public one
+(``swarmd.auth.keys``, docs/security.md).
+
+A node key file with only the Ed25519 block was written before authenticated discovery
+(bundle format 1); it is refused with a line naming the fix (``NodeKeyFormatError``).
 
 Dev keys (``--unsigned-dev``) are derived from public strings, so anyone can recompute them:
 they only make dev bundles byte-for-byte reproducible and catch accidental corruption.
@@ -20,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -27,6 +35,7 @@ from typing import Final
 from cryptography.exceptions import UnsupportedAlgorithm
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from cryptography.hazmat.primitives.asymmetric.x25519 import X25519PrivateKey, X25519PublicKey
 
 from swarmd.bundle.errors import KeyFileError
 
@@ -37,6 +46,13 @@ PRIVATE_MODE: Final = 0o600
 PUBLIC_MODE: Final = 0o644
 PUBLIC_KEY_BYTES: Final = 32
 _DEV_DOMAIN: Final = b"swarmd insecure dev key v1|"
+_PEM_BLOCK: Final = re.compile(
+    rb"-----BEGIN ([A-Z ]+)-----\r?\n.*?-----END \1-----\r?\n?", re.DOTALL
+)
+REKEY_FIX: Final = (
+    "run 'swarmctl bundle keygen --out DIR --mission MISSION' (adds the X25519 key, keeps the "
+    "Ed25519 one), rebuild with 'swarmctl bundle build' and re-flash with 'swarmctl bundle flash'"
+)
 
 
 def raw_public(key: Ed25519PrivateKey | Ed25519PublicKey) -> bytes:
@@ -76,6 +92,121 @@ def dev_node_key(swarm: str, name: str) -> Ed25519PrivateKey:
     return Ed25519PrivateKey.from_private_bytes(
         hashlib.sha256(_DEV_DOMAIN + b"node|" + swarm.encode() + b"|" + name.encode()).digest()
     )
+
+
+def dev_node_x25519_key(swarm: str, name: str) -> X25519PrivateKey:
+    """A node's publicly derivable X25519 key in a dev bundle (no secrecy at all)."""
+    seed = _DEV_DOMAIN + b"node-x25519|" + swarm.encode() + b"|" + name.encode()
+    return X25519PrivateKey.from_private_bytes(hashlib.sha256(seed).digest())
+
+
+def raw_x25519_public(key: X25519PrivateKey | X25519PublicKey) -> bytes:
+    """The 32 raw bytes of an X25519 public key (RFC 7748)."""
+    pub = key.public_key() if isinstance(key, X25519PrivateKey) else key
+    return pub.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+
+
+@dataclass(frozen=True, slots=True)
+class NodeKeys:
+    """One node's two private keys, as node.key holds them."""
+
+    ed25519: Ed25519PrivateKey
+    x25519: X25519PrivateKey
+
+    @property
+    def public(self) -> tuple[bytes, bytes]:
+        """(Ed25519 announcement public key, X25519 public key), raw."""
+        return raw_public(self.ed25519), raw_x25519_public(self.x25519)
+
+    def pem(self) -> bytes:
+        """The node.key file: the Ed25519 PKCS#8 block, then the X25519 one."""
+        x = self.x25519.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        )
+        return private_pem(self.ed25519) + x
+
+    def public_pem(self) -> bytes:
+        """The nodes/<name>.pub file: both public keys as SubjectPublicKeyInfo blocks."""
+        ed, x = self.public
+        return public_pem(ed) + X25519PublicKey.from_public_bytes(x).public_bytes(
+            serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo
+        )
+
+
+def dev_node_keys(swarm: str, name: str) -> NodeKeys:
+    """Both publicly derivable keys of a node in a dev bundle."""
+    return NodeKeys(dev_node_key(swarm, name), dev_node_x25519_key(swarm, name))
+
+
+def _pem_blocks(data: bytes) -> list[bytes]:
+    return [m.group(0) for m in _PEM_BLOCK.finditer(data)]
+
+
+def parse_node_keys(data: bytes, source: str) -> NodeKeys:
+    """A node key file (Ed25519 + X25519 PKCS#8 blocks); ``KeyFileError`` (one line) otherwise.
+
+    A file with an Ed25519 key and no X25519 key predates authenticated discovery: the
+    error names the field and the fix (new keys, rebuild, re-flash)."""
+    ed: Ed25519PrivateKey | None = None
+    x: X25519PrivateKey | None = None
+    for block in _pem_blocks(data):
+        try:
+            key = serialization.load_pem_private_key(block, password=None)
+        except (ValueError, TypeError, UnsupportedAlgorithm):
+            continue
+        if isinstance(key, Ed25519PrivateKey) and ed is None:
+            ed = key
+        elif isinstance(key, X25519PrivateKey) and x is None:
+            x = key
+    if ed is None:
+        raise KeyFileError(
+            source,
+            "no Ed25519 private key (not a node key file)",
+            "give the node key written by 'swarmctl bundle keygen'",
+        )
+    if x is None:
+        raise KeyFileError(
+            source,
+            "field x25519 private key missing: this node key was made before authenticated "
+            "discovery (bundle format 1)",
+            REKEY_FIX,
+        )
+    return NodeKeys(ed, x)
+
+
+def load_node_keys(path: str | Path) -> NodeKeys:
+    """Read a node key file (``nodes/<name>.key`` or a drone's ``node.key``)."""
+    return parse_node_keys(_read(path, "run 'swarmctl bundle keygen --out DIR'"), str(path))
+
+
+def parse_node_public_keys(data: bytes, source: str) -> tuple[bytes, bytes]:
+    """(Ed25519, X25519) raw public keys from a ``nodes/<name>.pub`` file."""
+    ed: bytes | None = None
+    x: bytes | None = None
+    for block in _pem_blocks(data):
+        try:
+            key = serialization.load_pem_public_key(block)
+        except (ValueError, TypeError, UnsupportedAlgorithm):
+            continue
+        if isinstance(key, Ed25519PublicKey) and ed is None:
+            ed = raw_public(key)
+        elif isinstance(key, X25519PublicKey) and x is None:
+            x = raw_x25519_public(key)
+    if ed is None:
+        raise KeyFileError(source, "no Ed25519 public key", "use keygen's nodes/<name>.pub")
+    if x is None:
+        raise KeyFileError(
+            source,
+            "field x25519 public key missing: made before authenticated discovery",
+            REKEY_FIX,
+        )
+    return ed, x
+
+
+def load_node_public_keys(path: str | Path) -> tuple[bytes, bytes]:
+    return parse_node_public_keys(_read(path, "run 'swarmctl bundle keygen'"), str(path))
 
 
 def load_private_key(path: str | Path) -> Ed25519PrivateKey:
@@ -176,6 +307,7 @@ def fsync_dir(directory: Path) -> None:
 class KeygenResult:
     created: list[Path] = field(default_factory=list)
     kept: list[Path] = field(default_factory=list)
+    upgraded: list[Path] = field(default_factory=list)  # format-1 node keys given X25519
 
 
 def _make_pair(key_path: Path, pub_path: Path, force: bool, result: KeygenResult) -> None:
@@ -193,15 +325,43 @@ def _make_pair(key_path: Path, pub_path: Path, force: bool, result: KeygenResult
     result.created.extend([key_path, pub_path])
 
 
+def _make_node(key_path: Path, pub_path: Path, force: bool, result: KeygenResult) -> None:
+    if key_path.exists() and not force:
+        # Keeping existing keys means adding a drone to a mission never rotates the others.
+        data = _read(key_path, "remove it, or pass --force")
+        try:
+            keys = parse_node_keys(data, str(key_path))
+        except KeyFileError:
+            # a format-1 node key (Ed25519 only): keep its Ed25519 key, add an X25519 one
+            keys = NodeKeys(parse_private_key(data, str(key_path)), X25519PrivateKey.generate())
+            write_file_atomic(key_path, keys.pem(), PRIVATE_MODE)
+            write_file_atomic(pub_path, keys.public_pem(), PUBLIC_MODE)
+            result.upgraded.append(key_path)
+            return
+        try:
+            current = load_node_public_keys(pub_path) if pub_path.exists() else None
+        except KeyFileError:
+            current = None
+        if current != keys.public:
+            write_file_atomic(pub_path, keys.public_pem(), PUBLIC_MODE)
+            result.created.append(pub_path)
+        result.kept.append(key_path)
+        return
+    keys = NodeKeys(Ed25519PrivateKey.generate(), X25519PrivateKey.generate())
+    write_file_atomic(key_path, keys.pem(), PRIVATE_MODE)
+    write_file_atomic(pub_path, keys.public_pem(), PUBLIC_MODE)
+    result.created.extend([key_path, pub_path])
+
+
 def generate_keys(
     out_dir: str | Path, node_names: list[str] | None = None, *, force: bool = False
 ) -> KeygenResult:
-    """Create the swarm signing key and a key per node name; existing keys are kept unless
-    ``force``."""
+    """Create the swarm signing key and the keys of each node name; existing keys are kept
+    unless ``force`` (a format-1 node key gains its X25519 key, see ``_make_node``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = KeygenResult()
     _make_pair(out / SIGNING_KEY_FILE, out / SIGNING_PUB_FILE, force, result)
     for name in node_names or []:
-        _make_pair(node_key_path(out, name), node_public_path(out, name), force, result)
+        _make_node(node_key_path(out, name), node_public_path(out, name), force, result)
     return result

@@ -29,7 +29,7 @@ from typing import Any, NoReturn
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from swarmd.bundle.encoding import Envelope, EnvelopeError, split
+from swarmd.bundle.encoding import LEGACY_FORMAT_VERSIONS, Envelope, EnvelopeError, split
 from swarmd.bundle.errors import EX_CONFIG, BundleError, KeyFileError
 from swarmd.bundle.keys import PUBLIC_KEY_BYTES, fingerprint, load_public_key
 from swarmd.bundle.model import (
@@ -51,6 +51,10 @@ from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import GuidPrefix
 
 REBUILD = "rebuild it with 'swarmctl bundle build' and flash it again"
+REBUILD_V2 = (
+    "rebuild it with 'swarmctl bundle build' (after 'swarmctl bundle keygen --out DIR --mission "
+    "MISSION', which adds the X25519 keys) and re-flash every drone with 'swarmctl bundle flash'"
+)
 REFLASH = (
     "flash the bundle again with 'swarmctl bundle flash' (the previous one is bundle.swb.prev)"
 )
@@ -80,6 +84,15 @@ def verify_envelope(
         env = split(data)
     except EnvelopeError as exc:
         raise BundleError(source, str(exc), REFLASH) from None
+    if env.version in LEGACY_FORMAT_VERSIONS:
+        # refused before anything else: its nodes carry no X25519 key, so they could not
+        # authenticate a single datagram (docs/security.md)
+        raise BundleError(
+            source,
+            f"bundle format {env.version} has no field participants[].x25519_public_key "
+            "(built before authenticated discovery)",
+            REBUILD_V2,
+        )
     if hashlib.sha256(env.body).digest() != env.content_sha256:
         raise BundleError(source, "content hash mismatch: the body was altered", REFLASH)
     if trusted_key is not None and env.signer != trusted_key:
@@ -276,6 +289,9 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
         key = bytes.fromhex(_field(p, "announce_public_key", str, where))
         if len(key) != PUBLIC_KEY_BYTES:
             raise _BodyError(f"{where}: announce_public_key is not 32 bytes")
+        x_key = bytes.fromhex(_field(p, "x25519_public_key", str, where))
+        if len(x_key) != PUBLIC_KEY_BYTES:
+            raise _BodyError(f"{where}: x25519_public_key is not 32 bytes")
         endpoints: list[Endpoint] = []
         for e in _field(p, "endpoints", list, where):
             topic_name = _field(e, "topic", str, where)
@@ -297,6 +313,7 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
                 guid_prefix=GuidPrefix(prefix),
                 announce_public_key=key,
                 endpoints=tuple(endpoints),
+                x25519_public_key=x_key,
             )
         )
     return Bundle(
@@ -307,4 +324,5 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
         participants=tuple(participants),
         content_sha256=env.content_sha256,
         signing_public_key=env.signer,
+        dev=env.dev,
     )

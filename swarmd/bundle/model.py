@@ -90,8 +90,11 @@ class Participant:
     mavlink_sysid: int
     ipv4: str | None
     guid_prefix: GuidPrefix
-    announce_public_key: bytes  # raw Ed25519 public key (32 bytes)
+    announce_public_key: bytes  # raw Ed25519 public key (32 bytes): verifies its SPDP
     endpoints: tuple[Endpoint, ...]
+    # raw X25519 public key (32 bytes, bundle format 2): static Diffie-Hellman with it gives
+    # every pair of nodes a shared key without a message on the air (swarmd.auth.keys)
+    x25519_public_key: bytes
 
     def guid(self, endpoint: Endpoint) -> Guid:
         return Guid(self.guid_prefix, endpoint.entity_id)
@@ -123,6 +126,7 @@ class Bundle:
     participants: tuple[Participant, ...]  # sorted by index
     content_sha256: bytes  # hash of the canonical content (what peers compare)
     signing_public_key: bytes  # raw Ed25519 public key of the swarm signing key
+    dev: bool = False  # an --unsigned-dev bundle: its node keys are publicly derivable
 
     @property
     def size(self) -> int:

@@ -38,14 +38,12 @@ from swarmd.bundle.flash import (
 )
 from swarmd.bundle.keys import (
     PUBLIC_MODE,
-    dev_node_key,
+    dev_node_keys,
     fingerprint,
     generate_keys,
-    load_private_key,
+    load_node_keys,
     load_public_key,
     node_key_path,
-    private_pem,
-    raw_public,
     write_file_atomic,
 )
 from swarmd.bundle.loader import read_bundle
@@ -259,6 +257,8 @@ def cmd_keygen(args: argparse.Namespace) -> int:
         print(f"created {path}")
     for path in result.kept:
         print(f"kept    {path} (exists; --force replaces it)")
+    for path in result.upgraded:
+        print(f"added   an X25519 key to {path} (its Ed25519 key is kept)")
     return EX_OK
 
 
@@ -391,22 +391,22 @@ def _targets(args: argparse.Namespace, bundle: Bundle) -> list[tuple[Participant
 
 def _node_key_pem(args: argparse.Namespace, loaded: _Loaded, p: Participant) -> bytes:
     if args.keys is not None:
-        key = load_private_key(node_key_path(args.keys, p.name))
+        keys = load_node_keys(node_key_path(args.keys, p.name))
         source = str(node_key_path(args.keys, p.name))
     elif loaded.dev:
-        key = dev_node_key(loaded.bundle.swarm, p.name)
+        keys = dev_node_keys(loaded.bundle.swarm, p.name)
         source = "dev key"
     else:
         raise KeyFileError(
             "--keys", f"no key source for node {p.name!r}", "pass --keys DIR (from keygen)"
         )
-    if raw_public(key) != p.announce_public_key:
+    if keys.public != (p.announce_public_key, p.x25519_public_key):
         raise KeyFileError(
             source,
-            f"this key is not {p.name!r}'s announcement key in the bundle",
+            f"these keys are not {p.name!r}'s keys in the bundle",
             "use the keys directory the bundle was built from",
         )
-    return private_pem(key)
+    return keys.pem()
 
 
 @_guard

@@ -52,7 +52,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     from swarmd import logging as swarmd_logging
     from swarmd.bundle.errors import BundleError
     from swarmd.bundle.loader import load_bundle
-    from swarmd.daemon import Daemon, run
+    from swarmd.daemon import Daemon, NodeSecretsError, load_node_secrets, run
     from swarmd.discovery.config import EngineConfig
 
     engine_fields = frozenset(f.name for f in fields(EngineConfig)) - {"mode"}
@@ -79,9 +79,13 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
             f"use one of the bundle's names ({names}{', ...' if bundle.size > 8 else ''})",
         )
         return _fail(f"config rejected: {bad_node}", EX_CONFIG)
+    try:
+        secrets = load_node_secrets(config, bundle)
+    except NodeSecretsError as exc:
+        return _fail(f"node key rejected: {exc}", EX_CONFIG)
     if args.command == "check-config":
         try:
-            Daemon(config, bundle, log=log)
+            Daemon(config, bundle, log=log, node_secrets=secrets)
         except ConfigError as exc:
             return _fail(f"config rejected: {exc}", EX_CONFIG)
         print(f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm})")
@@ -92,7 +96,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         except StartupError as exc:
             return _fail(str(exc), exc.exit_code)
     try:
-        return asyncio.run(run(config, bundle, log=log))
+        return asyncio.run(run(config, bundle, log=log, node_secrets=secrets))
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
     except StartupError as exc:

@@ -14,6 +14,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from swarmd.bundle.keys import dev_node_keys
 from swarmd.bundle.model import (
     Bundle,
     DiscoveryParams,
@@ -72,6 +73,8 @@ def make_bundle(
     def endpoint(topic: Topic, kind: EndpointKind) -> Endpoint:
         return Endpoint(topic.name, kind, endpoint_entity_id(topic.index, kind))
 
+    # the dev keys a dev bundle would carry: engines built on this bundle can sign and verify
+    keys = [dev_node_keys(swarm, node_name(i)) for i in range(n)]
     participants = []
     for i in range(n):
         role = Role.COMMANDER if i == 0 else Role.MEMBER
@@ -93,8 +96,9 @@ def make_bundle(
                 mavlink_sysid=i + 1,
                 ipv4=node_ipv4(i) if with_ipv4 else None,
                 guid_prefix=derive_guid_prefix(swarm, domain_id, i),
-                announce_public_key=hashlib.sha256(f"key/{swarm}/{i}".encode()).digest(),
+                announce_public_key=keys[i].public[0],
                 endpoints=eps,
+                x25519_public_key=keys[i].public[1],
             )
         )
     digest = content_sha256 or hashlib.sha256(f"bundle/{swarm}/{domain_id}/{n}".encode()).digest()
@@ -106,6 +110,7 @@ def make_bundle(
         participants=tuple(participants),
         content_sha256=digest,
         signing_public_key=hashlib.sha256(f"signing/{swarm}".encode()).digest(),
+        dev=True,
     )
 
 

@@ -151,6 +151,7 @@ node: {d.name}
 bundle:
   path: {s.bundle_path}
   trusted_key: {s.trusted_key}
+  node_key: {s.root / "keys" / "nodes" / f"{d.name}.key"}
 network:
   interface: {d.interface}
   ipv4: {d.address if loopback else "null"}

@@ -1,0 +1,93 @@
+"""The boot epoch: the first half of every freshness value this node sends.
+
+One small file per node in the state directory (``/var/lib/swarmd`` on a drone, where
+node.key lives), ``auth-epoch-<node>``, holding one decimal number. At start-up, before the
+first datagram, the daemon calls ``next_epoch``, which writes the new value durably (temp
+file, fsync, rename, directory fsync) and only then returns it.
+
+The new epoch is ``max(stored + 1, wall-clock seconds)``:
+
+- the file alone keeps epochs growing across restarts even with no clock at all;
+- the clock alone keeps them growing when the file is lost (a re-imaged SD card, a state
+  directory wiped by hand): a restarted node must not reuse an epoch, or captured datagrams
+  of its earlier life would be fresh again (issue 10, attack 5), and its new datagrams
+  would be refused by every peer that remembers the old, higher epoch.
+
+With neither (file lost *and* the clock at 1970, a Jetson without RTC battery, NTP or GPS
+time), peers that remember the node's earlier epoch refuse it until they restart: the
+daemon logs this case (``EpochResult.recovered_from``) and docs/security.md lists it under
+residual risks. u32 seconds last until 2106.
+
+Only the daemon calls this (it is the one file touched in ``swarmd.auth``); the wall clock
+is passed in, so the module imports no clock.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from swarmd.auth.freshness import U32_MAX
+from swarmd.bundle.keys import write_file_atomic
+
+FILE_PATTERN: Final = "auth-epoch-{node}"
+_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
+
+
+class EpochError(OSError):
+    """The epoch cannot be made durable (unwritable directory, exhausted); one line."""
+
+
+@dataclass(frozen=True, slots=True)
+class EpochResult:
+    epoch: int
+    path: Path
+    stored: int | None  # what the file held; None when missing or unreadable
+    recovered_from: str | None  # why the file was not used, for the log
+
+
+def epoch_path(state_dir: str | Path, node: str) -> Path:
+    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+
+
+def read_epoch(path: Path) -> tuple[int | None, str | None]:
+    """(stored value, problem): (None, None) for a missing file."""
+    try:
+        text = path.read_text(encoding="ascii")
+    except FileNotFoundError:
+        return None, None
+    except (OSError, UnicodeDecodeError) as exc:
+        return None, f"unreadable ({exc})"
+    try:
+        value = int(text.strip())
+    except ValueError:
+        return None, f"corrupt ({text[:20]!r})"
+    if not 0 <= value <= U32_MAX:
+        return None, f"out of range ({value})"
+    return value, None
+
+
+def next_epoch(state_dir: str | Path, node: str, wallclock_s: float) -> EpochResult:
+    """Raise this node's epoch and make it durable before returning it.
+
+    Raises ``EpochError`` when the directory cannot be written or the epoch is exhausted."""
+    directory = Path(state_dir)
+    path = epoch_path(directory, node)
+    stored, problem = read_epoch(path)
+    if stored is not None and stored >= U32_MAX:
+        raise EpochError(
+            f"{path}: boot epoch exhausted (2^32 - 1); fix: rotate this node's keys "
+            "('swarmctl bundle keygen --force', rebuild, re-flash) and delete the file"
+        )
+    clock = int(wallclock_s) if 0 <= wallclock_s <= U32_MAX else 0
+    epoch = max((stored or 0) + 1, clock, 1)
+    if stored is None and problem is None and clock == 0:
+        problem = "missing and no wall clock"
+    try:
+        directory.mkdir(parents=True, exist_ok=True, mode=0o750)
+        write_file_atomic(path, f"{epoch}\n".encode("ascii"), 0o644)  # fsync file and folder
+    except OSError as exc:
+        raise EpochError(f"cannot persist the boot epoch in {path}: {exc.strerror}") from None
+    return EpochResult(epoch, path, stored, problem)
