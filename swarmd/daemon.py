@@ -55,11 +55,11 @@ from swarmd.discovery.events import (
     PeerLost,
     PhaseChanged,
 )
+from swarmd.discovery.inputs import LinkSample
 from swarmd.exitcodes import EX_CANTCREAT, StartupError
 from swarmd.link.file import FileSource
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.nl80211 import Nl80211Source
-from swarmd.link.sample import LinkSample
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
@@ -488,7 +488,7 @@ class Daemon:
     def _transmit(self) -> None:
         engine, loop = self._core()
         out = self._transports.get("unicast")
-        for payload, dest in engine.datagrams_to_send(loop.time()):
+        for payload, dest in engine.datagrams_to_send():
             if out is None:
                 self.count("tx_dropped_closed")
                 continue

@@ -21,9 +21,9 @@ from swarmd.discovery import (
 from swarmd.discovery.digest import decode_heard
 from swarmd.discovery.engine import MAX_PENDING_EVENTS
 from swarmd.discovery.events import Event
+from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.discovery.testing import make_bundle, node_ipv4, peer_datagram
-from swarmd.link.sample import LinkSample
 from swarmd.rtps.spdp import BES_SPDP_ONLY, SpdpAlive, SpdpDisposed, decode_spdp
 from swarmd.rtps.types import VENDORID_SWARMD, GuidPrefix
 
@@ -66,7 +66,7 @@ def run_to(engine: DiscoveryEngine, end: float) -> list[tuple[float, bytes, tupl
     sent: list[tuple[float, bytes, tuple[str, int]]] = []
     while (t := engine.get_timer()) is not None and t <= end:
         engine.handle_timer(t)
-        sent += [(t, d, a) for d, a in engine.datagrams_to_send(t)]
+        sent += [(t, d, a) for d, a in engine.datagrams_to_send()]
     return sent
 
 
@@ -233,7 +233,7 @@ def test_a_peer_that_already_lists_us_and_was_told_gets_no_reply() -> None:
     bundle = make_bundle(2)
     # our announcement goes out first (nobody heard yet), then uav1 answers listing us
     run_to(engine, 1.0)
-    engine.datagrams_to_send(1.0)
+    engine.datagrams_to_send()
     engine.receive_datagram(peer_datagram(bundle, 1, heard=(0,)), (node_ipv4(1), 7412), 1.0)
     sent = run_to(engine, 1.5)
     # uav1 lists us but we never listed it: one ack is owed (directed, it is alone)
@@ -253,7 +253,7 @@ def test_a_repeated_directed_frame_means_our_ack_was_lost_and_is_answered_again(
     bundle = make_bundle(2)
     me = bundle.participants[0].guid_prefix
     run_to(engine, 1.0)
-    engine.datagrams_to_send(1.0)
+    engine.datagrams_to_send()
     frame = peer_datagram(bundle, 1, heard=(0,), sequence_number=3, destination=me)
     engine.receive_datagram(frame, (node_ipv4(1), 7412), 1.0)
     first = [a for _, _, a in run_to(engine, 1.5)]
@@ -307,9 +307,9 @@ def test_shutdown_sends_dispose_to_multicast_and_every_known_peer() -> None:
     for i in (1, 3):
         engine.receive_datagram(peer_datagram(bundle, i), (node_ipv4(i), 7410 + 2 * i), 0.1)
     run_to(engine, 0.5)
-    engine.datagrams_to_send(0.5)
+    engine.datagrams_to_send()
     engine.shutdown(0.6)
-    out = engine.datagrams_to_send(0.6)
+    out = engine.datagrams_to_send()
     assert sorted(a for _, a in out) == sorted([MCAST, (node_ipv4(1), 7412), (node_ipv4(3), 7416)])
     for datagram, _ in out:
         _, samples = decode_spdp(datagram)
@@ -412,7 +412,7 @@ def test_lower_link_quality_makes_renewals_denser_during_flight() -> None:
     engine = engine_for(3, seed=9)
     run_to(engine, 40.0)  # alone: gives up announcing, then renews
     assert engine.phase == Phase.STEADY
-    engine.datagrams_to_send(40.0)
+    engine.datagrams_to_send()
     engine.update_link_quality(LinkSample(q=0.0, snr_db=20.0, source="file"), 40.0)
     renewals = [t for t, _, a in run_to(engine, 80.0) if a == MCAST]
     gaps = [b - a for a, b in zip(renewals, renewals[1:], strict=False)]

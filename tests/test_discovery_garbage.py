@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import random
 from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarmd.discovery import DiscoveryEngine, EngineConfig, PacketDropped
-from swarmd.discovery.testing import make_bundle, node_ipv4, peer_datagram
-from swarmd.link.sample import LinkSample
+from swarmd.discovery import DiscoveryEngine, PacketDropped
+from swarmd.discovery.events import DropReason
+from swarmd.discovery.testing import engine_for, make_bundle, peer_datagram
 
 BUNDLE = make_bundle(4)
 VALID = [
@@ -21,22 +20,16 @@ VALID = [
 
 
 def fresh() -> DiscoveryEngine:
-    return DiscoveryEngine(
-        BUNDLE,
-        "uav0",
-        config=EngineConfig(),
-        rng=random.Random(1),
-        now=0.0,
-        local_ipv4=node_ipv4(0),
-        link=LinkSample(q=0.7),
-    )
+    return engine_for(BUNDLE, 0, seed=1, q=0.7)
 
 
-def feed(engine: DiscoveryEngine, data: bytes, now: float) -> None:
-    engine.receive_datagram(data, ("10.9.9.9", 7400), now)
+def feed(
+    engine: DiscoveryEngine, data: bytes, now: float, source: tuple[str, int] = ("10.9.9.9", 7400)
+) -> None:
+    engine.receive_datagram(data, source, now)
     while (t := engine.get_timer()) is not None and t <= now:
         engine.handle_timer(t)
-    engine.datagrams_to_send(now)
+    engine.datagrams_to_send()
     engine.status(now)
 
 
@@ -47,6 +40,27 @@ def test_arbitrary_bytes_never_raise(data: bytes) -> None:
     feed(engine, data, 0.01)
     counters = engine.counters()
     assert counters["rx_datagrams"] == 1
+
+
+SOURCES = st.tuples(
+    st.one_of(
+        st.ip_addresses(v=4).map(str),
+        st.ip_addresses(v=6).map(str),
+        st.text(max_size=40),  # the driver passes what recvfrom gave; the engine only keeps it
+    ),
+    st.integers(-(2**31), 2**31),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.binary(max_size=600), st.sampled_from(VALID)), SOURCES, st.floats(0, 30))
+def test_arbitrary_bytes_from_arbitrary_sources_never_raise(
+    data: bytes, source: tuple[str, int], now: float
+) -> None:
+    engine = fresh()
+    feed(engine, data, now, source)
+    feed(engine, data, now + 0.5, source)  # and again: a repeat takes other paths
+    assert engine.counters()["rx_datagrams"] == 2
 
 
 @settings(max_examples=300, deadline=None)
@@ -73,5 +87,5 @@ def test_garbage_becomes_a_counted_packet_dropped_event() -> None:
         pass
     engine.receive_datagram(b"not RTPS at all", ("10.9.9.9", 7400), 0.0)
     event = engine.next_event()
-    assert event == PacketDropped("decode_error", ("10.9.9.9", 7400))
+    assert event == PacketDropped(DropReason.DECODE_ERROR, ("10.9.9.9", 7400))
     assert engine.counters()["dropped"]["decode_error"] == 1

@@ -242,7 +242,7 @@ class Echo:
         self.timer = None
         self.out.append((b"tick", ("239.255.0.1", 7400)))
 
-    def datagrams_to_send(self, now: float) -> list[tuple[bytes, tuple[str, int]]]:
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
         out, self.out = self.out, []
         return out
 

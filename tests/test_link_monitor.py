@@ -9,9 +9,9 @@ from typing import Any
 import structlog
 from structlog.testing import capture_logs
 
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.nl80211 import Nl80211Source
-from swarmd.link.sample import LinkSample
 from swarmd.link.source import LinkUnavailable
 from swarmd.link.static import StaticSource
 

@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link import quality
 from swarmd.link.file import FileSource, sample_from_json
-from swarmd.link.sample import LinkSample
 from swarmd.link.source import LinkUnavailable
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource, parse_proc_net_wireless

@@ -6,6 +6,7 @@ No I/O, no clock, no asyncio: see ``engine.py`` for the theory of operation.
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import (
+    DropReason,
     Event,
     ForeignParticipantSeen,
     PacketDropped,
@@ -13,16 +14,24 @@ from swarmd.discovery.events import (
     PeerLost,
     PhaseChanged,
 )
+from swarmd.discovery.inputs import LinkSample
+from swarmd.discovery.peers import PeerState
 from swarmd.discovery.phases import Phase
+from swarmd.discovery.views import ForeignView, PeerView
 
 __all__ = [
     "DiscoveryEngine",
+    "DropReason",
     "EngineConfig",
     "Event",
     "ForeignParticipantSeen",
+    "ForeignView",
+    "LinkSample",
     "PacketDropped",
     "PeerDiscovered",
     "PeerLost",
+    "PeerState",
+    "PeerView",
     "Phase",
     "PhaseChanged",
 ]

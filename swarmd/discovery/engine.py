@@ -60,7 +60,7 @@ from __future__ import annotations
 import heapq
 import math
 import random
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
@@ -76,6 +76,7 @@ from swarmd.discovery.awareness import (
 from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.digest import bitmap_size
 from swarmd.discovery.events import (
+    DropReason,
     Event,
     ForeignParticipantSeen,
     PacketDropped,
@@ -83,10 +84,11 @@ from swarmd.discovery.events import (
     PeerLost,
     PhaseChanged,
 )
+from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.peers import MAX_FOREIGN, ForeignTable, Peer, PeerState, clamp_lease
 from swarmd.discovery.phases import Phase, Trigger, next_phase
 from swarmd.discovery.timers import Backoff, LeaseQueue, MinInterval, Periodic, RetrySchedule
-from swarmd.link.sample import LinkSample
+from swarmd.discovery.views import ForeignView, PeerView
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator, LOCATOR_KIND_UDPv4
 from swarmd.rtps.message import Header
@@ -234,17 +236,8 @@ class DiscoveryEngine:
             "datagrams_dropped": 0,
         }
         self._tx_kind: dict[str, int] = {"announce": 0, "reply": 0, "renewal": 0, "dispose": 0}
-        self._dropped: dict[str, int] = {
-            "decode_error": 0,
-            "wrong_domain": 0,
-            "own": 0,
-            "not_spdp": 0,
-            "not_for_me": 0,
-            "not_in_bundle": 0,
-            "digest_mismatch": 0,
-            "vendor_mismatch": 0,
-            "stopped": 0,
-        }
+        # a Counter, so no reason can raise KeyError out of receive_datagram
+        self._dropped: Counter[DropReason] = Counter()
         if link is not None:
             self.update_link_quality(link, now)
 
@@ -254,19 +247,19 @@ class DiscoveryEngine:
         """Handle one UDP payload from ``source``. Never raises for any ``data``."""
         self._counters["rx_datagrams"] += 1
         if self.phase == Phase.STOPPED:
-            self._dropped["stopped"] += 1
+            self._dropped[DropReason.STOPPED] += 1
             return
         try:
             header, samples = _decode(data if type(data) is bytes else bytes(data))
         except DecodeError:
-            self._drop("decode_error", source)
+            self._drop(DropReason.DECODE_ERROR, source)
             return
         if header.guid_prefix.value == self._my_prefix:
             # our own multicast, looped back by the kernel (IP_MULTICAST_LOOP): count only
-            self._dropped["own"] += 1
+            self._dropped[DropReason.OWN] += 1
             return
         if not samples:
-            self._drop("not_spdp", source)
+            self._drop(DropReason.NOT_SPDP, source)
             return
         for sample in samples:
             if isinstance(sample, _Alive):
@@ -345,7 +338,7 @@ class DiscoveryEngine:
 
     # ----------------------------------------------------------------- outputs
 
-    def datagrams_to_send(self, now: float) -> list[tuple[bytes, tuple[str, int]]]:
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
         """Every queued (payload, (host, port)); the queue is emptied."""
         if not self._outbox:
             return []
@@ -391,8 +384,32 @@ class DiscoveryEngine:
     def passive_window_s(self) -> float | None:
         return self._passive_window
 
-    def discovered_names(self) -> frozenset[str]:
-        return frozenset(p.participant.name for p in self._peers.values() if p.discovered)
+    def peer(self, key: str | GuidPrefix) -> PeerView | None:
+        """The bundle peer named ``key`` (its bundle name or GUID prefix); None if not a peer
+        (our own name, a stranger). O(1) by prefix, O(N) by name."""
+        if isinstance(key, GuidPrefix):
+            found = self._by_prefix.get(key.value)
+        else:
+            found = next((p for p in self._peers.values() if p.participant.name == key), None)
+        return None if found is None else _view(found)
+
+    def peers(self) -> tuple[PeerView, ...]:
+        """Every bundle peer (all but us), in bundle order."""
+        return tuple(_view(p) for p in sorted(self._peers.values(), key=lambda x: x.index))
+
+    def peer_counts(self) -> tuple[int, int]:
+        """(discovered, total) bundle peers."""
+        return sum(1 for p in self._peers.values() if p.discovered), len(self._peers)
+
+    def foreign(self, now: float) -> tuple[ForeignView, ...]:
+        """Participants heard but never matched and not silent past their lease, least
+        recently heard first."""
+        return tuple(
+            ForeignView(
+                e.guid_prefix, e.vendor, e.name, e.reason, e.first_seen, e.last_seen, e.frames
+            )
+            for e in self._foreign.alive(now)
+        )
 
     def lists_me_names(self) -> frozenset[str]:
         return frozenset(
@@ -403,13 +420,14 @@ class DiscoveryEngine:
         return {
             **self._counters,
             "tx_kind": dict(self._tx_kind),
-            "dropped": dict(self._dropped),
+            "dropped": {str(reason): self._dropped[reason] for reason in DropReason},
             "foreign_evicted": self._foreign.evicted,
         }
 
     def status(self, now: float) -> dict[str, Any]:
-        """A JSON-ready snapshot (schema: notes/engine-api.md, docs/discovery.md)."""
-        self._foreign.prune(now)
+        """A JSON-ready snapshot of the engine's state at ``now`` (schema: docs/operations.md,
+        ``swarmctl status --json``). A pure function of the state: it changes nothing, so a
+        driver calls it when asked, never per datagram. O(N log N)."""
         link: dict[str, Any] = {"q": round(self._q, 3), "snr_db": None, "source": None}
         if self._link is not None:
             link = {
@@ -420,25 +438,30 @@ class DiscoveryEngine:
         passive_left = None
         if self.phase == Phase.PASSIVE and self._passive_deadline is not None:
             passive_left = round(max(0.0, self._passive_deadline - now), 3)
-        peers = []
-        for p in sorted(self._peers.values(), key=lambda x: x.index):
-            peers.append(
-                {
-                    "name": p.participant.name,
-                    "index": p.index,
-                    "state": str(p.state),
-                    "guid": f"{p.participant.guid_prefix}:1c1",
-                    "last_heard_s": None if p.last_heard is None else round(now - p.last_heard, 3),
-                    "locator": None if p.locator is None else f"udp/{p.locator[0]}:{p.locator[1]}",
-                    "matched_endpoints": len(p.matches or ()) if p.discovered else 0,
-                    "lists_me": p.discovered and p.lists_me,
-                }
-            )
+        peers = [
+            {
+                "name": p.name,
+                "index": p.index,
+                "state": str(p.state),
+                "guid": f"{p.guid_prefix}:1c1",
+                "last_heard_s": None if p.last_heard is None else round(now - p.last_heard, 3),
+                "locator": None if p.locator is None else f"udp/{p.locator[0]}:{p.locator[1]}",
+                "matched_endpoints": len(p.matches),
+                "lists_me": p.lists_me,
+            }
+            for p in self.peers()
+        ]
         foreign = [
-            {"guid": f"{e.guid_prefix}:1c1", "vendor": e.vendor, "name": e.name, "reason": e.reason}
-            for e in self._foreign.entries.values()
+            {
+                "guid": f"{e.guid_prefix}:1c1",
+                "vendor": e.vendor,
+                "name": e.name,
+                "reason": str(e.reason),
+            }
+            for e in self.foreign(now)
         ]
         timing = self._timing
+        discovered, total = self.peer_counts()
         return {
             "node": self._me.name,
             "swarm": self._bundle.swarm,
@@ -455,8 +478,8 @@ class DiscoveryEngine:
                 "renewal_period_s": round(self._renewal.period_s, 3),
                 "advertised_lease_s": round(self._lease_s(), 3),
             },
-            "peers_discovered": sum(1 for p in self._peers.values() if p.discovered),
-            "peers_total": len(self._peers),
+            "peers_discovered": discovered,
+            "peers_total": total,
             "peers": peers,
             "foreign": foreign,
             "counters": self.counters(),
@@ -470,23 +493,23 @@ class DiscoveryEngine:
         if (part.domain_id is not None and part.domain_id != self._domain_id) or (
             part.domain_tag not in (None, "")
         ):
-            self._drop("wrong_domain", source)
+            self._drop(DropReason.WRONG_DOMAIN, source)
             return
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
-            self._drop("not_for_me", source)
+            self._drop(DropReason.NOT_FOR_ME, source)
             return
         peer = self._by_prefix.get(alive.prefix)
         if peer is None and alive.prefix != self._my_prefix:
-            self._see_foreign(part, "not_in_bundle", now)
+            self._see_foreign(part, DropReason.NOT_IN_BUNDLE, now)
             return
         if not alive.is_swarmd:
-            self._see_foreign(part, "vendor_mismatch", now)
+            self._see_foreign(part, DropReason.VENDOR_MISMATCH, now)
             return
         if part.bundle_digest != self._digest:
-            self._see_foreign(part, "digest_mismatch", now)
+            self._see_foreign(part, DropReason.DIGEST_MISMATCH, now)
             return
         if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
-            self._drop("own", source)
+            self._drop(DropReason.OWN, source)
             return
         self._heard(peer, alive, source, now)
 
@@ -506,6 +529,8 @@ class DiscoveryEngine:
         peer.last_sn = sn
         peer.lease_s = alive.lease_s
         peer.locator = alive.target or source
+        peer.metatraffic_locators = part.metatraffic_unicast_locators
+        peer.default_locators = part.default_unicast_locators
         heard, octet = part.heard, self._my_octet
         peer.lists_me = (
             heard is not None and octet < len(heard) and (heard[octet] & self._my_bit) != 0
@@ -532,6 +557,8 @@ class DiscoveryEngine:
                     peer.participant.guid_prefix,
                     matches,
                     "directed" if directed else "multicast",
+                    part.metatraffic_unicast_locators,
+                    part.default_unicast_locators,
                 )
             )
         elif directed and repeat and peer.lists_me and peer.told and peer.reack.permits(now):
@@ -559,7 +586,7 @@ class DiscoveryEngine:
 
     def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int], now: float) -> None:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
-            self._drop("not_for_me", source)
+            self._drop(DropReason.NOT_FOR_ME, source)
             return
         peer = self._by_prefix.get(sample.guid_prefix.value)
         if peer is None:
@@ -568,7 +595,7 @@ class DiscoveryEngine:
         if peer.discovered:
             self._lose(peer, "disposed")
 
-    def _see_foreign(self, part: SpdpParticipant, reason: str, now: float) -> None:
+    def _see_foreign(self, part: SpdpParticipant, reason: DropReason, now: float) -> None:
         self._dropped[reason] += 1
         new = self._foreign.see(
             part.guid_prefix,
@@ -881,9 +908,28 @@ class DiscoveryEngine:
             self._counters["events_dropped"] += 1
         self._events.append(event)
 
-    def _drop(self, reason: str, source: tuple[str, int]) -> None:
+    def _drop(self, reason: DropReason, source: tuple[str, int]) -> None:
         self._dropped[reason] += 1
         self._emit(PacketDropped(reason, source))
+
+
+def _view(p: Peer) -> PeerView:
+    discovered = p.state == PeerState.DISCOVERED
+    return PeerView(
+        name=p.participant.name,
+        index=p.index,
+        guid_prefix=p.participant.guid_prefix,
+        state=p.state,
+        last_heard=p.last_heard,
+        locator=p.target(),
+        metatraffic_unicast_locators=p.metatraffic_locators,
+        default_unicast_locators=p.default_locators,
+        matches=(p.matches or ()) if discovered else (),
+        lists_me=discovered and p.lists_me,
+        lease_s=p.lease_s,
+        link_quality_permille=p.link_quality_permille,
+        times_discovered=p.times_discovered,
+    )
 
 
 @dataclass(frozen=True, slots=True)

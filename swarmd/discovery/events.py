@@ -7,10 +7,32 @@ Every event derives from ``Event``, so a driver can ``match`` on them and close 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 from swarmd.bundle.model import Match
 from swarmd.discovery.phases import Phase
+from swarmd.rtps.locator import Locator
 from swarmd.rtps.types import GuidPrefix
+
+
+class DropReason(StrEnum):
+    """Why a datagram (or one SPDP sample in it) moved nothing: the one list of drop reasons.
+
+    The engine counts them in a ``collections.Counter`` (a reason added here can never raise
+    out of ``receive_datagram``) and reports every member, zero or not, in
+    ``counters()["dropped"]`` in this order. The last three also name why a participant is
+    foreign (``ForeignParticipantSeen.reason``).
+    """
+
+    DECODE_ERROR = "decode_error"  # not RTPS, or a malformed submessage (rtps.DecodeError)
+    WRONG_DOMAIN = "wrong_domain"  # another domain id or a domain tag
+    OWN = "own"  # our own multicast, looped back by the kernel
+    NOT_SPDP = "not_spdp"  # RTPS, but no SPDP DATA(p) in it
+    NOT_FOR_ME = "not_for_me"  # a directed DATA(p) for another participant
+    NOT_IN_BUNDLE = "not_in_bundle"  # a GUID prefix the bundle does not list
+    DIGEST_MISMATCH = "digest_mismatch"  # a swarmd node flashed with another bundle
+    VENDOR_MISMATCH = "vendor_mismatch"  # a bundle GUID prefix sent by a stack not swarmd
+    STOPPED = "stopped"  # received after shutdown()
 
 
 @dataclass(frozen=True, slots=True)
@@ -26,6 +48,10 @@ class PeerDiscovered(Event):
     guid_prefix: GuidPrefix
     matches: tuple[Match, ...]
     via: str  # "multicast" | "directed"
+    # the locators of the DATA(p) it was discovered by, as sent (DDSI-RTPS 8.5.3.1): its
+    # metatraffic unicast locators (SPDP replies) and default unicast locators (user data)
+    metatraffic_unicast_locators: tuple[Locator, ...]
+    default_unicast_locators: tuple[Locator, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,7 +75,7 @@ class ForeignParticipantSeen(Event):
     guid_prefix: GuidPrefix
     vendor: str
     name: str | None
-    reason: str = "not_in_bundle"
+    reason: DropReason = DropReason.NOT_IN_BUNDLE
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,5 +89,5 @@ class PhaseChanged(Event):
 class PacketDropped(Event):
     """A datagram (or one SPDP sample in it) was ignored; ``reason`` names the counter."""
 
-    reason: str
+    reason: DropReason
     source: tuple[str, int]

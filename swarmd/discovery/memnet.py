@@ -28,7 +28,7 @@ class DatagramNode(Protocol):
 
     def handle_timer(self, now: float) -> None: ...
 
-    def datagrams_to_send(self, now: float) -> list[tuple[bytes, Address]]: ...
+    def datagrams_to_send(self) -> list[tuple[bytes, Address]]: ...
 
     def get_timer(self) -> float | None: ...
 
@@ -179,7 +179,7 @@ class MemNet:
     def poke(self, node_id: int) -> None:
         """Collect a node's output and re-arm its timer after an input given from outside."""
         attached = self._nodes[node_id]
-        for payload, target in attached.node.datagrams_to_send(self.now):
+        for payload, target in attached.node.datagrams_to_send():
             self._transmit(node_id, payload, target)
         attached.timer_generation += 1
         deadline = attached.node.get_timer()

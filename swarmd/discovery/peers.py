@@ -12,7 +12,9 @@ from enum import StrEnum
 from typing import Final
 
 from swarmd.bundle.model import Match, Participant
+from swarmd.discovery.events import DropReason
 from swarmd.discovery.timers import MinInterval, RetrySchedule
+from swarmd.rtps.locator import Locator
 from swarmd.rtps.types import GuidPrefix
 
 # A stranger spraying DATA(p) under random GUID prefixes (each one "a new participant")
@@ -51,6 +53,9 @@ class Peer:
     reack: MinInterval
     state: PeerState = PeerState.UNDISCOVERED
     locator: tuple[str, int] | None = None  # from its DATA(p), else the UDP source
+    # its latest DATA(p)'s locator lists, as sent (PeerView, PeerDiscovered)
+    metatraffic_locators: tuple[Locator, ...] = ()
+    default_locators: tuple[Locator, ...] = ()
     last_heard: float | None = None
     lease_s: float = 0.0
     lists_me: bool = False
@@ -78,11 +83,14 @@ class ForeignEntry:
     guid_prefix: GuidPrefix
     vendor: str
     name: str | None
-    reason: str
+    reason: DropReason
     first_seen: float
     last_seen: float
     lease_s: float
     frames: int = 1
+
+    def alive(self, now: float) -> bool:
+        return now <= self.last_seen + self.lease_s
 
 
 @dataclass(slots=True)
@@ -99,7 +107,7 @@ class ForeignTable:
         *,
         vendor: str,
         name: str | None,
-        reason: str,
+        reason: DropReason,
         lease_s: float,
         now: float,
     ) -> bool:
@@ -111,6 +119,7 @@ class ForeignTable:
             entry.frames += 1
             self.entries.move_to_end(prefix)
             return False
+        self.prune(now)  # the silent go first (status() only reads the table)
         while len(self.entries) >= self.cap:
             self.entries.popitem(last=False)
             self.evicted += 1
@@ -122,6 +131,10 @@ class ForeignTable:
 
     def prune(self, now: float) -> None:
         """Forget participants silent past their (clamped) lease."""
-        stale = [p for p, e in self.entries.items() if now > e.last_seen + e.lease_s]
+        stale = [p for p, e in self.entries.items() if not e.alive(now)]
         for p in stale:
             del self.entries[p]
+
+    def alive(self, now: float) -> list[ForeignEntry]:
+        """The entries not silent past their lease, least recently heard first (no change)."""
+        return [e for e in self.entries.values() if e.alive(now)]

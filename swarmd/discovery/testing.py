@@ -33,8 +33,8 @@ from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.digest import encode_heard
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import Event, PeerDiscovered, PeerLost
+from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.memnet import Channel, MemNet
-from swarmd.link.sample import LinkSample
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
@@ -210,6 +210,29 @@ def build_swarm(
     for i in order:
         net.call_at(starts[i], start(i))
     return swarm
+
+
+def engine_for(
+    bundle: Bundle,
+    index: int = 0,
+    *,
+    seed: int = 1,
+    q: float = 0.7,
+    config: EngineConfig | None = None,
+    now: float = 0.0,
+) -> DiscoveryEngine:
+    """One engine for bundle participant ``index``, hand-driven on virtual time from
+    ``now``, with a first link sample of ``q`` (no BOOT wait) and a seeded rng."""
+    p = bundle.participants[index]
+    return DiscoveryEngine(
+        bundle,
+        p.name,
+        config=config or EngineConfig(),
+        rng=random.Random(seed),  # noqa: S311 - seeded on purpose
+        now=now,
+        local_ipv4=node_ipv4(p.index),
+        link=LinkSample(q=q),
+    )
 
 
 def peer_datagram(

@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.quality import q_from_lq, q_from_snr, sample_from_signal
-from swarmd.link.sample import LinkSample
 from swarmd.link.source import LinkUnavailable
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from swarmd.link.sample import LinkSample
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.source import LinkSource, LinkUnavailable
 
 

@@ -21,8 +21,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, Final
 
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.quality import SNR_FLOOR_DB, sample_from_signal
-from swarmd.link.sample import LinkSample
 from swarmd.link.source import LinkUnavailable
 
 # A neighbour silent this long (NL80211_STA_INFO_INACTIVE_TIME) has left; its stale signal

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Final
 
-from swarmd.link.sample import LinkSample
+from swarmd.discovery.inputs import LinkSample
 
 SNR_CEIL_DB: Final = 40.0  # paper eq. 2: link improvements saturate beyond 40 dB
 SNR_FLOOR_DB: Final = 25.0  # paper eq. 2: communication is stable above 25 dB

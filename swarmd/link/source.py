@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from swarmd.link.sample import LinkSample
+from swarmd.discovery.inputs import LinkSample
 
 
 class LinkUnavailable(Exception):

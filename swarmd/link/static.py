@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.quality import clamp01
-from swarmd.link.sample import LinkSample
 
 
 class StaticSource:

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.quality import WEXT_MAX_QUALITY, q_from_lq, q_from_snr
-from swarmd.link.sample import LinkSample
 from swarmd.link.source import LinkUnavailable
 
 PROC_NET_WIRELESS: Final = "/proc/net/wireless"

@@ -15,8 +15,8 @@ from swarmd.bundle.model import Bundle
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import PeerDiscovered, PeerLost
+from swarmd.discovery.inputs import LinkSample
 from swarmd.link.quality import q_from_snr
-from swarmd.link.sample import LinkSample
 from swarmd_lab.sim.channel import MULTICAST, Datagram, Kind
 from swarmd_lab.sim.clock import Timer
 from swarmd_lab.sim.node import NodeContext, SimNode
@@ -95,7 +95,7 @@ class SwarmdNode(SimNode):
         assert engine is not None  # noqa: S101
         # runs after every reception (~10^6 per run at N = 1000): the usual answer is
         # "nothing queued, no event, same deadline", so each step is cheap when empty
-        out = engine.datagrams_to_send(now)
+        out = engine.datagrams_to_send()
         if out:
             self._transmit(engine, out)
         event = engine.next_event()

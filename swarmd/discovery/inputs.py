@@ -1,7 +1,8 @@
-"""One link-quality reading, the value the discovery engine turns into a passive timer.
+"""The discovery engine's inputs besides datagrams: one link-quality reading.
 
-Shared between the link monitor (which produces it) and the discovery engine (which consumes
-it through ``update_link_quality``). Kept free of I/O so the sans-IO engine may import it.
+Discovery owns its input types (design.md: dependencies point inward): the link monitor
+(``swarmd.link``) produces ``LinkSample`` values and the engine consumes them through
+``update_link_quality``; discovery imports nothing of ``swarmd.link``.
 """
 
 from __future__ import annotations
