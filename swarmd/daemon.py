@@ -10,8 +10,8 @@ re-arm the single ``TimerHandle`` at ``engine.get_timer()``. The three inputs ar
 - the engine timer;
 - link-quality samples from the link monitor, polled every ``link.poll_interval_s``.
 
-On top of discovery, ``SwarmApp`` (``swarmd/app.py``) runs the swarm itself when configured:
-the data plane on the user unicast port (its own adapter and timer, ``swarmd/userdata.py``),
+On top of discovery, ``SwarmApp`` (``swarmd/swarm/app.py``) runs the swarm itself when configured:
+the data plane on the user unicast port (its own adapter and timer, ``swarmd/swarm/userdata.py``),
 fed with discovery's ``PeerDiscovered``/``PeerLost``; the PX4 bridge; readiness reports,
 commands and outcomes.
 
@@ -38,7 +38,6 @@ from dataclasses import fields
 from typing import Any, Final
 
 from swarmd import __version__
-from swarmd.app import AppStartError, SwarmApp
 from swarmd.auth.epoch import EpochError, EpochResult, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.bundle.errors import KeyFileError
@@ -64,6 +63,7 @@ from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
 from swarmd.sdnotify import Notifier, watchdog_interval_s
+from swarmd.swarm.app import AppStartError, SwarmApp
 
 SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
 IFNAMSIZ: Final = 16

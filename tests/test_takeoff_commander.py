@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarmd.commander import (
+from swarmd.dataplane.types import CommandResult, Readiness
+from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     NO_REPORT,
     NOT_A_TARGET,
@@ -18,8 +19,7 @@ from swarmd.commander import (
     CommandTracker,
     ReadinessTable,
 )
-from swarmd.dataplane.types import CommandResult, Readiness
-from swarmd.statefile import boot, load, state_path
+from swarmd.swarm.statefile import boot, load, state_path
 
 
 def sample(node: str, seq: int, ready: bool, reason: str = "", landed: int = 1) -> Readiness:

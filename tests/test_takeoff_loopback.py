@@ -22,7 +22,6 @@ import structlog
 from swarmd_lab.px4.sim_model import SimConfig
 from swarmd_lab.px4.vehicle_sim import SimProtocol, start_sim
 
-from swarmd.app import SwarmApp
 from swarmd.config import load_config
 from swarmd.control import RequestInvalid
 from swarmd.daemon import Daemon
@@ -31,6 +30,7 @@ from swarmd.link.static import StaticSource
 from swarmd.px4.constants import LandedState
 from swarmd.px4.transport import parse_connection
 from swarmd.sdnotify import Notifier
+from swarmd.swarm.app import SwarmApp
 from tests.daemon_support import BundleFiles, run_domain, swarm_sections, write_bundle, write_config
 
 N = 3

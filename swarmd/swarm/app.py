@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from swarmd.bundle.model import Bundle, EndpointKind, Participant
-from swarmd.commander import CommandTracker, ReadinessTable
 from swarmd.config import DaemonConfig
 from swarmd.control import RequestInvalid
 from swarmd.dataplane import (
@@ -44,11 +43,12 @@ from swarmd.dataplane import (
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import MAX_ALTITUDE_M, CommandKind, CommandResult
-from swarmd.executor import PX4_DISABLED, CommandExecutor
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.readiness import ReadinessConfig
-from swarmd.statefile import NodeState, StateDirError, boot
-from swarmd.userdata import UserDataAdapter
+from swarmd.swarm.commander import CommandTracker, ReadinessTable
+from swarmd.swarm.executor import PX4_DISABLED, CommandExecutor
+from swarmd.swarm.statefile import NodeState, StateDirError, boot
+from swarmd.swarm.userdata import UserDataAdapter
 
 MAX_TAKEOFF_ALT_M: Final = min(120.0, MAX_ALTITUDE_M)  # the bridge's own limit (docs/px4.md)
 COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
