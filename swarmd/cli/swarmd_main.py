@@ -49,7 +49,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         parser.print_help(sys.stderr)
         return EX_USAGE
     # imported here so `swarmd --help` stays fast and works without the engine's deps
-    from swarmd import logging as swarmd_logging
+    from swarmd import logs
     from swarmd.bundle.errors import BundleError
     from swarmd.bundle.loader import load_bundle
     from swarmd.daemon import Daemon, NodeSecretsError, load_node_secrets, run
@@ -60,8 +60,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         config = load_config(args.config, engine_fields=engine_fields)
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
-    swarmd_logging.configure(config.log_level, config.log_format)
-    log = swarmd_logging.get_logger(node=config.node)
+    logs.configure(config.log_level, config.log_format)
+    log = logs.get_logger(node=config.node)
     try:
         bundle = load_bundle(
             config.bundle.path,

@@ -188,8 +188,10 @@ class DataPlane:
     # --- discovery inputs -------------------------------------------------------------------
 
     def peer_up(self, name: str, locator: tuple[str, int], now: float) -> None:
-        """Discovery found ``name`` (a bundle participant) at its default unicast locator:
-        its matched endpoints become live. Again for a known peer: only the locator moves."""
+        """Discovery found ``name`` (a bundle participant): its matched endpoints become live,
+        and user data for it goes to ``locator``, whatever the caller chose (the daemon: the
+        host discovery heard it at, with the bundle's user port for it, ``Bundle.user_port``).
+        Again for a known peer: only the locator moves."""
         known = self._peers.get(name)
         if known is not None:
             known.locator = locator

@@ -15,21 +15,47 @@ def bitmap_size(swarm_size: int) -> int:
     return (swarm_size + 7) // 8
 
 
+class HeardBitmap:
+    """The digest a node sends, kept up to date one participant at a time (the engine marks a
+    peer on discovery and unmarks it on loss instead of rebuilding N bits per send)."""
+
+    __slots__ = ("_bits", "_size")
+
+    def __init__(self, swarm_size: int) -> None:
+        self._size = swarm_size
+        self._bits = bytearray(bitmap_size(swarm_size))
+
+    def mark(self, index: int) -> None:
+        """List participant ``index`` (``0 <= index < swarm_size``)."""
+        if not 0 <= index < self._size:
+            raise ValueError(f"participant index {index} outside the bundle's 0..{self._size - 1}")
+        self._bits[index >> 3] |= 1 << (index & 7)
+
+    def unmark(self, index: int) -> None:
+        if 0 <= index < self._size:
+            self._bits[index >> 3] &= ~(1 << (index & 7))
+
+    def to_bytes(self) -> bytes:
+        return bytes(self._bits)
+
+
 def encode_heard(indices: Iterable[int], swarm_size: int) -> bytes:
     """The bitmap listing ``indices`` (each in ``0 <= i < swarm_size``)."""
-    out = bytearray(bitmap_size(swarm_size))
+    bitmap = HeardBitmap(swarm_size)
     for i in indices:
-        if not 0 <= i < swarm_size:
-            raise ValueError(f"participant index {i} outside the bundle's 0..{swarm_size - 1}")
-        out[i >> 3] |= 1 << (i & 7)
-    return bytes(out)
+        bitmap.mark(i)
+    return bitmap.to_bytes()
 
 
 def lists(bitmap: bytes | None, index: int) -> bool:
-    """Whether ``bitmap`` has the bit of participant ``index`` set (absent bitmap: no)."""
-    if bitmap is None or index < 0 or (index >> 3) >= len(bitmap):
-        return False
-    return bool(bitmap[index >> 3] & (1 << (index & 7)))
+    """Whether ``bitmap`` has the bit of participant ``index`` set (absent bitmap: no).
+
+    The engine asks this of every DATA(p) it receives (is our own bit set?), so it stays one
+    short expression."""
+    octet = index >> 3
+    return (
+        bitmap is not None and 0 <= octet < len(bitmap) and (bitmap[octet] >> (index & 7)) & 1 == 1
+    )
 
 
 def decode_heard(bitmap: bytes | None, swarm_size: int) -> frozenset[int]:

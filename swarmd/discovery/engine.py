@@ -74,7 +74,7 @@ from swarmd.discovery.awareness import (
     renewal_period_s,
 )
 from swarmd.discovery.config import EngineConfig, resolve_timing
-from swarmd.discovery.digest import bitmap_size
+from swarmd.discovery.digest import HeardBitmap, lists
 from swarmd.discovery.events import (
     DropReason,
     Event,
@@ -208,12 +208,11 @@ class DiscoveryEngine:
         self._sn = 0
         self._content: SpdpParticipant | None = None
         self._encoded: dict[GuidPrefix | None, bytes] = {}
-        # our bit in a peer's heard digest (digest.py layout), looked up on every DATA(p)
-        self._my_octet, self._my_bit = me.index >> 3, 1 << (me.index & 7)
+        self._my_index = me.index
         self._my_prefix = me.guid_prefix.value
         # the heard digest we send, kept up to date on discovery and loss rather than
         # rebuilt from all N peers on every send
-        self._heard_bits = bytearray(bitmap_size(self._size))
+        self._heard_digest = HeardBitmap(self._size)
         # peers whose RetrySchedule is armed, a lazy min-heap of their (deadline, index), and
         # the lease deadlines: get_timer() stays O(1) amortised per input, and a lease
         # renewal (the bulk of the traffic) costs O(1)
@@ -531,10 +530,7 @@ class DiscoveryEngine:
         peer.locator = alive.target or source
         peer.metatraffic_locators = part.metatraffic_unicast_locators
         peer.default_locators = part.default_unicast_locators
-        heard, octet = part.heard, self._my_octet
-        peer.lists_me = (
-            heard is not None and octet < len(heard) and (heard[octet] & self._my_bit) != 0
-        )
+        peer.lists_me = lists(part.heard, self._my_index)
         peer.link_quality_permille = part.link_quality_permille
         self._leases.renew(peer.index, alive.lease_s, now)
         if restarted and not newly:
@@ -543,7 +539,7 @@ class DiscoveryEngine:
             self._disarm(peer)
         elif newly:
             peer.state = PeerState.DISCOVERED
-            self._heard_bits[peer.index >> 3] |= 1 << (peer.index & 7)
+            self._heard_digest.mark(peer.index)
             matches = peer.matches
             if matches is None:
                 matches = peer.matches = tuple(self._bundle.matches(self._me, peer.participant))
@@ -836,7 +832,7 @@ class DiscoveryEngine:
     def _lose(self, peer: Peer, reason: str) -> None:
         peer.state = PeerState.LOST
         self._leases.remove(peer.index)
-        self._heard_bits[peer.index >> 3] &= ~(1 << (peer.index & 7))
+        self._heard_digest.unmark(peer.index)
         peer.told = False
         peer.lists_me = False
         self._disarm(peer)
@@ -846,7 +842,7 @@ class DiscoveryEngine:
 
     def _participant_data(self) -> SpdpParticipant:
         meta_uc, meta_mc, user_uc = self._static_locators
-        heard = bytes(self._heard_bits)
+        heard = self._heard_digest.to_bytes()
         return SpdpParticipant(
             self._me.guid_prefix,
             domain_id=self._bundle.domain_id,

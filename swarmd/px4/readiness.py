@@ -112,9 +112,6 @@ class VehicleState:
                 if obs.severity <= MavSeverity.WARNING:
                     self.last_warning, self.last_warning_at = obs, now
 
-    def link_alive(self, now: float, timeout_s: float) -> bool:
-        return self.heartbeat_at is not None and now - self.heartbeat_at < timeout_s
-
     @property
     def armed(self) -> bool | None:
         return None if self.heartbeat is None else self.heartbeat.armed

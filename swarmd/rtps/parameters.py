@@ -147,10 +147,6 @@ def _need(param: Parameter, size: int, what: str) -> None:
         )
 
 
-def _reader(param: Parameter, little: bool) -> Reader:
-    return Reader(param.value, little=little)
-
-
 def value_u32(param: Parameter, little: bool) -> int:
     _need(param, 4, "u32")
     value: int = _U32V[little].unpack_from(param.value)[0]

@@ -189,7 +189,7 @@ def config_from_args(args: argparse.Namespace) -> tuple[SimConfig, Endpoint]:
 
 
 async def _run(config: SimConfig, endpoint: Endpoint, args: argparse.Namespace) -> int:
-    from swarmd.logging import configure, get_logger
+    from swarmd.logs import configure, get_logger
 
     configure("info", "json" if args.json_log else "auto")
     log = get_logger(component="vehicle-sim", simulator=True, sysid=config.sysid)
