@@ -28,7 +28,9 @@ LOG_FORMATS: Final = ("auto", "json", "console")
 DEFAULT_SOCKET: Final = "/run/swarmd/swarmd.sock"
 DEFAULT_BUNDLE: Final = "/var/lib/swarmd/bundle.swb"
 DEFAULT_STATE_DIR: Final = "/var/lib/swarmd"  # systemd StateDirectory=swarmd
-DEFAULT_PX4_CONNECTION: Final = "udpin:0.0.0.0:14540"  # PX4 SITL / mavlink-router onboard link
+# PX4 SITL / mavlink-router onboard link, loopback only: a wildcard would hear the swarm's
+# Wi-Fi (issue 10, attack 6); px4.allow_network opts in for an FMU on Ethernet
+DEFAULT_PX4_CONNECTION: Final = "udpin:127.0.0.1:14540"
 MIN_POLL_S: Final = 0.05  # faster polling would only burn CPU: drivers average over ~1 s
 MAX_POLL_S: Final = 60.0
 
@@ -72,6 +74,10 @@ class Px4Section:
     enabled: bool = False
     connection: str = DEFAULT_PX4_CONNECTION
     sysid: int | None = None  # None: the bundle participant's mavlink_sysid
+    allow_network: bool = False  # a UDP endpoint beyond loopback (FMU on Ethernet): opt-in
+    autopilot: str | None = None  # "IP:PORT" pinned; None: the first heartbeat's source
+    signing: bool = False  # MAVLink 2 message signing with the per-drone key (docs/px4.md)
+    signing_key: str | None = None  # a key file; None: derived from the node key
     heartbeat_timeout_s: float = 2.5  # PX4 HEARTBEAT_TIMEOUT_US; keeps link loss within 3 s
     min_battery_pct: float = 30.0
     allow_unknown_battery: bool = False
@@ -145,6 +151,10 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "enabled",
         "connection",
         "sysid",
+        "allow_network",
+        "autopilot",
+        "signing",
+        "signing_key",
         "heartbeat_timeout_s",
         "min_battery_pct",
         "allow_unknown_battery",
@@ -421,17 +431,57 @@ class _Checker:
         return DaemonConfig(file=self.file, bundle=bundle, lines=self.lines, **values)  # type: ignore[arg-type]
 
     def px4(self, f: Nodes) -> Px4Section:
+        # only px4 configs pay for the transport import
+        from swarmd.px4.transport import is_network_endpoint, parse_address, parse_connection
+
+        def relay(node: yaml.Node, path: str, exc: ValueError) -> NoReturn:
+            problem, _, fix = str(exc).removeprefix(f"{path}: ").partition("; fix: ")
+            self.fail(node, path, problem, fix or "see docs/px4.md")
+
         d = Px4Section()
         connection = d.connection
-        if "connection" in f:
-            connection = self.string(f["connection"], "px4.connection", "a connection string")
-            from swarmd.px4.transport import parse_connection  # only px4 configs pay for it
-
+        where = f.get("connection")
+        if where is not None:
+            connection = self.string(where, "px4.connection", "a connection string")
             try:
-                parse_connection(connection, "px4.connection")
+                endpoint = parse_connection(connection, "px4.connection")
             except ValueError as exc:
-                problem, _, fix = str(exc).removeprefix("px4.connection: ").partition("; fix: ")
-                self.fail(f["connection"], "px4.connection", problem, fix or "see docs/px4.md")
+                relay(where, "px4.connection", exc)
+            allow_network = (
+                self.boolean(f["allow_network"], "px4.allow_network")
+                if "allow_network" in f
+                else False
+            )
+            if is_network_endpoint(endpoint) and not allow_network:
+                # issue 10, attack 6: a wildcard listener hears the swarm's Wi-Fi
+                self.fail(
+                    where,
+                    "px4.connection",
+                    f"{connection} reaches beyond loopback: any host on the network could pose "
+                    "as the autopilot",
+                    "use udpin:127.0.0.1:14540 (PX4 SITL, mavlink-router) or "
+                    "serial:/dev/ttyTHS1:921600; for an FMU on Ethernet set "
+                    "px4.allow_network: true and px4.autopilot: IP:PORT",
+                )
+        autopilot: str | None = None
+        if "autopilot" in f and self.value(f["autopilot"], "px4.autopilot") is not None:
+            raw = self.string(f["autopilot"], "px4.autopilot", "IP:PORT")
+            try:
+                autopilot = parse_address(raw, "px4.autopilot")
+            except ValueError as exc:
+                relay(f["autopilot"], "px4.autopilot", exc)
+            if where is None or parse_connection(connection).kind != "udpin":
+                self.fail(
+                    f["autopilot"],
+                    "px4.autopilot",
+                    "only a udpin: connection learns its autopilot's address",
+                    "remove px4.autopilot (udpout pins its target; a UART has one peer)",
+                )
+        signing_key = (
+            self.path(f["signing_key"], "px4.signing_key", nullable=True)
+            if "signing_key" in f
+            else None
+        )
         sysid: int | None = None
         if "sysid" in f and self.value(f["sysid"], "px4.sysid") is not None:
             number = self.number(f["sysid"], "px4.sysid", 1, 255)
@@ -449,6 +499,10 @@ class _Checker:
             enabled=flag("enabled", True),
             connection=connection,
             sysid=sysid,
+            allow_network=flag("allow_network", d.allow_network),
+            autopilot=autopilot,
+            signing=flag("signing", d.signing),
+            signing_key=signing_key,
             heartbeat_timeout_s=num("heartbeat_timeout_s", 0.5, 30.0, " s", d.heartbeat_timeout_s),
             min_battery_pct=num("min_battery_pct", 0.0, 100.0, " %", d.min_battery_pct),
             allow_unknown_battery=flag("allow_unknown_battery", d.allow_unknown_battery),

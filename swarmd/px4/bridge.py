@@ -9,7 +9,7 @@ moment they happen, including "the link went quiet", with no polling.
 
 API for the daemon / commander::
 
-    bridge = Px4Bridge.from_config(Px4Config(connection="udpin:0.0.0.0:14540", sysid=1))
+    bridge = Px4Bridge.from_config(Px4Config(connection="udpin:127.0.0.1:14540", sysid=1))
     await bridge.start()
     bridge.on_readiness_change(lambda r: publish(r.as_dict()))
     verdict = bridge.readiness()               # Readiness(ready, reason, detail, ...)
@@ -48,8 +48,10 @@ ReadinessListener = Callable[[Readiness], None]
 class Px4Config:
     """The daemon config's ``px4`` section."""
 
-    connection: str = "udpin:0.0.0.0:14540"  # PX4 SITL / mavlink-router default for us
+    connection: str = "udpin:127.0.0.1:14540"  # PX4 SITL / mavlink-router, loopback only
     sysid: int = 1  # the vehicle's MAV_SYS_ID; we are component 191 of it
+    autopilot: str | None = None  # "IP:PORT" to pin; None: the first heartbeat's source
+    signing_key: bytes | None = None  # MAVLink 2 signing (32 bytes); None: off
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
     takeoff: TakeoffConfig = field(default_factory=TakeoffConfig)
 
@@ -83,7 +85,12 @@ class Px4Bridge:
     @classmethod
     def from_config(cls, config: Px4Config, *, log: Any = None) -> Px4Bridge:
         """A bridge on the MAVLink backend; raises ValueError (one line) on a bad config."""
-        backend = MavlinkBackend(config.connection, sysid=config.sysid)
+        backend = MavlinkBackend(
+            config.connection,
+            sysid=config.sysid,
+            autopilot=config.autopilot,
+            signing_key=config.signing_key,
+        )
         return cls(
             backend, readiness_config=config.readiness, takeoff_config=config.takeoff, log=log
         )

@@ -7,6 +7,12 @@ loop stops the heartbeat (MAVLink heartbeat service advice). Only messages from 
 autopilot, (sysid, component 1), reach the logic; ACKs must be addressed to us or broadcast.
 Commands always target component 1 explicitly (``mavutil`` sometimes derives 0).
 
+Trust (issue 10, attack 6): on UDP only the autopilot's pinned address is heard and
+answered (``linkguard.AutopilotPin``: configured, or the first HEARTBEAT from (sysid, 1));
+with a signing key (``signing.py``) every frame we send is signed and every frame we
+accept must carry a good MAVLink 2 signature on a fresh timestamp. Everything refused is
+counted in ``stats()`` (``swarmctl status --json``, ``px4.backend``).
+
 Like MAVSDK (telemetry_impl ``request_home_position_again``), while no HOME_POSITION has
 arrived we ask for one with MAV_CMD_REQUEST_MESSAGE every 2 s instead of waiting up to 2 s
 for PX4's 0.5 Hz stream; the ACK of that request is not passed on.
@@ -15,6 +21,7 @@ for PX4's 0.5 Hz stream; the ACK of that request is not passed on.
 from __future__ import annotations
 
 import asyncio
+import time
 from typing import Any, Final
 
 from swarmd.px4.backend import ObservationSink
@@ -27,9 +34,18 @@ from swarmd.px4.constants import (
     MavCmd,
     MavState,
 )
+from swarmd.px4.linkguard import REPIN_AFTER_S, AutopilotPin
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.messages import CommandAck, Heartbeat, HomePosition, VehicleCommand
-from swarmd.px4.transport import ByteLink, Endpoint, open_link, parse_connection
+from swarmd.px4.signing import timestamp_from_unix
+from swarmd.px4.transport import (
+    ByteLink,
+    Endpoint,
+    UdpLink,
+    open_link,
+    parse_address,
+    parse_connection,
+)
 
 HEARTBEAT_INTERVAL_S: Final = 1.0  # MAVSDK HEARTBEAT_SEND_INTERVAL_S
 HOME_REQUEST_EVERY: Final = 2  # heartbeats between HOME_POSITION requests (2 s)
@@ -47,6 +63,9 @@ class MavlinkBackend:
         sysid: int = 1,
         compid: int = COMP_ID_ONBOARD_COMPUTER,
         heartbeat_interval_s: float = HEARTBEAT_INTERVAL_S,
+        autopilot: str | None = None,
+        signing_key: bytes | None = None,
+        repin_after_s: float = REPIN_AFTER_S,
     ) -> None:
         if not 1 <= sysid <= 255 or not 1 <= compid <= 255:
             raise ValueError("px4.sysid and the companion component id must be 1..255")
@@ -54,7 +73,19 @@ class MavlinkBackend:
         self.sysid = sysid
         self.compid = compid
         self.heartbeat_interval_s = heartbeat_interval_s
-        self.codec = MavlinkCodec(sysid, compid)
+        self.codec = MavlinkCodec(sysid, compid, signing_key=signing_key)
+        self.pin: AutopilotPin | None = None  # UDP only: a UART has one peer by wiring
+        if self.endpoint.kind == "udpout":
+            target = f"{self.endpoint.host}:{self.endpoint.port}"
+            if autopilot is not None and parse_address(autopilot, "px4.autopilot") != target:
+                raise ValueError(
+                    f"px4.autopilot {autopilot} differs from the udpout target {target}; "
+                    "fix: drop px4.autopilot (udpout already pins its target)"
+                )
+            self.pin = AutopilotPin(configured=target)
+        elif self.endpoint.kind == "udpin":
+            fixed = None if autopilot is None else parse_address(autopilot, "px4.autopilot")
+            self.pin = AutopilotPin(configured=fixed, repin_after_s=repin_after_s)
         self._datagrams = self.endpoint.kind != "serial"  # UDP: frames never span datagrams
         self._link: ByteLink | None = None
         self._sink: ObservationSink | None = None
@@ -71,6 +102,7 @@ class MavlinkBackend:
         self._loop = asyncio.get_running_loop()
         self._sink = sink
         self._link = await open_link(self.endpoint, self._on_bytes)
+        self._sync_remote()
         self._heartbeat()
 
     @property
@@ -85,7 +117,7 @@ class MavlinkBackend:
             self.sysid,
             COMP_ID_AUTOPILOT1,  # always explicit (reference 1.5)
         )
-        self._write(self.codec.encode(cmd))
+        self._write(self._encode(cmd))
         self.commands_sent += 1
 
     def stats(self) -> dict[str, Any]:
@@ -101,6 +133,9 @@ class MavlinkBackend:
             "heartbeats_sent": self.heartbeats_sent,
             "commands_sent": self.commands_sent,
             "link": None if self._link is None else self._link.stats(),
+            # refused for who sent it (pinning) and for how it was signed (signing)
+            "autopilot": None if self.pin is None else {**self.pin.stats(), **self.pin.counts},
+            "signing": {"enabled": self.codec.signing, **(self.codec.signing_counts or {})},
         }
 
     async def close(self) -> None:
@@ -117,6 +152,16 @@ class MavlinkBackend:
         if self._link is not None:
             self._link.send(data)
 
+    def _encode(self, msg: Heartbeat | VehicleCommand) -> bytes:
+        # the signing clock follows the wall clock (spec "Timestamp handling"); the codec
+        # is pure, so the time is read here
+        self.codec.advance_clock(timestamp_from_unix(time.time()))
+        return self.codec.encode(msg)
+
+    def _sync_remote(self) -> None:
+        if isinstance(self._link, UdpLink) and self.pin is not None:
+            self._link.set_remote(self.pin.address)
+
     def _heartbeat(self) -> None:
         if self._loop is None:
             return
@@ -127,7 +172,7 @@ class MavlinkBackend:
             custom_mode=0,
             system_status=MavState.ACTIVE,
         )
-        self._write(self.codec.encode(hb))
+        self._write(self._encode(hb))
         self.heartbeats_sent += 1
         self._hb_count += 1
         want_home = self._seen_autopilot and not self._have_home
@@ -139,15 +184,26 @@ class MavlinkBackend:
         )
         self._hb_timer = self._loop.call_at(max(when, self._loop.time()), self._heartbeat)
 
-    def _on_bytes(self, data: bytes) -> None:
+    def _on_bytes(self, data: bytes, source: str | None) -> None:
         if self._loop is None or self._sink is None:
             return  # not started
         now = self._loop.time()
+        pin = self.pin if source is not None else None
+        if pin is not None and source is not None and not pin.admit_datagram(source, now):
+            return  # not the autopilot's address: dropped before decoding, counted
+        if self.codec.signing:
+            self.codec.advance_clock(timestamp_from_unix(time.time()))
         for frame in self.codec.feed(data, datagram=self._datagrams):
             msg = frame.msg
             if frame.src_system != self.sysid or frame.src_component != COMP_ID_AUTOPILOT1:
                 self.foreign += 1
                 continue
+            if pin is not None and source is not None:
+                was = pin.address
+                if not pin.admit_frame(source, isinstance(msg, Heartbeat), now):
+                    continue  # not pinned yet and not the pinning heartbeat
+                if pin.address != was:
+                    self._sync_remote()  # replies go to the new pin, and only there
             if isinstance(msg, VehicleCommand):
                 self.foreign += 1  # the autopilot commanding someone: not for us
                 continue

@@ -8,6 +8,12 @@ section 1.7). ``common`` holds every message the PX4 readiness predicate needs.
 Network input never raises out of ``feed``: corrupt frames are counted in ``bad_frames``
 (``robust_parsing`` turns them into ``MAVLink_bad_data``), unmodelled messages in
 ``ignored``, and an unexpected parser exception resets the parser and is counted too.
+
+With a signing key (``swarmd.px4.signing``) every frame we encode is signed (pymavlink's
+``sign_packet``) and every frame we decode must carry a good signature from a fresh stream:
+the rest are dropped before decoding and counted per verdict in ``signing_counts``.
+``accept_unsigned`` names message ids let through unsigned anyway (the simulator copies
+PX4's allowlist); swarmd lets nothing through unsigned.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from swarmd.px4.messages import (
     SysStatus,
     VehicleCommand,
 )
+from swarmd.px4.signing import KEY_BYTES, Verdict, Verifier
 
 Message = Observation | VehicleCommand
 
@@ -43,17 +50,53 @@ class Frame:
     msg: Message
     src_system: int
     src_component: int
+    signed: bool = False  # True: its signature checked against our key (signing on)
 
 
 class MavlinkCodec:
     """Stateful (sequence numbers, partial frames) MAVLink 2 encoder/decoder for one link."""
 
-    def __init__(self, src_system: int, src_component: int) -> None:
+    def __init__(
+        self,
+        src_system: int,
+        src_component: int,
+        *,
+        signing_key: bytes | None = None,
+        link_id: int = 0,
+        accept_unsigned: frozenset[int] = frozenset(),
+    ) -> None:
         self._tx: Any = mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
         self._rx: Any = self._new_parser()
         self.bad_frames = 0
         self.ignored = 0
         self.decoded = 0
+        self.verifier: Verifier | None = None
+        self._accept_unsigned = accept_unsigned
+        if signing_key is not None:
+            if len(signing_key) != KEY_BYTES:
+                raise ValueError("a MAVLink signing key is 32 bytes")
+            self.verifier = Verifier(signing_key)
+            self._tx.signing.secret_key = signing_key
+            self._tx.signing.link_id = link_id
+            self._tx.signing.sign_outgoing = True
+
+    @property
+    def signing(self) -> bool:
+        return self.verifier is not None
+
+    def advance_clock(self, timestamp: int) -> None:
+        """Raise the signing clock to ``timestamp`` (10 µs since 2015, ``signing.py``).
+
+        Outgoing timestamps then stay at or after the wall clock, as the spec asks, even
+        though pymavlink adds only one tick per frame sent.
+        """
+        if self.verifier is not None:
+            self.verifier.advance(timestamp)
+            self._tx.signing.timestamp = max(self._tx.signing.timestamp, timestamp)
+
+    @property
+    def signing_counts(self) -> dict[str, int] | None:
+        return None if self.verifier is None else dict(self.verifier.counts)
 
     @staticmethod
     def _new_parser() -> Any:
@@ -84,6 +127,14 @@ class MavlinkCodec:
             if m.get_type() == "BAD_DATA":
                 self.bad_frames += 1
                 continue
+            signed = False
+            if self.verifier is not None:
+                verdict = self.verifier.check(
+                    bytes(m.get_msgbuf()), m.get_srcSystem(), m.get_srcComponent()
+                )
+                signed = verdict is Verdict.OK
+                if not signed and m.get_msgId() not in self._accept_unsigned:
+                    continue  # counted by the verifier; never decoded
             try:
                 msg = decode_message(m)
             except (AttributeError, TypeError, ValueError):
@@ -93,7 +144,7 @@ class MavlinkCodec:
                 self.ignored += 1
                 continue
             self.decoded += 1
-            frames.append(Frame(msg, m.get_srcSystem(), m.get_srcComponent()))
+            frames.append(Frame(msg, m.get_srcSystem(), m.get_srcComponent(), signed))
         return frames
 
     # ---- encode -------------------------------------------------------------------------

@@ -2,10 +2,18 @@
 
 Connection strings follow pymavlink/MAVSDK usage (reference section 1.7):
 
-- ``udpin:HOST:PORT``  bind and listen; replies go to whoever sent last (PX4 SITL sends to
-  14540+i; mavlink-router's ``[UdpEndpoint] Mode=Normal`` sends to us).
-- ``udpout:HOST:PORT`` send to a listener (PX4 SITL listens on 14580+i); bound to an
+- ``udpin:HOST:PORT``  bind and listen (PX4 SITL sends to 14540+i; mavlink-router's
+  ``[UdpEndpoint] Mode=Normal`` sends to us). Replies go only to the address the backend
+  pinned (``linkguard.py``), never to whoever sent last: that was issue 10's attack 6.
+- ``udpout:HOST:PORT`` send to a listener (PX4 SITL listens on 14580+i). The socket is
+  *connected* to it, so the kernel drops datagrams from any other source, and bound to an
   ephemeral port, so the peer learns us from our first heartbeat.
+
+Every datagram reaches ``on_bytes(data, "host:port")`` with its source; a serial link passes
+``None`` (one wire, no addresses).
+
+``is_network_endpoint`` says whether a UDP endpoint reaches beyond this host (the config
+refuses those unless the operator opts in: issue 10, "never 0.0.0.0").
 - ``serial:DEVICE:BAUD`` e.g. ``serial:/dev/ttyTHS1:921600`` (Jetson J41 UART to TELEM2).
   Opened non-blocking, raw 8N1 without flow control through ``termios`` and read with
   ``loop.add_reader``: no pyserial needed for one UART on Linux.
@@ -18,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import ipaddress
 import os
 import termios
 import tty
@@ -29,7 +38,7 @@ MAX_TX_BACKLOG: Final = 64 * 1024  # serial bytes queued while the UART drains; 
 SERIAL_REOPEN_S: Final = 1.0  # retry a vanished serial device (USB adapter re-plugged)
 
 Kind = Literal["udpin", "udpout", "serial"]
-OnBytes = Callable[[bytes], None]
+OnBytes = Callable[[bytes, str | None], None]  # data, source "host:port" (None: serial)
 
 
 class BadConnectionString(ValueError):
@@ -51,8 +60,8 @@ class Endpoint:
 
 
 def parse_connection(text: str, field: str = "px4.connection") -> Endpoint:
-    """``udpin:0.0.0.0:14540`` | ``udpout:127.0.0.1:14580`` | ``serial:/dev/ttyTHS1:921600``."""
-    example = "udpin:0.0.0.0:14540, udpout:127.0.0.1:14580 or serial:/dev/ttyTHS1:921600"
+    """``udpin:127.0.0.1:14540`` | ``udpout:127.0.0.1:14580`` | ``serial:/dev/ttyTHS1:921600``."""
+    example = "udpin:127.0.0.1:14540, udpout:127.0.0.1:14580 or serial:/dev/ttyTHS1:921600"
     kind, sep, rest = text.partition(":")
     if kind.endswith("//"):  # tolerate MAVSDK's udpin:// spelling
         kind = kind[:-2]
@@ -76,7 +85,40 @@ def parse_connection(text: str, field: str = "px4.connection") -> Endpoint:
     lowest = 0 if kind == "udpin" else 1  # udpin port 0: any free port (tests)
     if not lowest <= number < 65536:
         raise BadConnectionString(f"{field}: port {number} is out of range; fix: 1..65535")
-    return Endpoint(kind, host=head.strip("[]"), port=number)  # type: ignore[arg-type]
+    host = head.strip("[]")
+    if host == "localhost":
+        host = "127.0.0.1"  # addresses are compared as the kernel reports them
+    return Endpoint(kind, host=host, port=number)  # type: ignore[arg-type]
+
+
+def is_network_endpoint(endpoint: Endpoint) -> bool:
+    """True when a UDP endpoint listens on or talks to more than this host's loopback.
+
+    A wildcard (``0.0.0.0``, ``::``), a host name or any non-loopback address counts: a
+    datagram from the swarm's Wi-Fi could then reach the link.
+    """
+    if endpoint.kind == "serial":
+        return False
+    try:
+        return not ipaddress.ip_address(endpoint.host).is_loopback
+    except ValueError:
+        return True  # a name: it may resolve anywhere
+
+
+def parse_address(text: str, field: str) -> str:
+    """``HOST:PORT`` with an IP literal (the form datagram sources are compared in)."""
+    head, sep, tail = text.rpartition(":")
+    host = head.strip("[]")
+    try:
+        ipaddress.ip_address(host)
+        ok = bool(sep) and tail.isdigit() and 1 <= int(tail) < 65536
+    except ValueError:
+        ok = False
+    if not ok:
+        raise BadConnectionString(
+            f"{field}: {text!r} is not IP:PORT; fix: e.g. 127.0.0.1:14580 (PX4 SITL's source port)"
+        )
+    return f"{host}:{int(tail)}"
 
 
 class ByteLink(Protocol):
@@ -99,25 +141,29 @@ async def open_link(endpoint: Endpoint, on_bytes: OnBytes) -> ByteLink:
         link.open()
         return link
     loop = asyncio.get_running_loop()
-    local = (endpoint.host, endpoint.port) if endpoint.kind == "udpin" else ("0.0.0.0", 0)  # noqa: S104
-    remote = None if endpoint.kind == "udpin" else (endpoint.host, endpoint.port)
-    _, protocol = await loop.create_datagram_endpoint(
-        lambda: UdpLink(on_bytes, remote), local_addr=local
-    )
+    if endpoint.kind == "udpin":
+        _, protocol = await loop.create_datagram_endpoint(
+            lambda: UdpLink(on_bytes, None), local_addr=(endpoint.host, endpoint.port)
+        )
+    else:  # connected: the kernel delivers only the target's datagrams
+        remote = (endpoint.host, endpoint.port)
+        _, protocol = await loop.create_datagram_endpoint(
+            lambda: UdpLink(on_bytes, remote), remote_addr=remote
+        )
     return protocol
 
 
 class UdpLink(asyncio.DatagramProtocol):
-    """One UDP socket; ``remote`` fixed (udpout) or learned from the last sender (udpin)."""
+    """One UDP socket; ``remote`` fixed (udpout) or set by the backend's pin (udpin)."""
 
     def __init__(self, on_bytes: OnBytes, remote: tuple[str, int] | None) -> None:
         self._on_bytes = on_bytes
-        self._fixed = remote is not None
+        self._connected = remote is not None
         self._remote = remote
         self._transport: asyncio.DatagramTransport | None = None
         self.rx_datagrams = 0
         self.tx_datagrams = 0
-        self.tx_unroutable = 0  # udpin before anyone spoke to us
+        self.tx_unroutable = 0  # udpin before the autopilot is pinned
         self.errors = 0
         self.last_error: str | None = None
 
@@ -126,11 +172,21 @@ class UdpLink(asyncio.DatagramProtocol):
         # DatagramTransport
         self._transport = cast(asyncio.DatagramTransport, transport)
 
-    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
+    def datagram_received(self, data: bytes, addr: tuple[str | int, ...] | None) -> None:
         self.rx_datagrams += 1
-        if not self._fixed:
-            self._remote = (str(addr[0]), int(addr[1]))
-        self._on_bytes(data)
+        if addr is None:  # a connected socket may not say; it can only be the target
+            addr = self._remote or ("", 0)
+        self._on_bytes(data, f"{addr[0]}:{addr[1]}")
+
+    def set_remote(self, address: str | None) -> None:
+        """Where replies go (udpin): the pinned autopilot, or nowhere (None)."""
+        if self._connected:
+            return  # udpout: the target, for good
+        if address is None:
+            self._remote = None
+            return
+        host, _, port = address.rpartition(":")
+        self._remote = (host, int(port))
 
     def error_received(self, exc: Exception) -> None:
         # ICMP port unreachable on loopback when the peer is not up yet: harmless
@@ -141,7 +197,10 @@ class UdpLink(asyncio.DatagramProtocol):
         if self._transport is None or self._transport.is_closing() or self._remote is None:
             self.tx_unroutable += 1
             return
-        self._transport.sendto(data, self._remote)
+        if self._connected:
+            self._transport.sendto(data)  # connected socket: no address allowed
+        else:
+            self._transport.sendto(data, self._remote)
         self.tx_datagrams += 1
 
     @property
@@ -212,7 +271,7 @@ class SerialLink:
         if not data:
             return
         self.rx_bytes += len(data)
-        self._on_bytes(data)
+        self._on_bytes(data, None)
 
     def send(self, data: bytes) -> None:
         if self._fd is None:

@@ -44,6 +44,7 @@ from swarmd.dataplane import (
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import MAX_ALTITUDE_M, CommandKind, CommandResult
 from swarmd.px4.bridge import Px4Bridge, Px4Config
+from swarmd.px4.provision import SigningKeyError, signing_key_for
 from swarmd.px4.readiness import ReadinessConfig
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.executor import PX4_DISABLED, CommandExecutor
@@ -142,11 +143,24 @@ class SwarmApp:
         px4 = self.config.px4
         if px4.enabled:
             sysid = px4.sysid if px4.sysid is not None else self.me.mavlink_sysid
+            signing_key: bytes | None = None
+            if px4.signing:  # the per-drone MAVLink key (docs/px4.md, "Message signing")
+                try:
+                    signing_key = signing_key_for(
+                        swarm=self.bundle.swarm,
+                        node=self.me.name,
+                        key_file=px4.signing_key,
+                        bundle_path=self.config.bundle.path,
+                    )
+                except SigningKeyError as exc:
+                    raise AppStartError(str(exc), 78) from None
             try:
                 self.bridge = Px4Bridge.from_config(
                     Px4Config(
                         connection=px4.connection,
                         sysid=sysid,
+                        autopilot=px4.autopilot,
+                        signing_key=signing_key,
                         readiness=ReadinessConfig(
                             heartbeat_timeout_s=px4.heartbeat_timeout_s,
                             min_battery_pct=px4.min_battery_pct,
