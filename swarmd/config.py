@@ -470,7 +470,7 @@ class _Checker:
                 autopilot = parse_address(raw, "px4.autopilot")
             except ValueError as exc:
                 relay(f["autopilot"], "px4.autopilot", exc)
-            if where is None or parse_connection(connection).kind != "udpin":
+            if parse_connection(connection).kind != "udpin":
                 self.fail(
                     f["autopilot"],
                     "px4.autopilot",

@@ -162,13 +162,15 @@ class Demo:
         for d in s.drones:
             log = s.log_path(d, "sim").open("wb")
             self.logs.append(log)
-            argv = [*sim, *self.sim_args(d)]
+            argv = [*sim, *self.sim_args(s, d)]
             self.sims.append(self.hosts.popen(d.index, argv, log))
         self.view.event(self.t(), f"started {len(s.drones)} swarmd + {len(s.drones)} simulators")
 
     @staticmethod
-    def sim_args(d: Drone) -> list[str]:
+    def sim_args(s: Scenario, d: Drone) -> list[str]:
         return [
+            "--signing-key",
+            str(s.px4_key_path(d)),
             "--connect",
             f"udpout:127.0.0.1:{d.mavlink_port}",
             "--sysid",

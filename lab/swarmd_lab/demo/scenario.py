@@ -20,8 +20,17 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.bundle.build import build_from_files
-from swarmd.bundle.keys import SIGNING_KEY_FILE, SIGNING_PUB_FILE, generate_keys
+from swarmd.bundle.keys import (
+    PRIVATE_MODE,
+    SIGNING_KEY_FILE,
+    SIGNING_PUB_FILE,
+    generate_keys,
+    node_key_path,
+    write_file_atomic,
+)
 from swarmd.bundle.mission import parse_mission
+from swarmd.px4.provision import node_secret
+from swarmd.px4.signing import derive_key, px4_key_file
 
 COMMANDER: Final = "lead"
 T_MIN_S: Final = 2.0  # a shorter passive window than the paper's 8-20 s keeps the demo short
@@ -72,6 +81,10 @@ class Scenario:
 
     def socket_path(self, d: Drone) -> Path:
         return self.root / "run" / f"{d.name}.sock"
+
+    def px4_key_path(self, d: Drone) -> Path:
+        """The drone's MAVLink signing key in PX4's format: swarmd and its simulator share it."""
+        return self.root / "keys" / "px4" / f"{d.name}.key"
 
     def link_path(self, d: Drone) -> Path:
         return self.root / "link" / f"{d.name}.json"
@@ -168,6 +181,8 @@ discovery:
 px4:
   enabled: true
   connection: udpin:127.0.0.1:{d.mavlink_port}
+  signing: true
+  signing_key: {s.px4_key_path(d)}
   takeoff_alt_m: {TAKEOFF_ALT_M}
 dataplane:
   enabled: true
@@ -191,7 +206,12 @@ def write(root: Path, drones: list[Drone], *, domain_id: int, loopback: bool) ->
     generate_keys(root / "keys", [d.name for d in drones])
     built = build_from_files(mission, root / "keys" / SIGNING_KEY_FILE, root / "keys")
     s.bundle_path.write_bytes(built.data)
+    (root / "keys" / "px4").mkdir(exist_ok=True)
     for d in drones:
+        # what 'swarmctl px4 key --out' writes for PX4's SD card; the simulator reads it
+        secret = node_secret(node_key_path(root / "keys", d.name))
+        key = derive_key(secret, mission.swarm, d.name)
+        write_file_atomic(s.px4_key_path(d), px4_key_file(key, 0), PRIVATE_MODE)
         s.link_path(d).write_text(json.dumps({"snr_db": d.snr_db}))
         s.config_path(d).write_text(config_text(s, d, loopback=loopback))
     return s

@@ -9,6 +9,13 @@ Like PX4 SITL it sends to a companion listening on 14540 by default
 (``--connect udpout:127.0.0.1:14540``, swarmd's ``udpin:0.0.0.0:14540``); with
 ``--listen udpin:0.0.0.0:14580`` it waits for the companion to speak first and answers
 whoever spoke last (swarmd ``udpout:127.0.0.1:14580``).
+
+``--signing-key FILE`` (the file ``swarmctl px4 key`` writes for PX4's SD card) turns on
+MAVLink 2 signing as PX4 >= v1.17 does once a key is provisioned: every frame sent is
+signed, and a received frame without a good signature is dropped, except PX4's unsigned
+allowlist (HEARTBEAT, RADIO_STATUS, ADSB_VEHICLE, COLLISION: PX4
+``mavlink_sign_control.cpp``). So a command from a host without the key never reaches the
+model, as with PX4.
 """
 
 from __future__ import annotations
@@ -19,15 +26,22 @@ import contextlib
 import random
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, cast
 
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.signing import parse_key_file, timestamp_from_unix
 from swarmd.px4.transport import BadConnectionString, Endpoint, parse_connection
 from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
 
 LogSink = Callable[[str, dict[str, Any]], None]
+
+# PX4's unsigned allowlist once signing is on (mavlink_sign_control.cpp, docs "Unsigned
+# Message Allowlist"): HEARTBEAT, RADIO_STATUS, ADSB_VEHICLE, COLLISION
+PX4_UNSIGNED_ALLOWLIST = frozenset({0, 109, 246, 247})
 
 
 class SimProtocol(asyncio.DatagramProtocol):
@@ -39,6 +53,7 @@ class SimProtocol(asyncio.DatagramProtocol):
         rng: random.Random,
         remote: tuple[str, int] | None,
         log: LogSink | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         self._config = config
         self._rng = rng
@@ -46,7 +61,12 @@ class SimProtocol(asyncio.DatagramProtocol):
         self._learn = remote is None
         self._log = log
         self._loop = asyncio.get_running_loop()
-        self.codec = MavlinkCodec(config.sysid, COMP_ID_AUTOPILOT1)
+        self.codec = MavlinkCodec(
+            config.sysid,
+            COMP_ID_AUTOPILOT1,
+            signing_key=signing_key,
+            accept_unsigned=PX4_UNSIGNED_ALLOWLIST,
+        )
         self.model = SimVehicle(config, rng, self._loop.time())
         self._transport: asyncio.DatagramTransport | None = None
         self._timer: asyncio.TimerHandle | None = None
@@ -59,10 +79,12 @@ class SimProtocol(asyncio.DatagramProtocol):
         self._pump()
 
     def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
-        if self._learn:
-            self._remote = (str(addr[0]), int(addr[1]))
         now = self._loop.time()
-        for frame in self.codec.feed(data, datagram=True):
+        self.codec.advance_clock(timestamp_from_unix(time.time()))
+        frames = self.codec.feed(data, datagram=True)
+        if self._learn and frames:  # with signing: only a sender whose frames checked
+            self._remote = (str(addr[0]), int(addr[1]))
+        for frame in frames:
             self.model.receive(frame.msg, (frame.src_system, frame.src_component), now)
         self._pump()
 
@@ -75,6 +97,7 @@ class SimProtocol(asyncio.DatagramProtocol):
         self._pump()
 
     def _pump(self) -> None:
+        self.codec.advance_clock(timestamp_from_unix(time.time()))
         for msg in self.model.messages_to_send():
             if self._transport is not None and self._remote is not None:
                 self._transport.sendto(self.codec.encode(msg), self._remote)
@@ -108,6 +131,7 @@ async def start_sim(
     *,
     seed: int = 0,
     log: LogSink | None = None,
+    signing_key: bytes | None = None,
 ) -> SimProtocol:
     """Start a simulator on ``endpoint`` (``udpout:`` sends to it, ``udpin:`` binds it)."""
     loop = asyncio.get_running_loop()
@@ -122,7 +146,7 @@ async def start_sim(
             f"--connect/--listen: {endpoint} is not UDP; fix: the simulator speaks UDP only"
         )
     _, protocol = await loop.create_datagram_endpoint(
-        lambda: SimProtocol(config, rng, remote, log), local_addr=local
+        lambda: SimProtocol(config, rng, remote, log, signing_key), local_addr=local
     )
     return protocol
 
@@ -157,6 +181,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="exit after S seconds (default: run until SIGINT/SIGTERM)")  # fmt: skip
     p.add_argument("--json-log", action="store_true", help="JSON lines on stderr")
+    p.add_argument("--signing-key", metavar="FILE", default=None,
+                   help="MAVLink 2 signing on with this key (PX4's 40-byte key file, 32 raw "
+                   "bytes or 64 hex digits): sign all, drop unsigned as PX4 does")  # fmt: skip
     return p
 
 
@@ -197,12 +224,14 @@ async def _run(config: SimConfig, endpoint: Endpoint, args: argparse.Namespace) 
     def sink(event: str, fields: dict[str, Any]) -> None:
         log.info(event, **fields)
 
-    sim = await start_sim(config, endpoint, seed=args.seed, log=sink)
+    key: bytes | None = args.key
+    sim = await start_sim(config, endpoint, seed=args.seed, log=sink, signing_key=key)
     log.info(
         "vehicle_sim_started",
         note="MAVLink vehicle SIMULATOR, not PX4",
         endpoint=str(endpoint),
         local_port=sim.local_port,
+        signing=key is not None,
         config=repr(config),
     )
     stop = asyncio.Event()
@@ -213,7 +242,12 @@ async def _run(config: SimConfig, endpoint: Endpoint, args: argparse.Namespace) 
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(stop.wait(), timeout=args.duration)
     finally:
-        log.info("vehicle_sim_stopped", sent=sim.sent, **sim.model.snapshot())
+        log.info(
+            "vehicle_sim_stopped",
+            sent=sim.sent,
+            signing=sim.codec.signing_counts,
+            **sim.model.snapshot(),
+        )
         sim.close()
     return 0
 
@@ -222,9 +256,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         config, endpoint = config_from_args(args)
+        args.key = None
+        if args.signing_key is not None:
+            args.key = parse_key_file(Path(args.signing_key).read_bytes(), args.signing_key)
     except ValueError as exc:
         print(f"swarmd-vehicle-sim: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"swarmd-vehicle-sim: --signing-key {args.signing_key}: {exc.strerror}",
+              file=sys.stderr)  # fmt: skip
+        return 66  # EX_NOINPUT
     try:
         return asyncio.run(_run(config, endpoint, args))
     except OSError as exc:

@@ -1,0 +1,98 @@
+"""``swarmctl px4 key``: the drone's MAVLink 2 signing key, for provisioning PX4.
+
+The key is the one the daemon derives (``swarmd.px4.provision``, HKDF from the node key):
+on the ground from the keygen directory (``--keys DIR --swarm NAME --node NAME``), on the
+drone from its own config (``--config /etc/swarmd/swarmd.yaml``). ``--out FILE`` writes
+PX4's 40-byte ``/mavlink/mavlink-signing-key.bin`` (key + u64 LE timestamp, mode 0600) for
+the SD card, or the simulator's ``--signing-key``; without ``--out`` the 64 hex digits go to
+stdout (e.g. for a ground station's signing dialog). docs/px4.md, "Message signing".
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+import time
+from pathlib import Path
+from typing import Any, Final
+
+from swarmd.bundle.errors import BundleError
+from swarmd.bundle.keys import PRIVATE_MODE, node_key_path, write_file_atomic
+from swarmd.config import ConfigError, load_config
+from swarmd.px4.provision import SigningKeyError, node_secret, signing_key_for
+from swarmd.px4.signing import derive_key, px4_key_file, timestamp_from_unix
+
+EX_DATAERR: Final = 65
+EX_CONFIG: Final = 78
+
+
+def register(sub: Any) -> None:
+    px4: argparse.ArgumentParser = sub.add_parser(
+        "px4", help="PX4 link tools (the MAVLink signing key)"
+    )
+    psub = px4.add_subparsers(dest="px4_command", metavar="SUBCOMMAND")
+
+    def usage(_args: argparse.Namespace) -> int:
+        px4.print_help(sys.stderr)
+        return 2
+
+    px4.set_defaults(func=usage)
+    p = psub.add_parser("key", help="derive a drone's MAVLink signing key (hex, or PX4's file)")
+    p.add_argument("--config", metavar="FILE", help="on the drone: derive as the daemon does")
+    p.add_argument("--keys", metavar="DIR", help="on the ground: the keygen directory")
+    p.add_argument("--swarm", metavar="NAME", help="with --keys: the bundle's swarm name")
+    p.add_argument("--node", metavar="NAME", help="with --keys: the drone's name")
+    p.add_argument("--out", metavar="FILE", help="write PX4's 40-byte key file (mode 0600)")
+    p.set_defaults(func=cmd_key)
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"swarmctl px4 key: {message}", file=sys.stderr)
+    return code
+
+
+def _key(args: argparse.Namespace) -> bytes:
+    if args.config is not None:
+        from swarmd.bundle.loader import load_bundle
+
+        config = load_config(args.config)
+        bundle = load_bundle(
+            config.bundle.path,
+            config.bundle.trusted_key,
+            expected_sha256=config.bundle.expected_sha256,
+            allow_dev=config.bundle.allow_dev,
+        )
+        return signing_key_for(
+            swarm=bundle.swarm,
+            node=config.node,
+            key_file=config.px4.signing_key,
+            bundle_path=config.bundle.path,
+        )
+    if args.keys is None or args.swarm is None or args.node is None:
+        raise SigningKeyError(
+            "give --config FILE (on the drone) or --keys DIR --swarm NAME --node NAME; "
+            "fix: see 'swarmctl px4 key --help'"
+        )
+    return derive_key(node_secret(node_key_path(args.keys, args.node)), args.swarm, args.node)
+
+
+def cmd_key(args: argparse.Namespace) -> int:
+    try:
+        key = _key(args)
+    except ConfigError as exc:
+        return _fail(f"config rejected: {exc}", EX_CONFIG)
+    except (BundleError, SigningKeyError, ValueError) as exc:
+        return _fail(str(exc), EX_DATAERR)
+    label = "SHA256:" + hashlib.sha256(key).digest()[:8].hex()  # to compare, not the key
+    if args.out is None:
+        print(key.hex())
+        print(f"key {label}", file=sys.stderr)
+        return 0
+    try:
+        data = px4_key_file(key, timestamp_from_unix(time.time()))
+        write_file_atomic(Path(args.out), data, PRIVATE_MODE)
+    except OSError as exc:
+        return _fail(f"{args.out}: {exc.strerror}", 73)  # EX_CANTCREAT
+    print(f"wrote {args.out} (PX4 /mavlink/mavlink-signing-key.bin, key {label})")
+    return 0

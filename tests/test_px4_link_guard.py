@@ -1,0 +1,245 @@
+"""The PX4 link's defences without sockets: signing, the autopilot pin, the config checks.
+
+Issue 10, attack 6 (docs/px4.md "Trust on the PX4 link", docs/security.md "PX4 link").
+"""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import common as mavlink
+
+from swarmd.config import EX_CONFIG, ConfigError, parse_config
+from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
+from swarmd.px4.linkguard import AutopilotPin
+from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.messages import Heartbeat, VehicleCommand
+from swarmd.px4.signing import (
+    NEW_STREAM_WINDOW,
+    Verdict,
+    Verifier,
+    derive_key,
+    parse_key_file,
+    px4_key_file,
+    timestamp_from_unix,
+)
+
+KEY = derive_key(bytes(range(32)), "alpha", "uav1")
+OTHER_KEY = derive_key(bytes(range(32)), "alpha", "uav2")
+T0 = timestamp_from_unix(1_800_000_000.0)
+ARMED_HB = Heartbeat(
+    autopilot=12, vehicle_type=2, base_mode=128 | 1, custom_mode=0, system_status=4
+)
+
+
+def autopilot(key: bytes | None, stamp: int = T0) -> MavlinkCodec:
+    codec = MavlinkCodec(1, COMP_ID_AUTOPILOT1, signing_key=key)
+    codec.advance_clock(stamp)
+    return codec
+
+
+def companion(key: bytes | None = KEY) -> MavlinkCodec:
+    codec = MavlinkCodec(1, COMP_ID_ONBOARD_COMPUTER, signing_key=key)
+    codec.advance_clock(T0)
+    return codec
+
+
+# ---- the key ------------------------------------------------------------------------------
+
+
+def test_key_is_per_swarm_and_per_node_and_deterministic() -> None:
+    secret = bytes(range(32))
+    assert derive_key(secret, "alpha", "uav1") == KEY and len(KEY) == 32
+    assert len({KEY, OTHER_KEY, derive_key(secret, "beta", "uav1")}) == 3
+    assert derive_key(bytes(32), "alpha", "uav1") != KEY
+    with pytest.raises(ValueError, match="shorter"):
+        derive_key(b"short", "alpha", "uav1")
+
+
+def test_px4_key_file_is_key_then_little_endian_timestamp() -> None:
+    data = px4_key_file(KEY, 0x0102030405)
+    assert len(data) == 40 and data[:32] == KEY
+    assert struct.unpack("<Q", data[32:]) == (0x0102030405,)
+    assert parse_key_file(data, "f") == KEY
+    assert parse_key_file(KEY, "f") == KEY
+    assert parse_key_file(KEY.hex().encode() + b"\n", "f") == KEY
+    for bad in (b"", b"nothex", bytes(32)):
+        with pytest.raises(ValueError, match="fix:"):
+            parse_key_file(bad, "f")
+
+
+def test_timestamp_is_ten_microseconds_since_2015() -> None:
+    assert timestamp_from_unix(1_420_070_400.0) == 0
+    assert timestamp_from_unix(1_420_070_401.0) == 100_000
+    assert timestamp_from_unix(0.0) == 0
+
+
+# ---- the verifier -------------------------------------------------------------------------
+
+
+def test_good_signature_is_the_spec_construction() -> None:
+    frame = autopilot(KEY).encode(ARMED_HB)
+    assert frame[2] & 0x01  # incompat flag: signed
+    assert hashlib.sha256(KEY + frame[:-6]).digest()[:6] == frame[-6:]
+    assert int.from_bytes(frame[-12:-6], "little") == T0
+    assert Verifier(KEY, T0).check(frame, 1, 1) is Verdict.OK
+
+
+def test_unsigned_wrong_key_and_replay_are_refused_and_counted() -> None:
+    v = Verifier(KEY, T0)
+    assert v.check(autopilot(None).encode(ARMED_HB), 1, 1) is Verdict.UNSIGNED
+    assert v.check(autopilot(OTHER_KEY).encode(ARMED_HB), 1, 1) is Verdict.BAD_SIGNATURE
+    good = autopilot(KEY).encode(ARMED_HB)
+    assert v.check(good, 1, 1) is Verdict.OK
+    assert v.check(good, 1, 1) is Verdict.REPLAYED  # same timestamp on the same stream
+    assert v.counts == {"ok": 1, "unsigned": 1, "bad_signature": 1, "replayed": 1}
+
+
+def test_a_new_stream_more_than_a_minute_old_is_a_replay() -> None:
+    old = autopilot(KEY, T0 - NEW_STREAM_WINDOW - 1).encode(ARMED_HB)
+    assert Verifier(KEY, T0).check(old, 1, 1) is Verdict.REPLAYED
+    recent = autopilot(KEY, T0 - NEW_STREAM_WINDOW + 1).encode(ARMED_HB)
+    assert Verifier(KEY, T0).check(recent, 1, 1) is Verdict.OK
+
+
+def test_a_forged_future_timestamp_does_not_lock_out_the_real_stream() -> None:
+    # pymavlink's check_signature records the timestamp before comparing the signature;
+    # ours must not: a wrong-key frame at 2^48-1 moves nothing
+    v = Verifier(KEY, T0)
+    forged = autopilot(OTHER_KEY, (1 << 48) - 10).encode(ARMED_HB)
+    assert v.check(forged, 1, 1) is Verdict.BAD_SIGNATURE
+    assert v.check(autopilot(KEY).encode(ARMED_HB), 1, 1) is Verdict.OK
+    assert v.timestamp == T0
+
+
+def test_codec_with_a_key_delivers_only_signed_frames() -> None:
+    rx = companion()
+    stream = autopilot(KEY)
+    frames = rx.feed(stream.encode(ARMED_HB), datagram=True)
+    assert [f.signed for f in frames] == [True]
+    assert rx.feed(autopilot(None).encode(ARMED_HB), datagram=True) == []
+    assert rx.feed(autopilot(OTHER_KEY).encode(ARMED_HB), datagram=True) == []
+    assert rx.signing_counts == {"ok": 1, "unsigned": 1, "bad_signature": 1, "replayed": 0}
+    # the autopilot sees our commands signed, and checks them
+    cmd = VehicleCommand.make(400, p1=1.0)
+    ap = autopilot(KEY)
+    got = ap.feed(companion().encode(cmd), datagram=True)
+    assert len(got) == 1 and got[0].signed
+
+
+@given(st.data())
+def test_flipping_any_bit_of_a_signed_frame_gets_it_refused(data: st.DataObject) -> None:
+    frame = bytearray(autopilot(KEY).encode(ARMED_HB))
+    bit = data.draw(st.integers(0, len(frame) * 8 - 1))
+    frame[bit // 8] ^= 1 << (bit % 8)
+    rx = companion()
+    assert rx.feed(bytes(frame), datagram=True) == []
+
+
+def test_pymavlink_parses_our_signed_frames() -> None:
+    # an independent reader with the same key accepts what we send (the spec's signature)
+    reader = mavlink.MAVLink(None)
+    reader.signing.secret_key = KEY
+    msgs = reader.parse_buffer(autopilot(KEY).encode(ARMED_HB))
+    assert msgs is not None and msgs[0].get_type() == "HEARTBEAT"
+    assert reader.signing.goodsig_count == 1
+
+
+# ---- the pin ------------------------------------------------------------------------------
+
+
+def test_first_autopilot_heartbeat_pins_and_others_are_dropped() -> None:
+    pin = AutopilotPin()
+    assert pin.admit_datagram("127.0.0.1:5000", 0.0)
+    assert not pin.admit_frame("127.0.0.1:5000", False, 0.0)  # not a heartbeat: not yet
+    assert pin.admit_frame("127.0.0.1:5000", True, 0.1)
+    assert pin.address == "127.0.0.1:5000"
+    assert not pin.admit_datagram("127.0.0.1:6666", 0.2)
+    assert pin.admit_datagram("127.0.0.1:5000", 0.3)
+    assert pin.counts == {"dropped_address": 1, "dropped_unpinned": 1, "repins": 0}
+
+
+def test_a_learned_pin_moves_only_after_the_autopilot_went_silent() -> None:
+    pin = AutopilotPin(repin_after_s=5.0)
+    assert pin.admit_frame("a:1", True, 0.0)
+    assert pin.admit_frame("a:1", False, 4.0)
+    assert not pin.admit_datagram("b:2", 8.9)  # a heard 4.9 s ago
+    assert pin.admit_datagram("b:2", 9.5)
+    assert not pin.admit_frame("b:2", False, 9.5)  # only a heartbeat may re-pin
+    assert pin.admit_frame("b:2", True, 9.6)
+    assert pin.address == "b:2" and pin.counts["repins"] == 1
+
+
+def test_a_configured_pin_never_moves() -> None:
+    pin = AutopilotPin(configured="127.0.0.1:14580")
+    assert not pin.admit_datagram("127.0.0.1:9999", 0.0)
+    assert not pin.admit_datagram("127.0.0.1:9999", 1e6)
+    assert pin.admit_datagram("127.0.0.1:14580", 1e6)
+    assert pin.address == "127.0.0.1:14580" and pin.counts["repins"] == 0
+
+
+# ---- the config ---------------------------------------------------------------------------
+
+BASE = """\
+node: uav1
+bundle: {path: /b.swb, trusted_key: /k.pub}
+network: {interface: wlan0}
+px4:
+"""
+
+
+def px4(lines: str) -> str:
+    return BASE + "".join(f"  {line}\n" for line in lines.splitlines())
+
+
+@pytest.mark.parametrize(
+    "connection",
+    ["udpin:0.0.0.0:14540", "udpin:[::]:14540", "udpin:10.0.0.2:14540", "udpout:px4.local:14580"],
+)
+def test_a_network_endpoint_is_refused_with_one_line_naming_the_fix(connection: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        parse_config(px4(f"connection: {connection}"), "/etc/swarmd/swarmd.yaml")
+    text = str(info.value)
+    assert "\n" not in text
+    assert text.startswith("/etc/swarmd/swarmd.yaml:5: field px4.connection:")
+    assert "udpin:127.0.0.1:14540" in text and "allow_network" in text
+    assert EX_CONFIG == 78
+
+
+def test_network_endpoint_with_explicit_opt_in_and_pinned_autopilot() -> None:
+    config = parse_config(
+        px4("connection: udpin:0.0.0.0:14540\nallow_network: true\nautopilot: 10.41.10.2:14580")
+    )
+    assert config.px4.allow_network and config.px4.autopilot == "10.41.10.2:14580"
+
+
+def test_defaults_are_loopback_and_signing_fields_parse() -> None:
+    config = parse_config(px4("enabled: true"))
+    assert config.px4.connection == "udpin:127.0.0.1:14540"
+    assert not config.px4.signing and config.px4.autopilot is None
+    config = parse_config(px4("signing: true\nsigning_key: keys/uav1.key"), base=None)
+    assert config.px4.signing and config.px4.signing_key == "keys/uav1.key"
+    config = parse_config(px4("connection: udpin:localhost:14540"))
+    assert config.px4.connection == "udpin:localhost:14540"
+
+
+@pytest.mark.parametrize(
+    ("lines", "field"),
+    [
+        ("connection: serial:/dev/ttyTHS1:921600\nautopilot: 127.0.0.1:14580", "px4.autopilot"),
+        ("autopilot: px4:14580", "px4.autopilot"),
+        ("signing: maybe", "px4.signing"),
+    ],
+)
+def test_bad_pin_and_signing_fields(lines: str, field: str) -> None:
+    with pytest.raises(ConfigError, match=f"field {field}:"):
+        parse_config(px4(lines))
+
+
+def test_autopilot_pin_with_the_default_connection() -> None:
+    config = parse_config(px4("autopilot: 127.0.0.1:14580"))
+    assert config.px4.autopilot == "127.0.0.1:14580"
