@@ -1,0 +1,223 @@
+"""The rooms of swarmd and the arrows between them (design.md, docs/architecture.md).
+
+Dependencies point inward: cli -> daemon/driver -> swarm, px4, dataplane, discovery ->
+bundle, rtps; lab tools (``swarmd_lab``) use the cores and are never imported by swarmd.
+``ALLOWED`` is that picture as a table: for every room (a package or top-level module of
+``swarmd``), the other rooms its modules may import. A new room must be placed in it.
+
+The sans-IO rooms (style.md rule 1) must not touch the event loop, sockets, threads or the
+clock: each is imported in a fresh interpreter and ``sys.modules`` is checked for
+``asyncio``/``socket``/``selectors``; ``time`` (always preloaded by the interpreter) and
+``threading`` (preloaded by third-party codecs: pymavlink via ``logging``, cyclonedds-idl)
+cannot be seen that way, so the rooms' own import statements are read as well.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PKG = ROOT / "swarmd"
+
+CORE = frozenset({"rtps", "bundle", "yamldoc", "exitcodes"})
+# room -> the other rooms it may import (its own modules are always allowed)
+ALLOWED: dict[str, frozenset[str]] = {
+    # the wire codecs and shared facts: import nothing of swarmd
+    "rtps": frozenset(),
+    "xrce": frozenset({"rtps"}),
+    "yamldoc": frozenset(),
+    "exitcodes": frozenset(),
+    "bundle": frozenset({"rtps", "yamldoc", "exitcodes"}),
+    # authentication lives beside the codec, used by discovery and the data plane
+    "auth": CORE,
+    # the sans-IO cores
+    "discovery": CORE | {"auth"},
+    "dataplane": CORE | {"auth"},
+    "px4": CORE | {"xrce"},
+    "swarm": CORE | {"auth", "dataplane", "discovery", "px4"},
+    # adapters and the daemon tier
+    "link": frozenset({"discovery", "exitcodes"}),  # produces discovery's LinkSample
+    "logs": frozenset(),
+    "sdnotify": frozenset(),
+    "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
+    "control": CORE,
+    "driver": CORE | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"},
+    "daemon": CORE
+    | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
+    | {"config", "control", "driver", "logs", "sdnotify"},
+    "cli": CORE
+    | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
+    | {"config", "control", "daemon", "driver", "logs", "sdnotify"},
+}
+# Imports that break the table today, each with the work that removes it. An entry that no
+# longer occurs fails the test too, so the list only shrinks.
+KNOWN_OUTWARD: frozenset[tuple[str, str]] = frozenset(
+    {
+        # issue 11 (archA): the daemon's wiring leaves the swarm room for the driver
+        ("swarm/app.py", "config"),
+        ("swarm/app.py", "control"),
+    }
+)
+
+
+@dataclass(frozen=True)
+class SansIO:
+    room: str
+    io_modules: frozenset[str] = frozenset()  # the room's asyncio/serial/socket adapters
+
+
+# Every module of these rooms is sans-IO except the adapters named; a new module is sans-IO
+# unless it is added here with its reason.
+SANS_IO = [
+    SansIO("rtps"),
+    SansIO("discovery"),
+    SansIO("dataplane"),
+    SansIO("auth"),
+    SansIO("xrce"),
+    # transport: udp/serial byte links; mavlink_backend, bridge: the asyncio MAVLink backend
+    SansIO("px4", frozenset({"transport", "mavlink_backend", "bridge"})),
+    # issue 11 (archA) cuts the sans-IO swarm core out of these adapters
+    SansIO("swarm", frozenset({"app", "executor", "userdata", "statefile"})),
+]
+NO_LOOP = ("asyncio", "socket", "selectors")
+NO_IO = frozenset({"asyncio", "socket", "selectors", "threading", "time", "trio"})
+
+
+def _rooms() -> list[str]:
+    rooms = [p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").exists()]
+    rooms += [p.stem for p in PKG.glob("*.py") if p.stem != "__init__"]
+    return sorted(rooms)
+
+
+def _imports(source: str, package: str) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in ``source`` (a module of ``package``),
+    ``from swarmd import x`` as ``swarmd.x`` and relative imports resolved."""
+    out: list[tuple[int, str]] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{parent}.{base}" if base else parent
+            out += [(node.lineno, f"{base}.{a.name}") for a in node.names]
+            out.append((node.lineno, base))
+    return out
+
+
+def _outward(rel: Path, source: str) -> list[tuple[int, str, str]]:
+    """(line, target room, module) of each import of the module at ``swarmd/rel`` that the
+    table does not allow; the lab is never allowed."""
+    room = rel.parts[0].removesuffix(".py")
+    package = ".".join(("swarmd", *rel.parts[:-1]))
+    out = []
+    for lineno, module in _imports(source, package):
+        if module.split(".")[0] == "swarmd_lab":
+            out.append((lineno, "swarmd_lab", module))
+            continue
+        target = _room_of(module)
+        if target is not None and target != room and target not in ALLOWED[room]:
+            out.append((lineno, target, module))
+    return out
+
+
+def _own_imports(path: Path) -> list[tuple[int, str]]:
+    rel = path.relative_to(PKG)
+    return _imports(path.read_text(), ".".join(("swarmd", *rel.parts[:-1])))
+
+
+def _room_of(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] != "swarmd" or len(parts) < 2 or parts[1] == "__version__":
+        return None
+    return parts[1] if parts[1] in set(_rooms()) else None
+
+
+def _sans_io_modules(spec: SansIO) -> list[Path]:
+    return [p for p in sorted((PKG / spec.room).glob("*.py")) if p.stem not in spec.io_modules]
+
+
+def test_every_room_is_placed_in_the_table() -> None:
+    assert set(_rooms()) - set(ALLOWED) == set(), "add the new room to ALLOWED (and design.md)"
+
+
+def test_dependencies_point_inward() -> None:
+    seen: set[tuple[str, str]] = set()
+    lines: list[str] = []
+    for path in sorted(PKG.rglob("*.py")):
+        rel = path.relative_to(PKG)
+        for lineno, target, module in _outward(rel, path.read_text()):
+            seen.add((str(rel), target))
+            if (str(rel), target) not in KNOWN_OUTWARD:
+                lines.append(f"{rel}:{lineno} {rel.parts[0]} -> {target} ({module})")
+    assert lines == []
+    assert KNOWN_OUTWARD - seen == set(), "fixed: delete these from KNOWN_OUTWARD"
+
+
+@pytest.mark.parametrize("spec", SANS_IO, ids=lambda s: s.room)
+def test_sans_io_rooms_load_no_event_loop_or_socket(spec: SansIO) -> None:
+    modules = [
+        f"swarmd.{spec.room}.{p.stem}".removesuffix(".__init__") for p in _sans_io_modules(spec)
+    ]
+    code = (
+        "import importlib, json, sys\n"
+        f"for m in {modules!r}: importlib.import_module(m)\n"
+        f"print(json.dumps(sorted(m for m in {NO_LOOP!r} if m in sys.modules)))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    assert json.loads(result.stdout.strip().splitlines()[-1]) == []
+
+
+def test_importing_the_core_pulls_in_no_asyncio_or_socket() -> None:
+    # the discovery test helpers and the in-memory network are part of the room too
+    code = (
+        "import sys\n"
+        "import swarmd.rtps, swarmd.discovery, swarmd.discovery.testing, swarmd.discovery.memnet\n"
+        "bad = ('asyncio', 'socket', 'selectors')\n"
+        "print(','.join(sorted(m for m in bad if m in sys.modules)))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    assert result.stdout.strip() == ""
+
+
+def test_no_module_of_the_core_imports_io_or_clock_modules() -> None:
+    # `time` is always in sys.modules (the interpreter imports it at start), so the runtime
+    # checks above cannot see it; this reads the import statements instead.
+    offenders = []
+    for spec in SANS_IO:
+        for path in _sans_io_modules(spec):
+            offenders += [
+                f"{spec.room}/{path.name}:{lineno} {name}"
+                for lineno, name in _own_imports(path)
+                if name.split(".")[0] in NO_IO
+            ]
+    assert offenders == []
+
+
+def test_the_table_catches_outward_imports_and_the_lab() -> None:
+    # a test that cannot fail is a defect: the checks above, on sources that break the rules
+    rel = Path("rtps/bad.py")
+    source = (
+        "from swarmd.discovery.engine import DiscoveryEngine\n"
+        "from swarmd import daemon\n"
+        "from ..bundle import model\n"
+        "import swarmd_lab.sim\n"
+        "from . import message\n"  # its own room: fine
+    )
+    flagged = _outward(rel, source)
+    assert {t for _, t, _ in flagged} == {"discovery", "daemon", "bundle", "swarmd_lab"}
+    assert {line for line, _, _ in flagged} == {1, 2, 3, 4}  # not line 5
+    names = {m.split(".")[0] for _, m in _imports("import time\nfrom asyncio import sleep", "x")}
+    assert names & NO_IO == {"time", "asyncio"}
