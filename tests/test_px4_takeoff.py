@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
 from swarmd_lab.px4.virtual import DropFilter, VirtualLink
 
+from swarmd.px4.command_sender import AckReceived, CommandSent, SenderConfig
 from swarmd.px4.constants import (
     SENSOR_PREARM_CHECK,
     GpsFixType,
@@ -34,8 +35,6 @@ from swarmd.px4.messages import (
 )
 from swarmd.px4.readiness import VehicleState
 from swarmd.px4.takeoff import (
-    AckReceived,
-    CommandSent,
     FailReason,
     Phase,
     TakeoffConfig,
@@ -334,7 +333,7 @@ def test_bad_altitude_is_refused(alt: float) -> None:
 
 def test_budget_that_cannot_beat_auto_disarm_is_rejected() -> None:
     with pytest.raises(ValueError, match="COM_DISARM_PRFLT"):
-        TakeoffConfig(retries=30).check()
+        TakeoffConfig(command=SenderConfig(retries=30)).check()
 
 
 def test_events_tell_the_story() -> None:

@@ -25,16 +25,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from swarmd.px4.backend import VehicleBackend
+from swarmd.px4.command_sender import AckReceived, CommandSent
 from swarmd.px4.mavlink_backend import MavlinkBackend
 from swarmd.px4.messages import Observation
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState, readiness
 from swarmd.px4.takeoff import (
-    AckReceived,
-    CommandSent,
     FailReason,
     PhaseChanged,
+    SequenceEvent,
     TakeoffConfig,
-    TakeoffEvent,
     TakeoffFailed,
     TakeoffSequence,
     TakeoffSucceeded,
@@ -232,7 +231,7 @@ class Px4Bridge:
         if self._log is not None:
             self._log.info(event, **fields)
 
-    def _log_event(self, event: TakeoffEvent) -> None:
+    def _log_event(self, event: SequenceEvent) -> None:
         match event:
             case PhaseChanged():
                 self._info(

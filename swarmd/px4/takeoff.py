@@ -26,11 +26,12 @@ param7 = HOME_POSITION.altitude + alt_m. ``alt_m=None`` sends NaN, and PX4 climb
 ``MIS_TAKEOFF_ALT`` (default 2.5 m above home). Params 1-6 are NaN (PX4: "unused"; lat/lon
 NaN = take off where you are). A relative altitude without a home position is refused.
 
-Retries (reference 1.6, MAVSDK mavlink_command_sender): each command gets 0.5 s for its
-COMMAND_ACK and at most 3 retransmissions, ``confirmation`` counting 1, 2, 3.
-TEMPORARILY_REJECTED (PX4's answer to a denied arm or mode switch) waits ``retry_backoff_s``
-and retransmits from the same budget; IN_PROGRESS stretches the wait to 3 s; any other
-result ends the sequence. An ACK can be lost, so every step is also confirmed by state:
+Retries (reference 1.6, MAVSDK mavlink_command_sender) are the shared ``CommandSender``'s
+(``command_sender.py``): each command gets 0.5 s for its COMMAND_ACK and at most 3
+retransmissions, ``confirmation`` counting 1, 2, 3. TEMPORARILY_REJECTED (PX4's answer to a
+denied arm or mode switch) waits ``retry_backoff_s`` and retransmits from the same budget;
+IN_PROGRESS stretches the wait to 3 s; any other result ends the sequence. An ACK can be
+lost, so every step is also confirmed by state (``CommandSender.confirm``):
 the armed bit in HEARTBEAT for ARM, mode AUTO.TAKEOFF or leaving the ground for NAV_TAKEOFF,
 and success itself is only declared from state: armed and ``landed_state`` TAKEOFF or
 IN_AIR (EXTENDED_SYS_STATE), never from an ACK alone.
@@ -45,17 +46,20 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
 
-from swarmd.px4.constants import LandedState, MavCmd, MavResult
-from swarmd.px4.messages import (
-    MODE_TAKEOFF,
-    CommandAck,
-    Observation,
-    VehicleCommand,
+from swarmd.px4.command_sender import (
+    CommandFinished,
+    CommandSender,
+    CommandSent,
+    Finish,
+    SenderConfig,
+    SenderEvent,
 )
+from swarmd.px4.constants import LandedState, MavCmd
+from swarmd.px4.messages import MODE_TAKEOFF, Observation, VehicleCommand
 from swarmd.px4.readiness import ReadinessConfig, VehicleState, readiness
 
 COM_DISARM_PRFLT_S: Final = 10.0  # PX4 commander default: pre-flight auto-disarm
@@ -68,18 +72,16 @@ AIRBORNE: Final = frozenset({LandedState.TAKEOFF, LandedState.IN_AIR})
 class TakeoffConfig:
     """Timing of the sequence; defaults are MAVSDK's command sender and PX4's parameters."""
 
-    ack_timeout_s: float = 0.5
-    retries: int = 3  # retransmissions after the first send
-    in_progress_timeout_s: float = 3.0
-    retry_backoff_s: float = 0.5  # wait after TEMPORARILY_REJECTED
+    command: SenderConfig = field(default_factory=SenderConfig)  # ack timeout, retries
     liftoff_timeout_s: float = 8.0  # NAV_TAKEOFF accepted -> landed_state TAKEOFF/IN_AIR
     auto_disarm_window_s: float = COM_DISARM_PRFLT_S
 
     def check(self) -> None:
         """Raise ValueError (one line) when the budget cannot beat PX4's auto-disarm."""
-        step = (1 + self.retries) * max(self.ack_timeout_s, self.retry_backoff_s)
-        if self.retries < 0 or self.ack_timeout_s <= 0 or self.liftoff_timeout_s <= 0:
-            raise ValueError("takeoff: retries must be >= 0 and timeouts > 0")
+        self.command.check()
+        if self.liftoff_timeout_s <= 0:
+            raise ValueError("takeoff: liftoff_timeout_s must be > 0")
+        step = self.command.budget_s()
         if step >= self.auto_disarm_window_s:
             raise ValueError(
                 f"takeoff: NAV_TAKEOFF may need {step:g} s after arming, but PX4 disarms after "
@@ -124,7 +126,7 @@ _TRANSITIONS: Final[dict[Phase, frozenset[Phase]]] = {
 
 @dataclass(frozen=True, slots=True)
 class TakeoffEvent:
-    """Base of everything ``next_event`` returns."""
+    """Base of the sequence's own events (``SequenceEvent`` adds the sender's)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,18 +134,6 @@ class PhaseChanged(TakeoffEvent):
     old: Phase
     new: Phase
     why: str
-
-
-@dataclass(frozen=True, slots=True)
-class CommandSent(TakeoffEvent):
-    command: str
-    confirmation: int
-
-
-@dataclass(frozen=True, slots=True)
-class AckReceived(TakeoffEvent):
-    command: str
-    result: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,14 +152,9 @@ class TakeoffFailed(TakeoffEvent):
     elapsed_s: float
 
 
-@dataclass(slots=True)
-class _Pending:
-    """One command awaiting its ACK (one outstanding command per id, as MAVSDK)."""
-
-    command: VehicleCommand
-    sent: int
-    deadline: float
-    last_result: MavResult | None = None
+SequenceEvent = TakeoffEvent | SenderEvent
+"""What ``TakeoffSequence.next_event`` returns: its phases and outcome, and the sender's
+``CommandSent``/``AckReceived`` for each step's command."""
 
 
 class TakeoffSequence:
@@ -196,12 +181,13 @@ class TakeoffSequence:
         self.target_amsl_m: float | None = None
         self.outcome: TakeoffSucceeded | TakeoffFailed | None = None
         self._t0 = 0.0
-        self._pending: _Pending | None = None
+        self._sender = CommandSender(self.config.command)
+        self._handle: int | None = None  # the step's command in the sender
         self._lift_deadline: float | None = None
         self._arm_sent = False
         self._seen_armed = False
         self._out: list[VehicleCommand] = []
-        self._events: deque[TakeoffEvent] = deque()
+        self._events: deque[SequenceEvent] = deque()
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -236,13 +222,14 @@ class TakeoffSequence:
         self._set_phase(Phase.ARMING, now, f"ready ({verdict.detail})")
         self._arm_sent = True
         self._send(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=1.0), now)
+        self._drain(now)
 
     def observe(self, obs: Observation, now: float) -> None:
         """An autopilot message (already fed to the shared ``VehicleState``)."""
         if self._finished():
             return
-        if isinstance(obs, CommandAck):
-            self._on_ack(obs, now)
+        self._sender.observe(obs, now)
+        self._drain(now)
         if not self._finished():
             self._check_state(now)
 
@@ -253,13 +240,11 @@ class TakeoffSequence:
         self._check_state(now)
         if self._finished():
             return
-        pending = self._pending
-        if pending is not None and now >= pending.deadline:
-            if pending.sent <= self.config.retries:
-                self._send(pending.command, now)
-            else:
-                self._give_up(pending, now)
-        elif self._lift_deadline is not None and now >= self._lift_deadline:
+        self._sender.handle_timer(now)
+        self._drain(now)
+        if self._finished():
+            return
+        if self._lift_deadline is not None and now >= self._lift_deadline:
             landed = self.vehicle.landed_state
             self._fail(
                 now,
@@ -282,11 +267,10 @@ class TakeoffSequence:
     def get_timer(self) -> float | None:
         if self._finished():
             return None
-        if self._pending is not None:
-            return self._pending.deadline
-        return self._lift_deadline
+        deadline = self._sender.get_timer()
+        return deadline if deadline is not None else self._lift_deadline
 
-    def next_event(self) -> TakeoffEvent | None:
+    def next_event(self) -> SequenceEvent | None:
         return self._events.popleft() if self._events else None
 
     @property
@@ -300,49 +284,33 @@ class TakeoffSequence:
     # ---- internals ----------------------------------------------------------------------
 
     def _send(self, command: VehicleCommand, now: float) -> None:
-        pending = self._pending
-        if pending is None or pending.command.command != command.command:
-            pending = self._pending = _Pending(command, sent=0, deadline=now)
-        cmd = command.retransmission(pending.sent)
-        pending.sent += 1
-        pending.deadline = now + self.config.ack_timeout_s
-        self._out.append(cmd)
-        self._events.append(CommandSent(cmd.label, cmd.confirmation))
+        self._handle = self._sender.send(command, now)
 
-    def _on_ack(self, ack: CommandAck, now: float) -> None:
-        pending = self._pending
-        if pending is None or ack.command != pending.command.command:
-            return  # an answer to someone else's command, or to one we finished with
-        try:
-            result = MavResult(ack.result)
-        except ValueError:
-            result = MavResult.FAILED
-        self._events.append(AckReceived(pending.command.label, result.name))
-        pending.last_result = result
-        match result:
-            case MavResult.ACCEPTED:
-                self._step_done(now, "COMMAND_ACK ACCEPTED")
-            case MavResult.IN_PROGRESS:
-                pending.deadline = now + self.config.in_progress_timeout_s
-            case MavResult.TEMPORARILY_REJECTED:
-                if pending.sent <= self.config.retries:
-                    pending.deadline = now + self.config.retry_backoff_s
-                else:
-                    self._give_up(pending, now)
-            case _:
-                self._give_up(pending, now)
+    def _drain(self, now: float) -> None:
+        """Take the sender's transmissions and events, in order, and act on its verdicts."""
+        while (event := self._sender.next_event()) is not None:
+            self._out += self._sender.commands_to_send()
+            if not isinstance(event, CommandFinished):
+                self._events.append(event)
+            elif event.handle == self._handle and not self._finished():
+                self._handle = None
+                if event.finish is Finish.ACCEPTED:
+                    self._step_done(now, "COMMAND_ACK ACCEPTED")
+                elif event.finish in (Finish.REFUSED, Finish.NO_ACK):
+                    self._give_up(event, now)
+        self._out += self._sender.commands_to_send()
 
-    def _give_up(self, pending: _Pending, now: float) -> None:
-        arm = pending.command.command == MavCmd.COMPONENT_ARM_DISARM
-        result = pending.last_result
+    def _give_up(self, done: CommandFinished, now: float) -> None:
+        arm = done.command.command == MavCmd.COMPONENT_ARM_DISARM
+        result = done.result
         said = self.vehicle.last_warning
         tail = f"; PX4 says {said.text!r}" if said is not None else ""
         if result is None:
             reason = FailReason.ARM_NO_ACK if arm else FailReason.TAKEOFF_NO_ACK
-            detail = f"no COMMAND_ACK for {pending.command.label} after {pending.sent} sends"
+            detail = f"no COMMAND_ACK for {done.command.label} after {done.sends} sends"
         else:
             reason = FailReason.ARM_REJECTED if arm else FailReason.TAKEOFF_REJECTED
-            detail = f"{pending.command.label} answered {result.name} after {pending.sent} sends"
+            detail = f"{done.command.label} answered {result.name} after {done.sends} sends"
         self._fail(now, reason, None if result is None else result.name, detail + tail)
 
     def _check_state(self, now: float) -> None:
@@ -373,11 +341,11 @@ class TakeoffSequence:
     def _step_done(self, now: float, why: str) -> None:
         if self.phase is Phase.ARMING:
             self._set_phase(Phase.TAKING_OFF, now, f"arm confirmed: {why}")
-            self._pending = None
+            self._settle(now, why)
             alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
             self._send(VehicleCommand.make(MavCmd.NAV_TAKEOFF, p7=alt), now)
         elif self.phase is Phase.TAKING_OFF:
-            self._pending = None
+            self._settle(now, why)
             self._lift_deadline = now + self.config.liftoff_timeout_s
             self._set_phase(Phase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
             self._check_state(now)
@@ -396,8 +364,16 @@ class TakeoffSequence:
         self._set_phase(Phase.SUCCEEDED, now, f"airborne: landed_state {landed}")
         self._events.append(self.outcome)
 
+    def _settle(self, now: float, why: str) -> None:
+        """The step's command needs no more sends: its effect shows (or it was accepted)."""
+        if self._handle is not None:
+            self._sender.confirm(self._handle, now, why)
+            self._handle = None
+
     def _fail(self, now: float, reason: FailReason, cause: str | None, detail: str) -> None:
-        self._pending = None
+        if self._handle is not None:
+            self._sender.cancel(self._handle, now, f"{reason}")
+            self._handle = None
         self._lift_deadline = None
         if self._arm_sent:
             # leave nothing armed on the ground; PX4 refuses a non-forced disarm in the air

@@ -16,7 +16,7 @@ from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
 from swarmd.px4.mavlink_codec import MavlinkCodec, Message
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import VehicleState
-from swarmd.px4.takeoff import TakeoffEvent, TakeoffSequence
+from swarmd.px4.takeoff import SequenceEvent, TakeoffSequence
 from swarmd_lab.px4.sim_model import SimVehicle
 
 Direction = str  # "up" (vehicle -> companion) or "down" (companion -> vehicle)
@@ -49,7 +49,7 @@ class VirtualLink:
         self.latency_s = latency_s
         self.drop = drop
         self.sequence: TakeoffSequence | None = None
-        self.events: list[TakeoffEvent] = []
+        self.events: list[SequenceEvent] = []
         self.sent_down: list[VehicleCommand] = []
         self._vehicle_codec = MavlinkCodec(sim.config.sysid, COMP_ID_AUTOPILOT1)
         self._companion_codec = MavlinkCodec(sim.config.sysid, COMP_ID_ONBOARD_COMPUTER)

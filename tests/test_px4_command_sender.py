@@ -1,0 +1,205 @@
+"""The backend-neutral command sender on hand-set time: ack, retries, every MAV_RESULT."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarmd.px4.command_sender import (
+    AckReceived,
+    CommandFinished,
+    CommandSender,
+    CommandSent,
+    Finish,
+    SenderConfig,
+    SenderEvent,
+)
+from swarmd.px4.constants import MavCmd, MavResult
+from swarmd.px4.messages import CommandAck, Heartbeat, VehicleCommand
+
+LAND = VehicleCommand.make(MavCmd.NAV_LAND)
+
+
+def drain(sender: CommandSender) -> list[SenderEvent]:
+    return list(iter(sender.next_event, None))
+
+
+def finished(events: list[SenderEvent]) -> list[CommandFinished]:
+    return [e for e in events if isinstance(e, CommandFinished)]
+
+
+def ack(command: int, result: int) -> CommandAck:
+    return CommandAck(command, result, 0, 1, 191)
+
+
+def test_accepted_finishes_at_once() -> None:
+    s = CommandSender()
+    handle = s.send(LAND, 0.0)
+    sent = s.commands_to_send()
+    assert [(c.command, c.confirmation) for c in sent] == [(MavCmd.NAV_LAND, 0)]
+    assert s.get_timer() == 0.5
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.ACCEPTED), 0.1)
+    events = drain(s)
+    assert [type(e) for e in events] == [CommandSent, AckReceived, CommandFinished]
+    done = finished(events)[0]
+    assert (done.handle, done.finish, done.result, done.sends) == (
+        handle,
+        Finish.ACCEPTED,
+        MavResult.ACCEPTED,
+        1,
+    )
+    assert done.ok and s.get_timer() is None and not s.pending(handle)
+
+
+def test_no_ack_retransmits_with_confirmation_counts_then_gives_up() -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    now = 0.0
+    while (timer := s.get_timer()) is not None:
+        now = timer
+        s.handle_timer(now)
+    assert [c.confirmation for c in s.commands_to_send()] == [0, 1, 2, 3]
+    assert now == pytest.approx(2.0)  # 4 sends x 0.5 s
+    done = finished(drain(s))[0]
+    assert (done.finish, done.result, done.sends, done.cause) == (Finish.NO_ACK, None, 4, "no_ack")
+
+
+def test_early_timer_call_is_harmless() -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    s.commands_to_send()
+    s.handle_timer(0.2)
+    assert s.commands_to_send() == [] and s.get_timer() == 0.5
+
+
+def test_in_progress_keeps_waiting() -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.IN_PROGRESS), 0.2)
+    assert s.get_timer() == pytest.approx(3.2)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.ACCEPTED), 2.0)
+    assert finished(drain(s))[0].finish is Finish.ACCEPTED
+    assert len(s.commands_to_send()) == 1  # no retransmission while in progress
+
+
+def test_temporarily_rejected_retries_later_from_the_same_budget() -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    for i in range(4):
+        s.observe(ack(MavCmd.NAV_LAND, MavResult.TEMPORARILY_REJECTED), s.get_timer() or 0.0)
+        timer = s.get_timer()
+        if timer is None:
+            break
+        assert i < 3
+        s.handle_timer(timer)
+    assert [c.confirmation for c in s.commands_to_send()] == [0, 1, 2, 3]
+    done = finished(drain(s))[0]
+    assert (done.finish, done.result, done.cause) == (
+        Finish.REFUSED,
+        MavResult.TEMPORARILY_REJECTED,
+        "TEMPORARILY_REJECTED",
+    )
+
+
+def test_backoff_after_temporarily_rejected() -> None:
+    s = CommandSender(SenderConfig(retry_backoff_s=1.5))
+    s.send(LAND, 0.0)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.TEMPORARILY_REJECTED), 0.1)
+    assert s.get_timer() == pytest.approx(1.6)
+
+
+@pytest.mark.parametrize(
+    "result", [MavResult.DENIED, MavResult.UNSUPPORTED, MavResult.FAILED, MavResult.CANCELLED]
+)
+def test_final_results_are_not_retried(result: MavResult) -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    s.observe(ack(MavCmd.NAV_LAND, result), 0.1)
+    done = finished(drain(s))[0]
+    assert (done.finish, done.result, done.cause) == (Finish.REFUSED, result, result.name)
+    assert s.get_timer() is None and len(s.commands_to_send()) == 1
+
+
+def test_an_undefined_result_number_is_final() -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    s.observe(ack(MavCmd.NAV_LAND, 200), 0.1)
+    assert finished(drain(s))[0].finish is Finish.REFUSED
+
+
+def test_acks_for_other_commands_and_other_messages_are_ignored() -> None:
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    s.observe(ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED), 0.1)
+    s.observe(Heartbeat(12, 2, 1, 0, 3), 0.1)
+    assert finished(drain(s)) == [] and s.get_timer() == 0.5
+
+
+def test_confirm_by_state_ends_retries() -> None:
+    s = CommandSender()
+    handle = s.send(LAND, 0.0)
+    s.confirm(handle, 0.3, "mode AUTO.LAND")
+    done = finished(drain(s))[0]
+    assert (done.finish, done.why, done.ok) == (Finish.CONFIRMED, "mode AUTO.LAND", True)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.ACCEPTED), 0.4)  # the late ack: nothing
+    assert drain(s) == [] and s.get_timer() is None
+
+
+def test_cancel_and_supersede() -> None:
+    s = CommandSender()
+    first = s.send(LAND, 0.0)
+    second = s.send(LAND, 0.1)
+    assert first != second
+    assert [c.confirmation for c in s.commands_to_send()] == [0, 0]
+    done = finished(drain(s))
+    assert [(d.handle, d.finish) for d in done] == [(first, Finish.CANCELLED)]
+    s.cancel(second, 0.2)
+    assert [(d.handle, d.finish, d.cause) for d in finished(drain(s))] == [
+        (second, Finish.CANCELLED, "cancelled")
+    ]
+    assert s.get_timer() is None
+
+
+def test_two_command_numbers_run_side_by_side() -> None:
+    s = CommandSender()
+    land = s.send(LAND, 0.0)
+    disarm = s.send(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0), 0.2)
+    s.observe(ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED), 0.3)
+    assert [d.handle for d in finished(drain(s))] == [disarm]
+    assert s.pending(land) and s.get_timer() == 0.5
+
+
+def test_a_budget_that_is_no_budget_is_refused() -> None:
+    with pytest.raises(ValueError, match="retries"):
+        CommandSender(SenderConfig(retries=-1))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    steps=st.lists(
+        st.tuples(st.sampled_from(["timer", "ack"]), st.integers(0, 255), st.floats(0, 1)),
+        max_size=30,
+    )
+)
+def test_any_ack_sequence_ends_in_one_finish_within_the_budget(
+    steps: list[tuple[str, int, float]],
+) -> None:
+    """Whatever the autopilot answers, the sender never raises, never sends more than
+    1 + retries times, and finishes each command exactly once."""
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    now = 0.0
+    events: list[SenderEvent] = []
+    for what, result, dt in steps:
+        now += dt
+        if what == "ack":
+            s.observe(ack(MavCmd.NAV_LAND, result), now)
+        else:
+            s.handle_timer(max(now, s.get_timer() or now))
+        events += drain(s)
+    while (timer := s.get_timer()) is not None:  # let it run out
+        s.handle_timer(timer)
+    events += drain(s)
+    assert len(s.commands_to_send()) <= 4
+    assert len(finished(events)) == 1
