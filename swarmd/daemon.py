@@ -331,7 +331,13 @@ class Daemon:
             raise self.config.error("node", problem, fix or "check node and the bundle") from None
         # before the first datagram can arrive: peers discovered while it starts are kept
         # and replayed to the data plane once it is up
-        app = SwarmApp(self.config, self.bundle, log=self.log, link_q=self._link_q)
+        app = SwarmApp(
+            self.config,
+            self.bundle,
+            log=self.log,
+            link_q=self._link_q,
+            node_secrets=self._secrets,
+        )
         self.app = app
         group, mport = self.engine.spdp_multicast
         uport = self.engine.metatraffic_port

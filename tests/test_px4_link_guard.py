@@ -6,13 +6,16 @@ Issue 10, attack 6 (docs/px4.md "Trust on the PX4 link", docs/security.md "PX4 l
 from __future__ import annotations
 
 import hashlib
+import stat
 import struct
+from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
+from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.config import EX_CONFIG, ConfigError, parse_config
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
 from swarmd.px4.linkguard import AutopilotPin
@@ -243,3 +246,37 @@ def test_bad_pin_and_signing_fields(lines: str, field: str) -> None:
 def test_autopilot_pin_with_the_default_connection() -> None:
     config = parse_config(px4("autopilot: 127.0.0.1:14580"))
     assert config.px4.autopilot == "127.0.0.1:14580"
+
+
+# ---- swarmctl px4 key: the ground and the drone derive the same key ------------------------
+
+MISSION = Path(__file__).resolve().parent.parent / "firmware_bundle" / "missions" / "swarm3.yaml"
+
+
+def test_swarmctl_px4_key_on_the_ground_matches_the_flashed_drone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    keys, bundle, drone = tmp_path / "keys", tmp_path / "b.swb", tmp_path / "drone"
+    assert swarmctl(["bundle", "keygen", "--out", str(keys), "--mission", str(MISSION)]) == 0
+    sign = str(keys / "swarm-signing.key")
+    assert swarmctl(["bundle", "build", str(MISSION), "-o", str(bundle), "--sign-key", sign]) == 0
+    flash = ["bundle", "flash", str(bundle), "--node", "drone-1", "--target", str(drone)]
+    assert swarmctl([*flash, "--keys", str(keys)]) == 0
+    config = tmp_path / "swarmd.yaml"
+    config.write_text(
+        f"node: drone-1\nbundle: {{path: {drone / 'bundle.swb'}, trusted_key: "
+        f"{drone / 'swarm.pub'}}}\nnetwork: {{interface: lo}}\npx4: {{signing: true}}\n"
+    )
+    capsys.readouterr()
+    assert swarmctl(["px4", "key", "--config", str(config)]) == 0
+    on_drone = capsys.readouterr().out.strip()
+    ground = ["px4", "key", "--keys", str(keys), "--swarm", "field-test-3", "--node", "drone-1"]
+    assert swarmctl(ground) == 0
+    assert capsys.readouterr().out.strip() == on_drone and len(on_drone) == 64
+    out = tmp_path / "mavlink-signing-key.bin"
+    assert swarmctl([*ground, "--out", str(out)]) == 0
+    data = out.read_bytes()
+    assert len(data) == 40 and data[:32].hex() == on_drone
+    assert stat.S_IMODE(out.stat().st_mode) == 0o600
+    assert swarmctl(["px4", "key", "--keys", str(keys)]) == 65  # no --swarm/--node: one line
+    assert "--config FILE" in capsys.readouterr().err

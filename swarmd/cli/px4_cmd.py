@@ -20,7 +20,7 @@ from typing import Any, Final
 from swarmd.bundle.errors import BundleError
 from swarmd.bundle.keys import PRIVATE_MODE, node_key_path, write_file_atomic
 from swarmd.config import ConfigError, load_config
-from swarmd.px4.provision import SigningKeyError, node_secret, signing_key_for
+from swarmd.px4.provision import SigningKeyError, ed25519_seed, node_secret, signing_key_for
 from swarmd.px4.signing import derive_key, px4_key_file, timestamp_from_unix
 
 EX_DATAERR: Final = 65
@@ -63,11 +63,16 @@ def _key(args: argparse.Namespace) -> bytes:
             expected_sha256=config.bundle.expected_sha256,
             allow_dev=config.bundle.allow_dev,
         )
+        from swarmd.daemon import NodeSecretsError, load_node_secrets
+
+        seed = b""
+        if config.px4.signing_key is None:  # derived, as the daemon does
+            try:
+                seed = ed25519_seed(load_node_secrets(config, bundle).ed25519)
+            except NodeSecretsError as exc:
+                raise SigningKeyError(str(exc)) from None
         return signing_key_for(
-            swarm=bundle.swarm,
-            node=config.node,
-            key_file=config.px4.signing_key,
-            bundle_path=config.bundle.path,
+            swarm=bundle.swarm, node=config.node, key_file=config.px4.signing_key, seed=seed
         )
     if args.keys is None or args.swarm is None or args.node is None:
         raise SigningKeyError(

@@ -28,6 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
+from swarmd.auth.keys import NodeSecrets
 from swarmd.bundle.model import Bundle, EndpointKind, Participant
 from swarmd.config import DaemonConfig
 from swarmd.control import RequestInvalid
@@ -44,7 +45,7 @@ from swarmd.dataplane import (
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import MAX_ALTITUDE_M, CommandKind, CommandResult
 from swarmd.px4.bridge import Px4Bridge, Px4Config
-from swarmd.px4.provision import SigningKeyError, signing_key_for
+from swarmd.px4.provision import SigningKeyError, ed25519_seed, signing_key_for
 from swarmd.px4.readiness import ReadinessConfig
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.executor import PX4_DISABLED, CommandExecutor
@@ -94,11 +95,13 @@ class SwarmApp:
         *,
         log: Any,
         link_q: Callable[[], float],
+        node_secrets: NodeSecrets | None = None,
     ) -> None:
         self.config = config
         self.bundle = bundle
         self.log = log
         self.link_q = link_q
+        self.node_secrets = node_secrets  # the PX4 link's signing key derives from them
         try:
             self.me = bundle.participant(config.node)
         except KeyError:
@@ -145,12 +148,20 @@ class SwarmApp:
             sysid = px4.sysid if px4.sysid is not None else self.me.mavlink_sysid
             signing_key: bytes | None = None
             if px4.signing:  # the per-drone MAVLink key (docs/px4.md, "Message signing")
+                secrets = self.node_secrets
+                if secrets is None and px4.signing_key is None:
+                    raise AppStartError(
+                        "px4.signing: no node secrets to derive the MAVLink key from; fix: "
+                        "flash node.key, set px4.signing_key, or px4.signing: false",
+                        78,
+                    )
+                seed = b"" if secrets is None else ed25519_seed(secrets.ed25519)
                 try:
                     signing_key = signing_key_for(
                         swarm=self.bundle.swarm,
                         node=self.me.name,
                         key_file=px4.signing_key,
-                        bundle_path=self.config.bundle.path,
+                        seed=seed,
                     )
                 except SigningKeyError as exc:
                     raise AppStartError(str(exc), 78) from None
