@@ -62,6 +62,7 @@ from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
+from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarm.app import AppStartError, SwarmApp
 
@@ -483,13 +484,18 @@ class Daemon:
 
     def _after_input(self) -> None:
         engine, _ = self._core()
+        changed = False
         while (event := engine.next_event()) is not None:
+            changed |= isinstance(event, PeerDiscovered | PeerLost | PhaseChanged)
             self._log_event(event)
         self._transmit()
-        text = self._status_text()
-        if self._ready and text != self._status_line:
-            self._status_line = text
-            self.notifier.status(text)
+        # the sd_notify line moves only with discovery's events: nothing per datagram is
+        # rebuilt (a flood of datagrams must not become a flood of status snapshots)
+        if changed and self._ready:
+            text = self._status_text()
+            if text != self._status_line:
+                self._status_line = text
+                self.notifier.status(text)
 
     def _transmit(self) -> None:
         engine, loop = self._core()
@@ -510,10 +516,10 @@ class Daemon:
 
     def _log_event(self, event: Event) -> None:
         match event:
-            case PeerDiscovered(name=name, matches=matches, via=via):
+            case PeerDiscovered(name=name, matches=matches, via=via, guid_prefix=prefix):
                 self.log.info("peer_discovered", peer=name, via=via, matched=len(matches))
                 if self.app is not None:
-                    self.app.peer_up(name, self._peer_ipv4(name))
+                    self.app.peer_up(name, self._peer_ipv4(prefix))
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
                 if self.app is not None:
@@ -529,17 +535,15 @@ class Daemon:
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
 
-    def _peer_ipv4(self, name: str) -> str | None:
-        """The address discovery heard ``name`` at (its SPDP metatraffic locator)."""
-        engine, loop = self._core()
-        # The engine reports locators only in its status snapshot ("udp/IP:PORT"); the data
-        # plane needs the host, and the port comes from the bundle (Bundle.user_port).
-        for peer in engine.status(loop.time()).get("peers", []):
-            locator = peer.get("locator")
-            if peer.get("name") == name and isinstance(locator, str):
-                host, _, _ = locator.removeprefix("udp/").rpartition(":")
-                return host or None
-        return None
+    def _peer_ipv4(self, prefix: GuidPrefix) -> str | None:
+        """The host discovery reaches the peer at (a typed engine query, O(1) by prefix):
+        its first usable unicast metatraffic locator, else the UDP source it was heard from,
+        else its bundle address. The data plane's port comes from the bundle."""
+        engine, _ = self._core()
+        view = engine.peer(prefix)
+        if view is None or view.locator is None:
+            return None
+        return view.locator[0]
 
     def _link_q(self) -> float:
         latest = self.monitor.latest
@@ -577,11 +581,8 @@ class Daemon:
     def _status_text(self) -> str:
         if self.engine is None:
             return "starting"
-        st = self.engine.status(self._loop.time() if self._loop else 0.0)
-        return (
-            f"phase {st.get('phase')}, peers {st.get('peers_discovered', 0)}/"
-            f"{st.get('peers_total', 0)} discovered"
-        )
+        discovered, total = self.engine.peer_counts()
+        return f"phase {self.engine.phase}, peers {discovered}/{total} discovered"
 
     def status(self) -> dict[str, Any]:
         """The engine's status plus what only the daemon knows (schema: docs/operations.md)."""
