@@ -6,8 +6,8 @@ departs). The adapter is the thin asyncio shell style.md asks for: datagrams in 
 model queues goes out as MAVLink 2 frames from (sysid, component 1).
 
 Like PX4 SITL it sends to a companion listening on 14540 by default
-(``--connect udpout:127.0.0.1:14540``, swarmd's ``udpin:0.0.0.0:14540``); with
-``--listen udpin:0.0.0.0:14580`` it waits for the companion to speak first and answers
+(``--connect udpout:127.0.0.1:14540``, swarmd's ``udpin:127.0.0.1:14540``); with
+``--listen udpin:127.0.0.1:14580`` it waits for the companion to speak first and answers
 whoever spoke last (swarmd ``udpout:127.0.0.1:14580``).
 
 ``--signing-key FILE`` (the file ``swarmctl px4 key`` writes for PX4's SD card) turns on
