@@ -15,8 +15,11 @@ from contextlib import closing
 from typing import Final
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from swarmd_lab.netns import Lan
 
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.spdp import PLACEHOLDER, seal
 from swarmd.rtps import (
     BES_SPDP_ONLY,
     VENDORID_SWARMD,
@@ -82,7 +85,17 @@ def swarmd_participant(address: str) -> SpdpParticipant:
         bundle_digest=DIGEST,
         heard=HEARD,
         link_quality_permille=LINK_QUALITY,
+        authenticator=PLACEHOLDER,
     )
+
+
+# swarmd signs every SPDP datagram (PID 0x8a04 last, swarmd.auth.spdp): Cyclone must still
+# take it for an ordinary participant, and act on the signed dispose
+SIGNER: Final = Ed25519PrivateKey.from_private_bytes(b"\x05" * 32)
+
+
+def sealed(template: bytes, seq: int) -> bytes:
+    return seal(template, Freshness(int(time.time()), seq), SIGNER)
 
 
 def wall_time() -> Duration:
@@ -138,7 +151,9 @@ def test_cyclone_accepts_swarmd_participant_then_its_dispose(
             destination = cyclone_meta_unicast(announced[1])
 
         ours = swarmd_participant(our_ns.address)
-        sock.sendto(encode_spdp(ours, sequence_number=1, timestamp=wall_time()), destination)
+        sock.sendto(
+            sealed(encode_spdp(ours, sequence_number=1, timestamp=wall_time()), 1), destination
+        )
 
         accepted = cyclone.trace.wait_for(
             spdp_new_pattern(OUR_PREFIX), WAIT_S, f"SPDP ST0 {OUR_PREFIX}:1c1 ... NEW"
@@ -169,10 +184,10 @@ def test_cyclone_accepts_swarmd_participant_then_its_dispose(
         assert alive.participant.guid_prefix == cyclone.prefix
         assert alive.participant.metatraffic_unicast_locators[0].host == cyclone_ns.address
 
-        sock.sendto(
-            encode_spdp_dispose(OUR_PREFIX, sequence_number=2, timestamp=wall_time()),
-            destination,
+        dispose = encode_spdp_dispose(
+            OUR_PREFIX, sequence_number=2, timestamp=wall_time(), authenticator=PLACEHOLDER
         )
+        sock.sendto(sealed(dispose, 2), destination)
         cyclone.trace.wait_for(
             spdp_deleted_pattern(OUR_PREFIX), WAIT_S, f"SPDP ST3 {OUR_PREFIX}:1c1 ... deleting"
         )

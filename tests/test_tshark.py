@@ -7,13 +7,17 @@ the field will show swarmd as an ordinary RTPS participant.
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import string
 from pathlib import Path
 from typing import Final
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.spdp import PLACEHOLDER, seal
 from swarmd.rtps import (
     BES_SPDP_ONLY,
     VENDORID_SWARMD,
@@ -88,18 +92,29 @@ def participant() -> SpdpParticipant:
     )
 
 
+SIGNER: Final = Ed25519PrivateKey.from_private_bytes(b"\x05" * 32)
+
+
+def sealed(template: bytes, seq: int) -> bytes:
+    """As swarmd sends it: the authenticator (PID 0x8a04) filled in (swarmd.auth.spdp)."""
+    return seal(template, Freshness(1_795_250_000, seq), SIGNER)
+
+
 def three_datagrams() -> list[Datagram]:
-    ours = participant()
+    ours = dataclasses.replace(participant(), authenticator=PLACEHOLDER)
     group = (SPDP_MULTICAST_GROUP, spdp_multicast_port(0))
     src = (HOST, metatraffic_unicast_port(0, 0))
+    dispose = encode_spdp_dispose(
+        PREFIX, sequence_number=2, timestamp=STAMP, authenticator=PLACEHOLDER
+    )
     return [
-        Datagram(encode_spdp(ours, sequence_number=1, timestamp=STAMP), src, group),
+        Datagram(sealed(encode_spdp(ours, sequence_number=1, timestamp=STAMP), 1), src, group),
         Datagram(
-            encode_spdp(ours, sequence_number=1, timestamp=STAMP, destination=PEER),
+            sealed(encode_spdp(ours, sequence_number=1, timestamp=STAMP, destination=PEER), 2),
             src,
             (PEER_HOST, metatraffic_unicast_port(0, 0)),
         ),
-        Datagram(encode_spdp_dispose(PREFIX, sequence_number=2, timestamp=STAMP), src, group),
+        Datagram(sealed(dispose, 3), src, group),
     ]
 
 

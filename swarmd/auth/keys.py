@@ -98,6 +98,11 @@ class KeyRing:
         return cls(bundle, bundle.participant(own_name), secrets)
 
     @property
+    def size(self) -> int:
+        """Participants in the bundle (this node included)."""
+        return len(self._by_prefix)
+
+    @property
     def own_prefix(self) -> GuidPrefix:
         return self._me.guid_prefix
 

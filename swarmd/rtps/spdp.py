@@ -92,8 +92,11 @@ STATUS_INFO_UNREGISTERED: Final = 0x02
 PID_SWARMD_BUNDLE_DIGEST: Final = 0x8A01
 PID_SWARMD_HEARD: Final = 0x8A02
 PID_SWARMD_LINK_QUALITY: Final = 0x8A03
+# the authenticator: freshness (epoch u32, seq u32) + Ed25519 signature (64 octets), always
+# the last parameter before PID_SENTINEL (swarmd.auth.spdp, docs/wire.md)
+PID_SWARMD_AUTHENTICATOR: Final = 0x8A04
 SWARMD_PIDS: Final = frozenset(
-    {PID_SWARMD_BUNDLE_DIGEST, PID_SWARMD_HEARD, PID_SWARMD_LINK_QUALITY}
+    {PID_SWARMD_BUNDLE_DIGEST, PID_SWARMD_HEARD, PID_SWARMD_LINK_QUALITY, PID_SWARMD_AUTHENTICATOR}
 )
 
 MAX_LINK_QUALITY_PERMILLE: Final = 1000
@@ -122,6 +125,7 @@ class SpdpParticipant:
     bundle_digest: bytes | None = None
     heard: bytes | None = None  # bitmap over bundle participant indices, LSB of byte 0 = index 0
     link_quality_permille: int | None = None
+    authenticator: bytes | None = None  # 72 octets, encoded last (swarmd.auth.spdp)
     # every other parameter, in wire order (stock vendors' PIDs, security tokens, ...)
     extra_parameters: tuple[Parameter, ...] = field(default=())
 
@@ -178,6 +182,10 @@ class SpdpParticipant:
             out.append(
                 Parameter(PID_SWARMD_LINK_QUALITY, pack_u32(self.link_quality_permille, little))
             )
+        if self.authenticator is not None:
+            # raw, not an octet sequence: fixed size, and last so a receiver finds it at a
+            # fixed offset from the end of the datagram before decoding anything
+            out.append(Parameter(PID_SWARMD_AUTHENTICATOR, self.authenticator))
         return tuple(out)
 
     @classmethod
@@ -280,6 +288,7 @@ _SWARMD_DECODERS: Final[dict[int, tuple[str, _Decoder]]] = {
     PID_SWARMD_BUNDLE_DIGEST: ("bundle_digest", value_octets),
     PID_SWARMD_HEARD: ("heard", value_octets),
     PID_SWARMD_LINK_QUALITY: ("link_quality_permille", _decode_link_quality),
+    PID_SWARMD_AUTHENTICATOR: ("authenticator", lambda p, _little: p.value),
 }
 # PIDs that SpdpParticipant models as fields; anything else lands in extra_parameters
 _MODELLED: Final = frozenset(_FIELD_DECODERS)
@@ -429,14 +438,21 @@ def encode_spdp_dispose(
     destination: GuidPrefix | None = None,
     vendor_id: VendorId = VENDORID_SWARMD,
     protocol_version: ProtocolVersion = PROTOCOLVERSION_SWARMD,
+    authenticator: bytes | None = None,
 ) -> bytes:
-    """One datagram: [INFO_DST] + INFO_TS + DATA(p[UD]) (flags E|Q|K, reference 1.11)."""
+    """One datagram: [INFO_DST] + INFO_TS + DATA(p[UD]) (flags E|Q|K, reference 1.11).
+
+    ``authenticator`` goes last in the key payload's parameter list, so it ends the datagram
+    as in a DATA(p) (swarmd.auth.spdp)."""
     if sequence_number < 1:
         raise ValueError("SPDP sequence numbers start at 1")
     guid = guid_prefix.value + ENTITYID_PARTICIPANT.value
     key = Writer(little=True)
     key.push_bytes(PL_CDR_LE + b"\x00\x00")
-    push_parameter_list(key, (Parameter(Pid.PARTICIPANT_GUID, guid),))
+    key_params = [Parameter(Pid.PARTICIPANT_GUID, guid)]
+    if authenticator is not None:
+        key_params.append(Parameter(PID_SWARMD_AUTHENTICATOR, authenticator))
+    push_parameter_list(key, tuple(key_params))
     status = STATUS_INFO_DISPOSED | STATUS_INFO_UNREGISTERED
     data = Data(
         ENTITYID_SPDP_READER,

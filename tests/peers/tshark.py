@@ -21,6 +21,7 @@ from typing import Final
 
 from swarmd.rtps import SpdpDisposed, SpdpSample
 from swarmd.rtps.spdp import (
+    PID_SWARMD_AUTHENTICATOR,
     PID_SWARMD_BUNDLE_DIGEST,
     PID_SWARMD_HEARD,
     PID_SWARMD_LINK_QUALITY,
@@ -404,6 +405,7 @@ def decoded_view(sample: SpdpSample) -> dict[str, object]:
         (PID_SWARMD_BUNDLE_DIGEST, p.bundle_digest),
         (PID_SWARMD_HEARD, p.heard),
         (PID_SWARMD_LINK_QUALITY, p.link_quality_permille),
+        (PID_SWARMD_AUTHENTICATOR, p.authenticator),
     ):
         if value is not None:
             vendor_pids.append(f"0x{pid:04x}")
