@@ -40,6 +40,7 @@ from typing import Any, Final
 from swarmd import __version__
 from swarmd.auth.epoch import EpochError, EpochResult, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
+from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig
@@ -51,7 +52,9 @@ from swarmd.discovery.events import (
     ForeignParticipantSeen,
     PacketDropped,
     PeerDiscovered,
+    PeerLocatorsChanged,
     PeerLost,
+    PeerRestarted,
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
@@ -326,6 +329,8 @@ class Daemon:
                 local_ipv4=self.local_ipv4,
                 wallclock=time.time,  # INFO_TS only; every deadline uses loop.time()
                 link=first,
+                # every SPDP datagram signed and verified (docs/security.md)
+                auth=SpdpAuth(self.keyring, self.epoch.epoch, now),
             )
         except ValueError as exc:
             problem, _, fix = str(exc).partition("; fix: ")
@@ -516,17 +521,32 @@ class Daemon:
 
     def _log_event(self, event: Event) -> None:
         match event:
-            case PeerDiscovered(name=name, matches=matches, via=via, guid_prefix=prefix):
-                self.log.info("peer_discovered", peer=name, via=via, matched=len(matches))
+            case PeerDiscovered(name=name, matches=matches, via=via, epoch=epoch):
+                self.log.info(
+                    "peer_discovered", peer=name, via=via, matched=len(matches), epoch=epoch
+                )
                 if self.app is not None:
-                    self.app.peer_up(name, self._peer_ipv4(prefix))
+                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix))
+            case PeerLocatorsChanged(name=name, default_unicast_locators=user):
+                # authenticated: the peer itself moved its address
+                self.log.info("peer_locators_changed", peer=name, user=[str(x) for x in user])
+                if self.app is not None:
+                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix))
+            case PeerRestarted(name=name, epoch=epoch, previous_epoch=previous):
+                self.log.info("peer_restarted", peer=name, epoch=epoch, previous_epoch=previous)
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
                 if self.app is not None:
                     self.app.peer_down(name)
             case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
+                # rate-limited in the engine: ``suppressed`` more were not reported one by one
                 self.log.info(
-                    "foreign_participant", guid_prefix=str(prefix), vendor=vendor, name=name
+                    "foreign_participant",
+                    guid_prefix=str(prefix),
+                    vendor=vendor,
+                    name=name,
+                    reason=str(event.reason),
+                    suppressed=event.suppressed,
                 )
             case PhaseChanged(old=old, new=new, reason=reason):
                 self.log.info("phase_changed", old=str(old), new=str(new), reason=reason)

@@ -11,7 +11,9 @@ from swarmd.discovery.events import (
     ForeignParticipantSeen,
     PacketDropped,
     PeerDiscovered,
+    PeerLocatorsChanged,
     PeerLost,
+    PeerRestarted,
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
@@ -29,7 +31,9 @@ __all__ = [
     "LinkSample",
     "PacketDropped",
     "PeerDiscovered",
+    "PeerLocatorsChanged",
     "PeerLost",
+    "PeerRestarted",
     "PeerState",
     "PeerView",
     "Phase",

@@ -65,6 +65,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
+from swarmd.auth.budget import TokenBucket
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.spdp import PLACEHOLDER, Refusal, SpdpAuth
 from swarmd.bundle.model import Bundle, Participant
 from swarmd.discovery.awareness import (
     advertised_lease_s,
@@ -81,7 +84,9 @@ from swarmd.discovery.events import (
     ForeignParticipantSeen,
     PacketDropped,
     PeerDiscovered,
+    PeerLocatorsChanged,
     PeerLost,
+    PeerRestarted,
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
@@ -115,6 +120,11 @@ MAX_PENDING_EVENTS: Final = 1024
 # The same for datagrams the driver has not collected yet.
 MAX_PENDING_DATAGRAMS: Final = 4096
 BUNDLE_DIGEST_BYTES: Final = 16
+# A flood of DATA(p) under invented GUID prefixes (issue 10, attack 9) makes every datagram a
+# "new foreign participant"; report about one a second (burst 10), each report carrying how
+# many it stands for (``ForeignParticipantSeen.suppressed``), so the log is a summary.
+MAX_FOREIGN_REPORTS_PER_S: Final = 1.0
+FOREIGN_REPORT_BURST: Final = 10.0
 
 Wallclock = Callable[[], float]
 
@@ -138,9 +148,15 @@ class DiscoveryEngine:
         local_ipv4: str,
         wallclock: Wallclock | None = None,
         link: LinkSample | None = None,
+        auth: SpdpAuth | None = None,
     ) -> None:
         """``wallclock`` (e.g. ``time.time``) stamps INFO_TS; None sends INFO_TS with the
-        invalidate flag. ``link``: a first link sample, which skips the BOOT wait."""
+        invalidate flag. ``link``: a first link sample, which skips the BOOT wait.
+
+        ``auth``: sign every datagram sent and refuse every datagram under a bundle prefix
+        whose authenticator does not hold, before anything changes (docs/security.md). The
+        daemon always passes it; None (simulator, codec tests) sends and accepts plain SPDP.
+        """
         try:
             me = bundle.participant(local_name)
         except KeyError:
@@ -151,6 +167,9 @@ class DiscoveryEngine:
             ) from None
         if len(bundle.content_sha256) < BUNDLE_DIGEST_BYTES:
             raise ValueError("bundle content_sha256 is shorter than 16 bytes; fix: rebuild it")
+        if auth is not None and auth.keyring.own_prefix != me.guid_prefix:
+            raise ValueError(f"auth keys are not {local_name!r}'s; fix: load this node's keys")
+        self._auth = auth
         self._bundle = bundle
         self._me: Participant = me
         self._config = config
@@ -226,6 +245,8 @@ class DiscoveryEngine:
         self._events: deque[Event] = deque()
         self._outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
         self._foreign = ForeignTable(MAX_FOREIGN)
+        self._foreign_reports = TokenBucket(MAX_FOREIGN_REPORTS_PER_S, FOREIGN_REPORT_BURST, now)
+        self._foreign_suppressed = 0  # since the last ForeignParticipantSeen
         self._counters: dict[str, int] = {
             "rx_datagrams": 0,
             "tx_datagrams": 0,
@@ -233,6 +254,7 @@ class DiscoveryEngine:
             "tx_unicast": 0,
             "events_dropped": 0,
             "datagrams_dropped": 0,
+            "foreign_suppressed": 0,  # new foreign participants folded into a later report
         }
         self._tx_kind: dict[str, int] = {"announce": 0, "reply": 0, "renewal": 0, "dispose": 0}
         # a Counter, so no reason can raise KeyError out of receive_datagram
@@ -248,8 +270,20 @@ class DiscoveryEngine:
         if self.phase == Phase.STOPPED:
             self._dropped[DropReason.STOPPED] += 1
             return
+        raw = data if type(data) is bytes else bytes(data)
+        fresh: Freshness | None = None
+        if self._auth is not None and raw[8:20] in self._by_prefix:
+            # Verify before anything: under a bundle prefix (the RTPS header's, which the
+            # decoder requires every DATA(p)/DATA(p[UD]) in it to match) nothing is decoded,
+            # counted as heard or changed until the authenticator holds. Cheap checks first
+            # (swarmd.auth.spdp); a refusal is counted, not reported per datagram.
+            verdict = self._auth.check(raw[8:20], raw, source, now)
+            if isinstance(verdict, Refusal):
+                self._dropped[DropReason(verdict.value)] += 1
+                return
+            fresh = verdict
         try:
-            header, samples = _decode(data if type(data) is bytes else bytes(data))
+            header, samples = _decode(raw)
         except DecodeError:
             self._drop(DropReason.DECODE_ERROR, source)
             return
@@ -262,7 +296,7 @@ class DiscoveryEngine:
             return
         for sample in samples:
             if isinstance(sample, _Alive):
-                self._on_alive(sample, source, now)
+                self._on_alive(sample, source, now, fresh)
             else:
                 self._on_disposed(sample, source, now)
         if self.phase == Phase.ANNOUNCE:
@@ -315,8 +349,11 @@ class DiscoveryEngine:
             return
         self._sn += 1
         prefix, timestamp = self._me.guid_prefix, self._timestamp()
-        payload = encode_spdp_dispose(prefix, sequence_number=self._sn, timestamp=timestamp)
-        self._queue(payload, self.spdp_multicast, multicast=True)
+        placeholder = None if self._auth is None else PLACEHOLDER
+        payload = encode_spdp_dispose(
+            prefix, sequence_number=self._sn, timestamp=timestamp, authenticator=placeholder
+        )
+        self._queue(self._seal(payload), self.spdp_multicast, multicast=True)
         self._tx_kind["dispose"] += 1
         for p in self._peers.values():
             target = p.target()
@@ -327,8 +364,9 @@ class DiscoveryEngine:
                 sequence_number=self._sn,
                 timestamp=timestamp,
                 destination=p.participant.guid_prefix,
+                authenticator=placeholder,
             )
-            self._queue(payload, target, multicast=False)
+            self._queue(self._seal(payload), target, multicast=False)
             self._tx_kind["dispose"] += 1
         for p in self._peers.values():
             self._disarm(p)
@@ -486,7 +524,9 @@ class DiscoveryEngine:
 
     # ------------------------------------------------------------- receiving
 
-    def _on_alive(self, alive: _Alive, source: tuple[str, int], now: float) -> None:
+    def _on_alive(
+        self, alive: _Alive, source: tuple[str, int], now: float, fresh: Freshness | None
+    ) -> None:
         sample = alive.sample
         part = sample.participant
         if (part.domain_id is not None and part.domain_id != self._domain_id) or (
@@ -510,9 +550,19 @@ class DiscoveryEngine:
         if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
             self._drop(DropReason.OWN, source)
             return
-        self._heard(peer, alive, source, now)
+        if not _locators_usable(part, source):
+            self._drop(DropReason.BAD_LOCATOR, source)
+            return
+        self._heard(peer, alive, source, now, fresh)
 
-    def _heard(self, peer: Peer, alive: _Alive, source: tuple[str, int], now: float) -> None:
+    def _heard(
+        self,
+        peer: Peer,
+        alive: _Alive,
+        source: tuple[str, int],
+        now: float,
+        fresh: Freshness | None = None,
+    ) -> None:
         # The hot path: at N = 1000 every engine runs this ~10^4 times a minute, almost
         # always for a renewal that changes nothing but the lease. Everything the sender
         # decides alike for all receivers (target, lease) was derived once in ``_decode``.
@@ -524,19 +574,52 @@ class DiscoveryEngine:
         repeat = last_sn == sn and last_rx is not None and now - last_rx >= self._reack_gap_s
         restarted = last_sn is not None and sn < last_sn
         newly = peer.state != PeerState.DISCOVERED
+        previous_epoch = peer.epoch
+        # a new life, whatever its SN (the epoch is signed: not a forger's word)
+        epoch_rose = (
+            fresh is not None and previous_epoch is not None and fresh.epoch > previous_epoch
+        )
+        restarted = restarted or epoch_rose
+        if fresh is not None:
+            peer.epoch = fresh.epoch
+        moved = not newly and (
+            part.metatraffic_unicast_locators != peer.metatraffic_locators
+            or part.default_unicast_locators != peer.default_locators
+        )
         peer.last_heard = peer.last_rx = now
         peer.last_sn = sn
         peer.lease_s = alive.lease_s
-        peer.locator = alive.target or source
+        # Authenticated, a peer's address is only what it signed: the UDP source of a relayed
+        # genuine datagram is the relay's. Unauthenticated (simulator), the source will do.
+        peer.locator = alive.target or (source if self._auth is None else peer.locator)
         peer.metatraffic_locators = part.metatraffic_unicast_locators
         peer.default_locators = part.default_unicast_locators
         peer.lists_me = lists(part.heard, self._my_index)
         peer.link_quality_permille = part.link_quality_permille
         self._leases.renew(peer.index, alive.lease_s, now)
+        if moved:
+            self._emit(
+                PeerLocatorsChanged(
+                    peer.participant.name,
+                    peer.participant.guid_prefix,
+                    part.metatraffic_unicast_locators,
+                    part.default_unicast_locators,
+                )
+            )
         if restarted and not newly:
-            # its SN went back: it restarted and forgot us; answer it like a new peer
+            # its SN went back (or its epoch rose): it restarted and forgot us; answer it
+            # like a new peer
             peer.told = False
             self._disarm(peer)
+            if epoch_rose and fresh is not None and previous_epoch is not None:
+                self._emit(
+                    PeerRestarted(
+                        peer.participant.name,
+                        peer.participant.guid_prefix,
+                        fresh.epoch,
+                        previous_epoch,
+                    )
+                )
         elif newly:
             peer.state = PeerState.DISCOVERED
             self._heard_digest.mark(peer.index)
@@ -555,6 +638,7 @@ class DiscoveryEngine:
                     "directed" if directed else "multicast",
                     part.metatraffic_unicast_locators,
                     part.default_unicast_locators,
+                    peer.epoch,
                 )
             )
         elif directed and repeat and peer.lists_me and peer.told and peer.reack.permits(now):
@@ -601,12 +685,22 @@ class DiscoveryEngine:
             lease_s=clamp_lease(part.lease_duration.total_seconds()),
             now=now,
         )
-        if new:
-            self._emit(
-                ForeignParticipantSeen(
-                    part.guid_prefix, part.vendor_id.name, part.entity_name, reason
-                )
+        if not new:
+            return
+        if not self._foreign_reports.take(now):
+            self._foreign_suppressed += 1
+            self._counters["foreign_suppressed"] += 1
+            return
+        self._emit(
+            ForeignParticipantSeen(
+                part.guid_prefix,
+                part.vendor_id.name,
+                part.entity_name,
+                reason,
+                self._foreign_suppressed,
             )
+        )
+        self._foreign_suppressed = 0
 
     # ---------------------------------------------------------------- phases
 
@@ -855,6 +949,7 @@ class DiscoveryEngine:
             bundle_digest=self._digest,
             heard=heard,
             link_quality_permille=self._advertised_permille,
+            authenticator=None if self._auth is None else PLACEHOLDER,
         )
 
     def _send(self, peer: Peer | None, now: float, kind: str) -> None:
@@ -878,12 +973,16 @@ class DiscoveryEngine:
             )
             if self._wallclock is None:
                 self._encoded[destination] = payload
-        self._queue(payload, target, multicast=peer is None)
+        # the memo keeps the unsigned template; every datagram gets its own freshness
+        self._queue(self._seal(payload), target, multicast=peer is None)
         self._tx_kind[kind] += 1
         if peer is None:
             self._last_multicast = now
             if self.phase in (Phase.ANNOUNCE, Phase.STEADY):
                 self._renewal.restart(now, self._rng)
+
+    def _seal(self, template: bytes) -> bytes:
+        return template if self._auth is None else self._auth.seal(template)
 
     def _queue(self, payload: bytes, target: tuple[str, int], *, multicast: bool) -> None:
         if len(self._outbox) >= MAX_PENDING_DATAGRAMS:
@@ -994,3 +1093,23 @@ def _unicast_target(locators: tuple[Locator, ...]) -> tuple[str, int] | None:
             continue
         return ".".join(map(str, octets)), loc.port
     return None
+
+
+def _air_address_refused(octets: bytes, source_host: str) -> bool:
+    """An IPv4 unicast locator address no peer may point us at: multicast (224/4),
+    unspecified, broadcast, or loopback (127/8) unless the datagram itself came over
+    loopback (co-hosted daemons: tests, a ground station running several participants)."""
+    first = octets[0]
+    if 224 <= first <= 239 or octets in (b"\x00\x00\x00\x00", b"\xff\xff\xff\xff"):
+        return True
+    return first == 127 and not source_host.startswith("127.")
+
+
+def _locators_usable(part: SpdpParticipant, source: tuple[str, int]) -> bool:
+    """Whether a bundle peer's unicast locators (metatraffic: SPDP replies; default: user
+    data) are all addresses we may send to (issue 10, attack 7). Other locator kinds (shared
+    memory, TCP) are never used for sending, so they pass."""
+    for loc in (*part.metatraffic_unicast_locators, *part.default_unicast_locators):
+        if loc.kind == LOCATOR_KIND_UDPv4 and _air_address_refused(loc.address[12:], source[0]):
+            return False
+    return True

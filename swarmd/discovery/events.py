@@ -33,6 +33,16 @@ class DropReason(StrEnum):
     DIGEST_MISMATCH = "digest_mismatch"  # a swarmd node flashed with another bundle
     VENDOR_MISMATCH = "vendor_mismatch"  # a bundle GUID prefix sent by a stack not swarmd
     STOPPED = "stopped"  # received after shutdown()
+    # authentication (swarmd.auth.spdp, docs/security.md): a datagram under a bundle GUID
+    # prefix moves nothing unless its authenticator holds; cheapest checks first
+    AUTH_MISSING = "auth_missing"  # no authenticator at the end of the datagram
+    AUTH_REPLAYED = "auth_replayed"  # freshness not newer than the sender's replay window
+    AUTH_BUDGET_SENDER = "auth_budget_sender"  # this sender/address spent its verifications
+    AUTH_BUDGET_GLOBAL = "auth_budget_global"  # unverified addresses spent the shared budget
+    AUTH_BAD_SIGNATURE = "auth_bad_signature"  # not signed with the prefix's bundle key
+    # an authenticated DATA(p) announcing a loopback (from the air), multicast, unspecified or
+    # broadcast unicast locator (issue 10, attack 7): refused whole, nothing moves
+    BAD_LOCATOR = "bad_locator"
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +60,36 @@ class PeerDiscovered(Event):
     via: str  # "multicast" | "directed"
     # the locators of the DATA(p) it was discovered by, as sent (DDSI-RTPS 8.5.3.1): its
     # metatraffic unicast locators (SPDP replies) and default unicast locators (user data)
+    metatraffic_unicast_locators: tuple[Locator, ...]
+    default_unicast_locators: tuple[Locator, ...]
+    # the peer's boot epoch from its authenticated DATA(p) (swarmd.auth.freshness); None when
+    # the engine runs without authentication (simulator, codec tests). The data plane binds
+    # its unicast MACs to it: a peer's new life (higher epoch) never accepts old datagrams.
+    epoch: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PeerRestarted(Event):
+    """A discovered peer's authenticated DATA(p) carries a higher boot epoch: it restarted
+    (and forgot us) within its lease, so no ``PeerLost`` came first.
+
+    Whatever the data plane keeps per peer (reader positions, acknowledged sets, replay
+    windows, MAC state bound to the old epoch) belongs to its earlier life: reset it.
+    Emitted only with authentication (the epoch is signed); the peer stays discovered."""
+
+    name: str
+    guid_prefix: GuidPrefix
+    epoch: int
+    previous_epoch: int
+
+
+@dataclass(frozen=True, slots=True)
+class PeerLocatorsChanged(Event):
+    """A discovered peer's authenticated DATA(p) announces other unicast locators (it moved,
+    or its address changed): where to send it user data and SPDP replies from now on."""
+
+    name: str
+    guid_prefix: GuidPrefix
     metatraffic_unicast_locators: tuple[Locator, ...]
     default_unicast_locators: tuple[Locator, ...]
 
@@ -76,6 +116,10 @@ class ForeignParticipantSeen(Event):
     vendor: str
     name: str | None
     reason: DropReason = DropReason.NOT_IN_BUNDLE
+    # new foreign participants not reported one by one since the previous report: a flood of
+    # invented prefixes yields about one event a second (``MAX_FOREIGN_REPORTS_PER_S``),
+    # each carrying how many it stands for, never one per datagram
+    suppressed: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -65,6 +65,7 @@ class Peer:
     last_rx: float | None = None
     link_quality_permille: int | None = None
     times_discovered: int = 0
+    epoch: int | None = None  # its boot epoch, from its latest authenticated DATA(p)
     # matched endpoints, computed when first discovered: a bundle row per peer would cost
     # every engine O(N) ``Bundle.matches`` calls at start-up, mostly for nobody (sim at N=1000)
     matches: tuple[Match, ...] | None = None

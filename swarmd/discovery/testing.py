@@ -14,6 +14,8 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from swarmd.auth.keys import KeyRing, NodeSecrets
+from swarmd.auth.spdp import PLACEHOLDER, SpdpAuth
 from swarmd.bundle.keys import dev_node_keys
 from swarmd.bundle.model import (
     Bundle,
@@ -166,10 +168,12 @@ def build_swarm(
     q: float = 1.0,
     bundle: Bundle | None = None,
     start_times: list[float] | None = None,
+    authenticated: bool = False,
 ) -> Swarm:
     """``n`` engines (``uav0``..) on one in-memory network, each given a link sample of ``q``
     when it starts (at ``start_times[i]``, default 0). One seed drives the network and, via
-    derived seeds, every engine's ``random.Random``."""
+    derived seeds, every engine's ``random.Random``. ``authenticated``: every engine signs
+    and verifies with its dev keys (``auth_for``), as daemons do."""
     bundle = bundle or make_bundle(n)
     cfg = config or EngineConfig()
     # seeded on purpose: a run is a pure function of its seed (not for cryptography)
@@ -192,6 +196,7 @@ def build_swarm(
                 now=now,
                 local_ipv4=node_ipv4(p.index),
                 link=LinkSample(q=q, source="static"),
+                auth=auth_for(bundle, i, now=now) if authenticated else None,
             )
             swarm.engines.append(engine)
             net.add(
@@ -212,6 +217,14 @@ def build_swarm(
     return swarm
 
 
+def auth_for(bundle: Bundle, index: int, *, epoch: int = 1, now: float = 0.0) -> SpdpAuth:
+    """The SPDP authentication of bundle participant ``index`` with its dev keys (the bundle
+    must carry dev keys, as ``make_bundle`` and dev bundles do)."""
+    name = bundle.participants[index].name
+    ring = KeyRing.from_bundle(bundle, name, NodeSecrets.dev(bundle.swarm, name))
+    return SpdpAuth(ring, epoch, now)
+
+
 def engine_for(
     bundle: Bundle,
     index: int = 0,
@@ -220,6 +233,7 @@ def engine_for(
     q: float = 0.7,
     config: EngineConfig | None = None,
     now: float = 0.0,
+    auth: SpdpAuth | None = None,
 ) -> DiscoveryEngine:
     """One engine for bundle participant ``index``, hand-driven on virtual time from
     ``now``, with a first link sample of ``q`` (no BOOT wait) and a seeded rng."""
@@ -232,6 +246,7 @@ def engine_for(
         now=now,
         local_ipv4=node_ipv4(p.index),
         link=LinkSample(q=q),
+        auth=auth,
     )
 
 
@@ -245,12 +260,15 @@ def peer_datagram(
     domain_id: int | None = None,
     bundle_digest: bytes | None = None,
     lease_s: float | None = None,
+    auth: SpdpAuth | None = None,
+    host: str | None = None,
 ) -> bytes:
     """A DATA(p) as bundle participant ``index``'s engine would send it, for hand-driven
-    tests: ``heard`` lists indices, ``destination`` makes it directed (INFO_DST)."""
+    tests: ``heard`` lists indices, ``destination`` makes it directed (INFO_DST), ``auth``
+    seals it (each call takes the next freshness), ``host`` replaces its locators' address."""
     p = bundle.participants[index]
     meta = bundle.metatraffic_port(p)
-    host = p.ipv4 or node_ipv4(index)
+    host = host or p.ipv4 or node_ipv4(index)
     group = (SPDP_MULTICAST_GROUP, spdp_multicast_port(bundle.domain_id))
     participant = SpdpParticipant(
         p.guid_prefix,
@@ -265,7 +283,9 @@ def peer_datagram(
         bundle_digest=bundle.content_sha256[:16] if bundle_digest is None else bundle_digest,
         heard=encode_heard(heard, bundle.size),
         link_quality_permille=1000,
+        authenticator=None if auth is None else PLACEHOLDER,
     )
-    return encode_spdp(
+    data = encode_spdp(
         participant, sequence_number=sequence_number, timestamp=None, destination=destination
     )
+    return data if auth is None else auth.seal(data)

@@ -1,0 +1,257 @@
+"""Authenticated SPDP in the discovery engine, on virtual time (issue 10, docs/security.md).
+
+Every refusal is checked the same way: the counter for its reason moved, and nothing else
+did (peer table, leases, locators, foreign table, timers, events other than a drop)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarmd.auth.budget import GLOBAL_NEW_ADDRESS_BURST
+from swarmd.auth.spdp import PLACEHOLDER, open_tail
+from swarmd.discovery import (
+    DiscoveryEngine,
+    PacketDropped,
+    PeerDiscovered,
+    PeerLocatorsChanged,
+    PeerLost,
+    PeerRestarted,
+)
+from swarmd.discovery.events import Event
+from swarmd.discovery.testing import (
+    auth_for,
+    build_swarm,
+    engine_for,
+    make_bundle,
+    node_ipv4,
+    peer_datagram,
+)
+from swarmd.rtps.spdp import encode_spdp_dispose
+
+BUNDLE = make_bundle(3)
+P = [p.guid_prefix for p in BUNDLE.participants]
+A1 = (node_ipv4(1), 7412)  # member uav1's metatraffic address
+ATTACKER = ("10.0.0.66", 7412)
+
+
+def receiver() -> DiscoveryEngine:
+    return engine_for(BUNDLE, 0, auth=auth_for(BUNDLE, 0))
+
+
+def drain(engine: DiscoveryEngine) -> list[Event]:
+    out = []
+    while (e := engine.next_event()) is not None:
+        out.append(e)
+    return out
+
+
+def state(engine: DiscoveryEngine, now: float) -> tuple[Any, ...]:
+    """Everything a datagram could move."""
+    return (engine.peers(), engine.foreign(now), engine.get_timer(), engine.phase)
+
+
+def dropped(engine: DiscoveryEngine) -> dict[str, int]:
+    return {k: v for k, v in engine.counters()["dropped"].items() if v}
+
+
+def refused(
+    engine: DiscoveryEngine, data: bytes, source: tuple[str, int], now: float
+) -> dict[str, int]:
+    """Feed ``data``; assert it moved nothing; return the drop counters that moved."""
+    drain(engine)
+    before, counts = state(engine, now), dropped(engine)
+    engine.receive_datagram(data, source, now)
+    assert state(engine, now) == before
+    assert all(isinstance(e, PacketDropped) for e in drain(engine))
+    assert engine.datagrams_to_send() == []
+    after = dropped(engine)
+    return {k: v - counts.get(k, 0) for k, v in after.items() if v != counts.get(k, 0)}
+
+
+def discovered(engine: DiscoveryEngine, index: int) -> bool:
+    view = engine.peer(P[index])
+    return view is not None and view.discovered
+
+
+def test_a_signed_data_p_discovers_the_peer_with_its_epoch() -> None:
+    e = receiver()
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1, epoch=5)), A1, 0.1)
+    (event,) = [x for x in drain(e) if isinstance(x, PeerDiscovered)]
+    assert event.name == "uav1" and event.epoch == 5
+    assert [str(x) for x in event.default_unicast_locators] == [f"udp/{node_ipv4(1)}:7413"]
+
+
+def test_unsigned_data_p_under_a_bundle_prefix_is_refused() -> None:
+    e = receiver()
+    assert refused(e, peer_datagram(BUNDLE, 1), A1, 0.1) == {"auth_missing": 1}
+
+
+def test_replayed_data_p_is_refused_and_refreshes_nothing() -> None:
+    e = receiver()
+    d = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1))
+    e.receive_datagram(d, A1, 0.1)
+    assert discovered(e, 1)
+    assert refused(e, d, A1, 5.0) == {"auth_replayed": 1}  # the lease does not move
+
+
+def test_member_prefix_signed_with_another_members_key_is_refused() -> None:
+    e = receiver()
+    # uav2 (a captured member) signs a DATA(p) carrying uav1's prefix, and one as commander
+    as_uav1 = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 2))
+    assert refused(e, as_uav1, A1, 0.1) == {"auth_bad_signature": 1}
+    other = engine_for(BUNDLE, 1, auth=auth_for(BUNDLE, 1))
+    as_commander = peer_datagram(BUNDLE, 0, auth=auth_for(BUNDLE, 2))
+    assert refused(other, as_commander, A1, 0.1) == {"auth_bad_signature": 1}
+
+
+def test_unknown_prefix_is_foreign_and_never_matched() -> None:
+    e = receiver()
+    stranger = make_bundle(3, swarm="other")
+    e.receive_datagram(peer_datagram(stranger, 1, auth=auth_for(stranger, 1)), ATTACKER, 0.1)
+    assert not any(isinstance(x, PeerDiscovered) for x in drain(e))
+    assert [f.reason for f in e.foreign(0.1)] == ["not_in_bundle"]
+    assert all(not v.discovered for v in e.peers())
+
+
+def test_dispose_moves_nothing_unless_signed_by_the_peer() -> None:
+    e = receiver()
+    a1 = auth_for(BUNDLE, 1, epoch=5)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    drain(e)
+    plain = encode_spdp_dispose(P[1], sequence_number=9, timestamp=None)
+    assert refused(e, plain, ATTACKER, 0.2) == {"auth_missing": 1}
+    template = encode_spdp_dispose(
+        P[1], sequence_number=9, timestamp=None, authenticator=PLACEHOLDER
+    )
+    forged = auth_for(BUNDLE, 2, epoch=99).seal(template)
+    assert refused(e, forged, ATTACKER, 0.3) == {"auth_bad_signature": 1}
+    assert discovered(e, 1)
+    e.receive_datagram(a1.seal(template), A1, 0.4)
+    assert [x.reason for x in drain(e) if isinstance(x, PeerLost)] == ["disposed"]
+
+
+def test_loopback_multicast_and_unspecified_locators_are_refused() -> None:
+    e = receiver()
+    a1 = auth_for(BUNDLE, 1)
+    for host in ("127.0.0.1", "239.255.0.1", "0.0.0.0", "255.255.255.255"):  # noqa: S104
+        d = peer_datagram(BUNDLE, 1, auth=a1, host=host)
+        assert refused(e, d, A1, 0.1) == {"bad_locator": 1}, host
+    # co-hosted daemons talk over loopback: a loopback locator from a loopback source is fine
+    d = peer_datagram(BUNDLE, 1, auth=a1, host="127.0.0.1")
+    e.receive_datagram(d, ("127.0.0.1", 7412), 0.2)
+    assert discovered(e, 1)
+
+
+def test_a_flood_spoofing_a_member_from_other_addresses_costs_a_bounded_budget() -> None:
+    e = receiver()
+    a1 = auth_for(BUNDLE, 1, epoch=5)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    forger = auth_for(BUNDLE, 2, epoch=1000)
+    counts: dict[str, int] = {}
+    for i in range(400):
+        forged = peer_datagram(BUNDLE, 1, auth=forger, host="10.0.0.66")
+        for k, v in refused(e, forged, (f"10.1.{i // 200}.{i % 200}", 7412), 0.2).items():
+            counts[k] = counts.get(k, 0) + v
+    # at most the global budget's burst reached Ed25519; the rest were refused for free
+    assert counts["auth_bad_signature"] <= GLOBAL_NEW_ADDRESS_BURST
+    assert counts["auth_budget_global"] >= 400 - GLOBAL_NEW_ADDRESS_BURST
+    assert e.counters()["dropped"]["auth_budget_global"] == counts["auth_budget_global"]
+    # the member at its known address is still heard, in the same instant
+    before = e.peer(P[1])
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.2)
+    after = e.peer(P[1])
+    assert before is not None and after is not None and after.last_heard == 0.2
+
+
+def test_per_address_budget_runs_out_for_one_spoofed_address() -> None:
+    e = receiver()
+    forger = auth_for(BUNDLE, 2, epoch=1000)
+    counts: dict[str, int] = {}
+    for _ in range(50):
+        for k, v in refused(e, peer_datagram(BUNDLE, 1, auth=forger), ATTACKER, 0.2).items():
+            counts[k] = counts.get(k, 0) + v
+    assert counts.get("auth_budget_sender", 0) >= 40
+
+
+def test_restart_is_reported_and_the_earlier_life_is_stale() -> None:
+    e = receiver()
+    life1, life2 = auth_for(BUNDLE, 1, epoch=5), auth_for(BUNDLE, 1, epoch=6)
+    captured = peer_datagram(BUNDLE, 1, auth=life1, sequence_number=2)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=life1), A1, 0.1)
+    drain(e)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=life2), A1, 1.0)
+    (restart,) = [x for x in drain(e) if isinstance(x, PeerRestarted)]
+    assert (restart.name, restart.epoch, restart.previous_epoch) == ("uav1", 6, 5)
+    view = e.peer(P[1])
+    assert view is not None and view.discovered
+    # a datagram of its earlier life, never delivered before, is stale now
+    assert refused(e, captured, A1, 1.1) == {"auth_replayed": 1}
+
+
+def test_locators_follow_only_authenticated_changes() -> None:
+    e = receiver()
+    a1 = auth_for(BUNDLE, 1)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    drain(e)
+    # the attacker's redirect (issue 10, attack 4): refused, the locator stays
+    forged = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 2, epoch=50), host="10.0.0.66")
+    assert refused(e, forged, ATTACKER, 0.2) == {"auth_bad_signature": 1}
+    # the member itself moves: reported, and used from now on
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1, host="10.0.7.7"), ("10.0.7.7", 7412), 0.3)
+    (moved,) = [x for x in drain(e) if isinstance(x, PeerLocatorsChanged)]
+    assert [str(x) for x in moved.default_unicast_locators] == ["udp/10.0.7.7:7413"]
+    view = e.peer(P[1])
+    assert view is not None and view.locator == ("10.0.7.7", 7412)
+
+
+def test_every_datagram_the_engine_sends_is_sealed_with_a_fresh_counter() -> None:
+    e = receiver()
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1)), A1, 0.1)
+    sent: list[bytes] = []
+    now = 0.1
+    while len(sent) < 3 and (t := e.get_timer()) is not None and t < 100:
+        now = t
+        e.handle_timer(now)
+        sent += [d for d, _ in e.datagrams_to_send()]
+    e.shutdown(now)
+    sent += [d for d, _ in e.datagrams_to_send()]
+    assert len(sent) >= 3
+    ring = auth_for(BUNDLE, 1).keyring
+    seen = []
+    for d in sent:
+        opened = open_tail(d)
+        assert opened is not None
+        freshness, signature, signed = opened
+        assert ring.verify(P[0], signed, signature)
+        seen.append(freshness)
+    assert seen == sorted(set(seen)) and {f.epoch for f in seen} == {1}
+
+
+def test_an_authenticated_swarm_converges_with_the_same_frames() -> None:
+    """+0 packets: authentication changes bytes, never the schedule (issue 10, Numbers)."""
+    runs = {}
+    for authenticated in (False, True):
+        swarm = build_swarm(5, seed=7, authenticated=authenticated)
+        swarm.run_until(60.0)
+        assert swarm.all_discovered()
+        tx = swarm.net.transmissions
+        runs[authenticated] = (len(tx), sum(t.size for t in tx))
+    assert runs[True][0] == runs[False][0]
+    assert runs[True][1] == runs[False][1] + 76 * runs[True][0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(min_value=0, max_value=100_000), st.integers(min_value=0, max_value=7))
+def test_flipping_any_bit_of_a_signed_data_p_gets_it_refused(where: int, bit: int) -> None:
+    d = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1, epoch=3), heard=(0,))
+    flipped = bytearray(d)
+    flipped[where % len(d)] ^= 1 << bit
+    e = receiver()
+    e.receive_datagram(bytes(flipped), A1, 0.1)
+    assert not discovered(e, 1)
+    assert not any(isinstance(x, PeerDiscovered) for x in drain(e))
+    e.receive_datagram(d, A1, 0.2)  # the genuine one still gets through: nothing was spent
+    assert discovered(e, 1)
