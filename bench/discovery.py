@@ -28,7 +28,7 @@ from typing import Any, cast
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from swarmd.discovery.config import EngineConfig, Mode  # noqa: E402
+from swarmd.discovery.config import MODES, EngineConfig, Mode  # noqa: E402
 from swarmd.discovery.memnet import Channel  # noqa: E402
 from swarmd.discovery.testing import build_swarm  # noqa: E402
 
@@ -77,9 +77,7 @@ def run(n: int, mode: str, channel_name: str, seconds: float, seed: int) -> dict
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[10, 50, 200])
-    parser.add_argument(
-        "--modes", nargs="+", default=["adaptive", "paper"], choices=["adaptive", "paper"]
-    )
+    parser.add_argument("--modes", nargs="+", default=["adaptive", "paper"], choices=MODES)
     parser.add_argument("--channels", nargs="+", default=list(CHANNELS), choices=list(CHANNELS))
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=1)

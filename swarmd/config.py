@@ -17,12 +17,11 @@ from typing import Final, NoReturn
 
 import yaml
 
+from swarmd.bundle.model import Bundle, NotAParticipant, Participant
+from swarmd.discovery.config import MODES
+from swarmd.link import SourceName
 from swarmd.yamldoc import FieldError, composed, read_text
 
-EX_CONFIG: Final = 78  # sysexits.h: configuration error
-
-LINK_SOURCES: Final = ("nl80211", "wext", "file", "static")
-ENGINE_MODES: Final = ("paper", "adaptive")
 LOG_LEVELS: Final = ("debug", "info", "warning", "error")
 LOG_FORMATS: Final = ("auto", "json", "console")
 DEFAULT_SOCKET: Final = "/run/swarmd/swarmd.sock"
@@ -56,7 +55,7 @@ class BundleConfig:
 
 @dataclass(frozen=True, slots=True)
 class LinkConfig:
-    sources: tuple[str, ...] = ("nl80211", "wext", "static")
+    sources: tuple[str, ...] = (SourceName.NL80211, SourceName.WEXT, SourceName.STATIC)
     poll_interval_s: float = 1.0
     file: str = "/run/swarmd/link.json"
     file_max_age_s: float | None = None
@@ -119,6 +118,13 @@ class DaemonConfig:
     def error(self, path: str, problem: str, fix: str) -> ConfigError:
         """A ``ConfigError`` pointing at ``path``'s line (for checks made after loading)."""
         return ConfigError(self.file, self.lines.get(path), path, problem, fix)
+
+    def member_of(self, bundle: Bundle) -> Participant:
+        """This node's participant in ``bundle``; a ``ConfigError`` at ``node`` if none."""
+        try:
+            return bundle.member(self.node)
+        except NotAParticipant as exc:
+            raise self.error("node", exc.problem, exc.fix) from None
 
 
 _FIELDS: Final[dict[str, tuple[str, ...]]] = {
@@ -380,7 +386,9 @@ class _Checker:
                     self.fail(
                         n, "link.sources", "expected a non-empty list", "e.g. [nl80211, static]"
                     )
-                sources = tuple(self.choice(item, "link.sources", LINK_SOURCES) for item in n.value)
+                sources = tuple(
+                    self.choice(item, "link.sources", tuple(SourceName)) for item in n.value
+                )
                 if len(set(sources)) != len(sources):
                     self.fail(n, "link.sources", "a source is listed twice", "list each once")
             num = self.number
@@ -413,7 +421,7 @@ class _Checker:
 
         def discovery(f: Nodes) -> None:
             if "mode" in f:
-                values["engine_mode"] = self.choice(f["mode"], "discovery.mode", ENGINE_MODES)
+                values["engine_mode"] = self.choice(f["mode"], "discovery.mode", MODES)
             if "overrides" in f:
                 values["engine_overrides"] = self.overrides(f["overrides"])
 

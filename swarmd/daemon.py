@@ -58,7 +58,8 @@ from swarmd.discovery.events import (
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
-from swarmd.exitcodes import EX_CANTCREAT, StartupError
+from swarmd.exitcodes import EX_CANTCREAT, EX_OSERR, EX_UNAVAILABLE, StartupError
+from swarmd.link import SourceName
 from swarmd.link.file import FileSource
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.nl80211 import Nl80211Source
@@ -67,7 +68,7 @@ from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
-from swarmd.swarm.app import AppStartError, SwarmApp
+from swarmd.swarm.app import SwarmApp
 
 SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
 IFNAMSIZ: Final = 16
@@ -164,20 +165,20 @@ def engine_config(config: DaemonConfig) -> EngineConfig:
 def link_sources(config: DaemonConfig) -> list[LinkSource]:
     """The configured link sources, in order."""
     link = config.link
-    make: dict[str, Callable[[], LinkSource]] = {
-        "nl80211": lambda: Nl80211Source(config.interface, snr_floor_db=link.snr_floor_db),
-        "wext": lambda: WextSource(
+    make: dict[SourceName, Callable[[], LinkSource]] = {
+        SourceName.NL80211: lambda: Nl80211Source(config.interface, snr_floor_db=link.snr_floor_db),
+        SourceName.WEXT: lambda: WextSource(
             config.interface,
             path=link.wext_path,
             max_quality=link.wext_max_quality,
             snr_floor_db=link.snr_floor_db,
         ),
-        "file": lambda: FileSource(
+        SourceName.FILE: lambda: FileSource(
             link.file, max_age_s=link.file_max_age_s, snr_floor_db=link.snr_floor_db
         ),
-        "static": lambda: StaticSource(link.static_q),
+        SourceName.STATIC: lambda: StaticSource(link.static_q),
     }
-    return [make[name]() for name in link.sources]
+    return [make[SourceName(name)]() for name in link.sources]
 
 
 def open_spdp_socket(group: str, port: int, ipv4: str) -> socket.socket:
@@ -294,15 +295,9 @@ class Daemon:
         loop = asyncio.get_running_loop()
         self._loop = loop
         self._started = loop.time()
+        self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
         try:
             self.keyring = KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
-        except KeyError:
-            names = ", ".join(p.name for p in self.bundle.participants[:8])
-            raise self.config.error(
-                "node",
-                f"node {self.config.node!r} is not a participant of bundle {self.bundle.swarm!r}",
-                f"use one of {names}",
-            ) from None
         except NodeKeyMismatch as exc:
             raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
         try:
@@ -353,7 +348,7 @@ class Daemon:
             raise StartupError(
                 f"cannot join {group}:{mport} on {self.config.interface} "
                 f"({self.local_ipv4}): {exc.strerror}",
-                71,
+                EX_OSERR,
             ) from None
         try:
             unicast = open_unicast_socket(uport, self.local_ipv4)
@@ -362,7 +357,7 @@ class Daemon:
             raise StartupError(
                 f"cannot bind metatraffic port {uport}: {exc.strerror} "
                 "(is another participant with the same bundle index running?)",
-                71,
+                EX_OSERR,
             ) from None
         for name, sock in (("multicast", spdp), ("unicast", unicast)):
             transport, _ = await loop.create_datagram_endpoint(
@@ -372,10 +367,10 @@ class Daemon:
             self._transports[name] = transport
         try:
             await app.start()
-        except AppStartError as exc:
+        except StartupError:
             self.app = None
             await self._close_transports()
-            raise StartupError(str(exc), exc.exit_code) from None
+            raise
         self._control = ControlServer(
             self.config.control_socket,
             {
@@ -395,7 +390,9 @@ class Daemon:
             self._control = None
             await app.stop()
             await self._close_transports()
-            raise StartupError(f"control socket {self.config.control_socket}: {exc}", 69) from None
+            raise StartupError(
+                f"control socket {self.config.control_socket}: {exc}", EX_UNAVAILABLE
+            ) from None
         self._link_task = loop.create_task(self._poll_link(), name="swarmd-link")
         self._after_input()
         self._status_line = self._status_text()

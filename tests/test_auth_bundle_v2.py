@@ -16,7 +16,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from swarmd.auth.keys import KeyRing, NodeSecrets
 from swarmd.bundle.encoding import HEADER_SIZE, split
-from swarmd.bundle.errors import EX_CONFIG, BundleError
+from swarmd.bundle.errors import BundleError
 from swarmd.bundle.keys import (
     dev_signing_key,
     load_node_keys,
@@ -25,6 +25,7 @@ from swarmd.bundle.keys import (
 )
 from swarmd.bundle.loader import load_bundle, read_bundle
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.exitcodes import EX_CONFIG
 from tests.daemon_support import clean_env, run_domain, write_bundle, write_config
 
 REPO = Path(__file__).resolve().parent.parent

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from swarmd.bundle.errors import EX_CANTCREAT, EX_CONFIG, EX_DATAERR, EX_USAGE
 from swarmd.bundle.loader import load_bundle
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_CONFIG, EX_DATAERR
 
 REPO = Path(__file__).resolve().parent.parent
 SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
@@ -104,7 +104,7 @@ def test_build_usage_and_key_errors(
 ) -> None:
     out = tmp_path / "x.swb"
     code, _, err = run(capsys, "build", str(SWARM3), "-o", str(out))
-    assert code == EX_USAGE and "--sign-key" in err
+    assert code == EX_BAD_ARGS and "--sign-key" in err
     (keys / "nodes" / "drone-2.pub").unlink()
     code, _, err = run(
         capsys, "build", str(SWARM3), "-o", str(out), "--sign-key", str(keys / "swarm-signing.key")

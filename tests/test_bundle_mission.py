@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from swarmd.bundle.errors import EX_DATAERR, MissionError
+from swarmd.bundle.errors import MissionError
 from swarmd.bundle.mission import load_mission, parse_mission
 from swarmd.bundle.model import Durability, Reliability, Role
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.exitcodes import EX_DATAERR
 from swarmd.rtps.ports import max_participant_index
 
 REPO = Path(__file__).resolve().parent.parent

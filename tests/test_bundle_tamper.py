@@ -25,10 +25,11 @@ from swarmd.bundle.encoding import (
     seal,
     split,
 )
-from swarmd.bundle.errors import EX_CONFIG, BundleError
+from swarmd.bundle.errors import BundleError
 from swarmd.bundle.keys import dev_node_keys, public_pem, raw_public
 from swarmd.bundle.loader import load_bundle, load_bundle_or_exit, read_bundle
 from swarmd.bundle.mission import load_mission
+from swarmd.exitcodes import EX_CONFIG
 
 REPO = Path(__file__).resolve().parent.parent
 SIGNING = Ed25519PrivateKey.from_private_bytes(b"\x07" * 32)

@@ -413,7 +413,9 @@ def test_readiness_20th_message_from_every_member_on_a_clean_channel() -> None:
         t20, seq20, _ = rx[19]
         assert seq20 == 20 and 19.5 <= t20 < 19.7  # sent at 19.5 s + stagger + 1 ms
     status = swarm.planes["lead"].status(swarm.now)
-    assert status["readiness"]["m03"]["count"] == 25 and status["readiness"]["m03"]["ready"]
+    m03 = swarm.planes["lead"].readiness_received("m03")
+    assert m03 is not None and m03.last is not None
+    assert m03.count == 25 and m03.last.ready
     assert json.loads(json.dumps(status)) == status  # what swarmctl status prints
 
 

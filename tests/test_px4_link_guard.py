@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
 from swarmd.cli.swarmctl import main as swarmctl
-from swarmd.config import EX_CONFIG, ConfigError, parse_config
+from swarmd.config import ConfigError, parse_config
+from swarmd.exitcodes import EX_CONFIG
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
 from swarmd.px4.linkguard import AutopilotPin
 from swarmd.px4.mavlink_codec import MavlinkCodec

@@ -10,15 +10,7 @@ stops on it with that one line and no traceback.
 
 from __future__ import annotations
 
-from typing import Final
-
 from swarmd.yamldoc import FieldError
-
-EX_OK: Final = 0
-EX_USAGE: Final = 2  # argparse's own code for a bad command line
-EX_DATAERR: Final = 65  # sysexits.h: the input data was incorrect (a bad mission)
-EX_CANTCREAT: Final = 73  # sysexits.h: an output file cannot be created (flash target)
-EX_CONFIG: Final = 78  # sysexits.h: configuration error (a bundle that fails verification)
 
 
 def _one_line(text: str) -> str:

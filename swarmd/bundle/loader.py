@@ -30,7 +30,7 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from swarmd.bundle.encoding import LEGACY_FORMAT_VERSIONS, Envelope, EnvelopeError, split
-from swarmd.bundle.errors import EX_CONFIG, BundleError, KeyFileError
+from swarmd.bundle.errors import BundleError, KeyFileError
 from swarmd.bundle.keys import PUBLIC_KEY_BYTES, fingerprint, load_public_key
 from swarmd.bundle.model import (
     Bundle,
@@ -47,6 +47,7 @@ from swarmd.bundle.model import (
     derive_guid_prefix,
     endpoint_entity_id,
 )
+from swarmd.exitcodes import EX_CONFIG
 from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import GuidPrefix
 

@@ -138,6 +138,16 @@ class Bundle:
                 return p
         raise KeyError(f"no participant named {name!r} in bundle of swarm {self.swarm!r}")
 
+    def member(self, node: str) -> Participant:
+        """This node's own participant: the one check that a node belongs to the bundle.
+
+        Raises ``NotAParticipant`` (a ``ValueError``) with the one message every caller
+        shows: the daemon's config check, the discovery engine, the swarm layer."""
+        for p in self.participants:
+            if p.name == node:
+                return p
+        raise NotAParticipant(self, node)
+
     def by_prefix(self, prefix: GuidPrefix) -> Participant | None:
         index = _prefix_index(self, prefix)
         return self.participants_by_index().get(index) if index is not None else None
@@ -185,6 +195,17 @@ def derive_guid_prefix(swarm: str, domain_id: int, index: int) -> GuidPrefix:
     """
     tag = hashlib.sha256(f"{swarm}/{domain_id}".encode()).digest()[:SWARM_TAG_BYTES]
     return GuidPrefix(VENDORID_SWARMD.value + tag + index.to_bytes(4, "big"))
+
+
+class NotAParticipant(ValueError):
+    """A node name the bundle does not list; ``problem`` and ``fix`` for a config error."""
+
+    def __init__(self, bundle: Bundle, node: str) -> None:
+        shown = ", ".join(p.name for p in bundle.participants[:8])
+        more = ", ..." if len(bundle.participants) > 8 else ""
+        self.problem = f"{node!r} is not a participant of swarm {bundle.swarm!r}"
+        self.fix = f"use one of {shown}{more}"
+        super().__init__(f"node {self.problem}; fix: {self.fix}")
 
 
 def _prefix_index(bundle: Bundle, prefix: GuidPrefix) -> int | None:

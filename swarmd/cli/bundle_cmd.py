@@ -16,17 +16,7 @@ from typing import Any
 
 from swarmd.bundle.build import build_from_files
 from swarmd.bundle.encoding import EnvelopeError, split
-from swarmd.bundle.errors import (
-    EX_CANTCREAT,
-    EX_CONFIG,
-    EX_DATAERR,
-    EX_OK,
-    EX_USAGE,
-    BundleError,
-    FlashError,
-    KeyFileError,
-    MissionError,
-)
+from swarmd.bundle.errors import BundleError, FlashError, KeyFileError, MissionError
 from swarmd.bundle.flash import (
     DEFAULT_TARGET_DIR,
     FlashPayload,
@@ -50,9 +40,9 @@ from swarmd.bundle.loader import read_bundle
 from swarmd.bundle.mission import load_mission
 from swarmd.bundle.model import Bundle, Participant
 from swarmd.bundle.summary import human, summary
+from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_CONFIG, EX_DATAERR, EX_FAILED, EX_OK
 
 PROG = "swarmctl"
-EX_MISMATCH = 1
 DEFAULT_ALL_TARGET = f"root@{{ipv4}}:{DEFAULT_TARGET_DIR}"
 
 
@@ -74,7 +64,7 @@ def register(sub: Any) -> None:
 
     def usage(_args: argparse.Namespace) -> int:
         parser.print_help(sys.stderr)
-        return EX_USAGE
+        return EX_BAD_ARGS
 
     parser.set_defaults(func=usage)
     bsub = parser.add_subparsers(dest="bundle_command", metavar="ACTION")
@@ -266,10 +256,10 @@ def cmd_keygen(args: argparse.Namespace) -> int:
 def cmd_build(args: argparse.Namespace) -> int:
     if args.sign_key is None and not args.unsigned_dev:
         _err("build needs --sign-key KEY (from 'bundle keygen'), or --unsigned-dev for a lab bench")
-        return EX_USAGE
+        return EX_BAD_ARGS
     if args.sign_key is not None and args.unsigned_dev:
         _err("--sign-key and --unsigned-dev exclude each other")
-        return EX_USAGE
+        return EX_BAD_ARGS
     mission = load_mission(args.mission)
     built = build_from_files(mission, args.sign_key, args.keys, dev=args.unsigned_dev)
     out = Path(args.output)
@@ -425,7 +415,7 @@ def cmd_flash(args: argparse.Namespace) -> int:
     ]
     if not payloads:
         _err("no participant has an ipv4 address; fix: flash each with --node NAME --target ...")
-        return EX_USAGE
+        return EX_BAD_ARGS
     ssh = Ssh(tuple(args.ssh_option))
     results: list[dict[str, Any]] = []
     failed = 0
@@ -496,7 +486,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             status = "OK  " if r["ok"] else "FAIL"
             print(f"{status} {r['node']:<16} {r['target']:<40} {r.get('error', '')}".rstrip())
         print(f"{sum(r['ok'] for r in rows)}/{len(rows)} drones carry the same bundle")
-    return EX_OK if ok else EX_MISMATCH
+    return EX_OK if ok else EX_FAILED
 
 
 @_guard

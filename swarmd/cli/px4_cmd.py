@@ -15,16 +15,14 @@ import hashlib
 import sys
 import time
 from pathlib import Path
-from typing import Any, Final
+from typing import Any
 
 from swarmd.bundle.errors import BundleError
 from swarmd.bundle.keys import PRIVATE_MODE, node_key_path, write_file_atomic
 from swarmd.config import ConfigError, load_config
+from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_DATAERR
 from swarmd.px4.provision import SigningKeyError, ed25519_seed, node_secret, signing_key_for
 from swarmd.px4.signing import derive_key, px4_key_file, timestamp_from_unix
-
-EX_DATAERR: Final = 65
-EX_CONFIG: Final = 78
 
 
 def register(sub: Any) -> None:
@@ -98,6 +96,6 @@ def cmd_key(args: argparse.Namespace) -> int:
         data = px4_key_file(key, timestamp_from_unix(time.time()))
         write_file_atomic(Path(args.out), data, PRIVATE_MODE)
     except OSError as exc:
-        return _fail(f"{args.out}: {exc.strerror}", 73)  # EX_CANTCREAT
+        return _fail(f"{args.out}: {exc.strerror}", EX_CANTCREAT)
     print(f"wrote {args.out} (PX4 /mavlink/mavlink-signing-key.bin, key {label})")
     return 0

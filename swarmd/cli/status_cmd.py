@@ -20,9 +20,8 @@ from typing import Any, Final, TextIO
 
 from swarmd.config import DEFAULT_SOCKET
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+from swarmd.exitcodes import EX_OK, EX_UNREACHABLE
 
-EXIT_OK: Final = 0
-EXIT_UNREACHABLE: Final = 2
 SOCKET_ENV: Final = "SWARMD_SOCKET"
 CLEAR_SCREEN: Final = "\x1b[H\x1b[2J"
 
@@ -62,7 +61,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 def _fail(message: str) -> int:
     print(f"swarmctl: {message}", file=sys.stderr)
-    return EXIT_UNREACHABLE
+    return EX_UNREACHABLE
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -72,7 +71,7 @@ def _status(args: argparse.Namespace) -> int:
     except (DaemonUnreachable, RequestError) as exc:
         return _fail(str(exc))
     _print_status(status, args.json, sys.stdout)
-    return EXIT_OK
+    return EX_OK
 
 
 def _peers(args: argparse.Namespace) -> int:
@@ -86,7 +85,7 @@ def _peers(args: argparse.Namespace) -> int:
         print(json.dumps(peers, indent=2))
     else:
         print("\n".join(render_peers(peers)))
-    return EXIT_OK
+    return EX_OK
 
 
 def _watch(args: argparse.Namespace) -> int:
@@ -102,12 +101,12 @@ def _watch(args: argparse.Namespace) -> int:
                 sys.stdout.flush()
                 frames += 1
                 if args.count and frames >= args.count:
-                    return EXIT_OK
+                    return EX_OK
                 time.sleep(max(0.1, args.interval))
     except (DaemonUnreachable, RequestError) as exc:
         return _fail(str(exc))
     except KeyboardInterrupt:
-        return EXIT_OK
+        return EX_OK
 
 
 def _print_status(status: Any, as_json: bool, out: TextIO, *, compact_json: bool = False) -> None:

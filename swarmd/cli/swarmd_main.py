@@ -71,14 +71,10 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         )
     except BundleError as exc:
         return _fail(f"bundle rejected: {exc}", EX_CONFIG)
-    if config.node not in {p.name for p in bundle.participants}:
-        names = ", ".join(p.name for p in bundle.participants[:8])
-        bad_node = config.error(
-            "node",
-            f"{config.node!r} is not a participant of swarm {bundle.swarm!r}",
-            f"use one of the bundle's names ({names}{', ...' if bundle.size > 8 else ''})",
-        )
-        return _fail(f"config rejected: {bad_node}", EX_CONFIG)
+    try:
+        config.member_of(bundle)
+    except ConfigError as exc:
+        return _fail(f"config rejected: {exc}", EX_CONFIG)
     try:
         secrets = load_node_secrets(config, bundle)
     except NodeSecretsError as exc:

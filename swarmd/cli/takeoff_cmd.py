@@ -23,13 +23,15 @@ from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+from swarmd.exitcodes import (
+    EX_FAILED,
+    EX_INTERRUPTED,
+    EX_NOT_READY,
+    EX_OK,
+    EX_UNREACHABLE,
+    EX_USAGE,
+)
 
-EXIT_OK: Final = 0
-EXIT_NOT_ALL: Final = 1
-EXIT_UNREACHABLE: Final = 2
-EXIT_NOT_READY: Final = 3
-EXIT_USAGE: Final = 64  # sysexits EX_USAGE
-EXIT_INTERRUPTED: Final = 130  # 128 + SIGINT, as a shell reports it
 POLL_S: Final = 0.2
 UNHEARD: Final = ("no_report", "peer_lost", "report_stale")
 
@@ -104,7 +106,7 @@ def _takeoff(args: argparse.Namespace) -> int:
                 return targets
             ready = _wait_for_readiness(client, run, targets, args.require_all)
             if ready is None:
-                return EXIT_NOT_READY
+                return EX_NOT_READY
             request: dict[str, Any] = {"only": targets, "require_all": args.require_all}
             if args.alt is not None:
                 request["alt_m"] = args.alt
@@ -114,17 +116,17 @@ def _takeoff(args: argparse.Namespace) -> int:
                 return _usage(str(exc))
             if not reply["sent"]:  # nobody ready, or one fell back between wait and send
                 refused = reply.get("refused") or {}
-                code = EXIT_NOT_READY if args.require_all else EXIT_NOT_ALL
+                code = EX_NOT_READY if args.require_all else EX_FAILED
                 run.say("not sent, no drone is ready: " + _reasons(refused))
                 _final(args, None, {"refused": refused}, code)
                 return code
             return _follow(client, run, reply, "takeoff")
     except DaemonUnreachable as exc:
         print(f"swarmctl: {exc}", file=sys.stderr)
-        return EXIT_UNREACHABLE
+        return EX_UNREACHABLE
     except KeyboardInterrupt:  # a command already sent keeps running on the drones
         print("swarmctl: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return EX_INTERRUPTED
 
 
 def _simple(args: argparse.Namespace) -> int:
@@ -141,15 +143,15 @@ def _simple(args: argparse.Namespace) -> int:
             return _follow(client, run, reply, args.kind)
     except DaemonUnreachable as exc:
         print(f"swarmctl: {exc}", file=sys.stderr)
-        return EXIT_UNREACHABLE
+        return EX_UNREACHABLE
     except KeyboardInterrupt:  # a command already sent keeps running on the drones
         print("swarmctl: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return EX_INTERRUPTED
 
 
 def _usage(message: str) -> int:
     print(f"swarmctl: {message}", file=sys.stderr)
-    return EXIT_USAGE
+    return EX_USAGE
 
 
 def _check_commander(client: ControlClient, only: list[str] | None) -> list[str] | int:
@@ -203,7 +205,7 @@ def _wait_for_readiness(
         if run.expired():
             if require_all:
                 run.say(f"gave up: not every drone became ready ({_reasons(waiting)}); not sent")
-                _final(run.args, None, {"not_ready": waiting}, EXIT_NOT_READY)
+                _final(run.args, None, {"not_ready": waiting}, EX_NOT_READY)
                 return None
             return ready
         time.sleep(POLL_S)
@@ -234,7 +236,7 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
         time.sleep(POLL_S)
     nodes = snap["nodes"]
     ok = all(n["state"] == "completed" for n in nodes.values())
-    code = EXIT_OK if ok else EXIT_NOT_ALL
+    code = EX_OK if ok else EX_FAILED
     if run.args.json:
         _final(run.args, cid, snap, code)
     else:

@@ -121,7 +121,9 @@ class _Peer:
 
 
 @dataclass(slots=True)
-class _ReadinessStats:
+class ReadinessStats:
+    """Readiness samples received from one member: how many, the latest, when (``now``)."""
+
     count: int = 0
     last: Readiness | None = None
     last_rx: float = 0.0
@@ -182,7 +184,7 @@ class DataPlane:
         for key in executed_command_ids:
             self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
         self._outcomes: OrderedDict[tuple[str, int, int], None] = OrderedDict()
-        self._readiness: dict[str, _ReadinessStats] = {}
+        self._readiness: dict[str, ReadinessStats] = {}
         self._next_command = 0
 
     # --- discovery inputs -------------------------------------------------------------------
@@ -340,6 +342,11 @@ class DataPlane:
     def next_event(self) -> DataPlaneEvent | None:
         return self._events.popleft() if self._events else None
 
+    def readiness_received(self, node: str) -> ReadinessStats | None:
+        """What ``node`` has sent us on ``swarm/ready`` (a copy), None if nothing yet."""
+        s = self._readiness.get(node)
+        return None if s is None else ReadinessStats(s.count, s.last, s.last_rx)
+
     def status(self, now: float) -> dict[str, Any]:
         """A JSON-ready snapshot for ``swarmctl status``."""
         return {
@@ -347,16 +354,8 @@ class DataPlane:
             "peers_up": self.peers_up,
             "writers": {t.name: _writer_status(w) for t, w in self._writers.values()},
             "readers": {t.name: _fields_of(r.counters) for t, r in self._readers.values()},
-            "readiness": {
-                node: {
-                    "count": s.count,
-                    "seq": s.last.seq if s.last else None,
-                    "ready": s.last.ready if s.last else None,
-                    "reason": s.last.reason if s.last else None,
-                    "age_s": round(now - s.last_rx, 3),
-                }
-                for node, s in sorted(self._readiness.items())
-            },
+            # no per-member readiness here: the commander's table (status "readiness") is
+            # the one place `swarmctl status --json` shows the count (ReadinessReceived.count)
             "executed_commands": len(self._executed),
             "counters": dict(sorted(self.counters.items())),
         }
@@ -470,7 +469,7 @@ class DataPlane:
         if sample.node != peer_name:
             self._drop("node_mismatch", source, f"{peer_name} sent readiness of {sample.node}")
             return
-        stats = self._readiness.setdefault(peer_name, _ReadinessStats())
+        stats = self._readiness.setdefault(peer_name, ReadinessStats())
         stats.count += 1
         stats.last = sample
         stats.last_rx = now

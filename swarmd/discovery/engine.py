@@ -157,14 +157,7 @@ class DiscoveryEngine:
         whose authenticator does not hold, before anything changes (docs/security.md). The
         daemon always passes it; None (simulator, codec tests) sends and accepts plain SPDP.
         """
-        try:
-            me = bundle.participant(local_name)
-        except KeyError:
-            names = ", ".join(p.name for p in bundle.participants)
-            raise ValueError(
-                f"node {local_name!r} is not a participant of bundle {bundle.swarm!r}; "
-                f"fix: use one of {names}"
-            ) from None
+        me = bundle.member(local_name)  # NotAParticipant (ValueError) if it is not
         if len(bundle.content_sha256) < BUNDLE_DIGEST_BYTES:
             raise ValueError("bundle content_sha256 is shorter than 16 bytes; fix: rebuild it")
         if auth is not None and auth.keyring.own_prefix != me.guid_prefix:

@@ -22,4 +22,4 @@ class LinkSample:
     snr_db: float | None = None
     signal_dbm: float | None = None
     noise_dbm: float | None = None
-    source: str = "static"  # nl80211 | wext | file | static
+    source: str = "static"  # the link source that read it (swarmd.link.SourceName)

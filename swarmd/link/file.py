@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from swarmd.discovery.inputs import LinkSample
+from swarmd.link import SourceName
 from swarmd.link.quality import q_from_lq, q_from_snr, sample_from_signal
 from swarmd.link.source import LinkUnavailable
 
@@ -44,25 +45,33 @@ def sample_from_json(obj: object, *, snr_floor_db: float = 0.0) -> LinkSample:
     if q is not None:
         if not 0.0 <= q <= 1.0:
             raise ValueError(f'"q" must be in [0, 1], not {q}')
-        return LinkSample(q=q, snr_db=snr, signal_dbm=signal, noise_dbm=noise, source="file")
+        return LinkSample(
+            q=q, snr_db=snr, signal_dbm=signal, noise_dbm=noise, source=SourceName.FILE
+        )
     if lq is not None:
         if lq_max is None or lq_max <= 0:
             raise ValueError('"lq" needs a positive "lq_max"')
         return LinkSample(
-            q=q_from_lq(lq, lq_max), snr_db=snr, signal_dbm=signal, noise_dbm=noise, source="file"
+            q=q_from_lq(lq, lq_max),
+            snr_db=snr,
+            signal_dbm=signal,
+            noise_dbm=noise,
+            source=SourceName.FILE,
         )
     if snr is not None:
         q_snr = q_from_snr(snr, floor_db=snr_floor_db)
-        return LinkSample(q=q_snr, snr_db=snr, signal_dbm=signal, noise_dbm=noise, source="file")
+        return LinkSample(
+            q=q_snr, snr_db=snr, signal_dbm=signal, noise_dbm=noise, source=SourceName.FILE
+        )
     if signal is not None:
-        return sample_from_signal(signal, noise, source="file", snr_floor_db=snr_floor_db)
+        return sample_from_signal(signal, noise, source=SourceName.FILE, snr_floor_db=snr_floor_db)
     raise ValueError('no reading: give one of "q", "lq"+"lq_max", "snr_db" or "signal_dbm"')
 
 
 class FileSource:
     """Reads a small JSON link file each poll; optionally rejects a stale one."""
 
-    name = "file"
+    name = SourceName.FILE
 
     def __init__(
         self, path: str, *, max_age_s: float | None = None, snr_floor_db: float = 0.0

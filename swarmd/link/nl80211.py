@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from swarmd.discovery.inputs import LinkSample
+from swarmd.link import SourceName
 from swarmd.link.quality import SNR_FLOOR_DB, sample_from_signal
 from swarmd.link.source import LinkUnavailable
 
@@ -102,7 +103,9 @@ def sample_from_nl80211(
     signal = link_signal(stations)
     if signal is None:
         return None
-    return sample_from_signal(signal, noise_dbm, source="nl80211", snr_floor_db=snr_floor_db)
+    return sample_from_signal(
+        signal, noise_dbm, source=SourceName.NL80211, snr_floor_db=snr_floor_db
+    )
 
 
 def _netlink_code(exc: BaseException) -> int | None:
@@ -113,7 +116,7 @@ def _netlink_code(exc: BaseException) -> int | None:
 class Nl80211Source:
     """Asks the kernel over generic netlink (``AsyncIW``) each poll; keeps one socket open."""
 
-    name = "nl80211"
+    name = SourceName.NL80211
 
     def __init__(self, interface: str, *, snr_floor_db: float = SNR_FLOOR_DB) -> None:
         self.interface = interface

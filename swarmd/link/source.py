@@ -24,7 +24,10 @@ class LinkUnavailable(Exception):
 class LinkSource(Protocol):
     """A place a link-quality reading comes from."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """Which source this is (``swarmd.link.SourceName``)."""
+        ...
 
     async def read(self) -> LinkSample:
         """One reading; raises ``LinkUnavailable`` (and nothing else, by contract)."""

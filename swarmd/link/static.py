@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from swarmd.discovery.inputs import LinkSample
+from swarmd.link import SourceName
 from swarmd.link.quality import clamp01
 
 
 class StaticSource:
     """Always reports ``q``."""
 
-    name = "static"
+    name = SourceName.STATIC
 
     def __init__(self, q: float) -> None:
         if not 0.0 <= q <= 1.0:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.discovery.inputs import LinkSample
+from swarmd.link import SourceName
 from swarmd.link.quality import WEXT_MAX_QUALITY, q_from_lq, q_from_snr
 from swarmd.link.source import LinkUnavailable
 
@@ -69,14 +70,18 @@ def sample_from_entry(
         # drivers that fill level/noise but leave quality at 0 (seen on some legacy ones)
         q = q_from_snr(snr, floor_db=snr_floor_db)
     return LinkSample(
-        q=q, snr_db=snr, signal_dbm=entry.level_dbm, noise_dbm=entry.noise_dbm, source="wext"
+        q=q,
+        snr_db=snr,
+        signal_dbm=entry.level_dbm,
+        noise_dbm=entry.noise_dbm,
+        source=SourceName.WEXT,
     )
 
 
 class WextSource:
     """Reads ``/proc/net/wireless`` for one interface."""
 
-    name = "wext"
+    name = SourceName.WEXT
 
     def __init__(
         self,

@@ -44,6 +44,7 @@ from swarmd.dataplane import (
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import MAX_ALTITUDE_M, CommandKind, CommandResult
+from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.provision import SigningKeyError, ed25519_seed, signing_key_for
 from swarmd.px4.readiness import ReadinessConfig
@@ -54,14 +55,6 @@ from swarmd.swarm.userdata import UserDataAdapter
 
 MAX_TAKEOFF_ALT_M: Final = min(120.0, MAX_ALTITUDE_M)  # the bridge's own limit (docs/px4.md)
 COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
-
-
-class AppStartError(Exception):
-    """The swarm layer cannot start; one line and the exit code the daemon should use."""
-
-    def __init__(self, message: str, exit_code: int) -> None:
-        super().__init__(message)
-        self.exit_code = exit_code
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,15 +95,7 @@ class SwarmApp:
         self.log = log
         self.link_q = link_q
         self.node_secrets = node_secrets  # the PX4 link's signing key derives from them
-        try:
-            self.me = bundle.participant(config.node)
-        except KeyError:
-            names = ", ".join(p.name for p in bundle.participants[:8])
-            raise config.error(
-                "node",
-                f"{config.node!r} is not a participant of swarm {bundle.swarm!r}",
-                f"use one of the bundle's names ({names})",
-            ) from None
+        self.me = config.member_of(bundle)
         self.is_commander = _writes(self.me, TOPIC_COMMAND)
         self.reports_readiness = _writes(self.me, TOPIC_READY)
         members = [
@@ -140,7 +125,7 @@ class SwarmApp:
     # ---- life -----------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """PX4 link, state directory, data plane socket; ``AppStartError`` on failure."""
+        """PX4 link, state directory, data plane socket; ``StartupError`` on failure."""
         loop = asyncio.get_running_loop()
         self._loop = loop
         px4 = self.config.px4
@@ -150,10 +135,10 @@ class SwarmApp:
             if px4.signing:  # the per-drone MAVLink key (docs/px4.md, "Message signing")
                 secrets = self.node_secrets
                 if secrets is None and px4.signing_key is None:
-                    raise AppStartError(
+                    raise StartupError(
                         "px4.signing: no node secrets to derive the MAVLink key from; fix: "
                         "flash node.key, set px4.signing_key, or px4.signing: false",
-                        78,
+                        EX_CONFIG,
                     )
                 seed = b"" if secrets is None else ed25519_seed(secrets.ed25519)
                 try:
@@ -164,7 +149,7 @@ class SwarmApp:
                         seed=seed,
                     )
                 except SigningKeyError as exc:
-                    raise AppStartError(str(exc), 78) from None
+                    raise StartupError(str(exc), EX_CONFIG) from None
             try:
                 self.bridge = Px4Bridge.from_config(
                     Px4Config(
@@ -185,7 +170,7 @@ class SwarmApp:
             except (OSError, ValueError) as exc:
                 self.bridge = None
                 reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-                raise AppStartError(f"px4.connection {px4.connection}: {reason}", 71) from None
+                raise StartupError(f"px4.connection {px4.connection}: {reason}", EX_OSERR) from None
         if self.config.dataplane.enabled:
             try:
                 await self._start_dataplane()
@@ -203,7 +188,7 @@ class SwarmApp:
         try:
             self.state = boot(self.config.dataplane.state_dir, self.me.name)
         except StateDirError as exc:
-            raise AppStartError(f"dataplane.state_dir: {exc}", 73) from None  # EX_CANTCREAT
+            raise StartupError(f"dataplane.state_dir: {exc}", EX_CANTCREAT) from None
         if self.state.recovered_from:
             self.log.warning(
                 "state_file_replaced", path=str(self.state.path), why=self.state.recovered_from
@@ -216,17 +201,17 @@ class SwarmApp:
                 executed_command_ids=self.state.executed,
             )
         except ValueError as exc:
-            raise AppStartError(f"bundle rejected by the data plane: {exc}", 78) from None
+            raise StartupError(f"bundle rejected by the data plane: {exc}", EX_CONFIG) from None
         self.adapter = UserDataAdapter(plane, self._on_event, log=self.log)
         port = self.bundle.user_port(self.me)
         try:
             await self.adapter.open(port)
         except OSError as exc:
             self.adapter = None
-            raise AppStartError(
+            raise StartupError(
                 f"cannot bind user-data port {port}: {exc.strerror} "
                 "(is another participant with the same bundle index running?)",
-                71,
+                EX_OSERR,
             ) from None
         for name, address in list(self._up.items()):
             self.peer_up(name, address)

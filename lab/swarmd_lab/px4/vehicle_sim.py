@@ -31,6 +31,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
+from swarmd.exitcodes import EX_OSERR
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.signing import parse_key_file, timestamp_from_unix
@@ -270,7 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return asyncio.run(_run(config, endpoint, args))
     except OSError as exc:
         print(f"swarmd-vehicle-sim: cannot open {endpoint}: {exc.strerror}", file=sys.stderr)
-        return 71  # EX_OSERR
+        return EX_OSERR
 
 
 if __name__ == "__main__":

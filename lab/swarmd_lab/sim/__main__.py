@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from swarmd.discovery.config import MODES
 from swarmd_lab.sim.channel import ChannelConfig
 from swarmd_lab.sim.placement import PLACEMENTS
 from swarmd_lab.sim.progress import ProgressBar
@@ -59,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--placement", choices=PLACEMENTS, default="grid")
     p.add_argument("--spacing", type=float, default=2.0, help="metres between neighbours")
     p.add_argument("--start-spread", type=float, default=1.0, help="power-up within U(0, s)")
-    p.add_argument("--swarmd-mode", choices=("paper", "adaptive"), default="adaptive")
+    p.add_argument("--swarmd-mode", choices=MODES, default="adaptive")
     p.add_argument("--unicast-rate", type=int, default=None, help="fixed Mb/s (default ideal)")
     p.add_argument("--no-workload", action="store_true", help="no 1 Hz member->commander data")
     p.add_argument("--json", action="store_true", help="one JSON object per run on stdout")

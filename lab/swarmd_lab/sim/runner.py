@@ -15,6 +15,7 @@ from typing import Any, Final
 
 import numpy as np
 
+from swarmd.discovery.config import MODES
 from swarmd_lab.sim.channel import Channel, ChannelConfig, Datagram, Kind
 from swarmd_lab.sim.clock import VirtualClock
 from swarmd_lab.sim.node import Ledger, NodeContext, SimNode
@@ -56,7 +57,7 @@ class Scenario:
             raise ValueError(f"--window {self.window_s}: use a positive number of seconds")
         if self.start_spread_s < 0:
             raise ValueError(f"--start-spread {self.start_spread_s}: use a value >= 0")
-        if self.swarmd_mode not in ("paper", "adaptive"):
+        if self.swarmd_mode not in MODES:
             raise ValueError(f"--swarmd-mode {self.swarmd_mode!r}: use 'paper' or 'adaptive'")
 
 
