@@ -20,11 +20,13 @@ import pytest
 from swarmd_lab.px4.sim_model import SimConfig
 from swarmd_lab.px4.vehicle_sim import SimProtocol, start_sim
 
+from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER, MavCmd
 from swarmd.px4.mavlink_backend import MavlinkBackend
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.messages import Heartbeat, VehicleCommand
+from swarmd.px4.provision import setup_signing
 from swarmd.px4.readiness import Reason
 from swarmd.px4.signing import derive_key, timestamp_from_unix
 from swarmd.px4.takeoff import TakeoffSucceeded
@@ -268,3 +270,46 @@ def test_a_spoofed_source_passes_the_pin_and_only_signing_stops_it(signing: bool
             await bridge.close()
 
     asyncio.run(scenario())
+
+
+# ---- giving the key to the autopilot: SETUP_SIGNING ---------------------------------------
+
+
+def test_setup_signing_provisions_an_unkeyed_vehicle_and_rotation_needs_the_current_key() -> None:
+    async def scenario() -> None:
+        sim = await start_sim(
+            SimConfig(gps_fix_after_s=0.2), parse_connection("udpin:127.0.0.1:0"), seed=5
+        )
+        target = parse_connection(f"udpout:127.0.0.1:{sim.local_port}")
+        try:
+            keyed: Callable[[], bool] = lambda: sim.codec.verifier is not None  # noqa: E731
+            assert not keyed()  # no key yet: signing off
+            assert await setup_signing(target, 1, KEY, timeout_s=BOUND_S)
+            assert keyed()
+            # a keyed vehicle ignores an unsigned new key (an attacker's), keeps its own
+            assert not await setup_signing(target, 1, WRONG_KEY, timeout_s=1.5)
+            assert (sim.codec.signing_counts or {}).get("unsigned", 0) >= 1
+            assert await setup_signing(target, 1, WRONG_KEY, current_key=KEY, timeout_s=BOUND_S)
+            # swarmd with the rotated key: ready, signed end to end (udpout: speaks first)
+            bridge = Px4Bridge.from_config(
+                Px4Config(connection=str(target), sysid=1, signing_key=WRONG_KEY)
+            )
+            await bridge.start()
+            try:
+                await wait_until(lambda: bridge.readiness().ready)
+                assert signing_counts(bridge)["ok"] >= 1
+            finally:
+                await bridge.close()
+        finally:
+            sim.close()
+
+    asyncio.run(scenario())
+
+
+def test_swarmctl_setup_signing_refuses_a_listening_connection(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    argv = ["px4", "setup-signing", "--keys", "k", "--swarm", "s", "--node", "n"]
+    assert swarmctl([*argv, "--connection", "udpin:127.0.0.1:14540"]) == 65
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "udpout:127.0.0.1:14580" in err

@@ -35,7 +35,7 @@ from swarmd.px4.constants import (
     MavState,
 )
 from swarmd.px4.linkguard import REPIN_AFTER_S, AutopilotPin
-from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.mavlink_codec import MavlinkCodec, SetupSigning
 from swarmd.px4.messages import CommandAck, Heartbeat, HomePosition, VehicleCommand
 from swarmd.px4.signing import timestamp_from_unix
 from swarmd.px4.transport import (
@@ -204,8 +204,8 @@ class MavlinkBackend:
                     continue  # not pinned yet and not the pinning heartbeat
                 if pin.address != was:
                     self._sync_remote()  # replies go to the new pin, and only there
-            if isinstance(msg, VehicleCommand):
-                self.foreign += 1  # the autopilot commanding someone: not for us
+            if isinstance(msg, VehicleCommand | SetupSigning):
+                self.foreign += 1  # the autopilot commanding or keying someone: not for us
                 continue
             if isinstance(msg, CommandAck):
                 if msg.target_system not in (0, self.sysid) or msg.target_component not in (

@@ -38,7 +38,19 @@ from swarmd.px4.messages import (
 )
 from swarmd.px4.signing import KEY_BYTES, Verdict, Verifier
 
-Message = Observation | VehicleCommand
+
+@dataclass(frozen=True, slots=True)
+class SetupSigning:
+    """SETUP_SIGNING (256): a signing key for the target (MAVLink-only, never observed by
+    readiness; ``swarmctl px4 setup-signing`` sends it, the simulator obeys it as PX4 does)."""
+
+    target_system: int
+    target_component: int
+    secret_key: bytes
+    initial_timestamp: int
+
+
+Message = Observation | VehicleCommand | SetupSigning
 
 _UINT16_MAX = 0xFFFF
 
@@ -72,13 +84,21 @@ class MavlinkCodec:
         self.decoded = 0
         self.verifier: Verifier | None = None
         self._accept_unsigned = accept_unsigned
-        if signing_key is not None:
-            if len(signing_key) != KEY_BYTES:
-                raise ValueError("a MAVLink signing key is 32 bytes")
-            self.verifier = Verifier(signing_key)
-            self._tx.signing.secret_key = signing_key
-            self._tx.signing.link_id = link_id
-            self._tx.signing.sign_outgoing = True
+        self._tx.signing.link_id = link_id
+        self.set_signing_key(signing_key)
+
+    def set_signing_key(self, key: bytes | None) -> None:
+        """Signing on with ``key`` (a fresh verifier: streams start over), or off (None)."""
+        if key is None:
+            self.verifier = None
+            self._tx.signing.secret_key = None
+            self._tx.signing.sign_outgoing = False
+            return
+        if len(key) != KEY_BYTES:
+            raise ValueError("a MAVLink signing key is 32 bytes")
+        self.verifier = Verifier(key)
+        self._tx.signing.secret_key = key
+        self._tx.signing.sign_outgoing = True
 
     @property
     def signing(self) -> bool:
@@ -210,6 +230,13 @@ def decode_message(m: Any) -> Message | None:
             if isinstance(text, bytes | bytearray):
                 text = bytes(text).split(b"\0", 1)[0].decode("utf-8", "replace")
             return StatusText(severity=m.severity, text=str(text))
+        case "SETUP_SIGNING":
+            return SetupSigning(
+                target_system=m.target_system,
+                target_component=m.target_component,
+                secret_key=bytes(m.secret_key),
+                initial_timestamp=m.initial_timestamp,
+            )
         case "COMMAND_LONG":
             p = (m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7)
             return VehicleCommand(
@@ -283,6 +310,10 @@ def _encoder(tx: Any, msg: Message) -> Any:
             )
         case StatusText():
             return tx.statustext_encode(msg.severity, msg.text.encode("utf-8")[:50])
+        case SetupSigning():
+            return tx.setup_signing_encode(
+                msg.target_system, msg.target_component, list(msg.secret_key), msg.initial_timestamp
+            )
         case VehicleCommand():
             return tx.command_long_encode(
                 msg.target_system, msg.target_component, msg.command, msg.confirmation, *msg.params

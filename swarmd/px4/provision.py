@@ -3,18 +3,31 @@
 On the drone (``swarmd run``) the key is derived from the node secrets the daemon loaded
 (``node.key``, ``swarmd.auth.keys.NodeSecrets``), or read from ``px4.signing_key``. On the
 ground, ``swarmctl px4 key`` derives the same key from ``keys/nodes/<name>.key`` and writes
-PX4's key file (or the hex) for provisioning (docs/px4.md, "Message signing").
+PX4's key file (or the hex), and ``swarmctl px4 setup-signing`` sends it to PX4 as
+``SETUP_SIGNING`` on a bench link (docs/px4.md, "Message signing").
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import time
 from pathlib import Path
+from typing import Final
 
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from swarmd.bundle.keys import load_node_keys
-from swarmd.px4.signing import derive_key, parse_key_file
+from swarmd.px4.constants import COMP_ID_AUTOPILOT1
+from swarmd.px4.mavlink_codec import MavlinkCodec, SetupSigning
+from swarmd.px4.messages import Heartbeat
+from swarmd.px4.signing import derive_key, parse_key_file, timestamp_from_unix
+from swarmd.px4.transport import Endpoint, open_link
+
+GCS_SYSID: Final = 255  # a ground station's usual system id (QGroundControl, MAVProxy)
+GCS_COMPID: Final = 190  # MAV_COMP_ID_MISSIONPLANNER
+SETUP_RESEND_S: Final = 0.5  # resend until a signed heartbeat confirms (UDP may drop it)
 
 
 class SigningKeyError(ValueError):
@@ -48,3 +61,50 @@ def signing_key_for(*, swarm: str, node: str, key_file: str | None, seed: bytes)
         return parse_key_file(data, f"px4.signing_key {key_file}")
     except ValueError as exc:
         raise SigningKeyError(str(exc)) from None
+
+
+async def setup_signing(
+    endpoint: Endpoint,
+    sysid: int,
+    key: bytes,
+    *,
+    current_key: bytes | None = None,
+    timeout_s: float = 5.0,
+) -> bool:
+    """Send ``SETUP_SIGNING`` with ``key`` to the autopilot (sysid, 1) until it answers with a
+    HEARTBEAT signed with that key (True), or ``timeout_s`` passes (False).
+
+    The message goes unsigned (an unprovisioned PX4 takes it so), or signed with
+    ``current_key`` (a provisioned PX4 takes only that). We speak as a ground station
+    (255, 190), over ``udpout:`` or ``serial:`` only: a bench link to one autopilot.
+    """
+    if endpoint.kind == "udpin":
+        raise SigningKeyError(
+            f"{endpoint}: setup-signing speaks first; fix: udpout:HOST:PORT (PX4 SITL: "
+            "udpout:127.0.0.1:14580) or serial:/dev/ttyACM0:115200 (PX4's USB)"
+        )
+    loop = asyncio.get_running_loop()
+    tx = MavlinkCodec(GCS_SYSID, GCS_COMPID, signing_key=current_key)
+    rx = MavlinkCodec(GCS_SYSID, GCS_COMPID, signing_key=key)
+    confirmed = loop.create_future()
+
+    def on_bytes(data: bytes, _source: str | None) -> None:
+        rx.advance_clock(timestamp_from_unix(time.time()))
+        for frame in rx.feed(data, datagram=endpoint.kind != "serial"):
+            ours = (frame.src_system, frame.src_component) == (sysid, COMP_ID_AUTOPILOT1)
+            if ours and frame.signed and isinstance(frame.msg, Heartbeat):
+                if not confirmed.done():
+                    confirmed.set_result(True)
+
+    link = await open_link(endpoint, on_bytes)
+    try:
+        deadline = loop.time() + timeout_s
+        while loop.time() < deadline and not confirmed.done():
+            now = timestamp_from_unix(time.time())
+            tx.advance_clock(now)
+            link.send(tx.encode(SetupSigning(sysid, COMP_ID_AUTOPILOT1, key, now)))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(confirmed), SETUP_RESEND_S)
+        return confirmed.done()
+    finally:
+        link.close()

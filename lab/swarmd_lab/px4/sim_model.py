@@ -41,6 +41,7 @@ from swarmd.px4.constants import (
     MavState,
     Px4MainMode,
 )
+from swarmd.px4.mavlink_codec import Message
 from swarmd.px4.messages import (
     MODE_LAND,
     MODE_LOITER,
@@ -132,7 +133,7 @@ class SimVehicle:
 
     # ---- inputs -------------------------------------------------------------------------
 
-    def receive(self, msg: Observation | VehicleCommand, src: tuple[int, int], now: float) -> None:
+    def receive(self, msg: Message, src: tuple[int, int], now: float) -> None:
         """A message from (system, component); only COMMAND_LONG for us is acted on."""
         if not isinstance(msg, VehicleCommand):
             return  # companion / GCS heartbeats etc.

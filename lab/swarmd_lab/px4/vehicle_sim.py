@@ -15,7 +15,9 @@ MAVLink 2 signing as PX4 >= v1.17 does once a key is provisioned: every frame se
 signed, and a received frame without a good signature is dropped, except PX4's unsigned
 allowlist (HEARTBEAT, RADIO_STATUS, ADSB_VEHICLE, COLLISION: PX4
 ``mavlink_sign_control.cpp``). So a command from a host without the key never reaches the
-model, as with PX4.
+model, as with PX4. ``SETUP_SIGNING`` is obeyed as current PX4 main does: taken unsigned
+while no key is set, only signed with the current key once one is (the codec drops the rest),
+refused while armed; an all-zero key and timestamp turns signing off.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from typing import Any, cast
 
 from swarmd.exitcodes import EX_OSERR
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
-from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.mavlink_codec import Frame, MavlinkCodec, SetupSigning
 from swarmd.px4.signing import parse_key_file, timestamp_from_unix
 from swarmd.px4.transport import BadConnectionString, Endpoint, parse_connection
 from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
@@ -86,8 +88,35 @@ class SimProtocol(asyncio.DatagramProtocol):
         if self._learn and frames:  # with signing: only a sender whose frames checked
             self._remote = (str(addr[0]), int(addr[1]))
         for frame in frames:
+            if isinstance(frame.msg, SetupSigning):
+                self._setup_signing(frame, now)
+                continue
             self.model.receive(frame.msg, (frame.src_system, frame.src_component), now)
         self._pump()
+
+    def _setup_signing(self, frame: Frame, now: float) -> None:
+        msg = frame.msg
+        if not isinstance(msg, SetupSigning):
+            return
+        if msg.target_system not in (0, self._config.sysid) or msg.target_component not in (
+            0,
+            COMP_ID_AUTOPILOT1,
+        ):
+            return
+        if self.model.armed:  # PX4: "Signing key changes ... are rejected while armed"
+            self._note("signing_key_refused", now, why="armed")
+            return
+        if msg.secret_key == bytes(32) and msg.initial_timestamp == 0:
+            self.codec.set_signing_key(None)
+            self._note("signing_key_cleared", now)
+            return
+        self.codec.set_signing_key(msg.secret_key)
+        self.codec.advance_clock(msg.initial_timestamp)
+        self._note("signing_key_set", now, signed=frame.signed)
+
+    def _note(self, event: str, now: float, **fields: Any) -> None:
+        if self._log is not None:
+            self._log(event, {"t": round(now, 3), **fields})
 
     def error_received(self, exc: Exception) -> None:
         pass  # ICMP unreachable while nobody listens yet, as PX4 SITL shrugs it off

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
-from swarmd.px4.mavlink_codec import MavlinkCodec, Message
+from swarmd.px4.mavlink_codec import MavlinkCodec, Message, SetupSigning
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import VehicleState
 from swarmd.px4.takeoff import SequenceEvent, TakeoffSequence
@@ -127,7 +127,7 @@ class VirtualLink:
             self._pump_sim()
             return
         for frame in self._companion_codec.feed(d.data, datagram=True):
-            if isinstance(frame.msg, VehicleCommand):
+            if isinstance(frame.msg, VehicleCommand | SetupSigning):
                 continue
             self.state.observe(frame.msg, self.now)
             if self.sequence is not None:
