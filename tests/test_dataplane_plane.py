@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import itertools
 import subprocess
 import sys
 from pathlib import Path
@@ -11,8 +12,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarmd.auth.freshness import Freshness
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.model import Participant
 from swarmd.dataplane import (
     CommandKind,
     CommandReceived,
@@ -23,6 +26,7 @@ from swarmd.dataplane import (
     ReadinessReceived,
     encode_sample,
 )
+from swarmd.dataplane.seal import seal, user_data_key
 from swarmd.rtps import (
     AckNack,
     Data,
@@ -42,7 +46,7 @@ from swarmd.rtps.types import (
     GuidPrefix,
     Time,
 )
-from tests.test_dataplane_swarm import address_of, make_bundle
+from tests.test_dataplane_swarm import FakeKeys, address_of, make_bundle, make_plane
 
 SRC = ("10.0.0.2", 7413)
 BUNDLE = make_bundle(2)
@@ -56,14 +60,23 @@ CMD_R = EntityId.user(2, 0x04)
 
 
 def lead_plane() -> DataPlane:
-    plane = DataPlane(BUNDLE, "lead")
+    plane = make_plane(BUNDLE, "lead")
     for m in ("m01", "m02"):
-        plane.peer_up(m, address_of(BUNDLE, m), 0.0)
+        plane.peer_up(m, address_of(BUNDLE, m), 0.0, epoch=1)
     return plane
 
 
-def from_peer(prefix: GuidPrefix, *subs: Submessage) -> bytes:
-    return encode_message(Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, prefix), list(subs))
+_SEQ = itertools.count(1)
+
+
+def from_peer(prefix: GuidPrefix, *subs: Submessage, to: Participant = LEAD) -> bytes:
+    """A datagram from ``prefix`` to ``to``, sealed with their pair key when they have one
+    (epoch 1 on both ends, a sequence no earlier call used)."""
+    message = encode_message(Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, prefix), list(subs))
+    key = FakeKeys(BUNDLE, to.name).pair_key(prefix)
+    if key is None:
+        return message
+    return seal(user_data_key(key), message, Freshness(1, next(_SEQ)), to.guid_prefix, 1)
 
 
 def readiness(node: str, seq: int = 1) -> bytes:
@@ -147,12 +160,12 @@ def test_bad_input_is_dropped_with_a_reason(datagram: bytes, reason: str) -> Non
 
 
 def test_datagrams_from_a_peer_discovery_has_not_reported_are_dropped() -> None:
-    plane = DataPlane(BUNDLE, "lead")
+    plane = make_plane(BUNDLE, "lead")
     plane.receive_datagram(
         from_peer(M1.guid_prefix, Data(READY_R, READY_W, 1, None, readiness("m01"))), SRC, 0.0
     )
     assert drops(plane) == ["peer_not_up"]
-    plane.peer_up("m01", address_of(BUNDLE, "m01"), 0.0)
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), 0.0, epoch=1)
     plane.peer_down("m01", 1.0)
     plane.receive_datagram(
         from_peer(M1.guid_prefix, Data(READY_R, READY_W, 2, None, readiness("m01"))), SRC, 2.0
@@ -161,15 +174,15 @@ def test_datagrams_from_a_peer_discovery_has_not_reported_are_dropped() -> None:
 
 
 def test_misuse_by_the_owner_is_a_clear_value_error() -> None:
-    member = DataPlane(BUNDLE, "m01")
+    member = make_plane(BUNDLE, "m01")
     with pytest.raises(ValueError, match="no writer on 'swarm/command'"):
         member.send_command(member.make_command(CommandKind.LAND), 0.0)
     with pytest.raises(ValueError, match="readiness of 'm02' published by 'm01'"):
         member.publish_readiness(Readiness("m02", 1, True, "", False, 1, 3, 1, 1, 1), 0.0)
     with pytest.raises(ValueError, match="names this node itself"):
-        member.peer_up("m01", ("10.0.0.2", 7413), 0.0)
+        member.peer_up("m01", ("10.0.0.2", 7413), 0.0, epoch=1)
     with pytest.raises(ValueError, match="incarnation"):
-        DataPlane(BUNDLE, "m01", incarnation=-1)
+        make_plane(BUNDLE, "m01", incarnation=-1)
 
 
 def test_a_bundle_declaring_another_type_on_a_swarmd_topic_is_refused() -> None:
@@ -185,25 +198,25 @@ topics:
 """
     bundle = build_dev_bundle(parse_mission(text)).bundle
     with pytest.raises(ValueError, match="'swarm/command' declares type 'other::Command'"):
-        DataPlane(bundle, "m1")
+        make_plane(bundle, "m1")
 
 
 def test_topics_the_plane_does_not_carry_are_left_alone() -> None:
     mission = Path(__file__).parent.parent / "firmware_bundle" / "missions" / "swarm10.yaml"
     bundle = build_dev_bundle(parse_mission(mission.read_text())).bundle
     lead = bundle.participants[0].name
-    plane = DataPlane(bundle, lead)
+    plane = make_plane(bundle, lead)
     assert set(plane.status(0.0)["writers"]) == {"swarm/command"}
     assert set(plane.status(0.0)["readers"]) == {"swarm/ready", "swarm/outcome"}
 
 
 def test_a_command_is_delivered_once_even_when_resent_under_a_new_sn() -> None:
-    member = DataPlane(BUNDLE, "m01")
-    member.peer_up("lead", address_of(BUNDLE, "lead"), 0.0)
-    cmd = encode_sample(DataPlane(BUNDLE, "lead").make_command(CommandKind.TAKEOFF, altitude_m=5))
+    member = make_plane(BUNDLE, "m01")
+    member.peer_up("lead", address_of(BUNDLE, "lead"), 0.0, epoch=1)
+    cmd = encode_sample(make_plane(BUNDLE, "lead").make_command(CommandKind.TAKEOFF, altitude_m=5))
     for sn in (1, 1, 2):
         member.receive_datagram(
-            from_peer(LEAD.guid_prefix, Data(CMD_R, CMD_W, sn, None, cmd)), SRC, 0.0
+            from_peer(LEAD.guid_prefix, Data(CMD_R, CMD_W, sn, None, cmd), to=M1), SRC, 0.0
         )
     assert [type(e).__name__ for e in drain(member)] == ["CommandReceived"]
     assert member.counters["duplicate_sample"] == 1 and member.counters["command_duplicate"] == 1
@@ -250,16 +263,16 @@ def test_structured_hostile_traffic_never_raises(
     datagrams: list[tuple[GuidPrefix, list[Submessage]]],
 ) -> None:
     for name in ("lead", "m01"):
-        plane = DataPlane(BUNDLE, name)
+        plane = make_plane(BUNDLE, name)
         for peer in ("lead", "m01", "m02"):
             if peer != name:
-                plane.peer_up(peer, address_of(BUNDLE, peer), 0.0)
+                plane.peer_up(peer, address_of(BUNDLE, peer), 0.0, epoch=1)
         if name == "lead":
             plane.send_command(plane.make_command(CommandKind.HOLD), 0.0)
         now = 0.0
         for prefix, subs in datagrams:
             now += 0.1
-            plane.receive_datagram(from_peer(prefix, *subs), SRC, now)
+            plane.receive_datagram(from_peer(prefix, *subs, to=plane.local), SRC, now)
             plane.handle_timer(now)
             for payload, _ in plane.datagrams_to_send():
                 assert len(payload) <= 1400
@@ -300,16 +313,16 @@ def test_importing_the_dataplane_pulls_in_no_event_loop_or_sockets() -> None:
 
 
 def test_sequence_numbers_at_the_top_of_the_range_cannot_break_the_encoder() -> None:
-    member = DataPlane(BUNDLE, "m01")
-    member.peer_up("lead", address_of(BUNDLE, "lead"), 0.0)
+    member = make_plane(BUNDLE, "m01")
+    member.peer_up("lead", address_of(BUNDLE, "lead"), 0.0, epoch=1)
     top = 2**63 - 1
-    cmd = encode_sample(DataPlane(BUNDLE, "lead").make_command(CommandKind.HOLD))
+    cmd = encode_sample(make_plane(BUNDLE, "lead").make_command(CommandKind.HOLD))
     for sm in (
         Heartbeat(CMD_R, CMD_W, top, top, 1),
         Data(CMD_R, CMD_W, top, None, cmd),
         Heartbeat(CMD_R, CMD_W, top, top, 2),
         Gap(CMD_R, CMD_W, top, SequenceNumberSet.of(top, [])),
     ):
-        member.receive_datagram(from_peer(LEAD.guid_prefix, sm), SRC, 0.0)
+        member.receive_datagram(from_peer(LEAD.guid_prefix, sm, to=M1), SRC, 0.0)
         member.datagrams_to_send()
     assert "invalid_sn" in drops(member)

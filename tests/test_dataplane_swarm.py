@@ -7,6 +7,7 @@ the next datagram arrival, timer or application tick.
 
 from __future__ import annotations
 
+import hashlib
 import heapq
 import json
 import random
@@ -32,8 +33,9 @@ from swarmd.dataplane import (
     Readiness,
     ReadinessReceived,
 )
-from swarmd.rtps import AckNack, Data, Gap, Heartbeat, InfoDst, decode_message
-from swarmd.rtps.types import VENDORID_SWARMD
+from swarmd.dataplane.seal import AUTH_SUBMESSAGE_ID, user_data_key, verify
+from swarmd.rtps import AckNack, Data, Gap, Heartbeat, InfoDst, SkippedSubmessage, decode_message
+from swarmd.rtps.types import VENDORID_SWARMD, GuidPrefix
 
 Address = tuple[str, int]
 Tick = tuple[float, Callable[[], object]]
@@ -63,6 +65,38 @@ def make_bundle(members: int, command_depth: int = 8) -> Bundle:
 def address_of(bundle: Bundle, name: str) -> Address:
     p = bundle.participant(name)
     return (f"10.0.0.{p.index + 1}", bundle.user_port(p))
+
+
+class FakeKeys:
+    """Pairwise keys for tests: equal on both ends of a pair, different for every pair."""
+
+    def __init__(self, bundle: Bundle, name: str) -> None:
+        self.bundle = bundle
+        self.own = bundle.participant(name).guid_prefix
+
+    def pair_key(self, peer: GuidPrefix) -> bytes | None:
+        if self.bundle.by_prefix(peer) is None or peer == self.own:
+            return None
+        low, high = sorted((peer.value, self.own.value))
+        return hashlib.sha256(b"test pair key|" + low + high).digest()
+
+
+def make_plane(
+    bundle: Bundle,
+    name: str,
+    *,
+    epoch: int = 1,
+    incarnation: int = 0,
+    executed_command_ids: list[tuple[str, int]] | tuple[()] = (),
+) -> DataPlane:
+    return DataPlane(
+        bundle,
+        name,
+        keys=FakeKeys(bundle, name),
+        epoch=epoch,
+        incarnation=incarnation,
+        executed_command_ids=executed_command_ids,
+    )
 
 
 @dataclass
@@ -120,6 +154,7 @@ class Swarm:
     outcomes: dict[tuple[str, int], list[CommandResult]] = field(default_factory=dict)
     readiness: dict[str, list[tuple[float, int, int]]] = field(default_factory=dict)
     drops: Counter[str] = field(default_factory=Counter)
+    epochs: dict[str, int] = field(default_factory=dict)  # each node's boot epoch
     now: float = 0.0
 
     @property
@@ -190,11 +225,24 @@ class Swarm:
                 return p.name
         raise AssertionError(f"no node at {address}")
 
+    def up(self, at: str, peer: str) -> None:
+        """``at``'s discovery reports ``peer`` with its current epoch (authenticated SPDP)."""
+        self.planes[at].peer_up(
+            peer, address_of(self.bundle, peer), self.now, epoch=self.epochs.get(peer, 1)
+        )
+
+    def restart(self, name: str, **kwargs: object) -> DataPlane:
+        """``name``'s process restarts: a new plane in the next epoch; nobody knows yet."""
+        self.epochs[name] = self.epochs.get(name, 1) + 1
+        plane = make_plane(self.bundle, name, epoch=self.epochs[name], **kwargs)  # type: ignore[arg-type]
+        self.planes[name] = plane
+        return plane
+
     def discover_all(self) -> None:
         for a in self.planes:
             for b in self.planes:
                 if a != b:
-                    self.planes[a].peer_up(b, address_of(self.bundle, b), self.now)
+                    self.up(a, b)
 
 
 def make_swarm(
@@ -208,7 +256,7 @@ def make_swarm(
 ) -> Swarm:
     bundle = make_bundle(members, command_depth)
     net = LossyNet(random.Random(seed), drop=drop, duplicate=duplicate, max_delay_s=max_delay_s)
-    planes = {p.name: DataPlane(bundle, p.name) for p in bundle.participants}
+    planes = {p.name: make_plane(bundle, p.name) for p in bundle.participants}
     return Swarm(bundle, net, planes)
 
 
@@ -274,13 +322,13 @@ def test_commands_reach_members_that_discover_the_commander_late() -> None:
     swarm = make_swarm(4, seed=7, drop=0.3, max_delay_s=0.02)
     lead = swarm.planes["lead"]
     for m in swarm.members:
-        lead.peer_up(m, address_of(swarm.bundle, m), 0.0)
+        swarm.up("lead", m)
     cmd = lead.make_command(CommandKind.TAKEOFF, altitude_m=5.0)
     ticks: list[Tick] = [send_at(swarm, 0.5, cmd)]
     for k, m in enumerate(swarm.members):
 
         def up(m: str = m) -> None:
-            swarm.planes[m].peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now)
+            swarm.up(m, "lead")
 
         ticks.append((1.0 + k, up))
     swarm.run_until(30.0, ticks)
@@ -297,12 +345,12 @@ def test_commander_restart_with_new_incarnation_keeps_exactly_once() -> None:
     assert all(swarm.executed[(m, first.command_id)] == 1 for m in swarm.members)
 
     # The commander restarts (same GUIDs, from the bundle) faster than any lease expires:
-    # the members never see peer_down. Its new life resends the last command it had on
-    # record, then issues a new one.
-    new = DataPlane(swarm.bundle, "lead", incarnation=1)
-    swarm.planes["lead"] = new
+    # the members never see peer_down, only its new epoch in its SPDP. Its new life resends
+    # the last command it had on record, then issues a new one.
+    new = swarm.restart("lead", incarnation=1)
     for m in swarm.members:
-        new.peer_up(m, address_of(swarm.bundle, m), swarm.now)
+        swarm.up("lead", m)
+        swarm.up(m, "lead")
     second = new.make_command(CommandKind.LAND)
     assert second.command_id >> 32 == 1 and second.command_id != first.command_id
     swarm.run_until(
@@ -328,7 +376,7 @@ def test_member_side_proxy_reset_redelivers_but_does_not_reexecute() -> None:
     member = swarm.members[0]
     plane = swarm.planes[member]
     plane.peer_down("lead", swarm.now)
-    plane.peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now)
+    swarm.up(member, "lead")
     # the next command makes the commander heartbeat from the start of its history
     nxt = lead.make_command(CommandKind.LAND)
     swarm.run_until(20.0, [send_at(swarm, 6.0, nxt)])
@@ -339,9 +387,10 @@ def test_member_side_proxy_reset_redelivers_but_does_not_reexecute() -> None:
 
 @pytest.mark.parametrize("persisted", [True, False])
 def test_executed_ids_survive_a_member_restart_only_when_persisted(persisted: bool) -> None:
-    """A member process restart loses its reader state; the commander resends what is still
-    in its history. Only the persisted id set keeps the member from running it again
-    (docs/dataplane.md, "Member restarts")."""
+    """A member process restart loses its reader state and comes back in a new epoch. The
+    commander learns the epoch from its SPDP and restarts its proxy for the member
+    (volatile), so its history is not replayed; a resend of the same id by the operator
+    runs again unless the persisted id set holds it (docs/dataplane.md, "Member restarts")."""
     swarm = make_swarm(2, seed=3)
     swarm.discover_all()
     lead = swarm.planes["lead"]
@@ -350,15 +399,15 @@ def test_executed_ids_survive_a_member_restart_only_when_persisted(persisted: bo
     member = swarm.members[0]
     saved = swarm.planes[member].executed_command_ids
     assert saved == [("lead", cmd.command_id)]
-    reborn = DataPlane(
-        swarm.bundle, member, incarnation=1, executed_command_ids=saved if persisted else ()
-    )
-    swarm.planes[member] = reborn
-    reborn.peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now)
+    reborn = swarm.restart(member, incarnation=1, executed_command_ids=saved if persisted else ())
+    swarm.up(member, "lead")
+    swarm.up("lead", member)
+    assert lead.counters["peer_restarts"] == 1
+    swarm.run_until(6.0)
+    assert swarm.executed[(member, cmd.command_id)] == 1  # history not replayed
     swarm.run_until(10.0, [send_at(swarm, 6.0, cmd)])
     assert swarm.executed[(member, cmd.command_id)] == (1 if persisted else 2)
-    # persisted: the redelivered SN and the resend are both duplicates of the saved id
-    assert reborn.counters["command_duplicate"] == (2 if persisted else 1)
+    assert reborn.counters["command_duplicate"] == (1 if persisted else 0)
 
 
 def test_targeted_command_runs_only_on_its_targets() -> None:
@@ -455,8 +504,14 @@ def test_datagrams_decode_and_carry_the_bundle_guids() -> None:
         assert sender is not None and address_of(b, sender.name) == source
         assert msg.header.vendor_id == VENDORID_SWARMD
         assert destination[1] == b.user_port(receiver)
-        assert msg.submessages[0] == InfoDst(receiver.guid_prefix)
-        for sm in msg.submessages[1:]:
+        # no INFO_DST (the tag names the receiver); the last submessage is the authenticator
+        *body, auth = msg.submessages
+        assert isinstance(auth, SkippedSubmessage) and auth.submessage_id == AUTH_SUBMESSAGE_ID
+        key = FakeKeys(b, receiver.name).pair_key(sender.guid_prefix)
+        assert key is not None
+        assert verify(user_data_key(key), payload, receiver.guid_prefix, 1)
+        for sm in body:
+            assert not isinstance(sm, InfoDst)
             assert isinstance(sm, Data | Heartbeat | AckNack | Gap)
             seen[type(sm).__name__] += 1
             writer_side, reader_side = (

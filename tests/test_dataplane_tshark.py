@@ -1,5 +1,6 @@
 """Wireshark dissects the data plane's traffic cleanly: user DATA with a padded CDR payload,
-HEARTBEAT, ACKNACK with a missing-set bitmap, and GAP, with no expert info.
+HEARTBEAT, ACKNACK with a missing-set bitmap, and GAP, each datagram ending with swarmd's
+authenticator (vendor submessage 0x8a), with no expert info.
 
 The traffic is what a commander and two members sent each other through the lossy network
 of ``test_dataplane_swarm`` (so repairs happen), plus one GAP from a writer whose keep-last
@@ -12,12 +13,20 @@ from pathlib import Path
 
 import pytest
 
+from swarmd.auth.freshness import Freshness
 from swarmd.dataplane import CommandKind
+from swarmd.dataplane.seal import AUTH_SUBMESSAGE_ID, seal, user_data_key
 from swarmd.dataplane.writer import ReliableWriter
-from swarmd.rtps import AckNack, Header, InfoDst, SequenceNumberSet, encode_message
+from swarmd.rtps import AckNack, Header, SequenceNumberSet, encode_message
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD
 from tests.peers.tshark import Datagram, dissect_fields, tshark_path, write_pcap
-from tests.test_dataplane_swarm import address_of, make_swarm, readiness_ticks, send_at
+from tests.test_dataplane_swarm import (
+    FakeKeys,
+    address_of,
+    make_swarm,
+    readiness_ticks,
+    send_at,
+)
 
 pytestmark = [
     pytest.mark.interop,
@@ -35,6 +44,7 @@ FIELDS = [
     "rtps.param.serialize.encap_kind",
     "rtps.padding_bytes",
     "rtps.sm.seqNumber",
+    "rtps.sm.id",
 ]
 
 
@@ -58,7 +68,15 @@ def test_user_traffic_dissects_without_expert_info(tmp_path: Path) -> None:
     ask = AckNack(match.remote.entity_id, match.local.entity_id, SequenceNumberSet.of(1, [1]), 1)
     reply = [o.submessage for o in writer.on_acknack(match.remote, ask, 0.1)]
     header = Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, lead_p.guid_prefix)
-    gap = encode_message(header, [InfoDst(m01.guid_prefix), *reply])
+    key = FakeKeys(swarm.bundle, "lead").pair_key(m01.guid_prefix)
+    assert key is not None
+    gap = seal(
+        user_data_key(key),
+        encode_message(header, reply),
+        Freshness(1, 1 << 20),
+        m01.guid_prefix,
+        1,
+    )
     datagrams.append(
         Datagram(gap, address_of(swarm.bundle, "lead"), address_of(swarm.bundle, "m01"))
     )
@@ -72,8 +90,9 @@ def test_user_traffic_dissects_without_expert_info(tmp_path: Path) -> None:
         assert frame["_ws.expert"] == [] and frame["_ws.malformed"] == [], f"datagram {i}"
         info = frame["_ws.col.Info"][0]
         kinds |= {k.strip() for k in info.split(",")}
-        assert frame["rtps.guidPrefix.dst"], "every datagram starts with INFO_DST"
-    assert {"INFO_DST", "DATA", "HEARTBEAT", "ACKNACK", "GAP"} <= kinds
+        assert frame["rtps.guidPrefix.dst"] == [], "no INFO_DST: the tag names the receiver"
+        assert int(frame["rtps.sm.id"][-1], 16) == AUTH_SUBMESSAGE_ID, f"datagram {i}"
+    assert {"DATA", "HEARTBEAT", "ACKNACK", "GAP", f"Unknown[{AUTH_SUBMESSAGE_ID:x}]"} <= kinds
     # CDR_LE payloads; Wireshark reads the RTPS 2.3 padding count from the options of the
     # padded ones (outcomes: "" pads 3 octets, "ok" pads 1)
     encodings = {k for f in frames for k in f["rtps.param.serialize.encap_kind"]}

@@ -11,11 +11,21 @@ It answers with ``datagrams_to_send()`` (payload, (host, port)) and ``next_event
 
 Theory of operation. There is no SEDP: the bundle says which endpoint of which participant
 talks to which (``Bundle.matches``). A match becomes live when discovery reports the peer
-(``peer_up``, with the default unicast locator from its SPDP) and dies with ``peer_down``.
-Each local endpoint is an RTPS writer or reader chosen by the topic's QoS in the bundle
-(``writer.py``, ``reader.py``). Every datagram to a peer is ``Header + INFO_DST(peer) +
-submessages``; every datagram from a peer must carry a bundle participant's GUID prefix that
-discovery reported up, and each submessage must address a matched endpoint pair.
+(``peer_up``, with the default unicast locator and the boot epoch from its authenticated
+SPDP) and dies with ``peer_down``. Each local endpoint is an RTPS writer or reader chosen by
+the topic's QoS in the bundle (``writer.py``, ``reader.py``).
+
+Authentication (issue 10, ``seal.py``, docs/security.md). Every datagram to a peer is
+``Header + submessages + AUTH``: a swarmd vendor submessage carrying this node's freshness
+(epoch, per-peer sequence) and an HMAC-SHA256 tag under the pair key the bundle gives the
+two nodes, bound to the peer's current epoch. A datagram from a peer is verified before it
+can move anything (reader positions, acknowledged sets, readiness rows, dedup sets): its
+GUID prefix must be a bundle participant discovery reported up, then the cheap checks (a
+trailer, the sender's known epoch, our epoch's hint, a fresh sequence in the sender's
+replay window), then the tag; only then is it decoded and each submessage must address a
+matched endpoint pair. Replay windows, send counters and keys live per bundle participant
+and outlive ``peer_down``, so a peer lost and found again in the same epoch cannot be fed
+its own old datagrams.
 
 Exactly-once commands: the reliable reader delivers each SN of a writer life at most once;
 above it, a bounded set of executed ``(commander, command_id)`` pairs turns re-deliveries
@@ -29,11 +39,13 @@ Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input beco
 
 from __future__ import annotations
 
+import hmac
 from collections import Counter, OrderedDict, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
+from swarmd.auth.freshness import U32_MAX, CounterExhausted, ReplayWindow, SendCounter
 from swarmd.bundle.model import Bundle, Durability, EndpointKind, Participant, Reliability, Topic
 from swarmd.dataplane.events import (
     CommandReceived,
@@ -44,6 +56,15 @@ from swarmd.dataplane.events import (
 )
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
+from swarmd.dataplane.seal import (
+    EPOCH_HINT_MASK,
+    TRAILER_BYTES,
+    peek_trailer,
+    protected_part,
+    seal,
+    user_data_key,
+    verify,
+)
 from swarmd.dataplane.types import (
     MAX_REASON_CHARS,
     TYPES_BY_NAME,
@@ -73,6 +94,7 @@ from swarmd.rtps.message import (
     Heartbeat,
     InfoDst,
     Submessage,
+    decode_header,
     decode_message,
     encode_header,
     encode_submessage,
@@ -113,6 +135,24 @@ MAX_SEQUENCE_NUMBER: Final = (1 << 63) - (1 << 32)
 MAX_PENDING_EVENTS: Final = 4096
 
 
+class PairKeys(Protocol):
+    """Where the plane gets pairwise keys: ``swarmd.auth.keys.KeyRing`` in the daemon."""
+
+    def pair_key(self, peer: GuidPrefix) -> bytes | None:
+        """The 32-byte key this node shares with ``peer`` (equal on both ends), or None."""
+        ...
+
+
+@dataclass(slots=True)
+class _Channel:
+    """Authentication state with one bundle participant; kept across ``peer_down``."""
+
+    key: hmac.HMAC
+    tx: SendCounter  # our freshness towards this peer (per pair: a dense window there)
+    peer_epoch: int  # from its authenticated SPDP, via peer_up
+    window: ReplayWindow = field(default_factory=ReplayWindow)
+
+
 @dataclass(slots=True)
 class _Peer:
     participant: Participant
@@ -141,19 +181,28 @@ class DataPlane:
         bundle: Bundle,
         local_name: str,
         *,
+        keys: PairKeys,
+        epoch: int,
         incarnation: int = 0,
         executed_command_ids: Iterable[tuple[str, int]] = (),
     ) -> None:
-        """``incarnation`` must grow with every restart of this node (a persisted boot
-        counter, or wall-clock seconds); it keeps sequence numbers and command ids unique
-        across restarts. ``executed_command_ids`` restores the dedup set a previous life
-        saved from ``executed_command_ids``."""
+        """``keys`` gives the pairwise keys (``KeyRing``); ``epoch`` is this node's boot
+        epoch, the one its SPDP announces (``swarmd.auth.epoch``): peers bind the datagrams
+        they send here to it. ``incarnation`` must grow with every restart of this node (a
+        persisted boot counter, or wall-clock seconds); it keeps sequence numbers and
+        command ids unique across restarts. ``executed_command_ids`` restores the dedup set
+        a previous life saved from ``executed_command_ids``."""
         if not 0 <= incarnation <= MAX_INCARNATION:
             raise ValueError(f"incarnation {incarnation} outside 0..{MAX_INCARNATION}")
+        if not 0 <= epoch <= U32_MAX:
+            raise ValueError(f"epoch {epoch} outside 0..{U32_MAX}")
         self.bundle = bundle
         self.local = bundle.participant(local_name)
         self.prefix = self.local.guid_prefix
         self.incarnation = incarnation
+        self.epoch = epoch
+        self._keys = keys
+        self._channels: dict[GuidPrefix, _Channel] = {}
         self._writers: dict[EntityId, tuple[Topic, Writer]] = {}
         self._readers: dict[EntityId, tuple[Topic, Reader]] = {}
         self._writer_by_topic: dict[str, Writer] = {}
@@ -189,18 +238,35 @@ class DataPlane:
 
     # --- discovery inputs -------------------------------------------------------------------
 
-    def peer_up(self, name: str, locator: tuple[str, int], now: float) -> None:
-        """Discovery found ``name`` (a bundle participant): its matched endpoints become live,
-        and user data for it goes to ``locator``, whatever the caller chose (the daemon: the
-        host discovery heard it at, with the bundle's user port for it, ``Bundle.user_port``).
-        Again for a known peer: only the locator moves."""
-        known = self._peers.get(name)
-        if known is not None:
-            known.locator = locator
-            return
+    def peer_up(self, name: str, locator: tuple[str, int], now: float, *, epoch: int) -> None:
+        """Discovery found ``name`` (a bundle participant) in boot epoch ``epoch`` (from its
+        authenticated SPDP): its matched endpoints become live, and user data for it goes to
+        ``locator``, whatever the caller chose (the daemon: the host discovery heard it at,
+        with the bundle's user port for it, ``Bundle.user_port``). Again for a known peer in
+        the same epoch: only the locator moves. In another epoch the peer restarted: its
+        reliable state starts over (as after ``peer_down``), its replay window too, and our
+        datagrams are bound to the new epoch.
+
+        A participant the key ring has no pair key for stays down (counted)."""
         peer = self.bundle.participant(name)
         if peer.name == self.local.name:
             raise ValueError(f"peer_up({name!r}) names this node itself")
+        if not 0 <= epoch <= U32_MAX:
+            raise ValueError(f"epoch {epoch} outside 0..{U32_MAX}")
+        channel = self._channel(peer.guid_prefix, epoch)
+        if channel is None:
+            self.counters["peer_without_key"] += 1
+            return
+        known = self._peers.get(name)
+        if known is not None:
+            if channel.peer_epoch == epoch:
+                known.locator = locator
+                return
+            self.peer_down(name, now)
+            self.counters["peer_restarts"] += 1
+        if channel.peer_epoch != epoch:
+            channel.peer_epoch = epoch
+            channel.window = ReplayWindow()
         state = _Peer(peer, locator)
         self._peers[name] = state
         self._peer_by_prefix[peer.guid_prefix] = name
@@ -276,11 +342,11 @@ class DataPlane:
         """One UDP datagram from the user unicast socket. Never raises."""
         self.counters["rx_datagrams"] += 1
         try:
-            message = decode_message(data)
+            header = decode_header(data)
         except DecodeError as exc:
             self._drop("decode_error", source, str(exc))
             return
-        prefix = message.header.guid_prefix
+        prefix = header.guid_prefix
         if prefix == self.prefix:
             self._drop("own", source)
             return
@@ -290,6 +356,15 @@ class DataPlane:
         peer_name = self._peer_by_prefix.get(prefix)
         if peer_name is None:
             self._drop("peer_not_up", source, str(prefix))
+            return
+        refused = self._authenticate(self._channels[prefix], data)
+        if refused is not None:
+            self._drop(refused[0], source, f"{peer_name}: {refused[1]}")
+            return
+        try:
+            message = decode_message(protected_part(data))
+        except DecodeError as exc:  # authentic but malformed: a bug on the sender's side
+            self._drop("decode_error", source, str(exc))
             return
         for_us = True
         for sm in message.submessages:
@@ -314,22 +389,33 @@ class DataPlane:
     def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
         """Everything queued, as ``(payload, (host, port))`` to the peers' unicast locators."""
         out: list[tuple[bytes, tuple[str, int]]] = []
-        header = encode_header(Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, self.prefix))
+        # No INFO_DST: the tag is bound to the receiver's prefix, which says more (wire.md).
+        head = encode_header(Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, self.prefix))
+        room = MAX_DATAGRAM_BYTES - TRAILER_BYTES
         for prefix, submessages in self._pending.items():
             name = self._peer_by_prefix.get(prefix)
             if name is None:
                 continue
             locator = self._peers[name].locator
-            head = header + encode_submessage(InfoDst(prefix))
+            chunks: list[bytes] = []
             chunk = head
             for sm in submessages:
                 encoded = encode_submessage(sm)
-                if len(chunk) + len(encoded) > MAX_DATAGRAM_BYTES and chunk != head:
-                    out.append((chunk, locator))
+                if len(chunk) + len(encoded) > room and chunk != head:
+                    chunks.append(chunk)
                     chunk = head
                 chunk += encoded
             if chunk != head:
-                out.append((chunk, locator))
+                chunks.append(chunk)
+            channel = self._channels[prefix]
+            for message in chunks:
+                try:
+                    freshness = channel.tx.next()
+                except CounterExhausted:  # 2^32 - 1 datagrams to one peer in one epoch
+                    self.counters["tx_counter_exhausted"] += 1
+                    break
+                sealed = seal(channel.key, message, freshness, prefix, channel.peer_epoch)
+                out.append((sealed, locator))
         self._pending.clear()
         self.counters["tx_datagrams"] += len(out)
         return out
@@ -351,7 +437,12 @@ class DataPlane:
         """A JSON-ready snapshot for ``swarmctl status``."""
         return {
             "incarnation": self.incarnation,
+            "epoch": self.epoch,
             "peers_up": self.peers_up,
+            "peer_epochs": {
+                name: self._channels[p.participant.guid_prefix].peer_epoch
+                for name, p in sorted(self._peers.items())
+            },
             "writers": {t.name: _writer_status(w) for t, w in self._writers.values()},
             "readers": {t.name: _fields_of(r.counters) for t, r in self._readers.values()},
             # no per-member readiness here: the commander's table (status "readiness") is
@@ -361,6 +452,43 @@ class DataPlane:
         }
 
     # --- internals --------------------------------------------------------------------------
+
+    def _channel(self, prefix: GuidPrefix, epoch: int) -> _Channel | None:
+        """The authentication state with a bundle participant, made on first use."""
+        channel = self._channels.get(prefix)
+        if channel is None:
+            pair_key = self._keys.pair_key(prefix)
+            if pair_key is None:
+                return None
+            channel = _Channel(user_data_key(pair_key), SendCounter(self.epoch), epoch)
+            self._channels[prefix] = channel
+        return channel
+
+    def _authenticate(self, channel: _Channel, data: bytes) -> tuple[str, str] | None:
+        """None when ``data`` is authentic and fresh (its freshness is then recorded), else
+        (reason, detail). Cheap checks first: a forgery costs at most one HMAC, and only if
+        it guessed a fresh sequence in the sender's current epoch and ours."""
+        trailer = peek_trailer(data)
+        if trailer is None:
+            return "auth_missing", "no swarmd authenticator at the end"
+        fresh = trailer.freshness
+        if fresh.epoch != channel.peer_epoch:
+            # Lower: a datagram of an earlier life (replay). Higher: the sender restarted
+            # and its new SPDP has not reached us yet; refused until it does.
+            older = fresh.epoch < channel.peer_epoch
+            reason = "auth_stale_epoch" if older else "auth_epoch_ahead"
+            return reason, f"epoch {fresh.epoch}, known {channel.peer_epoch}"
+        if trailer.epoch_hint != self.epoch & EPOCH_HINT_MASK:
+            # Made for another life of ours: a capture replayed after we restarted, or a
+            # sender that has not yet heard our new SPDP.
+            return "auth_receiver_epoch", f"hint {trailer.epoch_hint}, ours {self.epoch}"
+        if not channel.window.is_fresh(fresh):
+            return "auth_replayed", f"{fresh.epoch}/{fresh.seq}"
+        if not verify(channel.key, data, self.prefix, self.epoch):
+            return "auth_failed", f"{fresh.epoch}/{fresh.seq}"
+        channel.window.accept(fresh)
+        self.counters["rx_authenticated"] += 1
+        return None
 
     def _publish(self, topic: str, sample: Sample, now: float) -> int:
         writer = self._writer_by_topic.get(topic)
