@@ -58,10 +58,10 @@ from swarmd.rtps import (
 )
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, EntityId, GuidPrefix
 from tests.test_dataplane_swarm import (
-    FakeKeys,
     LossyNet,
     Swarm,
     address_of,
+    keyring,
     make_bundle,
     make_plane,
     make_swarm,
@@ -87,7 +87,7 @@ def sealed(
     """``subs`` under ``claimed``'s GUID prefix, sealed with the pair key ``key_of`` shares
     with ``to``, with the freshness and epochs the real sender would use now."""
     receiver = swarm.bundle.participant(to)
-    key = FakeKeys(swarm.bundle, key_of).pair_key(receiver.guid_prefix)
+    key = keyring(swarm.bundle, key_of).pair_key(receiver.guid_prefix)
     assert key is not None
     fresh = Freshness(swarm.epochs.get(claimed.name, 1), seq)
     return seal(

@@ -46,7 +46,7 @@ from swarmd.rtps.types import (
     GuidPrefix,
     Time,
 )
-from tests.test_dataplane_swarm import FakeKeys, address_of, make_bundle, make_plane
+from tests.test_dataplane_swarm import address_of, keyring, make_bundle, make_plane
 
 SRC = ("10.0.0.2", 7413)
 BUNDLE = make_bundle(2)
@@ -73,7 +73,7 @@ def from_peer(prefix: GuidPrefix, *subs: Submessage, to: Participant = LEAD) -> 
     """A datagram from ``prefix`` to ``to``, sealed with their pair key when they have one
     (epoch 1 on both ends, a sequence no earlier call used)."""
     message = encode_message(Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, prefix), list(subs))
-    key = FakeKeys(BUNDLE, to.name).pair_key(prefix)
+    key = keyring(BUNDLE, to.name).pair_key(prefix)
     if key is None:
         return message
     return seal(user_data_key(key), message, Freshness(1, next(_SEQ)), to.guid_prefix, 1)

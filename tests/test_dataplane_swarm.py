@@ -7,7 +7,6 @@ the next datagram arrival, timer or application tick.
 
 from __future__ import annotations
 
-import hashlib
 import heapq
 import json
 import random
@@ -17,6 +16,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
+from swarmd.auth.keys import KeyRing, NodeSecrets
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle, Role
@@ -35,7 +35,7 @@ from swarmd.dataplane import (
 )
 from swarmd.dataplane.seal import AUTH_SUBMESSAGE_ID, user_data_key, verify
 from swarmd.rtps import AckNack, Data, Gap, Heartbeat, InfoDst, SkippedSubmessage, decode_message
-from swarmd.rtps.types import VENDORID_SWARMD, GuidPrefix
+from swarmd.rtps.types import VENDORID_SWARMD
 
 Address = tuple[str, int]
 Tick = tuple[float, Callable[[], object]]
@@ -67,18 +67,9 @@ def address_of(bundle: Bundle, name: str) -> Address:
     return (f"10.0.0.{p.index + 1}", bundle.user_port(p))
 
 
-class FakeKeys:
-    """Pairwise keys for tests: equal on both ends of a pair, different for every pair."""
-
-    def __init__(self, bundle: Bundle, name: str) -> None:
-        self.bundle = bundle
-        self.own = bundle.participant(name).guid_prefix
-
-    def pair_key(self, peer: GuidPrefix) -> bytes | None:
-        if self.bundle.by_prefix(peer) is None or peer == self.own:
-            return None
-        low, high = sorted((peer.value, self.own.value))
-        return hashlib.sha256(b"test pair key|" + low + high).digest()
+def keyring(bundle: Bundle, name: str) -> KeyRing:
+    """``name``'s key ring as its daemon builds it (a dev bundle's derivable node keys)."""
+    return KeyRing.from_bundle(bundle, name, NodeSecrets.dev(bundle.swarm, name))
 
 
 def make_plane(
@@ -92,7 +83,7 @@ def make_plane(
     return DataPlane(
         bundle,
         name,
-        keys=FakeKeys(bundle, name),
+        keys=keyring(bundle, name),
         epoch=epoch,
         incarnation=incarnation,
         executed_command_ids=executed_command_ids,
@@ -507,7 +498,7 @@ def test_datagrams_decode_and_carry_the_bundle_guids() -> None:
         # no INFO_DST (the tag names the receiver); the last submessage is the authenticator
         *body, auth = msg.submessages
         assert isinstance(auth, SkippedSubmessage) and auth.submessage_id == AUTH_SUBMESSAGE_ID
-        key = FakeKeys(b, receiver.name).pair_key(sender.guid_prefix)
+        key = keyring(b, receiver.name).pair_key(sender.guid_prefix)
         assert key is not None
         assert verify(user_data_key(key), payload, receiver.guid_prefix, 1)
         for sm in body:

@@ -21,8 +21,8 @@ from swarmd.rtps import AckNack, Header, SequenceNumberSet, encode_message
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD
 from tests.peers.tshark import Datagram, dissect_fields, tshark_path, write_pcap
 from tests.test_dataplane_swarm import (
-    FakeKeys,
     address_of,
+    keyring,
     make_swarm,
     readiness_ticks,
     send_at,
@@ -68,7 +68,7 @@ def test_user_traffic_dissects_without_expert_info(tmp_path: Path) -> None:
     ask = AckNack(match.remote.entity_id, match.local.entity_id, SequenceNumberSet.of(1, [1]), 1)
     reply = [o.submessage for o in writer.on_acknack(match.remote, ask, 0.1)]
     header = Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, lead_p.guid_prefix)
-    key = FakeKeys(swarm.bundle, "lead").pair_key(m01.guid_prefix)
+    key = keyring(swarm.bundle, "lead").pair_key(m01.guid_prefix)
     assert key is not None
     gap = seal(
         user_data_key(key),

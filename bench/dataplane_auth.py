@@ -1,0 +1,220 @@
+"""What authenticating user data costs: bytes on the wire and CPU per datagram.
+
+    .venv/bin/python bench/dataplane_auth.py [--repeat 7] [--number 20000] [--json]
+
+Bytes come from the real encoder: two ``DataPlane``s of the shipped 10-node mission
+(``firmware_bundle/missions/swarm10.yaml``: a commander and 9 members, dev keys) exchange
+the 1 Hz readiness stream and one TAKEOFF with its two outcomes. "Without" is the same
+datagram as the data plane sent it before authentication (``Header + INFO_DST(receiver) +
+submessages``, rebuilt with the codec from the authenticated one's submessages); "with" is
+what it sends now (``Header + submessages + AUTH``, 28-octet authenticator, no INFO_DST,
+docs/wire.md). Octets are UDP payload; "+IP/UDP" adds the 28 octets of IPv4 and UDP headers
+every datagram also carries on the air.
+
+CPU: median of ``--repeat`` timeit runs of ``--number`` calls, microseconds per call, for
+``seal`` (HMAC-SHA256 over the datagram) and ``verify`` of a readiness datagram, and for the
+data plane's whole ``receive_datagram`` on a forged datagram refused by a cheap check, on
+one refused by its tag, and on an authentic one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import sys
+import timeit
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from swarmd.auth.freshness import Freshness  # noqa: E402
+from swarmd.auth.keys import KeyRing, NodeSecrets  # noqa: E402
+from swarmd.bundle.build import build_dev_bundle  # noqa: E402
+from swarmd.bundle.mission import parse_mission  # noqa: E402
+from swarmd.bundle.model import Bundle, Role  # noqa: E402
+from swarmd.dataplane import CommandKind, CommandResult, DataPlane, Readiness  # noqa: E402
+from swarmd.dataplane.seal import (  # noqa: E402
+    TAG_BYTES,
+    protected_part,
+    seal,
+    user_data_key,
+    verify,
+)
+from swarmd.rtps import InfoDst, decode_message, encode_message  # noqa: E402
+
+MISSION = ROOT / "firmware_bundle" / "missions" / "swarm10.yaml"
+IP_UDP_BYTES = 28
+EPOCH = 1_763_900_000  # a wall-clock epoch, as swarmd.auth.epoch makes them
+
+
+def plane(bundle: Bundle, name: str) -> DataPlane:
+    keys = KeyRing.from_bundle(bundle, name, NodeSecrets.dev(bundle.swarm, name))
+    return DataPlane(bundle, name, keys=keys, epoch=EPOCH)
+
+
+def unauthenticated(datagram: bytes, receiver: DataPlane) -> bytes:
+    """The same datagram as the data plane sent it before issue 10."""
+    msg = decode_message(protected_part(datagram))
+    return encode_message(msg.header, [InfoDst(receiver.prefix), *msg.submessages])
+
+
+def exchange(bundle: Bundle) -> dict[str, list[tuple[int, int]]]:
+    """(with, without) octets of every datagram, by flow, between lead and one member."""
+    members = [p.name for p in bundle.participants if p.role == Role.MEMBER]
+    lead, member = plane(bundle, "lead"), plane(bundle, members[0])
+    lead.peer_up(member.local.name, ("10.42.0.11", 7413), 0.0, epoch=EPOCH)
+    member.peer_up("lead", ("10.42.0.10", 7411), 0.0, epoch=EPOCH)
+    flows: dict[str, list[tuple[int, int]]] = {}
+
+    def pump(src: DataPlane, dst: DataPlane, flow: str) -> None:
+        for payload, _ in src.datagrams_to_send():
+            flows.setdefault(flow, []).append((len(payload), len(unauthenticated(payload, dst))))
+            dst.receive_datagram(payload, ("10.42.0.1", 7411), 0.0)
+
+    name = member.local.name
+    member.publish_readiness(Readiness(name, 1, True, "", False, 1, 3, 14, 87, 800), 0.0)
+    pump(member, lead, "readiness (ready)")
+    not_ready = Readiness(name, 2, False, "px4_no_heartbeat", False, 0, 0, 255, -1, 800)
+    member.publish_readiness(not_ready, 0.0)
+    pump(member, lead, "readiness (not ready, reason)")
+    lead.send_command(lead.make_command(CommandKind.TAKEOFF, altitude_m=10.0), 0.0)
+    pump(lead, member, "command: TAKEOFF (DATA + HEARTBEAT)")
+    pump(member, lead, "command: member's ACKNACK")
+    while (event := member.next_event()) is not None:
+        if type(event).__name__ == "CommandReceived":
+            cid = event.command.command_id  # type: ignore[union-attr]
+            member.report_outcome(cid, CommandResult.ACCEPTED, 0.0)
+            member.report_outcome(cid, CommandResult.COMPLETED, 0.0, "ok")
+    pump(member, lead, "outcomes: ACCEPTED + COMPLETED")
+    pump(lead, member, "outcomes: commander's ACKNACK")
+    return flows
+
+
+def timings(bundle: Bundle, repeat: int, number: int) -> dict[str, float]:
+    members = [p.name for p in bundle.participants if p.role == Role.MEMBER]
+    lead, member = plane(bundle, "lead"), plane(bundle, members[0])
+    lead.peer_up(members[0], ("10.42.0.11", 7413), 0.0, epoch=EPOCH)
+    member.peer_up("lead", ("10.42.0.10", 7411), 0.0, epoch=EPOCH)
+    member.publish_readiness(Readiness(members[0], 1, True, "", False, 1, 3, 14, 87, 800), 0.0)
+    ((datagram, _),) = member.datagrams_to_send()
+    keys = KeyRing.from_bundle(bundle, members[0], NodeSecrets.dev(bundle.swarm, members[0]))
+    pair = keys.pair_key(lead.prefix)
+    assert pair is not None
+    key = user_data_key(pair)
+    body = protected_part(datagram)
+    fresh = Freshness(EPOCH, 1)
+    forged = datagram[:-TAG_BYTES] + bytes(TAG_BYTES)
+    missing = body  # no authenticator at all
+    source = ("10.42.0.11", 7413)
+
+    def refused(data: bytes) -> Callable[[], None]:
+        def run() -> None:
+            lead.receive_datagram(data, source, 0.0)
+            lead.next_event()
+
+        return run
+
+    cases: dict[str, Callable[[], object]] = {
+        "seal (HMAC-SHA256-128 of a readiness datagram)": lambda: seal(
+            key, body, fresh, lead.prefix, EPOCH
+        ),
+        "verify (the same, constant-time compare)": lambda: verify(
+            key, datagram, lead.prefix, EPOCH
+        ),
+        "receive_datagram, refused: no authenticator": refused(missing),
+        "receive_datagram, refused: replayed sequence": refused(datagram),
+        "receive_datagram, refused: bad tag": refused(forged),
+    }
+    lead.receive_datagram(datagram, source, 0.0)  # now a replay for the case above
+    while lead.next_event() is not None:
+        pass
+    out = {name: measure(fn, repeat, number) for name, fn in cases.items()}
+    # an authentic datagram needs a sequence never seen: seal them all before timing
+    fresh_ones = iter(
+        [
+            seal(key, body, Freshness(EPOCH, 2 + i), lead.prefix, EPOCH)
+            for i in range(repeat * number)
+        ]
+    )
+
+    def authentic() -> None:
+        lead.receive_datagram(next(fresh_ones), source, 0.0)
+        while lead.next_event() is not None:
+            pass
+
+    name = "receive_datagram, authentic readiness (verify, decode, deliver)"
+    out[name] = measure(authentic, repeat, number)
+    return out
+
+
+def measure(fn: Callable[[], object], repeat: int, number: int) -> float:
+    runs = timeit.repeat(fn, repeat=repeat, number=number)
+    return statistics.median(runs) / number * 1e6
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=7, help="timeit runs; the median is reported")
+    ap.add_argument("--number", type=int, default=20000, help="calls per run")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead")
+    args = ap.parse_args()
+    bundle = build_dev_bundle(parse_mission(MISSION.read_text())).bundle
+    members = sum(1 for p in bundle.participants if p.role == Role.MEMBER)
+    flows = exchange(bundle)
+    cpu = timings(bundle, args.repeat, args.number)
+    with_ready, without_ready = flows["readiness (ready)"][0]
+    stream: dict[str, Any] = {
+        "nodes": len(bundle.participants),
+        "members": members,
+        "bytes_per_s_with": members * with_ready,
+        "bytes_per_s_without": members * without_ready,
+        "bytes_per_s_with_ip_udp": members * (with_ready + IP_UDP_BYTES),
+        "bytes_per_s_without_ip_udp": members * (without_ready + IP_UDP_BYTES),
+    }
+    result = {
+        "machine": {"python": platform.python_version(), "cpu": platform.processor()},
+        "datagrams": flows,
+        "readiness_stream": stream,
+        "cpu_us": cpu,
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f"mission {MISSION.name}: {len(bundle.participants)} nodes, {members} members\n")
+    print("| flow | without | with | change | +IP/UDP without | +IP/UDP with | change |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for flow, sizes in flows.items():
+        w = sum(s[0] for s in sizes)
+        wo = sum(s[1] for s in sizes)
+        n = len(sizes)
+        w_ip, wo_ip = w + n * IP_UDP_BYTES, wo + n * IP_UDP_BYTES
+        print(
+            f"| {flow} ({n} datagram{'s' if n > 1 else ''}) | {wo} | {w} | {pct(w, wo)} "
+            f"| {wo_ip} | {w_ip} | {pct(w_ip, wo_ip)} |"
+        )
+    s = stream
+    print(
+        f"\nreadiness stream, 1 Hz x {members} members: {s['bytes_per_s_without']} -> "
+        f"{s['bytes_per_s_with']} B/s ({pct(s['bytes_per_s_with'], s['bytes_per_s_without'])}); "
+        f"with IP/UDP {s['bytes_per_s_without_ip_udp']} -> {s['bytes_per_s_with_ip_udp']} B/s "
+        f"({pct(s['bytes_per_s_with_ip_udp'], s['bytes_per_s_without_ip_udp'])}); "
+        "packets unchanged\n"
+    )
+    print("| case | µs per call |")
+    print("|---|---:|")
+    for name, us in cpu.items():
+        print(f"| {name} | {us:.2f} |")
+    return 0
+
+
+def pct(new: int, old: int) -> str:
+    return f"{(new - old) / old * 100:+.1f} %"
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
