@@ -22,9 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import statistics
 import sys
-import timeit
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -32,6 +30,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench.codec import measure  # noqa: E402
 from swarmd.auth.freshness import Freshness  # noqa: E402
 from swarmd.auth.keys import KeyRing, NodeSecrets  # noqa: E402
 from swarmd.bundle.build import build_dev_bundle  # noqa: E402
@@ -150,11 +149,6 @@ def timings(bundle: Bundle, repeat: int, number: int) -> dict[str, float]:
     name = "receive_datagram, authentic readiness (verify, decode, deliver)"
     out[name] = measure(authentic, repeat, number)
     return out
-
-
-def measure(fn: Callable[[], object], repeat: int, number: int) -> float:
-    runs = timeit.repeat(fn, repeat=repeat, number=number)
-    return statistics.median(runs) / number * 1e6
 
 
 def main() -> int:

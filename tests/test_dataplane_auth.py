@@ -58,6 +58,7 @@ from swarmd.rtps import (
 )
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, EntityId, GuidPrefix
 from tests.test_dataplane_swarm import (
+    Address,
     LossyNet,
     Swarm,
     address_of,
@@ -263,7 +264,12 @@ def test_a_forged_acknack_cannot_stop_the_commanders_repairs() -> None:
     # a command m01 will never hear: only a forged ACKNACK could make it "acknowledged"
     cut = address_of(swarm.bundle, "m01")
     original = swarm.net.send
-    swarm.net.send = lambda p, s, d, now: None if d == cut else original(p, s, d, now)  # type: ignore[method-assign]
+
+    def send(payload: bytes, source: Address, destination: Address, now: float) -> None:
+        if destination != cut:
+            original(payload, source, destination, now)
+
+    swarm.net.send = send  # type: ignore[method-assign]
     cmd = lead.make_command(CommandKind.TAKEOFF, altitude_m=5.0)
     swarm.run_until(swarm.now + 0.5, [send_at(swarm, swarm.now + 0.1, cmd)])
     swarm.net.send = original  # type: ignore[method-assign]

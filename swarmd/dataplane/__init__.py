@@ -18,6 +18,7 @@ from swarmd.dataplane.plane import (
     TOPIC_OUTCOME,
     TOPIC_READY,
     DataPlane,
+    PairKeys,
 )
 from swarmd.dataplane.types import (
     Command,
@@ -45,6 +46,7 @@ __all__ = [
     "Event",
     "OutcomeReceived",
     "PacketDropped",
+    "PairKeys",
     "PayloadError",
     "Readiness",
     "ReadinessReceived",

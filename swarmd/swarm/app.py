@@ -40,6 +40,7 @@ from swarmd.dataplane import (
     DataPlaneEvent,
     OutcomeReceived,
     PacketDropped,
+    PairKeys,
     ReadinessReceived,
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
@@ -88,12 +89,18 @@ class SwarmApp:
         *,
         log: Any,
         link_q: Callable[[], float],
+        keys: PairKeys,
+        epoch: int,
         node_secrets: NodeSecrets | None = None,
     ) -> None:
+        """``keys`` (the daemon's ``KeyRing``) and ``epoch`` (this boot's, the one its SPDP
+        announces) authenticate the data plane's datagrams (docs/security.md)."""
         self.config = config
         self.bundle = bundle
         self.log = log
         self.link_q = link_q
+        self.keys = keys
+        self.epoch = epoch
         self.node_secrets = node_secrets  # the PX4 link's signing key derives from them
         self.me = config.member_of(bundle)
         self.is_commander = _writes(self.me, TOPIC_COMMAND)
@@ -119,7 +126,8 @@ class SwarmApp:
         self._seq = 0
         self._local_commands: set[int] = set()
         self._last_verdict: tuple[bool, str | None] | None = None
-        self._up: dict[str, str | None] = {}  # discovered peers -> address, replayed on start
+        # discovered peers -> (address, boot epoch), replayed on start
+        self._up: dict[str, tuple[str | None, int]] = {}
         self.counters: dict[str, int] = {"readiness_published": 0, "state_save_errors": 0}
 
     # ---- life -----------------------------------------------------------------------------
@@ -197,6 +205,8 @@ class SwarmApp:
             plane = DataPlane(
                 self.bundle,
                 self.me.name,
+                keys=self.keys,
+                epoch=self.epoch,
                 incarnation=self.state.boot,
                 executed_command_ids=self.state.executed,
             )
@@ -213,8 +223,8 @@ class SwarmApp:
                 "(is another participant with the same bundle index running?)",
                 EX_OSERR,
             ) from None
-        for name, address in list(self._up.items()):
-            self.peer_up(name, address)
+        for name, (address, epoch) in list(self._up.items()):
+            self.peer_up(name, address, epoch)
         self.log.info(
             "dataplane_started",
             user_port=port,
@@ -237,8 +247,10 @@ class SwarmApp:
 
     # ---- discovery input ------------------------------------------------------------------
 
-    def peer_up(self, name: str, ipv4: str | None) -> None:
-        self._up[name] = ipv4
+    def peer_up(self, name: str, ipv4: str | None, epoch: int) -> None:
+        """Discovery heard ``name`` at ``ipv4`` in boot ``epoch`` (its authenticated SPDP);
+        again with a higher epoch when it restarted, or another address when it moved."""
+        self._up[name] = (ipv4, epoch)
         self.table.on_peer(name, True)
         if self.adapter is None:
             return
@@ -247,7 +259,7 @@ class SwarmApp:
         if address is None:
             self.log.warning("peer_without_address", peer=name)
             return
-        self.adapter.peer_up(name, (address, self.bundle.user_port(peer)))
+        self.adapter.peer_up(name, (address, self.bundle.user_port(peer)), epoch)
 
     def peer_down(self, name: str) -> None:
         self._up.pop(name, None)

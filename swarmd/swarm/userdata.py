@@ -98,8 +98,8 @@ class UserDataAdapter:
         self.plane.receive_datagram(data, addr, self.now)
         self._after_input()
 
-    def peer_up(self, name: str, locator: tuple[str, int]) -> None:
-        self.plane.peer_up(name, locator, self.now)
+    def peer_up(self, name: str, locator: tuple[str, int], epoch: int) -> None:
+        self.plane.peer_up(name, locator, self.now, epoch=epoch)
         self._after_input()
 
     def peer_down(self, name: str) -> None:
