@@ -475,3 +475,41 @@ def test_every_single_bit_flip_of_a_takeoff_is_refused() -> None:
     assert state(plane) == before
     assert plane.counters["rx_authenticated"] == 0
     assert {"auth_failed", "auth_missing", "decode_error"} <= reasons
+
+
+# --- what discovery reports -----------------------------------------------------------------
+
+
+def test_an_epoch_going_back_is_ignored_and_the_old_lifes_datagrams_stay_refused() -> None:
+    swarm = flying_swarm()
+    capture, _ = captured_takeoff(swarm)
+    swarm.restart("lead", incarnation=1)
+    for m in swarm.members:
+        swarm.up("lead", m)
+        swarm.up(m, "lead")
+    member = swarm.planes["m01"]
+    member.peer_up("lead", address_of(swarm.bundle, "lead"), swarm.now, epoch=1)
+    assert member.counters["peer_epoch_went_back"] == 1
+    assert member.status(swarm.now)["peer_epochs"]["lead"] == 2
+    assert_refused(swarm, "m01", capture, "auth_stale_epoch")
+    still_commands(swarm)
+
+
+def test_a_peer_without_a_pair_key_stays_down() -> None:
+    class NoKeys:
+        def pair_key(self, peer: GuidPrefix) -> bytes | None:
+            return None
+
+    swarm = make_swarm(1)
+    plane = DataPlane(swarm.bundle, "lead", keys=NoKeys(), epoch=1)
+    plane.peer_up("m01", address_of(swarm.bundle, "m01"), 0.0, epoch=1)
+    assert plane.peers_up == [] and plane.counters["peer_without_key"] == 1
+
+
+def test_a_peer_lost_and_found_in_the_same_epoch_keeps_its_replay_window() -> None:
+    swarm = flying_swarm()
+    capture, _ = captured_takeoff(swarm)
+    member = swarm.planes["m01"]
+    member.peer_down("lead", swarm.now)
+    swarm.up("m01", "lead")
+    assert_refused(swarm, "m01", capture, "auth_replayed")

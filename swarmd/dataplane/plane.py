@@ -245,7 +245,8 @@ class DataPlane:
         with the bundle's user port for it, ``Bundle.user_port``). Again for a known peer in
         the same epoch: only the locator moves. In another epoch the peer restarted: its
         reliable state starts over (as after ``peer_down``), its replay window too, and our
-        datagrams are bound to the new epoch.
+        datagrams are bound to the new epoch. An epoch lower than one seen before is ignored
+        (counted): it would let that earlier life's datagrams count again.
 
         A participant the key ring has no pair key for stays down (counted)."""
         peer = self.bundle.participant(name)
@@ -256,6 +257,11 @@ class DataPlane:
         channel = self._channel(peer.guid_prefix, epoch)
         if channel is None:
             self.counters["peer_without_key"] += 1
+            return
+        if epoch < channel.peer_epoch:
+            # Epochs only grow (swarmd.auth.epoch); an older one would re-open the replay
+            # window to that life's captures. Discovery refuses such SPDP too: fail closed.
+            self.counters["peer_epoch_went_back"] += 1
             return
         known = self._peers.get(name)
         if known is not None:
