@@ -337,6 +337,8 @@ class Daemon:
             self.bundle,
             log=self.log,
             link_q=self._link_q,
+            keys=self.keyring,  # user data is MAC'd per pair and bound to epochs
+            epoch=self.epoch.epoch,
             node_secrets=self._secrets,
         )
         self.app = app
@@ -522,15 +524,18 @@ class Daemon:
                 self.log.info(
                     "peer_discovered", peer=name, via=via, matched=len(matches), epoch=epoch
                 )
-                if self.app is not None:
-                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix))
+                if self.app is not None and epoch is not None:  # None only without auth
+                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
             case PeerLocatorsChanged(name=name, default_unicast_locators=user):
                 # authenticated: the peer itself moved its address
                 self.log.info("peer_locators_changed", peer=name, user=[str(x) for x in user])
                 if self.app is not None:
-                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix))
+                    self.app.peer_moved(name, self._peer_ipv4(event.guid_prefix))
             case PeerRestarted(name=name, epoch=epoch, previous_epoch=previous):
                 self.log.info("peer_restarted", peer=name, epoch=epoch, previous_epoch=previous)
+                # its data-plane state belongs to its earlier life: the plane resets it
+                if self.app is not None:
+                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
                 if self.app is not None:

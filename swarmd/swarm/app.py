@@ -4,8 +4,10 @@ What the swarm is for: every member reports readiness to the commander, the comm
 sends take-off, each drone's autopilot takes off. ``SwarmApp`` joins the pieces for one
 daemon:
 
-- discovery's ``PeerDiscovered``/``PeerLost`` -> the data plane's ``peer_up``/``peer_down``
-  (user unicast locator = the peer's address + ``Bundle.user_port``);
+- discovery's ``PeerDiscovered``/``PeerRestarted``/``PeerLocatorsChanged``/``PeerLost`` ->
+  the data plane's ``peer_up``/``peer_down`` (user unicast locator = the peer's address +
+  ``Bundle.user_port``; the peer's boot epoch from its signed SPDP, to which the plane binds
+  every datagram it sends it: docs/security.md);
 - a member publishes ``swarm/ready`` every ``readiness_period_s`` (1 Hz, the paper's
   workload) and at once when its PX4 verdict changes, so a lost autopilot link reaches the
   commander within PX4's 2.5 s heartbeat timeout rather than up to a period later;
@@ -260,6 +262,12 @@ class SwarmApp:
             self.log.warning("peer_without_address", peer=name)
             return
         self.adapter.peer_up(name, (address, self.bundle.user_port(peer)), epoch)
+
+    def peer_moved(self, name: str, ipv4: str | None) -> None:
+        """Discovery heard ``name`` announce another address (authenticated SPDP)."""
+        known = self._up.get(name)
+        if known is not None:
+            self.peer_up(name, ipv4, known[1])
 
     def peer_down(self, name: str) -> None:
         self._up.pop(name, None)
