@@ -301,7 +301,8 @@ def test_a_forged_readiness_at_a_high_sn_cannot_pin_a_row() -> None:
             )
         ],
     )
-    assert swarm.planes["lead"].status(swarm.now)["readiness"]["m01"]["seq"] == 2
+    row = swarm.planes["lead"].readiness_received("m01")
+    assert row is not None and row.last is not None and row.last.seq == 2
     still_commands(swarm)
 
 
