@@ -82,6 +82,9 @@ class Px4Section:
     allow_unknown_battery: bool = False
     require_home: bool = True
     takeoff_alt_m: float = 10.0  # metres above home when swarmctl takeoff has no --alt
+    backend: str = "mavlink"  # | "xrce-agent" | "xrce-client" (docs/px4.md, uXRCE-DDS)
+    xrce_key: int | None = None  # xrce-agent: only this UXRCE_DDS_KEY may open a session
+    namespace: str | None = None  # PX4's UXRCE_DDS_NS (topics rt/<ns>/fmu/...)
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,6 +169,9 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "allow_unknown_battery",
         "require_home",
         "takeoff_alt_m",
+        "backend",
+        "xrce_key",
+        "namespace",
     ),
     "dataplane": ("enabled", "readiness_period_s", "stale_after_s", "state_dir"),
     "logging": ("level", "format"),
@@ -447,12 +453,23 @@ class _Checker:
             self.fail(node, path, problem, fix or "see docs/px4.md")
 
         d = Px4Section()
-        connection = d.connection
+        backend = d.backend
+        if "backend" in f:
+            backend = self.string(f["backend"], "px4.backend", "mavlink, xrce-agent or xrce-client")
+            if backend not in ("mavlink", "xrce-agent", "xrce-client"):
+                self.fail(f["backend"], "px4.backend", f"{backend!r} is not a backend",
+                          "mavlink, xrce-agent or xrce-client")  # fmt: skip
+        xrce = backend != "mavlink"
+        connection = "udp:127.0.0.1:8888" if xrce else d.connection  # PX4 SITL's agent default
         where = f.get("connection")
         if where is not None:
             connection = self.string(where, "px4.connection", "a connection string")
+            from swarmd.px4.xrce_backend import parse_xrce_connection
+
             try:
-                endpoint = parse_connection(connection, "px4.connection")
+                endpoint = (parse_xrce_connection if xrce else parse_connection)(
+                    connection, "px4.connection"
+                )
             except ValueError as exc:
                 relay(where, "px4.connection", exc)
             allow_network = (
@@ -516,6 +533,17 @@ class _Checker:
             allow_unknown_battery=flag("allow_unknown_battery", d.allow_unknown_battery),
             require_home=flag("require_home", d.require_home),
             takeoff_alt_m=num("takeoff_alt_m", 0.5, 120.0, " m", d.takeoff_alt_m),
+            backend=backend,
+            xrce_key=(
+                int(self.number(f["xrce_key"], "px4.xrce_key", 1, 0xFFFFFFFF))
+                if "xrce_key" in f
+                else None
+            ),
+            namespace=(
+                self.string(f["namespace"], "px4.namespace", "PX4's UXRCE_DDS_NS")
+                if "namespace" in f
+                else None
+            ),
         )
 
     def dataplane(self, f: Nodes) -> DataplaneSection:

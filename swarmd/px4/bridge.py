@@ -51,6 +51,9 @@ class Px4Config:
     sysid: int = 1  # the vehicle's MAV_SYS_ID; we are component 191 of it
     autopilot: str | None = None  # "IP:PORT" to pin; None: the first heartbeat's source
     signing_key: bytes | None = None  # MAVLink 2 signing (32 bytes); None: off
+    backend: str = "mavlink"  # | "xrce-agent" | "xrce-client" (docs/px4.md)
+    xrce_key: int | None = None  # xrce-agent: accept only this UXRCE_DDS_KEY (None: any)
+    namespace: str | None = None  # PX4 UXRCE_DDS_NS
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
     takeoff: TakeoffConfig = field(default_factory=TakeoffConfig)
 
@@ -83,13 +86,25 @@ class Px4Bridge:
 
     @classmethod
     def from_config(cls, config: Px4Config, *, log: Any = None) -> Px4Bridge:
-        """A bridge on the MAVLink backend; raises ValueError (one line) on a bad config."""
-        backend = MavlinkBackend(
-            config.connection,
-            sysid=config.sysid,
-            autopilot=config.autopilot,
-            signing_key=config.signing_key,
-        )
+        """A bridge on the configured backend; raises ValueError (one line) on a bad config."""
+        backend: VehicleBackend
+        if config.backend in ("xrce-agent", "xrce-client"):
+            from swarmd.px4.xrce_backend import XrceBackend  # only XRCE configs pay for it
+
+            backend = XrceBackend(
+                config.backend,  # type: ignore[arg-type]
+                config.connection,
+                sysid=config.sysid,
+                expected_key=config.xrce_key,
+                namespace=config.namespace,
+            )
+        else:
+            backend = MavlinkBackend(
+                config.connection,
+                sysid=config.sysid,
+                autopilot=config.autopilot,
+                signing_key=config.signing_key,
+            )
         return cls(
             backend, readiness_config=config.readiness, takeoff_config=config.takeoff, log=log
         )

@@ -167,6 +167,9 @@ class SwarmApp:
                         sysid=sysid,
                         autopilot=px4.autopilot,
                         signing_key=signing_key,
+                        backend=px4.backend,
+                        xrce_key=px4.xrce_key,
+                        namespace=px4.namespace,
                         readiness=ReadinessConfig(
                             heartbeat_timeout_s=px4.heartbeat_timeout_s,
                             min_battery_pct=px4.min_battery_pct,

@@ -327,9 +327,10 @@ class Create(_Sub):
     @classmethod
     def parse(cls, r: Reader, flags: int) -> Create:
         request_id, oid = _pull_request(r)
+        # the variant's kind rules, not the id's nibble: PX4 numbers topic objects by ORB_ID,
+        # and ids past 0xFFF wrap (vehicle_attitude arrives as 0x0000 with kind TOPIC); the
+        # eProsima agent accepts that, and so must we or PX4's whole set-up fails
         kind, fmt = r.u8(), r.u8()
-        if kind != object_kind(oid):
-            raise DecodeError(f"CREATE kind {kind} for object id {oid:#06x}")
         rep: str | bytes
         if fmt in (Repr.REF, Repr.XML):
             rep = r.string()

@@ -1,0 +1,279 @@
+"""The uXRCE-DDS backends: swarmd as PX4's agent (``xrce-agent``) or as a second client of an
+existing MicroXRCEAgent (``xrce-client``).
+
+Both translate topics into the same observations as MAVLink (``xrce_translate``) and
+``VehicleCommand`` into ``/fmu/in/vehicle_command``; readiness and take-off do not know which
+wire they run on. The asyncio part is the thin adapter of style.md rule 11: a datagram (or,
+on a UART, a deframed message) goes to the sans-IO engine with ``loop.time()``, events are
+drained, datagrams sent, and one ``TimerHandle`` re-armed at ``engine.get_timer()``.
+
+Connections: ``udp:HOST:PORT`` -- the agent binds it (PX4 SITL's default 127.0.0.1:8888),
+the client sends to it; ``serial:/dev/ttyTHS1:921600`` -- the agent on a UART, with
+Micro XRCE-DDS's framing (PX4 ``UXRCE_DDS_CFG`` = TELEM2).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections import Counter
+from typing import Any, Final, Literal, Protocol
+
+from swarmd.px4.backend import ObservationSink
+from swarmd.px4.messages import VehicleCommand
+from swarmd.px4.transport import ByteLink, Endpoint, open_link
+from swarmd.px4.xrce_translate import Px4Translator
+from swarmd.xrce.agent import XrceAgent
+from swarmd.xrce.client import XrceClient
+from swarmd.xrce.events import (
+    Address,
+    PacketDropped,
+    SampleReceived,
+    SessionCreated,
+    SessionEnded,
+    XrceEvent,
+)
+from swarmd.xrce.framing import Deframer, frame
+from swarmd.xrce.px4 import dds_topic
+
+Mode = Literal["xrce-agent", "xrce-client"]
+DEFAULT_XRCE_CONNECTION: Final = "udp:127.0.0.1:8888"
+SERIAL_PEER: Final = "serial"
+
+
+def parse_xrce_connection(text: str, field: str = "px4.connection") -> Endpoint:
+    """``udp:HOST:PORT`` or ``serial:DEVICE:BAUD``; ValueError with one line otherwise."""
+    kind, _, rest = text.partition(":")
+    example = "udp:127.0.0.1:8888 or serial:/dev/ttyTHS1:921600"
+    if kind == "udp":
+        host, _, port = rest.rpartition(":")
+        if host and port.isdigit() and 0 < int(port) < 65536:
+            return Endpoint("udpin", host=host, port=int(port))
+    elif kind == "serial":
+        device, _, baud = rest.rpartition(":")
+        if device.startswith("/") and baud.isdigit():
+            return Endpoint("serial", device=device, baud=int(baud))
+    raise ValueError(f"{field}: {text!r} is not an XRCE connection; fix: {example}")
+
+
+class _Engine(Protocol):
+    def receive_datagram(self, data: bytes, source: Address, now: float) -> None: ...
+    def handle_timer(self, now: float) -> None: ...
+    def datagrams_to_send(self) -> list[tuple[bytes, Address]]: ...
+    def get_timer(self) -> float | None: ...
+    def next_event(self) -> XrceEvent | None: ...
+
+
+class _Datagrams(asyncio.DatagramProtocol):
+    def __init__(self, backend: XrceBackend) -> None:
+        self.backend = backend
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.backend._receive(data, (addr[0], addr[1]))
+
+    def error_received(self, exc: Exception) -> None:
+        self.backend.counters["socket_errors"] += 1
+
+
+class XrceBackend:
+    """``VehicleBackend`` over DDS-XRCE for vehicle ``sysid`` (see the module docstring)."""
+
+    def __init__(
+        self,
+        mode: Mode,
+        connection: str = DEFAULT_XRCE_CONNECTION,
+        *,
+        sysid: int = 1,
+        client_key: int = 0x5357_4D44,  # "SWMD": swarmd's own key as a second client
+        expected_key: int | None = None,
+        namespace: str | None = None,
+        domain_id: int = 0,
+    ) -> None:
+        if not 1 <= sysid <= 255:
+            raise ValueError("px4.sysid must be 1..255")
+        self.mode: Mode = mode
+        self.name: str = mode
+        self.endpoint = parse_xrce_connection(connection)
+        if mode == "xrce-client" and self.endpoint.kind == "serial":
+            raise ValueError("px4.connection: xrce-client reaches its agent over udp:HOST:PORT")
+        self.sysid = sysid
+        self.namespace = namespace
+        self.translator = Px4Translator(sysid)
+        # agent time = Unix time, as with eProsima's agent (PX4 stamps samples with it)
+        self._clock_offset = time.time() - time.monotonic()
+        self.engine: XrceAgent | XrceClient
+        if mode == "xrce-agent":
+            self.engine = XrceAgent(
+                clock_offset_s=0.0,
+                expected_key=None if expected_key is None else expected_key.to_bytes(4, "big"),
+            )
+        else:
+            self.engine = XrceClient(
+                client_key.to_bytes(4, "big"),
+                subscriptions=_subscriptions(namespace),
+                publications={dds_topic("vehicle_command", "in", 0, namespace): _cmd_type()},
+                domain_id=domain_id,
+            )
+        self.counters: Counter[str] = Counter()
+        self.session: str = "none"
+        self.client: str | None = None
+        self._sink: ObservationSink | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._transport: asyncio.DatagramTransport | None = None
+        self._link: ByteLink | None = None
+        self._deframer = Deframer()
+        self._timer: asyncio.TimerHandle | None = None
+        self._agent_addr: tuple[str, int] | None = None
+
+    async def start(self, sink: ObservationSink) -> None:
+        loop = asyncio.get_running_loop()
+        self._loop, self._sink = loop, sink
+        self._clock_offset = time.time() - loop.time()
+        if isinstance(self.engine, XrceAgent):
+            self.engine.clock_offset_s = self._clock_offset
+        ep = self.endpoint
+        if ep.kind == "serial":
+            self._link = await open_link(ep, self._on_serial)
+        elif self.mode == "xrce-agent":
+            self._transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Datagrams(self), local_addr=(ep.host, ep.port)
+            )
+        else:
+            self._agent_addr = (ep.host, ep.port)
+            self._transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Datagrams(self), remote_addr=self._agent_addr
+            )
+            if isinstance(self.engine, XrceClient):
+                self.engine.connect(self._agent_addr, loop.time())
+        self._pump()
+
+    def send(self, command: VehicleCommand) -> None:
+        if self._loop is None:
+            return
+        now = self._loop.time()
+        sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
+        topic = dds_topic("vehicle_command", "in", 0, self.namespace)
+        sent = self.engine.publish(topic, sample, now)
+        self.counters["commands_sent" if sent else "commands_unrouted"] += 1
+        self._pump()
+
+    def stats(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "backend": self.mode,
+            "connection": _show(self.endpoint),
+            "sysid": self.sysid,
+            "session": self.session,
+            "client": self.client,
+            "px4_version": self.translator.px4_version,
+            "layout_problem": self.translator.problem,
+            "foreign_acks": self.translator.foreign_acks,
+            "dropped": dict(self.engine.dropped),
+            "bad_frames": self._deframer.dropped,
+        }
+        out.update(self.counters)
+        return out
+
+    async def close(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if isinstance(self.engine, XrceClient) and self._loop is not None:
+            self.engine.disconnect(self._loop.time())
+            self._flush()
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+            await asyncio.sleep(0)  # the socket closes on the next loop turn: free the port now
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    # ---- driving ----------------------------------------------------------------------------
+
+    def _on_serial(self, data: bytes, _peer: str | None = None) -> None:
+        for _src, _dst, payload in self._deframer.feed(data):
+            self._receive(payload, SERIAL_PEER)
+
+    def _receive(self, data: bytes, source: Address) -> None:
+        if self._loop is None:
+            return
+        self.counters["datagrams_in"] += 1
+        self.engine.receive_datagram(data, source, self._loop.time())
+        self._pump()
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        if self._loop is not None:
+            self.engine.handle_timer(self._loop.time())
+            self._pump()
+
+    def _pump(self) -> None:
+        loop = self._loop
+        if loop is None:
+            return
+        now = loop.time()
+        while (event := self.engine.next_event()) is not None:
+            self._event(event, now)
+        self._flush()
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        deadline = self.engine.get_timer()
+        if deadline is not None:
+            self._timer = loop.call_at(max(deadline, now), self._on_timer)
+
+    def _flush(self) -> None:
+        for data, dest in self.engine.datagrams_to_send():
+            self.counters["datagrams_out"] += 1
+            if self._link is not None:
+                self._link.send(frame(data, src=0, dst=1))
+            elif self._transport is not None:
+                if self.mode == "xrce-client":
+                    self._transport.sendto(data)
+                elif isinstance(dest, tuple):
+                    self._transport.sendto(data, dest)
+
+    def _event(self, event: XrceEvent, now: float) -> None:
+        match event:
+            case SampleReceived():
+                self.counters["samples"] += 1
+                if self._sink is not None:
+                    for obs in self.translator.sample(event.topic_name, event.data):
+                        self._sink(obs, now)
+            case SessionCreated():
+                self.session = "established"
+                self.client = f"{_peer(event.source)} key {event.client_key.hex()}"
+                self.counters["sessions"] += 1
+            case SessionEnded():
+                self.session = f"ended ({event.reason})"
+            case PacketDropped():
+                self.counters["drop_events"] += 1
+            case _:
+                pass
+
+
+def _cmd_type() -> str:
+    return "px4_msgs::msg::dds_::VehicleCommand_"
+
+
+def _subscriptions(namespace: str | None) -> dict[str, str]:
+    """Every out-topic name v1.14..v1.17 uses (vehicle_status and vehicle_status_v1, ...)."""
+    from swarmd.xrce.px4 import OUT_TOPICS, TOPIC_MESSAGES, dds_type, topic_names
+
+    out: dict[str, str] = {}
+    for t in OUT_TOPICS:
+        if t == "failsafe_flags":
+            continue  # nothing swarmd reads
+        for name in topic_names(t, "out", namespace):
+            out[name] = dds_type(TOPIC_MESSAGES[t])
+    return out
+
+
+def _peer(source: Address) -> str:
+    if isinstance(source, tuple) and len(source) == 2:
+        return f"{source[0]}:{source[1]}"
+    return str(source)
+
+
+def _show(ep: Endpoint) -> str:
+    return f"serial:{ep.device}:{ep.baud}" if ep.kind == "serial" else f"udp:{ep.host}:{ep.port}"

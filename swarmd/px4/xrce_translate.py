@@ -1,0 +1,206 @@
+"""PX4 uXRCE-DDS topics -> the backend-neutral observations, and ``VehicleCommand`` -> a sample.
+
+Pure (no I/O). The mapping is docs/px4.md's table: ``vehicle_status`` gives the
+``Heartbeat`` (armed = ``arming_state`` 2, mode from ``nav_state``, STANDBY/ACTIVE/CRITICAL
+from arming and ``failsafe``, autopilot PX4) and, with ``battery_status``, the ``SysStatus``
+(PREARM health bit = ``pre_flight_checks_pass``); ``vehicle_land_detected`` the
+``ExtendedSysState``; ``vehicle_gps_position`` the ``GpsRawInt``; ``home_position`` (valid
+only) the ``HomePosition``; ``vehicle_command_ack`` addressed to us the ``CommandAck``.
+
+A sample whose layout matches no PX4 release (v1.14..v1.17) is not guessed at: it is
+counted, ``problem`` names it, and for ``vehicle_status`` no ``Heartbeat`` is produced, so
+readiness stays false; a ``StatusText`` carrying the name reaches readiness' ``px4_says``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+from swarmd.px4.constants import (
+    COMP_ID_ONBOARD_COMPUTER,
+    MAV_AUTOPILOT_PX4,
+    MODE_FLAG_SAFETY_ARMED,
+    SENSOR_PREARM_CHECK,
+    MavState,
+)
+from swarmd.px4.messages import (
+    CommandAck,
+    ExtendedSysState,
+    GpsRawInt,
+    Heartbeat,
+    HomePosition,
+    Observation,
+    StatusText,
+    SysStatus,
+    VehicleCommand,
+)
+from swarmd.xrce import px4 as topics
+
+MAV_TYPE_QUADROTOR: Final = 2
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED: Final = 1
+MAV_SEVERITY_CRITICAL: Final = 2
+ARMING_STATE_ARMED: Final = 2
+NAV_AUTO_TAKEOFF: Final = 17
+NAV_AUTO_LAND: Final = 18
+# vehicle_status.nav_state -> PX4 custom mode (main, sub), as PX4's get_px4_custom_mode()
+NAV_TO_MODE: Final = {
+    0: (1, 0), 1: (2, 0), 2: (3, 0), 3: (4, 4), 4: (4, 3), 5: (4, 5), 10: (5, 0),
+    12: (4, 6), 13: (4, 6), 14: (6, 0), 15: (7, 0), 17: (4, 2), 18: (4, 6), 19: (4, 8),
+    20: (4, 9), 21: (3, 0), 22: (4, 10),
+}  # fmt: skip
+LANDED_ON_GROUND, LANDED_IN_AIR, LANDED_TAKEOFF, LANDED_LANDING = 1, 2, 3, 4
+
+
+class Px4Translator:
+    """Keeps the little state the mapping needs (nav state, battery, release seen)."""
+
+    def __init__(self, sysid: int, compid: int = COMP_ID_ONBOARD_COMPUTER) -> None:
+        self.sysid = sysid
+        self.compid = compid
+        self.releases: set[str] = set(topics.RELEASES)  # narrowed by every sample
+        self.problem: str | None = None
+        self.unknown_layouts = 0
+        self.foreign_acks = 0
+        self._nav_state: int | None = None
+        self._prearm: bool | None = None
+        self._battery_pct = -1
+        self._voltage_mv = 0xFFFF
+
+    @property
+    def px4_version(self) -> str | None:
+        """The releases every sample so far fits, e.g. ``1.16`` or ``1.16/1.17``."""
+        if self.releases == set(topics.RELEASES):
+            return None
+        return "/".join(sorted(self.releases)) or "unknown"
+
+    def command_release(self) -> str:
+        """The release whose VehicleCommand layout to write (newest still possible)."""
+        pool = self.releases or set(topics.RELEASES)
+        return max(pool, key=lambda r: tuple(map(int, r.split("."))))
+
+    def sample(self, topic_name: str, data: bytes) -> list[Observation]:
+        name = topics.parse_topic_name(topic_name)
+        if name is None or name.topic not in topics.TOPIC_MESSAGES or name.direction != "out":
+            return []
+        message = topics.TOPIC_MESSAGES[name.topic]
+        found = topics.layout_for(message, name.version, len(data))
+        if found is None:
+            self.unknown_layouts += 1
+            label = f"{name.topic}{f'_v{name.version}' if name.version else ''}"
+            self.problem = f"unknown PX4 layout: {label} of {len(data)} B (not v1.14..v1.17)"
+            return [StatusText(MAV_SEVERITY_CRITICAL, f"swarmd: {self.problem}")]
+        layout, releases = found
+        narrowed = self.releases & set(releases)
+        if narrowed:
+            self.releases = narrowed
+        f = topics.decode_fields(layout, data)
+        match name.topic:
+            case "vehicle_status":
+                return self._status(f)
+            case "battery_status":
+                remaining = float(f["remaining"])
+                self._battery_pct = (
+                    -1 if math.isnan(remaining) or remaining < 0 else round(remaining * 100)
+                )
+                volts = float(f["voltage_v"])
+                self._voltage_mv = round(volts * 1000) if 0 < volts < 65 else 0xFFFF
+                return [] if self._prearm is None else [self._sys_status()]
+            case "vehicle_land_detected":
+                return [ExtendedSysState(self._landed_state(bool(f["landed"])))]
+            case "vehicle_gps_position":
+                return [self._gps(f)]
+            case "home_position":
+                if not (f["valid_alt"] and f["valid_hpos"]):
+                    return []
+                return [
+                    HomePosition(
+                        round(float(f["lat"]) * 1e7),
+                        round(float(f["lon"]) * 1e7),
+                        round(float(f["alt"]) * 1000),
+                    )
+                ]
+            case "vehicle_command_ack":
+                return self._ack(f)
+        return []
+
+    def command(self, cmd: VehicleCommand, timestamp_us: int) -> bytes:
+        return topics.vehicle_command(
+            self.command_release(),
+            command=cmd.command,
+            params=cmd.params,
+            target_system=self.sysid,
+            target_component=cmd.target_component or 1,
+            source_system=self.sysid,
+            source_component=self.compid,
+            confirmation=cmd.confirmation,
+            timestamp_us=timestamp_us,
+        )
+
+    # ---- the mapping ---------------------------------------------------------------------
+
+    def _status(self, f: dict[str, float | int | bool]) -> list[Observation]:
+        armed = int(f["arming_state"]) == ARMING_STATE_ARMED
+        nav = int(f["nav_state"])
+        self._nav_state = nav
+        main, sub = NAV_TO_MODE.get(nav, (0, 0))
+        if f["failsafe"]:
+            status = MavState.CRITICAL
+        else:
+            status = MavState.ACTIVE if armed else MavState.STANDBY
+        self._prearm = bool(f["pre_flight_checks_pass"])
+        hb = Heartbeat(
+            autopilot=MAV_AUTOPILOT_PX4,
+            vehicle_type=MAV_TYPE_QUADROTOR,
+            base_mode=MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MODE_FLAG_SAFETY_ARMED if armed else 0),
+            custom_mode=(main & 0xFF) << 16 | (sub & 0xFF) << 24,
+            system_status=status,
+        )
+        return [hb, self._sys_status()]
+
+    def _sys_status(self) -> SysStatus:
+        return SysStatus(
+            sensors_health=SENSOR_PREARM_CHECK if self._prearm else 0,
+            battery_remaining=self._battery_pct,
+            voltage_battery_mv=self._voltage_mv,
+        )
+
+    def _landed_state(self, landed: bool) -> int:
+        if landed:
+            return LANDED_ON_GROUND
+        if self._nav_state == NAV_AUTO_TAKEOFF:
+            return LANDED_TAKEOFF
+        if self._nav_state == NAV_AUTO_LAND:
+            return LANDED_LANDING
+        return LANDED_IN_AIR
+
+    def _gps(self, f: dict[str, float | int | bool]) -> GpsRawInt:
+        if "latitude_deg" in f:  # 1.15+: degrees and metres as float64
+            lat, lon = round(float(f["latitude_deg"]) * 1e7), round(float(f["longitude_deg"]) * 1e7)
+            alt = round(float(f["altitude_msl_m"]) * 1000)
+        else:  # 1.14: 1e-7 degrees and millimetres
+            lat, lon, alt = int(f["lat"]), int(f["lon"]), int(f["alt"])
+        eph = float(f["eph"])
+        return GpsRawInt(
+            fix_type=int(f["fix_type"]),
+            satellites_visible=int(f["satellites_used"]),
+            eph_cm=min(round(eph * 100), 0xFFFF) if math.isfinite(eph) and eph >= 0 else 0xFFFF,
+            lat_e7=lat,
+            lon_e7=lon,
+            alt_mm=alt,
+        )
+
+    def _ack(self, f: dict[str, float | int | bool]) -> list[Observation]:
+        target_system, target_component = int(f["target_system"]), int(f["target_component"])
+        if target_system not in (0, self.sysid) or target_component not in (0, self.compid):
+            self.foreign_acks += 1  # an answer to a ROS 2 node or the GCS
+            return []
+        return [
+            CommandAck(
+                command=int(f["command"]),
+                result=int(f["result"]),
+                progress=int(f["result_param1"]),
+                target_system=target_system,
+                target_component=target_component,
+            )
+        ]

@@ -1,0 +1,430 @@
+"""A sans-IO DDS-XRCE agent: the side PX4's ``uxrce_dds_client`` connects to.
+
+Theory of operation. PX4 (DDS-XRCE 1.0 §8.4, as the Micro XRCE-DDS client implements it)
+pings with GET_INFO outside any session until an agent answers, sends CREATE_CLIENT for
+session 0x81 with its key (``UXRCE_DDS_KEY``), opens a reliable stream 0x80 and a
+best-effort stream 0x01 each way, creates a participant, then topic/subscriber/datareader
+per subscription (each followed by READ_DATA) and topic/publisher/datawriter per
+publication, waiting up to 1 s for each CREATE's STATUS; a refused writer aborts its whole
+set-up. It syncs time with TIMESTAMP (discarding replies slower than 10 ms), publishes with
+WRITE_DATA on 0x01, pings in session (GET_INFO) when idle, and starts over after 3 missed
+pings. This agent accepts every entity (tables capped), answers every CREATE with STATUS on
+its reliable stream, TIMESTAMP at once from the injected clock, GET_INFO with
+``implementation_status`` 1 and ``availability`` 1 (PX4 disconnects otherwise), turns
+WRITE_DATA into ``SampleReceived`` and ``publish()`` into DATA for every reader that asked.
+No DDS participant exists behind it: nothing reaches any network but the client's link.
+
+Driving sources (style.md rule 2): ``receive_datagram(data, source, now)``,
+``handle_timer(now)`` and the ``publish`` command. Outputs: ``datagrams_to_send()``,
+``get_timer()``, ``next_event()``.
+
+Invariant: network input never raises out of this class; a datagram that does not decode
+or belongs to no session is dropped, counted in ``dropped`` and reported as
+``PacketDropped``. Any other exception is a bug.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Final
+
+from swarmd.xrce.binary import parse_endpoint, parse_service, parse_topic
+from swarmd.xrce.buffer import DecodeError
+from swarmd.xrce.endpoint import Endpoint, receive_stream
+from swarmd.xrce.events import (
+    Address,
+    EntityCreated,
+    SampleReceived,
+    SessionCreated,
+    SessionEnded,
+)
+from swarmd.xrce.message import (
+    OBJECT_ID_CLIENT,
+    XRCE_COOKIE,
+    AckNack,
+    AgentRepresentation,
+    Create,
+    CreateClient,
+    Data,
+    Delete,
+    Fragment,
+    GetInfo,
+    Header,
+    Heartbeat,
+    Info,
+    ObjectKind,
+    ReadData,
+    Repr,
+    Reset,
+    Status,
+    StatusAgent,
+    StatusReply,
+    Submessage,
+    Time,
+    Timestamp,
+    TimestampReply,
+    WriteData,
+    decode_header,
+    decode_submessage,
+    encode_message,
+    object_kind,
+    split_submessages,
+)
+from swarmd.xrce.streams import BestEffortIn, Reassembly, ReliableIn, ReliableOut, seq_add
+
+# Client sessions at once. PX4 is one; cmd_sender-like tools add a few. Stops a local
+# process from growing the agent without bound with CREATE_CLIENTs of fresh keys.
+MAX_SESSIONS: Final = 8
+# Entities per session. PX4 with every topic of dds_topics.yaml (``-a``) creates ~200;
+# stops a client from exhausting memory with CREATEs.
+MAX_ENTITIES: Final = 1024
+HEARTBEAT_PERIOD_S: Final = 0.2  # while our reliable output holds unacknowledged messages
+# A session with no datagram for this long is gone (PX4 pings every 1 s when idle).
+SESSION_TIMEOUT_S: Final = 10.0
+STREAM_RELIABLE: Final = 0x80
+STREAM_BEST_EFFORT: Final = 0x01
+
+
+@dataclass(slots=True)
+class Entity:
+    object_id: int
+    kind: int
+    parent_id: int | None
+    name: str | None = None  # topic name for topics; service name for repliers/requesters
+    type_name: str | None = None
+    topic_id: int | None = None  # writers and readers: the topic they serve
+
+
+@dataclass(slots=True)
+class ReadRequest:
+    request_id: int
+    stream_id: int
+
+
+@dataclass(slots=True)
+class Session:
+    source: Address
+    client_key: bytes
+    session_id: int
+    mtu: int
+    last_heard: float
+    entities: dict[int, Entity] = field(default_factory=dict)
+    reads: dict[int, ReadRequest] = field(default_factory=dict)
+    rel_in: dict[int, ReliableIn] = field(default_factory=dict)
+    be_in: dict[int, BestEffortIn] = field(default_factory=dict)
+    rel_out: ReliableOut = field(default_factory=ReliableOut)
+    be_out_seq: int = 0
+    reassembly: dict[int, Reassembly] = field(default_factory=dict)
+    heartbeat_at: float | None = None
+    samples_in: int = 0
+    samples_out: int = 0
+
+    def topic_of(self, endpoint: Entity) -> Entity | None:
+        return None if endpoint.topic_id is None else self.entities.get(endpoint.topic_id)
+
+
+class XrceAgent(Endpoint):
+    """The agent side of DDS-XRCE for PX4 clients (see the module docstring)."""
+
+    def __init__(
+        self,
+        *,
+        clock_offset_s: float = 0.0,
+        expected_key: bytes | None = None,
+        agent: AgentRepresentation | None = None,
+    ) -> None:
+        # agent time = now + clock_offset_s: the driver passes wall time - monotonic time so
+        # PX4's synchronised timestamps are Unix time, as with eProsima's agent
+        self.clock_offset_s = clock_offset_s
+        self.expected_key = expected_key
+        self.agent = agent or AgentRepresentation()
+        super().__init__()
+        self.sessions: dict[Address, Session] = {}
+        self.timestamps_answered = 0
+        self.pings_answered = 0
+
+    # ---- driving ----------------------------------------------------------------------------
+
+    def receive_datagram(self, data: bytes, source: Address, now: float) -> None:
+        try:
+            header, offset = decode_header(data)
+            parts, _pad = split_submessages(data, offset)
+        except DecodeError as exc:
+            self._drop(source, f"malformed: {exc}")
+            return
+        if header.session_id in (0x00, 0x80):
+            self._sessionless(header, parts, source, now)
+            return
+        session = self.sessions.get(source)
+        if session is None or session.session_id != header.session_id:
+            self._drop(source, "no_session")
+            return
+        if header.session_id < 0x80 and header.client_key != session.client_key:
+            self._drop(source, "wrong_key")
+            return
+        session.last_heard = now
+        self._stream(session, header, data, offset, parts, now)
+
+    def handle_timer(self, now: float) -> None:
+        for source, s in list(self.sessions.items()):
+            if now - s.last_heard >= SESSION_TIMEOUT_S:
+                del self.sessions[source]
+                self._emit(SessionEnded(source, s.client_key, "timeout"))
+                continue
+            if s.heartbeat_at is not None and now >= s.heartbeat_at:
+                hb = s.rel_out.heartbeat()
+                if hb is None:
+                    s.heartbeat_at = None
+                else:
+                    self._send0(s, [Heartbeat(hb[0], hb[1], STREAM_RELIABLE)])
+                    s.heartbeat_at = now + HEARTBEAT_PERIOD_S
+
+    def get_timer(self) -> float | None:
+        deadlines = [s.last_heard + SESSION_TIMEOUT_S for s in self.sessions.values()]
+        deadlines += [s.heartbeat_at for s in self.sessions.values() if s.heartbeat_at]
+        return min(deadlines, default=None)
+
+    # ---- commands ----------------------------------------------------------------------------
+
+    def publish(self, topic_name: str, data: bytes, now: float) -> int:
+        """Send ``data`` to every client reader of ``topic_name`` that asked (READ_DATA).
+
+        Returns how many readers it went to (0: nobody subscribed yet).
+        """
+        sent = 0
+        for s in self.sessions.values():
+            for oid, req in s.reads.items():
+                reader = s.entities.get(oid)
+                if reader is None or reader.kind != ObjectKind.DATAREADER:
+                    continue
+                topic = s.topic_of(reader)
+                if topic is None or topic.name != topic_name:
+                    continue
+                sub = Data(req.request_id, oid, data)
+                if req.stream_id >= 0x80:
+                    self._send_reliable(s, [sub], now)
+                else:
+                    self._send_best_effort(s, [sub])
+                s.samples_out += 1
+                sent += 1
+        return sent
+
+    def close_session(self, source: Address) -> None:
+        s = self.sessions.pop(source, None)
+        if s is not None:
+            self._emit(SessionEnded(source, s.client_key, "closed"))
+
+    # ---- sessionless: ping and CREATE_CLIENT ---------------------------------------------------
+
+    def _sessionless(
+        self, header: Header, parts: list[tuple[int, int, bytes]], source: Address, now: float
+    ) -> None:
+        for sid, flags, payload in parts:
+            try:
+                sub = decode_submessage(sid, flags, payload)
+            except DecodeError as exc:
+                self._drop(source, f"malformed: {exc}")
+                return
+            if isinstance(sub, GetInfo):
+                # §8.4.3 discovery/ping: answer with our representation and availability
+                reply = Info(
+                    sub.request_id, sub.object_id, Status.OK, 0, self.agent, availability=1
+                )
+                self._out.append((encode_message(header, [reply]), source))
+                self.pings_answered += 1
+            elif isinstance(sub, CreateClient):
+                self._create_client(sub, source, now)
+            else:
+                self._drop(source, f"sessionless_{type(sub).__name__}")
+
+    def _create_client(self, cc: CreateClient, source: Address, now: float) -> None:
+        reply_header = Header(cc.session_id, 0, 0, cc.client_key if cc.session_id < 0x80 else None)
+        status = Status.OK
+        if cc.cookie != XRCE_COOKIE:
+            status = Status.ERR_INVALID_DATA
+        elif cc.version[:1] != b"\x01":
+            status = Status.ERR_INCOMPATIBLE
+        elif self.expected_key is not None and cc.client_key != self.expected_key:
+            status = Status.ERR_DENIED
+        elif cc.session_id in (0x00, 0x80):
+            status = Status.ERR_INVALID_DATA
+        old = self.sessions.get(source)
+        if status == Status.OK and old is None:
+            # the same client key from a new address is that client restarted (PX4 rebinds)
+            for addr, s in list(self.sessions.items()):
+                if s.client_key == cc.client_key:
+                    del self.sessions[addr]
+                    self._emit(SessionEnded(addr, s.client_key, "replaced"))
+            if len(self.sessions) >= MAX_SESSIONS:
+                status = Status.ERR_RESOURCES
+        if status != Status.OK:
+            self._drop(source, f"create_client_refused:{Status(status).name}")
+            reply = StatusAgent(status, 0, self.agent)
+            self._out.append((encode_message(reply_header, [reply]), source))
+            return
+        if old is not None:
+            self._emit(SessionEnded(source, old.client_key, "replaced"))
+        # a CREATE_CLIENT always starts afresh: PX4 sends it after its own restart or ours
+        self.sessions[source] = Session(source, cc.client_key, cc.session_id, cc.mtu, now)
+        self._out.append((encode_message(reply_header, [StatusAgent(0, 0, self.agent)]), source))
+        self._emit(SessionCreated(source, cc.client_key, cc.session_id, cc.mtu))
+
+    # ---- in session ----------------------------------------------------------------------------
+
+    def _stream(
+        self,
+        s: Session,
+        header: Header,
+        data: bytes,
+        offset: int,
+        parts: list[tuple[int, int, bytes]],
+        now: float,
+    ) -> None:
+        stream = header.stream_id
+        fresh = receive_stream(
+            header, data, offset, parts, reliable=s.rel_in, best_effort=s.be_in,
+            handle=lambda p: self._handle(s, p, stream, now),
+            reply=lambda _h, subs: self._send0(s, subs),
+        )  # fmt: skip
+        if not fresh:
+            self._drop(s.source, "stale_best_effort")
+
+    def _handle(
+        self, s: Session, parts: list[tuple[int, int, bytes]], stream: int, now: float
+    ) -> None:
+        for sid, flags, payload in parts:
+            try:
+                sub = decode_submessage(sid, flags, payload)
+            except DecodeError as exc:
+                self._drop(s.source, f"malformed: {exc}")
+                continue
+            self._submessage(s, sub, stream, now)
+            if s.source not in self.sessions:
+                return  # deleted by this submessage
+
+    def _submessage(self, s: Session, sub: Submessage, stream: int, now: float) -> None:
+        match sub:
+            case WriteData():
+                self._write_data(s, sub)
+            case Timestamp():
+                # §8.3.5.16: agent receive and transmit times, the client's time echoed; the
+                # same instant, since nothing runs between them (PX4 wants < 10 ms round trips)
+                t = Time.from_ns(round((now + self.clock_offset_s) * 1e9))
+                self._send0(s, [TimestampReply(t, t, sub.transmit)])
+                self.timestamps_answered += 1
+            case GetInfo():
+                # in-session ping (PX4 fork): implementation_status != 0 = "session alive",
+                # availability > 0, or PX4 counts a missed ping
+                # (activity is sent whatever the mask: the fork reads availability regardless)
+                info = Info(sub.request_id, sub.object_id, Status.OK, 1, self.agent, 1)
+                self._send0(s, [info])
+                self.pings_answered += 1
+            case Create():
+                self._create(s, sub, now)
+            case ReadData():
+                s.reads[sub.object_id] = ReadRequest(sub.request_id, sub.preferred_stream_id)
+            case Delete():
+                if sub.object_id == OBJECT_ID_CLIENT:
+                    self._send0(s, [StatusReply(sub.request_id, sub.object_id, Status.OK)])
+                    del self.sessions[s.source]
+                    self._emit(SessionEnded(s.source, s.client_key, "deleted"))
+                    return
+                found = s.entities.pop(sub.object_id, None) is not None
+                s.reads.pop(sub.object_id, None)
+                st = Status.OK if found else Status.ERR_UNKNOWN_REFERENCE
+                self._send_reliable(s, [StatusReply(sub.request_id, sub.object_id, st)], now)
+            case AckNack():
+                if sub.stream_id == STREAM_RELIABLE:
+                    for msg in s.rel_out.on_acknack(sub.first_unacked, sub.nack_bitmap):
+                        self._out.append((msg, s.source))
+                    if s.rel_out.heartbeat() is None:
+                        s.heartbeat_at = None
+            case Heartbeat():
+                rin = s.rel_in.setdefault(sub.stream_id, ReliableIn())
+                rin.on_heartbeat(sub.first_unacked, sub.last_unacked)
+                first, bitmap = rin.acknack(sub.last_unacked)
+                self._send0(s, [AckNack(first, bitmap, sub.stream_id)])
+            case Fragment():
+                asm = s.reassembly.setdefault(stream, Reassembly())
+                whole = asm.add(sub.data, sub.last)
+                if asm.overflows:
+                    self._drop(s.source, "reassembly_overflow")
+                    asm.overflows = 0
+                if whole is not None:
+                    try:
+                        parts, _pad = split_submessages(whole, 0)
+                    except DecodeError as exc:
+                        self._drop(s.source, f"malformed_fragment: {exc}")
+                        return
+                    self._handle(s, parts, stream, now)
+            case Reset():
+                s.rel_in.clear()
+                s.be_in.clear()
+            case _:
+                self._drop(s.source, f"unexpected_{type(sub).__name__}")
+
+    def _create(self, s: Session, c: Create, now: float) -> None:
+        status = Status.OK
+        entity = Entity(c.object_id, c.kind, c.parent_id)
+        try:
+            if c.repr_format == Repr.BIN and isinstance(c.representation, bytes):
+                blob = c.representation
+                if c.kind == ObjectKind.TOPIC:
+                    t = parse_topic(blob)
+                    entity.name, entity.type_name = t.topic_name, t.type_name
+                elif c.kind in (ObjectKind.DATAWRITER, ObjectKind.DATAREADER):
+                    e = parse_endpoint(blob, writer=c.kind == ObjectKind.DATAWRITER)
+                    entity.topic_id = e.topic_id
+                elif c.kind in (ObjectKind.REPLIER, ObjectKind.REQUESTER):
+                    sv = parse_service(blob)
+                    entity.name, entity.type_name = sv.service_name, sv.request_type
+        except DecodeError as exc:
+            status = Status.ERR_INVALID_DATA
+            self._drop(s.source, f"bad_representation: {exc}")
+        if status == Status.OK and c.object_id not in s.entities:
+            if len(s.entities) >= MAX_ENTITIES:
+                status = Status.ERR_RESOURCES
+        if status == Status.OK:
+            # REPLACE (PX4 always sets it) or REUSE: either way the client gets its entity
+            s.entities[c.object_id] = entity
+        reply = StatusReply(c.request_id, c.object_id, status)
+        self._send_reliable(s, [reply], now)
+        name = entity.name
+        if entity.topic_id is not None and (topic := s.topic_of(entity)) is not None:
+            name, entity.type_name = topic.name, topic.type_name
+        self._emit(EntityCreated(s.source, c.object_id, c.kind, name, entity.type_name, status))
+
+    def _write_data(self, s: Session, w: WriteData) -> None:
+        writer = s.entities.get(w.object_id)
+        if writer is None or object_kind(w.object_id) != ObjectKind.DATAWRITER:
+            if writer is not None and writer.kind == ObjectKind.REPLIER:
+                return  # service replies: the topic path carries the acks we read
+            self._drop(s.source, "write_unknown_writer")
+            return
+        topic = s.topic_of(writer)
+        if topic is None or topic.name is None:
+            self._drop(s.source, "write_unknown_topic")
+            return
+        s.samples_in += 1
+        self._emit(SampleReceived(s.source, topic.name, topic.type_name or "", w.data))
+
+    # ---- output ----------------------------------------------------------------------------
+
+    def _header(self, s: Session, stream: int, seq: int) -> Header:
+        return Header(s.session_id, stream, seq, s.client_key if s.session_id < 0x80 else None)
+
+    def _send0(self, s: Session, subs: list[Submessage]) -> None:
+        self._out.append((encode_message(self._header(s, 0, 0), subs), s.source))
+
+    def _send_best_effort(self, s: Session, subs: list[Submessage]) -> None:
+        seq = s.be_out_seq
+        s.be_out_seq = seq_add(seq, 1)
+        self._out.append((encode_message(self._header(s, STREAM_BEST_EFFORT, seq), subs), s.source))
+
+    def _send_reliable(self, s: Session, subs: list[Submessage], now: float) -> None:
+        seq = s.rel_out.next_seq
+        msg = encode_message(self._header(s, STREAM_RELIABLE, seq), subs)
+        s.rel_out.push(msg)
+        self._out.append((msg, s.source))
+        if s.heartbeat_at is None:
+            s.heartbeat_at = now + HEARTBEAT_PERIOD_S

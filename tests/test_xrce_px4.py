@@ -1,0 +1,166 @@
+"""swarmd's XRCE backends against real peers: PX4's client library (``px4_like_client``, a
+PX4 stand-in creating its session and entities call for call as PX4 does) and eProsima's
+MicroXRCEAgent v2.4.2. Built by scripts/setup.sh from ../shared/peers/xrce."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import socket
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import pytest
+
+from swarmd.px4.bridge import Px4Bridge
+from swarmd.px4.constants import MavCmd
+from swarmd.px4.messages import VehicleCommand
+from swarmd.px4.readiness import Readiness, ReadinessConfig
+from swarmd.px4.takeoff import TakeoffSucceeded
+from swarmd.px4.xrce_backend import XrceBackend
+from tests.xrce_peers import peer_binary
+
+# the stand-in publishes no valid home_position (PX4 does): readiness without it, NaN altitude
+READY = ReadinessConfig(require_home=False)
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+@asynccontextmanager
+async def _proc(*argv: str) -> AsyncIterator[asyncio.subprocess.Process]:
+    p = await asyncio.create_subprocess_exec(
+        *argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
+    )
+    try:
+        yield p
+    finally:
+        if p.returncode is None:
+            p.terminate()
+            try:
+                await asyncio.wait_for(p.wait(), 5)
+            except TimeoutError:
+                p.kill()
+                await p.wait()
+
+
+async def _until(pred: Any, limit_s: float, what: str) -> None:
+    loop = asyncio.get_running_loop()
+    end = loop.time() + limit_s
+    while not pred():
+        assert loop.time() < end, f"timed out waiting for {what}"
+        await asyncio.sleep(0.05)
+
+
+async def _commands(p: asyncio.subprocess.Process) -> list[dict[str, Any]]:
+    p.terminate()
+    out, _err = await p.communicate()
+    lines = [json.loads(line) for line in out.decode().splitlines() if line.startswith("{")]
+    return [c for c in lines if c.get("event") == "vehicle_command"]
+
+
+async def _fly(bridge: Px4Bridge, client: asyncio.subprocess.Process) -> None:
+    verdicts: list[Readiness] = []
+    bridge.on_readiness_change(verdicts.append)
+    await _until(lambda: bridge.readiness().ready, 60, "ready")  # after PX4's 500-sample sync
+    outcome = await bridge.takeoff(None)
+    assert isinstance(outcome, TakeoffSucceeded), outcome
+    assert bridge.readiness().reason == "armed"  # not ready, and says why
+    bridge.backend.send(VehicleCommand.make(MavCmd.NAV_LAND))
+    await asyncio.sleep(1.0)
+    cmds = await _commands(client)
+    names = [(c["fields"]["command"], c["ack_result"]) for c in cmds]
+    # exactly once each, acks ACCEPTED, from component 191 of our system, flagged external
+    assert names == [(400, 0), (22, 0), (21, 0)], names
+    assert all(
+        c["fields"]["source_component"] == 191 and c["fields"]["from_external"] for c in cmds
+    )
+    assert verdicts[0].ready is False and any(v.ready for v in verdicts)
+
+
+@pytest.mark.parametrize("release", ["1.14", "1.15", "1.16", "1.17"])
+def test_agent_with_px4_client_takes_off_and_lands(release: str) -> None:
+    asyncio.run(_agent_takeoff(release))
+
+
+async def _agent_takeoff(release: str) -> None:
+    client_bin = peer_binary("px4_like_client")
+    port = _free_udp_port()
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
+    bridge = Px4Bridge(backend, readiness_config=READY)
+    await bridge.start()
+    try:
+        async with _proc(str(client_bin), "-p", str(port), "-V", release, "-q") as client:
+            await _fly(bridge, client)
+        st = backend.stats()
+        assert st["px4_version"] is not None and release in st["px4_version"].split("/")
+        assert st["layout_problem"] is None and st["dropped"] == {}
+    finally:
+        await bridge.close()
+
+
+def test_agent_accepts_every_entity_of_the_full_topic_set_and_reconnects() -> None:
+    asyncio.run(_agent_accepts_every_entity_of_the_full_topic_set_and_reconnects())
+
+
+async def _agent_accepts_every_entity_of_the_full_topic_set_and_reconnects() -> None:
+    client_bin = peer_binary("px4_like_client")
+    port = _free_udp_port()
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
+    bridge = Px4Bridge(backend, readiness_config=READY)
+    await bridge.start()
+    try:
+        argv = (str(client_bin), "-p", str(port), "-V", "1.16", "-a", "-D", "8")
+        async with _proc(*argv) as client:
+            _out, err = await asyncio.wait_for(client.communicate(), 60)
+        log = err.decode()
+        assert "failed" not in log and "disconnecting" not in log, log[-2000:]
+        m = re.search(r"layouts: (\d+) publications, (\d+) subscriptions", log)
+        assert m is not None and int(m[1]) > 20 and int(m[2]) > 20
+        # every writer, reader and the replier accepted, each once (no set-up retry)
+        assert log.count("successfully created") == int(m[1]) + int(m[2]) + 1
+        assert "synchronized with time offset" in log  # time sync converged
+        assert backend.session.startswith("ended")
+        # swarmd restarts: a new agent on the same port; the client's next run connects again
+        await bridge.close()
+        backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
+        bridge = Px4Bridge(backend, readiness_config=READY)
+        await bridge.start()
+        async with _proc(str(client_bin), "-p", str(port), "-V", "1.16", "-q") as client:
+            await _until(lambda: bridge.readiness().ready, 60, "ready after restart")
+            client.kill()
+            await client.wait()
+            await _until(lambda: not bridge.readiness().ready, 10, "stale after PX4 is gone")
+            assert bridge.readiness().reason == "heartbeat_stale"
+        async with _proc(str(client_bin), "-p", str(port), "-V", "1.16", "-q"):
+            await _until(lambda: bridge.readiness().ready, 60, "ready after PX4 restart")
+        assert backend.counters["sessions"] == 2
+    finally:
+        await bridge.close()
+
+
+def test_garbage_to_the_agent_port_is_counted_and_dropped() -> None:
+    asyncio.run(_garbage_to_the_agent_port_is_counted_and_dropped())
+
+
+async def _garbage_to_the_agent_port_is_counted_and_dropped() -> None:
+    port = _free_udp_port()
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
+    bridge = Px4Bridge(backend, readiness_config=READY)
+    await bridge.start()
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            forged_status = bytes.fromhex("810100000701") + b"\x54\x00" + b"\x00" * 84
+            for junk in (b"", b"\x81\x00", bytes(range(200)), forged_status) * 25:
+                s.sendto(junk, ("127.0.0.1", port))
+        await _until(lambda: backend.counters["datagrams_in"] >= 75, 10, "datagrams")
+        assert sum(backend.engine.dropped.values()) >= 75
+        assert bridge.readiness().reason == "no_heartbeat"  # nothing moved
+    finally:
+        await bridge.close()
