@@ -40,15 +40,18 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the sans-IO cores
     "discovery": CORE | {"auth"},
     "dataplane": CORE | {"auth"},
-    "px4": CORE | {"xrce"},
-    "swarm": CORE | {"auth", "dataplane", "discovery", "px4"},
+    # the one asyncio driver: a leaf, it knows the driving protocol and no core
+    "driver": frozenset(),
+    # px4's and swarm's asyncio adapters (bridge, app) run their cores through the driver;
+    # their sans-IO modules cannot (the driver imports asyncio: test_sans_io_rooms)
+    "px4": CORE | {"xrce", "driver"},
+    "swarm": CORE | {"auth", "dataplane", "discovery", "px4", "driver"},
     # adapters and the daemon tier
     "link": frozenset({"discovery", "exitcodes"}),  # produces discovery's LinkSample
     "logs": frozenset(),
     "sdnotify": frozenset(),
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
     "control": CORE,
-    "driver": CORE | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "driver", "logs", "sdnotify"},

@@ -1,19 +1,20 @@
-"""``Px4Bridge``: the asyncio driver that joins a backend to readiness and take-off.
+"""``Px4Bridge``: one vehicle's backend joined to its sans-IO ``VehicleCore`` by the driver.
 
-The only asyncio in the PX4 logic path, and thin (style.md rule 11): the backend calls
-``_observe(obs, loop.time())``; the bridge feeds the shared ``VehicleState``, then the
-running ``TakeoffSequence`` if any, sends what the sequence queued, and re-arms one
-``TimerHandle`` per engine (the sequence's ``get_timer()``, and the readiness deadline at
-which a silent heartbeat turns stale). Readiness changes are pushed to subscribers the
-moment they happen, including "the link went quiet", with no polling.
+The backend (MAVLink, or any ``VehicleBackend``) hands each decoded observation to the
+``swarmd.driver.Driver``, which feeds the ``VehicleCore`` (state, readiness, take-off,
+LAND/HOLD/ABORT, all commands through the ``CommandSender``) at ``loop.time()``, sends what
+it queued through ``backend.send`` and re-arms its one timer. The bridge only turns the
+core's events into log lines, readiness listeners and the futures of ``takeoff()``.
 
 API for the daemon / commander::
 
     bridge = Px4Bridge.from_config(Px4Config(connection="udpin:127.0.0.1:14540", sysid=1))
     await bridge.start()
     bridge.on_readiness_change(lambda r: publish(r.as_dict()))
+    bridge.on_task_finished(lambda done: report(done.token, done.ok, done.reason))
     verdict = bridge.readiness()               # Readiness(ready, reason, detail, ...)
     outcome = await bridge.takeoff(alt_m=10.0)  # TakeoffSucceeded | TakeoffFailed
+    bridge.submit(VehicleRequest(token, TaskKind.LAND))  # HOLD, ABORT, TAKEOFF (alt_m)
     await bridge.close()
 """
 
@@ -22,25 +23,33 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, assert_never
 
+from swarmd.driver import Driver
+from swarmd.px4.actions import ActionFinished
 from swarmd.px4.backend import VehicleBackend
 from swarmd.px4.command_sender import AckReceived, CommandSent
 from swarmd.px4.mavlink_backend import MavlinkBackend
-from swarmd.px4.messages import Observation
-from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState, readiness
+from swarmd.px4.messages import Observation, VehicleCommand
+from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState
 from swarmd.px4.takeoff import (
-    FailReason,
     PhaseChanged,
-    SequenceEvent,
     TakeoffConfig,
     TakeoffFailed,
-    TakeoffSequence,
     TakeoffSucceeded,
+)
+from swarmd.px4.vehicle import (
+    ReadinessChanged,
+    TaskFinished,
+    TaskKind,
+    VehicleCore,
+    VehicleEvent,
+    VehicleRequest,
 )
 
 Outcome = TakeoffSucceeded | TakeoffFailed
 ReadinessListener = Callable[[Readiness], None]
+TaskListener = Callable[[TaskFinished], None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,7 +68,7 @@ class Px4Config:
 
 
 class Px4Bridge:
-    """One vehicle: live ``VehicleState``, readiness on demand and on change, take-off."""
+    """One vehicle: live ``VehicleState``, readiness on demand and on change, its tasks."""
 
     def __init__(
         self,
@@ -70,18 +79,13 @@ class Px4Bridge:
         log: Any = None,
     ) -> None:
         self.backend = backend
-        self.readiness_config = readiness_config or ReadinessConfig()
-        self.takeoff_config = takeoff_config or TakeoffConfig()
-        self.takeoff_config.check()
-        self.state = VehicleState()
+        self.core = VehicleCore(readiness_config=readiness_config, takeoff_config=takeoff_config)
         self._log = log
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self._driver: Driver[Observation, VehicleCommand, VehicleEvent] | None = None
         self._listeners: list[ReadinessListener] = []
-        self._last_key: tuple[bool, str | None] | None = None
-        self._stale_timer: asyncio.TimerHandle | None = None
-        self._sequence: TakeoffSequence | None = None
-        self._seq_timer: asyncio.TimerHandle | None = None
-        self._done: asyncio.Future[Outcome] | None = None
+        self._task_listeners: list[TaskListener] = []
+        self._waiting: dict[int, asyncio.Future[TaskFinished]] = {}
+        self._own_token = 0  # takeoff() callers get negative tokens: never a command id
         self.last_outcome: Outcome | None = None
 
     @classmethod
@@ -112,32 +116,47 @@ class Px4Bridge:
     # ---- life -----------------------------------------------------------------------------
 
     async def start(self) -> None:
-        self._loop = asyncio.get_running_loop()
+        self._driver = Driver(
+            self.core,
+            transmit=self.backend.send,
+            on_event=self._on_event,
+            name="px4",
+            log=self._log,
+        )
         await self.backend.start(self._observe)
         self._info("px4_bridge_started", **self.backend.stats())
-        self._evaluate(self._loop.time())
+        self._driver.call(self.core.handle_timer)  # the first verdict, and its stale timer
 
     async def close(self) -> None:
-        if self._sequence is not None and not self._sequence.done and self._loop is not None:
-            self._sequence.cancel(self._loop.time(), "bridge closing")
-            self._pump(self._loop.time())
-        for timer in (self._stale_timer, self._seq_timer):
-            if timer is not None:
-                timer.cancel()
+        if self._driver is not None:
+            self._driver.call(lambda now: self.core.cancel_all(now, "bridge closing"))
+            self._driver.close()
         await self.backend.close()
+
+    @property
+    def state(self) -> VehicleState:
+        return self.core.state
 
     # ---- readiness ------------------------------------------------------------------------
 
     def readiness(self) -> Readiness:
         """The verdict now (``loop.time()``)."""
-        return readiness(self.state, self._now(), self.readiness_config)
+        return self.core.readiness(self._drive().now())
 
     def on_readiness_change(self, listener: ReadinessListener) -> None:
         """Call ``listener`` whenever ready/reason changes (and once at once)."""
         self._listeners.append(listener)
         listener(self.readiness())
 
-    # ---- take-off -------------------------------------------------------------------------
+    # ---- tasks ----------------------------------------------------------------------------
+
+    def on_task_finished(self, listener: TaskListener) -> None:
+        """Call ``listener`` with each ``TaskFinished`` of a ``submit``ted request."""
+        self._task_listeners.append(listener)
+
+    def submit(self, request: VehicleRequest) -> None:
+        """Start a take-off, LAND, HOLD or ABORT; its end comes to ``on_task_finished``."""
+        self._drive().call(lambda now: self.core.request(request, now))
 
     async def takeoff(self, alt_m: float | None = None) -> Outcome:
         """Arm and take off to ``alt_m`` above home (None: PX4's MIS_TAKEOFF_ALT).
@@ -145,38 +164,36 @@ class Px4Bridge:
         Refused at once, with the readiness reason, when the vehicle is not ready. Only one
         take-off runs at a time; a second call while one runs fails with ``busy``.
         """
-        now = self._now()
-        if self._sequence is not None and not self._sequence.done:
-            return TakeoffFailed(FailReason.BUSY, None, "a take-off is already running", 0.0)
-        loop = asyncio.get_running_loop()
-        self._done = loop.create_future()
-        seq = TakeoffSequence(
-            self.state,
-            alt_m,
-            config=self.takeoff_config,
-            readiness_config=self.readiness_config,
-        )
-        self._sequence = seq
+        driver = self._drive()
+        self._own_token -= 1
+        token = self._own_token
+        done: asyncio.Future[TaskFinished] = driver.loop.create_future()
+        self._waiting[token] = done
         self._info("px4_takeoff_requested", alt_m=alt_m)
-        seq.start(now)
-        self._pump(now)
+        driver.call(
+            lambda now: self.core.request(VehicleRequest(token, TaskKind.TAKEOFF, alt_m), now)
+        )
         try:
-            return await asyncio.shield(self._done)
+            finished = await asyncio.shield(done)
         except asyncio.CancelledError:
-            if not seq.done:
-                seq.cancel(self._now(), "caller cancelled")
-                self._pump(self._now())
+            driver.call(lambda now: self.core.cancel(token, now, "caller cancelled"))
             raise
+        finally:
+            self._waiting.pop(token, None)
+        outcome = finished.outcome
+        assert isinstance(outcome, TakeoffSucceeded | TakeoffFailed)  # noqa: S101 - takeoff
+        return outcome
 
     def status(self) -> dict[str, Any]:
         """JSON-ready snapshot for ``swarmctl status``."""
         out = self.last_outcome
+        seq = self.core.last_takeoff
         return {
             "readiness": self.readiness().as_dict(),
             "takeoff": None
-            if self._sequence is None
+            if seq is None
             else {
-                "phase": str(self._sequence.phase),
+                "phase": str(seq.phase),
                 "outcome": None if out is None else _outcome_dict(out),
             },
             "backend": self.backend.stats(),
@@ -184,70 +201,33 @@ class Px4Bridge:
 
     # ---- driving --------------------------------------------------------------------------
 
-    def _now(self) -> float:
-        loop = self._loop or asyncio.get_running_loop()
-        return loop.time()
+    def _drive(self) -> Driver[Observation, VehicleCommand, VehicleEvent]:
+        if self._driver is None:
+            raise RuntimeError("the PX4 bridge is not started")
+        return self._driver
 
     def _observe(self, obs: Observation, now: float) -> None:
-        self.state.observe(obs, now)
-        if self._sequence is not None and not self._sequence.done:
-            self._sequence.observe(obs, now)
-            self._pump(now)
-        self._evaluate(now)
+        self._drive().datagram_received(obs, None)
 
-    def _pump(self, now: float) -> None:
-        seq = self._sequence
-        if seq is None:
-            return
-        for cmd in seq.commands_to_send():
-            self.backend.send(cmd)
-        while (event := seq.next_event()) is not None:
-            self._log_event(event)
-            if isinstance(event, TakeoffSucceeded | TakeoffFailed):
-                self.last_outcome = event
-                if self._done is not None and not self._done.done():
-                    self._done.set_result(event)
-        if self._seq_timer is not None:
-            self._seq_timer.cancel()
-            self._seq_timer = None
-        deadline = seq.get_timer()
-        if deadline is not None and self._loop is not None:
-            self._seq_timer = self._loop.call_at(deadline, self._on_seq_timer)
-
-    def _on_seq_timer(self) -> None:
-        self._seq_timer = None
-        now = self._now()
-        if self._sequence is not None:
-            self._sequence.handle_timer(now)
-            self._pump(now)
-
-    def _evaluate(self, now: float) -> None:
-        verdict = readiness(self.state, now, self.readiness_config)
-        key = (verdict.ready, None if verdict.reason is None else str(verdict.reason))
-        if key != self._last_key:
-            self._last_key = key
-            self._info("px4_readiness", ready=verdict.ready, reason=key[1], detail=verdict.detail)
-            for listener in list(self._listeners):
-                listener(verdict)
-        if self._stale_timer is not None:
-            self._stale_timer.cancel()
-            self._stale_timer = None
-        deadline = self.state.next_deadline(self.readiness_config)
-        if deadline is not None and deadline > now and self._loop is not None:
-            self._stale_timer = self._loop.call_at(deadline, self._on_stale_timer)
-
-    def _on_stale_timer(self) -> None:
-        self._stale_timer = None
-        self._evaluate(self._now())
-
-    # ---- logging --------------------------------------------------------------------------
-
-    def _info(self, event: str, **fields: Any) -> None:
-        if self._log is not None:
-            self._log.info(event, **fields)
-
-    def _log_event(self, event: SequenceEvent) -> None:
+    def _on_event(self, event: VehicleEvent) -> None:
         match event:
+            case ReadinessChanged(verdict=verdict):
+                reason = None if verdict.reason is None else str(verdict.reason)
+                self._info(
+                    "px4_readiness", ready=verdict.ready, reason=reason, detail=verdict.detail
+                )
+                for listener in list(self._listeners):
+                    listener(verdict)
+            case TaskFinished():
+                if isinstance(event.outcome, TakeoffSucceeded | TakeoffFailed):
+                    self.last_outcome = event.outcome
+                waiting = self._waiting.get(event.token)
+                if waiting is not None:
+                    if not waiting.done():
+                        waiting.set_result(event)
+                    return
+                for task_listener in list(self._task_listeners):
+                    task_listener(event)
             case PhaseChanged():
                 self._info(
                     "px4_takeoff_phase", old=str(event.old), new=str(event.new), why=event.why
@@ -260,6 +240,22 @@ class Px4Bridge:
                 self._info("px4_command_ack", command=event.command, result=event.result)
             case TakeoffSucceeded() | TakeoffFailed():
                 self._info("px4_takeoff_outcome", **_outcome_dict(event))
+            case ActionFinished():
+                self._info(
+                    "px4_action_outcome",
+                    action=str(event.kind),
+                    ok=event.ok,
+                    reason=event.reason,
+                    detail=event.detail,
+                )
+            case _:
+                assert_never(event)
+
+    # ---- logging --------------------------------------------------------------------------
+
+    def _info(self, event: str, **fields: Any) -> None:
+        if self._log is not None:
+            self._log.info(event, **fields)
 
 
 def _outcome_dict(out: Outcome) -> dict[str, Any]:

@@ -50,6 +50,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Generic, TypeVar
 
 from swarmd.px4.constants import MavResult
 from swarmd.px4.messages import CommandAck, Observation, VehicleCommand
@@ -85,26 +86,21 @@ class Finish(StrEnum):
 
 
 @dataclass(frozen=True, slots=True)
-class SenderEvent:
-    """Base of everything ``CommandSender.next_event`` returns."""
-
-
-@dataclass(frozen=True, slots=True)
-class CommandSent(SenderEvent):
+class CommandSent:
     command: str  # the MAV_CMD name
     confirmation: int
     handle: int = 0
 
 
 @dataclass(frozen=True, slots=True)
-class AckReceived(SenderEvent):
+class AckReceived:
     command: str
     result: str  # the MAV_RESULT name
     handle: int = 0
 
 
 @dataclass(frozen=True, slots=True)
-class CommandFinished(SenderEvent):
+class CommandFinished:
     handle: int
     command: VehicleCommand
     finish: Finish
@@ -122,6 +118,10 @@ class CommandFinished(SenderEvent):
         if self.finish is Finish.CANCELLED:
             return "cancelled"
         return "no_ack" if self.result is None else self.result.name
+
+
+SenderEvent = CommandSent | AckReceived | CommandFinished
+"""Everything ``CommandSender.next_event`` returns."""
 
 
 @dataclass(slots=True)
@@ -248,3 +248,55 @@ class CommandSender:
                 pending.handle, pending.command, finish, pending.last_result, pending.sent, why
             )
         )
+
+
+E = TypeVar("E")
+
+
+class SenderTask(Generic[E]):
+    """Base of a sans-IO task built on one ``CommandSender`` (the take-off sequence, the
+    LAND/HOLD/DISARM actions): it owns the sender, the commands going out and the event
+    queue, in order. A subclass says when it is finished, what it waits for besides acks
+    (``_own_deadline``) and what a finished command means to it (``_on_finished``)."""
+
+    def __init__(self, config: SenderConfig | None) -> None:
+        self._sender = CommandSender(config)
+        self._out: list[VehicleCommand] = []
+        self._events: deque[E | CommandSent | AckReceived] = deque()
+
+    def commands_to_send(self) -> list[VehicleCommand]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        if self._finished():
+            return None
+        deadline = self._sender.get_timer()
+        return deadline if deadline is not None else self._own_deadline()
+
+    def next_event(self) -> E | CommandSent | AckReceived | None:
+        return self._events.popleft() if self._events else None
+
+    @property
+    def done(self) -> bool:
+        return self._finished()
+
+    def _finished(self) -> bool:
+        # a method, not a property: mypy narrows a property across calls that change it
+        raise NotImplementedError
+
+    def _own_deadline(self) -> float | None:
+        return None
+
+    def _on_finished(self, done: CommandFinished, now: float) -> None:
+        raise NotImplementedError
+
+    def _drain(self, now: float) -> None:
+        """Take the sender's transmissions and events, in order; act on its verdicts."""
+        while (event := self._sender.next_event()) is not None:
+            self._out += self._sender.commands_to_send()
+            if isinstance(event, CommandFinished):
+                self._on_finished(event, now)
+            else:
+                self._events.append(event)
+        self._out += self._sender.commands_to_send()

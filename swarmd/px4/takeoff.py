@@ -45,18 +45,17 @@ Phases (all transitions are in ``_TRANSITIONS``)::
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
 
 from swarmd.px4.command_sender import (
+    AckReceived,
     CommandFinished,
-    CommandSender,
     CommandSent,
     Finish,
     SenderConfig,
-    SenderEvent,
+    SenderTask,
 )
 from swarmd.px4.constants import LandedState, MavCmd
 from swarmd.px4.messages import MODE_TAKEOFF, Observation, VehicleCommand
@@ -152,12 +151,12 @@ class TakeoffFailed(TakeoffEvent):
     elapsed_s: float
 
 
-SequenceEvent = TakeoffEvent | SenderEvent
+SequenceEvent = PhaseChanged | TakeoffSucceeded | TakeoffFailed | CommandSent | AckReceived
 """What ``TakeoffSequence.next_event`` returns: its phases and outcome, and the sender's
 ``CommandSent``/``AckReceived`` for each step's command."""
 
 
-class TakeoffSequence:
+class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed]):
     """One take-off attempt. Create, ``start(now)``, then drive until ``done``.
 
     Driven by ``start``, ``observe`` and ``handle_timer``; outputs ``commands_to_send``,
@@ -176,18 +175,16 @@ class TakeoffSequence:
         self.alt_m = alt_m
         self.config = config or TakeoffConfig()
         self.config.check()
+        super().__init__(self.config.command)
         self.readiness_config = readiness_config or ReadinessConfig()
         self.phase = Phase.IDLE
         self.target_amsl_m: float | None = None
         self.outcome: TakeoffSucceeded | TakeoffFailed | None = None
         self._t0 = 0.0
-        self._sender = CommandSender(self.config.command)
         self._handle: int | None = None  # the step's command in the sender
         self._lift_deadline: float | None = None
         self._arm_sent = False
         self._seen_armed = False
-        self._out: list[VehicleCommand] = []
-        self._events: deque[SequenceEvent] = deque()
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -258,47 +255,27 @@ class TakeoffSequence:
         if not self._finished():
             self._fail(now, FailReason.CANCELLED, None, why)
 
-    # ---- outputs ------------------------------------------------------------------------
-
-    def commands_to_send(self) -> list[VehicleCommand]:
-        out, self._out = self._out, []
-        return out
-
-    def get_timer(self) -> float | None:
-        if self._finished():
-            return None
-        deadline = self._sender.get_timer()
-        return deadline if deadline is not None else self._lift_deadline
-
-    def next_event(self) -> SequenceEvent | None:
-        return self._events.popleft() if self._events else None
-
-    @property
-    def done(self) -> bool:
-        return self._finished()
+    # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 
     def _finished(self) -> bool:
-        # a method, not the property: mypy narrows a property across calls that change it
         return self.phase in (Phase.SUCCEEDED, Phase.FAILED)
+
+    def _own_deadline(self) -> float | None:
+        return self._lift_deadline
 
     # ---- internals ----------------------------------------------------------------------
 
     def _send(self, command: VehicleCommand, now: float) -> None:
         self._handle = self._sender.send(command, now)
 
-    def _drain(self, now: float) -> None:
-        """Take the sender's transmissions and events, in order, and act on its verdicts."""
-        while (event := self._sender.next_event()) is not None:
-            self._out += self._sender.commands_to_send()
-            if not isinstance(event, CommandFinished):
-                self._events.append(event)
-            elif event.handle == self._handle and not self._finished():
-                self._handle = None
-                if event.finish is Finish.ACCEPTED:
-                    self._step_done(now, "COMMAND_ACK ACCEPTED")
-                elif event.finish in (Finish.REFUSED, Finish.NO_ACK):
-                    self._give_up(event, now)
-        self._out += self._sender.commands_to_send()
+    def _on_finished(self, done: CommandFinished, now: float) -> None:
+        if done.handle != self._handle or self._finished():
+            return  # a command the sequence settled, or cancelled, already
+        self._handle = None
+        if done.finish is Finish.ACCEPTED:
+            self._step_done(now, "COMMAND_ACK ACCEPTED")
+        elif done.finish in (Finish.REFUSED, Finish.NO_ACK):
+            self._give_up(done, now)
 
     def _give_up(self, done: CommandFinished, now: float) -> None:
         arm = done.command.command == MavCmd.COMPONENT_ARM_DISARM

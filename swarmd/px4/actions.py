@@ -1,0 +1,204 @@
+"""LAND, HOLD and DISARM as sans-IO actions: one command through the ``CommandSender``,
+success confirmed by the vehicle's state.
+
+Theory of operation
+-------------------
+Each action sends one ``VehicleCommand`` through a ``CommandSender`` (ack, retries,
+IN_PROGRESS, TEMPORARILY_REJECTED, final results: ``command_sender.py``) and watches the
+shared ``VehicleState`` for the effect:
+
+=======  ===============================================  ====================================
+action   command                                          confirmed by state when
+=======  ===============================================  ====================================
+LAND     NAV_LAND                                         mode AUTO.LAND, or landed_state
+                                                          LANDING (PX4 navigator's land)
+HOLD     DO_SET_MODE custom AUTO.LOITER (PX4's "Hold")    mode AUTO.LOITER
+DISARM   COMPONENT_ARM_DISARM param1 = 0 (never forced:   the armed bit clear in HEARTBEAT
+         PX4 refuses it in the air, which is the point)
+=======  ===============================================  ====================================
+
+Success is declared from state, not from an ack alone: the state confirming ends the
+command at once (a lost ack costs nothing); an ACK ACCEPTED starts ``confirm_timeout_s``
+(3 s: PX4 streams HEARTBEAT at 1 Hz, so one lost heartbeat plus jitter) within which the
+state must show the effect, else the action fails ``not_confirmed``. Only a vehicle whose
+state cannot show it (no HEARTBEAT ever received, so mode and armed bit are unknown) is
+believed on its ACK alone. A refusal (DENIED, ...) or no ack at all fails the action with
+the MAV_RESULT name or ``no_ack``, exactly as the sender reports it.
+
+Driving: ``start(now)``, ``observe(obs, now)`` (after the driver fed the same observation
+to ``VehicleState``), ``handle_timer(now)``; outputs ``commands_to_send()``,
+``get_timer()``, ``next_event()``. Never sleeps, never reads a clock, never raises on
+autopilot input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Final, assert_never
+
+from swarmd.px4.command_sender import (
+    AckReceived,
+    CommandFinished,
+    CommandSent,
+    Finish,
+    SenderConfig,
+    SenderTask,
+)
+from swarmd.px4.constants import LandedState, MavCmd, Px4AutoSubMode, Px4MainMode
+from swarmd.px4.messages import MODE_LAND, MODE_LOITER, Observation, VehicleCommand
+from swarmd.px4.readiness import VehicleState
+
+CONFIRM_TIMEOUT_S: Final = 3.0  # ACK ACCEPTED -> the effect in state (1 Hz HEARTBEAT, x2 + jitter)
+MODE_FLAG_CUSTOM: Final = 1.0  # DO_SET_MODE param1: MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+NOT_CONFIRMED: Final = "not_confirmed"
+
+
+class ActionKind(StrEnum):
+    LAND = "land"
+    HOLD = "hold"
+    DISARM = "disarm"
+
+
+def action_command(kind: ActionKind) -> VehicleCommand:
+    """The one command an action sends (MAVLink ``common``; PX4 mode numbers)."""
+    match kind:
+        case ActionKind.LAND:
+            return VehicleCommand.make(MavCmd.NAV_LAND)
+        case ActionKind.HOLD:
+            return VehicleCommand.make(
+                MavCmd.DO_SET_MODE,
+                p1=MODE_FLAG_CUSTOM,
+                p2=float(Px4MainMode.AUTO),
+                p3=float(Px4AutoSubMode.LOITER),
+            )
+        case ActionKind.DISARM:
+            return VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0)
+        case _:
+            assert_never(kind)
+
+
+def shows(kind: ActionKind, vehicle: VehicleState) -> bool:
+    """Does the vehicle's state show the action's effect?"""
+    hb = vehicle.heartbeat
+    match kind:
+        case ActionKind.LAND:
+            landing = vehicle.landed_state == LandedState.LANDING
+            return landing or (hb is not None and hb.mode == MODE_LAND)
+        case ActionKind.HOLD:
+            return hb is not None and hb.mode == MODE_LOITER
+        case ActionKind.DISARM:
+            return hb is not None and not hb.armed
+        case _:
+            assert_never(kind)
+
+
+@dataclass(frozen=True, slots=True)
+class ActionFinished:
+    """The action's outcome: ``ok``; ``reason`` a MAV_RESULT name, ``no_ack`` or
+    ``not_confirmed`` when not; ``detail`` one line for the log."""
+
+    kind: ActionKind
+    ok: bool
+    reason: str
+    detail: str
+
+
+ActionEvent = ActionFinished | CommandSent | AckReceived
+
+
+class VehicleAction(SenderTask[ActionFinished]):
+    """One LAND, HOLD or DISARM attempt. Create, ``start(now)``, drive until ``done``."""
+
+    def __init__(
+        self,
+        vehicle: VehicleState,
+        kind: ActionKind,
+        *,
+        sender: SenderConfig | None = None,
+        confirm_timeout_s: float = CONFIRM_TIMEOUT_S,
+    ) -> None:
+        self.vehicle = vehicle
+        self.kind = kind
+        self.confirm_timeout_s = confirm_timeout_s
+        self.outcome: ActionFinished | None = None
+        super().__init__(sender)
+        self._handle: int | None = None
+        self._confirm_deadline: float | None = None
+
+    # ---- inputs -------------------------------------------------------------------------
+
+    def start(self, now: float) -> None:
+        if self._handle is not None or self.outcome is not None:
+            return
+        self._handle = self._sender.send(action_command(self.kind), now)
+        self._drain(now)
+
+    def observe(self, obs: Observation, now: float) -> None:
+        if self.outcome is not None:
+            return
+        self._sender.observe(obs, now)
+        self._drain(now)
+        self._check_state(now)
+
+    def handle_timer(self, now: float) -> None:
+        """Call at (or after) ``get_timer()``; early calls are harmless."""
+        if self.outcome is not None:
+            return
+        self._check_state(now)
+        self._sender.handle_timer(now)
+        self._drain(now)
+        deadline = self._confirm_deadline
+        if not self._finished() and deadline is not None and now >= deadline:
+            self._finish(
+                False,
+                NOT_CONFIRMED,
+                f"{self.kind} ACCEPTED but the vehicle state did not show it within "
+                f"{self.confirm_timeout_s:g} s",
+            )
+
+    def cancel(self, now: float, why: str = "cancelled") -> None:
+        if self.outcome is None:
+            self._finish(False, "cancelled", why)
+
+    # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
+
+    def _finished(self) -> bool:
+        return self.outcome is not None
+
+    def _own_deadline(self) -> float | None:
+        return self._confirm_deadline
+
+    # ---- internals ----------------------------------------------------------------------
+
+    def _on_finished(self, done: CommandFinished, now: float) -> None:
+        if done.handle != self._handle or self._finished():
+            return
+        match done.finish:
+            case Finish.ACCEPTED:
+                if self.vehicle.heartbeat is None:  # the state cannot show it: the ack must do
+                    self._finish(True, "", f"{done.command.label} ACCEPTED (no state to confirm)")
+                elif shows(self.kind, self.vehicle):
+                    self._finish(True, "", f"{done.command.label} ACCEPTED, state shows it")
+                else:
+                    self._confirm_deadline = now + self.confirm_timeout_s
+            case Finish.CONFIRMED:
+                pass  # _check_state finished the action already
+            case Finish.REFUSED | Finish.NO_ACK | Finish.CANCELLED:
+                self._finish(False, done.cause, f"{done.command.label}: {done.why}")
+            case _:
+                assert_never(done.finish)
+
+    def _check_state(self, now: float) -> None:
+        if self.outcome is not None or self._handle is None:
+            return
+        if shows(self.kind, self.vehicle):
+            self._sender.confirm(self._handle, now, "state shows it")
+            self._finish(True, "", f"{self.kind}: the vehicle state shows it")
+
+    def _finish(self, ok: bool, reason: str, detail: str) -> None:
+        if self._handle is not None and self._sender.pending(self._handle):
+            self._sender.cancel(self._handle, 0.0, detail)
+        self._confirm_deadline = None
+        self.outcome = ActionFinished(self.kind, ok, reason, detail)
+        self._events.append(self.outcome)

@@ -1,0 +1,259 @@
+"""One vehicle as a sans-IO core: live state, readiness changes, take-off, LAND/HOLD/ABORT.
+
+Theory of operation
+-------------------
+Driving sources (the driver's protocol, ``swarmd.driver``): ``receive_datagram(obs, source,
+now)`` with each autopilot observation a backend decoded (MAVLink or XRCE-DDS, any
+``messages.Observation``), ``handle_timer(now)``, and the requests ``takeoff``, ``land``,
+``hold``, ``abort``, each tagged with the caller's ``token`` (the swarm's command id).
+Outputs: ``datagrams_to_send()`` (``VehicleCommand``s for the backend), ``get_timer()`` (the
+earliest of the heartbeat-stale deadline and the running tasks' timers) and
+``next_event()``: ``ReadinessChanged`` whenever ready/reason changes (including "the link
+went quiet", by the timer), ``TaskFinished`` once per request, and the tasks' own events
+(phases, commands sent, acks) for the log.
+
+Tasks: at most one take-off runs (a second is refused ``busy``); LAND, HOLD and DISARM are
+``actions.VehicleAction``s, all commands through the ``CommandSender``. ABORT stops a running
+take-off (the sequence disarms if it armed), then lands a vehicle in the air or disarms one
+armed on the ground, never a forced disarm, which PX4 would obey in the air; a vehicle on
+the ground and disarmed needs nothing (``on_ground_disarmed``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Final, assert_never
+
+from swarmd.px4.actions import (
+    ActionEvent,
+    ActionFinished,
+    ActionKind,
+    VehicleAction,
+    action_command,
+)
+from swarmd.px4.constants import LandedState
+from swarmd.px4.messages import Observation, VehicleCommand
+from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState, readiness
+from swarmd.px4.takeoff import (
+    FailReason,
+    SequenceEvent,
+    TakeoffConfig,
+    TakeoffFailed,
+    TakeoffSequence,
+    TakeoffSucceeded,
+)
+
+ON_GROUND_DISARMED: Final = "on_ground_disarmed"
+
+TakeoffOutcome = TakeoffSucceeded | TakeoffFailed
+
+
+class TaskKind(StrEnum):
+    TAKEOFF = "takeoff"
+    LAND = "land"
+    HOLD = "hold"
+    ABORT = "abort"
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleRequest:
+    """One task for the vehicle, tagged with the caller's ``token`` (a command id)."""
+
+    token: int
+    kind: TaskKind
+    alt_m: float | None = None  # TAKEOFF only: metres above home; None: MIS_TAKEOFF_ALT
+
+
+@dataclass(frozen=True, slots=True)
+class ReadinessChanged:
+    verdict: Readiness
+
+
+@dataclass(frozen=True, slots=True)
+class TaskFinished:
+    """A request's end. ``outcome`` is the take-off's, the action's, or None for an ABORT
+    that had nothing to do; ``reason`` the stable code an outcome line carries."""
+
+    token: int
+    ok: bool
+    reason: str
+    outcome: TakeoffOutcome | ActionFinished | None
+
+
+VehicleEvent = ReadinessChanged | TaskFinished | SequenceEvent | ActionEvent
+
+
+@dataclass(slots=True)
+class _Task:
+    token: int
+    runner: TakeoffSequence | VehicleAction
+    abort: bool = False  # an ABORT's action: reason = the command's label on success
+
+
+class VehicleCore:
+    """See the module docstring. Never raises on autopilot input."""
+
+    def __init__(
+        self,
+        *,
+        readiness_config: ReadinessConfig | None = None,
+        takeoff_config: TakeoffConfig | None = None,
+    ) -> None:
+        self.readiness_config = readiness_config or ReadinessConfig()
+        self.takeoff_config = takeoff_config or TakeoffConfig()
+        self.takeoff_config.check()
+        self.state = VehicleState()
+        self.last_takeoff: TakeoffSequence | None = None
+        self._tasks: list[_Task] = []
+        self._last_key: tuple[bool, str | None] | None = None
+        self._stale_at: float | None = None
+        self._out: list[VehicleCommand] = []
+        self._events: deque[VehicleEvent] = deque()
+
+    # ---- inputs -------------------------------------------------------------------------
+
+    def receive_datagram(self, data: Observation, source: object, now: float) -> None:
+        """One observation from the backend (``source`` is unused: one vehicle per core)."""
+        self.state.observe(data, now)
+        for task in list(self._tasks):
+            task.runner.observe(data, now)
+        self._settle(now)
+
+    def handle_timer(self, now: float) -> None:
+        for task in list(self._tasks):
+            task.runner.handle_timer(now)
+        self._settle(now)
+
+    def request(self, request: VehicleRequest, now: float) -> None:
+        """Start the task ``request`` names; its end is a ``TaskFinished`` event."""
+        match request.kind:
+            case TaskKind.TAKEOFF:
+                self.takeoff(request.token, request.alt_m, now)
+            case TaskKind.LAND:
+                self.land(request.token, now)
+            case TaskKind.HOLD:
+                self.hold(request.token, now)
+            case TaskKind.ABORT:
+                self.abort(request.token, now)
+            case _:
+                assert_never(request.kind)
+
+    def takeoff(self, token: int, alt_m: float | None, now: float) -> None:
+        """Arm and take off to ``alt_m`` above home (None: PX4's MIS_TAKEOFF_ALT)."""
+        if any(isinstance(t.runner, TakeoffSequence) for t in self._tasks):
+            busy = TakeoffFailed(FailReason.BUSY, None, "a take-off is already running", 0.0)
+            self._events.append(TaskFinished(token, False, str(FailReason.BUSY), busy))
+            return
+        seq = TakeoffSequence(
+            self.state,
+            alt_m,
+            config=self.takeoff_config,
+            readiness_config=self.readiness_config,
+        )
+        self.last_takeoff = seq
+        self._run(_Task(token, seq), now)
+
+    def land(self, token: int, now: float) -> None:
+        self._action(token, ActionKind.LAND, now)
+
+    def hold(self, token: int, now: float) -> None:
+        self._action(token, ActionKind.HOLD, now)
+
+    def abort(self, token: int, now: float) -> None:
+        """Stop a take-off; then land in the air, disarm on the ground, or nothing."""
+        for task in list(self._tasks):
+            if isinstance(task.runner, TakeoffSequence):
+                task.runner.cancel(now, "aborted")
+        self._settle(now)
+        landed = self.state.landed_state
+        if landed not in (None, LandedState.ON_GROUND):
+            self._action(token, ActionKind.LAND, now, abort=True)
+        elif self.state.armed:
+            self._action(token, ActionKind.DISARM, now, abort=True)
+        else:
+            self._events.append(TaskFinished(token, True, ON_GROUND_DISARMED, None))
+
+    def cancel(self, token: int, now: float, why: str) -> None:
+        """End the task of ``token`` (a take-off disarms if it armed); unknown: nothing."""
+        for task in list(self._tasks):
+            if task.token == token:
+                task.runner.cancel(now, why)
+        self._settle(now)
+
+    def cancel_all(self, now: float, why: str) -> None:
+        """The driver is closing: end every task (a take-off disarms if it armed)."""
+        for task in list(self._tasks):
+            task.runner.cancel(now, why)
+        self._settle(now)
+
+    # ---- outputs ------------------------------------------------------------------------
+
+    def datagrams_to_send(self) -> list[VehicleCommand]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        deadlines = [t.runner.get_timer() for t in self._tasks]
+        deadlines.append(self._stale_at)
+        return min((d for d in deadlines if d is not None), default=None)
+
+    def next_event(self) -> VehicleEvent | None:
+        return self._events.popleft() if self._events else None
+
+    # ---- queries ------------------------------------------------------------------------
+
+    def readiness(self, now: float) -> Readiness:
+        return readiness(self.state, now, self.readiness_config)
+
+    def busy(self) -> bool:
+        return bool(self._tasks)
+
+    # ---- internals ----------------------------------------------------------------------
+
+    def _action(self, token: int, kind: ActionKind, now: float, *, abort: bool = False) -> None:
+        action = VehicleAction(self.state, kind, sender=self.takeoff_config.command)
+        self._run(_Task(token, action, abort), now)
+
+    def _run(self, task: _Task, now: float) -> None:
+        self._tasks.append(task)
+        task.runner.start(now)
+        self._settle(now)
+
+    def _settle(self, now: float) -> None:
+        """Collect the tasks' commands and events, retire finished tasks, re-judge readiness."""
+        for task in list(self._tasks):
+            runner = task.runner
+            self._out += runner.commands_to_send()
+            while (event := runner.next_event()) is not None:
+                self._events.append(event)
+            if runner.done:
+                self._tasks.remove(task)
+                self._events.append(_finished(task))
+        verdict = readiness(self.state, now, self.readiness_config)
+        key = (verdict.ready, None if verdict.reason is None else str(verdict.reason))
+        if key != self._last_key:
+            self._last_key = key
+            self._events.append(ReadinessChanged(verdict))
+        # when readiness changes by time alone (the heartbeat going stale); a past deadline
+        # has already been judged, and would spin the timer
+        deadline = self.state.next_deadline(self.readiness_config)
+        self._stale_at = deadline if deadline is not None and deadline > now else None
+
+
+def _finished(task: _Task) -> TaskFinished:
+    runner = task.runner
+    if isinstance(runner, TakeoffSequence):
+        out = runner.outcome
+        assert out is not None  # noqa: S101 - done means an outcome
+        if isinstance(out, TakeoffSucceeded):
+            return TaskFinished(task.token, True, out.landed_state, out)
+        cause = f": {out.cause}" if out.cause else ""
+        return TaskFinished(task.token, False, f"{out.reason}{cause}", out)
+    action = runner.outcome
+    assert action is not None  # noqa: S101 - done means an outcome
+    if action.ok:
+        reason = action_command(runner.kind).label if task.abort else ""
+        return TaskFinished(task.token, True, reason, action)
+    return TaskFinished(task.token, False, action.reason, action)
