@@ -85,7 +85,11 @@ SANS_IO = [
     SansIO("auth"),
     SansIO("xrce"),
     # transport: udp/serial byte links; mavlink_backend, bridge: the asyncio MAVLink backend
-    SansIO("px4", frozenset({"transport", "mavlink_backend", "bridge"})),
+    # xrce_backend: the asyncio XRCE-DDS backend; provision: swarmctl px4 setup-signing's link
+    SansIO(
+        "px4",
+        frozenset({"transport", "mavlink_backend", "bridge", "xrce_backend", "provision"}),
+    ),
     # issue 11 (archA) cuts the sans-IO swarm core out of these adapters
     SansIO("swarm", frozenset({"app", "executor", "userdata", "statefile"})),
 ]
