@@ -14,13 +14,16 @@ from swarmd.auth.budget import GLOBAL_NEW_ADDRESS_BURST
 from swarmd.auth.spdp import PLACEHOLDER, open_tail
 from swarmd.discovery import (
     DiscoveryEngine,
+    ForeignParticipantSeen,
     PacketDropped,
     PeerDiscovered,
     PeerLocatorsChanged,
     PeerLost,
     PeerRestarted,
 )
+from swarmd.discovery.engine import FOREIGN_DECODE_BURST, FOREIGN_REPORT_BURST
 from swarmd.discovery.events import Event
+from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.discovery.testing import (
     auth_for,
     build_swarm,
@@ -255,3 +258,22 @@ def test_flipping_any_bit_of_a_signed_data_p_gets_it_refused(where: int, bit: in
     assert not any(isinstance(x, PeerDiscovered) for x in drain(e))
     e.receive_datagram(d, A1, 0.2)  # the genuine one still gets through: nothing was spent
     assert discovered(e, 1)
+
+
+def test_a_flood_of_invented_participants_is_decoded_at_a_bounded_rate() -> None:
+    """Attack 9: every datagram a "new" participant. Decodes and reports are budgeted; the
+    foreign table stays capped; a report says how many it stands for."""
+    e = receiver()
+    stranger = make_bundle(250, swarm="forger")
+    for i in range(1000):
+        e.receive_datagram(peer_datagram(stranger, 1 + i % 249), (f"10.7.0.{i % 250}", 1), 0.5)
+    dropped_now = e.counters()["dropped"]
+    decoded = dropped_now["not_in_bundle"]
+    assert decoded == FOREIGN_DECODE_BURST and dropped_now["foreign_budget"] == 1000 - decoded
+    reports = [x for x in drain(e) if isinstance(x, ForeignParticipantSeen)]
+    assert len(reports) == FOREIGN_REPORT_BURST  # not one per new prefix
+    assert len(e.foreign(0.5)) == min(MAX_FOREIGN, FOREIGN_DECODE_BURST)  # capped either way
+    # a second later: one more report, carrying the count it stands for
+    e.receive_datagram(peer_datagram(make_bundle(2, swarm="late"), 1), ATTACKER, 1.5)
+    (late,) = [x for x in drain(e) if isinstance(x, ForeignParticipantSeen)]
+    assert late.suppressed == e.counters()["foreign_suppressed"] > 0

@@ -69,12 +69,13 @@ SENDER_RATE: Final = 20.0
 SENDER_BURST: Final = 40.0
 # Datagrams under a bundle prefix from an address that prefix was never verified at: a
 # moved peer (rare) or a forger. All such addresses together share GLOBAL_NEW_ADDRESS_*,
-# so a flood spoofing members from many addresses costs at most 100 verifications a second
-# (~1 % of a core here, docs/benchmarks.md) and never touches a member's known address.
+# so a flood spoofing members from many addresses costs at most 50 verifications a second
+# (~1 % of a core here, a few % on a Jetson Nano: docs/benchmarks.md) and never touches a
+# member's known address.
 NEW_ADDRESS_RATE: Final = 5.0
 NEW_ADDRESS_BURST: Final = 10.0
-GLOBAL_NEW_ADDRESS_RATE: Final = 100.0
-GLOBAL_NEW_ADDRESS_BURST: Final = 100.0
+GLOBAL_NEW_ADDRESS_RATE: Final = 50.0
+GLOBAL_NEW_ADDRESS_BURST: Final = 50.0
 # (prefix, address) pairs tracked for the per-address budget: a forger cycling source
 # addresses evicts its own entries.
 MAX_NEW_ADDRESSES: Final = 256

@@ -125,6 +125,12 @@ BUNDLE_DIGEST_BYTES: Final = 16
 # many it stands for (``ForeignParticipantSeen.suppressed``), so the log is a summary.
 MAX_FOREIGN_REPORTS_PER_S: Final = 1.0
 FOREIGN_REPORT_BURST: Final = 10.0
+# With authentication on, datagrams under prefixes outside the bundle (stock DDS nodes, a
+# forger's invented participants, garbage) are decoded at most this often: a decode costs
+# ~50 us (docs/benchmarks.md), so a 5,000/s flood would otherwise cost a quarter of a core.
+# A stock participant renews about once a second; beyond the budget it is only counted.
+FOREIGN_DECODES_PER_S: Final = 50.0
+FOREIGN_DECODE_BURST: Final = 50.0
 
 Wallclock = Callable[[], float]
 
@@ -240,6 +246,7 @@ class DiscoveryEngine:
         self._foreign = ForeignTable(MAX_FOREIGN)
         self._foreign_reports = TokenBucket(MAX_FOREIGN_REPORTS_PER_S, FOREIGN_REPORT_BURST, now)
         self._foreign_suppressed = 0  # since the last ForeignParticipantSeen
+        self._foreign_budget = TokenBucket(FOREIGN_DECODES_PER_S, FOREIGN_DECODE_BURST, now)
         self._counters: dict[str, int] = {
             "rx_datagrams": 0,
             "tx_datagrams": 0,
@@ -265,16 +272,25 @@ class DiscoveryEngine:
             return
         raw = data if type(data) is bytes else bytes(data)
         fresh: Freshness | None = None
-        if self._auth is not None and raw[8:20] in self._by_prefix:
-            # Verify before anything: under a bundle prefix (the RTPS header's, which the
-            # decoder requires every DATA(p)/DATA(p[UD]) in it to match) nothing is decoded,
-            # counted as heard or changed until the authenticator holds. Cheap checks first
-            # (swarmd.auth.spdp); a refusal is counted, not reported per datagram.
-            verdict = self._auth.check(raw[8:20], raw, source, now)
-            if isinstance(verdict, Refusal):
-                self._dropped[DropReason(verdict.value)] += 1
+        if self._auth is not None:
+            # Before decoding anything, by the RTPS header's prefix (the decoder requires
+            # every DATA(p)/DATA(p[UD]) in the datagram to carry the same one):
+            prefix = raw[8:20]
+            if prefix in self._by_prefix:
+                # a bundle peer's: nothing is decoded, counted as heard or changed until the
+                # authenticator holds; cheap checks first (swarmd.auth.spdp). A refusal is
+                # counted, not reported per datagram.
+                verdict = self._auth.check(prefix, raw, source, now)
+                if isinstance(verdict, Refusal):
+                    self._dropped[DropReason(verdict.value)] += 1
+                    return
+                fresh = verdict
+            elif prefix == self._my_prefix:
+                self._dropped[DropReason.OWN] += 1  # our own multicast, looped back
                 return
-            fresh = verdict
+            elif not self._foreign_budget.take(now):
+                self._dropped[DropReason.FOREIGN_BUDGET] += 1  # a flood: not even decoded
+                return
         try:
             header, samples = _decode(raw)
         except DecodeError:

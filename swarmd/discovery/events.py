@@ -43,6 +43,9 @@ class DropReason(StrEnum):
     # an authenticated DATA(p) announcing a loopback (from the air), multicast, unspecified or
     # broadcast unicast locator (issue 10, attack 7): refused whole, nothing moves
     BAD_LOCATOR = "bad_locator"
+    # a datagram under a prefix outside the bundle while the foreign budget is spent (a
+    # flood of forged participants, attack 9): counted, not even decoded
+    FOREIGN_BUDGET = "foreign_budget"
 
 
 @dataclass(frozen=True, slots=True)
