@@ -41,7 +41,6 @@ from swarmd.px4.constants import (
     MavState,
     Px4MainMode,
 )
-from swarmd.px4.mavlink_codec import Message
 from swarmd.px4.messages import (
     MODE_LAND,
     MODE_LOITER,
@@ -133,8 +132,11 @@ class SimVehicle:
 
     # ---- inputs -------------------------------------------------------------------------
 
-    def receive(self, msg: Message, src: tuple[int, int], now: float) -> None:
-        """A message from (system, component); only COMMAND_LONG for us is acted on."""
+    def receive(self, msg: object, src: tuple[int, int], now: float) -> None:
+        """A message from (system, component); only COMMAND_LONG for us is acted on.
+
+        ``object``: whatever the codec decoded (it may be MAVLink-only, like SETUP_SIGNING);
+        naming the codec's type here would import pymavlink into this sans-IO model."""
         if not isinstance(msg, VehicleCommand):
             return  # companion / GCS heartbeats etc.
         if msg.target_system not in (0, self.config.sysid):
