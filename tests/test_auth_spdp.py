@@ -30,7 +30,7 @@ from swarmd.rtps.spdp import (
 
 BUNDLE = make_bundle(4)
 P = [p.guid_prefix for p in BUNDLE.participants]
-SRC = ("10.0.0.2", 7412)
+SRC = ("10.0.0.2", 7412)  # uav1's bundle address: node_ipv4(1), metatraffic port of index 1
 
 
 def ring(i: int) -> KeyRing:
@@ -100,20 +100,23 @@ def test_flood_from_other_addresses_never_spends_the_known_senders_budget() -> N
     v = SpdpVerifier(ring(0), 0.0)
     auth = SpdpAuth(ring(1), 7, 0.0)
     assert isinstance(v.check(P[1].value, auth.seal(template(1)), SRC, 0.0), Freshness)
+    v.note_address(P[1].value, SRC)  # the engine used it: SRC is member 1's address now
     # a forger spoofing member 1's prefix from many addresses, all at t = 0
     forged = seal(template(1), Freshness(8, 1), ring(2))
     refusals = [
         v.check(P[1].value, forged, (f"10.9.{i // 250}.{i % 250}", 7412), 0.0) for i in range(500)
     ]
-    # the member's first datagram came from an address not yet verified: one global token
-    verified = GLOBAL_NEW_ADDRESS_BURST - 1
+    # SRC is member 1's bundle address (ipv4 + metatraffic port): its own budget from the
+    # first datagram on, so the forger had the whole global budget to itself
+    verified = GLOBAL_NEW_ADDRESS_BURST
     assert refusals.count(Refusal.BAD_SIGNATURE) == verified  # then no tokens left
     assert refusals.count(Refusal.BUDGET_GLOBAL) == 500 - verified
     # one address: its own budget runs out first
     one = [v.check(P[1].value, forged, ("10.8.0.1", 1), 0.0) for _ in range(20)]
     assert one.count(Refusal.BUDGET_SENDER) >= 20 - NEW_ADDRESS_BURST
-    # the real member at its known address still gets every datagram verified
-    for _ in range(int(SENDER_BURST)):
+    # the real member at its known address still gets every datagram verified (its first
+    # datagram above took one of its own tokens)
+    for _ in range(int(SENDER_BURST) - 1):
         assert isinstance(v.check(P[1].value, auth.seal(template(1)), SRC, 0.0), Freshness)
     assert v.check(P[1].value, auth.seal(template(1)), SRC, 0.0) == Refusal.BUDGET_SENDER
     assert isinstance(v.check(P[1].value, auth.seal(template(1)), SRC, 1.0), Freshness)

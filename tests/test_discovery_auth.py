@@ -169,6 +169,24 @@ def test_a_flood_spoofing_a_member_from_other_addresses_costs_a_bounded_budget()
     assert before is not None and after is not None and after.last_heard == 0.2
 
 
+def test_a_replayed_reply_for_another_node_does_not_move_the_senders_address() -> None:
+    """A genuine directed DATA(p) uav1 -> uav2, captured and replayed to uav0 from the
+    attacker's address, verifies (uav0 never saw it) but is not for uav0: uav1's budget
+    must stay at its real address, or a flood spending the shared budget would starve it."""
+    e = receiver()
+    a1 = auth_for(BUNDLE, 1, epoch=5)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    captured = peer_datagram(BUNDLE, 1, auth=a1, destination=P[2])
+    assert refused(e, captured, ATTACKER, 0.2) == {"not_for_me": 1}
+    forger = auth_for(BUNDLE, 2, epoch=1000)
+    for i in range(200):  # spend the global budget for addresses not known
+        e.receive_datagram(peer_datagram(BUNDLE, 1, auth=forger), (f"10.2.0.{i}", 7412), 0.3)
+    assert e.counters()["dropped"]["auth_budget_global"] > 0
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.3)
+    view = e.peer(P[1])
+    assert view is not None and view.last_heard == 0.3
+
+
 def test_per_address_budget_runs_out_for_one_spoofed_address() -> None:
     e = receiver()
     forger = auth_for(BUNDLE, 2, epoch=1000)

@@ -82,6 +82,7 @@ class KeyRing:
                 f"node key does not match {me.name!r}'s keys in bundle {bundle.swarm!r}; "
                 "fix: flash this node with the keys directory the bundle was built from"
             )
+        self.bundle = bundle
         self._bundle_hash = bundle.content_sha256
         self._me = me
         self._secrets = secrets

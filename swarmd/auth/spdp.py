@@ -27,10 +27,15 @@ Receiving (``SpdpVerifier.check``), in order of cost, nothing changing before th
    other addresses never spends the member's budget (else ``auth_budget_sender`` /
    ``auth_budget_global``);
 4. Ed25519 under the prefix's bundle key (else ``auth_bad_signature``);
-5. only then: the window accepts the freshness and the address becomes the known one.
+5. only then: the window accepts the freshness.
 
 The caller (the discovery engine) looks the prefix up in the bundle first (strangers never
-reach this) and changes its peer table only on a returned ``Freshness``.
+reach this) and changes its peer table only on a returned ``Freshness``. Once it has used
+the datagram (it was for this node: not a directed reply to another), it calls
+``note_address``: that source becomes the sender's known address. Not before: a genuine
+directed datagram captured on its way to another node and replayed to us from the
+attacker's address verifies, but must not move the sender's budget to that address (the
+attacker could then starve the real address by spending the shared budget).
 """
 
 from __future__ import annotations
@@ -120,7 +125,16 @@ class SpdpVerifier:
     def __init__(self, keyring: KeyRing, now: float) -> None:
         self._keyring = keyring
         self._windows: dict[bytes, ReplayWindow] = {}
-        self._known: dict[bytes, tuple[str, int]] = {}  # last verified source per prefix
+        # the address each sender's own budget applies at: its last used verified source,
+        # seeded with the bundle's address for it (ipv4 + metatraffic port, when the mission
+        # gives one), so a member is heard at full budget from its first datagram on, even
+        # while a flood spends the shared budget
+        bundle = keyring.bundle
+        self._known: dict[bytes, tuple[str, int]] = {
+            p.guid_prefix.value: (p.ipv4, bundle.metatraffic_port(p))
+            for p in bundle.participants
+            if p.ipv4 is not None
+        }
         self._sender = BucketTable[bytes](SENDER_RATE, SENDER_BURST, keyring_size(keyring))
         self._new_address = BucketTable[tuple[bytes, str, int]](
             NEW_ADDRESS_RATE, NEW_ADDRESS_BURST, MAX_NEW_ADDRESSES
@@ -157,8 +171,12 @@ class SpdpVerifier:
         if window is None:
             window = self._windows[prefix] = ReplayWindow()
         window.accept(freshness)
-        self._known[prefix] = source
         return freshness
+
+    def note_address(self, prefix: bytes, source: tuple[str, int]) -> None:
+        """A datagram from ``prefix`` that ``check`` verified came from ``source`` and was
+        used: its later datagrams from there spend the sender's own budget."""
+        self._known[prefix] = source
 
     def high(self, prefix: bytes) -> Freshness | None:
         """The highest freshness verified from ``prefix`` (its epoch is its current life)."""
@@ -195,3 +213,6 @@ class SpdpAuth:
         self, prefix: bytes, data: bytes, source: tuple[str, int], now: float
     ) -> Freshness | Refusal:
         return self.verifier.check(prefix, data, source, now)
+
+    def note_address(self, prefix: bytes, source: tuple[str, int]) -> None:
+        self.verifier.note_address(prefix, source)

@@ -562,6 +562,8 @@ class DiscoveryEngine:
         if not _locators_usable(part, source):
             self._drop(DropReason.BAD_LOCATOR, source)
             return
+        if self._auth is not None:
+            self._auth.note_address(alive.prefix, source)  # used: its budget lives there now
         self._heard(peer, alive, source, now, fresh)
 
     def _heard(
