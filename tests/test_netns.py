@@ -8,7 +8,8 @@ import sys
 from contextlib import closing
 
 import pytest
-from swarmd_lab.netns import Lan, cleanup_stale, list_namespaces, run_prefix
+from swarmd_lab import netns
+from swarmd_lab.netns import Lan, NamespaceRecord, cleanup_stale, list_namespaces, run_prefix
 
 from tests.peers.udp import group_listener, receive_until, unicast_socket
 
@@ -105,3 +106,58 @@ def test_rejects_bad_sizes_and_subnets() -> None:
         Lan(0)
     with pytest.raises(ValueError, match="private"):
         Lan(2, subnet="8.8.8.0/24")
+
+
+def _interrupt_after_netns_add(monkeypatch: pytest.MonkeyPatch, nth: int) -> None:
+    """Make the ``nth`` ``ip netns add`` succeed and then raise, as a signal arriving while
+    it runs would: the namespace exists, the builder never returned from the call."""
+    real = netns._ip
+    seen = [0]
+
+    def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+        proc = real(*args, check=check)
+        if args[:2] == ("netns", "add"):
+            seen[0] += 1
+            if seen[0] == nth:
+                raise KeyboardInterrupt
+        return proc
+
+    monkeypatch.setattr(netns, "_ip", ip)
+
+
+@pytest.mark.parametrize("nth", [1, 2])
+def test_a_signal_during_ip_netns_add_leaks_nothing(
+    monkeypatch: pytest.MonkeyPatch, nth: int
+) -> None:
+    prefix = run_prefix()
+    _interrupt_after_netns_add(monkeypatch, nth)
+    with pytest.raises(KeyboardInterrupt), Lan(2, prefix=prefix):
+        pass
+    assert ours(prefix) == []
+
+
+def test_the_wifi_testbed_shares_the_leak_fix(monkeypatch: pytest.MonkeyPatch) -> None:
+    # bench/wifi builds per-drone bridges and taps, but its namespaces come from the same
+    # NamespaceRecord: interrupted on its second namespace (the first drone), nothing stays
+    from bench.wifi.topology import Testbed
+
+    prefix = run_prefix("swf")
+    _interrupt_after_netns_add(monkeypatch, 2)
+    with pytest.raises(KeyboardInterrupt), Testbed(prefix, 2):
+        pass
+    assert [n for n in list_namespaces() if n.startswith(prefix + "-")] == []
+
+
+def test_a_record_deletes_what_it_recorded_newest_first() -> None:
+    record = NamespaceRecord()
+    prefix = run_prefix()
+    try:
+        record.add(f"{prefix}-a")
+        record.add(f"{prefix}-b")
+        assert ours(prefix) == [f"{prefix}-a", f"{prefix}-b"]
+        with pytest.raises(netns.NetnsError, match="already exists"):
+            record.add(f"{prefix}-a")
+    finally:
+        record.close()
+    assert ours(prefix) == []
+    record.close()  # idempotent

@@ -13,7 +13,7 @@ from swarmd.dataplane.types import CommandResult, Readiness
 from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     NO_REPORT,
-    NOT_A_TARGET,
+    NOT_A_MEMBER,
     PEER_LOST,
     REPORT_STALE,
     CommandTracker,
@@ -37,7 +37,7 @@ def test_effective_readiness_order_no_report_lost_stale_then_own_reason() -> Non
     assert table.verdict("a", 4.01) == (False, REPORT_STALE)
     table.on_report("a", sample("a", 2, False, "no_3d_fix"), 2, now=5.0)
     assert table.verdict("a", 5.0) == (False, "no_3d_fix")
-    assert table.verdict("zzz", 5.0) == (False, NOT_A_TARGET)
+    assert table.verdict("zzz", 5.0) == (False, NOT_A_MEMBER)
     ready, refused = table.split(["b", "a"], 5.0)
     assert ready == [] and list(refused.items()) == [("b", NO_REPORT), ("a", "no_3d_fix")]
 

@@ -24,15 +24,21 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Final
 
-from swarmd_lab.netns import Namespace, cleanup_dead_runs, delete_namespace, list_namespaces
+from swarmd_lab.netns import (
+    Namespace,
+    NamespaceRecord,
+    NetnsError,
+    add_veth,
+    cleanup_dead_runs,
+    configure_host,
+)
 
 BASE: Final = "swf"  # swarmd wifi testbed; cleanup_dead_runs("swf") sweeps killed runs
-MULTICAST_NET: Final = "224.0.0.0/4"
 MAX_DRONES: Final = 250
 _SYSCTL_TIMEOUT_S: Final = 10.0
 
 
-class TopologyError(RuntimeError):
+class TopologyError(NetnsError):
     """A command failed while building the testbed's namespaces."""
 
 
@@ -73,7 +79,7 @@ class Testbed:
     subnet_octet: int = 0
     hub: str = ""
     drones: list[Namespace] = field(default_factory=list)
-    _created: list[str] = field(default_factory=list)
+    _namespaces: NamespaceRecord = field(default_factory=NamespaceRecord)
 
     def __post_init__(self) -> None:
         if not 1 <= self.size <= MAX_DRONES:
@@ -103,26 +109,19 @@ class Testbed:
     ) -> None:
         self.close()
 
-    def _namespace(self, name: str) -> None:
-        if name in list_namespaces():
-            raise TopologyError(f"namespace {name} exists already; a stale run? remove it")
-        # recorded first: a SIGTERM raised while `ip netns add` runs must not leak it
-        # (close() deletes absent names harmlessly)
-        self._created.append(name)
-        _ip("netns", "add", name)
-
     def build(self) -> None:
         cleanup_dead_runs(BASE)
         no_v6 = [
             ("net.ipv6.conf.all.disable_ipv6", "1"),
             ("net.ipv6.conf.default.disable_ipv6", "1"),
         ]
-        self._namespace(self.hub)
+        # IPv6 goes off right after each namespace exists, before any other interface is
+        # up (pitfall 4); lo alone is up by then and carries nothing to the channel
+        self._namespaces.add(self.hub)
         _sysctls(self.hub, no_v6)
-        _ip("-n", self.hub, "link", "set", "lo", "up")
         for i in range(self.size):
             name = f"{self.prefix}-{i}"
-            self._namespace(name)
+            self._namespaces.add(name)
             _sysctls(
                 name,
                 [
@@ -132,7 +131,7 @@ class Testbed:
                 ],
             )
             h = ("-n", self.hub)
-            _ip(*h, "link", "add", f"v{i}", "type", "veth", "peer", "name", "eth0", "netns", name)
+            add_veth(self.hub, f"v{i}", name)
             _ip("-n", name, "link", "set", "eth0", "address", ns3_mac(i))
             _ip(
                 *h,
@@ -153,10 +152,7 @@ class Testbed:
             _ip(*h, "link", "set", f"t{i}", "master", f"br{i}")
             for dev in (f"br{i}", f"v{i}", f"t{i}"):
                 _ip(*h, "link", "set", dev, "up")
-            _ip("-n", name, "addr", "add", f"{self.address(i)}/24", "dev", "eth0")
-            _ip("-n", name, "link", "set", "lo", "up")
-            _ip("-n", name, "link", "set", "eth0", "multicast", "on", "up")
-            _ip("-n", name, "route", "add", MULTICAST_NET, "dev", "eth0")
+            configure_host(name, f"{self.address(i)}/24")
             self.drones.append(Namespace(name, self.address(i), 24))
 
     def check_macs(self, macs: Sequence[str]) -> None:
@@ -169,7 +165,5 @@ class Testbed:
         """Stop what runs in the namespaces and delete them (idempotent)."""
         for drone in self.drones:
             drone.stop_children()
-        for name in reversed(self._created):
-            delete_namespace(name)
-        self._created.clear()
+        self._namespaces.close()
         self.drones.clear()

@@ -140,6 +140,48 @@ def cleanup_dead_runs(base: str = DEFAULT_BASE) -> list[str]:
     return removed
 
 
+class NamespaceRecord:
+    """The namespaces one run creates, for every builder (``Lan``, bench/wifi's ``Testbed``).
+
+    Each name is recorded *before* ``ip netns add`` runs, so a signal arriving while it runs
+    cannot leak the namespace; ``close()`` deletes every recorded name, absent ones harmlessly,
+    newest first. This is the one place that fix lives.
+    """
+
+    def __init__(self) -> None:
+        self.names: list[str] = []
+
+    def add(self, name: str) -> None:
+        """Create namespace ``name`` with ``lo`` up; ``NetnsError`` if it exists already."""
+        if name in list_namespaces():
+            raise NetnsError(f"namespace {name} already exists; remove it with cleanup_stale")
+        self.names.append(name)
+        _ip("netns", "add", name)
+        _ip("-n", name, "link", "set", "lo", "up")
+
+    def close(self) -> None:
+        """Kill what runs in them and delete every recorded namespace (idempotent)."""
+        for name in reversed(self.names):
+            delete_namespace(name)
+        self.names.clear()
+
+
+def add_veth(hub: str, port: str, host: str, ifname: str = IFNAME) -> None:
+    """A veth pair: ``port`` in namespace ``hub``, its peer ``ifname`` in namespace ``host``
+    (it dies with either namespace, so nothing outlives the run)."""
+    _ip("-n", hub, "link", "add", port, "type", "veth", "peer", "name", ifname, "netns", host)
+
+
+def configure_host(name: str, cidr: str, ifname: str = IFNAME) -> None:
+    """``ifname`` of namespace ``name``: address ``cidr``, multicast on, up, and a
+    224.0.0.0/4 route on it."""
+    _ip("-n", name, "addr", "add", cidr, "dev", ifname)
+    _ip("-n", name, "link", "set", ifname, "multicast", "on", "up")
+    # Without a default route a multicast send fails with ENETUNREACH unless the socket
+    # names an interface; the route makes plain sendto(239.255.0.1) work.
+    _ip("-n", name, "route", "add", MULTICAST_NET, "dev", ifname)
+
+
 def _setns(fd: int, nstype: int) -> None:
     """setns(2) for the calling thread (``os.setns`` only exists from Python 3.12)."""
     libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
@@ -273,7 +315,7 @@ class Lan:
         self.size = size
         self.hub = f"{self.prefix}-{HUB_SUFFIX}"
         self.hosts: list[Namespace] = []
-        self._created: list[str] = []
+        self._namespaces = NamespaceRecord()
 
     def _default_subnet(self) -> str:
         # 10.77.X.0/24 with X from the run prefix; the namespaces are isolated from the
@@ -296,56 +338,26 @@ class Lan:
     ) -> None:
         self.close()
 
-    def _add_namespace(self, name: str) -> None:
-        if name in list_namespaces():
-            raise NetnsError(f"namespace {name} already exists; remove it with cleanup_stale")
-        # recorded first: a signal raised while `ip netns add` runs must not leak the
-        # namespace (close() deletes absent names harmlessly)
-        self._created.append(name)
-        _ip("netns", "add", name)
-        _ip("-n", name, "link", "set", "lo", "up")
-
     def _build(self) -> None:
-        self._add_namespace(self.hub)
+        self._namespaces.add(self.hub)
         _ip("-n", self.hub, "link", "add", BRIDGE, "type", "bridge", "mcast_snooping", "0")
         _ip("-n", self.hub, "link", "set", BRIDGE, "up")
         hosts = list(itertools.islice(self.network.hosts(), self.size))
         for i, address in enumerate(hosts):
             name = f"{self.prefix}-{i}"
-            self._add_namespace(name)
+            self._namespaces.add(name)
             port = f"v{i}"
-            _ip(
-                "-n",
-                self.hub,
-                "link",
-                "add",
-                port,
-                "type",
-                "veth",
-                "peer",
-                "name",
-                IFNAME,
-                "netns",
-                name,
-            )
+            add_veth(self.hub, port, name)
             _ip("-n", self.hub, "link", "set", port, "master", BRIDGE)
             _ip("-n", self.hub, "link", "set", port, "up")
-            cidr = f"{address}/{self.network.prefixlen}"
-            _ip("-n", name, "addr", "add", cidr, "dev", IFNAME)
-            _ip("-n", name, "link", "set", IFNAME, "multicast", "on")
-            _ip("-n", name, "link", "set", IFNAME, "up")
-            # Without a default route a multicast send fails with ENETUNREACH unless the
-            # socket names an interface; the route makes plain sendto(239.255.0.1) work.
-            _ip("-n", name, "route", "add", MULTICAST_NET, "dev", IFNAME)
+            configure_host(name, f"{address}/{self.network.prefixlen}")
             self.hosts.append(Namespace(name, str(address), self.network.prefixlen))
 
     def close(self) -> None:
         """Stop child processes and delete every namespace this LAN created (idempotent)."""
         for host in self.hosts:
             host.stop_children()
-        for name in reversed(self._created):
-            delete_namespace(name)
-        self._created.clear()
+        self._namespaces.close()
 
     def __iter__(self) -> Iterator[Namespace]:
         return iter(self.hosts)

@@ -34,7 +34,7 @@ LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 NO_REPORT: Final = "no_report"  # nothing received from this member yet
 PEER_LOST: Final = "peer_lost"  # discovery lost the member (lease expired or it left)
 REPORT_STALE: Final = "report_stale"  # reports stopped for longer than stale_after_s
-NOT_A_TARGET: Final = "not_a_member"  # --only named a node that does not report readiness
+NOT_A_MEMBER: Final = "not_a_member"  # --only named a node that does not report readiness
 
 
 @dataclass(slots=True)
@@ -86,7 +86,7 @@ class ReadinessTable:
         """``(ready, reason)`` as the commander sees it now; reason None when ready."""
         member = self._members.get(name)
         if member is None:
-            return False, NOT_A_TARGET
+            return False, NOT_A_MEMBER
         if member.sample is None or member.last_rx is None:
             return False, NO_REPORT
         if not member.peer_up:
