@@ -156,8 +156,8 @@ def test_with_signing_a_forger_first_on_the_port_pins_nothing() -> None:
             forger.send(forged_frames(WRONG_KEY, ARMED, FORGED), port_of(bridge))
             await wait_until(
                 lambda: (
-                    signing_counts(bridge)["unsigned"] == FORGED
-                    and signing_counts(bridge)["bad_signature"] == FORGED
+                    signing_counts(bridge)["dropped_unsigned"] == FORGED
+                    and signing_counts(bridge)["dropped_bad_signature"] == FORGED
                 )
             )
             assert pin_counts(bridge)["pinned"] is None
@@ -187,7 +187,7 @@ def test_with_signing_a_vehicle_with_the_wrong_key_is_never_ready() -> None:
         bridge = await start(KEY)
         sim = await start_vehicle(bridge, WRONG_KEY)
         try:
-            await wait_until(lambda: signing_counts(bridge)["bad_signature"] >= 5)
+            await wait_until(lambda: signing_counts(bridge)["dropped_bad_signature"] >= 5)
             assert bridge.readiness().reason is Reason.NO_HEARTBEAT
             assert pin_counts(bridge)["pinned"] is None
         finally:
@@ -258,7 +258,7 @@ def test_a_spoofed_source_passes_the_pin_and_only_signing_stops_it(signing: bool
             await wait_until(lambda: bridge.readiness().ready)
             spoof(forged_frames(None, ARMED, FORGED), sim.local_port, port_of(bridge))
             if signing:
-                await wait_until(lambda: signing_counts(bridge)["unsigned"] == FORGED)
+                await wait_until(lambda: signing_counts(bridge)["dropped_unsigned"] == FORGED)
                 verdict = bridge.readiness()
                 assert verdict.ready and verdict.armed is False
             else:

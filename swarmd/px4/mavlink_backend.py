@@ -135,8 +135,16 @@ class MavlinkBackend:
             "link": None if self._link is None else self._link.stats(),
             # refused for who sent it (pinning) and for how it was signed (signing)
             "autopilot": None if self.pin is None else {**self.pin.stats(), **self.pin.counts},
-            "signing": {"enabled": self.codec.signing, **(self.codec.signing_counts or {})},
+            "signing": self._signing_stats(),
         }
+
+    def _signing_stats(self) -> dict[str, object]:
+        # named like every other refusal counter ("dropped_..."): scripts sum them
+        counts = self.codec.signing_counts or {}
+        out: dict[str, object] = {"enabled": self.codec.signing, "ok": counts.get("ok", 0)}
+        for verdict in ("unsigned", "bad_signature", "replayed"):
+            out[f"dropped_{verdict}"] = counts.get(verdict, 0)
+        return out
 
     async def close(self) -> None:
         if self._hb_timer is not None:
