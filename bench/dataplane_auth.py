@@ -47,6 +47,7 @@ from swarmd.dataplane.seal import (  # noqa: E402
 from swarmd.rtps import InfoDst, decode_message, encode_message  # noqa: E402
 
 MISSION = ROOT / "firmware_bundle" / "missions" / "swarm10.yaml"
+MISSION_50 = ROOT / "firmware_bundle" / "missions" / "swarm50.yaml"
 IP_UDP_BYTES = 28
 EPOCH = 1_763_900_000  # a wall-clock epoch, as swarmd.auth.epoch makes them
 
@@ -92,6 +93,40 @@ def exchange(bundle: Bundle) -> dict[str, list[tuple[int, int]]]:
     pump(member, lead, "outcomes: ACCEPTED + COMPLETED")
     pump(lead, member, "outcomes: commander's ACKNACK")
     return flows
+
+
+def readiness_sizes(bundle: Bundle, member: str) -> tuple[int, int]:
+    """(with, without) octets of ``member``'s ready readiness datagram to the commander."""
+    lead, plane_m = plane(bundle, "lead"), plane(bundle, member)
+    plane_m.peer_up("lead", ("10.42.0.10", 7411), 0.0, epoch=EPOCH)
+    plane_m.publish_readiness(Readiness(member, 1, True, "", False, 1, 3, 14, 87, 800), 0.0)
+    ((payload, _),) = plane_m.datagrams_to_send()
+    return len(payload), len(unauthenticated(payload, lead))
+
+
+def scaling(bundle10: Bundle) -> list[dict[str, int]]:
+    """The 1 Hz readiness stream at N = 10, 50 and 1000 (N - 1 members, one datagram each per
+    second to the commander, so bytes/s = members x one datagram). 10 and 50: the shipped
+    missions; 1000 (beyond MAVLink's 255 system ids, so no mission ships it): a two-node
+    bundle whose member is named like the 1000th drone, ``drone-0999``."""
+    bundle50 = build_dev_bundle(parse_mission(MISSION_50.read_text())).bundle
+    big = parse_mission(
+        "swarm: scale-1000\ndomain_id: 0\nparticipants:\n"
+        "  - {name: lead, index: 0, role: commander, mavlink_sysid: 1}\n"
+        "  - {name: drone-0999, index: 1, role: member, mavlink_sysid: 2}\n"
+        "topics:\n"
+        "  - {name: swarm/ready, type: 'swarmd::Readiness', reliability: best_effort,\n"
+        "     history_depth: 1, writers: member, readers: commander}\n"
+    )
+    rows = []
+    for n, bundle, member in (
+        (10, bundle10, bundle10.participants[-1].name),
+        (50, bundle50, bundle50.participants[-1].name),
+        (1000, build_dev_bundle(big).bundle, "drone-0999"),
+    ):
+        with_auth, without = readiness_sizes(bundle, member)
+        rows.append({"nodes": n, "datagram_with": with_auth, "datagram_without": without})
+    return rows
 
 
 def timings(bundle: Bundle, repeat: int, number: int) -> dict[str, float]:
@@ -170,10 +205,12 @@ def main() -> int:
         "bytes_per_s_with_ip_udp": members * (with_ready + IP_UDP_BYTES),
         "bytes_per_s_without_ip_udp": members * (without_ready + IP_UDP_BYTES),
     }
+    scale = scaling(bundle)
     result = {
         "machine": {"python": platform.python_version(), "cpu": platform.processor()},
         "datagrams": flows,
         "readiness_stream": stream,
+        "readiness_stream_by_n": scale,
         "cpu_us": cpu,
     }
     if args.json:
@@ -199,6 +236,13 @@ def main() -> int:
         f"({pct(s['bytes_per_s_with_ip_udp'], s['bytes_per_s_without_ip_udp'])}); "
         "packets unchanged\n"
     )
+    print("| N | members | one datagram without / with | B/s without | B/s with | change |")
+    print("|---:|---:|---|---:|---:|---:|")
+    for row in scale:
+        m = row["nodes"] - 1
+        wo, w = row["datagram_without"], row["datagram_with"]
+        print(f"| {row['nodes']} | {m} | {wo} / {w} | {m * wo} | {m * w} | {pct(w, wo)} |")
+    print()
     print("| case | µs per call |")
     print("|---|---:|")
     for name, us in cpu.items():

@@ -356,12 +356,11 @@ class DataPlane:
         if prefix == self.prefix:
             self._drop("own", source)
             return
-        if self.bundle.by_prefix(prefix) is None:
-            self._drop("unknown_participant", source, str(prefix))
-            return
         peer_name = self._peer_by_prefix.get(prefix)
         if peer_name is None:
-            self._drop("peer_not_up", source, str(prefix))
+            known = self.bundle.by_prefix(prefix) is not None
+            reason = "peer_not_up" if known else "unknown_participant"
+            self._drop(reason, source, str(prefix))
             return
         refused = self._authenticate(self._channels[prefix], data)
         if refused is not None:
