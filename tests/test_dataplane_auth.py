@@ -70,6 +70,7 @@ from tests.test_dataplane_swarm import (
 )
 
 ATTACKER = ("10.0.0.66", 7411)
+TOP_SN = (1 << 63) - 1  # the largest SequenceNumber_t
 READY_W, READY_R = EntityId.user(1, 0x03), EntityId.user(1, 0x04)
 CMD_W, CMD_R = EntityId.user(2, 0x03), EntityId.user(2, 0x04)
 OUT_W, OUT_R = EntityId.user(3, 0x03), EntityId.user(3, 0x04)
@@ -237,9 +238,10 @@ def test_control_the_same_takeoff_sealed_by_the_commander_is_executed() -> None:
     "attack",
     [
         Heartbeat(CMD_R, CMD_W, MAX_SEQUENCE_NUMBER, MAX_SEQUENCE_NUMBER, 1 << 31),
+        Heartbeat(CMD_R, CMD_W, TOP_SN, TOP_SN, 1 << 31),  # the jump to ~2^63
         Gap(CMD_R, CMD_W, 1, SequenceNumberSet.of(MAX_SEQUENCE_NUMBER, [])),
     ],
-    ids=["heartbeat_jump", "gap"],
+    ids=["heartbeat_jump", "heartbeat_jump_2^63", "gap"],
 )
 def test_a_forged_heartbeat_jump_or_gap_cannot_deafen_a_member(attack: Submessage) -> None:
     swarm = flying_swarm()
