@@ -58,6 +58,7 @@ from swarmd.auth.budget import (
 from swarmd.auth.freshness import Freshness, ReplayWindow, SendCounter
 from swarmd.auth.keys import SIGNATURE_BYTES, KeyRing
 from swarmd.rtps.spdp import PID_SWARMD_AUTHENTICATOR
+from swarmd.rtps.types import GuidPrefix
 
 FRESHNESS_BYTES: Final = 8
 AUTHENTICATOR_BYTES: Final = FRESHNESS_BYTES + SIGNATURE_BYTES  # 72, a multiple of 4
@@ -205,6 +206,11 @@ class SpdpAuth:
     @property
     def epoch(self) -> int:
         return self.counter.epoch
+
+    @property
+    def own_prefix(self) -> GuidPrefix:
+        """The prefix this node signs as (the engine checks it is its own)."""
+        return self.keyring.own_prefix
 
     def seal(self, template: bytes) -> bytes:
         return seal(template, self.counter.next(), self.keyring)

@@ -166,7 +166,7 @@ class DiscoveryEngine:
         me = bundle.member(local_name)  # NotAParticipant (ValueError) if it is not
         if len(bundle.content_sha256) < BUNDLE_DIGEST_BYTES:
             raise ValueError("bundle content_sha256 is shorter than 16 bytes; fix: rebuild it")
-        if auth is not None and auth.keyring.own_prefix != me.guid_prefix:
+        if auth is not None and auth.own_prefix != me.guid_prefix:
             raise ValueError(f"auth keys are not {local_name!r}'s; fix: load this node's keys")
         self._auth = auth
         self._bundle = bundle

@@ -135,6 +135,8 @@ class Counters:
     phy_drop_retry: int = 0  # unicast frames given up after the retry limit
     collisions: int = 0  # transmissions that started while another was on the air
     tx_by_kind: list[int] = field(default_factory=lambda: [0, 0])
+    # transport payload bytes of those frames (retries included): what the authenticator adds
+    tx_bytes_by_kind: list[int] = field(default_factory=lambda: [0, 0])
     ack_by_kind: list[int] = field(default_factory=lambda: [0, 0])
     bins: list[list[int]] = field(default_factory=lambda: [[], []])
 
@@ -380,6 +382,7 @@ class Channel:
             kind = frame.dgram.kind
             c.mac_tx += 1
             c.tx_by_kind[kind] += 1
+            c.tx_bytes_by_kind[kind] += frame.dgram.size
             if frame.retries:
                 c.phy_retx += 1
         else:

@@ -18,15 +18,18 @@ if TYPE_CHECKING:
     from swarmd_lab.sim.channel import Channel
     from swarmd_lab.sim.runner import Scenario
 
-PROTOCOLS: Final = ("swarmd", "fastdds-model", "cyclone-model", "zenoh-model")
+# swarmd-auth: swarmd with the SPDP authenticator's bytes and freshness on every datagram
+# (modelled_auth: no Ed25519 arithmetic), for the issue-10 byte and packet figures
+PROTOCOLS: Final = ("swarmd", "swarmd-auth", "fastdds-model", "cyclone-model", "zenoh-model")
 
 
 def build_nodes(scenario: Scenario, contexts: list[NodeContext], channel: Channel) -> list[SimNode]:
     """One node per context, running ``scenario.protocol``."""
     name = scenario.protocol
-    if name == "swarmd":
+    if name in ("swarmd", "swarmd-auth"):
         bundle = make_bundle(scenario.n)
         shared = SwarmdShared.of(bundle, EngineConfig(mode=scenario.swarmd_mode))  # type: ignore[arg-type]
+        shared.modelled_auth = name == "swarmd-auth"
         snr = channel.snr_db.copy()
         np.fill_diagonal(snr, np.nan)
         # what each drone's link monitor reads: the median SNR of the others' frames

@@ -192,6 +192,8 @@ def _result(
             "collisions": c.collisions,
             "tx_discovery": c.tx_by_kind[Kind.DISCOVERY],
             "tx_data": c.tx_by_kind[Kind.DATA],
+            "tx_discovery_bytes": c.tx_bytes_by_kind[Kind.DISCOVERY],
+            "tx_data_bytes": c.tx_bytes_by_kind[Kind.DATA],
             "ack_discovery": c.ack_by_kind[Kind.DISCOVERY],
             "ack_data": c.ack_by_kind[Kind.DATA],
             "data_sent": workload.sent if workload else 0,

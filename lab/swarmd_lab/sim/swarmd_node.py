@@ -19,6 +19,7 @@ from swarmd.discovery.inputs import LinkSample
 from swarmd.link.quality import q_from_snr
 from swarmd_lab.sim.channel import MULTICAST, Datagram, Kind
 from swarmd_lab.sim.clock import Timer
+from swarmd_lab.sim.modelled_auth import ModelledSpdpAuth
 from swarmd_lab.sim.node import NodeContext, SimNode
 
 
@@ -34,6 +35,8 @@ class SwarmdShared:
     # the UDP source address a receiver sees for a datagram from node i (one tuple per
     # node, not one per reception: a multicast fans out to N - 1 receivers)
     source_of: list[tuple[str, int]] = field(default_factory=list)
+    # every engine seals and checks with ModelledSpdpAuth (protocol "swarmd-auth")
+    modelled_auth: bool = False
 
     @classmethod
     def of(cls, bundle: Bundle, config: EngineConfig) -> SwarmdShared:
@@ -66,6 +69,7 @@ class SwarmdNode(SimNode):
             now=now,
             local_ipv4=shared.ip_of[self.index],
             link=self._link,
+            auth=ModelledSpdpAuth(p.guid_prefix, 1) if shared.modelled_auth else None,
         )
         self._pump(now)
 
