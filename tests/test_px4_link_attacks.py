@@ -9,14 +9,18 @@ address. Every loop is bounded in count; waits are on conditions with a generous
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import socket
 import struct
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from contextlib import suppress
 
 import pytest
+from swarmd_lab.netns import Lan
 from swarmd_lab.px4.sim_model import SimConfig
 from swarmd_lab.px4.vehicle_sim import SimProtocol, start_sim
 
@@ -313,3 +317,79 @@ def test_swarmctl_setup_signing_refuses_a_listening_connection(
     assert swarmctl([*argv, "--connection", "udpin:127.0.0.1:14540"]) == 65
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "udpout:127.0.0.1:14580" in err
+
+
+# ---- from another host: a namespace on the LAN (px4.allow_network: the FMU-on-Ethernet case)
+
+DRONE = r"""
+import asyncio, json, sys
+from swarmd.px4.bridge import Px4Bridge, Px4Config
+from swarmd.px4.transport import parse_connection
+from swarmd_lab.px4.sim_model import SimConfig
+from swarmd_lab.px4.vehicle_sim import start_sim
+
+async def until(check):
+    for _ in range(400):  # 20 s at most
+        if check():
+            return
+        await asyncio.sleep(0.05)
+    raise TimeoutError
+
+async def main(port):
+    bridge = Px4Bridge.from_config(Px4Config(connection=f"udpin:0.0.0.0:{port}", sysid=1))
+    await bridge.start()
+    target = parse_connection(f"udpout:127.0.0.1:{port}")
+    sim = await start_sim(SimConfig(gps_fix_after_s=0.2), target, seed=7)
+    await until(lambda: bridge.readiness().ready)
+    print("READY", flush=True)
+    forged = int(await asyncio.get_running_loop().run_in_executor(None, sys.stdin.readline))
+    pin = lambda: bridge.status()["backend"]["autopilot"]
+    await until(lambda: pin()["dropped_address"] >= forged)
+    verdict = bridge.readiness().as_dict()
+    outcome = await asyncio.wait_for(bridge.takeoff(3.0), 20)
+    print(json.dumps({"pin": pin(), "readiness": verdict, "outcome": type(outcome).__name__,
+                      "armed": sim.model.armed}), flush=True)
+    sim.close()
+    await bridge.close()
+
+asyncio.run(main(int(sys.argv[1])))
+"""
+
+
+@pytest.mark.netns
+def test_a_forger_on_another_host_is_dropped_by_the_pin(lan2: Lan) -> None:
+    """The drone listens on every interface (opted in): a host on the LAN sends armed
+    HEARTBEATs as sysid 1 / component 1; all are dropped and counted, readiness is unchanged,
+    and the take-off's ARM reaches the vehicle and nothing reaches the forger."""
+    drone, forger_host = lan2[0], lan2[1]
+    port = 14540
+    proc = drone.popen(
+        [sys.executable, "-c", DRONE, str(port)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+    )
+    assert proc.stdin is not None and proc.stdout is not None
+    forger = forger_host.socket()
+    try:
+        forger.bind((forger_host.address, 0))
+        assert proc.stdout.readline().strip() == b"READY"
+        for frame in forged_frames(None, ARMED, FORGED):
+            forger.sendto(frame, (drone.address, port))
+        proc.stdin.write(f"{FORGED}\n".encode())
+        proc.stdin.flush()
+        result = json.loads(proc.stdout.readline())
+        assert proc.wait(timeout=BOUND_S) == 0
+        assert result["pin"]["dropped_address"] == FORGED
+        assert result["pin"]["pinned"].startswith("127.0.0.1:")
+        assert result["readiness"]["ready"] and result["readiness"]["armed"] is False
+        assert result["outcome"] == "TakeoffSucceeded" and result["armed"]
+        forger.setblocking(False)
+        with pytest.raises(BlockingIOError):
+            forger.recv(4096)  # nothing the drone sent ever came here
+    finally:
+        forger.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=BOUND_S)
+        proc.stdin.close()
+        proc.stdout.close()
