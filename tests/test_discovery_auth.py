@@ -295,3 +295,23 @@ def test_a_flood_of_invented_participants_is_decoded_at_a_bounded_rate() -> None
     e.receive_datagram(peer_datagram(make_bundle(2, swarm="late"), 1), ATTACKER, 1.5)
     (late,) = [x for x in drain(e) if isinstance(x, ForeignParticipantSeen)]
     assert late.suppressed == e.counters()["foreign_suppressed"] > 0
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(min_value=0, max_value=100_000), st.integers(min_value=0, max_value=7))
+def test_flipping_any_bit_of_a_signed_dispose_gets_it_refused(where: int, bit: int) -> None:
+    a1 = auth_for(BUNDLE, 1, epoch=3)
+    e = receiver()
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    template = encode_spdp_dispose(
+        P[1], sequence_number=2, timestamp=None, authenticator=PLACEHOLDER
+    )
+    d = a1.seal(template)
+    flipped = bytearray(d)
+    flipped[where % len(d)] ^= 1 << bit
+    drain(e)
+    e.receive_datagram(bytes(flipped), A1, 0.2)
+    assert discovered(e, 1)
+    assert not any(isinstance(x, PeerLost) for x in drain(e))
+    e.receive_datagram(d, A1, 0.3)  # the genuine dispose still works afterwards
+    assert not discovered(e, 1)
