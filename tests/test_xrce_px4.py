@@ -20,7 +20,7 @@ from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig
 from swarmd.px4.takeoff import TakeoffSucceeded
 from swarmd.px4.xrce_backend import XrceBackend
-from tests.xrce_peers import peer_binary
+from tests.xrce_peers import peer_binary, peer_env
 
 # the stand-in publishes no valid home_position (PX4 does): readiness without it, NaN altitude
 READY = ReadinessConfig(require_home=False)
@@ -36,7 +36,7 @@ def _free_udp_port() -> int:
 @asynccontextmanager
 async def _proc(*argv: str) -> AsyncIterator[asyncio.subprocess.Process]:
     p = await asyncio.create_subprocess_exec(
-        *argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
+        *argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, env=peer_env()
     )
     try:
         yield p
@@ -164,3 +164,25 @@ async def _garbage_to_the_agent_port_is_counted_and_dropped() -> None:
         assert bridge.readiness().reason == "no_heartbeat"  # nothing moved
     finally:
         await bridge.close()
+
+
+def test_client_mode_through_micro_xrce_agent_takes_off() -> None:
+    asyncio.run(_client_mode_through_micro_xrce_agent_takes_off())
+
+
+async def _client_mode_through_micro_xrce_agent_takes_off() -> None:
+    agent_bin = peer_binary("MicroXRCEAgent")
+    client_bin = peer_binary("px4_like_client")
+    port = _free_udp_port()
+    async with _proc(str(agent_bin), "udp4", "-p", str(port)):
+        await asyncio.sleep(0.5)
+        backend = XrceBackend("xrce-client", f"udp:127.0.0.1:{port}", sysid=1)
+        bridge = Px4Bridge(backend, readiness_config=READY)
+        await bridge.start()
+        try:
+            argv = (str(client_bin), "-p", str(port), "-V", "1.16", "-c", "1", "-q")
+            async with _proc(*argv) as client:
+                await _fly(bridge, client)
+            assert backend.session == "established"
+        finally:
+            await bridge.close()

@@ -42,3 +42,9 @@ def peer_binary(name: str) -> Path:
     path = REPO / os.environ.get("XRCE_OUT", ".cache/xrce") / "bin" / name
     assert path.exists(), f"{path} missing: run scripts/setup.sh (it builds the XRCE peers)"
     return path
+
+
+def peer_env() -> dict[str, str]:
+    """The environment the peers run in: MicroXRCEAgent finds its own library in the cache."""
+    lib = REPO / os.environ.get("XRCE_OUT", ".cache/xrce") / "install" / "agent" / "lib"
+    return dict(os.environ, LD_LIBRARY_PATH=str(lib))

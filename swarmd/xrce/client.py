@@ -46,6 +46,7 @@ from swarmd.xrce.message import (
     CreateClient,
     Data,
     Delete,
+    DeliveryControl,
     GetInfo,
     Header,
     Heartbeat,
@@ -75,11 +76,11 @@ MISSED_PINGS: Final = 3
 HEARTBEAT_PERIOD_S: Final = 0.2
 LOCALHOST_PARTICIPANT: Final = (
     "<dds><profiles><transport_descriptors><transport_descriptor>"
-    "<transport_id>udp_localhost</transport_id><type>UDPv4</type>"
+    "<transport_id>swarmd_localhost</transport_id><type>UDPv4</type>"
     "<interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>"
     "</transport_descriptor></transport_descriptors></profiles>"
     "<participant><rtps><name>{name}</name><useBuiltinTransports>false</useBuiltinTransports>"
-    "<userTransports><transport_id>udp_localhost</transport_id></userTransports>"
+    "<userTransports><transport_id>swarmd_localhost</transport_id></userTransports>"
     "</rtps></participant></dds>"
 )
 PARTICIPANT_ID: Final = object_id(0x001, ObjectKind.PARTICIPANT)
@@ -264,7 +265,10 @@ class XrceClient(Endpoint):
             reader = EndpointBinary(tid, False, QOS_HISTORY_KEEP_LAST, 10)
             self._create_bin(rid, ObjectKind.DATAREADER, encode_endpoint(reader), sub_id, now)
             self._readers[rid] = topic
-            self._send_reliable([ReadData(self._next_request(), rid, STREAM_BEST_EFFORT)], now)
+            # unlimited samples, as PX4 asks; without delivery control the agent sends one
+            read = ReadData(self._next_request(), rid, STREAM_BEST_EFFORT,
+                            delivery_control=DeliveryControl(max_samples=0xFFFF))  # fmt: skip
+            self._send_reliable([read], now)
         for j, (topic, typ) in enumerate(sorted(self.publications.items())):
             ident = 0x200 + j
             tid = self._topic(ident, topic, typ, now)
