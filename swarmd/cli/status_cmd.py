@@ -192,6 +192,19 @@ def render_status(status: dict[str, Any]) -> list[str]:
     return lines
 
 
+def render_px4_backend(b: dict[str, Any]) -> str:
+    """``px4 link: xrce-agent udp:127.0.0.1:8888, session established (...), PX4 1.16``."""
+    line = f"px4 link: {b.get('backend', '?')} {b.get('connection', '')}"
+    if "session" in b:  # the XRCE backends
+        line += f", session {b.get('session')}"
+        if b.get("client"):
+            line += f" ({b['client']})"
+        line += f", PX4 {b.get('px4_version') or 'version not seen yet'}"
+        if b.get("layout_problem"):
+            line += f", {b['layout_problem']}"
+    return line
+
+
 def render_swarm(status: dict[str, Any]) -> list[str]:
     """The swarm layer: this drone's PX4 verdict, the data plane, the readiness table."""
     lines: list[str] = []
@@ -206,6 +219,9 @@ def render_swarm(status: dict[str, Any]) -> list[str]:
             lines.append(
                 f"px4: NOT READY {verdict.get('reason') or '?'}: {verdict.get('detail') or ''}"
             )
+        backend = px4.get("backend")
+        if px4.get("enabled") and isinstance(backend, dict):
+            lines.append(render_px4_backend(backend))
     dp = status.get("dataplane")
     if isinstance(dp, dict):
         if not dp.get("enabled"):

@@ -1,0 +1,65 @@
+"""``px4.backend`` for uXRCE-DDS: config checks in one line, the bridge picks the backend,
+``swarmctl status`` names backend, session and PX4 version."""
+
+from __future__ import annotations
+
+import pytest
+
+from swarmd.cli.status_cmd import render_px4_backend
+from swarmd.config import ConfigError, parse_config
+from swarmd.px4.bridge import Px4Bridge, Px4Config
+from swarmd.px4.xrce_backend import XrceBackend
+
+MINIMAL = """\
+node: uav1
+bundle:
+  path: bundle.swb
+  trusted_key: keys/swarm-signing.pub
+network:
+  interface: eth0
+"""
+
+
+def test_xrce_backend_defaults_to_px4_sitls_agent_address() -> None:
+    cfg = parse_config(MINIMAL + "px4:\n  backend: xrce-agent\n  xrce_key: 1\n", "s.yaml")
+    assert (cfg.px4.backend, cfg.px4.connection, cfg.px4.xrce_key) == (
+        "xrce-agent", "udp:127.0.0.1:8888", 1,
+    )  # fmt: skip
+    cfg = parse_config(MINIMAL + "px4:\n  backend: xrce-client\n  namespace: uav1\n", "s.yaml")
+    assert cfg.px4.backend == "xrce-client" and cfg.px4.namespace == "uav1"
+
+
+@pytest.mark.parametrize(
+    ("extra", "field", "problem"),
+    [
+        ("px4:\n  backend: dds\n", "px4.backend", "'dds' is not a backend"),
+        ("px4:\n  backend: xrce-agent\n  connection: udpin:127.0.0.1:1\n", "px4.connection",
+         "is not an XRCE connection"),
+        ("px4:\n  backend: xrce-agent\n  connection: udp:0.0.0.0:8888\n", "px4.connection",
+         "reaches beyond loopback"),
+        ("px4:\n  backend: xrce-agent\n  xrce_key: 0\n", "px4.xrce_key", "outside"),
+    ],
+)  # fmt: skip
+def test_bad_xrce_fields_are_one_line(extra: str, field: str, problem: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        parse_config(MINIMAL + extra, "s.yaml")
+    text = str(info.value)
+    assert "\n" not in text and f"field {field}: " in text and problem in text
+
+
+def test_bridge_builds_the_configured_backend() -> None:
+    bridge = Px4Bridge.from_config(Px4Config(connection="udp:127.0.0.1:8888", backend="xrce-agent"))
+    assert isinstance(bridge.backend, XrceBackend) and bridge.backend.mode == "xrce-agent"
+    with pytest.raises(ValueError, match="xrce-client reaches its agent over udp"):
+        XrceBackend("xrce-client", "serial:/dev/ttyTHS1:921600")
+
+
+def test_status_line_names_backend_session_and_version() -> None:
+    b = XrceBackend("xrce-agent", "udp:127.0.0.1:8888").stats()
+    assert render_px4_backend(b) == (
+        "px4 link: xrce-agent udp:127.0.0.1:8888, session none, PX4 version not seen yet"
+    )
+    b.update(session="established", client="127.0.0.1:4000 key 00000001", px4_version="1.16")
+    assert render_px4_backend(b).endswith(
+        "session established (127.0.0.1:4000 key 00000001), PX4 1.16"
+    )
