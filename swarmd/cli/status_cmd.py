@@ -6,6 +6,10 @@ the failing reason, reports received, age of the last one).
 A daemon that is not running gives one line on stderr and exit code 2. ``--json`` prints
 the daemon's status object unchanged (schema in docs/operations.md), for scripts and
 ``ssh drone swarmctl status --json | jq``.
+
+Remote strings (a foreign participant's name, a member's reason) are data, never terminal
+input: the human views go through ``terminal.safe_tree`` first, so control characters,
+escape sequences and bidi overrides appear as visible escapes (issue 10, attack 8).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import time
 from collections.abc import Sequence
 from typing import Any, Final, TextIO
 
+from swarmd.cli.terminal import safe_tree
 from swarmd.config import DEFAULT_SOCKET
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import EX_OK, EX_UNREACHABLE
@@ -84,7 +89,7 @@ def _peers(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(peers, indent=2))
     else:
-        print("\n".join(render_peers(peers)))
+        print("\n".join(render_peers(peers if isinstance(peers, list) else [])))
     return EX_OK
 
 
@@ -142,7 +147,11 @@ def _yes_no(value: Any) -> str:
 
 
 def render_peers(peers: Sequence[Any]) -> list[str]:
-    """The peer table: name, state, last heard, locator, matched endpoints."""
+    """The peer table: name, state, last heard, locator, matched endpoints (made safe)."""
+    return _render_peers(safe_tree(list(peers)))
+
+
+def _render_peers(peers: Sequence[Any]) -> list[str]:
     rows = []
     for p in peers:
         if not isinstance(p, dict):
@@ -161,7 +170,12 @@ def render_peers(peers: Sequence[Any]) -> list[str]:
 
 
 def render_status(status: dict[str, Any]) -> list[str]:
-    """The human view of ``swarmctl status``."""
+    """The human view of ``swarmctl status``; every string in ``status`` is made safe for a
+    terminal first (``terminal.safe_tree``)."""
+    return _render_status(safe_tree(status))
+
+
+def _render_status(status: dict[str, Any]) -> list[str]:
     link = status.get("link") or {}
     lines = [
         f"node {status.get('node', '?')}  swarm {status.get('swarm', '?')}  "
@@ -178,7 +192,7 @@ def render_status(status: dict[str, Any]) -> list[str]:
     total = status.get("peers_total", len(peers))
     lines.append(f"peers discovered {found}/{total}")
     if peers:
-        lines += render_peers(peers)
+        lines += _render_peers(peers)
     foreign = [f for f in status.get("foreign", []) if isinstance(f, dict)]
     lines.append(f"foreign participants {len(foreign)}")
     if foreign:

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
+from swarmd.cli.terminal import safe_text, safe_tree
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import (
     EX_FAILED,
@@ -91,7 +92,8 @@ class _Run:
     def say(self, line: str) -> None:
         if line != self._last:
             self._last = line
-            print(line, file=self.progress, flush=True)
+            # names and reasons in it come from the drones: shown, never obeyed (attack 8)
+            print(safe_text(line), file=self.progress, flush=True)
 
     def expired(self) -> bool:
         return time.monotonic() >= self.deadline
@@ -255,7 +257,8 @@ def _final(args: argparse.Namespace, cid: int | None, body: dict[str, Any], code
 
 
 def render_outcomes(snap: dict[str, Any]) -> list[str]:
-    """The per-drone outcome table."""
+    """The per-drone outcome table; the drones' reasons are made safe for a terminal."""
+    snap = safe_tree(snap)
     rows = []
     for name, n in snap["nodes"].items():
         latency = n.get("latency_s")

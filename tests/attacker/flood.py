@@ -1,0 +1,99 @@
+"""Issue 10 attack 9: a bounded multicast flood of forged SPDP, and what it cost the swarm.
+
+Shared by ``tests/test_attacks_netns.py`` and ``bench/flood.py``: the flood runs in a thread
+(bounded by count and by time) while the main thread watches every daemon's peer table;
+daemon CPU comes from ``/proc/<pid>/stat`` (utime + stime) before and after.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from tests.attacker.host import Attacker
+from tests.attacker.swarm import FlashedSwarm, cpu_seconds
+
+POLL_S = 0.25
+
+
+@dataclass
+class FloodResult:
+    rate_hz: float
+    seconds: float  # how long the flood really ran
+    sent: int
+    # drone -> real peers seen in another state than "discovered" during the flood, or
+    # reported lost in its log ("peer_lost"); the target is {}
+    peers_lost: dict[str, list[str]] = field(default_factory=dict)
+    cpu_percent: dict[str, float] = field(default_factory=dict)  # per daemon, of one core
+    idle_cpu_percent: dict[str, float] = field(default_factory=dict)  # same, without flood
+    polls: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def run_flood(
+    sw: FlashedSwarm,
+    atk: Attacker,
+    pool: list[bytes],
+    rate_hz: float,
+    seconds: float,
+    *,
+    idle_s: float = 3.0,
+) -> FloodResult:
+    """Flood ``pool`` at ``rate_hz`` for at most ``seconds`` (and ``rate_hz * seconds``
+    datagrams) to the SPDP group; record lost real peers and daemon CPU."""
+    pids = {i: sw.daemon_pid(i) for i in range(sw.n)}
+    # the same daemons without a flood, for comparison
+    cpu0 = {i: cpu_seconds(p) for i, p in pids.items()}
+    time.sleep(idle_s)
+    cpu1 = {i: cpu_seconds(p) for i, p in pids.items()}
+    lost_before = {i: len(sw.log_events(i, "peer_lost")) for i in range(sw.n)}
+    result = FloodResult(rate_hz, 0.0, 0)
+    result.idle_cpu_percent = {
+        sw.names[i]: round(100 * (cpu1[i] - cpu0[i]) / idle_s, 1) for i in pids
+    }
+    sent: list[int] = []
+
+    def flood() -> None:
+        sent.append(
+            atk.paced(
+                pool,
+                sw.spdp_group,
+                rate_hz=rate_hz,
+                max_count=int(rate_hz * seconds),
+                max_s=seconds,
+            )
+        )
+
+    lost: dict[str, set[str]] = {}
+    thread = threading.Thread(target=flood, name="spdp-flood")
+    start = time.monotonic()
+    c0 = {i: cpu_seconds(p) for i, p in pids.items()}
+    thread.start()
+    while thread.is_alive() and time.monotonic() - start < seconds + 5.0:
+        for i in range(sw.n):
+            try:
+                states = sw.peer_states(i)
+            except Exception:  # noqa: BLE001 - an unreachable daemon under flood is a finding
+                lost.setdefault(sw.names[i], set()).add("<control socket unreachable>")
+                continue
+            for name, state in states.items():
+                if state != "discovered":
+                    lost.setdefault(sw.names[i], set()).add(name)
+        result.polls += 1
+        time.sleep(POLL_S)
+    thread.join(timeout=seconds + 5.0)
+    c1 = {i: cpu_seconds(p) for i, p in pids.items()}
+    result.seconds = round(time.monotonic() - start, 2)
+    result.sent = sent[0] if sent else 0
+    result.cpu_percent = {
+        sw.names[i]: round(100 * (c1[i] - c0[i]) / result.seconds, 1) for i in pids
+    }
+    for i in range(sw.n):
+        for event in sw.log_events(i, "peer_lost")[lost_before[i] :]:
+            lost.setdefault(sw.names[i], set()).add(str(event.get("peer")))
+    result.peers_lost = {k: sorted(v) for k, v in lost.items()}
+    return result

