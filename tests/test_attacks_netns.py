@@ -33,10 +33,10 @@ from pathlib import Path
 from typing import Final
 
 import pytest
+from swarmd_lab.netns import Lan, list_namespaces, run_prefix
 
 from swarmd.bundle.model import EndpointKind
 from swarmd.dataplane.types import CommandKind, Readiness
-from swarmd.netns import Lan, list_namespaces, run_prefix
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.messages import Heartbeat as MavHeartbeat
@@ -447,34 +447,53 @@ def test_replayed_takeoff_after_state_loss_refused(lab: Lab) -> None:
 # -- 6. the PX4 link from the Wi-Fi side ---------------------------------------------------
 
 
-@pytest.mark.xfail(
-    strict=True, reason="defence pending: loopback PX4 link, pinned autopilot (px4link)"
-)
+def _px4_sockets(sw: FlashedSwarm, i: int) -> list[str]:
+    """Local addresses of drone i's UDP sockets on the PX4 port."""
+    shown = sw.lan[i].run(["ss", "-Hlun", "sport = :14540"]).stdout
+    return [line.split()[3] for line in shown.splitlines() if line.strip()]
+
+
 def test_px4_link_forged_heartbeats_and_interception_refused(lab: Lab) -> None:
+    """From the Wi-Fi: forged autopilot heartbeats to the drone's MAVLink port, from a socket
+    that would receive whatever the bridge sends back. From the drone itself (any local
+    user without the key): the same heartbeats on loopback."""
     sw, atk = lab.swarm, lab.attacker
     sysid = sw.participant(M1).mavlink_sysid
-    codec = MavlinkCodec(sysid, COMP_ID_AUTOPILOT1)
+    codec = MavlinkCodec(sysid, COMP_ID_AUTOPILOT1)  # no key: the attacker has none
     armed = MavHeartbeat(
         autopilot=12, vehicle_type=2, base_mode=0x80 | 0x01, custom_mode=0x04030000,
         system_status=4,
     )  # fmt: skip
+    # the link listens on loopback only: nothing on the Wi-Fi address can be heard
+    assert _px4_sockets(sw, M1) == ["127.0.0.1:14540"], _px4_sockets(sw, M1)
+    before, vehicle = lab.refusals(), lab.vehicle_commands()
+    local = sw.lan[M1].socket()  # a local user on the drone: same namespace, no key
+    local.bind(("127.0.0.1", 0))
     sock = atk.listener(14550)
     seen_armed = False
     received: list[bytes] = []
+    forged = 0
     try:
         deadline = time.monotonic() + 3.0
         for _ in range(60):  # 20 Hz for at most 3 s
             if time.monotonic() > deadline:
                 break
-            sock.sendto(codec.encode(armed), (sw.lan[M1].address, 14540))
+            forged += 1
+            frame = codec.encode(armed)
+            sock.sendto(frame, (sw.lan[M1].address, 14540))
+            local.sendto(frame, ("127.0.0.1", 14540))
             received += drain(sock, 0.05)
             px4 = sw.status(M1)["px4"]["readiness"]
             seen_armed = seen_armed or px4.get("reason") == "armed" or px4.get("armed") is True
     finally:
         received += drain(sock, 1.0)
         sock.close()
+        local.close()
     assert not seen_armed, "forged heartbeats made the drone report armed"
     assert received == [], f"the drone's MAVLink went to the attacker: {len(received)} datagrams"
+    refused = {k: v for k, v in lab.refused_since(before, M1).items() if k.startswith("px4.")}
+    assert sum(refused.values()) >= forged, refused  # every local forgery: dropped, counted
+    assert lab.vehicle_commands() == vehicle
     lab.assert_commander_commands_all()
 
 
@@ -588,7 +607,10 @@ def test_spdp_flood_loses_no_real_peer(lab: Lab) -> None:
         report.write_text(json.dumps(result.as_dict(), indent=2))
     assert result.sent >= 0.8 * FLOOD_RATE_HZ * FLOOD_S * 0.5, result  # the flood happened
     assert result.peers_lost == {}, result
+    # half the flood claims the members' prefixes: each must be refused for its missing or
+    # bad authenticator or a spent verification budget (counters.dropped.auth_*), never
+    # taken as a renewal; the kernel may drop some under load, hence 10 %
     for i in range(sw.n):
-        refused = sum(lab.refused_since(before, i).values())
-        assert refused >= 0.1 * result.sent, (sw.names[i], refused, result)
+        refused = {k: v for k, v in lab.refused_since(before, i).items() if "auth" in k}
+        assert sum(refused.values()) >= 0.1 * result.sent / 2, (sw.names[i], refused, result)
     lab.assert_commander_commands_all()

@@ -18,7 +18,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Final
 
-from swarmd.netns import Namespace
+from swarmd_lab.netns import Namespace
+
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpAlive, SpdpParticipant, decode_spdp
 from swarmd.rtps.types import GuidPrefix

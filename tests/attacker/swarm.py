@@ -28,11 +28,11 @@ from pathlib import Path
 from typing import Any, Final
 
 import yaml
+from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.loader import read_bundle
 from swarmd.bundle.model import Bundle, EndpointKind, Participant
 from swarmd.control import DaemonUnreachable, RequestError, request
-from swarmd.netns import Lan, Namespace
 from swarmd.rtps.ports import spdp_multicast_port
 from swarmd.rtps.types import EntityId
 from tests.attacker.forge import entity
@@ -143,16 +143,27 @@ class FlashedSwarm:
         self.swarmctl_local("bundle", "keygen", "--out", str(keys), "--mission", str(mission_path))
         swb = self.root / "mission.swb"
         self.swarmctl_local(
-            "bundle", "build", str(mission_path), "-o", str(swb),
-            "--sign-key", str(keys / "swarm-signing.key"),
-        )  # fmt: skip
+            *("bundle", "build", str(mission_path), "-o", str(swb)),
+            *("--sign-key", str(keys / "swarm-signing.key")),
+        )
         bundle = read_bundle(swb.read_bytes(), require_anchor=False)
         for p in bundle.participants:
             self.swarmctl_local(
                 "bundle", "flash", str(swb), "--node", p.name,
                 "--target", str(self.lib(p.index)), "--keys", str(keys),
             )  # fmt: skip
+        for p in bundle.participants:
+            # the drone's MAVLink signing key, as PX4's key file: what 'swarmctl px4 key'
+            # gives the autopilot at commissioning (docs/px4.md "Message signing")
+            self.swarmctl_local(
+                *("px4", "key", "--keys", str(keys), "--swarm", bundle.swarm),
+                *("--node", p.name, "--out", str(self.px4_key(p.index))),
+            )
         return bundle
+
+    def px4_key(self, i: int) -> Path:
+        """Drone i's autopilot signing key file (on PX4's SD card in the field)."""
+        return self.root / f"d{i}" / "px4-signing-key.bin"
 
     def lib(self, i: int) -> Path:
         """Drone i's /var/lib/swarmd: the flashed bundle, its key, its state file."""
@@ -194,16 +205,10 @@ class FlashedSwarm:
             self.sims[i] = self.lan[i].popen(
                 [
                     str(BIN / "swarmd-vehicle-sim"),
-                    "--connect",
-                    "udpout:127.0.0.1:14540",
-                    "--sysid",
-                    str(sysid),
-                    "--seed",
-                    str(i),
-                    "--gps-fix-after",
-                    "0.5",
-                    "--json-log",
-                ],  # fmt: skip
+                    *("--connect", "udpout:127.0.0.1:14540", "--sysid", str(sysid)),
+                    *("--seed", str(i), "--gps-fix-after", "0.5", "--json-log"),
+                    *("--signing-key", str(self.px4_key(i))),
+                ],
                 stderr=err,
             )
 
