@@ -13,11 +13,13 @@ Every test asserts the same three things:
 2. the vehicle simulator received nothing because of it (no MAVLink command, no state);
 3. afterwards the real commander still commands every drone (``swarmctl hold`` completes).
 
-A test whose defence has not landed yet is ``xfail(strict=True)`` with the defence it
-waits for: it fails today because the attack works, and an unexpected pass fails the run,
-so the marker is removed the day the defence lands. One swarm is shared by the module; a
-test that left it damaged (any test that did not pass, and the ones that fly) restarts it
-from the flashed files with no state. Every send loop and every wait is bounded.
+Each test was written first as ``xfail(strict=True)`` naming the defence it waited for,
+and seen failing against main before the defences (f0f3378) for the attack's own reason: a
+forged TAKEOFF executed, a member's reader locked out, a peer disposed, a readiness row
+pinned at report_stale, commands sent to the attacker, a replayed TAKEOFF run, "armed" from
+forged heartbeats, RTPS sent into the MAVLink port. The markers went when the defences
+landed. One swarm is shared by the module; a test that left it damaged (any test that did
+not pass, and the ones that fly) restarts it from the flashed files with no state. Every send loop and every wait is bounded.
 """
 
 from __future__ import annotations
@@ -144,7 +146,6 @@ def lab(lab_module: Lab, request: pytest.FixtureRequest) -> Iterator[Lab]:
 # -- 1. commands as the commander ---------------------------------------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: authenticated user data (secData)")
 def test_forged_commands_as_commander_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     lead, member = lab.prefix(LEAD), lab.prefix(M1)
@@ -176,7 +177,6 @@ def test_forged_commands_as_commander_refused(lab: Lab) -> None:
 # -- 2. reliable-protocol state: HEARTBEAT jump, GAP, ACKNACK -------------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: authenticated HEARTBEAT (secData)")
 def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     before = lab.refusals()
@@ -198,7 +198,6 @@ def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
     assert sum(lab.refused_since(before, M1).values()) >= 3, lab.refused_since(before, M1)
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: authenticated GAP (secData)")
 def test_forged_gap_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     before = lab.refusals()
@@ -239,7 +238,6 @@ def _unblock(sw: FlashedSwarm, i: int) -> None:
     sw.lan[i].run(["nft", "delete", "table", "inet", "atk_block"], check=False)
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: authenticated ACKNACK (secData)")
 def test_forged_acknack_refused(lab: Lab) -> None:
     """A command is lost on its way to a member; a forged ACKNACK "from" that member says
     it arrived. Refused, the commander keeps repairing and the member gets it."""
@@ -291,7 +289,6 @@ def test_forged_acknack_refused(lab: Lab) -> None:
 # -- 3. dispose, dispose flood during --require-all, readiness at a high SN ------------------
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: signed SPDP dispose (secSpdp)")
 def test_forged_dispose_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     before = lab.refusals()
@@ -310,7 +307,6 @@ def test_forged_dispose_refused(lab: Lab) -> None:
     lab.assert_commander_commands_all()
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: signed SPDP dispose (secSpdp)")
 def test_dispose_flood_during_require_all_takeoff(lab: Lab) -> None:
     """4 forged disposes a second for each member while the operator runs
     ``swarmctl takeoff --require-all``: the take-off still goes out and completes."""
@@ -341,7 +337,6 @@ def test_dispose_flood_during_require_all_takeoff(lab: Lab) -> None:
     assert sum(lab.refused_since(before, LEAD).values()) >= 8, lab.refused_since(before, LEAD)
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: authenticated user data (secData)")
 def test_forged_readiness_high_sn_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     before = lab.refusals()
@@ -373,7 +368,6 @@ def test_forged_readiness_high_sn_refused(lab: Lab) -> None:
 # -- 4. redirect: an alive with the attacker's locator --------------------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: signed SPDP locators (secSpdp)")
 def test_forged_alive_redirect_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     here = sw.attacker_ns.address
@@ -407,7 +401,6 @@ def test_forged_alive_redirect_refused(lab: Lab) -> None:
 # -- 5. replay of a captured TAKEOFF after a member restarts without its state file --------
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: per-sender freshness counter (secData)")
 def test_replayed_takeoff_after_state_loss_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     lab.dirty = True  # a drone flies, then restarts
@@ -524,7 +517,6 @@ def _rtps_to_mavlink(sw: FlashedSwarm) -> list[int]:
     return out
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: locator rules, loopback refused (secSpdp)")
 def test_forged_loopback_locator_refused(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     learned = atk.member(sw.names[M2])
@@ -587,7 +579,6 @@ FLOOD_RATE_HZ: Final = 5000.0
 FLOOD_S: Final = 10.0
 
 
-@pytest.mark.xfail(strict=True, reason="defence pending: SPDP verification budget (secSpdp)")
 def test_spdp_flood_loses_no_real_peer(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     lab.dirty = True  # thousands of foreign entries in every daemon
