@@ -19,7 +19,8 @@ forged TAKEOFF executed, a member's reader locked out, a peer disposed, a readin
 pinned at report_stale, commands sent to the attacker, a replayed TAKEOFF run, "armed" from
 forged heartbeats, RTPS sent into the MAVLink port. The markers went when the defences
 landed. One swarm is shared by the module; a test that left it damaged (any test that did
-not pass, and the ones that fly) restarts it from the flashed files with no state. Every send loop and every wait is bounded.
+not pass, and the ones that fly) restarts it from the flashed files with no state. Every
+send loop and every wait is bounded.
 """
 
 from __future__ import annotations
