@@ -3,9 +3,9 @@ existing MicroXRCEAgent (``xrce-client``).
 
 Both translate topics into the same observations as MAVLink (``xrce_translate``) and
 ``VehicleCommand`` into ``/fmu/in/vehicle_command``; readiness and take-off do not know which
-wire they run on. The asyncio part is the thin adapter of style.md rule 11: a datagram (or,
-on a UART, a deframed message) goes to the sans-IO engine with ``loop.time()``, events are
-drained, datagrams sent, and one ``TimerHandle`` re-armed at ``engine.get_timer()``.
+wire they run on. The sans-IO session engine (``swarmd.xrce``: ``XrceAgent`` or
+``XrceClient``) runs under the shared ``swarmd.driver.Driver``; this module only opens the
+socket or UART and turns the engine's events into observations.
 
 Connections: ``udp:HOST:PORT`` -- the agent binds it (PX4 SITL's default 127.0.0.1:8888),
 the client sends to it; ``serial:/dev/ttyTHS1:921600`` -- the agent on a UART, with
@@ -17,8 +17,9 @@ from __future__ import annotations
 import asyncio
 import time
 from collections import Counter
-from typing import Any, Final, Literal, Protocol
+from typing import Any, Final, Literal
 
+from swarmd.driver import Driver
 from swarmd.px4.backend import ObservationSink
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.transport import ByteLink, Endpoint, open_link
@@ -54,14 +55,6 @@ def parse_xrce_connection(text: str, field: str = "px4.connection") -> Endpoint:
         if device.startswith("/") and baud.isdigit():
             return Endpoint("serial", device=device, baud=int(baud))
     raise ValueError(f"{field}: {text!r} is not an XRCE connection; fix: {example}")
-
-
-class _Engine(Protocol):
-    def receive_datagram(self, data: bytes, source: Address, now: float) -> None: ...
-    def handle_timer(self, now: float) -> None: ...
-    def datagrams_to_send(self) -> list[tuple[bytes, Address]]: ...
-    def get_timer(self) -> float | None: ...
-    def next_event(self) -> XrceEvent | None: ...
 
 
 class _Datagrams(asyncio.DatagramProtocol):
@@ -122,12 +115,15 @@ class XrceBackend:
         self._transport: asyncio.DatagramTransport | None = None
         self._link: ByteLink | None = None
         self._deframer = Deframer()
-        self._timer: asyncio.TimerHandle | None = None
+        self._driver: Driver[bytes, tuple[bytes, Address], XrceEvent] | None = None
         self._agent_addr: tuple[str, int] | None = None
 
     async def start(self, sink: ObservationSink) -> None:
         loop = asyncio.get_running_loop()
         self._loop, self._sink = loop, sink
+        self._driver = Driver(
+            self.engine, transmit=self._transmit, on_event=self._event, name=self.mode, loop=loop
+        )
         self._clock_offset = time.time() - loop.time()
         if isinstance(self.engine, XrceAgent):
             self.engine.clock_offset_s = self._clock_offset
@@ -144,18 +140,20 @@ class XrceBackend:
                 lambda: _Datagrams(self), remote_addr=self._agent_addr
             )
             if isinstance(self.engine, XrceClient):
-                self.engine.connect(self._agent_addr, loop.time())
-        self._pump()
+                client, agent = self.engine, self._agent_addr
+                self._driver.call(lambda now: client.connect(agent, now))
 
     def send(self, command: VehicleCommand) -> None:
-        if self._loop is None:
+        if self._driver is None:
             return
-        now = self._loop.time()
-        sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
         topic = dds_topic("vehicle_command", "in", 0, self.namespace)
-        sent = self.engine.publish(topic, sample, now)
+
+        def publish(now: float) -> int:
+            sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
+            return self.engine.publish(topic, sample, now)
+
+        sent = self._driver.call(publish)
         self.counters["commands_sent" if sent else "commands_unrouted"] += 1
-        self._pump()
 
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -174,12 +172,11 @@ class XrceBackend:
         return out
 
     async def close(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
-        if isinstance(self.engine, XrceClient) and self._loop is not None:
-            self.engine.disconnect(self._loop.time())
-            self._flush()
+        if self._driver is not None:
+            if isinstance(self.engine, XrceClient):
+                self._driver.call(self.engine.disconnect)  # DELETE the session, sent now
+            self._driver.close()
+            self._driver = None
         if self._transport is not None:
             self._transport.close()
             self._transport = None
@@ -195,49 +192,27 @@ class XrceBackend:
             self._receive(payload, SERIAL_PEER)
 
     def _receive(self, data: bytes, source: Address) -> None:
-        if self._loop is None:
-            return
-        self.counters["datagrams_in"] += 1
-        self.engine.receive_datagram(data, source, self._loop.time())
-        self._pump()
+        if self._driver is not None:
+            self.counters["datagrams_in"] += 1
+            self._driver.datagram_received(data, source)
 
-    def _on_timer(self) -> None:
-        self._timer = None
-        if self._loop is not None:
-            self.engine.handle_timer(self._loop.time())
-            self._pump()
+    def _transmit(self, out: tuple[bytes, Address]) -> None:
+        data, dest = out
+        self.counters["datagrams_out"] += 1
+        if self._link is not None:
+            self._link.send(frame(data, src=0, dst=1))
+        elif self._transport is not None:
+            if self.mode == "xrce-client":
+                self._transport.sendto(data)
+            elif isinstance(dest, tuple):
+                self._transport.sendto(data, dest)
 
-    def _pump(self) -> None:
-        loop = self._loop
-        if loop is None:
-            return
-        now = loop.time()
-        while (event := self.engine.next_event()) is not None:
-            self._event(event, now)
-        self._flush()
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
-        deadline = self.engine.get_timer()
-        if deadline is not None:
-            self._timer = loop.call_at(max(deadline, now), self._on_timer)
-
-    def _flush(self) -> None:
-        for data, dest in self.engine.datagrams_to_send():
-            self.counters["datagrams_out"] += 1
-            if self._link is not None:
-                self._link.send(frame(data, src=0, dst=1))
-            elif self._transport is not None:
-                if self.mode == "xrce-client":
-                    self._transport.sendto(data)
-                elif isinstance(dest, tuple):
-                    self._transport.sendto(data, dest)
-
-    def _event(self, event: XrceEvent, now: float) -> None:
+    def _event(self, event: XrceEvent) -> None:
         match event:
             case SampleReceived():
                 self.counters["samples"] += 1
-                if self._sink is not None:
+                if self._sink is not None and self._loop is not None:
+                    now = self._loop.time()
                     for obs in self.translator.sample(event.topic_name, event.data):
                         self._sink(obs, now)
             case SessionCreated():
