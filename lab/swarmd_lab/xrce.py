@@ -1,0 +1,119 @@
+"""Lab tools for the uXRCE-DDS backends: a stand-alone agent, Wi-Fi-side capture, timings.
+
+Used by ``bench/xrce.py`` (the figures in docs/benchmarks.md), the netns test and the demo.
+The peers (``px4_like_client``, ``MicroXRCEAgent``) are the ones ``scripts/setup.sh`` builds
+into ``.cache/xrce`` from ``../shared/peers/xrce``.
+
+    python -m swarmd_lab.xrce serve --port 8888 [--seconds S]   # swarmd's XRCE agent alone:
+        prints one JSON line at exit: samples, sessions, its own CPU seconds and wall time
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import resource
+import socket
+import struct
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Final
+
+from swarmd.px4.messages import Observation
+from swarmd.px4.xrce_backend import XrceBackend
+
+ETH_P_ALL: Final = 0x0003
+REPO: Final = Path(__file__).resolve().parents[2]
+
+
+def peer_bin(name: str, out: Path | None = None) -> Path:
+    return (out or REPO / ".cache" / "xrce") / "bin" / name
+
+
+def peer_env(out: Path | None = None) -> dict[str, str]:
+    lib = (out or REPO / ".cache" / "xrce") / "install" / "agent" / "lib"
+    return dict(os.environ, LD_LIBRARY_PATH=str(lib))
+
+
+async def serve(port: int, seconds: float) -> dict[str, Any]:
+    """Run swarmd's XRCE agent backend on 127.0.0.1:``port``; count what it decodes."""
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}")
+    counts: dict[str, int] = {}
+    first = asyncio.Event()
+
+    def sink(obs: Observation, now: float) -> None:
+        counts[type(obs).__name__] = counts.get(type(obs).__name__, 0) + 1
+        first.set()
+
+    await backend.start(sink)
+    loop = asyncio.get_running_loop()
+    await first.wait()  # the window starts with the first sample (after PX4's time sync)
+    cpu0, t0 = _cpu(), loop.time()
+    await asyncio.sleep(seconds)
+    cpu, wall = _cpu() - cpu0, loop.time() - t0
+    stats = backend.stats()
+    await backend.close()
+    return {
+        "cpu_s": round(cpu, 3),
+        "wall_s": round(wall, 3),
+        "cpu_pct": round(100 * cpu / wall, 2),
+        "datagrams_in": stats.get("datagrams_in", 0),
+        "samples": stats.get("samples", 0),
+        "observations": counts,
+        "px4_version": stats.get("px4_version"),
+    }
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def count_udp(
+    sock: socket.socket, seconds: float, stop: Callable[[], bool] | None = None
+) -> dict[str, int]:
+    """Frames on an AF_PACKET socket for ``seconds`` (or until ``stop()``): every frame, the
+    UDP ones (IPv4/IPv6), and the RTPS ones among them (DDS discovery and data)."""
+    sock.settimeout(0.2)
+    end = time.monotonic() + seconds
+    out = {"frames": 0, "udp": 0, "udp_bytes": 0, "rtps": 0}
+    while time.monotonic() < end and not (stop is not None and stop()):
+        try:
+            frame = sock.recv(65535)
+        except TimeoutError:
+            continue
+        out["frames"] += 1
+        ethertype = struct.unpack_from("!H", frame, 12)[0] if len(frame) >= 14 else 0
+        payload: bytes | None = None
+        if ethertype == 0x0800 and len(frame) >= 34 and frame[23] == 17:
+            ihl = (frame[14] & 0x0F) * 4
+            payload = frame[14 + ihl + 8 :]
+        elif ethertype == 0x86DD and len(frame) >= 62 and frame[20] == 17:
+            payload = frame[62:]
+        if payload is not None:
+            out["udp"] += 1
+            out["udp_bytes"] += len(frame)
+            if payload[:4] == b"RTPS":
+                out["rtps"] += 1
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m swarmd_lab.xrce")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("serve", help="swarmd's XRCE agent on 127.0.0.1:PORT, then a JSON line")
+    s.add_argument("--port", type=int, default=8888)
+    s.add_argument("--seconds", type=float, default=30.0)
+    args = p.parse_args(argv)
+    result = asyncio.run(serve(args.port, args.seconds))
+    json.dump(result, sys.stdout)
+    sys.stdout.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,59 @@
+"""With swarmd as PX4's XRCE agent, the vehicle path puts nothing on the drone's Wi-Fi side;
+eProsima's MicroXRCEAgent with PX4's default participant (UXRCE_DDS_PTCFG=0) does (its
+SPDP/SEDP), which is also the proof that the capture sees such traffic."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+
+import pytest
+from swarmd_lab.netns import Lan, Namespace, unavailable_reason
+from swarmd_lab.xrce import ETH_P_ALL, count_udp
+
+from tests.xrce_peers import peer_binary, peer_env
+
+
+def _capture_socket(ns: Namespace) -> socket.socket:
+    sock = ns.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
+    sock.bind(("eth0", 0))
+    return sock
+
+
+def test_wifi_side_sees_no_vehicle_path_packets_with_swarmd_as_agent() -> None:
+    if (why := unavailable_reason()) is not None:
+        pytest.skip(why)
+    client = str(peer_binary("px4_like_client"))
+    agent_bin = str(peer_binary("MicroXRCEAgent"))
+    with Lan(1) as lan:
+        ns = lan[0]
+        # swarmd: the agent backend serves PX4's full topic set for 8 s after the first sample
+        sock = _capture_socket(ns)
+        serve = [
+            sys.executable,
+            "-m",
+            "swarmd_lab.xrce",
+            "serve",
+            "--port",
+            "8888",
+            "--seconds",
+            "8",
+        ]
+        swarmd = ns.popen(serve, stdout=subprocess.PIPE)
+        ns.popen([client, "-p", "8888", "-a", "-q"])
+        counts = count_udp(sock, 90, stop=lambda: swarmd.poll() is not None)
+        out, _ = swarmd.communicate(timeout=30)
+        served = json.loads(out)
+        sock.close()
+        ns.stop_children()
+        assert served["samples"] > 200, served  # the vehicle path was busy meanwhile
+        assert counts["udp"] == 0, counts
+        # control: MicroXRCEAgent with PX4's default participant announces on eth0
+        sock = _capture_socket(ns)
+        ns.popen([agent_bin, "udp4", "-p", "8889"], env=peer_env())
+        ns.popen([client, "-p", "8889", "-c", "0", "-q"])
+        control = count_udp(sock, 20, stop=lambda: False)
+        sock.close()
+        assert control["rtps"] > 0, control
