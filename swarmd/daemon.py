@@ -10,10 +10,10 @@ re-arm the single ``TimerHandle`` at ``engine.get_timer()``. The three inputs ar
 - the engine timer;
 - link-quality samples from the link monitor, polled every ``link.poll_interval_s``.
 
-On top of discovery, ``SwarmApp`` (``swarmd/swarm/app.py``) runs the swarm itself when configured:
-the data plane on the user unicast port (its own adapter and timer, ``swarmd/swarm/userdata.py``),
-fed with discovery's ``PeerDiscovered``/``PeerLost``; the PX4 bridge; readiness reports,
-commands and outcomes.
+On top of discovery, ``SwarmApp`` (``swarmd/swarm/app.py``) runs the swarm itself when
+configured: the sans-IO ``SwarmCore`` (readiness reports, commands, outcomes; the data plane
+inside it) on the user unicast port, through the one asyncio ``Driver`` (``swarmd/driver.py``),
+fed with discovery's ``PeerDiscovered``/``PeerLost``; and the PX4 bridge.
 
 Around it: the control socket (``swarmctl``), sd_notify (``READY=1`` once the bundle is
 verified and the sockets are bound, ``STATUS=`` on phase/peer changes, ``WATCHDOG=1`` at half

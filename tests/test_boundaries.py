@@ -90,8 +90,8 @@ SANS_IO = [
         "px4",
         frozenset({"transport", "mavlink_backend", "bridge", "xrce_backend", "provision"}),
     ),
-    # issue 11 (archA) cuts the sans-IO swarm core out of these adapters
-    SansIO("swarm", frozenset({"app", "executor", "userdata", "statefile"})),
+    # the swarm's I/O: wiring (app), the user-data socket, the state file (core.py is sans-IO)
+    SansIO("swarm", frozenset({"app", "userdata", "statefile"})),
 ]
 NO_LOOP = ("asyncio", "socket", "selectors")
 NO_IO = frozenset({"asyncio", "socket", "selectors", "threading", "time", "trio"})

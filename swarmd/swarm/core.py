@@ -1,0 +1,482 @@
+"""The swarm as a sans-IO core: readiness reports, commands, and a member's execution decisions.
+
+Theory of operation
+-------------------
+One ``SwarmCore`` per daemon, around the node's ``DataPlane`` (None when the data plane is
+disabled). Driving sources, the driver's protocol (``swarmd.driver``):
+
+- ``receive_datagram(data, source, now)``: user data for the data plane; its events move
+  the readiness table (commander), the command tracker (commander) and execution (member);
+- ``handle_timer(now)``: the data plane's repairs, and the readiness tick: a node that
+  reports readiness publishes ``swarm/ready`` every ``readiness_period_s`` (1 Hz, the
+  paper's workload, section 5) and at once when its vehicle's verdict changes
+  (``vehicle_changed``), so a lost autopilot link reaches the commander within PX4's 2.5 s
+  heartbeat timeout rather than up to a period later;
+- calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
+  ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
+  ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
+
+Outputs: ``datagrams_to_send()``, ``get_timer()``, ``next_event()``. Two events are orders
+for the driver, in this order for each command: ``PersistExecuted`` (write the state file
+before anything moves: a crash then loses a command, never repeats it; docs/dataplane.md,
+"Exactly once") and ``px4.vehicle.VehicleRequest`` (what the vehicle should do, tagged with
+the command id). The others are for the log.
+
+A member's decisions (``_execute``): each command id once (the data plane hands each id
+once per life, persisted across restarts; the core also refuses an id it already runs, for
+the commander's own drone, which bypasses the data plane). Without a vehicle every command
+is REJECTED ``px4_disabled``. TAKEOFF is refused at once (REJECTED, reason = the readiness
+code) when the vehicle is not ready *now* (the commander's view is up to one report old),
+else ACCEPTED at once (the commander's latency measure) and sent to the vehicle; LAND, HOLD
+and ABORT are ACCEPTED and sent. The vehicle's ``TaskFinished`` becomes COMPLETED (reason:
+the landed state after a take-off, the command's label after an ABORT) or FAILED (REJECTED
+for a take-off refused as not ready). Dispatch is an exhaustive ``match`` on ``CommandKind``
+with ``assert_never``: a new kind fails the type check rather than running another's action,
+and a kind number this build does not know is REJECTED ``unknown_kind``.
+
+Time is the ``now`` argument; the vehicle's verdict and the link quality are read through
+the injected ``verdict(now)`` (None: the node has no vehicle link) and ``link_q()``. No
+I/O, no clock, no asyncio.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict, deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final, assert_never
+
+from swarmd.dataplane import (
+    CommandReceived,
+    DataPlane,
+    OutcomeReceived,
+    PacketDropped,
+    ReadinessReceived,
+)
+from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
+from swarmd.dataplane.types import MAX_ALTITUDE_M, Command, CommandKind, CommandResult
+from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M as PX4_MAX_TAKEOFF_ALT_M
+from swarmd.px4.takeoff import FailReason, TakeoffFailed
+from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
+from swarmd.swarm.commander import CommandTracker, ReadinessTable
+from swarmd.swarm.roles import Roles
+
+PX4_DISABLED: Final = "px4_disabled"
+UNKNOWN_KIND: Final = "unknown_kind"
+MAX_TAKEOFF_ALT_M: Final = min(PX4_MAX_TAKEOFF_ALT_M, MAX_ALTITUDE_M)
+COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
+# command ids a member remembers running: the data plane's executed list is the durable
+# record; this only guards the commander's own drone, whose commands bypass it
+MAX_RUNNING_IDS: Final = 256
+
+
+@dataclass(frozen=True, slots=True)
+class NoVehicle:
+    """The verdict of a node without a vehicle link: never ready, and says why."""
+
+    ready: bool = False
+    reason: str = PX4_DISABLED
+    armed: bool | None = None
+    landed_state: str | None = None
+    gps_fix: int | None = None
+    satellites: int | None = None
+    battery_pct: int | None = None
+
+
+NO_VEHICLE: Final = NoVehicle()
+
+
+class RequestInvalid(ValueError):
+    """A request the commander refuses (bad argument, wrong node); ``str()`` is for the
+    client. The daemon's control socket answers it as ``ok: false``."""
+
+
+@dataclass(frozen=True, slots=True)
+class PersistExecuted:
+    """Write the executed command ids to the state file now, before executing (write-ahead)."""
+
+    executed: tuple[tuple[str, int], ...]
+
+
+@dataclass(frozen=True, slots=True)
+class MemberReadinessChanged:
+    member: str
+    ready: bool
+    reason: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class CommandIssued:
+    command_id: int
+    kind: CommandKind
+    altitude_m: float | None
+    targets: tuple[str, ...]
+    refused: Mapping[str, str]
+
+
+@dataclass(frozen=True, slots=True)
+class CommandExecuting:
+    commander: str
+    command_id: int
+    kind: CommandKind
+    altitude_m: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class OutcomeReported:
+    """This node's own outcome for a command (sent on ``swarm/outcome``, or recorded in
+    the commander's own tracker for its own drone)."""
+
+    command_id: int
+    kind: str
+    result: CommandResult
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class OutcomeRecorded:
+    """A member's outcome reached the commander's tracker (``known``: a command it sent)."""
+
+    member: str
+    command_id: int
+    result: CommandResult
+    reason: str
+    known: bool
+
+
+SwarmEvent = (
+    PersistExecuted
+    | VehicleRequest
+    | MemberReadinessChanged
+    | CommandIssued
+    | CommandExecuting
+    | OutcomeReported
+    | OutcomeRecorded
+    | PacketDropped
+)
+
+
+@dataclass(frozen=True, slots=True)
+class SwarmSettings:
+    readiness_period_s: float = 1.0
+    stale_after_s: float = 3.0
+    takeoff_alt_m: float = 10.0  # a take-off request without ``alt_m``
+
+
+class SwarmCore:
+    """See the module docstring."""
+
+    def __init__(
+        self,
+        roles: Roles,
+        plane: DataPlane | None,
+        *,
+        verdict: Callable[[float], ReadinessVerdict] | None,
+        link_q: Callable[[], float],
+        settings: SwarmSettings | None = None,
+    ) -> None:
+        self.roles = roles
+        self.plane = plane
+        self.has_vehicle = verdict is not None
+        self.settings = settings or SwarmSettings()
+        self._vehicle = verdict
+        self._link_q = link_q
+        self.table = ReadinessTable(roles.members, stale_after_s=self.settings.stale_after_s)
+        if roles.is_commander and self.has_vehicle:
+            self.table.add_local(roles.me)  # the commander's own drone flies with the swarm
+        self.tracker = CommandTracker()
+        self.counters: dict[str, int] = {"readiness_published": 0}
+        self.executor_counters: dict[str, int] = {}
+        self._tick_at: float | None = None
+        self._seq = 0
+        self._last_key: tuple[bool, str | None] | None = None
+        self._local_commands: set[int] = set()
+        self._running: OrderedDict[int, CommandKind] = OrderedDict()  # id -> kind, on vehicle
+        self._seen: OrderedDict[int, None] = OrderedDict()  # ids started (bounded)
+        self._events: deque[SwarmEvent] = deque()
+
+    # ---- driving protocol ---------------------------------------------------------------
+
+    def start(self, now: float) -> None:
+        """Publish the first readiness report now, then every period."""
+        self._tick_at = now
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        if self.plane is None:
+            return
+        self.plane.receive_datagram(data, source, now)
+        self._drain_plane(now)
+
+    def handle_timer(self, now: float) -> None:
+        if self.plane is not None:
+            self.plane.handle_timer(now)
+            self._drain_plane(now)
+        if self._tick_at is not None and now >= self._tick_at:
+            self._tick(now)
+
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
+        return [] if self.plane is None else self.plane.datagrams_to_send()
+
+    def get_timer(self) -> float | None:
+        deadlines = [self._tick_at, None if self.plane is None else self.plane.get_timer()]
+        return min((d for d in deadlines if d is not None), default=None)
+
+    def next_event(self) -> SwarmEvent | None:
+        return self._events.popleft() if self._events else None
+
+    # ---- discovery ----------------------------------------------------------------------
+
+    def peer_up(self, name: str, locator: tuple[str, int] | None, epoch: int, now: float) -> None:
+        """Discovery heard ``name`` (authenticated SPDP) in boot ``epoch``; its user-data
+        locator, or None when no address is known (the data plane then keeps it down)."""
+        self.table.on_peer(name, True)
+        if self.plane is not None and locator is not None:
+            self.plane.peer_up(name, locator, now, epoch=epoch)
+            self._drain_plane(now)
+
+    def peer_down(self, name: str, now: float) -> None:
+        self.table.on_peer(name, False)
+        if self.plane is not None:
+            self.plane.peer_down(name, now)
+            self._drain_plane(now)
+
+    # ---- the vehicle --------------------------------------------------------------------
+
+    def vehicle_changed(self, ready: bool, reason: str | None, now: float) -> None:
+        """The vehicle's verdict changed: tell the commander now, not up to a period later."""
+        key = (ready, reason)
+        if self._last_key is not None and key != self._last_key and self._tick_at is not None:
+            self._tick(now)
+        self._last_key = key
+
+    def task_finished(self, done: TaskFinished, now: float) -> None:
+        """The vehicle ended the task of command ``done.token``."""
+        kind = self._running.pop(done.token, None)
+        if kind is None:
+            return  # not ours (a direct take-off through the bridge), or reported already
+        if done.ok:
+            self._report(done.token, kind.name, CommandResult.COMPLETED, done.reason, now)
+            return
+        refused = isinstance(done.outcome, TakeoffFailed) and (
+            done.outcome.reason == FailReason.NOT_READY
+        )
+        result = CommandResult.REJECTED if refused else CommandResult.FAILED
+        self._report(done.token, kind.name, result, done.reason, now)
+
+    # ---- the commander's requests -------------------------------------------------------
+
+    def request_takeoff(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
+        """Take-off of the targeted nodes that are ready now; ``require_all``: all or none."""
+        plane = self._require_commander()
+        alt = self._altitude(request)
+        targets = self._targets(request.get("only"))
+        ready, refused = self.table.split(targets, now)
+        if refused and request.get("require_all"):
+            return {"sent": False, "command_id": None, "ready": ready, "refused": refused}
+        if not ready:
+            return {"sent": False, "command_id": None, "ready": [], "refused": refused}
+        command_id = self._send(plane, CommandKind.TAKEOFF, ready, alt, refused, now)
+        return {"sent": True, "command_id": command_id, "ready": ready, "refused": refused}
+
+    def request_command(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
+        """Any command to the targets as they are: members judge for themselves."""
+        plane = self._require_commander()
+        kind = COMMAND_KINDS.get(str(request.get("kind", "")).lower())
+        if kind is None:
+            raise RequestInvalid(f"kind must be one of: {', '.join(COMMAND_KINDS)}")
+        alt = self._altitude(request) if kind == CommandKind.TAKEOFF else 0.0
+        targets = self._targets(request.get("only"))
+        command_id = self._send(plane, kind, targets, alt, {}, now)
+        return {"sent": True, "command_id": command_id, "ready": targets, "refused": {}}
+
+    def request_outcomes(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
+        command_id = request.get("command_id")
+        if not isinstance(command_id, int) or isinstance(command_id, bool):
+            raise RequestInvalid('"command_id" must be an integer')
+        snap = self.tracker.snapshot(command_id, now)
+        if snap is None:
+            raise RequestInvalid(f"unknown command id {command_id}")
+        return snap
+
+    # ---- status (pure: evaluated when asked) --------------------------------------------
+
+    def executor_status(self) -> dict[str, Any]:
+        return {
+            "running": len(self._running),
+            "counters": dict(sorted(self.executor_counters.items())),
+        }
+
+    # ---- internals: data plane ----------------------------------------------------------
+
+    def _drain_plane(self, now: float) -> None:
+        assert self.plane is not None  # noqa: S101 - callers checked it
+        while (event := self.plane.next_event()) is not None:
+            match event:
+                case ReadinessReceived(node=node, sample=sample, count=count):
+                    before = self.table.verdict(node, now)
+                    self.table.on_report(node, sample, count, now)
+                    after = self.table.verdict(node, now)
+                    if before != after:
+                        self._events.append(MemberReadinessChanged(node, after[0], after[1]))
+                case CommandReceived(commander=commander, command=command):
+                    # write-ahead: a crash loses the command, never repeats it
+                    self._events.append(PersistExecuted(tuple(self.plane.executed_command_ids)))
+                    self._execute(commander, command, now)
+                case OutcomeReceived(node=node, outcome=outcome):
+                    known = self.tracker.record(
+                        outcome.command_id, node, outcome.result, outcome.reason, now
+                    )
+                    self._events.append(
+                        OutcomeRecorded(
+                            node, outcome.command_id, outcome.result, outcome.reason, known
+                        )
+                    )
+                case PacketDropped():
+                    self._events.append(event)
+                case _:
+                    assert_never(event)
+
+    def _tick(self, now: float) -> None:
+        self._tick_at = now + self.settings.readiness_period_s
+        if not (self.roles.reports_readiness or self.table.names):
+            return
+        self._seq += 1
+        sample = readiness_sample(self.roles.me, self._seq, self._verdict(now), self._link_q())
+        if self.roles.reports_readiness and self.plane is not None:
+            self.plane.publish_readiness(sample, now)
+            self.counters["readiness_published"] += 1
+        if self.roles.me in self.table.names:
+            self.table.on_report(self.roles.me, sample, None, now)
+
+    # ---- internals: a member's execution ------------------------------------------------
+
+    def _execute(self, commander: str, command: Command, now: float) -> None:
+        """Decide what the vehicle does with ``command`` (see the module docstring)."""
+        try:
+            kind = CommandKind(command.kind)
+        except ValueError:
+            self._count("received_unknown")
+            self._report(
+                command.command_id, str(command.kind), CommandResult.REJECTED, UNKNOWN_KIND, now
+            )
+            return
+        if command.command_id in self._seen:
+            return  # exactly once: this id runs already, or ran
+        self._seen[command.command_id] = None
+        while len(self._seen) > MAX_RUNNING_IDS:
+            self._seen.popitem(last=False)
+        self._count(f"received_{kind.name.lower()}")
+        takeoff = kind == CommandKind.TAKEOFF
+        self._events.append(
+            CommandExecuting(
+                commander, command.command_id, kind, command.altitude_m if takeoff else None
+            )
+        )
+        if not self.has_vehicle:
+            self._report(command.command_id, kind.name, CommandResult.REJECTED, PX4_DISABLED, now)
+            return
+        match kind:
+            case CommandKind.TAKEOFF:
+                verdict = self._verdict(now)
+                if not verdict.ready:
+                    reason = str(verdict.reason)
+                    self._report(command.command_id, kind.name, CommandResult.REJECTED, reason, now)
+                    return
+                task = TaskKind.TAKEOFF
+            case CommandKind.LAND:
+                task = TaskKind.LAND
+            case CommandKind.HOLD:
+                task = TaskKind.HOLD
+            case CommandKind.ABORT:
+                task = TaskKind.ABORT
+            case _:
+                assert_never(kind)
+        self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now)
+        self._running[command.command_id] = kind
+        alt = float(command.altitude_m) if takeoff else None
+        self._events.append(VehicleRequest(command.command_id, task, alt))
+
+    def _report(
+        self, command_id: int, kind: str, result: CommandResult, reason: str, now: float
+    ) -> None:
+        self._count(f"outcome_{result.name.lower()}")
+        self._events.append(OutcomeReported(command_id, kind, result, reason))
+        if command_id in self._local_commands:
+            self.tracker.record(command_id, self.roles.me, result, reason, now)
+        elif self.plane is not None:
+            self.plane.report_outcome(command_id, result, now, reason)
+
+    def _verdict(self, now: float) -> ReadinessVerdict:
+        return NO_VEHICLE if self._vehicle is None else self._vehicle(now)
+
+    def _count(self, name: str) -> None:
+        self.executor_counters[name] = self.executor_counters.get(name, 0) + 1
+
+    # ---- internals: the commander -------------------------------------------------------
+
+    def _require_commander(self) -> DataPlane:
+        if not self.roles.is_commander:
+            raise RequestInvalid(
+                f"{self.roles.me} is not a commander in swarm {self.roles.swarm!r}; "
+                "run swarmctl on the commander's drone"
+            )
+        if self.plane is None:
+            raise RequestInvalid("the data plane is disabled (dataplane.enabled: false)")
+        return self.plane
+
+    def _targets(self, only: object) -> list[str]:
+        known = self.table.names if self.table.names else list(self.roles.targets_remote)
+        everyone = list(dict.fromkeys([*known, *self.roles.targets_remote]))
+        if self.has_vehicle and self.roles.me not in everyone:
+            everyone.insert(0, self.roles.me)
+        if only is None or only == []:
+            return everyone
+        if not isinstance(only, list) or not all(isinstance(n, str) for n in only):
+            raise RequestInvalid('"only" must be a list of node names')
+        unknown = [n for n in only if n not in everyone]
+        if unknown:
+            raise RequestInvalid(
+                f"not a commandable node: {', '.join(unknown)}; known: {', '.join(everyone)}"
+            )
+        return list(dict.fromkeys(only))
+
+    def _altitude(self, request: Mapping[str, Any]) -> float:
+        alt = request.get("alt_m")
+        if alt is None:
+            return self.settings.takeoff_alt_m
+        if isinstance(alt, bool) or not isinstance(alt, int | float) or not math.isfinite(alt):
+            raise RequestInvalid(f"alt_m {alt!r} is not a number")
+        if not 0 < alt <= MAX_TAKEOFF_ALT_M:
+            raise RequestInvalid(f"alt_m {alt} is outside (0, {MAX_TAKEOFF_ALT_M:g}] m")
+        return float(alt)
+
+    def _send(
+        self,
+        plane: DataPlane,
+        kind: CommandKind,
+        targets: Sequence[str],
+        alt: float,
+        refused: dict[str, str],
+        now: float,
+    ) -> int:
+        remote = [n for n in targets if n != self.roles.me]
+        command = plane.make_command(kind, altitude_m=alt, targets=remote)
+        takeoff_alt = alt if kind == CommandKind.TAKEOFF else None
+        self.tracker.sent(
+            command.command_id,
+            kind.name.lower(),
+            targets,
+            now,
+            altitude_m=takeoff_alt,
+            refused=refused,
+        )
+        self._events.append(
+            CommandIssued(command.command_id, kind, takeoff_alt, tuple(targets), dict(refused))
+        )
+        if remote:  # an empty target list would mean "every member" on the wire
+            plane.send_command(command, now)
+        if self.roles.me in targets:
+            self._local_commands.add(command.command_id)
+            self._execute(self.roles.me, command, now)
+        return command.command_id
