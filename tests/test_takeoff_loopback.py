@@ -2,7 +2,8 @@
 SIMULATOR (not PX4) on its own MAVLink port; readiness to the commander, take-off to IN_AIR.
 
 Real sockets, real RTPS and MAVLink bytes. Exactly-once under 30 % user-data loss is tested
-on the swarm core in virtual time (tests/test_swarm_core.py), with no patched method. Waiting for a state with a generous cap is not a timing assertion; nothing here asserts
+on the swarm core in virtual time (tests/test_swarm_core.py), with no patched method.
+Waiting for a state with a generous cap is not a timing assertion; nothing here asserts
 how fast anything happened.
 """
 
