@@ -1,8 +1,10 @@
-"""The daemon: the only asyncio in swarmd, a thin adapter around the sans-IO engine.
+"""The daemon: wiring. Sockets, the link poller, the control socket and sd_notify around
+the sans-IO cores, each run by the one asyncio ``Driver`` (``swarmd/driver.py``).
 
-aioquic's shape (style.md rule 11): every input goes to the engine with ``loop.time()`` as
-``now`` and is followed by the same three steps: drain events, send what the engine queued,
-re-arm the single ``TimerHandle`` at ``engine.get_timer()``. The three inputs are
+The discovery engine's driver (aioquic's shape, style.md rule 11): every input goes to the
+engine with ``loop.time()`` as ``now`` and is followed by the same steps: send what the
+engine queued, drain its events, re-arm its one ``TimerHandle`` at ``engine.get_timer()``
+(with the early-wake guard). The inputs are
 
 - datagrams on the SPDP multicast socket (239.255.0.1:7400+250*domain, joined on the
   configured interface) and on the unicast metatraffic socket (port from the bundle index;
@@ -35,6 +37,7 @@ import struct
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import fields
+from functools import partial
 from typing import Any, Final
 
 from swarmd import __version__
@@ -58,6 +61,7 @@ from swarmd.discovery.events import (
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
+from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_OSERR, EX_UNAVAILABLE, StartupError
 from swarmd.link import SourceName
 from swarmd.link.file import FileSource
@@ -69,6 +73,8 @@ from swarmd.link.wext import WextSource
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarm.app import SwarmApp
+
+Datagram = tuple[bytes, tuple[str, int]]
 
 SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
 IFNAMSIZ: Final = 16
@@ -277,8 +283,7 @@ class Daemon:
         self.stopped = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transports: dict[str, asyncio.DatagramTransport] = {}
-        self._timer: asyncio.TimerHandle | None = None
-        self._timer_deadline: float | None = None
+        self.driver: Driver[bytes, Datagram, Event] | None = None
         self._watchdog: asyncio.TimerHandle | None = None
         self._link_task: asyncio.Task[None] | None = None
         self._control: ControlServer | None = None
@@ -330,6 +335,14 @@ class Daemon:
         except ValueError as exc:
             problem, _, fix = str(exc).partition("; fix: ")
             raise self.config.error("node", problem, fix or "check node and the bundle") from None
+        self.driver = Driver(
+            self.engine,
+            transmit=self._send,
+            on_event=self._on_event,
+            name="discovery",
+            log=self.log,
+            on_core_error=lambda: self.count("engine_exceptions"),
+        )
         # before the first datagram can arrive: peers discovered while it starts are kept
         # and replayed to the data plane once it is up
         app = SwarmApp(
@@ -396,7 +409,7 @@ class Daemon:
                 f"control socket {self.config.control_socket}: {exc}", EX_UNAVAILABLE
             ) from None
         self._link_task = loop.create_task(self._poll_link(), name="swarmd-link")
-        self._after_input()
+        self._drive().drain()
         self._status_line = self._status_text()
         self._ready = True
         self.notifier.ready(self._status_line)
@@ -431,11 +444,9 @@ class Daemon:
             self._link_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._link_task
-        if self.engine is not None and self._loop is not None:
-            self.engine.shutdown(self._loop.time())
-            self._after_input()
-        if self._timer is not None:
-            self._timer.cancel()
+        if self.engine is not None and self.driver is not None:
+            self.driver.call(self.engine.shutdown)  # DATA(p[UD]) leaves now
+            self.driver.close()
         if self.app is not None:
             await self.app.stop()
         if self._control is not None:
@@ -454,69 +465,45 @@ class Daemon:
     # -- the adapter (rule 11) -----------------------------------------------------------
 
     def datagram_received(self, data: bytes, addr: tuple[str, int], via: str) -> None:
-        if self.engine is None or self._loop is None or self.stopped.is_set():
+        if self.driver is None or self.stopped.is_set():
             return
         self.count(f"rx_{via}")
-        try:
-            self.engine.receive_datagram(data, addr, self._loop.time())
-        except Exception:  # the engine promises not to raise: this is a bug, not bad input
-            self.count("engine_exceptions")
-            self.log.exception("engine_receive_failed", source=f"{addr[0]}:{addr[1]}")
-        self._after_input()
-
-    def _on_timer(self) -> None:
-        self._timer = None
-        self._timer_deadline = None
-        if self.engine is None or self._loop is None:
-            return
-        self.engine.handle_timer(self._loop.time())
-        self._after_input()
+        self.driver.datagram_received(data, addr)
 
     async def _poll_link(self) -> None:
-        engine, loop = self._core()
+        engine, driver = self._core(), self._drive()
         while True:
             await asyncio.sleep(self.config.link.poll_interval_s)
             sample = await self.monitor.poll()
             if sample is not None and not self.stopped.is_set():
-                engine.update_link_quality(sample, loop.time())
-                self._after_input()
+                driver.call(partial(engine.update_link_quality, sample))
 
-    def _core(self) -> tuple[DiscoveryEngine, asyncio.AbstractEventLoop]:
-        if self.engine is None or self._loop is None:
+    def _core(self) -> DiscoveryEngine:
+        if self.engine is None:
             raise RuntimeError("the daemon is not started")
-        return self.engine, self._loop
+        return self.engine
 
-    def _after_input(self) -> None:
-        engine, _ = self._core()
-        changed = False
-        while (event := engine.next_event()) is not None:
-            changed |= isinstance(event, PeerDiscovered | PeerLost | PhaseChanged)
-            self._log_event(event)
-        self._transmit()
+    def _drive(self) -> Driver[bytes, Datagram, Event]:
+        if self.driver is None:
+            raise RuntimeError("the daemon is not started")
+        return self.driver
+
+    def _send(self, datagram: Datagram) -> None:
+        out = self._transports.get("unicast")
+        if out is None:
+            self.count("tx_dropped_closed")
+            return
+        out.sendto(*datagram)
+
+    def _on_event(self, event: Event) -> None:
+        self._log_event(event)
         # the sd_notify line moves only with discovery's events: nothing per datagram is
         # rebuilt (a flood of datagrams must not become a flood of status snapshots)
-        if changed and self._ready:
+        if self._ready and isinstance(event, PeerDiscovered | PeerLost | PhaseChanged):
             text = self._status_text()
             if text != self._status_line:
                 self._status_line = text
                 self.notifier.status(text)
-
-    def _transmit(self) -> None:
-        engine, loop = self._core()
-        out = self._transports.get("unicast")
-        for payload, dest in engine.datagrams_to_send():
-            if out is None:
-                self.count("tx_dropped_closed")
-                continue
-            out.sendto(payload, dest)
-        deadline = engine.get_timer()
-        if deadline != self._timer_deadline:
-            if self._timer is not None:
-                self._timer.cancel()
-                self._timer = None
-            if deadline is not None and not self.stopped.is_set():
-                self._timer = loop.call_at(deadline, self._on_timer)
-            self._timer_deadline = deadline
 
     def _log_event(self, event: Event) -> None:
         match event:
@@ -561,8 +548,7 @@ class Daemon:
         """The host discovery reaches the peer at (a typed engine query, O(1) by prefix):
         its first usable unicast metatraffic locator, else the UDP source it was heard from,
         else its bundle address. The data plane's port comes from the bundle."""
-        engine, _ = self._core()
-        view = engine.peer(prefix)
+        view = self._core().peer(prefix)
         if view is None or view.locator is None:
             return None
         return view.locator[0]
@@ -584,9 +570,10 @@ class Daemon:
             return False
         if self._link_task is None or self._link_task.done():
             return False
-        if self._timer_deadline is not None and self.watchdog_s is not None:
+        deadline = None if self.driver is None else self.driver.deadline
+        if deadline is not None and self.watchdog_s is not None:
             # a timer more than one ping interval late means the loop is starved
-            return self._loop.time() - self._timer_deadline < self.watchdog_s
+            return self._loop.time() - deadline < self.watchdog_s
         return True
 
     def _watchdog_tick(self) -> None:
@@ -608,8 +595,7 @@ class Daemon:
 
     def status(self) -> dict[str, Any]:
         """The engine's status plus what only the daemon knows (schema: docs/operations.md)."""
-        engine, loop = self._core()
-        now = loop.time()
+        engine, now = self._core(), self._drive().now()
         st = dict(engine.status(now))
         st["node"] = self.config.node
         latest: LinkSample | None = self.monitor.latest

@@ -66,12 +66,16 @@ class Driver(Generic[InT, OutT, EvT]):
         name: str,
         log: Any = None,
         loop: asyncio.AbstractEventLoop | None = None,
+        on_core_error: Callable[[], None] | None = None,
     ) -> None:
+        """``on_core_error`` is called (after the driver's own count and log line) when the
+        core raises: the owner's counter for a bug that must not stop the loop."""
         self.core = core
         self.transmit = transmit
         self.on_event = on_event
         self.name = name
         self.log = log
+        self.on_core_error = on_core_error
         self.loop = loop or asyncio.get_running_loop()
         self.counters: dict[str, int] = {"core_errors": 0, "handler_errors": 0}
         self._timer: asyncio.TimerHandle | None = None
@@ -175,3 +179,5 @@ class Driver(Generic[InT, OutT, EvT]):
         self.counters[counter] += 1
         if self.log is not None:
             self.log.exception(event, core=self.name)
+        if counter == "core_errors" and self.on_core_error is not None:
+            self.on_core_error()
