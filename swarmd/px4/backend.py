@@ -7,11 +7,11 @@ Readiness (``readiness.py``) and take-off (``takeoff.py``) speak only
 - ``MavlinkBackend`` (``mavlink_backend.py``): COMMAND_LONG / COMMAND_ACK and PX4's telemetry
   streams over UDP or a UART, plus the companion's 1 Hz HEARTBEAT (PX4 logs "Onboard
   controller lost" without it).
-- an XRCE-DDS backend (not written yet): ``VehicleCommand`` -> ``/fmu/in/vehicle_command``
-  (``px4_msgs::msg::dds_::VehicleCommand_``, ``from_external=True``), and
-  ``/fmu/out/vehicle_status[_vN]``, ``vehicle_land_detected``, ``vehicle_gps_position``,
+- ``XrceBackend`` (``xrce_backend.py``, modes ``xrce-agent`` and ``xrce-client``):
+  ``VehicleCommand`` -> ``rt/fmu/in/vehicle_command`` (``from_external=True``), and
+  ``rt/fmu/out/vehicle_status[_vN]``, ``vehicle_land_detected``, ``vehicle_gps_position``,
   ``home_position``, ``battery_status``, ``vehicle_command_ack`` -> the same observations
-  (mapping table in docs/px4.md). Nothing in readiness or take-off changes.
+  (``xrce_translate.py``, table in docs/px4.md). Nothing in readiness or take-off changes.
 """
 
 from __future__ import annotations

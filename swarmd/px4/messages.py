@@ -4,7 +4,7 @@ Readiness and take-off never see a pymavlink object: a backend translates what i
 into these frozen dataclasses (named after the MAVLink messages whose fields they carry,
 because the readiness predicate is specified in those fields) and turns ``VehicleCommand``
 into whatever its wire wants (COMMAND_LONG for MAVLink, ``/fmu/in/vehicle_command`` for
-XRCE-DDS). A future XRCE-DDS backend maps ``VehicleStatus``/``VehicleLandDetected``/
+XRCE-DDS). The XRCE-DDS backend maps ``VehicleStatus``/``VehicleLandDetected``/
 ``SensorGps``/``HomePosition``/``BatteryStatus`` onto the same classes (docs/px4.md).
 """
 
