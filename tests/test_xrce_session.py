@@ -288,3 +288,59 @@ def test_agent_refuses_nothing_px4_creates() -> None:
     assert [e for e in events if isinstance(e, SessionCreated)]
     ents = [e for e in events if isinstance(e, EntityCreated)]
     assert ents and all(e.status == 0 for e in ents)
+
+
+def test_agent_backend_over_a_serial_line() -> None:
+    """The UART path: Micro XRCE-DDS framing both ways over a pseudo-terminal; the far end
+    is the client engine playing PX4 (only its framing and session, not PX4's library)."""
+    import asyncio
+    import os
+
+    from swarmd.px4.messages import Observation
+    from swarmd.px4.xrce_backend import XrceBackend
+    from swarmd.xrce.framing import Deframer, frame
+
+    status = "rt/fmu/out/vehicle_status_v1"
+
+    async def scenario() -> None:
+        master, slave = os.openpty()
+        loop = asyncio.get_running_loop()
+        backend = XrceBackend("xrce-agent", f"serial:{os.ttyname(slave)}:921600")
+        got: list[Observation] = []
+        await backend.start(lambda obs, now: got.append(obs))
+        px4 = XrceClient(b"\x00\x00\x00\x01", subscriptions={}, publications={status: "st"})
+        deframer = Deframer()
+
+        def flush() -> None:
+            for data, _ in px4.datagrams_to_send():
+                os.write(master, frame(data, src=1, dst=0))
+
+        def readable() -> None:
+            for _s, _d, payload in deframer.feed(os.read(master, 4096)):
+                px4.receive_datagram(payload, "agent", loop.time())
+            flush()
+
+        loop.add_reader(master, readable)
+        try:
+            px4.connect("agent", loop.time())
+            flush()
+            for _ in range(200):
+                if px4.state == "established" and not px4._pending:
+                    break
+                await asyncio.sleep(0.02)
+            sample = bytes(80)  # a 1.16 VehicleStatus, all zero: disarmed, MANUAL
+            assert px4.publish(status, sample, loop.time()) == 1
+            flush()
+            for _ in range(100):
+                if got:
+                    break
+                await asyncio.sleep(0.02)
+            assert got and type(got[0]).__name__ == "Heartbeat"
+            assert backend.stats()["bad_frames"] == 0 and backend.session == "established"
+        finally:
+            loop.remove_reader(master)
+            await backend.close()
+            os.close(master)
+            os.close(slave)
+
+    asyncio.run(scenario())

@@ -1,0 +1,101 @@
+"""PX4 topic samples -> observations, per release; unknown layouts are named, not guessed."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from swarmd.px4.messages import (
+    CommandAck,
+    ExtendedSysState,
+    GpsRawInt,
+    Heartbeat,
+    HomePosition,
+    StatusText,
+    SysStatus,
+    VehicleCommand,
+)
+from swarmd.px4.readiness import ReadinessConfig, VehicleState, readiness
+from swarmd.px4.xrce_translate import Px4Translator
+from swarmd.xrce import px4 as topics
+from swarmd.xrce.px4_layouts import LAYOUTS
+
+RELEASES = ["1.14", "1.15", "1.16", "1.17"]
+
+
+def _sample(release: str, message: str, **values: float | int | bool) -> tuple[str, bytes]:
+    layout = LAYOUTS[release][message]
+    topic = next(t for t, m in topics.TOPIC_MESSAGES.items() if m == message)
+    name = topics.dds_topic(topic, "out", layout[1])
+    return name, topics.encode_fields(layout, values)
+
+
+@pytest.mark.parametrize("release", RELEASES)
+def test_every_release_maps_to_observations(release: str) -> None:
+    t = Px4Translator(sysid=3)
+    obs = t.sample(*_sample(release, "VehicleStatus", arming_state=2, nav_state=17,
+                            pre_flight_checks_pass=True))  # fmt: skip
+    hb, sys_status = obs
+    assert isinstance(hb, Heartbeat) and hb.armed and hb.mode.name == "AUTO.TAKEOFF"
+    assert isinstance(sys_status, SysStatus) and sys_status.prearm_ok
+    assert release in (t.px4_version or "").split("/")
+    (land,) = t.sample(*_sample(release, "VehicleLandDetected", landed=False))
+    assert land == ExtendedSysState(3)  # TAKEOFF while nav_state is AUTO_TAKEOFF
+    gps_fields: dict[str, float | int | bool] = {"fix_type": 3, "satellites_used": 12, "eph": 0.9}
+    if release == "1.14":
+        gps_fields.update(lat=473977418, lon=85455938, alt=488000)
+    else:
+        gps_fields.update(latitude_deg=47.3977418, longitude_deg=8.5455938, altitude_msl_m=488.0)
+    (gps,) = t.sample(*_sample(release, "SensorGps", **gps_fields))
+    assert gps == GpsRawInt(3, 12, 90, 473977418, 85455938, 488000)
+    (home,) = t.sample(*_sample(release, "HomePosition", lat=47.0, lon=8.0, alt=488.5,
+                                valid_alt=True, valid_hpos=True))  # fmt: skip
+    assert home == HomePosition(470000000, 80000000, 488500)
+    assert t.sample(*_sample(release, "HomePosition", valid_alt=False, valid_hpos=True)) == []
+    (ack,) = t.sample(*_sample(release, "VehicleCommandAck", command=400, result=0,
+                               target_system=3, target_component=191))  # fmt: skip
+    assert ack == CommandAck(400, 0, 0, 3, 191)
+    # an ack for a ROS 2 node (component 1) is not ours
+    assert t.sample(*_sample(release, "VehicleCommandAck", command=400, target_system=3,
+                             target_component=1)) == []  # fmt: skip
+    assert t.foreign_acks == 1
+
+
+@pytest.mark.parametrize("release", RELEASES)
+def test_vehicle_command_layout_per_release(release: str) -> None:
+    t = Px4Translator(sysid=3)
+    t.releases = {release}
+    raw = t.command(VehicleCommand.make(22, p7=500.0, confirmation=2), timestamp_us=123)
+    f = topics.decode_fields(LAYOUTS[release]["VehicleCommand"], raw)
+    assert len(raw) == (54 if release == "1.14" else 56)
+    assert (f["command"], f["param7"], f["confirmation"], f["from_external"]) == (22, 500, 2, 1)
+    assert (f["target_system"], f["target_component"], f["source_component"]) == (3, 1, 191)
+    assert math.isnan(float(f["param1"])) and f["timestamp"] == 123
+
+
+def test_unknown_layout_makes_readiness_false_and_names_it() -> None:
+    t = Px4Translator(sysid=1)
+    obs = t.sample("rt/fmu/out/vehicle_status_v2", bytes(81))
+    assert t.problem == "unknown PX4 layout: vehicle_status_v2 of 81 B (not v1.14..v1.17)"
+    (text,) = obs
+    assert isinstance(text, StatusText) and "vehicle_status_v2" in text.text
+    state = VehicleState()
+    state.observe(text, 0.0)
+    verdict = readiness(state, 0.1, ReadinessConfig(require_home=False))
+    assert not verdict.ready and verdict.px4_says is not None
+    assert "vehicle_status_v2 of 81 B" in verdict.px4_says
+    # a plausible length under the wrong suffix is not guessed either
+    assert t.sample("rt/fmu/out/vehicle_status", bytes(80))[0] == StatusText(
+        2, "swarmd: unknown PX4 layout: vehicle_status of 80 B (not v1.14..v1.17)"
+    )
+
+
+def test_topic_names() -> None:
+    assert topics.parse_topic_name("rt/uav1/fmu/out/vehicle_status_v1") == topics.TopicName(
+        "uav1", "out", "vehicle_status", 1
+    )
+    assert topics.parse_topic_name("rq/fmu/vehicle_commandRequest") is None
+    assert topics.topic_names("vehicle_status", "out") == [
+        "rt/fmu/out/vehicle_status", "rt/fmu/out/vehicle_status_v1",
+    ]  # fmt: skip
