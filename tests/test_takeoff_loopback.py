@@ -183,6 +183,9 @@ def test_readiness_takeoff_and_refusal(workdir: Path) -> None:
             member_status = swarm.daemons[1].status()
             assert member_status["role"] == "member" and member_status["readiness"] == {}
             assert member_status["px4"]["enabled"]
+            # the PX4 link's trust counters reach the status (swarmctl status --json)
+            pin = member_status["px4"]["backend"]["autopilot"]
+            assert pin["pinned"].startswith("127.0.0.1:") and pin["dropped_address"] == 0
             assert member_status["px4"]["readiness"]["landed_state"] != "ON_GROUND"
         finally:
             await swarm.stop()
