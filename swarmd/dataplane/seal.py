@@ -51,6 +51,10 @@ TAG_BYTES: Final = 16
 FRESHNESS_BYTES: Final = 8
 AUTH_BODY_BYTES: Final = FRESHNESS_BYTES + TAG_BYTES  # octetsToNextHeader of the trailer
 TRAILER_BYTES: Final = 4 + AUTH_BODY_BYTES  # what authentication adds to a datagram: 28
+# What authentication adds to each datagram: the trailer, less the INFO_DST it replaces
+# (4-octet submessage header + 12-octet GUID prefix). The simulator models user data with it.
+INFO_DST_BYTES: Final = 4 + 12
+NET_OVERHEAD_BYTES: Final = TRAILER_BYTES - INFO_DST_BYTES
 EPOCH_HINT_MASK: Final = 0x7F  # flags bits 1..7 carry the receiver epoch mod 128
 LABEL: Final = b"swarmd user data v1"  # domain separation of the pair key (HMAC, RFC 2104)
 

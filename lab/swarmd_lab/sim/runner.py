@@ -15,6 +15,7 @@ from typing import Any, Final
 
 import numpy as np
 
+from swarmd.dataplane.seal import NET_OVERHEAD_BYTES
 from swarmd.discovery.config import MODES
 from swarmd_lab.sim.channel import Channel, ChannelConfig, Datagram, Kind
 from swarmd_lab.sim.clock import VirtualClock
@@ -102,7 +103,10 @@ def run(
     contexts = [NodeContext(i, n, clock, channel.send, ledger, seed) for i in range(n)]
     nodes.extend(build_nodes(scenario, contexts, channel))
     if scenario.workload:
-        workload = Workload(clock, ledger, channel.send, n)
+        # swarmd-auth: the user data is authenticated too (+12 octets net per datagram,
+        # docs/wire.md "User data"); same datagrams, same schedule
+        extra = NET_OVERHEAD_BYTES if scenario.protocol == "swarmd-auth" else 0
+        workload = Workload(clock, ledger, channel.send, n, extra_bytes=extra)
     start_rng = random.Random(f"{seed}/start")  # noqa: S311 - seeded simulation
     starts = [start_rng.uniform(0.0, scenario.start_spread_s) for _ in range(n)]
     for i, t0 in enumerate(starts):

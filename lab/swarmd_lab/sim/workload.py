@@ -49,13 +49,21 @@ class Workload:
     """Publishes the members' 1 Hz samples and tallies what the commander receives."""
 
     def __init__(
-        self, clock: VirtualClock, ledger: Ledger, send: Callable[[Datagram], None], n: int
+        self,
+        clock: VirtualClock,
+        ledger: Ledger,
+        send: Callable[[Datagram], None],
+        n: int,
+        *,
+        extra_bytes: int = 0,
     ) -> None:
+        """``extra_bytes`` is added to every sample's datagram: the data plane's
+        authentication (``swarmd.dataplane.seal.NET_OVERHEAD_BYTES``) for swarmd-auth."""
         self._clock = clock
         self._ledger = ledger
         self._send = send
         self.n = n
-        self.size = data_datagram_size()
+        self.size = data_datagram_size() + extra_bytes
         self.sent = 0
         self.received = 0
         self.got_target = [False] * n
