@@ -495,11 +495,11 @@ class _Checker:
                 autopilot = parse_address(raw, "px4.autopilot")
             except ValueError as exc:
                 relay(f["autopilot"], "px4.autopilot", exc)
-            if parse_connection(connection).kind != "udpin":
+            if xrce or parse_connection(connection).kind != "udpin":
                 self.fail(
                     f["autopilot"],
                     "px4.autopilot",
-                    "only a udpin: connection learns its autopilot's address",
+                    "only a MAVLink udpin: connection learns its autopilot's address",
                     "remove px4.autopilot (udpout pins its target; a UART has one peer)",
                 )
         signing_key = (

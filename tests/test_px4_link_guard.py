@@ -237,6 +237,7 @@ def test_defaults_are_loopback_and_signing_fields_parse() -> None:
         ("connection: serial:/dev/ttyTHS1:921600\nautopilot: 127.0.0.1:14580", "px4.autopilot"),
         ("autopilot: px4:14580", "px4.autopilot"),
         ("signing: maybe", "px4.signing"),
+        ("backend: xrce-agent\nautopilot: 127.0.0.1:14580", "px4.autopilot"),
     ],
 )
 def test_bad_pin_and_signing_fields(lines: str, field: str) -> None:

@@ -117,7 +117,9 @@ class SwarmApp:
         if px4.enabled:
             sysid = px4.sysid if px4.sysid is not None else self.me.mavlink_sysid
             signing_key: bytes | None = None
-            if px4.signing:  # the per-drone MAVLink key (docs/px4.md, "Message signing")
+            # the per-drone MAVLink key (docs/px4.md, "Message signing"); MAVLink only: PX4's
+            # uXRCE-DDS client has no message authentication to key
+            if px4.signing and px4.backend == "mavlink":
                 secrets = self.node_secrets
                 if secrets is None and px4.signing_key is None:
                     raise StartupError(
