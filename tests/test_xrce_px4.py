@@ -65,7 +65,7 @@ async def _commands(p: asyncio.subprocess.Process) -> list[dict[str, Any]]:
     return [c for c in lines if c.get("event") == "vehicle_command"]
 
 
-async def _fly(bridge: Px4Bridge, client: asyncio.subprocess.Process) -> None:
+async def _fly(bridge: Px4Bridge, client: asyncio.subprocess.Process, via: str = "topic") -> None:
     verdicts: list[Readiness] = []
     bridge.on_readiness_change(verdicts.append)
     await _until(lambda: bridge.readiness().ready, 60, "ready")  # after PX4's 500-sample sync
@@ -97,7 +97,7 @@ async def _agent_takeoff(release: str) -> None:
     await bridge.start()
     try:
         async with _proc(str(client_bin), "-p", str(port), "-V", release, "-q") as client:
-            await _fly(bridge, client)
+            await _fly(bridge, client, "topic" if release == "1.14" else "service")
         st = backend.stats()
         assert st["px4_version"] is not None and release in st["px4_version"].split("/")
         assert st["layout_problem"] is None and st["dropped"] == {}

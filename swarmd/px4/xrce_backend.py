@@ -40,6 +40,7 @@ from swarmd.xrce.px4 import dds_topic
 Mode = Literal["xrce-agent", "xrce-client"]
 DEFAULT_XRCE_CONNECTION: Final = "udp:127.0.0.1:8888"
 SERIAL_PEER: Final = "serial"
+SERVICE: Final = "vehicle_command"  # PX4's replier (>= 1.15), rq/rr/fmu/vehicle_command...
 
 
 def parse_xrce_connection(text: str, field: str = "px4.connection") -> Endpoint:
@@ -148,12 +149,21 @@ class XrceBackend:
             return
         topic = dds_topic("vehicle_command", "in", 0, self.namespace)
 
+        engine = self.engine
+        # PX4 >= 1.15 serves vehicle_command as a service too; use it when PX4 offers it (its
+        # reply is the ack), never both ways at once or PX4 would run the command twice
+        service = isinstance(engine, XrceAgent) and engine.has_replier(SERVICE)
+
         def publish(now: float) -> int:
             sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
-            return self.engine.publish(topic, sample, now)
+            if service and isinstance(engine, XrceAgent):
+                return engine.request(SERVICE, sample, now)
+            return engine.publish(topic, sample, now)
 
         sent = self._driver.call(publish)
-        self.counters["commands_sent" if sent else "commands_unrouted"] += 1
+        self.counters["commands_unrouted"] += 0 if sent else 1
+        if sent:
+            self.counters["commands_via_service" if service else "commands_sent"] += 1
 
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {

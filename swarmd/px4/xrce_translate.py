@@ -80,6 +80,8 @@ class Px4Translator:
         return max(pool, key=lambda r: tuple(map(int, r.split("."))))
 
     def sample(self, topic_name: str, data: bytes) -> list[Observation]:
+        if topics.is_command_reply(topic_name):  # the vehicle_command service's reply
+            topic_name = topics.dds_topic("vehicle_command_ack", "out")
         name = topics.parse_topic_name(topic_name)
         if name is None or name.topic not in topics.TOPIC_MESSAGES or name.direction != "out":
             return []

@@ -25,6 +25,7 @@ or belongs to no session is dropped, counted in ``dropped`` and reported as
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -82,6 +83,9 @@ HEARTBEAT_PERIOD_S: Final = 0.2  # while our reliable output holds unacknowledge
 # A session with no datagram for this long is gone (PX4 pings every 1 s when idle).
 SESSION_TIMEOUT_S: Final = 10.0
 STREAM_RELIABLE: Final = 0x80
+SAMPLE_IDENTITY_SIZE: Final = 24  # GUID_t (16) + SequenceNumber_t (8), before service samples
+# our requests' writer GUID: prefix "swarmd" + zero padding, entity 00 00 04 03 (a writer)
+REQUESTER_GUID: Final = b"swarmd\0\0\0\0\0\0" + bytes((0, 0, 4, 3))
 STREAM_BEST_EFFORT: Final = 0x01
 
 
@@ -93,6 +97,7 @@ class Entity:
     name: str | None = None  # topic name for topics; service name for repliers/requesters
     type_name: str | None = None
     topic_id: int | None = None  # writers and readers: the topic they serve
+    reply_topic: str | None = None  # repliers: where their replies would go in DDS
 
 
 @dataclass(slots=True)
@@ -140,6 +145,7 @@ class XrceAgent(Endpoint):
         self.agent = agent or AgentRepresentation()
         super().__init__()
         self.sessions: dict[Address, Session] = {}
+        self._request_seq = 0
         self.timestamps_answered = 0
         self.pings_answered = 0
 
@@ -208,6 +214,35 @@ class XrceAgent(Endpoint):
                 s.samples_out += 1
                 sent += 1
         return sent
+
+    def request(self, service: str, data: bytes, now: float) -> int:
+        """Send a request to every client replier of ``service`` that asked (READ_DATA).
+
+        eProsima's replier DATA carries the request's SampleIdentity (writer GUID, sequence
+        number: 24 octets) before the sample; the replier echoes it in its reply.
+        """
+        sent = 0
+        for s in self.sessions.values():
+            for oid, req in s.reads.items():
+                replier = s.entities.get(oid)
+                if replier is None or replier.kind != ObjectKind.REPLIER or replier.name != service:
+                    continue
+                self._request_seq += 1
+                identity = REQUESTER_GUID + struct.pack("<iI", 0, self._request_seq & 0xFFFFFFFF)
+                sub = Data(req.request_id, oid, identity + data)
+                if req.stream_id >= 0x80:
+                    self._send_reliable(s, [sub], now)
+                else:
+                    self._send_best_effort(s, [sub])
+                sent += 1
+        return sent
+
+    def has_replier(self, service: str) -> bool:
+        return any(
+            e.kind == ObjectKind.REPLIER and e.name == service and oid in s.reads
+            for s in self.sessions.values()
+            for oid, e in s.entities.items()
+        )
 
     def close_session(self, source: Address) -> None:
         s = self.sessions.pop(source, None)
@@ -377,7 +412,8 @@ class XrceAgent(Endpoint):
                     entity.topic_id = e.topic_id
                 elif c.kind in (ObjectKind.REPLIER, ObjectKind.REQUESTER):
                     sv = parse_service(blob)
-                    entity.name, entity.type_name = sv.service_name, sv.request_type
+                    entity.name, entity.type_name = sv.service_name, sv.reply_type
+                    entity.reply_topic = sv.reply_topic_name or f"rr/{sv.service_name}Reply"
         except DecodeError as exc:
             status = Status.ERR_INVALID_DATA
             self._drop(s.source, f"bad_representation: {exc}")
@@ -396,9 +432,16 @@ class XrceAgent(Endpoint):
 
     def _write_data(self, s: Session, w: WriteData) -> None:
         writer = s.entities.get(w.object_id)
+        if writer is not None and writer.kind == ObjectKind.REPLIER and writer.reply_topic:
+            if len(w.data) < SAMPLE_IDENTITY_SIZE:
+                self._drop(s.source, "short_reply")
+                return
+            # the reply after the echoed SampleIdentity, under the service's reply topic name
+            data = w.data[SAMPLE_IDENTITY_SIZE:]
+            s.samples_in += 1
+            self._emit(SampleReceived(s.source, writer.reply_topic, writer.type_name or "", data))
+            return
         if writer is None or object_kind(w.object_id) != ObjectKind.DATAWRITER:
-            if writer is not None and writer.kind == ObjectKind.REPLIER:
-                return  # service replies: the topic path carries the acks we read
             self._drop(s.source, "write_unknown_writer")
             return
         topic = s.topic_of(writer)

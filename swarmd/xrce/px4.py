@@ -36,6 +36,14 @@ _NAME = re.compile(
 )
 
 
+_REPLY = re.compile(r"^rr/(?:.+/)?fmu/vehicle_commandReply$")
+
+
+def is_command_reply(name: str) -> bool:
+    """The reply topic of PX4's ``vehicle_command`` service (a VehicleCommandAck)."""
+    return _REPLY.match(name) is not None
+
+
 @dataclass(frozen=True, slots=True)
 class TopicName:
     namespace: str | None
