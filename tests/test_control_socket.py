@@ -242,3 +242,23 @@ def test_render_status_tolerates_a_sparse_status() -> None:
     assert lines[0].startswith("node uav1")
     assert "passive timer: -" in lines
     assert lines[-1] == "packets in 0  out 0 (multicast 0, unicast 0)  dropped 0"
+
+
+def test_render_status_counts_the_data_planes_refusals() -> None:
+    dp = {
+        "enabled": True,
+        "incarnation": 4,
+        "peers_up": ["m1"],
+        "counters": {
+            "rx_datagrams": 20,
+            "tx_datagrams": 9,
+            "dropped_auth_failed": 3,
+            "dropped_auth_receiver_epoch": 1,
+            "dropped_peer_not_up": 2,
+        },
+    }
+    quiet = {**dp, "counters": {"rx_datagrams": 20, "tx_datagrams": 9}}
+    line = next(x for x in render_status({"node": "lead", "dataplane": dp}) if "data plane" in x)
+    assert line.endswith("refused 6 (4 unauthenticated)")
+    line = next(x for x in render_status({"node": "l", "dataplane": quiet}) if "data plane" in x)
+    assert "refused" not in line

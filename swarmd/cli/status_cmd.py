@@ -242,18 +242,26 @@ def render_swarm(status: dict[str, Any]) -> list[str]:
             lines.append("data plane: disabled")
         else:
             c = dp.get("counters") or {}
-            lines.append(
+            line = (
                 f"data plane: {status.get('role', '?')}, incarnation {dp.get('incarnation')}, "
                 f"peers up {len(dp.get('peers_up') or [])}, datagrams in "
                 f"{c.get('rx_datagrams', 0)} out {c.get('tx_datagrams', 0)}, readiness sent "
                 f"{dp.get('readiness_published', 0)}"
             )
+            refused = _sum_counters(c, "dropped_")
+            if refused:  # unauthenticated = forged, replayed, or a peer's restart in progress
+                line += f", refused {refused} ({_sum_counters(c, 'dropped_auth_')} unauthenticated)"
+            lines.append(line)
     rows = status.get("readiness")
     if isinstance(rows, dict) and rows:
         ready = sum(1 for r in rows.values() if isinstance(r, dict) and r.get("ready"))
         lines.append(f"swarm readiness {ready}/{len(rows)} ready")
         lines += render_readiness(rows)
     return lines
+
+
+def _sum_counters(counters: dict[str, Any], prefix: str) -> int:
+    return sum(v for k, v in counters.items() if k.startswith(prefix) and isinstance(v, int))
 
 
 def render_readiness(rows: dict[str, Any]) -> list[str]:
