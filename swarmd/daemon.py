@@ -12,7 +12,7 @@ engine queued, drain its events, re-arm its one ``TimerHandle`` at ``engine.get_
 - the engine timer;
 - link-quality samples from the link monitor, polled every ``link.poll_interval_s``.
 
-On top of discovery, ``SwarmApp`` (``swarmd/swarm/app.py``) runs the swarm itself when
+On top of discovery, ``SwarmApp`` (``swarmd/swarmapp.py``) runs the swarm itself when
 configured: the sans-IO ``SwarmCore`` (readiness reports, commands, outcomes; the data plane
 inside it) on the user unicast port, through the one asyncio ``Driver`` (``swarmd/driver.py``),
 fed with discovery's ``PeerDiscovered``/``PeerLost``; and the PX4 bridge.
@@ -72,7 +72,7 @@ from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
-from swarmd.swarm.app import SwarmApp
+from swarmd.swarmapp import SwarmApp
 
 Datagram = tuple[bytes, tuple[str, int]]
 

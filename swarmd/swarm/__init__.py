@@ -1,2 +1,4 @@
-"""The swarm layer: roles, the readiness table and command tracker, the member's command
-execution, the state file, and the data-plane adapter. See docs/architecture.md."""
+"""The swarm layer, sans-IO: roles (``roles``), the commander's readiness table and command
+tracker (``commander``), and ``SwarmCore`` (``core``: readiness reports, requests, a member's
+execution decisions). Its I/O: the state file (``statefile``) and the user-data socket
+(``userdata``); ``swarmd.swarmapp`` wires them. See docs/architecture.md."""

@@ -1,5 +1,5 @@
 """The swarm's wiring in one daemon: sockets, the state file and the PX4 bridge around the
-sans-IO ``SwarmCore`` (``core.py``), run by the one asyncio ``Driver`` (``swarmd.driver``).
+sans-IO ``SwarmCore`` (``swarm/core.py``), run by the one asyncio ``Driver`` (``swarmd.driver``).
 
 What the swarm is for: every member reports readiness to the commander, the commander
 sends take-off, each drone's autopilot takes off. The decisions are the core's (roles,
