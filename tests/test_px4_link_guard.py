@@ -22,6 +22,7 @@ from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
 from swarmd.px4.linkguard import AutopilotPin
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.messages import Heartbeat, VehicleCommand
+from swarmd.px4.provision import SigningKeyError, signing_key_for
 from swarmd.px4.signing import (
     NEW_STREAM_WINDOW,
     Verdict,
@@ -282,3 +283,14 @@ def test_swarmctl_px4_key_on_the_ground_matches_the_flashed_drone(
     assert stat.S_IMODE(out.stat().st_mode) == 0o600
     assert swarmctl(["px4", "key", "--keys", str(keys)]) == 65  # no --swarm/--node: one line
     assert "--config FILE" in capsys.readouterr().err
+
+
+def test_a_key_file_others_can_read_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "uav1.key"
+    path.write_bytes(px4_key_file(KEY, T0))
+    path.chmod(0o644)
+    with pytest.raises(SigningKeyError, match="chmod 600"):
+        signing_key_for(swarm="alpha", node="uav1", key_file=str(path), seed=b"")
+    path.chmod(0o600)
+    assert signing_key_for(swarm="alpha", node="uav1", key_file=str(path), seed=b"") == KEY
+    assert signing_key_for(swarm="alpha", node="uav1", key_file=None, seed=bytes(range(32))) == KEY

@@ -51,12 +51,18 @@ def signing_key_for(*, swarm: str, node: str, key_file: str | None, seed: bytes)
     if key_file is None:
         return derive_key(seed, swarm, node)
     try:
+        mode = Path(key_file).stat().st_mode
         data = Path(key_file).read_bytes()
     except OSError as exc:
         raise SigningKeyError(
             f"px4.signing_key {key_file}: cannot read ({exc.strerror}); fix: give the file "
             "'swarmctl px4 key' wrote, or drop the field to derive it from node.key"
         ) from None
+    if mode & 0o077:  # whoever reads it can speak for swarmd to PX4 (like node.key: 0600)
+        raise SigningKeyError(
+            f"px4.signing_key {key_file}: mode {mode & 0o777:o} lets other users read the key; "
+            f"fix: chmod 600 {key_file}"
+        )
     try:
         return parse_key_file(data, f"px4.signing_key {key_file}")
     except ValueError as exc:
