@@ -164,3 +164,46 @@ def test_missing_interface_is_a_config_error(workdir: Path, files: BundleFiles) 
     )
     with pytest.raises(ConfigError, match=r"c.yaml:7: field network.interface: no interface"):
         Daemon(load_config(cfg), files.bundle, log=structlog.get_logger(), env={})
+
+
+def test_a_datagram_flood_rebuilds_no_status(workdir: Path, files: BundleFiles) -> None:
+    """The status snapshot is evaluated when swarmctl asks, never per datagram: a flood of
+    garbage moves the drop counters and nothing else (it used to rebuild the whole status,
+    O(N log N), for every datagram: the amplifier of a flood)."""
+
+    async def main() -> None:
+        a = _daemon(workdir, files, "uav1")
+        await a.start()
+        try:
+            engine = a.engine
+            assert engine is not None
+            calls: list[str] = []
+            for name in ("status", "peers", "peer_counts", "foreign"):
+                real = getattr(engine, name)
+
+                def spy(*args: Any, _real: Any = real, _name: str = name) -> Any:
+                    calls.append(_name)
+                    return _real(*args)
+
+                setattr(engine, name, spy)  # a spy: counts the calls, changes nothing
+            rx_before = a.counters.get("rx_unicast", 0)
+            junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            for i in range(300):
+                junk.sendto(
+                    b"RTPS\x02\x03" + bytes([i % 256]) * 40, ("127.0.0.1", engine.metatraffic_port)
+                )
+            junk.close()
+            await _until(
+                lambda: a.counters.get("rx_unicast", 0) >= rx_before + 300,
+                lambda: f"flood received: {a.counters}",
+            )
+            # no snapshot at all; the sd_notify line's peer count only on discovery's own
+            # events (a phase change may fall in the window), never once per datagram
+            assert [c for c in calls if c != "peer_counts"] == []
+            assert calls.count("peer_counts") < 10
+            a.status()  # asked: evaluated now
+            assert "status" in calls
+        finally:
+            await a.stop("test")
+
+    asyncio.run(main())
