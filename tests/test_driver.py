@@ -6,6 +6,7 @@ import asyncio
 from collections import deque
 from typing import Any
 
+from swarmd.dataplane import DataPlane
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.driver import Driver, SansIOCore
 from swarmd.px4.vehicle import VehicleCore
@@ -45,10 +46,10 @@ class Core:
 
 
 def _cores_speak_the_protocol(
-    discovery: DiscoveryEngine, swarm: SwarmCore, vehicle: VehicleCore
+    discovery: DiscoveryEngine, plane: DataPlane, swarm: SwarmCore, vehicle: VehicleCore
 ) -> list[SansIOCore[Any, Any, Any]]:
     """Checked by mypy --strict (never called): every core the daemon drives fits."""
-    return [discovery, swarm, vehicle]
+    return [discovery, plane, swarm, vehicle]
 
 
 def test_input_sends_then_dispatches_then_rearms() -> None:

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from swarmd.dataplane import Command, CommandKind, CommandResult
 from swarmd.discovery.memnet import Channel, MemNet
@@ -328,3 +330,16 @@ def test_every_command_kind_is_dispatched_to_one_vehicle_task() -> None:
     assert [r.kind.name for r in requests] == [k.name for k in CommandKind]
     received = Counter(e.kind for e in swarm.events["m01"] if isinstance(e, CommandExecuting))
     assert sum(received.values()) == 0  # nothing went through the network for these
+
+
+@settings(max_examples=100, deadline=None)
+@given(data=st.lists(st.binary(max_size=200), max_size=20))
+def test_anything_a_peer_sends_is_dropped_or_taken_never_raised(data: list[bytes]) -> None:
+    swarm = Swarm(1)
+    member = swarm.cores["m01"]
+    for i, payload in enumerate(data):
+        member.receive_datagram(payload, address_of(swarm.bundle, "lead"), 0.1 * i)
+    member.receive_datagram(
+        b"RTPS\x02\x05\x01\x0f" + bytes(12) + b"".join(data), ("10.9.9.9", 1), 9.0
+    )
+    assert swarm.requests("m01") == []
