@@ -8,12 +8,13 @@ cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
 APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client systemd
-  cmake ninja-build gcc libfastrtps-dev libfastcdr-dev libspdlog-dev)
+  cmake ninja-build gcc libfastrtps-dev libfastcdr-dev libspdlog-dev g++ fastdds-tools)
 # what proves each package is present (same order as APT_PACKAGES): a command, or a file
-# for the libraries the XRCE-DDS peers (MicroXRCEAgent) build against
+# for the libraries the XRCE-DDS peers (MicroXRCEAgent) build against; g++ and
+# fastdds-tools (with libfastrtps-dev): the Wi-Fi testbed's Fast DDS contenders
 APT_PROBES=(tshark ip nft pgrep sshd ssh systemd-analyze
   cmake ninja gcc /usr/include/fastdds/rtps/RTPSDomain.h /usr/include/fastcdr/Cdr.h
-  /usr/include/spdlog/spdlog.h)
+  /usr/include/spdlog/spdlog.h g++ fastdds)
 
 missing=()
 for i in "${!APT_PACKAGES[@]}"; do
@@ -82,3 +83,8 @@ if [ -x "$XRCE_PEERS/build.sh" ]; then
 else
   echo "setup: $XRCE_PEERS not found; XRCE-DDS peer tests will skip"
 fi
+
+# the Wi-Fi testbed's native pieces (Fast DDS peer, time-dilation library) into
+# .cache/bench-wifi, rebuilt only when a source changed; a failure only disables those
+# contenders and --dilation (their tests skip with the reason)
+"$VENV/bin/python" -m bench.wifi.native || echo "setup: bench/wifi native pieces not built (see above)" >&2

@@ -17,8 +17,9 @@ import pytest
 from swarmd_lab.netns import delete_namespace, list_namespaces
 
 from bench.wifi.metrics import frame_series, layer_counters, percentile, success
+from bench.wifi.native import BuildError, dilate_library, fastdds_discovery_server, fastdds_peer
 from bench.wifi.ns3_loader import unavailable_reason
-from bench.wifi.report import paired_ratios, summarise, table
+from bench.wifi.report import main_rows, paired_ratios, summarise, table, validation_table
 from bench.wifi.topology import BASE, ns3_mac
 
 REPO = Path(__file__).resolve().parents[1]
@@ -100,6 +101,30 @@ def test_percentile_nearest_rank() -> None:
     assert math.isnan(percentile([], 99))
 
 
+def _harness(tmp_path: Path, argv: list[str], timeout: float) -> subprocess.Popen[str]:
+    """Run bench/wifi/run.py to the end; assert it left none of its namespaces behind."""
+    proc = subprocess.Popen(
+        [sys.executable, str(REPO / "bench" / "wifi" / "run.py"), *argv, "--out", str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+    try:
+        _, stderr = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    own = f"{BASE}-{proc.pid}-"
+    left = [name for name in list_namespaces() if name.startswith(own)]
+    for name in left:
+        delete_namespace(name)
+    assert proc.returncode == 0, stderr[-3000:]
+    assert not left, f"the harness left namespaces behind: {left}"
+    return proc
+
+
 @pytest.mark.netns
 @pytest.mark.interop
 @pytest.mark.timeout(600)
@@ -107,41 +132,9 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     reason = unavailable_reason()
     if reason is not None:
         pytest.skip(f"wifi testbed unavailable: {reason}")
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            str(REPO / "bench" / "wifi" / "run.py"),
-            "--n",
-            "3",
-            "--contenders",
-            "swarmd,cyclonedds",
-            "--window-s",
-            "20",
-            "--messages",
-            "5",
-            "--max-lag-ms",
-            "1000",
-            "--out",
-            str(tmp_path),
-        ],  # fmt: skip
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=REPO,
-    )
-    try:
-        _, stderr = proc.communicate(timeout=540)
-    finally:
-        if proc.poll() is None:
-            proc.kill()  # SIGKILL: its namespaces are swept below by the harness's prefix
-            proc.communicate()
-    # only the harness's own namespaces (swf-<its pid>-...): other tests' come and go
-    own = f"{BASE}-{proc.pid}-"
-    left = [name for name in list_namespaces() if name.startswith(own)]
-    for name in left:
-        delete_namespace(name)
-    assert proc.returncode == 0, stderr[-3000:]
-    assert not left, f"the harness left namespaces behind: {left}"
+    argv = ["--n", "3", "--contenders", "swarmd,cyclonedds", "--window-s", "20"]
+    argv += ["--messages", "5", "--max-lag-ms", "1000"]
+    _harness(tmp_path, argv, timeout=540)
     runs = {p.name: json.loads(p.read_text()) for p in (tmp_path / "runs").glob("*.json")}
     assert set(runs) == {"swarmd-n3-r1.json", "cyclonedds-n3-r1.json"}
     for r in runs.values():
@@ -162,6 +155,40 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     text = (tmp_path / "table.md").read_text()
     assert text.count("| swarmd | 3 | 1/1 |") == 1  # the summary row
     assert text.count("| swarmd | 3 | 1 |") == 1  # the discovery breakdown row
+
+
+@pytest.mark.netns
+@pytest.mark.interop
+@pytest.mark.timeout(400)
+def test_wifi_smoke_fastdds_contenders_dilated(tmp_path: Path) -> None:
+    """Both Fast DDS contenders discover and deliver over the channel, under dilation k=2.
+
+    A few experiment seconds at N=3: the contenders and the dilated harness work end to
+    end; the measurements themselves are the campaign's (docs/benchmarks.md).
+    """
+    reason = unavailable_reason()
+    if reason is not None:
+        pytest.skip(f"wifi testbed unavailable: {reason}")
+    try:
+        fastdds_peer()
+        dilate_library()
+    except BuildError as exc:
+        pytest.skip(f"native pieces unavailable: {exc}")
+    if fastdds_discovery_server() is None:
+        pytest.skip("fastdds CLI (fastdds-tools) missing")
+    argv = ["--n", "3", "--contenders", "fastdds,fastdds-server", "--window-s", "6"]
+    argv += ["--messages", "2", "--max-lag-ms", "1000", "--dilation", "2", "--no-report"]
+    _harness(tmp_path, argv, timeout=360)
+    runs = {p.name: json.loads(p.read_text()) for p in (tmp_path / "runs").glob("*.json")}
+    assert set(runs) == {"fastdds-n3-r1.json", "fastdds-server-n3-r1.json"}
+    for r in runs.values():
+        missing = [f for f in FIELDS if f not in r]
+        assert not missing, f"{r['contender']}: missing {missing}"
+        assert r["setup"]["dilation"] == 2.0
+        assert len(r["pps"]) == 6  # experiment seconds, not real ones
+        assert r["discovery_frames_60s"] > 0, f"{r['contender']}: no discovery on the channel"
+        assert r["all_discovered_s"] is not None, f"{r['contender']}: commander matched no one"
+        assert r["received"], f"{r['contender']}: no sample reached the commander"
 
 
 def _run(contender: str, peak: int, *, valid: bool = True) -> dict[str, object]:
@@ -190,7 +217,30 @@ def test_report_leaves_invalid_runs_out_and_gives_ratios() -> None:
     )
     cyclone = next(r for r in rows if r["contender"] == "cyclonedds")
     assert (cyclone["runs"], cyclone["valid_runs"], cyclone["peak_pps_mean"]) == (2, 1, 1000.0)
-    assert "| 10 | 5.0 % | - | 5.0 % | - |" in table(rows)
+    assert cyclone["peak_pps_median"] == 1000.0  # the lagging run's 9 is not in it
+    assert "| 10 | 1 | 5.0 % | 5.0 % |" in table(rows)
+
+
+def test_report_keeps_dilated_and_real_time_runs_apart() -> None:
+    dilated = {"setup": {"dilation": 3.0}}
+    runs = [
+        {**_run("swarmd", 50), **dilated},
+        {**_run("cyclonedds", 1000), **dilated},
+        _run("cyclonedds", 700),
+    ]
+    rows = summarise(runs)
+    assert sorted((r["contender"], r["k"]) for r in rows) == [
+        ("cyclonedds", 1.0),
+        ("cyclonedds", 3.0),
+        ("swarmd", 3.0),
+    ]
+    # the main table is the campaign's k at each N; k = 1 beside it is the validation
+    assert [(r["contender"], r["k"]) for r in main_rows(rows)] == [
+        ("swarmd", 3.0),
+        ("cyclonedds", 3.0),
+    ]
+    assert "| cyclonedds | 10 | 1 | 1/1 | 700 (700-700)" in validation_table(rows)
+    assert paired_ratios(runs, "cyclonedds", "peak_pps") == {(10, 3.0): [0.05]}
 
 
 def test_paired_ratios_only_pair_valid_runs_of_the_same_repeat() -> None:
@@ -202,5 +252,5 @@ def test_paired_ratios_only_pair_valid_runs_of_the_same_repeat() -> None:
         {**_run("swarmd", 30), "run": 3},
         {**_run("cyclonedds", 600), "run": 3},
     ]
-    assert paired_ratios(runs, "cyclonedds", "peak_pps") == {10: [0.05, 0.05]}
+    assert paired_ratios(runs, "cyclonedds", "peak_pps") == {(10, 1.0): [0.05, 0.05]}
     assert paired_ratios(runs, "zenoh", "peak_pps") == {}

@@ -17,6 +17,13 @@ swarmd-stock       paper      static Q = 0.5              Tmin = Tmax = 0: annou
 "Preloading off" cannot be expressed: swarmd has no SEDP at all, its endpoints always come
 from the bundle. ``swarmd-stock`` (awareness off and stock-like immediate SPDP) is the
 closest ablation; the stock stacks are the preloading-off reference.
+
+Stock stacks: ``cyclonedds`` and ``zenoh`` (Python workload scripts), ``fastdds`` (Debian's
+Fast DDS 2.9.1 under ``peers/fastdds_peer.cpp``: SPDP multicast + SEDP, its defaults) and
+``fastdds-server`` (the same peer as a Discovery Server client; the server, ``fastdds
+discovery`` from fastdds-tools, runs on the commander's node, as the ROS 2 tutorial "Using
+Fast DDS Discovery Server as discovery protocol" sets it up: ``fastdds discovery -i 0 -l
+IP -p 11811`` and ``ROS_DISCOVERY_SERVER=IP:11811`` for every participant).
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ from swarmd_lab.netns import Namespace
 
 from bench.wifi.barrier import LAUNCH_NICE
 from bench.wifi.bundle import write_bundle
+from bench.wifi.native import fastdds_discovery_server, fastdds_peer
 from swarmd.config import _FIELDS as CONFIG_FIELDS
 from swarmd.control import DaemonUnreachable, RequestError, request
 
@@ -56,7 +64,9 @@ SWARMD_VARIANTS: Final[dict[str, SwarmdVariant]] = {
     "swarmd-stock": SwarmdVariant("paper", False, {"t_min_s": 0.0, "t_max_s": 0.0}),
 }
 PEER_SCRIPTS: Final = {"cyclonedds": "cyclone_peer.py", "zenoh": "zenoh_peer.py"}
-CONTENDERS: Final = (*SWARMD_VARIANTS, *PEER_SCRIPTS)
+FASTDDS: Final = ("fastdds", "fastdds-server")
+CONTENDERS: Final = (*SWARMD_VARIANTS, *PEER_SCRIPTS, *FASTDDS)
+DISCOVERY_SERVER_PORT: Final = 11811  # Fast DDS's default server port (ROS 2 tutorial)
 
 
 def family(contender: str) -> str:
@@ -69,10 +79,21 @@ def dataplane_supported() -> bool:
     return "dataplane" in CONFIG_FIELDS.get("<top>", ())
 
 
-def _clean_env() -> dict[str, str]:
-    drop = ("CYCLONEDDS_URI", "ZENOH_CONFIG", "RUST_LOG", "SWARMD_SOCKET")
+def _clean_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+    drop = (
+        "CYCLONEDDS_URI",
+        "ZENOH_CONFIG",
+        "RUST_LOG",
+        "SWARMD_SOCKET",
+        "ROS_DISCOVERY_SERVER",
+        "FASTRTPS_DEFAULT_PROFILES_FILE",
+        "FASTDDS_DEFAULT_PROFILES_FILE",
+        "LD_PRELOAD",
+        "BENCH_DILATION",
+    )
     env = {k: v for k, v in os.environ.items() if k not in drop}
     env["PYTHONPATH"] = str(REPO)
+    env.update(extra or {})
     return env
 
 
@@ -103,9 +124,17 @@ class Contender:
     """
 
     def __init__(
-        self, name: str, drones: list[Namespace], work: Path, *, window_s: float, messages: int
+        self,
+        name: str,
+        drones: list[Namespace],
+        work: Path,
+        *,
+        window_s: float,
+        messages: int,
+        env: Mapping[str, str] | None = None,
     ) -> None:
         self.name = name
+        self.extra_env = dict(env or {})  # e.g. the run's time dilation (bench/wifi/dilation.py)
         self.drones = drones
         self.work = work
         self.window_s = window_s
@@ -140,13 +169,17 @@ class Contender:
 class PeerContender(Contender):
     """Cyclone DDS or zenoh: one workload script per drone, results from their files."""
 
+    def _program(self) -> list[str]:
+        return [sys.executable, str(PEERS / PEER_SCRIPTS[self.name])]
+
+    def _env(self) -> dict[str, str]:
+        return _clean_env(self.extra_env)
+
     def start(self, barrier: Path) -> None:
-        script = PEERS / PEER_SCRIPTS[self.name]
-        env = _clean_env()
+        env = self._env()
         for i, drone in enumerate(self.drones):
             argv = [
-                sys.executable,
-                str(script),
+                *self._program(),
                 "--index",
                 str(i),
                 "--n",
@@ -190,6 +223,42 @@ class PeerContender(Contender):
         return self.obs
 
 
+class FastddsContender(PeerContender):
+    """Fast DDS 2.9.1 peers (``fastdds_peer``); ``fastdds-server``: Discovery Server clients.
+
+    For ``fastdds-server`` the server starts on the commander's node before the peers (a
+    ROS 2 deployment starts it first) and runs until the teardown; every peer, the
+    commander's included, is a client of it through ``ROS_DISCOVERY_SERVER``.
+    """
+
+    server: subprocess.Popen[bytes] | None = None
+
+    def _program(self) -> list[str]:
+        return [str(fastdds_peer())]
+
+    def _env(self) -> dict[str, str]:
+        env = _clean_env(self.extra_env)
+        if self.name == "fastdds-server":
+            env["ROS_DISCOVERY_SERVER"] = f"{self.drones[0].address}:{DISCOVERY_SERVER_PORT}"
+        return env
+
+    def start(self, barrier: Path) -> None:
+        if self.name == "fastdds-server":
+            cli = fastdds_discovery_server()
+            if cli is None:
+                raise RuntimeError("fastdds CLI missing: apt-get install fastdds-tools")
+            argv = [*cli, "-i", "0", "-l", self.drones[0].address]
+            argv += ["-p", str(DISCOVERY_SERVER_PORT)]
+            # the server is infrastructure, not a contender process: not behind the barrier
+            self.server = self.drones[0].popen(
+                argv,
+                env=_clean_env(self.extra_env),
+                stdout=self._log("discovery-server.log"),
+                stderr=subprocess.STDOUT,
+            )
+        super().start(barrier)
+
+
 class SwarmdContender(Contender):
     """Real ``swarmd run`` daemons; discovery and readiness from their control sockets."""
 
@@ -202,8 +271,9 @@ class SwarmdContender(Contender):
         window_s: float,
         messages: int,
         link_dir: Path,
+        env: Mapping[str, str] | None = None,
     ) -> None:
-        super().__init__(name, drones, work, window_s=window_s, messages=messages)
+        super().__init__(name, drones, work, window_s=window_s, messages=messages, env=env)
         self.variant = SWARMD_VARIANTS[name]
         self.link_dir = link_dir
         self.socks = [work / f"uav{i + 1}.sock" for i in range(self.n)]
@@ -255,7 +325,7 @@ discovery:
         files = write_bundle(self.work / "bundle", [d.address for d in self.drones])
         # `swarmd run` behind the testbed's fair-start hook (swarmd_lab.start_barrier)
         swarmd = [sys.executable, "-m", "swarmd_lab.start_barrier"]
-        env = _clean_env()
+        env = _clean_env(self.extra_env)
         env["SWARMD_START_BARRIER"] = str(barrier)
         for i, drone in enumerate(self.drones):
             cfg = self._config(i, files.path, files.trusted_key)
@@ -365,12 +435,15 @@ def make(
     window_s: float,
     messages: int,
     link_dir: Path,
+    env: Mapping[str, str] | None = None,
 ) -> Contender:
-    """The contender called ``name`` (one of ``CONTENDERS``)."""
+    """The contender called ``name`` (one of ``CONTENDERS``); ``env`` added to its processes."""
     if name in SWARMD_VARIANTS:
         return SwarmdContender(
-            name, drones, work, window_s=window_s, messages=messages, link_dir=link_dir
+            name, drones, work, window_s=window_s, messages=messages, link_dir=link_dir, env=env
         )
     if name in PEER_SCRIPTS:
-        return PeerContender(name, drones, work, window_s=window_s, messages=messages)
+        return PeerContender(name, drones, work, window_s=window_s, messages=messages, env=env)
+    if name in FASTDDS:
+        return FastddsContender(name, drones, work, window_s=window_s, messages=messages, env=env)
     raise ValueError(f"unknown contender {name!r}; use one of: {', '.join(CONTENDERS)}")

@@ -40,12 +40,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from bench.wifi import contenders as contenders_mod  # noqa: E402
 from bench.wifi import metrics, report  # noqa: E402
 from bench.wifi.barrier import RUN_NICE, StartBarrier, set_priority  # noqa: E402
+from bench.wifi.dilation import Dilation, scale_kernel_timers  # noqa: E402
 from bench.wifi.ns3_loader import unavailable_reason  # noqa: E402
 from bench.wifi.topology import BASE, Testbed  # noqa: E402
 
 REPO: Final = Path(__file__).resolve().parents[2]
 DEFAULT_OUT: Final = REPO / "bench" / "results" / "wifi"
 READY_TIMEOUT_S: Final = 180.0
+SETTLE_S: Final = 2.0  # experiment seconds between ns-3 under SCHED_RR and the release
 BARRIER_TIMEOUT_S: Final = 240.0  # 20+ Python processes importing at nice 10 on 2 cores
 _runs = itertools.count(1)
 
@@ -60,6 +62,22 @@ class Options:
     mcast_mode: str = ""
     max_lag_ms: float = 20.0
     ns3_rt_priority: int = 10
+    # time dilation factor per swarm size (bench/wifi/dilation.py); sizes not listed: 1
+    dilation: tuple[tuple[int, float], ...] = ()
+
+    def dilation_for(self, n: int) -> float:
+        return dict(self.dilation).get(n, 1.0)
+
+
+def parse_dilation(text: str) -> tuple[tuple[int, float], ...] | float:
+    """``--dilation``: one factor for every N (``"3"``) or per N (``"10:3,20:4"``)."""
+    if ":" not in text:
+        return float(text)
+    pairs = []
+    for item in _csv(text):
+        n, _, k = item.partition(":")
+        pairs.append((int(n), float(k)))
+    return tuple(pairs)
 
 
 class Interrupted(Exception):
@@ -105,7 +123,7 @@ class Progress:
 
 @contextlib.contextmanager
 def channel_process(
-    tb: Testbed, out: Path, stop_file: Path, opts: Options, log: Path
+    tb: Testbed, out: Path, stop_file: Path, opts: Options, log: Path, env: dict[str, str]
 ) -> Iterator[subprocess.Popen[bytes]]:
     """The ns-3 process inside the hub namespace; killed by PID on any exit."""
     # nice -10: on a shared host the stacks may be slowed (like a slow drone CPU), the
@@ -118,7 +136,9 @@ def channel_process(
         "--layout", opts.layout, "--standard", opts.standard, "--mcast-mode", opts.mcast_mode,
     ]  # fmt: skip
     with log.open("wb") as f:
-        proc = subprocess.Popen(argv, cwd=REPO, stdout=f, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            argv, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, env={**os.environ, **env}
+        )
         try:
             yield proc
         finally:
@@ -173,17 +193,27 @@ def run_one(
     """One run; the result dict (also the per-run JSON)."""
     prefix = f"{BASE}-{os.getpid()}-{next(_runs)}"
     label = f"{contender} n={n} run {run}"
+    # one experiment clock for every process of the run; the harness maps its own readings
+    dil = Dilation.start(opts.dilation_for(n))
+    if dil.active:
+        label += f" (dilated {dil.describe()})"
     with tempfile.TemporaryDirectory(prefix="swbw-") as tmp, Testbed(prefix, n) as tb:
         work = Path(tmp)
+        subnet = tb.drones[0].address.rsplit(".", 1)[0] + ".0/24"
+        scale_kernel_timers(tb.drones, dil.k, subnet)
         chan = work / "channel"
         chan.mkdir()
         stop = work / "stop"
         log = work / "channel.log"
         progress.show(f"{label}: starting ns-3")
-        with channel_process(tb, chan, stop, opts, log) as proc:
+        with channel_process(tb, chan, stop, opts, log, dil.env()) as proc:
             ready = _wait_ready(proc, chan / "ready.json", log)
             tb.check_macs(ready["macs"])
             sched = realtime_channel(proc.pid, opts.ns3_rt_priority)
+            # the window's first second must not hold ns-3's own start (before SCHED_RR):
+            # a C++ contender reaches the barrier at once, and its window began in the
+            # second ns-3 became ready, lagging 250-480 ms at N=3 on a loaded host
+            settled = time.monotonic() + dil.real_s(SETTLE_S)
             c = contenders_mod.make(
                 contender,
                 tb.drones,
@@ -191,18 +221,23 @@ def run_one(
                 window_s=opts.window_s,
                 messages=opts.messages,
                 link_dir=chan,
+                env=dil.env(),
             )
             try:
                 with StartBarrier(work / "barrier.sock") as barrier:
                     c.start(barrier.path)
                     progress.show(f"{label}: {n} stacks starting up (before the barrier)")
                     prepare_s = barrier.wait_all(c.procs, BARRIER_TIMEOUT_S)
+                    time.sleep(max(0.0, settled - time.monotonic()))
                     for p in c.procs:
                         set_priority(p.pid, RUN_NICE)
-                    launch = time.time()
+                    launch_real = time.time()
                     barrier.release()
-                end = launch + opts.window_s
-                while (now := time.time()) < end:
+                # every time the contenders and ns-3 record is experiment time: so is launch
+                launch = dil.exp(launch_real)
+                end_real = launch_real + dil.real_s(opts.window_s)
+                while (now_real := time.time()) < end_real:
+                    now = dil.exp(now_real)
                     c.poll(now)
                     progress.show(f"{label}: {now - launch:4.0f}/{opts.window_s} s")
                     if proc.poll() is not None:
@@ -224,6 +259,7 @@ def run_one(
     result = assemble(contender, n, run, opts, stats, obs, launch)
     result["barrier_wait_s"] = round(prepare_s, 2)
     result["setup"]["ns3_scheduling"] = sched
+    result["setup"]["dilation"] = dil.k
     progress.step()
     return result
 
@@ -304,6 +340,12 @@ def assemble(
     }
 
 
+def run_file_name(contender: str, n: int, run: int, k: float) -> str:
+    """``<contender>-n<N>-r<k>.json``; a dilated run adds ``-k<factor>`` after N."""
+    dilated = f"-k{k:g}" if k > 1.0 else ""
+    return f"{contender}-n{n}{dilated}-r{run}.json"
+
+
 def _csv(text: str) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()]
 
@@ -330,6 +372,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=10,
         help="SCHED_RR priority for ns-3 once it is ready (0: stay at nice -10)",
     )
+    p.add_argument(
+        "--dilation",
+        default="1",
+        help="time dilation factor k (every clock of a run k times slower): one value for "
+        "every N, or per N as 10:3,20:4 (sizes not listed: 1)",
+    )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--keep-logs", action="store_true", help="copy stack logs to OUT/logs")
     p.add_argument("--no-report", action="store_true")
@@ -345,6 +393,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             p.error(f"--contenders: unknown {name!r}; use {', '.join(contenders_mod.CONTENDERS)}")
     if any(not 2 <= s <= 250 for s in sizes):
         p.error("--n: each size must be 2..250")
+    try:
+        dil_spec = parse_dilation(args.dilation)
+    except ValueError:
+        p.error(f"--dilation: {args.dilation!r} is neither K nor N:K,N:K")
+    dilation = tuple((s, dil_spec) for s in sizes) if isinstance(dil_spec, float) else dil_spec
+    if any(not k >= 1.0 for _, k in dilation):
+        p.error("--dilation: factors must be >= 1")
     reason = unavailable_reason()
     if reason is not None:
         print(f"wifi bench: {reason}", file=sys.stderr)
@@ -358,6 +413,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         mcast_mode=args.mcast_mode,
         max_lag_ms=args.max_lag_ms,
         ns3_rt_priority=args.ns3_rt_priority,
+        dilation=dilation,
     )
     runs_dir = args.out / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
@@ -380,7 +436,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         )
                         failures += 1
                         continue
-                    path = runs_dir / f"{name}-n{n}-r{run}.json"
+                    path = runs_dir / run_file_name(name, n, run, opts.dilation_for(n))
                     path.write_text(json.dumps(result, indent=1) + "\n")
                     written.append(path)
     except (KeyboardInterrupt, Interrupted):
