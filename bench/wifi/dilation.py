@@ -21,8 +21,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
-from bench.wifi.native import dilate_library
 from swarmd_lab.netns import Namespace
+
+from bench.wifi.native import dilate_library
 
 # neighbour-cache timers (ms) of eth0 scaled by k: defaults of Linux 6.x
 NEIGH_TIMERS_MS: Final = (
