@@ -153,8 +153,8 @@ def test_wifi_smoke_swarmd_and_cyclone(tmp_path: Path) -> None:
     assert cyclone["success_rate"] is not None
     assert (tmp_path / "summary.json").exists()
     text = (tmp_path / "table.md").read_text()
-    assert text.count("| swarmd | 3 | 1/1 |") == 1  # the summary row
-    assert text.count("| swarmd | 3 | 1 |") == 1  # the discovery breakdown row
+    assert text.count("| swarmd | 3 | 1 | 1/1 |") == 1  # the summary row (k = 1)
+    assert text.count("| swarmd | 3 | 1 | 1 |") == 1  # the discovery breakdown row
 
 
 @pytest.mark.netns
@@ -180,7 +180,7 @@ def test_wifi_smoke_fastdds_contenders_dilated(tmp_path: Path) -> None:
     argv += ["--messages", "2", "--max-lag-ms", "1000", "--dilation", "2", "--no-report"]
     _harness(tmp_path, argv, timeout=360)
     runs = {p.name: json.loads(p.read_text()) for p in (tmp_path / "runs").glob("*.json")}
-    assert set(runs) == {"fastdds-n3-r1.json", "fastdds-server-n3-r1.json"}
+    assert set(runs) == {"fastdds-n3-k2-r1.json", "fastdds-server-n3-k2-r1.json"}
     for r in runs.values():
         missing = [f for f in FIELDS if f not in r]
         assert not missing, f"{r['contender']}: missing {missing}"
