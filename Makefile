@@ -1,6 +1,8 @@
 # The README's two commands: `make demo` and `make test`. Both set everything up first.
 VENV ?= .venv
 N ?= 10
+# mavlink: the MAVLink vehicle simulator; xrce: px4_like_client through swarmd's XRCE agent
+VEHICLE ?= mavlink
 PYTEST_ARGS ?=
 
 .PHONY: setup test lint typecheck unit demo bench clean
@@ -25,7 +27,7 @@ test: setup
 	$(VENV)/bin/pytest $(PYTEST_ARGS)
 
 demo: setup
-	$(VENV)/bin/python -m swarmd_lab.demo --n $(N)
+	$(VENV)/bin/python -m swarmd_lab.demo --n $(N) --vehicle $(VEHICLE)
 
 bench: setup
 	$(VENV)/bin/python bench/codec.py

@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 from swarmd_lab.netns import list_namespaces
 
+from tests.xrce_peers import peer_binary
+
 N = 3
 FIELDS = ("discovered_all_s", "frames_sent", "ready", "airborne", "command_latency_s")
 
@@ -77,6 +79,24 @@ def test_demo_on_loopback(tmp_path: Path) -> None:
     proc, _ = _run_demo(tmp_path / "out", "--loopback")
     _check(tmp_path / "out", proc, "loopback")
     assert "running every drone on loopback (127.0.0.1) with distinct ports" in proc.stdout
+
+
+@pytest.mark.netns
+def test_demo_with_xrce_vehicles(tmp_path: Path) -> None:
+    """``make demo VEHICLE=xrce``: PX4's own XRCE client library per drone, swarmd as agent.
+    Every drone becomes ready through the XRCE backend; the take-off is refused ``no_home``
+    because the stand-in publishes no valid home_position (docs/px4.md)."""
+    peer_binary("px4_like_client")  # skips only without ../shared/peers/xrce
+    proc, pid = _run_demo(tmp_path / "out", "--vehicle", "xrce")
+    text = proc.stdout
+    assert "vehicles: px4_like_client" in text and "xrce-agent" in text, text[-3000:]
+    assert f"ready {N}/{N}" in text and "swarmctl: readiness: 3/3 ready" in text
+    assert text.count("REJECTED  not_ready: no_home") == N
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["takeoff"]["airborne"] == 0 and sorted(summary["nodes"]) == [
+        "drone-01", "drone-02", "lead",
+    ]  # fmt: skip
+    assert not [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]
 
 
 @pytest.mark.netns

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from swarmd_lab.demo.run import Options, run
-from swarmd_lab.demo.scenario import LATE_GPS_S
+from swarmd_lab.demo.scenario import LATE_GPS_S, VEHICLES
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -25,6 +25,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1, help="scenario seed (SNRs, GPS fix times)")
     p.add_argument("--late-gps", type=float, default=LATE_GPS_S, metavar="S",
                    help=f"GPS fix time of the late drone (default {LATE_GPS_S:g})")  # fmt: skip
+    p.add_argument("--vehicle", choices=VEHICLES, default="mavlink",
+                   help="mavlink: the MAVLink vehicle simulator (default); xrce: PX4's uXRCE-DDS "
+                        "client library (px4_like_client) with swarmd as its agent")  # fmt: skip
     args = p.parse_args(argv)
     opts = Options(
         n=args.n,
@@ -33,6 +36,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         keep=args.keep,
         seed=args.seed,
         late_gps_s=args.late_gps,
+        vehicle=args.vehicle,
     )
     return run(opts)
 

@@ -23,9 +23,18 @@ from typing import IO, Any, Final, NoReturn, TextIO
 from swarmd_lab.demo import report
 from swarmd_lab.demo.hosts import Hosts, NamespaceHosts
 from swarmd_lab.demo.observe import NodeLog, Observer, milestones, read_log
-from swarmd_lab.demo.scenario import LATE_GPS_S, TAKEOFF_ALT_M, Drone, Scenario, plan, write
+from swarmd_lab.demo.scenario import (
+    LATE_GPS_S,
+    TAKEOFF_ALT_M,
+    Drone,
+    Scenario,
+    plan,
+    write,
+    xrce_port,
+)
 from swarmd_lab.demo.view import LiveView
 from swarmd_lab.netns import MAX_HOSTS, unavailable_reason
+from swarmd_lab.xrce import peer_bin
 
 POLL_S: Final = 0.5
 DISCOVERY_DEADLINE_S: Final = 60.0
@@ -41,6 +50,7 @@ class Options:
     keep: bool = False
     seed: int = 1
     late_gps_s: float = LATE_GPS_S
+    vehicle: str = "mavlink"  # or "xrce": px4_like_client through swarmd's xrce-agent backend
 
 
 def _tool(name: str, module: str) -> list[str]:
@@ -139,13 +149,22 @@ class Demo:
         ]
         # loopback: a per-process domain keeps two demos (or a test run) on one host apart
         domain = 1 + os.getpid() % 200 if self.loopback else 0
-        scenario = write(self.root, drones, domain_id=domain, loopback=self.loopback)
+        scenario = write(
+            self.root, drones, domain_id=domain, loopback=self.loopback, vehicle=opts.vehicle
+        )
+        if opts.vehicle == "xrce":
+            self.say(
+                "vehicles: px4_like_client (PX4's own uXRCE-DDS client library, a PX4 stand-in)"
+                " per drone, with swarmd as its XRCE agent (px4.backend: xrce-agent)"
+            )
+        else:
+            self.say("vehicles: swarmd-vehicle-sim (a MAVLink vehicle SIMULATOR) per drone")
         self.say(
             f"set up in {self.root}: swarm signing key + {opts.n} node keys, mission, signed "
             f"bundle, per-drone configs and link files (SNR "
             f"{min(d.snr_db for d in drones):.0f}-{max(d.snr_db for d in drones):.0f} dB)"
         )
-        if scenario.late is not None:
+        if scenario.late is not None and opts.vehicle != "xrce":  # the stand-in has no GPS delay
             self.say(
                 f"{scenario.late} gets its GPS fix late ({opts.late_gps_s:g} s): watch the wait"
             )
@@ -162,9 +181,19 @@ class Demo:
         for d in s.drones:
             log = s.log_path(d, "sim").open("wb")
             self.logs.append(log)
-            argv = [*sim, *self.sim_args(s, d)]
+            argv = (
+                self.xrce_args(d) if self.opts.vehicle == "xrce" else [*sim, *self.sim_args(s, d)]
+            )
             self.sims.append(self.hosts.popen(d.index, argv, log))
         self.view.event(self.t(), f"started {len(s.drones)} swarmd + {len(s.drones)} simulators")
+
+    @staticmethod
+    def xrce_args(d: Drone) -> list[str]:
+        client = peer_bin("px4_like_client")
+        if not client.exists():
+            raise RuntimeError(f"{client} missing: scripts/setup.sh builds the XRCE peers")
+        port, sysid = str(xrce_port(d)), str(d.sysid)
+        return [str(client), "-p", port, "-k", sysid, "-S", sysid, "-V", "1.16", "-q"]
 
     @staticmethod
     def sim_args(s: Scenario, d: Drone) -> list[str]:

@@ -41,6 +41,8 @@ GPS_FIX_S: Final = (1.5, 4.0)
 LATE_GPS_S: Final = 14.0  # the late member: after discovery, so the wait is visible
 TAKEOFF_ALT_M: Final = 5.0
 PX4_PORT: Final = 14540  # PX4 SITL's onboard link (instance i: 14540 + i)
+XRCE_PORT: Final = 8888  # PX4 SITL's uXRCE-DDS agent port (loopback: 8888 + i)
+VEHICLES: Final = ("mavlink", "xrce")
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,7 +159,34 @@ def mission_text(drones: list[Drone], domain_id: int, swarm: str, *, loopback: b
     return "\n".join(lines) + "\n"
 
 
-def config_text(s: Scenario, d: Drone, *, loopback: bool) -> str:
+def xrce_port(d: Drone) -> int:
+    return XRCE_PORT + (d.mavlink_port - PX4_PORT)
+
+
+def px4_section(s: Scenario, d: Drone, vehicle: str) -> str:
+    if vehicle == "xrce":
+        # px4_like_client publishes no valid home_position (real PX4 does): readiness
+        # without it; a take-off to a relative altitude still needs it (docs/px4.md)
+        return f"""\
+px4:
+  enabled: true
+  backend: xrce-agent
+  connection: udp:127.0.0.1:{xrce_port(d)}
+  xrce_key: {d.sysid}
+  require_home: false
+  takeoff_alt_m: {TAKEOFF_ALT_M}
+"""
+    return f"""\
+px4:
+  enabled: true
+  connection: udpin:127.0.0.1:{d.mavlink_port}
+  signing: true
+  signing_key: {s.px4_key_path(d)}
+  takeoff_alt_m: {TAKEOFF_ALT_M}
+"""
+
+
+def config_text(s: Scenario, d: Drone, *, loopback: bool, vehicle: str = "mavlink") -> str:
     """A daemon config as an operator would write it (config/swarmd.yaml), per drone."""
     return f"""\
 node: {d.name}
@@ -178,13 +207,7 @@ link:
   static_q: 0.5
 discovery:
   mode: adaptive
-px4:
-  enabled: true
-  connection: udpin:127.0.0.1:{d.mavlink_port}
-  signing: true
-  signing_key: {s.px4_key_path(d)}
-  takeoff_alt_m: {TAKEOFF_ALT_M}
-dataplane:
+{px4_section(s, d, vehicle)}dataplane:
   enabled: true
   readiness_period_s: 1.0
   state_dir: {s.root / "state"}
@@ -194,7 +217,9 @@ logging:
 """
 
 
-def write(root: Path, drones: list[Drone], *, domain_id: int, loopback: bool) -> Scenario:
+def write(
+    root: Path, drones: list[Drone], *, domain_id: int, loopback: bool, vehicle: str = "mavlink"
+) -> Scenario:
     """Keys, mission, signed bundle, link files and configs under ``root``."""
     late = next((d.name for d in drones if d.gps_fix_after_s >= LATE_GPS_S), None)
     s = Scenario(root, drones, domain_id, late)
@@ -213,5 +238,5 @@ def write(root: Path, drones: list[Drone], *, domain_id: int, loopback: bool) ->
         key = derive_key(secret, mission.swarm, d.name)
         write_file_atomic(s.px4_key_path(d), px4_key_file(key, 0), PRIVATE_MODE)
         s.link_path(d).write_text(json.dumps({"snr_db": d.snr_db}))
-        s.config_path(d).write_text(config_text(s, d, loopback=loopback))
+        s.config_path(d).write_text(config_text(s, d, loopback=loopback, vehicle=vehicle))
     return s
