@@ -36,9 +36,9 @@ from swarmd.px4.messages import (
 from swarmd.px4.readiness import VehicleState
 from swarmd.px4.takeoff import (
     FailReason,
-    Phase,
     TakeoffConfig,
     TakeoffFailed,
+    TakeoffPhase,
     TakeoffSequence,
     TakeoffSucceeded,
 )
@@ -209,7 +209,7 @@ class Scripted:
         self.sent += self.seq.commands_to_send()
 
     # methods, not properties: mypy would narrow a property across the calls that change it
-    def phase(self) -> Phase:
+    def phase(self) -> TakeoffPhase:
         return self.seq.phase
 
     def outcome(self) -> TakeoffSucceeded | TakeoffFailed | None:
@@ -246,7 +246,7 @@ def test_retry_schedule_after_temporarily_rejected() -> None:
     v.advance_to_timer()
     assert [c.confirmation for c in v.sent] == [0, 1]
     v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)
-    assert v.phase() is Phase.TAKING_OFF
+    assert v.phase() is TakeoffPhase.TAKING_OFF
     assert v.sent[-1].command == MavCmd.NAV_TAKEOFF
 
 
@@ -271,7 +271,7 @@ def test_acks_for_other_commands_are_ignored() -> None:
     v = Scripted()
     v.start()
     v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
-    assert v.phase() is Phase.ARMING
+    assert v.phase() is TakeoffPhase.ARMING
 
 
 def test_auto_disarm_when_takeoff_does_not_follow_arming() -> None:
@@ -282,7 +282,7 @@ def test_auto_disarm_when_takeoff_does_not_follow_arming() -> None:
     v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)
     v.feed(v.heartbeat())
     v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
-    assert v.phase() is Phase.LIFTING
+    assert v.phase() is TakeoffPhase.LIFTING
     v.now = 10.0  # COM_DISARM_PRFLT: still on the ground
     v.armed = False
     v.feed(v.heartbeat())
@@ -295,10 +295,10 @@ def test_no_liftoff_times_out_and_disarms() -> None:
     v.start()
     v.armed = True
     v.feed(v.heartbeat())  # armed bit: ARM confirmed by state, no ACK needed
-    assert v.phase() is Phase.TAKING_OFF
+    assert v.phase() is TakeoffPhase.TAKING_OFF
     v.mode = MODE_TAKEOFF
     v.feed(v.heartbeat())  # mode AUTO.TAKEOFF: NAV_TAKEOFF confirmed by state
-    assert v.phase() is Phase.LIFTING
+    assert v.phase() is TakeoffPhase.LIFTING
     v.advance_to_timer()
     assert v.now == pytest.approx(8.0)
     assert isinstance(v.outcome(), TakeoffFailed)
@@ -312,7 +312,7 @@ def test_success_needs_armed_and_airborne_state_not_just_acks() -> None:
     v.start()
     v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)
     v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
-    assert v.phase() is Phase.LIFTING and v.outcome() is None
+    assert v.phase() is TakeoffPhase.LIFTING and v.outcome() is None
     v.landed = LandedState.TAKEOFF
     v.feed(ExtendedSysState(v.landed))
     assert v.outcome() is None  # airborne but the armed bit was never seen

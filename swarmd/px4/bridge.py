@@ -33,9 +33,9 @@ from swarmd.px4.mavlink_backend import MavlinkBackend
 from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState
 from swarmd.px4.takeoff import (
-    PhaseChanged,
     TakeoffConfig,
     TakeoffFailed,
+    TakeoffPhaseChanged,
     TakeoffSucceeded,
 )
 from swarmd.px4.vehicle import (
@@ -228,7 +228,7 @@ class Px4Bridge:
                     return
                 for task_listener in list(self._task_listeners):
                     task_listener(event)
-            case PhaseChanged():
+            case TakeoffPhaseChanged():
                 self._info(
                     "px4_takeoff_phase", old=str(event.old), new=str(event.new), why=event.why
                 )

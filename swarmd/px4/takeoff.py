@@ -89,7 +89,7 @@ class TakeoffConfig:
             )
 
 
-class Phase(StrEnum):
+class TakeoffPhase(StrEnum):
     IDLE = "idle"
     ARMING = "arming"
     TAKING_OFF = "taking_off"
@@ -113,13 +113,15 @@ class FailReason(StrEnum):
     BUSY = "busy"  # another take-off is running (the driver's answer; never from a sequence)
 
 
-_TRANSITIONS: Final[dict[Phase, frozenset[Phase]]] = {
-    Phase.IDLE: frozenset({Phase.ARMING, Phase.FAILED}),
-    Phase.ARMING: frozenset({Phase.TAKING_OFF, Phase.FAILED}),
-    Phase.TAKING_OFF: frozenset({Phase.LIFTING, Phase.SUCCEEDED, Phase.FAILED}),
-    Phase.LIFTING: frozenset({Phase.SUCCEEDED, Phase.FAILED}),
-    Phase.SUCCEEDED: frozenset(),
-    Phase.FAILED: frozenset(),
+_TRANSITIONS: Final[dict[TakeoffPhase, frozenset[TakeoffPhase]]] = {
+    TakeoffPhase.IDLE: frozenset({TakeoffPhase.ARMING, TakeoffPhase.FAILED}),
+    TakeoffPhase.ARMING: frozenset({TakeoffPhase.TAKING_OFF, TakeoffPhase.FAILED}),
+    TakeoffPhase.TAKING_OFF: frozenset(
+        {TakeoffPhase.LIFTING, TakeoffPhase.SUCCEEDED, TakeoffPhase.FAILED}
+    ),
+    TakeoffPhase.LIFTING: frozenset({TakeoffPhase.SUCCEEDED, TakeoffPhase.FAILED}),
+    TakeoffPhase.SUCCEEDED: frozenset(),
+    TakeoffPhase.FAILED: frozenset(),
 }
 
 
@@ -129,9 +131,9 @@ class TakeoffEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class PhaseChanged(TakeoffEvent):
-    old: Phase
-    new: Phase
+class TakeoffPhaseChanged(TakeoffEvent):
+    old: TakeoffPhase
+    new: TakeoffPhase
     why: str
 
 
@@ -151,12 +153,12 @@ class TakeoffFailed(TakeoffEvent):
     elapsed_s: float
 
 
-SequenceEvent = PhaseChanged | TakeoffSucceeded | TakeoffFailed | CommandSent | AckReceived
+SequenceEvent = TakeoffPhaseChanged | TakeoffSucceeded | TakeoffFailed | CommandSent | AckReceived
 """What ``TakeoffSequence.next_event`` returns: its phases and outcome, and the sender's
 ``CommandSent``/``AckReceived`` for each step's command."""
 
 
-class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed]):
+class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | TakeoffFailed]):
     """One take-off attempt. Create, ``start(now)``, then drive until ``done``.
 
     Driven by ``start``, ``observe`` and ``handle_timer``; outputs ``commands_to_send``,
@@ -177,7 +179,7 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
         self.config.check()
         super().__init__(self.config.command)
         self.readiness_config = readiness_config or ReadinessConfig()
-        self.phase = Phase.IDLE
+        self.phase = TakeoffPhase.IDLE
         self.target_amsl_m: float | None = None
         self.outcome: TakeoffSucceeded | TakeoffFailed | None = None
         self._t0 = 0.0
@@ -190,7 +192,7 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
 
     def start(self, now: float) -> None:
         """Check readiness and altitude; send ARM or fail at once (nothing sent)."""
-        if self.phase is not Phase.IDLE:
+        if self.phase is not TakeoffPhase.IDLE:
             return
         self._t0 = now
         verdict = readiness(self.vehicle, now, self.readiness_config)
@@ -216,7 +218,7 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
                 )
                 return
             self.target_amsl_m = self.vehicle.home.altitude_amsl_m + self.alt_m
-        self._set_phase(Phase.ARMING, now, f"ready ({verdict.detail})")
+        self._set_phase(TakeoffPhase.ARMING, now, f"ready ({verdict.detail})")
         self._arm_sent = True
         self._send(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=1.0), now)
         self._drain(now)
@@ -258,7 +260,7 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 
     def _finished(self) -> bool:
-        return self.phase in (Phase.SUCCEEDED, Phase.FAILED)
+        return self.phase in (TakeoffPhase.SUCCEEDED, TakeoffPhase.FAILED)
 
     def _own_deadline(self) -> float | None:
         return self._lift_deadline
@@ -296,7 +298,7 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
         armed = bool(v.armed)
         if armed:
             self._seen_armed = True
-        elif self._seen_armed and self.phase in (Phase.TAKING_OFF, Phase.LIFTING):
+        elif self._seen_armed and self.phase in (TakeoffPhase.TAKING_OFF, TakeoffPhase.LIFTING):
             self._fail(
                 now,
                 FailReason.DISARMED,
@@ -306,25 +308,25 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
             )
             return
         airborne = v.landed_state in AIRBORNE
-        if self.phase is Phase.ARMING and armed:
+        if self.phase is TakeoffPhase.ARMING and armed:
             self._step_done(now, "armed bit set in HEARTBEAT")
-        elif self.phase is Phase.TAKING_OFF and armed:
+        elif self.phase is TakeoffPhase.TAKING_OFF and armed:
             mode = v.heartbeat.mode if v.heartbeat is not None else None
             if airborne or mode == MODE_TAKEOFF:
                 self._step_done(now, f"mode {mode}, landed_state {_name(v.landed_state)}")
-        if self.phase is Phase.LIFTING and armed and airborne:
+        if self.phase is TakeoffPhase.LIFTING and armed and airborne:
             self._succeed(now)
 
     def _step_done(self, now: float, why: str) -> None:
-        if self.phase is Phase.ARMING:
-            self._set_phase(Phase.TAKING_OFF, now, f"arm confirmed: {why}")
+        if self.phase is TakeoffPhase.ARMING:
+            self._set_phase(TakeoffPhase.TAKING_OFF, now, f"arm confirmed: {why}")
             self._settle(now, why)
             alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
             self._send(VehicleCommand.make(MavCmd.NAV_TAKEOFF, p7=alt), now)
-        elif self.phase is Phase.TAKING_OFF:
+        elif self.phase is TakeoffPhase.TAKING_OFF:
             self._settle(now, why)
             self._lift_deadline = now + self.config.liftoff_timeout_s
-            self._set_phase(Phase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
+            self._set_phase(TakeoffPhase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
             self._check_state(now)
 
     def _succeed(self, now: float) -> None:
@@ -338,7 +340,7 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
             mode="unknown" if v.heartbeat is None else v.heartbeat.mode.name,
             target_amsl_m=self.target_amsl_m,
         )
-        self._set_phase(Phase.SUCCEEDED, now, f"airborne: landed_state {landed}")
+        self._set_phase(TakeoffPhase.SUCCEEDED, now, f"airborne: landed_state {landed}")
         self._events.append(self.outcome)
 
     def _settle(self, now: float, why: str) -> None:
@@ -357,13 +359,13 @@ class TakeoffSequence(SenderTask[PhaseChanged | TakeoffSucceeded | TakeoffFailed
             self._out.append(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0))
             self._events.append(CommandSent(MavCmd.COMPONENT_ARM_DISARM.name, 0))
         self.outcome = TakeoffFailed(reason, cause, detail, now - self._t0)
-        self._set_phase(Phase.FAILED, now, f"{reason}: {detail}")
+        self._set_phase(TakeoffPhase.FAILED, now, f"{reason}: {detail}")
         self._events.append(self.outcome)
 
-    def _set_phase(self, new: Phase, now: float, why: str) -> None:
+    def _set_phase(self, new: TakeoffPhase, now: float, why: str) -> None:
         if new not in _TRANSITIONS[self.phase]:
             raise AssertionError(f"takeoff: illegal transition {self.phase} -> {new}")
-        self._events.append(PhaseChanged(self.phase, new, why))
+        self._events.append(TakeoffPhaseChanged(self.phase, new, why))
         self.phase = new
 
 
