@@ -15,6 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
+from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.config import ConfigError, parse_config
 from swarmd.exitcodes import EX_CONFIG
@@ -294,3 +295,21 @@ def test_a_key_file_others_can_read_is_refused(tmp_path: Path) -> None:
     path.chmod(0o600)
     assert signing_key_for(swarm="alpha", node="uav1", key_file=str(path), seed=b"") == KEY
     assert signing_key_for(swarm="alpha", node="uav1", key_file=None, seed=bytes(range(32))) == KEY
+
+
+def test_swarmctl_status_line_shows_the_pin_signing_and_refusals() -> None:
+    backend = {
+        "backend": "mavlink",
+        "connection": "udpin:127.0.0.1:14540",
+        "autopilot": {"pinned": "127.0.0.1:14580", "pin": "learned", "dropped_address": 3,
+                      "dropped_unpinned": 1, "repins": 0},
+        "signing": {"enabled": True, "ok": 50, "dropped_unsigned": 2, "dropped_bad_signature": 1,
+                    "dropped_replayed": 0},
+    }  # fmt: skip
+    assert render_px4_backend(backend) == (
+        "px4 link: mavlink udpin:127.0.0.1:14540, autopilot 127.0.0.1:14580 (learned), "
+        "signed (ok 50), refused 7"
+    )
+    serial = {"backend": "mavlink", "connection": "serial:/dev/ttyTHS1:921600",
+              "autopilot": None, "signing": {"enabled": False, "ok": 0}}  # fmt: skip
+    assert render_px4_backend(serial) == "px4 link: mavlink serial:/dev/ttyTHS1:921600, unsigned"

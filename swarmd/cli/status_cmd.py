@@ -207,7 +207,9 @@ def _render_status(status: dict[str, Any]) -> list[str]:
 
 
 def render_px4_backend(b: dict[str, Any]) -> str:
-    """``px4 link: xrce-agent udp:127.0.0.1:8888, session established (...), PX4 1.16``."""
+    """``px4 link: xrce-agent udp:127.0.0.1:8888, session established (...), PX4 1.16`` or
+    ``px4 link: mavlink udpin:127.0.0.1:14540, autopilot 127.0.0.1:14580 (learned), signed
+    (ok 5120), refused 3``."""
     line = f"px4 link: {b.get('backend', '?')} {b.get('connection', '')}"
     if "session" in b:  # the XRCE backends
         line += f", session {b.get('session')}"
@@ -216,6 +218,15 @@ def render_px4_backend(b: dict[str, Any]) -> str:
         line += f", PX4 {b.get('px4_version') or 'version not seen yet'}"
         if b.get("layout_problem"):
             line += f", {b['layout_problem']}"
+    pin, signing = b.get("autopilot"), b.get("signing")
+    if isinstance(pin, dict):  # MAVLink over UDP: who is heard as the autopilot
+        line += f", autopilot {pin.get('pinned') or 'not pinned yet'} ({pin.get('pin', '?')})"
+    if isinstance(signing, dict):
+        line += f", signed (ok {signing.get('ok', 0)})" if signing.get("enabled") else ", unsigned"
+    refused = _sum_counters(pin if isinstance(pin, dict) else {}, "dropped_")
+    refused += _sum_counters(signing if isinstance(signing, dict) else {}, "dropped_")
+    if refused:  # forged or stray frames on the PX4 link (docs/px4.md "Trust on the PX4 link")
+        line += f", refused {refused}"
     return line
 
 
