@@ -383,6 +383,30 @@ def breakdown_table(runs: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _fig10a(
+    plt: Any, valid: Sequence[Mapping[str, Any]], n: int, k: float, out: Path, extra: list[str]
+) -> list[Path]:
+    """Frames/s over the first 60 s at one N, mean of valid runs, every contender."""
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for contender in sorted({r["contender"] for r in valid}, key=_order):
+        series = [r["pps"] for r in valid if r["contender"] == contender]
+        length = min(60, min(len(s) for s in series))
+        mean = [statistics.fmean(s[t] for s in series) for t in range(length)]
+        ax.plot(range(length), mean, label=f"{contender} ({len(series)} runs)")
+    ax.set_yscale("symlog", linthresh=10)
+    ax.set_xlabel("experiment time since the start release (s)")
+    ax.set_ylabel("frames/s on the channel (PHY tx incl. ACKs)")
+    ax.set_title(f"Channel load during discovery, N = {n}, dilation k = {k:g} (cf. paper Fig. 10a)")
+    ax.legend()
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    paths = [out / f"fig10a_pps_n{n}.png", *(out / name for name in extra)]
+    for path in paths:
+        fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return paths
+
+
 def plots(runs: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
     """Figure 10a (frames/s over time) and Figure 11 (success rate against N) as PNG, from
     the main runs (each N at its main dilation; valid runs only)."""
@@ -393,7 +417,7 @@ def plots(runs: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
 
     ks = main_k(summarise(runs))
     valid = [r for r in runs if r.get("valid") and dilation(r) == ks.get(int(r["n"]))]
-    written = []
+    written: list[Path] = []
     if valid:
         sizes = sorted({int(r["n"]) for r in valid})
         # the N with the most contenders validly measured (the paper's figure is N = 10)
@@ -401,38 +425,27 @@ def plots(runs: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
             sizes,
             key=lambda n: (len({r["contender"] for r in valid if r["n"] == n}), n == 10, n),
         )
-        fig, ax = plt.subplots(figsize=(8, 4.5))
-        for contender in sorted({r["contender"] for r in valid}, key=_order):
-            series = [r["pps"] for r in valid if r["contender"] == contender and r["n"] == n_fig]
-            if not series:
-                continue
-            length = min(60, min(len(s) for s in series))
-            mean = [statistics.fmean(s[t] for s in series) for t in range(length)]
-            ax.plot(range(length), mean, label=f"{contender} ({len(series)} runs)")
-        ax.set_yscale("symlog", linthresh=10)
-        ax.set_xlabel("experiment time since the start release (s)")
-        ax.set_ylabel("frames/s on the channel (PHY tx incl. ACKs)")
-        ax.set_title(
-            f"Channel load during discovery, N = {n_fig}, dilation k = {ks[n_fig]:g} "
-            "(cf. paper Fig. 10a)"
-        )
-        ax.legend()
-        ax.grid(True, alpha=0.3)
-        path = out / "fig10a_pps.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        for n in sizes:
+            names = ["fig10a_pps.png"] if n == n_fig else []
+            written += _fig10a(plt, [r for r in valid if r["n"] == n], n, ks[n], out, names)
     rows = [r for r in main_rows(summarise(runs)) if r["member_success_mean"] is not None]
     if rows:
         fig, ax = plt.subplots(figsize=(6.5, 4))
-        for contender in sorted({r["contender"] for r in rows}, key=_order):
+        names = sorted({r["contender"] for r in rows}, key=_order)
+        for i, contender in enumerate(names):
             pts = [
                 (r["n"], 100 * r["member_success_mean"])
                 for r in rows
                 if r["contender"] == contender
             ]
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=contender)
+            # a small sideways offset and a marker each: lines at 100 % would hide each other
+            dx = 0.25 * (i - (len(names) - 1) / 2)
+            ax.plot(
+                [p[0] + dx for p in pts],
+                [p[1] for p in pts],
+                marker="osD^vP*X"[i % 8],
+                label=contender,
+            )
         ax.set_xlabel("number of UAVs")
         ax.set_ylabel("members whose 20th message arrived (%)")
         ax.set_ylim(-5, 105)
