@@ -13,6 +13,7 @@ import pytest
 from swarmd_lab.netns import Lan, Namespace, unavailable_reason
 from swarmd_lab.xrce import ETH_P_ALL, count_udp
 
+from swarmd.xrce.message import CreateClient, Header, WriteData, encode_message
 from tests.xrce_peers import peer_binary, peer_env
 
 
@@ -57,3 +58,35 @@ def test_wifi_side_sees_no_vehicle_path_packets_with_swarmd_as_agent() -> None:
         control = count_udp(sock, 20, stop=lambda: False)
         sock.close()
         assert control["rtps"] > 0, control
+
+
+def test_attacker_on_the_wifi_cannot_reach_the_agent() -> None:
+    """A host on the drone's Wi-Fi forges CREATE_CLIENT with PX4's key (which would take the
+    session over), WRITE_DATA and garbage to the drone's address, port 8888, while sniffing:
+    the agent listens on loopback only, so nothing arrives, nothing moves, nothing answers."""
+    if (why := unavailable_reason()) is not None:
+        pytest.skip(why)
+    client = str(peer_binary("px4_like_client"))
+    forged = [
+        encode_message(Header(0x80, 0, 0), [CreateClient(b"\x00\x00\x00\x01", 0x81)]),
+        encode_message(Header(0x81, 1, 500), [WriteData(1, 0x0FD5, bytes(80))]),
+        bytes(range(64)),
+    ]
+    with Lan(2) as lan:
+        drone, attacker = lan[0], lan[1]
+        serve = [sys.executable, "-m", "swarmd_lab.xrce", "serve", "--port", "8888"]
+        swarmd = drone.popen([*serve, "--seconds", "6"], stdout=subprocess.PIPE)
+        drone.popen([client, "-p", "8888", "-q"])
+        sniff = _capture_socket(attacker)
+        with attacker.socket() as s:
+            for _ in range(50):
+                for d in forged:
+                    s.sendto(d, (drone.address, 8888))
+        seen = count_udp(sniff, 90, stop=lambda: swarmd.poll() is not None)
+        out, _ = swarmd.communicate(timeout=30)
+        served = json.loads(out)
+        sniff.close()
+        assert served["sessions"] == 1 and served["dropped"] == {}, served
+        assert served["samples"] > 20
+        # the attacker hears its own 150 datagrams and no reply (ICMP is not UDP)
+        assert seen["udp"] == 150, seen

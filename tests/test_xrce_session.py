@@ -344,3 +344,15 @@ def test_agent_backend_over_a_serial_line() -> None:
             os.close(slave)
 
     asyncio.run(scenario())
+
+
+def test_replayed_best_effort_samples_are_dropped_as_stale() -> None:
+    agent, px4, _ = _pair()
+    px4.connect(AGENT, 0.0)
+    _run(agent, {PX4: px4}, 0.0)
+    _events(agent)
+    sample = encode_message(Header(0x81, 0x01, 7), [WriteData(1, object_id(0x200, 5), b"s")])
+    agent.receive_datagram(sample, PX4, 1.0)
+    agent.receive_datagram(sample, PX4, 1.1)  # the same datagram again: a replay
+    got = [e for e in _events(agent) if isinstance(e, SampleReceived)]
+    assert len(got) == 1 and agent.dropped["stale_best_effort"] == 1

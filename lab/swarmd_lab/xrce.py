@@ -65,6 +65,8 @@ async def serve(port: int, seconds: float) -> dict[str, Any]:
         "samples": stats.get("samples", 0),
         "observations": counts,
         "px4_version": stats.get("px4_version"),
+        "sessions": stats.get("sessions", 0),
+        "dropped": stats.get("dropped", {}),
     }
 
 
