@@ -8,6 +8,8 @@ from __future__ import annotations
 import hashlib
 import stat
 import struct
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -33,6 +35,7 @@ from swarmd.px4.signing import (
     px4_key_file,
     timestamp_from_unix,
 )
+from tests.daemon_support import clean_env, loopback_config, run_domain, write_bundle
 
 KEY = derive_key(bytes(range(32)), "alpha", "uav1")
 OTHER_KEY = derive_key(bytes(range(32)), "alpha", "uav2")
@@ -313,3 +316,35 @@ def test_swarmctl_status_line_shows_the_pin_signing_and_refusals() -> None:
     serial = {"backend": "mavlink", "connection": "serial:/dev/ttyTHS1:921600",
               "autopilot": None, "signing": {"enabled": False, "ok": 0}}  # fmt: skip
     assert render_px4_backend(serial) == "px4 link: mavlink serial:/dev/ttyTHS1:921600, unsigned"
+
+
+# ---- the daemon refuses, with one line and exit 78 ----------------------------------------
+
+SWARMD = str(Path(sys.executable).parent / "swarmd")
+
+
+def _swarmd_run(workdir: Path, px4: str) -> subprocess.CompletedProcess[str]:
+    files = write_bundle(workdir, 2, domain_id=run_domain() + 3)
+    cfg = loopback_config(workdir, files)
+    cfg.write_text(cfg.read_text() + f"px4:\n{px4}")
+    return subprocess.run(
+        [SWARMD, "run", "--config", str(cfg)],
+        capture_output=True, text=True, timeout=30, env=clean_env(), check=False,
+    )  # fmt: skip
+
+
+def test_daemon_refuses_a_wildcard_px4_listener(workdir: Path) -> None:
+    proc = _swarmd_run(workdir, "  connection: udpin:0.0.0.0:14540\n")
+    assert proc.returncode == EX_CONFIG
+    assert proc.stderr.count("\n") == 1
+    assert "field px4.connection: udpin:0.0.0.0:14540 reaches beyond loopback" in proc.stderr
+    assert "fix: use udpin:127.0.0.1:14540" in proc.stderr
+
+
+def test_daemon_refuses_a_signing_key_others_can_read(workdir: Path) -> None:
+    key = workdir / "px4.key"
+    key.write_bytes(px4_key_file(KEY, T0))
+    key.chmod(0o644)
+    proc = _swarmd_run(workdir, f"  signing: true\n  signing_key: {key}\n")
+    assert proc.returncode == EX_CONFIG, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].endswith(f"fix: chmod 600 {key}")
