@@ -3,15 +3,16 @@
     sudo .venv/bin/python bench/flood.py [--rate 5000] [--seconds 10] [--repeats 3]
         [--out bench/results/security/flood.json] [--write-docs]
 
-The pieces of ``tests/test_attacks_netns.py::test_spdp_flood_loses_no_real_peer`` (issue 10,
-attack 9): three real ``swarmd`` daemons in namespaces with a bundle flashed by
-``swarmctl bundle flash``, the shipped config, a MAVLink vehicle simulator per drone, and an
-attacker host that sniffs the members' SPDP and floods the SPDP multicast group with forged
-announcements (half with the members' own prefixes at fresh sequence numbers, half new
-foreign prefixes), paced at ``--rate`` per second, bounded by ``--seconds`` and by
-``rate * seconds`` datagrams. Per repeat it records the real peers any drone saw in another
-state than "discovered" (or logged lost) during the flood, and each daemon's CPU (utime +
-stime from /proc over the flood, in percent of one core) next to the same daemon idle.
+The pieces of ``tests/test_attacks_netns.py::test_spdp_flood_loses_no_real_peer`` (issue
+10, attack 9): three real ``swarmd`` daemons in namespaces with a bundle flashed by
+``swarmctl bundle flash``, the shipped config, a MAVLink vehicle simulator per drone, and
+an attacker host that sniffs the members' SPDP and floods the SPDP multicast group with
+forged announcements (half with the members' own prefixes: replayed authenticators, and
+fresh ones signed with the attacker's key; half new foreign prefixes), paced at ``--rate``
+per second, bounded by ``--seconds`` and by ``rate * seconds`` datagrams. Per repeat it
+records the real peers any drone saw in another state than "discovered" (or logged lost)
+during the flood, and each daemon's CPU (utime + stime from /proc over the flood, in
+percent of one core) next to the same daemon idle.
 ``--write-docs`` rewrites the block between the flood markers in docs/benchmarks.md.
 Needs root. Traffic stays in namespaces this process creates.
 """
@@ -22,7 +23,6 @@ import argparse
 import json
 import os
 import platform
-import random
 import statistics
 import subprocess
 import sys
@@ -35,8 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from swarmd_lab.netns import Lan, run_prefix, unavailable_reason  # noqa: E402
 
-from tests.attacker import forge  # noqa: E402
-from tests.attacker.flood import run_flood  # noqa: E402
+from tests.attacker.flood import forged_pool, run_flood  # noqa: E402
 from tests.attacker.host import Attacker  # noqa: E402
 from tests.attacker.swarm import flashed_swarm, refusals  # noqa: E402
 
@@ -65,14 +64,8 @@ def run(rate: float, seconds: float, repeats: int) -> dict[str, Any]:
             with flashed_swarm(lan, Path(tmp)) as sw:
                 atk = Attacker(sw.attacker_ns, sw.spdp_group).start()
                 try:
-                    atk.wait_for(lambda: all(atk.member(n) for n in sw.names), 20.0)
-                    members = [
-                        learned.participant
-                        for n in sw.names
-                        if (learned := atk.member(n)) is not None
-                    ]
                     for k in range(repeats):
-                        pool = forge.flood_pool(members, POOL, random.Random(k))
+                        pool = forged_pool(sw, atk, POOL, seed=k)
                         before = [refusals(sw.status(i)) for i in range(sw.n)]
                         result = run_flood(sw, atk, pool, rate, seconds).as_dict()
                         after = [refusals(sw.status(i)) for i in range(sw.n)]
@@ -100,6 +93,10 @@ def run(rate: float, seconds: float, repeats: int) -> dict[str, Any]:
         "cpu_percent_median": round(statistics.median(cpu), 1) if cpu else None,
         "cpu_percent_max": max(cpu) if cpu else None,
         "idle_cpu_percent_median": round(statistics.median(idle), 1) if idle else None,
+        "kernel_drop_fraction_max": max(
+            (v / r["sent"] for r in runs for v in r["kernel_rcvbuf_drops"].values() if r["sent"]),
+            default=0,
+        ),
         "refused_fraction_min": min(
             (v / r["sent"] for r in runs for v in r["refused"].values() if r["sent"]), default=0
         ),
@@ -124,8 +121,11 @@ def docs_block(s: dict[str, Any], out: str) -> str:
             f"| daemon CPU during the flood, % of one core (median / max) | "
             f"{s['cpu_percent_median']} / {s['cpu_percent_max']} |",
             f"| the same daemons idle, % of one core (median) | {s['idle_cpu_percent_median']} |",
-            f"| forged datagrams counted as refused (lowest drone) | "
+            f"| forged datagrams counted as refused (lowest drone; the third that claims the "
+            f"receiver's own prefix is counted as `own` and left out) | "
             f"{100 * s['refused_fraction_min']:.0f} % |",
+            f"| dropped by the kernel before the daemon read them (highest drone) | "
+            f"{100 * s['kernel_drop_fraction_max']:.0f} % |",
             "",
             f"Raw runs: `{out}`.",
             END,

@@ -36,17 +36,21 @@ from pathlib import Path
 from typing import Final
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from swarmd_lab.netns import Lan, list_namespaces, run_prefix
 
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.keys import KeyRing, NodeSecrets
 from swarmd.bundle.model import EndpointKind
 from swarmd.dataplane.types import CommandKind, Readiness
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.messages import Heartbeat as MavHeartbeat
+from swarmd.rtps.spdp import SpdpParticipant
 from swarmd.rtps.types import GuidPrefix
 from tests.attacker import forge
-from tests.attacker.flood import FloodResult, run_flood
-from tests.attacker.host import Attacker, drain
+from tests.attacker.flood import FloodResult, forged_pool, run_flood
+from tests.attacker.host import Attacker, Learned, drain
 from tests.attacker.swarm import BIN, FlashedSwarm, delta, refusals, until
 
 pytestmark = [pytest.mark.netns]
@@ -87,6 +91,25 @@ class Lab:
     def refused_since(self, before: list[dict[str, int]], i: int) -> dict[str, int]:
         return delta(refusals(self.swarm.status(i)), before[i])
 
+    def moved(self, before: list[dict[str, int]], i: int, counter: str) -> int:
+        """How much ``counter`` (a dotted ``status --json`` path) grew on drone i."""
+        return self.refused_since(before, i).get(counter, 0)
+
+    def epoch(self, i: int) -> int:
+        """Drone i's boot epoch, read from its SPDP authenticator on the air."""
+        self.attacker.wait_for(
+            lambda: (self.attacker.member(self.swarm.names[i]) or _NO).freshness is not None,
+            20.0,
+        )
+        learned = self.attacker.member(self.swarm.names[i])
+        assert learned is not None and learned.freshness is not None, "no SPDP authenticator"
+        return learned.freshness.epoch
+
+    def fresh(self, i: int) -> Freshness:
+        """A freshness claiming drone i's current epoch, far ahead of its real sequence."""
+        self._sn += 1
+        return Freshness(self.epoch(i), 1_000_000 + self._sn)
+
     def vehicle_commands(self) -> list[int]:
         """MAVLink commands each vehicle simulator has received so far."""
         return [len(self.swarm.sim_events(i, "command")) for i in range(self.swarm.n)]
@@ -96,6 +119,13 @@ class Lab:
         nodes = body.get("nodes", {})
         states = {n: s.get("state") for n, s in nodes.items()}
         assert body["rc"] == 0 and states == dict.fromkeys(self.swarm.names, "completed"), body
+
+
+_NO: Final = Learned(SpdpParticipant(GuidPrefix(bytes(12))), 0, "")
+ATTACKER_KEY: Final = Ed25519PrivateKey.generate()  # the attacker's own: in no bundle
+ATTACKER_PAIR_KEY: Final = bytes(random.Random(7).getrandbits(8) for _ in range(32))
+DP: Final = "dataplane.counters."
+SPDP: Final = "counters.dropped."
 
 
 def settle(cond: Callable[[], bool], seconds: float = SETTLE_S) -> bool:
@@ -137,7 +167,17 @@ def lab_module() -> Iterator[Lab]:
 @pytest.fixture
 def lab(lab_module: Lab, request: pytest.FixtureRequest) -> Iterator[Lab]:
     lab_module.dirty = False
+    record = os.environ.get("SWARMD_ATTACK_RECORD")  # a JSON file: refusals moved per test
+    before = lab_module.refusals() if record else []
     yield lab_module
+    if record:
+        path = Path(record)
+        seen = json.loads(path.read_text()) if path.exists() else {}
+        seen[request.node.name] = {
+            lab_module.swarm.names[i]: lab_module.refused_since(before, i)
+            for i in range(lab_module.swarm.n)
+        }
+        path.write_text(json.dumps(seen, indent=2, sort_keys=True) + "\n")
     report = getattr(request.node, "rep_call", None)
     passed = report is not None and report.passed and not hasattr(report, "wasxfail")
     if lab_module.dirty or not passed:
@@ -148,6 +188,9 @@ def lab(lab_module: Lab, request: pytest.FixtureRequest) -> Iterator[Lab]:
 
 
 def test_forged_commands_as_commander_refused(lab: Lab) -> None:
+    """TAKEOFF, HOLD, LAND, ABORT as the commander to a member, each twice: without an
+    authenticator, and with one under the attacker's own key whose epochs (public, from
+    SPDP) and sequence pass every cheap check, so only the tag refuses it."""
     sw, atk = lab.swarm, lab.attacker
     lead, member = lab.prefix(LEAD), lab.prefix(M1)
     writer = sw.endpoint(COMMAND, EndpointKind.WRITER)
@@ -157,20 +200,81 @@ def test_forged_commands_as_commander_refused(lab: Lab) -> None:
     kinds = [CommandKind.TAKEOFF, CommandKind.HOLD, CommandKind.LAND, CommandKind.ABORT]
     for k, kind in enumerate(kinds):
         sample = forge.command(kind, k, targets=[sw.names[M1]])
-        atk.send(
-            forge.forged_command(
-                lead, member, writer=writer, reader=reader, sn=forge.JUMP_SN + k, sample=sample
-            ),
-            sw.user_addr(M1),
+        bare = forge.forged_command(
+            lead, member, writer=writer, reader=reader, sn=forge.JUMP_SN + k, sample=sample
         )
+        atk.send(bare, sw.user_addr(M1))
+        mac = forge.mac(
+            bare,
+            pair_key=ATTACKER_PAIR_KEY,
+            freshness=lab.fresh(LEAD),
+            receiver=member,
+            receiver_epoch=lab.epoch(M1),
+        )
+        atk.send(mac, sw.user_addr(M1))
         time.sleep(0.3)
 
     def effect() -> bool:
         return bool(sw.status(M1)["executor"]["counters"] != executed_before)
 
-    settle(lambda: effect() or sum(lab.refused_since(before, M1).values()) >= len(kinds))
+    settle(lambda: effect() or lab.moved(before, M1, DP + "dropped_auth_failed") >= len(kinds))
     assert not effect(), f"{sw.names[M1]} executed forged commands: {sw.status(M1)['executor']}"
-    assert sum(lab.refused_since(before, M1).values()) >= len(kinds), lab.refused_since(before, M1)
+    assert lab.moved(before, M1, DP + "dropped_auth_missing") >= len(kinds), lab.refused_since(
+        before, M1
+    )
+    assert lab.moved(before, M1, DP + "dropped_auth_failed") >= len(kinds), lab.refused_since(
+        before, M1
+    )
+    assert lab.vehicle_commands() == vehicle
+    lab.assert_commander_commands_all()
+
+
+def test_captured_member_cannot_impersonate_commander_or_member(lab: Lab) -> None:
+    """The attacker holds drone-1's flashed node.key (a captured drone). With it: a TAKEOFF
+    to drone-2 claiming the commander (MAC'd with drone-1's real key with drone-2), the same
+    claiming drone-1 itself (authentic, but drone-1 commands nobody), and a dispose of
+    drone-2 signed with drone-1's real Ed25519 key. All refused."""
+    sw, atk = lab.swarm, lab.attacker
+    captured = KeyRing.from_bundle(
+        sw.bundle, sw.names[M1], NodeSecrets.load(sw.lib(M1) / "node.key")
+    )
+    victim = lab.prefix(M2)
+    pair_key = captured.pair_key(victim)
+    assert pair_key is not None
+    writer = sw.endpoint(COMMAND, EndpointKind.WRITER)
+    reader = sw.endpoint(COMMAND, EndpointKind.READER)
+    before, vehicle = lab.refusals(), lab.vehicle_commands()
+    executed_before = sw.status(M2)["executor"]["counters"]
+    sample = forge.command(CommandKind.TAKEOFF, 100, targets=[sw.names[M2]])
+    for claimed, index in ((lab.prefix(LEAD), LEAD), (lab.prefix(M1), M1)):
+        bare = forge.forged_command(
+            claimed, victim, writer=writer, reader=reader, sn=forge.JUMP_SN, sample=sample
+        )
+        atk.send(
+            forge.mac(
+                bare,
+                pair_key=pair_key,
+                freshness=lab.fresh(index),
+                receiver=victim,
+                receiver_epoch=lab.epoch(M2),
+            ),
+            sw.user_addr(M2),
+        )
+    dispose = forge.signed_dispose(victim, lab.sn(), lab.fresh(M2), captured)
+    atk.multicast(dispose)
+    lost_before = len(sw.log_events(LEAD, "peer_lost"))
+
+    def effect() -> bool:
+        return bool(sw.status(M2)["executor"]["counters"] != executed_before)
+
+    settle(lambda: effect() or lab.moved(before, LEAD, SPDP + "auth_bad_signature") >= 1)
+    assert not effect(), sw.status(M2)["executor"]
+    assert lab.moved(before, M2, DP + "dropped_auth_failed") >= 1, lab.refused_since(before, M2)
+    assert sum(lab.refused_since(before, M2).values()) >= 2, lab.refused_since(before, M2)
+    assert lab.moved(before, LEAD, SPDP + "auth_bad_signature") >= 1, lab.refused_since(
+        before, LEAD
+    )
+    assert sw.log_events(LEAD, "peer_lost")[lost_before:] == []
     assert lab.vehicle_commands() == vehicle
     lab.assert_commander_commands_all()
 
@@ -194,9 +298,9 @@ def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
             ),
             sw.user_addr(M1),
         )
-    settle(lambda: sum(lab.refused_since(before, M1).values()) >= 3)
+    settle(lambda: lab.moved(before, M1, DP + "dropped_auth_missing") >= 3)
     lab.assert_commander_commands_all()  # the reader was not moved: real commands arrive
-    assert sum(lab.refused_since(before, M1).values()) >= 3, lab.refused_since(before, M1)
+    assert lab.moved(before, M1, DP + "dropped_auth_missing") >= 3, lab.refused_since(before, M1)
 
 
 def test_forged_gap_refused(lab: Lab) -> None:
@@ -214,9 +318,9 @@ def test_forged_gap_refused(lab: Lab) -> None:
             ),
             sw.user_addr(M2),
         )
-    settle(lambda: sum(lab.refused_since(before, M2).values()) >= 3)
+    settle(lambda: lab.moved(before, M2, DP + "dropped_auth_missing") >= 3)
     lab.assert_commander_commands_all()  # nothing was marked irrelevant: real commands arrive
-    assert sum(lab.refused_since(before, M2).values()) >= 3, lab.refused_since(before, M2)
+    assert lab.moved(before, M2, DP + "dropped_auth_missing") >= 3, lab.refused_since(before, M2)
 
 
 def _block_user_data(sw: FlashedSwarm, i: int, source: str) -> None:
@@ -283,7 +387,9 @@ def test_forged_acknack_refused(lab: Lab) -> None:
         _unblock(sw, M1)
     out, err = hold.communicate(timeout=60)
     assert hold.returncode == 0, out + err
-    assert sum(lab.refused_since(before, LEAD).values()) >= 5, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, DP + "dropped_auth_missing") >= 5, lab.refused_since(
+        before, LEAD
+    )
     lab.assert_commander_commands_all()
 
 
@@ -297,14 +403,19 @@ def test_forged_dispose_refused(lab: Lab) -> None:
     datagram = forge.forged_dispose(lab.prefix(M1), lab.sn())
     atk.multicast(datagram)
     atk.send(datagram, sw.meta_addr(LEAD))
+    # fresh, signed, but with the attacker's key: only the signature can refuse it
+    atk.multicast(forge.signed_dispose(lab.prefix(M1), lab.sn(), lab.fresh(M1), ATTACKER_KEY))
 
     def lost() -> bool:
         return len(sw.log_events(LEAD, "peer_lost")) > lost_before
 
-    settle(lambda: lost() or sum(lab.refused_since(before, LEAD).values()) >= 2)
+    settle(lambda: lost() or lab.moved(before, LEAD, SPDP + "auth_bad_signature") >= 1)
     assert not lost(), sw.log_events(LEAD, "peer_lost")
     assert sw.peer_states(LEAD)[sw.names[M1]] == "discovered"
-    assert sum(lab.refused_since(before, LEAD).values()) >= 2, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_missing") >= 2, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_bad_signature") >= 1, lab.refused_since(
+        before, LEAD
+    )
     lab.assert_commander_commands_all()
 
 
@@ -335,7 +446,7 @@ def test_dispose_flood_during_require_all_takeoff(lab: Lab) -> None:
         thread.join(timeout=5)
     assert sw.log_events(LEAD, "peer_lost")[lost_before:] == []
     assert done.returncode == 0, done.stdout + done.stderr
-    assert sum(lab.refused_since(before, LEAD).values()) >= 8, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_missing") >= 8, lab.refused_since(before, LEAD)
 
 
 def test_forged_readiness_high_sn_refused(lab: Lab) -> None:
@@ -362,7 +473,9 @@ def test_forged_readiness_high_sn_refused(lab: Lab) -> None:
     settle(pinned, 6.0)
     row = sw.status(LEAD)["readiness"][name]
     assert row["ready"] and row["reason"] is None, row
-    assert sum(lab.refused_since(before, LEAD).values()) >= 1, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, DP + "dropped_auth_missing") >= 1, lab.refused_since(
+        before, LEAD
+    )
     lab.assert_commander_commands_all()
 
 
@@ -379,11 +492,16 @@ def test_forged_alive_redirect_refused(lab: Lab) -> None:
     user, meta = atk.listener(17411), atk.listener(17410)
     try:
         for _ in range(3):
-            atk.multicast(
-                forge.forged_alive(
-                    learned.participant, lab.sn(), unicast=(here, 17411), metatraffic=(here, 17410)
+            for resign in (None, (lab.fresh(M1), ATTACKER_KEY)):  # replayed, then re-signed
+                atk.multicast(
+                    forge.forged_alive(
+                        learned.participant,
+                        lab.sn(),
+                        unicast=(here, 17411),
+                        metatraffic=(here, 17410),
+                        resign=resign,
+                    )
                 )
-            )
             time.sleep(0.3)
         # a command to that member now: where does it go?
         hold = sw.swarmctl(LEAD, "hold", "--only", sw.names[M1], "--timeout", "8", "--json")
@@ -395,7 +513,10 @@ def test_forged_alive_redirect_refused(lab: Lab) -> None:
     assert locator == real_locator
     assert stolen == [], f"{len(stolen)} datagrams reached the attacker"
     assert hold.returncode == 0, hold.stdout + hold.stderr
-    assert sum(lab.refused_since(before, LEAD).values()) >= 3, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_replayed") >= 3, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_bad_signature") >= 3, lab.refused_since(
+        before, LEAD
+    )
     lab.assert_commander_commands_all()
 
 
@@ -431,10 +552,12 @@ def test_replayed_takeoff_after_state_loss_refused(lab: Lab) -> None:
     def executed() -> bool:
         return bool(sw.status(M2)["executor"]["counters"].get("received_takeoff", 0))
 
-    settle(lambda: executed() or sum(lab.refused_since(before, M2).values()) >= len(captured))
+    # made for drone-2's previous life: refused on the receiver epoch, state file or not
+    refusal = DP + "dropped_auth_receiver_epoch"
+    settle(lambda: executed() or lab.moved(before, M2, refusal) >= len(captured))
     assert not executed(), sw.status(M2)["executor"]
     assert lab.vehicle_commands()[M2] == vehicle[M2]
-    assert sum(lab.refused_since(before, M2).values()) >= 1, lab.refused_since(before, M2)
+    assert lab.moved(before, M2, refusal) >= len(captured), lab.refused_since(before, M2)
     lab.assert_commander_commands_all()
 
 
@@ -526,15 +649,34 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
     before = lab.refusals()
     try:
         for _ in range(3):
-            atk.multicast(
-                forge.forged_alive(
-                    learned.participant,
-                    lab.sn(),
-                    unicast=("127.0.0.1", 14540),
-                    metatraffic=("127.0.0.1", 14540),
+            for resign in (None, (lab.fresh(M2), ATTACKER_KEY)):  # replayed, then re-signed
+                atk.multicast(
+                    forge.forged_alive(
+                        learned.participant,
+                        lab.sn(),
+                        unicast=("127.0.0.1", 14540),
+                        metatraffic=("127.0.0.1", 14540),
+                        resign=resign,
+                    )
                 )
-            )
             time.sleep(0.3)
+        # a captured drone-1 announcing loopback for itself: authentic, and still refused
+        # for the locator (it moves drone-1's replay window a little: the swarm restarts)
+        lab.dirty = True
+        own = atk.member(sw.names[M1])
+        assert own is not None and own.freshness is not None
+        captured = KeyRing.from_bundle(
+            sw.bundle, sw.names[M1], NodeSecrets.load(sw.lib(M1) / "node.key")
+        )
+        atk.multicast(
+            forge.forged_alive(
+                own.participant,
+                lab.sn(),
+                unicast=("127.0.0.1", 14540),
+                metatraffic=("127.0.0.1", 14540),
+                resign=(Freshness(own.freshness.epoch, own.freshness.seq + 1), captured),
+            )
+        )
         # give the daemons the time to answer (directed replies, heartbeats, readiness)
         time.sleep(SETTLE_S)
         into_mavlink = _rtps_to_mavlink(sw)
@@ -542,7 +684,11 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
         for i in range(sw.n):
             sw.lan[i].run(["nft", "delete", "table", "inet", "atk_count"], check=False)
     assert into_mavlink == [0] * sw.n, f"RTPS datagrams sent into 127.0.0.1:14540: {into_mavlink}"
-    assert sum(lab.refused_since(before, LEAD).values()) >= 3, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_replayed") >= 3, lab.refused_since(before, LEAD)
+    assert lab.moved(before, LEAD, SPDP + "auth_bad_signature") >= 3, lab.refused_since(
+        before, LEAD
+    )
+    assert lab.moved(before, LEAD, SPDP + "bad_locator") >= 1, lab.refused_since(before, LEAD)
     lab.assert_commander_commands_all()
 
 
@@ -583,26 +729,18 @@ FLOOD_S: Final = 10.0
 def test_spdp_flood_loses_no_real_peer(lab: Lab) -> None:
     sw, atk = lab.swarm, lab.attacker
     lab.dirty = True  # thousands of foreign entries in every daemon
-    members = [
-        learned.participant for name in sw.names if (learned := atk.member(name)) is not None
-    ]
     before = lab.refusals()
-    result: FloodResult = run_flood(
-        sw, atk, forge.flood_pool(members, 2000, random.Random(10)), FLOOD_RATE_HZ, FLOOD_S
-    )
-    report = (
-        Path(os.environ.get("SWARMD_FLOOD_REPORT", ""))
-        if os.environ.get("SWARMD_FLOOD_REPORT")
-        else None
-    )
-    if report is not None:
-        report.write_text(json.dumps(result.as_dict(), indent=2))
+    pool = forged_pool(sw, atk, 2000, seed=10)
+    result: FloodResult = run_flood(sw, atk, pool, FLOOD_RATE_HZ, FLOOD_S)
     assert result.sent >= 0.8 * FLOOD_RATE_HZ * FLOOD_S * 0.5, result  # the flood happened
     assert result.peers_lost == {}, result
-    # half the flood claims the members' prefixes: each must be refused for its missing or
-    # bad authenticator or a spent verification budget (counters.dropped.auth_*), never
-    # taken as a renewal; the kernel may drop some under load, hence 10 %
+    # half the flood claims the members' prefixes: each must be refused as a replay, for its
+    # signature, or on a spent verification budget (counters.dropped.auth_*), never taken as
+    # a renewal; the kernel may drop some under load, hence 10 %
     for i in range(sw.n):
         refused = {k: v for k, v in lab.refused_since(before, i).items() if "auth" in k}
         assert sum(refused.values()) >= 0.1 * result.sent / 2, (sw.names[i], refused, result)
+        assert refused.get(SPDP + "auth_replayed", 0) > 0, refused
+        signed = sum(v for k, v in refused.items() if "budget" in k or "signature" in k)
+        assert signed > 0, refused  # the re-signed ones: refused by budget or signature
     lab.assert_commander_commands_all()

@@ -7,11 +7,17 @@ daemon CPU comes from ``/proc/<pid>/stat`` (utime + stime) before and after.
 
 from __future__ import annotations
 
+import random
 import threading
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from swarmd.auth.freshness import Freshness
+from swarmd.rtps.types import GuidPrefix
+from tests.attacker import forge
 from tests.attacker.host import Attacker
 from tests.attacker.swarm import FlashedSwarm, cpu_seconds
 
@@ -29,9 +35,38 @@ class FloodResult:
     cpu_percent: dict[str, float] = field(default_factory=dict)  # per daemon, of one core
     idle_cpu_percent: dict[str, float] = field(default_factory=dict)  # same, without flood
     polls: int = 0
+    # datagrams the kernel dropped before the daemon read them (UDP RcvbufErrors in the
+    # drone's namespace, /proc/net/snmp): a flood the daemon never saw, so never counted
+    kernel_rcvbuf_drops: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def forged_pool(sw: FlashedSwarm, atk: Attacker, size: int, seed: int) -> list[bytes]:
+    """The flood's datagrams (``forge.flood_pool``) from what the attacker sniffed: the
+    members' announcements and their (public) freshness, re-signed with a key of its own."""
+    atk.wait_for(lambda: all(atk.member(n) for n in sw.names), 20.0)
+    learned = [m for n in sw.names if (m := atk.member(n)) is not None]
+    fresh: dict[GuidPrefix, Freshness] = {
+        m.participant.guid_prefix: m.freshness for m in learned if m.freshness is not None
+    }
+    return forge.flood_pool(
+        [m.participant for m in learned],
+        size,
+        random.Random(seed),
+        fresh=fresh,
+        signer=Ed25519PrivateKey.generate(),
+    )
+
+
+def rcvbuf_errors(sw: FlashedSwarm, i: int) -> int:
+    """UDP RcvbufErrors of drone i's namespace (/proc/net/snmp is per network namespace)."""
+    lines = [ln.split() for ln in sw.lan[i].run(["cat", "/proc/net/snmp"]).stdout.splitlines()]
+    udp = [ln for ln in lines if ln and ln[0] == "Udp:"]
+    if len(udp) < 2 or "RcvbufErrors" not in udp[0]:
+        return 0
+    return int(udp[1][udp[0].index("RcvbufErrors")])
 
 
 def run_flood(
@@ -69,6 +104,7 @@ def run_flood(
         )
 
     lost: dict[str, set[str]] = {}
+    kernel0 = {i: rcvbuf_errors(sw, i) for i in range(sw.n)}
     thread = threading.Thread(target=flood, name="spdp-flood")
     start = time.monotonic()
     c0 = {i: cpu_seconds(p) for i, p in pids.items()}
@@ -88,6 +124,9 @@ def run_flood(
     thread.join(timeout=seconds + 5.0)
     c1 = {i: cpu_seconds(p) for i, p in pids.items()}
     result.seconds = round(time.monotonic() - start, 2)
+    result.kernel_rcvbuf_drops = {
+        sw.names[i]: rcvbuf_errors(sw, i) - kernel0[i] for i in range(sw.n)
+    }
     result.sent = sent[0] if sent else 0
     result.cpu_percent = {
         sw.names[i]: round(100 * (c1[i] - c0[i]) / result.seconds, 1) for i in pids

@@ -14,7 +14,11 @@ import random
 from collections.abc import Sequence
 from typing import Final
 
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.spdp import PLACEHOLDER, Signer, seal
 from swarmd.bundle.model import EndpointKind, endpoint_entity_id
+from swarmd.dataplane.seal import seal as seal_user_data
+from swarmd.dataplane.seal import user_data_key
 from swarmd.dataplane.types import Command, CommandKind, Readiness, encode_sample
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import (
@@ -162,19 +166,50 @@ def forged_dispose(prefix: GuidPrefix, sn: int) -> bytes:
 
 
 def forged_alive(
-    real: SpdpParticipant, sn: int, *, unicast: tuple[str, int], metatraffic: tuple[str, int]
+    real: SpdpParticipant,
+    sn: int,
+    *,
+    unicast: tuple[str, int],
+    metatraffic: tuple[str, int],
+    resign: tuple[Freshness, Signer] | None = None,
 ) -> bytes:
     """Issue 10 attacks 4 and 7: a member's own sniffed DATA(p), its locators replaced.
 
     ``heard`` is cleared so every receiver owes it a directed reply, which goes to the
-    forged metatraffic locator."""
+    forged metatraffic locator. The sniffed authenticator stays as it was (a replay with
+    new contents) unless ``resign`` = (a fresh freshness, the attacker's own Ed25519 key):
+    then it passes every cheap check and only the signature can refuse it."""
     forged = dataclasses.replace(
         real,
         default_unicast_locators=(Locator.udpv4(*unicast),),
         metatraffic_unicast_locators=(Locator.udpv4(*metatraffic),),
         heard=bytes(len(real.heard)) if real.heard is not None else None,
+        authenticator=PLACEHOLDER if resign is not None else real.authenticator,
     )
-    return encode_spdp(forged, sequence_number=sn, timestamp=Time(0, 0))
+    datagram = encode_spdp(forged, sequence_number=sn, timestamp=Time(0, 0))
+    return datagram if resign is None else seal(datagram, resign[0], resign[1])
+
+
+def signed_dispose(prefix: GuidPrefix, sn: int, freshness: Freshness, signer: Signer) -> bytes:
+    """Issue 10 attack 3: DATA(p[UD]) for ``prefix``, fresh, signed with a key not its own."""
+    template = encode_spdp_dispose(
+        prefix, sequence_number=sn, timestamp=Time(0, 0), authenticator=PLACEHOLDER
+    )
+    return seal(template, freshness, signer)
+
+
+def mac(
+    datagram: bytes,
+    *,
+    pair_key: bytes,
+    freshness: Freshness,
+    receiver: GuidPrefix,
+    receiver_epoch: int,
+) -> bytes:
+    """A user datagram with swarmd's authenticator under ``pair_key``: the attacker's own
+    random key, or a captured member's real pair key with the victim. The epochs are public
+    (every SPDP authenticator carries its sender's), so only the tag can refuse it."""
+    return seal_user_data(user_data_key(pair_key), datagram, freshness, receiver, receiver_epoch)
 
 
 def foreign_participant(prefix: GuidPrefix, name: str, sn: int = 1) -> bytes:
@@ -189,17 +224,38 @@ def foreign_participant(prefix: GuidPrefix, name: str, sn: int = 1) -> bytes:
     return encode_spdp(part, sequence_number=sn, timestamp=Time(0, 0))
 
 
-def flood_pool(members: Sequence[SpdpParticipant], size: int, rng: random.Random) -> list[bytes]:
+def flood_pool(
+    members: Sequence[SpdpParticipant],
+    size: int,
+    rng: random.Random,
+    *,
+    fresh: dict[GuidPrefix, Freshness] | None = None,
+    signer: Signer | None = None,
+) -> list[bytes]:
     """Issue 10 attack 9: ``size`` distinct forged SPDP datagrams.
 
-    Half claim a member's prefix (an alive at a fresh SN, locators unchanged: the costly
-    kind, it must be verified or rejected), half are new random foreign prefixes (each one
-    a table entry and a log line in a daemon that keeps no budget)."""
+    Half claim a member's prefix, at a fresh SN with the member's real locators: of those,
+    every other one keeps the member's sniffed authenticator (a replay, refused by the cheap
+    freshness check) and the rest, when ``fresh`` and ``signer`` are given, carry a freshness
+    newer than the member's real one signed with the attacker's key (they pass the cheap
+    checks, so only a verification budget keeps them from costing an Ed25519 check each).
+    The other half invent new foreign participants (each one a table entry and a log line in
+    a daemon that keeps no budget)."""
     out: list[bytes] = []
     for i in range(size):
         if members and i % 2 == 0:
             real = members[(i // 2) % len(members)]
-            out.append(encode_spdp(real, sequence_number=1_000_000 + i, timestamp=None))
+            sn = 1_000_000 + i
+            newer = fresh.get(real.guid_prefix) if fresh is not None else None
+            if signer is not None and newer is not None and i % 4 == 2:
+                template = encode_spdp(
+                    dataclasses.replace(real, authenticator=PLACEHOLDER),
+                    sequence_number=sn,
+                    timestamp=None,
+                )
+                out.append(seal(template, Freshness(newer.epoch, newer.seq + i), signer))
+            else:
+                out.append(encode_spdp(real, sequence_number=sn, timestamp=None))
         else:
             prefix = GuidPrefix(bytes(rng.getrandbits(8) for _ in range(12)))
             part = SpdpParticipant(prefix, entity_name=f"flood-{i}")

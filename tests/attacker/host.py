@@ -20,6 +20,8 @@ from typing import Final
 
 from swarmd_lab.netns import Namespace
 
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.spdp import open_tail
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpAlive, SpdpParticipant, decode_spdp
 from swarmd.rtps.types import GuidPrefix
@@ -48,6 +50,10 @@ class Learned:
     participant: SpdpParticipant
     sn: int
     source: str  # IPv4 it sent from
+    # (boot epoch, seq) of its SPDP authenticator: public, it travels in clear; an attacker
+    # uses the epochs to make forgeries pass the cheap freshness checks
+    freshness: Freshness | None = None
+    raw: bytes = b""  # the datagram as captured, for replay
 
 
 def _udp(frame: bytes) -> tuple[tuple[str, int], tuple[str, int], bytes] | None:
@@ -123,12 +129,13 @@ class Attacker:
             _, samples = decode_spdp(payload)
         except DecodeError:
             return
+        tail = open_tail(payload)
+        freshness = tail[0] if tail is not None else None
         for s in samples:
             if isinstance(s, SpdpAlive):
+                learned = Learned(s.participant, s.sequence_number, source, freshness, payload)
                 with self._lock:
-                    self.learned[s.participant.guid_prefix] = Learned(
-                        s.participant, s.sequence_number, source
-                    )
+                    self.learned[s.participant.guid_prefix] = learned
 
     def member(self, name: str) -> Learned | None:
         """What SPDP told about the participant whose ENTITY_NAME ends in ``/name``."""
