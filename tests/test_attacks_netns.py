@@ -105,6 +105,11 @@ class Lab:
         assert learned is not None and learned.freshness is not None, "no SPDP authenticator"
         return learned.freshness.epoch
 
+    def captured(self, i: int) -> KeyRing:
+        """Drone i's keys as an attacker holding the drone would: its flashed node.key."""
+        secrets = NodeSecrets.load(self.swarm.lib(i) / "node.key")
+        return KeyRing.from_bundle(self.swarm.bundle, self.swarm.names[i], secrets)
+
     def fresh(self, i: int) -> Freshness:
         """A freshness claiming drone i's current epoch, far ahead of its real sequence."""
         self._sn += 1
@@ -235,9 +240,7 @@ def test_captured_member_cannot_impersonate_commander_or_member(lab: Lab) -> Non
     claiming drone-1 itself (authentic, but drone-1 commands nobody), and a dispose of
     drone-2 signed with drone-1's real Ed25519 key. All refused."""
     sw, atk = lab.swarm, lab.attacker
-    captured = KeyRing.from_bundle(
-        sw.bundle, sw.names[M1], NodeSecrets.load(sw.lib(M1) / "node.key")
-    )
+    captured = lab.captured(M1)
     victim = lab.prefix(M2)
     pair_key = captured.pair_key(victim)
     assert pair_key is not None
@@ -648,16 +651,17 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
     _count_rtps_to_mavlink(sw)
     before = lab.refusals()
     try:
+        loopback = ("127.0.0.1", 14540)
         for _ in range(3):
             for resign in (None, (lab.fresh(M2), ATTACKER_KEY)):  # replayed, then re-signed
                 atk.multicast(
                     forge.forged_alive(
                         learned.participant,
                         lab.sn(),
-                        unicast=("127.0.0.1", 14540),
-                        metatraffic=("127.0.0.1", 14540),
+                        unicast=loopback,
+                        metatraffic=loopback,
                         resign=resign,
-                    )
+                    )  # fmt: skip
                 )
             time.sleep(0.3)
         # a captured drone-1 announcing loopback for itself: authentic, and still refused
@@ -665,16 +669,10 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
         lab.dirty = True
         own = atk.member(sw.names[M1])
         assert own is not None and own.freshness is not None
-        captured = KeyRing.from_bundle(
-            sw.bundle, sw.names[M1], NodeSecrets.load(sw.lib(M1) / "node.key")
-        )
+        own_key = (Freshness(own.freshness.epoch, own.freshness.seq + 1), lab.captured(M1))
         atk.multicast(
             forge.forged_alive(
-                own.participant,
-                lab.sn(),
-                unicast=("127.0.0.1", 14540),
-                metatraffic=("127.0.0.1", 14540),
-                resign=(Freshness(own.freshness.epoch, own.freshness.seq + 1), captured),
+                own.participant, lab.sn(), unicast=loopback, metatraffic=loopback, resign=own_key
             )
         )
         # give the daemons the time to answer (directed replies, heartbeats, readiness)
