@@ -90,3 +90,25 @@ def test_attacker_on_the_wifi_cannot_reach_the_agent() -> None:
         assert served["samples"] > 20
         # the attacker hears its own 150 datagrams and no reply (ICMP is not UDP)
         assert seen["udp"] == 150, seen
+
+
+def test_client_mode_keeps_its_participant_on_loopback() -> None:
+    """swarmd as a second client of MicroXRCEAgent: its participant is localhost-only, so with
+    PX4's own participant localhost-only too (PTCFG=1) the Wi-Fi side stays silent."""
+    if (why := unavailable_reason()) is not None:
+        pytest.skip(why)
+    client = str(peer_binary("px4_like_client"))
+    agent_bin = str(peer_binary("MicroXRCEAgent"))
+    with Lan(1) as lan:
+        ns = lan[0]
+        sock = _capture_socket(ns)
+        ns.popen([agent_bin, "udp4", "-p", "8888"], env=peer_env())
+        ns.popen([client, "-p", "8888", "-c", "1", "-q"])
+        serve = [sys.executable, "-m", "swarmd_lab.xrce", "serve", "--port", "8888", "--client"]
+        swarmd = ns.popen([*serve, "--seconds", "6"], stdout=subprocess.PIPE)
+        counts = count_udp(sock, 90, stop=lambda: swarmd.poll() is not None)
+        out, _ = swarmd.communicate(timeout=30)
+        served = json.loads(out)
+        sock.close()
+        assert served["samples"] > 20, served  # PX4's topics reached swarmd through DDS
+        assert counts["udp"] == 0, counts

@@ -4,8 +4,9 @@ Used by ``bench/xrce.py`` (the figures in docs/benchmarks.md), the netns test an
 The peers (``px4_like_client``, ``MicroXRCEAgent``) are the ones ``scripts/setup.sh`` builds
 into ``.cache/xrce`` from ``../shared/peers/xrce``.
 
-    python -m swarmd_lab.xrce serve --port 8888 [--seconds S]   # swarmd's XRCE agent alone:
-        prints one JSON line at exit: samples, sessions, its own CPU seconds and wall time
+    python -m swarmd_lab.xrce serve --port 8888 [--seconds S] [--client]
+        swarmd's XRCE agent alone (or a client of the agent on PORT); one JSON line at exit:
+        samples, sessions, its own CPU seconds and wall time
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from swarmd.px4.messages import Observation
-from swarmd.px4.xrce_backend import XrceBackend
+from swarmd.px4.xrce_backend import Mode, XrceBackend
 
 ETH_P_ALL: Final = 0x0003
 REPO: Final = Path(__file__).resolve().parents[2]
@@ -39,9 +40,10 @@ def peer_env(out: Path | None = None) -> dict[str, str]:
     return dict(os.environ, LD_LIBRARY_PATH=str(lib))
 
 
-async def serve(port: int, seconds: float) -> dict[str, Any]:
-    """Run swarmd's XRCE agent backend on 127.0.0.1:``port``; count what it decodes."""
-    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}")
+async def serve(port: int, seconds: float, mode: Mode = "xrce-agent") -> dict[str, Any]:
+    """Run swarmd's XRCE backend (the agent on 127.0.0.1:``port``, or a client of the agent
+    there); count what it decodes."""
+    backend = XrceBackend(mode, f"udp:127.0.0.1:{port}")
     counts: dict[str, int] = {}
     first = asyncio.Event()
 
@@ -110,8 +112,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     s = sub.add_parser("serve", help="swarmd's XRCE agent on 127.0.0.1:PORT, then a JSON line")
     s.add_argument("--port", type=int, default=8888)
     s.add_argument("--seconds", type=float, default=30.0)
+    s.add_argument("--client", action="store_true", help="join the agent on PORT as a client")
     args = p.parse_args(argv)
-    result = asyncio.run(serve(args.port, args.seconds))
+    mode: Mode = "xrce-client" if args.client else "xrce-agent"
+    result = asyncio.run(serve(args.port, args.seconds, mode))
     json.dump(result, sys.stdout)
     sys.stdout.write("\n")
     return 0
