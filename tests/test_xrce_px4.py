@@ -176,7 +176,7 @@ async def _client_mode_through_micro_xrce_agent_takes_off() -> None:
     port = _free_udp_port()
     async with _proc(str(agent_bin), "udp4", "-p", str(port)):
         await asyncio.sleep(0.5)
-        backend = XrceBackend("xrce-client", f"udp:127.0.0.1:{port}", sysid=1)
+        backend = XrceBackend("xrce-client", f"udp:localhost:{port}", sysid=1)
         bridge = Px4Bridge(backend, readiness_config=READY)
         await bridge.start()
         try:

@@ -140,6 +140,9 @@ class XrceBackend:
             self._transport, _ = await loop.create_datagram_endpoint(
                 lambda: _Datagrams(self), remote_addr=self._agent_addr
             )
+            # the address datagrams arrive from ("localhost" resolves to 127.0.0.1)
+            peer = self._transport.get_extra_info("peername")
+            self._agent_addr = (peer[0], peer[1])
             if isinstance(self.engine, XrceClient):
                 client, agent = self.engine, self._agent_addr
                 self._driver.call(lambda now: client.connect(agent, now))
