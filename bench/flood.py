@@ -121,8 +121,8 @@ def docs_block(s: dict[str, Any], out: str) -> str:
             f"| daemon CPU during the flood, % of one core (median / max) | "
             f"{s['cpu_percent_median']} / {s['cpu_percent_max']} |",
             f"| the same daemons idle, % of one core (median) | {s['idle_cpu_percent_median']} |",
-            f"| forged datagrams counted as refused (lowest drone; the third that claims the "
-            f"receiver's own prefix is counted as `own` and left out) | "
+            f"| forged datagrams counted as refused (lowest drone; those claiming the receiver's "
+            f"own prefix, a third of the member half, count as `own` and are left out) | "
             f"{100 * s['refused_fraction_min']:.0f} % |",
             f"| dropped by the kernel before the daemon read them (highest drone) | "
             f"{100 * s['kernel_drop_fraction_max']:.0f} % |",
