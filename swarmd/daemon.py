@@ -457,6 +457,8 @@ class Daemon:
         self.log.info("stopped", reason=reason)
 
     async def _close_transports(self) -> None:
+        if self.driver is not None:
+            self.driver.close()  # no timer may fire into a daemon that failed or stopped
         for transport in self._transports.values():
             transport.close()
         self._transports.clear()
