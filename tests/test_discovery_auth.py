@@ -84,6 +84,9 @@ def test_a_signed_data_p_discovers_the_peer_with_its_epoch() -> None:
     e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1, epoch=5)), A1, 0.1)
     (event,) = [x for x in drain(e) if isinstance(x, PeerDiscovered)]
     assert event.name == "uav1" and event.epoch == 5
+    view = e.peer(P[1])
+    assert view is not None and view.epoch == 5
+    assert [p["epoch"] for p in e.status(0.1)["peers"]] == [5, None]
     assert [str(x) for x in event.default_unicast_locators] == [f"udp/{node_ipv4(1)}:7413"]
 
 

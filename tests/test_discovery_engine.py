@@ -466,6 +466,7 @@ def test_status_follows_the_schema() -> None:
         "locator": "udp/10.0.0.2:7412",
         "matched_endpoints": 2,
         "lists_me": True,
+        "epoch": None,  # an engine without authentication learns no epochs
     }
     assert status["peers"][1]["state"] == "undiscovered"
     counters = status["counters"]

@@ -494,6 +494,7 @@ class DiscoveryEngine:
                 "locator": None if p.locator is None else f"udp/{p.locator[0]}:{p.locator[1]}",
                 "matched_endpoints": len(p.matches),
                 "lists_me": p.lists_me,
+                "epoch": p.epoch,  # its boot epoch (signed): a jump means it restarted
             }
             for p in self.peers()
         ]
@@ -1035,6 +1036,7 @@ def _view(p: Peer) -> PeerView:
         lease_s=p.lease_s,
         link_quality_permille=p.link_quality_permille,
         times_discovered=p.times_discovered,
+        epoch=p.epoch,
     )
 
 

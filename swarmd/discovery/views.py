@@ -41,6 +41,7 @@ class PeerView:
     lease_s: float
     link_quality_permille: int | None
     times_discovered: int
+    epoch: int | None = None  # its boot epoch from its latest authenticated DATA(p)
 
     @property
     def discovered(self) -> bool:
