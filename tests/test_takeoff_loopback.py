@@ -177,9 +177,27 @@ def test_readiness_takeoff_and_refusal(workdir: Path) -> None:
                 "uav1": "completed",
                 "uav2": "completed",
             }
+            # hold while descending: PX4's Hold (AUTO.LOITER) shows in every heartbeat
+            hold = app.request_command({"kind": "hold", "only": ["uav1", "uav2"]})
+            hid = hold["command_id"]
+            await until(lambda: app.request_outcomes({"command_id": hid})["done"], lambda: hid)
+            held = app.request_outcomes({"command_id": hid})["nodes"]
+            assert {n: s["state"] for n, s in held.items()} == {
+                "uav1": "completed",
+                "uav2": "completed",
+            }, held
+            # abort in the air: the drones land (never a forced disarm)
+            abort = app.request_command({"kind": "abort", "only": ["uav1", "uav2"]})
+            aid = abort["command_id"]
+            await until(lambda: app.request_outcomes({"command_id": aid})["done"], lambda: aid)
+            aborted = app.request_outcomes({"command_id": aid})["nodes"]
+            assert {n: (s["state"], s["reason"]) for n, s in aborted.items()} == {
+                "uav1": ("completed", "NAV_LAND"),
+                "uav2": ("completed", "NAV_LAND"),
+            }, aborted
             status = swarm.commander.status()
             assert status["role"] == "commander" and status["dataplane"]["enabled"]
-            assert [c["command_id"] for c in status["commands"]] == [cid, rid, lid]
+            assert [c["command_id"] for c in status["commands"]] == [cid, rid, lid, hid, aid]
             member_status = swarm.daemons[1].status()
             assert member_status["role"] == "member" and member_status["readiness"] == {}
             assert member_status["px4"]["enabled"]
