@@ -136,7 +136,7 @@ class SpdpVerifier:
             for p in bundle.participants
             if p.ipv4 is not None
         }
-        self._sender = BucketTable[bytes](SENDER_RATE, SENDER_BURST, keyring_size(keyring))
+        self._sender = BucketTable[bytes](SENDER_RATE, SENDER_BURST, max(1, keyring.size))
         self._new_address = BucketTable[tuple[bytes, str, int]](
             NEW_ADDRESS_RATE, NEW_ADDRESS_BURST, MAX_NEW_ADDRESSES
         )
@@ -187,10 +187,6 @@ class SpdpVerifier:
     def _refuse(self, reason: Refusal) -> Refusal:
         self.counters[reason.value] += 1
         return reason
-
-
-def keyring_size(keyring: KeyRing) -> int:
-    return max(1, keyring.size)
 
 
 class SpdpAuth:
