@@ -91,6 +91,9 @@ def test_show_json_has_swarm_hash_participants_topics_and_matches(
     s = json.loads(out)
     assert s["swarm"] == "field-test-3" and len(s["content_sha256"]) == 64
     assert [p["name"] for p in s["participants"]] == ["lead", "drone-1", "drone-2"]
+    assert s["format_version"] == 2
+    for p in s["participants"]:  # both node keys, by fingerprint (bundle format 2)
+        assert p["announce_key"].startswith("SHA256:") and p["x25519_key"].startswith("SHA256:")
     ready = next(t for t in s["topics"] if t["name"] == "swarm/ready")
     assert ready["writers"] == ["drone-1", "drone-2"] and ready["readers"] == ["lead"]
     lead_ready = next(r for r in s["matches"]["lead"] if r["topic"] == "swarm/ready")

@@ -88,6 +88,7 @@ def summary(
                 "metatraffic_unicast_port": bundle.metatraffic_port(p),
                 "user_unicast_port": bundle.user_port(p),
                 "announce_key": fingerprint(p.announce_public_key),
+                "x25519_key": fingerprint(p.x25519_public_key),
                 "endpoints": len(p.endpoints),
             }
             for p in bundle.participants
