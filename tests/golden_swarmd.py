@@ -3,13 +3,20 @@
 The ``.bin`` files under ``tests/fixtures/swarmd/`` were produced by
 ``python -m tests.golden_swarmd`` and checked by tshark (see tests/test_tshark.py); the
 golden tests assert that today's encoder still produces exactly these bytes, so any wire
-change is deliberate.
+change is deliberate. The ``*-signed.bin`` ones are what a daemon sends: the same datagrams
+with the authenticator (PID 0x8a04, ``swarmd.auth.spdp``) sealed by ``SIGNING_KEY`` at
+``FRESHNESS`` (Ed25519 is deterministic, RFC 8032, so the bytes are fixed too).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from swarmd.auth.freshness import Freshness
+from swarmd.auth.spdp import PLACEHOLDER, seal
 from swarmd.rtps import Duration, GuidPrefix, Locator, SpdpParticipant, Time, encode_spdp
 from swarmd.rtps.spdp import encode_spdp_dispose
 
@@ -31,12 +38,31 @@ PARTICIPANT = SpdpParticipant(
     link_quality_permille=830,
 )
 
+SIGNING_KEY = Ed25519PrivateKey.from_private_bytes(bytes(range(32)))
+FRESHNESS = Freshness(1795247086, 41)
+SIGNED = dataclasses.replace(PARTICIPANT, authenticator=PLACEHOLDER)
+
 PACKETS: dict[str, bytes] = {
     "spdp-alive.bin": encode_spdp(PARTICIPANT, sequence_number=1, timestamp=TIMESTAMP),
     "spdp-directed.bin": encode_spdp(
         PARTICIPANT, sequence_number=2, timestamp=TIMESTAMP, destination=PEER
     ),
     "spdp-dispose.bin": encode_spdp_dispose(PREFIX, sequence_number=3, timestamp=TIMESTAMP),
+    "spdp-alive-signed.bin": seal(
+        encode_spdp(SIGNED, sequence_number=1, timestamp=TIMESTAMP), FRESHNESS, SIGNING_KEY
+    ),
+    "spdp-directed-signed.bin": seal(
+        encode_spdp(SIGNED, sequence_number=2, timestamp=TIMESTAMP, destination=PEER),
+        FRESHNESS,
+        SIGNING_KEY,
+    ),
+    "spdp-dispose-signed.bin": seal(
+        encode_spdp_dispose(
+            PREFIX, sequence_number=3, timestamp=TIMESTAMP, authenticator=PLACEHOLDER
+        ),
+        FRESHNESS,
+        SIGNING_KEY,
+    ),
 }
 
 

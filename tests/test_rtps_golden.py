@@ -6,10 +6,12 @@ truncation either raises DecodeError or decodes to the complete submessages befo
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 
+from swarmd.auth.spdp import AUTHENTICATOR_OVERHEAD, open_tail
 from swarmd.rtps import (
     Data,
     DecodeError,
@@ -184,3 +186,25 @@ def test_every_truncation_raises_or_keeps_complete_submessages(path: Path) -> No
                 decode_message(prefix)
             with pytest.raises(DecodeError):
                 decode_spdp(prefix)
+
+
+@pytest.mark.parametrize("kind", ["alive", "directed", "dispose"])
+def test_signed_goldens_are_the_unsigned_ones_plus_a_verifying_authenticator(kind: str) -> None:
+    plain = _load(golden_swarmd.FIXTURES / f"spdp-{kind}.bin")
+    signed = _load(golden_swarmd.FIXTURES / f"spdp-{kind}-signed.bin")
+    opened = open_tail(signed)
+    assert opened is not None
+    freshness, signature, covered = opened
+    assert freshness == golden_swarmd.FRESHNESS
+    golden_swarmd.SIGNING_KEY.public_key().verify(signature, covered)  # raises if not
+    _, plain_samples = decode_spdp(plain)
+    _, signed_samples = decode_spdp(signed)
+    if kind == "dispose":
+        assert signed_samples == plain_samples
+        assert len(signed) == len(plain) + AUTHENTICATOR_OVERHEAD
+    else:
+        (a,), (b,) = plain_samples, signed_samples
+        assert isinstance(a, SpdpAlive) and isinstance(b, SpdpAlive)
+        assert b.participant.authenticator == signed[-76:-4]
+        assert dataclasses.replace(b.participant, authenticator=None) == a.participant
+        assert len(signed) == len(plain) + AUTHENTICATOR_OVERHEAD
