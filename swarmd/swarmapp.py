@@ -26,7 +26,7 @@ from swarmd.auth.keys import NodeSecrets
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig
 from swarmd.control import RequestInvalid
-from swarmd.dataplane import DataPlane, PacketDropped, PairKeys
+from swarmd.dataplane import DataPlane, PairKeys
 from swarmd.dataplane.convert import ReadinessVerdict
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
@@ -46,6 +46,7 @@ from swarmd.swarm.core import (
     SwarmCore,
     SwarmEvent,
     SwarmSettings,
+    UserDataDropped,
 )
 from swarmd.swarm.roles import Roles
 from swarmd.swarm.statefile import NodeState, StateDirError, boot
@@ -340,7 +341,7 @@ class SwarmApp:
                     reason=event.reason,
                     known=event.known,
                 )
-            case PacketDropped(reason=reason, source=source, detail=detail):
+            case UserDataDropped(reason=reason, source=source, detail=detail):
                 self.log.debug("userdata_dropped", reason=reason, source=str(source), detail=detail)
             case _:
                 assert_never(event)

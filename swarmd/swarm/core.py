@@ -145,6 +145,16 @@ class OutcomeRecorded:
     known: bool
 
 
+@dataclass(frozen=True, slots=True)
+class UserDataDropped:
+    """The data plane dropped a user datagram (its ``PacketDropped``; discovery's has the
+    same name for SPDP): for the debug log, counted in the plane's status."""
+
+    reason: str
+    source: tuple[str, int] | None
+    detail: str
+
+
 SwarmEvent = (
     PersistExecuted
     | VehicleRequest
@@ -153,7 +163,7 @@ SwarmEvent = (
     | CommandExecuting
     | OutcomeReported
     | OutcomeRecorded
-    | PacketDropped
+    | UserDataDropped
 )
 
 
@@ -332,8 +342,8 @@ class SwarmCore:
                             node, outcome.command_id, outcome.result, outcome.reason, known
                         )
                     )
-                case PacketDropped():
-                    self._events.append(event)
+                case PacketDropped(reason=reason, source=source, detail=detail):
+                    self._events.append(UserDataDropped(reason, source, detail))
                 case _:
                     assert_never(event)
 
