@@ -155,7 +155,11 @@ def engine_config(config: DaemonConfig) -> EngineConfig:
         path = f"discovery.overrides.{name}"
         if name not in types or name == "mode":
             raise config.error(path, f"unknown engine setting {name!r}", "see EngineConfig")
-        if types[name] in ("int", int):
+        if types[name] in ("bool", bool):  # a switch (vouch): 0 or 1
+            if value not in (0, 1):
+                raise config.error(path, f"{value} is not 0 or 1", "use 0 (off) or 1 (on)")
+            value = bool(value)
+        elif types[name] in ("int", int):
             if value != int(value):
                 raise config.error(path, f"{value} is not a whole number", "use an integer")
             value = int(value)
@@ -355,6 +359,7 @@ class Daemon:
             node_secrets=self._secrets,
         )
         self.app = app
+        app.on_peer_traffic = self._peer_traffic
         group, mport = self.engine.spdp_multicast
         uport = self.engine.metatraffic_port
         try:
@@ -545,6 +550,13 @@ class Daemon:
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _peer_traffic(self, name: str) -> None:
+        """A peer's user data passed its MAC: discovery takes it as the peer's liveliness
+        (the commander's leases on members ride on their readiness; docs/discovery.md)."""
+        engine = self.engine
+        if engine is not None:
+            self._drive().call(lambda now: engine.peer_traffic(name, now))
 
     def _peer_ipv4(self, prefix: GuidPrefix) -> str | None:
         """The host discovery reaches the peer at (a typed engine query, O(1) by prefix):

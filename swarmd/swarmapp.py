@@ -42,6 +42,7 @@ from swarmd.swarm.core import (
     MemberReadinessChanged,
     OutcomeRecorded,
     OutcomeReported,
+    PeerTrafficVerified,
     PersistExecuted,
     SwarmCore,
     SwarmEvent,
@@ -89,6 +90,8 @@ class SwarmApp:
         # discovered peers -> (address, boot epoch), replayed on start
         self._up: dict[str, tuple[str | None, int]] = {}
         self.counters: dict[str, int] = {"state_save_errors": 0}
+        # verified user data from a peer, by name: the daemon feeds it to discovery
+        self.on_peer_traffic: Callable[[str], None] | None = None
 
     @property
     def is_commander(self) -> bool:
@@ -341,6 +344,9 @@ class SwarmApp:
                     reason=event.reason,
                     known=event.known,
                 )
+            case PeerTrafficVerified(node=node):
+                if self.on_peer_traffic is not None:
+                    self.on_peer_traffic(node)
             case UserDataDropped(reason=reason, source=source, detail=detail):
                 self.log.debug("userdata_dropped", reason=reason, source=str(source), detail=detail)
             case _:

@@ -138,3 +138,14 @@ def test_expected_sha256_is_a_trust_anchor_and_checked() -> None:
 def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="config file not found"):
         load_config(tmp_path / "nope.yaml")
+
+
+def test_vouch_switch_override_is_0_or_1() -> None:
+    from swarmd.daemon import engine_config
+
+    off = parse_config(MINIMAL + "discovery:\n  overrides:\n    vouch: 0\n", "x.yaml")
+    assert engine_config(off).vouch is False
+    assert engine_config(parse_config(MINIMAL, "x.yaml")).vouch is True
+    bad = parse_config(MINIMAL + "discovery:\n  overrides:\n    vouch: 2\n", "x.yaml")
+    with pytest.raises(ConfigError, match="vouch"):
+        engine_config(bad)

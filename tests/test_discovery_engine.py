@@ -126,7 +126,7 @@ def test_boot_waits_for_a_link_sample_then_falls_back_to_default_q() -> None:
 
 
 def test_lonely_engine_stages_announcements_with_backoff_then_gives_up() -> None:
-    engine = engine_for(10, seed=11)
+    engine = engine_for(10, seed=11, vouch=False)  # uav0, the commander: a plain schedule
     sent = run_to(engine, 60.0)
     times = [t for t, _, a in sent if a == MCAST]
     assert all(a == MCAST for _, _, a in sent), "nobody answered, so nothing is directed"
@@ -409,7 +409,7 @@ def test_event_queue_is_capped_when_nobody_drains_it() -> None:
 
 
 def test_lower_link_quality_makes_renewals_denser_during_flight() -> None:
-    engine = engine_for(3, seed=9)
+    engine = engine_for(3, seed=9, vouch=False)  # uav0, the commander: a plain schedule
     run_to(engine, 40.0)  # alone: gives up announcing, then renews
     assert engine.phase == Phase.STEADY
     engine.datagrams_to_send()
@@ -433,7 +433,8 @@ def test_lower_link_quality_makes_renewals_denser_during_flight() -> None:
 def test_renewal_budget_stretches_period_and_advertised_lease(
     mode: str, period: float, lease: float
 ) -> None:
-    engine = engine_for(10, mode=mode, seed=9, renewal_budget_fps=0.25)
+    # uav0 is the commander: its vouching period is tested in test_discovery_vouch.py
+    engine = engine_for(10, mode=mode, seed=9, renewal_budget_fps=0.25, vouch=False)
     sent = run_to(engine, 400.0)  # alone: announces, gives up, then renews
     assert engine.phase == Phase.STEADY
     timing = engine.status(400.0)["timing"]

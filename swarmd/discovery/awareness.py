@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import random
+from typing import Final
 
 from swarmd.discovery.config import Mode
 
@@ -100,3 +101,34 @@ def advertised_lease_s(
     we are alive on a clean channel: the lease always spans n(Q) >= 2 renewal periods."""
     n = renewals_per_lease(q, per_lease_min=per_lease_min, per_lease_max=per_lease_max)
     return max(lease_s, n * renewal_period_s)
+
+
+# What a vouch's receiver adds to the commander's window for the frame's own way there (MAC
+# queue and retries: milliseconds on an idle channel, well under this).
+VOUCH_TRANSIT_S: Final = 0.5
+
+
+def vouched_lease_s(peer_lease_s: float, window_s: float) -> float:
+    """How long a vouch keeps a member alive from the moment it is received.
+
+    The commander heard the member at most ``window_s`` before it sent the vouch, and the
+    vouch took at most ``VOUCH_TRANSIT_S`` to arrive, so the member's last frame was no more
+    than ``window_s + VOUCH_TRANSIT_S`` ago: a lease counted from there never ends later than
+    one counted from that last frame. A dead member is lost no later than it is today,
+    ``lease`` after its last frame (docs/discovery.md, "Vouching"). <= 0: no extension.
+    """
+    return peer_lease_s - window_s - VOUCH_TRANSIT_S
+
+
+def vouch_period_s(
+    q: float, *, lease_s: float, window_s: float, per_lease_min: float, per_lease_max: float
+) -> float:
+    """The commander's renewal period while it vouches: n(Q) + 1 vouches per vouched lease.
+
+    A member's lease at another member now rests on the commander's vouches alone, each
+    worth ``vouched_lease_s``; one more vouch per lease than the n(Q) renewals a peer's own
+    lease gets, so a receiver must miss n(Q) + 1 vouches in a row (p_loss ** (n + 1)) before
+    a live member lapses. One node sends them, so the swarm pays ~1 frame per period.
+    """
+    n = renewals_per_lease(q, per_lease_min=per_lease_min, per_lease_max=per_lease_max)
+    return max(0.5, vouched_lease_s(lease_s, window_s) / (n + 1.0))

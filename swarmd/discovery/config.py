@@ -50,6 +50,11 @@ class EngineConfig:
     # a swarm larger than budget * lease / n(Q) renews every N / budget seconds and
     # advertises a lease n(Q) times that (docs/discovery.md, "renewal budget")
     renewal_budget_fps: float = 50.0
+    # adaptive mode: the commander (the bundle's one Role.COMMANDER) vouches in its renewals
+    # for the members it heard directly (SPDP or authenticated user data) within
+    # ``vouch_window_s``; a vouched member's renewals wait (docs/discovery.md, "Vouching")
+    vouch: bool = True
+    vouch_window_s: float = 2.5
     # BOOT waits this long for a link sample, then assumes default_link_quality
     boot_link_timeout_s: float = 2.0
     default_link_quality: float = 0.5
@@ -88,6 +93,11 @@ class EngineConfig:
         )
         need(0 <= self.renewal_jitter < 1, "renewal_jitter", "use a fraction in [0, 1)")
         need(self.renewal_budget_fps > 0, "renewal_budget_fps", "use a positive frame rate")
+        need(
+            0 < self.vouch_window_s <= 10,
+            "vouch_window_s",
+            "use a window in (0, 10] seconds, well under the lease",
+        )
         need(self.boot_link_timeout_s >= 0, "boot_link_timeout_s", "use a value >= 0 seconds")
         need(0 <= self.default_link_quality <= 1, "default_link_quality", "use a value in [0, 1]")
         need(self.retransmit_min_gap_s >= 0, "retransmit_min_gap_s", "use a value >= 0")

@@ -68,13 +68,15 @@ from typing import Any, Final
 from swarmd.auth.budget import TokenBucket
 from swarmd.auth.freshness import Freshness
 from swarmd.auth.spdp import PLACEHOLDER, Refusal, SpdpAuth
-from swarmd.bundle.model import Bundle, Participant
+from swarmd.bundle.model import Bundle, Participant, Role
 from swarmd.discovery.awareness import (
     advertised_lease_s,
     draw_passive_timer_s,
     normalise_q,
     passive_window_s,
     renewal_period_s,
+    vouch_period_s,
+    vouched_lease_s,
 )
 from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.digest import HeardBitmap, lists
@@ -108,6 +110,7 @@ from swarmd.rtps.spdp import (
     SpdpAlive,
     SpdpDisposed,
     SpdpParticipant,
+    Vouch,
     decode_spdp,
     encode_spdp,
     encode_spdp_dispose,
@@ -212,6 +215,7 @@ class DiscoveryEngine:
         self._by_prefix: dict[bytes, Peer] = {
             p.participant.guid_prefix.value: p for p in self._peers.values()
         }
+        self._by_name: dict[str, Peer] = {p.participant.name: p for p in self._peers.values()}
         self.phase: Phase = Phase.BOOT
         self._started = now
         self._boot_deadline: float | None = now + config.boot_link_timeout_s
@@ -221,6 +225,18 @@ class DiscoveryEngine:
         self._link: LinkSample | None = None
         self._q = normalise_q(config.default_link_quality)
         self._advertised_permille = round(self._q * 1000)
+        # Vouching (adaptive mode, one commander in the bundle; docs/discovery.md): the
+        # commander's renewals carry the members it heard directly in the last
+        # ``vouch_window_s``; only the commander's (signed) vouch is believed.
+        commanders = [p.index for p in bundle.participants if p.role == Role.COMMANDER]
+        self._commander: int | None = (
+            commanders[0]
+            if config.mode == "adaptive" and config.vouch and len(commanders) == 1
+            else None
+        )
+        self._vouching = self._commander == me.index
+        self._vouch_window_ms = round(config.vouch_window_s * 1000)
+        self._listed_by = 0  # discovered peers whose latest DATA(p) lists us
         self._renewal = Periodic(self._renewal_period(), config.renewal_jitter)
         self._last_multicast: float | None = None
         self._sn = 0
@@ -351,6 +367,24 @@ class DiscoveryEngine:
                 self._renewal.period_s = period
         if self.phase == Phase.BOOT:
             self._start_passive(now, f"link quality read (Q={self._q:.2f}, {sample.source})")
+
+    def peer_traffic(self, key: str | GuidPrefix, now: float) -> None:
+        """Authenticated traffic from bundle peer ``key`` other than SPDP (a user-data
+        datagram the data plane verified with the pair's key): the peer is alive, so its
+        lease restarts as if a renewal had arrived. The driver feeds it; only the peer's
+        own verified traffic may (never a relay's word). Adaptive mode only: paper mode
+        keeps the paper's SPDP-only liveliness. Unknown or undiscovered peers: ignored
+        (discovery needs its DATA(p), with its locators)."""
+        if self.phase == Phase.STOPPED or self._config.mode != "adaptive":
+            return
+        if isinstance(key, GuidPrefix):
+            peer = self._by_prefix.get(key.value)
+        else:
+            peer = self._by_name.get(key)
+        if peer is None or peer.state != PeerState.DISCOVERED:
+            return
+        peer.last_heard = now
+        self._leases.renew(peer.index, peer.lease_s, now)
 
     def shutdown(self, now: float) -> None:
         """Leave: queue DATA(p[UD]) to the multicast group and every discovered peer."""
@@ -606,9 +640,14 @@ class DiscoveryEngine:
         peer.locator = alive.target or (source if self._auth is None else peer.locator)
         peer.metatraffic_locators = part.metatraffic_unicast_locators
         peer.default_locators = part.default_unicast_locators
-        peer.lists_me = lists(part.heard, self._my_index)
+        listed = lists(part.heard, self._my_index)
+        if listed != peer.lists_me:
+            peer.lists_me = listed
+            self._listed_by += 1 if listed else -1
         peer.link_quality_permille = part.link_quality_permille
         self._leases.renew(peer.index, alive.lease_s, now)
+        if part.vouched is not None and peer.index == self._commander and not self._vouching:
+            self._apply_vouch(part.vouched, now)
         if moved:
             self._emit(
                 PeerLocatorsChanged(
@@ -675,6 +714,43 @@ class DiscoveryEngine:
             # first answer after a holdoff; a peer we already told and are waiting on keeps
             # its backoff, since its frame may simply have crossed ours in flight
             self._arm(peer, now + self._reply_delay())
+
+    def _apply_vouch(self, vouch: Vouch, now: float) -> None:
+        """The commander heard the members in ``vouch`` directly within its window: their
+        leases here run from ``now`` for ``vouched_lease_s`` (never shortened, never past
+        their last frame + lease); if it vouched for us, our own renewal waits a period.
+
+        Trusted only from the commander's prefix (signed, when authenticated), never passed
+        on: a vouch moves leases only, never ``last_heard``, and the commander's bitmap is
+        built from ``last_heard`` (its own direct hearing), so no vouch feeds another."""
+        window_s = vouch.window_ms / 1000
+        me_vouched = False
+        for octet, bits in enumerate(vouch.bitmap):
+            while bits:
+                low = bits & -bits
+                bits ^= low
+                index = octet * 8 + low.bit_length() - 1
+                if index == self._my_index:
+                    me_vouched = True
+                    continue
+                peer = self._peers.get(index)
+                if peer is None or peer.state != PeerState.DISCOVERED:
+                    continue  # the commander itself, or a member we have not discovered
+                lease = vouched_lease_s(peer.lease_s, window_s)
+                current = self._leases.deadline(index)
+                if lease > 0 and (current is None or now + lease > current):
+                    self._leases.renew(index, lease, now)
+        if (
+            me_vouched
+            and self._listed_by == len(self._peers)
+            and self.phase in (Phase.ANNOUNCE, Phase.STEADY)
+        ):
+            # the others hold our lease from this vouch: our renewal waits a full period
+            # from here, and runs as before once the vouches stop (commander dead, or it
+            # stopped hearing us). Only while every peer lists us: a peer that has not
+            # discovered us gets nothing from a vouch, and our renewal multicast is what
+            # repairs its missed announcement.
+            self._renewal.restart(now, self._rng)
 
     def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int], now: float) -> None:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
@@ -852,6 +928,14 @@ class DiscoveryEngine:
 
     def _renewal_period(self) -> float:
         config = self._config
+        if self._vouching:
+            return vouch_period_s(
+                self._advertised_permille / 1000,
+                lease_s=self._timing.lease_s,
+                window_s=config.vouch_window_s,
+                per_lease_min=config.renewals_per_lease_min,
+                per_lease_max=config.renewals_per_lease_max,
+            )
         return renewal_period_s(
             self._advertised_permille / 1000,
             lease_s=self._timing.lease_s,
@@ -940,13 +1024,31 @@ class DiscoveryEngine:
         self._leases.remove(peer.index)
         self._heard_digest.unmark(peer.index)
         peer.told = False
-        peer.lists_me = False
+        if peer.lists_me:
+            peer.lists_me = False
+            self._listed_by -= 1
         self._disarm(peer)
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 
     # --------------------------------------------------------------- sending
 
-    def _participant_data(self) -> SpdpParticipant:
+    def _vouch(self, now: float) -> Vouch | None:
+        """The commander's vouch: the discovered members heard directly (their DATA(p) or
+        verified user data; never a vouch) within the window. O(N), once per frame sent."""
+        if not self._vouching:
+            return None
+        since = now - self._config.vouch_window_s
+        bitmap = HeardBitmap(self._size)
+        for p in self._peers.values():
+            if (
+                p.state == PeerState.DISCOVERED
+                and p.last_heard is not None
+                and (p.last_heard >= since)
+            ):
+                bitmap.mark(p.index)
+        return Vouch(self._vouch_window_ms, bitmap.to_bytes())
+
+    def _participant_data(self, now: float) -> SpdpParticipant:
         meta_uc, meta_mc, user_uc = self._static_locators
         heard = self._heard_digest.to_bytes()
         return SpdpParticipant(
@@ -961,11 +1063,12 @@ class DiscoveryEngine:
             bundle_digest=self._digest,
             heard=heard,
             link_quality_permille=self._advertised_permille,
+            vouched=self._vouch(now),
             authenticator=None if self._auth is None else PLACEHOLDER,
         )
 
     def _send(self, peer: Peer | None, now: float, kind: str) -> None:
-        content = self._participant_data()
+        content = self._participant_data(now)
         if content != self._content:
             # SPDP is a keyed history of depth 1: a new SN whenever the content changes
             self._content = content

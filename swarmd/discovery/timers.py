@@ -143,6 +143,11 @@ class LeaseQueue:
         if len(table) == 1:
             self._head_changed(table, lease_s)
 
+    def deadline(self, index: int) -> float | None:
+        """When peer ``index``'s lease ends, None if it has none running."""
+        length = self._length_of.get(index)
+        return None if length is None else self._tables[length][index]
+
     def remove(self, index: int) -> None:
         length = self._length_of.pop(index, None)
         if length is None:

@@ -95,11 +95,29 @@ PID_SWARMD_LINK_QUALITY: Final = 0x8A03
 # the authenticator: freshness (epoch u32, seq u32) + Ed25519 signature (64 octets), always
 # the last parameter before PID_SENTINEL (swarmd.auth.spdp, docs/wire.md)
 PID_SWARMD_AUTHENTICATOR: Final = 0x8A04
+# the commander's vouch: u32 window in ms, then an octet sequence (a bitmap over bundle
+# indices of the members it heard directly within that window; docs/discovery.md)
+PID_SWARMD_VOUCHED: Final = 0x8A05
+MAX_VOUCH_WINDOW_MS: Final = 60_000
 SWARMD_PIDS: Final = frozenset(
-    {PID_SWARMD_BUNDLE_DIGEST, PID_SWARMD_HEARD, PID_SWARMD_LINK_QUALITY, PID_SWARMD_AUTHENTICATOR}
+    {
+        PID_SWARMD_BUNDLE_DIGEST,
+        PID_SWARMD_HEARD,
+        PID_SWARMD_LINK_QUALITY,
+        PID_SWARMD_AUTHENTICATOR,
+        PID_SWARMD_VOUCHED,
+    }
 )
 
 MAX_LINK_QUALITY_PERMILLE: Final = 1000
+
+
+@dataclass(frozen=True, slots=True)
+class Vouch:
+    """PID 0x8A05: the members the commander heard directly within ``window_ms``."""
+
+    window_ms: int
+    bitmap: bytes  # over bundle indices, LSB of byte 0 = index 0 (as the heard digest)
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,6 +143,7 @@ class SpdpParticipant:
     bundle_digest: bytes | None = None
     heard: bytes | None = None  # bitmap over bundle participant indices, LSB of byte 0 = index 0
     link_quality_permille: int | None = None
+    vouched: Vouch | None = None  # the commander's vouch (PID 0x8A05)
     authenticator: bytes | None = None  # 72 octets, encoded last (swarmd.auth.spdp)
     # every other parameter, in wire order (stock vendors' PIDs, security tokens, ...)
     extra_parameters: tuple[Parameter, ...] = field(default=())
@@ -181,6 +200,14 @@ class SpdpParticipant:
         if self.link_quality_permille is not None:
             out.append(
                 Parameter(PID_SWARMD_LINK_QUALITY, pack_u32(self.link_quality_permille, little))
+            )
+        if self.vouched is not None:
+            out.append(
+                Parameter(
+                    PID_SWARMD_VOUCHED,
+                    pack_u32(self.vouched.window_ms, little)
+                    + pack_octets(self.vouched.bitmap, little),
+                )
             )
         if self.authenticator is not None:
             # raw, not an octet sequence: fixed size, and last so a receiver finds it at a
@@ -256,6 +283,13 @@ def _decode_link_quality(p: Parameter, little: bool) -> int:
     return q
 
 
+def _decode_vouched(p: Parameter, little: bool) -> Vouch:
+    window_ms = value_u32(p, little)
+    if window_ms > MAX_VOUCH_WINDOW_MS:
+        raise DecodeError(f"swarmd vouch window {window_ms} ms exceeds {MAX_VOUCH_WINDOW_MS}")
+    return Vouch(window_ms, value_octets(Parameter(p.pid, p.value[4:]), little))
+
+
 _Decoder = Callable[[Parameter, bool], object]
 _LOCATOR_FIELDS: Final = frozenset(
     {
@@ -289,6 +323,7 @@ _SWARMD_DECODERS: Final[dict[int, tuple[str, _Decoder]]] = {
     PID_SWARMD_HEARD: ("heard", value_octets),
     PID_SWARMD_LINK_QUALITY: ("link_quality_permille", _decode_link_quality),
     PID_SWARMD_AUTHENTICATOR: ("authenticator", lambda p, _little: p.value),
+    PID_SWARMD_VOUCHED: ("vouched", _decode_vouched),
 }
 # PIDs that SpdpParticipant models as fields; anything else lands in extra_parameters
 _MODELLED: Final = frozenset(_FIELD_DECODERS)

@@ -100,6 +100,15 @@ class PersistExecuted:
 
 
 @dataclass(frozen=True, slots=True)
+class PeerTrafficVerified:
+    """A datagram from ``node`` passed the data plane's MAC under the pair's key: ``node``
+    is alive. The daemon hands it to discovery (``DiscoveryEngine.peer_traffic``), so the
+    commander's leases on members ride on their 1 Hz readiness (docs/discovery.md)."""
+
+    node: str
+
+
+@dataclass(frozen=True, slots=True)
 class MemberReadinessChanged:
     member: str
     ready: bool
@@ -164,6 +173,7 @@ SwarmEvent = (
     | OutcomeReported
     | OutcomeRecorded
     | UserDataDropped
+    | PeerTrafficVerified
 )
 
 
@@ -324,16 +334,19 @@ class SwarmCore:
         while (event := self.plane.next_event()) is not None:
             match event:
                 case ReadinessReceived(node=node, sample=sample, count=count):
+                    self._events.append(PeerTrafficVerified(node))
                     before = self.table.verdict(node, now)
                     self.table.on_report(node, sample, count, now)
                     after = self.table.verdict(node, now)
                     if before != after:
                         self._events.append(MemberReadinessChanged(node, after[0], after[1]))
                 case CommandReceived(commander=commander, command=command):
+                    self._events.append(PeerTrafficVerified(commander))
                     # write-ahead: a crash loses the command, never repeats it
                     self._events.append(PersistExecuted(tuple(self.plane.executed_command_ids)))
                     self._execute(commander, command, now)
                 case OutcomeReceived(node=node, outcome=outcome):
+                    self._events.append(PeerTrafficVerified(node))
                     known = self.tracker.record(
                         outcome.command_id, node, outcome.result, outcome.reason, now
                     )

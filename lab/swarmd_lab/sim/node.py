@@ -97,3 +97,7 @@ class SimNode(ABC):
     @abstractmethod
     def receive(self, dgram: Datagram, now: float) -> None:
         """The radio decoded ``dgram`` (multicast, or unicast addressed to this node)."""
+
+    def data_received(self, src: int, now: float) -> None:  # noqa: B027 - optional hook
+        """The 1 Hz workload delivered node ``src``'s sample here (user data, not discovery).
+        A protocol that takes liveliness from user data overrides this; default: nothing."""

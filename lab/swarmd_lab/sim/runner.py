@@ -96,6 +96,7 @@ def run(
         if dgram.kind == Kind.DATA:
             if workload is not None:
                 workload.receive(j, dgram, now)
+                nodes[j].data_received(dgram.src, now)
             return
         nodes[j].receive(dgram, now)
 

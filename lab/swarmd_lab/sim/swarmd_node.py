@@ -84,6 +84,15 @@ class SwarmdNode(SimNode):
         engine.receive_datagram(payload, self._shared.source_of[dgram.src], now)
         self._pump(now)
 
+    def data_received(self, src: int, now: float) -> None:
+        # the daemon feeds the data plane's verified user data to the engine the same way
+        # (``DiscoveryEngine.peer_traffic``): the commander hears every member at 1 Hz
+        engine = self.engine
+        if engine is None:
+            return
+        engine.peer_traffic(self._shared.bundle.participants[src].guid_prefix, now)
+        self._pump(now)
+
     def _on_timer(self) -> None:
         engine = self.engine
         assert engine is not None  # noqa: S101
