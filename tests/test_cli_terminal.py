@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from swarmd.cli.status_cmd import _print_status, render_peers, render_status
 from swarmd.cli.takeoff_cmd import render_outcomes
-from swarmd.cli.terminal import UNSAFE_CATEGORIES, safe_text, safe_tree
+from swarmd.terminal import UNSAFE_CATEGORIES, safe_text, safe_tree
 
 CLEAR_AND_RETITLE = "\x1b[2J\x1b[H\x1b]0;owned\x07"
 HOSTILE = f"{CLEAR_AND_RETITLE}uav9\x9b31m\u202eydaer\r\x00\u2028"

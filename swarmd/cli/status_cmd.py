@@ -22,10 +22,10 @@ import time
 from collections.abc import Sequence
 from typing import Any, Final, TextIO
 
-from swarmd.cli.terminal import safe_tree
 from swarmd.config import DEFAULT_SOCKET
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import EX_OK, EX_UNREACHABLE
+from swarmd.terminal import safe_tree
 
 SOCKET_ENV: Final = "SWARMD_SOCKET"
 CLEAR_SCREEN: Final = "\x1b[H\x1b[2J"

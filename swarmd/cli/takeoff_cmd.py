@@ -22,7 +22,6 @@ from collections.abc import Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
-from swarmd.cli.terminal import safe_text, safe_tree
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import (
     EX_FAILED,
@@ -32,6 +31,7 @@ from swarmd.exitcodes import (
     EX_UNREACHABLE,
     EX_USAGE,
 )
+from swarmd.terminal import safe_text, safe_tree
 
 POLL_S: Final = 0.2
 UNHEARD: Final = ("no_report", "peer_lost", "report_stale")

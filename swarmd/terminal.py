@@ -1,6 +1,7 @@
 """Make remote strings safe for a terminal (issue 10 attack 8, style.md rule 17).
 
-Everything ``swarmctl`` prints in its human views can come from another host: a foreign
+Everything ``swarmctl`` prints in its human views, and the daemon's console log
+(``swarmd.logs``, when run on a terminal), can come from another host: a foreign
 participant's ENTITY_NAME, a member's readiness or outcome reason, anything the vehicle
 named. Printed raw, ``ESC [ 2 J`` clears the operator's screen, an OSC sequence retitles the
 window, a C1 CSI (U+009B) does the same on terminals that honour 8-bit controls, and a bidi
@@ -12,7 +13,8 @@ Escaped: C0 and C1 controls and DEL (Unicode category Cc, tab and newline includ
 table cell is one line), format characters (Cf: bidi embeddings, overrides and isolates,
 zero-width joiners, the BOM), line and paragraph separators (Zl, Zp), surrogates (Cs),
 private use (Co) and unassigned code points (Cn). ``--json`` output is not touched: it keeps
-the exact value, and ``json.dumps`` (``ensure_ascii``) writes those characters as ``\\uXXXX``.
+the exact value, and ``json.dumps`` (``ensure_ascii``) writes those characters as ``\\uXXXX``;
+so do the daemon's JSON log lines.
 """
 
 from __future__ import annotations
