@@ -99,8 +99,13 @@ class Driver(Generic[InT, OutT, EvT]):
             self._count_error("core_errors", "core_receive_failed")
         self.drain()
 
-    def call(self, action: Callable[[float], R]) -> R:
-        """Run ``action(now)`` on the core (a request, a peer going up), then drain."""
+    def call(self, action: Callable[[float], R]) -> R | None:
+        """Run ``action(now)`` on the core (a request, a peer going up), then drain; its
+        result. A closed driver is inert: the action does not run and the answer is None
+        (shutdown races, such as a vehicle task cancelled while its owner stops, land here;
+        a core that is no longer driven must not change, nor queue what nobody sends)."""
+        if self.closed:
+            return None
         try:
             return action(self.loop.time())
         finally:
@@ -131,7 +136,8 @@ class Driver(Generic[InT, OutT, EvT]):
         self._arm()
 
     def close(self) -> None:
-        """Stop the timer and drop further input; outputs still queued are not sent."""
+        """Stop the timer and drop further input and calls; outputs still queued are not
+        sent."""
         self.closed = True
         if self._timer is not None:
             self._timer.cancel()

@@ -381,9 +381,12 @@ class SwarmApp:
         request: Mapping[str, Any],
     ) -> dict[str, Any]:
         try:
-            return self._driver().call(lambda now: handler(request, now))
+            answer = self._driver().call(lambda now: handler(request, now))
         except core.RequestInvalid as exc:
             raise RequestInvalid(str(exc)) from None
+        if answer is None:  # the driver closed: the swarm core no longer runs
+            raise RequestInvalid("the daemon is stopping")
+        return answer
 
     # ---- status ---------------------------------------------------------------------------
 

@@ -147,3 +147,35 @@ def test_a_raising_core_is_counted_and_the_driver_goes_on() -> None:
         assert [d for _, d, _ in core.inputs] == ["boom", "ok"]
 
     asyncio.run(main())
+
+
+def test_a_closed_driver_is_inert() -> None:
+    """After ``close`` nothing reaches the core: no datagram, no timer, no call (its action
+    does not run, the answer is None), and nothing it still queues is sent."""
+
+    async def main() -> None:
+        core = Core()
+        sent: list[str] = []
+        seen: list[str] = []
+        driver = Driver(core, transmit=sent.append, on_event=seen.append, name="t")
+        assert driver.call(lambda now: core.receive_datagram("before", None, now)) is None
+        assert driver.call(lambda now: 7) == 7
+        core.deadline = driver.loop.time() + 0.01
+        driver.drain()
+        driver.close()
+        ran: list[float] = []
+
+        def action(now: float) -> int:
+            ran.append(now)
+            core.out.append("queued after close")
+            return 1
+
+        assert driver.call(action) is None
+        driver.datagram_received("late", None)
+        await asyncio.sleep(0.05)  # the armed timer's deadline passes: it was cancelled
+        assert ran == []
+        assert [(kind, data) for kind, data, _ in core.inputs] == [("datagram", "before")]
+        assert sent == ["echo before"] and seen == ["got before"]
+        assert driver.deadline is None
+
+    asyncio.run(main())

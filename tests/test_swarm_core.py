@@ -19,7 +19,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmd.dataplane import Command, CommandKind, CommandResult
+from swarmd.dataplane.types import MAX_ALTITUDE_M
 from swarmd.discovery.memnet import Channel, MemNet
+from swarmd.px4 import takeoff
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.core import (
@@ -317,6 +319,20 @@ def test_requests_are_validated() -> None:
         swarm.lead.request_outcomes({"command_id": 12345}, now)
     with pytest.raises(RequestInvalid, match="not a commander"):
         swarm.cores["m01"].request_takeoff({}, now)
+
+
+def test_one_takeoff_ceiling_and_it_fits_the_wire() -> None:
+    """The swarm core validates against px4's ceiling (one fact, one place), and any
+    altitude it accepts also passes the wire's garbage cap, so a valid request is never
+    refused later as undecodable."""
+    assert takeoff.MAX_TAKEOFF_ALT_M <= MAX_ALTITUDE_M
+    swarm = Swarm(2)
+    swarm.run(1.0)
+    now = swarm.net.now
+    sent = swarm.lead.request_takeoff({"alt_m": takeoff.MAX_TAKEOFF_ALT_M}, now)
+    assert sent["command_id"] > 0
+    with pytest.raises(RequestInvalid, match="alt_m"):
+        swarm.lead.request_takeoff({"alt_m": takeoff.MAX_TAKEOFF_ALT_M + 0.5}, now)
 
 
 def test_every_command_kind_is_dispatched_to_one_vehicle_task() -> None:

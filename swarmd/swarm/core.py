@@ -55,16 +55,14 @@ from swarmd.dataplane import (
     ReadinessReceived,
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
-from swarmd.dataplane.types import MAX_ALTITUDE_M, Command, CommandKind, CommandResult
-from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M as PX4_MAX_TAKEOFF_ALT_M
-from swarmd.px4.takeoff import FailReason, TakeoffFailed
+from swarmd.dataplane.types import Command, CommandKind, CommandResult
+from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.roles import Roles
 
 PX4_DISABLED: Final = "px4_disabled"
 UNKNOWN_KIND: Final = "unknown_kind"
-MAX_TAKEOFF_ALT_M: Final = min(PX4_MAX_TAKEOFF_ALT_M, MAX_ALTITUDE_M)
 COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
 # command ids a member remembers running: the data plane's executed list is the durable
 # record; this only guards the commander's own drone, whose commands bypass it
@@ -470,6 +468,7 @@ class SwarmCore:
             return self.settings.takeoff_alt_m
         if isinstance(alt, bool) or not isinstance(alt, int | float) or not math.isfinite(alt):
             raise RequestInvalid(f"alt_m {alt!r} is not a number")
+        # px4's one take-off ceiling (the wire's MAX_ALTITUDE_M is only a garbage cap)
         if not 0 < alt <= MAX_TAKEOFF_ALT_M:
             raise RequestInvalid(f"alt_m {alt} is outside (0, {MAX_TAKEOFF_ALT_M:g}] m")
         return float(alt)
