@@ -115,7 +115,9 @@ class ControlServer:
         self.requests += 1
         try:
             request = json.loads(line)
-        except ValueError:
+        except (ValueError, RecursionError):
+            # RecursionError: a line nested ~1,000 deep overflows the decoder (not a
+            # ValueError); unhandled, it killed this client's handler without a reply
             return {"ok": False, "error": "request is not JSON"}
         if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
             return {"ok": False, "error": 'request must be an object like {"cmd": "status"}'}

@@ -9,12 +9,23 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Final
 
 import yaml
 
 # libyaml's loader when PyYAML was built with it (10x faster on a 500-drone mission); both
 # keep line marks on every node
 Loader: type[yaml.SafeLoader] = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+# Hostile or broken files are refused with one line, before they can hurt the process:
+# a mission of 1,000 drones is well under 1 MiB, a config a few KiB.
+MAX_FILE_BYTES: Final = 16 * 1024 * 1024
+# libyaml's composer recurses on the C stack once per nesting level: ~50,000 levels of
+# "[" crash the interpreter (SIGSEGV, no exception), the pure-Python one raises
+# RecursionError. Neither document format nests deeper than 6; 64 is generous.
+MAX_DEPTH: Final = 64
+_OPEN = (yaml.SequenceStartEvent, yaml.MappingStartEvent)
+_CLOSE = (yaml.SequenceEndEvent, yaml.MappingEndEvent)
 
 
 class FieldError(ValueError):
@@ -41,7 +52,17 @@ def read_text(
     """The file's text, or ``error`` saying why it cannot be read."""
     file = str(path)
     try:
-        return Path(path).read_text(encoding="utf-8")
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)  # bounded: a path may name /dev/zero
+        if len(raw) > MAX_FILE_BYTES:
+            raise error(
+                file,
+                None,
+                "-",
+                f"{what} larger than {MAX_FILE_BYTES // (1024 * 1024)} MiB",
+                "give the right file",
+            )
+        return raw.decode("utf-8")
     except FileNotFoundError:
         raise error(file, None, "-", f"{what} not found", missing_fix) from None
     except UnicodeDecodeError as exc:
@@ -60,6 +81,15 @@ def composed(
     loader = Loader(text)
     try:
         try:
+            deepest, line = _depth(text)
+            if deepest > MAX_DEPTH:
+                raise error(
+                    file,
+                    line,
+                    "<yaml>",
+                    f"nested deeper than {MAX_DEPTH} levels",
+                    "this is not a swarmd document; give the right file",
+                )
             root = loader.get_single_node()
         except yaml.MarkedYAMLError as exc:
             mark = exc.problem_mark or exc.context_mark
@@ -79,3 +109,19 @@ def composed(
         yield root, loader
     finally:
         loader.dispose()
+
+
+def _depth(text: str) -> tuple[int, int]:
+    """(deepest nesting, its line): the parser's events are a flat stream, no recursion."""
+    depth = deepest = line = 0
+    for event in yaml.parse(text, Loader=Loader):
+        if isinstance(event, _OPEN):
+            depth += 1
+            if depth > deepest:
+                mark = event.start_mark
+                deepest, line = depth, (mark.line + 1 if mark is not None else 0)
+                if deepest > MAX_DEPTH:
+                    break  # no need to read the rest of a hostile file
+        elif isinstance(event, _CLOSE):
+            depth -= 1
+    return deepest, line

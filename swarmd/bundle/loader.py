@@ -24,12 +24,20 @@ import hashlib
 import json
 import sys
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, Final, NoReturn
 
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from swarmd.bundle.encoding import LEGACY_FORMAT_VERSIONS, Envelope, EnvelopeError, split
+from swarmd.bundle.encoding import (
+    HEADER_SIZE,
+    LEGACY_FORMAT_VERSIONS,
+    MAX_BODY_BYTES,
+    SIGNATURE_SIZE,
+    Envelope,
+    EnvelopeError,
+    split,
+)
 from swarmd.bundle.errors import BundleError, KeyFileError
 from swarmd.bundle.keys import PUBLIC_KEY_BYTES, fingerprint, load_public_key
 from swarmd.bundle.model import (
@@ -50,6 +58,9 @@ from swarmd.bundle.model import (
 from swarmd.exitcodes import EX_CONFIG
 from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import GuidPrefix
+
+# the largest file a bundle's framing allows (split() refuses anything else anyway)
+MAX_FILE_BYTES: Final = HEADER_SIZE + MAX_BODY_BYTES + SIGNATURE_SIZE
 
 REBUILD = "rebuild it with 'swarmctl bundle build' and flash it again"
 REBUILD_V2 = (
@@ -169,7 +180,9 @@ def load_bundle(
     if anchor is not None and len(anchor) != PUBLIC_KEY_BYTES:
         raise BundleError(source, "trusted key is not 32 bytes", "give an Ed25519 public key")
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as f:
+            # bounded: a wrong path (/dev/zero, a disk image) must not fill the memory
+            data = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         raise BundleError(
             source, "bundle file not found", "flash one with 'swarmctl bundle flash'"
@@ -178,6 +191,12 @@ def load_bundle(
         raise BundleError(
             source, f"cannot read: {exc.strerror}", "check path and permissions"
         ) from None
+    if len(data) > MAX_FILE_BYTES:
+        raise BundleError(
+            source,
+            f"larger than a bundle can be ({MAX_FILE_BYTES} bytes)",
+            "flash one with 'swarmctl bundle flash'",
+        )
     return read_bundle(
         data,
         source=source,
