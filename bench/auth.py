@@ -22,6 +22,14 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from swarmd_lab.testing import (  # noqa: E402
+    auth_for,
+    build_swarm,
+    engine_for,
+    make_bundle,
+    peer_datagram,
+)
+
 from bench.bundle import machine  # noqa: E402
 from swarmd.auth.freshness import Freshness  # noqa: E402
 from swarmd.auth.keys import KeyRing, NodeSecrets  # noqa: E402
@@ -31,13 +39,6 @@ from swarmd.auth.spdp import (  # noqa: E402
     SpdpVerifier,
     open_tail,
     seal,
-)
-from swarmd.discovery.testing import (  # noqa: E402
-    auth_for,
-    build_swarm,
-    engine_for,
-    make_bundle,
-    peer_datagram,
 )
 from swarmd.rtps.spdp import encode_spdp_dispose  # noqa: E402
 

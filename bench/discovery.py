@@ -4,7 +4,7 @@
                                         [--seconds 60] [--seed 1] [--json] [--json-out F]
 
 For each swarm size, engine mode and channel (clean: no loss, Q = 1; lossy: 10 % loss per
-receiver, 2 ms jitter, Q = 0.5) it runs ``swarmd.discovery.testing.build_swarm`` for
+receiver, 2 ms jitter, Q = 0.5) it runs ``swarmd_lab.testing.build_swarm`` for
 ``--seconds`` of virtual time and reports, per node: every frame sent, discovery frames
 (announcements and directed replies) and lease renewals; the peak frames per second on the
 channel (1 s bins); when every ordered pair had heard each other at least once ("all met")
@@ -28,9 +28,10 @@ from typing import Any, cast
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from swarmd_lab.memnet import Channel  # noqa: E402
+from swarmd_lab.testing import build_swarm  # noqa: E402
+
 from swarmd.discovery.config import MODES, EngineConfig, Mode  # noqa: E402
-from swarmd.discovery.memnet import Channel  # noqa: E402
-from swarmd.discovery.testing import build_swarm  # noqa: E402
 
 CHANNELS: dict[str, tuple[Channel, float]] = {
     "clean": (Channel(loss=0.0, delay_s=0.0005), 1.0),

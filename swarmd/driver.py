@@ -22,7 +22,7 @@ that turns that into I/O:
 The driver knows no transport: ``transmit`` is the caller's (``transport.sendto`` for UDP,
 ``backend.send`` for a flight controller). Used by ``swarmd.daemon`` (discovery, the swarm
 core) and ``swarmd.px4.bridge`` (the vehicle core); tests drive the same cores without it,
-on hand-set time (``tests/memnet.py``).
+on hand-set time and on ``swarmd_lab.memnet.MemNet`` (virtual time, one network for all).
 """
 
 from __future__ import annotations

@@ -5,10 +5,10 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
+from swarmd_lab.testing import make_bundle, node_name
 
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.bundle.model import Bundle
-from swarmd.discovery.testing import make_bundle, node_name
 from swarmd.rtps.types import GuidPrefix
 
 BUNDLE = make_bundle(4)

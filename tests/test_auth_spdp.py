@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from swarmd_lab.testing import make_bundle, node_name
 
 from swarmd.auth.budget import GLOBAL_NEW_ADDRESS_BURST, NEW_ADDRESS_BURST, SENDER_BURST
 from swarmd.auth.freshness import Freshness
@@ -17,7 +18,6 @@ from swarmd.auth.spdp import (
     open_tail,
     seal,
 )
-from swarmd.discovery.testing import make_bundle, node_name
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (
     SpdpAlive,

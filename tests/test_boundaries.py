@@ -186,10 +186,11 @@ def test_sans_io_rooms_load_no_event_loop_or_socket(spec: SansIO) -> None:
 
 
 def test_importing_the_core_pulls_in_no_asyncio_or_socket() -> None:
-    # the discovery test helpers and the in-memory network are part of the room too
+    # the lab's swarm builders and in-memory network drive the cores on virtual time: they
+    # must not pull the loop in either (they moved to swarmd_lab, issue 11)
     code = (
         "import sys\n"
-        "import swarmd.rtps, swarmd.discovery, swarmd.discovery.testing, swarmd.discovery.memnet\n"
+        "import swarmd.rtps, swarmd.discovery, swarmd_lab.testing, swarmd_lab.memnet\n"
         "bad = ('asyncio', 'socket', 'selectors')\n"
         "print(','.join(sorted(m for m in bad if m in sys.modules)))\n"
     )

@@ -9,6 +9,14 @@ from typing import Any
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from swarmd_lab.testing import (
+    auth_for,
+    build_swarm,
+    engine_for,
+    make_bundle,
+    node_ipv4,
+    peer_datagram,
+)
 
 from swarmd.auth.budget import GLOBAL_NEW_ADDRESS_BURST
 from swarmd.auth.spdp import PLACEHOLDER, open_tail
@@ -24,14 +32,6 @@ from swarmd.discovery import (
 from swarmd.discovery.engine import FOREIGN_DECODE_BURST, FOREIGN_REPORT_BURST
 from swarmd.discovery.events import Event
 from swarmd.discovery.peers import MAX_FOREIGN
-from swarmd.discovery.testing import (
-    auth_for,
-    build_swarm,
-    engine_for,
-    make_bundle,
-    node_ipv4,
-    peer_datagram,
-)
 from swarmd.rtps.spdp import encode_spdp_dispose
 
 BUNDLE = make_bundle(3)

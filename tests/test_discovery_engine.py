@@ -6,6 +6,7 @@ import random
 from pathlib import Path
 
 import pytest
+from swarmd_lab.testing import make_bundle, node_ipv4, peer_datagram
 
 from swarmd.bundle.model import DiscoveryParams
 from swarmd.discovery import (
@@ -23,7 +24,6 @@ from swarmd.discovery.engine import MAX_PENDING_EVENTS
 from swarmd.discovery.events import Event
 from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.peers import MAX_FOREIGN
-from swarmd.discovery.testing import make_bundle, node_ipv4, peer_datagram
 from swarmd.rtps.spdp import BES_SPDP_ONLY, SpdpAlive, SpdpDisposed, decode_spdp
 from swarmd.rtps.types import VENDORID_SWARMD, GuidPrefix
 

@@ -6,10 +6,10 @@ from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from swarmd_lab.testing import engine_for, make_bundle, peer_datagram
 
 from swarmd.discovery import DiscoveryEngine, PacketDropped
 from swarmd.discovery.events import DropReason
-from swarmd.discovery.testing import engine_for, make_bundle, peer_datagram
 
 BUNDLE = make_bundle(4)
 VALID = [

@@ -8,6 +8,7 @@ import random
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from swarmd_lab.memnet import Channel, MemNet
 
 from swarmd.bundle.model import DiscoveryParams
 from swarmd.discovery.awareness import (
@@ -19,7 +20,6 @@ from swarmd.discovery.awareness import (
 )
 from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.digest import bitmap_size, decode_heard, encode_heard, lists
-from swarmd.discovery.memnet import Channel, MemNet
 from swarmd.discovery.phases import Phase, TransitionError, Trigger, next_phase
 from swarmd.discovery.timers import Backoff, LeaseQueue, MinInterval, Periodic, RetrySchedule
 

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import json
 
+from swarmd_lab.testing import engine_for, make_bundle, node_ipv4, peer_datagram
+
 from swarmd.discovery import (
     DiscoveryEngine,
     DropReason,
     PeerDiscovered,
     PeerState,
 )
-from swarmd.discovery.testing import engine_for, make_bundle, node_ipv4, peer_datagram
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
 from swarmd.rtps.types import Duration, GuidPrefix

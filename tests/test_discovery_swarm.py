@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections import Counter
 
 import pytest
+from swarmd_lab.memnet import Channel
+from swarmd_lab.testing import build_swarm
 
 from swarmd.discovery import EngineConfig, Phase
 from swarmd.discovery.events import PeerDiscovered, PeerLost
-from swarmd.discovery.memnet import Channel
-from swarmd.discovery.testing import build_swarm
 
 
 def discovery_frames(swarm_engines: list) -> int:  # type: ignore[type-arg]

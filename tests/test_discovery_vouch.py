@@ -11,12 +11,12 @@ import random
 from dataclasses import replace
 
 import pytest
+from swarmd_lab.memnet import Channel
+from swarmd_lab.testing import Swarm, build_swarm, make_bundle, peer_datagram
 
 from swarmd.discovery import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import PeerLost
-from swarmd.discovery.memnet import Channel
-from swarmd.discovery.testing import Swarm, build_swarm, make_bundle, peer_datagram
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import Vouch, decode_spdp, encode_spdp
 from swarmd.rtps.types import Duration
@@ -201,7 +201,7 @@ def _vouching_frame(bundle_n: int, sender: int, vouched: tuple[int, ...], sn: in
 
 
 def _member_engine(bundle_n: int) -> DiscoveryEngine:
-    from swarmd.discovery.testing import engine_for
+    from swarmd_lab.testing import engine_for
 
     return engine_for(make_bundle(bundle_n), 1, q=1.0)
 
@@ -257,7 +257,7 @@ def test_a_vouch_never_shortens_a_lease_nor_revives_a_lost_peer() -> None:
 
 
 def test_peer_traffic_keeps_a_silent_member_alive_at_the_commander_only_while_it_flows() -> None:
-    from swarmd.discovery.testing import engine_for
+    from swarmd_lab.testing import engine_for
 
     bundle = make_bundle(3)
     commander = engine_for(bundle, 0, q=1.0)

@@ -7,6 +7,7 @@ the vehicle simulator. Checked in fresh interpreters and on the wheel setuptools
 
 from __future__ import annotations
 
+import ast
 import json
 import shutil
 import subprocess
@@ -86,3 +87,44 @@ def test_the_drone_wheel_contains_no_lab_module(tmp_path: Path) -> None:
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     console = zipfile.ZipFile(wheel).read(entry_points).decode()
     assert "swarmd-vehicle-sim" not in console
+
+
+def _imports_of(path: Path, module: str, known: set[str]) -> set[str]:
+    """The drone-package modules ``module`` imports anywhere (lazy imports included)."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    named: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            named.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                parts = parts[: len(parts) - (node.level - 1)]
+                base = ".".join([*parts, *([node.module] if node.module else [])])
+            named.add(base)
+            named.update(f"{base}.{alias.name}" for alias in node.names)
+    found: set[str] = set()
+    for name in named:
+        parts = name.split(".")
+        found.update(p for i in range(1, len(parts) + 1) if (p := ".".join(parts[:i])) in known)
+    return found
+
+
+def test_every_module_of_the_drone_package_is_reached_by_swarmd_or_swarmctl() -> None:
+    """A module nothing the drone runs imports is test tooling or dead code: it belongs in
+    swarmd_lab or tests/ (issue 11), not in the wheel. Read from the import statements, so a
+    lazily imported backend counts as reached."""
+    paths = {}
+    for path in (ROOT / "swarmd").rglob("*.py"):
+        parts = list(path.relative_to(ROOT).with_suffix("").parts)
+        paths[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    reached: set[str] = set()
+    todo = ["swarmd.cli.swarmd_main", "swarmd.cli.swarmctl"]  # the console scripts
+    while todo:
+        module = todo.pop()
+        if module not in reached:
+            reached.add(module)
+            todo += _imports_of(paths[module], module, set(paths))
+    assert "swarmd.daemon" in reached and "swarmd.rtps.spdp" in reached  # the walk works
+    assert sorted(set(paths) - reached) == []

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from swarmd_lab.sim.modelled_auth import ModelledSpdpAuth
 from swarmd_lab.sim.runner import Scenario, run
+from swarmd_lab.testing import make_bundle, peer_datagram
 
 from swarmd.auth.spdp import AUTHENTICATOR_OVERHEAD, Refusal, open_tail
-from swarmd.discovery.testing import make_bundle, peer_datagram
 
 
 def test_authenticated_run_has_the_same_frames_and_76_more_bytes_each() -> None:

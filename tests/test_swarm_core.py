@@ -17,10 +17,10 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from swarmd_lab.memnet import Channel, MemNet
 
 from swarmd.dataplane import Command, CommandKind, CommandResult
 from swarmd.dataplane.types import MAX_ALTITUDE_M
-from swarmd.discovery.memnet import Channel, MemNet
 from swarmd.px4 import takeoff
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest

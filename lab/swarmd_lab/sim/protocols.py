@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 
 from swarmd.discovery.config import EngineConfig
-from swarmd.discovery.testing import make_bundle
 from swarmd_lab.sim.dds_model import CYCLONE, FASTDDS, DdsNode
 from swarmd_lab.sim.node import NodeContext, SimNode
 from swarmd_lab.sim.swarmd_node import SwarmdNode, SwarmdShared, link_sample_for
 from swarmd_lab.sim.workload import COMMANDER
 from swarmd_lab.sim.zenoh_model import ZenohNode
+from swarmd_lab.testing import make_bundle
 
 if TYPE_CHECKING:
     from swarmd_lab.sim.channel import Channel

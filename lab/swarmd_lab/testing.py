@@ -36,11 +36,11 @@ from swarmd.discovery.digest import encode_heard
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import Event, PeerDiscovered, PeerLost
 from swarmd.discovery.inputs import LinkSample
-from swarmd.discovery.memnet import Channel, MemNet
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
 from swarmd.rtps.types import Duration, GuidPrefix
+from swarmd_lab.memnet import Channel, MemNet
 
 READY = "swarm/ready"
 COMMAND = "swarm/command"
