@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from swarmd_lab.netns import Lan, run_prefix, unavailable_reason  # noqa: E402
 
+from tests.attacker.cpulimit import CpuLimit  # noqa: E402
 from tests.attacker.flood import forged_pool, run_flood  # noqa: E402
 from tests.attacker.host import Attacker  # noqa: E402
 from tests.attacker.swarm import flashed_swarm, refusals  # noqa: E402
@@ -44,6 +45,11 @@ DOCS = REPO / "docs" / "benchmarks.md"
 BEGIN = "<!-- flood:begin (bench/flood.py --write-docs) -->"
 END = "<!-- flood:end -->"
 POOL = 2000
+# which of flood_pool's datagrams a --kind keeps (flood_pool's index pattern): a foreign
+# prefix (odd), a member's prefix with its sniffed authenticator (a replay, 0 mod 4), a
+# member's prefix with a newer freshness signed by the attacker (2 mod 4: a budget refusal,
+# or a signature check while the budget lasts)
+KINDS = {"mixed": (1, 0), "foreign": (2, 1), "replayed": (4, 0), "resigned": (4, 2)}
 
 
 def _commit() -> str:
@@ -56,16 +62,25 @@ def _commit() -> str:
     return proc.stdout.strip() or "unknown"
 
 
-def run(rate: float, seconds: float, repeats: int) -> dict[str, Any]:
+def run(
+    rate: float, seconds: float, repeats: int, cpu_percent: float | None, kind: str
+) -> dict[str, Any]:
     runs: list[dict[str, Any]] = []
+    modulo, rest = KINDS[kind]
     with tempfile.TemporaryDirectory(prefix="flood-", dir="/tmp") as tmp:
         lan = Lan(4, prefix=run_prefix("atkb")).__enter__()
+        limit = CpuLimit(lan.prefix, cpu_percent) if cpu_percent is not None else None
         try:
             with flashed_swarm(lan, Path(tmp)) as sw:
+                if limit is not None:
+                    for i in range(sw.n):
+                        limit.add(sw.daemon_pid(i))
                 atk = Attacker(sw.attacker_ns, sw.spdp_group).start()
                 try:
                     for k in range(repeats):
-                        pool = forged_pool(sw, atk, POOL, seed=k)
+                        pool = forged_pool(sw, atk, POOL * modulo, seed=k)
+                        pool = [d for j, d in enumerate(pool) if j % modulo == rest]
+                        throttled0 = limit.throttled_s() if limit is not None else {}
                         before = [refusals(sw.status(i)) for i in range(sw.n)]
                         result = run_flood(sw, atk, pool, rate, seconds).as_dict()
                         after = [refusals(sw.status(i)) for i in range(sw.n)]
@@ -73,12 +88,19 @@ def run(rate: float, seconds: float, repeats: int) -> dict[str, Any]:
                             sw.names[i]: sum(after[i].values()) - sum(before[i].values())
                             for i in range(sw.n)
                         }
+                        if limit is not None:
+                            result["throttled_s"] = {
+                                g: round(v - throttled0.get(g, 0.0), 2)
+                                for g, v in limit.throttled_s().items()
+                            }
                         runs.append(result)
                         print(json.dumps(result), file=sys.stderr)
                         sw.wait_ready()  # a repeat starts from a converged swarm
                 finally:
                     atk.close()
         finally:
+            if limit is not None:
+                limit.close()
             lan.close()
     cpu = [v for r in runs for v in r["cpu_percent"].values()]
     idle = [v for r in runs for v in r["idle_cpu_percent"].values()]
@@ -86,6 +108,8 @@ def run(rate: float, seconds: float, repeats: int) -> dict[str, Any]:
         "commit": _commit(),
         "host": f"{platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}",
         "rate_hz": rate,
+        "kind": kind,
+        "cpu_limit_percent": cpu_percent,
         "seconds": seconds,
         "repeats": repeats,
         "sent_per_run": [r["sent"] for r in runs],
@@ -95,6 +119,10 @@ def run(rate: float, seconds: float, repeats: int) -> dict[str, Any]:
         "idle_cpu_percent_median": round(statistics.median(idle), 1) if idle else None,
         "kernel_drop_fraction_max": max(
             (v / r["sent"] for r in runs for v in r["kernel_rcvbuf_drops"].values() if r["sent"]),
+            default=0,
+        ),
+        "spdp_socket_drop_fraction_max": max(
+            (v / r["sent"] for r in runs for v in r["spdp_socket_drops"].values() if r["sent"]),
             default=0,
         ),
         "refused_fraction_min": min(
@@ -149,6 +177,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=10.0, help="flood duration (bounded)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--out", default="bench/results/security/flood.json")
+    p.add_argument(
+        "--cpu-percent",
+        type=float,
+        default=None,
+        help="cap each daemon at this %% of one core (a cgroup each; a slow, shared drone CPU)",
+    )
+    p.add_argument("--kind", choices=sorted(KINDS), default="mixed", help="which forgeries")
     p.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     args = p.parse_args(argv)
     reason = unavailable_reason()
@@ -158,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.rate <= 20_000 or not 0 < args.seconds <= 60 or not 1 <= args.repeats <= 10:
         print("flood: --rate 1..20000, --seconds 1..60, --repeats 1..10", file=sys.stderr)
         return 2
-    summary = run(args.rate, args.seconds, args.repeats)
+    summary = run(args.rate, args.seconds, args.repeats, args.cpu_percent, args.kind)
     out = REPO / args.out
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(summary, indent=2) + "\n")

@@ -81,7 +81,17 @@ IFNAMSIZ: Final = 16
 IP_MULTICAST_ALL: Final = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
 # Linux's default IP_MULTICAST_ALL=1 delivers every group any socket joined to every socket
 # bound to the port; off, the SPDP socket hears only 239.255.0.1 joined on our interface.
-RECV_BUFFER_BYTES: Final = 1 << 20  # a burst of 50 peers' DATA(p) (~300 B each) fits easily
+# The SPDP sockets' receive buffers. The kernel charges a datagram's whole buffer (~1-2 KiB
+# for a 300-byte DATA(p)), not its payload: 4 MiB holds ~2,000-4,000 datagrams, ~0.5 s of a
+# 5,000/s flood, so a daemon that falls behind for a moment (a busy drone CPU) catches up
+# instead of the kernel dropping real peers' renewals among the forgeries. The kernel caps
+# it at net.core.rmem_max (Linux's default 208 KiB; docs/security.md says to raise it).
+RECV_BUFFER_BYTES: Final = 4 << 20
+# Datagrams read from one socket per loop wake-up before anything else runs: one epoll
+# round trip and one driver drain per batch instead of per datagram, while timers and the
+# control socket still run between batches.
+READ_BATCH: Final = 64
+MAX_DATAGRAM: Final = 65_535  # a UDP payload's limit: recvfrom allocates no more
 
 
 class NodeSecretsError(ValueError):
@@ -231,19 +241,60 @@ def _multicast_send_options(s: socket.socket, ipv4: str) -> None:
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)  # co-hosted participants
 
 
-class _Endpoint(asyncio.DatagramProtocol):
-    """One UDP socket feeding the engine; which one only matters for the counters."""
+class BatchedSocket:
+    """One UDP socket feeding the engine, read in batches; which one only matters for the
+    counters. Every datagram the engine queues leaves from the unicast one.
 
-    def __init__(self, daemon: Daemon, name: str) -> None:
-        self.daemon = daemon
+    Not asyncio's datagram transport: it reads one datagram per wake-up (a full event-loop
+    turn, an epoll call and a 256 KiB receive buffer each), and under a flood that
+    bookkeeping, not the engine's refusal, was most of the daemon's cost (docs/security.md,
+    "Flood"). Here ``read_ready`` reads up to ``READ_BATCH`` datagrams per wake-up and hands
+    them to the driver together. Sending is a plain non-blocking ``sendto``: a full send
+    buffer or an ICMP error is counted (asyncio's transport would queue the first and
+    report the second; discovery repeats its datagrams anyway)."""
+
+    def __init__(
+        self,
+        sock: socket.socket,
+        name: str,
+        on_batch: Callable[[list[Datagram], str], None],
+        count: Callable[[str], None],
+        loop: asyncio.AbstractEventLoop,
+    ) -> None:
+        self.sock = sock
         self.name = name
+        self.on_batch = on_batch
+        self.count = count
+        self.loop = loop
+        self._fd = sock.fileno()
+        loop.add_reader(self._fd, self.read_ready)
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.daemon.datagram_received(data, addr, self.name)
+    def read_ready(self) -> None:
+        batch: list[Datagram] = []
+        recvfrom = self.sock.recvfrom
+        for _ in range(READ_BATCH):
+            try:
+                batch.append(recvfrom(MAX_DATAGRAM))
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # ICMP port unreachable from a peer that left, and the like
+                self.count(f"socket_error_{self.name}")
+                break
+        if batch:
+            self.on_batch(batch, self.name)
 
-    def error_received(self, exc: Exception) -> None:
-        # ICMP port unreachable from a peer that left, or ENOBUFS on a saturated channel
-        self.daemon.count(f"socket_error_{self.name}")
+    def sendto(self, data: bytes, addr: tuple[str, int]) -> None:
+        try:
+            self.sock.sendto(data, addr)
+        except (BlockingIOError, InterruptedError):
+            self.count(f"tx_dropped_full_{self.name}")
+        except OSError:  # ENOBUFS on a saturated channel, an unreachable network
+            self.count(f"socket_error_{self.name}")
+
+    def close(self) -> None:
+        if self.sock.fileno() >= 0:
+            self.loop.remove_reader(self._fd)
+            self.sock.close()
 
 
 class Daemon:
@@ -286,7 +337,7 @@ class Daemon:
         self.engine: DiscoveryEngine | None = None
         self.stopped = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._transports: dict[str, asyncio.DatagramTransport] = {}
+        self._transports: dict[str, BatchedSocket] = {}
         self.driver: Driver[bytes, Datagram, Event] | None = None
         self._watchdog: asyncio.TimerHandle | None = None
         self._link_task: asyncio.Task[None] | None = None
@@ -380,11 +431,9 @@ class Daemon:
                 EX_OSERR,
             ) from None
         for name, sock in (("multicast", spdp), ("unicast", unicast)):
-            transport, _ = await loop.create_datagram_endpoint(
-                lambda name=name: _Endpoint(self, name),  # type: ignore[misc]
-                sock=sock,
+            self._transports[name] = BatchedSocket(
+                sock, name, self.datagrams_received, self.count, loop
             )
-            self._transports[name] = transport
         try:
             await app.start()
         except StartupError:
@@ -467,15 +516,16 @@ class Daemon:
         for transport in self._transports.values():
             transport.close()
         self._transports.clear()
-        await asyncio.sleep(0)  # let the transports' close callbacks run
+        await asyncio.sleep(0)  # let anything the sockets' last batch queued run
 
     # -- the adapter (rule 11) -----------------------------------------------------------
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int], via: str) -> None:
+    def datagrams_received(self, batch: list[Datagram], via: str) -> None:
         if self.driver is None or self.stopped.is_set():
             return
-        self.count(f"rx_{via}")
-        self.driver.datagram_received(data, addr)
+        name = f"rx_{via}"
+        self.counters[name] = self.counters.get(name, 0) + len(batch)
+        self.driver.datagrams_received(batch)
 
     async def _poll_link(self) -> None:
         engine, driver = self._core(), self._drive()

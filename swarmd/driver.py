@@ -28,7 +28,7 @@ on hand-set time and on ``swarmd_lab.memnet.MemNet`` (virtual time, one network 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Generic, Protocol, TypeVar
 
 InT_contra = TypeVar("InT_contra", contravariant=True)
@@ -97,6 +97,24 @@ class Driver(Generic[InT, OutT, EvT]):
             self.core.receive_datagram(data, source, self.loop.time())
         except Exception:  # the core promises not to raise on input: a bug, keep running
             self._count_error("core_errors", "core_receive_failed")
+        self.drain()
+
+    def datagrams_received(self, batch: Iterable[tuple[InT, Any]]) -> None:
+        """Several datagrams read at one wake-up, each with its source, then one drain.
+
+        The same ``now`` for all (they were read at the same instant): what the core sends
+        or reports in answer goes out once per batch, not once per datagram, so a flood's
+        cost is the core's refusal and not the driver's bookkeeping (docs/security.md,
+        "Flood")."""
+        if self.closed:
+            return
+        now = self.loop.time()
+        receive = self.core.receive_datagram
+        for data, source in batch:
+            try:
+                receive(data, source, now)
+            except Exception:  # the core promises not to raise on input: a bug, keep running
+                self._count_error("core_errors", "core_receive_failed")
         self.drain()
 
     def call(self, action: Callable[[float], R]) -> R | None:

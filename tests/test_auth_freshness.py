@@ -76,6 +76,7 @@ def test_window_accepts_exactly_the_fresh_values(values: list[tuple[int, int]]) 
             expect = False
         else:
             expect = f not in seen
+        assert w.is_fresh_at(e, s) == expect  # the verifier's check on the raw numbers
         assert w.accept(f) == expect
         if expect:
             seen.add(f)

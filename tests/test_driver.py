@@ -179,3 +179,33 @@ def test_a_closed_driver_is_inert() -> None:
         assert driver.deadline is None
 
     asyncio.run(main())
+
+
+def test_a_batch_is_received_at_one_now_and_drained_once() -> None:
+    """The daemon's batched read (docs/security.md, "Flood"): every datagram reaches the
+    core in order at the same ``now``, a raising one is counted and the rest still go in,
+    and the outputs leave in one drain after the batch (not one per datagram)."""
+
+    async def main() -> None:
+        core = Core()
+        core.raise_on = "boom"
+        sent: list[str] = []
+        drains: list[int] = []
+        driver = Driver(core, transmit=sent.append, on_event=lambda _: None, name="t")
+        inner = driver.drain
+
+        def counted_drain() -> None:
+            drains.append(len(core.inputs))
+            inner()
+
+        driver.drain = counted_drain  # type: ignore[method-assign]
+        driver.datagrams_received([("a", ("h", 1)), ("boom", ("h", 1)), ("c", ("h", 2))])
+        assert [d for _, d, _ in core.inputs] == ["a", "boom", "c"]
+        assert len({now for _, _, now in core.inputs}) == 1
+        assert drains == [3]  # once, after the whole batch
+        assert sent == ["echo a", "echo c"] and driver.counters["core_errors"] == 1
+        driver.close()
+        driver.datagrams_received([("late", None)])
+        assert len(core.inputs) == 3
+
+    asyncio.run(main())

@@ -98,14 +98,19 @@ class ReplayWindow:
 
     def is_fresh(self, f: Freshness) -> bool:
         """Whether ``f`` would be accepted; changes nothing."""
+        return self.is_fresh_at(f.epoch, f.seq)
+
+    def is_fresh_at(self, epoch: int, seq: int) -> bool:
+        """``is_fresh`` on the two numbers as read off the wire, before any object is built
+        (the replay check is the cheap refusal a flood of replays meets: docs/security.md)."""
         high = self._high
-        if high is None or f.epoch > high.epoch:
+        if high is None or epoch > high.epoch:
             return True
-        if f.epoch < high.epoch:
+        if epoch < high.epoch:
             return False
-        if f.seq > high.seq:
+        if seq > high.seq:
             return True
-        back = high.seq - f.seq
+        back = high.seq - seq
         return back < WINDOW and not (self._bits >> back) & 1
 
     def accept(self, f: Freshness) -> bool:

@@ -38,6 +38,10 @@ class FloodResult:
     # datagrams the kernel dropped before the daemon read them (UDP RcvbufErrors in the
     # drone's namespace, /proc/net/snmp): a flood the daemon never saw, so never counted
     kernel_rcvbuf_drops: dict[str, int] = field(default_factory=dict)
+    # the same, for the SPDP sockets alone (/proc/net/udp "drops", per socket)
+    spdp_socket_drops: dict[str, int] = field(default_factory=dict)
+    # drone -> {peer: seconds after the flood started when it was first seen lost}
+    lost_at_s: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -67,6 +71,18 @@ def rcvbuf_errors(sw: FlashedSwarm, i: int) -> int:
     if len(udp) < 2 or "RcvbufErrors" not in udp[0]:
         return 0
     return int(udp[1][udp[0].index("RcvbufErrors")])
+
+
+def spdp_socket_drops(sw: FlashedSwarm, i: int) -> int:
+    """Datagrams drone i's kernel dropped on its SPDP sockets (the multicast port and the
+    metatraffic unicast port) for want of receive buffer: /proc/net/udp's last column."""
+    ports = {sw.spdp_group[1], sw.meta_addr(i)[1]}
+    total = 0
+    for line in sw.lan[i].run(["cat", "/proc/net/udp"]).stdout.splitlines()[1:]:
+        words = line.split()
+        if len(words) >= 13 and int(words[1].split(":")[1], 16) in ports:
+            total += int(words[-1])
+    return total
 
 
 def run_flood(
@@ -105,6 +121,7 @@ def run_flood(
 
     lost: dict[str, set[str]] = {}
     kernel0 = {i: rcvbuf_errors(sw, i) for i in range(sw.n)}
+    socket0 = {i: spdp_socket_drops(sw, i) for i in range(sw.n)}
     thread = threading.Thread(target=flood, name="spdp-flood")
     start = time.monotonic()
     c0 = {i: cpu_seconds(p) for i, p in pids.items()}
@@ -119,6 +136,8 @@ def run_flood(
             for name, state in states.items():
                 if state != "discovered":
                     lost.setdefault(sw.names[i], set()).add(name)
+                    at = result.lost_at_s.setdefault(sw.names[i], {})
+                    at.setdefault(name, round(time.monotonic() - start, 2))
         result.polls += 1
         time.sleep(POLL_S)
     thread.join(timeout=seconds + 5.0)
@@ -126,6 +145,9 @@ def run_flood(
     result.seconds = round(time.monotonic() - start, 2)
     result.kernel_rcvbuf_drops = {
         sw.names[i]: rcvbuf_errors(sw, i) - kernel0[i] for i in range(sw.n)
+    }
+    result.spdp_socket_drops = {
+        sw.names[i]: spdp_socket_drops(sw, i) - socket0[i] for i in range(sw.n)
     }
     result.sent = sent[0] if sent else 0
     result.cpu_percent = {
