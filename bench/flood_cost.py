@@ -27,8 +27,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from swarmd_lab.testing import auth_for, engine_for, make_bundle, peer_datagram  # noqa: E402
+
 from swarmd.daemon import READ_BATCH, BatchedSocket  # noqa: E402
-from swarmd.discovery.testing import auth_for, engine_for, make_bundle, peer_datagram  # noqa: E402
 from swarmd.driver import Driver  # noqa: E402
 
 
