@@ -14,13 +14,13 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
+from swarmd_lab.testing import auth_for, engine_for, make_bundle, node_ipv4
 
 from swarmd.auth.budget import GLOBAL_NEW_ADDRESS_BURST
 from swarmd.auth.spdp import PLACEHOLDER, SpdpAuth
 from swarmd.discovery import DiscoveryEngine
 from swarmd.discovery import engine as engine_module
 from swarmd.discovery.engine import FOREIGN_DECODE_BURST
-from swarmd.discovery.testing import auth_for, engine_for, make_bundle, node_ipv4
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
