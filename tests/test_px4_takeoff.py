@@ -26,6 +26,7 @@ from swarmd.px4.messages import (
     MODE_TAKEOFF,
     CommandAck,
     ExtendedSysState,
+    GlobalPositionInt,
     GpsRawInt,
     Heartbeat,
     HomePosition,
@@ -33,7 +34,7 @@ from swarmd.px4.messages import (
     SysStatus,
     VehicleCommand,
 )
-from swarmd.px4.readiness import VehicleState
+from swarmd.px4.readiness import ReadinessConfig, VehicleState
 from swarmd.px4.takeoff import (
     FailReason,
     TakeoffConfig,
@@ -362,3 +363,60 @@ def test_lossy_link_never_leaves_the_vehicle_armed_on_the_ground(seed: int, loss
         assert link.sim.armed and link.sim.landed != LandedState.ON_GROUND
     else:
         assert not (link.sim.armed and link.sim.landed == LandedState.ON_GROUND)
+
+
+GROUND_AMSL_M = 512.25  # where the vehicle stands when PX4 has no home yet
+GPS_FIX = GpsRawInt(GpsFixType.FIX_3D, 12, 90, 473977420, 85455940, round(GROUND_AMSL_M * 1000))
+GPS_NO_FIX = GpsRawInt(GpsFixType.FIX_2D, 4, 900, 473977420, 85455940, round(GROUND_AMSL_M * 1000))
+HOME = HomePosition(0, 0, round(HOME_AMSL_M * 1000))
+ESTIMATE = GlobalPositionInt(473977420, 85455940, round((GROUND_AMSL_M + 0.5) * 1000), 0)
+
+
+@pytest.mark.parametrize(
+    ("extra", "target", "ref"),
+    [
+        ((GPS_FIX, HOME), HOME_AMSL_M + 5.0, "home"),  # home wins over the current position
+        ((GPS_FIX, ESTIMATE, HOME), HOME_AMSL_M + 5.0, "home"),
+        ((GPS_FIX,), GROUND_AMSL_M + 5.0, "gps"),  # no home: where it stands (GPS, AMSL)
+        ((GPS_FIX, ESTIMATE), GROUND_AMSL_M + 0.5 + 5.0, "global_position"),  # PX4's estimate
+        ((GPS_NO_FIX, ESTIMATE), None, None),  # no fix: neither is trusted
+        ((GPS_NO_FIX,), None, None),  # neither home nor a 3D fix
+    ],
+)
+def test_ground_reference_is_home_then_the_current_gps_altitude(
+    extra: tuple[Observation, ...], target: float | None, ref: str | None
+) -> None:
+    """Without a home (PX4 sets it only at arming), a relative altitude is measured from where
+    the vehicle stands, by a GPS fix; without a fix it is refused ``no_home`` as before."""
+    state, now = VehicleState(), 0.0
+    for obs in (
+        Heartbeat(12, 2, 1, MODE_LOITER.custom_mode, MavState.STANDBY),
+        SysStatus(SENSOR_PREARM_CHECK, 90, 16000),
+        ExtendedSysState(LandedState.ON_GROUND),
+        *extra,
+    ):
+        state.observe(obs, now)
+    # readiness relaxed (no home, no fix required), so the ground reference alone decides
+    relaxed = ReadinessConfig(require_home=False, min_fix_type=GpsFixType.NO_FIX)
+    seq = TakeoffSequence(state, 5.0, readiness_config=relaxed)
+    seq.start(now)
+    sent = seq.commands_to_send()
+    if target is None:
+        assert isinstance(seq.outcome, TakeoffFailed)
+        assert (seq.outcome.reason, seq.outcome.cause) == (FailReason.NOT_READY, "no_home")
+        assert sent == []  # refused before arming
+        return
+    assert seq.phase is TakeoffPhase.ARMING and seq.target_amsl_m == pytest.approx(target)
+    (arm,) = sent
+    assert arm.command == MavCmd.COMPONENT_ARM_DISARM
+    state.observe(Heartbeat(12, 2, 1 | 128, MODE_LOITER.custom_mode, MavState.ACTIVE), 0.1)
+    seq.observe(CommandAck(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED, 0, 1, 191), 0.1)
+    (takeoff,) = seq.commands_to_send()
+    assert takeoff.command == MavCmd.NAV_TAKEOFF
+    assert takeoff.params[6] == pytest.approx(target)  # param7: AMSL
+    airborne = Heartbeat(12, 2, 1 | 128, MODE_TAKEOFF.custom_mode, MavState.ACTIVE)
+    for obs in (airborne, ExtendedSysState(LandedState.IN_AIR)):
+        state.observe(obs, 0.3)
+        seq.observe(obs, 0.3)
+    assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
+    assert seq.outcome.altitude_ref == ref and seq.outcome.target_amsl_m == pytest.approx(target)

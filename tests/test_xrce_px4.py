@@ -22,8 +22,11 @@ from swarmd.px4.takeoff import TakeoffSucceeded
 from swarmd.px4.xrce_backend import XrceBackend
 from tests.xrce_peers import peer_binary, peer_env
 
-# the stand-in publishes no valid home_position (PX4 does): readiness without it, NaN altitude
+# the stand-in publishes no valid home_position (PX4 sets it at arming): readiness without
+# it, and the take-off altitude is measured from its GPS altitude (488 m AMSL on the ground)
 READY = ReadinessConfig(require_home=False)
+GROUND_AMSL_M = 488.0  # px4_like_client's home_alt
+ALT_M = 5.0
 
 
 def _free_udp_port() -> int:
@@ -69,8 +72,10 @@ async def _fly(bridge: Px4Bridge, client: asyncio.subprocess.Process, via: str =
     verdicts: list[Readiness] = []
     bridge.on_readiness_change(verdicts.append)
     await _until(lambda: bridge.readiness().ready, 60, "ready")  # after PX4's 500-sample sync
-    outcome = await bridge.takeoff(None)
+    outcome = await bridge.takeoff(ALT_M)
     assert isinstance(outcome, TakeoffSucceeded), outcome
+    assert outcome.altitude_ref == "gps"  # no home_position from the stand-in
+    assert outcome.target_amsl_m == pytest.approx(GROUND_AMSL_M + ALT_M)
     assert bridge.readiness().reason == "armed"  # not ready, and says why
     bridge.backend.send(VehicleCommand.make(MavCmd.NAV_LAND))
     await asyncio.sleep(1.0)
@@ -78,6 +83,8 @@ async def _fly(bridge: Px4Bridge, client: asyncio.subprocess.Process, via: str =
     names = [(c["fields"]["command"], c["ack_result"]) for c in cmds]
     # exactly once each, acks ACCEPTED, from component 191 of our system, flagged external
     assert names == [(400, 0), (22, 0), (21, 0)], names
+    param7 = cmds[1]["fields"]["param7"]  # float32 on the wire; the stand-in climbs 5 m
+    assert param7 == pytest.approx(GROUND_AMSL_M + ALT_M, abs=1e-3)
     assert all(
         c["fields"]["source_component"] == 191 and c["fields"]["from_external"] for c in cmds
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
 
 import pytest
@@ -12,13 +13,16 @@ from swarmd.px4.messages import (
     GpsRawInt,
     Heartbeat,
     HomePosition,
-    StatusText,
     SysStatus,
+    TopicLayout,
     VehicleCommand,
 )
-from swarmd.px4.readiness import ReadinessConfig, VehicleState, readiness
+from swarmd.px4.readiness import ReadinessConfig, Reason, VehicleState, readiness
+from swarmd.px4.vehicle import VehicleCore
+from swarmd.px4.xrce_backend import Mode, XrceBackend
 from swarmd.px4.xrce_translate import Px4Translator
 from swarmd.xrce import px4 as topics
+from swarmd.xrce.events import SampleReceived
 from swarmd.xrce.px4_layouts import LAYOUTS
 
 RELEASES = ["1.14", "1.15", "1.16", "1.17"]
@@ -77,17 +81,29 @@ def test_vehicle_command_layout_per_release(release: str) -> None:
 def test_unknown_layout_makes_readiness_false_and_names_it() -> None:
     t = Px4Translator(sysid=1)
     obs = t.sample("rt/fmu/out/vehicle_status_v2", bytes(81))
-    assert t.problem == "unknown PX4 layout: vehicle_status_v2 of 81 B (not v1.14..v1.17)"
-    (text,) = obs
-    assert isinstance(text, StatusText) and "vehicle_status_v2" in text.text
+    problem = "unknown PX4 layout: vehicle_status_v2 of 81 B (not v1.14..v1.17)"
+    assert obs == [TopicLayout("vehicle_status", problem)] and str(t.problem) == problem
     state = VehicleState()
-    state.observe(text, 0.0)
+    state.observe(obs[0], 0.0)
     verdict = readiness(state, 0.1, ReadinessConfig(require_home=False))
-    assert not verdict.ready and verdict.px4_says is not None
-    assert "vehicle_status_v2 of 81 B" in verdict.px4_says
+    assert not verdict.ready and verdict.reason is Reason.UNKNOWN_LAYOUT  # not no_heartbeat
+    assert verdict.detail == problem
     # a plausible length under the wrong suffix is not guessed either
-    assert t.sample("rt/fmu/out/vehicle_status", bytes(80))[0] == StatusText(
-        2, "swarmd: unknown PX4 layout: vehicle_status of 80 B (not v1.14..v1.17)"
+    assert t.sample("rt/fmu/out/vehicle_status", bytes(80)) == [
+        TopicLayout(
+            "vehicle_status", "unknown PX4 layout: vehicle_status of 80 B (not v1.14..v1.17)"
+        )
+    ]
+    # a readable sample of that topic lifts it (once), and readiness judges the rest again
+    good = _sample("1.16", "VehicleStatus", pre_flight_checks_pass=True)
+    cleared, hb, _ = t.sample(*good)
+    assert cleared == TopicLayout("vehicle_status", None) and isinstance(hb, Heartbeat)
+    assert len(t.sample(*good)) == 2  # once
+    assert t.problem is None
+    for o in (cleared, hb):
+        state.observe(o, 0.2)
+    assert readiness(state, 0.3, ReadinessConfig(require_home=False)).reason is not (
+        Reason.UNKNOWN_LAYOUT
     )
 
 
@@ -99,3 +115,23 @@ def test_topic_names() -> None:
     assert topics.topic_names("vehicle_status", "out") == [
         "rt/fmu/out/vehicle_status", "rt/fmu/out/vehicle_status_v1",
     ]  # fmt: skip
+
+
+@pytest.mark.parametrize("mode", ["xrce-agent", "xrce-client"])
+def test_unknown_layout_reaches_readiness_through_either_backend(mode: Mode) -> None:
+    """Both XRCE backends hand a sample of an unknown layout to the vehicle core as a named
+    ``unknown_layout`` (the session engines are tested apart; this is the backend's seam)."""
+    backend = XrceBackend(mode, "udp:127.0.0.1:8888")
+    core = VehicleCore(readiness_config=ReadinessConfig(require_home=False))
+    loop = asyncio.new_event_loop()
+    try:
+        backend._loop = loop
+        backend._sink = lambda obs, now: core.receive_datagram(obs, None, now)
+        topic = topics.dds_topic("vehicle_land_detected", "out")
+        backend._event(SampleReceived(("127.0.0.1", 1), topic, "t", bytes(7)))
+        verdict = core.readiness(loop.time())
+    finally:
+        loop.close()
+    assert verdict.reason is Reason.UNKNOWN_LAYOUT, verdict
+    assert verdict.detail == "unknown PX4 layout: vehicle_land_detected of 7 B (not v1.14..v1.17)"
+    assert backend.stats()["layout_problem"] == verdict.detail

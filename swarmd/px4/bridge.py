@@ -266,6 +266,7 @@ def _outcome_dict(out: Outcome) -> dict[str, Any]:
             "landed_state": out.landed_state,
             "mode": out.mode,
             "target_amsl_m": out.target_amsl_m,
+            "altitude_ref": out.altitude_ref,
         }
     return {
         "ok": False,

@@ -162,6 +162,19 @@ class StatusText:
 
 
 @dataclass(frozen=True, slots=True)
+class TopicLayout:
+    """A backend's word on whether it can read one of its topics (XRCE-DDS only).
+
+    ``problem`` names a sample whose layout matches no known PX4 release (topic, length);
+    None says the topic decodes again. MAVLink never produces it: its messages carry their
+    own id and CRC_EXTRA, so an unknown layout there is a dropped frame, not a guess.
+    """
+
+    topic: str
+    problem: str | None
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleCommand:
     """A command for the autopilot (COMMAND_LONG 76 on MAVLink, VehicleCommand on DDS).
 
@@ -213,6 +226,7 @@ Observation = (
     | GlobalPositionInt
     | CommandAck
     | StatusText
+    | TopicLayout
 )
 """What a backend hands to the vehicle state and the take-off sequence."""
 

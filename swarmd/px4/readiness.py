@@ -5,11 +5,12 @@ Theory of operation: a backend decodes what the autopilot streams (HEARTBEAT 1 H
 mode) into ``swarmd.px4.messages`` observations and feeds them to ``VehicleState.observe``.
 ``readiness(state, now, config)`` is a pure function of that state and the time: it walks
 the conditions of ``CONDITIONS`` in order and reports the first that fails, so an operator
-always sees one stable reason code and one human line. Order matters: a dead link makes every
-other field stale, so it comes first; "armed" and "not in STANDBY" explain a missing PREARM
-bit, so they come before it; PX4's own verdict (PREARM) comes before swarmd's stricter
-checks (3D fix, home, battery) because PX4 arms without GNSS by default (COM_ARM_WO_GPS=1)
-and a swarm needs global position, hence both.
+always sees one stable reason code and one human line. Order matters: a topic the backend
+cannot read (``TopicLayout``, XRCE only) hides the facts everything else judges, so it
+comes first; a dead link makes every other field stale, so it comes next; "armed" and "not
+in STANDBY" explain a missing PREARM bit, so they come before it; PX4's own verdict (PREARM)
+comes before swarmd's stricter checks (3D fix, home, battery) because PX4 arms without GNSS
+by default (COM_ARM_WO_GPS=1) and a swarm needs global position, hence both.
 
 Sans-IO: no clock, no I/O. ``now`` is monotonic seconds (the driver's ``loop.time()``).
 """
@@ -17,7 +18,7 @@ Sans-IO: no clock, no I/O. ``now`` is monotonic seconds (the driver's ``loop.tim
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Final
 
@@ -38,6 +39,7 @@ from swarmd.px4.messages import (
     Observation,
     StatusText,
     SysStatus,
+    TopicLayout,
 )
 
 # PX4 telemetry_status.HEARTBEAT_TIMEOUT_US = 2.5 s ("tolerate one missing + jitter"); also
@@ -60,6 +62,7 @@ class ReadinessConfig:
 class Reason(StrEnum):
     """Stable reason codes, in the order they are checked (docs/px4.md has the table)."""
 
+    UNKNOWN_LAYOUT = "unknown_layout"
     NO_HEARTBEAT = "no_heartbeat"
     HEARTBEAT_STALE = "heartbeat_stale"
     NOT_PX4 = "not_px4"
@@ -88,6 +91,8 @@ class VehicleState:
     last_ack: CommandAck | None = None
     last_warning: StatusText | None = None  # latest STATUSTEXT of severity WARNING or worse
     last_warning_at: float | None = None
+    # topic -> why its samples cannot be read (XRCE: a layout of no known PX4 release)
+    layout_problems: dict[str, str] = field(default_factory=dict)
     received: int = 0
 
     def observe(self, obs: Observation, now: float) -> None:
@@ -111,6 +116,11 @@ class VehicleState:
             case StatusText():
                 if obs.severity <= MavSeverity.WARNING:
                     self.last_warning, self.last_warning_at = obs, now
+            case TopicLayout():
+                if obs.problem is None:
+                    self.layout_problems.pop(obs.topic, None)
+                else:
+                    self.layout_problems[obs.topic] = obs.problem
 
     @property
     def armed(self) -> bool | None:
@@ -173,6 +183,16 @@ class Readiness:
 
 
 Check = Callable[[VehicleState, float, ReadinessConfig], tuple[Reason, str] | None]
+
+
+def _layout(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.layout_problems:
+        # first: a topic swarmd cannot read hides the very facts the other checks judge
+        # (an unread vehicle_status is otherwise just "no_heartbeat")
+        return Reason.UNKNOWN_LAYOUT, "; ".join(
+            s.layout_problems[topic] for topic in sorted(s.layout_problems)
+        )
+    return None
 
 
 def _link(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
@@ -260,6 +280,7 @@ def _battery(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, s
 
 
 CONDITIONS: Final[tuple[Check, ...]] = (
+    _layout,
     _link,
     _px4,
     _disarmed,

@@ -21,10 +21,17 @@ accepted is (1 + retries) x ack timeout = 2 s with the defaults, well inside 10 
 out we send one DISARM (param1 = 0, not forced; PX4 refuses a non-forced disarm in the air,
 so this can only stop a vehicle sitting armed on the ground).
 
-Altitude (``alt_m``, metres above home): NAV_TAKEOFF param7 is **AMSL** (navigator), so
-param7 = HOME_POSITION.altitude + alt_m. ``alt_m=None`` sends NaN, and PX4 climbs to
-``MIS_TAKEOFF_ALT`` (default 2.5 m above home). Params 1-6 are NaN (PX4: "unused"; lat/lon
-NaN = take off where you are). A relative altitude without a home position is refused.
+Altitude (``alt_m``, metres above the ground): NAV_TAKEOFF param7 is **AMSL** (navigator),
+so param7 = ground reference + alt_m. The ground reference (``ground_reference``) is
+HOME_POSITION.altitude when PX4 has a home; without one (a vehicle that has never armed
+with a fix: PX4 sets home *at arming*, from the position it has then, commander
+``HomePosition::setHomePosition``) it is where the vehicle stands now, which is what PX4 will
+take as home a moment later: GLOBAL_POSITION_INT.alt (the estimate PX4's navigator compares
+param7 with) or else GPS_RAW_INT.alt (``vehicle_gps_position.altitude_msl_m`` over XRCE),
+both AMSL and only with a 3D GPS fix (a 2D fix has no altitude). With
+neither, a relative altitude is refused ``no_home``. ``alt_m=None`` sends NaN, and PX4 climbs
+to ``MIS_TAKEOFF_ALT`` (default 2.5 m above home). Params 1-6 are NaN (PX4: "unused";
+lat/lon NaN = take off where you are).
 
 Retries (reference 1.6, MAVSDK mavlink_command_sender) are the shared ``CommandSender``'s
 (``command_sender.py``): each command gets 0.5 s for its COMMAND_ACK and at most 3
@@ -57,7 +64,7 @@ from swarmd.px4.command_sender import (
     SenderConfig,
     SenderTask,
 )
-from swarmd.px4.constants import LandedState, MavCmd
+from swarmd.px4.constants import GpsFixType, LandedState, MavCmd
 from swarmd.px4.messages import MODE_TAKEOFF, Observation, VehicleCommand
 from swarmd.px4.readiness import ReadinessConfig, VehicleState, readiness
 
@@ -113,6 +120,28 @@ class FailReason(StrEnum):
     BUSY = "busy"  # another take-off is running (the driver's answer; never from a sequence)
 
 
+class GroundRef(StrEnum):
+    """What a relative take-off altitude is measured from (module docstring, Altitude)."""
+
+    HOME = "home"  # HOME_POSITION / home_position
+    GLOBAL_POSITION = "global_position"  # GLOBAL_POSITION_INT, no home yet
+    GPS = "gps"  # GPS_RAW_INT / vehicle_gps_position, no home yet
+
+
+def ground_reference(vehicle: VehicleState) -> tuple[float, GroundRef] | None:
+    """The ground's altitude AMSL (metres) and where it came from, or None: no home, no fix."""
+    if vehicle.home is not None:
+        return vehicle.home.altitude_amsl_m, GroundRef.HOME
+    gps = vehicle.gps
+    if gps is None or gps.fix_type < GpsFixType.FIX_3D:
+        # a 2D fix has no altitude (GPS_FIX_TYPE), whatever readiness was told to accept;
+        # without a fix PX4's global estimate is not trusted either
+        return None
+    if vehicle.position is not None:
+        return vehicle.position.alt_mm / 1000.0, GroundRef.GLOBAL_POSITION
+    return gps.alt_mm / 1000.0, GroundRef.GPS
+
+
 _TRANSITIONS: Final[dict[TakeoffPhase, frozenset[TakeoffPhase]]] = {
     TakeoffPhase.IDLE: frozenset({TakeoffPhase.ARMING, TakeoffPhase.FAILED}),
     TakeoffPhase.ARMING: frozenset({TakeoffPhase.TAKING_OFF, TakeoffPhase.FAILED}),
@@ -143,6 +172,7 @@ class TakeoffSucceeded(TakeoffEvent):
     landed_state: str
     mode: str
     target_amsl_m: float | None  # None: PX4's MIS_TAKEOFF_ALT
+    altitude_ref: str | None = None  # what target_amsl_m is above: a ``GroundRef``
 
 
 @dataclass(frozen=True, slots=True)
@@ -181,6 +211,7 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         self.readiness_config = readiness_config or ReadinessConfig()
         self.phase = TakeoffPhase.IDLE
         self.target_amsl_m: float | None = None
+        self.altitude_ref: GroundRef | None = None
         self.outcome: TakeoffSucceeded | TakeoffFailed | None = None
         self._t0 = 0.0
         self._handle: int | None = None  # the step's command in the sender
@@ -209,16 +240,25 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
                     f"altitude {self.alt_m} m above home is outside (0, {MAX_TAKEOFF_ALT_M:g}]",
                 )
                 return
-            if self.vehicle.home is None:
+            ground = ground_reference(self.vehicle)
+            if ground is None:
                 self._fail(
                     now,
                     FailReason.NOT_READY,
                     "no_home",
-                    "a relative altitude needs HOME_POSITION to become NAV_TAKEOFF's AMSL",
+                    "a relative altitude needs HOME_POSITION, or a GPS fix, to become "
+                    "NAV_TAKEOFF's AMSL",
                 )
                 return
-            self.target_amsl_m = self.vehicle.home.altitude_amsl_m + self.alt_m
-        self._set_phase(TakeoffPhase.ARMING, now, f"ready ({verdict.detail})")
+            self.target_amsl_m = ground[0] + self.alt_m
+            self.altitude_ref = ground[1]
+        target = (
+            ""
+            if self.target_amsl_m is None
+            else f"; NAV_TAKEOFF to {self.target_amsl_m:.1f} m AMSL ({self.altitude_ref} + "
+            f"{self.alt_m:g} m)"
+        )
+        self._set_phase(TakeoffPhase.ARMING, now, f"ready ({verdict.detail}){target}")
         self._arm_sent = True
         self._send(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=1.0), now)
         self._drain(now)
@@ -339,6 +379,7 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             # a pilot took over, and the vehicle is still off the ground: a success
             mode="unknown" if v.heartbeat is None else v.heartbeat.mode.name,
             target_amsl_m=self.target_amsl_m,
+            altitude_ref=None if self.altitude_ref is None else str(self.altitude_ref),
         )
         self._set_phase(TakeoffPhase.SUCCEEDED, now, f"airborne: landed_state {landed}")
         self._events.append(self.outcome)

@@ -8,8 +8,9 @@ from arming and ``failsafe``, autopilot PX4) and, with ``battery_status``, the `
 only) the ``HomePosition``; ``vehicle_command_ack`` addressed to us the ``CommandAck``.
 
 A sample whose layout matches no PX4 release (v1.14..v1.17) is not guessed at: it is
-counted, ``problem`` names it, and for ``vehicle_status`` no ``Heartbeat`` is produced, so
-readiness stays false; a ``StatusText`` carrying the name reaches readiness' ``px4_says``.
+counted, ``problem`` names it, and a ``TopicLayout`` naming it makes readiness false with
+reason ``unknown_layout`` until that topic decodes again (another ``TopicLayout``, problem
+None).
 """
 
 from __future__ import annotations
@@ -31,15 +32,15 @@ from swarmd.px4.messages import (
     Heartbeat,
     HomePosition,
     Observation,
-    StatusText,
     SysStatus,
+    TopicLayout,
     VehicleCommand,
 )
 from swarmd.xrce import px4 as topics
+from swarmd.xrce.px4_layouts import Layout
 
 MAV_TYPE_QUADROTOR: Final = 2
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED: Final = 1
-MAV_SEVERITY_CRITICAL: Final = 2
 ARMING_STATE_ARMED: Final = 2
 NAV_AUTO_TAKEOFF: Final = 17
 NAV_AUTO_LAND: Final = 18
@@ -60,6 +61,7 @@ class Px4Translator:
         self.compid = compid
         self.releases: set[str] = set(topics.RELEASES)  # narrowed by every sample
         self.problem: str | None = None
+        self._unreadable: set[str] = set()  # topics whose last sample had an unknown layout
         self.unknown_layouts = 0
         self.foreign_acks = 0
         self._nav_state: int | None = None
@@ -91,13 +93,25 @@ class Px4Translator:
             self.unknown_layouts += 1
             label = f"{name.topic}{f'_v{name.version}' if name.version else ''}"
             self.problem = f"unknown PX4 layout: {label} of {len(data)} B (not v1.14..v1.17)"
-            return [StatusText(MAV_SEVERITY_CRITICAL, f"swarmd: {self.problem}")]
+            self._unreadable.add(name.topic)
+            return [TopicLayout(name.topic, self.problem)]
         layout, releases = found
+        cleared: list[Observation] = []
+        if name.topic in self._unreadable:
+            self._unreadable.discard(name.topic)
+            cleared.append(TopicLayout(name.topic, None))
+            if not self._unreadable:
+                self.problem = None
+        return cleared + self._decoded(name.topic, layout, releases, data)
+
+    def _decoded(
+        self, topic: str, layout: Layout, releases: tuple[str, ...], data: bytes
+    ) -> list[Observation]:
         narrowed = self.releases & set(releases)
         if narrowed:
             self.releases = narrowed
         f = topics.decode_fields(layout, data)
-        match name.topic:
+        match topic:
             case "vehicle_status":
                 return self._status(f)
             case "battery_status":

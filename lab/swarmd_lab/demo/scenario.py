@@ -165,8 +165,9 @@ def xrce_port(d: Drone) -> int:
 
 def px4_section(s: Scenario, d: Drone, vehicle: str) -> str:
     if vehicle == "xrce":
-        # px4_like_client publishes no valid home_position (real PX4 does): readiness
-        # without it; a take-off to a relative altitude still needs it (docs/px4.md)
+        # px4_like_client publishes no valid home_position (real PX4 sets it at arming):
+        # readiness without it; the take-off altitude is then measured from the GPS altitude
+        # (docs/px4.md, Altitude)
         return f"""\
 px4:
   enabled: true
