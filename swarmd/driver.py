@@ -28,30 +28,17 @@ on hand-set time and on ``swarmd_lab.memnet.MemNet`` (virtual time, one network 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Generic, Protocol, TypeVar
+from collections.abc import Callable, Iterable
+from typing import Any, Generic, TypeVar
 
-InT_contra = TypeVar("InT_contra", contravariant=True)
-OutT_co = TypeVar("OutT_co", covariant=True)
-EvT_co = TypeVar("EvT_co", covariant=True)
+from swarmd.sansio import SansIOCore
+
+__all__ = ["Driver", "SansIOCore"]
+
 InT = TypeVar("InT")
 OutT = TypeVar("OutT")
 EvT = TypeVar("EvT")
 R = TypeVar("R")
-
-
-class SansIOCore(Protocol[InT_contra, OutT_co, EvT_co]):
-    """The driving protocol every swarmd core implements (docs/architecture.md)."""
-
-    def receive_datagram(self, data: InT_contra, source: Any, now: float) -> None: ...
-
-    def handle_timer(self, now: float) -> None: ...
-
-    def datagrams_to_send(self) -> Sequence[OutT_co]: ...
-
-    def get_timer(self) -> float | None: ...
-
-    def next_event(self) -> EvT_co | None: ...
 
 
 class Driver(Generic[InT, OutT, EvT]):

@@ -40,8 +40,10 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the sans-IO cores
     "discovery": CORE | {"auth"},
     "dataplane": CORE | {"auth"},
-    # the one asyncio driver: a leaf, it knows the driving protocol and no core
-    "driver": frozenset(),
+    # the driving protocol, declared once (swarmd/sansio.py): a leaf
+    "sansio": frozenset(),
+    # the one asyncio driver: it knows the driving protocol and no core
+    "driver": frozenset({"sansio"}),
     # px4's asyncio adapter (bridge) runs its core through the driver; its sans-IO modules
     # cannot (the driver imports asyncio: test_sans_io_rooms)
     "px4": CORE | {"xrce", "driver"},

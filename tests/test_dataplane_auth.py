@@ -58,8 +58,6 @@ from swarmd.rtps import (
 )
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, EntityId, GuidPrefix
 from tests.test_dataplane_swarm import (
-    Address,
-    LossyNet,
     Swarm,
     address_of,
     keyring,
@@ -264,17 +262,10 @@ def test_a_forged_acknack_cannot_stop_the_commanders_repairs() -> None:
     m01 = swarm.bundle.participant("m01")
     lead = swarm.planes["lead"]
     # a command m01 will never hear: only a forged ACKNACK could make it "acknowledged"
-    cut = address_of(swarm.bundle, "m01")
-    original = swarm.net.send
-
-    def send(payload: bytes, source: Address, destination: Address, now: float) -> None:
-        if destination != cut:
-            original(payload, source, destination, now)
-
-    swarm.net.send = send  # type: ignore[method-assign]
+    swarm.cut("m01")
     cmd = lead.make_command(CommandKind.TAKEOFF, altitude_m=5.0)
     swarm.run_until(swarm.now + 0.5, [send_at(swarm, swarm.now + 0.1, cmd)])
-    swarm.net.send = original  # type: ignore[method-assign]
+    swarm.cut("m01", False)
     everything = SequenceNumberSet.of(MAX_SEQUENCE_NUMBER, [])
     ack = AckNack(CMD_R, CMD_W, everything, 1 << 31, final=True)
     assert_refused(swarm, "lead", message(m01.guid_prefix, ack), "auth_missing")
@@ -325,11 +316,11 @@ def test_forged_outcomes_cannot_report_a_command_completed() -> None:
 
 def captured_takeoff(swarm: Swarm) -> tuple[bytes, int]:
     """The commander's real TAKEOFF datagram to m01, as a sniffer recorded it."""
-    swarm.net.log.clear()
+    swarm.net.transmissions.clear()
     cmd = swarm.planes["lead"].make_command(CommandKind.TAKEOFF, altitude_m=10.0)
     swarm.run_until(swarm.now + 2.0, [send_at(swarm, swarm.now + 0.1, cmd)])
     cut = address_of(swarm.bundle, "m01")
-    first = next(p for p, _, d in swarm.net.log if d == cut)
+    first = next(p for p, _, d in swarm.net.payloads() if d == cut)
     assert swarm.executed[("m01", cmd.command_id)] == 1
     return first, cmd.command_id
 
@@ -424,7 +415,7 @@ def fresh_pair(kind: str) -> tuple[Swarm, str, bytes]:
     """Two planes and one authentic datagram the receiver has not seen yet (the same bytes
     on every call: nothing in the planes is random)."""
     planes = {p.name: make_plane(PAIR_BUNDLE, p.name) for p in PAIR_BUNDLE.participants}
-    swarm = Swarm(PAIR_BUNDLE, LossyNet(random.Random(1)), planes)
+    swarm = Swarm(PAIR_BUNDLE, planes)
     swarm.discover_all()
     if kind == "command":
         lead = swarm.planes["lead"]

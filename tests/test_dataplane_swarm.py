@@ -1,20 +1,20 @@
 """A commander and ten members on a lossy in-process network, on virtual time.
 
-The network (``LossyNet``) drops, duplicates and delays every datagram independently with a
-seeded ``random.Random``; independent delays reorder. Nothing here sleeps: the loop jumps to
+The network (the lab's ``MemNet``, the one in-memory network every core's tests use) drops,
+duplicates and delays every datagram independently with a seeded ``random.Random``;
+independent delays reorder. Nothing here sleeps: the loop jumps to
 the next datagram arrival, timer or application tick.
 """
 
 from __future__ import annotations
 
-import heapq
 import json
 import random
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import pytest
+from swarmd_lab.memnet import Channel, MemNet
 
 from swarmd.auth.keys import KeyRing, NodeSecrets
 from swarmd.bundle.build import build_dev_bundle
@@ -39,6 +39,7 @@ from swarmd.rtps.types import VENDORID_SWARMD
 
 Address = tuple[str, int]
 Tick = tuple[float, Callable[[], object]]
+MIN_DELAY_S = 0.001  # every datagram takes at least this long (plus up to max_delay_s)
 
 
 def mission_text(members: int, command_depth: int = 8) -> str:
@@ -90,77 +91,51 @@ def make_plane(
     )
 
 
-@dataclass
-class LossyNet:
-    """Datagrams between ``DataPlane``s: seeded loss, duplication and random delay."""
-
-    rng: random.Random
-    drop: float = 0.0
-    duplicate: float = 0.0
-    min_delay_s: float = 0.001
-    max_delay_s: float = 0.001
-    sent: int = 0
-    dropped: int = 0
-    duplicated: int = 0
-    reordered: int = 0
-    log: list[tuple[bytes, Address, Address]] = field(default_factory=list)
-    _queue: list[tuple[float, int, bytes, Address, Address]] = field(default_factory=list)
-    _seq: int = 0
-    _last_arrival: dict[tuple[Address, Address], float] = field(default_factory=dict)
-
-    def send(self, payload: bytes, source: Address, destination: Address, now: float) -> None:
-        self.sent += 1
-        self.log.append((payload, source, destination))
-        if self.rng.random() < self.drop:
-            self.dropped += 1
-            return
-        copies = 2 if self.rng.random() < self.duplicate else 1
-        self.duplicated += copies - 1
-        for _ in range(copies):
-            at = now + self.rng.uniform(self.min_delay_s, self.max_delay_s)
-            link = (source, destination)
-            if at < self._last_arrival.get(link, 0.0):
-                self.reordered += 1
-            self._last_arrival[link] = max(at, self._last_arrival.get(link, 0.0))
-            self._seq += 1
-            heapq.heappush(self._queue, (at, self._seq, payload, source, destination))
-
-    def next_arrival(self) -> float | None:
-        return self._queue[0][0] if self._queue else None
-
-    def pop(self) -> tuple[float, bytes, Address, Address]:
-        at, _, payload, source, destination = heapq.heappop(self._queue)
-        return at, payload, source, destination
-
-
-@dataclass
 class Swarm:
-    """Every node's DataPlane, its address and what its application saw."""
+    """Every node's DataPlane on the one in-memory network (``MemNet``), its address and
+    what its application saw."""
 
-    bundle: Bundle
-    net: LossyNet
-    planes: dict[str, DataPlane]
-    executed: Counter[tuple[str, int]] = field(default_factory=Counter)  # (member, id)
-    executed_at: dict[tuple[str, int], float] = field(default_factory=dict)  # first execution
-    outcomes: dict[tuple[str, int], list[CommandResult]] = field(default_factory=dict)
-    readiness: dict[str, list[tuple[float, int, int]]] = field(default_factory=dict)
-    drops: Counter[str] = field(default_factory=Counter)
-    epochs: dict[str, int] = field(default_factory=dict)  # each node's boot epoch
-    now: float = 0.0
+    def __init__(
+        self,
+        bundle: Bundle,
+        planes: dict[str, DataPlane],
+        *,
+        seed: int = 1,
+        drop: float = 0.0,
+        duplicate: float = 0.0,
+        max_delay_s: float = 0.001,
+    ) -> None:
+        self.bundle = bundle
+        self.planes = planes
+        channel = Channel(drop, duplicate, MIN_DELAY_S, max(0.0, max_delay_s - MIN_DELAY_S))
+        self.net = MemNet(random.Random(seed), channel)  # noqa: S311 - seeded on purpose
+        self.net.on_event = self._on_event
+        self.ids: dict[str, int] = {}
+        self.executed: Counter[tuple[str, int]] = Counter()  # (member, id)
+        self.executed_at: dict[tuple[str, int], float] = {}  # first execution
+        self.outcomes: dict[tuple[str, int], list[CommandResult]] = {}
+        self.readiness: dict[str, list[tuple[float, int, int]]] = {}
+        self.drops: Counter[str] = Counter()
+        self.epochs: dict[str, int] = {}  # each node's boot epoch
+        for name, plane in planes.items():
+            host, port = address_of(bundle, name)
+            self.ids[name] = len(self.net)
+            self.net.add(plane, host, [port])
+
+    @property
+    def now(self) -> float:
+        return self.net.now
 
     @property
     def members(self) -> list[str]:
         return [p.name for p in self.bundle.participants if p.role == Role.MEMBER]
 
     def flush(self, name: str) -> None:
-        plane = self.planes[name]
-        src = address_of(self.bundle, name)
-        for payload, dst in plane.datagrams_to_send():
-            self.net.send(payload, src, dst, self.now)
-        while (event := plane.next_event()) is not None:
-            self.handle(name, event)
-        for payload, dst in plane.datagrams_to_send():  # outcomes the handler queued
-            self.net.send(payload, src, dst, self.now)
+        """Drive ``name``'s plane after the test called into it."""
+        self.net.poke(self.ids[name])
+
+    def _on_event(self, node_id: int, event: object, now: float) -> None:
+        self.handle(next(n for n, i in self.ids.items() if i == node_id), event)
 
     def handle(self, name: str, event: object) -> None:
         match event:
@@ -180,35 +155,17 @@ class Swarm:
                 raise AssertionError(f"unexpected event {event!r}")
 
     def run_until(self, end: float, ticks: list[Tick] | None = None) -> None:
-        """Advance virtual time to ``end``, delivering datagrams, timers and app ticks."""
-        agenda = sorted(ticks or [], key=lambda t: t[0])
-        while True:
-            candidates: list[float] = []
-            if (arrival := self.net.next_arrival()) is not None:
-                candidates.append(arrival)
-            timers = {n: t for n, p in self.planes.items() if (t := p.get_timer()) is not None}
-            candidates += timers.values()
-            if agenda:
-                candidates.append(agenda[0][0])
-            if not candidates or min(candidates) > end:
-                self.now = end
-                return
-            self.now = max(self.now, min(candidates))
-            if agenda and agenda[0][0] <= self.now:
-                agenda.pop(0)[1]()
-                for name in self.planes:
-                    self.flush(name)
-                continue
-            if arrival is not None and arrival <= self.now:
-                _, payload, source, destination = self.net.pop()
-                name = self.name_at(destination)
-                self.planes[name].receive_datagram(payload, source, self.now)
-                self.flush(name)
-                continue
-            for name, deadline in timers.items():
-                if deadline <= self.now:
-                    self.planes[name].handle_timer(self.now)
-                    self.flush(name)
+        """Advance virtual time to ``end``, delivering datagrams, timers and app ticks (an
+        app tick drives every plane afterwards, as the daemon's ``Driver.call`` would)."""
+        for at, action in sorted(ticks or [], key=lambda t: t[0]):
+
+            def tick(now: float, action: Callable[[], object] = action) -> None:
+                action()
+                for node_id in self.ids.values():
+                    self.net.poke(node_id)
+
+            self.net.call_at(at, tick)
+        self.net.run_until(end)
 
     def name_at(self, address: Address) -> str:
         for p in self.bundle.participants:
@@ -227,7 +184,14 @@ class Swarm:
         self.epochs[name] = self.epochs.get(name, 1) + 1
         plane = make_plane(self.bundle, name, epoch=self.epochs[name], **kwargs)  # type: ignore[arg-type]
         self.planes[name] = plane
+        self.net.replace(self.ids[name], plane)
         return plane
+
+    def cut(self, name: str, cut: bool = True) -> None:
+        """Nothing reaches ``name`` (its own datagrams still leave) until ``cut(name, False)``."""
+        target = self.ids[name]
+        loss = self.net.channel.loss
+        self.net.link_loss = (lambda s, d: 1.0 if d == target else loss) if cut else None
 
     def discover_all(self) -> None:
         for a in self.planes:
@@ -246,9 +210,8 @@ def make_swarm(
     command_depth: int = 8,
 ) -> Swarm:
     bundle = make_bundle(members, command_depth)
-    net = LossyNet(random.Random(seed), drop=drop, duplicate=duplicate, max_delay_s=max_delay_s)
     planes = {p.name: make_plane(bundle, p.name) for p in bundle.participants}
-    return Swarm(bundle, net, planes)
+    return Swarm(bundle, planes, seed=seed, drop=drop, duplicate=duplicate, max_delay_s=max_delay_s)
 
 
 def readiness_ticks(swarm: Swarm, start: float, seconds: int) -> list[Tick]:
@@ -296,8 +259,9 @@ def test_every_member_executes_every_command_exactly_once_under_30_percent_loss(
         for i in ids:
             assert swarm.outcomes[(m, i)] == [CommandResult.ACCEPTED, CommandResult.COMPLETED]
     # the network really was hostile, and the protocol really repaired and deduplicated
-    assert 0.25 < swarm.net.dropped / swarm.net.sent < 0.35
-    assert swarm.net.duplicated > 0 and swarm.net.reordered > 0
+    stats = swarm.net.stats
+    assert 0.25 < stats.lost / stats.sent < 0.35
+    assert stats.duplicated > 0 and stats.reordered > 0
     member_counters = sum((swarm.planes[m].counters for m in swarm.members), Counter[str]())
     assert member_counters["command_duplicate"] > 0  # the retried take-off at least
     status = lead.status(swarm.now)
@@ -419,19 +383,11 @@ def test_keep_last_history_gaps_samples_a_slow_member_missed() -> None:
     lead = swarm.planes["lead"]
     cut = swarm.members[0]
     commands = [lead.make_command(CommandKind.HOLD) for _ in range(5)]
-    cut_plane = swarm.planes.pop(cut)  # unreachable: its datagrams are lost
+    cut_plane = swarm.planes[cut]
     ticks = [send_at(swarm, 1.0 + 0.1 * i, c) for i, c in enumerate(commands)]
-    swarm.net.drop = 0.0
-    original_send = swarm.net.send
-
-    def send(payload: bytes, source: Address, destination: Address, now: float) -> None:
-        if destination != address_of(swarm.bundle, cut):
-            original_send(payload, source, destination, now)
-
-    swarm.net.send = send  # type: ignore[method-assign]
+    swarm.net.isolate(swarm.ids[cut])  # unreachable: its datagrams, both ways, are lost
     swarm.run_until(3.0, ticks)
-    swarm.planes[cut] = cut_plane
-    swarm.net.send = original_send  # type: ignore[method-assign]
+    swarm.net.isolate(swarm.ids[cut], False)
     swarm.run_until(30.0)
     got = [i for (m, i) in swarm.executed if m == cut]
     assert got == [c.command_id for c in commands[-2:]]
@@ -488,7 +444,7 @@ def test_datagrams_decode_and_carry_the_bundle_guids() -> None:
     b = swarm.bundle
     lead_p = b.participant("lead")
     seen: Counter[str] = Counter()
-    for payload, source, destination in swarm.net.log:
+    for payload, source, destination in swarm.net.payloads():
         msg = decode_message(payload)
         sender = b.by_prefix(msg.header.guid_prefix)
         receiver = b.participant(swarm.name_at(destination))
@@ -532,7 +488,7 @@ def command_latencies(members: int, drop: float, seed: int) -> tuple[list[float]
     cmd = swarm.planes["lead"].make_command(CommandKind.TAKEOFF, altitude_m=10.0)
     swarm.run_until(60.0, [send_at(swarm, 1.0, cmd)])
     assert len(swarm.executed) == members
-    return [t - 1.0 for t in swarm.executed_at.values()], swarm.net.sent
+    return [t - 1.0 for t in swarm.executed_at.values()], swarm.net.stats.sent
 
 
 def test_latency_driver_sees_every_member_execute() -> None:

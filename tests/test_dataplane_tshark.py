@@ -56,7 +56,7 @@ def test_user_traffic_dissects_without_expert_info(tmp_path: Path) -> None:
     ticks = readiness_ticks(swarm, 0.5, 3)
     ticks += [send_at(swarm, 1.0 + 0.01 * i, c) for i, c in enumerate(commands)]
     swarm.run_until(20.0, ticks)
-    datagrams = [Datagram(p, s, d) for p, s, d in swarm.net.log]
+    datagrams = [Datagram(p, s, d) for p, s, d in swarm.net.payloads()]
 
     # one GAP: a depth-1 writer asked for a sample its history no longer holds
     lead_p, m01 = swarm.bundle.participant("lead"), swarm.bundle.participant("m01")

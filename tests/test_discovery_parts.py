@@ -249,6 +249,9 @@ class Echo:
     def get_timer(self) -> float | None:
         return self.timer
 
+    def next_event(self) -> None:
+        return None
+
 
 def test_memnet_multicast_fanout_unicast_routing_delay_and_loopback() -> None:
     net = MemNet(random.Random(1), Channel(delay_s=0.01))

@@ -84,6 +84,7 @@ class Swarm:
         self.ids: dict[str, int] = {}
         self.vehicles: dict[str, Vehicle] = {}
         self.events: dict[str, list[SwarmEvent]] = {}
+        self.net.on_event = self._on_event
         for p in self.bundle.participants:
             has_vehicle = lead_vehicle if p.name == "lead" else vehicles
             vehicle = self.vehicles[p.name] = Vehicle()
@@ -98,8 +99,8 @@ class Swarm:
             self.events[p.name] = []
             core.start(0.0)
             host, port = address_of(self.bundle, p.name)
-            self.ids[p.name] = self.net.add(core, host, [port])
-        self.net.after_input = self._after_input
+            self.ids[p.name] = len(self.net)  # known before add drives it
+            assert self.net.add(core, host, [port]) == self.ids[p.name]
         for a in self.cores:  # discovery, as the daemon reports it
             for b in self.cores:
                 if a != b:
@@ -134,15 +135,13 @@ class Swarm:
     def requests(self, name: str) -> list[VehicleRequest]:
         return self.vehicles[name].requests
 
-    def _after_input(self, node_id: int, now: float) -> None:
+    def _on_event(self, node_id: int, event: SwarmEvent, now: float) -> None:
         name = next(n for n, i in self.ids.items() if i == node_id)
-        core = self.cores[name]
-        while (event := core.next_event()) is not None:
-            self.events[name].append(event)
-            if isinstance(event, VehicleRequest):
-                vehicle = self.vehicles[name]
-                vehicle.requests.append(event)
-                self.net.call_at(now + VEHICLE_TASK_S, self._finish(name, vehicle.answer(event)))
+        self.events[name].append(event)
+        if isinstance(event, VehicleRequest):
+            vehicle = self.vehicles[name]
+            vehicle.requests.append(event)
+            self.net.call_at(now + VEHICLE_TASK_S, self._finish(name, vehicle.answer(event)))
 
     def _finish(self, name: str, done: TaskFinished) -> Callable[[float], None]:
         def finish(now: float) -> None:

@@ -1,15 +1,20 @@
-"""An in-memory lossy datagram network on virtual time (trio's FakeNet, for sans-IO cores).
+"""The one in-memory lossy datagram network on virtual time (trio's FakeNet, style.md 12).
 
-Nodes are anything with the engine's four I/O methods (``DatagramNode``). ``MemNet`` owns
-a virtual clock and one event heap: deliveries and node timers. After every input to a node
-it collects the node's datagrams, routes them (multicast fan-out to every subscriber,
-unicast by host and port), and re-arms the node's one timer at ``get_timer()``. Loss,
-duplication and delay are drawn from the seeded ``random.Random`` passed in, so a run is a
-pure function of its seed. Each receiver of a multicast loses it independently, as on
-802.11 where multicast frames are neither acknowledged nor retried.
+Nodes are any sans-IO core of swarmd (``swarmd.sansio.SansIOCore`` with bytes in and
+``(bytes, (host, port))`` out): the discovery engine, the data plane, the swarm core.
+``MemNet`` owns a virtual clock and one event heap: deliveries, node timers and external
+calls. After every input to a node it drives the node as ``swarmd.driver.Driver`` does on
+the loop: send every datagram, hand every ``next_event()`` to ``on_event``, send again,
+then re-arm the node's one timer at ``get_timer()``. Routing: multicast fan-out to every
+subscriber, unicast by host and port. Loss, duplication and delay are drawn from the seeded
+``random.Random`` passed in, so a run is a pure function of its seed: each receiver of a
+datagram loses it independently (as on 802.11, where multicast frames are neither
+acknowledged nor retried), and a copy that arrives may arrive twice; independent delays
+reorder (counted).
 
-No sockets, no asyncio, no wall clock: the discovery tests, the benchmark and the
-simulator run hundreds of engines through it deterministically.
+No sockets, no asyncio, no wall clock: the discovery, data-plane and swarm-core tests and
+the discovery benchmark run their cores through it deterministically. The simulator drives
+the same protocol on its own 802.11 channel model (``swarmd_lab.sim.swarmd_node``).
 """
 
 from __future__ import annotations
@@ -18,19 +23,13 @@ import heapq
 import random
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any
+
+from swarmd.sansio import SansIOCore
 
 Address = tuple[str, int]
-
-
-class DatagramNode(Protocol):
-    def receive_datagram(self, data: bytes, source: Address, now: float) -> None: ...
-
-    def handle_timer(self, now: float) -> None: ...
-
-    def datagrams_to_send(self) -> list[tuple[bytes, Address]]: ...
-
-    def get_timer(self) -> float | None: ...
+# any core of swarmd that takes bytes from a UDP address and gives (bytes, address)
+DatagramNode = SansIOCore[bytes, tuple[bytes, Address], Any]
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +57,8 @@ class Transmission:
     target: Address
     size: int
     multicast: bool
+    payload: bytes = b""
+    source: Address = ("", 0)
 
 
 @dataclass(slots=True)
@@ -89,8 +90,10 @@ _Item = _Delivery | _TimerFire | Callable[[float], None]
 
 @dataclass(slots=True)
 class NetStats:
+    sent: int = 0
     delivered: int = 0
     lost: int = 0
+    reordered: int = 0  # deliveries due before an earlier one on the same (src, dst) link
     duplicated: int = 0
     unroutable: int = 0
     isolated: int = 0
@@ -122,7 +125,11 @@ class MemNet:
         self.link_loss = link_loss
         self.transmissions: list[Transmission] = []
         self.stats = NetStats()
+        # each event a node emits, as (node id, event, now); the owner's Driver.on_event
+        self.on_event: Callable[[int, Any, float], None] | None = None
+        # after each input has been driven (observers: convergence checks)
         self.after_input: Callable[[int, float], None] | None = None
+        self._last_arrival: dict[tuple[int, int], float] = {}
         self._nodes: list[_Attached] = []
         self._by_host: dict[str, int] = {}
         self._heap: list[tuple[float, int, _Item]] = []
@@ -166,6 +173,17 @@ class MemNet:
     def __len__(self) -> int:
         return len(self._nodes)
 
+    def replace(self, node_id: int, node: DatagramNode) -> None:
+        """A node's process restarts: ``node`` takes its place (address, ports, groups); the
+        old node's timer is dropped."""
+        self._nodes[node_id].node = node
+        self.poke(node_id)
+
+    def payloads(self) -> list[tuple[bytes, Address, Address]]:
+        """Every datagram handed to the network, as (payload, source, target): what a
+        sniffer on the medium would record."""
+        return [(t.payload, t.source, t.target) for t in self.transmissions]
+
     def isolate(self, node_id: int, isolated: bool = True) -> None:
         """Cut a node off (it still sends; nothing it sends or is sent reaches anyone)."""
         self._nodes[node_id].isolated = isolated
@@ -177,10 +195,21 @@ class MemNet:
         self._push(when, fn)
 
     def poke(self, node_id: int) -> None:
-        """Collect a node's output and re-arm its timer after an input given from outside."""
+        """Drive a node after an input (a delivery, its timer, a call from outside): send,
+        dispatch its events, send again (a handler may have given it more to do), until no
+        event is left; then re-arm its one timer."""
         attached = self._nodes[node_id]
-        for payload, target in attached.node.datagrams_to_send():
-            self._transmit(node_id, payload, target)
+        node = attached.node
+        while True:
+            for payload, target in node.datagrams_to_send():
+                self._transmit(node_id, payload, target)
+            event = node.next_event()
+            if event is None:
+                break
+            while event is not None:
+                if self.on_event is not None:
+                    self.on_event(node_id, event, self.now)
+                event = node.next_event()
         attached.timer_generation += 1
         deadline = attached.node.get_timer()
         if deadline is not None:
@@ -216,7 +245,11 @@ class MemNet:
     def _transmit(self, src: int, payload: bytes, target: Address) -> None:
         sender = self._nodes[src]
         multicast = is_multicast(target[0])
-        self.transmissions.append(Transmission(self.now, src, target, len(payload), multicast))
+        source = (sender.host, sender.source_port)
+        self.transmissions.append(
+            Transmission(self.now, src, target, len(payload), multicast, payload, source)
+        )
+        self.stats.sent += 1
         self.stats.per_node_tx[src] += 1
         if multicast:
             receivers = [
@@ -230,25 +263,30 @@ class MemNet:
                 self.stats.unroutable += 1
                 return
             receivers = [dst]
-        source = (sender.host, sender.source_port)
         for dst in receivers:
             if dst != src and (sender.isolated or self._nodes[dst].isolated):
                 self.stats.isolated += 1
                 continue
             loss = 0.0 if dst == src else self._loss(src, dst)
+            if loss and self.rng.random() < loss:
+                self.stats.lost += 1
+                continue
             copies = 1
             if dst != src and self.channel.duplicate and self.rng.random() < self.channel.duplicate:
                 copies = 2
                 self.stats.duplicated += 1
             for _ in range(copies):
-                if loss and self.rng.random() < loss:
-                    self.stats.lost += 1
-                    continue
                 delay = self.channel.delay_s
                 if self.channel.jitter_s:
                     delay += self.rng.uniform(0.0, self.channel.jitter_s)
                 self.stats.delivered += 1
-                self._push(self.now + delay, _Delivery(dst, payload, source))
+                at = self.now + delay
+                last = self._last_arrival.get((src, dst), 0.0)
+                if at < last:
+                    self.stats.reordered += 1
+                else:
+                    self._last_arrival[(src, dst)] = at
+                self._push(at, _Delivery(dst, payload, source))
 
     def _loss(self, src: int, dst: int) -> float:
         return self.link_loss(src, dst) if self.link_loss is not None else self.channel.loss

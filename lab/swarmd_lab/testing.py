@@ -138,18 +138,16 @@ class Swarm:
     def all_discovered(self) -> bool:
         return self.pairs == self.size * (self.size - 1)
 
-    def _on_input(self, node_id: int, now: float) -> None:
-        engine = self.engines[node_id] if node_id < len(self.engines) else None
-        if engine is None:
-            return
-        while (event := engine.next_event()) is not None:
-            self.events[node_id].append((now, event))
-            if isinstance(event, PeerDiscovered):
-                self.pairs += 1
-                self.met.add((node_id, self.index_of[event.name]))
-            elif isinstance(event, PeerLost):
-                self.pairs -= 1
-                self.lost += 1
+    def _on_event(self, node_id: int, event: Event, now: float) -> None:
+        self.events[node_id].append((now, event))
+        if isinstance(event, PeerDiscovered):
+            self.pairs += 1
+            self.met.add((node_id, self.index_of[event.name]))
+        elif isinstance(event, PeerLost):
+            self.pairs -= 1
+            self.lost += 1
+
+    def _after_input(self, node_id: int, now: float) -> None:
         if self.full_at is None and self.all_discovered():
             self.full_at = now
         if self.all_met_at is None and len(self.met) == self.size * (self.size - 1):
@@ -181,7 +179,8 @@ def build_swarm(
     net = MemNet(random.Random(master.getrandbits(64)), channel)  # noqa: S311
     swarm = Swarm(bundle, net, [], [[] for _ in range(n)])
     swarm.index_of = {p.name: p.index for p in bundle.participants}
-    net.after_input = swarm._on_input
+    net.on_event = swarm._on_event
+    net.after_input = swarm._after_input
     seeds = [master.getrandbits(64) for _ in range(n)]
     starts = start_times or [0.0] * n
 
