@@ -23,8 +23,9 @@ class MissionError(FieldError):
     """A mission file that cannot become a bundle; nothing has been written."""
 
 
-class BundleError(ValueError):
-    """A bundle that must not be used: its ``str()`` is one line naming file, problem, fix."""
+class FileProblem(ValueError):
+    """A file that must not be used, as one line: ``file: problem; fix: fix`` (the shape
+    every bundle and key file error shares, written once)."""
 
     def __init__(self, file: str, problem: str, fix: str) -> None:
         self.file = file
@@ -34,20 +35,15 @@ class BundleError(ValueError):
 
     def __str__(self) -> str:
         return _one_line(f"{self.file}: {self.problem}; fix: {self.fix}")
+
+
+class BundleError(FileProblem):
+    """A bundle that must not be used: its ``str()`` is one line naming file, problem, fix."""
 
 
 class FlashError(RuntimeError):
     """Writing a bundle to a drone failed; the previous bundle is still in place."""
 
 
-class KeyFileError(ValueError):
+class KeyFileError(FileProblem):
     """A key file that is missing, unreadable or not an Ed25519 key; one line, like the rest."""
-
-    def __init__(self, file: str, problem: str, fix: str) -> None:
-        self.file = file
-        self.problem = problem
-        self.fix = fix
-        super().__init__(str(self))
-
-    def __str__(self) -> str:
-        return _one_line(f"{self.file}: {self.problem}; fix: {self.fix}")

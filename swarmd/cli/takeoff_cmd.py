@@ -18,7 +18,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
@@ -99,56 +99,58 @@ class _Run:
         return time.monotonic() >= self.deadline
 
 
-def _takeoff(args: argparse.Namespace) -> int:
+def _session(args: argparse.Namespace, body: Callable[[ControlClient, _Run], int]) -> int:
+    """Run ``body`` on one control connection; the exits every command shares."""
     run = _Run(args)
     try:
         with ControlClient(args.socket) as client:
-            targets = _check_commander(client, args.only)
-            if isinstance(targets, int):
-                return targets
-            ready = _wait_for_readiness(client, run, targets, args.require_all)
-            if ready is None:
-                return EX_NOT_READY
-            request: dict[str, Any] = {"only": targets, "require_all": args.require_all}
-            if args.alt is not None:
-                request["alt_m"] = args.alt
-            try:
-                reply = client.request("takeoff", **request)
-            except RequestError as exc:
-                return _usage(str(exc))
-            if not reply["sent"]:  # nobody ready, or one fell back between wait and send
-                refused = reply.get("refused") or {}
-                code = EX_NOT_READY if args.require_all else EX_FAILED
-                run.say("not sent, no drone is ready: " + _reasons(refused))
-                _final(args, None, {"refused": refused}, code)
-                return code
-            return _follow(client, run, reply, "takeoff")
+            return body(client, run)
     except DaemonUnreachable as exc:
         print(f"swarmctl: {exc}", file=sys.stderr)
         return EX_UNREACHABLE
     except KeyboardInterrupt:  # a command already sent keeps running on the drones
         print("swarmctl: interrupted", file=sys.stderr)
         return EX_INTERRUPTED
+
+
+def _takeoff(args: argparse.Namespace) -> int:
+    def body(client: ControlClient, run: _Run) -> int:
+        targets = _check_commander(client, args.only)
+        if isinstance(targets, int):
+            return targets
+        ready = _wait_for_readiness(client, run, targets, args.require_all)
+        if ready is None:
+            return EX_NOT_READY
+        request: dict[str, Any] = {"only": targets, "require_all": args.require_all}
+        if args.alt is not None:
+            request["alt_m"] = args.alt
+        try:
+            reply = client.request("takeoff", **request)
+        except RequestError as exc:
+            return _usage(str(exc))
+        if not reply["sent"]:  # nobody ready, or one fell back between wait and send
+            refused = reply.get("refused") or {}
+            code = EX_NOT_READY if args.require_all else EX_FAILED
+            run.say("not sent, no drone is ready: " + _reasons(refused))
+            _final(args, None, {"refused": refused}, code)
+            return code
+        return _follow(client, run, reply, "takeoff")
+
+    return _session(args, body)
 
 
 def _simple(args: argparse.Namespace) -> int:
-    run = _Run(args)
-    try:
-        with ControlClient(args.socket) as client:
-            targets = _check_commander(client, args.only)
-            if isinstance(targets, int):
-                return targets
-            try:
-                reply = client.request("command", kind=args.kind, only=targets)
-            except RequestError as exc:
-                return _usage(str(exc))
-            return _follow(client, run, reply, args.kind)
-    except DaemonUnreachable as exc:
-        print(f"swarmctl: {exc}", file=sys.stderr)
-        return EX_UNREACHABLE
-    except KeyboardInterrupt:  # a command already sent keeps running on the drones
-        print("swarmctl: interrupted", file=sys.stderr)
-        return EX_INTERRUPTED
+    def body(client: ControlClient, run: _Run) -> int:
+        targets = _check_commander(client, args.only)
+        if isinstance(targets, int):
+            return targets
+        try:
+            reply = client.request("command", kind=args.kind, only=targets)
+        except RequestError as exc:
+            return _usage(str(exc))
+        return _follow(client, run, reply, args.kind)
+
+    return _session(args, body)
 
 
 def _usage(message: str) -> int:
