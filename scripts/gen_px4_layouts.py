@@ -26,7 +26,7 @@ WANT = {
     "VehicleStatus": ["timestamp", "arming_state", "nav_state", "failsafe",
                       "pre_flight_checks_pass", "system_id", "component_id", "vehicle_type"],
     "VehicleLandDetected": ["timestamp", "landed", "maybe_landed", "ground_contact"],
-    "FailsafeFlags": ["timestamp"],
+    "FailsafeFlags": None,  # every field: the flags and the per-mode requirement masks
     "BatteryStatus": ["timestamp", "connected", "voltage_v", "remaining"],
     "SensorGps": ["timestamp", "fix_type", "satellites_used", "eph", "lat", "lon", "alt",
                   "latitude_deg", "longitude_deg", "altitude_msl_m"],

@@ -145,7 +145,7 @@ def test_first_failing_condition_wins_in_documented_order() -> None:
         elif step == 6:
             sys = replace(sys, battery_remaining=100)
     assert seen == [*order, None]
-    assert len(CONDITIONS) == 10  # + unknown_layout, first (XRCE only; test_xrce_translate)
+    assert len(CONDITIONS) == 11  # + unknown_layout, failsafe_flag (XRCE only; test_xrce_translate)
 
 
 def test_prearm_reason_quotes_px4() -> None:

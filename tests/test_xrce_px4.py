@@ -108,6 +108,7 @@ async def _agent_takeoff(release: str) -> None:
         st = backend.stats()
         assert st["px4_version"] is not None and release in st["px4_version"].split("/")
         assert st["layout_problem"] is None and st["dropped"] == {}
+        assert st["failsafe_blockers"] == []  # failsafe_flags read, nothing blocking
     finally:
         await bridge.close()
 
@@ -191,5 +192,6 @@ async def _client_mode_through_micro_xrce_agent_takes_off() -> None:
             async with _proc(*argv) as client:
                 await _fly(bridge, client)
             assert backend.session == "established"
+            assert backend.stats()["failsafe_blockers"] == []  # read through the agent too
         finally:
             await bridge.close()

@@ -135,3 +135,44 @@ def test_unknown_layout_reaches_readiness_through_either_backend(mode: Mode) -> 
     assert verdict.reason is Reason.UNKNOWN_LAYOUT, verdict
     assert verdict.detail == "unknown PX4 layout: vehicle_land_detected of 7 B (not v1.14..v1.17)"
     assert backend.stats()["layout_problem"] == verdict.detail
+
+
+@pytest.mark.parametrize("release", RELEASES)
+def test_failsafe_flags_that_block_arming_make_readiness_false_and_name_the_flag(
+    release: str,
+) -> None:
+    t = Px4Translator(sysid=1)
+    state = VehicleState()
+    config = ReadinessConfig(require_home=False)
+
+    def feed(message: str, **values: float | int | bool) -> None:
+        for obs in t.sample(*_sample(release, message, **values)):
+            state.observe(obs, 0.0)
+
+    # a vehicle ready in every other respect, holding (nav_state 4, AUTO.LOITER)
+    feed("VehicleStatus", nav_state=4, pre_flight_checks_pass=True)
+    feed("BatteryStatus", remaining=0.9, voltage_v=16.0)
+    feed("VehicleLandDetected", landed=True)
+    feed("SensorGps", fix_type=3, satellites_used=12, eph=0.9)
+    assert readiness(state, 0.0, config).ready
+    # PX4's commander masks (bit = nav_state), as px4_like_client fills them
+    masks = {"mode_req_global_position": 0x0038003C, "mode_req_home_position": 0x20,
+             "mode_req_prevent_arming": 0}  # fmt: skip
+    feed("FailsafeFlags", **masks)
+    assert readiness(state, 0.0, config).ready  # every flag clear
+    # no home: only RTL (bit 5) needs one, so neither arming in Hold nor the take-off stops
+    feed("FailsafeFlags", **masks, home_position_invalid=True)
+    assert readiness(state, 0.0, config).ready
+    # no global position: AUTO.TAKEOFF (bit 17) needs it
+    feed("FailsafeFlags", **masks, global_position_invalid=True, home_position_invalid=True)
+    verdict = readiness(state, 0.0, config)
+    assert verdict.reason is Reason.FAILSAFE_FLAG and "global_position_invalid" in verdict.detail
+    assert "home_position_invalid" not in verdict.detail
+    # an ESC that failed to arm stops any take-off; arming prevented in the current mode too
+    feed("FailsafeFlags", **{**masks, "mode_req_prevent_arming": 1 << 4},
+         fd_esc_arming_failure=True)  # fmt: skip
+    verdict = readiness(state, 0.0, config)
+    assert verdict.reason is Reason.FAILSAFE_FLAG
+    assert "fd_esc_arming_failure" in verdict.detail and "mode_req_prevent_arming" in verdict.detail
+    feed("FailsafeFlags", **masks)  # cleared again
+    assert readiness(state, 0.0, config).ready

@@ -162,6 +162,17 @@ class StatusText:
 
 
 @dataclass(frozen=True, slots=True)
+class ArmingBlockers:
+    """PX4 flags that stop the arm or the take-off (XRCE-DDS ``failsafe_flags``; empty: none).
+
+    MAVLink has no counterpart: there PX4's verdict arrives only as the PREARM bit and
+    STATUSTEXT, which readiness reads already.
+    """
+
+    flags: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class TopicLayout:
     """A backend's word on whether it can read one of its topics (XRCE-DDS only).
 
@@ -227,6 +238,7 @@ Observation = (
     | CommandAck
     | StatusText
     | TopicLayout
+    | ArmingBlockers
 )
 """What a backend hands to the vehicle state and the take-off sequence."""
 

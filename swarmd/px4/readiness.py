@@ -30,6 +30,7 @@ from swarmd.px4.constants import (
     MavState,
 )
 from swarmd.px4.messages import (
+    ArmingBlockers,
     CommandAck,
     ExtendedSysState,
     GlobalPositionInt,
@@ -69,6 +70,7 @@ class Reason(StrEnum):
     ARMED = "armed"
     NOT_STANDBY = "not_standby"
     PREARM_FAILED = "prearm_failed"
+    FAILSAFE_FLAG = "failsafe_flag"
     NOT_ON_GROUND = "not_on_ground"
     NO_3D_FIX = "no_3d_fix"
     NO_HOME = "no_home"
@@ -93,6 +95,7 @@ class VehicleState:
     last_warning_at: float | None = None
     # topic -> why its samples cannot be read (XRCE: a layout of no known PX4 release)
     layout_problems: dict[str, str] = field(default_factory=dict)
+    arming_blockers: tuple[str, ...] = ()  # PX4 failsafe_flags that stop arm or take-off
     received: int = 0
 
     def observe(self, obs: Observation, now: float) -> None:
@@ -116,6 +119,8 @@ class VehicleState:
             case StatusText():
                 if obs.severity <= MavSeverity.WARNING:
                     self.last_warning, self.last_warning_at = obs, now
+            case ArmingBlockers():
+                self.arming_blockers = obs.flags
             case TopicLayout():
                 if obs.problem is None:
                     self.layout_problems.pop(obs.topic, None)
@@ -240,6 +245,15 @@ def _prearm(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, st
     return None
 
 
+def _failsafe(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.arming_blockers:
+        # after PREARM: PX4's own verdict first, then the named flag behind it (XRCE only)
+        return Reason.FAILSAFE_FLAG, (
+            f"PX4 failsafe_flags: {', '.join(s.arming_blockers)} (blocks arming or take-off)"
+        )
+    return None
+
+
 def _ground(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
     landed = s.landed_state
     if landed is None:
@@ -286,6 +300,7 @@ CONDITIONS: Final[tuple[Check, ...]] = (
     _disarmed,
     _standby,
     _prearm,
+    _failsafe,
     _ground,
     _fix,
     _home,

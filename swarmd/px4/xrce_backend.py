@@ -177,6 +177,9 @@ class XrceBackend:
             "client": self.client,
             "px4_version": self.translator.px4_version,
             "layout_problem": self.translator.problem,
+            "failsafe_blockers": (
+                None if self.translator.blockers is None else list(self.translator.blockers)
+            ),
             "foreign_acks": self.translator.foreign_acks,
             "dropped": dict(self.engine.dropped),
             "bad_frames": self._deframer.dropped,
@@ -250,8 +253,6 @@ def _subscriptions(namespace: str | None) -> dict[str, str]:
 
     out: dict[str, str] = {}
     for t in OUT_TOPICS:
-        if t == "failsafe_flags":
-            continue  # nothing swarmd reads
         for name in topic_names(t, "out", namespace):
             out[name] = dds_type(TOPIC_MESSAGES[t])
     return out

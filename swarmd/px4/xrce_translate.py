@@ -26,6 +26,7 @@ from swarmd.px4.constants import (
     MavState,
 )
 from swarmd.px4.messages import (
+    ArmingBlockers,
     CommandAck,
     ExtendedSysState,
     GpsRawInt,
@@ -50,6 +51,28 @@ NAV_TO_MODE: Final = {
     12: (4, 6), 13: (4, 6), 14: (6, 0), 15: (7, 0), 17: (4, 2), 18: (4, 6), 19: (4, 8),
     20: (4, 9), 21: (3, 0), 22: (4, 10),
 }  # fmt: skip
+# FailsafeFlags.msg, "Per-mode requirements": each mode_req_* is a bitmask over nav_state of
+# the modes that need a condition, and the condition's flag says it is missing. PX4 refuses
+# to arm in, or to switch to, a mode whose requirement is missing (commander ModeChecks).
+MODE_REQUIREMENTS: Final = (
+    ("mode_req_angular_velocity", "angular_velocity_invalid"),
+    ("mode_req_attitude", "attitude_invalid"),
+    ("mode_req_local_alt", "local_altitude_invalid"),
+    ("mode_req_local_position", "local_position_invalid"),
+    ("mode_req_local_position_relaxed", "local_position_invalid_relaxed"),
+    ("mode_req_global_position", "global_position_invalid"),
+    ("mode_req_global_position_relaxed", "global_position_invalid_relaxed"),  # 1.17+
+    ("mode_req_mission", "auto_mission_missing"),
+    ("mode_req_offboard_signal", "offboard_control_signal_lost"),
+    ("mode_req_home_position", "home_position_invalid"),
+    ("mode_req_manual_control", "manual_control_signal_lost"),
+    ("mode_req_wind_and_flight_time_compliance", "wind_limit_exceeded"),
+    ("mode_req_wind_and_flight_time_compliance", "flight_time_limit_exceeded"),
+)
+# flags that stop a take-off in any mode: an ESC that did not arm, a critical failure (attitude
+# or altitude limit, external ATS), an unhealthy battery; swarmd's conservative choice for a
+# swarm take-off, whatever PX4's own arming checks make of them
+ALWAYS_BLOCKING: Final = ("fd_esc_arming_failure", "fd_critical_failure", "battery_unhealthy")
 LANDED_ON_GROUND, LANDED_IN_AIR, LANDED_TAKEOFF, LANDED_LANDING = 1, 2, 3, 4
 
 
@@ -64,6 +87,7 @@ class Px4Translator:
         self._unreadable: set[str] = set()  # topics whose last sample had an unknown layout
         self.unknown_layouts = 0
         self.foreign_acks = 0
+        self.blockers: tuple[str, ...] | None = None  # from failsafe_flags; None: none yet
         self._nav_state: int | None = None
         self._prearm: bool | None = None
         self._battery_pct = -1
@@ -138,6 +162,9 @@ class Px4Translator:
                 ]
             case "vehicle_command_ack":
                 return self._ack(f)
+            case "failsafe_flags":
+                self.blockers = self._blockers(f)
+                return [ArmingBlockers(self.blockers)]
         return []
 
     def command(self, cmd: VehicleCommand, timestamp_us: int) -> bytes:
@@ -173,6 +200,17 @@ class Px4Translator:
             system_status=status,
         )
         return [hb, self._sys_status()]
+
+    def _blockers(self, f: dict[str, float | int | bool]) -> tuple[str, ...]:
+        """The set flags that stop arming in the current mode or switching to AUTO.TAKEOFF."""
+        modes = {NAV_AUTO_TAKEOFF} | ({self._nav_state} if self._nav_state is not None else set())
+        out: list[str] = [flag for flag in ALWAYS_BLOCKING if f.get(flag)]
+        for mask, flag in MODE_REQUIREMENTS:
+            if f.get(flag) and any(int(f.get(mask, 0)) >> m & 1 for m in modes):
+                out.append(flag)
+        if self._nav_state is not None and int(f["mode_req_prevent_arming"]) >> self._nav_state & 1:
+            out.append(f"mode_req_prevent_arming (nav_state {self._nav_state})")
+        return tuple(dict.fromkeys(out))
 
     def _sys_status(self) -> SysStatus:
         return SysStatus(

@@ -16,7 +16,7 @@ import struct
 from dataclasses import dataclass
 from typing import Final
 
-from swarmd.xrce.px4_layouts import LAYOUTS, Layout
+from swarmd.xrce.px4_layouts import LAYOUTS, Field, Layout
 
 RELEASES: Final = tuple(LAYOUTS)  # "1.14" .. "1.17"
 # uORB topic -> message (the topics swarmd reads and writes)
@@ -90,9 +90,17 @@ def layout_for(message: str, version: int, size: int) -> tuple[Layout, tuple[str
         return None
     first = LAYOUTS[rels[0]][message]
     for r in rels[1:]:
-        if LAYOUTS[r][message][2] != first[2]:
+        if not _same_places(LAYOUTS[r][message][2], first[2]):
             return None  # same size, different field places: cannot tell which
     return first, tuple(rels)
+
+
+def _same_places(a: dict[str, Field], b: dict[str, Field]) -> bool:
+    """Every field at the same place; a renamed field (FailsafeFlags' primary_geofence_breached,
+    1.14, is geofence_breached from 1.15) keeps its place and does not make them disagree."""
+    if any(a[name] != b[name] for name in a.keys() & b.keys()):
+        return False
+    return sorted(a.values()) == sorted(b.values())
 
 
 def decode_fields(layout: Layout, data: bytes) -> dict[str, float | int | bool]:
