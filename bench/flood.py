@@ -38,7 +38,7 @@ from swarmd_lab.netns import Lan, run_prefix, unavailable_reason  # noqa: E402
 from tests.attacker.cpulimit import CpuLimit  # noqa: E402
 from tests.attacker.flood import forged_pool, run_flood  # noqa: E402
 from tests.attacker.host import Attacker  # noqa: E402
-from tests.attacker.swarm import flashed_swarm, refusals  # noqa: E402
+from tests.attacker.swarm import FlashedSwarm, flashed_swarm, refusals  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 DOCS = REPO / "docs" / "benchmarks.md"
@@ -71,11 +71,17 @@ def run(
         lan = Lan(4, prefix=run_prefix("atkb")).__enter__()
         limit = CpuLimit(lan.prefix, cpu_percent) if cpu_percent is not None else None
         try:
-            with flashed_swarm(lan, Path(tmp)) as sw:
+            started: list[Attacker] = []
+
+            def listen(sw: FlashedSwarm) -> None:
+                # from before the daemons start: vouched members go quiet on SPDP
+                started.append(Attacker(sw.attacker_ns, sw.spdp_group).start())
+
+            with flashed_swarm(lan, Path(tmp), before_start=listen) as sw:
                 if limit is not None:
                     for i in range(sw.n):
                         limit.add(sw.daemon_pid(i))
-                atk = Attacker(sw.attacker_ns, sw.spdp_group).start()
+                atk = started[0]
                 try:
                     for k in range(repeats):
                         pool = forged_pool(sw, atk, POOL * modulo, seed=k)

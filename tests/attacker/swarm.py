@@ -395,9 +395,21 @@ def delta(after: dict[str, int], before: dict[str, int]) -> dict[str, int]:
 
 
 @contextlib.contextmanager
-def flashed_swarm(lan: Lan, root: Path, n: int = 3) -> Iterator[FlashedSwarm]:
+def flashed_swarm(
+    lan: Lan,
+    root: Path,
+    n: int = 3,
+    *,
+    before_start: Callable[[FlashedSwarm], None] | None = None,
+) -> Iterator[FlashedSwarm]:
+    """``before_start`` runs once the bundle is flashed and before any daemon starts: an
+    attacker that must hear every member's SPDP listens from here (vouched members stop
+    renewing once the commander vouches for them, docs/discovery.md, so an attacker that
+    starts listening later hears only the commander)."""
     swarm = FlashedSwarm(lan, root, n)
     try:
+        if before_start is not None:
+            before_start(swarm)
         swarm.start_all()
         swarm.wait_ready()
         yield swarm
