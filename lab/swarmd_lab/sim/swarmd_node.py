@@ -1,7 +1,8 @@
 """swarmd's real ``DiscoveryEngine`` on the simulated channel.
 
-The adapter is the simulator's version of the daemon's thin asyncio adapter: datagrams in
-go to ``receive_datagram``, the single deadline from ``get_timer`` becomes one virtual-clock
+The adapter is the simulator's version of the daemon's ``Driver`` (the same driving
+protocol, ``swarmd.sansio.SansIOCore``, in the same order): datagrams in go to
+``receive_datagram``, the single deadline from ``get_timer`` becomes one virtual-clock
 timer, and whatever the engine queues goes into the node's MAC queue with its real size.
 Addresses are the bundle's: ``10.0.x.y`` maps to a node index, the SPDP group to multicast.
 """
@@ -103,7 +104,9 @@ class SwarmdNode(SimNode):
         self._pump(now)
 
     def _pump(self, now: float) -> None:
-        """Collect the engine's datagrams and events, re-arm its one timer."""
+        """Drive the engine after an input as ``swarmd.driver.Driver`` and ``MemNet`` do
+        (the driving protocol, ``swarmd.sansio``): send, dispatch events, send again, re-arm
+        its one timer when the deadline changed. Only the channel model is the simulator's."""
         engine = self.engine
         assert engine is not None  # noqa: S101
         # runs after every reception (~10^6 per run at N = 1000): the usual answer is
@@ -112,12 +115,16 @@ class SwarmdNode(SimNode):
         if out:
             self._transmit(engine, out)
         event = engine.next_event()
-        while event is not None:
-            if isinstance(event, PeerDiscovered):
-                self.ctx.ledger.discovered(self.index, self._name_to_index[event.name], now)
-            elif isinstance(event, PeerLost):
-                self.ctx.ledger.lost(self.index, self._name_to_index[event.name], now)
-            event = engine.next_event()
+        if event is not None:
+            while event is not None:
+                if isinstance(event, PeerDiscovered):
+                    self.ctx.ledger.discovered(self.index, self._name_to_index[event.name], now)
+                elif isinstance(event, PeerLost):
+                    self.ctx.ledger.lost(self.index, self._name_to_index[event.name], now)
+                event = engine.next_event()
+            out = engine.datagrams_to_send()  # send again, as Driver and MemNet do
+            if out:
+                self._transmit(engine, out)
         deadline = engine.get_timer()
         if deadline == self._timer_at:
             return
