@@ -125,7 +125,8 @@ class MemNet:
         self.link_loss = link_loss
         self.transmissions: list[Transmission] = []
         self.stats = NetStats()
-        # each event a node emits, as (node id, event, now); the owner's Driver.on_event
+        # each event a node emits, as (node id, event, now); the owner's Driver.on_event.
+        # None: the network leaves events in the core (a test reads next_event() itself)
         self.on_event: Callable[[int, Any, float], None] | None = None
         # after each input has been driven (observers: convergence checks)
         self.after_input: Callable[[int, float], None] | None = None
@@ -200,15 +201,17 @@ class MemNet:
         event is left; then re-arm its one timer."""
         attached = self._nodes[node_id]
         node = attached.node
+        on_event = self.on_event
         while True:
             for payload, target in node.datagrams_to_send():
                 self._transmit(node_id, payload, target)
+            if on_event is None:
+                break  # events stay queued in the core for its owner to read
             event = node.next_event()
             if event is None:
                 break
             while event is not None:
-                if self.on_event is not None:
-                    self.on_event(node_id, event, self.now)
+                on_event(node_id, event, self.now)
                 event = node.next_event()
         attached.timer_generation += 1
         deadline = attached.node.get_timer()
