@@ -2,6 +2,7 @@
 VENV ?= .venv
 N ?= 10
 # mavlink: the MAVLink vehicle simulator; xrce: px4_like_client through swarmd's XRCE agent
+# xrce-client: px4_like_client through MicroXRCEAgent, swarmd its second client
 VEHICLE ?= mavlink
 PYTEST_ARGS ?=
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -91,11 +92,25 @@ def test_demo_with_xrce_vehicles(tmp_path: Path) -> None:
     proc, pid = _run_demo(tmp_path / "out", "--vehicle", "xrce")
     text = proc.stdout
     assert "vehicles: px4_like_client" in text and "xrce-agent" in text, text[-3000:]
-    assert f"ready {N}/{N}" in text and "swarmctl: readiness: 3/3 ready" in text
+    assert f"swarmctl: readiness: {N}/{N} ready" in text, text[-3000:]
     assert "no_home" not in text, text[-3000:]
     assert f"takeoff: {N}/{N} confirmed airborne" in text, text[-3000:]
-    assert text.count("COMPLETED  IN_AIR") == N
+    assert len(re.findall(r": completed \((IN_AIR|TAKEOFF)\)", text)) == N, text[-3000:]
     _check(tmp_path / "out", proc, "namespaces")  # exit 0, N/N airborne, every node's fields
+    assert not [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]
+
+
+@pytest.mark.netns
+def test_demo_with_xrce_vehicles_through_micro_xrce_agent(tmp_path: Path) -> None:
+    """``make demo VEHICLE=xrce-client``: per drone, px4_like_client through eProsima's
+    MicroXRCEAgent and swarmd as that agent's second client; ``swarmctl takeoff`` flies N/N."""
+    peer_binary("MicroXRCEAgent")
+    proc, pid = _run_demo(tmp_path / "out", "--vehicle", "xrce-client")
+    text = proc.stdout
+    assert "through eProsima's MicroXRCEAgent" in text and "xrce-client" in text, text[-3000:]
+    assert f"takeoff: {N}/{N} confirmed airborne" in text, text[-3000:]
+    assert len(re.findall(r": completed \((IN_AIR|TAKEOFF)\)", text)) == N, text[-3000:]
+    _check(tmp_path / "out", proc, "namespaces")
     assert not [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]
 
 

@@ -27,7 +27,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help=f"GPS fix time of the late drone (default {LATE_GPS_S:g})")  # fmt: skip
     p.add_argument("--vehicle", choices=VEHICLES, default="mavlink",
                    help="mavlink: the MAVLink vehicle simulator (default); xrce: PX4's uXRCE-DDS "
-                        "client library (px4_like_client) with swarmd as its agent")  # fmt: skip
+                        "client library (px4_like_client) with swarmd as its agent; xrce-client: "
+                        "the same through eProsima's MicroXRCEAgent, swarmd its 2nd client"
+                   )  # fmt: skip
     args = p.parse_args(argv)
     opts = Options(
         n=args.n,

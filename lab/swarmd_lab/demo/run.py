@@ -34,7 +34,7 @@ from swarmd_lab.demo.scenario import (
 )
 from swarmd_lab.demo.view import LiveView
 from swarmd_lab.netns import MAX_HOSTS, unavailable_reason
-from swarmd_lab.xrce import peer_bin
+from swarmd_lab.xrce import peer_bin, peer_env
 
 POLL_S: Final = 0.5
 DISCOVERY_DEADLINE_S: Final = 60.0
@@ -149,10 +149,18 @@ class Demo:
         ]
         # loopback: a per-process domain keeps two demos (or a test run) on one host apart
         domain = 1 + os.getpid() % 200 if self.loopback else 0
+        if opts.vehicle == "xrce-client" and not self.loopback:
+            domain = 1  # MicroXRCEAgent's own participants hold domain 0's ports (7410, ...)
         scenario = write(
             self.root, drones, domain_id=domain, loopback=self.loopback, vehicle=opts.vehicle
         )
-        if opts.vehicle == "xrce":
+        if opts.vehicle == "xrce-client":
+            self.say(
+                "vehicles: px4_like_client (PX4's own uXRCE-DDS client library, a PX4 stand-in)"
+                " per drone through eProsima's MicroXRCEAgent, swarmd a second client of that"
+                " agent (px4.backend: xrce-client)"
+            )
+        elif opts.vehicle == "xrce":
             self.say(
                 "vehicles: px4_like_client (PX4's own uXRCE-DDS client library, a PX4 stand-in)"
                 " per drone, with swarmd as its XRCE agent (px4.backend: xrce-agent)"
@@ -164,7 +172,7 @@ class Demo:
             f"bundle, per-drone configs and link files (SNR "
             f"{min(d.snr_db for d in drones):.0f}-{max(d.snr_db for d in drones):.0f} dB)"
         )
-        if scenario.late is not None and opts.vehicle != "xrce":  # the stand-in has no GPS delay
+        if scenario.late is not None and opts.vehicle == "mavlink":  # the stand-in has no GPS delay
             self.say(
                 f"{scenario.late} gets its GPS fix late ({opts.late_gps_s:g} s): watch the wait"
             )
@@ -173,6 +181,11 @@ class Demo:
     def start(self, s: Scenario) -> None:
         swarmd = _tool("swarmd", "swarmd.cli.swarmd_main")
         sim = _tool("swarmd-vehicle-sim", "swarmd_lab.px4.vehicle_sim")
+        if self.opts.vehicle == "xrce-client":  # each drone's agent first: swarmd connects to it
+            for d in s.drones:
+                log = s.log_path(d, "agent").open("wb")
+                self.logs.append(log)
+                self.sims.append(self.hosts.popen(d.index, self.agent_args(d), log))
         for d in s.drones:
             log = s.log_path(d).open("wb")
             self.logs.append(log)
@@ -181,19 +194,30 @@ class Demo:
         for d in s.drones:
             log = s.log_path(d, "sim").open("wb")
             self.logs.append(log)
-            argv = (
-                self.xrce_args(d) if self.opts.vehicle == "xrce" else [*sim, *self.sim_args(s, d)]
-            )
+            if self.opts.vehicle == "mavlink":
+                argv = [*sim, *self.sim_args(s, d)]
+            else:
+                argv = self.xrce_args(d, localhost=self.opts.vehicle == "xrce-client")
             self.sims.append(self.hosts.popen(d.index, argv, log))
         self.view.event(self.t(), f"started {len(s.drones)} swarmd + {len(s.drones)} simulators")
 
     @staticmethod
-    def xrce_args(d: Drone) -> list[str]:
+    def xrce_args(d: Drone, *, localhost: bool = False) -> list[str]:
         client = peer_bin("px4_like_client")
         if not client.exists():
             raise RuntimeError(f"{client} missing: scripts/setup.sh builds the XRCE peers")
         port, sysid = str(xrce_port(d)), str(d.sysid)
-        return [str(client), "-p", port, "-k", sysid, "-S", sysid, "-V", "1.16", "-q"]
+        argv = [str(client), "-p", port, "-k", sysid, "-S", sysid, "-V", "1.16", "-q"]
+        # through MicroXRCEAgent: PX4's UXRCE_DDS_PTCFG=1, a localhost-only participant
+        return [*argv, "-c", "1"] if localhost else argv
+
+    @staticmethod
+    def agent_args(d: Drone) -> list[str]:
+        agent = peer_bin("MicroXRCEAgent")
+        if not agent.exists():
+            raise RuntimeError(f"{agent} missing: scripts/setup.sh --agent builds it")
+        lib = peer_env()["LD_LIBRARY_PATH"]  # its own library, in the build cache
+        return ["env", f"LD_LIBRARY_PATH={lib}", str(agent), "udp4", "-p", str(xrce_port(d))]
 
     @staticmethod
     def sim_args(s: Scenario, d: Drone) -> list[str]:

@@ -42,7 +42,7 @@ LATE_GPS_S: Final = 14.0  # the late member: after discovery, so the wait is vis
 TAKEOFF_ALT_M: Final = 5.0
 PX4_PORT: Final = 14540  # PX4 SITL's onboard link (instance i: 14540 + i)
 XRCE_PORT: Final = 8888  # PX4 SITL's uXRCE-DDS agent port (loopback: 8888 + i)
-VEHICLES: Final = ("mavlink", "xrce")
+VEHICLES: Final = ("mavlink", "xrce", "xrce-client")
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,6 +164,17 @@ def xrce_port(d: Drone) -> int:
 
 
 def px4_section(s: Scenario, d: Drone, vehicle: str) -> str:
+    if vehicle == "xrce-client":
+        # swarmd joins the drone's MicroXRCEAgent as a second client (a companion that keeps
+        # its agent for ROS 2); the same stand-in, so the same relaxed home (below)
+        return f"""\
+px4:
+  enabled: true
+  backend: xrce-client
+  connection: udp:127.0.0.1:{xrce_port(d)}
+  require_home: false
+  takeoff_alt_m: {TAKEOFF_ALT_M}
+"""
     if vehicle == "xrce":
         # px4_like_client publishes no valid home_position (real PX4 sets it at arming):
         # readiness without it; the take-off altitude is then measured from the GPS altitude
