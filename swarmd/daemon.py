@@ -241,6 +241,15 @@ def _multicast_send_options(s: socket.socket, ipv4: str) -> None:
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)  # co-hosted participants
 
 
+def rcvbuf_capped(granted: int) -> bool:
+    """Whether the kernel gave less receive buffer than ``RECV_BUFFER_BYTES`` asked for.
+
+    ``getsockopt(SO_RCVBUF)`` answers twice what was granted (socket(7): the kernel doubles
+    the request for its bookkeeping), and a request above ``net.core.rmem_max`` is cut to
+    it."""
+    return granted < 2 * RECV_BUFFER_BYTES
+
+
 class BatchedSocket:
     """One UDP socket feeding the engine, read in batches; which one only matters for the
     counters. Every datagram the engine queues leaves from the unicast one.
@@ -433,6 +442,16 @@ class Daemon:
         for name, sock in (("multicast", spdp), ("unicast", unicast)):
             self._transports[name] = BatchedSocket(
                 sock, name, self.datagrams_received, self.count, loop
+            )
+        granted = spdp.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        if rcvbuf_capped(granted):
+            # a smaller buffer overflows sooner under a flood, and the kernel then drops
+            # real renewals with the forgeries (docs/security.md, "Flood")
+            self.log.warning(
+                "spdp_receive_buffer_capped",
+                granted=granted,
+                wanted=RECV_BUFFER_BYTES,
+                fix="sysctl net.core.rmem_max=4194304 (docs/deploy.md)",
             )
         try:
             await app.start()
