@@ -164,28 +164,20 @@ def xrce_port(d: Drone) -> int:
 
 
 def px4_section(s: Scenario, d: Drone, vehicle: str) -> str:
-    if vehicle == "xrce-client":
-        # swarmd joins the drone's MicroXRCEAgent as a second client (a companion that keeps
-        # its agent for ROS 2); the same stand-in, so the same relaxed home (below)
+    if vehicle in ("xrce", "xrce-client"):
+        # xrce: swarmd is the stand-in's agent (only its key may open a session);
+        # xrce-client: swarmd joins the drone's MicroXRCEAgent as a second client (a companion
+        # that keeps its agent for ROS 2). px4_like_client publishes no valid home_position
+        # (real PX4 sets it at arming): readiness without it; the take-off altitude is then
+        # measured from the GPS altitude (docs/px4.md, Altitude)
+        agent = vehicle == "xrce"
+        key = f"  xrce_key: {d.sysid}\n" if agent else ""
         return f"""\
 px4:
   enabled: true
-  backend: xrce-client
+  backend: {"xrce-agent" if agent else "xrce-client"}
   connection: udp:127.0.0.1:{xrce_port(d)}
-  require_home: false
-  takeoff_alt_m: {TAKEOFF_ALT_M}
-"""
-    if vehicle == "xrce":
-        # px4_like_client publishes no valid home_position (real PX4 sets it at arming):
-        # readiness without it; the take-off altitude is then measured from the GPS altitude
-        # (docs/px4.md, Altitude)
-        return f"""\
-px4:
-  enabled: true
-  backend: xrce-agent
-  connection: udp:127.0.0.1:{xrce_port(d)}
-  xrce_key: {d.sysid}
-  require_home: false
+{key}  require_home: false
   takeoff_alt_m: {TAKEOFF_ALT_M}
 """
     return f"""\
