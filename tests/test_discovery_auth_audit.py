@@ -112,14 +112,6 @@ def test_a_data_p_for_a_member_under_an_invented_header_moves_nothing() -> None:
 # -- locators --------------------------------------------------------------------------------
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "open (secSpdp's engine receive path): a peer's authenticated DATA(p) may announce "
-        "the receiver's own address and port; only a captured member can, and the effect is "
-        "that the receiver sends that member's replies and user data to itself"
-    ),
-)
 def test_a_captured_member_announcing_the_receivers_own_address_is_refused() -> None:
     e = _receiver()
     me = BUNDLE.participants[0]

@@ -189,6 +189,7 @@ class DiscoveryEngine:
         self._wallclock = wallclock
         self._timing = resolve_timing(bundle.discovery, config)
         self._local_ipv4 = local_ipv4
+        self._local_octets = _ipv4_octets(local_ipv4)
         last = max(bundle.participants, key=lambda p: p.index)
         self._size = last.index + 1
         self._digest = bundle.content_sha256[:BUNDLE_DIGEST_BYTES]
@@ -616,7 +617,7 @@ class DiscoveryEngine:
         if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
             self._drop(DropReason.OWN, source)
             return
-        if not _locators_usable(part, source):
+        if not _locators_usable(part, source, self._local_octets):
             self._drop(DropReason.BAD_LOCATOR, source)
             return
         if self._auth is not None:
@@ -1276,11 +1277,29 @@ def _air_address_refused(octets: bytes, source_host: str) -> bool:
     return first == 127 and not source_host.startswith("127.")
 
 
-def _locators_usable(part: SpdpParticipant, source: tuple[str, int]) -> bool:
+def _ipv4_octets(host: str) -> bytes:
+    """Four octets of a dotted IPv4 address; empty (matches nothing) if it is not one."""
+    parts = host.split(".")
+    if len(parts) != 4 or not all(p.isdigit() and int(p) < 256 for p in parts):
+        return b""
+    return bytes(int(p) for p in parts)
+
+
+def _locators_usable(
+    part: SpdpParticipant, source: tuple[str, int], own_octets: bytes = b""
+) -> bool:
     """Whether a bundle peer's unicast locators (metatraffic: SPDP replies; default: user
     data) are all addresses we may send to (issue 10, attack 7). Other locator kinds (shared
-    memory, TCP) are never used for sending, so they pass."""
+    memory, TCP) are never used for sending, so they pass.
+
+    Our own address is refused too, unless the datagram came from it (co-hosted
+    participants): a captured member announcing the receiver's own address would make the
+    receiver send that member's traffic to itself, into any UDP service on it."""
+    own_source = own_octets != b"" and source[0] == ".".join(map(str, own_octets))
     for loc in (*part.metatraffic_unicast_locators, *part.default_unicast_locators):
-        if loc.kind == LOCATOR_KIND_UDPv4 and _air_address_refused(loc.address[12:], source[0]):
+        if loc.kind != LOCATOR_KIND_UDPv4:
+            continue
+        octets = loc.address[12:]
+        if _air_address_refused(octets, source[0]) or (octets == own_octets and not own_source):
             return False
     return True
