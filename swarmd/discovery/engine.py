@@ -240,9 +240,16 @@ class DiscoveryEngine:
         # commander's renewals carry the members it heard directly in the last
         # ``vouch_window_s``; only the commander's (signed) vouch is believed.
         commanders = [p.index for p in bundle.participants if p.role == Role.COMMANDER]
+        # A vouch must be worth most of a lease, or vouched members (who stop renewing)
+        # would lapse between vouches: with a 3 s lease and a 2.5 s window a vouch holds a
+        # member for no time at all. Short leases (tests, fast-failover missions) keep plain
+        # renewals.
+        worthwhile = (
+            vouched_lease_s(self._timing.lease_s, config.vouch_window_s) >= self._timing.lease_s / 2
+        )
         self._commander: int | None = (
             commanders[0]
-            if config.mode == "adaptive" and config.vouch and len(commanders) == 1
+            if config.mode == "adaptive" and config.vouch and len(commanders) == 1 and worthwhile
             else None
         )
         self._vouching = self._commander == me.index
