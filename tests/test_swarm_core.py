@@ -29,6 +29,7 @@ from swarmd.swarm.core import (
     UNKNOWN_KIND,
     CommandExecuting,
     OutcomeReported,
+    PeerTrafficVerified,
     PersistExecuted,
     RequestInvalid,
     SwarmCore,
@@ -358,3 +359,16 @@ def test_anything_a_peer_sends_is_dropped_or_taken_never_raised(data: list[bytes
         b"RTPS\x02\x05\x01\x0f" + bytes(12) + b"".join(data), ("10.9.9.9", 1), 9.0
     )
     assert swarm.requests("m01") == []
+
+
+def test_verified_user_data_reports_its_sender_alive_to_the_driver() -> None:
+    """Every readiness sample that passed its MAC becomes ``PeerTrafficVerified(member)`` at
+    the commander: what the daemon feeds to ``DiscoveryEngine.peer_traffic`` (vouching,
+    docs/discovery.md). Members hear nothing from each other, so they report nobody."""
+    swarm = Swarm(3, loss=0.0, seed=31)
+    swarm.run(5.0)
+    heard = Counter(e.node for e in swarm.events["lead"] if isinstance(e, PeerTrafficVerified))
+    assert sorted(heard) == ["m01", "m02", "m03"]
+    assert all(count >= 3 for count in heard.values())  # ~1 Hz for 5 s
+    for member in ("m01", "m02", "m03"):
+        assert not [e for e in swarm.events[member] if isinstance(e, PeerTrafficVerified)]
