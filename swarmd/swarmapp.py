@@ -51,7 +51,7 @@ from swarmd.swarm.core import (
 )
 from swarmd.swarm.roles import Roles
 from swarmd.swarm.statefile import NodeState, StateDirError, boot
-from swarmd.swarm.userdata import UserDataSocket
+from swarmd.userdata import UserDataSocket
 
 Datagram = tuple[bytes, tuple[str, int]]
 

@@ -54,12 +54,14 @@ ALLOWED: dict[str, frozenset[str]] = {
     "terminal": frozenset(),
     "logs": frozenset({"terminal"}),
     "sdnotify": frozenset(),
+    # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
+    "userdata": CORE,
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
     "control": CORE,
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
     "swarmapp": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
-    | {"config", "control", "driver", "logs"},
+    | {"config", "control", "driver", "logs", "userdata"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "driver", "logs", "sdnotify", "swarmapp"},
@@ -92,8 +94,9 @@ SANS_IO = [
         "px4",
         frozenset({"transport", "mavlink_backend", "bridge", "xrce_backend", "provision"}),
     ),
-    # the swarm's I/O: the user-data socket, the state file (core.py is sans-IO)
-    SansIO("swarm", frozenset({"userdata", "statefile"})),
+    # the swarm's I/O: the state file (core.py is sans-IO; the user-data socket is the
+    # daemon tier's swarmd/userdata.py)
+    SansIO("swarm", frozenset({"statefile"})),
 ]
 NO_LOOP = ("asyncio", "socket", "selectors")
 NO_IO = frozenset({"asyncio", "socket", "selectors", "threading", "time", "trio"})
