@@ -142,11 +142,13 @@ def summarise(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
 
 
 def main_k(rows: Sequence[Mapping[str, Any]]) -> dict[tuple[str, int], float]:
-    """Per (contender, N), the dilation of its main runs: the largest k with a valid run
-    (else the largest k). A k = 1 run beside it is the method's check; a smaller k whose
-    runs all lagged is kept in the tables of checks and invalid runs, never in the main one."""
+    """Per (contender, N), the dilation of its main runs: the k with the most valid runs,
+    ties to the larger k (else the largest k). At N = 5 that is the undilated repeats, with
+    the single dilated run beside them as the method's check; at N = 20 the k every stack
+    keeps up at. A k whose runs all lagged stays in the tables of checks and invalid runs,
+    never in the main one."""
     out: dict[tuple[str, int], float] = {}
-    for r in sorted(rows, key=lambda r: (r["valid_runs"] > 0, r["k"])):
+    for r in sorted(rows, key=lambda r: (r["valid_runs"], r["k"])):
         out[(r["contender"], r["n"])] = r["k"]
     return out
 

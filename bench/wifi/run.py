@@ -336,8 +336,32 @@ def assemble(
             "group_rate": opts.mcast_mode or "ns-3 default (802.11g: DsssRate1Mbps)",
             "max_lag_ms": opts.max_lag_ms,
             "started_at": launch,
+            "commit": source_commit(),
         },
     }
+
+
+def source_commit() -> str:
+    """The checkout's commit (``+dirty`` when the tree differs): which swarmd and which peers
+    a run measured, so runs of different code are never averaged unknowingly."""
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(REPO), "rev-parse", "--short=10", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=10,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
 
 
 def run_file_name(contender: str, n: int, run: int, k: float) -> str:

@@ -24,6 +24,7 @@
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
 #include <fastdds/dds/subscriber/DataReader.hpp>
+#include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/subscriber/SampleInfo.hpp>
 #include <fastdds/dds/subscriber/Subscriber.hpp>
 #include <fastdds/dds/topic/Topic.hpp>
@@ -250,7 +251,19 @@ int main(int argc, char** argv)
 
     if (args.index == 0) {
         Subscriber* sub = participant->create_subscriber(SUBSCRIBER_QOS_DEFAULT);
-        DataReader* reader = sub->create_datareader(topic, DATAREADER_QOS_DEFAULT);
+        // The sample type is keyed by member, and Fast DDS 2.9's DataReader default holds at
+        // most 10 instances (ResourceLimitsQosPolicy: max_instances 10, max_samples 5000): with
+        // 19 members the commander silently kept 10 (success 53 % at N = 20 in r1). Room for
+        // every member, the other limits kept consistent (max_samples >= instances x per-instance).
+        DataReaderQos rqos = DATAREADER_QOS_DEFAULT;
+        rqos.resource_limits().max_instances = args.n;
+        rqos.resource_limits().max_samples =
+            args.n * rqos.resource_limits().max_samples_per_instance;
+        DataReader* reader = sub->create_datareader(topic, rqos);
+        if (reader == nullptr) {
+            std::fprintf(stderr, "fastdds_peer: create_datareader failed\n");
+            return 1;
+        }
         std::map<int, int> counts;
         std::map<int, double> first, nth;
         double all_matched = -1;
