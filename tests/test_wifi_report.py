@@ -12,7 +12,14 @@ def _row(contender: str, n: int, k: float, valid_runs: int) -> dict[str, Any]:
 
 
 def _run(
-    contender: str, n: int, k: float, run: int, peak: int, *, valid: bool = True
+    contender: str,
+    n: int,
+    k: float,
+    run: int,
+    peak: int,
+    *,
+    valid: bool = True,
+    commit: str = "abc",
 ) -> dict[str, Any]:
     return {
         "contender": contender,
@@ -20,7 +27,7 @@ def _run(
         "run": run,
         "valid": valid,
         "peak_pps": peak,
-        "setup": {"dilation": k},
+        "setup": {"dilation": k, "commit": commit},
     }
 
 
@@ -55,3 +62,13 @@ def test_pairs_only_valid_runs_of_the_same_repeat_and_k() -> None:
     assert report.paired_ratios(runs, "fastdds", "peak_pps") == {(10, 3.0): [0.05]}
     both = report.paired_ratios(runs, "fastdds", "peak_pps", include_invalid=True)
     assert both == {(10, 3.0): [0.05, 0.05]}
+
+
+def test_runs_of_different_code_never_pair() -> None:
+    runs = [
+        _run("swarmd", 20, 6.0, 1, 60, commit="today"),
+        _run("zenoh", 20, 6.0, 1, 10000, commit="yesterday"),  # kept from an earlier campaign
+        _run("cyclonedds", 20, 6.0, 1, 6000, commit="today"),
+    ]
+    assert report.paired_ratios(runs, "zenoh", "peak_pps") == {}
+    assert report.paired_ratios(runs, "cyclonedds", "peak_pps") == {(20, 6.0): [0.01]}

@@ -53,6 +53,12 @@ def dilation(r: Mapping[str, Any]) -> float:
     return float((r.get("setup") or {}).get("dilation", 1.0))
 
 
+def commit(r: Mapping[str, Any]) -> str:
+    """The commit a run was made at (``run.py`` records it since session 3; the session-2
+    campaign's runs have none and read as "session-2")."""
+    return str((r.get("setup") or {}).get("commit", "session-2"))
+
+
 def _order(contender: str) -> int:
     return ORDER.index(contender) if contender in ORDER else len(ORDER)
 
@@ -247,16 +253,18 @@ def paired_ratios(
     runs: Sequence[Mapping[str, Any]], other: str, key: str, *, include_invalid: bool = False
 ) -> dict[tuple[int, float], list[float]]:
     """Per (N, k), swarmd / ``other`` of ``key`` within each repeat where both runs are
-    valid (the two ran back to back under the same machine load); ``include_invalid``
+    valid and were made by the same code (``setup.commit``): the two ran back to back in
+    one campaign step, under the same machine load. A repeat number alone does not make a
+    pair: runs kept from an earlier campaign share numbers with today's. ``include_invalid``
     pairs lagging runs too (indicative only, never the headline)."""
     valid = {
-        (r["contender"], int(r["n"]), dilation(r), int(r["run"])): r
+        (r["contender"], int(r["n"]), dilation(r), int(r["run"]), commit(r)): r
         for r in runs
         if r.get("valid") or include_invalid
     }
     out: dict[tuple[int, float], list[float]] = defaultdict(list)
-    for (contender, n, k, run), r in sorted(valid.items()):
-        o = valid.get((other, n, k, run))
+    for (contender, n, k, run, made_by), r in sorted(valid.items()):
+        o = valid.get((other, n, k, run, made_by))
         if contender == "swarmd" and o is not None and o.get(key):
             out[(n, k)].append(float(r[key]) / float(o[key]))
     return dict(out)
