@@ -5,7 +5,7 @@
 ``bench/auth.py`` times ``DiscoveryEngine.receive_datagram`` alone; a daemon also pays the
 socket read, the event loop's wake-up and the driver's drain per input. Here a real UDP
 socket on loopback is filled with ``--count`` datagrams of one kind, then the daemon's
-reader (``swarmd.daemon.BatchedSocket`` feeding a ``Driver`` around an authenticated engine)
+reader (``swarmd.udp.BatchedSocket`` feeding a ``Driver`` around an authenticated engine)
 drains it; CPU time (``time.process_time``) per datagram, median of ``--repeat`` runs. The
 "asyncio, one per wake-up" rows are the read path before batching (asyncio's datagram
 transport calling ``Driver.datagram_received`` once per datagram). Only reports; no test
@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from swarmd_lab.testing import auth_for, engine_for, make_bundle, peer_datagram  # noqa: E402
 
-from swarmd.daemon import READ_BATCH, BatchedSocket  # noqa: E402
 from swarmd.driver import Driver  # noqa: E402
+from swarmd.udp import READ_BATCH, BatchedSocket  # noqa: E402
 
 
 def kinds(count: int) -> dict[str, list[bytes]]:

@@ -73,25 +73,13 @@ from swarmd.link.wext import WextSource
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarmapp import SwarmApp
-
-Datagram = tuple[bytes, tuple[str, int]]
+from swarmd.udp import RECV_BUFFER_BYTES, BatchedSocket, Datagram, rcvbuf_capped
 
 SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
 IFNAMSIZ: Final = 16
 IP_MULTICAST_ALL: Final = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
 # Linux's default IP_MULTICAST_ALL=1 delivers every group any socket joined to every socket
 # bound to the port; off, the SPDP socket hears only 239.255.0.1 joined on our interface.
-# The SPDP sockets' receive buffers. The kernel charges a datagram's whole buffer (~1-2 KiB
-# for a 300-byte DATA(p)), not its payload: 4 MiB holds ~2,000-4,000 datagrams, ~0.5 s of a
-# 5,000/s flood, so a daemon that falls behind for a moment (a busy drone CPU) catches up
-# instead of the kernel dropping real peers' renewals among the forgeries. The kernel caps
-# it at net.core.rmem_max (Linux's default 208 KiB; docs/security.md says to raise it).
-RECV_BUFFER_BYTES: Final = 4 << 20
-# Datagrams read from one socket per loop wake-up before anything else runs: one epoll
-# round trip and one driver drain per batch instead of per datagram, while timers and the
-# control socket still run between batches.
-READ_BATCH: Final = 64
-MAX_DATAGRAM: Final = 65_535  # a UDP payload's limit: recvfrom allocates no more
 
 
 class NodeSecretsError(ValueError):
@@ -239,71 +227,6 @@ def _multicast_send_options(s: socket.socket, ipv4: str) -> None:
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(ipv4))
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)  # the swarm is one hop
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)  # co-hosted participants
-
-
-def rcvbuf_capped(granted: int) -> bool:
-    """Whether the kernel gave less receive buffer than ``RECV_BUFFER_BYTES`` asked for.
-
-    ``getsockopt(SO_RCVBUF)`` answers twice what was granted (socket(7): the kernel doubles
-    the request for its bookkeeping), and a request above ``net.core.rmem_max`` is cut to
-    it."""
-    return granted < 2 * RECV_BUFFER_BYTES
-
-
-class BatchedSocket:
-    """One UDP socket feeding the engine, read in batches; which one only matters for the
-    counters. Every datagram the engine queues leaves from the unicast one.
-
-    Not asyncio's datagram transport: it reads one datagram per wake-up (a full event-loop
-    turn, an epoll call and a 256 KiB receive buffer each), and under a flood that
-    bookkeeping, not the engine's refusal, was most of the daemon's cost (docs/security.md,
-    "Flood"). Here ``read_ready`` reads up to ``READ_BATCH`` datagrams per wake-up and hands
-    them to the driver together. Sending is a plain non-blocking ``sendto``: a full send
-    buffer or an ICMP error is counted (asyncio's transport would queue the first and
-    report the second; discovery repeats its datagrams anyway)."""
-
-    def __init__(
-        self,
-        sock: socket.socket,
-        name: str,
-        on_batch: Callable[[list[Datagram], str], None],
-        count: Callable[[str], None],
-        loop: asyncio.AbstractEventLoop,
-    ) -> None:
-        self.sock = sock
-        self.name = name
-        self.on_batch = on_batch
-        self.count = count
-        self.loop = loop
-        self._fd = sock.fileno()
-        loop.add_reader(self._fd, self.read_ready)
-
-    def read_ready(self) -> None:
-        batch: list[Datagram] = []
-        recvfrom = self.sock.recvfrom
-        for _ in range(READ_BATCH):
-            try:
-                batch.append(recvfrom(MAX_DATAGRAM))
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:  # ICMP port unreachable from a peer that left, and the like
-                self.count(f"socket_error_{self.name}")
-                break
-        if batch:
-            self.on_batch(batch, self.name)
-
-    def sendto(self, data: bytes, addr: tuple[str, int]) -> None:
-        try:
-            self.sock.sendto(data, addr)
-        except (BlockingIOError, InterruptedError):
-            self.count(f"tx_dropped_full_{self.name}")
-        except OSError:  # ENOBUFS on a saturated channel, an unreachable network
-            self.count(f"socket_error_{self.name}")
-
-    def close(self) -> None:
-        if self.sock.fileno() >= 0:
-            self.loop.remove_reader(self._fd)
-            self.sock.close()
 
 
 class Daemon:

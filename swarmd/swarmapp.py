@@ -225,7 +225,7 @@ class SwarmApp:
         assert self.state is not None  # noqa: S101 - _boot_dataplane() made it
         port = self.bundle.user_port(self.me)
         try:
-            self.socket = await UserDataSocket.open(port, self.driver.datagram_received)
+            self.socket = await UserDataSocket.open(port, self.driver.datagrams_received)
         except OSError as exc:
             raise StartupError(
                 f"cannot bind user-data port {port}: {exc.strerror} "
@@ -398,9 +398,10 @@ class SwarmApp:
         dataplane: dict[str, Any] = {"enabled": self.plane is not None}
         if self.plane is not None:
             dataplane.update(self.plane.status(now))
-            socket_errors = 0 if self.socket is None else self.socket.errors
+            sock = {} if self.socket is None else self.socket.counters
             dataplane["adapter"] = {
-                "socket_errors": socket_errors,
+                "socket_errors": sock.get("socket_error_user", 0),
+                "tx_dropped_full": sock.get("tx_dropped_full_user", 0),
                 "handler_errors": driver.counters["handler_errors"],
                 "tx_closed": self.counters.get("tx_closed", 0),
             }

@@ -1,9 +1,12 @@
 """The user-data UDP socket: the data plane's transport, nothing else.
 
 Datagrams on the user unicast port (``Bundle.user_port``) go to a sink (the swarm's
-``Driver.datagram_received``, which feeds the ``SwarmCore`` and through it the
-``DataPlane`` at ``loop.time()``); ``send`` is the driver's ``transmit``. Timers, draining
-and re-entrancy are the driver's (``swarmd/driver.py``).
+``Driver.datagrams_received``, which feeds the ``SwarmCore`` and through it the
+``DataPlane`` at ``loop.time()``); ``send`` is the driver's ``transmit``. The socket is read
+like the SPDP sockets (``swarmd/udp.py``): up to ``READ_BATCH`` datagrams per wake-up, one
+driver drain per batch, so a flood of forged user data (each refused by its MAC) costs the
+refusal and not one event-loop turn per datagram (docs/security.md, "Flood"). Timers,
+draining and re-entrancy are the driver's (``swarmd/driver.py``).
 """
 
 from __future__ import annotations
@@ -11,15 +14,18 @@ from __future__ import annotations
 import asyncio
 import socket
 from collections.abc import Callable
-from typing import Final
 
-RECV_BUFFER_BYTES: Final = 1 << 20  # a commander hears N members at 1 Hz plus repairs
+from swarmd.udp import RECV_BUFFER_BYTES, BatchedSocket, Datagram
 
-DatagramSink = Callable[[bytes, tuple[str, int]], None]
+BatchSink = Callable[[list[Datagram]], None]
 
 
 def open_user_socket(port: int) -> socket.socket:
-    """The user unicast socket on every address (a re-addressed interface keeps working)."""
+    """The user unicast socket on every address (a re-addressed interface keeps working).
+
+    Its receive buffer is the SPDP sockets' (4 MiB): a commander hears N members at 1 Hz
+    plus repairs, and under a flood what the kernel drops for want of buffer are real
+    readiness reports and commands among the forgeries."""
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER_BYTES)
@@ -31,34 +37,31 @@ def open_user_socket(port: int) -> socket.socket:
     return s
 
 
-class UserDataSocket(asyncio.DatagramProtocol):
-    """One bound UDP socket: datagrams in to ``sink``, out through ``send``."""
+class UserDataSocket:
+    """One bound UDP socket: batches of datagrams in to ``sink``, out through ``send``."""
 
-    def __init__(self, sink: DatagramSink) -> None:
+    def __init__(
+        self, sock: socket.socket, sink: BatchSink, loop: asyncio.AbstractEventLoop
+    ) -> None:
         self.sink = sink
-        self.transport: asyncio.DatagramTransport | None = None
-        self.errors = 0  # ICMP errors (a peer's daemon gone: its lease will tell discovery)
+        # socket_error_user (ICMP errors: a peer's daemon gone, its lease will tell
+        # discovery), tx_dropped_full_user (send buffer full: the reliable topics repair)
+        self.counters: dict[str, int] = {}
+        self.reader = BatchedSocket(sock, "user", self._batch, self._count, loop)
 
     @classmethod
-    async def open(cls, port: int, sink: DatagramSink) -> UserDataSocket:
+    async def open(cls, port: int, sink: BatchSink) -> UserDataSocket:
         """Bind the user unicast port; ``OSError`` when it is taken."""
-        loop = asyncio.get_running_loop()
-        sock = open_user_socket(port)
-        transport, protocol = await loop.create_datagram_endpoint(lambda: cls(sink), sock=sock)
-        protocol.transport = transport
-        return protocol
+        return cls(open_user_socket(port), sink, asyncio.get_running_loop())
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.sink(data, addr)
+    def _batch(self, batch: list[Datagram], _name: str) -> None:
+        self.sink(batch)
 
-    def error_received(self, exc: Exception) -> None:
-        self.errors += 1
+    def _count(self, name: str) -> None:
+        self.counters[name] = self.counters.get(name, 0) + 1
 
     def send(self, data: bytes, addr: tuple[str, int]) -> None:
-        if self.transport is not None:
-            self.transport.sendto(data, addr)
+        self.reader.sendto(data, addr)
 
     def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
-            self.transport = None
+        self.reader.close()

@@ -54,8 +54,10 @@ ALLOWED: dict[str, frozenset[str]] = {
     "terminal": frozenset(),
     "logs": frozenset({"terminal"}),
     "sdnotify": frozenset(),
+    # batched UDP reads (daemon tier): the SPDP sockets' and the user-data socket's
+    "udp": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
-    "userdata": CORE,
+    "userdata": CORE | {"udp"},
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
     "control": CORE,
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
@@ -64,7 +66,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     | {"config", "control", "driver", "logs", "userdata"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
-    | {"config", "control", "driver", "logs", "sdnotify", "swarmapp"},
+    | {"config", "control", "driver", "logs", "sdnotify", "swarmapp", "udp"},
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"},

@@ -17,12 +17,22 @@ import pytest
 import structlog
 from structlog.testing import capture_logs
 
+from swarmd.auth.freshness import Freshness
+from swarmd.bundle.model import EndpointKind
 from swarmd.config import ConfigError, load_config
 from swarmd.control import request
 from swarmd.daemon import Daemon
+from swarmd.dataplane.types import Readiness
 from swarmd.link.static import StaticSource
 from swarmd.sdnotify import Notifier
-from tests.daemon_support import BundleFiles, run_domain, write_bundle, write_config
+from tests.attacker import forge
+from tests.daemon_support import (
+    BundleFiles,
+    run_domain,
+    swarm_sections,
+    write_bundle,
+    write_config,
+)
 
 WAIT_S = 20.0
 
@@ -32,7 +42,7 @@ def files(workdir: Path) -> BundleFiles:
     return write_bundle(workdir, 2, domain_id=run_domain(), lease_s=20.0)
 
 
-def _daemon(workdir: Path, files: BundleFiles, node: str) -> Daemon:
+def _daemon(workdir: Path, files: BundleFiles, node: str, *, dataplane: bool = False) -> Daemon:
     cfg = write_config(
         workdir / f"{node}.yaml",
         files,
@@ -40,6 +50,8 @@ def _daemon(workdir: Path, files: BundleFiles, node: str) -> Daemon:
         interface="lo",
         ipv4="127.0.0.1",
         socket_path=str(workdir / f"{node}.sock"),
+        # the swarm's data plane on the user port, no vehicle (its readiness says so)
+        extra=swarm_sections(workdir / f"state-{node}", None, period_s=0.5) if dataplane else "",
     )
     config = load_config(cfg)
     return Daemon(
@@ -205,5 +217,93 @@ def test_a_datagram_flood_rebuilds_no_status(workdir: Path, files: BundleFiles) 
             assert "status" in calls
         finally:
             await a.stop("test")
+
+    asyncio.run(main())
+
+
+def test_a_forged_user_data_flood_is_read_in_batches_and_moves_nothing(
+    workdir: Path, files: BundleFiles
+) -> None:
+    """Attacker-style, in-process: 200 readiness datagrams claiming uav2 (discovered, its
+    data plane up), with both real epochs and a fresh sequence but a MAC under the
+    attacker's own key, queued on the commander's user port before its loop can read:
+    every one counted ``auth_failed`` and nothing else, uav2's readiness row untouched, and
+    read in far fewer wake-ups than datagrams (it was one loop turn per datagram)."""
+    n = 200
+
+    async def main() -> None:
+        a = _daemon(workdir, files, "uav1", dataplane=True)
+        b = _daemon(workdir, files, "uav2", dataplane=True)
+        await a.start()
+        await b.start()
+        try:
+            assert a.app is not None and a.epoch is not None and b.epoch is not None
+            await _until(
+                lambda: (
+                    _peer(a.status(), "uav2")["state"] == "discovered"
+                    and _peer(b.status(), "uav1")["state"] == "discovered"
+                    and a.status()["readiness"]["uav2"]["peer_up"]
+                ),
+                lambda: f"uav2 up at uav1: {a.status()['readiness']}",
+            )
+            bundle = files.bundle
+            commander, member = bundle.participant("uav1"), bundle.participant("uav2")
+            ready = bundle.topic("swarm/ready").index
+            forged = Readiness("uav2", 999_999, True, "", False, 1, 3, 12, 77, 800)
+            datagrams = [
+                forge.mac(
+                    forge.forged_readiness(
+                        member.guid_prefix,
+                        commander.guid_prefix,
+                        writer=forge.entity(ready, EndpointKind.WRITER),
+                        reader=forge.entity(ready, EndpointKind.READER),
+                        sn=forge.JUMP_SN + i,
+                        sample=forged,
+                    ),
+                    pair_key=bytes(range(32)),  # the attacker's own, in no bundle
+                    freshness=Freshness(b.epoch.epoch, 1_000_000 + i),
+                    receiver=commander.guid_prefix,
+                    receiver_epoch=a.epoch.epoch,
+                )
+                for i in range(n)
+            ]
+            user_socket = a.app.socket
+            assert user_socket is not None
+            wakeups: list[object] = []
+            real_sink = user_socket.sink
+
+            def counting_sink(*args: Any) -> None:  # a spy: counts, changes nothing
+                wakeups.append(args)
+                real_sink(*args)
+
+            user_socket.sink = counting_sink
+            counters = a.status()["dataplane"]["counters"]
+            before = {k: v for k, v in counters.items() if k.startswith("dropped_")}
+            target = ("127.0.0.1", bundle.user_port(commander))
+            attacker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            for datagram in datagrams:  # no await: all queued before the loop reads
+                attacker.sendto(datagram, target)
+            attacker.close()
+
+            def dropped() -> dict[str, int]:
+                now = a.status()["dataplane"]["counters"]
+                return {
+                    k: v - before.get(k, 0)
+                    for k, v in now.items()
+                    if k.startswith("dropped_") and v != before.get(k, 0)
+                }
+
+            await _until(
+                lambda: dropped().get("dropped_auth_failed", 0) >= n,
+                lambda: f"forgeries counted: {dropped()}",
+            )
+            assert dropped() == {"dropped_auth_failed": n}
+            row = a.status()["readiness"]["uav2"]
+            assert row["seq"] != forged.seq and row["battery_pct"] != 77, row
+            # the flood plus uav2's own 2 Hz readiness meanwhile, a few batches each way
+            assert len(wakeups) < n // 4, len(wakeups)
+        finally:
+            await a.stop("test")
+            await b.stop("test")
 
     asyncio.run(main())
