@@ -1,7 +1,8 @@
 """The control socket: newline-delimited JSON between ``swarmctl`` and the daemon.
 
 One request per line, one reply per line, any number of requests per connection (``swarmctl
-watch`` keeps one open)::
+watch`` keeps one open), each line complete within ``REQUEST_DEADLINE_S`` of connecting or of
+the last reply::
 
     -> {"cmd": "status"}
     <- {"ok": true, "result": {...}}
@@ -19,6 +20,7 @@ import asyncio
 import contextlib
 import json
 import os
+import select
 import socket
 import stat
 from collections.abc import Callable, Mapping
@@ -28,6 +30,14 @@ from typing import Any, Final
 MAX_LINE_BYTES: Final = 64 * 1024  # a request is tiny; this bounds a hostile client's buffer
 MAX_CLIENTS: Final = 16  # stops a local user from exhausting the daemon's file descriptors
 CLIENT_TIMEOUT_S: Final = 2.0  # swarmctl's wait for one reply
+# How long a connection may take to complete its next request line: after it connects, and
+# after each reply. swarmctl writes its line right after connecting and `swarmctl watch`
+# asks again every --interval (1 s by default; above half of this it reconnects per
+# refresh), so 10 s (5x swarmctl's own wait for a reply) is never reached by a working
+# client on a busy drone, while a stuck or idle one (a hung script, a forgotten socat, a
+# client that sends half a line) frees its slot: without it MAX_CLIENTS of them locked
+# swarmctl out for good (docs/security.md, "Control socket").
+REQUEST_DEADLINE_S: Final = 10.0
 
 Handler = Callable[[Mapping[str, Any]], Any]
 
@@ -55,12 +65,21 @@ def encode_line(obj: Any) -> bytes:
 class ControlServer:
     """Serves ``handlers`` (command name -> function of the request) on a Unix socket."""
 
-    def __init__(self, path: str, handlers: Mapping[str, Handler], *, mode: int = 0o660) -> None:
+    def __init__(
+        self,
+        path: str,
+        handlers: Mapping[str, Handler],
+        *,
+        mode: int = 0o660,
+        request_deadline_s: float = REQUEST_DEADLINE_S,
+    ) -> None:
         self.path = path
         self.mode = mode
         self.handlers = dict(handlers)
+        self.request_deadline_s = request_deadline_s
         self.requests = 0
-        self.rejected_clients = 0
+        self.rejected_clients = 0  # refused at the cap
+        self.idle_clients_closed = 0  # no complete request line within the deadline
         self._server: asyncio.Server | None = None
         self._clients: set[asyncio.Task[None]] = set()
 
@@ -96,9 +115,16 @@ class ControlServer:
         try:
             while True:
                 try:
-                    line = await reader.readline()
+                    async with asyncio.timeout(self.request_deadline_s):
+                        line = await reader.readline()
                 except ValueError:  # longer than MAX_LINE_BYTES without a newline
                     writer.write(encode_line({"ok": False, "error": "request line too long"}))
+                    break
+                except TimeoutError:  # idle, or a line that never ends: free the slot
+                    within = f"{self.request_deadline_s:g} s"
+                    error = f"no complete request line within {within}"
+                    writer.write(encode_line({"ok": False, "error": error}))
+                    self.idle_clients_closed += 1
                     break
                 if not line:
                     break
@@ -206,6 +232,8 @@ class ControlClient:
 
     def request(self, cmd: str, **args: Any) -> Any:
         """Send one command and return its ``result``; raises on transport or daemon error."""
+        if self._sock is not None and self._closed_by_daemon():
+            self.close()  # idle past REQUEST_DEADLINE_S: the daemon freed the slot
         if self._sock is None:
             self.connect()
         assert self._sock is not None  # noqa: S101 - connect() sets it or raises
@@ -227,6 +255,15 @@ class ControlClient:
         if not reply["ok"]:
             raise RequestError(str(reply.get("error", "request failed")))
         return reply.get("result")
+
+    def _closed_by_daemon(self) -> bool:
+        """Whether the daemon closed this connection while it sat idle: its deadline line,
+        or the end of the stream, is waiting unasked (a reply only ever follows a request,
+        and ``_readline`` took the last one whole)."""
+        assert self._sock is not None  # noqa: S101 - only called with a connection
+        # poll, not recv(MSG_DONTWAIT): a socket with a timeout would wait that long
+        readable, _, _ = select.select([self._sock], [], [], 0)
+        return bool(readable)
 
     def _readline(self) -> bytes:
         assert self._sock is not None  # noqa: S101 - only called after connect()

@@ -619,6 +619,9 @@ class Daemon:
         st["link"] = link
         counters = dict(st.get("counters") or {})
         counters["daemon"] = dict(self.counters)
+        if self._control is not None:  # hostile or stuck local clients (docs/security.md)
+            counters["daemon"]["control_clients_refused"] = self._control.rejected_clients
+            counters["daemon"]["control_clients_idle_closed"] = self._control.idle_clients_closed
         st["counters"] = counters
         if self.app is not None:
             st.update(self.app.status())

@@ -3,7 +3,8 @@
 The socket (``/run/swarmd/swarmd.sock``) runs commands on the swarm, so only root and the
 socket's group may connect (mode 0660), and whatever a permitted client sends is answered
 with an error line, never a dead handler: malformed JSON, nesting deep enough to overflow
-the decoder, bytes that are not UTF-8, more clients than the cap.
+the decoder, bytes that are not UTF-8, more clients than the cap, clients that connect and
+never finish a request line.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -40,9 +42,9 @@ def sock_path(tmp_path: Path) -> Iterator[str]:
     short.rmdir()
 
 
-def _serve_and(sock_path: str, fn: Callable[[ControlServer], Any]) -> Any:
+def _serve_and(sock_path: str, fn: Callable[[ControlServer], Any], **server_kw: Any) -> Any:
     async def main() -> Any:
-        server = ControlServer(sock_path, {"ping": lambda _req: "pong"})
+        server = ControlServer(sock_path, {"ping": lambda _req: "pong"}, **server_kw)
         await server.start()
         try:
             return await asyncio.to_thread(fn, server)
@@ -116,6 +118,62 @@ def test_clients_beyond_the_cap_are_refused_then_served_again(sock_path: str) ->
     assert extra == {"ok": False, "error": "too many control clients"}
     assert again == {"ok": True, "result": "pong"}
     assert rejected >= 1
+
+
+def test_idle_clients_are_closed_after_the_deadline_so_swarmctl_gets_in(sock_path: str) -> None:
+    """MAX_CLIENTS connections that never complete a request line (half send nothing, half
+    a line without its newline) fill the cap and lock a new client out; past the request
+    deadline (tiny here, injected) each gets an error line and is closed, counted, and a new
+    request is served. Without the deadline they held the slots forever."""
+
+    def idle_then_ping(server: ControlServer) -> tuple[Any, Any, list[Any], int]:
+        idle = []
+        for i in range(MAX_CLIENTS):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.settimeout(30)
+            s.connect(sock_path)
+            if i % 2:
+                s.sendall(b'{"cmd": "pi')  # a slow client: never the newline
+            idle.append(s)
+        locked_out = _first_line(sock_path)
+        served = None
+        give_up = time.monotonic() + 60.0  # eventually, within a generous bound
+        while served != {"ok": True, "result": "pong"} and time.monotonic() < give_up:
+            time.sleep(0.05)
+            try:
+                served = _exchange(sock_path, [b'{"cmd": "ping"}\n'])[0]
+            except (BrokenPipeError, ConnectionResetError):
+                served = None  # refused at the cap before the request was written
+        told = []
+        for s in idle:
+            f = s.makefile("rb")
+            told.append(json.loads(f.readline()))
+            assert f.readline() == b""  # then closed
+            s.close()
+        return locked_out, served, told, server.idle_clients_closed
+
+    locked_out, served, told, closed = _serve_and(sock_path, idle_then_ping, request_deadline_s=3.0)
+    assert locked_out == {"ok": False, "error": "too many control clients"}
+    assert served == {"ok": True, "result": "pong"}
+    assert told == [{"ok": False, "error": "no complete request line within 3 s"}] * MAX_CLIENTS
+    assert closed == MAX_CLIENTS
+
+
+def test_a_client_idle_past_the_deadline_reconnects_on_its_next_request(sock_path: str) -> None:
+    """``swarmctl watch`` keeps one connection: when the daemon closed it for idling (a
+    refresh interval beyond the deadline), the next request goes out on a new one instead
+    of failing on the closed one or reading the deadline line as its reply."""
+
+    def idle_client(server: ControlServer) -> tuple[int, Any]:
+        with ControlClient(sock_path) as client:
+            assert client.request("ping") == "pong"
+            give_up = time.monotonic() + 60.0
+            while server.idle_clients_closed < 1 and time.monotonic() < give_up:
+                time.sleep(0.05)
+            return server.idle_clients_closed, client.request("ping")
+
+    closed, again = _serve_and(sock_path, idle_client, request_deadline_s=0.2)
+    assert (closed, again) == (1, "pong")
 
 
 def test_an_oversized_request_is_refused_without_buffering_it(sock_path: str) -> None:

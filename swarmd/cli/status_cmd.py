@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.config import DEFAULT_SOCKET
-from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+from swarmd.control import REQUEST_DEADLINE_S, ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import EX_OK, EX_UNREACHABLE
 from swarmd.terminal import safe_tree
 
@@ -107,6 +107,10 @@ def _watch(args: argparse.Namespace) -> int:
                 frames += 1
                 if args.count and frames >= args.count:
                     return EX_OK
+                if args.interval >= REQUEST_DEADLINE_S / 2:
+                    # the daemon closes a connection idle past its deadline: a slow
+                    # refresh reconnects rather than race that close
+                    client.close()
                 time.sleep(max(0.1, args.interval))
     except (DaemonUnreachable, RequestError) as exc:
         return _fail(str(exc))
