@@ -571,8 +571,8 @@ def peak_verdicts(runs: Sequence[Mapping[str, Any]]) -> list[Verdict]:
                         c,
                         None,
                         f"N={n}, {c}: {_word(None)}: no same-run pair (valid, same k, "
-                        f"repeat and commit) ({_main_k_text(runs, 'swarmd', n)}; "
-                        f"{_main_k_text(runs, c, n)})",
+                        f"repeat and commit): {_main_k_text(runs, 'swarmd', n)}; "
+                        f"{_main_k_text(runs, c, n)}",
                     )
                 )
                 continue
