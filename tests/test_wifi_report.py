@@ -143,6 +143,11 @@ def test_peak_target_met_not_met_and_not_known_from_same_run_pairs() -> None:
     unknown = _verdict(verdicts, 20, "zenoh")
     assert unknown.met is None
     assert "0 valid of 1 at k = 6" in unknown.text
+    # at N = 10 and 20 every stock stack is judged, a stack never run there too
+    absent = _verdict(verdicts, 20, "fastdds")
+    assert absent.met is None
+    assert "fastdds: no run" in absent.text
+    assert not [v for v in verdicts if v.n == 5]  # nothing ran at N = 5
 
 
 def test_peak_runs_of_different_campaigns_never_make_a_pair() -> None:
@@ -150,9 +155,10 @@ def test_peak_runs_of_different_campaigns_never_make_a_pair() -> None:
         _full("swarmd", 10, 1, [40], commit="abc1234567"),
         _full("cyclonedds", 10, 1, [1000], commit=None),  # session 2: no commit stamp
     ]
-    (v,) = report.peak_verdicts(runs)
+    v = _verdict(report.peak_verdicts(runs), 10, "cyclonedds")
     assert v.met is None
     assert "no same-run pair" in v.text
+    assert "made at session-2" in v.text
 
 
 def test_discovery_target_counts_every_valid_swarmd_run_at_n10() -> None:
