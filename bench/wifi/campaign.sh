@@ -9,7 +9,7 @@
 # swarmd / stock ratios pair runs of the same k and repeat.
 # Each step is bounded by `timeout`; the whole by END (epoch seconds, default: 2 h).
 #   sudo nohup bench/wifi/campaign.sh > bench/results/wifi-dilated/campaign.log 2>&1 &
-# Then: .venv/bin/python bench/wifi/report.py bench/results/wifi-dilated
+# Then: .venv/bin/python bench/wifi/report.py bench/results/wifi-dilated --docs docs/benchmarks.md
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-bench/results/wifi-dilated}
