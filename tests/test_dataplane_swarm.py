@@ -431,6 +431,27 @@ def test_readiness_under_loss_counts_each_sample_once_and_never_goes_back(seed: 
     assert swarm.planes["lead"].get_timer() is None  # best effort: no heartbeats
 
 
+def test_steady_state_is_one_datagram_per_member_and_period_and_idle_reliable_is_silent() -> None:
+    """What the testbed's ``rtps_user`` class holds at steady state (docs/testbed.md, "What
+    swarmd's frames are"): each member's readiness is one datagram (DATA + AUTH) to the
+    commander per period, and the idle reliable ``swarm/command``/``swarm/outcome`` endpoints
+    send nothing (no HEARTBEAT, ACKNACK or GAP). The channel's 18 frames/s at N = 10 are
+    these 9 datagrams and the 9 802.11 ACKs answering them."""
+    swarm = make_swarm(9, seed=1)
+    swarm.discover_all()
+    swarm.run_until(25.0, readiness_ticks(swarm, start=0.5, seconds=20))
+    lead = address_of(swarm.bundle, "lead")
+    per_member: Counter[str] = Counter()
+    for payload, source, destination in swarm.net.payloads():
+        *body, auth = decode_message(payload).submessages
+        assert destination == lead, f"{source} sent to {destination}"
+        assert isinstance(auth, SkippedSubmessage) and auth.submessage_id == AUTH_SUBMESSAGE_ID
+        assert [type(sm).__name__ for sm in body] == ["Data"]
+        per_member[swarm.name_at(source)] += 1
+    assert per_member == {m: 20 for m in swarm.members}
+    assert all(plane.get_timer() is None for plane in swarm.planes.values())
+
+
 # --- on the wire ----------------------------------------------------------------------------
 
 
