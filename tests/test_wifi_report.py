@@ -313,3 +313,21 @@ def test_docs_block_from_runs_rewrites_only_the_block(tmp_path: Path) -> None:
     block = text.split("<!-- wifi:end -->")[0]
     assert "**not met**, 0 of 1 valid run ≤ 50" in block  # 81 discovery frames
     assert "N=10 (k = 3), cyclonedds: **met**, 1 of 1 pair within 5 %" in block
+
+
+def test_load_runs_names_a_truncated_run_file(tmp_path: Path) -> None:
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "swarmd-n10-k3-r2.json").write_text('{"contender": "swa')
+    with pytest.raises(ValueError, match="swarmd-n10-k3-r2.json: not a complete run file"):
+        report.load_runs(tmp_path)
+
+
+def test_docs_benchmarks_block_is_what_the_committed_runs_generate() -> None:
+    """issue 13, "Done when": docs/benchmarks.md's commands reproduce its tables. On a
+    failure: .venv/bin/python bench/wifi/report.py bench/results/wifi-dilated --docs
+    docs/benchmarks.md (after adding or moving run files)."""
+    repo = Path(__file__).resolve().parents[1]
+    out = "bench/results/wifi-dilated"
+    docs = (repo / "docs" / "benchmarks.md").read_bytes().decode()
+    block = report.docs_block(report.load_runs(repo / out), out)
+    assert report.replace_block(docs, block) == docs
