@@ -254,7 +254,10 @@ def test_commit_lines_name_commits_and_unstamped_runs() -> None:
         _full("swarmd", 10, 2, [40], commit="6a8a5d1150"),
         _full("cyclonedds", 10, 1, [1000], commit=None),
     ]
+    runs[0]["load_avg_at_start"] = [3.5, 2.0, 1.0]
+    runs[1]["load_avg_at_start"] = [8.25, 2.0, 1.0]
     text = report.commit_lines(runs)
+    assert "load average 3.5-8.2 when" in text
     assert "at `6a8a5d1150`: 2 runs" in text
     assert "N=10 k=3: swarmd r1-2" in text
     assert f"{report.SESSION2}: 1 run" in text

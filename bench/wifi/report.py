@@ -494,7 +494,13 @@ def commit_lines(runs: Sequence[Mapping[str, Any]]) -> str:
         )
         name = SESSION2 if made_by == "session-2" else f"at `{made_by}`"
         runs_word = "run" if len(group) == 1 else "runs"
-        lines.append(f"- {name}: {len(group)} {runs_word}{when} ({what})")
+        loads = [float(r["load_avg_at_start"][0]) for r in group if r.get("load_avg_at_start")]
+        load = (
+            f", 1-min load average {min(loads):.1f}-{max(loads):.1f} when each run was assembled"
+            if loads
+            else ""
+        )
+        lines.append(f"- {name}: {len(group)} {runs_word}{when}{load} ({what})")
     return "\n".join(lines) + "\n"
 
 
