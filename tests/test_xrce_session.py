@@ -11,6 +11,7 @@ from typing import Any
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarmd.xrce import binary as xb
 from swarmd.xrce.agent import MAX_ENTITIES, MAX_SESSIONS, SESSION_TIMEOUT_S, XrceAgent
 from swarmd.xrce.client import XrceClient
 from swarmd.xrce.events import (
@@ -29,6 +30,7 @@ from swarmd.xrce.message import (
     Header,
     Info,
     ObjectKind,
+    ReadData,
     Repr,
     StatusAgent,
     StatusReply,
@@ -356,3 +358,49 @@ def test_replayed_best_effort_samples_are_dropped_as_stale() -> None:
     agent.receive_datagram(sample, PX4, 1.1)  # the same datagram again: a replay
     got = [e for e in _events(agent) if isinstance(e, SampleReceived)]
     assert len(got) == 1 and agent.dropped["stale_best_effort"] == 1
+
+
+def _entities_created(client: XrceClient) -> list[tuple[Any, ...]]:
+    """What ``client`` sends once an agent accepted it: per CREATE (kind, object id, parent
+    or domain, binary blob), per READ_DATA its reader, in the order sent."""
+    client.connect(AGENT, 0.0)
+    assert client.datagrams_to_send()  # CREATE_CLIENT
+    accepted = StatusAgent(0, 0)
+    client.receive_datagram(encode_message(Header(0x81, 0, 0), [accepted]), AGENT, 0.0)
+    assert client.state == "established"
+    out: list[tuple[Any, ...]] = []
+    for data, dest in client.datagrams_to_send():
+        assert dest == AGENT
+        for sub in decode_message(data).submessages:
+            if isinstance(sub, Create):
+                parent = sub.domain_id if sub.kind == ObjectKind.PARTICIPANT else sub.parent_id
+                blob = sub.representation if sub.repr_format == Repr.BIN else None
+                out.append(("create", sub.kind, sub.object_id, parent, blob))
+            elif isinstance(sub, ReadData):
+                out.append(("read", sub.object_id, sub.preferred_stream_id))
+    return out
+
+
+def test_client_creates_its_readers_and_writers_under_their_own_groups() -> None:
+    """Per subscription (sorted) a topic, a subscriber and a best-effort keep-last reader
+    then READ_DATA; per publication a topic, a publisher and a reliable writer; each entity
+    under the participant or its group, object ids from 0x100 (readers) and 0x200 (writers)."""
+    client = XrceClient(b"SWMD", subscriptions={"b": "tb", "a": "ta"}, publications={"c": "tc"})
+    participant = object_id(0x001, ObjectKind.PARTICIPANT)
+    expected: list[tuple[Any, ...]] = [("create", ObjectKind.PARTICIPANT, participant, 0, None)]
+    for ident, topic, typ, writer in ((0x100, "a", "ta", False), (0x101, "b", "tb", False),
+                                      (0x200, "c", "tc", True)):  # fmt: skip
+        tid = object_id(ident, ObjectKind.TOPIC)
+        group = ObjectKind.PUBLISHER if writer else ObjectKind.SUBSCRIBER
+        kind = ObjectKind.DATAWRITER if writer else ObjectKind.DATAREADER
+        qos = xb.QOS_RELIABLE | xb.QOS_HISTORY_KEEP_LAST if writer else xb.QOS_HISTORY_KEEP_LAST
+        gid, eid = object_id(ident, group), object_id(ident, kind)
+        topic_blob = xb.encode_topic(xb.TopicBinary(topic, typ))
+        expected += [
+            ("create", ObjectKind.TOPIC, tid, participant, topic_blob),
+            ("create", group, gid, participant, xb.encode_group(xb.GroupBinary())),
+            ("create", kind, eid, gid, xb.encode_endpoint(xb.EndpointBinary(tid, writer, qos, 10))),
+        ]
+        if not writer:
+            expected.append(("read", eid, 0x01))
+    assert _entities_created(client) == expected

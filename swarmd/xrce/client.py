@@ -256,29 +256,37 @@ class XrceClient(Endpoint):
             now,
         )  # fmt: skip
         for i, (topic, typ) in enumerate(sorted(self.subscriptions.items())):
-            ident = 0x100 + i
-            tid = self._topic(ident, topic, typ, now)
-            sub_id = object_id(ident, ObjectKind.SUBSCRIBER)
-            self._create_bin(sub_id, ObjectKind.SUBSCRIBER, encode_group(GroupBinary()),
-                             PARTICIPANT_ID, now)  # fmt: skip
-            rid = object_id(ident, ObjectKind.DATAREADER)
-            reader = EndpointBinary(tid, False, QOS_HISTORY_KEEP_LAST, 10)
-            self._create_bin(rid, ObjectKind.DATAREADER, encode_endpoint(reader), sub_id, now)
+            rid = self._create_endpoint(0x100 + i, topic, typ, writer=False, now=now)
             self._readers[rid] = topic
             # unlimited samples, as PX4 asks; without delivery control the agent sends one
             read = ReadData(self._next_request(), rid, STREAM_BEST_EFFORT,
                             delivery_control=DeliveryControl(max_samples=0xFFFF))  # fmt: skip
             self._send_reliable([read], now)
         for j, (topic, typ) in enumerate(sorted(self.publications.items())):
-            ident = 0x200 + j
-            tid = self._topic(ident, topic, typ, now)
-            pub_id = object_id(ident, ObjectKind.PUBLISHER)
-            self._create_bin(pub_id, ObjectKind.PUBLISHER, encode_group(GroupBinary()),
-                             PARTICIPANT_ID, now)  # fmt: skip
-            wid = object_id(ident, ObjectKind.DATAWRITER)
-            writer = EndpointBinary(tid, True, QOS_RELIABLE | QOS_HISTORY_KEEP_LAST, 10)
-            self._create_bin(wid, ObjectKind.DATAWRITER, encode_endpoint(writer), pub_id, now)
-            self._writers[topic] = wid
+            self._writers[topic] = self._create_endpoint(
+                0x200 + j, topic, typ, writer=True, now=now
+            )
+
+    def _create_endpoint(
+        self, ident: int, topic: str, typ: str, *, writer: bool, now: float
+    ) -> int:
+        """A topic, its group (subscriber or publisher) and the data reader or writer in it,
+        all under object id ``ident`` and by binary representation; the endpoint's object id.
+        Both keep the last 10; the writer (``vehicle_command``) is reliable, the readers are
+        best-effort."""
+        tid = self._topic(ident, topic, typ, now)
+        if writer:
+            group, kind = ObjectKind.PUBLISHER, ObjectKind.DATAWRITER
+            qos = QOS_RELIABLE | QOS_HISTORY_KEEP_LAST
+        else:
+            group, kind = ObjectKind.SUBSCRIBER, ObjectKind.DATAREADER
+            qos = QOS_HISTORY_KEEP_LAST
+        gid = object_id(ident, group)
+        self._create_bin(gid, group, encode_group(GroupBinary()), PARTICIPANT_ID, now)
+        eid = object_id(ident, kind)
+        endpoint = EndpointBinary(tid, writer, qos, 10)
+        self._create_bin(eid, kind, encode_endpoint(endpoint), gid, now)
+        return eid
 
     def _topic(self, ident: int, topic: str, typ: str, now: float) -> int:
         tid = object_id(ident, ObjectKind.TOPIC)
