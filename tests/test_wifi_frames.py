@@ -41,6 +41,7 @@ def test_each_unicast_frame_brings_one_ack_and_group_frames_none() -> None:
     ]
     text = frames.report(sent, launch, window_s=3, steady_from=1)
     rows = {line.split()[0]: line.split() for line in text.splitlines()[1:4]}
-    assert rows["0"][1:] == ["10+0", "0+0", "0+0", "10"]
-    assert rows["1"][1:] == ["0+0", "9+9", "0+0", "18"]
+    # columns: rtps_discovery, rtps_user, zenoh, other (each data + ACKs), channel total
+    assert rows["0"][1:] == ["10+0", "0+0", "0+0", "0+0", "10"]
+    assert rows["1"][1:] == ["0+0", "9+9", "0+0", "0+0", "18"]
     assert "0.50  rtps_user: uav2 -> uav1 DATA+0x8A" in text  # 1 frame over 2 steady seconds

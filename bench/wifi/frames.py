@@ -1,4 +1,4 @@
-"""What a swarmd contender puts on the air, frame by frame, on a wired twin of the testbed.
+"""What a contender puts on the air, frame by frame, on a wired twin of the testbed.
 
 ``python -m bench.wifi.frames --n 10 --window 40`` (root; docs/testbed.md, "What swarmd's
 frames are"). The ns-3 channel counts frames per class and second; it cannot say *which*
@@ -12,12 +12,13 @@ of the frame it acknowledges (``metrics.class_series``); retries are the channel
 not modelled here (``retx_ratio`` in the run JSON: 0.17 % for swarmd at N = 10).
 
 It prints, per second after the release, the frames by the channel's classes (``rtps_
-discovery``, ``rtps_user``, ``other``; RTPS split by the writer/reader entity kind, as
-``RtpsClass`` does), the ACKs the channel would add, then what the frames are: RTPS by
-(sender -> receiver, submessage ids) and the rest by kind (ARP request broadcast/unicast,
-ARP reply, IGMP report, ...). Kernel timers run undilated here (the dilated testbed scales
-the neighbour timers by k, so ARP timing in experiment seconds is the same; IGMP's
-retransmission delay, up to 1 s real, is not scaled there).
+discovery``, ``rtps_user``, ``zenoh``, ``other``; RTPS split by the writer/reader entity
+kind, as ``RtpsClass`` does; zenoh as TCP or UDP 7446/7447), the ACKs the channel would
+add, then what the frames are: RTPS by (sender -> receiver, submessage ids) and the rest by
+kind (ARP request broadcast/unicast, ARP reply, IGMP report, ...). Kernel timers run
+undilated here (the dilated testbed scales the neighbour timers by k, so ARP timing in
+experiment seconds is the same; IGMP's retransmission delay, up to 1 s real, is not scaled
+there).
 
 Lab tooling: it does I/O and needs root; nothing in ``swarmd/`` imports it. Run it under
 ``nice -n 19``: the daemons keep the priority they inherit (the bench raises them to 0 at
@@ -109,6 +110,7 @@ def parse_capture(pcap: Path, macs: Sequence[str]) -> list[Frame]:
         "ip.dst",
         "igmp.version",
         "udp.dstport",
+        "udp.srcport",
         "udp.payload",
     ]
     argv = ["tshark", "-r", str(pcap), "-n", "-T", "fields", "-E", "separator=\t"]
@@ -118,9 +120,9 @@ def parse_capture(pcap: Path, macs: Sequence[str]) -> list[Frame]:
     index = {m.lower(): i for i, m in enumerate(macs)}
     frames = []
     for line in out.splitlines():
-        t, src, dst, etype, arp, proto, ipdst, igmp, dport, payload = (
-            line.split("\t") + [""] * 10
-        )[:10]
+        t, src, dst, etype, arp, proto, ipdst, igmp, dport, sport, payload = (
+            line.split("\t") + [""] * 11
+        )[:11]
         if src.lower() not in index:
             continue
         unicast = not int(dst.split(":")[0], 16) & 1
@@ -130,6 +132,8 @@ def parse_capture(pcap: Path, macs: Sequence[str]) -> list[Frame]:
         cls, what = "other", f"ethertype {etype}"
         if arp:
             what = "ARP request" if arp == "1" else "ARP reply"
+        elif proto == "6" or (proto == "17" and {dport, sport} & {"7446", "7447"}):
+            cls, what = "zenoh", "TCP" if proto == "6" else f"UDP to {ipdst}:{dport}"
         elif proto == "2":
             what = f"IGMPv{igmp or '?'} report to {ipdst}"
         elif proto == "17" and payload:
@@ -146,7 +150,7 @@ def parse_capture(pcap: Path, macs: Sequence[str]) -> list[Frame]:
 
 def report(frames: Iterable[Frame], launch: float, window_s: int, steady_from: int) -> str:
     """The per-second table and the breakdown (see the module docstring)."""
-    classes = ("rtps_discovery", "rtps_user", "other")
+    classes = ("rtps_discovery", "rtps_user", "zenoh", "other")
     per_s: dict[int, Counter[str]] = defaultdict(Counter)
     kinds: dict[str, Counter[str]] = defaultdict(Counter)  # second bucket -> what
     pairs: Counter[str] = Counter()
@@ -255,7 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--n", type=int, default=10)
     p.add_argument("--window", type=int, default=40, help="seconds captured after release")
     p.add_argument("--steady-from", type=int, default=2, help="first steady-state second")
-    p.add_argument("--contender", default="swarmd", choices=sorted(contenders_mod.SWARMD_VARIANTS))
+    p.add_argument("--contender", default="swarmd", choices=contenders_mod.CONTENDERS)
     p.add_argument("--keep", type=Path, help="write the capture (pcapng) here")
     a = p.parse_args(argv)
     if not 2 <= a.n <= 250 or a.window < 3:
