@@ -85,6 +85,8 @@ class Px4Section:
     backend: str = "mavlink"  # | "xrce-agent" | "xrce-client" (docs/px4.md, uXRCE-DDS)
     xrce_key: int | None = None  # xrce-agent: only this UXRCE_DDS_KEY may open a session
     namespace: str | None = None  # PX4's UXRCE_DDS_NS (topics rt/<ns>/fmu/...)
+    # xrce-client: the DDS domain of swarmd's participant in the agent = UXRCE_DDS_DOM_ID
+    xrce_domain_id: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -172,6 +174,7 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "backend",
         "xrce_key",
         "namespace",
+        "xrce_domain_id",
     ),
     "dataplane": ("enabled", "readiness_period_s", "stale_after_s", "state_dir"),
     "logging": ("level", "format"),
@@ -514,6 +517,21 @@ class _Checker:
                 self.fail(f["sysid"], "px4.sysid", f"{number} is not a whole number", "1..255")
             sysid = int(number)
 
+        xrce_domain_id = d.xrce_domain_id
+        if "xrce_domain_id" in f:
+            node, path = f["xrce_domain_id"], "px4.xrce_domain_id"
+            if backend != "xrce-client":
+                self.fail(node, path,
+                          f"only xrce-client creates a DDS participant ({backend} has no domain)",
+                          "remove it, or use px4.backend: xrce-client")  # fmt: skip
+            # 232: the highest domain whose RTPS ports (7400 + 250 * domain + offsets, DDSI-RTPS
+            # 9.6.1.1) fit in 16 bits; Fast DDS refuses more
+            number = self.number(node, path, 0, 232)
+            if number != int(number):
+                self.fail(node, path, f"{number:g} is not a whole number",
+                          "write PX4's UXRCE_DDS_DOM_ID, a whole number 0..232")  # fmt: skip
+            xrce_domain_id = int(number)
+
         def num(key: str, low: float, high: float, unit: str, default: float) -> float:
             return self.number(f[key], f"px4.{key}", low, high, unit) if key in f else default
 
@@ -544,6 +562,7 @@ class _Checker:
                 if "namespace" in f
                 else None
             ),
+            xrce_domain_id=xrce_domain_id,
         )
 
     def dataplane(self, f: Nodes) -> DataplaneSection:

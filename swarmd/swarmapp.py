@@ -151,6 +151,7 @@ class SwarmApp:
                         backend=px4.backend,
                         xrce_key=px4.xrce_key,
                         namespace=px4.namespace,
+                        xrce_domain_id=px4.xrce_domain_id,
                         readiness=ReadinessConfig(
                             heartbeat_timeout_s=px4.heartbeat_timeout_s,
                             min_battery_pct=px4.min_battery_pct,

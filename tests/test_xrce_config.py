@@ -9,6 +9,15 @@ from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.config import ConfigError, parse_config
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.xrce_backend import XrceBackend
+from swarmd.xrce.client import XrceClient
+from swarmd.xrce.message import (
+    Create,
+    Header,
+    ObjectKind,
+    StatusAgent,
+    decode_message,
+    encode_message,
+)
 
 MINIMAL = """\
 node: uav1
@@ -38,6 +47,15 @@ def test_xrce_backend_defaults_to_px4_sitls_agent_address() -> None:
         ("px4:\n  backend: xrce-agent\n  connection: udp:0.0.0.0:8888\n", "px4.connection",
          "reaches beyond loopback"),
         ("px4:\n  backend: xrce-agent\n  xrce_key: 0\n", "px4.xrce_key", "outside"),
+        ("px4:\n  backend: xrce-client\n  xrce_domain_id: 233\n", "px4.xrce_domain_id",
+         "outside 0..232"),
+        ("px4:\n  backend: xrce-client\n  xrce_domain_id: 1.5\n", "px4.xrce_domain_id",
+         "not a whole number"),
+        ("px4:\n  backend: xrce-client\n  xrce_domain_id: one\n", "px4.xrce_domain_id",
+         "expected a number"),
+        ("px4:\n  backend: xrce-agent\n  xrce_domain_id: 3\n", "px4.xrce_domain_id",
+         "only xrce-client"),
+        ("px4:\n  xrce_domain_id: 3\n", "px4.xrce_domain_id", "only xrce-client"),
     ],
 )  # fmt: skip
 def test_bad_xrce_fields_are_one_line(extra: str, field: str, problem: str) -> None:
@@ -45,6 +63,33 @@ def test_bad_xrce_fields_are_one_line(extra: str, field: str, problem: str) -> N
         parse_config(MINIMAL + extra, "s.yaml")
     text = str(info.value)
     assert "\n" not in text and f"field {field}: " in text and problem in text
+
+
+def test_xrce_client_joins_the_configured_dds_domain() -> None:
+    """xrce-client creates its participant in ``px4.xrce_domain_id`` (PX4's and the agent's
+    UXRCE_DDS_DOM_ID), default 0 as before; it used to be 0 whatever the config said, so
+    with PX4 on another domain swarmd never matched its topics."""
+    cfg = parse_config(MINIMAL + "px4:\n  backend: xrce-client\n", "s.yaml")
+    assert cfg.px4.xrce_domain_id == 0
+    cfg = parse_config(MINIMAL + "px4:\n  backend: xrce-client\n  xrce_domain_id: 7\n", "s.yaml")
+    assert cfg.px4.xrce_domain_id == 7
+    bridge = Px4Bridge.from_config(
+        Px4Config(connection="udp:127.0.0.1:8888", backend="xrce-client", xrce_domain_id=7)
+    )
+    assert isinstance(bridge.backend, XrceBackend)
+    engine = bridge.backend.engine
+    assert isinstance(engine, XrceClient)
+    engine.connect(("127.0.0.1", 8888), 0.0)
+    engine.datagrams_to_send()  # CREATE_CLIENT
+    accepted = encode_message(Header(0x81, 0, 0), [StatusAgent(0, 0)])
+    engine.receive_datagram(accepted, ("127.0.0.1", 8888), 0.0)
+    participants = [
+        sub
+        for data, _ in engine.datagrams_to_send()
+        for sub in decode_message(data).submessages
+        if isinstance(sub, Create) and sub.kind == ObjectKind.PARTICIPANT
+    ]
+    assert [p.domain_id for p in participants] == [7]
 
 
 def test_bridge_builds_the_configured_backend() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import re
 import socket
 from collections.abc import AsyncIterator
@@ -14,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from swarmd.px4.bridge import Px4Bridge
+from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import MavCmd
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig
@@ -175,20 +176,37 @@ async def _garbage_to_the_agent_port_is_counted_and_dropped() -> None:
 
 
 def test_client_mode_through_micro_xrce_agent_takes_off() -> None:
-    asyncio.run(_client_mode_through_micro_xrce_agent_takes_off())
+    asyncio.run(_client_mode_through_micro_xrce_agent_takes_off(None))
 
 
-async def _client_mode_through_micro_xrce_agent_takes_off() -> None:
+def test_client_mode_on_another_dds_domain_takes_off() -> None:
+    """PX4 on UXRCE_DDS_DOM_ID != 0 and ``px4.xrce_domain_id`` the same, from the config
+    through the bridge: swarmd's participant joins PX4's domain in the agent (it was always
+    0, so its readers never matched PX4's writers). The domain is per process so parallel
+    runs on this host do not hear each other."""
+    asyncio.run(_client_mode_through_micro_xrce_agent_takes_off(1 + os.getpid() % 200))
+
+
+async def _client_mode_through_micro_xrce_agent_takes_off(domain: int | None) -> None:
     agent_bin = peer_binary("MicroXRCEAgent")
     client_bin = peer_binary("px4_like_client")
     port = _free_udp_port()
     async with _proc(str(agent_bin), "udp4", "-p", str(port)):
         await asyncio.sleep(0.5)
-        backend = XrceBackend("xrce-client", f"udp:localhost:{port}", sysid=1)
-        bridge = Px4Bridge(backend, readiness_config=READY)
+        if domain is None:
+            backend = XrceBackend("xrce-client", f"udp:localhost:{port}", sysid=1)
+            bridge = Px4Bridge(backend, readiness_config=READY)
+            on_domain: tuple[str, ...] = ()
+        else:
+            config = Px4Config(f"udp:localhost:{port}", backend="xrce-client",
+                               xrce_domain_id=domain, readiness=READY)  # fmt: skip
+            bridge = Px4Bridge.from_config(config)
+            assert isinstance(bridge.backend, XrceBackend)
+            backend = bridge.backend
+            on_domain = ("-d", str(domain))
         await bridge.start()
         try:
-            argv = (str(client_bin), "-p", str(port), "-V", "1.16", "-c", "1", "-q")
+            argv = (str(client_bin), "-p", str(port), "-V", "1.16", "-c", "1", "-q", *on_domain)
             async with _proc(*argv) as client:
                 await _fly(bridge, client)
             assert backend.session == "established"

@@ -63,6 +63,7 @@ class Px4Config:
     backend: str = "mavlink"  # | "xrce-agent" | "xrce-client" (docs/px4.md)
     xrce_key: int | None = None  # xrce-agent: accept only this UXRCE_DDS_KEY (None: any)
     namespace: str | None = None  # PX4 UXRCE_DDS_NS
+    xrce_domain_id: int = 0  # xrce-client: its participant's DDS domain (UXRCE_DDS_DOM_ID)
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
     takeoff: TakeoffConfig = field(default_factory=TakeoffConfig)
 
@@ -101,6 +102,7 @@ class Px4Bridge:
                 sysid=config.sysid,
                 expected_key=config.xrce_key,
                 namespace=config.namespace,
+                domain_id=config.xrce_domain_id,
             )
         else:
             backend = MavlinkBackend(
