@@ -29,13 +29,19 @@ from swarmd.discovery import (
     PeerLost,
     PeerRestarted,
 )
-from swarmd.discovery.engine import FOREIGN_DECODE_BURST, FOREIGN_REPORT_BURST
+from swarmd.discovery.engine import (
+    DISPOSE_MULTICAST_COPIES,
+    FOREIGN_DECODE_BURST,
+    FOREIGN_REPORT_BURST,
+    MAX_DISPOSE_UNICAST,
+)
 from swarmd.discovery.events import Event
 from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.rtps.spdp import encode_spdp_dispose
 
 BUNDLE = make_bundle(3)
 P = [p.guid_prefix for p in BUNDLE.participants]
+A0 = (node_ipv4(0), 7410)  # the commander uav0's metatraffic address
 A1 = (node_ipv4(1), 7412)  # member uav1's metatraffic address
 ATTACKER = ("10.0.0.66", 7412)
 
@@ -252,6 +258,43 @@ def test_every_datagram_the_engine_sends_is_sealed_with_a_fresh_counter() -> Non
         assert ring.verify(P[0], signed, signature)
         seen.append(freshness)
     assert seen == sorted(set(seen)) and {f.epoch for f in seen} == {1}
+
+
+def test_a_leave_signs_a_bounded_number_of_times_whatever_n() -> None:
+    """One Ed25519 signature per dispose sent: a leave signs at most
+    MAX_DISPOSE_UNICAST + DISPOSE_MULTICAST_COPIES times, not once per peer."""
+    n = 40
+    bundle = make_bundle(n)
+    auth = auth_for(bundle, 0)
+    e = engine_for(bundle, 0, auth=auth)
+    for i in range(1, n):
+        d = peer_datagram(bundle, i, auth=auth_for(bundle, i))
+        e.receive_datagram(d, (node_ipv4(i), 7410 + 2 * i), 0.1)
+    assert e.peer_counts() == (n - 1, n - 1)
+    e.datagrams_to_send()
+    first = auth.counter.next().seq  # every seal takes the next value: one signature each
+    e.shutdown(0.2)
+    out = e.datagrams_to_send()
+    signatures = auth.counter.next().seq - first - 1
+    assert signatures == len(out) <= MAX_DISPOSE_UNICAST + DISPOSE_MULTICAST_COPIES
+    # each copy carries its own freshness: a receiver accepts whichever copy reaches it
+    # first, and counts no replay for the others (they are not replays)
+    ring = auth_for(bundle, 1).keyring
+    freshness = []
+    for d, _ in out:
+        opened = open_tail(d)
+        assert opened is not None
+        assert ring.verify(P[0], opened[2], opened[1])
+        freshness.append(opened[0])
+    assert len(set(freshness)) == len(out)
+    # a peer that missed the first copy is dropped by the next
+    peer = engine_for(bundle, 1, auth=auth_for(bundle, 1))
+    peer.receive_datagram(peer_datagram(bundle, 0, auth=auth_for(bundle, 0)), A0, 0.1)
+    drain(peer)
+    for d, _ in out[1:]:
+        peer.receive_datagram(d, A0, 0.3)
+    assert [x.reason for x in drain(peer) if isinstance(x, PeerLost)] == ["disposed"]
+    assert dropped(peer) == {}
 
 
 def test_an_authenticated_swarm_converges_with_the_same_frames() -> None:

@@ -20,7 +20,11 @@ from swarmd.discovery import (
     PhaseChanged,
 )
 from swarmd.discovery.digest import decode_heard
-from swarmd.discovery.engine import MAX_PENDING_EVENTS
+from swarmd.discovery.engine import (
+    DISPOSE_MULTICAST_COPIES,
+    MAX_DISPOSE_UNICAST,
+    MAX_PENDING_EVENTS,
+)
 from swarmd.discovery.events import Event
 from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.peers import MAX_FOREIGN
@@ -301,24 +305,78 @@ def test_dispose_drops_the_peer_at_once() -> None:
     ]
 
 
-def test_shutdown_sends_dispose_to_multicast_and_every_known_peer() -> None:
-    engine = engine_for(4, seed=4)
-    bundle = make_bundle(4)
-    for i in (1, 3):
+def shutdown_datagrams(
+    n: int, heard: range, now: float = 0.6
+) -> tuple[DiscoveryEngine, list[tuple[bytes, tuple[str, int]]]]:
+    """uav0 of an ``n``-drone bundle hears the peers in ``heard``, then leaves: what it sends."""
+    engine = engine_for(n, seed=4)
+    bundle = make_bundle(n)
+    for i in heard:
         engine.receive_datagram(peer_datagram(bundle, i), (node_ipv4(i), 7410 + 2 * i), 0.1)
     run_to(engine, 0.5)
     engine.datagrams_to_send()
-    engine.shutdown(0.6)
+    before = engine.counters()
+    engine.shutdown(now)
     out = engine.datagrams_to_send()
-    assert sorted(a for _, a in out) == sorted([MCAST, (node_ipv4(1), 7412), (node_ipv4(3), 7416)])
+    after = engine.counters()
+    # the counters say exactly what was queued
+    assert after["tx_kind"]["dispose"] - before["tx_kind"]["dispose"] == len(out)
+    assert after["tx_datagrams"] - before["tx_datagrams"] == len(out)
+    multicast = sum(a == MCAST for _, a in out)
+    assert after["tx_multicast"] - before["tx_multicast"] == multicast
+    assert after["tx_unicast"] - before["tx_unicast"] == len(out) - multicast
     for datagram, _ in out:
         _, samples = decode_spdp(datagram)
         assert isinstance(samples[0], SpdpDisposed)
         assert samples[0].guid_prefix == bundle.participants[0].guid_prefix
+    return engine, out
+
+
+def test_shutdown_sends_dispose_to_multicast_and_every_known_peer() -> None:
+    engine, out = shutdown_datagrams(4, range(1, 4, 2))
+    assert sorted(a for _, a in out) == sorted(
+        [MCAST] * DISPOSE_MULTICAST_COPIES + [(node_ipv4(1), 7412), (node_ipv4(3), 7416)]
+    )
+    assert out[0][1] == MCAST  # the copy every peer can hear leaves first
     assert engine.phase == Phase.STOPPED
     assert engine.get_timer() is None
-    engine.receive_datagram(peer_datagram(bundle, 2), (node_ipv4(2), 7414), 0.7)
+    engine.receive_datagram(peer_datagram(make_bundle(4), 2), (node_ipv4(2), 7414), 0.7)
     assert engine.counters()["dropped"]["stopped"] == 1
+
+
+@pytest.mark.parametrize("peers", [1, 3, MAX_DISPOSE_UNICAST])
+def test_a_small_swarm_still_gets_a_directed_dispose_each(peers: int) -> None:
+    _, out = shutdown_datagrams(peers + 1, range(1, peers + 1))
+    unicast = sorted(a for _, a in out if a != MCAST)
+    assert unicast == sorted((node_ipv4(i), 7410 + 2 * i) for i in range(1, peers + 1))
+    assert len(out) == peers + DISPOSE_MULTICAST_COPIES
+
+
+@pytest.mark.parametrize("peers", [MAX_DISPOSE_UNICAST + 1, 50])
+def test_a_leaving_drone_sends_a_bounded_number_of_frames_whatever_n(peers: int) -> None:
+    """A leave must not cost O(N) frames: at N = 1000 a swarm powering down together would
+    put ~N^2 disposes on the channel (docs/discovery.md, "Leaving")."""
+    engine, out = shutdown_datagrams(peers + 1, range(1, peers + 1))
+    assert engine.peer_counts() == (peers, peers)  # every one of them was discovered
+    assert len(out) <= MAX_DISPOSE_UNICAST + DISPOSE_MULTICAST_COPIES
+    assert [a for _, a in out] == [MCAST] * DISPOSE_MULTICAST_COPIES
+
+
+def test_every_peer_hears_the_leave_from_one_multicast_copy_of_several() -> None:
+    """Group frames are not acknowledged: any one of the copies reaching a peer drops us
+    there at once; the others change nothing (the dispose is idempotent)."""
+    n = MAX_DISPOSE_UNICAST + 3
+    bundle = make_bundle(n)
+    _, out = shutdown_datagrams(n, range(1, n))
+    copies = [d for d, a in out if a == MCAST]
+    for arrived in range(len(copies)):
+        peer = engine_for(n, index=1, seed=5)
+        peer.receive_datagram(peer_datagram(bundle, 0), (node_ipv4(0), 7410), 0.2)
+        drain(peer)
+        for d in copies[arrived:]:  # the earlier copies were lost
+            peer.receive_datagram(d, (node_ipv4(0), 7410), 0.7)
+        lost = [(e.name, e.reason) for e in drain(peer) if isinstance(e, PeerLost)]
+        assert lost == [("uav0", "disposed")]
 
 
 # ---------------------------------------------------------- foreign and bad input

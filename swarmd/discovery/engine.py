@@ -42,7 +42,8 @@ Phases (``phases.TRANSITIONS`` is the whole table)::
 
     BOOT ──link sample / boot timeout──▶ PASSIVE ──timer, debts──▶ ANNOUNCE ──settled──▶ STEADY
                                             └──────timer, nothing owed────────────────────▲
-    any ──shutdown()──▶ STOPPED   (DATA(p[UD]) to the multicast group and every known peer)
+    any ──shutdown()──▶ STOPPED   (DATA(p[UD]) to the multicast group, and to each known peer
+                                   while they are few: a bounded number of frames)
 
 PASSIVE lasts T_passive ~ U(0, W) (paper eq. 3, ``awareness.passive_window_s``).
 
@@ -144,6 +145,22 @@ MAX_VOUCHES: Final = 64
 # A stock participant renews about once a second; beyond the budget it is only counted.
 FOREIGN_DECODES_PER_S: Final = 50.0
 FOREIGN_DECODE_BURST: Final = 50.0
+# Leaving (docs/discovery.md, "Leaving"). A dispose only hastens what the lease does anyway
+# (a peer that misses it drops us when our lease ends, 20 s by default), so it must cost the
+# channel a constant, never one frame per peer: unicast to every peer at N = 1000 is 1000
+# frames and 1000 Ed25519 signatures per leave, ~N^2 frames when a swarm powers down
+# together (the flood swarmd exists to avoid: paper section 4.1, network awareness). 802.11
+# group frames are neither acknowledged nor retried, so the group copy goes out this many
+# times: all lost with probability p^3 were losses independent; they are not quite (fading
+# outlasts three frames), but each copy draws its own DCF backoff, so one collision does
+# not take them all.
+DISPOSE_MULTICAST_COPIES: Final = 3
+# Directed copies (acknowledged and retried by the 802.11 MAC: the reliable path) only while
+# this few peers are discovered: the paper's real-world swarm (section 5.3) and our testbed
+# fly 10 drones, so each of them still gets one per peer, as do the daemon's namespace tests;
+# larger swarms rely on the group copies and, failing those, on the lease. A leave costs at
+# most MAX_DISPOSE_UNICAST + DISPOSE_MULTICAST_COPIES frames and as many signatures.
+MAX_DISPOSE_UNICAST: Final = 9
 
 Wallclock = Callable[[], float]
 
@@ -413,29 +430,40 @@ class DiscoveryEngine:
             self._vouched_until.pop(peer.index, None)  # its own lease runs again
 
     def shutdown(self, now: float) -> None:
-        """Leave: queue DATA(p[UD]) to the multicast group and every discovered peer."""
+        """Leave: queue DATA(p[UD]) ``DISPOSE_MULTICAST_COPIES`` times to the multicast
+        group and, while at most ``MAX_DISPOSE_UNICAST`` peers are discovered, once to each
+        of them; a bounded number of frames (and signatures) whatever N."""
         if self.phase == Phase.STOPPED:
             return
         self._sn += 1
         prefix, timestamp = self._me.guid_prefix, self._timestamp()
         placeholder = None if self._auth is None else PLACEHOLDER
-        payload = encode_spdp_dispose(
+        # one sample (one SN): the copies differ only in their freshness, each sealed on its
+        # own so a receiver takes whichever arrives first and counts no replay for the rest
+        group = encode_spdp_dispose(
             prefix, sequence_number=self._sn, timestamp=timestamp, authenticator=placeholder
         )
-        self._queue(self._seal(payload), self.spdp_multicast, multicast=True)
+        self._queue(self._seal(group), self.spdp_multicast, multicast=True)
         self._tx_kind["dispose"] += 1
-        for p in self._peers.values():
-            target = p.target()
-            if not p.discovered or target is None:
-                continue
-            payload = encode_spdp_dispose(
-                prefix,
-                sequence_number=self._sn,
-                timestamp=timestamp,
-                destination=p.participant.guid_prefix,
-                authenticator=placeholder,
-            )
-            self._queue(self._seal(payload), target, multicast=False)
+        targets = [
+            (p.participant.guid_prefix, target)
+            for p in self._peers.values()
+            if p.discovered and (target := p.target()) is not None
+        ]
+        if len(targets) <= MAX_DISPOSE_UNICAST:
+            for destination, target in targets:
+                payload = encode_spdp_dispose(
+                    prefix,
+                    sequence_number=self._sn,
+                    timestamp=timestamp,
+                    destination=destination,
+                    authenticator=placeholder,
+                )
+                self._queue(self._seal(payload), target, multicast=False)
+                self._tx_kind["dispose"] += 1
+        # the repeats after the directed frames: spaced by them when there are any
+        for _ in range(DISPOSE_MULTICAST_COPIES - 1):
+            self._queue(self._seal(group), self.spdp_multicast, multicast=True)
             self._tx_kind["dispose"] += 1
         for p in self._peers.values():
             self._disarm(p)
