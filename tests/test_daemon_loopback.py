@@ -7,9 +7,10 @@ generous cap) is not a timing assertion: the tests assert states and counters on
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import socket
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,7 @@ from swarmd.config import ConfigError, load_config
 from swarmd.control import request
 from swarmd.daemon import Daemon
 from swarmd.dataplane.types import Readiness
+from swarmd.discovery import engine as engine_module
 from swarmd.link.static import StaticSource
 from swarmd.sdnotify import Notifier
 from tests.attacker import forge
@@ -77,22 +79,34 @@ def _peer(status: dict[str, Any], name: str) -> dict[str, Any]:
     return next(p for p in status["peers"] if p["name"] == name)
 
 
+@contextlib.asynccontextmanager
+async def _discovered_pair(
+    workdir: Path, files: BundleFiles
+) -> AsyncIterator[tuple[Daemon, Daemon]]:
+    """uav1 and uav2 started and discovered by each other; both stopped on the way out."""
+    a, b = _daemon(workdir, files, "uav1"), _daemon(workdir, files, "uav2")
+    await a.start()
+    await b.start()
+    try:
+        await _until(
+            lambda: (
+                _peer(a.status(), "uav2")["state"] == "discovered"
+                and _peer(b.status(), "uav1")["state"] == "discovered"
+            ),
+            "mutual discovery",
+        )
+        yield a, b
+    finally:
+        await a.stop("test")
+        await b.stop("test")
+
+
 def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
     workdir: Path, files: BundleFiles
 ) -> None:
     async def main() -> None:
-        a, b = _daemon(workdir, files, "uav1"), _daemon(workdir, files, "uav2")
         with capture_logs() as logs:
-            await a.start()
-            await b.start()
-            try:
-                await _until(
-                    lambda: (
-                        _peer(a.status(), "uav2")["state"] == "discovered"
-                        and _peer(b.status(), "uav1")["state"] == "discovered"
-                    ),
-                    "mutual discovery",
-                )
+            async with _discovered_pair(workdir, files) as (a, b):
                 st = a.status()
                 assert st["node"] == "uav1"
                 assert st["peers_discovered"] == 1
@@ -143,9 +157,6 @@ def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
                 # a clean stop sends DATA(p[UD]): the peer drops it at once, not after the lease
                 await b.stop("test")
                 await _until(lambda: _peer(a.status(), "uav2")["state"] == "lost", "uav2 lost")
-            finally:
-                await a.stop("test")
-                await b.stop("test")
         events = [e["event"] for e in logs]
         assert "started" in events
         assert "peer_discovered" in events
@@ -155,6 +166,32 @@ def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
 
     asyncio.run(main())
     assert not os.path.exists(workdir / "uav1.sock")
+
+
+def test_a_large_swarms_leave_is_heard_from_the_group_copies_alone(
+    workdir: Path, files: BundleFiles, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Above MAX_DISPOSE_UNICAST discovered peers a leave sends no directed dispose: the
+    group copies, over real sockets, drop the leaver at once (docs/discovery.md, "Leaving").
+    The cap is lowered to 0 so two daemons stand for a large swarm."""
+    monkeypatch.setattr(engine_module, "MAX_DISPOSE_UNICAST", 0)
+
+    async def main() -> None:
+        with capture_logs() as logs:
+            async with _discovered_pair(workdir, files) as (a, b):
+                engine = b.engine
+                assert engine is not None
+                sent = engine.counters()
+                await b.stop("test")
+                after = engine.counters()
+                copies = engine_module.DISPOSE_MULTICAST_COPIES
+                assert after["tx_kind"]["dispose"] - sent["tx_kind"]["dispose"] == copies
+                assert after["tx_unicast"] == sent["tx_unicast"]
+                await _until(lambda: _peer(a.status(), "uav2")["state"] == "lost", "uav2 lost")
+        lost = [e for e in logs if e["event"] == "peer_lost"]
+        assert [(e["peer"], e["reason"]) for e in lost][:1] == [("uav2", "disposed")]
+
+    asyncio.run(main())
 
 
 def test_unknown_node_is_a_config_error_naming_the_node_line(
