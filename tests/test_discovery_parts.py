@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from swarmd_lab.memnet import Channel, MemNet
 
 from swarmd.bundle.model import DiscoveryParams
+from swarmd.discovery import engine as engine_module
 from swarmd.discovery.awareness import (
     advertised_lease_s,
     draw_passive_timer_s,
@@ -22,6 +23,9 @@ from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.digest import bitmap_size, decode_heard, encode_heard, lists
 from swarmd.discovery.phases import Phase, TransitionError, Trigger, next_phase
 from swarmd.discovery.timers import Backoff, LeaseQueue, MinInterval, Periodic, RetrySchedule
+from swarmd.rtps.locator import Locator, LOCATOR_KIND_UDPv4
+from swarmd.rtps.spdp import SpdpParticipant
+from swarmd.rtps.types import GuidPrefix
 
 WINDOW = {"t_min_s": 8.0, "t_max_s": 20.0, "announce_budget_fps": 50.0, "q_floor": 0.1}
 
@@ -297,3 +301,54 @@ def test_memnet_loss_and_duplication_follow_the_seed() -> None:
     got, lost, duplicated = run(5)
     assert run(5) == (got, lost, duplicated)
     assert 0.6 * 500 < got < 0.95 * 500 and lost > 100 and duplicated > 50
+
+
+# addresses that exercise every rule: plain, own, loopback, multicast, unspecified, broadcast
+_ADDRS: tuple[str, ...] = ("10.0.0.1", "10.0.0.2", "127.0.0.1", "127.3.0.9", "224.0.0.1")
+_ADDRS += ("239.1.1.1", "0.0.0.0", "255.255.255.255", "223.255.0.1", "240.0.0.1")  # noqa: S104
+
+
+def _usable_by_definition(
+    locators: list[tuple[int, str]], source_host: str, own_octets: bytes
+) -> bool:
+    """docs/security.md, issue 10 attack 7, one locator at a time: the plain definition the
+    engine's per-payload precomputation (``_LocatorFacts``) must agree with."""
+    own_source = own_octets != b"" and source_host == ".".join(map(str, own_octets))
+    for kind, host in locators:
+        if kind != LOCATOR_KIND_UDPv4:
+            continue
+        octets = bytes(int(x) for x in host.split("."))
+        if 224 <= octets[0] <= 239 or octets in (bytes(4), b"\xff" * 4):
+            return False
+        if octets[0] == 127 and not source_host.startswith("127."):
+            return False
+        if octets == own_octets and not own_source:
+            return False
+    return True
+
+
+@given(
+    meta=st.lists(st.tuples(st.sampled_from([LOCATOR_KIND_UDPv4, 2]), st.sampled_from(_ADDRS))),
+    default=st.lists(st.tuples(st.sampled_from([LOCATOR_KIND_UDPv4]), st.sampled_from(_ADDRS))),
+    source=st.sampled_from(_ADDRS),
+    own=st.sampled_from((*_ADDRS, "")),
+)
+def test_locator_check_precomputed_per_payload_agrees_with_its_definition(
+    meta: list[tuple[int, str]], default: list[tuple[int, str]], source: str, own: str
+) -> None:
+    def locs(items: list[tuple[int, str]]) -> tuple[Locator, ...]:
+        return tuple(
+            Locator(kind, 7410, bytes(12) + bytes(int(x) for x in host.split(".")))
+            for kind, host in items
+        )
+
+    part = SpdpParticipant(
+        GuidPrefix(bytes(12)),
+        metatraffic_unicast_locators=locs(meta),
+        default_unicast_locators=locs(default),
+    )
+    own_octets = engine_module._ipv4_octets(own)
+    own_dotted = ".".join(map(str, own_octets))
+    facts = engine_module._locator_facts(part)
+    expected = _usable_by_definition([*meta, *default], source, own_octets)
+    assert facts.usable(source, own_octets, own_dotted) is expected

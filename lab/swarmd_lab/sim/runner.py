@@ -25,6 +25,7 @@ from swarmd_lab.sim.protocols import PROTOCOLS, build_nodes
 from swarmd_lab.sim.workload import Workload
 
 WINDOW_S: Final = 60.0
+_DATA: Final = Kind.DATA  # bound once (a class-attribute lookup per frame otherwise)
 Progress = Callable[[float], None]
 
 
@@ -100,7 +101,17 @@ def run(
             return
         nodes[j].receive(dgram, now)
 
-    channel = Channel(clock, positions, scenario.channel, seed=seed, deliver=deliver)
+    def deliver_many(receivers: list[int], dgram: Datagram, now: float) -> None:
+        if dgram.kind is _DATA:
+            for j in receivers:
+                deliver(j, dgram, now)
+            return
+        for j in receivers:
+            nodes[j].receive(dgram, now)
+
+    channel = Channel(
+        clock, positions, scenario.channel, seed=seed, deliver=deliver, deliver_many=deliver_many
+    )
     contexts = [NodeContext(i, n, clock, channel.send, ledger, seed) for i in range(n)]
     nodes.extend(build_nodes(scenario, contexts, channel))
     if scenario.workload:

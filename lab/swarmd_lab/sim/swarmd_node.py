@@ -58,6 +58,7 @@ class SwarmdNode(SimNode):
         self._timer: Timer | None = None
         self._timer_at: float | None = None
         self._name_to_index = shared.name_to_index
+        self._source_of = shared.source_of
 
     def start(self, now: float) -> None:
         shared = self._shared
@@ -82,7 +83,7 @@ class SwarmdNode(SimNode):
         assert isinstance(payload, bytes)  # noqa: S101 - swarmd nodes send bytes only
         # the engine decodes a multicast once for all receivers (its decode memo is keyed
         # by the payload, and every receiver gets this same bytes object)
-        engine.receive_datagram(payload, self._shared.source_of[dgram.src], now)
+        engine.receive_datagram(payload, self._source_of[dgram.src], now)
         self._pump(now)
 
     def data_received(self, src: int, now: float) -> None:
