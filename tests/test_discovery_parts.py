@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import random
+from dataclasses import dataclass
 
 import pytest
 from hypothesis import given
@@ -104,14 +105,21 @@ def test_renewal_budget_stretches_the_period_and_the_lease_with_n(
     assert advertised == pytest.approx(lease)
 
 
+@dataclass(slots=True)
+class _Leased:
+    index: int
+    lease_until: float | None = None
+    lease_queued: float | None = None
+
+
 _lease_ops = st.lists(
     st.tuples(
         st.sampled_from(["renew", "remove"]),
         st.integers(0, 7),
         st.sampled_from([1.0, 5.0, 20.0, 40.0]),
-        st.floats(0.0, 3.0),
+        st.sampled_from([0.0, 0.5, 3.0]),
     ),
-    max_size=60,
+    max_size=80,
 )
 
 
@@ -120,14 +128,16 @@ def test_lease_queue_always_yields_the_earliest_live_deadline(
     ops: list[tuple[str, int, float, float]],
 ) -> None:
     queue, deadlines, now = LeaseQueue(), {}, 0.0
+    leased = [_Leased(i) for i in range(8)]
     for op, index, lease_s, step in ops:
-        now += step  # non-decreasing, as the engine's now
+        now += step  # non-decreasing, as the engine's now; steps of 0.0 make equal deadlines
         if op == "renew":
-            queue.renew(index, lease_s, now)
+            queue.renew(leased[index], lease_s, now)
             deadlines[index] = now + lease_s
         else:
-            queue.remove(index)
+            queue.remove(leased[index])
             deadlines.pop(index, None)
+        assert leased[index].lease_until == deadlines.get(index)
         earliest = queue.earliest()
         if not deadlines:
             assert earliest is None

@@ -69,6 +69,9 @@ class Peer:
     # matched endpoints, computed when first discovered: a bundle row per peer would cost
     # every engine O(N) ``Bundle.matches`` calls at start-up, mostly for nobody (sim at N=1000)
     matches: tuple[Match, ...] | None = None
+    # its lease, kept by the engine's timers.LeaseQueue (timers.Leased)
+    lease_until: float | None = None
+    lease_queued: float | None = None
 
     @property
     def discovered(self) -> bool:

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import heapq
 import random
-from collections import OrderedDict
 from dataclasses import dataclass, field
+from typing import Protocol
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,84 +101,80 @@ class Periodic:
         return self.due
 
 
+class Leased(Protocol):
+    """What ``LeaseQueue`` keeps on each leased object (the engine's ``Peer``): its deadline
+    lives on the object the receive path touches anyway, not in a table of its own."""
+
+    index: int  # distinct per object: orders equal deadlines, never compared further
+    lease_until: float | None  # the running lease's deadline, None if none runs
+    lease_queued: float | None  # the deadline of its live heap entry (<= lease_until)
+
+
 @dataclass(slots=True)
 class LeaseQueue:
     """Lease deadlines of the discovered peers, earliest first, at O(1) per renewal.
 
-    A renewal pushes a peer's deadline to ``now + lease``. Peers that advertise the same
-    lease length therefore expire in the order they were last heard, so each length keeps
-    an insertion-ordered table and a renewal moves the peer to its end. A small lazy heap
-    holds each table's head deadline. (A heap of all peers would cost a log N operation on
-    nearly every DATA(p): the next peer to renew is usually the one whose lease ends first.)
+    A renewal only writes the peer's new deadline (``now + lease``) on the peer
+    (``Leased.lease_until``). A heap holds one live entry per peer, (deadline when queued,
+    index, peer), which may be earlier than the peer's real deadline; ``earliest`` brings
+    the head up to date, re-queueing a head whose peer was renewed since at its real
+    deadline. So a peer costs one O(log N) heap step per lease it lives through, not one
+    per DATA(p): while a 1000-drone swarm announces, a peer is heard many times per lease,
+    and the receive path (~3M renewals per simulated minute) is bound by memory, so a
+    renewal touches nothing but the peer. A renewal that brings a deadline forward (a
+    shorter advertised lease) queues a new entry at once; entries that no longer match
+    ``lease_queued`` are dropped when they reach the head.
     Requires a non-decreasing ``now``, as everything keyed by ``now``.
     """
 
-    _tables: dict[float, OrderedDict[int, float]] = field(default_factory=dict)
-    _length_of: dict[int, float] = field(default_factory=dict)
-    # (head deadline, length) of each table; stale entries are dropped by ``earliest``
-    _heads: list[tuple[float, float]] = field(default_factory=list)
-    # earliest()'s answer, kept until a table head changes (while a swarm is discovered,
-    # new peers join the tails and the answer stands)
+    # (deadline, index, tie-break, peer): a removed peer renewed at the same deadline has two
+    # entries with equal (deadline, index); the counter keeps heapq from comparing peers
+    _heap: list[tuple[float, int, int, Leased]] = field(default_factory=list)
+    _pushed: int = 0
+    # earliest()'s answer, kept until it may have changed
     _cached: tuple[float, int] | None = None
-    _stale: bool = True
+    _stale: bool = False
 
-    def renew(self, index: int, lease_s: float, now: float) -> None:
-        """Peer ``index`` was heard at ``now``; its lease (``lease_s`` long) restarts."""
-        table = self._tables.get(lease_s)
-        old = self._length_of.get(index)
-        if table is not None and old == lease_s:
-            # the usual case, a renewal at an unchanged lease length: move to the tail
-            head = next(iter(table))
-            table[index] = now + lease_s
-            table.move_to_end(index)
-            if head == index:
-                self._head_changed(table, lease_s)
-            return
-        if old is not None:
-            self.remove(index)  # it advertises another lease length now (old != lease_s)
-        if table is None:
-            table = self._tables[lease_s] = OrderedDict()
-        table[index] = now + lease_s
-        self._length_of[index] = lease_s
-        if len(table) == 1:
-            self._head_changed(table, lease_s)
-
-    def deadline(self, index: int) -> float | None:
-        """When peer ``index``'s lease ends, None if it has none running."""
-        length = self._length_of.get(index)
-        return None if length is None else self._tables[length][index]
-
-    def remove(self, index: int) -> None:
-        length = self._length_of.pop(index, None)
-        if length is None:
-            return
-        table = self._tables[length]
-        was_head = next(iter(table)) == index
-        del table[index]
-        if not table:
-            del self._tables[length]
+    def renew(self, peer: Leased, lease_s: float, now: float) -> None:
+        """``peer`` was heard at ``now``; its lease (``lease_s`` long) restarts."""
+        until = peer.lease_until = now + lease_s
+        queued = peer.lease_queued
+        if queued is None or until < queued:
+            peer.lease_queued = until
+            self._pushed += 1
+            heapq.heappush(self._heap, (until, peer.index, self._pushed, peer))
             self._stale = True
-        elif was_head:
-            self._head_changed(table, length)
+        elif (cached := self._cached) is not None and cached[1] == peer.index:
+            self._stale = True  # the earliest lease moved later: another may be first now
+
+    def remove(self, peer: Leased) -> None:
+        """``peer``'s lease stops (its heap entry is dropped when it reaches the head)."""
+        if peer.lease_until is None:
+            return
+        peer.lease_until = peer.lease_queued = None
+        if (cached := self._cached) is not None and cached[1] == peer.index:
+            self._stale = True
 
     def earliest(self) -> tuple[float, int] | None:
         """(deadline, index) of the lease that ends first, None when no lease runs."""
         if not self._stale:
             return self._cached
         self._stale = False
-        heads = self._heads
-        while heads:
-            deadline, length = heads[0]
-            table = self._tables.get(length)
-            if table is not None:
-                index = next(iter(table))
-                if table[index] == deadline:
-                    self._cached = (deadline, index)
-                    return self._cached
-            heapq.heappop(heads)
+        heap = self._heap
+        while heap:
+            at, index, _, peer = heap[0]
+            if peer.lease_queued != at:
+                heapq.heappop(heap)  # removed, or superseded by an earlier deadline
+                continue
+            real = peer.lease_until
+            if real == at:
+                self._cached = (at, index)
+                return self._cached
+            assert real is not None  # noqa: S101 - lease_queued set implies lease_until set
+            # renewed since it was queued: every other live entry is at or before its own
+            # peer's deadline, so re-queueing this one keeps the head the true minimum
+            self._pushed += 1
+            heapq.heapreplace(heap, (real, index, self._pushed, peer))
+            peer.lease_queued = real
         self._cached = None
         return None
-
-    def _head_changed(self, table: OrderedDict[int, float], length: float) -> None:
-        heapq.heappush(self._heads, (table[next(iter(table))], length))
-        self._stale = True
