@@ -21,7 +21,10 @@ class Backoff:
 
     def delay_s(self, attempt: int, rng: random.Random) -> float:
         plain = min(self.cap_s, self.base_s * (2.0 ** max(0, attempt - 1)))
-        return plain * rng.uniform(1.0, 1.0 + self.jitter)
+        # rng.uniform(1, 1 + jitter) as random.py defines it, a + (b - a) * random(): the
+        # same draw without uniform's Python frame (~10^6 retries per 1000-drone run)
+        high = 1.0 + self.jitter
+        return plain * (1.0 + (high - 1.0) * rng.random())
 
 
 @dataclass(slots=True)

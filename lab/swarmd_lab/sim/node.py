@@ -38,14 +38,16 @@ class Ledger:
         self.count = 0
         self.all_discovered_s: float | None = None
         self.lost_events = 0
-        self._listeners: list[Callable[[int, int, float], None]] = []
+        self._on_all: list[Callable[[float], None]] = []
 
     @property
     def pairs(self) -> int:
         return self._pairs
 
-    def on_discovered(self, listener: Callable[[int, int, float], None]) -> None:
-        self._listeners.append(listener)
+    def on_all_discovered(self, listener: Callable[[float], None]) -> None:
+        """Call ``listener(now)`` once, when every pair is first discovered at once (not on
+        every pair: ~10^6 of them at N = 1000)."""
+        self._on_all.append(listener)
 
     def discovered(self, i: int, j: int, now: float) -> None:
         row = self.known[i]
@@ -59,8 +61,8 @@ class Ledger:
             self.first[i, j] = now
         if self.count == self._pairs and self.all_discovered_s is None:
             self.all_discovered_s = now
-        for listener in self._listeners:
-            listener(i, j, now)
+            for listener in self._on_all:
+                listener(now)
 
     def lost(self, i: int, j: int, now: float) -> None:
         row = self.known[i]

@@ -83,11 +83,10 @@ def run(
         clock_fn = wall
         marks = milestones
 
-        def mark(_i: int, _j: int, _now: float) -> None:
-            if ledger.count == ledger.pairs and "all_discovered" not in marks:
-                marks["all_discovered"] = clock_fn()
+        def mark(_now: float) -> None:
+            marks["all_discovered"] = clock_fn()
 
-        ledger.on_discovered(mark)
+        ledger.on_all_discovered(mark)
     layout_rng = random.Random(f"{seed}/layout")  # noqa: S311 - seeded simulation
     positions = place(scenario.placement, n, scenario.spacing_m, layout_rng)
     nodes: list[SimNode] = []
