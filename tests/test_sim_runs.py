@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 from pathlib import Path
 
@@ -62,6 +63,18 @@ def test_the_engines_shared_decode_memo_changes_nothing(monkeypatch: pytest.Monk
     monkeypatch.setattr(engine_module, "_decode", engine_module._decode_fresh)
     plain = run(scenario)
     assert dumps(plain) == dumps(memo)
+
+
+def test_a_run_suspends_full_collections_and_restores_the_thresholds() -> None:
+    seen: list[tuple[int, int, int]] = []
+
+    def progress(_fraction: float) -> None:
+        seen.append(gc.get_threshold())
+
+    before = gc.get_threshold()
+    run(Scenario("swarmd", 4, seed=1, window_s=3.0), progress)
+    assert seen and all(t[2] > 10**9 and t[:2] == before[:2] for t in seen)
+    assert gc.get_threshold() == before
 
 
 def test_cli_prints_one_json_object_per_run(capsys: pytest.CaptureFixture[str]) -> None:

@@ -313,15 +313,18 @@ class DiscoveryEngine:
         bundle.metatraffic_port(last)
         port0 = metatraffic_unicast_port(bundle.domain_id, 0)
         self._peers: dict[int, Peer] = {}
+        # N - 1 peers per engine, N engines in a simulation: loop invariants hoisted
+        my_index, attempts, gap = me.index, config.max_attempts, config.retransmit_min_gap_s
         for p in bundle.participants:
-            if p.index == me.index:
+            index = p.index
+            if index == my_index:
                 continue
-            self._peers[p.index] = Peer(
-                participant=p,
-                index=p.index,
-                bundle_locator=(p.ipv4, port0 + PARTICIPANT_GAIN * p.index) if p.ipv4 else None,
-                retry=RetrySchedule(config.max_attempts),
-                reack=MinInterval(config.retransmit_min_gap_s),
+            self._peers[index] = Peer(
+                p,
+                index,
+                (p.ipv4, port0 + PARTICIPANT_GAIN * index) if p.ipv4 else None,
+                RetrySchedule(attempts),
+                MinInterval(gap),
             )
         # bundle peers by GUID prefix octets (bytes hash and compare in C; GuidPrefix's
         # dataclass methods do not): one lookup per DATA(p)

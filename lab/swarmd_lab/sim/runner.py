@@ -7,9 +7,11 @@ Wall-clock time is measured by the caller (``__main__``), never inside the run.
 
 from __future__ import annotations
 
+import gc
 import math
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from typing import Any, Final
 
@@ -26,6 +28,8 @@ from swarmd_lab.sim.workload import Workload
 
 WINDOW_S: Final = 60.0
 _DATA: Final = Kind.DATA  # bound once (a class-attribute lookup per frame otherwise)
+# the oldest generation's threshold during a run: never reached (_young_collections_only)
+_NO_FULL_COLLECTION: Final = 2**31 - 1
 Progress = Callable[[float], None]
 
 
@@ -76,6 +80,34 @@ def run(
     ``wall()`` when every pair is discovered (the caller's clock; the result never sees it).
     """
     scenario.check()
+    with _young_collections_only():
+        return _run(scenario, progress, milestones, wall)
+
+
+@contextmanager
+def _young_collections_only() -> Iterator[None]:
+    """Suspend CPython's full (oldest-generation) garbage collections for a run.
+
+    A 1000-drone run builds ~10^6 long-lived objects (every engine's peer table) while it
+    runs, and each time that population grows by a quarter CPython traverses all of it: 18
+    full passes, ~7.5 s of a ~55 s run (measured with ``gc.callbacks``). The run makes no
+    long-lived reference cycles worth collecting (nothing has a finaliser, results do not
+    depend on when memory is freed); young collections go on as usual, and the thresholds
+    are restored afterwards."""
+    thresholds = gc.get_threshold()
+    gc.set_threshold(thresholds[0], thresholds[1], _NO_FULL_COLLECTION)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*thresholds)
+
+
+def _run(
+    scenario: Scenario,
+    progress: Progress | None,
+    milestones: dict[str, float] | None,
+    wall: Callable[[], float] | None,
+) -> dict[str, Any]:
     n, seed = scenario.n, scenario.seed
     clock = VirtualClock()
     ledger = Ledger(n)
