@@ -77,6 +77,19 @@ def test_a_run_suspends_full_collections_and_restores_the_thresholds() -> None:
     assert gc.get_threshold() == before
 
 
+def test_cli_turns_vouching_off(capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["--n", "6", "--window", "40", "--json", "--no-wall", "--quiet"]
+    assert main(args) == 0
+    vouched = json.loads(capsys.readouterr().out)
+    assert main([*args, "--no-vouch"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert "vouch" not in vouched["scenario"]  # the default's JSON is as before the switch
+    assert plain["scenario"]["vouch"] is False
+    # vouched members stop renewing once the commander vouches for them
+    assert plain["discovery_frames"] > vouched["discovery_frames"]
+    assert plain["success_rate"] == vouched["success_rate"] == 1.0
+
+
 def test_cli_prints_one_json_object_per_run(capsys: pytest.CaptureFixture[str]) -> None:
     code = main(
         [

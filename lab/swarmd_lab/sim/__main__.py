@@ -63,6 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--swarmd-mode", choices=MODES, default="adaptive")
     p.add_argument("--unicast-rate", type=int, default=None, help="fixed Mb/s (default ideal)")
     p.add_argument("--no-workload", action="store_true", help="no 1 Hz member->commander data")
+    p.add_argument(
+        "--no-vouch", action="store_true", help="swarmd without vouching (plain renewals)"
+    )
     p.add_argument("--json", action="store_true", help="one JSON object per run on stdout")
     p.add_argument("--no-wall", action="store_true", help="omit wall_s (byte-identical output)")
     p.add_argument("--out", type=Path, default=None, help="write runs.jsonl + summary.json")
@@ -92,6 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             start_spread_s=args.start_spread,
             workload=not args.no_workload,
             swarmd_mode=args.swarmd_mode,
+            vouch=not args.no_vouch,
             channel=channel,
         )
         for proto, n in cells

@@ -28,7 +28,8 @@ def build_nodes(scenario: Scenario, contexts: list[NodeContext], channel: Channe
     name = scenario.protocol
     if name in ("swarmd", "swarmd-auth"):
         bundle = make_bundle(scenario.n)
-        shared = SwarmdShared.of(bundle, EngineConfig(mode=scenario.swarmd_mode))  # type: ignore[arg-type]
+        config = EngineConfig(mode=scenario.swarmd_mode, vouch=scenario.vouch)  # type: ignore[arg-type]
+        shared = SwarmdShared.of(bundle, config)
         shared.modelled_auth = name == "swarmd-auth"
         snr = channel.snr_db.copy()
         np.fill_diagonal(snr, np.nan)

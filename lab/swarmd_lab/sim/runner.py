@@ -47,6 +47,8 @@ class Scenario:
     start_spread_s: float = 1.0
     workload: bool = True
     swarmd_mode: str = "adaptive"
+    # swarmd's vouching (EngineConfig.vouch; docs/discovery.md "Vouching"); off: plain renewals
+    vouch: bool = True
     channel: ChannelConfig = field(default_factory=ChannelConfig)
 
     def check(self) -> None:
@@ -253,6 +255,8 @@ def _result(
             "workload": scenario.workload,
             "last_start_s": _round(max(starts)),
             "channel": _channel_dict(scenario.channel),
+            # only when off: runs with the default stay byte-identical to earlier ones
+            **({} if scenario.vouch else {"vouch": False}),
         },
     }
 
