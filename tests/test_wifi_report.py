@@ -161,6 +161,20 @@ def test_peak_runs_of_different_campaigns_never_make_a_pair() -> None:
     assert "made at session-2" in v.text
 
 
+def test_peak_pairs_at_every_k_not_only_the_main_one() -> None:
+    runs = [
+        # N=5: swarmd's main k is 3 (ties go to the larger k), zenoh ran only at k = 1;
+        # the k = 1 runs are one campaign step all the same
+        _full("swarmd", 5, 1, [20], k=1.0),
+        _full("swarmd", 5, 1, [22], k=3.0),
+        _full("zenoh", 5, 1, [300], k=1.0),
+    ]
+    v = _verdict(report.peak_verdicts(runs), 5, "zenoh")
+    assert v.met is False  # 20 / 300 = 6.7 %
+    assert "N=5 (k = 1), zenoh" in v.text
+    assert "6.7 %" in v.text
+
+
 def test_discovery_target_counts_every_valid_swarmd_run_at_n10() -> None:
     ok = [_full("swarmd", 10, 1, [40], discovery=31), _full("swarmd", 10, 2, [40], discovery=50)]
     assert report.discovery_verdict(ok).met is True
@@ -217,7 +231,7 @@ def test_repeat_lines_name_cells_short_of_three_valid_repeats() -> None:
     ]
     text = report.repeat_lines(report.summarise(runs))
     assert "swarmd" not in text
-    assert "- zenoh N=10 k=3: 1 of 2 repeats valid\n" in text
+    assert "- zenoh N=10 k=3: 1 of 2 repeats valid, 1 not run\n" in text
     assert "- fastdds N=10 k=3: 1 run only\n" in text
 
 
