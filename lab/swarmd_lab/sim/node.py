@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,6 +99,15 @@ class SimNode(ABC):
     @abstractmethod
     def receive(self, dgram: Datagram, now: float) -> None:
         """The radio decoded ``dgram`` (multicast, or unicast addressed to this node)."""
+
+    def receive_each(
+        self, nodes: Sequence[SimNode], receivers: list[int], dgram: Datagram, now: float
+    ) -> None:
+        """``nodes[j].receive(dgram, now)`` for every ``j`` in ``receivers``, in that order:
+        one multicast's fan-out (every node of a run runs this node's protocol). A protocol
+        may override it with a tighter loop of the same effect."""
+        for j in receivers:
+            nodes[j].receive(dgram, now)
 
     def data_received(self, src: int, now: float) -> None:  # noqa: B027 - optional hook
         """The 1 Hz workload delivered node ``src``'s sample here (user data, not discovery).

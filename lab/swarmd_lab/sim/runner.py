@@ -139,8 +139,7 @@ def _run(
             for j in receivers:
                 deliver(j, dgram, now)
             return
-        for j in receivers:
-            nodes[j].receive(dgram, now)
+        nodes[receivers[0]].receive_each(nodes, receivers, dgram, now)
 
     channel = Channel(
         clock, positions, scenario.channel, seed=seed, deliver=deliver, deliver_many=deliver_many
