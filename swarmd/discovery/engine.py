@@ -196,7 +196,6 @@ class DiscoveryEngine:
         "_boot_deadline",
         "_bundle",
         "_by_name",
-        "_by_prefix",
         "_commander",
         "_config",
         "_content",
@@ -313,33 +312,29 @@ class DiscoveryEngine:
         bundle.metatraffic_port(last)
         port0 = metatraffic_unicast_port(bundle.domain_id, 0)
         self._peers: dict[int, Peer] = {}
+        # the same peers by bundle index (None: us, or an index the bundle skips)
+        self._peer_at: list[Peer | None] = [None] * self._size
+        peer_at = self._peer_at
         # N - 1 peers per engine, N engines in a simulation: loop invariants hoisted
         my_index, attempts, gap = me.index, config.max_attempts, config.retransmit_min_gap_s
         for p in bundle.participants:
             index = p.index
             if index == my_index:
                 continue
-            self._peers[index] = Peer(
+            self._peers[index] = peer_at[index] = Peer(
                 p,
                 index,
                 (p.ipv4, port0 + PARTICIPANT_GAIN * index) if p.ipv4 else None,
                 RetrySchedule(attempts),
                 MinInterval(gap),
             )
-        # bundle peers by GUID prefix octets (bytes hash and compare in C; GuidPrefix's
-        # dataclass methods do not): one lookup per DATA(p)
-        self._by_prefix: dict[bytes, Peer] = {
-            p.participant.guid_prefix.value: p for p in self._peers.values()
-        }
         self._by_name: dict[str, Peer] = {p.participant.name: p for p in self._peers.values()}
-        # The receive path's lookup: bundle index by prefix, one table shared by every
+        # Bundle peers by GUID prefix octets (bytes hash and compare in C; GuidPrefix's
+        # dataclass methods do not): bundle index by prefix in one table shared by every
         # engine of the same bundle (``_index_map``), then our peer at that index. A
         # simulator hands one multicast to 999 engines in a row: one table stays in the CPU
         # cache, 999 per-engine dicts would not (~3 cache misses per datagram at N = 1000).
         self._index_of = _index_map(bundle)
-        self._peer_at: list[Peer | None] = [None] * self._size
-        for peer in self._peers.values():
-            self._peer_at[peer.index] = peer
         self.phase: Phase = _BOOT
         self._started = now
         self._boot_deadline: float | None = now + config.boot_link_timeout_s
@@ -352,7 +347,8 @@ class DiscoveryEngine:
         # Vouching (adaptive mode, one commander in the bundle; docs/discovery.md): the
         # commander's renewals carry the members it heard directly in the last
         # ``vouch_window_s``; only the commander's (signed) vouch is believed.
-        commanders = [p.index for p in bundle.participants if p.role == Role.COMMANDER]
+        commander_role = Role.COMMANDER
+        commanders = [p.index for p in bundle.participants if p.role == commander_role]
         # A vouch must be worth most of a lease, or vouched members (who stop renewing)
         # would lapse between vouches: with a 3 s lease and a 2.5 s window a vouch holds a
         # member for no time at all. Short leases (tests, fast-failover missions) keep plain
@@ -435,7 +431,7 @@ class DiscoveryEngine:
             # Before decoding anything, by the RTPS header's prefix (the decoder requires
             # every DATA(p)/DATA(p[UD]) in the datagram to carry the same one):
             prefix = raw[8:20]
-            if prefix in self._by_prefix:
+            if self._peer_by_prefix(prefix) is not None:
                 # a bundle peer's: nothing is decoded, counted as heard or changed until the
                 # authenticator holds; cheap checks first (swarmd.auth.spdp). A refusal is
                 # counted, not reported per datagram.
@@ -518,7 +514,7 @@ class DiscoveryEngine:
         if self.phase is _STOPPED or self._config.mode != "adaptive":
             return
         if isinstance(key, GuidPrefix):
-            peer = self._by_prefix.get(key.value)
+            peer = self._peer_by_prefix(key.value)
         else:
             peer = self._by_name.get(key)
         if peer is None or peer.state is not _DISCOVERED:
@@ -630,7 +626,7 @@ class DiscoveryEngine:
         """The bundle peer named ``key`` (its bundle name or GUID prefix); None if not a peer
         (our own name, a stranger). O(1) by prefix, O(N) by name."""
         if isinstance(key, GuidPrefix):
-            found = self._by_prefix.get(key.value)
+            found = self._peer_by_prefix(key.value)
         else:
             found = next((p for p in self._peers.values() if p.participant.name == key), None)
         return None if found is None else _view(found)
@@ -764,6 +760,11 @@ class DiscoveryEngine:
         if self._auth is not None:
             self._auth.note_address(prefix, source)  # used: its budget lives there now
         self._heard(peer, alive, source, now, fresh)
+
+    def _peer_by_prefix(self, prefix: bytes) -> Peer | None:
+        """The bundle peer whose GUID prefix octets are ``prefix``; None for us or a stranger."""
+        index = self._index_of.get(prefix)
+        return None if index is None else self._peer_at[index]
 
     def _heard(
         self,
@@ -926,7 +927,7 @@ class DiscoveryEngine:
         if sample.destination is not None and sample.destination != self._me.guid_prefix:
             self._drop(DropReason.NOT_FOR_ME, source)
             return
-        peer = self._by_prefix.get(sample.guid_prefix.value)
+        peer = self._peer_by_prefix(sample.guid_prefix.value)
         if peer is None:
             self._foreign.remove(sample.guid_prefix)
             return
