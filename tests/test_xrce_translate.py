@@ -176,3 +176,22 @@ def test_failsafe_flags_that_block_arming_make_readiness_false_and_name_the_flag
     assert "fd_esc_arming_failure" in verdict.detail and "mode_req_prevent_arming" in verdict.detail
     feed("FailsafeFlags", **masks)  # cleared again
     assert readiness(state, 0.0, config).ready
+
+
+def test_landed_state_follows_nav_state_changes_without_a_new_land_detector_sample() -> None:
+    """A lift-off reported before AUTO.TAKEOFF, then the climb and the hover: the landed state
+    moves with vehicle_status too, as PX4's EXTENDED_SYS_STATE does (never stuck on the
+    state of the last vehicle_land_detected)."""
+    t = Px4Translator(sysid=3)
+    hb, _ = t.sample(*_sample("1.15", "VehicleStatus", arming_state=2, nav_state=4))
+    assert isinstance(hb, Heartbeat)  # nothing known of the land detector yet: no landed state
+    (ground,) = t.sample(*_sample("1.15", "VehicleLandDetected", landed=True))
+    assert ground == ExtendedSysState(1)  # ON_GROUND
+    (lift,) = t.sample(*_sample("1.15", "VehicleLandDetected", landed=False))
+    assert lift == ExtendedSysState(2)  # IN_AIR: nav_state still AUTO.LOITER
+    *_, climbing = t.sample(*_sample("1.15", "VehicleStatus", arming_state=2, nav_state=17))
+    assert climbing == ExtendedSysState(3)  # TAKEOFF at once, not at the next land sample
+    *_, hover = t.sample(*_sample("1.15", "VehicleStatus", arming_state=2, nav_state=4))
+    assert hover == ExtendedSysState(2)  # IN_AIR as soon as the take-off ends
+    *_, landing = t.sample(*_sample("1.15", "VehicleStatus", arming_state=2, nav_state=18))
+    assert landing == ExtendedSysState(4)  # LANDING

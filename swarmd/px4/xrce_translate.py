@@ -89,6 +89,9 @@ class Px4Translator:
         self.foreign_acks = 0
         self.blockers: tuple[str, ...] | None = None  # from failsafe_flags; None: none yet
         self._nav_state: int | None = None
+        # vehicle_land_detected's last ``landed``: EXTENDED_SYS_STATE's landed state depends on
+        # it and on vehicle_status's nav_state, so either topic changes it (see _landed_state)
+        self._landed: bool | None = None
         self._prearm: bool | None = None
         self._battery_pct = -1
         self._voltage_mv = 0xFFFF
@@ -147,7 +150,8 @@ class Px4Translator:
                 self._voltage_mv = round(volts * 1000) if 0 < volts < 65 else 0xFFFF
                 return [] if self._prearm is None else [self._sys_status()]
             case "vehicle_land_detected":
-                return [ExtendedSysState(self._landed_state(bool(f["landed"])))]
+                self._landed = bool(f["landed"])
+                return [ExtendedSysState(self._landed_state(self._landed))]
             case "vehicle_gps_position":
                 return [self._gps(f)]
             case "home_position":
@@ -199,7 +203,14 @@ class Px4Translator:
             custom_mode=(main & 0xFF) << 16 | (sub & 0xFF) << 24,
             system_status=status,
         )
-        return [hb, self._sys_status()]
+        out: list[Observation] = [hb, self._sys_status()]
+        if self._landed is not None:
+            # PX4's mavlink EXTENDED_SYS_STATE stream derives the landed state from both
+            # topics at each send; deriving it only when vehicle_land_detected arrives kept a
+            # stale nav_state (a lift-off seen before AUTO.TAKEOFF read IN_AIR, then TAKEOFF
+            # until the next land-detector sample, and IN_AIR again only after that).
+            out.append(ExtendedSysState(self._landed_state(self._landed)))
+        return out
 
     def _blockers(self, f: dict[str, float | int | bool]) -> tuple[str, ...]:
         """The set flags that stop arming in the current mode or switching to AUTO.TAKEOFF."""

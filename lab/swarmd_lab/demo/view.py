@@ -58,7 +58,10 @@ class LiveView:
             for v in obs.views.values()
             if v.up and not v.px4_ready and v.landed in ("ON_GROUND", "-")
         ]
-        in_air = sum(1 for v in obs.views.values() if v.landed == "IN_AIR")
+        # drones that have reported IN_AIR, like "discovered all peers" counts those that got
+        # there: the per-drone table shows the landed state of the moment, which may pass
+        # through TAKEOFF again while the climb ends
+        in_air = sum(1 for name in obs.names if name in obs.in_air_at)
         text = (
             f"daemons up {up}/{n} | discovered all peers {found}/{n} | "
             f"ready {ready}/{n} | IN_AIR {in_air}/{n}"
