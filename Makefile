@@ -1,15 +1,24 @@
 # The README's two commands: `make demo` and `make test`. Both set everything up first.
 VENV ?= .venv
+LOCK ?= requirements/test.lock
 N ?= 10
 # mavlink: the MAVLink vehicle simulator; xrce: px4_like_client through swarmd's XRCE agent
 # xrce-client: px4_like_client through MicroXRCEAgent, swarmd its second client
 VEHICLE ?= mavlink
 PYTEST_ARGS ?=
 
-.PHONY: setup test lint typecheck unit demo bench clean
+.PHONY: setup test lint typecheck unit demo bench clean lock test-latest
 
 setup:
-	@bash scripts/setup.sh
+	@VENV=$(VENV) LOCK=$(LOCK) bash scripts/setup.sh
+
+# requirements/*.lock from pyproject.toml's ranges (UPGRADE=1: newest releases in range)
+lock: setup
+	@bash scripts/lock.sh
+
+# the suite in .venv-latest against the newest releases; the committed lock is not touched
+test-latest:
+	@bash scripts/test-latest.sh
 
 lint: setup
 	$(VENV)/bin/ruff check .
@@ -34,4 +43,4 @@ bench: setup
 	$(VENV)/bin/python bench/codec.py
 
 clean:
-	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache .hypothesis demo-out
+	rm -rf $(VENV) .venv-latest .mypy_cache .pytest_cache .ruff_cache .hypothesis demo-out

@@ -8,13 +8,12 @@ cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
 APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client systemd
-  cmake ninja-build gcc libfastrtps-dev libfastcdr-dev libspdlog-dev g++ fastdds-tools)
+  gcc g++ libfastrtps-dev libfastcdr-dev fastdds-tools)
 # what proves each package is present (same order as APT_PACKAGES): a command, or a file
-# for the libraries the XRCE-DDS peers (MicroXRCEAgent) build against; g++ and
-# fastdds-tools (with libfastrtps-dev): the Wi-Fi testbed's Fast DDS contenders
+# for a library; gcc (the time-dilation library), g++, libfastrtps-dev/libfastcdr-dev and
+# fastdds-tools: the Wi-Fi testbed's Fast DDS contenders (bench/wifi/native.py, our own code)
 APT_PROBES=(tshark ip nft pgrep sshd ssh systemd-analyze
-  cmake ninja gcc /usr/include/fastdds/rtps/RTPSDomain.h /usr/include/fastcdr/Cdr.h
-  /usr/include/spdlog/spdlog.h g++ fastdds)
+  gcc g++ /usr/include/fastdds/rtps/RTPSDomain.h /usr/include/fastcdr/Cdr.h fastdds)
 
 missing=()
 for i in "${!APT_PACKAGES[@]}"; do
@@ -52,37 +51,35 @@ if [ ! -x "$VENV/bin/python" ]; then
   echo "setup: creating venv $VENV with $PY"
   "$PY" -m venv "$VENV"
 fi
+# Everything the venv holds comes from requirements/test.lock: every package of the test
+# environment at one version, with its hashes (pip's hash-checking mode), so a fresh clone gets
+# exactly what CI got and a new release upstream cannot turn `make test` red (issue 17). The
+# two local distributions go in afterwards without resolving anything: swarmd (what flies) and
+# swarmd-lab (lab/: simulator, demo, namespaces, vehicle stand-ins), both editable, built with
+# the locked setuptools (no build isolation, so no unpinned build backend is fetched).
+# `make lock` refreshes the lock; `make test-latest` runs the suite against the newest releases.
+LOCK=${LOCK:-requirements/test.lock}
 stamp="$VENV/.installed"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ lab/pyproject.toml -nt "$stamp" ]; then
-  # two distributions, both editable: swarmd (what flies) and swarmd-lab (lab/: simulator,
-  # demo, namespaces, vehicle simulator), which depends on swarmd and brings numpy/matplotlib
-  echo "setup: pip install -e '.[dev,testbed]' -e ./lab"
-  "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip
-  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e '.[dev,testbed]' -e ./lab
-  touch "$stamp"
+want=$(cat "$LOCK" pyproject.toml lab/pyproject.toml | sha256sum | cut -d' ' -f1)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  echo "setup: pip install --require-hashes -r $LOCK, then -e . -e ./lab"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps \
+    --require-hashes -r "$LOCK"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps \
+    --no-build-isolation -e . -e ./lab
+  "$VENV/bin/python" -m pip check >/dev/null || {
+    "$VENV/bin/python" -m pip check >&2
+    echo "setup: $LOCK does not satisfy pyproject.toml's dependencies: run 'make lock'" >&2
+    exit 1
+  }
+  echo "$want" >"$stamp"
 fi
 
-# The XRCE-DDS test peers (issue 12): PX4's client library with px4_like_client and
-# cmd_sender, and eProsima's MicroXRCEAgent, built from ../shared/peers/xrce (beside the
-# clone) into the gitignored .cache/xrce. build.sh keeps what is already built; the stamp
-# skips even calling it. Tests skip only when the peers directory itself is absent.
-# A git worktree's shared/ sits beside the main checkout, found through the common git dir.
-if [ -z "${XRCE_PEERS:-}" ]; then
-  XRCE_PEERS=../shared/peers/xrce
-  common=$(git rev-parse --git-common-dir 2>/dev/null || true)
-  if [ ! -d "$XRCE_PEERS" ] && [ -n "$common" ] && [ -d "$common/../../shared/peers/xrce" ]; then
-    XRCE_PEERS=$common/../../shared/peers/xrce
-  fi
-fi
-XRCE_OUT=${XRCE_OUT:-.cache/xrce}
-if [ -x "$XRCE_PEERS/build.sh" ]; then
-  if [ ! -x "$XRCE_OUT/bin/px4_like_client" ] || [ ! -x "$XRCE_OUT/bin/MicroXRCEAgent" ]; then
-    echo "setup: building the XRCE-DDS peers from $XRCE_PEERS into $XRCE_OUT (agent: ~2 min)"
-    "$XRCE_PEERS/build.sh" "$XRCE_OUT" --agent >/dev/null
-  fi
-else
-  echo "setup: $XRCE_PEERS not found; XRCE-DDS peer tests will skip"
-fi
+# Third-party XRCE-DDS peers (PX4's client library, eProsima's MicroXRCEAgent) are never
+# built here: ../shared/peers/xrce holds data only (message definitions, a recorded session).
+# Tests that drive those binaries run when XRCE_PEERS names a directory holding them, built
+# elsewhere, and skip with that reason otherwise (tests/xrce_peers.py); everything else runs
+# against our own PX4 stand-in (lab/swarmd_lab/px4/).
 
 # the Wi-Fi testbed's native pieces (Fast DDS peer, time-dilation library) into
 # .cache/bench-wifi, rebuilt only when a source changed; a failure only disables those

@@ -40,14 +40,28 @@ def _deep(depth: int) -> str:
     return "a: " + "[" * depth + "]" * depth + "\n"
 
 
+def _assert_refused_in_one_line(text: str, path: Path) -> None:
+    """The refusal is one line that names the file and the fix, whichever layer refused.
+
+    A 60,000-deep document is refused by libyaml itself since PyYAML 6.0.4 ("exceeded
+    maximum nesting depth"), a 65-deep one by swarmd's own depth check: both are right, so
+    the wording is not pinned, only the behaviour (issue 17).
+    """
+    lines = text.strip().splitlines()
+    assert len(lines) == 1, lines[:3]
+    assert str(path) in lines[0], lines[0]
+    assert "fix:" in lines[0], lines[0]
+    assert "Traceback" not in text
+
+
 @pytest.mark.parametrize("depth", [65, 60_000])
 def test_a_config_nested_too_deep_is_refused_with_one_line(tmp_path: Path, depth: int) -> None:
     path = tmp_path / "swarmd.yaml"
     path.write_text(_deep(depth))
     done = _run("-m", "swarmd.cli.swarmd_main", "check-config", "--config", str(path))
     assert done.returncode == EX_CONFIG, done.stderr[-500:]
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "nested deeper than 64 levels" in lines[0], lines[:3]
+    _assert_refused_in_one_line(done.stderr, path)
+    assert done.stdout == ""
 
 
 def test_a_mission_nested_too_deep_is_refused_with_one_line(tmp_path: Path) -> None:
@@ -63,7 +77,8 @@ def test_a_mission_nested_too_deep_is_refused_with_one_line(tmp_path: Path) -> N
     )
     done = _run("-c", code, str(path))
     assert done.returncode == 0, done.stderr[-500:]
-    assert "nested deeper than 64 levels" in done.stdout
+    assert done.stderr == ""
+    _assert_refused_in_one_line(done.stdout, path)
 
 
 def test_a_config_that_is_a_device_is_refused_with_one_line() -> None:
