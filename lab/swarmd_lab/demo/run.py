@@ -95,6 +95,9 @@ class Demo:
 
     def run(self) -> int:
         previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+        # Ctrl-C stops the demo even when it was started from a non-interactive shell's
+        # background job, where SIGINT arrives ignored and Python keeps it ignored
+        previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
         obs: Observer | None = None
         scenario: Scenario | None = None
         result: dict[str, Any] = {}
@@ -122,6 +125,7 @@ class Demo:
         finally:
             self.cleanup()
             signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
         if failure is not None or scenario is None or obs is None:
             self.say(f"demo failed: {failure}; the run's files (logs/) stay in {self.root}")
             return 1
