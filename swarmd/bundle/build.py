@@ -87,7 +87,15 @@ def build_bundle(
         for p in mission.participants
     }
     body = canonical_json(
-        body_value(mission.swarm, mission.domain_id, mission.discovery, topics, participants, ports)
+        body_value(
+            mission.swarm,
+            mission.domain_id,
+            mission.discovery,
+            topics,
+            participants,
+            ports,
+            mission.ros2,
+        )
     )
     data = seal(body, signing_key, dev=dev)
     bundle = Bundle(
@@ -99,6 +107,7 @@ def build_bundle(
         content_sha256=hashlib.sha256(body).digest(),
         signing_public_key=raw_public(signing_key),
         dev=dev,
+        ros2=mission.ros2,
     )
     return Built(data, bundle, dev)
 

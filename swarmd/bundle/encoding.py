@@ -38,6 +38,7 @@ from swarmd.bundle.model import (
     Participant,
     Topic,
 )
+from swarmd.bundle.ros2 import Ros2Graph, graph_value, ros2_participants
 
 MAGIC: Final = b"SWB1"
 FORMAT_VERSION: Final = 2
@@ -78,9 +79,12 @@ def body_value(
     topics: tuple[Topic, ...],
     participants: tuple[Participant, ...],
     ports: Mapping[int, tuple[int, int]],
+    ros2: Ros2Graph | None = None,
 ) -> dict[str, Any]:
-    """The JSON value of a bundle body; ``ports`` maps index -> (metatraffic, user) port."""
-    return {
+    """The JSON value of a bundle body; ``ports`` maps index -> (metatraffic, user) port.
+    A mission without a ROS 2 graph has no ``ros2`` key, so its bytes (and content hash)
+    are what they were before ROS 2 graphs existed."""
+    value = {
         "swarm": swarm,
         "domain_id": domain_id,
         "discovery": {
@@ -122,6 +126,10 @@ def body_value(
             for p in participants
         ],
     }
+    if ros2 is not None:
+        indices = {p.name: p.index for p in participants}
+        value["ros2"] = graph_value(ros2, ros2_participants(swarm, indices, ros2))
+    return value
 
 
 def _endpoint_value(e: Endpoint) -> dict[str, Any]:
@@ -141,6 +149,7 @@ def encode_body(bundle: Bundle) -> bytes:
             bundle.topics,
             bundle.participants,
             ports,
+            bundle.ros2,
         )
     )
 

@@ -55,6 +55,7 @@ from swarmd.bundle.model import (
     derive_guid_prefix,
     endpoint_entity_id,
 )
+from swarmd.bundle.ros2 import graph_from_value
 from swarmd.exitcodes import EX_CONFIG
 from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import GuidPrefix
@@ -336,6 +337,9 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
                 x25519_public_key=x_key,
             )
         )
+    ros2 = None
+    if isinstance(value, dict) and "ros2" in value:
+        ros2 = graph_from_value(value["ros2"], swarm, {p.name: p.index for p in participants})
     return Bundle(
         swarm=swarm,
         domain_id=domain_id,
@@ -345,4 +349,5 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
         content_sha256=env.content_sha256,
         signing_public_key=env.signer,
         dev=env.dev,
+        ros2=ros2,
     )

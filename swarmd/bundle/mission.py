@@ -29,6 +29,13 @@ from swarmd.bundle.model import (
     Reliability,
     Role,
 )
+from swarmd.bundle.ros2 import (
+    Ros2Graph,
+    Ros2Node,
+    Ros2Service,
+    Ros2Topic,
+    ros2_participants,
+)
 from swarmd.rtps.ports import (
     DOMAIN_GAIN,
     MAX_DOMAIN_ID,
@@ -58,7 +65,20 @@ MAVLINK_SYSID_MAX: Final = 254  # 255 is the ground station by convention
 SELECTOR_ALL: Final = "all"
 RESERVED_NAMES: Final = frozenset({Role.COMMANDER.value, Role.MEMBER.value, SELECTOR_ALL})
 
-_TOP_FIELDS: Final = ("swarm", "domain_id", "discovery", "participants", "topics")
+_TOP_FIELDS: Final = ("swarm", "domain_id", "discovery", "participants", "topics", "ros2")
+_ROS2_FIELDS: Final = ("domain_id", "topics", "services", "nodes")
+_ROS2_TOPIC_FIELDS: Final = ("name", "type", "reliability", "durability", "history_depth")
+_ROS2_SERVICE_FIELDS: Final = ("name", "type")
+_ROS2_NODE_FIELDS: Final = ("name", "drones", "publishes", "subscribes", "serves", "calls")
+# ROS 2 names (REP 144 / rcl's validation): absolute, segments of letters, digits and '_'
+ROS2_NAME_RE: Final = re.compile(r"(/[A-Za-z][A-Za-z0-9_]*)+")
+ROS2_NODE_NAME_RE: Final = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
+ROS2_MSG_TYPE_RE: Final = re.compile(r"[a-z][a-z0-9_]*/msg/[A-Z][A-Za-z0-9]*")
+ROS2_SRV_TYPE_RE: Final = re.compile(r"[a-z][a-z0-9_]*/srv/[A-Z][A-Za-z0-9]*")
+# topics every rclpy node creates itself; the profile generator lists them already
+ROS2_BUILTIN_TOPICS: Final = frozenset({"/rosout", "/parameter_events"})
+# rclpy's default publisher/subscription depth (rmw_qos_profile_default: KEEP_LAST 10)
+ROS2_DEFAULT_DEPTH: Final = 10
 _DISCOVERY_FIELDS: Final = ("t_min_s", "t_max_s", "lease_s")
 _PARTICIPANT_FIELDS: Final = ("name", "index", "role", "mavlink_sysid", "ipv4")
 _TOPIC_FIELDS: Final = (
@@ -105,6 +125,7 @@ class Mission:
     participants: tuple[MissionParticipant, ...]  # sorted by index
     topics: tuple[MissionTopic, ...]  # mission order; the order keys the entity ids
     source: str
+    ros2: Ros2Graph | None = None  # the operator's own ROS 2 graph (docs/ros2.md)
 
 
 def load_mission(path: str | Path) -> Mission:
@@ -250,6 +271,7 @@ class _Checker:
             self.required(top, root, "<top>", "participants"), domain_id
         )
         topics = self.topics(self.required(top, root, "<top>", "topics"), participants)
+        ros2 = self.ros2(top["ros2"][1], swarm, domain_id, participants) if "ros2" in top else None
         return Mission(
             swarm=swarm,
             domain_id=domain_id,
@@ -257,6 +279,7 @@ class _Checker:
             participants=tuple(sorted(participants, key=lambda p: p.index)),
             topics=tuple(topics),
             source=self.file,
+            ros2=ros2,
         )
 
     def discovery(self, node: yaml.Node) -> DiscoveryParams:
@@ -515,3 +538,132 @@ class _Checker:
                 f"name at least one participant or a role that some participant has in '{key}'",
             )
         return tuple(p.name for p in participants if p.name in chosen)
+
+    # -- the ROS 2 graph (issue 19, docs/ros2.md) ------------------------------------------
+
+    def ros2(
+        self, node: yaml.Node, swarm: str, domain_id: int, participants: list[MissionParticipant]
+    ) -> Ros2Graph:
+        f = self.mapping(node, "ros2", _ROS2_FIELDS)
+        ros_domain = domain_id
+        if "domain_id" in f:
+            ros_domain = self.integer(
+                f["domain_id"][1],
+                "ros2.domain_id",
+                0,
+                MAX_DOMAIN_ID,
+                f"use the nodes' ROS_DOMAIN_ID, 0..{MAX_DOMAIN_ID}",
+            )
+        topics: list[Ros2Topic] = []
+        for i, item in enumerate(self.sequence(self.required(f, node, "ros2", "topics"), "ros2")):
+            path = f"ros2.topics[{i}]"
+            tf = self.mapping(item, path, _ROS2_TOPIC_FIELDS)
+            name = self._ros2_name(self.required(tf, item, path, "name"), f"{path}.name")
+            if name in ROS2_BUILTIN_TOPICS or any(t.name == name for t in topics):
+                self.fail(
+                    tf["name"][1],
+                    f"{path}.name",
+                    f"topic {name!r} is declared twice or is one of ROS 2's own",
+                    "declare each topic once; /rosout and /parameter_events are always listed",
+                )
+            type_name = self._ros2_type(
+                self.required(tf, item, path, "type"), f"{path}.type", ROS2_MSG_TYPE_RE
+            )
+            qos = self.qos(tf, path)
+            if "reliability" not in tf:  # ROS 2's default is reliable, DDS's best effort
+                qos = Qos(Reliability.RELIABLE, qos.durability, qos.history_depth)
+            if "history_depth" not in tf:
+                qos = Qos(qos.reliability, qos.durability, ROS2_DEFAULT_DEPTH)
+            topics.append(Ros2Topic(name, type_name, qos))
+        services: list[Ros2Service] = []
+        if "services" in f:
+            for i, item in enumerate(self.sequence(f["services"][1], "ros2.services")):
+                path = f"ros2.services[{i}]"
+                sf = self.mapping(item, path, _ROS2_SERVICE_FIELDS)
+                name = self._ros2_name(self.required(sf, item, path, "name"), f"{path}.name")
+                if any(s.name == name for s in services):
+                    self.fail(
+                        sf["name"][1], f"{path}.name", f"duplicate service {name!r}", "keep one"
+                    )
+                type_name = self._ros2_type(
+                    self.required(sf, item, path, "type"), f"{path}.type", ROS2_SRV_TYPE_RE
+                )
+                services.append(Ros2Service(name, type_name))
+        nodes: list[Ros2Node] = []
+        items = self.sequence(self.required(f, node, "ros2", "nodes"), "ros2.nodes")
+        if not items:
+            self.fail(node, "ros2.nodes", "no nodes", "declare at least one ROS 2 node")
+        for i, item in enumerate(items):
+            path = f"ros2.nodes[{i}]"
+            nf = self.mapping(item, path, _ROS2_NODE_FIELDS)
+            name_node = self.required(nf, item, path, "name")
+            name = self.string(name_node, f"{path}.name", "a ROS 2 node name")
+            if not ROS2_NODE_NAME_RE.fullmatch(name) or any(n.name == name for n in nodes):
+                self.fail(
+                    name_node,
+                    f"{path}.name",
+                    f"invalid or duplicate node name {name!r}",
+                    "use a unique name of letters, digits and '_', starting with a letter",
+                )
+            drones = self.selectors(nf, item, path, "drones", participants)
+            known_topics = [t.name for t in topics]
+            known_services = [s.name for s in services]
+            refs = [
+                self._ros2_refs(nf, path, key, known)
+                for key, known in (
+                    ("publishes", known_topics),
+                    ("subscribes", known_topics),
+                    ("serves", known_services),
+                    ("calls", known_services),
+                )
+            ]
+            nodes.append(Ros2Node(name, i, drones, refs[0], refs[1], refs[2], refs[3]))
+        graph = Ros2Graph(ros_domain, tuple(topics), tuple(services), tuple(nodes))
+        try:
+            ros2_participants(swarm, {p.name: p.index for p in participants}, graph)
+        except ValueError as exc:
+            self.fail(
+                node, "ros2.nodes", str(exc), "declare fewer nodes or endpoints, or lower indices"
+            )
+        return graph
+
+    def _ros2_name(self, node: yaml.Node, field: str) -> str:
+        name = self.string(node, field, "a ROS 2 name")
+        if not ROS2_NAME_RE.fullmatch(name) or len(name) > MAX_NAME_CHARS:
+            self.fail(
+                node,
+                field,
+                f"{name!r} is not an absolute ROS 2 name",
+                "write e.g. /chatter or /drone/status: '/'-separated segments of letters, "
+                "digits and '_', each starting with a letter",
+            )
+        return name
+
+    def _ros2_type(self, node: yaml.Node, field: str, pattern: re.Pattern[str]) -> str:
+        value = self.string(node, field, "a ROS 2 type")
+        if not pattern.fullmatch(value):
+            example = "std_srvs/srv/Trigger" if "srv" in pattern.pattern else "std_msgs/msg/String"
+            self.fail(node, field, f"{value!r} is not a ROS 2 type name", f"write e.g. {example}")
+        return value
+
+    def _ros2_refs(
+        self, f: dict[str, tuple[yaml.Node, yaml.Node]], path: str, key: str, known: list[str]
+    ) -> tuple[str, ...]:
+        if key not in f:
+            return ()
+        field = f"{path}.{key}"
+        out: list[str] = []
+        for item in self.sequence(f[key][1], field):
+            value = self.scalar(item, field)
+            if not isinstance(value, str) or value not in known:
+                what = "topic" if key in ("publishes", "subscribes") else "service"
+                self.fail(
+                    item,
+                    field,
+                    f"{value!r} is not a declared ROS 2 {what}",
+                    f"declare it under ros2.{what}s first, or use one of: "
+                    f"{', '.join(known) or '(none declared)'}",
+                )
+            if value not in out:
+                out.append(value)
+        return tuple(out)

@@ -14,10 +14,13 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import VENDORID_SWARMD, EntityId, EntityKind, Guid, GuidPrefix
+
+if TYPE_CHECKING:  # swarmd.bundle.ros2 imports this module's QoS types
+    from swarmd.bundle.ros2 import Ros2Graph
 
 
 class Role(StrEnum):
@@ -127,6 +130,7 @@ class Bundle:
     content_sha256: bytes  # hash of the canonical content (what peers compare)
     signing_public_key: bytes  # raw Ed25519 public key of the swarm signing key
     dev: bool = False  # an --unsigned-dev bundle: its node keys are publicly derivable
+    ros2: Ros2Graph | None = None  # the operator's ROS 2 graph (issue 19, docs/ros2.md)
 
     @property
     def size(self) -> int:

@@ -1,0 +1,97 @@
+"""Lab helpers for real ROS 2 nodes in network namespaces (issue 19).
+
+Fast DDS 3.2 decides that two participants share a host by ``/etc/machine-id`` and then moves
+their data through shared memory, silently, whatever the network namespace: an emulated drone
+needs its own machine id and its own ``/dev/shm``. ``host_argv`` wraps a command so that it runs
+in a private mount namespace (``unshare -m``, private propagation: nothing leaks to the host)
+with both bind-mounted/fresh. ``discovery_counts`` classifies the RTPS datagrams of a capture
+by their builtin endpoint (DDSI-RTPS 2.5 9.3.2: SPDP 0x000100c2/c7, SEDP publications
+0x000003c2/c7 and subscriptions 0x000004c2/c7).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+SPDP_IDS: Final = frozenset({"0x000100c2", "0x000100c7"})
+SEDP_IDS: Final = frozenset({"0x000003c2", "0x000003c7", "0x000004c2", "0x000004c7"})
+_TSHARK_TIMEOUT_S: Final = 60.0
+
+# mount the host's own machine id and a fresh /dev/shm, then exec the command
+_MOUNT_SCRIPT: Final = (
+    'mount --bind "$0" /etc/machine-id && mount -t tmpfs -o size=64m tmpfs /dev/shm && exec "$@"'
+)
+
+
+def write_machine_id(directory: Path, host_index: int) -> Path:
+    """A per-host machine id file (32 hex digits, as systemd writes it)."""
+    path = directory / f"machine-id-{host_index}"
+    path.write_text(f"{0x5A17_0000 + host_index:032x}\n")
+    return path
+
+
+def host_argv(argv: Sequence[str], machine_id: Path) -> list[str]:
+    """``argv`` in a private mount namespace with ``machine_id`` and its own ``/dev/shm``."""
+    unshare = shutil.which("unshare") or "unshare"
+    return [
+        unshare,
+        "-m",
+        "--propagation",
+        "private",
+        "sh",
+        "-c",
+        _MOUNT_SCRIPT,
+        str(machine_id),
+        *argv,
+    ]
+
+
+@dataclass(frozen=True, slots=True)
+class DiscoveryCounts:
+    rtps: int  # RTPS datagrams on the link
+    spdp: int  # datagrams carrying an SPDP submessage
+    sedp: int  # datagrams carrying an SEDP submessage (DATA, HEARTBEAT, ACKNACK, GAP)
+    multicast: int  # RTPS datagrams to a multicast group
+
+
+def discovery_counts(pcap: Path) -> DiscoveryCounts:
+    """Count the capture's RTPS datagrams by discovery kind (tshark's RTPS dissector)."""
+    result = subprocess.run(  # noqa: S603 - argv list
+        [
+            shutil.which("tshark") or "tshark",
+            "-r",
+            str(pcap),
+            "-Y",
+            "rtps",
+            "-T",
+            "fields",
+            "-E",
+            "separator=;",
+            "-e",
+            "ip.dst",
+            "-e",
+            "rtps.sm.wrEntityId",
+            "-e",
+            "rtps.sm.rdEntityId",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=_TSHARK_TIMEOUT_S,
+        check=True,
+    )
+    rtps = spdp = sedp = multicast = 0
+    for line in result.stdout.splitlines():
+        if not line.strip():
+            continue
+        dst, writers, readers = (line.split(";") + ["", ""])[:3]
+        ids = set(writers.split(",")) | set(readers.split(","))
+        rtps += 1
+        spdp += bool(ids & SPDP_IDS)
+        sedp += bool(ids & SEDP_IDS)
+        multicast += dst.startswith(("224.", "239."))
+    return DiscoveryCounts(rtps, spdp, sedp, multicast)

@@ -1,0 +1,105 @@
+"""A real rclpy node for the ROS 2 tests (issue 19): talker (publishes, serves) or listener
+(subscribes, calls), run for a bounded time, then one JSON line on stdout with what it got.
+
+    python -m swarmd_lab.ros2_node talker --topic /chatter --service /trigger --seconds 12
+
+Parameter services, the type-description service and rosout are off, as docs/ros2.md asks of
+nodes on a static graph (their endpoints are not in the generated static EDP file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Sequence
+from typing import Any
+
+PUBLISH_PERIOD_S = 0.2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="swarmd_lab.ros2_node")
+    parser.add_argument("role", choices=("talker", "listener"))
+    parser.add_argument("--name", help="node name (default: the role)")
+    parser.add_argument("--topic", default="/chatter")
+    parser.add_argument("--service", default="/trigger")
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--tag", help="what a talker's messages start with (default: name)")
+    args = parser.parse_args(argv)
+
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    rclpy.init()
+    name = args.name or args.role
+    node = Node(
+        name,
+        start_parameter_services=False,
+        enable_rosout=False,
+        parameter_overrides=[Parameter("start_type_description_service", value=False)],
+    )
+    received: list[str] = []
+    answers: list[str] = []
+    first_message_s: float | None = None
+    start = time.monotonic()
+    if args.role == "talker":
+        publisher = node.create_publisher(String, args.topic, 10)
+        sent = [0]
+
+        def tick() -> None:
+            msg = String()
+            msg.data = f"{args.tag or name} {sent[0]}"
+            sent[0] += 1
+            publisher.publish(msg)
+
+        def answer(_request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+            response.success = True
+            response.message = f"triggered by {name}"
+            return response
+
+        node.create_timer(PUBLISH_PERIOD_S, tick)
+        node.create_service(Trigger, args.service, answer)
+    else:
+
+        def heard(msg: String) -> None:
+            nonlocal first_message_s
+            if first_message_s is None:
+                first_message_s = time.monotonic() - start
+            received.append(msg.data)
+
+        node.create_subscription(String, args.topic, heard, 10)
+        client: Any = node.create_client(Trigger, args.service)
+    future = None
+    end = start + args.seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.1)
+        if args.role == "listener":
+            if future is None and client.service_is_ready():
+                future = client.call_async(Trigger.Request())
+            if future is not None and future.done() and not answers:
+                result = future.result()
+                answers.append(result.message if result is not None else "")
+    senders = sorted({m.rsplit(" ", 1)[0] for m in received})
+    print(
+        json.dumps(
+            {
+                "node": name,
+                "received": len(received),
+                "senders": senders,
+                "first_message_s": first_message_s,
+                "answers": answers,
+            }
+        ),
+        flush=True,
+    )
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,115 @@
+"""``swarmctl ros2 profile``: the Fast DDS profiles of the swarm's stock ROS 2 nodes.
+
+Writes, for each drone that runs a node of the bundle's ROS 2 graph, ``<out>/<drone>/``:
+``<node>.xml`` (the participant with the bundle's GUID prefix and ports, unicast-only
+discovery, static EDP), ``<node>.env`` (the environment to start the node with) and
+``static-edp.xml`` (every endpoint of the swarm). docs/ros2.md says how an operator uses them.
+
+Exit codes as ``swarmctl bundle``: 0 ok, 2 usage, 65 the bundle has no ROS 2 graph or a drone
+has no address, 73 an output could not be written, 78 a bundle that fails verification.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from swarmd.bundle.ros2 import bundle_ros2_participants
+from swarmd.cli.bundle_cmd import _err, _guard, _load, _trust_args
+from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_DATAERR, EX_OK
+from swarmd.ros2.profile import ProfileError, drone_profiles
+
+
+def register(sub: Any) -> None:
+    ros2 = sub.add_parser("ros2", help="stock ROS 2 nodes on the swarm (docs/ros2.md)")
+    ros2_sub = ros2.add_subparsers(dest="ros2_command", metavar="SUBCOMMAND")
+
+    def usage(_args: argparse.Namespace) -> int:
+        ros2.print_help()
+        return EX_BAD_ARGS
+
+    ros2.set_defaults(func=usage)
+    p = ros2_sub.add_parser(
+        "profile", help="write each drone's Fast DDS XML and environment files from a bundle"
+    )
+    p.add_argument("bundle", metavar="BUNDLE")
+    p.add_argument("--out", required=True, metavar="DIR", help="writes DIR/<drone>/...")
+    p.add_argument("--drone", action="append", metavar="NAME", help="only this drone (repeat)")
+    p.add_argument(
+        "--install-dir",
+        metavar="DIR",
+        help="where the files will live on each drone ({drone} is replaced; default: the "
+        "absolute path of DIR/<drone>)",
+    )
+    p.add_argument(
+        "--address",
+        action="append",
+        default=[],
+        metavar="NAME=A.B.C.D",
+        help="a drone's address when the mission has no ipv4 for it (repeat)",
+    )
+    p.add_argument("--json", action="store_true", help="print the files written as JSON")
+    _trust_args(p)
+    p.set_defaults(func=cmd_profile)
+
+
+@_guard
+def cmd_profile(args: argparse.Namespace) -> int:
+    bundle = _load(args, inspect=False).bundle
+    if bundle.ros2 is None:
+        _err(
+            f"{args.bundle}: the bundle declares no ROS 2 graph; fix: add a 'ros2:' section to "
+            "the mission (docs/ros2.md) and rebuild with 'swarmctl bundle build'"
+        )
+        return EX_DATAERR
+    addresses = {p.name: p.ipv4 for p in bundle.participants if p.ipv4 is not None}
+    for item in args.address:
+        name, _, address = item.partition("=")
+        try:
+            ipaddress.IPv4Address(address)
+        except ValueError:
+            _err(f"--address {item!r}: not NAME=A.B.C.D; fix: e.g. --address drone-2=10.42.0.12")
+            return EX_BAD_ARGS
+        addresses[name] = address
+    participants = bundle_ros2_participants(bundle)
+    drones = sorted({p.drone for p in participants}, key=lambda d: bundle.member(d).index)
+    for name in args.drone or []:
+        if name not in drones:
+            _err(
+                f"--drone {name!r}: runs no ROS 2 node of this bundle; fix: use one of "
+                f"{', '.join(drones)}"
+            )
+            return EX_BAD_ARGS
+    out = Path(args.out)
+    written: list[str] = []
+    for drone in args.drone or drones:
+        if args.install_dir is not None:
+            install = str(args.install_dir).replace("{drone}", drone)
+        else:
+            install = str((out / drone).absolute())
+        try:
+            files = drone_profiles(bundle.ros2, participants, addresses, drone, install)
+        except ProfileError as exc:
+            _err(f"{args.bundle}: {exc}")
+            return EX_DATAERR
+        try:
+            for f in files:
+                path = out / f.path
+                path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_name(path.name + ".tmp")
+                tmp.write_text(f.text)
+                os.replace(tmp, path)
+                written.append(str(path))
+        except OSError as exc:
+            _err(f"{out}: cannot write ({exc.strerror}); fix: choose a writable --out")
+            return EX_CANTCREAT
+    if args.json:
+        print(json.dumps({"ok": True, "files": written}, indent=2))
+    else:
+        for path_text in written:
+            print(path_text)
+    return EX_OK

@@ -1,0 +1,125 @@
+"""Real rclpy nodes on three emulated drones with the profiles ``swarmctl ros2 profile`` writes
+(issue 19): messages flow on the declared topic, the declared service answers across drones,
+and the link carries SPDP but no SEDP (static EDP from the bundle).
+
+Each drone is a network namespace (``swarmd_lab.netns``) plus a private mount namespace with
+its own ``/etc/machine-id`` and ``/dev/shm`` (``swarmd_lab.ros2_lab.host_argv``): without them
+Fast DDS 3.2 takes the three "hosts" for one and moves the data through shared memory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from swarmd_lab import netns
+from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
+
+from swarmd.cli.swarmctl import main as swarmctl
+
+rclpy = pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
+
+pytestmark = [
+    pytest.mark.skipif(netns.unavailable_reason() is not None, reason="no network namespaces"),
+    pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark not installed"),
+    pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
+]
+
+RUN_S = 14.0
+CAPTURE_START_S = 10.0
+
+MISSION = """
+swarm: ros2-netns
+domain_id: 0
+participants:
+  - {{name: lead, index: 0, role: commander, mavlink_sysid: 1, ipv4: {a0}}}
+  - {{name: drone-1, index: 1, role: member, mavlink_sysid: 2, ipv4: {a1}}}
+  - {{name: drone-2, index: 2, role: member, mavlink_sysid: 3, ipv4: {a2}}}
+topics:
+  - {{name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}}
+ros2:
+  domain_id: 7
+  topics:
+    - {{name: /chatter, type: std_msgs/msg/String, reliability: reliable, history_depth: 10}}
+  services:
+    - {{name: /trigger, type: std_srvs/srv/Trigger}}
+  nodes:
+    - {{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}}
+    - {{name: listener, drones: commander, subscribes: [/chatter], calls: [/trigger]}}
+"""
+
+
+def _env(env_file: Path) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "RMW_"))}
+    env.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
+    for line in env_file.read_text().splitlines():
+        if line and not line.startswith("#"):
+            key, _, value = line.partition("=")
+            env[key] = value
+    return env
+
+
+def _start_capture(hub: str, pcap: Path) -> subprocess.Popen[bytes]:
+    tshark = shutil.which("tshark") or "tshark"
+    proc = subprocess.Popen(  # noqa: S603 - argv list
+        ["ip", "netns", "exec", hub, tshark, "-i", netns.BRIDGE, "-w", str(pcap), "-q"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + CAPTURE_START_S
+    while time.monotonic() < deadline:  # tshark is capturing once the file has its header
+        if pcap.exists() and pcap.stat().st_size > 0:
+            return proc
+        time.sleep(0.1)
+    proc.kill()
+    pytest.fail("tshark did not start capturing on the LAN bridge")
+
+
+def test_three_drones_talk_and_call_with_generated_profiles_and_no_sedp(tmp_path: Path) -> None:
+    with netns.Lan(3) as lan:
+        addresses = {f"a{i}": lan[i].address for i in range(3)}
+        mission = tmp_path / "mission.yaml"
+        mission.write_text(MISSION.format(**addresses))
+        bundle = tmp_path / "s.swb"
+        assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
+        out = tmp_path / "profiles"
+        code = swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)])
+        assert code == 0
+        pcap = tmp_path / "link.pcapng"
+        capture = _start_capture(lan.hub, pcap)
+        drones = [("lead", "listener"), ("drone-1", "talker"), ("drone-2", "talker")]
+        procs = []
+        try:
+            for i, (drone, node) in enumerate(drones):
+                argv = [sys.executable, "-m", "swarmd_lab.ros2_node", node, "--tag", drone]
+                argv += ["--seconds", str(RUN_S)]
+                procs.append(
+                    lan[i].popen(
+                        host_argv(argv, write_machine_id(tmp_path, i)),
+                        env=_env(out / drone / f"{node}.env"),
+                        stdout=subprocess.PIPE,
+                    )
+                )
+            results = []
+            for proc in procs:
+                stdout, _ = proc.communicate(timeout=RUN_S + 30)
+                assert proc.returncode == 0
+                results.append(json.loads(stdout.decode().strip().splitlines()[-1]))
+        finally:
+            capture.terminate()
+            capture.wait(timeout=10)
+        listener = results[0]
+        assert listener["senders"] == ["drone-1", "drone-2"], listener
+        assert listener["received"] > 10
+        assert listener["answers"] and listener["answers"][0].startswith("triggered by")
+        counts = discovery_counts(pcap)
+        print(f"link: {counts}; first message after {listener['first_message_s']:.2f} s")
+        assert counts.spdp > 0  # the participants do find each other over the link
+        assert counts.sedp == 0  # endpoints come from the bundle's static EDP file
+        assert counts.multicast == 0  # unicast-only discovery

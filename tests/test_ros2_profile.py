@@ -1,0 +1,200 @@
+"""The mission's ROS 2 graph (issue 19): checked with one-line errors, carried and signed in
+the bundle with derived identities, and turned into Fast DDS profiles by ``swarmctl ros2
+profile``. The real-process test is tests/test_ros2_netns.py."""
+
+from __future__ import annotations
+
+import json
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.encoding import canonical_json, seal
+from swarmd.bundle.errors import BundleError, MissionError
+from swarmd.bundle.keys import dev_signing_key
+from swarmd.bundle.loader import read_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.ros2 import MAX_USER_ID, bundle_ros2_participants
+from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.ros2.profile import ProfileError, drone_profiles
+
+REPO = Path(__file__).resolve().parent.parent
+MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
+PLAIN = (REPO / "firmware_bundle" / "missions" / "swarm3.yaml").read_text()
+NS = "{http://www.eprosima.com}"
+
+
+def _replace(old: str, new: str) -> str:
+    assert old in MISSION
+    return MISSION.replace(old, new)
+
+
+def test_graph_round_trips_through_the_signed_bundle() -> None:
+    built = build_dev_bundle(parse_mission(MISSION))
+    loaded = read_bundle(built.data, allow_dev=True, require_anchor=False)
+    assert loaded.ros2 == built.bundle.ros2
+    assert loaded.ros2 is not None
+    assert [n.drones for n in loaded.ros2.nodes] == [("drone-1", "drone-2"), ("lead",)]
+    participants = bundle_ros2_participants(loaded)
+    assert [(p.drone, p.node.name) for p in participants] == [
+        ("lead", "listener"),
+        ("drone-1", "talker"),
+        ("drone-2", "talker"),
+    ]
+    # prefixes are unique and carry the drone index in Fast DDS's "host id" bytes
+    assert len({p.guid_prefix for p in participants}) == 3
+    assert [p.guid_prefix[2:4] for p in participants] == [b"\0\0", b"\0\1", b"\0\2"]
+    # ROS 2 participant ids start above every swarmd index: no port swarmd uses on a drone
+    swarm_ports = {loaded.metatraffic_port(p) for p in loaded.participants}
+    swarm_ports |= {loaded.user_port(p) for p in loaded.participants}
+    assert not swarm_ports & {p.metatraffic_port for p in participants}
+    assert not swarm_ports & {p.user_port for p in participants}
+
+
+def test_a_mission_without_ros2_keeps_its_bytes() -> None:
+    body = json.loads(build_dev_bundle(parse_mission(PLAIN)).data[76:-64])
+    assert "ros2" not in body
+
+
+def test_forged_ros2_identities_are_refused_even_when_signed() -> None:
+    """A signed body whose ROS 2 prefix is not the derived one (a buggy or hostile builder)
+    fails the load, like a swarmd participant with a foreign prefix."""
+    mission = parse_mission(MISSION)
+    body = json.loads(build_dev_bundle(mission).data[76:-64])
+    body["ros2"]["participants"][1]["guid_prefix"] = "010f00ffdeadbeef00000000"
+    data = seal(canonical_json(body), dev_signing_key(mission.swarm), dev=True)
+    with pytest.raises(BundleError, match="ros2"):
+        read_bundle(data, allow_dev=True, require_anchor=False)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ("type: std_msgs/msg/String", "type: std_msgs::String", "ros2.topics[0].type"),
+        ("- name: /chatter", "- name: chatter", "ros2.topics[0].name"),
+        ("- name: /chatter", "- name: /rosout", "ros2.topics[0].name"),
+        ("publishes: [/chatter]", "publishes: [/chater]", "ros2.nodes[0].publishes"),
+        ("serves: [/trigger]", "serves: [/chatter]", "ros2.nodes[0].serves"),
+        ("drones: member", "drones: nobody", "ros2.nodes[0].drones"),
+        ("- name: listener", "- name: talker", "ros2.nodes[1].name"),
+        ("type: std_srvs/srv/Trigger", "type: std_srvs/msg/Trigger", "ros2.services[0].type"),
+        ("  domain_id: 0\n  topics:", "  domain_id: 999\n  topics:", "ros2.domain_id"),
+        ("      durability: volatile", "      durablity: volatile", "ros2.topics[0].durablity"),
+    ],
+)
+def test_a_bad_graph_is_one_line_naming_the_field(old: str, new: str, field: str) -> None:
+    with pytest.raises(MissionError) as info:
+        parse_mission(_replace(old, new), "m.yaml")
+    line = str(info.value)
+    assert "\n" not in line
+    assert "m.yaml:" in line and field in line and "fix:" in line
+
+
+def test_more_endpoints_than_static_ids_is_refused() -> None:
+    drones = "\n".join(
+        f"  - {{name: d{i}, index: {i}, role: member, mavlink_sysid: {i % 250 + 1}}}"
+        for i in range(300)
+    )
+    topics = "\n".join(f"    - {{name: /t{i}, type: std_msgs/msg/String}}" for i in range(120))
+    pubs = ", ".join(f"/t{i}" for i in range(120))
+    text = (
+        f"swarm: big\ndomain_id: 0\nparticipants:\n{drones}\ntopics:\n"
+        "  - {name: a, type: x::Y, writers: all, readers: all}\n"
+        f"ros2:\n  topics:\n{topics}\n  nodes:\n"
+        f"    - {{name: n, drones: all, publishes: [{pubs}]}}\n"
+    )
+    with pytest.raises(MissionError, match=str(MAX_USER_ID)):
+        parse_mission(text, "big.yaml")
+
+
+def _profiles(drone: str) -> dict[str, str]:
+    bundle = build_dev_bundle(parse_mission(MISSION)).bundle
+    assert bundle.ros2 is not None
+    participants = bundle_ros2_participants(bundle)
+    addresses = {p.name: p.ipv4 for p in bundle.participants if p.ipv4 is not None}
+    files = drone_profiles(bundle.ros2, participants, addresses, drone, f"/etc/ros2/{drone}")
+    return {f.path: f.text for f in files}
+
+
+def test_static_edp_ids_are_unique_and_every_profile_id_is_listed() -> None:
+    static = ET.fromstring(_profiles("lead")["lead/static-edp.xml"])  # noqa: S314 - ours
+    ids = [int(e.text or "") for e in static.iter("userId")]
+    assert len(ids) == len(set(ids)) and min(ids) >= 1 and max(ids) <= MAX_USER_ID
+    for drone, node in (("lead", "listener"), ("drone-1", "talker"), ("drone-2", "talker")):
+        profile = ET.fromstring(_profiles(drone)[f"{drone}/{node}.xml"])  # noqa: S314
+        own = [int(e.text or "") for e in profile.iter(f"{NS}userDefinedID")]
+        assert own and set(own) <= set(ids)
+        # ROS 2's own endpoints have ids too: without one static EDP never matches them
+        names = {e.get("profile_name") for e in profile.iter() if e.get("profile_name")}
+        assert {"ros_discovery_info", "/parameter_events", "/rosout"} <= names
+
+
+def test_participant_profile_is_unicast_only_with_the_bundle_prefix() -> None:
+    bundle = build_dev_bundle(parse_mission(MISSION)).bundle
+    me = next(p for p in bundle_ros2_participants(bundle) if p.drone == "drone-1")
+    text = _profiles("drone-1")["drone-1/talker.xml"]
+    root = ET.fromstring(text)  # noqa: S314 - our own generated text
+    prefix = next(root.iter(f"{NS}prefix")).text or ""
+    assert bytes.fromhex(prefix.replace(".", "")) == me.guid_prefix
+    assert next(root.iter(f"{NS}EDP")).text == "STATIC"
+    assert next(root.iter(f"{NS}useBuiltinTransports")).text == "false"
+    assert "239.255" not in text and "SHM" not in text
+    peers = next(root.iter(f"{NS}initialPeersList"))
+    ports = [int(e.text or "") for e in peers.iter(f"{NS}port")]
+    hosts = [e.text for e in peers.iter(f"{NS}address")]
+    # the two other ROS 2 participants, each with its explicit port (no port probing)
+    assert len(ports) == 2 and "10.42.0.11" not in hosts
+    env = _profiles("drone-1")["drone-1/talker.env"]
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT" in env
+    assert "RMW_IMPLEMENTATION=rmw_fastrtps_cpp" in env
+    assert "FASTDDS_DEFAULT_PROFILES_FILE=/etc/ros2/drone-1/talker.xml" in env
+
+
+def test_a_drone_without_address_is_named() -> None:
+    bundle = build_dev_bundle(parse_mission(MISSION)).bundle
+    assert bundle.ros2 is not None
+    with pytest.raises(ProfileError, match="drone-2"):
+        drone_profiles(
+            bundle.ros2,
+            bundle_ros2_participants(bundle),
+            {"lead": "10.0.0.1", "drone-1": "10.0.0.2"},
+            "lead",
+            "/x",
+        )
+
+
+def test_cli_writes_every_drone_and_refuses_a_bundle_without_graph(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mission = tmp_path / "m.yaml"
+    mission.write_text(MISSION)
+    bundle = tmp_path / "s.swb"
+    assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
+    out = tmp_path / "out"
+    assert swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)]) == 0
+    written = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert written == sorted(
+        [
+            "drone-1/static-edp.xml",
+            "drone-1/talker.env",
+            "drone-1/talker.xml",
+            "drone-2/static-edp.xml",
+            "drone-2/talker.env",
+            "drone-2/talker.xml",
+            "lead/listener.env",
+            "lead/listener.xml",
+            "lead/static-edp.xml",
+        ]
+    )
+    # a DEV bundle is refused without --allow-dev, like every other bundle command
+    assert swarmctl(["ros2", "profile", str(bundle), "--out", str(out)]) == 78
+    plain = tmp_path / "p.yaml"
+    plain.write_text(PLAIN)
+    assert swarmctl(["bundle", "build", str(plain), "-o", str(bundle), "--unsigned-dev"]) == 0
+    capsys.readouterr()
+    assert swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)]) == 65
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and re.search(r"no ROS 2 graph; fix: add a 'ros2:'", err)
