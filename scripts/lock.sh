@@ -23,8 +23,9 @@ common=(--generate-hashes --python-version 3.11 --quiet "${upgrade[@]}")
   --custom-compile-command "make lock"
 
 # the runtime set at exactly the versions the tests ran with: the test lock is the constraint
-pins=$(mktemp)
-trap 'rm -f "$pins"' EXIT
+# (a fixed relative path: it shows in the lock's "via" comments, which must not churn)
+pins=.cache/lock/test-pins.txt
+mkdir -p "$(dirname "$pins")"
 grep -E '^[A-Za-z0-9._-]+==' "$OUT/test.lock" | sed 's/ *\\$//' >"$pins"
 "$UV" pip compile pyproject.toml -o "$OUT/runtime-aarch64.lock" "${common[@]}" \
   --python-platform aarch64-manylinux2014 --only-binary :all: --constraint "$pins" \
