@@ -99,7 +99,7 @@ def test_a_second_client_is_refused_and_nothing_crosses(scenario: str) -> None:
             bound_to = backend.client
             flips_before = len(verdicts)
             sent = 0
-            while sum(backend.engine.refused.values()) < ATTEMPTS:
+            while backend.counters["clients_refused"] < ATTEMPTS:
                 if recreate or not intruders:
                     if recreate and intruders:
                         intruders[-1].kill()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Callable
 from typing import Final
 
 from swarmd.driver import Driver
@@ -108,9 +109,11 @@ class XrceVehicle:
                 if self.driver is None or self.engine.state != "established":
                     continue
                 for name, data in samples.items():
-                    self.driver.call(
-                        lambda now, e=self.engine, n=name, d=data: e.publish(n, d, now)
-                    )
+                    self.driver.call(self._publisher(name, data))
+
+    def _publisher(self, topic: str, data: bytes) -> Callable[[float], int]:
+        engine = self.engine
+        return lambda now: engine.publish(topic, data, now)
 
     def _send(self, out: tuple[bytes, Address]) -> None:
         if self._transport is not None:
