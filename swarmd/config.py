@@ -83,7 +83,9 @@ class Px4Section:
     require_home: bool = True
     takeoff_alt_m: float = 10.0  # metres above home when swarmctl takeoff has no --alt
     backend: str = "mavlink"  # | "xrce-agent" | "xrce-client" (docs/px4.md, uXRCE-DDS)
-    xrce_key: int | None = None  # xrce-agent: only this UXRCE_DDS_KEY may open a session
+    # xrce-agent: the vehicle's UXRCE_DDS_KEY, binding the agent to it; None: generated once
+    # into px4-xrce-key beside node.key (swarmd.px4.xrce_key, docs/px4.md)
+    xrce_key: int | None = None
     namespace: str | None = None  # PX4's UXRCE_DDS_NS (topics rt/<ns>/fmu/...)
     # xrce-client: the DDS domain of swarmd's participant in the agent = UXRCE_DDS_DOM_ID
     xrce_domain_id: int = 0

@@ -19,6 +19,7 @@ only does their I/O:
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
 from typing import Any, assert_never
 
@@ -34,6 +35,8 @@ from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.provision import SigningKeyError, ed25519_seed, signing_key_for
 from swarmd.px4.readiness import Readiness, ReadinessConfig
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
+from swarmd.px4.xrce_key import XrceKeyError
+from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import core
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.core import (
@@ -141,6 +144,7 @@ class SwarmApp:
                     )
                 except SigningKeyError as exc:
                     raise StartupError(str(exc), EX_CONFIG) from None
+            xrce_key = self._xrce_key() if px4.backend == "xrce-agent" else px4.xrce_key
             try:
                 self.bridge = Px4Bridge.from_config(
                     Px4Config(
@@ -149,7 +153,7 @@ class SwarmApp:
                         autopilot=px4.autopilot,
                         signing_key=signing_key,
                         backend=px4.backend,
-                        xrce_key=px4.xrce_key,
+                        xrce_key=xrce_key,
                         namespace=px4.namespace,
                         xrce_domain_id=px4.xrce_domain_id,
                         readiness=ReadinessConfig(
@@ -199,6 +203,33 @@ class SwarmApp:
             bridge.on_readiness_change(self._on_px4_change)
             bridge.on_task_finished(self._on_task_finished)
         self.driver.call(self.core.start)
+
+    def _xrce_key(self) -> int:
+        """The vehicle key the XRCE agent is bound to: ``px4.xrce_key``, else the one kept
+        with the node's secrets, generated at the first start (docs/px4.md, "One agent, one
+        vehicle")."""
+        configured = self.config.px4.xrce_key
+        if configured is not None:
+            self.log.info("xrce_key", source="px4.xrce_key")
+            return configured
+        folder = os.path.dirname(os.path.abspath(self.config.bundle.node_key_path))
+        try:
+            key = load_or_create_xrce_key(folder)
+        except XrceKeyError as exc:
+            raise StartupError(f"px4.xrce_key: {exc}", EX_CANTCREAT) from None
+        if key.created:
+            # the operator's one step: PX4 must send this key or its sessions are refused
+            self.log.warning(
+                "xrce_key_generated",
+                path=str(key.path),
+                xrce_key=key.value,
+                fix=f"on PX4: param set UXRCE_DDS_KEY {key.value} (or set px4.xrce_key)",
+            )
+        else:
+            self.log.info("xrce_key", source=str(key.path))
+        if key.mode_fixed:
+            self.log.warning("xrce_key_mode_fixed", path=str(key.path), mode="0600")
+        return key.value
 
     def _boot_dataplane(self) -> None:
         try:

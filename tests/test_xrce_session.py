@@ -301,6 +301,8 @@ def test_agent_backend_over_a_serial_line() -> None:
     from swarmd.px4.messages import Observation
     from swarmd.px4.xrce_backend import XrceBackend
     from swarmd.xrce.framing import Deframer, frame
+    from swarmd.xrce.px4 import encode_fields
+    from swarmd.xrce.px4_layouts import LAYOUTS
 
     status = "rt/fmu/out/vehicle_status_v1"
 
@@ -330,7 +332,8 @@ def test_agent_backend_over_a_serial_line() -> None:
                 if px4.state == "established" and not px4._pending:
                     break
                 await asyncio.sleep(0.02)
-            sample = bytes(80)  # a 1.16 VehicleStatus, all zero: disarmed, MANUAL
+            # a 1.16 VehicleStatus of vehicle 1 (the backend's sysid): disarmed, MANUAL
+            sample = encode_fields(LAYOUTS["1.16"]["VehicleStatus"], {"system_id": 1})
             assert px4.publish(status, sample, loop.time()) == 1
             flush()
             for _ in range(100):

@@ -26,9 +26,12 @@ from swarmd.xrce.events import SampleReceived
 from swarmd.xrce.px4_layouts import LAYOUTS
 
 RELEASES = ["1.14", "1.15", "1.16", "1.17"]
+SYSID = 3  # the translators' vehicle; PX4 puts its MAV_SYS_ID in vehicle_status.system_id
 
 
 def _sample(release: str, message: str, **values: float | int | bool) -> tuple[str, bytes]:
+    if message == "VehicleStatus":
+        values = {"system_id": SYSID, **values}
     layout = LAYOUTS[release][message]
     topic = next(t for t, m in topics.TOPIC_MESSAGES.items() if m == message)
     name = topics.dds_topic(topic, "out", layout[1])
@@ -37,7 +40,7 @@ def _sample(release: str, message: str, **values: float | int | bool) -> tuple[s
 
 @pytest.mark.parametrize("release", RELEASES)
 def test_every_release_maps_to_observations(release: str) -> None:
-    t = Px4Translator(sysid=3)
+    t = Px4Translator(sysid=SYSID)
     obs = t.sample(*_sample(release, "VehicleStatus", arming_state=2, nav_state=17,
                             pre_flight_checks_pass=True))  # fmt: skip
     hb, sys_status = obs
@@ -68,7 +71,7 @@ def test_every_release_maps_to_observations(release: str) -> None:
 
 @pytest.mark.parametrize("release", RELEASES)
 def test_vehicle_command_layout_per_release(release: str) -> None:
-    t = Px4Translator(sysid=3)
+    t = Px4Translator(sysid=SYSID)
     t.releases = {release}
     raw = t.command(VehicleCommand.make(22, p7=500.0, confirmation=2), timestamp_us=123)
     f = topics.decode_fields(LAYOUTS[release]["VehicleCommand"], raw)
@@ -79,7 +82,7 @@ def test_vehicle_command_layout_per_release(release: str) -> None:
 
 
 def test_unknown_layout_makes_readiness_false_and_names_it() -> None:
-    t = Px4Translator(sysid=1)
+    t = Px4Translator(sysid=SYSID)
     obs = t.sample("rt/fmu/out/vehicle_status_v2", bytes(81))
     problem = "unknown PX4 layout: vehicle_status_v2 of 81 B (not v1.14..v1.17)"
     assert obs == [TopicLayout("vehicle_status", problem)] and str(t.problem) == problem
@@ -141,7 +144,7 @@ def test_unknown_layout_reaches_readiness_through_either_backend(mode: Mode) -> 
 def test_failsafe_flags_that_block_arming_make_readiness_false_and_name_the_flag(
     release: str,
 ) -> None:
-    t = Px4Translator(sysid=1)
+    t = Px4Translator(sysid=SYSID)
     state = VehicleState()
     config = ReadinessConfig(require_home=False)
 
@@ -182,7 +185,7 @@ def test_landed_state_follows_nav_state_changes_without_a_new_land_detector_samp
     """A lift-off reported before AUTO.TAKEOFF, then the climb and the hover: the landed state
     moves with vehicle_status too, as PX4's EXTENDED_SYS_STATE does (never stuck on the
     state of the last vehicle_land_detected)."""
-    t = Px4Translator(sysid=3)
+    t = Px4Translator(sysid=SYSID)
     hb, _ = t.sample(*_sample("1.15", "VehicleStatus", arming_state=2, nav_state=4))
     assert isinstance(hb, Heartbeat)  # nothing known of the land detector yet: no landed state
     (ground,) = t.sample(*_sample("1.15", "VehicleLandDetected", landed=True))

@@ -211,7 +211,8 @@ def _render_status(status: dict[str, Any]) -> list[str]:
 
 
 def render_px4_backend(b: dict[str, Any]) -> str:
-    """``px4 link: xrce-agent udp:127.0.0.1:8888, session established (...), PX4 1.16`` or
+    """``px4 link: xrce-agent udp:127.0.0.1:8888, session established (...), PX4 1.16, refused
+    4 clients (last 127.0.0.1:40001 key 0000002a (vehicle_alive))`` or
     ``px4 link: mavlink udpin:127.0.0.1:14540, autopilot 127.0.0.1:14580 (learned), signed
     (ok 5120), refused 3``."""
     line = f"px4 link: {b.get('backend', '?')} {b.get('connection', '')}"
@@ -222,6 +223,15 @@ def render_px4_backend(b: dict[str, Any]) -> str:
         line += f", PX4 {b.get('px4_version') or 'version not seen yet'}"
         if b.get("layout_problem"):
             line += f", {b['layout_problem']}"
+        # one agent, one vehicle (docs/px4.md): second clients and other vehicles' samples
+        clients = _sum_counters(b.get("refused") or {}, "")
+        if clients:
+            line += f", refused {clients} clients (last {b.get('last_refused') or '?'})"
+        if b.get("foreign_samples"):
+            line += (
+                f", dropped {b['foreign_samples']} samples of system id "
+                f"{b.get('foreign_system_id')} (not {b.get('sysid')})"
+            )
     pin, signing = b.get("autopilot"), b.get("signing")
     if isinstance(pin, dict):  # MAVLink over UDP: who is heard as the autopilot
         line += f", autopilot {pin.get('pinned') or 'not pinned yet'} ({pin.get('pin', '?')})"

@@ -61,7 +61,9 @@ class Px4Config:
     autopilot: str | None = None  # "IP:PORT" to pin; None: the first heartbeat's source
     signing_key: bytes | None = None  # MAVLink 2 signing (32 bytes); None: off
     backend: str = "mavlink"  # | "xrce-agent" | "xrce-client" (docs/px4.md)
-    xrce_key: int | None = None  # xrce-agent: accept only this UXRCE_DDS_KEY (None: any)
+    # xrce-agent: the vehicle's UXRCE_DDS_KEY, binding the agent to it (None: unbound, lab only;
+    # the daemon always resolves one, swarmd.px4.xrce_key)
+    xrce_key: int | None = None
     namespace: str | None = None  # PX4 UXRCE_DDS_NS
     xrce_domain_id: int = 0  # xrce-client: its participant's DDS domain (UXRCE_DDS_DOM_ID)
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
@@ -103,6 +105,7 @@ class Px4Bridge:
                 expected_key=config.xrce_key,
                 namespace=config.namespace,
                 domain_id=config.xrce_domain_id,
+                log=log,
             )
         else:
             backend = MavlinkBackend(

@@ -7,6 +7,11 @@ wire they run on. The sans-IO session engine (``swarmd.xrce``: ``XrceAgent`` or
 ``XrceClient``) runs under the shared ``swarmd.driver.Driver``; this module only opens the
 socket or UART and turns the engine's events into observations.
 
+As the agent with a key (the daemon always has one, docs/px4.md "One agent, one vehicle"),
+the engine is bound to one vehicle: a second client is refused (``refused`` in ``stats()``,
+logged at the 1st, 10th, 100th ... refusal), and the translator drops samples whose
+``vehicle_status.system_id`` is not ``sysid``.
+
 Connections: ``udp:HOST:PORT`` -- the agent binds it (PX4 SITL's default 127.0.0.1:8888),
 the client sends to it; ``serial:/dev/ttyTHS1:921600`` -- the agent on a UART, with
 Micro XRCE-DDS's framing (PX4 ``UXRCE_DDS_CFG`` = TELEM2).
@@ -28,6 +33,7 @@ from swarmd.xrce.agent import XrceAgent
 from swarmd.xrce.client import XrceClient
 from swarmd.xrce.events import (
     Address,
+    ClientRefused,
     PacketDropped,
     SampleReceived,
     SessionCreated,
@@ -82,6 +88,7 @@ class XrceBackend:
         expected_key: int | None = None,
         namespace: str | None = None,
         domain_id: int = 0,
+        log: Any = None,
     ) -> None:
         if not 1 <= sysid <= 255:
             raise ValueError("px4.sysid must be 1..255")
@@ -111,6 +118,8 @@ class XrceBackend:
         self.counters: Counter[str] = Counter()
         self.session: str = "none"
         self.client: str | None = None
+        self.last_refused: str | None = None  # "ADDR key KEY (reason)" of the last refusal
+        self._log = log
         self._sink: ObservationSink | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: asyncio.DatagramTransport | None = None
@@ -181,6 +190,13 @@ class XrceBackend:
                 None if self.translator.blockers is None else list(self.translator.blockers)
             ),
             "foreign_acks": self.translator.foreign_acks,
+            # one vehicle (docs/px4.md "One agent, one vehicle")
+            "bound": isinstance(self.engine, XrceAgent) and self.engine.bound,
+            "refused": dict(self.engine.refused) if isinstance(self.engine, XrceAgent) else {},
+            "last_refused": self.last_refused,
+            "foreign_samples": self.translator.foreign_samples,
+            "foreign_system_id": self.translator.foreign_system_id,
+            "unidentified_samples": self.translator.unidentified_samples,
             "dropped": dict(self.engine.dropped),
             "bad_frames": self._deframer.dropped,
         }
@@ -232,15 +248,36 @@ class XrceBackend:
                     for obs in self.translator.sample(event.topic_name, event.data):
                         self._sink(obs, now)
             case SessionCreated():
+                self.translator.new_session()  # whose samples: the next vehicle_status says
                 self.session = "established"
                 self.client = f"{_peer(event.source)} key {event.client_key.hex()}"
                 self.counters["sessions"] += 1
             case SessionEnded():
                 self.session = f"ended ({event.reason})"
+            case ClientRefused():
+                self.counters["clients_refused"] += 1
+                self.last_refused = (
+                    f"{_peer(event.source)} key {event.client_key.hex()} ({event.reason})"
+                )
+                n = self.counters["clients_refused"]
+                if self._log is not None and _is_power_of_ten(n):  # a flood logs log10(n) lines
+                    self._log.warning(
+                        "xrce_client_refused",
+                        client=_peer(event.source),
+                        key=event.client_key.hex(),
+                        reason=event.reason,
+                        refused_total=n,
+                    )
             case PacketDropped():
                 self.counters["drop_events"] += 1
             case _:
                 pass
+
+
+def _is_power_of_ten(n: int) -> bool:
+    while n >= 10 and n % 10 == 0:
+        n //= 10
+    return n == 1
 
 
 def _cmd_type() -> str:

@@ -7,6 +7,12 @@ from arming and ``failsafe``, autopilot PX4) and, with ``battery_status``, the `
 ``ExtendedSysState``; ``vehicle_gps_position`` the ``GpsRawInt``; ``home_position`` (valid
 only) the ``HomePosition``; ``vehicle_command_ack`` addressed to us the ``CommandAck``.
 
+One vehicle: ``vehicle_status.system_id`` (PX4's ``MAV_SYS_ID``) must be this vehicle's
+MAVLink system id. A ``vehicle_status`` of any other vehicle is dropped and counted
+(``foreign_samples``), and so is every other topic of the session until a ``vehicle_status``
+has said whose it is (the other topics carry no system id of their own); ``new_session``
+forgets the identity when the agent's session changes.
+
 A sample whose layout matches no PX4 release (v1.14..v1.17) is not guessed at: it is
 counted, ``problem`` names it, and a ``TopicLayout`` naming it makes readiness false with
 reason ``unknown_layout`` until that topic decodes again (another ``TopicLayout``, problem
@@ -87,6 +93,12 @@ class Px4Translator:
         self._unreadable: set[str] = set()  # topics whose last sample had an unknown layout
         self.unknown_layouts = 0
         self.foreign_acks = 0
+        # samples dropped because the session's vehicle_status named another system id (or
+        # none yet); foreign_system_id: the last such id seen, for the operator
+        self.foreign_samples = 0
+        self.unidentified_samples = 0
+        self.foreign_system_id: int | None = None
+        self._identified = False  # the session's last vehicle_status carried our system id
         self.blockers: tuple[str, ...] | None = None  # from failsafe_flags; None: none yet
         self._nav_state: int | None = None
         # vehicle_land_detected's last ``landed``: EXTENDED_SYS_STATE's landed state depends on
@@ -108,6 +120,11 @@ class Px4Translator:
         pool = self.releases or set(topics.RELEASES)
         return max(pool, key=lambda r: tuple(map(int, r.split("."))))
 
+    def new_session(self) -> None:
+        """The agent's session changed: whose samples they are is unknown until the next
+        ``vehicle_status``."""
+        self._identified = False
+
     def sample(self, topic_name: str, data: bytes) -> list[Observation]:
         if topics.is_command_reply(topic_name):  # the vehicle_command service's reply
             topic_name = topics.dds_topic("vehicle_command_ack", "out")
@@ -123,6 +140,8 @@ class Px4Translator:
             self._unreadable.add(name.topic)
             return [TopicLayout(name.topic, self.problem)]
         layout, releases = found
+        if not self._is_ours(name.topic, layout, data):
+            return []
         cleared: list[Observation] = []
         if name.topic in self._unreadable:
             self._unreadable.discard(name.topic)
@@ -130,6 +149,20 @@ class Px4Translator:
             if not self._unreadable:
                 self.problem = None
         return cleared + self._decoded(name.topic, layout, releases, data)
+
+    def _is_ours(self, topic: str, layout: Layout, data: bytes) -> bool:
+        """Whether a sample of a known layout is this vehicle's (module docstring)."""
+        if topic == "vehicle_status":
+            system_id = int(topics.decode_fields(layout, data)["system_id"])
+            self._identified = system_id == self.sysid
+            if not self._identified:
+                self.foreign_samples += 1
+                self.foreign_system_id = system_id
+            return self._identified
+        if not self._identified:
+            self.unidentified_samples += 1
+            return False
+        return True
 
     def _decoded(
         self, topic: str, layout: Layout, releases: tuple[str, ...], data: bytes

@@ -14,6 +14,22 @@ its reliable stream, TIMESTAMP at once from the injected clock, GET_INFO with
 WRITE_DATA into ``SampleReceived`` and ``publish()`` into DATA for every reader that asked.
 No DDS participant exists behind it: nothing reaches any network but the client's link.
 
+One agent, one vehicle. With ``expected_key`` (the daemon always gives one: ``px4.xrce_key``
+or the key generated into the state directory) the agent is *bound*: it holds at most one
+session, the vehicle's, and ``publish``/``request`` go to that session only. A CREATE_CLIENT
+with another key is refused; one with the vehicle's key from another address is refused
+while the bound session is alive, and takes the binding over only once that session has been
+silent for ``VEHICLE_DEAD_AFTER_S`` (PX4 itself gives up on an agent after 3 missed 1 s
+pings, and while connected sends a time-sync request every 1 s besides its samples and pings:
+``src/modules/uxrce_dds_client/uxrce_dds_client.cpp``, ``checkConnectivity`` and ``run``).
+The same key from the same address is PX4 restarted behind the same port (always so on a
+UART) and starts the session afresh at once. Both refusals answer the same STATUS_AGENT
+(ERR_DENIED), so a refusal does not tell a local prober whether it guessed the key. Every
+refusal is counted in ``refused`` and reported as ``ClientRefused``. The key is a session
+identifier sent in the clear, not a credential (docs/px4.md, "One agent, one vehicle").
+Without ``expected_key`` (lab tools, the golden-session oracle) the agent is unbound: up to
+``MAX_SESSIONS`` clients, samples and commands routed among all of them, as MicroXRCEAgent.
+
 Driving sources (style.md rule 2): ``receive_datagram(data, source, now)``,
 ``handle_timer(now)`` and the ``publish`` command. Outputs: ``datagrams_to_send()``,
 ``get_timer()``, ``next_event()``.
@@ -26,6 +42,7 @@ or belongs to no session is dropped, counted in ``dropped`` and reported as
 from __future__ import annotations
 
 import struct
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -34,6 +51,7 @@ from swarmd.xrce.buffer import DecodeError
 from swarmd.xrce.endpoint import Endpoint, receive_stream
 from swarmd.xrce.events import (
     Address,
+    ClientRefused,
     EntityCreated,
     SampleReceived,
     SessionCreated,
@@ -82,6 +100,14 @@ MAX_ENTITIES: Final = 1024
 HEARTBEAT_PERIOD_S: Final = 0.2  # while our reliable output holds unacknowledged messages
 # A session with no datagram for this long is gone (PX4 pings every 1 s when idle).
 SESSION_TIMEOUT_S: Final = 10.0
+# A bound vehicle session silent this long is dead, and the vehicle's key may open a new one
+# from another address: PX4 (uxrce_dds_client.cpp checkConnectivity) pings every 1 s while its
+# payloads do not flow both ways and disconnects at 3 missed pings; connected, it also sends
+# TIMESTAMP every 1 s (run(): uxr_sync_session when last_sync_session > 1 s) and its samples.
+# A live PX4 is never silent for 3 s; a restarted one (new port) is accepted on its first
+# CREATE_CLIENT retry (PX4 retries every 1 s) after this much silence. Shorter would let a
+# local process take a live vehicle's link over during a 3 s stall PX4 itself would ride out.
+VEHICLE_DEAD_AFTER_S: Final = 3.0
 STREAM_RELIABLE: Final = 0x80
 SAMPLE_IDENTITY_SIZE: Final = 24  # GUID_t (16) + SequenceNumber_t (8), before service samples
 # our requests' writer GUID: prefix "swarmd" + zero padding, entity 00 00 04 03 (a writer)
@@ -145,6 +171,8 @@ class XrceAgent(Endpoint):
         self.agent = agent or AgentRepresentation()
         super().__init__()
         self.sessions: dict[Address, Session] = {}
+        # CREATE_CLIENTs refused by reason (wrong_key, vehicle_alive, cookie, ...)
+        self.refused: Counter[str] = Counter()
         self._request_seq = 0
         self.timestamps_answered = 0
         self.pings_answered = 0
@@ -192,13 +220,33 @@ class XrceAgent(Endpoint):
 
     # ---- commands ----------------------------------------------------------------------------
 
+    @property
+    def bound(self) -> bool:
+        """True when this agent serves one vehicle (``expected_key`` set)."""
+        return self.expected_key is not None
+
+    @property
+    def vehicle(self) -> Session | None:
+        """The bound vehicle's session (None: unbound, or no vehicle connected)."""
+        if not self.bound:
+            return None
+        return next(iter(self.sessions.values()), None)
+
+    def _targets(self) -> list[Session]:
+        """Where commands go: the vehicle's session only when bound, else every session."""
+        if self.bound:
+            vehicle = self.vehicle
+            return [] if vehicle is None else [vehicle]
+        return list(self.sessions.values())
+
     def publish(self, topic_name: str, data: bytes, now: float) -> int:
-        """Send ``data`` to every client reader of ``topic_name`` that asked (READ_DATA).
+        """Send ``data`` to every reader of ``topic_name`` that asked (READ_DATA), in the bound
+        vehicle's session only (every session when unbound).
 
         Returns how many readers it went to (0: nobody subscribed yet).
         """
         sent = 0
-        for s in self.sessions.values():
+        for s in self._targets():
             for oid, req in s.reads.items():
                 reader = s.entities.get(oid)
                 if reader is None or reader.kind != ObjectKind.DATAREADER:
@@ -219,10 +267,11 @@ class XrceAgent(Endpoint):
         """Send a request to every client replier of ``service`` that asked (READ_DATA).
 
         eProsima's replier DATA carries the request's SampleIdentity (writer GUID, sequence
-        number: 24 octets) before the sample; the replier echoes it in its reply.
+        number: 24 octets) before the sample; the replier echoes it in its reply. Bound: the
+        vehicle's session only.
         """
         sent = 0
-        for s in self.sessions.values():
+        for s in self._targets():
             for oid, req in s.reads.items():
                 replier = s.entities.get(oid)
                 if replier is None or replier.kind != ObjectKind.REPLIER or replier.name != service:
@@ -240,7 +289,7 @@ class XrceAgent(Endpoint):
     def has_replier(self, service: str) -> bool:
         return any(
             e.kind == ObjectKind.REPLIER and e.name == service and oid in s.reads
-            for s in self.sessions.values()
+            for s in self._targets()
             for oid, e in s.entities.items()
         )
 
@@ -274,26 +323,30 @@ class XrceAgent(Endpoint):
 
     def _create_client(self, cc: CreateClient, source: Address, now: float) -> None:
         reply_header = Header(cc.session_id, 0, 0, cc.client_key if cc.session_id < 0x80 else None)
-        status = Status.OK
+        status: int = Status.OK
+        why = ""
         if cc.cookie != XRCE_COOKIE:
-            status = Status.ERR_INVALID_DATA
+            status, why = Status.ERR_INVALID_DATA, "bad_cookie"
         elif cc.version[:1] != b"\x01":
-            status = Status.ERR_INCOMPATIBLE
-        elif self.expected_key is not None and cc.client_key != self.expected_key:
-            status = Status.ERR_DENIED
+            status, why = Status.ERR_INCOMPATIBLE, "incompatible_version"
         elif cc.session_id in (0x00, 0x80):
-            status = Status.ERR_INVALID_DATA
+            status, why = Status.ERR_INVALID_DATA, "sessionless_id"
+        elif self.expected_key is not None and cc.client_key != self.expected_key:
+            status, why = Status.ERR_DENIED, "wrong_key"
         old = self.sessions.get(source)
         if status == Status.OK and old is None:
-            # the same client key from a new address is that client restarted (PX4 rebinds)
-            for addr, s in list(self.sessions.items()):
-                if s.client_key == cc.client_key:
-                    del self.sessions[addr]
-                    self._emit(SessionEnded(addr, s.client_key, "replaced"))
-            if len(self.sessions) >= MAX_SESSIONS:
-                status = Status.ERR_RESOURCES
+            if self.bound:
+                status, why = self._take_over(cc, source, now)
+            else:
+                # unbound: the same key from a new address is that client restarted
+                for addr, s in list(self.sessions.items()):
+                    if s.client_key == cc.client_key:
+                        del self.sessions[addr]
+                        self._emit(SessionEnded(addr, s.client_key, "replaced"))
+                if len(self.sessions) >= MAX_SESSIONS:
+                    status, why = Status.ERR_RESOURCES, "too_many_sessions"
         if status != Status.OK:
-            self._drop(source, f"create_client_refused:{Status(status).name}")
+            self._refuse(source, cc.client_key, why)
             reply = StatusAgent(status, 0, self.agent)
             self._out.append((encode_message(reply_header, [reply]), source))
             return
@@ -303,6 +356,22 @@ class XrceAgent(Endpoint):
         self.sessions[source] = Session(source, cc.client_key, cc.session_id, cc.mtu, now)
         self._out.append((encode_message(reply_header, [StatusAgent(0, 0, self.agent)]), source))
         self._emit(SessionCreated(source, cc.client_key, cc.session_id, cc.mtu))
+
+    def _take_over(self, cc: CreateClient, source: Address, now: float) -> tuple[int, str]:
+        """Bound, the vehicle's key from an address with no session: accepted when no vehicle
+        session exists or it is dead (silent ``VEHICLE_DEAD_AFTER_S``), which then ends."""
+        for addr, s in list(self.sessions.items()):
+            if now - s.last_heard < VEHICLE_DEAD_AFTER_S:
+                # ERR_DENIED as for a wrong key: the answer is no key oracle (module docstring)
+                return Status.ERR_DENIED, "vehicle_alive"
+            del self.sessions[addr]
+            self._emit(SessionEnded(addr, s.client_key, "replaced"))
+        return Status.OK, ""
+
+    def _refuse(self, source: Address, client_key: bytes, why: str) -> None:
+        self.refused[why] += 1
+        self._drop(source, f"create_client_refused:{why}")
+        self._emit(ClientRefused(source, client_key, why))
 
     # ---- in session ----------------------------------------------------------------------------
 

@@ -29,6 +29,15 @@ class SessionEnded(XrceEvent):
 
 
 @dataclass(frozen=True, slots=True)
+class ClientRefused(XrceEvent):
+    """A CREATE_CLIENT the agent refused (the agent is bound to another vehicle or session)."""
+
+    source: Address
+    client_key: bytes
+    reason: str  # "wrong_key" | "vehicle_alive" | "too_many_sessions" | "bad_cookie" | ...
+
+
+@dataclass(frozen=True, slots=True)
 class EntityCreated(XrceEvent):
     source: Address
     object_id: int

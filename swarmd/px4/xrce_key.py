@@ -1,0 +1,94 @@
+"""The XRCE client key swarmd's agent is bound to, kept with the node's secrets (file I/O).
+
+``px4.backend: xrce-agent`` binds the agent to one vehicle by the key PX4 sends in
+CREATE_CLIENT (``UXRCE_DDS_KEY``, docs/px4.md "One agent, one vehicle"). ``px4.xrce_key`` in
+the config names it; without it the daemon generates one at its first start and keeps it in
+``px4-xrce-key`` in the folder of ``node.key`` (``/var/lib/swarmd``, the state directory),
+mode 0600, so restarts keep it and the operator sets it on PX4 once. The file holds the key in
+decimal, as ``param set UXRCE_DDS_KEY`` takes it.
+
+The key is a session identifier PX4 sends in the clear, not a credential: its file is
+private so that a local user who can read the config (or the journal) cannot also read it,
+which bounds what such a user can do (docs/px4.md).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from swarmd.bundle.keys import PRIVATE_MODE, write_file_atomic
+
+XRCE_KEY_FILE: Final = "px4-xrce-key"
+# PX4's UXRCE_DDS_KEY is an INT32 parameter: a generated key stays positive so the operator
+# types it as it is; 0 would mean "no key" to a reader of either side
+GENERATED_MAX: Final = 0x7FFF_FFFF
+KEY_MAX: Final = 0xFFFF_FFFF  # what px4.xrce_key accepts (a negative INT32 seen as u32)
+SWARMD_CLIENT_KEY: Final = 0x5357_4D44  # "SWMD", swarmd's own key as a client: never PX4's
+MAX_FILE_BYTES: Final = 64
+
+
+class XrceKeyError(ValueError):
+    """The key file is unusable; ``str()`` is one line naming the file and the fix."""
+
+
+@dataclass(frozen=True, slots=True)
+class XrceKey:
+    value: int
+    path: Path
+    created: bool  # generated now: the operator must set UXRCE_DDS_KEY on PX4
+    mode_fixed: bool  # the file was readable by others and is 0600 now
+
+
+def xrce_key_path(secrets_dir: str | Path) -> Path:
+    return Path(secrets_dir) / XRCE_KEY_FILE
+
+
+def generate_key(draw: int | None = None) -> int:
+    """A key in 1..GENERATED_MAX, never swarmd's own client key (``draw``: tests' choice)."""
+    while True:
+        value = draw if draw is not None else 1 + secrets.randbelow(GENERATED_MAX)
+        if value != SWARMD_CLIENT_KEY:
+            return value
+        draw = None
+
+
+def load_or_create(secrets_dir: str | Path) -> XrceKey:
+    """The key in ``secrets_dir/px4-xrce-key``, generated and written (0600) when absent."""
+    path = xrce_key_path(secrets_dir)
+    fix = f"delete {path} to generate a new key, then set UXRCE_DDS_KEY on PX4 to it"
+    unreadable = f"{path}: cannot read the XRCE key"
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except FileNotFoundError:
+        value = generate_key()
+        try:
+            write_file_atomic(path, f"{value}\n".encode(), PRIVATE_MODE)
+        except OSError as exc:
+            raise XrceKeyError(
+                f"{path}: cannot write the XRCE key: {exc.strerror}; fix: make "
+                f"{path.parent} writable by swarmd, or set px4.xrce_key"
+            ) from None
+        return XrceKey(value, path, created=True, mode_fixed=False)
+    except OSError as exc:
+        raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise XrceKeyError(f"{path}: not a regular file; fix: {fix}")
+        mode_fixed = bool(info.st_mode & 0o077)
+        if mode_fixed:  # readable by others: the key's privacy is what bounds a local user
+            os.fchmod(fd, PRIVATE_MODE)
+        raw = os.read(fd, MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
+    finally:
+        os.close(fd)
+    text = raw.decode("ascii", "replace").strip()
+    if len(raw) > MAX_FILE_BYTES or not text.isdigit() or not 1 <= int(text) <= KEY_MAX:
+        raise XrceKeyError(f"{path}: not a key (a whole number 1..{KEY_MAX}); fix: {fix}")
+    return XrceKey(int(text), path, created=False, mode_fixed=mode_fixed)
