@@ -13,12 +13,14 @@ the commander's validity, whatever the clocks read.
 
 from __future__ import annotations
 
+import argparse
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarmd.cli import takeoff_cmd
 from swarmd.dataplane import Command, CommandKind, CommandResult
 from swarmd.dataplane.types import MAX_VALID_MS, TimeEcho
 from swarmd.dataplane.validity import (
@@ -30,7 +32,7 @@ from swarmd.dataplane.validity import (
     valid_ms_of,
 )
 from swarmd.px4.vehicle import TaskKind
-from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE, UNREACHABLE_GRACE_S
+from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE, UNREACHABLE_GRACE_S, CommandTracker
 from swarmd.swarm.core import DEFAULT_VALID_FOR_S, CommandExpired, RequestInvalid
 from tests.test_dataplane_swarm import address_of
 from tests.test_swarm_core import Swarm
@@ -345,3 +347,82 @@ def test_a_member_never_runs_a_command_after_the_commanders_deadline(
     deadline = issued_at + (valid_ms / 1000.0) / (1 + commander_ppm * 1e-6)
     if verdict.valid:
         assert arrives_at < deadline, (verdict, arrives_at, deadline)
+
+
+# ---- the commander's rows and swarmctl's words ---------------------------------------------
+
+
+def test_tracker_calls_silent_targets_unreachable_only_after_validity_and_grace() -> None:
+    tracker = CommandTracker()
+    tracker.sent(1, "takeoff", ["a", "b", "c"], 10.0, valid_for_s=3.0)
+    tracker.record(1, "a", CommandResult.ACCEPTED, "", 10.1)
+    tracker.record(1, "b", CommandResult.COMPLETED, "IN_AIR", 11.0)
+    end = 10.0 + 3.0 + UNREACHABLE_GRACE_S
+    before = tracker.snapshot(1, end - 0.001)
+    assert before is not None
+    assert before["nodes"]["c"]["state"] == "pending" and not before["done"]
+    assert before["valid_left_s"] == 0.0 and before["valid_for_s"] == 3.0
+    after = tracker.snapshot(1, end)
+    assert after is not None
+    # a drone that accepted is running it: never "unreachable", and the command not done
+    assert after["nodes"]["a"]["state"] == "accepted"
+    assert (after["nodes"]["c"]["state"], after["nodes"]["c"]["reason"]) == (
+        UNREACHABLE,
+        NOT_REACHED,
+    )
+    assert not after["done"]
+    tracker.record(1, "a", CommandResult.COMPLETED, "IN_AIR", end + 1)
+    done = tracker.snapshot(1, end + 1)
+    assert done is not None and done["done"]
+    # without a validity (a command tracked by hand) nobody is ever called unreachable
+    tracker.sent(2, "land", ["c"], 0.0)
+    untimed = tracker.snapshot(2, 1e6)
+    assert untimed is not None and untimed["nodes"]["c"]["state"] == "pending"
+
+
+class _Outcomes:
+    """A control client that answers ``outcomes`` with one snapshot."""
+
+    def __init__(self, snap: dict[str, Any]) -> None:
+        self.snap = snap
+
+    def request(self, cmd: str, **args: Any) -> dict[str, Any]:
+        assert cmd == "outcomes"
+        return self.snap
+
+
+def _follow_output(
+    snap: dict[str, Any], capsys: pytest.CaptureFixture[str], *, timeout: float = 30.0
+) -> tuple[int, str]:
+    args = argparse.Namespace(json=False, timeout=timeout)
+    reply = {"command_id": 2, "ready": list(snap["nodes"]), "valid_for_s": snap["valid_for_s"]}
+    code = takeoff_cmd._follow(_Outcomes(snap), takeoff_cmd._Run(args), reply, "takeoff")  # type: ignore[arg-type]
+    return code, capsys.readouterr().out
+
+
+def test_swarmctl_says_unreachable_and_that_it_can_no_longer_run(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    tracker = CommandTracker()
+    tracker.sent(2, "takeoff", ["uav2", "uav3"], 0.0, valid_for_s=3.0)
+    tracker.record(2, "uav2", CommandResult.COMPLETED, "IN_AIR", 1.0)
+    snap = tracker.snapshot(2, 5.0)
+    assert snap is not None
+    code, out = _follow_output(snap, capsys)
+    assert code == 1  # as for any drone that did not confirm (docs/operations.md)
+    assert "uav3: unreachable while the command was valid (3 s)" in out
+    assert "can no longer run there" in out
+    assert "timeout" not in out and "timed out" not in out
+    assert out.splitlines()[-1].endswith("will not run there: uav3")
+
+
+def test_swarmctl_timing_out_within_the_validity_says_it_may_still_run(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    tracker = CommandTracker()
+    tracker.sent(2, "land", ["uav3"], 0.0, valid_for_s=10.0)
+    snap = tracker.snapshot(2, 4.0)
+    assert snap is not None
+    code, out = _follow_output(snap, capsys, timeout=0.0)
+    assert code == 1
+    assert "still valid for 6 s: it may yet run on uav3" in out
