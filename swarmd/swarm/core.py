@@ -12,6 +12,9 @@ disabled). Driving sources, the driver's protocol (``swarmd.driver``):
   paper's workload, section 5) and at once when its vehicle's verdict changes
   (``vehicle_changed``), so a lost autopilot link reaches the commander within PX4's 2.5 s
   heartbeat timeout rather than up to a period later;
+- the commander's validity timers: when a command's validity ends, ``handle_timer``
+  withdraws it from the writer (never retransmitted after), and the tracker calls the
+  targets that did not answer ``unreachable``;
 - calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
   ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
   ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
@@ -24,7 +27,10 @@ the command id). The others are for the log.
 
 A member's decisions (``_execute``): each command id once (the data plane hands each id
 once per life, persisted across restarts; the core also refuses an id it already runs, for
-the commander's own drone, which bypasses the data plane). Without a vehicle every command
+the commander's own drone, which bypasses the data plane). A command from the commander
+that reaches it after its validity (``swarmd.dataplane.validity.judge``: dated on this
+node's own clock from the readiness report the commander echoes in it) is REJECTED
+``expired`` and never runs (docs/dataplane.md, "Validity"). Without a vehicle every command
 is REJECTED ``px4_disabled``. TAKEOFF is refused at once (REJECTED, reason = the readiness
 code) when the vehicle is not ready *now* (the commander's view is up to one report old),
 else ACCEPTED at once (the commander's latency measure) and sent to the vehicle; LAND, HOLD
