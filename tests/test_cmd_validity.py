@@ -33,7 +33,12 @@ from swarmd.dataplane.validity import (
 )
 from swarmd.px4.vehicle import TaskKind
 from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE, UNREACHABLE_GRACE_S, CommandTracker
-from swarmd.swarm.core import DEFAULT_VALID_FOR_S, CommandExpired, RequestInvalid
+from swarmd.swarm.core import (
+    DEFAULT_VALID_FOR_S,
+    MAX_PENDING_WITHDRAWALS,
+    CommandExpired,
+    RequestInvalid,
+)
 from tests.test_dataplane_swarm import address_of
 from tests.test_swarm_core import Swarm
 
@@ -426,3 +431,13 @@ def test_swarmctl_timing_out_within_the_validity_says_it_may_still_run(
     code, out = _follow_output(snap, capsys, timeout=0.0)
     assert code == 1
     assert "still valid for 6 s: it may yet run on uav3" in out
+
+
+def test_pending_withdrawals_are_capped() -> None:
+    """A script issuing commands with long validities cannot grow the commander's timers
+    past the writer's history bound; the earliest is withdrawn at once instead."""
+    swarm = Swarm(1)
+    swarm.run(2.0)
+    for _ in range(MAX_PENDING_WITHDRAWALS + 3):
+        swarm.lead.request_command({"kind": "land", "valid_for_s": 600}, swarm.net.now)
+    assert len(swarm.lead._expiries) == MAX_PENDING_WITHDRAWALS

@@ -64,6 +64,7 @@ from swarmd.dataplane import (
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import MAX_VALID_MS, Command, CommandKind, CommandResult
 from swarmd.dataplane.validity import EXPIRED, judge, stamp_ms, valid_ms_of
+from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
@@ -85,6 +86,11 @@ MAX_VALID_FOR_S: Final = MAX_VALID_MS / 1000.0
 # LAND and ABORT are the safe direction and may need a worse link to get through: 10 s,
 # still short of swarmctl's 20 s wait, so swarmctl outlives the validity and can say
 # which drones it did not reach rather than "timeout".
+# Commands awaiting their withdrawal. A writer keeps at most MAX_HISTORY_DEPTH samples, so
+# past that many the oldest are gone from it anyway; the cap stops a script hammering the
+# control socket with long validities from growing the heap (the earliest is withdrawn now:
+# it only stops retransmitting sooner, members still judge its validity themselves).
+MAX_PENDING_WITHDRAWALS: Final = MAX_HISTORY_DEPTH
 DEFAULT_VALID_FOR_S: Final = {
     CommandKind.TAKEOFF: 3.0,
     CommandKind.HOLD: 5.0,
@@ -606,6 +612,10 @@ class SwarmCore:
             sn = plane.send_command(command, now)
             expiry = (now + valid_ms / 1000.0, command.command_id, sn)
             heapq.heappush(self._expiries, expiry)
+            while len(self._expiries) > MAX_PENDING_WITHDRAWALS:
+                _, early_id, early_sn = heapq.heappop(self._expiries)
+                if plane.withdraw_command(early_sn):
+                    self._events.append(CommandWithdrawn(early_id))
         if self.roles.me in targets:
             self._local_commands.add(command.command_id)
             self._execute(self.roles.me, command, now)
