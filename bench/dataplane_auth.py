@@ -82,8 +82,16 @@ def exchange(bundle: Bundle) -> dict[str, list[tuple[int, int]]]:
     not_ready = Readiness(name, 2, False, "px4_no_heartbeat", False, 0, 0, 255, -1, 800)
     member.publish_readiness(not_ready, 0.0)
     pump(member, lead, "readiness (not ready, reason)")
-    lead.send_command(lead.make_command(CommandKind.TAKEOFF, altitude_m=10.0), 0.0)
-    pump(lead, member, "command: TAKEOFF (DATA + HEARTBEAT)")
+    # as swarmctl takeoff --only <member> sends it: a 3 s validity and the member's echo
+    takeoff = lead.make_command(
+        CommandKind.TAKEOFF,
+        altitude_m=10.0,
+        targets=[name],
+        valid_ms=3000,
+        echoes=lead.time_echoes([name], 0.0),
+    )
+    lead.send_command(takeoff, 0.0)
+    pump(lead, member, "command: TAKEOFF to one member, validity + echo (DATA + HEARTBEAT)")
     pump(member, lead, "command: member's ACKNACK")
     while (event := member.next_event()) is not None:
         if type(event).__name__ == "CommandReceived":

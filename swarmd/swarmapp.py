@@ -41,7 +41,9 @@ from swarmd.swarm import core
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.core import (
     CommandExecuting,
+    CommandExpired,
     CommandIssued,
+    CommandWithdrawn,
     MemberReadinessChanged,
     OutcomeRecorded,
     OutcomeReported,
@@ -359,6 +361,16 @@ class SwarmApp:
                     kind=event.kind.name,
                     altitude_m=event.altitude_m,
                 )
+            case CommandExpired():
+                self.log.warning(
+                    "command_expired",
+                    commander=event.commander,
+                    command_id=event.command_id,
+                    kind=event.kind.name,
+                    detail=event.detail,
+                )
+            case CommandWithdrawn():
+                self.log.info("command_withdrawn", command_id=event.command_id)
             case OutcomeReported():
                 self.log.info(
                     "command_outcome",

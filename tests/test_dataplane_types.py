@@ -25,6 +25,7 @@ from swarmd.dataplane.types import (
     PayloadError,
     Readiness,
     Sample,
+    TimeEcho,
     decode_sample,
     encode_sample,
 )
@@ -53,19 +54,28 @@ def test_type_names_match_the_bundle_declarations() -> None:
 
 
 def test_readiness_bytes_follow_xcdr1_alignment() -> None:
+    # ... u16 link_q ends at 32: the u32 stamp (issue 18, the member's clock) needs no pad
     body = struct.pack(
-        "<I5s3xI?3xI1s?BBBbH", 5, b"uav1\0", 1, True, 1, b"\0", False, 1, 3, 12, 80, 900
+        "<I5s3xI?3xI1s?BBBbHI", 5, b"uav1\0", 1, True, 1, b"\0", False, 1, 3, 12, 80, 900, 0
     )
     assert encode_sample(ready()) == b"\x00\x01\x00\x00" + body  # CDR_LE, no padding needed
 
 
 def test_command_body_is_padded_and_options_say_by_how_much() -> None:
-    cmd = Command(1, CommandKind.TAKEOFF, 10.0, ["a"])
-    # u64 id, enum as u32, float32, sequence length, string length, "a\0": 26 octets
-    body = struct.pack("<QIfII2s", 1, 0, 10.0, 1, 2, b"a\0")
+    cmd = Command(1, CommandKind.TAKEOFF, 10.0, ["a"], 3000, [TimeEcho("a", 7, 40)])
+    # u64 id, enum as u32, float32, sequence length, string length, "a\0": 26 octets, then
+    # u32 valid_ms aligned to 4, the echoes' length and one TimeEcho (string, u32, u32): 54
+    body = struct.pack("<QIfII2s2xIII2s2xII", 1, 0, 10.0, 1, 2, b"a\0", 3000, 1, 2, b"a\0", 7, 40)
     payload = encode_sample(cmd)
-    assert payload == b"\x00\x01\x00\x02" + body + b"\x00\x00"
+    assert payload == b"\x00\x01\x00\x00" + body
     assert decode_sample(payload, Command) == cmd
+    bare = Command(1, CommandKind.LAND, 0.0, ["ab"])  # 27 octets of body, then valid_ms, []
+    body = struct.pack("<QIfII3sxII", 1, 1, 0.0, 1, 3, b"ab\0", 0, 0)
+    assert encode_sample(bare) == b"\x00\x01\x00\x00" + body
+    # a body that ends off a 4-octet boundary: an outcome's reason "x" ends at 30 octets
+    out = CommandOutcome(7, "uav1", CommandResult.REJECTED, "x")
+    body = struct.pack("<QI5s3xII2s", 7, 5, b"uav1\0", 2, 2, b"x\0")
+    assert encode_sample(out) == b"\x00\x01\x00\x02" + body + b"\x00\x00"
 
 
 @pytest.mark.parametrize("padding", [1, 2, 3])

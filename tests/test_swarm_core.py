@@ -20,7 +20,8 @@ from hypothesis import strategies as st
 from swarmd_lab.memnet import Channel, MemNet
 
 from swarmd.dataplane import Command, CommandKind, CommandResult
-from swarmd.dataplane.types import MAX_ALTITUDE_M
+from swarmd.dataplane.types import MAX_ALTITUDE_M, TimeEcho
+from swarmd.dataplane.validity import stamp_ms
 from swarmd.px4 import takeoff
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
@@ -340,8 +341,9 @@ def test_every_command_kind_is_dispatched_to_one_vehicle_task() -> None:
     reaches the vehicle exactly once, as its own task."""
     swarm = Swarm(1)
     member = swarm.cores["m01"]
+    echo = [TimeEcho("m01", stamp_ms(0.0), 0)]  # dated: "issued as m01 sent its report"
     for i, kind in enumerate(CommandKind):
-        member._execute("lead", Command(100 + i, kind, 5.0, []), 0.0)
+        member._execute("lead", Command(100 + i, kind, 5.0, [], 3000, echo), 0.0)
     requests = [e for e in iter(member.next_event, None) if isinstance(e, VehicleRequest)]
     assert [r.kind.name for r in requests] == [k.name for k in CommandKind]
     received = Counter(e.kind for e in swarm.events["m01"] if isinstance(e, CommandExecuting))

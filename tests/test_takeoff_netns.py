@@ -42,14 +42,16 @@ pytestmark = [pytest.mark.netns]
 class Drones:
     """N drones on a LAN: uav1 commands; ``sim_args[i]`` go to drone i's simulator."""
 
-    def __init__(self, lan: Lan, workdir: Path, sim_args: list[list[str]]) -> None:
+    def __init__(
+        self, lan: Lan, workdir: Path, sim_args: list[list[str]], *, lease_s: float = 6.0
+    ) -> None:
         self.lan = lan
         self.workdir = workdir
         self.n = len(sim_args)
         self.names = [f"uav{i + 1}" for i in range(self.n)]
         self.socks = [workdir / f"{n}.sock" for n in self.names]
         self.files: BundleFiles = write_bundle(
-            workdir / "bundle", self.n, domain_id=0, lease_s=6.0, t_min_s=0.2, t_max_s=0.6
+            workdir / "bundle", self.n, domain_id=0, lease_s=lease_s, t_min_s=0.2, t_max_s=0.6
         )
         self.sims: list[subprocess.Popen[bytes]] = []
         for i, name in enumerate(self.names):

@@ -6,8 +6,14 @@ command and the others are listed as refused with their reason); with ``--requir
 until every targeted drone is ready (nothing is sent if that does not happen within
 ``--timeout``). Then it sends the command and follows each drone's outcome to the end.
 
+Every command has a validity (``--valid-for``; defaults per kind in
+``swarmd.swarm.core.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
+it for good. A drone that did not answer while the command was valid is reported
+``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity").
+
 Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
-1 some drone refused, failed or did not answer in time; 2 the daemon is not reachable;
+1 some drone refused, failed, was unreachable while the command was valid, or did not
+answer in time; 2 the daemon is not reachable;
 3 ``--require-all`` and not every targeted drone became ready (nothing sent); 64 usage
 (not the commander, unknown node, bad altitude).
 """
@@ -23,6 +29,7 @@ from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+from swarmd.dataplane.types import CommandKind
 from swarmd.exitcodes import (
     EX_FAILED,
     EX_INTERRUPTED,
@@ -31,7 +38,11 @@ from swarmd.exitcodes import (
     EX_UNREACHABLE,
     EX_USAGE,
 )
+from swarmd.swarm.commander import UNREACHABLE
+from swarmd.swarm.core import DEFAULT_VALID_FOR_S
 from swarmd.terminal import safe_text, safe_tree
+
+COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
 
 POLL_S: Final = 0.2
 UNHEARD: Final = ("no_report", "peer_lost", "report_stale")
@@ -46,6 +57,7 @@ def register(sub: Any) -> None:
         help="metres above home (default: the commander's px4.takeoff_alt_m)",
     )  # fmt: skip
     _targets(takeoff)
+    _validity(takeoff, "takeoff")
     takeoff.add_argument(
         "--require-all", action="store_true",
         help="wait until every targeted drone is ready; send nothing otherwise",
@@ -59,6 +71,7 @@ def register(sub: Any) -> None:
     ):
         p = sub.add_parser(kind, help=text)
         _targets(p)
+        _validity(p, kind)
         _common(p, default_timeout=20.0)
         p.set_defaults(func=_simple, kind=kind)
 
@@ -67,6 +80,15 @@ def _targets(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--only", nargs="+", action="extend", default=None, metavar="NODE",
         help="command only these drones (default: every drone of the swarm)",
+    )  # fmt: skip
+
+
+def _validity(p: argparse.ArgumentParser, kind: str) -> None:
+    default = DEFAULT_VALID_FOR_S[COMMAND_KINDS[kind]]
+    p.add_argument(
+        "--valid-for", type=float, default=None, metavar="SECONDS",
+        help=f"a drone that has not received the command within SECONDS of sending refuses "
+        f"it for good (default {default:g})",
     )  # fmt: skip
 
 
@@ -124,6 +146,8 @@ def _takeoff(args: argparse.Namespace) -> int:
         request: dict[str, Any] = {"only": targets, "require_all": args.require_all}
         if args.alt is not None:
             request["alt_m"] = args.alt
+        if args.valid_for is not None:
+            request["valid_for_s"] = args.valid_for
         try:
             reply = client.request("takeoff", **request)
         except RequestError as exc:
@@ -144,8 +168,11 @@ def _simple(args: argparse.Namespace) -> int:
         targets = _check_commander(client, args.only)
         if isinstance(targets, int):
             return targets
+        request: dict[str, Any] = {"kind": args.kind, "only": targets}
+        if args.valid_for is not None:
+            request["valid_for_s"] = args.valid_for
         try:
-            reply = client.request("command", kind=args.kind, only=targets)
+            reply = client.request("command", **request)
         except RequestError as exc:
             return _usage(str(exc))
         return _follow(client, run, reply, args.kind)
@@ -219,8 +246,10 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     cid = int(reply["command_id"])
     refused = reply.get("refused") or {}
     sent_to = reply.get("ready") or []
+    valid_for = reply.get("valid_for_s")
     run.say(
         f"{kind.upper()} command {cid:#x} sent to {len(sent_to)} drone(s): {', '.join(sent_to)}"
+        + (f"; valid for {valid_for:g} s" if isinstance(valid_for, int | float) else "")
         + (f"; refused: {_reasons(refused)}" if refused else "")
     )
     seen: dict[str, str] = {}
@@ -231,6 +260,12 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
             state = node["state"]
             if seen.get(name) != state and state != "pending":
                 seen[name] = state
+                if state == UNREACHABLE:
+                    run.say(
+                        f"  {name}: unreachable while the command was valid "
+                        f"({_seconds(snap.get('valid_for_s'))}); it can no longer run there"
+                    )
+                    continue
                 extra = f" ({node['reason']})" if node.get("reason") else ""
                 at = node.get("done_s") if node.get("done_s") is not None else node["latency_s"]
                 when = f" after {at:.3f} s" if isinstance(at, int | float) else ""
@@ -245,12 +280,34 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
         _final(run.args, cid, snap, code)
     else:
         print("\n".join(render_outcomes(snap)))
+        unreachable = [n for n, v in nodes.items() if v["state"] == UNREACHABLE]
         print(
             f"{kind}: {sum(n['state'] == 'completed' for n in nodes.values())}/{len(nodes)} "
             + ("confirmed airborne" if kind == "takeoff" else "confirmed")
-            + ("" if snap["done"] else " (timed out waiting for the rest)")
+            + (
+                f"; unreachable while valid, will not run there: {', '.join(unreachable)}"
+                if unreachable
+                else ""
+            )
+            + ("" if snap["done"] else _still_valid(snap))
         )
     return code
+
+
+def _seconds(value: object) -> str:
+    return f"{value:g} s" if isinstance(value, int | float) else "its validity"
+
+
+def _still_valid(snap: dict[str, Any]) -> str:
+    """What a timed-out wait leaves open: drones that may still start the command."""
+    silent = [n for n, v in snap["nodes"].items() if v["state"] == "pending"]
+    left = snap.get("valid_left_s")
+    if silent and isinstance(left, int | float) and left > 0:
+        return (
+            f" (timed out waiting for the rest; still valid for {left:g} s: "
+            f"it may yet run on {', '.join(silent)})"
+        )
+    return " (timed out waiting for the rest)"
 
 
 def _final(args: argparse.Namespace, cid: int | None, body: dict[str, Any], code: int) -> None:

@@ -33,9 +33,12 @@ class ReadinessVerdict(Protocol):
     def battery_pct(self) -> int | None: ...
 
 
-def readiness_sample(node: str, seq: int, verdict: ReadinessVerdict, link_q: float) -> Readiness:
+def readiness_sample(
+    node: str, seq: int, verdict: ReadinessVerdict, link_q: float, stamp_ms: int = 0
+) -> Readiness:
     """The wire sample for ``verdict``; unknowns become the MAVLink "unknown" values and
-    ``link_q`` (Q in [0, 1], paper eq. 2) becomes thousandths."""
+    ``link_q`` (Q in [0, 1], paper eq. 2) becomes thousandths. ``stamp_ms``: this node's
+    clock (``validity.stamp_ms(now)``), echoed back in commands to date them."""
     reason = "" if verdict.reason is None else str(verdict.reason)
     battery = verdict.battery_pct
     return Readiness(
@@ -51,4 +54,5 @@ def readiness_sample(node: str, seq: int, verdict: ReadinessVerdict, link_q: flo
         else min(max(verdict.satellites, 0), 254),
         battery_pct=BATTERY_UNKNOWN if battery is None else min(max(battery, 0), 100),
         link_q_permille=round(min(max(link_q, 0.0), 1.0) * MAX_LINK_Q_PERMILLE),
+        stamp_ms=stamp_ms,
     )

@@ -75,9 +75,11 @@ from swarmd.dataplane.types import (
     PayloadError,
     Readiness,
     Sample,
+    TimeEcho,
     decode_sample,
     encode_sample,
 )
+from swarmd.dataplane.validity import echo_of
 from swarmd.dataplane.writer import (
     MAX_HISTORY_DEPTH,
     MAX_INCARNATION,
@@ -315,12 +317,44 @@ class DataPlane:
         return self._publish(TOPIC_READY, sample, now)
 
     def make_command(
-        self, kind: CommandKind, *, altitude_m: float = 0.0, targets: Iterable[str] = ()
+        self,
+        kind: CommandKind,
+        *,
+        altitude_m: float = 0.0,
+        targets: Iterable[str] = (),
+        valid_ms: int = 0,
+        echoes: Iterable[TimeEcho] = (),
     ) -> Command:
-        """A command with a fresh id: ``incarnation << 32 | counter``, never reused."""
+        """A command with a fresh id: ``incarnation << 32 | counter``, never reused.
+
+        ``valid_ms`` and ``echoes`` date it for the members (``validity.py``); without them
+        a member refuses it as expired. ``time_echoes`` gives the echoes."""
         self._next_command += 1
         command_id = (self.incarnation << 32) | self._next_command
-        return Command(command_id, kind, float(altitude_m), list(targets))
+        return Command(command_id, kind, float(altitude_m), list(targets), valid_ms, list(echoes))
+
+    def time_echoes(self, members: Iterable[str], now: float) -> list[TimeEcho]:
+        """For a command issued ``now``: per member, the stamp of its last readiness report
+        here and that report's age (docs/dataplane.md, "Validity"). Members never heard
+        from, or not for ``validity.MAX_ECHO_AGE_MS``, get none (they will refuse)."""
+        out: list[TimeEcho] = []
+        for name in members:
+            stats = self._readiness.get(name)
+            if stats is None or stats.last is None:
+                continue
+            echo = echo_of(name, stats.last.stamp_ms, stats.last_rx, now)
+            if echo is not None:
+                out.append(echo)
+        return out
+
+    def withdraw_command(self, sn: int) -> bool:
+        """Stop (re)sending the command written as ``sn``: its validity ended, so repair
+        must not carry it to a member late. Readers are told it is gone (GAP). True when
+        it was still held."""
+        writer = self._writer_by_topic.get(TOPIC_COMMAND)
+        if not isinstance(writer, ReliableWriter):
+            return False
+        return writer.withdraw(sn)
 
     def send_command(self, command: Command, now: float) -> int:
         """Send ``command`` reliably to every matched member (commander only).

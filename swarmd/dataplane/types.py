@@ -8,10 +8,16 @@ IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
       string<64> node; uint32 seq; boolean ready; string<128> reason; boolean armed;
       uint8 landed_state; uint8 gps_fix; uint8 satellites; int8 battery_pct;
       uint16 link_q_permille;
+      uint32 stamp_ms;                 // the member's clock when sent, ms mod 2^32
+    };
+    struct TimeEcho {                  // one member's last report, as the commander saw it
+      string<64> node; uint32 stamp_ms; uint32 age_ms;
     };
     struct Command {                   // swarm/command, commander -> members
       uint64 command_id; CommandKind kind; float altitude_m;
       sequence<string<64>, 255> targets;   // empty = every member
+      uint32 valid_ms;                     // validity from issue, commander's ms; 0 = none
+      sequence<TimeEcho, 255> echoes;      // the members' clocks (docs/dataplane.md)
     };
     struct CommandOutcome {            // swarm/outcome, member -> commander
       uint64 command_id; string<64> node; CommandResult result; string<128> reason;
@@ -28,7 +34,7 @@ every value it returns has passed ``validate``.
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated, Final, TypeVar
 
 from cyclonedds_idl import IdlEnum, IdlStruct
@@ -40,6 +46,9 @@ MAX_REASON_CHARS: Final = 128
 MAX_TARGETS: Final = 255  # explicit targets of one command (the paper's swarms have <= 30)
 MAX_ALTITUDE_M: Final = 500.0  # above any legal small-UAS ceiling; rejects garbage altitudes
 MAX_LINK_Q_PERMILLE: Final = 1000
+# A command's validity (docs/dataplane.md, "Validity"): longer than any operator means, short
+# of the wrap of the u32 millisecond stamps; a value above is garbage, not a long validity.
+MAX_VALID_MS: Final = 600_000
 
 NodeName = Annotated[str, bounded_str(MAX_NAME_CHARS)]
 Reason = Annotated[str, bounded_str(MAX_REASON_CHARS)]
@@ -83,6 +92,20 @@ class Readiness(IdlStruct, typename="swarmd::Readiness"):
     satellites: uint8  # 255 = unknown, as MAVLink GPS_RAW_INT
     battery_pct: int8  # -1 = unknown, as MAVLink SYS_STATUS.battery_remaining
     link_q_permille: uint16  # the link quality Q of paper eq. 2, in thousandths
+    # The member's monotonic clock when it sent this, in ms mod 2^32: the commander echoes
+    # it in commands, so the member can date a command on its own clock (validity).
+    stamp_ms: uint32 = 0
+
+
+@dataclass
+class TimeEcho(IdlStruct, typename="swarmd::TimeEcho"):
+    """The last readiness report of ``node`` the commander holds when it issues a command:
+    the member's own ``stamp_ms`` from it, and ``age_ms``, how long before the command was
+    issued the commander received it (commander's clock). See docs/dataplane.md, "Validity"."""
+
+    node: NodeName
+    stamp_ms: uint32
+    age_ms: uint32
 
 
 @dataclass
@@ -94,6 +117,12 @@ class Command(IdlStruct, typename="swarmd::Command"):
     kind: CommandKind
     altitude_m: float32  # TAKEOFF only; 0 otherwise
     targets: Annotated[Sequence[NodeName], sequence(NodeName, MAX_TARGETS)]  # empty = all
+    # How long after issue the command stays right to run, commander's ms; 0: no validity
+    # (a member refuses it as ``expired``: it cannot show the command is still right).
+    valid_ms: uint32 = 0
+    echoes: Annotated[Sequence[TimeEcho], sequence(TimeEcho, MAX_TARGETS)] = field(
+        default_factory=list
+    )
 
 
 @dataclass
@@ -148,6 +177,7 @@ def validate(sample: Sample) -> None:
             _check_int(getattr(sample, name), name, _U8)
         _check_int(sample.battery_pct, "battery_pct", range(-1, 101))
         _check_int(sample.link_q_permille, "link_q_permille", range(MAX_LINK_Q_PERMILLE + 1))
+        _check_int(sample.stamp_ms, "stamp_ms", _U32)
         flags: tuple[object, object] = (sample.ready, sample.armed)
         if not all(isinstance(flag, bool) for flag in flags):
             raise PayloadError("ready and armed must be booleans")
@@ -165,6 +195,15 @@ def validate(sample: Sample) -> None:
             raise PayloadError(f"{len(sample.targets)} targets exceed {MAX_TARGETS}")
         for target in sample.targets:
             _check_str(target, "targets[]", MAX_NAME_CHARS)
+        _check_int(sample.valid_ms, "valid_ms", range(MAX_VALID_MS + 1))
+        if len(sample.echoes) > MAX_TARGETS:
+            raise PayloadError(f"{len(sample.echoes)} echoes exceed {MAX_TARGETS}")
+        for echo in sample.echoes:
+            if not isinstance(echo, TimeEcho):
+                raise PayloadError("echoes[] must be TimeEcho")
+            _check_str(echo.node, "echoes[].node", MAX_NAME_CHARS)
+            _check_int(echo.stamp_ms, "echoes[].stamp_ms", _U32)
+            _check_int(echo.age_ms, "echoes[].age_ms", _U32)
     else:
         _check_int(sample.command_id, "command_id", _U64)
         _check_str(sample.node, "node", MAX_NAME_CHARS)

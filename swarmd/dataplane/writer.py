@@ -80,6 +80,7 @@ class WriterCounters:
     acknacks_received: int = 0
     acknacks_stale: int = 0
     evicted_unacked: int = 0
+    withdrawn: int = 0  # samples removed before every reader had them (validity ended)
 
 
 @dataclass(slots=True)
@@ -194,6 +195,15 @@ class ReliableWriter:
             proxy.period_s = self.period_s
             proxy.next_heartbeat = now + self.period_s
         return sn, out
+
+    def withdraw(self, sn: int) -> bool:
+        """Remove ``sn`` from the history: never sent again. A reader that still lacks it
+        learns from the next heartbeat (``first`` moves past it) or a GAP on its ACKNACK
+        that it is irrelevant (spec 8.4.9.2.8), exactly as for a keep-last eviction."""
+        if self.history.pop(sn, None) is None:
+            return False
+        self.counters.withdrawn += 1
+        return True
 
     @property
     def first_available(self) -> int:

@@ -30,6 +30,15 @@ from swarmd.dataplane.types import CommandResult, Readiness
 MAX_TRACKED_COMMANDS: Final = 64
 LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 
+# After a command's validity ends, how long the commander still waits for a target's first
+# answer before calling it unreachable. A member decides within the validity (its deadline
+# is never later than the commander's, docs/dataplane.md "Validity"), but its ACCEPTED may
+# still be in flight or under repair (0.2 s, then x1.5 per lost heartbeat): 2 s covers four
+# repairs. An answer arriving later still replaces the row (the truth wins).
+UNREACHABLE_GRACE_S: Final = 2.0
+UNREACHABLE: Final = "unreachable"  # state: no answer while valid; it can no longer run there
+NOT_REACHED: Final = "not_reached_while_valid"  # its reason
+
 # Effective-readiness reasons the commander adds to the members' own codes (docs/operations.md)
 NO_REPORT: Final = "no_report"  # nothing received from this member yet
 PEER_LOST: Final = "peer_lost"  # discovery lost the member (lease expired or it left)
@@ -153,6 +162,7 @@ class _Tracked:
     refused: dict[str, str]
     sent_at: float
     outcomes: dict[str, _NodeOutcome] = field(default_factory=dict)
+    valid_for_s: float | None = None  # None: no validity (a command tracked by hand)
 
 
 FINAL_RESULTS: Final = (CommandResult.COMPLETED, CommandResult.REJECTED, CommandResult.FAILED)
@@ -175,6 +185,7 @@ class CommandTracker:
         *,
         altitude_m: float | None = None,
         refused: dict[str, str] | None = None,
+        valid_for_s: float | None = None,
     ) -> None:
         self._commands[command_id] = _Tracked(
             command_id,
@@ -184,6 +195,7 @@ class CommandTracker:
             dict(refused or {}),
             now,
             {name: _NodeOutcome() for name in targets},
+            valid_for_s,
         )
         while len(self._commands) > MAX_TRACKED_COMMANDS:
             self._commands.popitem(last=False)
@@ -213,13 +225,20 @@ class CommandTracker:
         if t is None:
             return None
         nodes: dict[str, Any] = {}
+        lapsed = self._lapsed(t, now)
+        settled = True
         for name, o in t.outcomes.items():
             state = "pending" if o.accepted_at is None else "accepted"
+            reason = o.reason
             if o.result is not None:
                 state = str(o.result.name).lower()
+            elif o.accepted_at is None and lapsed:
+                state, reason = UNREACHABLE, NOT_REACHED
+            else:
+                settled = False
             nodes[name] = {
                 "state": state,
-                "reason": o.reason,
+                "reason": reason,
                 "latency_s": None if o.accepted_at is None else round(o.accepted_at - t.sent_at, 4),
                 "done_s": None if o.final_at is None else round(o.final_at - t.sent_at, 4),
             }
@@ -231,9 +250,21 @@ class CommandTracker:
             "altitude_m": t.altitude_m,
             "targets": list(t.targets),
             "age_s": round(now - t.sent_at, 3),
-            "done": all(o.result is not None for o in t.outcomes.values()),
+            "valid_for_s": t.valid_for_s,
+            # how long the command may still start on a drone that has not answered
+            "valid_left_s": None
+            if t.valid_for_s is None
+            else round(max(0.0, t.sent_at + t.valid_for_s - now), 3),
+            "done": settled,
             "nodes": nodes,
         }
+
+    @staticmethod
+    def _lapsed(t: _Tracked, now: float) -> bool:
+        """The validity ended, and the grace for answers in flight too."""
+        if t.valid_for_s is None:
+            return False
+        return now >= t.sent_at + t.valid_for_s + UNREACHABLE_GRACE_S
 
     def recent(self, now: float, limit: int = 8) -> list[dict[str, Any]]:
         ids = list(self._commands)[-limit:]

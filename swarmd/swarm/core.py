@@ -12,6 +12,9 @@ disabled). Driving sources, the driver's protocol (``swarmd.driver``):
   paper's workload, section 5) and at once when its vehicle's verdict changes
   (``vehicle_changed``), so a lost autopilot link reaches the commander within PX4's 2.5 s
   heartbeat timeout rather than up to a period later;
+- the commander's validity timers: when a command's validity ends, ``handle_timer``
+  withdraws it from the writer (never retransmitted after), and the tracker calls the
+  targets that did not answer ``unreachable``;
 - calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
   ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
   ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
@@ -24,7 +27,10 @@ the command id). The others are for the log.
 
 A member's decisions (``_execute``): each command id once (the data plane hands each id
 once per life, persisted across restarts; the core also refuses an id it already runs, for
-the commander's own drone, which bypasses the data plane). Without a vehicle every command
+the commander's own drone, which bypasses the data plane). A command from the commander
+that reaches it after its validity (``swarmd.dataplane.validity.judge``: dated on this
+node's own clock from the readiness report the commander echoes in it) is REJECTED
+``expired`` and never runs (docs/dataplane.md, "Validity"). Without a vehicle every command
 is REJECTED ``px4_disabled``. TAKEOFF is refused at once (REJECTED, reason = the readiness
 code) when the vehicle is not ready *now* (the commander's view is up to one report old),
 else ACCEPTED at once (the commander's latency measure) and sent to the vehicle; LAND, HOLD
@@ -41,6 +47,7 @@ I/O, no clock, no asyncio.
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections import OrderedDict, deque
 from collections.abc import Callable, Mapping, Sequence
@@ -55,7 +62,9 @@ from swarmd.dataplane import (
     ReadinessReceived,
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
-from swarmd.dataplane.types import Command, CommandKind, CommandResult
+from swarmd.dataplane.types import MAX_VALID_MS, Command, CommandKind, CommandResult
+from swarmd.dataplane.validity import EXPIRED, judge, stamp_ms, valid_ms_of
+from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
@@ -67,6 +76,27 @@ COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
 # command ids a member remembers running: the data plane's executed list is the durable
 # record; this only guards the commander's own drone, whose commands bypass it
 MAX_RUNNING_IDS: Final = 256
+# The longest validity an operator may give a command (the wire allows MAX_VALID_MS).
+MAX_VALID_FOR_S: Final = MAX_VALID_MS / 1000.0
+# Default validity per kind (docs/operations.md, "Validity"). TAKEOFF is the dangerous one
+# to run late and gets the shortest: 3 s covers the repairs of a 30 %-loss link (all 10
+# members within 1.8 s at worst, docs/dataplane.md "Numbers") and equals the commander's
+# stale_after_s, so a take-off never outlives the readiness report it was sent on. HOLD
+# (freeze where you are) run late would undo whatever the operator ordered since: 5 s.
+# LAND and ABORT are the safe direction and may need a worse link to get through: 10 s,
+# still short of swarmctl's 20 s wait, so swarmctl outlives the validity and can say
+# which drones it did not reach rather than "timeout".
+# Commands awaiting their withdrawal. A writer keeps at most MAX_HISTORY_DEPTH samples, so
+# past that many the oldest are gone from it anyway; the cap stops a script hammering the
+# control socket with long validities from growing the heap (the earliest is withdrawn now:
+# it only stops retransmitting sooner, members still judge its validity themselves).
+MAX_PENDING_WITHDRAWALS: Final = MAX_HISTORY_DEPTH
+DEFAULT_VALID_FOR_S: Final = {
+    CommandKind.TAKEOFF: 3.0,
+    CommandKind.HOLD: 5.0,
+    CommandKind.LAND: 10.0,
+    CommandKind.ABORT: 10.0,
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,6 +161,25 @@ class CommandExecuting:
 
 
 @dataclass(frozen=True, slots=True)
+class CommandExpired:
+    """A member refused a command that reached it after its validity (REJECTED
+    ``expired``); ``detail`` says by how much, or that it could not be dated."""
+
+    commander: str
+    command_id: int
+    kind: CommandKind
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandWithdrawn:
+    """The commander's validity for a command ended: its writer no longer holds it, so
+    repair never carries it to a member that did not have it by then."""
+
+    command_id: int
+
+
+@dataclass(frozen=True, slots=True)
 class OutcomeReported:
     """This node's own outcome for a command (sent on ``swarm/outcome``, or recorded in
     the commander's own tracker for its own drone)."""
@@ -168,6 +217,8 @@ SwarmEvent = (
     | MemberReadinessChanged
     | CommandIssued
     | CommandExecuting
+    | CommandExpired
+    | CommandWithdrawn
     | OutcomeReported
     | OutcomeRecorded
     | UserDataDropped
@@ -210,6 +261,9 @@ class SwarmCore:
         self._seq = 0
         self._last_key: tuple[bool, str | None] | None = None
         self._local_commands: set[int] = set()
+        # (commander clock when the validity ends, command id, writer SN): the commander
+        # withdraws each from its writer then, so repair never carries it late
+        self._expiries: list[tuple[float, int, int]] = []
         self._running: OrderedDict[int, CommandKind] = OrderedDict()  # id -> kind, on vehicle
         self._seen: OrderedDict[int, None] = OrderedDict()  # ids started (bounded)
         self._events: deque[SwarmEvent] = deque()
@@ -227,6 +281,7 @@ class SwarmCore:
         self._drain_plane(now)
 
     def handle_timer(self, now: float) -> None:
+        self._withdraw_expired(now)
         if self.plane is not None:
             self.plane.handle_timer(now)
             self._drain_plane(now)
@@ -237,7 +292,11 @@ class SwarmCore:
         return [] if self.plane is None else self.plane.datagrams_to_send()
 
     def get_timer(self) -> float | None:
-        deadlines = [self._tick_at, None if self.plane is None else self.plane.get_timer()]
+        deadlines = [
+            self._tick_at,
+            None if self.plane is None else self.plane.get_timer(),
+            self._expiries[0][0] if self._expiries else None,
+        ]
         return min((d for d in deadlines if d is not None), default=None)
 
     def next_event(self) -> SwarmEvent | None:
@@ -290,12 +349,19 @@ class SwarmCore:
         alt = self._altitude(request)
         targets = self._targets(request.get("only"))
         ready, refused = self.table.split(targets, now)
+        valid_for = self._valid_for(request, CommandKind.TAKEOFF)
         if refused and request.get("require_all"):
             return {"sent": False, "command_id": None, "ready": ready, "refused": refused}
         if not ready:
             return {"sent": False, "command_id": None, "ready": [], "refused": refused}
-        command_id = self._send(plane, CommandKind.TAKEOFF, ready, alt, refused, now)
-        return {"sent": True, "command_id": command_id, "ready": ready, "refused": refused}
+        command_id = self._send(plane, CommandKind.TAKEOFF, ready, alt, refused, valid_for, now)
+        return {
+            "sent": True,
+            "command_id": command_id,
+            "ready": ready,
+            "refused": refused,
+            "valid_for_s": valid_for,
+        }
 
     def request_command(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
         """Any command to the targets as they are: members judge for themselves."""
@@ -305,8 +371,15 @@ class SwarmCore:
             raise RequestInvalid(f"kind must be one of: {', '.join(COMMAND_KINDS)}")
         alt = self._altitude(request) if kind == CommandKind.TAKEOFF else 0.0
         targets = self._targets(request.get("only"))
-        command_id = self._send(plane, kind, targets, alt, {}, now)
-        return {"sent": True, "command_id": command_id, "ready": targets, "refused": {}}
+        valid_for = self._valid_for(request, kind)
+        command_id = self._send(plane, kind, targets, alt, {}, valid_for, now)
+        return {
+            "sent": True,
+            "command_id": command_id,
+            "ready": targets,
+            "refused": {},
+            "valid_for_s": valid_for,
+        }
 
     def request_outcomes(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
         command_id = request.get("command_id")
@@ -326,6 +399,13 @@ class SwarmCore:
         }
 
     # ---- internals: data plane ----------------------------------------------------------
+
+    def _withdraw_expired(self, now: float) -> None:
+        """The commander stops retransmitting commands whose validity ended."""
+        while self._expiries and self._expiries[0][0] <= now:
+            _, command_id, sn = heapq.heappop(self._expiries)
+            if self.plane is not None and self.plane.withdraw_command(sn):
+                self._events.append(CommandWithdrawn(command_id))
 
     def _drain_plane(self, now: float) -> None:
         assert self.plane is not None  # noqa: S101 - callers checked it
@@ -363,7 +443,9 @@ class SwarmCore:
         if not (self.roles.reports_readiness or self.table.names):
             return
         self._seq += 1
-        sample = readiness_sample(self.roles.me, self._seq, self._verdict(now), self._link_q())
+        sample = readiness_sample(
+            self.roles.me, self._seq, self._verdict(now), self._link_q(), stamp_ms(now)
+        )
         if self.roles.reports_readiness and self.plane is not None:
             self.plane.publish_readiness(sample, now)
             self.counters["readiness_published"] += 1
@@ -388,6 +470,17 @@ class SwarmCore:
         while len(self._seen) > MAX_RUNNING_IDS:
             self._seen.popitem(last=False)
         self._count(f"received_{kind.name.lower()}")
+        if commander != self.roles.me:  # our own drone runs its commands at issue
+            judgement = judge(command, self.roles.me, now)
+            if not judgement.valid:
+                # too late (or undatable): refused for good; its id is already persisted
+                # as executed, so no later copy can run it either (docs/dataplane.md)
+                self._count("refused_expired")
+                self._events.append(
+                    CommandExpired(commander, command.command_id, kind, judgement.detail)
+                )
+                self._report(command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now)
+                return
         takeoff = kind == CommandKind.TAKEOFF
         self._events.append(
             CommandExecuting(
@@ -473,6 +566,16 @@ class SwarmCore:
             raise RequestInvalid(f"alt_m {alt} is outside (0, {MAX_TAKEOFF_ALT_M:g}] m")
         return float(alt)
 
+    def _valid_for(self, request: Mapping[str, Any], kind: CommandKind) -> float:
+        value = request.get("valid_for_s")
+        if value is None:
+            return DEFAULT_VALID_FOR_S[kind]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise RequestInvalid(f"valid_for_s {value!r} is not a number")
+        if not (math.isfinite(value) and 0.001 <= value <= MAX_VALID_FOR_S):
+            raise RequestInvalid(f"valid_for_s {value} is outside [0.001, {MAX_VALID_FOR_S:g}] s")
+        return float(value)
+
     def _send(
         self,
         plane: DataPlane,
@@ -480,10 +583,18 @@ class SwarmCore:
         targets: Sequence[str],
         alt: float,
         refused: dict[str, str],
+        valid_for_s: float,
         now: float,
     ) -> int:
         remote = [n for n in targets if n != self.roles.me]
-        command = plane.make_command(kind, altitude_m=alt, targets=remote)
+        valid_ms = valid_ms_of(valid_for_s)
+        command = plane.make_command(
+            kind,
+            altitude_m=alt,
+            targets=remote,
+            valid_ms=valid_ms,
+            echoes=plane.time_echoes(remote, now),
+        )
         takeoff_alt = alt if kind == CommandKind.TAKEOFF else None
         self.tracker.sent(
             command.command_id,
@@ -492,12 +603,19 @@ class SwarmCore:
             now,
             altitude_m=takeoff_alt,
             refused=refused,
+            valid_for_s=valid_ms / 1000.0,
         )
         self._events.append(
             CommandIssued(command.command_id, kind, takeoff_alt, tuple(targets), dict(refused))
         )
         if remote:  # an empty target list would mean "every member" on the wire
-            plane.send_command(command, now)
+            sn = plane.send_command(command, now)
+            expiry = (now + valid_ms / 1000.0, command.command_id, sn)
+            heapq.heappush(self._expiries, expiry)
+            while len(self._expiries) > MAX_PENDING_WITHDRAWALS:
+                _, early_id, early_sn = heapq.heappop(self._expiries)
+                if plane.withdraw_command(early_sn):
+                    self._events.append(CommandWithdrawn(early_id))
         if self.roles.me in targets:
             self._local_commands.add(command.command_id)
             self._execute(self.roles.me, command, now)

@@ -1,0 +1,100 @@
+"""A command's validity, dated on clocks that are never compared (docs/dataplane.md, "Validity").
+
+Drones share no time: discovery assumes none, and each daemon's ``now`` is its own monotonic
+clock. So no absolute time travels. A member stamps each readiness report with its own clock
+(``Readiness.stamp_ms``); when the commander issues a command it echoes, for each target, the
+stamp of the last report it holds from it and how long before the issue it received that
+report (``TimeEcho.age_ms``, commander's clock), with the validity ``valid_ms``. The member
+then knows, on its own clock alone, a moment no later than the issue: the report left at
+``stamp`` and the commander received it ``age`` before the issue, so the issue happened at
+least ``age`` after ``stamp`` (transit only makes this earlier than the truth). Its deadline
+is ``stamp + age + valid``: never later than the commander's, whatever the clocks read.
+
+What an attacker who holds and releases authenticated datagrams can do (replays are
+refused by the freshness counters): delaying the command makes the member's elapsed time
+grow, so the command is refused; delaying the member's report makes the commander's
+``age`` smaller for the same stamp, so the deadline moves *earlier*. Delay can make a valid
+command expire (as jamming can), never make an expired one run. The echoes are inside the
+command sample, so they are under the pair MAC like everything else: editing them is
+``auth_failed``.
+
+Stamps are u32 milliseconds: elapsed times are taken modulo 2^32, so a stamp "from the
+future" (another boot of the member's clock, or garbage) reads as a huge elapsed time and
+the command is refused. Clock rates differ (crystals within +-100 ppm each): the commander's
+measured ``age + valid`` is shortened by both tolerances before the member compares it with
+its own elapsed time, so drift also errs towards refusing.
+
+Pure functions; no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Final
+
+from swarmd.dataplane.types import MAX_VALID_MS, Command, TimeEcho
+
+STAMP_MODULUS: Final = 1 << 32
+# Both clocks' rate tolerance summed (two crystals at +-100 ppm): the validity a member
+# grants is this much shorter than what the commander measured.
+DRIFT_PPM: Final = 200
+# Reports older than this are not echoed: the bound they give stays sound, but a drone the
+# commander has not heard for ten minutes is better refused than dated through drift.
+MAX_ECHO_AGE_MS: Final = 600_000
+
+EXPIRED: Final = "expired"  # the reason a member reports (REJECTED) for a late command
+
+
+def stamp_ms(now: float) -> int:
+    """This node's clock ``now`` (seconds) as a u32 millisecond stamp, rounded down."""
+    return math.floor(now * 1000.0) % STAMP_MODULUS
+
+
+def echo_of(node: str, report_stamp_ms: int, received_at: float, now: float) -> TimeEcho | None:
+    """The echo of a report of ``node`` stamped ``report_stamp_ms`` and received at
+    ``received_at`` (this node's clock), for a command issued ``now``; None when too old."""
+    age_ms = math.floor(max(0.0, now - received_at) * 1000.0)  # down: the deadline errs early
+    if age_ms > MAX_ECHO_AGE_MS:
+        return None
+    return TimeEcho(node, report_stamp_ms % STAMP_MODULUS, age_ms)
+
+
+def valid_ms_of(valid_for_s: float) -> int:
+    """A validity in seconds as the wire's milliseconds (rounded down, at least 1)."""
+    return min(max(1, math.floor(valid_for_s * 1000.0)), MAX_VALID_MS)
+
+
+@dataclass(frozen=True, slots=True)
+class Judgement:
+    """A member's verdict on a command's validity: ``remaining_ms`` > 0 when it may run."""
+
+    valid: bool
+    remaining_ms: int
+    detail: str
+
+
+def judge(command: Command, me: str, now: float) -> Judgement:
+    """Whether ``command`` is still within its validity for member ``me`` at ``now``
+    (``me``'s clock). Fails closed: no validity, or no echo for ``me``, is not valid."""
+    if command.valid_ms == 0:
+        return Judgement(False, 0, "no validity")
+    echo = _echo_for(command.echoes, me)
+    if echo is None:
+        return Judgement(False, 0, f"no time reference for {me}")
+    # +1: our stamp is rounded down, so the true elapsed time may be up to 1 ms more
+    elapsed_ms = (stamp_ms(now) - echo.stamp_ms) % STAMP_MODULUS + 1
+    granted_ms = (echo.age_ms + command.valid_ms) * (1_000_000 - DRIFT_PPM) // 1_000_000
+    remaining = granted_ms - elapsed_ms
+    if remaining <= 0:
+        detail = f"{elapsed_ms} ms since our report, {granted_ms} ms granted"
+        return Judgement(False, remaining, detail)
+    return Judgement(True, remaining, "")
+
+
+def _echo_for(echoes: Iterable[TimeEcho], me: str) -> TimeEcho | None:
+    for echo in echoes:
+        if echo.node == me:
+            return echo
+    return None
