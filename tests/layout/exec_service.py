@@ -92,7 +92,7 @@ def main() -> None:
     os.setgid(user.pw_gid)
     os.setuid(user.pw_uid)  # User=swarmd: every capability is gone with it
     check(libc.prctl(PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")  # NoNewPrivileges=
-    os.execve(EXEC_START[0], EXEC_START, env)
+    os.execve(EXEC_START[0], EXEC_START, env)  # noqa: S606 - ExecStart=, a fixed argv
 
 
 if __name__ == "__main__":

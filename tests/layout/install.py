@@ -32,6 +32,7 @@ REPO: Final = Path(__file__).resolve().parents[2]
 HERE: Final = Path(__file__).resolve().parent
 MISSION: Final = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
 NODE: Final = "lead"
+SWARM: Final = str(yaml.safe_load(MISSION.read_text())["swarm"])
 REPLY_S: Final = 60.0
 PROBE_S: Final = 30.0
 
@@ -74,7 +75,7 @@ class ProductionLayout:
              "--sign-key", str(keys / "swarm-signing.key")],
             ["bundle", "flash", str(swb), "--node", NODE, "--target", str(flashed),
              "--keys", str(keys)],
-            ["px4", "key", "--keys", str(keys), "--swarm", "swarm3", "--node", NODE,
+            ["px4", "key", "--keys", str(keys), "--swarm", SWARM, "--node", NODE,
              "--out", str(self.px4_key)],
         ):  # fmt: skip
             assert swarmctl(argv) == 0, argv

@@ -29,8 +29,6 @@ Standard library only: it runs before anything is installed.
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import json
 import os
 import pwd
@@ -38,7 +36,6 @@ import select
 import shutil
 import signal
 import socket
-import stat
 import subprocess
 import sys
 import time
@@ -48,9 +45,6 @@ from typing import Any
 START_WAIT_S = 30.0
 STOP_WAIT_S = 10.0
 NOTIFY_DIR = Path("/run/layout-systemd")
-CLONE_NEWNS = 0x00020000
-MS_REC, MS_PRIVATE = 0x4000, 1 << 18
-PR_CAPBSET_DROP, PR_SET_NO_NEW_PRIVS = 24, 38
 
 
 def sh(*argv: str) -> None:
