@@ -338,9 +338,6 @@ def test_the_autopilots_frames_reach_swarmd_and_no_local_user(layout: Production
     finally:
         sim.kill()
         sim.wait(timeout=WAIT_S)
-        for stream in (sim.stdout, sim.stderr):
-            if stream is not None:
-                stream.close()
 
 
 def test_shipped_config_for_the_layout_is_the_documented_one() -> None:
@@ -348,3 +345,23 @@ def test_shipped_config_for_the_layout_is_the_documented_one() -> None:
     text = shipped_config()
     assert f"connection: udpin:127.0.0.1:{PX4_PORT}" in text
     assert "signing: true" in text
+
+
+def test_the_install_leaves_nothing_on_the_host(tmp_path: Path) -> None:
+    """Users, /etc/swarmd, /opt/swarmd and the daemon exist only while the layout does."""
+    host_passwd = Path("/etc/passwd").read_text()
+    paths = [Path(p) for p in ("/etc/swarmd", "/opt/swarmd", STATE, "/run/swarmd")]
+    existed = [p.exists() for p in paths]
+    installed = ProductionLayout(tmp_path)
+    try:
+        assert installed.socket_unit(PX4_PORT)["ok"]
+        daemon = installed.start()
+        assert daemon["ready"]
+        inside = installed.run(["getent", "passwd", ATTACKER])
+        assert inside.returncode == 0  # the user exists in there
+    finally:
+        installed.close()
+    assert Path("/etc/passwd").read_text() == host_passwd
+    assert [p.exists() for p in paths] == existed
+    assert not Path(f"/proc/{daemon['pid']}").exists()
+    assert not Path(f"/proc/{installed.pid}").exists()

@@ -17,7 +17,8 @@ import sys
 
 CLONE_NEWNS = 0x00020000
 MS_REC, MS_PRIVATE = 0x4000, 1 << 18
-PR_CAPBSET_DROP, PR_SET_NO_NEW_PRIVS = 24, 38
+PR_SET_PDEATHSIG, PR_CAPBSET_DROP, PR_SET_NO_NEW_PRIVS = 1, 24, 38
+SIGKILL = 9
 EXEC_START = ["/opt/swarmd/venv/bin/swarmd", "run", "--config", "/etc/swarmd/swarmd.yaml"]
 WRITABLE = ("/var/lib/swarmd", "/run/swarmd")  # StateDirectory=, RuntimeDirectory=
 KERNEL_TREES = ("/proc", "/sys", "/dev")  # ProtectSystem=strict leaves these to other settings
@@ -91,6 +92,9 @@ def main() -> None:
     os.setgroups(groups)
     os.setgid(user.pw_gid)
     os.setuid(user.pw_uid)  # User=swarmd: every capability is gone with it
+    # not systemd's: a killed test run must not leave the daemon holding the namespace (set
+    # after setuid, which clears it)
+    check(libc.prctl(PR_SET_PDEATHSIG, SIGKILL, 0, 0, 0), "pdeathsig")
     check(libc.prctl(PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0), "no_new_privs")  # NoNewPrivileges=
     os.execve(EXEC_START[0], EXEC_START, env)  # noqa: S606 - ExecStart=, a fixed argv
 

@@ -164,9 +164,11 @@ class ProductionLayout:
         )
 
     def popen(self, argv: list[str], user: str | None = None) -> subprocess.Popen[bytes]:
-        return subprocess.Popen(  # noqa: S603 - argv list
-            self.command(argv, user), stdout=subprocess.PIPE, stderr=subprocess.PIPE
-        )
+        """A background process inside; its stderr appended to ``root/popen.log``."""
+        with (self.root / "popen.log").open("ab") as err:
+            return subprocess.Popen(  # noqa: S603 - argv list
+                self.command(argv, user), stdout=subprocess.DEVNULL, stderr=err
+            )
 
     def python(self, code: str, *args: str, user: str | None = None) -> Any:
         """Run ``code`` with this interpreter inside (as ``user``); its JSON stdout."""
