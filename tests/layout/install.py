@@ -82,6 +82,8 @@ class ProductionLayout:
         spec = {
             "scratch": str(root / "overlays"),
             "interpreter_prefix": sys.base_prefix,
+            # what stays visible if it lives in a home the namespace hides
+            "mirrors": [sys.base_prefix, sys.prefix, str(REPO)],
             "dependencies": sysconfig.get_paths()["purelib"],
             "package": str(REPO / "swarmd"),
             "config": config if config is not None else shipped_config(),

@@ -45,6 +45,8 @@ from typing import Any
 START_WAIT_S = 30.0
 STOP_WAIT_S = 10.0
 NOTIFY_DIR = Path("/run/layout-systemd")
+DEPS = "/opt/swarmd/deps"  # the test venv's site-packages, bound read-only
+STAGED = "/opt/swarmd/.swarmd-package"
 
 
 def sh(*argv: str) -> None:
@@ -66,17 +68,29 @@ def lay_out(spec: dict[str, Any]) -> None:
         overlay(target, scratch / target.strip("/").replace("/", "-"))
     sh("mount", "-t", "tmpfs", "-o", "mode=0755", "tmpfs", "/run")
     prefix = spec["interpreter_prefix"]
-    Path("/opt/swarmd/python").mkdir(parents=True)
-    sh("mount", "--bind", prefix, "/opt/swarmd/python")
-    sh("mount", "-o", "remount,bind,ro", "/opt/swarmd/python")
+    for source, target in ((prefix, "/opt/swarmd/python"), (spec["dependencies"], DEPS)):
+        Path(target).mkdir(parents=True)
+        sh("mount", "--bind", source, target)
+        sh("mount", "-o", "remount,bind,ro", target)
+    # the package, copied before the homes are hidden (a checkout may live in one)
+    shutil.copytree(spec["package"], STAGED, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(spec["flashed"], "/var/lib/swarmd")  # what 'bundle flash' wrote
     for home in ("/root", "/home"):
-        # ProtectHome=: nothing of a home is visible, except where this machine's
-        # interpreter lives (its RUNPATH names that path; on a drone it is /opt/swarmd/python)
+        # ProtectHome=: nothing of a home is visible, except the test's own paths that live
+        # in one (this machine's interpreter, whose RUNPATH names its path, the test venv and
+        # the checkout; on a drone the interpreter is /opt/swarmd/python)
+        inside = [path for path in spec["mirrors"] if path.startswith(home + "/")]
+        staged = []
+        for n, path in enumerate(inside):
+            stage = f"/opt/swarmd/.mirror/{home.strip('/')}-{n}"
+            Path(stage).mkdir(parents=True)
+            sh("mount", "--bind", path, stage)
+            staged.append((stage, path))
         if os.path.isdir(home):
             sh("mount", "-t", "tmpfs", "-o", "mode=0755", "tmpfs", home)
-        if prefix.startswith(home + "/"):
-            Path(prefix).mkdir(parents=True)
-            sh("mount", "--bind", "/opt/swarmd/python", prefix)
+        for stage, path in staged:
+            Path(path).mkdir(parents=True, exist_ok=True)
+            sh("mount", "--bind", stage, path)
     sh("ip", "link", "set", "lo", "up")
     # 3. user, groups
     sh("useradd", "--system", "--home-dir", "/var/lib/swarmd", "--shell", "/usr/sbin/nologin",
@@ -90,9 +104,8 @@ def lay_out(spec: dict[str, Any]) -> None:
     site = Path("/opt/swarmd/venv/lib/python3.11/site-packages")
     # the dependencies: the test venv's packages as a plain path (its .pth files, among
     # them the editable finder of the developer's swarmd, are not processed)
-    (site / "swarmd-deps.pth").write_text(spec["dependencies"] + "\n")
-    shutil.copytree(spec["package"], site / "swarmd",
-                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    (site / "swarmd-deps.pth").write_text(DEPS + "\n")
+    shutil.move(STAGED, site / "swarmd")
     for name, module in (("swarmd", "swarmd_main"), ("swarmctl", "swarmctl")):
         script = Path("/opt/swarmd/venv/bin") / name
         script.write_text(
@@ -107,7 +120,6 @@ def lay_out(spec: dict[str, Any]) -> None:
     config.write_text(spec["config"])
     sh("chown", "root:swarmd", str(config))
     config.chmod(0o640)
-    shutil.copytree(spec["flashed"], "/var/lib/swarmd")  # what 'bundle flash' wrote
     sh("chown", "-R", "swarmd:swarmd", "/var/lib/swarmd")
     NOTIFY_DIR.mkdir(mode=0o755)
 
