@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import ipaddress
 import math
+import os
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -183,6 +185,21 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
 }
 
 Nodes = dict[str, yaml.Node]
+
+
+def config_mode_problem(path: str | Path) -> str | None:
+    """What is wrong with the config file's mode for a production drone, or None.
+
+    Readable by every user: it names the key files and the PX4 link (docs/deploy.md:
+    0640 root:swarmd). swarmd warns (``config_mode``) and starts: the node's secrets are
+    elsewhere, each refused when others may read it."""
+    try:
+        mode = stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        return None
+    if mode & 0o004:
+        return f"mode {mode:04o} lets every user read it; fix: chmod 640 {path} (root:swarmd)"
+    return None
 
 
 def load_config(path: str | Path, *, engine_fields: frozenset[str] | None = None) -> DaemonConfig:

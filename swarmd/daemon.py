@@ -33,6 +33,7 @@ import random
 import secrets
 import signal
 import socket
+import stat
 import struct
 import time
 from collections.abc import Callable, Mapping
@@ -46,7 +47,7 @@ from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
-from swarmd.config import DaemonConfig
+from swarmd.config import DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
@@ -62,7 +63,7 @@ from swarmd.discovery.events import (
 )
 from swarmd.discovery.inputs import LinkSample
 from swarmd.driver import Driver
-from swarmd.exitcodes import EX_CANTCREAT, EX_OSERR, EX_UNAVAILABLE, StartupError
+from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, EX_UNAVAILABLE, StartupError
 from swarmd.link import SourceName
 from swarmd.link.file import FileSource
 from swarmd.link.monitor import LinkMonitor
@@ -70,7 +71,9 @@ from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
+from swarmd.px4.transport import parse_connection
 from swarmd.rtps.types import GuidPrefix
+from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarmapp import SwarmApp
 from swarmd.udp import RECV_BUFFER_BYTES, BatchedSocket, Datagram, rcvbuf_capped
@@ -97,6 +100,7 @@ def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
     if bundle.dev and config.bundle.node_key is None and not os.path.exists(path):
         secrets = NodeSecrets.dev(bundle.swarm, config.node)
     else:
+        refuse_shared_secret(path)
         try:
             secrets = NodeSecrets.load(path)
         except KeyFileError as exc:
@@ -113,6 +117,23 @@ def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
     except KeyError:
         pass  # a node outside the bundle is reported by the node check, naming its line
     return secrets
+
+
+def refuse_shared_secret(path: str) -> None:
+    """Like ssh with a private key: a node.key other users may read is refused.
+
+    Whoever reads it can sign SPDP and user data as this drone and derive its MAVLink
+    signing key (docs/security.md). Raises ``NodeSecretsError`` naming file, mode and fix;
+    a missing file is left to the loader's own message."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    if st.st_mode & 0o077:
+        raise NodeSecretsError(
+            f"{path}: mode {stat.S_IMODE(st.st_mode):04o} lets other users read this node's "
+            f"private keys; fix: chmod 600 {path} (owner swarmd)"
+        )
 
 
 def interface_ipv4(ifname: str) -> str:
@@ -259,6 +280,8 @@ class Daemon:
         self._epoch_dir = os.path.dirname(os.path.abspath(config.bundle.node_key_path))
         self.log = log
         self.notifier = notifier if notifier is not None else Notifier(env)
+        # sd_listen_fds(3): read (and unset) once; a copy when the caller passed its own
+        self._listen_env: dict[str, str] | None = None if env is None else dict(env)
         self.monitor = LinkMonitor(sources if sources is not None else link_sources(config), log)
         # seeded from the OS: two drones booting together must not draw the same timers
         self.rng = rng if rng is not None else random.Random(secrets.randbits(64))  # noqa: S311 - timer jitter, not cryptography
@@ -340,6 +363,7 @@ class Daemon:
             keys=self.keyring,  # user data is MAC'd per pair and bound to epochs
             epoch=self.epoch.epoch,
             node_secrets=self._secrets,
+            px4_socket=self._px4_listen_socket(),
         )
         self.app = app
         app.on_peer_traffic = self._peer_traffic
@@ -427,6 +451,43 @@ class Daemon:
             dataplane=self.config.dataplane.enabled,
             px4=self.config.px4.connection if self.config.px4.enabled else None,
         )
+        # after start-up, so a failed start stays one line: a warning, not a refusal
+        mode_problem = config_mode_problem(self.config.file)
+        if mode_problem is not None:  # docs/deploy.md: 0640 root:swarmd
+            self.log.warning("config_mode", path=self.config.file, problem=mode_problem)
+
+    def _px4_listen_socket(self) -> socket.socket | None:
+        """The socket ``swarmd-px4.socket`` bound for the PX4 link (``FileDescriptorName=px4``).
+
+        systemd holds it from boot and across restarts, so no local user can take the port
+        (issue 18, docs/px4.md). Descriptors we have no use for are closed (systemd keeps its
+        own copy) and logged."""
+        try:
+            fds = listen_fds(os.environ if self._listen_env is None else self._listen_env)
+        except ListenFdsError as exc:
+            raise StartupError(str(exc), EX_CONFIG) from None
+        wanted = fds.pop("px4", [])
+        px4 = self.config.px4
+        usable = (
+            px4.enabled
+            and px4.backend == "mavlink"
+            and parse_connection(px4.connection).kind == "udpin"
+        )
+        if wanted and not usable:
+            fds["px4"] = wanted
+            wanted = []
+        for name, numbers in fds.items():
+            for fd in numbers:
+                os.close(fd)
+            self.log.warning(
+                "listen_fd_unused",
+                name=name,
+                count=len(numbers),
+                why="only a MAVLink udpin: px4.connection takes a socket (named px4)",
+            )
+        for extra in wanted[1:]:
+            os.close(extra)
+        return socket.socket(fileno=wanted[0]) if wanted else None
 
     async def stop(self, reason: str = "stop") -> None:
         """Tell every peer we leave (DATA(p[UD])), then release everything."""

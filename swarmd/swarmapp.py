@@ -20,6 +20,7 @@ only does their I/O:
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Callable, Mapping
 from typing import Any, assert_never
 
@@ -34,6 +35,7 @@ from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.provision import SigningKeyError, ed25519_seed, signing_key_for
 from swarmd.px4.readiness import Readiness, ReadinessConfig
+from swarmd.px4.transport import parse_connection, unprivileged_port_start
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
 from swarmd.px4.xrce_key import XrceKeyError
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
@@ -74,6 +76,7 @@ class SwarmApp:
         keys: PairKeys,
         epoch: int,
         node_secrets: NodeSecrets | None = None,
+        px4_socket: socket.socket | None = None,
     ) -> None:
         """``keys`` (the daemon's ``KeyRing``) and ``epoch`` (this boot's, the one its SPDP
         announces) authenticate the data plane's datagrams (docs/security.md)."""
@@ -84,6 +87,7 @@ class SwarmApp:
         self.keys = keys
         self.epoch = epoch
         self.node_secrets = node_secrets  # the PX4 link's signing key derives from them
+        self.px4_socket = px4_socket  # udpin: the socket swarmd-px4.socket bound (docs/px4.md)
         self.me = config.member_of(bundle)
         self.roles = Roles.of(bundle, self.me)
         self.bridge: Px4Bridge | None = None
@@ -158,6 +162,7 @@ class SwarmApp:
                         xrce_key=xrce_key,
                         namespace=px4.namespace,
                         xrce_domain_id=px4.xrce_domain_id,
+                        listen_socket=self.px4_socket,
                         readiness=ReadinessConfig(
                             heartbeat_timeout_s=px4.heartbeat_timeout_s,
                             min_battery_pct=px4.min_battery_pct,
@@ -172,6 +177,7 @@ class SwarmApp:
                 self.bridge = None
                 reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
                 raise StartupError(f"px4.connection {px4.connection}: {reason}", EX_OSERR) from None
+            self._warn_unprivileged_port()
         try:
             if self.config.dataplane.enabled:
                 self._boot_dataplane()
@@ -232,6 +238,22 @@ class SwarmApp:
         if key.mode_fixed:
             self.log.warning("xrce_key_mode_fixed", path=str(key.path), mode="0600")
         return key.value
+
+    def _warn_unprivileged_port(self) -> None:
+        """A udpin port any user may bind can be taken while swarmd is down (issue 18)."""
+        px4 = self.config.px4
+        if px4.backend != "mavlink":
+            return
+        endpoint = parse_connection(px4.connection)
+        lowest = unprivileged_port_start()
+        if endpoint.kind == "udpin" and endpoint.port >= lowest:
+            self.log.warning(
+                "px4_port_unprivileged",
+                port=endpoint.port,
+                unprivileged_port_start=lowest,
+                socket_activated=self.px4_socket is not None,
+                fix="a port below 1024 held by swarmd-px4.socket (docs/px4.md)",
+            )
 
     def _boot_dataplane(self) -> None:
         try:

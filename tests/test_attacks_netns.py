@@ -51,7 +51,7 @@ from swarmd.rtps.types import GuidPrefix
 from tests.attacker import cpulimit, forge
 from tests.attacker.flood import FloodResult, forged_pool, run_flood
 from tests.attacker.host import Attacker, Learned, drain
-from tests.attacker.swarm import BIN, FlashedSwarm, delta, refusals, until
+from tests.attacker.swarm import BIN, PX4_LISTEN, FlashedSwarm, delta, refusals, until
 
 pytestmark = [pytest.mark.netns]
 
@@ -60,6 +60,7 @@ COMMAND: Final = "swarm/command"
 READY: Final = "swarm/ready"
 SETTLE_S: Final = 4.0  # how long a refused attack is given to show an effect anyway
 HOLD_TIMEOUT_S: Final = 10.0
+PX4_PORT: Final = int(PX4_LISTEN.rpartition(":")[2])  # the shipped config's (540)
 TERMINAL_UNSAFE: Final = ("\x1b", "\x07", "\x9b", "\u202e", "\x00", "\r")
 
 
@@ -584,7 +585,7 @@ def test_replayed_takeoff_after_state_loss_refused(lab: Lab) -> None:
 
 def _px4_sockets(sw: FlashedSwarm, i: int) -> list[str]:
     """Local addresses of drone i's UDP sockets on the PX4 port."""
-    shown = sw.lan[i].run(["ss", "-Hlun", "sport = :14540"]).stdout
+    shown = sw.lan[i].run(["ss", "-Hlun", f"sport = :{PX4_PORT}"]).stdout
     return [line.split()[3] for line in shown.splitlines() if line.strip()]
 
 
@@ -600,7 +601,7 @@ def test_px4_link_forged_heartbeats_and_interception_refused(lab: Lab) -> None:
         system_status=4,
     )  # fmt: skip
     # the link listens on loopback only: nothing on the Wi-Fi address can be heard
-    assert _px4_sockets(sw, M1) == ["127.0.0.1:14540"], _px4_sockets(sw, M1)
+    assert _px4_sockets(sw, M1) == [f"127.0.0.1:{PX4_PORT}"], _px4_sockets(sw, M1)
     before, vehicle = lab.refusals(), lab.vehicle_commands()
     local = sw.lan[M1].socket()  # a local user on the drone: same namespace, no key
     local.bind(("127.0.0.1", 0))
@@ -615,8 +616,8 @@ def test_px4_link_forged_heartbeats_and_interception_refused(lab: Lab) -> None:
                 break
             forged += 1
             frame = codec.encode(armed)
-            sock.sendto(frame, (sw.lan[M1].address, 14540))
-            local.sendto(frame, ("127.0.0.1", 14540))
+            sock.sendto(frame, (sw.lan[M1].address, PX4_PORT))
+            local.sendto(frame, ("127.0.0.1", PX4_PORT))
             received += drain(sock, 0.05)
             px4 = sw.status(M1)["px4"]["readiness"]
             seen_armed = seen_armed or px4.get("reason") == "armed" or px4.get("armed") is True
@@ -636,13 +637,13 @@ def test_px4_link_forged_heartbeats_and_interception_refused(lab: Lab) -> None:
 
 
 def _count_rtps_to_mavlink(sw: FlashedSwarm) -> None:
-    ruleset = """\
-table inet atk_count {
-  chain output {
+    ruleset = f"""\
+table inet atk_count {{
+  chain output {{
     type filter hook output priority 0; policy accept;
-    ip daddr 127.0.0.1 udp dport 14540 @th,64,32 0x52545053 counter
-  }
-}
+    ip daddr 127.0.0.1 udp dport {PX4_PORT} @th,64,32 0x52545053 counter
+  }}
+}}
 """
     for i in range(sw.n):
         subprocess.run(  # noqa: S603 - fixed argv, ruleset on stdin
@@ -666,7 +667,7 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
     _count_rtps_to_mavlink(sw)
     before = lab.refusals()
     try:
-        loopback = ("127.0.0.1", 14540)
+        loopback = ("127.0.0.1", PX4_PORT)
         for _ in range(3):
             for resign in (None, (lab.fresh(M2), ATTACKER_KEY)):  # replayed, then re-signed
                 atk.multicast(
@@ -696,7 +697,7 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
     finally:
         for i in range(sw.n):
             sw.lan[i].run(["nft", "delete", "table", "inet", "atk_count"], check=False)
-    assert into_mavlink == [0] * sw.n, f"RTPS datagrams sent into 127.0.0.1:14540: {into_mavlink}"
+    assert into_mavlink == [0] * sw.n, f"RTPS into 127.0.0.1:{PX4_PORT}: {into_mavlink}"
     lab.assert_replays_and_resigns_refused(before, LEAD, 3)
     assert lab.moved(before, LEAD, SPDP + "bad_locator") >= 1, lab.refused_since(before, LEAD)
     lab.assert_commander_commands_all()

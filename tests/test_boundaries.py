@@ -56,6 +56,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "terminal": frozenset(),
     "logs": frozenset({"terminal"}),
     "sdnotify": frozenset(),
+    # sd_listen_fds(3): the sockets systemd bound for us (swarmd-px4.socket)
+    "sdlisten": frozenset(),
     # batched UDP reads (daemon tier): the SPDP sockets' and the user-data socket's
     "udp": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
@@ -68,7 +70,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     | {"config", "control", "driver", "logs", "userdata"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
-    | {"config", "control", "driver", "logs", "sdnotify", "swarmapp", "udp"},
+    | {"config", "control", "driver", "logs", "sdlisten", "sdnotify", "swarmapp", "udp"},
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"}
@@ -96,9 +98,12 @@ SANS_IO = [
     SansIO("ros2"),
     # transport: udp/serial byte links; mavlink_backend, bridge: the asyncio MAVLink backend
     # xrce_backend: the asyncio XRCE-DDS backend; provision: swarmctl px4 setup-signing's link
+    # portowner: reads /proc to name who holds the PX4 link's port
     SansIO(
         "px4",
-        frozenset({"transport", "mavlink_backend", "bridge", "xrce_backend", "provision"}),
+        frozenset(
+            {"transport", "mavlink_backend", "bridge", "xrce_backend", "provision", "portowner"}
+        ),
     ),
     # the swarm's I/O: the state file (core.py is sans-IO; the user-data socket is the
     # daemon tier's swarmd/userdata.py)

@@ -34,7 +34,7 @@ def test_documented_default_config_loads() -> None:
 
 def test_documented_default_enables_px4_and_the_data_plane() -> None:
     cfg = load_config(REPO / "config" / "swarmd.yaml")
-    assert cfg.px4.enabled and cfg.px4.connection == "udpin:127.0.0.1:14540"
+    assert cfg.px4.enabled and cfg.px4.connection == "udpin:127.0.0.1:540"  # swarmd-px4.socket
     assert cfg.px4.signing and not cfg.px4.allow_network and cfg.px4.autopilot is None
     assert cfg.px4.sysid is None  # from the bundle participant's mavlink_sysid
     assert cfg.dataplane.enabled and cfg.dataplane.readiness_period_s == 1.0

@@ -12,6 +12,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 UNIT = REPO / "systemd" / "swarmd.service"
+SOCKET_UNIT = REPO / "systemd" / "swarmd-px4.socket"
 INSTALLED_EXEC = "/opt/swarmd/venv/bin/swarmd"
 MAX_EXPOSURE = 3.0  # systemd-analyze security: 2.x is "OK"; a dropped hardening line raises it
 
@@ -31,12 +32,14 @@ def _local_copy(tmp_path: Path, text: str | None = None) -> Path:
     exe = Path(sys.executable).parent / "swarmd"
     unit = tmp_path / "swarmd.service"
     unit.write_text(text.replace(INSTALLED_EXEC, str(exe)))
+    # the socket unit it names (Sockets=), beside it as on a drone
+    (tmp_path / SOCKET_UNIT.name).write_text(SOCKET_UNIT.read_text())
     return unit
 
 
-def _verify(unit: Path) -> subprocess.CompletedProcess[str]:
+def _verify(unit: Path, *more: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        ["systemd-analyze", "verify", str(unit)],
+        ["systemd-analyze", "verify", str(unit), *map(str, more)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -52,6 +55,44 @@ def test_unit_passes_systemd_analyze_verify_without_any_warning(tmp_path: Path) 
     assert proc.stderr.strip() == ""
 
 
+def test_socket_unit_passes_verify_with_the_service_without_any_warning(tmp_path: Path) -> None:
+    unit = _local_copy(tmp_path)
+    proc = _verify(unit, tmp_path / SOCKET_UNIT.name)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.strip() == ""
+    broken = tmp_path / SOCKET_UNIT.name
+    broken.write_text(SOCKET_UNIT.read_text().replace("ListenDatagram=", "ListenDatagrm="))
+    assert "ListenDatagrm" in _verify(unit, broken).stderr  # the check can fail
+
+
+def _unit_settings(path: Path) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for line in path.read_text().splitlines():
+        if "=" in line and not line.startswith(("#", "[")):
+            key, _, value = line.partition("=")
+            out.setdefault(key.strip(), []).append(value.strip())
+    return out
+
+
+def test_socket_unit_holds_a_privileged_port_the_config_listens_on() -> None:
+    """Issue 18: systemd binds the PX4 port from boot, below 1024, and passes it as 'px4'."""
+    from swarmd.config import load_config
+    from swarmd.px4.transport import parse_connection
+
+    s = _unit_settings(SOCKET_UNIT)
+    (listen,) = s["ListenDatagram"]
+    host, _, port = listen.rpartition(":")
+    assert int(port) < 1024  # below net.ipv4.ip_unprivileged_port_start's default
+    assert s["FileDescriptorName"] == ["px4"]  # what the daemon looks for
+    assert s["Service"] == ["swarmd.service"]
+    assert "ReusePort" not in s  # SO_REUSEPORT would let a same-uid process join
+    shipped = parse_connection(load_config(REPO / "config" / "swarmd.yaml").px4.connection)
+    assert (shipped.kind, shipped.host, shipped.port) == ("udpin", host, int(port))
+    service = _settings()
+    assert service["Sockets"] == [SOCKET_UNIT.name]  # passed on every start, not only on traffic
+    assert SOCKET_UNIT.name in service["After"][0] and SOCKET_UNIT.name in service["Wants"][0]
+
+
 def test_verify_check_catches_a_broken_unit(tmp_path: Path) -> None:
     broken = (
         UNIT.read_text()
@@ -64,12 +105,7 @@ def test_verify_check_catches_a_broken_unit(tmp_path: Path) -> None:
 
 
 def _settings() -> dict[str, list[str]]:
-    out: dict[str, list[str]] = {}
-    for line in UNIT.read_text().splitlines():
-        if "=" in line and not line.startswith(("#", "[")):
-            key, _, value = line.partition("=")
-            out.setdefault(key.strip(), []).append(value.strip())
-    return out
+    return _unit_settings(UNIT)
 
 
 def test_unit_settings() -> None:
@@ -79,6 +115,9 @@ def test_unit_settings() -> None:
     assert s["WatchdogSec"] == ["10s"]
     assert s["RuntimeDirectory"] == ["swarmd"]
     assert s["StateDirectory"] == ["swarmd"]
+    assert s["StateDirectoryMode"] == ["0700"]  # node.key's folder: the daemon's alone
+    assert s["ConfigurationDirectoryMode"] == ["0750"]
+    assert s["UMask"] == ["0027"]
     assert s["User"] == ["swarmd"]
     assert s["CapabilityBoundingSet"] == [""]  # no capability at all
     assert s["AmbientCapabilities"] == [""]

@@ -21,6 +21,7 @@ API for the daemon / commander::
 from __future__ import annotations
 
 import asyncio
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, assert_never
@@ -68,6 +69,8 @@ class Px4Config:
     xrce_domain_id: int = 0  # xrce-client: its participant's DDS domain (UXRCE_DDS_DOM_ID)
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
     takeoff: TakeoffConfig = field(default_factory=TakeoffConfig)
+    # MAVLink udpin: the socket systemd bound (swarmd-px4.socket, docs/px4.md); None: bind
+    listen_socket: socket.socket | None = field(default=None, compare=False)
 
 
 class Px4Bridge:
@@ -113,6 +116,7 @@ class Px4Bridge:
                 sysid=config.sysid,
                 autopilot=config.autopilot,
                 signing_key=config.signing_key,
+                inherited=config.listen_socket,
             )
         return cls(
             backend, readiness_config=config.readiness, takeoff_config=config.takeoff, log=log

@@ -21,6 +21,7 @@ for PX4's 0.5 Hz stream; the ACK of that request is not passed on.
 from __future__ import annotations
 
 import asyncio
+import socket
 import time
 from typing import Any, Final
 
@@ -66,6 +67,7 @@ class MavlinkBackend:
         autopilot: str | None = None,
         signing_key: bytes | None = None,
         repin_after_s: float = REPIN_AFTER_S,
+        inherited: socket.socket | None = None,
     ) -> None:
         if not 1 <= sysid <= 255 or not 1 <= compid <= 255:
             raise ValueError("px4.sysid and the companion component id must be 1..255")
@@ -86,6 +88,8 @@ class MavlinkBackend:
         elif self.endpoint.kind == "udpin":
             fixed = None if autopilot is None else parse_address(autopilot, "px4.autopilot")
             self.pin = AutopilotPin(configured=fixed, repin_after_s=repin_after_s)
+        # udpin: the socket systemd bound for us (swarmd-px4.socket), else bound at start()
+        self._inherited = inherited if self.endpoint.kind == "udpin" else None
         self._datagrams = self.endpoint.kind != "serial"  # UDP: frames never span datagrams
         self._link: ByteLink | None = None
         self._sink: ObservationSink | None = None
@@ -101,7 +105,7 @@ class MavlinkBackend:
     async def start(self, sink: ObservationSink) -> None:
         self._loop = asyncio.get_running_loop()
         self._sink = sink
-        self._link = await open_link(self.endpoint, self._on_bytes)
+        self._link = await open_link(self.endpoint, self._on_bytes, inherited=self._inherited)
         self._sync_remote()
         self._heartbeat()
 

@@ -5,6 +5,11 @@ Connection strings follow pymavlink/MAVSDK usage (reference section 1.7):
 - ``udpin:HOST:PORT``  bind and listen (PX4 SITL sends to 14540+i; mavlink-router's
   ``[UdpEndpoint] Mode=Normal`` sends to us). Replies go only to the address the backend
   pinned (``linkguard.py``), never to whoever sent last: that was issue 10's attack 6.
+  The socket is never ``SO_REUSEADDR``: with it, any local user could bind the same address
+  with ``SO_REUSEADDR`` and Linux would hand them the autopilot's datagrams (issue 18). It is
+  bound here, or adopted from systemd (``swarmd-px4.socket``, ``adopt_udpin``) with the flag
+  cleared; a port someone else holds stops start-up with one line naming them
+  (``portowner.py``).
 - ``udpout:HOST:PORT`` send to a listener (PX4 SITL listens on 14580+i). The socket is
   *connected* to it, so the kernel drops datagrams from any other source, and bound to an
   ephemeral port, so the peer learns us from our first heartbeat.
@@ -28,12 +33,21 @@ import asyncio
 import errno
 import ipaddress
 import os
+import socket
 import termios
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Final, Literal, Protocol, cast
 
+from swarmd.px4.portowner import describe, holders
+
+UNPRIVILEGED_PORT_START_FILE: Final = Path("/proc/sys/net/ipv4/ip_unprivileged_port_start")
+PORT_FIX: Final = (
+    "let systemd hold the port from boot (swarmd-px4.socket, docs/px4.md), on a port below "
+    "1024 so no other user can bind it"
+)
 MAX_TX_BACKLOG: Final = 64 * 1024  # serial bytes queued while the UART drains; more is dropped
 SERIAL_REOPEN_S: Final = 1.0  # retry a vanished serial device (USB adapter re-plugged)
 
@@ -134,17 +148,98 @@ class ByteLink(Protocol):
     def close(self) -> None: ...
 
 
-async def open_link(endpoint: Endpoint, on_bytes: OnBytes) -> ByteLink:
-    """Open ``endpoint``; received bytes go to ``on_bytes`` on the event loop."""
+def unprivileged_port_start(path: Path = UNPRIVILEGED_PORT_START_FILE) -> int:
+    """The lowest port any user may bind (``net.ipv4.ip_unprivileged_port_start``, 1024)."""
+    try:
+        return int(path.read_text())
+    except (OSError, ValueError):
+        return 1024
+
+
+def bind_udpin(endpoint: Endpoint, inherited: socket.socket | None = None) -> socket.socket:
+    """The ``udpin:`` socket: ``inherited`` (from systemd) checked and adopted, or bound here.
+
+    Raises ``OSError`` whose ``strerror`` is one line with the cause and the fix: the port is
+    held (naming who holds it), or is privileged and we may not bind it.
+    """
+    if inherited is not None:
+        return adopt_udpin(endpoint, inherited)
+    family = socket.AF_INET6 if ":" in endpoint.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind((endpoint.host, endpoint.port))  # no SO_REUSEADDR: nobody binds beside us
+    except OSError as exc:
+        sock.close()
+        port = endpoint.port
+        if exc.errno == errno.EADDRINUSE:
+            who = describe(holders(endpoint.host, port))
+            raise OSError(
+                errno.EADDRINUSE, f"port {port} is held by {who}; fix: stop it, and {PORT_FIX}"
+            ) from None
+        if exc.errno == errno.EACCES:
+            raise OSError(
+                errno.EACCES,
+                f"port {port} is below {unprivileged_port_start()}: only root (or "
+                "CAP_NET_BIND_SERVICE) may bind it; fix: start swarmd with swarmd-px4.socket, "
+                "which binds it for us (systemctl start swarmd-px4.socket swarmd, docs/px4.md)",
+            ) from None
+        raise
+    sock.setblocking(False)
+    return sock
+
+
+def adopt_udpin(endpoint: Endpoint, sock: socket.socket) -> socket.socket:
+    """A socket systemd bound for ``endpoint``: check it, clear ``SO_REUSEADDR``, and make
+    sure no other socket shares its address (a user who bound beside it before we cleared
+    the flag would receive the autopilot's datagrams)."""
+    where = "the socket passed as 'px4' (swarmd-px4.socket ListenDatagram=)"
+    if sock.type != socket.SOCK_DGRAM or sock.family not in (socket.AF_INET, socket.AF_INET6):
+        raise OSError(
+            errno.EINVAL,
+            f"{where} is not a UDP socket; fix: ListenDatagram={endpoint.host}:{endpoint.port}",
+        )
+    bound = sock.getsockname()
+    host = str(bound[0]).removeprefix("::ffff:")
+    if host != endpoint.host or (endpoint.port != 0 and bound[1] != endpoint.port):
+        raise OSError(
+            errno.EINVAL,
+            f"{where} is bound to {host}:{bound[1]}, not {endpoint.host}:{endpoint.port}; fix: "
+            "make ListenDatagram= and px4.connection name the same address",
+        )
+    # systemd sets SO_REUSEADDR on every socket it binds; cleared, nobody can bind beside us
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 0)
+    others = holders(endpoint.host, int(bound[1]), exclude_inode=os.fstat(sock.fileno()).st_ino)
+    if others:
+        raise OSError(
+            errno.EADDRINUSE,
+            f"port {bound[1]} is also bound by {describe(others)}, which receives the "
+            f"autopilot's datagrams; fix: stop it, and {PORT_FIX}",
+        )
+    sock.setblocking(False)
+    return sock
+
+
+async def open_link(
+    endpoint: Endpoint, on_bytes: OnBytes, *, inherited: socket.socket | None = None
+) -> ByteLink:
+    """Open ``endpoint``; received bytes go to ``on_bytes`` on the event loop.
+
+    ``inherited``: for ``udpin:``, the socket systemd bound (``bind_udpin``)."""
     if endpoint.kind == "serial":
         link = SerialLink(endpoint, on_bytes)
         link.open()
         return link
     loop = asyncio.get_running_loop()
     if endpoint.kind == "udpin":
-        _, protocol = await loop.create_datagram_endpoint(
-            lambda: UdpLink(on_bytes, None), local_addr=(endpoint.host, endpoint.port)
-        )
+        sock = bind_udpin(endpoint, inherited)
+        try:
+            _, protocol = await loop.create_datagram_endpoint(
+                lambda: UdpLink(on_bytes, None), sock=sock
+            )
+        except BaseException:
+            sock.close()
+            raise
     else:  # connected: the kernel delivers only the target's datagrams
         remote = (endpoint.host, endpoint.port)
         _, protocol = await loop.create_datagram_endpoint(

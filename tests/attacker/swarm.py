@@ -40,6 +40,9 @@ from tests.attacker.forge import entity
 REPO: Final = Path(__file__).resolve().parents[2]
 SHIPPED_CONFIG: Final = REPO / "config" / "swarmd.yaml"
 MISSION: Final = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
+# where the shipped config listens for PX4 (127.0.0.1:540, swarmd-px4.socket's port): the
+# vehicle simulator sends there, as PX4 or mavlink-router would (docs/px4.md)
+PX4_LISTEN: Final = str(yaml.safe_load(SHIPPED_CONFIG.read_text())["px4"]["connection"])
 BIN: Final = Path(sys.executable).parent
 SPDP_GROUP: Final = "239.255.0.1"
 # Faster than the field mission's 8/20/20 s so a test converges in seconds; the lease stays
@@ -205,7 +208,7 @@ class FlashedSwarm:
             self.sims[i] = self.lan[i].popen(
                 [
                     str(BIN / "swarmd-vehicle-sim"),
-                    *("--connect", "udpout:127.0.0.1:14540", "--sysid", str(sysid)),
+                    *("--connect", PX4_LISTEN.replace("udpin:", "udpout:"), "--sysid", str(sysid)),
                     *("--seed", str(i), "--gps-fix-after", "0.5", "--json-log"),
                     *("--signing-key", str(self.px4_key(i))),
                 ],

@@ -1,0 +1,1 @@
+"""The production-layout fixture (tests/test_production_layout.py)."""
