@@ -62,6 +62,7 @@ from swarmd.xrce.message import (
     Status,
     StatusReply,
     Submessage,
+    SubmessageId,
     Time,
     Timestamp,
     TimestampReply,
@@ -129,6 +130,12 @@ SERVICE: Final = "vehicle_command"
 REQUEST_TYPE: Final = "px4_msgs::srv::dds_::VehicleCommand_Request_"
 REPLY_TYPE: Final = "px4_msgs::srv::dds_::VehicleCommand_Response_"
 TIMESYNC_STATUS_SIZE: Final = 44  # TimesyncStatus (v1.14..v1.17): u64, u8, u64, i64, i64, u32
+
+
+def _pad4(data: bytes) -> bytes:
+    if len(data) > 4 and data[4] == SubmessageId.ACKNACK:
+        return data
+    return data + bytes(-len(data) % 4)
 
 
 def message_version(release: str, message: str) -> int:
@@ -260,6 +267,11 @@ class Px4UxrceClient(XrceClient):
         return True
 
     # ---- driving -------------------------------------------------------------------------
+
+    def datagrams_to_send(self) -> list[tuple[bytes, Address]]:
+        """As Micro XRCE-DDS writes them: a message ends 4-aligned (its serialisation buffer
+        pads the last submessage), except a lone ACKNACK (golden: 13-octet datagrams)."""
+        return [(_pad4(data), addr) for data, addr in super().datagrams_to_send()]
 
     def receive_datagram(self, data: bytes, source: Address, now: float) -> None:
         if self.phase == "pinging" and source == self.agent and data[:1] == b"\x80":
