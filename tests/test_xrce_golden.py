@@ -99,8 +99,11 @@ def _replay(client: str) -> tuple[dict[str, list[tuple[Any, ...]]], XrceAgent]:
 
 def _recorded(client: str) -> dict[str, list[tuple[Any, ...]]]:
     return _answers(
-        [decode_message(bytes.fromhex(r["hex"])) for r in RECORDS
-         if r["client"] == client and r["dir"] == "a2c"]  # fmt: skip
+        [
+            decode_message(bytes.fromhex(r["hex"]))
+            for r in RECORDS
+            if r["client"] == client and r["dir"] == "a2c"
+        ]  # fmt: skip
     )
 
 
@@ -224,5 +227,8 @@ def test_standin_samples_and_pings_match_the_golden_client_side() -> None:
     for msgs in (ours, theirs):
         assert all(len(m) % 4 == 0 for m in msgs if _kinds(m) != ["AckNack"])
     assert {_kinds(m)[0] for m in ours if m[1] == 0} == {
-        "GetInfo", "CreateClient", "Timestamp", "AckNack"
+        "GetInfo",
+        "CreateClient",
+        "Timestamp",
+        "AckNack",
     }

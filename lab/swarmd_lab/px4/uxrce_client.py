@@ -360,8 +360,10 @@ class Px4UxrceClient(XrceClient):
                 name = self.names[spec.topic]
                 self._steps.append((f"writer {name}", self._endpoint(spec, writer=True), None))
         if has_replier(self.release):
-            blob = encode_service(ServiceBinary(
-                SERVICE, REQUEST_TYPE, REPLY_TYPE, self.request_topic, self.reply_topic))  # fmt: skip
+            service = ServiceBinary(
+                SERVICE, REQUEST_TYPE, REPLY_TYPE, self.request_topic, self.reply_topic
+            )
+            blob = encode_service(service)
             rid = object_id(REPLIER_IDENT, ObjectKind.REPLIER)
             create = Create(0, rid, ObjectKind.REPLIER, Repr.BIN, blob,
                             parent_id=self._participant(), replace=True)  # fmt: skip

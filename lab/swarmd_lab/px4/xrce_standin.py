@@ -186,8 +186,8 @@ class Px4XrceStandin:
                     values |= {"latitude_deg": c.home_lat_deg, "longitude_deg": c.home_lon_deg,
                                "altitude_msl_m": alt}  # fmt: skip
                 else:  # 1.14: 1e-7 degrees and millimetres
-                    values |= {"lat": round(c.home_lat_deg * 1e7),
-                               "lon": round(c.home_lon_deg * 1e7), "alt": round(alt * 1000)}  # fmt: skip
+                    lat, lon = round(c.home_lat_deg * 1e7), round(c.home_lon_deg * 1e7)
+                    values |= {"lat": lat, "lon": lon, "alt": round(alt * 1000)}
             case _:
                 raise ValueError(f"not a periodic topic: {topic}")
         return encode_fields(layouts[message], {"timestamp": ts, **values})

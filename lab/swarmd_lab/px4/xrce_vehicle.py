@@ -112,7 +112,8 @@ async def run(args: argparse.Namespace) -> int:
         localhost_only=args.ptcfg == 1, domain_id=args.domain, vehicle=vehicle,
     )  # fmt: skip
     loop = asyncio.get_running_loop()
-    standin = Px4XrceStandin(config, random.Random(args.seed), loop.time())
+    rng = random.Random(args.seed)  # noqa: S311 - a simulation's seeded draws, not secrets
+    standin = Px4XrceStandin(config, rng, loop.time())
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
@@ -134,8 +135,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-k", "--key", type=int, default=1, help="UXRCE_DDS_KEY (1)")
     p.add_argument("-S", "--sysid", type=int, default=1, help="MAV_SYS_ID (1)")
     p.add_argument("-n", "--namespace", default=None, help="UXRCE_DDS_NS")
-    p.add_argument("-c", "--ptcfg", type=int, default=1, choices=(0, 1),
-                   help="UXRCE_DDS_PTCFG: 1 localhost-only participant (default), 0 default")
+    p.add_argument(
+        "-c",
+        "--ptcfg",
+        type=int,
+        default=1,
+        choices=(0, 1),
+        help="UXRCE_DDS_PTCFG: 1 localhost-only participant (default), 0 default",
+    )
     p.add_argument("-d", "--domain", type=int, default=0, help="UXRCE_DDS_DOM_ID")
     p.add_argument("-D", "--duration", type=float, default=None, help="exit after S s")
     p.add_argument("--gps-fix-after", type=float, default=0.0)
