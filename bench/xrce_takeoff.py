@@ -1,7 +1,8 @@
 """XRCE take-off latency against the PX4 stand-in's realistic climb (docs/benchmarks.md, "PX4
 over uXRCE-DDS"), next to the MAVLink backend flying the same vehicle model.
 
-    .venv/bin/python bench/xrce_takeoff.py [--runs 5] [--alt 5] [--out bench/results/xrce_takeoff.json]
+    .venv/bin/python bench/xrce_takeoff.py [--runs 5] [--alt 5]
+                                           [--out bench/results/xrce_takeoff.json]
 
 Per run, a fresh vehicle and a fresh swarmd bridge on loopback:
 - ``xrce``: ``swarmd-px4-xrce`` (PX4 1.16 session, PX4's time sync) with swarmd as its agent;
@@ -95,8 +96,12 @@ def main() -> int:
     ap.add_argument("--alt", type=float, default=5.0)
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "xrce_takeoff.json")
     args = ap.parse_args()
-    res: dict[str, Any] = {"host": platform.node(), "python": platform.python_version(),
-                           "load_1min": round(os.getloadavg()[0], 2), "alt_m": args.alt}  # fmt: skip
+    res: dict[str, Any] = {
+        "host": platform.node(),
+        "python": platform.python_version(),
+        "load_1min": round(os.getloadavg()[0], 2),
+        "alt_m": args.alt,
+    }
     for kind in ("xrce", "mavlink"):
         runs = [asyncio.run(one_run(kind, args.alt)) for _ in range(args.runs)]
         res[kind] = {k: summary([r[k] for r in runs]) for k in runs[0]}
