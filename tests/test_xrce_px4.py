@@ -245,3 +245,26 @@ async def _client_mode_through_micro_xrce_agent_takes_off(domain: int | None) ->
             assert backend.stats()["failsafe_blockers"] == []  # read through the agent too
         finally:
             await bridge.close()
+
+
+def test_standin_key_and_system_id_options() -> None:
+    asyncio.run(_standin_key_and_system_id_options())
+
+
+async def _standin_key_and_system_id_options() -> None:
+    """``-k`` is PX4's UXRCE_DDS_KEY and ``-S`` its MAV_SYS_ID: an agent bound to key 7 flies
+    vehicle 3 from the stand-in started with ``-k 7 -S 3``; one started with ``-k 8`` never
+    gets a session (refused), so swarmd never hears a vehicle."""
+    port = _free_udp_port()
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=3, expected_key=7)
+    bridge = Px4Bridge(backend, readiness_config=READY)
+    await bridge.start()
+    try:
+        async with _proc(*standin_argv(port, "1.16", "-k", "8", "-S", "3")):
+            await asyncio.sleep(8.0)  # a session would be ready after ~6 s of time sync
+            assert bridge.readiness().reason == "no_heartbeat"
+            assert backend.counters["sessions"] == 0
+        async with _proc(*standin_argv(port, "1.16", "-k", "7", "-S", "3")) as client:
+            await _fly(bridge, client)
+    finally:
+        await bridge.close()
