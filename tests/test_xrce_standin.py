@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import math
 import random
+import subprocess
+import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from swarmd_lab.px4.sim_model import SimConfig
@@ -206,3 +209,20 @@ def test_a_create_never_answered_times_out_in_one_second() -> None:
     link.run(8.0)
     assert any("no STATUS within 1 s" in f for f in link.px4.client.failures)
     assert not link.px4.client.running
+
+
+def test_the_standin_core_is_sans_io() -> None:
+    """The stand-in's client and vehicle (not its UDP adapter) load no loop or socket and
+    import no clock: time is the ``now`` they are given (style.md rule 3)."""
+    code = (
+        "import sys, swarmd_lab.px4.uxrce_client, swarmd_lab.px4.xrce_standin\n"
+        "print(sorted(m for m in ('asyncio', 'socket') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=60)  # fmt: skip
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+    lab = Path(__file__).resolve().parents[1] / "lab" / "swarmd_lab" / "px4"
+    for name in ("uxrce_client.py", "xrce_standin.py", "sim_model.py"):
+        imports = [line for line in (lab / name).read_text().splitlines()
+                   if line.startswith(("import ", "from "))]  # fmt: skip
+        assert not [i for i in imports if i.split()[1] in ("time", "asyncio", "socket")], name
