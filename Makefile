@@ -2,8 +2,9 @@
 VENV ?= .venv
 LOCK ?= requirements/test.lock
 N ?= 10
-# mavlink: the MAVLink vehicle simulator; xrce: px4_like_client through swarmd's XRCE agent
-# xrce-client: px4_like_client through MicroXRCEAgent, swarmd its second client
+# mavlink: the MAVLink vehicle simulator; xrce: the PX4 stand-in (swarmd-px4-xrce) with
+# swarmd as its XRCE agent; xrce-client: the stand-in through MicroXRCEAgent (needs it on
+# PATH), swarmd its second client
 VEHICLE ?= mavlink
 PYTEST_ARGS ?=
 

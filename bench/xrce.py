@@ -1,4 +1,5 @@
-"""uXRCE-DDS figures for docs/benchmarks.md (issue 12), against the real peers.
+"""uXRCE-DDS figures for docs/benchmarks.md (issue 12), against the real third-party peers
+(``XRCE_PEERS``: px4_like_client and MicroXRCEAgent built elsewhere; see lab/swarmd_lab/xrce.py).
 
     .venv/bin/python bench/xrce.py [--runs 3] [--pairs 20] [--cpu-s 30] [--wifi-s 30]
                                    [--out bench/results/xrce.json]

@@ -19,18 +19,20 @@ from pathlib import Path
 import pytest
 from swarmd_lab.netns import list_namespaces
 
-from tests.xrce_peers import peer_binary
+from tests.xrce_peers import peer_binary, peer_env
 
 N = 3
 FIELDS = ("discovered_all_s", "frames_sent", "ready", "airborne", "command_latency_s")
 
 
-def _run_demo(out: Path, *extra: str) -> tuple[subprocess.CompletedProcess[str], int]:
+def _run_demo(
+    out: Path, *extra: str, env: dict[str, str] | None = None
+) -> tuple[subprocess.CompletedProcess[str], int]:
     """The finished demo and its pid (its namespaces are named ``swn-<pid>-...``)."""
     argv = [sys.executable, "-m", "swarmd_lab.demo", "--n", str(N), "--out", str(out),
             "--late-gps", "3", *extra]  # fmt: skip
     with subprocess.Popen(  # noqa: S603 - our own module, argv list
-        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
     ) as proc:
         try:
             stdout, stderr = proc.communicate(timeout=150)
@@ -84,14 +86,14 @@ def test_demo_on_loopback(tmp_path: Path) -> None:
 
 @pytest.mark.netns
 def test_demo_with_xrce_vehicles(tmp_path: Path) -> None:
-    """``make demo VEHICLE=xrce``: PX4's own XRCE client library per drone, swarmd as agent.
-    Every drone becomes ready through the XRCE backend and flies: the stand-in publishes no
-    valid home_position, so the take-off altitude is measured from its GPS altitude
-    (docs/px4.md, Altitude) and its NAV_TAKEOFF handler climbs to param7 minus that."""
-    peer_binary("px4_like_client")  # skips only without ../shared/peers/xrce
+    """``make demo VEHICLE=xrce``: swarmd's PX4 stand-in over uXRCE-DDS per drone (PX4's
+    client session, the shared vehicle model), swarmd as agent; needs no third-party peer.
+    Every drone becomes ready through the XRCE backend and flies: the stand-in's core topic
+    set has no home_position, so the take-off altitude is measured from its GPS altitude
+    (docs/px4.md, Altitude) and the vehicle climbs to param7 minus that."""
     proc, pid = _run_demo(tmp_path / "out", "--vehicle", "xrce")
     text = proc.stdout
-    assert "vehicles: px4_like_client" in text and "xrce-agent" in text, text[-3000:]
+    assert "vehicles: swarmd-px4-xrce" in text and "xrce-agent" in text, text[-3000:]
     assert f"swarmctl: readiness: {N}/{N} ready" in text, text[-3000:]
     assert "no_home" not in text, text[-3000:]
     assert f"takeoff: {N}/{N} confirmed airborne" in text, text[-3000:]
@@ -103,15 +105,29 @@ def test_demo_with_xrce_vehicles(tmp_path: Path) -> None:
 @pytest.mark.netns
 def test_demo_with_xrce_vehicles_through_micro_xrce_agent(tmp_path: Path) -> None:
     """``make demo VEHICLE=xrce-client``: per drone, px4_like_client through eProsima's
-    MicroXRCEAgent and swarmd as that agent's second client; ``swarmctl takeoff`` flies N/N."""
-    peer_binary("MicroXRCEAgent")
-    proc, pid = _run_demo(tmp_path / "out", "--vehicle", "xrce-client")
+    MicroXRCEAgent and swarmd as that agent's second client; ``swarmctl takeoff`` flies N/N.
+    Third-party: runs only with ``XRCE_PEERS`` (its MicroXRCEAgent put on PATH)."""
+    agent = peer_binary("MicroXRCEAgent")
+    env = peer_env()
+    env["PATH"] = f"{agent.parent}{os.pathsep}{env.get('PATH', '')}"
+    proc, pid = _run_demo(tmp_path / "out", "--vehicle", "xrce-client", env=env)
     text = proc.stdout
     assert "through eProsima's MicroXRCEAgent" in text and "xrce-client" in text, text[-3000:]
     assert f"takeoff: {N}/{N} confirmed airborne" in text, text[-3000:]
     assert len(re.findall(r": completed \((IN_AIR|TAKEOFF)\)", text)) == N, text[-3000:]
     _check(tmp_path / "out", proc, "namespaces")
     assert not [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]
+
+
+def test_xrce_client_without_micro_xrce_agent_says_so_in_one_line(tmp_path: Path) -> None:
+    """``make demo VEHICLE=xrce-client`` with no MicroXRCEAgent on PATH: one line saying it is
+    needed, a non-zero exit, nothing started (no run directory announced)."""
+    env = dict(os.environ, PATH=str(tmp_path))  # an empty directory: no MicroXRCEAgent
+    proc, _ = _run_demo(tmp_path / "out", "--vehicle", "xrce-client", env=env)
+    assert proc.returncode not in (0, None), proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "MicroXRCEAgent" in lines[0] and "PATH" in lines[0], lines
+    assert "Traceback" not in proc.stderr and "set up in" not in proc.stdout
 
 
 @pytest.mark.netns

@@ -140,14 +140,22 @@ def test_climb_hold_land_and_disarm() -> None:
         alts.append(sim.alt_m)
     assert states[0] == LandedState.ON_GROUND and LandedState.TAKEOFF in states
     assert alts == sorted(alts) and sim.alt_m == pytest.approx(6.0)
-    assert 3.5 <= now - 1.0 <= 5.0  # 0.5 s spool-up + 6 m at 1.5 m/s (MPC_TKO_SPEED)
+    # 1 s spool-up (COM_SPOOLUP_TIME), 3 s ramp to 1.5 m/s (MPC_TKO_RAMP_T, MPC_TKO_SPEED:
+    # 2.3 m), the other 3.7 m at 1.5 m/s: 6.5 s from the arm to IN_AIR
+    assert 6.0 <= now - 1.0 <= 7.0
+    # the land detector let go when the climb passed LNDMC_Z_VEL_MAX, 0.5 s into the ramp
+    assert states.index(LandedState.TAKEOFF) * 0.1 == pytest.approx(1.5, abs=0.15)
     assert sim.mode == MODE_LOITER
     assert command(sim, now, DISARM)[0] is MavResult.TEMPORARILY_REJECTED  # not in the air
     land = VehicleCommand.make(MavCmd.NAV_LAND)
     assert command(sim, now, land)[0] is MavResult.ACCEPTED
     assert sim.mode == MODE_LAND
-    now, _ = run(sim, now + 6.0 / 0.7 + 0.5, now)
+    now, _ = run(sim, now + 6.0 / 0.7 + 0.3, now)
+    assert sim.snapshot()["landed_state"] == "LANDING"  # touched down, not yet "landed"
+    assert sim.alt_m == 0.0
+    now, _ = run(sim, now + 1.2, now)  # LNDMC_TRIG_TIME: three stages of 1/3 s
     assert sim.landed == LandedState.ON_GROUND and armed(sim)
+    assert (sim.ground_contact, sim.maybe_landed, sim.landed_detected) == (True, True, True)
     now, _ = run(sim, now + 2.1, now)  # COM_DISARM_LAND
     assert not armed(sim)
 

@@ -1,6 +1,7 @@
-"""swarmd's XRCE backends against real peers: PX4's client library (``px4_like_client``, a
-PX4 stand-in creating its session and entities call for call as PX4 does) and eProsima's
-MicroXRCEAgent v2.4.2. Built by scripts/setup.sh from ../shared/peers/xrce."""
+"""swarmd's XRCE backends against PX4's wire: swarmd's own PX4 stand-in
+(``swarmd_lab.px4.xrce_vehicle``: PX4's client session call for call, the shared vehicle
+model) always; PX4's client library (``px4_like_client``) and eProsima's MicroXRCEAgent
+v2.4.2 only when ``XRCE_PEERS`` names them (tests/xrce_peers.py), else those tests skip."""
 
 from __future__ import annotations
 
@@ -21,12 +22,12 @@ from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig
 from swarmd.px4.takeoff import TakeoffSucceeded
 from swarmd.px4.xrce_backend import XrceBackend
-from tests.xrce_peers import peer_binary, peer_env
+from tests.xrce_peers import peer_binary, peer_env, standin_argv
 
-# the stand-in publishes no valid home_position (PX4 sets it at arming): readiness without
-# it, and the take-off altitude is measured from its GPS altitude (488 m AMSL on the ground)
+# the stand-in's core topic set (the golden session's) has no home_position: readiness
+# without it, and the take-off altitude is measured from its GPS altitude (488 m AMSL)
 READY = ReadinessConfig(require_home=False)
-GROUND_AMSL_M = 488.0  # px4_like_client's home_alt
+GROUND_AMSL_M = 488.0  # the shared vehicle model's home_amsl_m (and px4_like_client's)
 ALT_M = 5.0
 
 
@@ -98,13 +99,12 @@ def test_agent_with_px4_client_takes_off_and_lands(release: str) -> None:
 
 
 async def _agent_takeoff(release: str) -> None:
-    client_bin = peer_binary("px4_like_client")
     port = _free_udp_port()
     backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
     bridge = Px4Bridge(backend, readiness_config=READY)
     await bridge.start()
     try:
-        async with _proc(str(client_bin), "-p", str(port), "-V", release, "-q") as client:
+        async with _proc(*standin_argv(port, release)) as client:
             await _fly(bridge, client, "topic" if release == "1.14" else "service")
         st = backend.stats()
         assert st["px4_version"] is not None and release in st["px4_version"].split("/")
@@ -114,7 +114,40 @@ async def _agent_takeoff(release: str) -> None:
         await bridge.close()
 
 
+def test_agent_sees_the_standin_and_itself_restart() -> None:
+    asyncio.run(_agent_sees_the_standin_and_itself_restart())
+
+
+async def _agent_sees_the_standin_and_itself_restart() -> None:
+    """swarmd restarts: a new agent on the same port, the stand-in's 3 missed pings make it
+    connect again; the stand-in killed: readiness goes stale; restarted: ready again."""
+    port = _free_udp_port()
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
+    bridge = Px4Bridge(backend, readiness_config=READY)
+    await bridge.start()
+    try:
+        async with _proc(*standin_argv(port)) as client:
+            await _until(lambda: bridge.readiness().ready, 60, "ready")
+            await bridge.close()
+            backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=1)
+            bridge = Px4Bridge(backend, readiness_config=READY)
+            await bridge.start()
+            await _until(lambda: bridge.readiness().ready, 60, "ready after swarmd's restart")
+            client.kill()
+            await client.wait()
+            await _until(lambda: not bridge.readiness().ready, 10, "stale after PX4 is gone")
+            assert bridge.readiness().reason == "heartbeat_stale"
+        async with _proc(*standin_argv(port)):
+            await _until(lambda: bridge.readiness().ready, 60, "ready after PX4 restart")
+        assert backend.counters["sessions"] == 2
+        # only the old session's datagrams before the stand-in noticed the new agent
+        assert set(backend.stats()["dropped"]) <= {"no_session"}
+    finally:
+        await bridge.close()
+
+
 def test_agent_accepts_every_entity_of_the_full_topic_set_and_reconnects() -> None:
+    """Third-party peer: PX4's client library with every topic of dds_topics.yaml (``-a``)."""
     asyncio.run(_agent_accepts_every_entity_of_the_full_topic_set_and_reconnects())
 
 
@@ -188,8 +221,7 @@ def test_client_mode_on_another_dds_domain_takes_off() -> None:
 
 
 async def _client_mode_through_micro_xrce_agent_takes_off(domain: int | None) -> None:
-    agent_bin = peer_binary("MicroXRCEAgent")
-    client_bin = peer_binary("px4_like_client")
+    agent_bin = peer_binary("MicroXRCEAgent")  # third-party: skips without XRCE_PEERS
     port = _free_udp_port()
     async with _proc(str(agent_bin), "udp4", "-p", str(port)):
         await asyncio.sleep(0.5)
@@ -206,10 +238,33 @@ async def _client_mode_through_micro_xrce_agent_takes_off(domain: int | None) ->
             on_domain = ("-d", str(domain))
         await bridge.start()
         try:
-            argv = (str(client_bin), "-p", str(port), "-V", "1.16", "-c", "1", "-q", *on_domain)
-            async with _proc(*argv) as client:
+            # the stand-in as PX4 behind MicroXRCEAgent (PTCFG=1: localhost-only participant)
+            async with _proc(*standin_argv(port, "1.16", "-c", "1", *on_domain)) as client:
                 await _fly(bridge, client)
             assert backend.session == "established"
             assert backend.stats()["failsafe_blockers"] == []  # read through the agent too
         finally:
             await bridge.close()
+
+
+def test_standin_key_and_system_id_options() -> None:
+    asyncio.run(_standin_key_and_system_id_options())
+
+
+async def _standin_key_and_system_id_options() -> None:
+    """``-k`` is PX4's UXRCE_DDS_KEY and ``-S`` its MAV_SYS_ID: an agent bound to key 7 flies
+    vehicle 3 from the stand-in started with ``-k 7 -S 3``; one started with ``-k 8`` never
+    gets a session (refused), so swarmd never hears a vehicle."""
+    port = _free_udp_port()
+    backend = XrceBackend("xrce-agent", f"udp:127.0.0.1:{port}", sysid=3, expected_key=7)
+    bridge = Px4Bridge(backend, readiness_config=READY)
+    await bridge.start()
+    try:
+        async with _proc(*standin_argv(port, "1.16", "-k", "8", "-S", "3")):
+            await asyncio.sleep(8.0)  # a session would be ready after ~6 s of time sync
+            assert bridge.readiness().reason == "no_heartbeat"
+            assert backend.counters["sessions"] == 0
+        async with _proc(*standin_argv(port, "1.16", "-k", "7", "-S", "3")) as client:
+            await _fly(bridge, client)
+    finally:
+        await bridge.close()

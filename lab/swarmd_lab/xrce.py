@@ -1,8 +1,10 @@
 """Lab tools for the uXRCE-DDS backends: a stand-alone agent, Wi-Fi-side capture, timings.
 
-Used by ``bench/xrce.py`` (the figures in docs/benchmarks.md), the netns test and the demo.
-The peers (``px4_like_client``, ``MicroXRCEAgent``) are the ones ``scripts/setup.sh`` builds
-into ``.cache/xrce`` from ``../shared/peers/xrce``.
+Used by ``bench/xrce.py`` (the figures in docs/benchmarks.md) and the netns test. The PX4
+side is swarmd's own stand-in (``swarmd_lab.px4.xrce_vehicle``); the third-party peers
+(``px4_like_client``, ``MicroXRCEAgent``) are optional, built elsewhere and found through
+``XRCE_PEERS`` (a directory holding them, or their ``bin/``; their libraries in ``lib/``):
+nothing here builds them.
 
     python -m swarmd_lab.xrce serve --port 8888 [--seconds S] [--client]
         swarmd's XRCE agent alone (or a client of the agent on PORT); one JSON line at exit:
@@ -31,13 +33,25 @@ ETH_P_ALL: Final = 0x0003
 REPO: Final = Path(__file__).resolve().parents[2]
 
 
-def peer_bin(name: str, out: Path | None = None) -> Path:
-    return (out or REPO / ".cache" / "xrce") / "bin" / name
+def peers_root() -> Path | None:
+    env = os.environ.get("XRCE_PEERS")
+    return Path(env) if env else None
 
 
-def peer_env(out: Path | None = None) -> dict[str, str]:
-    lib = (out or REPO / ".cache" / "xrce") / "install" / "agent" / "lib"
-    return dict(os.environ, LD_LIBRARY_PATH=str(lib))
+def peer_bin(name: str) -> Path:
+    """The third-party peer ``name`` under ``XRCE_PEERS`` (RuntimeError: one line saying so)."""
+    root = peers_root()
+    if root is None:
+        raise RuntimeError(f"{name}: set XRCE_PEERS to a directory holding it (built elsewhere)")
+    for path in (root / name, root / "bin" / name):
+        if path.exists():
+            return path
+    raise RuntimeError(f"XRCE_PEERS={root}: no {name} in it (or in its bin/)")
+
+
+def peer_env() -> dict[str, str]:
+    root = peers_root()
+    return dict(os.environ, LD_LIBRARY_PATH=str(root / "lib") if root is not None else "")
 
 
 async def serve(port: int, seconds: float, mode: Mode = "xrce-agent") -> dict[str, Any]:

@@ -97,6 +97,7 @@ class XrceClient(Endpoint):
         publications: dict[str, str],
         domain_id: int = 0,
         participant_name: str = "/swarmd",
+        mtu: int = 512,
     ) -> None:
         super().__init__()
         self.client_key = client_key
@@ -104,6 +105,7 @@ class XrceClient(Endpoint):
         self.publications = dict(publications)
         self.domain_id = domain_id
         self.participant_name = participant_name
+        self.mtu = mtu  # CREATE_CLIENT's MTU (PX4's client announces 508: 512 minus framing)
         self.agent: Address | None = None
         self.state = "idle"  # idle | connecting | established
         self._request = 0
@@ -176,7 +178,7 @@ class XrceClient(Endpoint):
                 self._ping_at = self._heartbeat_at = None
                 self._send_create_client(now)
                 return
-            self._send0([GetInfo(self._next_request(), OBJECT_ID_AGENT, 0x02)])
+            self._send0([GetInfo(self._ping_request_id(), OBJECT_ID_AGENT, 0x02)])
             self._ping_at = now + PING_PERIOD_S
         if self._heartbeat_at is not None and now >= self._heartbeat_at:
             hb = self._rel_out.heartbeat()
@@ -223,7 +225,15 @@ class XrceClient(Endpoint):
                     if sub.implementation_status and (sub.availability or 0) > 0:
                         self._pings_missed = 0
                 case _:
-                    pass  # TIMESTAMP_REPLY and the like: nothing asked for them
+                    self._other_submessage(sub, now)
+
+    def _other_submessage(self, sub: Submessage, now: float) -> None:
+        """A submessage this engine does not handle (TIMESTAMP_REPLY and the like): nothing
+        asked for it here; a subclass that sends TIMESTAMP (PX4's time sync) reads it."""
+
+    def _ping_request_id(self) -> int:
+        """The in-session GET_INFO's request id: a fresh one (PX4's client always uses 10)."""
+        return self._next_request()
 
     def _status_agent(self, sa: StatusAgent, now: float) -> None:
         if self.state != "connecting":
@@ -303,7 +313,7 @@ class XrceClient(Endpoint):
         self._send_reliable([c], now)
 
     def _send_create_client(self, now: float) -> None:
-        cc = CreateClient(self.client_key, SESSION_ID, 512)
+        cc = CreateClient(self.client_key, SESSION_ID, self.mtu)
         if self.agent is not None:
             self._out.append((encode_message(Header(0x80, 0, 0), [cc]), self.agent))
         self._connect_at = now + CONNECT_PERIOD_S

@@ -26,9 +26,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--late-gps", type=float, default=LATE_GPS_S, metavar="S",
                    help=f"GPS fix time of the late drone (default {LATE_GPS_S:g})")  # fmt: skip
     p.add_argument("--vehicle", choices=VEHICLES, default="mavlink",
-                   help="mavlink: the MAVLink vehicle simulator (default); xrce: PX4's uXRCE-DDS "
-                        "client library (px4_like_client) with swarmd as its agent; xrce-client: "
-                        "the same through eProsima's MicroXRCEAgent, swarmd its 2nd client"
+                   help="mavlink: the MAVLink vehicle simulator (default); xrce: the PX4 "
+                        "stand-in over uXRCE-DDS (swarmd-px4-xrce) with swarmd as its agent; "
+                        "xrce-client: the same through eProsima's MicroXRCEAgent (needs it on "
+                        "PATH), swarmd its 2nd client"
                    )  # fmt: skip
     args = p.parse_args(argv)
     opts = Options(

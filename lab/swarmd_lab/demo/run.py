@@ -34,7 +34,12 @@ from swarmd_lab.demo.scenario import (
 )
 from swarmd_lab.demo.view import LiveView
 from swarmd_lab.netns import MAX_HOSTS, unavailable_reason
-from swarmd_lab.xrce import peer_bin, peer_env
+
+MICRO_XRCE_AGENT: Final = "MicroXRCEAgent"  # eProsima's agent: third-party, never built here
+STANDIN: Final = (
+    "swarmd-px4-xrce (the PX4 stand-in over uXRCE-DDS: PX4's client session, the vehicle model"
+    " the MAVLink simulator flies; a SIMULATOR, not PX4)"
+)
 
 POLL_S: Final = 0.5
 DISCOVERY_DEADLINE_S: Final = 60.0
@@ -50,7 +55,7 @@ class Options:
     keep: bool = False
     seed: int = 1
     late_gps_s: float = LATE_GPS_S
-    vehicle: str = "mavlink"  # or "xrce": px4_like_client through swarmd's xrce-agent backend
+    vehicle: str = "mavlink"  # or "xrce": the PX4 stand-in with swarmd as its XRCE agent
 
 
 def _tool(name: str, module: str) -> list[str]:
@@ -160,14 +165,13 @@ class Demo:
         )
         if opts.vehicle == "xrce-client":
             self.say(
-                "vehicles: px4_like_client (PX4's own uXRCE-DDS client library, a PX4 stand-in)"
-                " per drone through eProsima's MicroXRCEAgent, swarmd a second client of that"
-                " agent (px4.backend: xrce-client)"
+                f"vehicles: {STANDIN} per drone through eProsima's MicroXRCEAgent, swarmd a"
+                " second client of that agent (px4.backend: xrce-client)"
             )
         elif opts.vehicle == "xrce":
             self.say(
-                "vehicles: px4_like_client (PX4's own uXRCE-DDS client library, a PX4 stand-in)"
-                " per drone, with swarmd as its XRCE agent (px4.backend: xrce-agent)"
+                f"vehicles: {STANDIN} per drone, with swarmd as its XRCE agent"
+                " (px4.backend: xrce-agent)"
             )
         else:
             self.say("vehicles: swarmd-vehicle-sim (a MAVLink vehicle SIMULATOR) per drone")
@@ -176,7 +180,7 @@ class Demo:
             f"bundle, per-drone configs and link files (SNR "
             f"{min(d.snr_db for d in drones):.0f}-{max(d.snr_db for d in drones):.0f} dB)"
         )
-        if scenario.late is not None and opts.vehicle == "mavlink":  # the stand-in has no GPS delay
+        if scenario.late is not None:
             self.say(
                 f"{scenario.late} gets its GPS fix late ({opts.late_gps_s:g} s): watch the wait"
             )
@@ -207,21 +211,22 @@ class Demo:
 
     @staticmethod
     def xrce_args(d: Drone, *, localhost: bool = False) -> list[str]:
-        client = peer_bin("px4_like_client")
-        if not client.exists():
-            raise RuntimeError(f"{client} missing: scripts/setup.sh builds the XRCE peers")
+        """The PX4 stand-in: UXRCE_DDS_KEY and MAV_SYS_ID both the drone's system id (the
+        key is what the drone's ``px4.xrce_key`` binds), PX4 1.16, the drone's GPS delay."""
         port, sysid = str(xrce_port(d)), str(d.sysid)
-        argv = [str(client), "-p", port, "-k", sysid, "-S", sysid, "-V", "1.16", "-q"]
-        # through MicroXRCEAgent: PX4's UXRCE_DDS_PTCFG=1, a localhost-only participant
+        argv = [*_tool("swarmd-px4-xrce", "swarmd_lab.px4.xrce_vehicle"), "-p", port,
+                "-k", sysid, "-S", sysid, "-V", "1.16", "-q", "--seed", str(d.index),
+                "--gps-fix-after", str(d.gps_fix_after_s)]  # fmt: skip
+        # PX4's UXRCE_DDS_PTCFG=1 (a localhost-only participant); with swarmd as the agent
+        # no participant exists at all, so it only matters through MicroXRCEAgent
         return [*argv, "-c", "1"] if localhost else argv
 
     @staticmethod
     def agent_args(d: Drone) -> list[str]:
-        agent = peer_bin("MicroXRCEAgent")
-        if not agent.exists():
-            raise RuntimeError(f"{agent} missing: scripts/setup.sh --agent builds it")
-        lib = peer_env()["LD_LIBRARY_PATH"]  # its own library, in the build cache
-        return ["env", f"LD_LIBRARY_PATH={lib}", str(agent), "udp4", "-p", str(xrce_port(d))]
+        agent = shutil.which(MICRO_XRCE_AGENT)
+        if agent is None:
+            raise RuntimeError(missing_agent_line())
+        return [agent, "udp4", "-p", str(xrce_port(d))]
 
     @staticmethod
     def sim_args(s: Scenario, d: Drone) -> list[str]:
@@ -409,9 +414,20 @@ def _last_takeoff(obs: Observer) -> dict[str, Any] | None:
     return takeoffs[-1] if takeoffs else None
 
 
+def missing_agent_line() -> str:
+    return (
+        f"swarmd_lab.demo: --vehicle xrce-client needs eProsima's {MICRO_XRCE_AGENT} on PATH"
+        " (none found; it is third-party and never built here): install it, or use"
+        " --vehicle xrce (swarmd as the agent, no MicroXRCEAgent)"
+    )
+
+
 def run(opts: Options, out: TextIO = sys.stdout) -> int:
     """Run the demo; the exit code (0: every drone airborne)."""
     if not 2 <= opts.n <= MAX_HOSTS:
         print(f"swarmd_lab.demo: --n {opts.n}: use 2..{MAX_HOSTS} drones", file=sys.stderr)
         return 2
+    if opts.vehicle == "xrce-client" and shutil.which(MICRO_XRCE_AGENT) is None:
+        print(missing_agent_line(), file=sys.stderr)
+        return 69  # EX_UNAVAILABLE: a service the demo needs is missing
     return Demo(opts, out).run()

@@ -167,8 +167,8 @@ def px4_section(s: Scenario, d: Drone, vehicle: str) -> str:
     if vehicle in ("xrce", "xrce-client"):
         # xrce: swarmd is the stand-in's agent (only its key may open a session);
         # xrce-client: swarmd joins the drone's MicroXRCEAgent as a second client (a companion
-        # that keeps its agent for ROS 2). px4_like_client publishes no valid home_position
-        # (real PX4 sets it at arming): readiness without it; the take-off altitude is then
+        # that keeps its agent for ROS 2). The stand-in's core topic set has no home_position
+        # (real PX4 publishes it): readiness without it; the take-off altitude is then
         # measured from the GPS altitude (docs/px4.md, Altitude)
         agent = vehicle == "xrce"
         key = f"  xrce_key: {d.sysid}\n" if agent else ""

@@ -61,6 +61,9 @@ from swarmd.px4.messages import (
 # Sensor bits PX4 reports healthy on a good bench vehicle: 3D gyro/accel/mag, abs pressure
 # (bits 0, 1, 2, 3) and GPS (5); PREARM (28) is added only when arming would be allowed.
 _SENSORS: Final = 0b101111
+# the land detector's three stages (ground contact, maybe landed, landed) each take a third of
+# LNDMC_TRIG_TIME while their conditions hold (PX4 MulticopterLandDetector)
+LAND_STAGES: Final = 3
 _GPS_BIT: Final = 1 << 5
 PHYSICS_DT_S: Final = 0.1
 
@@ -80,7 +83,10 @@ class SimConfig:
     home_amsl_m: float = 488.0
     takeoff_speed_mps: float = 1.5  # MPC_TKO_SPEED
     land_speed_mps: float = 0.7  # MPC_LAND_SPEED
-    spool_up_s: float = 0.5  # motors spin up before the land detector sees a climb
+    spool_up_s: float = 1.0  # COM_SPOOLUP_TIME: motors spin up before any climb
+    takeoff_ramp_s: float = 3.0  # MPC_TKO_RAMP_T: the climb rate ramps 0 -> MPC_TKO_SPEED
+    land_vz_max_mps: float = 0.25  # LNDMC_Z_VEL_MAX: faster vertically is not landed
+    land_trigger_s: float = 1.0  # LNDMC_TRIG_TIME: ground contact -> maybe landed -> landed
     mis_takeoff_alt_m: float = 2.5  # MIS_TAKEOFF_ALT
     disarm_preflight_s: float = 10.0  # COM_DISARM_PRFLT
     disarm_land_s: float = 2.0  # COM_DISARM_LAND
@@ -113,6 +119,10 @@ class SimVehicle:
         self.mode: Px4Mode = MODE_LOITER  # PX4 boots a multicopter in Hold without RC
         self.landed = LandedState.ON_GROUND
         self.alt_m = 0.0  # above home
+        self.climb_mps = 0.0  # vertical speed, up positive
+        # the land detector (PX4 vehicle_land_detected): all three true on the ground
+        self.ground_contact = self.maybe_landed = self.landed_detected = True
+        self.touchdown_at: float | None = None  # when the descent stopped at the ground
         self.target_alt_m = config.mis_takeoff_alt_m
         self.battery = config.battery_pct
         self.fix = GpsFixType.NO_FIX
@@ -328,20 +338,31 @@ class SimVehicle:
                 self._text(MavSeverity.INFO, "home set", t)
         if self.armed:
             self.battery = max(0.0, self.battery - c.battery_drain_pct_per_s * dt)
+        self.climb_mps = 0.0
         if self.armed and self.mode == MODE_TAKEOFF and self.armed_at is not None:
-            if t - self.armed_at >= c.spool_up_s:
-                self.alt_m = min(self.target_alt_m, self.alt_m + c.takeoff_speed_mps * dt)
+            climbing_s = t - self.armed_at - c.spool_up_s
+            if climbing_s > 0 and self.alt_m < self.target_alt_m:
+                # FlightTaskAuto takeoff: the velocity setpoint ramps over MPC_TKO_RAMP_T
+                ramp = min(1.0, climbing_s / c.takeoff_ramp_s) if c.takeoff_ramp_s > 0 else 1.0
+                self.climb_mps = c.takeoff_speed_mps * ramp
+                self.alt_m = min(self.target_alt_m, self.alt_m + self.climb_mps * dt)
+            if self.climb_mps > c.land_vz_max_mps and self.landed_detected:
+                # lift-off: the detector leaves "landed" at once (no hysteresis going up)
+                self.ground_contact = self.maybe_landed = self.landed_detected = False
+                self.touchdown_at = None
+                self.landed = LandedState.TAKEOFF
                 if not self.taken_off:
                     self.taken_off = True
                     self._text(MavSeverity.INFO, "Takeoff detected", t)
-                self.landed = LandedState.TAKEOFF
-                if self.alt_m >= self.target_alt_m - 1e-6:
-                    self.landed = LandedState.IN_AIR
-                    self._set_mode_to(MODE_LOITER, t)  # navigator: takeoff done -> Hold
+            if not self.landed_detected and self.alt_m >= self.target_alt_m - 1e-6:
+                self.landed = LandedState.IN_AIR
+                self._set_mode_to(MODE_LOITER, t)  # navigator: takeoff done -> Hold
         elif self.armed and self.mode == MODE_LAND and self.landed != LandedState.ON_GROUND:
             self.landed = LandedState.LANDING
-            self.alt_m = max(0.0, self.alt_m - c.land_speed_mps * dt)
-            if self.alt_m <= 0.0:
+            if self.alt_m > 0.0:
+                self.climb_mps = -c.land_speed_mps
+                self.alt_m = max(0.0, self.alt_m - c.land_speed_mps * dt)
+            elif self._land_detector(t):
                 self.landed, self.landed_at = LandedState.ON_GROUND, t
                 self._text(MavSeverity.INFO, "Landing detected", t)
         if self.armed and self.landed == LandedState.ON_GROUND:
@@ -350,6 +371,18 @@ class SimVehicle:
                     self._disarm("auto preflight disarming", t)
             elif self.landed_at is not None and t - self.landed_at >= c.disarm_land_s:
                 self._disarm("landing", t)  # COM_DISARM_LAND
+
+    def _land_detector(self, t: float) -> bool:
+        """At the ground and still: ground contact, maybe landed, landed, each after a third
+        of LNDMC_TRIG_TIME (PX4's hysteresis); True once ``landed``."""
+        if self.touchdown_at is None:
+            self.touchdown_at = t
+        stage_s = self.config.land_trigger_s / LAND_STAGES
+        held = t - self.touchdown_at + 1e-9
+        self.ground_contact = held >= stage_s
+        self.maybe_landed = held >= 2 * stage_s
+        self.landed_detected = held >= 3 * stage_s
+        return self.landed_detected
 
     def _disarm(self, why: str, t: float) -> None:
         self.armed, self.armed_at, self.landed_at = False, None, None
@@ -422,6 +455,7 @@ class SimVehicle:
             "armed": self.armed,
             "mode": self.mode.name,
             "landed_state": self.landed.name,
+            "land_detector": [self.ground_contact, self.maybe_landed, self.landed_detected],
             "alt_m": round(self.alt_m, 2),
             "gps_fix": int(self.fix),
             "home": self.home_set,
