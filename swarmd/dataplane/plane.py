@@ -27,6 +27,10 @@ matched endpoint pair. Replay windows, send counters and keys live per bundle pa
 and outlive ``peer_down``, so a peer lost and found again in the same epoch cannot be fed
 its own old datagrams.
 
+Commands go out as one sample (one SN, one command id) with one copy per target, each
+naming only that member and carrying only its time echo, so a command's size does not grow
+with the swarm (``send_command``; docs/dataplane.md, "One copy per member").
+
 Exactly-once commands: the reliable reader delivers each SN of a writer life at most once;
 above it, a bounded set of executed ``(commander, command_id)`` pairs turns re-deliveries
 (a commander resending the same id, a proxy reset after ``peer_down``/``peer_up``) into
@@ -365,8 +369,8 @@ class DataPlane:
         only its own time echo (if any), so a command's size does not grow with the swarm:
         one sample, one SN, one command id, each copy under its own pair MAC
         (docs/dataplane.md, "One copy per member"). Matched members that are not targets
-        are sent a GAP for the SN. Targets that are not bundle participants are skipped
-        (counted ``command_target_unknown``).
+        are sent a GAP for the SN. Targets that are not bundle participants, or this node
+        itself, are skipped (counted ``command_target_unknown``).
 
         Resending a command with the same id is safe: members execute an id once.
         """
