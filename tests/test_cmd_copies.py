@@ -12,6 +12,8 @@ date the command and refuses it.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import pytest
 
 from swarmd.bundle.build import build_dev_bundle
@@ -24,7 +26,7 @@ from swarmd.dataplane.types import MAX_NAME_CHARS, TimeEcho, decode_sample, enco
 from swarmd.dataplane.validity import EXPIRED, judge, stamp_ms
 from swarmd.px4.vehicle import TaskKind
 from swarmd.rtps import Data, decode_message
-from tests.test_dataplane_swarm import make_plane
+from tests.test_dataplane_swarm import address_of, make_plane
 from tests.test_swarm_core import Swarm
 
 COMMAND_READY_TOPICS = """topics:
@@ -197,3 +199,38 @@ def test_takeoff_require_all_at_50_runs_once_everywhere() -> None:
     lead_id = swarm.ids["lead"]
     sent_by_lead = [t for t in swarm.net.transmissions[start:] if t.node == lead_id]
     assert max(t.size for t in sent_by_lead) < MAX_DATAGRAM_BYTES
+
+
+def test_a_copy_moved_to_another_member_is_refused() -> None:
+    """The attacker records m01's copy and sends it to m02: it is sealed for m01 (m01's
+    pair key, m01's prefix), so m02 refuses it before decoding anything and runs nothing."""
+    swarm = Swarm(2, seed=33)
+    swarm.run(3.0)
+    start = swarm.net.now
+    sent = swarm.call(
+        "lead", lambda now: swarm.lead.request_takeoff({"alt_m": 5.0, "only": ["m01"]}, now)
+    )
+    cid = int(sent["command_id"])
+    to_m01 = address_of(swarm.bundle, "m01")
+    marker = cid.to_bytes(8, "little")
+    captured = [
+        t.payload
+        for t in swarm.net.transmissions
+        if t.time >= start and t.target == to_m01 and marker in t.payload
+    ]
+    assert captured
+    m02 = swarm.cores["m02"]
+    assert m02.plane is not None
+    refused_before = _auth_refusals(m02.plane.counters)
+    lead = address_of(swarm.bundle, "lead")
+    for datagram in captured:
+        m02.receive_datagram(datagram, lead, swarm.net.now)
+        swarm.net.poke(swarm.ids["m02"])
+    assert _auth_refusals(m02.plane.counters) == refused_before + len(captured)
+    swarm.run(5.0)
+    assert swarm.requests("m02") == []
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.TAKEOFF]
+
+
+def _auth_refusals(counters: Mapping[str, int]) -> int:
+    return sum(n for name, n in counters.items() if name.startswith("dropped_auth_"))
