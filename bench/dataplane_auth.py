@@ -4,12 +4,13 @@
 
 Bytes come from the real encoder: two ``DataPlane``s of the shipped 10-node mission
 (``firmware_bundle/missions/swarm10.yaml``: a commander and 9 members, dev keys) exchange
-the 1 Hz readiness stream and one TAKEOFF with its two outcomes. "Without" is the same
-datagram as the data plane sent it before authentication (``Header + INFO_DST(receiver) +
-submessages``, rebuilt with the codec from the authenticated one's submessages); "with" is
-what it sends now (``Header + submessages + AUTH``, 28-octet authenticator, no INFO_DST,
-docs/wire.md). Octets are UDP payload; "+IP/UDP" adds the 28 octets of IPv4 and UDP headers
-every datagram also carries on the air.
+the 1 Hz readiness stream and one TAKEOFF with its two outcomes; then a TAKEOFF to every
+member at N = 10, 50 and 1000 (one copy per member: the datagram each receives).
+"Without" is the same datagram as the data plane sent it before authentication (``Header +
+INFO_DST(receiver) + submessages``, rebuilt with the codec from the authenticated one's
+submessages); "with" is what it sends now (``Header + submessages + AUTH``, 28-octet
+authenticator, no INFO_DST, docs/wire.md). Octets are UDP payload; "+IP/UDP" adds the 28
+octets of IPv4 and UDP headers every datagram also carries on the air.
 
 CPU: median of ``--repeat`` timeit runs of ``--number`` calls, microseconds per call, for
 ``seal`` (HMAC-SHA256 over the datagram) and ``verify`` of a readiness datagram, and for the
@@ -36,7 +37,8 @@ from swarmd.auth.keys import KeyRing, NodeSecrets  # noqa: E402
 from swarmd.bundle.build import build_dev_bundle  # noqa: E402
 from swarmd.bundle.mission import parse_mission  # noqa: E402
 from swarmd.bundle.model import Bundle, Role  # noqa: E402
-from swarmd.dataplane import CommandKind, CommandResult, DataPlane, Readiness  # noqa: E402
+from swarmd.dataplane import Command, CommandKind, CommandResult, DataPlane, Readiness  # noqa: E402
+from swarmd.dataplane.plane import MAX_DATAGRAM_BYTES  # noqa: E402
 from swarmd.dataplane.seal import (  # noqa: E402
     TAG_BYTES,
     protected_part,
@@ -44,6 +46,7 @@ from swarmd.dataplane.seal import (  # noqa: E402
     user_data_key,
     verify,
 )
+from swarmd.dataplane.types import MAX_TARGETS, TimeEcho, encode_sample  # noqa: E402
 from swarmd.rtps import InfoDst, decode_message, encode_message  # noqa: E402
 
 MISSION = ROOT / "firmware_bundle" / "missions" / "swarm10.yaml"
@@ -137,6 +140,59 @@ def scaling(bundle10: Bundle) -> list[dict[str, int]]:
     return rows
 
 
+def _mission_1000() -> Bundle:
+    """A commander and 999 members ``drone-0001`` .. ``drone-0999`` with every topic of the
+    shipped missions (MAVLink's 254 vehicle ids reused past 254, as the parser allows)."""
+    topics = MISSION.read_text().split("\ntopics:", 1)[1]
+    lines = ["swarm: scale-1000", "domain_id: 0", "participants:"]
+    lines.append("  - {name: lead, index: 0, role: commander, mavlink_sysid: 1}")
+    lines += [
+        f"  - {{name: drone-{i:04d}, index: {i}, role: member, mavlink_sysid: {i % 254 + 1}}}"
+        for i in range(1, 1000)
+    ]
+    return build_dev_bundle(parse_mission("\n".join(lines) + "\ntopics:" + topics)).bundle
+
+
+def command_by_n(bundle10: Bundle) -> list[dict[str, Any]]:
+    """A TAKEOFF to every member at N = 10, 50 and 1000, as ``swarmctl takeoff`` sends it
+    (3 s validity, an echo per member): the datagram each member receives (DATA + HEARTBEAT
+    + AUTH, one copy per member, docs/dataplane.md "One copy per member"), and what issue
+    18's one sample with every target and echo would have made it (None past the IDL's 255
+    targets, where it cannot even be encoded)."""
+    bundle50 = build_dev_bundle(parse_mission(MISSION_50.read_text())).bundle
+    rows: list[dict[str, Any]] = []
+    for n, bundle in ((10, bundle10), (50, bundle50), (1000, _mission_1000())):
+        members = [p.name for p in bundle.participants if p.role == Role.MEMBER]
+        lead = plane(bundle, "lead")
+        for i, name in enumerate(members):
+            lead.peer_up(name, (f"10.1.{i // 250}.{i % 250 + 1}", 7411), 0.0, epoch=EPOCH)
+        # a report received 250 ms before the issue, stamped by a member's clock at 4e9 ms
+        echoes = [TimeEcho(name, 4_000_000_000 + i, 250) for i, name in enumerate(members)]
+        takeoff = lead.make_command(
+            CommandKind.TAKEOFF, altitude_m=10.0, targets=members, valid_ms=3000, echoes=echoes
+        )
+        lead.send_command(takeoff, 0.0)
+        sizes = [len(payload) for payload, _ in lead.datagrams_to_send()]
+        one_copy = encode_sample(
+            Command(takeoff.command_id, takeoff.kind, 10.0, members[:1], 3000, echoes[:1])
+        )
+        whole: int | None = None
+        if len(members) <= MAX_TARGETS:
+            whole = max(sizes) - len(one_copy) + len(encode_sample(takeoff))
+        rows.append(
+            {
+                "nodes": n,
+                "members": len(members),
+                "datagrams": len(sizes),
+                "datagram_min": min(sizes),
+                "datagram_max": max(sizes),
+                "copy_sample": len(one_copy),
+                "one_sample_for_all": whole,
+            }
+        )
+    return rows
+
+
 def timings(bundle: Bundle, repeat: int, number: int) -> dict[str, float]:
     members = [p.name for p in bundle.participants if p.role == Role.MEMBER]
     lead, member = plane(bundle, "lead"), plane(bundle, members[0])
@@ -214,11 +270,13 @@ def main() -> int:
         "bytes_per_s_without_ip_udp": members * (without_ready + IP_UDP_BYTES),
     }
     scale = scaling(bundle)
+    commands = command_by_n(bundle)
     result = {
         "machine": {"python": platform.python_version(), "cpu": platform.processor()},
         "datagrams": flows,
         "readiness_stream": stream,
         "readiness_stream_by_n": scale,
+        "takeoff_to_all_by_n": commands,
         "cpu_us": cpu,
     }
     if args.json:
@@ -250,6 +308,21 @@ def main() -> int:
         m = row["nodes"] - 1
         wo, w = row["datagram_without"], row["datagram_with"]
         print(f"| {row['nodes']} | {m} | {wo} / {w} | {m * wo} | {m * w} | {pct(w, wo)} |")
+    print()
+    print(
+        "| N | members | TAKEOFF to all: datagrams | octets per member (min-max) "
+        f"| a copy's sample | one sample for all (issue 18) | under {MAX_DATAGRAM_BYTES} |"
+    )
+    print("|---:|---:|---:|---|---:|---|---|")
+    for cmd in commands:
+        whole = cmd["one_sample_for_all"]
+        old = f"over {MAX_TARGETS} targets: not encodable" if whole is None else str(whole)
+        fits = "yes" if cmd["datagram_max"] < MAX_DATAGRAM_BYTES else "NO"
+        print(
+            f"| {cmd['nodes']} | {cmd['members']} | {cmd['datagrams']} "
+            f"| {cmd['datagram_min']}-{cmd['datagram_max']} | {cmd['copy_sample']} "
+            f"| {old} | {fits} |"
+        )
     print()
     print("| case | µs per call |")
     print("|---|---:|")

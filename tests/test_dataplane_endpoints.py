@@ -260,3 +260,41 @@ def test_incarnation_moves_the_sequence_numbers_above_every_earlier_life() -> No
     assert BestEffortWriter(W, next_sn=first_sequence_number(3)).write(P, 0.0)[0] == (3 << 32) + 1
     with pytest.raises(ValueError, match="incarnation"):
         first_sequence_number(2**31)
+
+
+# --- one sample, one copy per reader (docs/dataplane.md, "One copy per member") -------------
+
+
+def _only(out: list[Outgoing], to: Guid, kind: type) -> list[object]:
+    return [o.submessage for o in out if o.peer == to.prefix and isinstance(o.submessage, kind)]
+
+
+def _payloads(out: list[Outgoing], to: Guid) -> list[bytes | None]:
+    return [d.serialized_payload for d in _only(out, to, Data) if isinstance(d, Data)]
+
+
+def test_a_sample_with_one_copy_per_reader_sends_each_its_own_and_gaps_the_rest() -> None:
+    """R gets its copy under the one SN; R2, which the sample has no copy for, a GAP for
+    that SN: on the write, on an ACKNACK asking for it, and on an eager resend."""
+    w = ReliableWriter(W, depth=4)
+    w.add_reader(R, 0.0)
+    w.add_reader(R2, 0.0)
+    mine = payload(7)
+    sn, out = w.write({R.prefix: mine}, 0.0)
+    (sent,) = _only(out, R, Data)
+    assert isinstance(sent, Data) and (sent.writer_sn, sent.serialized_payload) == (sn, mine)
+    assert _only(out, R2, Data) == []
+    (gap,) = _only(out, R2, Gap)
+    assert isinstance(gap, Gap) and gap.gap_start == sn and gap.gap_list.base == sn + 1
+    assert w.counters.data_sent == 1 and w.counters.gaps_sent == 1
+    # repair on request: R gets its copy again, R2 a GAP again
+    again = w.on_acknack(R, acknack(sn, [sn], 1), 0.1)
+    assert _payloads(again, R) == [mine]
+    ask = AckNack(R2.entity_id, W.entity_id, SequenceNumberSet.of(sn, [sn]), 1)
+    repair = w.on_acknack(R2, ask, 0.1)
+    assert _only(repair, R2, Data) == [] and len(_only(repair, R2, Gap)) == 1
+    # eager resend after an unanswered heartbeat: still each reader's own
+    w.on_timer(0.3)
+    eager = w.on_timer(1.0)
+    assert _payloads(eager, R) == [mine]
+    assert _only(eager, R2, Data) == []

@@ -33,7 +33,7 @@ from swarmd.dataplane import (
     Readiness,
     ReadinessReceived,
 )
-from swarmd.dataplane.seal import AUTH_SUBMESSAGE_ID, user_data_key, verify
+from swarmd.dataplane.seal import AUTH_SUBMESSAGE_ID, protected_part, user_data_key, verify
 from swarmd.rtps import AckNack, Data, Gap, Heartbeat, InfoDst, SkippedSubmessage, decode_message
 from swarmd.rtps.types import VENDORID_SWARMD
 
@@ -372,7 +372,19 @@ def test_targeted_command_runs_only_on_its_targets() -> None:
     cmd = lead.make_command(CommandKind.LAND, targets=["m02", "m04"])
     swarm.run_until(5.0, [send_at(swarm, 1.0, cmd)])
     assert swarm.executed == Counter({("m02", cmd.command_id): 1, ("m04", cmd.command_id): 1})
-    assert swarm.planes["m01"].counters["command_not_targeted"] == 1
+    # one copy per target: the members that are not targets get no copy, only a GAP for
+    # the SN, and acknowledge it (nothing left to repair towards them)
+    for other in ("m01", "m03"):
+        to_other = [
+            decode_message(protected_part(t.payload)).submessages
+            for t in swarm.net.transmissions
+            if t.target == address_of(swarm.bundle, other)
+        ]
+        kinds = {type(sm) for sms in to_other for sm in sms}
+        assert Gap in kinds and Data not in kinds, kinds  # its own readiness is all it sent
+        assert swarm.planes[other].counters.get("command_not_targeted", 0) == 0
+    status = lead.status(swarm.net.now)["writers"]["swarm/command"]
+    assert status["unacked_readers"] == 0 and status["gaps_sent"] >= 2
 
 
 def test_keep_last_history_gaps_samples_a_slow_member_missed() -> None:

@@ -27,6 +27,10 @@ matched endpoint pair. Replay windows, send counters and keys live per bundle pa
 and outlive ``peer_down``, so a peer lost and found again in the same epoch cannot be fed
 its own old datagrams.
 
+Commands go out as one sample (one SN, one command id) with one copy per target, each
+naming only that member and carrying only its time echo, so a command's size does not grow
+with the swarm (``send_command``; docs/dataplane.md, "One copy per member").
+
 Exactly-once commands: the reliable reader delivers each SN of a writer life at most once;
 above it, a bounded set of executed ``(commander, command_id)`` pairs turns re-deliveries
 (a commander resending the same id, a proxy reset after ``peer_down``/``peer_up``) into
@@ -226,6 +230,7 @@ class DataPlane:
             else:
                 reader = _make_reader(guid, topic)
                 self._readers[guid.entity_id] = (topic, reader)
+        self._participants: dict[str, Participant] = {p.name: p for p in bundle.participants}
         self._peers: dict[str, _Peer] = {}
         self._peer_by_prefix: dict[GuidPrefix, str] = {}
         self._pending: dict[GuidPrefix, list[Submessage]] = {}
@@ -357,11 +362,60 @@ class DataPlane:
         return writer.withdraw(sn)
 
     def send_command(self, command: Command, now: float) -> int:
-        """Send ``command`` reliably to every matched member (commander only).
+        """Send ``command`` reliably to its targets (commander only); empty targets: every
+        member whose reader matches our command writer. Returns the one SN it is written as.
+
+        Each target receives its own copy, naming only itself in ``targets`` and carrying
+        only its own time echo (if any), so a command's size does not grow with the swarm:
+        one sample, one SN, one command id, each copy under its own pair MAC
+        (docs/dataplane.md, "One copy per member"). Matched members that are not targets
+        are sent a GAP for the SN. Targets that are not bundle participants, or this node
+        itself, are skipped (counted ``command_target_unknown``).
 
         Resending a command with the same id is safe: members execute an id once.
         """
-        return self._publish(TOPIC_COMMAND, command, now)
+        writer = self._writer_by_topic.get(TOPIC_COMMAND)
+        if writer is None:
+            raise ValueError(f"{self.local.name!r} has no writer on {TOPIC_COMMAND!r}")
+        sn, out = writer.write(self._command_copies(command), now)
+        self._queue(out)
+        return sn
+
+    def _command_copies(self, command: Command) -> dict[GuidPrefix, bytes]:
+        """One encoded copy of ``command`` per target, keyed by the target's GUID prefix.
+
+        Encoded here, at issue, so a bad field raises ``PayloadError`` to the caller now
+        and never later inside a repair (``receive_datagram`` never raises)."""
+        names = list(command.targets) or self._command_readers()
+        echoes = {echo.node: echo for echo in command.echoes}
+        copies: dict[GuidPrefix, bytes] = {}
+        for name in names:
+            target = self._participants.get(name)
+            if target is None or target.name == self.local.name:
+                self.counters["command_target_unknown"] += 1
+                continue
+            echo = echoes.get(name)
+            copy = Command(
+                command.command_id,
+                command.kind,
+                command.altitude_m,
+                [name],
+                command.valid_ms,
+                [] if echo is None else [echo],
+            )
+            copies[target.guid_prefix] = encode_sample(copy)
+        return copies
+
+    def _command_readers(self) -> list[str]:
+        """Every bundle participant with a reader matching our command writer."""
+        writer = self._writer_by_topic[TOPIC_COMMAND]
+        entity = next(e for e, (_, w) in self._writers.items() if w is writer)
+        return [
+            p.name
+            for p in self.bundle.participants
+            if p.name != self.local.name
+            and any(m.local.entity_id == entity for m in self.bundle.matches(self.local, p))
+        ]
 
     def report_outcome(
         self, command_id: int, result: CommandResult, now: float, reason: str = ""

@@ -15,9 +15,9 @@ IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
     };
     struct Command {                   // swarm/command, commander -> members
       uint64 command_id; CommandKind kind; float altitude_m;
-      sequence<string<64>, 255> targets;   // empty = every member
+      sequence<string<64>, 255> targets;   // on the wire: the receiving member only
       uint32 valid_ms;                     // validity from issue, commander's ms; 0 = none
-      sequence<TimeEcho, 255> echoes;      // the members' clocks (docs/dataplane.md)
+      sequence<TimeEcho, 255> echoes;      // on the wire: the receiving member's echo only
     };
     struct CommandOutcome {            // swarm/outcome, member -> commander
       uint64 command_id; string<64> node; CommandResult result; string<128> reason;
@@ -43,7 +43,11 @@ from cyclonedds_idl.types import bounded_str, float32, int8, sequence, uint8, ui
 
 MAX_NAME_CHARS: Final = 64  # a participant name in the bundle; also bounds the wire string
 MAX_REASON_CHARS: Final = 128
-MAX_TARGETS: Final = 255  # explicit targets of one command (the paper's swarms have <= 30)
+# Targets (and echoes) of one received command sample. Each member receives its own copy,
+# naming itself and carrying its echo (docs/dataplane.md, "One copy per member"), so a
+# sample from a swarmd commander holds one; the bound only refuses garbage. The commander's
+# own ``Command`` (before it is split into copies) is bounded by the bundle instead.
+MAX_TARGETS: Final = 255
 MAX_ALTITUDE_M: Final = 500.0  # above any legal small-UAS ceiling; rejects garbage altitudes
 MAX_LINK_Q_PERMILLE: Final = 1000
 # A command's validity (docs/dataplane.md, "Validity"): longer than any operator means, short
@@ -116,7 +120,8 @@ class Command(IdlStruct, typename="swarmd::Command"):
     command_id: uint64
     kind: CommandKind
     altitude_m: float32  # TAKEOFF only; 0 otherwise
-    targets: Annotated[Sequence[NodeName], sequence(NodeName, MAX_TARGETS)]  # empty = all
+    # empty = every member; a member's copy names that member only (DataPlane.send_command)
+    targets: Annotated[Sequence[NodeName], sequence(NodeName, MAX_TARGETS)]
     # How long after issue the command stays right to run, commander's ms; 0: no validity
     # (a member refuses it as ``expired``: it cannot show the command is still right).
     valid_ms: uint32 = 0

@@ -18,6 +18,13 @@ Theory of operation (reliable writer, DDSI-RTPS 2.5 section 8.4.9 "Reliable Stat
   (evicted from keep-last history, or written before a volatile match; spec 8.4.9.2.8).
 * Heartbeats are sent per reader (INFO_DST-directed, unicast) and announce
   ``[max(first in history, relevant_from), last written]``.
+* A sample may carry one payload for every reader, or one copy per reader
+  (``SamplePayload``): still one sample, one SN, acknowledged and repaired per reader as
+  above, but each reader is sent (and the plane MACs) only its own copy. A reader the
+  sample has no copy for is not addressed by it: the SN is irrelevant to it and it gets a
+  GAP, as for a sample written before a volatile match (spec 8.4.9.2.8). The data plane
+  uses this for commands, so that a command's size does not grow with the swarm
+  (docs/dataplane.md, "One copy per member").
 
 Sequence numbers start at ``(incarnation << 32) + 1``: a restarted writer (new incarnation)
 continues above every number its previous life used, so readers never see a sequence number
@@ -27,12 +34,13 @@ go backwards and need no restart heuristics (docs/dataplane.md, "Writer restarts
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Final
 
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.rtps.message import MAX_SN_SET_BITS, AckNack, Data, Gap, Heartbeat, SequenceNumberSet
-from swarmd.rtps.types import Guid
+from swarmd.rtps.types import Guid, GuidPrefix
 
 HEARTBEAT_PERIOD_S: Final = 0.2  # first retry of an unacknowledged sample (Cyclone: 100 ms)
 # Backoff while heartbeats go unanswered. At 30 % loss a heartbeat/ACKNACK round trip fails
@@ -48,6 +56,18 @@ MAX_EAGER_RESEND: Final = 4
 STALE_ACKNACK_HEARTBEATS: Final = 3
 MAX_INCARNATION: Final = (1 << 31) - 1  # SequenceNumber_t.high is an int32 (spec 9.3.2)
 MAX_HISTORY_DEPTH: Final = 1024  # keep-last N bound a bundle may ask for; caps writer memory
+
+
+# One sample's serialized payload: the same octets for every reader, or one copy per reader
+# keyed by the reader's GUID prefix (a reader with no copy is not addressed by the sample).
+SamplePayload = bytes | Mapping[GuidPrefix, bytes]
+
+
+def payload_for(payload: SamplePayload, reader: Guid) -> bytes | None:
+    """The octets of ``payload`` that go to ``reader``; None when it is not addressed."""
+    if isinstance(payload, bytes):
+        return payload
+    return payload.get(reader.prefix)
 
 
 def first_sequence_number(incarnation: int) -> int:
@@ -106,13 +126,14 @@ class BestEffortWriter:
     def matched(self, reader: Guid) -> bool:
         return reader in self.readers
 
-    def write(self, payload: bytes, now: float) -> tuple[int, list[Outgoing]]:
+    def write(self, payload: SamplePayload, now: float) -> tuple[int, list[Outgoing]]:
         sn = self.next_sn
         self.next_sn += 1
         self.counters.written += 1
         out = [
-            Outgoing(r.prefix, Data(r.entity_id, self.guid.entity_id, sn, None, payload))
+            Outgoing(r.prefix, Data(r.entity_id, self.guid.entity_id, sn, None, copy))
             for r in self.readers
+            if (copy := payload_for(payload, r)) is not None
         ]
         self.counters.data_sent += len(out)
         return sn, out
@@ -150,7 +171,7 @@ class ReliableWriter:
         self.max_period_s = max_period_s
         self.first_ever = first_sequence_number(incarnation)
         self.last_sn = self.first_ever - 1
-        self.history: OrderedDict[int, bytes] = OrderedDict()
+        self.history: OrderedDict[int, SamplePayload] = OrderedDict()
         self.proxies: dict[Guid, ReaderProxy] = {}
         self.heartbeat_count = 0
         self.counters = WriterCounters()
@@ -177,7 +198,7 @@ class ReliableWriter:
 
     # --- writing ----------------------------------------------------------------------------
 
-    def write(self, payload: bytes, now: float) -> tuple[int, list[Outgoing]]:
+    def write(self, payload: SamplePayload, now: float) -> tuple[int, list[Outgoing]]:
         self.last_sn += 1
         sn = self.last_sn
         self.counters.written += 1
@@ -189,8 +210,12 @@ class ReliableWriter:
             )
         out: list[Outgoing] = []
         for proxy in self.proxies.values():
-            out.append(self._data(proxy, sn, payload))
-            self.counters.data_sent += 1
+            copy = payload_for(payload, proxy.guid)
+            if copy is None:  # not addressed to this reader: tell it the SN is irrelevant
+                out.append(self._gap(proxy, [sn]))
+            else:
+                out.append(self._data(proxy, sn, copy))
+                self.counters.data_sent += 1
             out.append(self._heartbeat(proxy))
             proxy.period_s = self.period_s
             proxy.next_heartbeat = now + self.period_s
@@ -241,7 +266,8 @@ class ReliableWriter:
             # resend even below ``acked``: a reader that restarted lost what it had acked
             if sn > self.last_sn:
                 continue
-            payload = self.history.get(sn)
+            stored = self.history.get(sn)
+            payload = None if stored is None else payload_for(stored, proxy.guid)
             if payload is None or sn < proxy.relevant_from:
                 irrelevant.append(sn)
             else:
@@ -278,10 +304,18 @@ class ReliableWriter:
             # Resending the oldest unacked samples with this heartbeat repairs in one datagram
             # instead of a HEARTBEAT -> ACKNACK -> DATA round trip (three chances to lose).
             first = max(proxy.acked + 1, proxy.relevant_from)
-            for sn, payload in self.history.items():
-                if sn >= first and len(out) < MAX_EAGER_RESEND:
-                    out.append(self._data(proxy, sn, payload))
+            irrelevant: list[int] = []
+            for sn, stored in self.history.items():
+                if sn < first or len(out) >= MAX_EAGER_RESEND:
+                    continue
+                copy = payload_for(stored, proxy.guid)
+                if copy is None:
+                    irrelevant.append(sn)
+                else:
+                    out.append(self._data(proxy, sn, copy))
             self.counters.data_resent += len(out)
+            if irrelevant:  # its GAP was lost too: say again that these are not for it
+                out.append(self._gap(proxy, irrelevant))
         out.append(self._heartbeat(proxy))
         return out
 
