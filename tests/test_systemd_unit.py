@@ -124,8 +124,10 @@ def test_xrce_socket_unit_holds_the_privileged_port_the_xrce_agent_listens_on() 
     assert "ReusePort" not in s
     assert s["ReceiveBuffer"] == ["1M"]
     # the shipped config switched to the XRCE agent with its default connection
-    text = (REPO / "config" / "swarmd.yaml").read_text().replace(
-        "  connection: udpin:127.0.0.1:540\n", "  backend: xrce-agent\n  xrce_key: 1\n"
+    text = (
+        (REPO / "config" / "swarmd.yaml")
+        .read_text()
+        .replace("  connection: udpin:127.0.0.1:540\n", "  backend: xrce-agent\n  xrce_key: 1\n")
     )
     px4 = parse_config(text, "swarmd.yaml").px4
     agent = parse_xrce_connection(px4.connection)

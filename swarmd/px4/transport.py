@@ -184,10 +184,15 @@ def bind_udpin(
     bound here.
 
     Raises ``OSError`` whose ``strerror`` is one line with the cause and the fix: the port is
-    held (naming who holds it), or is privileged and we may not bind it.
+    held (naming who holds it), or is privileged and we may not bind it. ``inherited`` is ours
+    from the call on: closed when it is refused (systemd keeps its own copy).
     """
     if inherited is not None:
-        return adopt_udpin(endpoint, inherited, unit)
+        try:
+            return adopt_udpin(endpoint, inherited, unit)
+        except OSError:
+            inherited.close()
+            raise
     family = socket.AF_INET6 if ":" in endpoint.host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_DGRAM)
     try:
