@@ -2,10 +2,10 @@
 
 swarmd is installed as ``docs/deploy.md`` says and started the way ``systemd/swarmd.service``
 does (user ``swarmd``, its directories and modes, its hardening where a namespace allows,
-the PX4 port from ``swarmd-px4.socket`` as descriptor 3), all inside namespaces of its own
-(``tests/layout``). The attacker is ``swarmd-attacker``, a local user with a shell; the
-operator ``swarmd-operator`` is in group ``swarmd`` as the docs allow. Every probe is bounded
-in count and time.
+the PX4 ports from ``swarmd-px4.socket`` and ``swarmd-xrce.socket`` as descriptors 3 on),
+all inside namespaces of its own (``tests/layout``). The attacker is ``swarmd-attacker``, a
+local user with a shell; the operator ``swarmd-operator`` is in group ``swarmd`` as the docs
+allow. Every probe is bounded in count and time.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 import structlog
+import structlog.testing
 
 from swarmd.config import load_config, parse_config
 from swarmd.daemon import Daemon, listen_socket_name
@@ -183,11 +184,12 @@ def test_a_socket_another_user_bound_beside_systemds_is_named_and_refused(
 # ---- a squatter at start-up, through the daemon ---------------------------------------------
 
 
-def _daemon(workdir: Path, port: int) -> Daemon:
+def _daemon(workdir: Path, port: int, backend: str = "xrce-agent") -> Daemon:
     files = write_bundle(workdir, 2, domain_id=run_domain())
+    key = f"  xrce_key: {KEY}\n" if backend == "xrce-agent" else ""
     px4 = (
-        "px4:\n  enabled: true\n  backend: xrce-agent\n"
-        f"  connection: udp:127.0.0.1:{port}\n  xrce_key: {KEY}\n  require_home: false\n"
+        f"px4:\n  enabled: true\n  backend: {backend}\n"
+        f"  connection: udp:127.0.0.1:{port}\n{key}  require_home: false\n"
     )
     cfg = write_config(
         workdir / "uav1.yaml", files, node="uav1", interface="lo", ipv4="127.0.0.1",
@@ -259,3 +261,33 @@ def test_the_default_agent_port_is_refused_to_a_user_and_the_line_names_the_sock
     assert int(number) == errno.EACCES
     assert line.startswith("port 888 is below "), line
     assert "systemctl start swarmd-xrce.socket swarmd" in line and "\n" not in line
+
+
+@pytest.mark.parametrize(
+    ("backend", "fix"),
+    [
+        ("xrce-agent", "a port below 1024 held by swarmd-xrce.socket"),
+        ("xrce-client", "run MicroXRCEAgent on a port below 1024"),
+    ],
+)
+def test_an_unprivileged_xrce_port_is_warned_at_every_start(
+    workdir: Path, backend: str, fix: str
+) -> None:
+    """PX4 SITL's 8888 (here a free port of the kernel's choosing, also >= 1024): any user
+    may take it while swarmd (or, for a client, its MicroXRCEAgent) is down."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+
+    async def main() -> None:
+        daemon = _daemon(workdir, port, backend)
+        with structlog.testing.capture_logs() as logs:
+            try:
+                await daemon.start()
+            finally:
+                await daemon.stop("test")
+        (warning,) = [e for e in logs if e["event"] == "px4_port_unprivileged"]
+        assert (warning["backend"], warning["port"]) == (backend, port)
+        assert warning["socket_activated"] is False and fix in warning["fix"]
+
+    asyncio.run(main())
