@@ -482,7 +482,8 @@ class _Checker:
                 self.fail(f["backend"], "px4.backend", f"{backend!r} is not a backend",
                           "mavlink, xrce-agent or xrce-client")  # fmt: skip
         xrce = backend != "mavlink"
-        connection = "udp:127.0.0.1:8888" if xrce else d.connection  # PX4 SITL's agent default
+        # PX4 SITL's agent port 8888 moved below 1024, where no local user can bind it (issue 18)
+        connection = "udp:127.0.0.1:888" if xrce else d.connection
         where = f.get("connection")
         if where is not None:
             connection = self.string(where, "px4.connection", "a connection string")

@@ -47,7 +47,7 @@ from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
-from swarmd.config import DaemonConfig, config_mode_problem
+from swarmd.config import DaemonConfig, Px4Section, config_mode_problem
 from swarmd.control import ControlServer
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
@@ -71,7 +71,7 @@ from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
-from swarmd.px4.transport import parse_connection
+from swarmd.px4.transport import PX4_SOCKET, XRCE_SOCKET, parse_connection
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.sdnotify import Notifier, watchdog_interval_s
@@ -248,6 +248,23 @@ def _multicast_send_options(s: socket.socket, ipv4: str) -> None:
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(ipv4))
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)  # the swarm is one hop
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)  # co-hosted participants
+
+
+# the FileDescriptorName= of systemd/swarmd-px4.socket and systemd/swarmd-xrce.socket
+KNOWN_LISTEN_NAMES: Final = (PX4_SOCKET.fd_name, XRCE_SOCKET.fd_name)
+
+
+def listen_socket_name(px4: Px4Section) -> str | None:
+    """Which socket unit's descriptor the configured PX4 link takes (sd_listen_fds names):
+    ``px4`` for a MAVLink ``udpin:``, ``xrce`` for the XRCE agent's ``udp:``; None for a UART,
+    ``udpout:`` or ``xrce-client`` (swarmd binds no port there: docs/px4.md)."""
+    if not px4.enabled:
+        return None
+    if px4.backend == "mavlink":
+        return PX4_SOCKET.fd_name if parse_connection(px4.connection).kind == "udpin" else None
+    if px4.backend == "xrce-agent" and px4.connection.startswith("udp:"):
+        return XRCE_SOCKET.fd_name
+    return None
 
 
 class Daemon:
@@ -457,33 +474,30 @@ class Daemon:
             self.log.warning("config_mode", path=self.config.file, problem=mode_problem)
 
     def _px4_listen_socket(self) -> socket.socket | None:
-        """The socket ``swarmd-px4.socket`` bound for the PX4 link (``FileDescriptorName=px4``).
+        """The socket systemd bound for the vehicle link: ``swarmd-px4.socket`` (named
+        ``px4``) for a MAVLink ``udpin:``, ``swarmd-xrce.socket`` (``xrce``) for the XRCE
+        agent's ``udp:``.
 
         systemd holds it from boot and across restarts, so no local user can take the port
         (issue 18, docs/px4.md). Descriptors we have no use for are closed (systemd keeps its
-        own copy) and logged."""
+        own copy) and logged: at info for the other backend's unit (the service lists both),
+        as a warning for any other name."""
         try:
             fds = listen_fds(os.environ if self._listen_env is None else self._listen_env)
         except ListenFdsError as exc:
             raise StartupError(str(exc), EX_CONFIG) from None
-        wanted = fds.pop("px4", [])
-        px4 = self.config.px4
-        usable = (
-            px4.enabled
-            and px4.backend == "mavlink"
-            and parse_connection(px4.connection).kind == "udpin"
-        )
-        if wanted and not usable:
-            fds["px4"] = wanted
-            wanted = []
-        for name, numbers in fds.items():
+        name = listen_socket_name(self.config.px4)
+        wanted = fds.pop(name, []) if name is not None else []
+        for other, numbers in fds.items():
             for fd in numbers:
                 os.close(fd)
-            self.log.warning(
+            log = self.log.info if other in KNOWN_LISTEN_NAMES else self.log.warning
+            log(
                 "listen_fd_unused",
-                name=name,
+                name=other,
                 count=len(numbers),
-                why="only a MAVLink udpin: px4.connection takes a socket (named px4)",
+                why=f"px4.connection takes {name or 'no socket'} "
+                "(px4: a MAVLink udpin:, xrce: the XRCE agent's udp:)",
             )
         for extra in wanted[1:]:
             os.close(extra)

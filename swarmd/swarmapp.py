@@ -35,7 +35,12 @@ from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.provision import SigningKeyError, ed25519_seed, signing_key_for
 from swarmd.px4.readiness import Readiness, ReadinessConfig
-from swarmd.px4.transport import parse_connection, unprivileged_port_start
+from swarmd.px4.transport import (
+    PX4_SOCKET,
+    XRCE_SOCKET,
+    parse_connection,
+    unprivileged_port_start,
+)
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
 from swarmd.px4.xrce_key import XrceKeyError
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
@@ -87,7 +92,9 @@ class SwarmApp:
         self.keys = keys
         self.epoch = epoch
         self.node_secrets = node_secrets  # the PX4 link's signing key derives from them
-        self.px4_socket = px4_socket  # udpin: the socket swarmd-px4.socket bound (docs/px4.md)
+        # the link's port as systemd bound it: swarmd-px4.socket (MAVLink udpin:) or
+        # swarmd-xrce.socket (the XRCE agent's udp:), docs/px4.md
+        self.px4_socket = px4_socket
         self.me = config.member_of(bundle)
         self.roles = Roles.of(bundle, self.me)
         self.bridge: Px4Bridge | None = None
@@ -240,19 +247,31 @@ class SwarmApp:
         return key.value
 
     def _warn_unprivileged_port(self) -> None:
-        """A udpin port any user may bind can be taken while swarmd is down (issue 18)."""
+        """A UDP port any user may bind can be taken while swarmd (or its agent) is down
+        (issue 18): the MAVLink ``udpin:`` port, the XRCE agent's port swarmd listens on, or,
+        as ``xrce-client``, the MicroXRCEAgent's port swarmd reaches (docs/px4.md)."""
         px4 = self.config.px4
-        if px4.backend != "mavlink":
-            return
-        endpoint = parse_connection(px4.connection)
+        if px4.backend == "mavlink":
+            endpoint = parse_connection(px4.connection)
+            fix = f"a port below 1024 held by {PX4_SOCKET.unit} (docs/px4.md)"
+        else:
+            from swarmd.px4.xrce_backend import parse_xrce_connection  # XRCE configs only
+
+            endpoint = parse_xrce_connection(px4.connection)
+            fix = (
+                f"a port below 1024 held by {XRCE_SOCKET.unit} (docs/px4.md)"
+                if px4.backend == "xrce-agent"
+                else "run MicroXRCEAgent on a port below 1024 (docs/px4.md, xrce-client)"
+            )
         lowest = unprivileged_port_start()
         if endpoint.kind == "udpin" and endpoint.port >= lowest:
             self.log.warning(
                 "px4_port_unprivileged",
+                backend=px4.backend,
                 port=endpoint.port,
                 unprivileged_port_start=lowest,
                 socket_activated=self.px4_socket is not None,
-                fix="a port below 1024 held by swarmd-px4.socket (docs/px4.md)",
+                fix=fix,
             )
 
     def _boot_dataplane(self) -> None:

@@ -2,10 +2,10 @@
 
 swarmd is installed as ``docs/deploy.md`` says and started the way ``systemd/swarmd.service``
 does (user ``swarmd``, its directories and modes, its hardening where a namespace allows,
-the PX4 port from ``swarmd-px4.socket`` as descriptor 3), all inside namespaces of its own
-(``tests/layout``). The attacker is ``swarmd-attacker``, a local user with a shell; the
-operator ``swarmd-operator`` is in group ``swarmd`` as the docs allow. Every probe is bounded
-in count and time.
+the PX4 ports from ``swarmd-px4.socket`` and ``swarmd-xrce.socket`` as descriptors 3 on),
+all inside namespaces of its own (``tests/layout``). The attacker is ``swarmd-attacker``, a
+local user with a shell; the operator ``swarmd-operator`` is in group ``swarmd`` as the docs
+allow. Every probe is bounded in count and time.
 """
 
 from __future__ import annotations
@@ -365,3 +365,111 @@ def test_the_install_leaves_nothing_on_the_host(tmp_path: Path) -> None:
     assert [p.exists() for p in paths] == existed
     assert not Path(f"/proc/{daemon['pid']}").exists()
     assert not Path(f"/proc/{installed.pid}").exists()
+
+
+# ---- the uXRCE-DDS agent's port -----------------------------------------------------------
+
+XRCE_PORT: Final = 888  # systemd/swarmd-xrce.socket, px4.backend: xrce-agent's default
+XRCE_KEY: Final = 7  # PX4's UXRCE_DDS_KEY in these runs
+
+# PX4's uxrce_dds_client, played by swarmd's own client engine (tests/xrce_vehicle.py) from
+# inside the layout's namespaces: it opens its session and starts over after missed pings.
+XRCE_VEHICLE: Final = r"""
+import asyncio, sys
+sys.path.insert(0, sys.argv[1])
+from tests.xrce_vehicle import XrceVehicle
+
+async def main() -> None:
+    vehicle = XrceVehicle(int(sys.argv[2]), 1, ("127.0.0.1", int(sys.argv[3])))
+    await vehicle.start()
+    await asyncio.sleep(float(sys.argv[4]))
+    vehicle.kill()
+
+asyncio.run(main())
+"""
+
+
+@pytest.fixture
+def xrce_layout(tmp_path: Path) -> Iterator[ProductionLayout]:
+    """The shipped config with swarmd as PX4's uXRCE-DDS agent on its default port."""
+    config = shipped_config(backend="xrce-agent", connection=f"udp:127.0.0.1:{XRCE_PORT}")
+    installed = ProductionLayout(tmp_path, config=config)
+    try:
+        yield installed
+    finally:
+        installed.close()
+
+
+def xrce_backend(layout: ProductionLayout) -> dict[str, Any]:
+    done = layout.swarmctl("status", "--json", user=OPERATOR)
+    if done.returncode != 0:
+        return {}
+    backend: dict[str, Any] = json.loads(done.stdout)["px4"]["backend"]
+    return backend
+
+
+def test_the_xrce_agent_port_cannot_be_taken_at_boot_during_a_restart_or_while_swarmd_runs(
+    xrce_layout: ProductionLayout,
+) -> None:
+    layout = xrce_layout
+    grabs = [
+        ("bind", ["127.0.0.1", XRCE_PORT]),
+        ("bind-reuse", ["127.0.0.1", XRCE_PORT]),
+        ("bind-reuse", ["0.0.0.0", XRCE_PORT]),  # noqa: S104 - the attacker's wildcard
+    ]
+    # at boot, before systemd binds it: below 1024, no user may bind it
+    assert set(probe(layout, ATTACKER, *grabs).values()) == {"EACCES"}
+    # sockets.target: both units, as the service's Sockets= lists them
+    assert layout.socket_unit(PX4_PORT, "px4")["ok"]
+    assert layout.socket_unit(XRCE_PORT, "xrce")["ok"]
+    assert set(probe(layout, ATTACKER, *grabs).values()) == {"EACCES"}
+    assert layout.start()["ready"]
+    assert set(probe(layout, ATTACKER, *grabs).values()) == {"EACCES"}
+    backend = xrce_backend(layout)
+    assert (backend["backend"], backend["connection"]) == ("xrce-agent", "udp:127.0.0.1:888")
+    # the MAVLink unit's descriptor is closed unused (info, not a warning); no port warning
+    events = [json.loads(x) for x in layout.log_lines() if x.startswith("{")]
+    (unused,) = [e for e in events if e["event"] == "listen_fd_unused"]
+    assert (unused["name"], unused["level"]) == ("px4", "info")
+    assert not [e for e in events if e["event"] == "px4_port_unprivileged"]
+    assert layout.stop()["exit"] == 0  # the restart's window
+    assert set(probe(layout, ATTACKER, *grabs).values()) == {"EACCES"}
+    assert layout.start()["ready"]  # the same socket, passed again
+    assert set(probe(layout, ATTACKER, *grabs).values()) == {"EACCES"}
+    assert not last_error(layout)
+
+
+def test_pxs_xrce_session_reaches_swarmd_across_a_restart_and_no_local_user(
+    tmp_path: Path,
+) -> None:
+    config = shipped_config(
+        backend="xrce-agent", connection=f"udp:127.0.0.1:{XRCE_PORT}", xrce_key=XRCE_KEY
+    )
+    layout = ProductionLayout(tmp_path, config=config)
+    try:
+        assert layout.socket_unit(XRCE_PORT, "xrce")["ok"]
+        assert layout.start()["ready"]
+        vehicle = layout.popen(
+            [sys.executable, "-I", "-c", XRCE_VEHICLE, str(Path(__file__).parents[1]),
+             str(XRCE_KEY), str(XRCE_PORT), str(WAIT_S * 3)],
+            user=None,  # root, as PX4 SITL would run
+        )  # fmt: skip
+        try:
+
+            def established() -> bool:
+                backend = xrce_backend(layout)
+                return backend.get("session") == "established" and backend["samples"] > 5
+
+            wait_for(established, "PX4's session at swarmd's agent")
+            grab = ("bind-reuse", ["127.0.0.1", XRCE_PORT])
+            assert set(probe(layout, ATTACKER, grab).values()) == {"EACCES"}
+            assert layout.stop()["exit"] == 0
+            assert set(probe(layout, ATTACKER, grab).values()) == {"EACCES"}
+            assert layout.start()["ready"]
+            # the client starts over after missed pings, on the same port: served again
+            wait_for(established, "PX4's session after the restart")
+        finally:
+            vehicle.kill()
+            vehicle.wait(timeout=WAIT_S)
+    finally:
+        layout.close()

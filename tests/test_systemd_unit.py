@@ -13,6 +13,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 UNIT = REPO / "systemd" / "swarmd.service"
 SOCKET_UNIT = REPO / "systemd" / "swarmd-px4.socket"
+XRCE_SOCKET_UNIT = REPO / "systemd" / "swarmd-xrce.socket"
 INSTALLED_EXEC = "/opt/swarmd/venv/bin/swarmd"
 MAX_EXPOSURE = 3.0  # systemd-analyze security: 2.x is "OK"; a dropped hardening line raises it
 
@@ -32,8 +33,9 @@ def _local_copy(tmp_path: Path, text: str | None = None) -> Path:
     exe = Path(sys.executable).parent / "swarmd"
     unit = tmp_path / "swarmd.service"
     unit.write_text(text.replace(INSTALLED_EXEC, str(exe)))
-    # the socket unit it names (Sockets=), beside it as on a drone
-    (tmp_path / SOCKET_UNIT.name).write_text(SOCKET_UNIT.read_text())
+    # the socket units it names (Sockets=), beside it as on a drone
+    for socket_unit in (SOCKET_UNIT, XRCE_SOCKET_UNIT):
+        (tmp_path / socket_unit.name).write_text(socket_unit.read_text())
     return unit
 
 
@@ -65,6 +67,19 @@ def test_socket_unit_passes_verify_with_the_service_without_any_warning(tmp_path
     assert "ListenDatagrm" in _verify(unit, broken).stderr  # the check can fail
 
 
+def test_xrce_socket_unit_passes_verify_with_the_service_and_the_px4_socket(
+    tmp_path: Path,
+) -> None:
+    unit = _local_copy(tmp_path)
+    units = (tmp_path / SOCKET_UNIT.name, tmp_path / XRCE_SOCKET_UNIT.name)
+    proc = _verify(unit, *units)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.strip() == ""
+    broken = tmp_path / XRCE_SOCKET_UNIT.name
+    broken.write_text(XRCE_SOCKET_UNIT.read_text().replace("Service=", "Servic="))
+    assert "Servic" in _verify(unit, *units).stderr  # the check can fail
+
+
 def _unit_settings(path: Path) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
     for line in path.read_text().splitlines():
@@ -89,8 +104,40 @@ def test_socket_unit_holds_a_privileged_port_the_config_listens_on() -> None:
     shipped = parse_connection(load_config(REPO / "config" / "swarmd.yaml").px4.connection)
     assert (shipped.kind, shipped.host, shipped.port) == ("udpin", host, int(port))
     service = _settings()
-    assert service["Sockets"] == [SOCKET_UNIT.name]  # passed on every start, not only on traffic
+    # passed on every start, not only on traffic
+    assert service["Sockets"] == [f"{SOCKET_UNIT.name} {XRCE_SOCKET_UNIT.name}"]
     assert SOCKET_UNIT.name in service["After"][0] and SOCKET_UNIT.name in service["Wants"][0]
+
+
+def test_xrce_socket_unit_holds_the_privileged_port_the_xrce_agent_listens_on() -> None:
+    """Issue 18 for the uXRCE-DDS agent: systemd binds the agent's default port from boot,
+    below 1024, and passes it as 'xrce', the name the daemon takes for xrce-agent."""
+    from swarmd.config import parse_config
+    from swarmd.daemon import listen_socket_name
+    from swarmd.px4.xrce_backend import parse_xrce_connection
+
+    s = _unit_settings(XRCE_SOCKET_UNIT)
+    (listen,) = s["ListenDatagram"]
+    host, _, port = listen.rpartition(":")
+    assert int(port) < 1024
+    assert s["Service"] == ["swarmd.service"]
+    assert "ReusePort" not in s
+    assert s["ReceiveBuffer"] == ["1M"]
+    # the shipped config switched to the XRCE agent with its default connection
+    text = (
+        (REPO / "config" / "swarmd.yaml")
+        .read_text()
+        .replace("  connection: udpin:127.0.0.1:540\n", "  backend: xrce-agent\n  xrce_key: 1\n")
+    )
+    px4 = parse_config(text, "swarmd.yaml").px4
+    agent = parse_xrce_connection(px4.connection)
+    assert (px4.backend, agent.host, agent.port) == ("xrce-agent", host, int(port))
+    assert s["FileDescriptorName"] == [listen_socket_name(px4)] == ["xrce"]
+    assert _unit_settings(SOCKET_UNIT)["FileDescriptorName"] != s["FileDescriptorName"]
+    service = _settings()
+    assert XRCE_SOCKET_UNIT.name in service["Sockets"][0]
+    assert XRCE_SOCKET_UNIT.name in service["After"][0]
+    assert XRCE_SOCKET_UNIT.name in service["Wants"][0]
 
 
 def test_verify_check_catches_a_broken_unit(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ import pytest
 from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.config import ConfigError, parse_config
 from swarmd.px4.bridge import Px4Bridge, Px4Config
-from swarmd.px4.xrce_backend import XrceBackend
+from swarmd.px4.xrce_backend import DEFAULT_XRCE_CONNECTION, XrceBackend
 from swarmd.xrce.client import XrceClient
 from swarmd.xrce.message import (
     Create,
@@ -29,13 +29,17 @@ network:
 """
 
 
-def test_xrce_backend_defaults_to_px4_sitls_agent_address() -> None:
+def test_xrce_backend_defaults_to_a_privileged_loopback_port() -> None:
+    """PX4 SITL's 8888 moved below 1024 (issue 18: no local user can take the agent's port),
+    the port systemd/swarmd-xrce.socket holds (tests/test_systemd_unit.py checks the unit)."""
     cfg = parse_config(MINIMAL + "px4:\n  backend: xrce-agent\n  xrce_key: 1\n", "s.yaml")
     assert (cfg.px4.backend, cfg.px4.connection, cfg.px4.xrce_key) == (
-        "xrce-agent", "udp:127.0.0.1:8888", 1,
+        "xrce-agent", "udp:127.0.0.1:888", 1,
     )  # fmt: skip
+    assert cfg.px4.connection == DEFAULT_XRCE_CONNECTION  # the backend's own default agrees
     cfg = parse_config(MINIMAL + "px4:\n  backend: xrce-client\n  namespace: uav1\n", "s.yaml")
     assert cfg.px4.backend == "xrce-client" and cfg.px4.namespace == "uav1"
+    assert cfg.px4.connection == "udp:127.0.0.1:888"  # where its MicroXRCEAgent listens
 
 
 @pytest.mark.parametrize(

@@ -211,7 +211,7 @@ def _render_status(status: dict[str, Any]) -> list[str]:
 
 
 def render_px4_backend(b: dict[str, Any]) -> str:
-    """``px4 link: xrce-agent udp:127.0.0.1:8888, session established (...), PX4 1.16, refused
+    """``px4 link: xrce-agent udp:127.0.0.1:888, session established (...), PX4 1.16, refused
     4 clients (last 127.0.0.1:40001 key 0000002a (vehicle_alive))`` or
     ``px4 link: mavlink udpin:127.0.0.1:14540, autopilot 127.0.0.1:14580 (learned), signed
     (ok 5120), refused 3``."""

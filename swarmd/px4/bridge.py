@@ -69,7 +69,8 @@ class Px4Config:
     xrce_domain_id: int = 0  # xrce-client: its participant's DDS domain (UXRCE_DDS_DOM_ID)
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
     takeoff: TakeoffConfig = field(default_factory=TakeoffConfig)
-    # MAVLink udpin: the socket systemd bound (swarmd-px4.socket, docs/px4.md); None: bind
+    # the socket systemd bound for a MAVLink udpin: (swarmd-px4.socket) or the XRCE agent's
+    # udp: (swarmd-xrce.socket), docs/px4.md; None: bind it ourselves
     listen_socket: socket.socket | None = field(default=None, compare=False)
 
 
@@ -109,6 +110,7 @@ class Px4Bridge:
                 namespace=config.namespace,
                 domain_id=config.xrce_domain_id,
                 log=log,
+                inherited=config.listen_socket,
             )
         else:
             backend = MavlinkBackend(

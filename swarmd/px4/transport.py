@@ -9,7 +9,8 @@ Connection strings follow pymavlink/MAVSDK usage (reference section 1.7):
   with ``SO_REUSEADDR`` and Linux would hand them the autopilot's datagrams (issue 18). It is
   bound here, or adopted from systemd (``swarmd-px4.socket``, ``adopt_udpin``) with the flag
   cleared; a port someone else holds stops start-up with one line naming them
-  (``portowner.py``).
+  (``portowner.py``). The XRCE agent's ``udp:`` port goes the same way, with its own unit
+  (``swarmd-xrce.socket``, ``XRCE_SOCKET``).
 - ``udpout:HOST:PORT`` send to a listener (PX4 SITL listens on 14580+i). The socket is
   *connected* to it, so the kernel drops datagrams from any other source, and bound to an
   ephemeral port, so the peer learns us from our first heartbeat.
@@ -44,15 +45,35 @@ from typing import Final, Literal, Protocol, cast
 from swarmd.px4.portowner import describe, holders
 
 UNPRIVILEGED_PORT_START_FILE: Final = Path("/proc/sys/net/ipv4/ip_unprivileged_port_start")
-PORT_FIX: Final = (
-    "let systemd hold the port from boot (swarmd-px4.socket, docs/px4.md), on a port below "
-    "1024 so no other user can bind it"
-)
 MAX_TX_BACKLOG: Final = 64 * 1024  # serial bytes queued while the UART drains; more is dropped
 SERIAL_REOPEN_S: Final = 1.0  # retry a vanished serial device (USB adapter re-plugged)
 
 Kind = Literal["udpin", "udpout", "serial"]
 OnBytes = Callable[[bytes, str | None], None]  # data, source "host:port" (None: serial)
+
+
+@dataclass(frozen=True, slots=True)
+class SocketUnit:
+    """The systemd socket unit that holds a link's port from boot (issue 18), for the one
+    line that names a squatter and its fix."""
+
+    unit: str  # the unit file, e.g. "swarmd-px4.socket"
+    fd_name: str  # its FileDescriptorName=, as LISTEN_FDNAMES names the descriptor
+    carries: str  # what a socket bound beside ours would receive instead of swarmd
+
+    def port_fix(self) -> str:
+        return (
+            f"let systemd hold the port from boot ({self.unit}, docs/px4.md), on a port below "
+            "1024 so no other user can bind it"
+        )
+
+
+# MAVLink from the autopilot or mavlink-router (px4.backend: mavlink, udpin:)
+PX4_SOCKET: Final = SocketUnit("swarmd-px4.socket", "px4", "the autopilot's datagrams")
+# PX4's uxrce_dds_client reaching swarmd as its agent (px4.backend: xrce-agent, udp:): a
+# squatter would receive PX4's uORB samples and could answer them as the agent
+XRCE_SOCKET: Final = SocketUnit("swarmd-xrce.socket", "xrce", "PX4's uXRCE-DDS traffic")
+PORT_FIX: Final = PX4_SOCKET.port_fix()
 
 
 class BadConnectionString(ValueError):
@@ -156,14 +177,22 @@ def unprivileged_port_start(path: Path = UNPRIVILEGED_PORT_START_FILE) -> int:
         return 1024
 
 
-def bind_udpin(endpoint: Endpoint, inherited: socket.socket | None = None) -> socket.socket:
-    """The ``udpin:`` socket: ``inherited`` (from systemd) checked and adopted, or bound here.
+def bind_udpin(
+    endpoint: Endpoint, inherited: socket.socket | None = None, unit: SocketUnit = PX4_SOCKET
+) -> socket.socket:
+    """The ``udpin:`` socket: ``inherited`` (from systemd's ``unit``) checked and adopted, or
+    bound here.
 
     Raises ``OSError`` whose ``strerror`` is one line with the cause and the fix: the port is
-    held (naming who holds it), or is privileged and we may not bind it.
+    held (naming who holds it), or is privileged and we may not bind it. ``inherited`` is ours
+    from the call on: closed when it is refused (systemd keeps its own copy).
     """
     if inherited is not None:
-        return adopt_udpin(endpoint, inherited)
+        try:
+            return adopt_udpin(endpoint, inherited, unit)
+        except OSError:
+            inherited.close()
+            raise
     family = socket.AF_INET6 if ":" in endpoint.host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_DGRAM)
     try:
@@ -174,25 +203,28 @@ def bind_udpin(endpoint: Endpoint, inherited: socket.socket | None = None) -> so
         if exc.errno == errno.EADDRINUSE:
             who = describe(holders(endpoint.host, port))
             raise OSError(
-                errno.EADDRINUSE, f"port {port} is held by {who}; fix: stop it, and {PORT_FIX}"
+                errno.EADDRINUSE,
+                f"port {port} is held by {who}; fix: stop it, and {unit.port_fix()}",
             ) from None
         if exc.errno == errno.EACCES:
             raise OSError(
                 errno.EACCES,
                 f"port {port} is below {unprivileged_port_start()}: only root (or "
-                "CAP_NET_BIND_SERVICE) may bind it; fix: start swarmd with swarmd-px4.socket, "
-                "which binds it for us (systemctl start swarmd-px4.socket swarmd, docs/px4.md)",
+                f"CAP_NET_BIND_SERVICE) may bind it; fix: start swarmd with {unit.unit}, "
+                f"which binds it for us (systemctl start {unit.unit} swarmd, docs/px4.md)",
             ) from None
         raise
     sock.setblocking(False)
     return sock
 
 
-def adopt_udpin(endpoint: Endpoint, sock: socket.socket) -> socket.socket:
+def adopt_udpin(
+    endpoint: Endpoint, sock: socket.socket, unit: SocketUnit = PX4_SOCKET
+) -> socket.socket:
     """A socket systemd bound for ``endpoint``: check it, clear ``SO_REUSEADDR``, and make
     sure no other socket shares its address (a user who bound beside it before we cleared
-    the flag would receive the autopilot's datagrams)."""
-    where = "the socket passed as 'px4' (swarmd-px4.socket ListenDatagram=)"
+    the flag would receive what the port carries: the autopilot's or PX4's datagrams)."""
+    where = f"the socket passed as '{unit.fd_name}' ({unit.unit} ListenDatagram=)"
     if sock.type != socket.SOCK_DGRAM or sock.family not in (socket.AF_INET, socket.AF_INET6):
         raise OSError(
             errno.EINVAL,
@@ -213,8 +245,8 @@ def adopt_udpin(endpoint: Endpoint, sock: socket.socket) -> socket.socket:
     if others:
         raise OSError(
             errno.EADDRINUSE,
-            f"port {bound[1]} is also bound by {describe(others)}, which receives the "
-            f"autopilot's datagrams; fix: stop it, and {PORT_FIX}",
+            f"port {bound[1]} is also bound by {describe(others)}, which receives "
+            f"{unit.carries}; fix: stop it, and {unit.port_fix()}",
         )
     sock.setblocking(False)
     return sock

@@ -12,14 +12,19 @@ the engine is bound to one vehicle: a second client is refused (``refused`` in `
 logged at the 1st, 10th, 100th ... refusal), and the translator drops samples whose
 ``vehicle_status.system_id`` is not ``sysid``.
 
-Connections: ``udp:HOST:PORT`` -- the agent binds it (PX4 SITL's default 127.0.0.1:8888),
-the client sends to it; ``serial:/dev/ttyTHS1:921600`` -- the agent on a UART, with
-Micro XRCE-DDS's framing (PX4 ``UXRCE_DDS_CFG`` = TELEM2).
+Connections: ``udp:HOST:PORT`` -- the agent listens on it, the client sends to it;
+``serial:/dev/ttyTHS1:921600`` -- the agent on a UART, with Micro XRCE-DDS's framing (PX4
+``UXRCE_DDS_CFG`` = TELEM2). The default, ``udp:127.0.0.1:888``, is PX4 SITL's 8888 moved
+below 1024 so that no local user can bind it (issue 18, docs/px4.md "The XRCE agent's
+port"): as the agent, the socket is the one ``swarmd-xrce.socket`` bound from boot
+(``inherited``, ``SO_REUSEADDR`` cleared) or one bound here without ``SO_REUSEADDR``; a
+squatter stops start-up with one line naming it (``transport.bind_udpin``).
 """
 
 from __future__ import annotations
 
 import asyncio
+import socket
 import time
 from collections import Counter
 from typing import Any, Final, Literal
@@ -27,7 +32,7 @@ from typing import Any, Final, Literal
 from swarmd.driver import Driver
 from swarmd.px4.backend import ObservationSink
 from swarmd.px4.messages import VehicleCommand
-from swarmd.px4.transport import ByteLink, Endpoint, open_link
+from swarmd.px4.transport import XRCE_SOCKET, ByteLink, Endpoint, bind_udpin, open_link
 from swarmd.px4.xrce_translate import Px4Translator
 from swarmd.xrce.agent import XrceAgent
 from swarmd.xrce.client import XrceClient
@@ -44,7 +49,8 @@ from swarmd.xrce.framing import Deframer, frame
 from swarmd.xrce.px4 import dds_topic
 
 Mode = Literal["xrce-agent", "xrce-client"]
-DEFAULT_XRCE_CONNECTION: Final = "udp:127.0.0.1:8888"
+# PX4's UXRCE_DDS_PRT default is 8888; 888 is below net.ipv4.ip_unprivileged_port_start
+DEFAULT_XRCE_CONNECTION: Final = "udp:127.0.0.1:888"
 SERIAL_PEER: Final = "serial"
 SERVICE: Final = "vehicle_command"  # PX4's replier (>= 1.15), rq/rr/fmu/vehicle_command...
 
@@ -52,7 +58,7 @@ SERVICE: Final = "vehicle_command"  # PX4's replier (>= 1.15), rq/rr/fmu/vehicle
 def parse_xrce_connection(text: str, field: str = "px4.connection") -> Endpoint:
     """``udp:HOST:PORT`` or ``serial:DEVICE:BAUD``; ValueError with one line otherwise."""
     kind, _, rest = text.partition(":")
-    example = "udp:127.0.0.1:8888 or serial:/dev/ttyTHS1:921600"
+    example = "udp:127.0.0.1:888 or serial:/dev/ttyTHS1:921600"
     if kind == "udp":
         host, _, port = rest.rpartition(":")
         if host and port.isdigit() and 0 < int(port) < 65536:
@@ -89,6 +95,7 @@ class XrceBackend:
         namespace: str | None = None,
         domain_id: int = 0,
         log: Any = None,
+        inherited: socket.socket | None = None,
     ) -> None:
         if not 1 <= sysid <= 255:
             raise ValueError("px4.sysid must be 1..255")
@@ -127,6 +134,10 @@ class XrceBackend:
         self._deframer = Deframer()
         self._driver: Driver[bytes, tuple[bytes, Address], XrceEvent] | None = None
         self._agent_addr: tuple[str, int] | None = None
+        # xrce-agent on udp: the socket swarmd-xrce.socket bound (sd_listen_fds "xrce")
+        self._inherited = (
+            inherited if mode == "xrce-agent" and self.endpoint.kind == "udpin" else None
+        )
 
     async def start(self, sink: ObservationSink) -> None:
         loop = asyncio.get_running_loop()
@@ -141,9 +152,16 @@ class XrceBackend:
         if ep.kind == "serial":
             self._link = await open_link(ep, self._on_serial)
         elif self.mode == "xrce-agent":
-            self._transport, _ = await loop.create_datagram_endpoint(
-                lambda: _Datagrams(self), local_addr=(ep.host, ep.port)
-            )
+            # never SO_REUSEADDR, a squatter named: issue 18's defence for the agent's port
+            sock = bind_udpin(ep, self._inherited, XRCE_SOCKET)
+            self._inherited = None  # adopted (or refused): ours to close from now on
+            try:
+                self._transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _Datagrams(self), sock=sock
+                )
+            except BaseException:
+                sock.close()
+                raise
         else:
             self._agent_addr = (ep.host, ep.port)
             self._transport, _ = await loop.create_datagram_endpoint(

@@ -1,13 +1,15 @@
 """What systemd does between fork and exec for ``systemd/swarmd.service`` (the parts a
 namespace allows), then exec of ``ExecStart=``. Runs as root; the pid stays the daemon's.
 
-Argument: JSON ``{"fd": N | null, "notify": PATH}`` (``fd``: the socket unit's socket).
+Argument: JSON ``{"fds": [[NAME, N], ...], "notify": PATH}`` (the socket units' sockets, in
+the service's ``Sockets=`` order, by ``FileDescriptorName=``).
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import fcntl
 import grp
 import json
 import os
@@ -77,12 +79,20 @@ def main() -> None:
         "RUNTIME_DIRECTORY": "/run/swarmd",
         "CONFIGURATION_DIRECTORY": "/etc/swarmd",
     }
-    if spec["fd"] is not None:  # sd_listen_fds(3): descriptor 3 on, named by LISTEN_FDNAMES
-        if spec["fd"] != 3:
-            os.dup2(spec["fd"], 3)
-            os.close(spec["fd"])
-        os.set_inheritable(3, True)
-        env |= {"LISTEN_FDS": "1", "LISTEN_FDNAMES": "px4", "LISTEN_PID": str(os.getpid())}
+    if spec["fds"]:  # sd_listen_fds(3): descriptor 3 on, named by LISTEN_FDNAMES
+        # first out of the way (a passed descriptor may already sit at 3 or 4), then in order
+        high = [fcntl.fcntl(fd, fcntl.F_DUPFD, 100) for _, fd in spec["fds"]]
+        for _, fd in spec["fds"]:
+            os.close(fd)
+        for n, fd in enumerate(high):
+            os.dup2(fd, 3 + n)
+            os.close(fd)
+            os.set_inheritable(3 + n, True)
+        env |= {
+            "LISTEN_FDS": str(len(high)),
+            "LISTEN_FDNAMES": ":".join(name for name, _ in spec["fds"]),
+            "LISTEN_PID": str(os.getpid()),
+        }
     os.umask(0o027)  # UMask=0027
     os.chdir("/")
     for cap in range(64):  # CapabilityBoundingSet= (empty)

@@ -123,9 +123,10 @@ class ProductionLayout:
         stdin.flush()
         return self._reply()
 
-    def socket_unit(self, port: int | None) -> dict[str, Any]:
-        """systemd binds (or releases) the PX4 link's socket (swarmd-px4.socket)."""
-        return self._ask(cmd="socket", port=port)
+    def socket_unit(self, port: int | None, name: str = "px4") -> dict[str, Any]:
+        """systemd binds (or releases) a PX4 link's socket: ``px4`` (swarmd-px4.socket) or
+        ``xrce`` (swarmd-xrce.socket, the uXRCE-DDS agent's port)."""
+        return self._ask(cmd="socket", port=port, name=name)
 
     def start(self) -> dict[str, Any]:
         """``systemctl start swarmd``: the reply at READY=1 or the daemon's exit."""

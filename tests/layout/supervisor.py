@@ -8,16 +8,18 @@ and its console scripts, system user ``swarmd`` (in ``dialout``), a local user
 ``swarmd-attacker`` and an operator ``swarmd-operator`` in group ``swarmd``, /etc/swarmd
 (0750 root:swarmd) with the config (0640), the flashed /var/lib/swarmd owned by swarmd.
 
-Then it plays systemd for ``systemd/swarmd-px4.socket`` and ``systemd/swarmd.service``,
-one JSON command per stdin line, one JSON reply per stdout line:
+Then it plays systemd for ``systemd/swarmd-px4.socket``, ``systemd/swarmd-xrce.socket`` and
+``systemd/swarmd.service``, one JSON command per stdin line, one JSON reply per stdout line:
 
-- ``{"cmd": "socket", "port": P}`` binds 127.0.0.1:P as root with SO_REUSEADDR (as systemd
-  does for every socket unit) and keeps it across every daemon restart; ``port: null``
-  closes it (the socket unit stopped or not installed);
+- ``{"cmd": "socket", "port": P, "name": N}`` binds 127.0.0.1:P as root with SO_REUSEADDR
+  (as systemd does for every socket unit) for the unit whose ``FileDescriptorName=`` is N
+  (``px4`` or ``xrce``) and keeps it across every daemon restart; ``port: null`` closes it
+  (the socket unit stopped or not installed);
 - ``{"cmd": "start"}``: RuntimeDirectory=, StateDirectory= (chown, mode), then the service's
   process: its own mount namespace with the unit's hardening that a namespace allows
-  (ProtectSystem=strict, ProtectHome=, PrivateTmp=), the socket as descriptor 3 with
-  LISTEN_FDS/LISTEN_FDNAMES=px4/LISTEN_PID (sd_listen_fds(3)), NOTIFY_SOCKET, UMask=0027,
+  (ProtectSystem=strict, ProtectHome=, PrivateTmp=), the sockets from descriptor 3 on in
+  the order of the service's ``Sockets=`` with LISTEN_FDS/LISTEN_FDNAMES/LISTEN_PID
+  (sd_listen_fds(3)), NOTIFY_SOCKET, UMask=0027,
   an empty capability bounding set, NoNewPrivileges=, User=swarmd with its groups; the
   reply comes at READY=1 or at its exit;
 - ``{"cmd": "stop"}``: SIGTERM, its exit code, the runtime directory removed;
@@ -125,11 +127,11 @@ def lay_out(spec: dict[str, Any]) -> None:
 
 
 class Systemd:
-    """The socket unit's socket and the service's process."""
+    """The socket units' sockets and the service's process."""
 
     def __init__(self, spec: dict[str, Any]) -> None:
         self.spec = spec
-        self.sock: socket.socket | None = None
+        self.socks: dict[str, socket.socket] = {}  # by FileDescriptorName=
         self.proc: subprocess.Popen[bytes] | None = None
         self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         path = NOTIFY_DIR / "notify"
@@ -137,10 +139,10 @@ class Systemd:
         path.chmod(0o777)  # like /run/systemd/notify: any service may write
         self.notify_path = str(path)
 
-    def socket_unit(self, port: int | None) -> dict[str, Any]:
-        if self.sock is not None:
-            self.sock.close()
-            self.sock = None
+    def socket_unit(self, port: int | None, name: str = "px4") -> dict[str, Any]:
+        old = self.socks.pop(name, None)
+        if old is not None:
+            old.close()
         if port is None:
             return {"ok": True}
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -151,7 +153,7 @@ class Systemd:
         except OSError as exc:
             s.close()
             return {"ok": False, "error": exc.strerror}
-        self.sock = s
+        self.socks[name] = s
         return {"ok": True}
 
     def start(self) -> dict[str, Any]:
@@ -162,11 +164,13 @@ class Systemd:
         run.chmod(0o750)
         sh("chown", "-R", "swarmd:swarmd", "/var/lib/swarmd")  # StateDirectory=swarmd
         Path("/var/lib/swarmd").chmod(0o700)  # StateDirectoryMode=0700
-        fds = () if self.sock is None else (self.sock.fileno(),)
+        # Sockets=swarmd-px4.socket swarmd-xrce.socket: passed in that order
+        named = [(n, self.socks[n].fileno()) for n in ("px4", "xrce") if n in self.socks]
+        fds = tuple(fd for _, fd in named)
         log = open(self.spec["log"], "ab")  # noqa: SIM115 - the child's stderr
         self.proc = subprocess.Popen(
             [sys.executable, "-I", str(Path(__file__).with_name("exec_service.py")),
-             json.dumps({"fd": fds[0] if fds else None, "notify": self.notify_path})],
+             json.dumps({"fds": named, "notify": self.notify_path})],
             pass_fds=fds, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
         )  # fmt: skip
         log.close()
@@ -202,7 +206,8 @@ class Systemd:
 
     def close(self) -> None:
         self.stop()
-        self.socket_unit(None)
+        for name in list(self.socks):
+            self.socket_unit(None, name)
         self.notify.close()
 
 
@@ -216,7 +221,7 @@ def main() -> None:
             request = json.loads(line)
             cmd = request["cmd"]
             if cmd == "socket":
-                reply = systemd.socket_unit(request["port"])
+                reply = systemd.socket_unit(request["port"], request.get("name", "px4"))
             elif cmd == "start":
                 reply = systemd.start()
             elif cmd == "stop":
