@@ -309,15 +309,18 @@ class Demo:
     def wait_in_air(self, obs: Observer, result: dict[str, Any]) -> None:
         self.view.set_stage(self.t(), "climbing: waiting for every drone to report IN_AIR")
         deadline = time.monotonic() + IN_AIR_WAIT_S
-        takeoff = _last_takeoff(obs)
-        flying = [
-            n for n, v in ((takeoff or {}).get("nodes") or {}).items() if v["state"] == "completed"
-        ]
-        result["command"] = takeoff
-        while time.monotonic() < deadline and not all(n in obs.in_air_at for n in flying):
+
+        def flying() -> list[str]:
+            # re-read at every poll: a row may turn "completed" after swarmctl has exited
+            # (the commander's own drone's row, polled just before its completion)
+            nodes = (_last_takeoff(obs) or {}).get("nodes") or {}
+            return [n for n, v in nodes.items() if v["state"] == "completed"]
+
+        while time.monotonic() < deadline and not all(n in obs.in_air_at for n in flying()):
             self.tick(obs)
             time.sleep(POLL_S)
         self.tick(obs)
+        result["command"] = _last_takeoff(obs)
 
     def cleanup(self) -> None:
         try:
