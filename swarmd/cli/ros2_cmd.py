@@ -22,6 +22,7 @@ from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.cli.bundle_cmd import _err, _guard, _load, _trust_args
 from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_DATAERR, EX_OK
 from swarmd.ros2.profile import ProfileError, drone_profiles
+from swarmd.ros2.relay import DEFAULT_RELAY_PORT
 
 
 def register(sub: Any) -> None:
@@ -51,6 +52,19 @@ def register(sub: Any) -> None:
         default=[],
         metavar="NAME=A.B.C.D",
         help="a drone's address when the mission has no ipv4 for it (repeat)",
+    )
+    p.add_argument(
+        "--via-swarmd",
+        action="store_true",
+        help="discovery through the drone's swarmd on loopback: no ROS 2 discovery frame on "
+        "the air (needs ros2.relay in swarmd's config; docs/ros2.md)",
+    )
+    p.add_argument(
+        "--relay-port",
+        type=int,
+        default=DEFAULT_RELAY_PORT,
+        metavar="PORT",
+        help=f"swarmd's relay port on 127.0.0.1 (default {DEFAULT_RELAY_PORT}, as ros2.relay_port)",
     )
     p.add_argument("--json", action="store_true", help="print the files written as JSON")
     _trust_args(p)
@@ -84,6 +98,9 @@ def cmd_profile(args: argparse.Namespace) -> int:
                 f"{', '.join(drones)}"
             )
             return EX_BAD_ARGS
+    if not 1 <= args.relay_port <= 65535:
+        _err(f"--relay-port {args.relay_port}: not a UDP port; fix: 1..65535 (default 7399)")
+        return EX_BAD_ARGS
     out = Path(args.out)
     written: list[str] = []
     for drone in args.drone or drones:
@@ -92,7 +109,14 @@ def cmd_profile(args: argparse.Namespace) -> int:
         else:
             install = str((out / drone).absolute())
         try:
-            files = drone_profiles(bundle.ros2, participants, addresses, drone, install)
+            files = drone_profiles(
+                bundle.ros2,
+                participants,
+                addresses,
+                drone,
+                install,
+                relay_port=args.relay_port if args.via_swarmd else None,
+            )
         except ProfileError as exc:
             _err(f"{args.bundle}: {exc}")
             return EX_DATAERR
