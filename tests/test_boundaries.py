@@ -35,7 +35,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "yamldoc": frozenset(),
     "exitcodes": frozenset(),
     "bundle": frozenset({"rtps", "yamldoc", "exitcodes"}),
-    # stock ROS 2 nodes' Fast DDS profiles, generated from the bundle (text only, no ROS 2)
+    # stock ROS 2 nodes' Fast DDS profiles from the bundle (text only, no ROS 2) and the
+    # sans-IO SPDP relay the daemon runs for them on loopback
     "ros2": CORE,
     # authentication lives beside the codec, used by discovery and the data plane
     "auth": CORE,
@@ -67,7 +68,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
     | {"config", "control", "driver", "logs", "userdata"},
     "daemon": CORE
-    | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
+    | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link", "ros2"}
     | {"config", "control", "driver", "logs", "sdnotify", "swarmapp", "udp"},
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}

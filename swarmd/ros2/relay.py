@@ -2,8 +2,8 @@
 
 Theory of operation. A ROS 2 node started with a ``swarmctl ros2 profile --via-swarmd``
 profile has its metatraffic (discovery) locator on 127.0.0.1 and one initial peer: this
-relay's socket, 127.0.0.1:``relay_port``. Its SPDP therefore never leaves the drone. The
-relay, in turn, sends each local ROS 2 participant (at 127.0.0.1:<its metatraffic port>,
+relay's socket, [::1]:``relay_port``. Its SPDP therefore never leaves the drone. The
+relay, in turn, sends each local ROS 2 participant (at [::1]:<its metatraffic port>,
 from the bundle) a synthesized SPDP ``DATA(p)`` (DDSI-RTPS 2.5 8.5.3.2, 9.6.2.2) for every
 ROS 2 participant the bundle places on a drone that swarmd's own, authenticated discovery has
 found (``peer_discovered``):
@@ -39,6 +39,7 @@ Driving sources: datagrams from the relay socket (``receive_datagram``), the tim
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from collections import deque
 from dataclasses import dataclass
@@ -61,7 +62,9 @@ from swarmd.rtps.spdp import (
 )
 from swarmd.rtps.types import Duration, GuidPrefix, ProtocolVersion, VendorId
 
-LOOPBACK: Final = "127.0.0.1"
+# IPv6 loopback: the nodes' discovery port is bound there only (swarmd.ros2.profile); the
+# kernel drops a datagram for ::1 that arrives on any other interface (RFC 4291 2.5.3)
+LOOPBACK: Final = "::1"
 # outside every RTPS port mapping (7400 + 250 * domain + ...): no participant can take it
 DEFAULT_RELAY_PORT: Final = 7399
 RENEWALS_PER_LEASE: Final = 4
@@ -189,7 +192,7 @@ class _Remote:
 class Ros2Relay:
     """The SPDP relay core of one drone (see the module docstring); sans-IO.
 
-    Datagrams out are ``(bytes, (host, port))``, always to 127.0.0.1."""
+    Datagrams out are ``(bytes, (host, port))``, always to ``loopback``."""
 
     def __init__(
         self,
@@ -200,6 +203,7 @@ class Ros2Relay:
         lease_s: float,
         relay_port: int = DEFAULT_RELAY_PORT,
         epoch: int = 0,
+        loopback: str = LOOPBACK,
     ) -> None:
         if lease_s <= 0:
             raise ValueError("ros2 relay lease must be positive")
@@ -208,6 +212,12 @@ class Ros2Relay:
         self.lease_s = lease_s
         self.period_s = lease_s / RENEWALS_PER_LEASE
         self.relay_port = relay_port
+        self.loopback = loopback
+        self._relay_locator = (
+            Locator.udpv6(loopback, relay_port)
+            if ipaddress.ip_address(loopback).version == 6
+            else Locator.udpv4(loopback, relay_port)
+        )
         # SN = epoch (31 bits) | counter: above every SN of an earlier life of this relay
         self._sn = (epoch & 0x7FFF_FFFF) << 32
         self._local: dict[GuidPrefix, _Local] = {}
@@ -311,7 +321,7 @@ class Ros2Relay:
                 protocol_version=FASTDDS_PROTOCOL_VERSION,
             )
             for local in self._local.values():
-                self._out.append((datagram, (LOOPBACK, local.participant.metatraffic_port)))
+                self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
                 self.counters["tx_dispose"] += 1
         if not self._present:
             self._next_renewal = None
@@ -325,7 +335,7 @@ class Ros2Relay:
             protocol_version=FASTDDS_PROTOCOL_VERSION,
             vendor_id=VendorId(VENDOR_EPROSIMA),
             domain_id=self.domain_id,
-            metatraffic_unicast_locators=(Locator.udpv4(LOOPBACK, self.relay_port),),
+            metatraffic_unicast_locators=(self._relay_locator,),
             default_unicast_locators=(Locator.udpv4(address, p.user_port),),
             lease_duration=Duration.from_seconds(self.lease_s),
             builtin_endpoints=BES_SPDP_ONLY,
@@ -342,7 +352,7 @@ class Ros2Relay:
                 {
                     "node": p.node.name,
                     "guid_prefix": str(prefix),
-                    "metatraffic": f"{LOOPBACK}:{p.metatraffic_port}",
+                    "metatraffic": f"{self.loopback}:{p.metatraffic_port}",
                     "state": "heard" if local.heard_at is not None else "not heard",
                     "last_heard_s": None
                     if local.heard_at is None
@@ -369,7 +379,7 @@ class Ros2Relay:
                     }
                 )
         return {
-            "relay": f"{LOOPBACK}:{self.relay_port}",
+            "relay": f"{self.loopback}:{self.relay_port}",
             "lease_s": self.lease_s,
             "local": local_rows,
             "remote": remote_rows,
@@ -398,7 +408,7 @@ class Ros2Relay:
             self.synthesized(p, address), sequence_number=self._next_sn(), timestamp=None
         )
         for local in self._local.values():
-            self._out.append((datagram, (LOOPBACK, local.participant.metatraffic_port)))
+            self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_spdp"] += 1
 
     def _send_all_to(self, local: _Local) -> None:
@@ -410,7 +420,7 @@ class Ros2Relay:
                     sequence_number=self._next_sn(),
                     timestamp=None,
                 )
-                self._out.append((datagram, (LOOPBACK, port)))
+                self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_spdp"] += 1
 
     def _renew_all(self, now: float) -> None:
