@@ -4,6 +4,7 @@ The real-process test is tests/test_ros2_relay_netns.py."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ from hypothesis import strategies as st
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Participant, bundle_ros2_participants
+from swarmd.cli.status_cmd import render_status
 from swarmd.ros2.relay import (
     LOOPBACK,
     MAX_UNDECLARED_PER_PARTICIPANT,
@@ -270,3 +272,29 @@ def test_arbitrary_bytes_on_the_relay_port_are_counted_and_dropped(data: bytes) 
     assert relay.datagrams_to_send() == []
     c = relay.counters
     assert c["rx"] == 1 and c["rx_malformed"] + c["rx_not_spdp"] + c["rx_unknown"] <= 1
+
+
+def test_status_view_lists_local_remote_unknown_and_undeclared_rows_safely() -> None:
+    participants = _participants()
+    lead = _by(participants, "lead")
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    props = (("eProsimaEDPStatic_Writer_ALIVE_ID_65535", "0.0.1.3"),)
+    relay.receive_datagram(_local_spdp(lead, 1, props), ("::1", 40000), 1.0)
+    hostile = encode_spdp(
+        SpdpParticipant(
+            GuidPrefix(bytes(11) + b"\x07"),
+            vendor_id=VendorId(b"\x01\x0f"),
+            entity_name="evil\x1b[2Jnode",
+        ),
+        sequence_number=1,
+        timestamp=None,
+    )
+    relay.receive_datagram(hostile, ("::1", 40001), 1.0)
+    text = "\n".join(render_status({"ros2": relay.status(2.0)}))
+    assert "ros2 relay ::1:7399  lease 8 s" in text
+    rows = {line.split()[0] + " " + line.split()[1] for line in text.splitlines()[2:]}
+    assert {"this drone", "drone-1 talker", "drone-2 talker", "unknown evil\\x1b[2Jnode"} <= rows
+    assert re.search(r"undeclared writer +id 65535 +entity 0\.0\.1\.3 +not in the bundle", text)
+    assert "waiting for drone" in text and "relayed" in text
+    assert "\x1b" not in text
