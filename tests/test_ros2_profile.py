@@ -239,3 +239,40 @@ def test_cli_writes_every_drone_and_refuses_a_bundle_without_graph(
     assert swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)]) == 65
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and re.search(r"no ROS 2 graph; fix: add a 'ros2:'", err)
+
+
+def test_preflight_check_refuses_profiles_that_do_not_match_the_flashed_bundle(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mission = tmp_path / "m.yaml"
+    mission.write_text(MISSION)
+    bundle = tmp_path / "s.swb"
+    assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
+    installed = tmp_path / "etc"
+    common = ["--allow-dev", "--via-swarmd"]
+    assert swarmctl(["ros2", "profile", str(bundle), "--out", str(installed), *common]) == 0
+    check = ["ros2", "check", str(bundle), "--profiles", str(installed)]
+    capsys.readouterr()
+    assert swarmctl([*check, *common]) == 0
+    assert capsys.readouterr().out.startswith("OK 9 ROS 2 profile files match")
+    assert swarmctl([*check, *common, "--drone", "lead"]) == 0
+    # the plain route's files are not these: refused
+    assert swarmctl([*check, "--allow-dev"]) == 65
+    capsys.readouterr()
+    # a new bundle (the listener now also publishes) against the old installed files
+    changed = MISSION.replace(
+        "subscribes: [/chatter]", "subscribes: [/chatter]\n      publishes: [/chatter]"
+    )
+    assert changed != MISSION
+    mission.write_text(changed)
+    assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
+    capsys.readouterr()
+    assert swarmctl([*check, *common, "--drone", "lead"]) == 65
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and all("; fix: regenerate with 'swarmctl ros2 profile'" in e for e in err)
+    assert any(e.startswith(f"swarmctl: {installed}/lead/listener.xml: line ") for e in err)
+    (installed / "lead" / "listener.env").unlink()
+    capsys.readouterr()
+    assert swarmctl([*check, *common, "--drone", "lead", "--json"]) == 65
+    verdict = json.loads(capsys.readouterr().out)
+    assert not verdict["ok"] and any("cannot read" in p for p in verdict["problems"])
