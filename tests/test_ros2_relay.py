@@ -36,6 +36,7 @@ from swarmd.rtps.spdp import (
     SpdpParticipant,
     decode_spdp,
     encode_spdp,
+    encode_spdp_dispose,
 )
 from swarmd.rtps.types import GuidPrefix, VendorId
 
@@ -193,6 +194,24 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
     assert len(relay.datagrams_to_send()) == 2
     row = relay.status(3.5)["local"][0]
     assert row["state"] == "heard" and row["last_heard_s"] == 0.5
+    # its DATA(p[UD]) on shutdown: shown as left; back with SN going on: a restart anyway
+    relay.receive_datagram(
+        encode_spdp_dispose(
+            GuidPrefix(lead.guid_prefix),
+            sequence_number=9,
+            timestamp=None,
+            vendor_id=VendorId(b"\x01\x0f"),
+        ),
+        ("::1", 40001),
+        4.0,
+    )
+    assert relay.status(4.0)["local"][0]["state"] == "left"
+    assert relay.datagrams_to_send() == [] and _events(relay) == []
+    relay.receive_datagram(_local_spdp(lead, 10), ("::1", 40002), 5.0)
+    assert _events(relay) == [
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+    ]
+    assert len(relay.datagrams_to_send()) == 2
 
 
 def test_an_unknown_participant_is_shown_never_relayed_and_its_table_is_capped() -> None:
@@ -271,7 +290,8 @@ def test_arbitrary_bytes_on_the_relay_port_are_counted_and_dropped(data: bytes) 
     relay.receive_datagram(data, ("::1", 40000), 0.0)
     assert relay.datagrams_to_send() == []
     c = relay.counters
-    assert c["rx"] == 1 and c["rx_malformed"] + c["rx_not_spdp"] + c["rx_unknown"] <= 1
+    kinds = ("rx_malformed", "rx_not_spdp", "rx_wlp", "rx_dispose", "rx_unknown")
+    assert c["rx"] == 1 and sum(c[k] for k in kinds) <= 1
 
 
 def test_status_view_lists_local_remote_unknown_and_undeclared_rows_safely() -> None:

@@ -269,17 +269,12 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     finally:
         capture.terminate()
         capture.wait(timeout=10)
-    answered_outsider = 0
+    answered_outsider = sum(_drain(sock) for sock in attacker_rx)
     for sock in attacker_rx:
-        while True:
-            try:
-                sock.recv(65536)
-            except BlockingIOError:
-                break
-            answered_outsider += 1
         sock.close()
     counts = discovery_counts(pcap, frozenset(lan[i].address for i in range(3)))
     forged = discovery_counts(pcap, frozenset({outsider.address}))
+    print(f"\nrelay counters: {[st['ros2']['counters'] for st in statuses]}")
     print(
         f"\nlink, from the drones: {counts}; ROS 2 SPDP {counts.ros2_spdp}, ROS 2 SEDP "
         f"{counts.ros2_sedp}, swarmd SPDP {counts.spdp_swarmd}; from the outsider: {forged}; "
@@ -309,9 +304,11 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         assert ros2["unknown"] == [], ros2
         assert all(r["guid_prefix"] != "10f0bad:0:1" for r in ros2["remote"])
         assert ros2["counters"]["rx_malformed"] == 0
-    # every relay heard its node and relays the other drones' participants
+        assert ros2["counters"]["rx_wlp"] == 0  # relayed participants announce no WLP reader
+    # every relay heard its node (which has now left: its DATA(p[UD]) on shutdown) and
+    # relays the other drones' participants
     for st in statuses:
-        assert [r["state"] for r in st["ros2"]["local"]] == ["heard"], st["ros2"]
+        assert [r["state"] for r in st["ros2"]["local"]] == ["left"], st["ros2"]
         assert {r["state"] for r in st["ros2"]["remote"]} == {"relayed"}, st["ros2"]
     # the undeclared /extra publisher of drone-1's talker is reported, by node
     undeclared = statuses[1]["ros2"]["local"][0]["undeclared_endpoints"]
@@ -326,3 +323,55 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     for d in daemons:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0
+
+
+def _drain(sock: Any) -> int:
+    received = 0
+    while True:
+        try:
+            sock.recv(65536)
+        except BlockingIOError:
+            return received
+        received += 1
+
+
+def test_the_same_forgery_reaches_a_node_on_the_plain_route(
+    lan_factory: LanFactory, workdir: Path
+) -> None:
+    """The control for the forgery above: the plain generated profile (no swarmd) binds the
+    node's discovery port on the drone's address, and stock Fast DDS answers the forged
+    participant (reference/ros2-fastdds-facts.md, "Hostile input")."""
+    lan = lan_factory(2)  # host 0: the lead's listener; host 1: the outsider
+    outsider = lan[1]
+    base = lan[0].address.rsplit(".", 1)[0]
+    files = _write_bundle(workdir, [lan[0].address, f"{base}.201", f"{base}.202"])
+    profiles = workdir / "profiles"
+    code = swarmctl(
+        ["ros2", "profile", str(files.path), "--trusted-key", str(files.trusted_key)]
+        + ["--allow-dev", "--out", str(profiles), "--drone", "lead"]
+    )
+    assert code == 0
+    rx = outsider.socket()
+    rx.bind((outsider.address, 7410))
+    rx.setblocking(False)
+    node = lan[0].popen(
+        host_argv(
+            [sys.executable, "-m", "swarmd_lab.ros2_node", "listener", "--seconds", "6"],
+            write_machine_id(workdir, 0),
+        ),
+        env=_node_env(profiles / "lead" / "listener.env"),
+        stdout=subprocess.PIPE,
+    )
+    lead = next(p for p in bundle_ros2_participants(files.bundle) if p.drone == "lead")
+    sender = outsider.socket()
+    try:
+        time.sleep(1.0)  # the node is up (a bounded wait: the assertion is on replies)
+        for _ in range(FORGERY_ROUNDS):
+            sender.sendto(_forged_spdp(outsider.address), (lan[0].address, lead.metatraffic_port))
+            time.sleep(0.2)
+        node.communicate(timeout=40)
+    finally:
+        sender.close()
+    answered = _drain(rx)
+    rx.close()
+    assert answered > 0

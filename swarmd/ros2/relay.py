@@ -52,6 +52,7 @@ from swarmd.bundle.ros2 import (
 )
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
+from swarmd.rtps.message import Data, Heartbeat, decode_message
 from swarmd.rtps.spdp import (
     BES_SPDP_ONLY,
     SpdpAlive,
@@ -60,7 +61,13 @@ from swarmd.rtps.spdp import (
     encode_spdp,
     encode_spdp_dispose,
 )
-from swarmd.rtps.types import Duration, GuidPrefix, ProtocolVersion, VendorId
+from swarmd.rtps.types import (
+    ENTITYID_P2P_MESSAGE_WRITER,
+    Duration,
+    GuidPrefix,
+    ProtocolVersion,
+    VendorId,
+)
 
 # IPv6 loopback: the nodes' discovery port is bound there only (swarmd.ros2.profile); the
 # kernel drops a datagram for ::1 that arrives on any other interface (RFC 4291 2.5.3)
@@ -89,6 +96,17 @@ def static_edp_entity_id(user_id: int, kind: Ros2EndpointKind) -> str:
         ENTITY_KIND_WRITER_NO_KEY if kind == Ros2EndpointKind.WRITER else ENTITY_KIND_READER_NO_KEY
     )
     return f"{key >> 16 & 0xFF}.{key >> 8 & 0xFF}.{key & 0xFF}.{kind_octet}"
+
+
+def _is_wlp(datagram: bytes) -> bool:
+    try:
+        message = decode_message(datagram)
+    except DecodeError:
+        return False
+    return any(
+        isinstance(sm, Data | Heartbeat) and sm.writer_id == ENTITYID_P2P_MESSAGE_WRITER
+        for sm in message.submessages
+    )
 
 
 def _property_kind(kind: Ros2EndpointKind) -> str:
@@ -167,6 +185,7 @@ class _Local:
     participant: Ros2Participant
     declared: frozenset[tuple[str, int]]  # ("Writer"|"Reader", userId)
     heard_at: float | None = None
+    left: bool = False  # its last word was a DATA(p[UD])
     last_sn: int = 0
     datagrams: int = 0
     # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
@@ -246,6 +265,8 @@ class Ros2Relay:
             "rx": 0,
             "rx_malformed": 0,
             "rx_not_spdp": 0,
+            "rx_wlp": 0,
+            "rx_dispose": 0,
             "rx_remote_prefix": 0,
             "rx_unknown": 0,
             "unknown_evicted": 0,
@@ -264,12 +285,16 @@ class Ros2Relay:
         except DecodeError:
             self.counters["rx_malformed"] += 1
             return
-        alive = [s for s in samples if isinstance(s, SpdpAlive)]
-        if not alive:
-            self.counters["rx_not_spdp"] += 1
+        if not samples:
+            # what else a node sends its peers' discovery side: WLP (DDSI-RTPS 8.4.13) if
+            # a relayed participant announced a WLP reader (it does not), else anything
+            self.counters["rx_wlp" if _is_wlp(data) else "rx_not_spdp"] += 1
             return
-        for sample in alive:
-            self._heard(sample, now)
+        for sample in samples:
+            if isinstance(sample, SpdpAlive):
+                self._heard(sample, now)
+            else:
+                self._left(sample.guid_prefix)
 
     def handle_timer(self, now: float) -> None:
         if self._next_renewal is None or now < self._next_renewal:
@@ -353,7 +378,11 @@ class Ros2Relay:
                     "node": p.node.name,
                     "guid_prefix": str(prefix),
                     "metatraffic": f"{self.loopback}:{p.metatraffic_port}",
-                    "state": "heard" if local.heard_at is not None else "not heard",
+                    "state": "not heard"
+                    if local.heard_at is None
+                    else "left"
+                    if local.left
+                    else "heard",
                     "last_heard_s": None
                     if local.heard_at is None
                     else round(now - local.heard_at, 3),
@@ -441,8 +470,11 @@ class Ros2Relay:
                 self._heard_unknown(participant, now)
             return
         # a smaller sequence number than before: the node restarted (Fast DDS starts at 1)
-        restarted = local.heard_at is not None and sample.sequence_number < local.last_sn
+        restarted = local.heard_at is not None and (
+            local.left or sample.sequence_number < local.last_sn
+        )
         first = local.heard_at is None or restarted
+        local.left = False
         local.heard_at = now
         local.last_sn = sample.sequence_number
         local.datagrams += 1
@@ -451,6 +483,14 @@ class Ros2Relay:
             p = local.participant
             self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
             self._send_all_to(local)
+
+    def _left(self, prefix: GuidPrefix) -> None:
+        """A local node's DATA(p[UD]) (it is shutting down): shown as left; its next
+        announcement is a restart and gets every relayed participant at once."""
+        self.counters["rx_dispose"] += 1
+        local = self._local.get(prefix)
+        if local is not None:
+            local.left = True
 
     def _heard_unknown(self, participant: SpdpParticipant, now: float) -> None:
         self.counters["rx_unknown"] += 1
