@@ -235,6 +235,15 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         steady = start_node(2, "talker", LISTEN_S, "--tag", "drone-2")
         first = start_node(1, "talker", FIRST_LIFE_S, "--tag", "drone-1")
         first_result = result(first, FIRST_LIFE_S)
+        # the lead's node and swarmd bind discovery on [::1] only (ss: local address column)
+        sockets = lan[0].run(["ss", "-uanH"]).stdout.split("\n")
+        local_ends = [line.split()[3] for line in sockets if len(line.split()) > 3]
+        listener_meta = next(
+            p.metatraffic_port for p in bundle_ros2_participants(files.bundle) if p.drone == "lead"
+        )
+        bound = sorted(e for e in local_ends if e.endswith((f":{listener_meta}", ":7399")))
+        print(f"\nlead's discovery sockets: {bound}")
+        assert bound == sorted([f"[::1]:{listener_meta}", "[::1]:7399"]), local_ends
         # the same node again, same GUID prefix, a new process; with an undeclared topic
         second = start_node(
             1, "talker", SECOND_LIFE_S, "--tag", "drone-1-again", "--undeclared", "/extra"
