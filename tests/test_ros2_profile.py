@@ -256,6 +256,14 @@ def test_preflight_check_refuses_profiles_that_do_not_match_the_flashed_bundle(
     assert swarmctl([*check, *common]) == 0
     assert capsys.readouterr().out.startswith("OK 9 ROS 2 profile files match")
     assert swarmctl([*check, *common, "--drone", "lead"]) == 0
+    # on the drone: one folder, as installed
+    onboard = tmp_path / "onboard"
+    onboard.mkdir()
+    for f in (installed / "lead").iterdir():
+        (onboard / f.name).write_text(f.read_text())
+    onboard_check = ["ros2", "check", str(bundle), "--profiles", str(onboard), "--drone", "lead"]
+    install = ["--install-dir", str((installed / "lead").absolute())]
+    assert swarmctl([*onboard_check, *common, *install]) == 0
     # the plain route's files are not these: refused
     assert swarmctl([*check, "--allow-dev"]) == 65
     capsys.readouterr()
@@ -271,6 +279,9 @@ def test_preflight_check_refuses_profiles_that_do_not_match_the_flashed_bundle(
     err = capsys.readouterr().err.strip().splitlines()
     assert err and all("; fix: regenerate with 'swarmctl ros2 profile'" in e for e in err)
     assert any(e.startswith(f"swarmctl: {installed}/lead/listener.xml: line ") for e in err)
+    capsys.readouterr()
+    assert swarmctl([*onboard_check, *common, *install]) == 65  # the old bundle's files
+    assert f"{onboard}/listener.xml: line " in capsys.readouterr().err
     (installed / "lead" / "listener.env").unlink()
     capsys.readouterr()
     assert swarmctl([*check, *common, "--drone", "lead", "--json"]) == 65

@@ -56,7 +56,8 @@ def register(sub: Any) -> None:
         "--profiles",
         required=True,
         metavar="DIR",
-        help="the installed files, DIR/<drone>/... (as 'ros2 profile --out DIR' wrote them)",
+        help="the installed files: DIR/<drone>/... as 'ros2 profile --out DIR' wrote them, or "
+        "with one --drone the drone's own folder (e.g. /etc/swarmd/ros2)",
     )
     _generation_args(c)
     c.add_argument("--json", action="store_true", help="print the verdict as JSON")
@@ -180,9 +181,12 @@ def cmd_check(args: argparse.Namespace) -> int:
     files = _expected(args, root)
     if isinstance(files, int):
         return files
+    # on a drone the files sit in one folder (DIR/<file>), as installed: one --drone whose
+    # DIR/<drone>/ does not exist is read from there
+    flat = args.drone is not None and len(args.drone) == 1 and not (root / args.drone[0]).is_dir()
     problems: list[str] = []
     for f in files:
-        path = root / f.path
+        path = root / Path(f.path).name if flat else root / f.path
         try:
             installed = path.read_text()
         except OSError as exc:
