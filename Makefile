@@ -5,6 +5,8 @@ N ?= 10
 # mavlink: the MAVLink vehicle simulator; xrce: px4_like_client through swarmd's XRCE agent
 # xrce-client: px4_like_client through MicroXRCEAgent, swarmd its second client
 VEHICLE ?= mavlink
+# ROS2=1: each drone also runs a real rclpy node whose discovery swarmd serves (docs/ros2.md)
+ROS2 ?= 0
 PYTEST_ARGS ?=
 
 .PHONY: setup test lint typecheck unit demo bench clean lock test-latest
@@ -37,7 +39,7 @@ test: setup
 	$(VENV)/bin/pytest $(PYTEST_ARGS)
 
 demo: setup
-	$(VENV)/bin/python -m swarmd_lab.demo --n $(N) --vehicle $(VEHICLE)
+	$(VENV)/bin/python -m swarmd_lab.demo --n $(N) --vehicle $(VEHICLE) $(if $(filter 1,$(ROS2)),--ros2,)
 
 bench: setup
 	$(VENV)/bin/python bench/codec.py
