@@ -46,8 +46,7 @@ from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
-from swarmd.bundle.ros2 import bundle_ros2_participants
-from swarmd.config import DaemonConfig
+from swarmd.config import ConfigError, DaemonConfig
 from swarmd.control import ControlServer
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
@@ -71,15 +70,7 @@ from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
-from swarmd.ros2.relay import (
-    LOOPBACK,
-    LocalParticipantHeard,
-    RelayEvent,
-    RemoteParticipantsRelayed,
-    Ros2Relay,
-    UndeclaredEndpoint,
-    UnknownParticipantHeard,
-)
+from swarmd.ros2app import Ros2App
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarmapp import SwarmApp
@@ -286,8 +277,7 @@ class Daemon:
         self._control: ControlServer | None = None
         self.app: SwarmApp | None = None  # made in start(), after the engine checked the node
         # the SPDP relay of this drone's stock ROS 2 nodes (config ros2.relay, docs/ros2.md)
-        self.ros2_relay: Ros2Relay | None = None
-        self._ros2_driver: Driver[bytes, Datagram, RelayEvent] | None = None
+        self.ros2: Ros2App | None = None
         self._status_line = ""
         self._ready = False  # STATUS= updates start with READY=1, which carries the first
         self._started_wall = time.time()
@@ -389,11 +379,15 @@ class Daemon:
                 wanted=RECV_BUFFER_BYTES,
                 fix="sysctl net.core.rmem_max=4194304 (docs/deploy.md)",
             )
-        try:
-            self._start_ros2_relay(loop)
-        except StartupError:
-            await self._close_transports()
-            raise
+        if self.config.ros2.relay:
+            try:
+                self.ros2 = Ros2App(
+                    self.config, self.bundle, epoch=self.epoch.epoch, log=self.log, count=self.count
+                )
+                self.ros2.start(loop)
+            except (StartupError, ConfigError):
+                await self._close_transports()
+                raise
         try:
             await app.start()
         except StartupError:
@@ -470,110 +464,9 @@ class Daemon:
         self.notifier.close()
         self.log.info("stopped", reason=reason)
 
-    def _start_ros2_relay(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Bind [::1]:ros2.relay_port and drive the relay core (docs/ros2.md). Its socket
-        is on loopback only: the kernel drops a datagram for ::1 arriving on the Wi-Fi
-        interface, so nothing from the air reaches it."""
-        section = self.config.ros2
-        if not section.relay:
-            return
-        participants = bundle_ros2_participants(self.bundle)
-        if not participants or self.bundle.ros2 is None:
-            raise self.config.error(
-                "ros2.relay",
-                "the bundle declares no ROS 2 graph to serve",
-                "add a 'ros2:' section to the mission (docs/ros2.md) or set ros2.relay: false",
-            )
-        epoch = 0 if self.epoch is None else self.epoch.epoch  # set before: start() order
-        relay = Ros2Relay(
-            participants,
-            self.config.node,
-            domain_id=self.bundle.ros2.domain_id,
-            lease_s=section.lease_s,
-            relay_port=section.relay_port,
-            epoch=epoch,
-        )
-        try:
-            sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
-        except OSError as exc:
-            raise StartupError(
-                f"{self.config.file}: ros2.relay: no IPv6 socket ({exc.strerror}); fix: enable "
-                "IPv6 (the relay and the nodes' discovery use ::1; docs/ros2.md)",
-                EX_OSERR,
-            ) from None
-        try:
-            sock.setblocking(False)
-            sock.bind((LOOPBACK, section.relay_port))
-        except OSError as exc:
-            sock.close()
-            raise StartupError(
-                f"{self.config.file}: ros2.relay_port: cannot bind [{LOOPBACK}]:"
-                f"{section.relay_port} ({exc.strerror}); fix: choose a free port here and in "
-                "'swarmctl ros2 profile --via-swarmd --relay-port' (or enable IPv6 on lo)",
-                EX_OSERR,
-            ) from None
-        transport = BatchedSocket(sock, "ros2_relay", self._ros2_received, self.count, loop)
-        self._transports["ros2_relay"] = transport
-        self.ros2_relay = relay
-        self._ros2_driver = Driver(
-            relay,
-            transmit=lambda out: transport.sendto(out[0], out[1]),
-            on_event=self._on_ros2_event,
-            name="ros2_relay",
-            log=self.log,
-            on_core_error=lambda: self.count("ros2_relay_exceptions"),
-        )
-
-    def _ros2_received(self, batch: list[Datagram], via: str) -> None:
-        if self._ros2_driver is not None and not self.stopped.is_set():
-            self._ros2_driver.datagrams_received(batch)
-
-    def _ros2_peer(self, name: str, prefix: GuidPrefix | None) -> None:
-        """An authenticated peer is up (or moved, or restarted): the relay serves its ROS 2
-        participants to the local nodes at the address discovery has for it."""
-        relay, driver = self.ros2_relay, self._ros2_driver
-        if relay is None or driver is None:
-            return
-        address = None if prefix is None else self._peer_ipv4(prefix)
-        driver.call(lambda now: relay.peer_discovered(name, address, now))
-
-    def _on_ros2_event(self, event: RelayEvent) -> None:
-        match event:
-            case LocalParticipantHeard(node=node, guid_prefix=prefix, restarted=restarted):
-                self.log.info(
-                    "ros2_participant_heard",
-                    node=node,
-                    guid_prefix=str(prefix),
-                    restarted=restarted,
-                )
-            case UnknownParticipantHeard(guid_prefix=prefix, vendor=vendor, name=name):
-                self.log.warning(
-                    "ros2_unknown_participant",
-                    guid_prefix=str(prefix),
-                    vendor=vendor,
-                    name=name,
-                    fix="start the node with the profile 'swarmctl ros2 profile --via-swarmd' "
-                    "wrote for this drone",
-                )
-            case UndeclaredEndpoint(node=node, kind=kind, user_id=uid, entity_id=entity):
-                self.log.warning(
-                    "ros2_undeclared_endpoint",
-                    node=node,
-                    kind=kind,
-                    user_id=uid,
-                    entity_id=entity,
-                    fix="declare the endpoint in the mission's ros2 section and re-flash",
-                )
-            case RemoteParticipantsRelayed(drone=drone, participants=n, up=up):
-                self.log.info("ros2_relay_peer", peer=drone, participants=n, up=up)
-            case _:
-                self.log.info("ros2_relay_event", event_type=type(event).__name__)
-
     async def _close_transports(self) -> None:
-        if self._ros2_driver is not None:
-            # no dispose on stop: the local nodes keep their peers for the lease, so a
-            # restarted swarmd takes over before anything expires (docs/ros2.md)
-            self._ros2_driver.close()
+        if self.ros2 is not None:
+            self.ros2.close()  # no dispose: the nodes keep their peers (docs/ros2.md)
         if self.driver is not None:
             self.driver.close()  # no timer may fire into a daemon that failed or stopped
         for transport in self._transports.values():
@@ -650,10 +543,8 @@ class Daemon:
                 self.log.info("peer_lost", peer=name, reason=reason)
                 if self.app is not None:
                     self.app.peer_down(name)
-                relay, ros2_driver = self.ros2_relay, self._ros2_driver
-                if relay is not None and ros2_driver is not None and name is not None:
-                    lost: str = name
-                    ros2_driver.call(lambda now: relay.peer_lost(lost, now))
+                if self.ros2 is not None and name is not None:
+                    self.ros2.peer_down(name)
             case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
                 # rate-limited in the engine: ``suppressed`` more were not reported one by one
                 self.log.info(
@@ -670,6 +561,12 @@ class Daemon:
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _ros2_peer(self, name: str, prefix: GuidPrefix) -> None:
+        """An authenticated peer is up, moved or restarted: the relay serves its drone's
+        ROS 2 nodes at the address discovery has for it."""
+        if self.ros2 is not None:
+            self.ros2.peer_up(name, self._peer_ipv4(prefix))
 
     def _peer_traffic(self, name: str) -> None:
         """A peer's user data passed its MAC: discovery takes it as the peer's liveliness
@@ -753,8 +650,8 @@ class Daemon:
         st["counters"] = counters
         if self.app is not None:
             st.update(self.app.status())
-        if self.ros2_relay is not None:
-            st["ros2"] = self.ros2_relay.status(now)
+        if self.ros2 is not None:
+            st["ros2"] = self.ros2.status(now)
         st["daemon"] = {
             "version": __version__,
             "pid": os.getpid(),

@@ -67,9 +67,11 @@ ALLOWED: dict[str, frozenset[str]] = {
     "swarmapp": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
     | {"config", "control", "driver", "logs", "userdata"},
+    # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
+    "ros2app": CORE | {"ros2", "config", "driver", "udp"},
     "daemon": CORE
-    | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link", "ros2"}
-    | {"config", "control", "driver", "logs", "sdnotify", "swarmapp", "udp"},
+    | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
+    | {"config", "control", "driver", "logs", "sdnotify", "swarmapp", "ros2app", "udp"},
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"}
