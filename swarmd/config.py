@@ -107,7 +107,7 @@ class Ros2Section:
     --via-swarmd`` with the same ``relay_port``."""
 
     relay: bool = False
-    relay_port: int = 7399  # swarmd.ros2.relay.DEFAULT_RELAY_PORT, on 127.0.0.1 only
+    relay_port: int = 7399  # swarmd.ros2.relay.DEFAULT_RELAY_PORT, on [::1] only
     # the lease the relay announces for other drones' ROS 2 participants; renewed 4 times in it
     lease_s: float = 20.0
 

@@ -1,8 +1,9 @@
 """swarmd serves SPDP to its drone's stock ROS 2 nodes on loopback (issue 19, docs/ros2.md).
 
 Theory of operation. A ROS 2 node started with a ``swarmctl ros2 profile --via-swarmd``
-profile has its metatraffic (discovery) locator on 127.0.0.1 and one initial peer: this
-relay's socket, [::1]:``relay_port``. Its SPDP therefore never leaves the drone. The
+profile has its metatraffic (discovery) locator on IPv6 loopback (a UDPv6 transport allowed
+on ``::1`` only: swarmd.ros2.profile) and one initial peer: this relay's socket,
+[::1]:``relay_port``. Its SPDP therefore never leaves the drone. The
 relay, in turn, sends each local ROS 2 participant (at [::1]:<its metatraffic port>,
 from the bundle) a synthesized SPDP ``DATA(p)`` (DDSI-RTPS 2.5 8.5.3.2, 9.6.2.2) for every
 ROS 2 participant the bundle places on a drone that swarmd's own, authenticated discovery has
@@ -13,15 +14,17 @@ found (``peer_discovered``):
   port: user data goes straight over the Wi-Fi, node to node;
 - metatraffic unicast locator = this relay on loopback: whatever the local node sends to the
   remote participant's discovery side (its own SPDP renewals, WLP, ...) stays on the drone;
-- builtin endpoints = SPDP writer and reader only: with no SEDP and no WLP endpoint
-  announced, the local node starts neither for it (DDSI-RTPS 8.5.4.3);
+- builtin endpoints = SPDP writer and reader only (availableBuiltinEndpoints, DDSI-RTPS
+  2.5 8.5.3.2): with no SEDP and no WLP endpoint announced, the local node starts neither
+  for it (measured: the relays receive 0 WLP, docs/ros2.md);
 - the remote node's static EDP endpoints as Fast DDS's ``EDPStatic`` announces them in the
   property list (``eProsimaEDPStatic_<Writer|Reader>_ALIVE_ID_<userId>`` = its entity id),
   built from the bundle: the profile gives every endpoint ``entityID`` = ``userDefinedID``,
   so the entity ids are known beforehand (checked against real SPDP, docs/ros2.md).
 
 Renewed every ``lease_s / RENEWALS_PER_LEASE`` within the lease it announces, resent at once
-to a local participant heard for the first time (a node start or restart), and disposed
+to a local participant heard for the first time (a node start, or a restart: its sequence
+numbers start again, or it sent a ``DATA(p[UD])`` before), and disposed
 (``DATA(p[UD])``, 8.5.3.2) on ``peer_lost``. Sequence numbers carry swarmd's boot epoch in
 their upper half: a node that matched the SPDP writer of a relayed participant drops samples
 whose sequence number is not above the last one it took, so a restarted swarmd must count on
