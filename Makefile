@@ -6,6 +6,8 @@ N ?= 10
 # swarmd as its XRCE agent; xrce-client: the stand-in through MicroXRCEAgent (needs it on
 # PATH), swarmd its second client
 VEHICLE ?= mavlink
+# ROS2=1: each drone also runs a real rclpy node whose discovery swarmd serves (docs/ros2.md)
+ROS2 ?= 0
 PYTEST_ARGS ?=
 
 .PHONY: setup test lint typecheck unit demo bench clean lock test-latest
@@ -38,7 +40,7 @@ test: setup
 	$(VENV)/bin/pytest $(PYTEST_ARGS)
 
 demo: setup
-	$(VENV)/bin/python -m swarmd_lab.demo --n $(N) --vehicle $(VEHICLE)
+	$(VENV)/bin/python -m swarmd_lab.demo --n $(N) --vehicle $(VEHICLE) $(if $(filter 1,$(ROS2)),--ros2,)
 
 bench: setup
 	$(VENV)/bin/python bench/codec.py

@@ -105,6 +105,18 @@ class DataplaneSection:
 
 
 @dataclass(frozen=True, slots=True)
+class Ros2Section:
+    """``ros2:``: serve SPDP to this drone's stock ROS 2 nodes on loopback (docs/ros2.md,
+    swarmd.ros2.relay). Absent: off. The nodes' profiles come from ``swarmctl ros2 profile
+    --via-swarmd`` with the same ``relay_port``."""
+
+    relay: bool = False
+    relay_port: int = 7399  # swarmd.ros2.relay.DEFAULT_RELAY_PORT, on [::1] only
+    # the lease the relay announces for other drones' ROS 2 participants; renewed 4 times in it
+    lease_s: float = 20.0
+
+
+@dataclass(frozen=True, slots=True)
 class DaemonConfig:
     """A checked daemon config. ``lines`` maps a field path to its line, for later errors."""
 
@@ -120,6 +132,7 @@ class DaemonConfig:
     engine_overrides: dict[str, float] = field(default_factory=dict)
     px4: Px4Section = Px4Section()
     dataplane: DataplaneSection = DataplaneSection()
+    ros2: Ros2Section = Ros2Section()
     log_level: str = "info"
     log_format: str = "auto"
     lines: dict[str, int] = field(default_factory=dict, compare=False, repr=False)
@@ -146,6 +159,7 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "discovery",
         "px4",
         "dataplane",
+        "ros2",
         "logging",
     ),
     "bundle": ("path", "trusted_key", "expected_sha256", "allow_dev", "node_key"),
@@ -181,6 +195,7 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "xrce_domain_id",
     ),
     "dataplane": ("enabled", "readiness_period_s", "stale_after_s", "state_dir"),
+    "ros2": ("relay", "relay_port", "lease_s"),
     "logging": ("level", "format"),
 }
 
@@ -456,6 +471,7 @@ class _Checker:
         self.section(top, "discovery", discovery)
         self.section(top, "px4", lambda f: values.__setitem__("px4", self.px4(f)))
         self.section(top, "dataplane", lambda f: values.__setitem__("dataplane", self.dataplane(f)))
+        self.section(top, "ros2", lambda f: values.__setitem__("ros2", self.ros2(f)))
 
         def logging(f: Nodes) -> None:
             if "level" in f:
@@ -613,6 +629,23 @@ class _Checker:
             state_dir=(self.path(f["state_dir"], "dataplane.state_dir") or d.state_dir)
             if "state_dir" in f
             else d.state_dir,
+        )
+
+    def ros2(self, f: Nodes) -> Ros2Section:
+        d = Ros2Section()
+        port = (
+            self.number(f["relay_port"], "ros2.relay_port", 1, 65535)
+            if "relay_port" in f
+            else d.relay_port
+        )
+        if port != int(port):
+            self.fail(f["relay_port"], "ros2.relay_port", f"{port} is no port", "write e.g. 7399")
+        return Ros2Section(
+            relay=self.boolean(f["relay"], "ros2.relay") if "relay" in f else True,
+            relay_port=int(port),
+            lease_s=self.number(f["lease_s"], "ros2.lease_s", 2.0, 600.0, " s")
+            if "lease_s" in f
+            else d.lease_s,
         )
 
     def overrides(self, node: yaml.Node) -> dict[str, float]:

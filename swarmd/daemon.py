@@ -47,7 +47,7 @@ from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
-from swarmd.config import DaemonConfig, Px4Section, config_mode_problem
+from swarmd.config import ConfigError, DaemonConfig, Px4Section, config_mode_problem
 from swarmd.control import ControlServer
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
@@ -72,6 +72,7 @@ from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
 from swarmd.px4.transport import PX4_SOCKET, XRCE_SOCKET, parse_connection
+from swarmd.ros2app import Ros2App
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.sdnotify import Notifier, watchdog_interval_s
@@ -315,6 +316,8 @@ class Daemon:
         self._link_task: asyncio.Task[None] | None = None
         self._control: ControlServer | None = None
         self.app: SwarmApp | None = None  # made in start(), after the engine checked the node
+        # the SPDP relay of this drone's stock ROS 2 nodes (config ros2.relay, docs/ros2.md)
+        self.ros2: Ros2App | None = None
         self._status_line = ""
         self._ready = False  # STATUS= updates start with READY=1, which carries the first
         self._started_wall = time.time()
@@ -417,6 +420,15 @@ class Daemon:
                 wanted=RECV_BUFFER_BYTES,
                 fix="sysctl net.core.rmem_max=4194304 (docs/deploy.md)",
             )
+        if self.config.ros2.relay:
+            try:
+                self.ros2 = Ros2App(
+                    self.config, self.bundle, epoch=self.epoch.epoch, log=self.log, count=self.count
+                )
+                self.ros2.start(loop)
+            except (StartupError, ConfigError):
+                await self._close_transports()
+                raise
         try:
             await app.start()
         except StartupError:
@@ -528,6 +540,8 @@ class Daemon:
         self.log.info("stopped", reason=reason)
 
     async def _close_transports(self) -> None:
+        if self.ros2 is not None:
+            self.ros2.close()  # no dispose: the nodes keep their peers (docs/ros2.md)
         if self.driver is not None:
             self.driver.close()  # no timer may fire into a daemon that failed or stopped
         for transport in self._transports.values():
@@ -587,20 +601,25 @@ class Daemon:
                 )
                 if self.app is not None and epoch is not None:  # None only without auth
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
+                self._ros2_peer(name, event.guid_prefix)
             case PeerLocatorsChanged(name=name, default_unicast_locators=user):
                 # authenticated: the peer itself moved its address
                 self.log.info("peer_locators_changed", peer=name, user=[str(x) for x in user])
                 if self.app is not None:
                     self.app.peer_moved(name, self._peer_ipv4(event.guid_prefix))
+                self._ros2_peer(name, event.guid_prefix)
             case PeerRestarted(name=name, epoch=epoch, previous_epoch=previous):
                 self.log.info("peer_restarted", peer=name, epoch=epoch, previous_epoch=previous)
                 # its data-plane state belongs to its earlier life: the plane resets it
                 if self.app is not None:
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
+                self._ros2_peer(name, event.guid_prefix)
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
                 if self.app is not None:
                     self.app.peer_down(name)
+                if self.ros2 is not None and name is not None:
+                    self.ros2.peer_down(name)
             case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
                 # rate-limited in the engine: ``suppressed`` more were not reported one by one
                 self.log.info(
@@ -617,6 +636,12 @@ class Daemon:
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _ros2_peer(self, name: str, prefix: GuidPrefix) -> None:
+        """An authenticated peer is up, moved or restarted: the relay serves its drone's
+        ROS 2 nodes at the address discovery has for it."""
+        if self.ros2 is not None:
+            self.ros2.peer_up(name, self._peer_ipv4(prefix))
 
     def _peer_traffic(self, name: str) -> None:
         """A peer's user data passed its MAC: discovery takes it as the peer's liveliness
@@ -700,6 +725,8 @@ class Daemon:
         st["counters"] = counters
         if self.app is not None:
             st.update(self.app.status())
+        if self.ros2 is not None:
+            st["ros2"] = self.ros2.status(now)
         st["daemon"] = {
             "version": __version__,
             "pid": os.getpid(),

@@ -35,7 +35,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "yamldoc": frozenset(),
     "exitcodes": frozenset(),
     "bundle": frozenset({"rtps", "yamldoc", "exitcodes"}),
-    # stock ROS 2 nodes' Fast DDS profiles, generated from the bundle (text only, no ROS 2)
+    # stock ROS 2 nodes' Fast DDS profiles from the bundle (text only, no ROS 2) and the
+    # sans-IO SPDP relay the daemon runs for them on loopback
     "ros2": CORE,
     # authentication lives beside the codec, used by discovery and the data plane
     "auth": CORE,
@@ -68,9 +69,11 @@ ALLOWED: dict[str, frozenset[str]] = {
     "swarmapp": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
     | {"config", "control", "driver", "logs", "userdata"},
+    # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
+    "ros2app": CORE | {"ros2", "config", "driver", "udp"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
-    | {"config", "control", "driver", "logs", "sdlisten", "sdnotify", "swarmapp", "udp"},
+    | {"config", "control", "driver", "logs", "sdlisten", "sdnotify", "swarmapp", "ros2app", "udp"},
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"}

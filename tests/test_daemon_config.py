@@ -149,3 +149,26 @@ def test_vouch_switch_override_is_0_or_1() -> None:
     bad = parse_config(MINIMAL + "discovery:\n  overrides:\n    vouch: 2\n", "x.yaml")
     with pytest.raises(ConfigError, match="vouch"):
         engine_config(bad)
+
+
+def test_ros2_relay_section_absent_means_off_present_means_on() -> None:
+    assert not parse_config(MINIMAL, "c.yaml").ros2.relay
+    on = parse_config(MINIMAL + "ros2:\n  relay_port: 7500\n  lease_s: 6\n", "c.yaml")
+    assert on.ros2.relay and on.ros2.relay_port == 7500 and on.ros2.lease_s == 6.0
+    assert not parse_config(MINIMAL + "ros2:\n  relay: false\n", "c.yaml").ros2.relay
+
+
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        ("ros2:\n  relay_port: 70000\n", "ros2.relay_port"),
+        ("ros2:\n  relay_port: 7399.5\n", "ros2.relay_port"),
+        ("ros2:\n  lease_s: 0.1\n", "ros2.lease_s"),
+        ("ros2:\n  relay: yes please\n", "ros2.relay"),
+        ("ros2:\n  relai: true\n", "ros2.relai"),
+    ],
+)
+def test_bad_ros2_field_is_one_line(extra: str, field: str) -> None:
+    with pytest.raises(ConfigError, match=f"field {field}: ") as info:
+        parse_config(MINIMAL + extra, "c.yaml")
+    assert "\n" not in str(info.value) and "; fix: " in str(info.value)

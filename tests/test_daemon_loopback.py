@@ -346,3 +346,37 @@ def test_a_forged_user_data_flood_is_read_in_batches_and_moves_nothing(
             await b.stop("test")
 
     asyncio.run(main())
+
+
+def test_ros2_relay_without_a_ros2_graph_is_a_config_error(
+    workdir: Path, files: BundleFiles
+) -> None:
+    cfg = write_config(
+        workdir / "r.yaml",
+        files,
+        node="uav1",
+        interface="lo",
+        ipv4="127.0.0.1",
+        socket_path=str(workdir / "r.sock"),
+        extra="ros2:\n  relay: true\n",
+    )
+    daemon = Daemon(
+        load_config(cfg),
+        files.bundle,  # a bundle whose mission has no ros2: section
+        log=structlog.get_logger(),
+        notifier=Notifier({}),
+        sources=[StaticSource(0.8)],
+        env={},
+    )
+
+    async def main() -> None:
+        try:
+            await daemon.start()
+        finally:
+            await daemon.stop("test")
+
+    with pytest.raises(ConfigError) as info:
+        asyncio.run(main())
+    text = str(info.value)
+    assert "\n" not in text and "field ros2.relay: " in text
+    assert "no ROS 2 graph" in text and "; fix: " in text

@@ -85,6 +85,24 @@ def test_demo_on_loopback(tmp_path: Path) -> None:
 
 
 @pytest.mark.netns
+def test_demo_with_ros2_nodes_through_swarmd(tmp_path: Path) -> None:
+    """``make demo ROS2=1``: a real rclpy node per drone, discovery served by swarmd; the
+    listener hears every talker, the service answers, and no ROS 2 discovery is on the
+    link (swarmd's own SPDP is)."""
+    pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
+    proc, pid = _run_demo(tmp_path / "out", "--ros2")
+    _check(tmp_path / "out", proc, "namespaces")
+    ros2 = json.loads((tmp_path / "out" / "summary.json").read_text())["ros2"]
+    assert ros2["talkers"] == N - 1
+    assert sorted(ros2["listener"]["senders"]) == ["drone-01", "drone-02"]
+    assert ros2["listener"]["answers"]
+    assert ros2["link"]["ros2_spdp"] == 0 and ros2["link"]["ros2_sedp"] == 0
+    assert ros2["link"]["swarmd_spdp"] > 0
+    assert "ROS 2 (rclpy through swarmd)" in proc.stdout
+    assert not [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]
+
+
+@pytest.mark.netns
 def test_demo_with_xrce_vehicles(tmp_path: Path) -> None:
     """``make demo VEHICLE=xrce``: swarmd's PX4 stand-in over uXRCE-DDS per drone (PX4's
     client session, the shared vehicle model), swarmd as agent; needs no third-party peer.

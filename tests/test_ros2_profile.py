@@ -110,13 +110,47 @@ def test_more_endpoints_than_static_ids_is_refused() -> None:
         parse_mission(text, "big.yaml")
 
 
-def _profiles(drone: str) -> dict[str, str]:
-    bundle = build_dev_bundle(parse_mission(MISSION)).bundle
+def _profiles(drone: str, relay_port: int | None = None, mission: str = MISSION) -> dict[str, str]:
+    bundle = build_dev_bundle(parse_mission(mission)).bundle
     assert bundle.ros2 is not None
     participants = bundle_ros2_participants(bundle)
     addresses = {p.name: p.ipv4 for p in bundle.participants if p.ipv4 is not None}
-    files = drone_profiles(bundle.ros2, participants, addresses, drone, f"/etc/ros2/{drone}")
+    files = drone_profiles(
+        bundle.ros2, participants, addresses, drone, f"/etc/ros2/{drone}", relay_port=relay_port
+    )
     return {f.path: f.text for f in files}
+
+
+def test_via_swarmd_profile_keeps_discovery_on_ipv6_loopback() -> None:
+    # two nodes on drone-1: they find each other on ::1, and the relay finds both
+    two = _replace(
+        "    - name: listener\n", "    - {name: helper, drones: [drone-1]}\n    - name: listener\n"
+    )
+    bundle = build_dev_bundle(parse_mission(two)).bundle
+    mine = [p for p in bundle_ros2_participants(bundle) if p.drone == "drone-1"]
+    assert [p.node.name for p in mine] == ["talker", "helper"]
+    files = _profiles("drone-1", relay_port=7399, mission=two)
+    root = ET.fromstring(files["drone-1/talker.xml"])  # noqa: S314 - our own generated text
+    meta = next(root.iter(f"{NS}metatrafficUnicastLocatorList"))
+    assert [e.text for e in meta.iter(f"{NS}address")] == ["::1"]
+    assert next(meta.iter(f"{NS}udpv6")) is not None
+    peers = next(root.iter(f"{NS}initialPeersList"))
+    assert [
+        (a.text, int(p.text or ""))
+        for a, p in zip(peers.iter(f"{NS}address"), peers.iter(f"{NS}port"), strict=True)
+    ] == [("::1", 7399), ("::1", mine[1].metatraffic_port)]
+    # the UDPv6 transport is allowed on ::1 only: Fast DDS binds the discovery port there
+    lo6 = [t for t in root.iter(f"{NS}transport_descriptor") if t.findtext(f"{NS}type") == "UDPv6"]
+    assert [a.text for a in lo6[0].iter(f"{NS}address")] == ["::1"]
+    # user data stays UDPv4 on the drone's address
+    user = next(root.iter(f"{NS}defaultUnicastLocatorList"))
+    assert [e.text for e in user.iter(f"{NS}address")] == ["10.42.0.11"]
+    # every endpoint's entity id is its static id: the relay announces it from the bundle
+    for endpoint in root.iter():
+        if endpoint.tag in (f"{NS}data_writer", f"{NS}data_reader"):
+            assert endpoint.findtext(f"{NS}entityID") == endpoint.findtext(f"{NS}userDefinedID")
+    plain = _profiles("drone-1")["drone-1/talker.xml"]
+    assert "::1" not in plain and "UDPv6" not in plain
 
 
 def test_static_edp_ids_are_unique_and_every_profile_id_is_listed() -> None:
@@ -189,6 +223,13 @@ def test_cli_writes_every_drone_and_refuses_a_bundle_without_graph(
             "lead/static-edp.xml",
         ]
     )
+    via = tmp_path / "via"
+    args = ["ros2", "profile", str(bundle), "--allow-dev", "--out", str(via), "--via-swarmd"]
+    assert swarmctl([*args, "--relay-port", "7500"]) == 0
+    assert "<port>7500</port>" in (via / "lead" / "listener.xml").read_text()
+    capsys.readouterr()
+    assert swarmctl([*args, "--relay-port", "0"]) == 2
+    assert "--relay-port 0" in capsys.readouterr().err
     # a DEV bundle is refused without --allow-dev, like every other bundle command
     assert swarmctl(["ros2", "profile", str(bundle), "--out", str(out)]) == 78
     plain = tmp_path / "p.yaml"
@@ -198,3 +239,51 @@ def test_cli_writes_every_drone_and_refuses_a_bundle_without_graph(
     assert swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)]) == 65
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and re.search(r"no ROS 2 graph; fix: add a 'ros2:'", err)
+
+
+def test_preflight_check_refuses_profiles_that_do_not_match_the_flashed_bundle(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mission = tmp_path / "m.yaml"
+    mission.write_text(MISSION)
+    bundle = tmp_path / "s.swb"
+    assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
+    installed = tmp_path / "etc"
+    common = ["--allow-dev", "--via-swarmd"]
+    assert swarmctl(["ros2", "profile", str(bundle), "--out", str(installed), *common]) == 0
+    check = ["ros2", "check", str(bundle), "--profiles", str(installed)]
+    capsys.readouterr()
+    assert swarmctl([*check, *common]) == 0
+    assert capsys.readouterr().out.startswith("OK 9 ROS 2 profile files match")
+    assert swarmctl([*check, *common, "--drone", "lead"]) == 0
+    # on the drone: one folder, as installed
+    onboard = tmp_path / "onboard"
+    onboard.mkdir()
+    for f in (installed / "lead").iterdir():
+        (onboard / f.name).write_text(f.read_text())
+    onboard_check = ["ros2", "check", str(bundle), "--profiles", str(onboard), "--drone", "lead"]
+    install = ["--install-dir", str((installed / "lead").absolute())]
+    assert swarmctl([*onboard_check, *common, *install]) == 0
+    # the plain route's files are not these: refused
+    assert swarmctl([*check, "--allow-dev"]) == 65
+    capsys.readouterr()
+    # a new bundle (the listener now also publishes) against the old installed files
+    changed = MISSION.replace(
+        "subscribes: [/chatter]", "subscribes: [/chatter]\n      publishes: [/chatter]"
+    )
+    assert changed != MISSION
+    mission.write_text(changed)
+    assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
+    capsys.readouterr()
+    assert swarmctl([*check, *common, "--drone", "lead"]) == 65
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and all("; fix: regenerate with 'swarmctl ros2 profile'" in e for e in err)
+    assert any(e.startswith(f"swarmctl: {installed}/lead/listener.xml: line ") for e in err)
+    capsys.readouterr()
+    assert swarmctl([*onboard_check, *common, *install]) == 65  # the old bundle's files
+    assert f"{onboard}/listener.xml: line " in capsys.readouterr().err
+    (installed / "lead" / "listener.env").unlink()
+    capsys.readouterr()
+    assert swarmctl([*check, *common, "--drone", "lead", "--json"]) == 65
+    verdict = json.loads(capsys.readouterr().out)
+    assert not verdict["ok"] and any("cannot read" in p for p in verdict["problems"])

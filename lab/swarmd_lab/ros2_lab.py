@@ -21,6 +21,8 @@ from typing import Final
 SPDP_IDS: Final = frozenset({"0x000100c2", "0x000100c7"})
 SEDP_IDS: Final = frozenset({"0x000003c2", "0x000003c7", "0x000004c2", "0x000004c7"})
 _TSHARK_TIMEOUT_S: Final = 60.0
+# swarmd's RTPS vendor id 53.57 ("SW") as tshark prints rtps.vendorId
+SWARMD_VENDOR: Final = frozenset({"0x5357", "21335"})
 
 # mount the host's own machine id and a fresh /dev/shm, then exec the command
 _MOUNT_SCRIPT: Final = (
@@ -57,10 +59,21 @@ class DiscoveryCounts:
     spdp: int  # datagrams carrying an SPDP submessage
     sedp: int  # datagrams carrying an SEDP submessage (DATA, HEARTBEAT, ACKNACK, GAP)
     multicast: int  # RTPS datagrams to a multicast group
+    spdp_swarmd: int = 0  # of ``spdp``: swarmd's own (vendor 53.57), the rest are ROS 2's
+    sedp_swarmd: int = 0
+
+    @property
+    def ros2_spdp(self) -> int:
+        return self.spdp - self.spdp_swarmd
+
+    @property
+    def ros2_sedp(self) -> int:
+        return self.sedp - self.sedp_swarmd
 
 
-def discovery_counts(pcap: Path) -> DiscoveryCounts:
-    """Count the capture's RTPS datagrams by discovery kind (tshark's RTPS dissector)."""
+def discovery_counts(pcap: Path, senders: frozenset[str] | None = None) -> DiscoveryCounts:
+    """Count the capture's RTPS datagrams by discovery kind (tshark's RTPS dissector);
+    ``senders``: only datagrams from these IPv4 addresses (the drones, not an attacker)."""
     result = subprocess.run(  # noqa: S603 - argv list
         [
             shutil.which("tshark") or "tshark",
@@ -73,25 +86,34 @@ def discovery_counts(pcap: Path) -> DiscoveryCounts:
             "-E",
             "separator=;",
             "-e",
+            "ip.src",
+            "-e",
             "ip.dst",
             "-e",
             "rtps.sm.wrEntityId",
             "-e",
             "rtps.sm.rdEntityId",
+            "-e",
+            "rtps.vendorId",
         ],
         capture_output=True,
         text=True,
         timeout=_TSHARK_TIMEOUT_S,
         check=True,
     )
-    rtps = spdp = sedp = multicast = 0
+    rtps = spdp = sedp = multicast = spdp_swarmd = sedp_swarmd = 0
     for line in result.stdout.splitlines():
         if not line.strip():
             continue
-        dst, writers, readers = (line.split(";") + ["", ""])[:3]
+        src, dst, writers, readers, vendor = (line.split(";") + ["", "", "", ""])[:5]
+        if senders is not None and src not in senders:
+            continue
         ids = set(writers.split(",")) | set(readers.split(","))
+        is_swarmd = vendor.split(",")[0].strip().lower() in SWARMD_VENDOR
         rtps += 1
         spdp += bool(ids & SPDP_IDS)
         sedp += bool(ids & SEDP_IDS)
+        spdp_swarmd += bool(ids & SPDP_IDS) and is_swarmd
+        sedp_swarmd += bool(ids & SEDP_IDS) and is_swarmd
         multicast += dst.startswith(("224.", "239."))
-    return DiscoveryCounts(rtps, spdp, sedp, multicast)
+    return DiscoveryCounts(rtps, spdp, sedp, multicast, spdp_swarmd, sedp_swarmd)

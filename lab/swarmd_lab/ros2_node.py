@@ -26,6 +26,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--service", default="/trigger")
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--tag", help="what a talker's messages start with (default: name)")
+    parser.add_argument(
+        "--undeclared",
+        metavar="TOPIC",
+        help="also publish TOPIC (a String), which the bundle does not declare",
+    )
     args = parser.parse_args(argv)
 
     import rclpy
@@ -46,9 +51,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     answers: list[str] = []
     first_message_s: float | None = None
     start = time.monotonic()
+    sent = [0]
     if args.role == "talker":
         publisher = node.create_publisher(String, args.topic, 10)
-        sent = [0]
 
         def tick() -> None:
             msg = String()
@@ -73,6 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         node.create_subscription(String, args.topic, heard, 10)
         client: Any = node.create_client(Trigger, args.service)
+    if args.undeclared:
+        node.create_publisher(String, args.undeclared, 10)
     future = None
     end = start + args.seconds
     while time.monotonic() < end:
@@ -84,14 +91,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                 result = future.result()
                 answers.append(result.message if result is not None else "")
     senders = sorted({m.rsplit(" ", 1)[0] for m in received})
+    last: dict[str, int] = {}  # sender -> highest message number heard (restarts survived)
+    for m in received:
+        sender, _, number = m.rpartition(" ")
+        if number.isdigit():
+            last[sender] = max(last.get(sender, -1), int(number))
     print(
         json.dumps(
             {
                 "node": name,
                 "received": len(received),
                 "senders": senders,
+                "last": last,
                 "first_message_s": first_message_s,
                 "answers": answers,
+                "sent": sent[0],
             }
         ),
         flush=True,

@@ -205,8 +205,66 @@ def _render_status(status: dict[str, Any]) -> list[str]:
             for f in foreign
         ]
         lines += table(["GUID", "VENDOR", "NAME"], rows)
+    lines += render_ros2(status.get("ros2"))
     lines.append(render_counters(status.get("counters") or {}))
     lines += render_swarm(status)
+    return lines
+
+
+def render_ros2(ros2: Any) -> list[str]:
+    """The ROS 2 relay's rows (docs/ros2.md): this drone's nodes as heard on loopback, the
+    other drones' nodes as relayed from the bundle, and participants the bundle does not
+    hold; a node's endpoints that the bundle lacks are named under it."""
+    if not isinstance(ros2, dict):
+        return []
+    local = [r for r in ros2.get("local", []) if isinstance(r, dict)]
+    remote = [r for r in ros2.get("remote", []) if isinstance(r, dict)]
+    unknown = [r for r in ros2.get("unknown", []) if isinstance(r, dict)]
+    lines = [f"ros2 relay {ros2.get('relay', '?')}  lease {_num(ros2.get('lease_s'), 'g', ' s')}"]
+    rows = []
+    for r in local:
+        rows.append(
+            [
+                "this drone",
+                str(r.get("node", "?")),
+                str(r.get("state", "?")),
+                _num(r.get("last_heard_s"), ".1f", " s ago"),
+                str(r.get("guid_prefix", "?")),
+            ]
+        )
+        for u in r.get("undeclared_endpoints") or []:
+            if isinstance(u, dict):
+                rows.append(
+                    [
+                        "",
+                        f"  undeclared {u.get('kind', '?')}",
+                        f"id {u.get('user_id', '?')}",
+                        f"entity {u.get('entity_id', '?')}",
+                        "not in the bundle: matches nothing",
+                    ]
+                )
+    for r in remote:
+        rows.append(
+            [
+                str(r.get("drone", "?")),
+                str(r.get("node", "?")),
+                str(r.get("state", "?")),
+                str(r.get("user_locator") or "-"),
+                str(r.get("guid_prefix", "?")),
+            ]
+        )
+    for r in unknown:
+        rows.append(
+            [
+                "unknown",
+                str(r.get("name") or "-"),
+                f"vendor {r.get('vendor', '?')}",
+                _num(r.get("last_heard_s"), ".1f", " s ago"),
+                str(r.get("guid_prefix", "?")),
+            ]
+        )
+    if rows:
+        lines += table(["DRONE", "ROS 2 NODE", "STATE", "HEARD / USER DATA", "GUID PREFIX"], rows)
     return lines
 
 

@@ -33,6 +33,12 @@ from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Graph, Ros2Participant
 # lease, 3 s announcements) would be as chatty as stock; the bundle's own lease is reused
 DEFAULT_LEASE_S: Final = 20
 STATIC_EDP_FILE: Final = "static-edp.xml"
+# the relay route's discovery address: IPv6 loopback, on a UDPv6 transport allowed on ::1
+# only. Fast DDS binds a UDPv4 locator's port on 0.0.0.0 (or on every allowed interface),
+# so a 127.0.0.1 metatraffic locator would still be reachable from the Wi-Fi at the drone's
+# address; the UDPv4 transport cannot bind an IPv6 locator at all, and the UDPv6 one binds
+# [::1] only (measured with ss -uanp: docs/ros2.md).
+LOOPBACK6: Final = "::1"
 
 _RELIABILITY: Final = {
     Reliability.RELIABLE: "RELIABLE_RELIABILITY_QOS",
@@ -73,10 +79,11 @@ def _prefix_text(prefix: bytes) -> str:
 
 
 def _locator(address: str, port: int) -> str:
+    kind = "udpv6" if ":" in address else "udpv4"
     return (
-        "<locator><udpv4><address>"
+        f"<locator><{kind}><address>"
         + escape(address)
-        + f"</address><port>{port}</port></udpv4></locator>"
+        + f"</address><port>{port}</port></{kind}></locator>"
     )
 
 
@@ -118,15 +125,42 @@ def participant_xml(
     addresses: Mapping[str, str],
     static_edp_path: str,
     lease_s: int,
+    relay_port: int | None = None,
 ) -> str:
     """The default participant profile of one ROS 2 process, plus one endpoint profile per
-    endpoint it creates, carrying the endpoint's static EDP userId."""
+    endpoint it creates, carrying the endpoint's static EDP userId and, as its entity id,
+    the same number (so the entity ids are known from the bundle: swarmd's relay announces
+    them, swarmd.ros2.relay).
+
+    ``relay_port`` set (``--via-swarmd``): the participant's metatraffic locator is on IPv6
+    loopback (a UDPv6 transport allowed on ``::1`` only) and its initial peers are swarmd's
+    relay plus the other ROS 2 participants of the same drone there: its discovery never
+    leaves the drone, and nothing from the air reaches its discovery port; swarmd announces
+    the other drones' participants to it (swarmd.ros2.relay). User data stays UDPv4 on the
+    drone's address."""
     address = addresses[p.drone]
     announce_s = max(1, lease_s // 4)
-    peer_lines = [
-        "          " + _locator(addresses[q.drone], q.metatraffic_port)
-        for q in peers
-        if q.guid_prefix != p.guid_prefix
+    if relay_port is None:
+        meta_address = address
+        peer_lines = [
+            "          " + _locator(addresses[q.drone], q.metatraffic_port)
+            for q in peers
+            if q.guid_prefix != p.guid_prefix
+        ]
+    else:
+        meta_address = LOOPBACK6
+        peer_lines = ["          " + _locator(LOOPBACK6, relay_port)] + [
+            "          " + _locator(LOOPBACK6, q.metatraffic_port)
+            for q in peers
+            if q.drone == p.drone and q.guid_prefix != p.guid_prefix
+        ]
+    transports = ["swarm_udpv4"] if relay_port is None else ["swarm_udpv4", "swarm_lo6"]
+    lo6 = [
+        "      <transport_descriptor>",
+        "        <transport_id>swarm_lo6</transport_id>",
+        "        <type>UDPv6</type>",
+        f"        <interfaceWhiteList><address>{LOOPBACK6}</address></interfaceWhiteList>",
+        "      </transport_descriptor>",
     ]
     lines = [
         '<?xml version="1.0" encoding="UTF-8"?>',
@@ -139,12 +173,15 @@ def participant_xml(
         "        <transport_id>swarm_udpv4</transport_id>",
         "        <type>UDPv4</type>",
         "      </transport_descriptor>",
+        *(lo6 if relay_port is not None else []),
         "    </transport_descriptors>",
         '    <participant profile_name="swarmd_ros2" is_default_profile="true">',
         "      <rtps>",
         f"        <prefix>{_prefix_text(p.guid_prefix)}</prefix>",
         "        <useBuiltinTransports>false</useBuiltinTransports>",
-        "        <userTransports><transport_id>swarm_udpv4</transport_id></userTransports>",
+        "        <userTransports>"
+        + "".join(f"<transport_id>{t}</transport_id>" for t in transports)
+        + "</userTransports>",
         "        <defaultUnicastLocatorList>",
         "          " + _locator(address, p.user_port),
         "        </defaultUnicastLocatorList>",
@@ -157,7 +194,7 @@ def participant_xml(
         f"            <leaseAnnouncement><sec>{announce_s}</sec></leaseAnnouncement>",
         "          </discovery_config>",
         "          <metatrafficUnicastLocatorList>",
-        "            " + _locator(address, p.metatraffic_port),
+        "            " + _locator(meta_address, p.metatraffic_port),
         "          </metatrafficUnicastLocatorList>",
         "          <initialPeersList>",
         *peer_lines,
@@ -170,7 +207,8 @@ def participant_xml(
         tag = "data_writer" if e.kind == Ros2EndpointKind.WRITER else "data_reader"
         lines.append(
             f"    <{tag} profile_name={quoteattr(e.profile_name)}>"
-            f"<userDefinedID>{p.first_user_id + i}</userDefinedID></{tag}>"
+            f"<userDefinedID>{p.first_user_id + i}</userDefinedID>"
+            f"<entityID>{p.first_user_id + i}</entityID></{tag}>"
         )
     lines += ["  </profiles>", "</dds>", ""]
     return "\n".join(lines)
@@ -202,6 +240,7 @@ def drone_profiles(
     drone: str,
     install_dir: str,
     lease_s: int = DEFAULT_LEASE_S,
+    relay_port: int | None = None,
 ) -> list[ProfileFile]:
     """The files one drone needs: ``<node>.xml`` and ``<node>.env`` per node it runs, and the
     static endpoint file. ``install_dir`` is where they will live on the drone (the XML refers
@@ -223,7 +262,7 @@ def drone_profiles(
         out.append(
             ProfileFile(
                 f"{drone}/{xml_name}",
-                participant_xml(p, participants, addresses, static_path, lease_s),
+                participant_xml(p, participants, addresses, static_path, lease_s, relay_port),
             )
         )
         out.append(

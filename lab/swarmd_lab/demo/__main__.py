@@ -31,6 +31,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "xrce-client: the same through eProsima's MicroXRCEAgent (needs it on "
                         "PATH), swarmd its 2nd client"
                    )  # fmt: skip
+    p.add_argument("--ros2", action="store_true",
+                   help="also a real rclpy node per drone, its discovery served by swarmd "
+                        "(docs/ros2.md; namespaces only)")  # fmt: skip
     args = p.parse_args(argv)
     opts = Options(
         n=args.n,
@@ -40,6 +43,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         seed=args.seed,
         late_gps_s=args.late_gps,
         vehicle=args.vehicle,
+        ros2=args.ros2,
     )
     return run(opts)
 

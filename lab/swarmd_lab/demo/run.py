@@ -23,6 +23,8 @@ from typing import IO, Any, Final, NoReturn, TextIO
 from swarmd_lab.demo import report
 from swarmd_lab.demo.hosts import Hosts, NamespaceHosts
 from swarmd_lab.demo.observe import NodeLog, Observer, milestones, read_log
+from swarmd_lab.demo.ros2 import Ros2Demo, Ros2Result
+from swarmd_lab.demo.ros2 import available as ros2_available
 from swarmd_lab.demo.scenario import (
     LATE_GPS_S,
     TAKEOFF_ALT_M,
@@ -56,6 +58,7 @@ class Options:
     seed: int = 1
     late_gps_s: float = LATE_GPS_S
     vehicle: str = "mavlink"  # or "xrce": the PX4 stand-in with swarmd as its XRCE agent
+    ros2: bool = False  # also a real rclpy node per drone through swarmd (demo/ros2.py)
 
 
 def _tool(name: str, module: str) -> list[str]:
@@ -89,6 +92,8 @@ class Demo:
         self.logs: list[IO[bytes]] = []
         self.daemons: list[subprocess.Popen[bytes]] = []
         self.sims: list[subprocess.Popen[bytes]] = []
+        self.ros2: Ros2Demo | None = None
+        self.ros2_result: Ros2Result | None = None
 
     def t(self) -> float:
         return time.monotonic() - self.t0
@@ -118,6 +123,9 @@ class Demo:
             self.discovery(obs)
             result = self.takeoff(scenario, obs)
             self.wait_in_air(obs, result)
+            if self.ros2 is not None:
+                self.view.set_stage(self.t(), "ROS 2: waiting for the rclpy nodes to finish")
+                self.ros2_result = self.ros2.finish()
             obs.poll(time.monotonic())  # the last look before everything stops
             self.view.set_stage(self.t(), "stopping: SIGTERM to every daemon and simulator")
         except KeyboardInterrupt:
@@ -160,9 +168,26 @@ class Demo:
         domain = 1 + os.getpid() % 200 if self.loopback else 0
         if opts.vehicle == "xrce-client" and not self.loopback:
             domain = 1  # MicroXRCEAgent's own participants hold domain 0's ports (7410, ...)
+        if opts.ros2:
+            why = "needs network namespaces (root)" if self.loopback else ros2_available()
+            if why is not None:
+                raise RuntimeError(f"ROS2=1: {why}")
         scenario = write(
-            self.root, drones, domain_id=domain, loopback=self.loopback, vehicle=opts.vehicle
+            self.root,
+            drones,
+            domain_id=domain,
+            loopback=self.loopback,
+            vehicle=opts.vehicle,
+            ros2=opts.ros2,
         )
+        if opts.ros2 and isinstance(self.hosts, NamespaceHosts):
+            self.ros2 = Ros2Demo(scenario, self.hosts)
+            self.ros2.write_profiles()
+            self.say(
+                "ROS 2: a real rclpy node per drone (talkers on the members, a listener and "
+                "Trigger client on the commander), discovery served by each drone's swarmd on "
+                "[::1] (swarmctl ros2 profile --via-swarmd, ros2.relay: true)"
+            )
         if opts.vehicle == "xrce-client":
             self.say(
                 f"vehicles: {STANDIN} per drone through eProsima's MicroXRCEAgent, swarmd a"
@@ -187,6 +212,8 @@ class Demo:
         return scenario
 
     def start(self, s: Scenario) -> None:
+        if self.ros2 is not None:  # the link from the first datagram on
+            self.ros2.start_capture()
         swarmd = _tool("swarmd", "swarmd.cli.swarmd_main")
         sim = _tool("swarmd-vehicle-sim", "swarmd_lab.px4.vehicle_sim")
         if self.opts.vehicle == "xrce-client":  # each drone's agent first: swarmd connects to it
@@ -258,6 +285,11 @@ class Demo:
             self.tick(obs)
             time.sleep(POLL_S)
         self.tick(obs)
+        if self.ros2 is not None:
+            self.ros2.start_nodes()
+            self.view.event(
+                self.t(), f"started {len(obs.names)} rclpy nodes (ROS 2 through swarmd)"
+            )
 
     def takeoff(self, s: Scenario, obs: Observer) -> dict[str, Any]:
         self.view.set_stage(self.t(), "take-off: swarmctl takeoff --require-all on the commander")
@@ -324,6 +356,8 @@ class Demo:
 
     def cleanup(self) -> None:
         try:
+            if self.ros2 is not None:
+                self.ros2.stop_capture()
             self.hosts.close()
         finally:
             for log in self.logs:
@@ -380,6 +414,11 @@ class Demo:
             },
             "nodes": nodes,
         }
+        ros2_ok = True
+        if self.ros2 is not None:
+            r = self.ros2_result or Ros2Result(None, n - 1, None)
+            body["ros2"] = r.as_json()
+            ros2_ok = r.ok
         report.write_json(out_dir / "summary.json", body)
         png = out_dir / "timeline.png"
         try:
@@ -408,8 +447,12 @@ class Demo:
             )
             + f"; total {duration:.1f} s"
         )
+        if self.ros2 is not None:
+            r = self.ros2_result or Ros2Result(None, n - 1, None)
+            for line in r.lines():
+                self.say(line)
         self.say(f"wrote {out_dir / 'summary.json'} and {png}")
-        return 0 if airborne == n else 1
+        return 0 if airborne == n and ros2_ok else 1
 
 
 def _last_takeoff(obs: Observer) -> dict[str, Any] | None:

@@ -1,0 +1,532 @@
+"""swarmd serves SPDP to its drone's stock ROS 2 nodes on loopback (issue 19, docs/ros2.md).
+
+Theory of operation. A ROS 2 node started with a ``swarmctl ros2 profile --via-swarmd``
+profile has its metatraffic (discovery) locator on IPv6 loopback (a UDPv6 transport allowed
+on ``::1`` only: swarmd.ros2.profile) and one initial peer: this relay's socket,
+[::1]:``relay_port``. Its SPDP therefore never leaves the drone. The
+relay, in turn, sends each local ROS 2 participant (at [::1]:<its metatraffic port>,
+from the bundle) a synthesized SPDP ``DATA(p)`` (DDSI-RTPS 2.5 8.5.3.2, 9.6.2.2) for every
+ROS 2 participant the bundle places on a drone that swarmd's own, authenticated discovery has
+found (``peer_discovered``):
+
+- the bundle's GUID prefix and eProsima's vendor id (the remote node is stock Fast DDS);
+- default unicast locator = the peer's address (from swarmd's discovery) + the bundle's user
+  port: user data goes straight over the Wi-Fi, node to node;
+- metatraffic unicast locator = this relay on loopback: whatever the local node sends to the
+  remote participant's discovery side (its own SPDP renewals, WLP, ...) stays on the drone;
+- builtin endpoints = SPDP writer and reader only (availableBuiltinEndpoints, DDSI-RTPS
+  2.5 8.5.3.2): with no SEDP and no WLP endpoint announced, the local node starts neither
+  for it (measured: the relays receive 0 WLP, docs/ros2.md);
+- the remote node's static EDP endpoints as Fast DDS's ``EDPStatic`` announces them in the
+  property list (``eProsimaEDPStatic_<Writer|Reader>_ALIVE_ID_<userId>`` = its entity id),
+  built from the bundle: the profile gives every endpoint ``entityID`` = ``userDefinedID``,
+  so the entity ids are known beforehand (checked against real SPDP, docs/ros2.md).
+
+Renewed every ``lease_s / RENEWALS_PER_LEASE`` within the lease it announces, resent at once
+to a local participant heard for the first time (a node start, or a restart: its sequence
+numbers start again, or it sent a ``DATA(p[UD])`` before), and disposed
+(``DATA(p[UD])``, 8.5.3.2) on ``peer_lost``. Sequence numbers carry swarmd's boot epoch in
+their upper half: a node that matched the SPDP writer of a relayed participant drops samples
+whose sequence number is not above the last one it took, so a restarted swarmd must count on
+from above its earlier life.
+
+Trust. Nothing the relay sends comes from the air or from a ROS 2 node: only from the signed
+bundle and ``peer_discovered`` (an authenticated peer). What local nodes send it is read to
+show operators what runs (heard, matched to the bundle, unknown) and which endpoints a node
+has that the bundle does not hold; it is never relayed. Bad datagrams are counted and
+dropped; ``receive_datagram`` raises nothing.
+
+Driving sources: datagrams from the relay socket (``receive_datagram``), the timer
+(``handle_timer``), and the daemon's discovery events (``peer_discovered``/``peer_lost``).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Final
+
+from swarmd.bundle.ros2 import (
+    VENDOR_EPROSIMA,
+    Ros2EndpointKind,
+    Ros2Participant,
+)
+from swarmd.rtps.errors import DecodeError
+from swarmd.rtps.locator import Locator
+from swarmd.rtps.message import Data, Heartbeat, decode_message
+from swarmd.rtps.spdp import (
+    BES_SPDP_ONLY,
+    SpdpAlive,
+    SpdpParticipant,
+    decode_spdp,
+    encode_spdp,
+    encode_spdp_dispose,
+)
+from swarmd.rtps.types import (
+    ENTITYID_P2P_MESSAGE_WRITER,
+    Duration,
+    GuidPrefix,
+    ProtocolVersion,
+    VendorId,
+)
+
+# IPv6 loopback: the nodes' discovery port is bound there only (swarmd.ros2.profile); the
+# kernel drops a datagram for ::1 that arrives on any other interface (RFC 4291 2.5.3)
+LOOPBACK: Final = "::1"
+# outside every RTPS port mapping (7400 + 250 * domain + ...): no participant can take it
+DEFAULT_RELAY_PORT: Final = 7399
+RENEWALS_PER_LEASE: Final = 4
+# unknown prefixes heard on loopback: a local process may invent any number of them
+MAX_UNKNOWN_PARTICIPANTS: Final = 16
+# undeclared endpoints kept per local participant (a node creating endpoints in a loop)
+MAX_UNDECLARED_PER_PARTICIPANT: Final = 32
+MAX_EVENTS: Final = 256  # queued events if the owner stops draining
+FASTDDS_PROTOCOL_VERSION: Final = ProtocolVersion(2, 3)
+ENTITY_KIND_WRITER_NO_KEY: Final = 0x03  # DDSI-RTPS 9.3.1.2
+ENTITY_KIND_READER_NO_KEY: Final = 0x04
+MAX_ENTITY_KEY: Final = 0xFFFFFF
+# Fast DDS's EDPStatic property names (its SPDP lists each alive static endpoint)
+_STATIC_EDP_PROPERTY: Final = re.compile(r"eProsimaEDPStatic_(Writer|Reader)_ALIVE_ID_(-?\d{1,6})")
+
+
+def static_edp_entity_id(user_id: int, kind: Ros2EndpointKind) -> str:
+    """The property value Fast DDS's EDPStatic gives an endpoint whose profile sets
+    ``entityID`` = ``user_id``: the 4 entity id octets in decimal, dot-separated."""
+    key = user_id & MAX_ENTITY_KEY
+    kind_octet = (
+        ENTITY_KIND_WRITER_NO_KEY if kind == Ros2EndpointKind.WRITER else ENTITY_KIND_READER_NO_KEY
+    )
+    return f"{key >> 16 & 0xFF}.{key >> 8 & 0xFF}.{key & 0xFF}.{kind_octet}"
+
+
+def _is_wlp(datagram: bytes) -> bool:
+    try:
+        message = decode_message(datagram)
+    except DecodeError:
+        return False
+    return any(
+        isinstance(sm, Data | Heartbeat) and sm.writer_id == ENTITYID_P2P_MESSAGE_WRITER
+        for sm in message.submessages
+    )
+
+
+def _property_kind(kind: Ros2EndpointKind) -> str:
+    return "Writer" if kind == Ros2EndpointKind.WRITER else "Reader"
+
+
+def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
+    """The static EDP part of ``p``'s SPDP property list, from the bundle."""
+    out: list[tuple[str, str]] = []
+    for i, e in enumerate(p.endpoints):
+        uid = p.first_user_id + i
+        out.append(
+            (
+                f"eProsimaEDPStatic_{_property_kind(e.kind)}_ALIVE_ID_{uid}",
+                static_edp_entity_id(uid, e.kind),
+            )
+        )
+    return tuple(out)
+
+
+# ---- events (frozen, past tense, one base) ------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RelayEvent:
+    """Base of the relay's events."""
+
+
+@dataclass(frozen=True, slots=True)
+class LocalParticipantHeard(RelayEvent):
+    """A local ROS 2 participant of the bundle announced itself (``restarted``: after an
+    earlier life this relay saw)."""
+
+    drone: str
+    node: str
+    guid_prefix: GuidPrefix
+    restarted: bool
+
+
+@dataclass(frozen=True, slots=True)
+class UnknownParticipantHeard(RelayEvent):
+    """A participant the bundle does not place on this drone announced itself on loopback;
+    it is shown, never relayed. ``vendor`` as two hex octets."""
+
+    guid_prefix: GuidPrefix
+    vendor: str
+    name: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class UndeclaredEndpoint(RelayEvent):
+    """A local node announced a static endpoint the bundle does not hold for it (Fast DDS's
+    EDPStatic property): it matches nothing, silently, in Fast DDS; reported here by node."""
+
+    drone: str
+    node: str
+    kind: str  # "writer" | "reader"
+    user_id: int  # the profile's userDefinedID (65535 or negative: none was given)
+    entity_id: str
+
+
+@dataclass(frozen=True, slots=True)
+class RemoteParticipantsRelayed(RelayEvent):
+    """The relay started (``up``) or stopped serving a drone's ROS 2 participants."""
+
+    drone: str
+    participants: int
+    up: bool
+
+
+# ---- state --------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class _Local:
+    participant: Ros2Participant
+    declared: frozenset[tuple[str, int]]  # ("Writer"|"Reader", userId)
+    heard_at: float | None = None
+    left: bool = False  # its last word was a DATA(p[UD])
+    last_sn: int = 0
+    datagrams: int = 0
+    # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
+    undeclared: set[tuple[str, int, str]] | None = None
+
+
+@dataclass(slots=True)
+class _Unknown:
+    guid_prefix: GuidPrefix
+    vendor: str
+    name: str | None
+    heard_at: float
+    datagrams: int
+
+
+@dataclass(slots=True)
+class _Remote:
+    drone: str
+    address: str
+    since: float
+
+
+class Ros2Relay:
+    """The SPDP relay core of one drone (see the module docstring); sans-IO.
+
+    Datagrams out are ``(bytes, (host, port))``, always to ``loopback``."""
+
+    def __init__(
+        self,
+        participants: tuple[Ros2Participant, ...],
+        drone: str,
+        *,
+        domain_id: int,
+        lease_s: float,
+        relay_port: int = DEFAULT_RELAY_PORT,
+        epoch: int = 0,
+        loopback: str = LOOPBACK,
+    ) -> None:
+        if lease_s <= 0:
+            raise ValueError("ros2 relay lease must be positive")
+        self.drone = drone
+        self.domain_id = domain_id
+        self.lease_s = lease_s
+        self.period_s = lease_s / RENEWALS_PER_LEASE
+        self.relay_port = relay_port
+        self.loopback = loopback
+        self._relay_locator = (
+            Locator.udpv6(loopback, relay_port)
+            if ipaddress.ip_address(loopback).version == 6
+            else Locator.udpv4(loopback, relay_port)
+        )
+        # SN = epoch (31 bits) | counter: above every SN of an earlier life of this relay
+        self._sn = (epoch & 0x7FFF_FFFF) << 32
+        self._local: dict[GuidPrefix, _Local] = {}
+        self._remote_by_drone: dict[str, list[Ros2Participant]] = {}
+        for p in participants:
+            if p.drone == drone:
+                declared = frozenset(
+                    (
+                        "Writer" if e.kind == Ros2EndpointKind.WRITER else "Reader",
+                        p.first_user_id + i,
+                    )
+                    for i, e in enumerate(p.endpoints)
+                )
+                self._local[GuidPrefix(p.guid_prefix)] = _Local(p, declared)
+            else:
+                self._remote_by_drone.setdefault(p.drone, []).append(p)
+        self._remote_prefixes = frozenset(
+            GuidPrefix(p.guid_prefix) for ps in self._remote_by_drone.values() for p in ps
+        )
+        self._present: dict[str, _Remote] = {}
+        self._unknown: dict[GuidPrefix, _Unknown] = {}
+        self._out: list[tuple[bytes, tuple[str, int]]] = []
+        self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
+        self._next_renewal: float | None = None
+        self.counters: dict[str, int] = {
+            "rx": 0,
+            "rx_malformed": 0,
+            "rx_not_spdp": 0,
+            "rx_wlp": 0,
+            "rx_dispose": 0,
+            "rx_remote_prefix": 0,
+            "rx_unknown": 0,
+            "unknown_evicted": 0,
+            "undeclared_dropped": 0,
+            "tx_spdp": 0,
+            "tx_dispose": 0,
+        }
+
+    # ---- the driving protocol ----------------------------------------------------------------
+
+    def receive_datagram(self, data: bytes, source: Any, now: float) -> None:
+        """An SPDP datagram a local ROS 2 participant sent the relay. Never raises."""
+        self.counters["rx"] += 1
+        try:
+            _header, samples = decode_spdp(data)
+        except DecodeError:
+            self.counters["rx_malformed"] += 1
+            return
+        if not samples:
+            # what else a node sends its peers' discovery side: WLP (DDSI-RTPS 8.4.13) if
+            # a relayed participant announced a WLP reader (it does not), else anything
+            self.counters["rx_wlp" if _is_wlp(data) else "rx_not_spdp"] += 1
+            return
+        for sample in samples:
+            if isinstance(sample, SpdpAlive):
+                self._heard(sample, now)
+            else:
+                self._left(sample.guid_prefix)
+
+    def handle_timer(self, now: float) -> None:
+        if self._next_renewal is None or now < self._next_renewal:
+            return
+        self._renew_all(now)
+
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        return self._next_renewal
+
+    def next_event(self) -> RelayEvent | None:
+        return self._events.popleft() if self._events else None
+
+    # ---- discovery's events (authenticated peers) --------------------------------------------
+
+    def peer_discovered(self, drone: str, address: str | None, now: float) -> None:
+        """swarmd's discovery has ``drone`` at ``address``: relay its ROS 2 participants to
+        every local one now, and from then on within their lease."""
+        remote = self._remote_by_drone.get(drone)
+        if not remote or address is None:
+            return
+        known = self._present.get(drone)
+        if known is not None and known.address == address:
+            return
+        self._present[drone] = _Remote(drone, address, now)
+        self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True))
+        for p in remote:
+            self._send_alive(p, address, now)
+        if self._next_renewal is None:
+            self._next_renewal = now + self.period_s
+
+    def peer_lost(self, drone: str, now: float) -> None:
+        """swarmd lost ``drone``: dispose its ROS 2 participants at every local node, so
+        their writers stop sending to it at once rather than after the lease."""
+        if self._present.pop(drone, None) is None:
+            return
+        remote = self._remote_by_drone.get(drone, [])
+        self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=False))
+        for p in remote:
+            sn = self._next_sn()
+            datagram = encode_spdp_dispose(
+                GuidPrefix(p.guid_prefix),
+                sequence_number=sn,
+                timestamp=None,
+                vendor_id=VendorId(VENDOR_EPROSIMA),
+                protocol_version=FASTDDS_PROTOCOL_VERSION,
+            )
+            for local in self._local.values():
+                self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
+                self.counters["tx_dispose"] += 1
+        if not self._present:
+            self._next_renewal = None
+
+    # ---- queries -----------------------------------------------------------------------------
+
+    def synthesized(self, p: Ros2Participant, address: str) -> SpdpParticipant:
+        """The DATA(p) content the relay announces for remote participant ``p``."""
+        return SpdpParticipant(
+            GuidPrefix(p.guid_prefix),
+            protocol_version=FASTDDS_PROTOCOL_VERSION,
+            vendor_id=VendorId(VENDOR_EPROSIMA),
+            domain_id=self.domain_id,
+            metatraffic_unicast_locators=(self._relay_locator,),
+            default_unicast_locators=(Locator.udpv4(address, p.user_port),),
+            lease_duration=Duration.from_seconds(self.lease_s),
+            builtin_endpoints=BES_SPDP_ONLY,
+            entity_name="/",  # rclpy names its participant after the enclave
+            properties=static_edp_properties(p),
+        )
+
+    def status(self, now: float) -> dict[str, Any]:
+        """Rows for ``swarmctl status`` (docs/operations.md, ``ros2``)."""
+        local_rows = []
+        for prefix, local in self._local.items():
+            p = local.participant
+            local_rows.append(
+                {
+                    "node": p.node.name,
+                    "guid_prefix": str(prefix),
+                    "metatraffic": f"{self.loopback}:{p.metatraffic_port}",
+                    "state": "not heard"
+                    if local.heard_at is None
+                    else "left"
+                    if local.left
+                    else "heard",
+                    "last_heard_s": None
+                    if local.heard_at is None
+                    else round(now - local.heard_at, 3),
+                    "undeclared_endpoints": [
+                        {"kind": kind.lower(), "user_id": uid, "entity_id": entity}
+                        for kind, uid, entity in sorted(local.undeclared or ())
+                    ],
+                }
+            )
+        remote_rows = []
+        for drone, ps in self._remote_by_drone.items():
+            present = self._present.get(drone)
+            for p in ps:
+                remote_rows.append(
+                    {
+                        "drone": drone,
+                        "node": p.node.name,
+                        "guid_prefix": str(GuidPrefix(p.guid_prefix)),
+                        "state": "relayed" if present is not None else "waiting for drone",
+                        "user_locator": None
+                        if present is None
+                        else f"{present.address}:{p.user_port}",
+                    }
+                )
+        return {
+            "relay": f"{self.loopback}:{self.relay_port}",
+            "lease_s": self.lease_s,
+            "local": local_rows,
+            "remote": remote_rows,
+            "unknown": [
+                {
+                    "guid_prefix": str(u.guid_prefix),
+                    "vendor": u.vendor,
+                    "name": u.name,
+                    "last_heard_s": round(now - u.heard_at, 3),
+                    "datagrams": u.datagrams,
+                }
+                for u in self._unknown.values()
+            ],
+            "counters": dict(self.counters),
+        }
+
+    # ---- internals ---------------------------------------------------------------------------
+
+    def _next_sn(self) -> int:
+        self._sn += 1
+        return self._sn
+
+    def _send_alive(self, p: Ros2Participant, address: str, now: float) -> None:
+        del now  # INFO_TS left invalid: Fast DDS does not need a source timestamp for SPDP
+        datagram = encode_spdp(
+            self.synthesized(p, address), sequence_number=self._next_sn(), timestamp=None
+        )
+        for local in self._local.values():
+            self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
+            self.counters["tx_spdp"] += 1
+
+    def _send_all_to(self, local: _Local) -> None:
+        port = local.participant.metatraffic_port
+        for drone, present in self._present.items():
+            for p in self._remote_by_drone[drone]:
+                datagram = encode_spdp(
+                    self.synthesized(p, present.address),
+                    sequence_number=self._next_sn(),
+                    timestamp=None,
+                )
+                self._out.append((datagram, (self.loopback, port)))
+                self.counters["tx_spdp"] += 1
+
+    def _renew_all(self, now: float) -> None:
+        for drone, present in self._present.items():
+            for p in self._remote_by_drone[drone]:
+                self._send_alive(p, present.address, now)
+        self._next_renewal = now + self.period_s if self._present else None
+
+    def _heard(self, sample: SpdpAlive, now: float) -> None:
+        participant = sample.participant
+        prefix = participant.guid_prefix
+        local = self._local.get(prefix)
+        if local is None:
+            if prefix in self._remote_prefixes:
+                # a remote drone's participant cannot speak on this drone's loopback
+                self.counters["rx_remote_prefix"] += 1
+            else:
+                self._heard_unknown(participant, now)
+            return
+        # a smaller sequence number than before: the node restarted (Fast DDS starts at 1)
+        restarted = local.heard_at is not None and (
+            local.left or sample.sequence_number < local.last_sn
+        )
+        first = local.heard_at is None or restarted
+        local.left = False
+        local.heard_at = now
+        local.last_sn = sample.sequence_number
+        local.datagrams += 1
+        self._check_endpoints(local, participant)
+        if first:
+            p = local.participant
+            self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
+            self._send_all_to(local)
+
+    def _left(self, prefix: GuidPrefix) -> None:
+        """A local node's DATA(p[UD]) (it is shutting down): shown as left; its next
+        announcement is a restart and gets every relayed participant at once."""
+        self.counters["rx_dispose"] += 1
+        local = self._local.get(prefix)
+        if local is not None:
+            local.left = True
+
+    def _heard_unknown(self, participant: SpdpParticipant, now: float) -> None:
+        self.counters["rx_unknown"] += 1
+        prefix = participant.guid_prefix
+        row = self._unknown.get(prefix)
+        if row is not None:
+            row.heard_at = now
+            row.datagrams += 1
+            return
+        if len(self._unknown) >= MAX_UNKNOWN_PARTICIPANTS:
+            oldest = min(self._unknown.values(), key=lambda u: u.heard_at)
+            del self._unknown[oldest.guid_prefix]
+            self.counters["unknown_evicted"] += 1
+        vendor = participant.vendor_id.value.hex()
+        self._unknown[prefix] = _Unknown(prefix, vendor, participant.entity_name, now, 1)
+        self._events.append(UnknownParticipantHeard(prefix, vendor, participant.entity_name))
+
+    def _check_endpoints(self, local: _Local, participant: SpdpParticipant) -> None:
+        for name, value in participant.properties:
+            m = _STATIC_EDP_PROPERTY.fullmatch(name)
+            if m is None:
+                continue
+            kind, uid = m.group(1), int(m.group(2))
+            if (kind, uid) in local.declared:
+                continue
+            undeclared = local.undeclared if local.undeclared is not None else set()
+            local.undeclared = undeclared
+            key = (kind, uid, value[:32])
+            if key in undeclared:
+                continue
+            if len(undeclared) >= MAX_UNDECLARED_PER_PARTICIPANT:
+                self.counters["undeclared_dropped"] += 1
+                continue
+            undeclared.add(key)
+            p = local.participant
+            self._events.append(UndeclaredEndpoint(p.drone, p.node.name, kind.lower(), uid, key[2]))

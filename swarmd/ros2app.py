@@ -1,0 +1,169 @@
+"""The ROS 2 relay's wiring (daemon tier): its [::1] socket, its ``Driver``, its log lines.
+
+``swarmd.ros2.relay.Ros2Relay`` is the sans-IO core (docs/ros2.md); this module is its one
+adapter, as ``swarmapp.py`` is the swarm core's. The daemon makes one ``Ros2App`` when
+``ros2.relay`` is set, hands it discovery's authenticated peers (``peer_up`` on
+``PeerDiscovered``, ``PeerRestarted`` and ``PeerLocatorsChanged``, ``peer_down`` on
+``PeerLost``) and adds ``status`` to its own.
+
+The socket is bound on ``[::1]`` only: the kernel drops a datagram for ``::1`` arriving on
+the Wi-Fi interface, so nothing from the air reaches the relay (docs/security.md, "ROS 2
+nodes").
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from collections.abc import Callable
+from typing import Any
+
+from swarmd.bundle.model import Bundle
+from swarmd.bundle.ros2 import bundle_ros2_participants
+from swarmd.config import DaemonConfig
+from swarmd.driver import Driver
+from swarmd.exitcodes import EX_OSERR, StartupError
+from swarmd.ros2.relay import (
+    LOOPBACK,
+    LocalParticipantHeard,
+    RelayEvent,
+    RemoteParticipantsRelayed,
+    Ros2Relay,
+    UndeclaredEndpoint,
+    UnknownParticipantHeard,
+)
+from swarmd.udp import BatchedSocket, Datagram
+
+
+class Ros2App:
+    """The relay core, its socket and its driver, for one daemon."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        bundle: Bundle,
+        *,
+        epoch: int,
+        log: Any,
+        count: Callable[[str], None],
+    ) -> None:
+        """Raises ``ConfigError`` (one line, at ``ros2.relay``) for a bundle with no ROS 2
+        graph."""
+        participants = bundle_ros2_participants(bundle)
+        if not participants or bundle.ros2 is None:
+            raise config.error(
+                "ros2.relay",
+                "the bundle declares no ROS 2 graph to serve",
+                "add a 'ros2:' section to the mission (docs/ros2.md) or set ros2.relay: false",
+            )
+        self.config = config
+        self.log = log
+        self.count = count
+        self.relay = Ros2Relay(
+            participants,
+            config.node,
+            domain_id=bundle.ros2.domain_id,
+            lease_s=config.ros2.lease_s,
+            relay_port=config.ros2.relay_port,
+            epoch=epoch,
+        )
+        self.transport: BatchedSocket | None = None
+        self.driver: Driver[bytes, Datagram, RelayEvent] | None = None
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Bind [::1]:ros2.relay_port and start driving the core; ``StartupError`` (one
+        line) when the port or IPv6 is not there."""
+        port = self.config.ros2.relay_port
+        try:
+            sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        except OSError as exc:
+            raise StartupError(
+                f"{self.config.file}: ros2.relay: no IPv6 socket ({exc.strerror}); fix: enable "
+                "IPv6 (the relay and the nodes' discovery use ::1; docs/ros2.md)",
+                EX_OSERR,
+            ) from None
+        try:
+            sock.setblocking(False)
+            sock.bind((LOOPBACK, port))
+        except OSError as exc:
+            sock.close()
+            raise StartupError(
+                f"{self.config.file}: ros2.relay_port: cannot bind [{LOOPBACK}]:{port} "
+                f"({exc.strerror}); fix: choose a free port here and in 'swarmctl ros2 profile "
+                "--via-swarmd --relay-port' (or enable IPv6 on lo)",
+                EX_OSERR,
+            ) from None
+        transport = BatchedSocket(sock, "ros2_relay", self._received, self.count, loop)
+        self.transport = transport
+        self.driver = Driver(
+            self.relay,
+            transmit=lambda out: transport.sendto(out[0], out[1]),
+            on_event=self._on_event,
+            name="ros2_relay",
+            log=self.log,
+            loop=loop,
+            on_core_error=lambda: self.count("ros2_relay_exceptions"),
+        )
+
+    def close(self) -> None:
+        """Stop the timer and the socket. No dispose is sent: the local nodes keep their
+        peers for the lease, so a restarted swarmd takes over before anything expires."""
+        if self.driver is not None:
+            self.driver.close()
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None
+
+    # ---- discovery's authenticated peers -------------------------------------------------
+
+    def peer_up(self, name: str, address: str | None) -> None:
+        """An authenticated peer is up (or moved, or restarted) at ``address``."""
+        relay, driver = self.relay, self.driver
+        if driver is not None:
+            driver.call(lambda now: relay.peer_discovered(name, address, now))
+
+    def peer_down(self, name: str) -> None:
+        relay, driver = self.relay, self.driver
+        if driver is not None:
+            driver.call(lambda now: relay.peer_lost(name, now))
+
+    def status(self, now: float) -> dict[str, Any]:
+        return self.relay.status(now)
+
+    # ---- internals -----------------------------------------------------------------------
+
+    def _received(self, batch: list[Datagram], via: str) -> None:
+        if self.driver is not None:
+            self.driver.datagrams_received(batch)
+
+    def _on_event(self, event: RelayEvent) -> None:
+        match event:
+            case LocalParticipantHeard(node=node, guid_prefix=prefix, restarted=restarted):
+                self.log.info(
+                    "ros2_participant_heard",
+                    node=node,
+                    guid_prefix=str(prefix),
+                    restarted=restarted,
+                )
+            case UnknownParticipantHeard(guid_prefix=prefix, vendor=vendor, name=name):
+                self.log.warning(
+                    "ros2_unknown_participant",
+                    guid_prefix=str(prefix),
+                    vendor=vendor,
+                    name=name,
+                    fix="start the node with the profile 'swarmctl ros2 profile --via-swarmd' "
+                    "wrote for this drone",
+                )
+            case UndeclaredEndpoint(node=node, kind=kind, user_id=uid, entity_id=entity):
+                self.log.warning(
+                    "ros2_undeclared_endpoint",
+                    node=node,
+                    kind=kind,
+                    user_id=uid,
+                    entity_id=entity,
+                    fix="declare the endpoint in the mission's ros2 section and re-flash",
+                )
+            case RemoteParticipantsRelayed(drone=drone, participants=n, up=up):
+                self.log.info("ros2_relay_peer", peer=drone, participants=n, up=up)
+            case _:
+                self.log.info("ros2_relay_event", event_type=type(event).__name__)

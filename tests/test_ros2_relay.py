@@ -1,0 +1,320 @@
+"""The ROS 2 SPDP relay core (swarmd.ros2.relay) on hand-set time: what it announces to the
+drone's nodes and when, what it takes from them (shown, never relayed), and hostile input.
+The real-process test is tests/test_ros2_relay_netns.py."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Participant, bundle_ros2_participants
+from swarmd.cli.status_cmd import render_status
+from swarmd.ros2.relay import (
+    LOOPBACK,
+    MAX_UNDECLARED_PER_PARTICIPANT,
+    MAX_UNKNOWN_PARTICIPANTS,
+    LocalParticipantHeard,
+    RelayEvent,
+    RemoteParticipantsRelayed,
+    Ros2Relay,
+    UndeclaredEndpoint,
+    UnknownParticipantHeard,
+    static_edp_entity_id,
+    static_edp_properties,
+)
+from swarmd.rtps.locator import Locator
+from swarmd.rtps.spdp import (
+    BES_SPDP_ONLY,
+    SpdpAlive,
+    SpdpDisposed,
+    SpdpParticipant,
+    decode_spdp,
+    encode_spdp,
+    encode_spdp_dispose,
+)
+from swarmd.rtps.types import GuidPrefix, VendorId
+
+REPO = Path(__file__).resolve().parent.parent
+MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
+LEASE_S = 8.0
+RELAY_PORT = 7399
+EPOCH = 1_790_000_000
+ADDRESS = {"lead": "10.42.0.10", "drone-1": "10.42.0.11", "drone-2": "10.42.0.12"}
+
+
+def _participants() -> tuple[Ros2Participant, ...]:
+    return bundle_ros2_participants(build_dev_bundle(parse_mission(MISSION)).bundle)
+
+
+def _by(participants: tuple[Ros2Participant, ...], drone: str) -> Ros2Participant:
+    return next(p for p in participants if p.drone == drone)
+
+
+def _relay(drone: str = "lead", epoch: int = EPOCH) -> Ros2Relay:
+    return Ros2Relay(
+        _participants(),
+        drone,
+        domain_id=0,
+        lease_s=LEASE_S,
+        relay_port=RELAY_PORT,
+        epoch=epoch,
+    )
+
+
+def _events(relay: Ros2Relay) -> list[RelayEvent]:
+    out = []
+    while (event := relay.next_event()) is not None:
+        out.append(event)
+    return out
+
+
+def _local_spdp(p: Ros2Participant, sn: int, properties: tuple[tuple[str, str], ...] = ()) -> bytes:
+    """What a --via-swarmd node sends the relay (its own DATA(p) from [::1])."""
+    return encode_spdp(
+        SpdpParticipant(
+            GuidPrefix(p.guid_prefix),
+            vendor_id=VendorId(b"\x01\x0f"),
+            metatraffic_unicast_locators=(Locator.udpv6(LOOPBACK, p.metatraffic_port),),
+            default_unicast_locators=(Locator.udpv4(ADDRESS[p.drone], p.user_port),),
+            builtin_endpoints=0xFC03,
+            entity_name="/",
+            properties=properties,
+        ),
+        sequence_number=sn,
+        timestamp=None,
+    )
+
+
+def _decoded(datagram: bytes) -> SpdpAlive:
+    _header, samples = decode_spdp(datagram)
+    assert len(samples) == 1
+    sample = samples[0]
+    assert isinstance(sample, SpdpAlive)
+    return sample
+
+
+def test_entity_id_property_matches_what_fast_dds_announced() -> None:
+    # measured on rclpy + Fast DDS 3.2.2 (docs/ros2.md): a writer profile with
+    # userDefinedID 8 and entityID 108 was announced as
+    # eProsimaEDPStatic_Writer_ALIVE_ID_8 = 0.0.108.3, its reader 109 as 0.0.109.4
+    assert static_edp_entity_id(108, Ros2EndpointKind.WRITER) == "0.0.108.3"
+    assert static_edp_entity_id(109, Ros2EndpointKind.READER) == "0.0.109.4"
+    assert static_edp_entity_id(0x1234, Ros2EndpointKind.WRITER) == "0.18.52.3"
+
+
+def test_a_discovered_drone_is_announced_to_every_local_node_from_the_bundle() -> None:
+    participants = _participants()
+    relay = _relay("lead")
+    assert relay.get_timer() is None  # nothing to renew before any peer is discovered
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 1.0)
+    out = relay.datagrams_to_send()
+    lead = _by(participants, "lead")
+    talker = _by(participants, "drone-1")
+    assert [dest for _, dest in out] == [(LOOPBACK, lead.metatraffic_port)]
+    sample = _decoded(out[0][0])
+    p = sample.participant
+    assert p.guid_prefix == GuidPrefix(talker.guid_prefix)
+    assert p.vendor_id == VendorId(b"\x01\x0f")
+    # user data straight to the peer's address; discovery back to this relay on ::1
+    assert p.default_unicast_locators == (Locator.udpv4(ADDRESS["drone-1"], talker.user_port),)
+    assert p.metatraffic_unicast_locators == (Locator.udpv6(LOOPBACK, RELAY_PORT),)
+    assert p.builtin_endpoints == BES_SPDP_ONLY  # no SEDP, no WLP endpoint to start
+    assert p.properties == static_edp_properties(talker)
+    assert len(p.properties) == len(talker.endpoints)
+    assert sample.sequence_number > EPOCH << 32
+    assert _events(relay) == [RemoteParticipantsRelayed("drone-1", 1, up=True)]
+    assert relay.get_timer() == pytest.approx(1.0 + LEASE_S / 4)
+    # the same address again is no news
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 1.5)
+    assert relay.datagrams_to_send() == []
+
+
+def test_renewed_within_the_lease_then_disposed_when_the_peer_is_lost() -> None:
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    first = [_decoded(d).sequence_number for d, _ in relay.datagrams_to_send()]
+    now = relay.get_timer()
+    assert now is not None and now < LEASE_S
+    relay.handle_timer(now - 0.001)  # early: nothing
+    assert relay.datagrams_to_send() == []
+    relay.handle_timer(now)
+    renewed = [_decoded(d).sequence_number for d, _ in relay.datagrams_to_send()]
+    assert len(renewed) == 2 and min(renewed) > max(first)
+    relay.peer_lost("drone-1", now + 0.5)
+    out = relay.datagrams_to_send()
+    _header, samples = decode_spdp(out[0][0])
+    assert isinstance(samples[0], SpdpDisposed)
+    assert samples[0].guid_prefix == GuidPrefix(_by(_participants(), "drone-1").guid_prefix)
+    relay.peer_lost("drone-2", now + 0.6)
+    relay.datagrams_to_send()
+    assert relay.get_timer() is None
+    relay.peer_lost("drone-2", now + 0.7)  # twice: nothing more
+    assert relay.datagrams_to_send() == []
+
+
+def test_a_restarted_swarmd_numbers_above_its_earlier_life() -> None:
+    # a node matched the relayed SPDP writer and drops sequence numbers it has passed
+    before = _relay(epoch=EPOCH)
+    after = _relay(epoch=EPOCH + 1)
+    for relay in (before, after):
+        relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+        for _ in range(100):
+            relay.handle_timer(relay.get_timer() or 0.0)
+    last_before = max(_decoded(d).sequence_number for d, _ in before.datagrams_to_send())
+    first_after = min(_decoded(d).sequence_number for d, _ in after.datagrams_to_send())
+    assert first_after > last_before
+
+
+def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -> None:
+    participants = _participants()
+    relay = _relay("lead")
+    lead = _by(participants, "lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    relay.receive_datagram(_local_spdp(lead, 5), ("::1", 40000), 1.0)
+    assert _events(relay) == [
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), False)
+    ]
+    assert len(relay.datagrams_to_send()) == 2
+    relay.receive_datagram(_local_spdp(lead, 6), ("::1", 40000), 2.0)  # a renewal
+    assert relay.datagrams_to_send() == [] and _events(relay) == []
+    relay.receive_datagram(_local_spdp(lead, 1), ("::1", 40001), 3.0)  # SN back to 1
+    assert _events(relay) == [
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+    ]
+    assert len(relay.datagrams_to_send()) == 2
+    row = relay.status(3.5)["local"][0]
+    assert row["state"] == "heard" and row["last_heard_s"] == 0.5
+    # its DATA(p[UD]) on shutdown: shown as left; back with SN going on: a restart anyway
+    relay.receive_datagram(
+        encode_spdp_dispose(
+            GuidPrefix(lead.guid_prefix),
+            sequence_number=9,
+            timestamp=None,
+            vendor_id=VendorId(b"\x01\x0f"),
+        ),
+        ("::1", 40001),
+        4.0,
+    )
+    assert relay.status(4.0)["local"][0]["state"] == "left"
+    assert relay.datagrams_to_send() == [] and _events(relay) == []
+    relay.receive_datagram(_local_spdp(lead, 10), ("::1", 40002), 5.0)
+    assert _events(relay) == [
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+    ]
+    assert len(relay.datagrams_to_send()) == 2
+
+
+def test_an_unknown_participant_is_shown_never_relayed_and_its_table_is_capped() -> None:
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    stranger = _by(_participants(), "lead")
+    n = MAX_UNKNOWN_PARTICIPANTS + 5
+    for i in range(n):
+        forged = Ros2Participant(
+            stranger.drone,
+            stranger.drone_index,
+            stranger.node,
+            bytes.fromhex("010f0bad00000000") + i.to_bytes(4, "big"),
+            stranger.participant_id,
+            stranger.metatraffic_port,
+            stranger.user_port,
+            stranger.endpoints,
+            stranger.first_user_id,
+        )
+        relay.receive_datagram(_local_spdp(forged, 1), ("::1", 40000 + i), float(i))
+    assert relay.datagrams_to_send() == []  # nothing relayed, nothing answered
+    events = _events(relay)
+    assert all(isinstance(e, UnknownParticipantHeard) for e in events) and len(events) == n
+    status = relay.status(float(n))
+    assert len(status["unknown"]) == MAX_UNKNOWN_PARTICIPANTS
+    assert status["counters"]["unknown_evicted"] == 5
+    assert status["unknown"][0]["guid_prefix"].endswith(":5")  # the oldest went first
+    assert [r["guid_prefix"] for r in status["remote"]] == [
+        str(GuidPrefix(p.guid_prefix)) for p in _participants() if p.drone != "lead"
+    ]
+
+
+def test_a_remote_drones_prefix_on_loopback_is_dropped() -> None:
+    relay = _relay("lead")
+    talker = _by(_participants(), "drone-1")
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40000), 0.0)
+    assert relay.datagrams_to_send() == [] and _events(relay) == []
+    assert relay.counters["rx_remote_prefix"] == 1
+    assert relay.status(0.0)["remote"][0]["state"] == "waiting for drone"
+
+
+def test_undeclared_endpoints_are_reported_by_node_and_capped() -> None:
+    lead = _by(_participants(), "lead")
+    relay = _relay("lead")
+    declared = static_edp_properties(lead)
+    extra = [
+        ("eProsimaEDPStatic_Writer_ALIVE_ID_65535", f"0.0.{i}.3")
+        for i in range(1, MAX_UNDECLARED_PER_PARTICIPANT + 4)
+    ]
+    others = (("PARTICIPANT_TYPE", "SIMPLE"), ("eProsimaEDPStatic_Bogus", "x"))
+    props = (*declared, *others, *extra)
+    relay.receive_datagram(_local_spdp(lead, 1, props), ("::1", 40000), 0.0)
+    relay.receive_datagram(_local_spdp(lead, 2, props), ("::1", 40000), 1.0)  # again: no news
+    undeclared = [e for e in _events(relay) if isinstance(e, UndeclaredEndpoint)]
+    assert len(undeclared) == MAX_UNDECLARED_PER_PARTICIPANT
+    assert undeclared[0] == UndeclaredEndpoint("lead", "listener", "writer", 65535, "0.0.1.3")
+    row = relay.status(1.0)["local"][0]
+    assert len(row["undeclared_endpoints"]) == MAX_UNDECLARED_PER_PARTICIPANT
+    assert relay.counters["undeclared_dropped"] == 2 * 3
+
+
+def test_peers_without_ros2_nodes_or_address_are_ignored() -> None:
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", None, 0.0)
+    relay.peer_discovered("nobody", "10.0.0.9", 0.0)
+    relay.peer_lost("nobody", 0.0)
+    assert relay.datagrams_to_send() == [] and relay.get_timer() is None
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=300))
+def test_arbitrary_bytes_on_the_relay_port_are_counted_and_dropped(data: bytes) -> None:
+    relay = _relay("lead")
+    relay.receive_datagram(data, ("::1", 40000), 0.0)
+    assert relay.datagrams_to_send() == []
+    c = relay.counters
+    kinds = ("rx_malformed", "rx_not_spdp", "rx_wlp", "rx_dispose", "rx_unknown")
+    assert c["rx"] == 1 and sum(c[k] for k in kinds) <= 1
+
+
+def test_status_view_lists_local_remote_unknown_and_undeclared_rows_safely() -> None:
+    participants = _participants()
+    lead = _by(participants, "lead")
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    props = (("eProsimaEDPStatic_Writer_ALIVE_ID_65535", "0.0.1.3"),)
+    relay.receive_datagram(_local_spdp(lead, 1, props), ("::1", 40000), 1.0)
+    hostile = encode_spdp(
+        SpdpParticipant(
+            GuidPrefix(bytes(11) + b"\x07"),
+            vendor_id=VendorId(b"\x01\x0f"),
+            entity_name="evil\x1b[2Jnode",
+        ),
+        sequence_number=1,
+        timestamp=None,
+    )
+    relay.receive_datagram(hostile, ("::1", 40001), 1.0)
+    text = "\n".join(render_status({"ros2": relay.status(2.0)}))
+    assert "ros2 relay ::1:7399  lease 8 s" in text
+    rows = {line.split()[0] + " " + line.split()[1] for line in text.splitlines()[2:]}
+    assert {"this drone", "drone-1 talker", "drone-2 talker", "unknown evil\\x1b[2Jnode"} <= rows
+    assert re.search(r"undeclared writer +id 65535 +entity 0\.0\.1\.3 +not in the bundle", text)
+    assert "waiting for drone" in text and "relayed" in text
+    assert "\x1b" not in text
