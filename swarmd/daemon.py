@@ -617,6 +617,7 @@ class Daemon:
         auth = self._spdp_auth
         if auth is None or not auth.verifier.windows_changed:
             return
+        auth.verifier.windows_changed = False  # a window moving during the write: next time
         try:
             save_windows(self._windows_path, auth.verifier.snapshot())
         except OSError as exc:

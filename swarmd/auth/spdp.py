@@ -316,9 +316,8 @@ class SpdpVerifier:
         return None if window is None else window.high
 
     def snapshot(self) -> dict[bytes, Freshness]:
-        """Every sender's highest verified freshness (to persist: ``swarmd.auth.windows``);
-        clears ``windows_changed``."""
-        self.windows_changed = False
+        """Every sender's highest verified freshness (to persist: ``swarmd.auth.windows``;
+        the caller clears ``windows_changed`` once it is saved)."""
         return {p: w.high for p, w in self._windows.items() if w.high is not None}
 
     def restore(self, highs: dict[bytes, Freshness]) -> int:
