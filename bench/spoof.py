@@ -66,11 +66,11 @@ def _commit() -> str:
 
 
 def _one_rate(
-    sw: FlashedSwarm, atk: Attacker, spoofer: Spoofer, rate: float, seconds: float
+    sw: FlashedSwarm, atk: Attacker, spoofer: Spoofer, rate: float, seconds: float, claim: str
 ) -> dict[str, Any]:
     sw.reset()  # a fresh, converged swarm on the ground for every rate
     before = [refusals(sw.status(i)) for i in range(sw.n)]
-    pool = spoof_pool(sw, atk, PER_STREAM, seed=int(rate))
+    pool = spoof_pool(sw, atk, PER_STREAM, seed=int(rate), claim=claim)
     takeoff: list[int] = []
 
     def operator() -> None:
@@ -105,7 +105,7 @@ def _one_rate(
     return result
 
 
-def run(label: str, rates: list[float], seconds: float) -> dict[str, Any]:
+def run(label: str, rates: list[float], seconds: float, claim: str) -> dict[str, Any]:
     runs: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="spoof-", dir="/tmp") as tmp:
         lan = Lan(4, prefix=run_prefix("spfb")).__enter__()
@@ -120,7 +120,7 @@ def run(label: str, rates: list[float], seconds: float) -> dict[str, Any]:
                 spoofer = Spoofer(sw.attacker_ns)
                 try:
                     for rate in rates:
-                        result = _one_rate(sw, atk, spoofer, rate, seconds)
+                        result = _one_rate(sw, atk, spoofer, rate, seconds, claim)
                         runs.append(result)
                         print(json.dumps(result), file=sys.stderr)
                 finally:
@@ -133,6 +133,7 @@ def run(label: str, rates: list[float], seconds: float) -> dict[str, Any]:
         "commit": _commit(),
         "host": f"{platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}",
         "seconds": seconds,
+        "claim": claim,
         "rates": [
             {
                 "rate_hz": r["rate_hz"],
@@ -202,6 +203,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rates", default="100,1000,5000", help="spoofed datagrams per second")
     p.add_argument("--seconds", type=float, default=30.0, help="flood duration per rate")
     p.add_argument("--out", default=None, help="default bench/results/security/spoof_LABEL.json")
+    p.add_argument(
+        "--claim",
+        choices=("all", "commander"),
+        default="all",
+        help="spoof every drone's address (7 streams) or only the commander's (3: the issue's)",
+    )
     p.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     args = p.parse_args(argv)
     rates = [float(x) for x in args.rates.split(",") if x]
@@ -215,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     if not all(0 < r <= 20_000 for r in rates) or not 0 < args.seconds <= 60:
         print("spoof: --rates each 1..20000, --seconds 1..60", file=sys.stderr)
         return 2
-    summary = run(args.label, rates, args.seconds)
+    summary = run(args.label, rates, args.seconds, args.claim)
     out = Path(args.out) if args.out else RESULTS / f"spoof_{args.label}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(summary, indent=2) + "\n")

@@ -62,9 +62,14 @@ def _seal(template: bytes, freshness: Freshness, signer: Any, tags: _RandomTags)
     return bytes(seal(template, freshness, signer))  # before receiver tags (aa7ad0f)
 
 
-def spoof_pool(sw: FlashedSwarm, atk: Attacker, per_stream: int, seed: int) -> list[Stream]:
-    """``per_stream`` distinct forgeries for each of the 7 spoofed streams (module
-    docstring), interleaved. Waits (bounded) until the attacker has heard every drone."""
+def spoof_pool(
+    sw: FlashedSwarm, atk: Attacker, per_stream: int, seed: int, *, claim: str = "all"
+) -> list[Stream]:
+    """``per_stream`` distinct forgeries for each spoofed stream, interleaved: ``claim``
+    "all" = the 7 streams of the module docstring (as the commander and as each member),
+    "commander" = only the commander's 3 (to the group and to each member: the issue's
+    attack, its whole rate on the commander's budget). Waits (bounded) until the attacker
+    has heard every drone."""
     atk.wait_for(
         lambda: all((m := atk.member(n)) is not None and m.freshness for n in sw.names), 60.0
     )
@@ -73,8 +78,9 @@ def spoof_pool(sw: FlashedSwarm, atk: Attacker, per_stream: int, seed: int) -> l
     group = sw.spdp_group
     streams: list[tuple[int, tuple[str, int], bool]] = [(0, group, False)]
     streams += [(0, sw.meta_addr(m), True) for m in range(1, sw.n)]
-    for m in range(1, sw.n):
-        streams += [(m, group, False), (m, sw.meta_addr(0), True)]
+    if claim == "all":
+        for m in range(1, sw.n):
+            streams += [(m, group, False), (m, sw.meta_addr(0), True)]
     per: list[list[Stream]] = []
     for claimed, to, directed in streams:
         learned = atk.member(sw.names[claimed])
