@@ -155,33 +155,76 @@ def run(label: str, rates: list[float], seconds: float, claim: str) -> dict[str,
     }
 
 
+def _load(name: str) -> dict[str, Any] | None:
+    path = RESULTS / f"spoof_{name}.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _cells(r: dict[str, Any]) -> str:
+    lost = r["peers_lost"]
+    first = min((t for d in r["lost_at_s"].values() for t in d.values()), default=None)
+    when = f" (first at {first:.1f} s)" if first is not None else ""
+    return (
+        f"{r['sent']:,} | {lost}{when} | {r['takeoff_require_all_rc']} | "
+        f"{r['cpu_percent_median']} / {r['cpu_percent_max']} ({r['idle_cpu_percent_median']})"
+    )
+
+
 def docs_block() -> str:
-    before = json.loads((RESULTS / "spoof_before.json").read_text())
-    after = json.loads((RESULTS / "spoof_after.json").read_text())
+    """The before/after tables from ``spoof_before.json``/``spoof_after.json`` (7 streams),
+    ``spoof_before_commander.json``/``spoof_after_commander.json`` (the issue's attack) and
+    ``spoof_after_20k.json`` (beyond, when present)."""
+    before, after = _load("before"), _load("after")
+    if before is None or after is None:
+        raise SystemExit("spoof: run --label before and --label after first")
+    head = (
+        "| spoofed SPDP/s | code | sent | real peers lost (peer-drone pairs) | "
+        "`takeoff --require-all` exit | daemon CPU, % of one core, median / max (idle) |"
+    )
     lines = [
         BEGIN,
-        f"`sudo .venv/bin/python bench/spoof.py --label L --seconds {after['seconds']:.0f} "
-        f"--write-docs`: before at `{before['commit']}` ({before['when']}), after at "
-        f"`{after['commit']}` ({after['when']}); {after['host']}. Each rate from a freshly "
-        "started swarm; the take-off starts half-way through the flood.",
+        f"`sudo .venv/bin/python bench/spoof.py --label L [--claim C] --rates R --seconds S`, "
+        f"each rate from a freshly started swarm, the take-off half-way through the flood; "
+        f"before = `{before['commit']}` (main before the receiver tags), after = "
+        f"`{after['commit']}`; "
+        f"{after['host']} (load is other jobs on the 2 shared cores).",
         "",
-        "| spoofed SPDP/s (sent) | real peers lost, before | after | `takeoff --require-all` "
-        "exit, before | after | daemon CPU % of one core, median / max, before | after "
-        "(idle: before / after) |",
-        "|---|---:|---:|---:|---:|---|---|",
+        f"Every drone's address in turn (7 streams, `--claim all`), {after['seconds']:.0f} s "
+        "per rate:",
+        "",
+        head,
+        "|---:|---|---:|---:|---:|---|",
     ]
     for b, a in zip(before["rates"], after["rates"], strict=True):
-        lines.append(
-            f"| {a['rate_hz']:,.0f} ({b['sent']:,} / {a['sent']:,}) | {b['peers_lost']} | "
-            f"{a['peers_lost']} | {b['takeoff_require_all_rc']} | {a['takeoff_require_all_rc']} "
-            f"| {b['cpu_percent_median']} / {b['cpu_percent_max']} | "
-            f"{a['cpu_percent_median']} / {a['cpu_percent_max']} "
-            f"({b['idle_cpu_percent_median']} / {a['idle_cpu_percent_median']}) |"
-        )
+        lines.append(f"| {a['rate_hz']:,.0f} | before | {_cells(b)} |")
+        lines.append(f"| {a['rate_hz']:,.0f} | after | {_cells(a)} |")
+    cb, ca = _load("before_commander"), _load("after_commander")
+    if cb is not None and ca is not None:
+        lines += [
+            "",
+            f"The issue's attack: the whole rate on the commander's address (`--claim "
+            f"commander`: to the group and to each member), {ca['seconds']:.0f} s:",
+            "",
+            head,
+            "|---:|---|---:|---:|---:|---|",
+        ]
+        for b, a in zip(cb["rates"], ca["rates"], strict=True):
+            lines.append(f"| {a['rate_hz']:,.0f} | before | {_cells(b)} |")
+            lines.append(f"| {a['rate_hz']:,.0f} | after | {_cells(a)} |")
+    beyond = _load("after_20k")
+    if beyond is not None:
+        lines += ["", f"Beyond the issue's rates, after only ({beyond['seconds']:.0f} s):", ""]
+        lines += [head, "|---:|---|---:|---:|---:|---|"]
+        for a in beyond["rates"]:
+            drops = a["spdp_socket_drops_max"]
+            lines.append(
+                f"| {a['rate_hz']:,.0f} | after | {_cells(a)}; kernel drops on the SPDP "
+                f"sockets, highest drone: {drops:,} |"
+            )
     lines += [
         "",
         "Raw runs (per drone: peers lost and when, refusal counters, kernel drops): "
-        "`bench/results/security/spoof_before.json`, `spoof_after.json`.",
+        "`bench/results/security/spoof_*.json`.",
         END,
     ]
     return "\n".join(lines)
@@ -199,7 +242,7 @@ def write_docs(block: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--label", required=True, help="before or after (names the output file)")
+    p.add_argument("--label", default="", help="before or after (names the output file)")
     p.add_argument("--rates", default="100,1000,5000", help="spoofed datagrams per second")
     p.add_argument("--seconds", type=float, default=30.0, help="flood duration per rate")
     p.add_argument("--out", default=None, help="default bench/results/security/spoof_LABEL.json")
@@ -212,9 +255,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--write-docs", action="store_true", help="update docs/benchmarks.md")
     args = p.parse_args(argv)
     rates = [float(x) for x in args.rates.split(",") if x]
-    if args.write_docs and not rates:
+    if args.write_docs and not rates:  # --rates "" --write-docs: the tables from the files
         write_docs(docs_block())
         return 0
+    if not args.label:
+        print("spoof: --label is needed to run", file=sys.stderr)
+        return 2
     reason = unavailable_reason()
     if reason is not None:
         print(f"spoof: {reason}", file=sys.stderr)
