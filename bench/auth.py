@@ -262,7 +262,7 @@ def main() -> int:
     sizes = bytes_rows()
     swarms = swarm_rows(args.swarm_seconds)
     result = {
-        "overhead_bytes": f"{AUTHENTICATOR_OVERHEAD} + {TAG_BYTES} per receiver tag",
+        "overhead_bytes": f"{AUTHENTICATOR_OVERHEAD} + {TAG_BYTES} per receiver tag, padded to 4",
         "crypto_us": {k: v for k, v in crypto},
         "refusal_us": {k: v for k, v in refusals},
         "bytes": sizes,

@@ -19,7 +19,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from swarmd.auth.freshness import Freshness
 from swarmd.auth.spdp import PLACEHOLDER, seal
-from swarmd.auth.tags import compute_tag
+from swarmd.auth.tags import compute_tag, tag_block_bytes
 from swarmd.rtps import Duration, GuidPrefix, Locator, SpdpParticipant, Time, encode_spdp
 from swarmd.rtps.spdp import encode_spdp_dispose
 
@@ -54,7 +54,8 @@ class _GoldenTags:
 
     def make(self, start: int, count: int, head: bytes, meta_fresh: bytes) -> bytes:
         keys = [bytes([start + i + 1]) * 32 for i in range(count)]
-        return b"".join(compute_tag(k, head, meta_fresh) for k in keys)
+        block = b"".join(compute_tag(k, head, meta_fresh) for k in keys)
+        return block + bytes(tag_block_bytes(count) - len(block))
 
 
 TAGS = _GoldenTags()

@@ -69,7 +69,13 @@ from swarmd.auth.budget import (
 )
 from swarmd.auth.freshness import Freshness, ReplayWindow, SendCounter
 from swarmd.auth.keys import SIGNATURE_BYTES, KeyRing
-from swarmd.auth.tags import MAX_RECEIVER_TAGS, TAG_BYTES, ReceiverTags, Tagger
+from swarmd.auth.tags import (
+    MAX_RECEIVER_TAGS,
+    TAG_BYTES,
+    ReceiverTags,
+    Tagger,
+    tag_block_bytes,
+)
 from swarmd.rtps.spdp import PID_SWARMD_AUTHENTICATOR
 from swarmd.rtps.types import GuidPrefix
 
@@ -77,7 +83,7 @@ FRESHNESS_BYTES: Final = 8
 SIGNED_TAIL_BYTES: Final = FRESHNESS_BYTES + SIGNATURE_BYTES  # 72, a multiple of 4
 _META: Final = struct.Struct("<HH")  # tag window: start, count
 # what the authenticator adds to a datagram with no tags: parameter header, tag window,
-# freshness, signature; each tag adds TAG_BYTES more
+# freshness, signature; the tags add tag_block_bytes(count) more (2 each, padded to 4)
 AUTHENTICATOR_OVERHEAD: Final = 4 + _META.size + SIGNED_TAIL_BYTES  # 80
 # the template's placeholder (what encode_spdp writes before sealing): seal replaces it
 PLACEHOLDER: Final = bytes(SIGNED_TAIL_BYTES)
@@ -85,7 +91,9 @@ AUTHENTICATOR_BYTES: Final = SIGNED_TAIL_BYTES  # the placeholder's length (temp
 _PLACEHOLDER_HEAD: Final = struct.pack("<HH", PID_SWARMD_AUTHENTICATOR, SIGNED_TAIL_BYTES)
 # the parameter header of a sealed authenticator with ``count`` tags, by count
 _SEALED_HEADS: Final = tuple(
-    struct.pack("<HH", PID_SWARMD_AUTHENTICATOR, _META.size + SIGNED_TAIL_BYTES + TAG_BYTES * c)
+    struct.pack(
+        "<HH", PID_SWARMD_AUTHENTICATOR, _META.size + SIGNED_TAIL_BYTES + tag_block_bytes(c)
+    )
     for c in range(MAX_RECEIVER_TAGS + 1)
 )
 _SENTINEL: Final = struct.pack("<HH", 0x0001, 0)
@@ -114,7 +122,7 @@ class Refusal(StrEnum):
 
 def authenticator_overhead(tags: int) -> int:
     """Octets the authenticator adds to a datagram carrying ``tags`` receiver tags."""
-    return AUTHENTICATOR_OVERHEAD + TAG_BYTES * tags
+    return AUTHENTICATOR_OVERHEAD + tag_block_bytes(tags)
 
 
 def is_template(data: bytes) -> bool:
@@ -136,7 +144,7 @@ def tail_window(data: bytes) -> tuple[int, int] | None:
     start, count = _META.unpack_from(data, n - _META_FROM_END)
     if count > MAX_RECEIVER_TAGS:
         return None
-    head_at = n - _SEALED_TAIL - TAG_BYTES * count
+    head_at = n - _SEALED_TAIL - tag_block_bytes(count)
     if head_at < _RTPS_HEADER or data[head_at : head_at + 4] != _SEALED_HEADS[count]:
         return None
     return start, count
@@ -187,7 +195,7 @@ def seal(
     n = len(template)
     start, count = (0, 0) if tags is None else tags.slots(_destination(template))
     head = bytearray(template[: n - _TEMPLATE_TAIL])
-    _grow_last_submessage(head, n, _META.size + TAG_BYTES * count)
+    _grow_last_submessage(head, n, _META.size + tag_block_bytes(count))
     head += _SEALED_HEADS[count]
     meta_fresh = _META.pack(start, count) + freshness.pack()
     head_bytes = bytes(head)
@@ -268,10 +276,10 @@ class SpdpVerifier:
         if tags is not None and slot is not None:
             # my tag: one keyed BLAKE2b, before any budget (swarmd.auth.tags)
             view = memoryview(data)
-            tags_at = n - _SEALED_TAIL + 4 - TAG_BYTES * (window_of_tags[1] - slot)
+            head_end = n - _SEALED_TAIL + 4 - tag_block_bytes(window_of_tags[1])
             meta_at = n - _META_FROM_END
-            tag = view[tags_at : tags_at + TAG_BYTES]
-            head = view[: n - _SEALED_TAIL + 4 - TAG_BYTES * window_of_tags[1]]
+            tag = view[head_end + TAG_BYTES * slot : head_end + TAG_BYTES * (slot + 1)]
+            head = view[:head_end]
             if not tags.holds(prefix, tag, head, view[meta_at : n - 4 - SIGNATURE_BYTES]):
                 return self._refuse(Refusal.BAD_TAG)
             if not self._tagged.take(prefix, now):

@@ -9,9 +9,9 @@ members lost the commander at 100 forged datagrams a second). A budget can only 
 sender if what spends it is something only that sender can make.
 
 What: every SPDP datagram carries, inside its authenticator (PID 0x8A04, docs/wire.md),
-one 4-octet tag per receiver,
+one 2-octet tag per receiver (the block padded to 4 octets),
 
-    tag(P -> R) = BLAKE2b-32(key = K_tag(P, R), datagram up to the tags ‖ start, count, freshness)
+    tag(P -> R) = BLAKE2b-16(key = K_tag(P, R), datagram up to the tags ‖ start, count, freshness)
     K_tag(P, R) = HMAC-SHA256(pair_key(P, R), "swarmd spdp receiver tag v1")
 
 with ``pair_key`` the 32-octet key both ends already derive from the bundle alone (static
@@ -21,8 +21,10 @@ datagram whose tag is wrong is refused (``auth_bad_tag``) having cost no budget,
 signature, no decode. Only the sender and this receiver hold K_tag(P, R), so:
 
 - an outsider (no node key) never reaches a budget, whatever prefix and source it forges
-  (a blind guess passes with probability 2^-32: at 10^5 forged datagrams a second, one
-  token every ~12 hours, against 20 a second for the real sender);
+  (a blind guess passes with probability 2^-16: at 20,000 forged datagrams a second, a
+  token every ~3 s, at 10^5 a second 1.5 a second, against the 20 a second the real
+  sender's budget refills: the forger cannot learn which guesses passed, and those that do
+  still fail the signature);
 - a captured member C holds K_tag(C, R) for every R but no K_tag(P, R) for P != C: its
   forgeries as the commander or another member fail the tag too, so it can spend only
   its *own* prefix's budget (its own datagrams are its to waste).
@@ -32,8 +34,10 @@ This is DDS-Security's answer for multicast, "receiver-specific MACs" (DDS Secur
 readers carries one MAC per reader, keyed per pair, so no reader can forge for the sender
 to another). DDS-Security pays 20 octets per reader (a 4-octet key id + a 16-octet
 HMAC) because its MACs are the authenticators; here the Ed25519 signature stays the
-authenticator and the tags only decide who may spend a verification, so 4 octets
-(receivers found by bundle index, no key id) are enough.
+authenticator and the tags only decide who may spend a verification, so 2 octets
+(receivers found by bundle index, no key id) are enough: 4 would make a lucky guess
+negligible rather than harmless, at twice the bytes (+64 octets on a 33-node swarm's
+multicast, where the whole issue-10 authenticator was 76).
 
 Which receivers: a datagram directed to one peer (INFO_DST) carries that peer's tag only;
 a multicast one carries the tags of ``MAX_RECEIVER_TAGS`` peers in bundle order after the
@@ -54,12 +58,19 @@ from typing import TYPE_CHECKING, Final, Protocol
 if TYPE_CHECKING:
     from swarmd.auth.keys import KeyRing
 
-TAG_BYTES: Final = 4
+# 2 octets: the tag is a ticket to a verification, not the authenticator (module docstring)
+TAG_BYTES: Final = 2
 # Tags in one multicast datagram. 32 x 4 = 128 octets at most; up to 33 nodes every peer is
 # tagged in every datagram, beyond the window rotates (module docstring).
 MAX_RECEIVER_TAGS: Final = 32
 TAG_KEY_INFO: Final = b"swarmd spdp receiver tag v1"
 _NO_TAG: Final = bytes(TAG_BYTES)
+
+
+def tag_block_bytes(count: int) -> int:
+    """Octets of ``count`` tags on the wire: padded to a multiple of 4 (parameter values in
+    a parameter list are 4-aligned, DDSI-RTPS 9.4.2.11); the padding is zero."""
+    return (TAG_BYTES * count + 3) & ~3
 
 
 def compute_tag(key: bytes, head: bytes | memoryview, meta_fresh: bytes | memoryview) -> bytes:
@@ -74,7 +85,9 @@ class Tagger(Protocol):
 
     def slots(self, destination: bytes | None) -> tuple[int, int]: ...
 
-    def make(self, start: int, count: int, head: bytes, meta_fresh: bytes) -> bytes: ...
+    def make(self, start: int, count: int, head: bytes, meta_fresh: bytes) -> bytes:
+        """``tag_block_bytes(count)`` octets: the tags, then zero padding."""
+        ...
 
 
 class ReceiverTags:
@@ -139,7 +152,8 @@ class ReceiverTags:
             key = self.key(r)
             out.append(_NO_TAG if key is None else compute_tag(key, head, meta_fresh))
         self.tags_made += count
-        return b"".join(out)
+        block = b"".join(out)
+        return block + bytes(tag_block_bytes(count) - len(block))
 
     # ---- receiving -----------------------------------------------------------------------
 
@@ -193,4 +207,4 @@ class ZeroTags:
         return start, count
 
     def make(self, start: int, count: int, head: bytes, meta_fresh: bytes) -> bytes:
-        return _NO_TAG * count
+        return bytes(tag_block_bytes(count))

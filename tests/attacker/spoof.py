@@ -36,7 +36,7 @@ from swarmd.rtps.spdp import encode_spdp
 from tests.attacker.host import Attacker
 from tests.attacker.swarm import FlashedSwarm
 
-TAG_BYTES: Final = 4
+TAG_BYTES: Final = 2  # swarmd.auth.tags (not imported: the same file runs against aa7ad0f)
 # spoofed (source, destination, payload) streams, sent round-robin
 Stream = tuple[tuple[str, int], tuple[str, int], bytes]
 
@@ -52,7 +52,7 @@ class _RandomTags:
         return (self._rng.randrange(self._peers), 1) if destination else (0, self._peers)
 
     def make(self, start: int, count: int, head: bytes, meta_fresh: bytes) -> bytes:
-        return self._rng.randbytes(TAG_BYTES * count)
+        return self._rng.randbytes((TAG_BYTES * count + 3) & ~3)
 
 
 def _seal(template: bytes, freshness: Freshness, signer: Any, tags: _RandomTags) -> bytes:
