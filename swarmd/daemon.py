@@ -45,6 +45,7 @@ from swarmd import __version__
 from swarmd.auth.epoch import EpochError, EpochResult, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
+from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
 from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
 from swarmd.config import ConfigError, DaemonConfig, Px4Section, config_mode_problem
@@ -296,6 +297,11 @@ class Daemon:
         # in the folder of node.key (/var/lib/swarmd on a drone: the state directory)
         self.epoch: EpochResult | None = None
         self._epoch_dir = os.path.dirname(os.path.abspath(config.bundle.node_key_path))
+        # SPDP replay windows persisted beside the epoch (swarmd.auth.windows): a restart
+        # does not make a dead member's captured DATA(p) fresh again
+        self._spdp_auth: SpdpAuth | None = None
+        self._windows_path = windows_path(self._epoch_dir, config.node)
+        self._windows_timer: asyncio.TimerHandle | None = None
         self.log = log
         self.notifier = notifier if notifier is not None else Notifier(env)
         # sd_listen_fds(3): read (and unset) once; a copy when the caller passed its own
@@ -349,6 +355,15 @@ class Daemon:
         # paper section 4.1: the passive timer is drawn from the link quality at start
         first = await self.monitor.poll()
         now = loop.time()
+        spdp_auth = self._spdp_auth = SpdpAuth(self.keyring, self.epoch.epoch, now)
+        loaded = load_windows(self._windows_path)
+        restored = spdp_auth.verifier.restore(loaded.highs)
+        if loaded.problem is not None:
+            self.log.warning(
+                "auth_windows_recovered", path=str(self._windows_path), problem=loaded.problem
+            )
+        if restored:
+            self.log.info("auth_windows_restored", senders=restored)
         try:
             self.engine = DiscoveryEngine(
                 self.bundle,
@@ -360,7 +375,7 @@ class Daemon:
                 wallclock=time.time,  # INFO_TS only; every deadline uses loop.time()
                 link=first,
                 # every SPDP datagram signed and verified (docs/security.md)
-                auth=SpdpAuth(self.keyring, self.epoch.epoch, now),
+                auth=spdp_auth,
             )
         except ValueError as exc:
             problem, _, fix = str(exc).partition("; fix: ")
@@ -464,6 +479,7 @@ class Daemon:
         self.notifier.ready(self._status_line)
         if self.watchdog_s is not None:
             self._watchdog = loop.call_later(self.watchdog_s, self._watchdog_tick)
+        self._windows_timer = loop.call_later(SAVE_PERIOD_S, self._windows_tick)
         self.log.info(
             "started",
             version=__version__,
@@ -523,6 +539,9 @@ class Daemon:
         self.notifier.stopping("stopping: " + reason)
         if self._watchdog is not None:
             self._watchdog.cancel()
+        if self._windows_timer is not None:
+            self._windows_timer.cancel()
+        self._save_windows()
         if self._link_task is not None:
             self._link_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -692,6 +711,26 @@ class Daemon:
             self.log.warning("watchdog_withheld", reason="loop unhealthy")
         if not self.stopped.is_set():
             self._watchdog = self._loop.call_later(self.watchdog_s, self._watchdog_tick)
+
+    def _save_windows(self) -> None:
+        """Persist the SPDP replay windows if one moved (swarmd.auth.windows)."""
+        auth = self._spdp_auth
+        if auth is None or not auth.verifier.windows_changed:
+            return
+        auth.verifier.windows_changed = False  # a window moving during the write: next time
+        try:
+            save_windows(self._windows_path, auth.verifier.snapshot())
+        except OSError as exc:
+            auth.verifier.windows_changed = True  # try again next period
+            self.count("auth_windows_save_errors")
+            self.log.warning(
+                "auth_windows_save_failed", path=str(self._windows_path), error=str(exc)
+            )
+
+    def _windows_tick(self) -> None:
+        self._save_windows()
+        if self._loop is not None and not self.stopped.is_set():
+            self._windows_timer = self._loop.call_later(SAVE_PERIOD_S, self._windows_tick)
 
     def _status_text(self) -> str:
         if self.engine is None:

@@ -5,7 +5,9 @@ The ``.bin`` files under ``tests/fixtures/swarmd/`` were produced by
 golden tests assert that today's encoder still produces exactly these bytes, so any wire
 change is deliberate. The ``*-signed.bin`` ones are what a daemon sends: the same datagrams
 with the authenticator (PID 0x8a04, ``swarmd.auth.spdp``) sealed by ``SIGNING_KEY`` at
-``FRESHNESS`` (Ed25519 is deterministic, RFC 8032, so the bytes are fixed too).
+``FRESHNESS`` (Ed25519 is deterministic, RFC 8032, so the bytes are fixed too), with the
+receiver tags of a 3-node swarm (``TAGS``: two in a multicast datagram, the destination's
+in a directed one; fixed tag keys, so the bytes are fixed).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from swarmd.auth.freshness import Freshness
 from swarmd.auth.spdp import PLACEHOLDER, seal
+from swarmd.auth.tags import compute_tag, tag_block_bytes
 from swarmd.rtps import Duration, GuidPrefix, Locator, SpdpParticipant, Time, encode_spdp
 from swarmd.rtps.spdp import encode_spdp_dispose
 
@@ -42,6 +45,21 @@ SIGNING_KEY = Ed25519PrivateKey.from_private_bytes(bytes(range(32)))
 FRESHNESS = Freshness(1795247086, 41)
 SIGNED = dataclasses.replace(PARTICIPANT, authenticator=PLACEHOLDER)
 
+
+class _GoldenTags:
+    """Receiver tags of a 3-node swarm under fixed keys (``swarmd.auth.tags.Tagger``)."""
+
+    def slots(self, destination: bytes | None) -> tuple[int, int]:
+        return (0, 1) if destination is not None else (0, 2)
+
+    def make(self, start: int, count: int, head: bytes, meta_fresh: bytes) -> bytes:
+        keys = [bytes([start + i + 1]) * 32 for i in range(count)]
+        block = b"".join(compute_tag(k, head, meta_fresh) for k in keys)
+        return block + bytes(tag_block_bytes(count) - len(block))
+
+
+TAGS = _GoldenTags()
+
 PACKETS: dict[str, bytes] = {
     "spdp-alive.bin": encode_spdp(PARTICIPANT, sequence_number=1, timestamp=TIMESTAMP),
     "spdp-directed.bin": encode_spdp(
@@ -49,12 +67,13 @@ PACKETS: dict[str, bytes] = {
     ),
     "spdp-dispose.bin": encode_spdp_dispose(PREFIX, sequence_number=3, timestamp=TIMESTAMP),
     "spdp-alive-signed.bin": seal(
-        encode_spdp(SIGNED, sequence_number=1, timestamp=TIMESTAMP), FRESHNESS, SIGNING_KEY
+        encode_spdp(SIGNED, sequence_number=1, timestamp=TIMESTAMP), FRESHNESS, SIGNING_KEY, TAGS
     ),
     "spdp-directed-signed.bin": seal(
         encode_spdp(SIGNED, sequence_number=2, timestamp=TIMESTAMP, destination=PEER),
         FRESHNESS,
         SIGNING_KEY,
+        TAGS,
     ),
     "spdp-dispose-signed.bin": seal(
         encode_spdp_dispose(
@@ -62,6 +81,7 @@ PACKETS: dict[str, bytes] = {
         ),
         FRESHNESS,
         SIGNING_KEY,
+        TAGS,
     ),
 }
 

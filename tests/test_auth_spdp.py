@@ -55,13 +55,14 @@ def template(i: int, *, authenticated: bool = True, destination: int | None = No
     )
 
 
-def test_sealed_datagram_is_76_octets_longer_and_still_plain_spdp() -> None:
+def test_sealed_datagram_is_80_octets_longer_and_still_plain_spdp() -> None:
+    # without receiver tags (swarmd.auth.tags adds 4 octets per tag: tests/test_auth_tags.py)
     plain, sealed = template(1, authenticated=False), seal(template(1), Freshness(9, 1), ring(1))
-    assert len(sealed) - len(plain) == AUTHENTICATOR_OVERHEAD == 76
+    assert len(sealed) - len(plain) == AUTHENTICATOR_OVERHEAD == 80
     _, samples = decode_spdp(sealed)
     (alive,) = samples
     assert isinstance(alive, SpdpAlive)
-    assert alive.participant.authenticator == sealed[-76:-4]
+    assert alive.participant.authenticator == sealed[-80:-4]
     opened = open_tail(sealed)
     assert opened is not None and opened[0] == Freshness(9, 1)
     assert open_tail(plain) is None

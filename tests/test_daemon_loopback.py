@@ -18,6 +18,7 @@ import pytest
 import structlog
 from structlog.testing import capture_logs
 
+from swarmd.auth import windows as windows_mod
 from swarmd.auth.freshness import Freshness
 from swarmd.bundle.model import EndpointKind
 from swarmd.config import ConfigError, load_config
@@ -380,3 +381,34 @@ def test_ros2_relay_without_a_ros2_graph_is_a_config_error(
     text = str(info.value)
     assert "\n" not in text and "field ros2.relay: " in text
     assert "no ROS 2 graph" in text and "; fix: " in text
+
+
+def test_replay_windows_are_saved_at_stop_and_restored_at_start(
+    workdir: Path, files: BundleFiles
+) -> None:
+    """Issue 18: the SPDP replay windows live in the state directory (beside the epoch): a
+    restarted daemon refuses the datagrams it had passed before, as replays."""
+
+    async def main() -> None:
+        with capture_logs() as logs:
+            async with _discovered_pair(workdir, files) as (a, _b):
+                path = a._windows_path
+                auth = a._spdp_auth
+                assert auth is not None
+                heard = auth.verifier.snapshot()
+            # stopped: the file holds uav2's highest freshness, and only bundle senders
+            saved = windows_mod.load_windows(path)
+            assert saved.problem is None and saved.highs
+            assert set(saved.highs) <= {p.guid_prefix.value for p in files.bundle.participants}
+            assert all(saved.highs[p] >= f for p, f in heard.items())
+            again = _daemon(workdir, files, "uav1")
+            await again.start()
+            try:
+                restored = again._spdp_auth
+                assert restored is not None
+                assert restored.verifier.snapshot() == saved.highs
+            finally:
+                await again.stop("test")
+        assert any(e["event"] == "auth_windows_restored" for e in logs)
+
+    asyncio.run(main())

@@ -19,7 +19,8 @@ from swarmd_lab.testing import (
 )
 
 from swarmd.auth.budget import GLOBAL_NEW_ADDRESS_BURST
-from swarmd.auth.spdp import PLACEHOLDER, open_tail
+from swarmd.auth.spdp import PLACEHOLDER, SpdpAuth, authenticator_overhead, open_tail, tail_window
+from swarmd.auth.tags import MAX_RECEIVER_TAGS, ReceiverTags
 from swarmd.discovery import (
     DiscoveryEngine,
     ForeignParticipantSeen,
@@ -111,12 +112,14 @@ def test_replayed_data_p_is_refused_and_refreshes_nothing() -> None:
 
 def test_member_prefix_signed_with_another_members_key_is_refused() -> None:
     e = receiver()
-    # uav2 (a captured member) signs a DATA(p) carrying uav1's prefix, and one as commander
+    # uav2 (a captured member) signs a DATA(p) carrying uav1's prefix, and one as commander:
+    # its tags are made with its own pair keys, so neither reaches a budget or Ed25519
     as_uav1 = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 2))
-    assert refused(e, as_uav1, A1, 0.1) == {"auth_bad_signature": 1}
+    assert refused(e, as_uav1, A1, 0.1) == {"auth_bad_tag": 1}
     other = engine_for(BUNDLE, 1, auth=auth_for(BUNDLE, 1))
     as_commander = peer_datagram(BUNDLE, 0, auth=auth_for(BUNDLE, 2))
-    assert refused(other, as_commander, A1, 0.1) == {"auth_bad_signature": 1}
+    assert refused(other, as_commander, A1, 0.1) == {"auth_bad_tag": 1}
+    assert e.counters()["auth"]["verified"] == 0  # no signature was even checked
 
 
 def test_unknown_prefix_is_foreign_and_never_matched() -> None:
@@ -139,7 +142,7 @@ def test_dispose_moves_nothing_unless_signed_by_the_peer() -> None:
         P[1], sequence_number=9, timestamp=None, authenticator=PLACEHOLDER
     )
     forged = auth_for(BUNDLE, 2, epoch=99).seal(template)
-    assert refused(e, forged, ATTACKER, 0.3) == {"auth_bad_signature": 1}
+    assert refused(e, forged, ATTACKER, 0.3) == {"auth_bad_tag": 1}
     assert discovered(e, 1)
     e.receive_datagram(a1.seal(template), A1, 0.4)
     assert [x.reason for x in drain(e) if isinstance(x, PeerLost)] == ["disposed"]
@@ -157,14 +160,60 @@ def test_loopback_multicast_and_unspecified_locators_are_refused() -> None:
     assert discovered(e, 1)
 
 
+# Untagged datagrams: in a swarm larger than the tag window (MAX_RECEIVER_TAGS + 1 nodes),
+# a multicast datagram may carry no tag for this receiver; those are checked under the
+# address-keyed budgets of issue 10, which tagged datagrams never spend.
+BIG = make_bundle(MAX_RECEIVER_TAGS + 8)
+BIG_A1 = (node_ipv4(1), BIG.metatraffic_port(BIG.participants[1]))
+
+
+class _WindowWithoutUav0(ReceiverTags):
+    """Every multicast datagram tags the first MAX_RECEIVER_TAGS peers after the sender:
+    in BIG that window never holds uav0 (the untagged path at uav0, on every datagram)."""
+
+    def slots(self, destination: bytes | None) -> tuple[int, int]:
+        return (0, 1) if destination is not None else (0, MAX_RECEIVER_TAGS)
+
+
+class _ShortWindow(ReceiverTags):
+    def slots(self, destination: bytes | None) -> tuple[int, int]:
+        return 0, 3
+
+
+def untagged_auth(index: int, *, epoch: int = 1) -> SpdpAuth:
+    auth = auth_for(BIG, index, epoch=epoch)
+    auth.tags = _WindowWithoutUav0(auth.keyring)
+    return auth
+
+
+def big_receiver() -> DiscoveryEngine:
+    return engine_for(BIG, 0, auth=auth_for(BIG, 0))
+
+
+def test_untagged_datagrams_in_a_large_swarm_are_checked_under_the_address_budgets() -> None:
+    e = big_receiver()
+    e.receive_datagram(peer_datagram(BIG, 1, auth=untagged_auth(1)), BIG_A1, 0.1)
+    view = e.peer(BIG.participants[1].guid_prefix)
+    assert view is not None and view.discovered
+    assert e.counters()["auth"]["untagged"] == 1
+    # without a tag for uav0, the signature is what refuses a captured member's forgery
+    forged = peer_datagram(BIG, 1, auth=untagged_auth(2, epoch=50))
+    assert refused(e, forged, BIG_A1, 0.2) == {"auth_bad_signature": 1}
+    # a window that could have held uav0 but does not (fewer tags than a full window) is a
+    # forgery: no genuine datagram looks like that
+    short = auth_for(BIG, 2, epoch=60)
+    short.tags = _ShortWindow(short.keyring)
+    assert refused(e, peer_datagram(BIG, 1, auth=short), BIG_A1, 0.3) == {"auth_bad_tag": 1}
+
+
 def test_a_flood_spoofing_a_member_from_other_addresses_costs_a_bounded_budget() -> None:
-    e = receiver()
-    a1 = auth_for(BUNDLE, 1, epoch=5)
-    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
-    forger = auth_for(BUNDLE, 2, epoch=1000)
+    e = big_receiver()
+    a1 = untagged_auth(1, epoch=5)
+    e.receive_datagram(peer_datagram(BIG, 1, auth=a1), BIG_A1, 0.1)
+    forger = untagged_auth(2, epoch=1000)
     counts: dict[str, int] = {}
     for i in range(400):
-        forged = peer_datagram(BUNDLE, 1, auth=forger, host="10.0.0.66")
+        forged = peer_datagram(BIG, 1, auth=forger, host="10.0.0.66")
         for k, v in refused(e, forged, (f"10.1.{i // 200}.{i % 200}", 7412), 0.2).items():
             counts[k] = counts.get(k, 0) + v
     # at most the global budget's burst reached Ed25519; the rest were refused for free
@@ -172,36 +221,31 @@ def test_a_flood_spoofing_a_member_from_other_addresses_costs_a_bounded_budget()
     assert counts["auth_budget_global"] >= 400 - GLOBAL_NEW_ADDRESS_BURST
     assert e.counters()["dropped"]["auth_budget_global"] == counts["auth_budget_global"]
     # the member at its known address is still heard, in the same instant
-    before = e.peer(P[1])
-    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.2)
-    after = e.peer(P[1])
+    before = e.peer(BIG.participants[1].guid_prefix)
+    e.receive_datagram(peer_datagram(BIG, 1, auth=a1), BIG_A1, 0.2)
+    after = e.peer(BIG.participants[1].guid_prefix)
     assert before is not None and after is not None and after.last_heard == 0.2
 
 
-def test_a_replayed_reply_for_another_node_does_not_move_the_senders_address() -> None:
+def test_a_replayed_reply_for_another_node_is_refused_before_any_budget() -> None:
     """A genuine directed DATA(p) uav1 -> uav2, captured and replayed to uav0 from the
-    attacker's address, verifies (uav0 never saw it) but is not for uav0: uav1's budget
-    must stay at its real address, or a flood spending the shared budget would starve it."""
+    attacker's address, carries no tag for uav0: refused before any budget or signature
+    (issue 10 verified it and dropped it as not_for_me, having spent a token)."""
     e = receiver()
     a1 = auth_for(BUNDLE, 1, epoch=5)
     e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    verified = e.counters()["auth"]["verified"]
     captured = peer_datagram(BUNDLE, 1, auth=a1, destination=P[2])
-    assert refused(e, captured, ATTACKER, 0.2) == {"not_for_me": 1}
-    forger = auth_for(BUNDLE, 2, epoch=1000)
-    for i in range(200):  # spend the global budget for addresses not known
-        e.receive_datagram(peer_datagram(BUNDLE, 1, auth=forger), (f"10.2.0.{i}", 7412), 0.3)
-    assert e.counters()["dropped"]["auth_budget_global"] > 0
-    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.3)
-    view = e.peer(P[1])
-    assert view is not None and view.last_heard == 0.3
+    assert refused(e, captured, ATTACKER, 0.2) == {"auth_bad_tag": 1}
+    assert e.counters()["auth"]["verified"] == verified
 
 
 def test_per_address_budget_runs_out_for_one_spoofed_address() -> None:
-    e = receiver()
-    forger = auth_for(BUNDLE, 2, epoch=1000)
+    e = big_receiver()
+    forger = untagged_auth(2, epoch=1000)
     counts: dict[str, int] = {}
     for _ in range(50):
-        for k, v in refused(e, peer_datagram(BUNDLE, 1, auth=forger), ATTACKER, 0.2).items():
+        for k, v in refused(e, peer_datagram(BIG, 1, auth=forger), ATTACKER, 0.2).items():
             counts[k] = counts.get(k, 0) + v
     assert counts.get("auth_budget_sender", 0) >= 40
 
@@ -228,7 +272,7 @@ def test_locators_follow_only_authenticated_changes() -> None:
     drain(e)
     # the attacker's redirect (issue 10, attack 4): refused, the locator stays
     forged = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 2, epoch=50), host="10.0.0.66")
-    assert refused(e, forged, ATTACKER, 0.2) == {"auth_bad_signature": 1}
+    assert refused(e, forged, ATTACKER, 0.2) == {"auth_bad_tag": 1}
     # the member itself moves: reported, and used from now on
     e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1, host="10.0.7.7"), ("10.0.7.7", 7412), 0.3)
     (moved,) = [x for x in drain(e) if isinstance(x, PeerLocatorsChanged)]
@@ -306,8 +350,14 @@ def test_an_authenticated_swarm_converges_with_the_same_frames() -> None:
         assert swarm.all_discovered()
         tx = swarm.net.transmissions
         runs[authenticated] = (len(tx), sum(t.size for t in tx))
+        if authenticated:
+            windows = [tail_window(t.payload) for t in tx]
+            tags = [w[1] for w in windows if w is not None]
+            assert len(tags) == len(tx) and set(tags) <= {1, 4}
     assert runs[True][0] == runs[False][0]
-    assert runs[True][1] == runs[False][1] + 76 * runs[True][0]
+    # each datagram: the authenticator (80 octets) and one 4-octet tag per receiver it
+    # names (all 4 peers in a multicast one, the destination in a directed one)
+    assert runs[True][1] == runs[False][1] + sum(authenticator_overhead(t) for t in tags)
 
 
 @settings(max_examples=200, deadline=None)

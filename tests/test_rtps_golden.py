@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from swarmd.auth.spdp import AUTHENTICATOR_OVERHEAD, open_tail
+from swarmd.auth.spdp import authenticator_overhead, open_tail, tail_window
 from swarmd.rtps import (
     Data,
     DecodeError,
@@ -199,12 +199,14 @@ def test_signed_goldens_are_the_unsigned_ones_plus_a_verifying_authenticator(kin
     golden_swarmd.SIGNING_KEY.public_key().verify(signature, covered)  # raises if not
     _, plain_samples = decode_spdp(plain)
     _, signed_samples = decode_spdp(signed)
+    # the receiver tags of a 3-node swarm: both peers when multicast, the destination alone
+    tags = 1 if kind == "directed" else 2
+    assert tail_window(signed) == (0, tags)
+    assert len(signed) == len(plain) + authenticator_overhead(tags)
     if kind == "dispose":
         assert signed_samples == plain_samples
-        assert len(signed) == len(plain) + AUTHENTICATOR_OVERHEAD
     else:
         (a,), (b,) = plain_samples, signed_samples
         assert isinstance(a, SpdpAlive) and isinstance(b, SpdpAlive)
-        assert b.participant.authenticator == signed[-76:-4]
+        assert b.participant.authenticator == signed[-authenticator_overhead(tags) : -4]
         assert dataclasses.replace(b.participant, authenticator=None) == a.participant
-        assert len(signed) == len(plain) + AUTHENTICATOR_OVERHEAD

@@ -7,7 +7,11 @@ hands in. Modules:
   ``KeyRing`` (every bundle participant's public keys: sign, verify, pairwise keys).
 - ``freshness``: ``Freshness`` (boot epoch, sequence), ``SendCounter``, ``ReplayWindow``.
 - ``spdp``: the SPDP authenticator (a swarmd vendor PID, docs/wire.md) and the verifier the
-  discovery engine runs before any state changes: cheap checks, budgets, then Ed25519.
-- ``epoch``: the persisted boot epoch (the one module here that touches a file; the daemon
-  calls it once at start-up, before the first send).
+  discovery engine runs before any state changes: cheap checks, my receiver tag, budgets,
+  then Ed25519.
+- ``tags``: the receiver tags (issue 18): a 2-octet MAC per receiver under the pair's key,
+  so only the claimed sender's datagrams ever spend its verification budget.
+- ``epoch``: the persisted boot epoch, and ``windows``: the persisted SPDP replay windows
+  (the two modules here that touch a file; the daemon calls them, at start-up and, for the
+  windows, every few seconds and at stop).
 """

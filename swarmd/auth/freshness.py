@@ -113,6 +113,12 @@ class ReplayWindow:
         back = high.seq - seq
         return back < WINDOW and not (self._bits >> back) & 1
 
+    def restore(self, high: Freshness) -> None:
+        """Start from a persisted highest value: it and the ``WINDOW`` values below it count
+        as seen (what was between them is unknown after a restart, so refused: a sender's
+        real datagrams are above ``high``)."""
+        self._high, self._bits = high, (1 << WINDOW) - 1
+
     def accept(self, f: Freshness) -> bool:
         """Record ``f`` (call only after its datagram verified); False if it was not fresh."""
         if not self.is_fresh(f):

@@ -661,6 +661,8 @@ class DiscoveryEngine:
             "tx_kind": dict(self._tx_kind),
             "dropped": {str(reason): self._dropped[reason] for reason in DropReason},
             "foreign_evicted": self._foreign.evicted,
+            # signatures verified, tags made and checked (the refusals are in "dropped")
+            "auth": {} if self._auth is None else self._auth.counters(),
         }
 
     def status(self, now: float) -> dict[str, Any]:

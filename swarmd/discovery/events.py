@@ -37,6 +37,7 @@ class DropReason(StrEnum):
     # prefix moves nothing unless its authenticator holds; cheapest checks first
     AUTH_MISSING = "auth_missing"  # no authenticator at the end of the datagram
     AUTH_REPLAYED = "auth_replayed"  # freshness not newer than the sender's replay window
+    AUTH_BAD_TAG = "auth_bad_tag"  # my receiver tag did not hold: not made by the sender
     AUTH_BUDGET_SENDER = "auth_budget_sender"  # this sender/address spent its verifications
     AUTH_BUDGET_GLOBAL = "auth_budget_global"  # unverified addresses spent the shared budget
     AUTH_BAD_SIGNATURE = "auth_bad_signature"  # not signed with the prefix's bundle key

@@ -10,6 +10,7 @@ from __future__ import annotations
 import random
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -93,9 +94,12 @@ def run_flood(
     seconds: float,
     *,
     idle_s: float = 3.0,
+    send: Callable[[float, int, float], int] | None = None,
 ) -> FloodResult:
     """Flood ``pool`` at ``rate_hz`` for at most ``seconds`` (and ``rate_hz * seconds``
-    datagrams) to the SPDP group; record lost real peers and daemon CPU."""
+    datagrams) to the SPDP group; record lost real peers and daemon CPU. ``send(rate,
+    max_count, max_s)``, when given, sends instead (a spoofer: ``tests/attacker/spoof.py``)
+    and returns how many it sent."""
     pids = {i: sw.daemon_pid(i) for i in range(sw.n)}
     # the same daemons without a flood, for comparison
     cpu0 = {i: cpu_seconds(p) for i, p in pids.items()}
@@ -109,6 +113,9 @@ def run_flood(
     sent: list[int] = []
 
     def flood() -> None:
+        if send is not None:
+            sent.append(send(rate_hz, int(rate_hz * seconds), seconds))
+            return
         sent.append(
             atk.paced(
                 pool,

@@ -15,7 +15,9 @@ from collections.abc import Sequence
 from typing import Final
 
 from swarmd.auth.freshness import Freshness
+from swarmd.auth.keys import KeyRing
 from swarmd.auth.spdp import PLACEHOLDER, Signer, seal
+from swarmd.auth.tags import ReceiverTags
 from swarmd.bundle.model import EndpointKind, endpoint_entity_id
 from swarmd.dataplane.seal import seal as seal_user_data
 from swarmd.dataplane.seal import user_data_key
@@ -187,7 +189,7 @@ def forged_alive(
         authenticator=PLACEHOLDER if resign is not None else real.authenticator,
     )
     datagram = encode_spdp(forged, sequence_number=sn, timestamp=Time(0, 0))
-    return datagram if resign is None else seal(datagram, resign[0], resign[1])
+    return datagram if resign is None else seal_as(datagram, resign[0], resign[1])
 
 
 def signed_dispose(prefix: GuidPrefix, sn: int, freshness: Freshness, signer: Signer) -> bytes:
@@ -195,7 +197,15 @@ def signed_dispose(prefix: GuidPrefix, sn: int, freshness: Freshness, signer: Si
     template = encode_spdp_dispose(
         prefix, sequence_number=sn, timestamp=Time(0, 0), authenticator=PLACEHOLDER
     )
-    return seal(template, freshness, signer)
+    return seal_as(template, freshness, signer)
+
+
+def seal_as(template: bytes, freshness: Freshness, signer: Signer) -> bytes:
+    """``template`` sealed by ``signer``: a captured member's ``KeyRing`` also makes the real
+    receiver tags it can make (its own pair keys: right only under its own prefix); the
+    attacker's own Ed25519 key makes none (issue 18: refused on the tag either way)."""
+    tags = ReceiverTags(signer) if isinstance(signer, KeyRing) else None
+    return seal(template, freshness, signer, tags)
 
 
 def mac(

@@ -76,7 +76,11 @@ class SwarmdNode(SimNode):
             now=now,
             local_ipv4=shared.ip_of[self.index],
             link=self._link,
-            auth=ModelledSpdpAuth(p.guid_prefix, 1) if shared.modelled_auth else None,
+            auth=(
+                ModelledSpdpAuth(p.guid_prefix, 1, len(shared.bundle.participants))
+                if shared.modelled_auth
+                else None
+            ),
         )
         self._pump(now)
 

@@ -1,0 +1,99 @@
+"""Persisted SPDP replay windows: a receiver's restart does not make old captures fresh.
+
+Replay windows live in memory (``swarmd.auth.freshness.ReplayWindow``). Before this, a
+receiver that restarted had forgotten every sender's highest (epoch, seq): a DATA(p)
+captured from a member that has since died was fresh again to it, and made the dead member
+appear discovered for one full lease (issue 18; its readiness row stayed ``no_report``).
+Now the daemon keeps each bundle sender's highest verified freshness in the state
+directory, ``auth-windows-<node>`` next to ``auth-epoch-<node>``, and restores it at
+start-up (``SpdpVerifier.restore``: that value and the 64 below it count as seen).
+
+When: every ``SAVE_PERIOD_S`` while a window moved, and at a clean stop. A capture made in
+the last ``SAVE_PERIOD_S`` before a crash can still be replayed once after it (the same
+bound as the sender's own risk: docs/security.md, "Residual risks"); a dead member's last
+datagrams are long persisted by the time anyone could replay them.
+
+Format: one line per sender, ``<prefix hex> <epoch> <seq>``, at most the bundle's size
+(the caller only ever saves bundle prefixes; lines for prefixes outside the bundle are
+ignored on load). A missing file is a first start; an unreadable or corrupt one is
+reported and ignored (the receiver starts with empty windows, as before this file existed),
+never a reason not to start. Written with ``write_file_atomic`` (temp file, fsync, rename,
+directory fsync), so a crash mid-write leaves the previous file.
+
+The one other module in ``swarmd.auth`` that touches a file (with ``epoch``); the daemon
+calls it, the verifier itself stays sans-IO.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from swarmd.auth.freshness import U32_MAX, Freshness
+from swarmd.bundle.keys import write_file_atomic
+
+FILE_PATTERN: Final = "auth-windows-{node}"
+# how often a moved window is written: an fsync every few seconds at most on an SD card
+SAVE_PERIOD_S: Final = 2.0
+# a file larger than this is not a window file (1000 senders x ~45 octets = 45 KB)
+MAX_FILE_BYTES: Final = 1 << 20
+_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
+_LINE: Final = re.compile(r"([0-9a-f]{24}) ([0-9]{1,10}) ([0-9]{1,10})")
+
+
+@dataclass(frozen=True, slots=True)
+class LoadedWindows:
+    highs: dict[bytes, Freshness]
+    problem: str | None  # why (part of) the file was not used, for the log
+
+
+def windows_path(state_dir: str | Path, node: str) -> Path:
+    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+
+
+def encode_windows(highs: dict[bytes, Freshness]) -> bytes:
+    lines = [f"{p.hex()} {f.epoch} {f.seq}\n" for p, f in sorted(highs.items())]
+    return "".join(lines).encode("ascii")
+
+
+def decode_windows(data: bytes) -> LoadedWindows:
+    """Every well-formed line; the first malformed one is reported (and skipped)."""
+    highs: dict[bytes, Freshness] = {}
+    problem: str | None = None
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        return LoadedWindows({}, "corrupt (not ASCII)")
+    for number, line in enumerate(text.splitlines(), 1):
+        match = _LINE.fullmatch(line.strip())
+        if match is None:
+            problem = problem or f"corrupt line {number}"
+            continue
+        epoch, seq = int(match[2]), int(match[3])
+        if epoch > U32_MAX or seq > U32_MAX:
+            problem = problem or f"out of range at line {number}"
+            continue
+        highs[bytes.fromhex(match[1])] = Freshness(epoch, seq)
+    return LoadedWindows(highs, problem)
+
+
+def load_windows(path: Path) -> LoadedWindows:
+    """The persisted highs; empty (problem None) for a missing file."""
+    try:
+        with path.open("rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        return LoadedWindows({}, None)
+    except OSError as exc:
+        return LoadedWindows({}, f"unreadable ({exc.strerror})")
+    if len(data) > MAX_FILE_BYTES:
+        return LoadedWindows({}, f"larger than {MAX_FILE_BYTES} octets")
+    return decode_windows(data)
+
+
+def save_windows(path: Path, highs: dict[bytes, Freshness]) -> None:
+    """Durably replace the file. Raises ``OSError`` (the caller logs and carries on: the
+    windows in memory still hold; only a restart would lose them)."""
+    write_file_atomic(path, encode_windows(highs), 0o640)
