@@ -458,7 +458,7 @@ def test_pxs_xrce_session_reaches_swarmd_across_a_restart_and_no_local_user(
 
             def established() -> bool:
                 backend = xrce_backend(layout)
-                return backend.get("session") == "established" and backend["samples"] > 5
+                return backend.get("session") == "established" and backend.get("samples", 0) > 5
 
             wait_for(established, "PX4's session at swarmd's agent")
             grab = ("bind-reuse", ["127.0.0.1", XRCE_PORT])

@@ -218,6 +218,9 @@ class XrceBackend:
             "dropped": dict(self.engine.dropped),
             "bad_frames": self._deframer.dropped,
         }
+        # the counters a status reader polls are there from the start, at 0 (a JSON reader
+        # must not meet a missing key in the window between the session and its first sample)
+        out.update({"datagrams_in": 0, "samples": 0})
         out.update(self.counters)
         return out
 
