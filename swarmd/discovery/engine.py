@@ -355,8 +355,15 @@ class DiscoveryEngine:
             return
         if self.phase is _BOOT and self._boot_deadline is not None and now >= self._boot_deadline:
             self._start_passive(now, "no link sample before the boot timeout; default Q")
-        for peer in self._leases.expire(now):
-            self._lose(peer, "lease")
+        # Leases.expire only when a lease or a vouch ran out (most timers are retries and
+        # renewals): earliest() is cached, and the call and its sort are not free
+        earliest = self._lease_queue.earliest()
+        vouch_heap = self._vouch_heap
+        if (earliest is not None and now >= earliest[0]) or (
+            vouch_heap and vouch_heap[0][0] <= now
+        ):
+            for peer in self._leases.expire(now):
+                self._lose(peer, "lease")
         if (
             self.phase is _PASSIVE
             and self._passive_deadline is not None
@@ -565,7 +572,9 @@ class DiscoveryEngine:
     def _transition(self, trigger: Trigger, reason: str) -> None:
         old = self.phase
         new = self.phase = next_phase(old, trigger)
-        # the debts' view of the phase (debts.py): kept in step with every transition
+        # the receive path's and the debts' view of the phase: kept in step with every
+        # transition (the only place the phase changes)
+        self._receive.phase = new
         debts = self._debts
         debts.announcing = new is _ANNOUNCE or new is _STEADY
         debts.silent = new is _BOOT or new is _PASSIVE
@@ -619,7 +628,7 @@ class DiscoveryEngine:
     def _flush(self, now: float) -> None:
         """Pay the debts that are due: one multicast, or directed frames (section 4.1)."""
         debts = self._debts
-        due = debts.due(now)
+        due = debts.due(now) if debts.armed else []
         renewal_due = self.phase in (_ANNOUNCE, _STEADY) and (
             (d := self._renewal.deadline()) is not None and d <= now
         )

@@ -69,7 +69,6 @@ class ReceivePath:
         "_disarm",
         "_domain_id",
         "_emit",
-        "_engine",
         "_foreign",
         "_index_of",
         "_leases",
@@ -91,6 +90,7 @@ class ReceivePath:
         "_vouched_until",
         "_vouching",
         "dropped",
+        "phase",
         "rx_datagrams",
     )
 
@@ -114,7 +114,9 @@ class ReceivePath:
         settle: Callable[[], None],
         on_vouch: Callable[[Vouch, float], None],
     ) -> None:
-        self._engine = engine  # its phase, read per datagram
+        # the engine's phase, as the receive path sees it: set by DiscoveryEngine._transition
+        # (a slot of our own: read twice per datagram)
+        self.phase = engine.phase
         self._bundle = bundle
         self._me = me
         self._auth = auth
@@ -158,8 +160,7 @@ class ReceivePath:
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         """Handle one UDP payload from ``source``. Never raises for any ``data``."""
         self.rx_datagrams += 1  # an attribute, not a counters entry: one less dict per datagram
-        engine = self._engine
-        if engine.phase is _STOPPED:
+        if self.phase is _STOPPED:
             self.dropped[DropReason.STOPPED] += 1
             return
         raw = data if type(data) is bytes else bytes(data)
@@ -201,7 +202,7 @@ class ReceivePath:
             else:
                 assert isinstance(sample, SpdpDisposed)  # noqa: S101 - decode makes no other
                 self._on_disposed(sample, source)
-        if engine.phase is _ANNOUNCE and not self._any_pending():
+        if self.phase is _ANNOUNCE and not self._any_pending():
             self._settle()  # (asks any_pending again: the armed set is empty now)
 
     def peer_by_prefix(self, prefix: bytes) -> Peer | None:
