@@ -40,7 +40,8 @@ queue (``timers.LeaseQueue``), retries in a lazy heap, and the heard digest is k
 incrementally.
 
 The engine is split by concern, each a small slotted class holding its own state; this
-module keeps the phases, the sending and the public API, and wires the others together:
+module keeps the public API and the phases, pays the debts that fall due, and wires the
+others together:
 
 * ``receive.ReceivePath``: the receive path (authentication pre-check, decode, checks,
   ``_heard``), the drop counters;
@@ -48,6 +49,7 @@ module keeps the phases, the sending and the public API, and wires the others to
 * ``leases.Leases``: leases, the commander's vouches, the heard digest;
 * ``renewals.Renewals``: our link quality, the renewal period, the advertised lease;
 * ``foreign.ForeignParticipants``: participants outside the bundle, reports, decode budget;
+* ``sending.Sender``: our DATA(p) and DATA(p[UD]), the sequence number, the outbox;
 * ``status``: the typed views and JSON forms; ``received``: what a datagram says.
 
 Where a concern's method runs per datagram or per timer, it is bound once at construction
@@ -75,10 +77,9 @@ from __future__ import annotations
 
 import random
 from collections import Counter, deque
-from collections.abc import Callable
 from typing import Any, Final
 
-from swarmd.auth.spdp import PLACEHOLDER, SpdpAuth
+from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.model import Bundle, Participant
 from swarmd.discovery.awareness import draw_passive_timer_s, passive_window_s
 from swarmd.discovery.config import EngineConfig, resolve_timing
@@ -96,6 +97,7 @@ from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase, Trigger, next_phase
 from swarmd.discovery.receive import ReceivePath
 from swarmd.discovery.renewals import Renewals
+from swarmd.discovery.sending import Sender, Wallclock
 from swarmd.discovery.status import foreign_json, link_json, peer_json, peer_view, timing_json
 from swarmd.discovery.timers import MinInterval, RetrySchedule
 from swarmd.discovery.views import ForeignView, PeerView
@@ -106,20 +108,13 @@ from swarmd.rtps.ports import (
     metatraffic_unicast_port,
     spdp_multicast_port,
 )
-from swarmd.rtps.spdp import (
-    BES_SPDP_ONLY,
-    SpdpParticipant,
-    Vouch,
-    encode_spdp,
-    encode_spdp_dispose,
-)
-from swarmd.rtps.types import Duration, GuidPrefix, Time
+from swarmd.rtps.spdp import Vouch
+from swarmd.rtps.types import GuidPrefix
 
 # A driver that stops draining events (or a garbage flood, one PacketDropped per datagram)
 # must not grow memory without bound: keep the newest 1024, count the rest.
 MAX_PENDING_EVENTS: Final = 1024
-# The same for datagrams the driver has not collected yet.
-MAX_PENDING_DATAGRAMS: Final = 4096
+# (The same for datagrams not collected yet: sending.MAX_PENDING_DATAGRAMS.)
 BUNDLE_DIGEST_BYTES: Final = 16
 # Leaving (docs/discovery.md, "Leaving"). A dispose only hastens what the lease does anyway
 # (a peer that misses it drops us when our lease ends, 20 s by default), so it must cost the
@@ -137,8 +132,6 @@ DISPOSE_MULTICAST_COPIES: Final = 3
 # larger swarms rely on the group copies and, failing those, on the lease. A leave costs at
 # most MAX_DISPOSE_UNICAST + DISPOSE_MULTICAST_COPIES frames and as many signatures.
 MAX_DISPOSE_UNICAST: Final = 9
-
-Wallclock = Callable[[], float]
 
 # Enum members bound once: in CPython 3.11 ``Phase.ANNOUNCE`` is a ~50 ns class-attribute
 # lookup, and get_timer() (after every input) asks several of them.
@@ -169,12 +162,9 @@ class DiscoveryEngine:
         "_bundle",
         "_by_name",
         "_config",
-        "_content",
-        "_counters",
         "_debts",
-        "_digest",
-        "_encoded",
         "_events",
+        "_events_dropped",
         "_foreign",
         "_lease_queue",
         "_leases",
@@ -192,12 +182,9 @@ class DiscoveryEngine:
         "_renewals",
         "_retries",
         "_rng",
-        "_sn",
-        "_static_locators",
+        "_sender",
         "_timing",
-        "_tx_kind",
         "_vouch_heap",
-        "_wallclock",
         "metatraffic_port",
         "phase",
         "spdp_multicast",
@@ -235,21 +222,14 @@ class DiscoveryEngine:
         self._me: Participant = me
         self._config = config
         self._rng = rng
-        self._wallclock = wallclock
         timing = self._timing = resolve_timing(bundle.discovery, config)
         last = max(bundle.participants, key=lambda p: p.index)
         size = last.index + 1
-        self._digest = bundle.content_sha256[:BUNDLE_DIGEST_BYTES]
         self.metatraffic_port: int = bundle.metatraffic_port(me)
         self.user_port: int = bundle.user_port(me)
         self.spdp_multicast: tuple[str, int] = (
             SPDP_MULTICAST_GROUP,
             spdp_multicast_port(bundle.domain_id),
-        )
-        self._static_locators = (
-            (Locator.udpv4(local_ipv4, self.metatraffic_port),),
-            (Locator.udpv4(*self.spdp_multicast),),
-            (Locator.udpv4(local_ipv4, self.user_port),),
         )
         # A peer's bundle address: metatraffic port PB + DG * domain + d1 + PG * index
         # (DDSI-RTPS 9.6.1.1), i.e. the port of index 0 plus PG per index. Linear, so one
@@ -279,19 +259,8 @@ class DiscoveryEngine:
         self._passive_deadline: float | None = None
         self._passive_window: float | None = None
         self._passive_timer: float | None = None
-        self._sn = 0
-        self._content: SpdpParticipant | None = None
-        self._encoded: dict[GuidPrefix | None, bytes] = {}
         self._events: deque[Event] = deque()
-        self._outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
-        self._counters: dict[str, int] = {
-            "tx_datagrams": 0,
-            "tx_multicast": 0,
-            "tx_unicast": 0,
-            "events_dropped": 0,
-            "datagrams_dropped": 0,
-        }
-        self._tx_kind: dict[str, int] = {"announce": 0, "reply": 0, "renewal": 0, "dispose": 0}
+        self._events_dropped = 0
 
         # the concerns, each with its own state (see the theory of operation)
         swarm_size = len(bundle.participants)
@@ -310,6 +279,22 @@ class DiscoveryEngine:
             rng=rng,
             swarm_size=swarm_size,
         )
+        digest = bundle.content_sha256[:BUNDLE_DIGEST_BYTES]
+        sender = self._sender = Sender(
+            bundle,
+            me,
+            digest=digest,
+            static_locators=(
+                (Locator.udpv4(local_ipv4, self.metatraffic_port),),
+                (Locator.udpv4(*self.spdp_multicast),),
+                (Locator.udpv4(local_ipv4, self.user_port),),
+            ),
+            spdp_multicast=self.spdp_multicast,
+            auth=auth,
+            wallclock=wallclock,
+            leases=leases,
+            renewals=renewals,
+        )
         dropped: Counter[DropReason] = Counter()
         foreign = self._foreign = ForeignParticipants(dropped, now)
         receive = self._receive = ReceivePath(
@@ -318,7 +303,7 @@ class DiscoveryEngine:
             me,
             peer_at,
             auth=auth,
-            digest=self._digest,
+            digest=digest,
             local_ipv4=local_ipv4,
             reack_gap_s=config.retransmit_min_gap_s,
             dropped=dropped,
@@ -333,6 +318,7 @@ class DiscoveryEngine:
         # what get_timer() (after every input) and peer lookups read, bound once: the
         # objects are the concerns' own (never replaced), not copies
         self._renewal = renewals.timer
+        self._outbox = sender.outbox
         self._lease_queue = leases.queue
         self._vouch_heap = leases.vouch_heap
         self._next_vouched = leases.next_vouched
@@ -407,36 +393,15 @@ class DiscoveryEngine:
         of them; a bounded number of frames (and signatures) whatever N."""
         if self.phase is _STOPPED:
             return
-        self._sn += 1
-        prefix, timestamp = self._me.guid_prefix, self._timestamp()
-        placeholder = None if self._auth is None else PLACEHOLDER
-        # one sample (one SN): the copies differ only in their freshness, each sealed on its
-        # own so a receiver takes whichever arrives first and counts no replay for the rest
-        group = encode_spdp_dispose(
-            prefix, sequence_number=self._sn, timestamp=timestamp, authenticator=placeholder
-        )
-        self._queue(self._seal(group), self.spdp_multicast, multicast=True)
-        self._tx_kind["dispose"] += 1
         targets = [
             (p.participant.guid_prefix, target)
             for p in self._peers.values()
             if p.discovered and (target := p.target()) is not None
         ]
-        if len(targets) <= MAX_DISPOSE_UNICAST:
-            for destination, target in targets:
-                payload = encode_spdp_dispose(
-                    prefix,
-                    sequence_number=self._sn,
-                    timestamp=timestamp,
-                    destination=destination,
-                    authenticator=placeholder,
-                )
-                self._queue(self._seal(payload), target, multicast=False)
-                self._tx_kind["dispose"] += 1
-        # the repeats after the directed frames: spaced by them when there are any
-        for _ in range(DISPOSE_MULTICAST_COPIES - 1):
-            self._queue(self._seal(group), self.spdp_multicast, multicast=True)
-            self._tx_kind["dispose"] += 1
+        self._sender.dispose(
+            targets if len(targets) <= MAX_DISPOSE_UNICAST else [],
+            group_copies=DISPOSE_MULTICAST_COPIES,
+        )
         for p in self._peers.values():
             self._debts.disarm(p)
         self._renewal.stop()
@@ -528,12 +493,17 @@ class DiscoveryEngine:
 
     def counters(self) -> dict[str, Any]:
         dropped = self._receive.dropped
+        sent = self._sender.counters
         return {
             "rx_datagrams": self._receive.rx_datagrams,
-            **self._counters,
+            "tx_datagrams": sent["tx_datagrams"],
+            "tx_multicast": sent["tx_multicast"],
+            "tx_unicast": sent["tx_unicast"],
+            "events_dropped": self._events_dropped,
+            "datagrams_dropped": sent["datagrams_dropped"],
             # new foreign participants folded into a later report
             "foreign_suppressed": self._foreign.suppressed_total,
-            "tx_kind": dict(self._tx_kind),
+            "tx_kind": dict(self._sender.tx_kind),
             "dropped": {str(reason): dropped[reason] for reason in DropReason},
             "foreign_evicted": self._foreign.table.evicted,
         }
@@ -667,71 +637,16 @@ class DiscoveryEngine:
 
     # --------------------------------------------------------------- sending
 
-    def _participant_data(self, now: float) -> SpdpParticipant:
-        meta_uc, meta_mc, user_uc = self._static_locators
-        heard = self._leases.heard.to_bytes()
-        renewals = self._renewals
-        return SpdpParticipant(
-            self._me.guid_prefix,
-            domain_id=self._bundle.domain_id,
-            metatraffic_unicast_locators=meta_uc,
-            metatraffic_multicast_locators=meta_mc,
-            default_unicast_locators=user_uc,
-            lease_duration=Duration.from_seconds(renewals.lease_s()),
-            builtin_endpoints=BES_SPDP_ONLY,
-            entity_name=f"{self._bundle.swarm}/{self._me.name}",
-            bundle_digest=self._digest,
-            heard=heard,
-            link_quality_permille=renewals.permille,
-            vouched=self._leases.vouch(now),
-            authenticator=None if self._auth is None else PLACEHOLDER,
-        )
-
     def _send(self, peer: Peer | None, now: float, kind: str) -> None:
-        content = self._participant_data(now)
-        if content != self._content:
-            # SPDP is a keyed history of depth 1: a new SN whenever the content changes
-            self._content = content
-            self._sn += 1
-            self._encoded.clear()
-        destination = None if peer is None else peer.participant.guid_prefix
-        target = self.spdp_multicast if peer is None else peer.target()
-        if target is None:  # callers check; an undiscovered peer without an address
-            return
-        payload = self._encoded.get(destination) if self._wallclock is None else None
-        if payload is None:
-            payload = encode_spdp(
-                content,
-                sequence_number=self._sn,
-                timestamp=self._timestamp(),
-                destination=destination,
-            )
-            if self._wallclock is None:
-                self._encoded[destination] = payload
-        # the memo keeps the unsigned template; every datagram gets its own freshness
-        self._queue(self._seal(payload), target, multicast=peer is None)
-        self._tx_kind[kind] += 1
+        """Our DATA(p) to ``peer``, or to the group (None): a multicast restarts the renewal."""
+        self._sender.send(peer, now, kind)
         if peer is None:
             self._renewals.last_multicast = now
             if self.phase in (_ANNOUNCE, _STEADY):
                 self._renewal.restart(now, self._rng)
 
-    def _seal(self, template: bytes) -> bytes:
-        return template if self._auth is None else self._auth.seal(template)
-
-    def _queue(self, payload: bytes, target: tuple[str, int], *, multicast: bool) -> None:
-        if len(self._outbox) >= MAX_PENDING_DATAGRAMS:
-            self._outbox.popleft()
-            self._counters["datagrams_dropped"] += 1
-        self._outbox.append((payload, target))
-        self._counters["tx_datagrams"] += 1
-        self._counters["tx_multicast" if multicast else "tx_unicast"] += 1
-
-    def _timestamp(self) -> Time | None:
-        return None if self._wallclock is None else Time.from_seconds(self._wallclock())
-
     def _emit(self, event: Event) -> None:
         if len(self._events) >= MAX_PENDING_EVENTS:
             self._events.popleft()
-            self._counters["events_dropped"] += 1
+            self._events_dropped += 1
         self._events.append(event)
