@@ -52,8 +52,9 @@ others together:
 * ``sending.Sender``: our DATA(p) and DATA(p[UD]), the sequence number, the outbox;
 * ``status``: the typed views and JSON forms; ``received``: what a datagram says.
 
-Where a concern's method runs per datagram or per timer, it is bound once at construction
-(``self._next_retry = debts.next_retry``) rather than reached through attribute hops.
+What the per-datagram path and ``get_timer()`` read of another concern is one attribute away
+(``self._retries`` is the debts' heap itself; ``receive.py`` says why objects, not bound
+methods). The phase is copied to the receive path and the debts on every transition.
 
 Phases (``phases.TRANSITIONS`` is the whole table)::
 
@@ -169,8 +170,6 @@ class DiscoveryEngine:
         "_lease_queue",
         "_leases",
         "_me",
-        "_next_retry",
-        "_next_vouched",
         "_outbox",
         "_passive_deadline",
         "_passive_timer",
@@ -298,10 +297,10 @@ class DiscoveryEngine:
         dropped: Counter[DropReason] = Counter()
         foreign = self._foreign = ForeignParticipants(dropped, now)
         receive = self._receive = ReceivePath(
-            self,
             bundle,
             me,
             peer_at,
+            phase=self.phase,
             auth=auth,
             digest=digest,
             local_ipv4=local_ipv4,
@@ -315,15 +314,13 @@ class DiscoveryEngine:
             settle=self._settle_if_done,
             on_vouch=self._on_vouch,
         )
-        # what get_timer() (after every input) and peer lookups read, bound once: the
-        # objects are the concerns' own (never replaced), not copies
+        # what get_timer() (after every input) and peer lookups read, one attribute away:
+        # the concerns' own objects (never replaced), not copies
         self._renewal = renewals.timer
         self._outbox = sender.outbox
         self._lease_queue = leases.queue
         self._vouch_heap = leases.vouch_heap
-        self._next_vouched = leases.next_vouched
         self._retries = debts.retries
-        self._next_retry = debts.next_retry
         self._peer_by_prefix = receive.peer_by_prefix
         if link is not None:
             self.update_link_quality(link, now)
@@ -433,7 +430,7 @@ class DiscoveryEngine:
         if lease is not None and (best is None or lease[0] < best):
             best = lease[0]
         if self._vouch_heap:
-            vouched = self._next_vouched()
+            vouched = self._leases.next_vouched()
             if vouched is not None and (best is None or vouched < best):
                 best = vouched
         heap = self._retries
@@ -441,7 +438,7 @@ class DiscoveryEngine:
             # Debts.next_retry() inline for its usual answer: the heap's head is live
             retry: float | None = heap[0][0]
             if heap[0][3].due != retry:
-                retry = self._next_retry()
+                retry = self._debts.next_retry()
             if retry is not None and (best is None or retry < best):
                 best = retry
         return best

@@ -10,8 +10,12 @@ then the state change (``_heard``). A DATA(p[UD]) loses the peer (``_on_disposed
 
 This runs once per datagram per engine (in the simulator, ~3M times for 1000 drones), so it
 holds no O(N) work and reads plain attributes: what every receiver derives alike from a
-datagram is computed once (``received.Alive``), and the other concerns' methods it calls are
-bound once here (``self._arm = debts.arm``), not looked up per call.
+datagram is computed once (``received.Alive``), and the objects of the other concerns it
+calls into (the lease queue, the debts) are slots of its own, one attribute read away. They
+are called as ``self._debts.arm(...)``, not through bound methods kept per engine
+(``self._arm = debts.arm``): with 1000 engines in a row every per-engine object is cold in
+the CPU cache, and a bound method is one more such object per call, while the concern's own
+object is touched by the call anyway.
 
 Invariant: ``receive_datagram`` never raises for any input; malformed input becomes a
 ``PacketDropped`` event and a counter. Any other exception escaping it is a bug.
@@ -21,7 +25,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Final
+from typing import Final
 
 from swarmd.auth.freshness import Freshness
 from swarmd.auth.spdp import Refusal, SpdpAuth
@@ -44,9 +48,6 @@ from swarmd.discovery.received import Alive
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpDisposed, Vouch
 
-if TYPE_CHECKING:
-    from swarmd.discovery.engine import DiscoveryEngine
-
 # Enum members bound once: in CPython 3.11 ``Phase.ANNOUNCE`` is a ~50 ns class-attribute
 # lookup, and the receive path asks several of them per datagram.
 _ANNOUNCE: Final = Phase.ANNOUNCE
@@ -59,23 +60,20 @@ class ReceivePath:
     datagram count, the prefix -> peer lookup and the receiver's own address facts."""
 
     __slots__ = (
-        "_any_pending",
-        "_arm",
-        "_answer_window",
         "_auth",
         "_bundle",
         "_commander",
+        "_debts",
         "_digest",
-        "_disarm",
         "_domain_id",
         "_emit",
         "_foreign",
         "_index_of",
+        "_lease_queue",
         "_leases",
         "_local_dotted",
         "_local_octets",
         "_lose",
-        "_mark_heard",
         "_me",
         "_my_bit",
         "_my_guid",
@@ -84,8 +82,6 @@ class ReceivePath:
         "_on_vouch",
         "_peer_at",
         "_reack_gap_s",
-        "_renew_lease",
-        "_reply_delay",
         "_settle",
         "_vouched_until",
         "_vouching",
@@ -96,11 +92,11 @@ class ReceivePath:
 
     def __init__(
         self,
-        engine: DiscoveryEngine,
         bundle: Bundle,
         me: Participant,
         peer_at: list[Peer | None],
         *,
+        phase: Phase,
         auth: SpdpAuth | None,
         digest: bytes,
         local_ipv4: str,
@@ -116,7 +112,7 @@ class ReceivePath:
     ) -> None:
         # the engine's phase, as the receive path sees it: set by DiscoveryEngine._transition
         # (a slot of our own: read twice per datagram)
-        self.phase = engine.phase
+        self.phase = phase
         self._bundle = bundle
         self._me = me
         self._auth = auth
@@ -140,18 +136,13 @@ class ReceivePath:
         self.dropped = dropped
         self.rx_datagrams = 0
         self._foreign = foreign
-        # the other concerns, bound once (each a plain attribute read per datagram)
+        # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
-        self._renew_lease = leases.queue.renew
+        self._lease_queue = leases.queue
         self._vouched_until = leases.vouched_until  # the dict itself, never replaced
-        self._mark_heard = leases.heard.mark
         self._commander = leases.commander
         self._vouching = leases.vouching
-        self._arm = debts.arm
-        self._disarm = debts.disarm
-        self._any_pending = debts.any_pending
-        self._reply_delay = debts.reply_delay
-        self._answer_window = debts.answer_window
+        self._debts = debts
         self._emit = emit
         self._lose = lose
         self._settle = settle
@@ -202,7 +193,7 @@ class ReceivePath:
             else:
                 assert isinstance(sample, SpdpDisposed)  # noqa: S101 - decode makes no other
                 self._on_disposed(sample, source)
-        if self.phase is _ANNOUNCE and not self._any_pending():
+        if self.phase is _ANNOUNCE and not self._debts.any_pending():
             self._settle()  # (asks any_pending again: the armed set is empty now)
 
     def peer_by_prefix(self, prefix: bytes) -> Peer | None:
@@ -294,7 +285,7 @@ class ReceivePath:
             self._leases.listed_by += 1 if lists_me else -1
         peer.link_quality_permille = alive.link_quality_permille
         index = peer.index
-        self._renew_lease(peer, lease_s, now)  # Leases.renew, inline
+        self._lease_queue.renew(peer, lease_s, now)  # Leases.renew, inline
         if self._vouched_until:
             self._vouched_until.pop(index, None)  # its own lease runs again
         vouched = alive.vouched
@@ -316,7 +307,7 @@ class ReceivePath:
             # its SN went back (or its epoch rose): it restarted and forgot us; answer it
             # like a new peer
             told = peer.told = False
-            self._disarm(peer)
+            self._debts.disarm(peer)
             if epoch_rose and fresh is not None and previous_epoch is not None:
                 self._emit(
                     PeerRestarted(
@@ -328,13 +319,13 @@ class ReceivePath:
                 )
         elif newly:
             peer.state = _DISCOVERED
-            self._mark_heard(index)
+            self._leases.heard.mark(index)
             matches = peer.matches
             if matches is None:
                 matches = peer.matches = tuple(self._bundle.matches(self._me, peer.participant))
             told = peer.told = False
             if retry.due is not None or retry.attempts:
-                self._disarm(peer)
+                self._debts.disarm(peer)
             peer.times_discovered += 1
             self._emit(
                 PeerDiscovered(
@@ -357,18 +348,18 @@ class ReceivePath:
             not lists_me
             and told
             and peer.told_at is not None
-            and now - peer.told_at > self._answer_window()
+            and now - peer.told_at > self._debts.answer_window()
         ):
             # it still does not list us although it would have answered our last frame by
             # now: that frame was lost. Answer now instead of waiting out the backoff.
             told = peer.told = False
         if told and lists_me:  # Debts.owes(peer) for a discovered peer: the usual case
             if retry.due is not None or retry.attempts:
-                self._disarm(peer)
+                self._debts.disarm(peer)
         elif not told or retry.due is None:
             # first answer after a holdoff; a peer we already told and are waiting on keeps
             # its backoff, since its frame may simply have crossed ours in flight
-            self._arm(peer, now + self._reply_delay())
+            self._debts.arm(peer, now + self._debts.reply_delay())
 
     def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int]) -> None:
         if sample.destination is not None and sample.destination != self._my_guid:
