@@ -314,8 +314,8 @@ class DiscoveryEngine:
             settle=self._settle_if_done,
             on_vouch=self._on_vouch,
         )
-        # what get_timer() (after every input) and peer lookups read, one attribute away:
-        # the concerns' own objects (never replaced), not copies
+        # what get_timer() (after every input) reads, one attribute away: the concerns' own
+        # objects (never replaced), not copies; and the receive path's prefix lookup
         self._renewal = renewals.timer
         self._outbox = sender.outbox
         self._lease_queue = leases.queue
