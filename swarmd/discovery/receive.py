@@ -13,9 +13,9 @@ holds no O(N) work and reads plain attributes: what every receiver derives alike
 datagram is computed once (``received.Alive``), and the objects of the other concerns it
 calls into (the lease queue, the debts) are slots of its own, one attribute read away
 (``self._debts.arm(...)``). Bound methods kept per engine (``self._arm = debts.arm``) were
-tried: ~1 % fewer instructions, the same simulated cache misses at N = 100, no better in
-back-to-back CPU time at N = 300 and 1000 (docs/simulator.md, "Issue 20"); a bound method is
-one more per-engine object, cold in the cache when 1000 engines take a datagram in a row.
+tried: each is one more per-engine object, cold in the cache when hundreds of engines take a
+datagram in a row, and at N = 300 they cost 3.6 % more simulated D1 misses and 0.6 % more
+instructions (one cachegrind run each; docs/simulator.md, "Issue 20").
 
 Invariant: ``receive_datagram`` never raises for any input; malformed input becomes a
 ``PacketDropped`` event and a counter. Any other exception escaping it is a bug.
