@@ -30,13 +30,9 @@ from swarmd.discovery import (
     PeerLost,
     PeerRestarted,
 )
-from swarmd.discovery.engine import (
-    DISPOSE_MULTICAST_COPIES,
-    FOREIGN_DECODE_BURST,
-    FOREIGN_REPORT_BURST,
-    MAX_DISPOSE_UNICAST,
-)
+from swarmd.discovery.engine import DISPOSE_MULTICAST_COPIES, MAX_DISPOSE_UNICAST
 from swarmd.discovery.events import Event
+from swarmd.discovery.foreign import FOREIGN_DECODE_BURST, FOREIGN_REPORT_BURST
 from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.rtps.spdp import encode_spdp_dispose
 

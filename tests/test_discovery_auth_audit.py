@@ -18,8 +18,8 @@ from swarmd_lab.testing import auth_for, engine_for, make_bundle, node_ipv4
 
 from swarmd.auth.spdp import PLACEHOLDER, SpdpAuth
 from swarmd.discovery import DiscoveryEngine
-from swarmd.discovery import engine as engine_module
-from swarmd.discovery.engine import FOREIGN_DECODE_BURST
+from swarmd.discovery import received as received_module
+from swarmd.discovery.foreign import FOREIGN_DECODE_BURST
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
@@ -132,13 +132,13 @@ def _huge(index: int, prefix: GuidPrefix | None = None) -> SpdpParticipant:
 
 def _count_decodes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     calls = [0]
-    real: Callable[..., Any] = engine_module._decode
+    real: Callable[..., Any] = received_module.decode
 
     def counting(raw: bytes) -> Any:
         calls[0] += 1
         return real(raw)
 
-    monkeypatch.setattr(engine_module, "_decode", counting)
+    monkeypatch.setattr(received_module, "decode", counting)
     return calls
 
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from swarmd_lab.memnet import Channel, MemNet
 
 from swarmd.bundle.model import DiscoveryParams
-from swarmd.discovery import engine as engine_module
+from swarmd.discovery import received as received_module
 from swarmd.discovery.awareness import (
     advertised_lease_s,
     draw_passive_timer_s,
@@ -357,8 +357,8 @@ def test_locator_check_precomputed_per_payload_agrees_with_its_definition(
         metatraffic_unicast_locators=locs(meta),
         default_unicast_locators=locs(default),
     )
-    own_octets = engine_module._ipv4_octets(own)
+    own_octets = received_module.ipv4_octets(own)
     own_dotted = ".".join(map(str, own_octets))
-    facts = engine_module._locator_facts(part)
+    facts = received_module.locator_facts(part)
     expected = _usable_by_definition([*meta, *default], source, own_octets)
     assert facts.usable(source, own_octets, own_dotted) is expected

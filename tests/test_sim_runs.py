@@ -11,7 +11,7 @@ from swarmd_lab.sim.__main__ import main
 from swarmd_lab.sim.calibrate import compare, load_testbed
 from swarmd_lab.sim.runner import Scenario, run
 
-import swarmd.discovery.engine as engine_module
+import swarmd.discovery.received as received_module
 
 
 def dumps(result: dict[str, object]) -> str:
@@ -60,7 +60,7 @@ def test_the_engines_shared_decode_memo_changes_nothing(monkeypatch: pytest.Monk
     # run); without the memo every receiver decodes its own copy, with the same outcome
     scenario = Scenario("swarmd", 5, seed=9, window_s=15.0)
     memo = run(scenario)
-    monkeypatch.setattr(engine_module, "_decode", engine_module._decode_fresh)
+    monkeypatch.setattr(received_module, "decode", received_module.decode_fresh)
     plain = run(scenario)
     assert dumps(plain) == dumps(memo)
 

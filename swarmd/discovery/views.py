@@ -22,7 +22,7 @@ class PeerView:
     """One bundle peer as the engine sees it at the time of the query.
 
     ``locator`` is where a directed frame to it goes: the first usable UDPv4 unicast locator
-    of its latest DATA(p) (``engine._unicast_target``), else the UDP source it came from,
+    of its latest DATA(p) (``received.unicast_target``), else the UDP source it came from,
     else its bundle address; None only for a peer never heard and without a bundle address.
     ``metatraffic_unicast_locators`` and ``default_unicast_locators`` are its latest
     DATA(p)'s lists as sent (empty before it is heard). Times are on the engine's clock.
