@@ -70,6 +70,7 @@ from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
+from swarmd.peerlog import PeerChangeKind, PeerHistory
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarmapp import SwarmApp
@@ -268,6 +269,8 @@ class Daemon:
         self.counters: dict[str, int] = {}
         self.engine: DiscoveryEngine | None = None
         self.stopped = asyncio.Event()
+        # lost/regained/restarted peers for the operator in flight (swarmctl watch)
+        self.peer_history = PeerHistory()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transports: dict[str, BatchedSocket] = {}
         self.driver: Driver[bytes, Datagram, Event] | None = None
@@ -510,6 +513,7 @@ class Daemon:
                 self.log.info(
                     "peer_discovered", peer=name, via=via, matched=len(matches), epoch=epoch
                 )
+                self._record_change(event.guid_prefix, name, PeerChangeKind.DISCOVERED, via)
                 if self.app is not None and epoch is not None:  # None only without auth
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
             case PeerLocatorsChanged(name=name, default_unicast_locators=user):
@@ -519,11 +523,13 @@ class Daemon:
                     self.app.peer_moved(name, self._peer_ipv4(event.guid_prefix))
             case PeerRestarted(name=name, epoch=epoch, previous_epoch=previous):
                 self.log.info("peer_restarted", peer=name, epoch=epoch, previous_epoch=previous)
+                self._record_change(event.guid_prefix, name, PeerChangeKind.RESTARTED, None)
                 # its data-plane state belongs to its earlier life: the plane resets it
                 if self.app is not None:
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
+                self._record_change(event.guid_prefix, name, PeerChangeKind.LOST, reason)
                 if self.app is not None:
                     self.app.peer_down(name)
             case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
@@ -542,6 +548,21 @@ class Daemon:
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _record_change(
+        self, prefix: GuidPrefix, name: str, kind: PeerChangeKind, reason: str | None
+    ) -> None:
+        """Keep the change for ``swarmctl watch`` with the peer's advertised link quality and
+        how long it had been silent (its view at the event: one O(1) lookup per change)."""
+        view = self._core().peer(prefix)
+        self.peer_history.record(
+            self._drive().now(),
+            name,
+            kind,
+            reason=reason,
+            link_quality_permille=None if view is None else view.link_quality_permille,
+            last_heard=None if view is None else view.last_heard,
+        )
 
     def _peer_traffic(self, name: str) -> None:
         """A peer's user data passed its MAC: discovery takes it as the peer's liveliness
@@ -604,6 +625,22 @@ class Daemon:
         engine, now = self._core(), self._drive().now()
         st = dict(engine.status(now))
         st["node"] = self.config.node
+        # per peer: the link quality it advertises (its own Q, from its latest DATA(p)) and how
+        # often it was (re)discovered; the last changes for the operator in flight
+        views = {v.name: v for v in engine.peers()}
+        peers = []
+        for row in st.get("peers") or []:
+            view = views.get(row.get("name"))
+            q = None if view is None else view.link_quality_permille
+            peers.append(
+                {
+                    **row,
+                    "link_q": None if q is None else q / 1000,
+                    "times_discovered": 0 if view is None else view.times_discovered,
+                }
+            )
+        st["peers"] = peers
+        st["peer_changes"] = self.peer_history.status(now)
         latest: LinkSample | None = self.monitor.latest
         link = dict(st.get("link") or {})
         if latest is not None:

@@ -56,6 +56,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "terminal": frozenset(),
     "logs": frozenset({"terminal"}),
     "sdnotify": frozenset(),
+    # the daemon's ring of peer changes for swarmctl watch (sans-IO, a leaf)
+    "peerlog": frozenset(),
     # batched UDP reads (daemon tier): the SPDP sockets' and the user-data socket's
     "udp": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
@@ -68,7 +70,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     | {"config", "control", "driver", "logs", "userdata"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
-    | {"config", "control", "driver", "logs", "sdnotify", "swarmapp", "udp"},
+    | {"config", "control", "driver", "logs", "peerlog", "sdnotify", "swarmapp", "udp"},
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"}
