@@ -284,7 +284,7 @@ def test_reboot_in_the_air(lan_factory: LanFactory, workdir: Path, state_kept: b
     # the commander sees the new life (a higher signed epoch), and readiness resumes
     def back() -> bool:
         row = swarm.table()["uav2"]
-        return (
+        return bool(
             swarm.status(1)["dataplane"]["epoch"] != epoch_before
             and row["peer_up"]
             and row["count"] > count_before + 2
