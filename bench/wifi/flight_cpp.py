@@ -28,6 +28,7 @@ from typing import Final
 WINDOW_S: Final = 2.0
 
 SOURCE: Final = r"""
+#include <chrono>
 #include <cmath>
 #include <fstream>
 #include <map>
@@ -102,7 +103,13 @@ static void PollGo()
         }
         std::ostringstream o;
         o.precision(17);
-        o << "{\"go_sim_s\": " << g_goSim << "}\n";
+        // the wall (under dilation: experiment) clock at go: the stacks' clock. The channel's
+        // wall_at_sim0 is read in the first event, after the taps opened, and can be late by
+        // seconds; the daemons' records are aligned to this instead
+        double wall = std::chrono::duration<double>(
+                          std::chrono::system_clock::now().time_since_epoch())
+                          .count();
+        o << "{\"go_sim_s\": " << g_goSim << ", \"go_wall\": " << wall << "}\n";
         WriteAtomic(g_dir + "/go.json", o.str());
         return;
     }

@@ -35,6 +35,7 @@ from typing import Any, Final
 
 BASELINE_S: Final = 10.0
 READINESS_HZ: Final = 1.0
+TOLERANCE_S: Final = 0.5  # the truth's sampling step
 
 Truth = Sequence[tuple[float, Sequence[Sequence[bool]]]]
 Change = tuple[float, int, str]
@@ -153,11 +154,13 @@ def measure(
                 # the return: after a gap i reported (a loss), count the re-discovery
                 if k + 1 < len(runs) and any(a <= t <= runs[k + 1][0] for t in lost_at):
                     back = runs[k + 1][0]
-                    found = [t for t, c in mine if c in UP_KINDS and t >= back]
+                    # the truth is sampled every 0.5 s and the stacks' times are dated by
+                    # a poll: a re-discovery up to TOLERANCE_S before the sample counts as 0
+                    found = [t for t, c in mine if c in UP_KINDS and t >= back - TOLERANCE_S]
                     rejoined.add((min(i, j), max(i, j)))
                     rejoin_times.append(back)
                     if found:
-                        rediscovery.append(found[0] - back)
+                        rediscovery.append(max(0.0, found[0] - back))
                         last = found[0]
                         last_rediscovery = (
                             last if last_rediscovery is None else max(last_rediscovery, last)

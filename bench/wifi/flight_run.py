@@ -247,16 +247,15 @@ def run_flight(
                     drone.stop_children()
                 c.close()
         stats = json.loads((chan / "stats.json").read_text())
-        go_sim = json.loads((fdir / "go.json").read_text())["go_sim_s"]
+        go_info = json.loads((fdir / "go.json").read_text())
         heard = [json.loads(x) for x in (fdir / "heard.jsonl").read_text().splitlines() if x]
         if keep is not None:
             keep.mkdir(parents=True, exist_ok=True)
             for f in (*work.glob("*.log"), log):
                 dest = keep / f"flight-{scenario.name}-{contender}-n{n}-r{run}-{f.name}"
                 dest.write_bytes(f.read_bytes())
-    go_exp = float(stats["wall_at_sim0"]) + float(go_sim)
     return assemble(
-        contender, scenario, run, stats, go_exp, obs, down, restarts, heard,
+        contender, scenario, run, stats, go_info, launch, obs, down, restarts, heard,
         max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
     )  # fmt: skip
 
@@ -266,7 +265,8 @@ def assemble(
     scenario: flight.Scenario,
     run: int,
     stats: Mapping[str, Any],
-    go_exp: float,
+    go_info: Mapping[str, float],
+    launch: float,
     obs: SwarmdObserver,
     down: Mapping[int, Sequence[Sequence[float]]],
     restarts: Sequence[tuple[float, int]],
@@ -278,8 +278,13 @@ def assemble(
     tx_counters: Mapping[str, int],
 ) -> dict[str, Any]:
     window = int(scenario.duration_s)
-    m = metrics.run_measures(stats, launch_wall=go_exp, window_s=window, family="rtps")
-    disc = metrics.frame_series(stats, m["window_start_sim_s"], window, ("rtps_discovery",))
+    # the channel's records by simulation second from go; the stacks' by the clock at go
+    go_sim = float(go_info["go_sim_s"])
+    m = metrics.run_measures(
+        stats, launch_wall=float(stats["wall_at_sim0"]) + go_sim, window_s=window, family="rtps"
+    )
+    disc = metrics.frame_series(stats, int(go_sim), window, ("rtps_discovery",))
+    go_exp = float(go_info.get("go_wall", launch))
     changes = {
         i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v)] for i, v in obs.changes.items()
     }
@@ -324,6 +329,7 @@ def assemble(
         "pps": m["pps"],
         "tx_counters": dict(tx_counters),
         "observer": {"status_polls": obs.polls, "failed_requests": obs.failures},
+        "go": {"sim_s": go_sim, "wall": go_exp, "harness_launch": launch},
         "load_avg_at_start": list(os.getloadavg()),
         "setup": {
             "standard": "802.11g",
