@@ -196,3 +196,12 @@ def test_smoke_one_blackout_run_at_n3(tmp_path: Path) -> None:
     m = run["measures"]
     assert m["rediscovery_s"]["count"] >= 1
     assert any((tmp_path / "runs").glob("*.png"))
+
+
+def test_renewal_following_q_is_a_correlation_per_daemon() -> None:
+    polls = [[float(t), 0, t, 0.9 - 0.1 * t, 2.0 + t, 20.0] for t in range(5)]
+    polls += [[float(t), 1, t, 0.5, 3.0, 20.0] for t in range(5)]  # Q never moved
+    got = flight_measures.renewal_follows_q(polls)
+    assert got["0"]["corr_q_period"] == -1.0  # Q fell as the period grew, step for step
+    assert got["0"]["q"] == [0.5, 0.9] and got["0"]["renewal_period_s"] == [2.0, 6.0]
+    assert got["1"]["corr_q_period"] is None

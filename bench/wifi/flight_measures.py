@@ -248,3 +248,36 @@ def readiness_delivery(
             delivered += max(0, cb - ca)
     ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
+
+
+def _pearson(xs: Sequence[float], ys: Sequence[float]) -> float | None:
+    n = len(xs)
+    if n < 3:
+        return None
+    mx, my = sum(xs) / n, sum(ys) / n
+    sxy = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True))
+    sxx = sum((x - mx) ** 2 for x in xs)
+    syy = sum((y - my) ** 2 for y in ys)
+    if sxx == 0 or syy == 0:
+        return None
+    return round(float(sxy / (sxx * syy) ** 0.5), 3)
+
+
+def renewal_follows_q(polls: Sequence[Sequence[Any]]) -> dict[str, Any]:
+    """Whether each daemon's renewal period followed its link quality: per node the range
+    of Q and of the renewal period it reported, and their correlation over its polls
+    (``polls``: ``[t, node, renewals sent, q, renewal_period_s, advertised_lease_s]``)."""
+    by_node: dict[int, list[tuple[float, float]]] = {}
+    for row in polls:
+        _, node, _, q, period = row[:5]
+        if isinstance(q, int | float) and isinstance(period, int | float):
+            by_node.setdefault(int(node), []).append((float(q), float(period)))
+    out: dict[str, Any] = {}
+    for node, pairs in sorted(by_node.items()):
+        qs, ps = [q for q, _ in pairs], [p for _, p in pairs]
+        out[str(node)] = {
+            "q": [round(min(qs), 3), round(max(qs), 3)],
+            "renewal_period_s": [round(min(ps), 3), round(max(ps), 3)],
+            "corr_q_period": _pearson(qs, ps),
+        }
+    return out

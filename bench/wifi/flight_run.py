@@ -98,7 +98,8 @@ class SwarmdObserver:
         self.index = {name: i for i, name in enumerate(names)}
         self.changes: dict[int, list[tuple[float, int, str]]] = {i: [] for i in range(len(socks))}
         self.readiness: list[tuple[float, dict[int, int]]] = []
-        self.tx_kind: list[tuple[float, dict[str, int]]] = []
+        # per status poll: (t, node, renewals sent, link Q, renewal period, advertised lease)
+        self.renewals: list[tuple[float, int, Any, Any, Any, Any]] = []
         self._seen: dict[int, tuple[int, int]] = {}  # daemon -> (pid, last seq)
         self._next = itertools.cycle(range(len(socks)))
         self.polls = self.failures = 0
@@ -145,8 +146,18 @@ class SwarmdObserver:
             self.changes[i].append((now - float(ago), peer, str(c.get("change"))))
         self._seen[i] = (pid, max(last, int(pc.get("last_seq") or 0)))
         kinds = (st.get("counters") or {}).get("tx_kind")
+        timing, link = st.get("timing") or {}, st.get("link") or {}
         if isinstance(kinds, dict):
-            self.tx_kind.append((now, {"node": i, **kinds}))
+            self.renewals.append(
+                (
+                    now,
+                    i,
+                    kinds.get("renewal"),
+                    link.get("q"),
+                    timing.get("renewal_period_s"),
+                    timing.get("advertised_lease_s"),
+                )
+            )
 
 
 def _restart(c: contenders_mod.Contender, node: int, state: str, env: Mapping[str, str]) -> None:
@@ -289,6 +300,7 @@ def assemble(
         i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v)] for i, v in obs.changes.items()
     }
     readiness = [(round(t - go_exp, 3), table) for t, table in obs.readiness]
+    renewals = [[round(t - go_exp, 3), *rest] for t, *rest in obs.renewals]
     truth = scenario.truth()
     first_move = min((t for t, _, _ in scenario.waypoints if t > 0), default=None)
     if first_move is None and scenario.events:
@@ -298,6 +310,7 @@ def assemble(
         truth, changes, down_t, n=scenario.n, lease_s=LEASE_S, restarts=restarts,
         readiness=readiness, discovery_fps=disc, first_move_s=first_move,
     )  # fmt: skip
+    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals)
     lag_ok = not (m["rt_lag_p99_ms"] > max_lag_ms)
     return {
         "kind": "flight",
@@ -325,6 +338,7 @@ def assemble(
         "changes": {str(i): v for i, v in changes.items()},
         "readiness": [[t, {str(k): v for k, v in table.items()}] for t, table in readiness],
         "heard": [{"t": h["t"], "rx": h["rx"]} for h in heard if h.get("t", -1) >= 0],
+        "renewals": renewals,
         "discovery_fps": disc,
         "pps": m["pps"],
         "tx_counters": dict(tx_counters),
