@@ -110,7 +110,8 @@ def test_measures_of_a_clean_split_and_heal() -> None:
         first_move_s=20.0,
     )  # fmt: skip
     assert m["loss_latency_s"] == {"count": 4, "p50": 21.0, "p90": 21.0, "max": 21.0}
-    assert m["false_losses"] == 0 and m["lost_reports"] == {"real": 4, "false": 0, "dropout": 0}
+    assert m["false_losses"] == 0
+    assert m["lost_reports"] == {"real": 4, "intermittent": 0, "dropout": 0, "false": 0}
     assert m["missed_losses"] == 0 and m["not_rediscovered"] == 0
     assert m["rediscovery_s"]["max"] == 2.0 and m["rediscovery_s"]["count"] == 4
     frames = m["frames_per_rejoining_pair"]
@@ -129,9 +130,17 @@ def test_a_loss_of_a_peer_that_stayed_in_range_is_false_and_a_short_gap_a_dropou
             (26.0, 1, "regained"), (36.0, 2, "lost"), (40.0, 2, "regained")],
     }  # fmt: skip
     m = flight_measures.measure(truth, changes, {}, n=3, lease_s=LEASE)
-    assert m["lost_reports"] == {"real": 0, "false": 1, "dropout": 1}
+    assert m["lost_reports"] == {"real": 0, "intermittent": 0, "dropout": 1, "false": 1}
     assert m["false_loss_examples"] == [[0, 1, 25.0]]
     assert m["loss_latency_s"]["count"] == 0  # no real loss: the gap is shorter than a lease
+
+
+def test_a_loss_inside_a_gap_shorter_than_the_lease_is_intermittent() -> None:
+    truth = _truth((30.0, 38.0))  # out 8 s: the peer flickers at the edge
+    changes = {0: [(1.0, 2, "discovered"), (37.0, 2, "lost"), (39.0, 2, "regained")]}
+    m = flight_measures.measure(truth, changes, {}, n=3, lease_s=LEASE)
+    assert m["lost_reports"]["intermittent"] == 1 and m["lost_reports"]["real"] == 0
+    assert m["rediscovery_s"]["max"] == 1.0
 
 
 def test_a_real_loss_never_reported_is_missed() -> None:
@@ -205,3 +214,29 @@ def test_renewal_following_q_is_a_correlation_per_daemon() -> None:
     assert got["0"]["corr_q_period"] == -1.0  # Q fell as the period grew, step for step
     assert got["0"]["q"] == [0.5, 0.9] and got["0"]["renewal_period_s"] == [2.0, 6.0]
     assert got["1"]["corr_q_period"] is None
+
+
+def test_remeasure_reads_everything_it_needs_from_the_run_file() -> None:
+    """A run file holds its records: the measures can be recomputed from it alone and equal
+    those computed from the same records directly."""
+    s = flight.make("blackout", 3)
+    back = flight.SETTLE_S + 3.0 + flight.BLACKOUT_S
+    changes = {
+        0: [(1.0, 1, "discovered"), (1.0, 2, "discovered"), (50.0, 1, "lost"),
+            (back + 4.0, 1, "regained")],
+    }  # fmt: skip
+    readiness = [(float(t), {1: t, 2: t}) for t in range(int(s.duration_s))]
+    direct = flight_measures.measure(
+        s.truth(), changes, {}, n=3, lease_s=LEASE, readiness=readiness,
+        discovery_fps=[1] * int(s.duration_s), first_move_s=flight.SETTLE_S,
+    )  # fmt: skip
+    run = {
+        "scenario": "blackout", "n": 3, "seed": 1, "lease_s": LEASE,
+        "changes": {str(k): [list(c) for c in v] for k, v in changes.items()},
+        "readiness": [[t, {str(k): v for k, v in table.items()}] for t, table in readiness],
+        "waypoints": [[t, i, *p] for t, i, p in s.waypoints], "events": [],
+        "discovery_fps": [1] * int(s.duration_s),
+    }  # fmt: skip
+    again = flight_report.remeasure(json.loads(json.dumps(run)))
+    assert {k: v for k, v in again.items() if k != "renewal_follows_q"} == direct
+    assert direct["lost_reports"]["real"] == 1 and direct["missed_losses"] == 3

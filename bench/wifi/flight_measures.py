@@ -15,9 +15,11 @@ Definitions (docs/benchmarks.md, "Flight"):
 
 - a *real loss* of j at i starts when j leaves i's range (or j's stack dies) and lasts at
   least the lease; *loss latency* is from its start to i's first ``lost`` of j in it;
-- every ``lost`` report is classed: ``real`` (j out of range or dead at the report),
-  ``false`` (j in range during the whole lease before it: it "stayed in range"), or
-  ``dropout`` (j came back before the report: lost over a gap shorter than the lease);
+- every ``lost`` report is classed: ``real`` (j unreachable at the report, in a gap that
+  lasts at least the lease), ``intermittent`` (j unreachable at the report, but the gap is
+  shorter than the lease: a peer flickering at the edge of range), ``dropout`` (j back in
+  range at the report, but not for the whole lease before it), or ``false`` (j in range
+  during the whole lease before the report: it "stayed in range");
 - *re-discovery latency*: from j's return into i's range (or its stack's restart) to i's
   next ``discovered``/``regained``/``restarted`` of j, for pairs i had reported lost (and,
   for restarts, for every pair);
@@ -81,8 +83,14 @@ def _value_at(samples: Sequence[tuple[float, bool]], t: float) -> bool:
 
 
 def classify_loss(samples: Sequence[tuple[float, bool]], t: float, lease_s: float) -> str:
-    """``real`` | ``false`` | ``dropout`` for a ``lost`` reported at ``t`` (module doc)."""
+    """``real`` | ``intermittent`` | ``dropout`` | ``false`` for a ``lost`` reported at
+    ``t`` (module doc)."""
     if not _value_at(samples, t):
+        for a, b, up in spans(samples):
+            if not up and a <= t <= b:
+                last = samples[-1][0] if samples else b
+                # a gap still open when the run ends may be longer than we saw
+                return "real" if b - a >= lease_s or b >= last else "intermittent"
         return "real"
     window = [v for st, v in samples if t - lease_s <= st <= t]
     return "false" if window and all(window) else "dropout"
@@ -120,7 +128,7 @@ def measure(
     """Every measure of one run (module doc); JSON-ready."""
     loss_latency: list[float] = []
     missed_losses = 0
-    classes = {"real": 0, "false": 0, "dropout": 0}
+    classes = {"real": 0, "intermittent": 0, "dropout": 0, "false": 0}
     false_pairs: list[list[Any]] = []
     rediscovery: list[float] = []
     not_rediscovered = 0

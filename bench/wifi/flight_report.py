@@ -118,11 +118,39 @@ def timeline(run: Mapping[str, Any], out: Path) -> Path:
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("runs", nargs="+", type=Path)
+    p.add_argument(
+        "--remeasure",
+        action="store_true",
+        help="recompute each run file's measures from its own records and rewrite it",
+    )
     args = p.parse_args(argv)
     for path in args.runs:
         run = json.loads(path.read_text())
+        if args.remeasure:
+            run["measures"] = remeasure(run)
+            path.write_text(json.dumps(run) + "\n")
         print(timeline(run, path.with_suffix(".png")))
     return 0
+
+
+def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
+    """The measures of a run file from its records alone (the scenario from its seed)."""
+    from bench.wifi import flight
+
+    scenario = flight.make(run["scenario"], run["n"], run["seed"])
+    changes = {int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()}
+    down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
+    readiness = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
+    first_move = min((w[0] for w in run["waypoints"] if w[0] > 0), default=None)
+    if first_move is None and run.get("events"):
+        first_move = min(e[0] for e in run["events"])
+    measures = flight_measures.measure(
+        scenario.truth(), changes, down, n=run["n"], lease_s=run["lease_s"],
+        restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
+        discovery_fps=run["discovery_fps"], first_move_s=first_move,
+    )  # fmt: skip
+    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(run.get("renewals", []))
+    return measures
 
 
 if __name__ == "__main__":
