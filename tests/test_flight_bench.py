@@ -240,3 +240,18 @@ def test_remeasure_reads_everything_it_needs_from_the_run_file() -> None:
     again = flight_report.remeasure(json.loads(json.dumps(run)))
     assert {k: v for k, v in again.items() if k != "renewal_follows_q"} == direct
     assert direct["lost_reports"]["real"] == 1 and direct["missed_losses"] == 3
+
+
+def test_the_markdown_table_has_a_row_per_run_in_scenario_order() -> None:
+    s = flight.make("split", 3)
+    m = flight_measures.measure(s.truth(), {}, {}, n=3, lease_s=LEASE)
+    base = {"contender": "swarmd", "n": 3, "valid": True, "rt_lag_p99_ms": 0.5, "measures": m}
+    runs = [
+        {**base, "scenario": "split", "run": 2},
+        {**base, "scenario": "fly-out", "run": 1, "valid": False},
+    ]
+    lines = flight_report.table(runs)
+    assert len(lines) == 4 and lines[1].startswith("|---|")
+    assert lines[2].startswith("| fly-out | swarmd | 3 | 1 | NO (0.50 ms)")
+    assert lines[3].startswith("| split | swarmd | 3 | 2 | yes")
+    assert all(line.count("|") == lines[0].count("|") for line in lines)

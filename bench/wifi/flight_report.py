@@ -115,6 +115,43 @@ def timeline(run: Mapping[str, Any], out: Path) -> Path:
     return out
 
 
+def _v(value: Any, unit: str = "") -> str:
+    return "-" if value is None else f"{value:g}{unit}"
+
+
+def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One markdown row per run: validity and every measure (docs/benchmarks.md "Flight")."""
+    head = (
+        "| scenario | contender | N | run | valid (lag p99) | loss latency p50 / max | "
+        "missed | lost: real / intermittent / dropout / false | re-discovery p50 / max | "
+        "not re-discovered | reboot seen by peers / finds peers (max) | "
+        "frames per rejoining pair (above steady) | readiness delivery |"
+    )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    order = {name: k for k, name in enumerate(("fly-out", "fade", "split", "reboot", "blackout"))}
+    for r in sorted(runs, key=lambda x: (order.get(x["scenario"], 9), x["n"], x["run"])):
+        m = r["measures"]
+        lr = m["lost_reports"]
+        fr = m["frames_per_rejoining_pair"]
+        rd = m["readiness_delivery"]
+        frames = (
+            f"{fr['per_pair']:g} ({_v(fr.get('excess_per_pair'))})" if "per_pair" in fr else "-"
+        )
+        lines.append(
+            f"| {r['scenario']} | {r['contender']} | {r['n']} | {r['run']} | "
+            f"{'yes' if r['valid'] else 'NO'} ({r['rt_lag_p99_ms']:.2f} ms) | "
+            f"{_v(m['loss_latency_s']['p50'], ' s')} / {_v(m['loss_latency_s']['max'], ' s')} | "
+            f"{m['missed_losses']} | {lr['real']} / {lr.get('intermittent', 0)} / "
+            f"{lr['dropout']} / {lr['false']} | "
+            f"{_v(m['rediscovery_s']['p50'], ' s')} / {_v(m['rediscovery_s']['max'], ' s')} | "
+            f"{m['not_rediscovered']} | {_v(m['reboot_seen_by_peers_s']['max'], ' s')} / "
+            f"{_v(m['reboot_finds_peers_s']['max'], ' s')} | {frames} | "
+            f"{_v(None if rd['ratio'] is None else round(100 * rd['ratio'], 1), ' %')} "
+            f"({rd['delivered']}/{rd['expected']}) |"
+        )
+    return lines
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("runs", nargs="+", type=Path)
@@ -123,14 +160,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="recompute each run file's measures from its own records and rewrite it",
     )
+    p.add_argument(
+        "--table", action="store_true", help="print the runs as a markdown table, draw nothing"
+    )
     args = p.parse_args(argv)
+    if args.table:
+        runs = [json.loads(path.read_text()) for path in args.runs]
+        print("\n".join(table(runs)))
+        return 0
     for path in args.runs:
         run = json.loads(path.read_text())
         if args.remeasure:
             run["measures"] = remeasure(run)
+            run["heard"] = compact_heard(run.get("heard", []))
             path.write_text(json.dumps(run) + "\n")
         print(timeline(run, path.with_suffix(".png")))
     return 0
+
+
+def compact_heard(heard: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """``heard`` records with signals rounded to 0.1 dB (a run file of N=20 stays small)."""
+    return [
+        {"t": round(h["t"], 3), "rx": [{k: round(v, 1) for k, v in rx.items()} for rx in h["rx"]]}
+        for h in heard
+    ]
 
 
 def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:

@@ -337,7 +337,7 @@ def assemble(
         "restarts": [list(r) for r in restarts],
         "changes": {str(i): v for i, v in changes.items()},
         "readiness": [[t, {str(k): v for k, v in table.items()}] for t, table in readiness],
-        "heard": [{"t": h["t"], "rx": h["rx"]} for h in heard if h.get("t", -1) >= 0],
+        "heard": flight_report.compact_heard([h for h in heard if h.get("t", -1) >= 0]),
         "renewals": renewals,
         "discovery_fps": disc,
         "pps": m["pps"],
