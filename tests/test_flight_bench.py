@@ -214,6 +214,9 @@ def test_renewal_following_q_is_a_correlation_per_daemon() -> None:
     assert got["0"]["corr_q_period"] == -1.0  # Q fell as the period grew, step for step
     assert got["0"]["q"] == [0.5, 0.9] and got["0"]["renewal_period_s"] == [2.0, 6.0]
     assert got["1"]["corr_q_period"] is None
+    # the start-up polls (Q 0 before any frame) are left out from ``since_s`` on
+    late = flight_measures.renewal_follows_q([[0.0, 2, 0, 0.0, 5.0, 20.0], *polls], 0.5)
+    assert "2" not in late and late["0"]["q"] == [0.5, 0.8]
 
 
 def test_remeasure_reads_everything_it_needs_from_the_run_file() -> None:

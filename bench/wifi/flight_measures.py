@@ -271,13 +271,17 @@ def _pearson(xs: Sequence[float], ys: Sequence[float]) -> float | None:
     return round(float(sxy / (sxx * syy) ** 0.5), 3)
 
 
-def renewal_follows_q(polls: Sequence[Sequence[Any]]) -> dict[str, Any]:
+def renewal_follows_q(polls: Sequence[Sequence[Any]], since_s: float = 0.0) -> dict[str, Any]:
     """Whether each daemon's renewal period followed its link quality: per node the range
-    of Q and of the renewal period it reported, and their correlation over its polls
-    (``polls``: ``[t, node, renewals sent, q, renewal_period_s, advertised_lease_s]``)."""
+    of Q and of the renewal period it reported, and their correlation over its polls from
+    ``since_s`` on (``polls``: ``[t, node, renewals sent, q, renewal_period_s,
+    advertised_lease_s]``). Pass the first move: before any frame is heard a flight link
+    file reads Q 0, and those start-up polls alone would make a correlation."""
     by_node: dict[int, list[tuple[float, float]]] = {}
     for row in polls:
-        _, node, _, q, period = row[:5]
+        t, node, _, q, period = row[:5]
+        if t < since_s:
+            continue
         if isinstance(q, int | float) and isinstance(period, int | float):
             by_node.setdefault(int(node), []).append((float(q), float(period)))
     out: dict[str, Any] = {}

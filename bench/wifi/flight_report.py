@@ -202,7 +202,9 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
         restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
         discovery_fps=run["discovery_fps"], first_move_s=first_move,
     )  # fmt: skip
-    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(run.get("renewals", []))
+    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
+        run.get("renewals", []), first_move or 0.0
+    )
     return measures
 
 

@@ -310,7 +310,7 @@ def assemble(
         truth, changes, down_t, n=scenario.n, lease_s=LEASE_S, restarts=restarts,
         readiness=readiness, discovery_fps=disc, first_move_s=first_move,
     )  # fmt: skip
-    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals)
+    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals, first_move or 0.0)
     lag_ok = not (m["rt_lag_p99_ms"] > max_lag_ms)
     return {
         "kind": "flight",
