@@ -186,7 +186,7 @@ def test_the_timeline_figure_is_drawn_from_the_run_file_alone(tmp_path: Path) ->
 
 @pytest.mark.skipif(
     os.environ.get("SWARMD_FLIGHT_SMOKE") != "1",
-    reason="one real flight run takes about 3 min (ns-3 set-up, a 106 s scenario at the "
+    reason="one real flight run takes 2-3 min (ns-3 set-up, a 106 s scenario at the "
     "paper's 20 s lease); set SWARMD_FLIGHT_SMOKE=1 to run it",
 )
 def test_smoke_one_blackout_run_at_n3(tmp_path: Path) -> None:
