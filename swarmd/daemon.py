@@ -72,6 +72,7 @@ from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
+from swarmd.peerlog import PeerChangeKind, PeerHistory
 from swarmd.px4.transport import PX4_SOCKET, XRCE_SOCKET, parse_connection
 from swarmd.ros2app import Ros2App
 from swarmd.rtps.types import GuidPrefix
@@ -315,6 +316,8 @@ class Daemon:
         self.counters: dict[str, int] = {}
         self.engine: DiscoveryEngine | None = None
         self.stopped = asyncio.Event()
+        # lost/regained/restarted peers for the operator in flight (swarmctl watch)
+        self.peer_history = PeerHistory()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transports: dict[str, BatchedSocket] = {}
         self.driver: Driver[bytes, Datagram, Event] | None = None
@@ -618,6 +621,7 @@ class Daemon:
                 self.log.info(
                     "peer_discovered", peer=name, via=via, matched=len(matches), epoch=epoch
                 )
+                self._record_change(event.guid_prefix, name, PeerChangeKind.DISCOVERED, via)
                 if self.app is not None and epoch is not None:  # None only without auth
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
                 self._ros2_peer(name, event.guid_prefix)
@@ -629,12 +633,14 @@ class Daemon:
                 self._ros2_peer(name, event.guid_prefix)
             case PeerRestarted(name=name, epoch=epoch, previous_epoch=previous):
                 self.log.info("peer_restarted", peer=name, epoch=epoch, previous_epoch=previous)
+                self._record_change(event.guid_prefix, name, PeerChangeKind.RESTARTED, None)
                 # its data-plane state belongs to its earlier life: the plane resets it
                 if self.app is not None:
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
                 self._ros2_peer(name, event.guid_prefix)
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
+                self._record_change(event.guid_prefix, name, PeerChangeKind.LOST, reason)
                 if self.app is not None:
                     self.app.peer_down(name)
                 if self.ros2 is not None and name is not None:
@@ -661,6 +667,21 @@ class Daemon:
         ROS 2 nodes at the address discovery has for it."""
         if self.ros2 is not None:
             self.ros2.peer_up(name, self._peer_ipv4(prefix))
+
+    def _record_change(
+        self, prefix: GuidPrefix, name: str, kind: PeerChangeKind, reason: str | None
+    ) -> None:
+        """Keep the change for ``swarmctl watch`` with the peer's advertised link quality and
+        how long it had been silent (its view at the event: one O(1) lookup per change)."""
+        view = self._core().peer(prefix)
+        self.peer_history.record(
+            self._drive().now(),
+            name,
+            kind,
+            reason=reason,
+            link_quality_permille=None if view is None else view.link_quality_permille,
+            last_heard=None if view is None else view.last_heard,
+        )
 
     def _peer_traffic(self, name: str) -> None:
         """A peer's user data passed its MAC: discovery takes it as the peer's liveliness
@@ -743,6 +764,22 @@ class Daemon:
         engine, now = self._core(), self._drive().now()
         st = dict(engine.status(now))
         st["node"] = self.config.node
+        # per peer: the link quality it advertises (its own Q, from its latest DATA(p)) and how
+        # often it was (re)discovered; the last changes for the operator in flight
+        views = {v.name: v for v in engine.peers()}
+        peers = []
+        for row in st.get("peers") or []:
+            view = views.get(row.get("name"))
+            q = None if view is None else view.link_quality_permille
+            peers.append(
+                {
+                    **row,
+                    "link_q": None if q is None else q / 1000,
+                    "times_discovered": 0 if view is None else view.times_discovered,
+                }
+            )
+        st["peers"] = peers
+        st["peer_changes"] = self.peer_history.status(now)
         latest: LinkSample | None = self.monitor.latest
         link = dict(st.get("link") or {})
         if latest is not None:

@@ -59,6 +59,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     "sdnotify": frozenset(),
     # sd_listen_fds(3): the sockets systemd bound for us (swarmd-px4.socket)
     "sdlisten": frozenset(),
+    # the daemon's ring of peer changes for swarmctl watch (sans-IO, a leaf)
+    "peerlog": frozenset(),
     # batched UDP reads (daemon tier): the SPDP sockets' and the user-data socket's
     "udp": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
@@ -73,7 +75,18 @@ ALLOWED: dict[str, frozenset[str]] = {
     "ros2app": CORE | {"ros2", "config", "driver", "udp"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
-    | {"config", "control", "driver", "logs", "sdlisten", "sdnotify", "swarmapp", "ros2app", "udp"},
+    | {
+        "config",
+        "control",
+        "driver",
+        "logs",
+        "peerlog",
+        "sdlisten",
+        "sdnotify",
+        "swarmapp",
+        "ros2app",
+        "udp",
+    },
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"}

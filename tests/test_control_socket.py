@@ -40,6 +40,7 @@ STATUS: dict[str, Any] = {
             "state": "discovered",
             "guid": "5357aabbccddeeff00000002:1c1",
             "last_heard_s": 0.4,
+            "link_q": 0.42,
             "locator": "udp/10.0.0.2:7414",
             "matched_endpoints": 2,
             "lists_me": True,
@@ -214,6 +215,7 @@ def test_render_status_table() -> None:
         "STATE",
         "LAST",
         "HEARD",
+        "Q",
         "LOCATOR",
         "ENDPOINTS",
         "HEARS",
@@ -225,11 +227,12 @@ def test_render_status_table() -> None:
         "0.4",
         "s",
         "ago",
+        "0.42",
         "udp/10.0.0.2:7414",
         "2",
         "yes",
     ]
-    assert lines[6].split() == ["uav3", "undiscovered", "-", "-", "0", "no"]
+    assert lines[6].split() == ["uav3", "undiscovered", "-", "-", "-", "0", "no"]
     assert lines[7] == "foreign participants 1"
     assert lines[9].split() == ["0110aabb:1c1", "Eclipse", "Cyclone", "DDS", "-"]
     assert lines[10] == (

@@ -29,6 +29,8 @@ from swarmd.terminal import safe_tree
 
 SOCKET_ENV: Final = "SWARMD_SOCKET"
 CLEAR_SCREEN: Final = "\x1b[H\x1b[2J"
+WATCH_LOG_LINES: Final = 20  # peer changes kept under a redrawn watch screen
+RECENT_CHANGES: Final = 5  # peer changes shown at the end of ``status``'s discovery part
 
 
 def register(sub: Any) -> None:
@@ -96,13 +98,23 @@ def _peers(args: argparse.Namespace) -> int:
 def _watch(args: argparse.Namespace) -> int:
     frames = 0
     tty = sys.stdout.isatty()
+    shown_seq: int | None = None  # the newest peer change already printed
+    log: list[str] = []  # on a terminal the screen is redrawn: keep the changes under it
     try:
         with ControlClient(args.socket) as client:
             while True:
                 status = client.request("status")
+                fresh, shown_seq = new_peer_changes(status, shown_seq, time.time())
                 if tty and not args.json:
                     sys.stdout.write(CLEAR_SCREEN)
                 _print_status(status, args.json, sys.stdout, compact_json=True)
+                if not args.json and fresh:
+                    log = (log + fresh)[-WATCH_LOG_LINES:]
+                    if not tty:  # a pipe or a file: each change once, as it happens
+                        sys.stdout.write("".join(f"peer change: {ln}\n" for ln in fresh))
+                if tty and not args.json and log:
+                    sys.stdout.write("peer changes while watching:\n")
+                    sys.stdout.write("".join(f"  {ln}\n" for ln in log))
                 sys.stdout.flush()
                 frames += 1
                 if args.count and frames >= args.count:
@@ -116,6 +128,28 @@ def _watch(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     except KeyboardInterrupt:
         return EX_OK
+
+
+def new_peer_changes(
+    status: Any, shown_seq: int | None, wall_now: float
+) -> tuple[list[str], int | None]:
+    """The lines of the peer changes newer than ``shown_seq`` and the new high-water mark.
+
+    The first frame (``shown_seq`` None) prints nothing new: ``status`` already lists the
+    recent ones. A daemon restarted under the watch numbers from 1 again: its whole ring is
+    new."""
+    changes = status.get("peer_changes") if isinstance(status, dict) else None
+    if not isinstance(changes, dict):
+        return [], shown_seq
+    last = changes.get("last_seq")
+    if isinstance(last, bool) or not isinstance(last, int):
+        return [], shown_seq
+    if shown_seq is None:
+        return [], last
+    after = shown_seq if last >= shown_seq else 0
+    rows = changes.get("changes")
+    lines = render_peer_changes(rows if isinstance(rows, list) else [], wall_now, after_seq=after)
+    return lines, last
 
 
 def _print_status(status: Any, as_json: bool, out: TextIO, *, compact_json: bool = False) -> None:
@@ -165,21 +199,58 @@ def _render_peers(peers: Sequence[Any]) -> list[str]:
                 str(p.get("name", "?")),
                 str(p.get("state", "?")),
                 _num(p.get("last_heard_s"), ".1f", " s ago"),
+                _num(p.get("link_q"), ".2f"),
                 str(p.get("locator") or "-"),
                 _num(p.get("matched_endpoints"), "d"),
                 _yes_no(p.get("lists_me")),
             ]
         )
-    return table(["PEER", "STATE", "LAST HEARD", "LOCATOR", "ENDPOINTS", "HEARS ME"], rows)
+    return table(["PEER", "STATE", "LAST HEARD", "Q", "LOCATOR", "ENDPOINTS", "HEARS ME"], rows)
 
 
-def render_status(status: dict[str, Any]) -> list[str]:
+def _clock(ago_s: Any, wall_now: float) -> str:
+    """The wall-clock time ``ago_s`` before ``wall_now`` (this host's local time)."""
+    if isinstance(ago_s, bool) or not isinstance(ago_s, int | float):
+        return "--:--:--"
+    return time.strftime("%H:%M:%S", time.localtime(wall_now - ago_s))
+
+
+def render_peer_changes(
+    changes: Sequence[Any], wall_now: float, *, after_seq: int = 0
+) -> list[str]:
+    """One line per peer change newer than ``after_seq``: when, who, lost/regained/restarted,
+    why, the link quality it advertised and how long it had been silent (made safe)."""
+    return _render_peer_changes(safe_tree(list(changes)), wall_now, after_seq)
+
+
+def _render_peer_changes(changes: Sequence[Any], wall_now: float, after_seq: int) -> list[str]:
+    lines = []
+    for c in changes:
+        if not isinstance(c, dict):
+            continue
+        seq = c.get("seq")
+        if isinstance(seq, int) and seq <= after_seq:
+            continue
+        kind = str(c.get("change", "?"))
+        reason = c.get("reason")
+        line = f"{_clock(c.get('ago_s'), wall_now)}  {c.get('peer', '?')} {kind.upper()}"
+        if reason:
+            line += f" ({reason})"
+        line += f"  Q {_num(c.get('link_q'), '.2f')}"
+        if kind == "lost" and c.get("silent_s") is not None:
+            line += f"  last heard {_num(c.get('silent_s'), '.1f', ' s')} before"
+        lines.append(line)
+    return lines
+
+
+def render_status(status: dict[str, Any], wall_now: float | None = None) -> list[str]:
     """The human view of ``swarmctl status``; every string in ``status`` is made safe for a
-    terminal first (``terminal.safe_tree``)."""
-    return _render_status(safe_tree(status))
+    terminal first (``terminal.safe_tree``). ``wall_now`` dates the peer changes (default:
+    this host's clock now)."""
+    return _render_status(safe_tree(status), time.time() if wall_now is None else wall_now)
 
 
-def _render_status(status: dict[str, Any]) -> list[str]:
+def _render_status(status: dict[str, Any], wall_now: float) -> list[str]:
     link = status.get("link") or {}
     lines = [
         f"node {status.get('node', '?')}  swarm {status.get('swarm', '?')}  "
@@ -207,6 +278,15 @@ def _render_status(status: dict[str, Any]) -> list[str]:
         lines += table(["GUID", "VENDOR", "NAME"], rows)
     lines += render_ros2(status.get("ros2"))
     lines.append(render_counters(status.get("counters") or {}))
+    changes = status.get("peer_changes")
+    if isinstance(changes, dict) and isinstance(changes.get("changes"), list):
+        recent = changes["changes"][-RECENT_CHANGES:]
+        lines.append(
+            f"peer changes: lost {_num(changes.get('lost'), 'd')}, "
+            f"regained {_num(changes.get('regained'), 'd')}"
+            + (f"; last {len(recent)}:" if recent else "")
+        )
+        lines += ["  " + ln for ln in _render_peer_changes(recent, wall_now, 0)]
     lines += render_swarm(status)
     return lines
 

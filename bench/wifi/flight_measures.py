@@ -1,0 +1,295 @@
+"""The measures of a flight run (issue 20), pure: from the run file's records to numbers.
+
+Inputs (all times in seconds since the go signal, which is the stacks' start release):
+
+- ``truth``: the scenario's ground truth, ``[(t, in_range[i][j])]`` every 0.5 s
+  (``bench/wifi/flight.py``);
+- ``changes[i]``: what drone i's stack reported, ``(t, peer index, change)`` with change
+  ``discovered | regained | lost | restarted`` (swarmd: its ``status.peer_changes``, each
+  dated by the daemon's own ``ago_s``);
+- ``down[i]``: the intervals during which drone i's stack was not running (reboots);
+- ``readiness``: the commander's polled table, ``(t, {member index: samples received})``;
+- ``discovery_fps``: discovery-class frames on the channel per second since go.
+
+Definitions (docs/benchmarks.md, "Flight"):
+
+- a *real loss* of j at i starts when j leaves i's range (or j's stack dies) and lasts at
+  least the lease; *loss latency* is from its start to i's first ``lost`` of j in it;
+- every ``lost`` report is classed: ``real`` (j unreachable at the report, in a gap that
+  lasts at least the lease), ``intermittent`` (j unreachable at the report, but the gap is
+  shorter than the lease: a peer flickering at the edge of range), ``dropout`` (j back in
+  range at the report, but not for the whole lease before it), or ``false`` (j in range
+  during the whole lease before the report: it "stayed in range");
+- *re-discovery latency*: from j's return into i's range (or its stack's restart) to i's
+  next ``discovered``/``regained``/``restarted`` of j, for pairs i had reported lost (and,
+  for restarts, for every pair);
+- *frames per rejoining pair*: the channel's discovery frames from the first return to
+  the last re-discovery (+1 s), over the pairs that rejoined; also above the steady rate
+  measured in the ``BASELINE_S`` before the first move;
+- *readiness delivery*: samples the commander received from members while in its range
+  and up, over 1 Hz times that time, counted from the commander's first discovery of each.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, Final
+
+BASELINE_S: Final = 10.0
+READINESS_HZ: Final = 1.0
+TOLERANCE_S: Final = 0.5  # the truth's sampling step
+
+Truth = Sequence[tuple[float, Sequence[Sequence[bool]]]]
+Change = tuple[float, int, str]
+Interval = tuple[float, float]
+
+UP_KINDS: Final = frozenset({"discovered", "regained", "restarted"})
+
+
+def _dead(down: Sequence[Interval], t: float) -> bool:
+    return any(a <= t < b for a, b in down)
+
+
+def reachable(
+    truth: Truth, down: Mapping[int, Sequence[Interval]], i: int, j: int
+) -> list[tuple[float, bool]]:
+    """Per truth sample: whether j can be heard by i (in range and both stacks up)."""
+    return [
+        (t, bool(m[i][j]) and not _dead(down.get(i, ()), t) and not _dead(down.get(j, ()), t))
+        for t, m in truth
+    ]
+
+
+def spans(samples: Sequence[tuple[float, bool]]) -> list[tuple[float, float, bool]]:
+    """Runs of equal value: ``(start, end, value)``; the last ends at the last sample."""
+    out: list[tuple[float, float, bool]] = []
+    for t, v in samples:
+        if out and out[-1][2] == v:
+            out[-1] = (out[-1][0], t, v)
+        else:
+            if out:
+                out[-1] = (out[-1][0], t, out[-1][2])
+            out.append((t, t, v))
+    return out
+
+
+def _value_at(samples: Sequence[tuple[float, bool]], t: float) -> bool:
+    value = samples[0][1] if samples else False
+    for st, v in samples:
+        if st > t:
+            break
+        value = v
+    return value
+
+
+def classify_loss(samples: Sequence[tuple[float, bool]], t: float, lease_s: float) -> str:
+    """``real`` | ``intermittent`` | ``dropout`` | ``false`` for a ``lost`` reported at
+    ``t`` (module doc)."""
+    if not _value_at(samples, t):
+        for a, b, up in spans(samples):
+            if not up and a <= t <= b:
+                last = samples[-1][0] if samples else b
+                # a gap still open when the run ends may be longer than we saw
+                return "real" if b - a >= lease_s or b >= last else "intermittent"
+        return "real"
+    window = [v for st, v in samples if t - lease_s <= st <= t]
+    return "false" if window and all(window) else "dropout"
+
+
+def _pct(values: Sequence[float], q: float) -> float | None:
+    if not values:
+        return None
+    s = sorted(values)
+    k = min(len(s) - 1, max(0, round(q / 100 * (len(s) - 1))))
+    return round(s[k], 3)
+
+
+def _summary(values: Sequence[float]) -> dict[str, Any]:
+    return {
+        "count": len(values),
+        "p50": _pct(values, 50),
+        "p90": _pct(values, 90),
+        "max": None if not values else round(max(values), 3),
+    }
+
+
+def measure(
+    truth: Truth,
+    changes: Mapping[int, Sequence[Change]],
+    down: Mapping[int, Sequence[Interval]],
+    *,
+    n: int,
+    lease_s: float,
+    restarts: Sequence[tuple[float, int]] = (),
+    readiness: Sequence[tuple[float, Mapping[int, int]]] = (),
+    discovery_fps: Sequence[int] = (),
+    first_move_s: float | None = None,
+) -> dict[str, Any]:
+    """Every measure of one run (module doc); JSON-ready."""
+    loss_latency: list[float] = []
+    missed_losses = 0
+    classes = {"real": 0, "intermittent": 0, "dropout": 0, "false": 0}
+    false_pairs: list[list[Any]] = []
+    rediscovery: list[float] = []
+    not_rediscovered = 0
+    rejoined: set[tuple[int, int]] = set()
+    rejoin_times: list[float] = []
+    last_rediscovery: float | None = None
+    end = truth[-1][0] if truth else 0.0
+    for i in range(n):
+        own = sorted(changes.get(i, ()))
+        for j in range(n):
+            if i == j:
+                continue
+            samples = reachable(truth, down, i, j)
+            mine = [(t, c) for t, p, c in own if p == j]
+            lost_at = [t for t, c in mine if c == "lost"]
+            for t in lost_at:
+                kind = classify_loss(samples, t, lease_s)
+                classes[kind] += 1
+                if kind == "false":
+                    false_pairs.append([i, j, round(t, 2)])
+            runs = spans(samples)
+            for k, (a, b, up) in enumerate(runs):
+                if up or _dead(down.get(i, ()), a):
+                    continue  # i's own death is not i losing j
+                if b - a >= lease_s:
+                    hit = [t for t in lost_at if a <= t <= b + 1.0]
+                    if hit:
+                        loss_latency.append(hit[0] - a)
+                    else:
+                        missed_losses += 1
+                # the return: after a gap i reported (a loss), count the re-discovery
+                if k + 1 < len(runs) and any(a <= t <= runs[k + 1][0] for t in lost_at):
+                    back = runs[k + 1][0]
+                    # the truth is sampled every 0.5 s and the stacks' times are dated by
+                    # a poll: a re-discovery up to TOLERANCE_S before the sample counts as 0
+                    found = [t for t, c in mine if c in UP_KINDS and t >= back - TOLERANCE_S]
+                    rejoined.add((min(i, j), max(i, j)))
+                    rejoin_times.append(back)
+                    if found:
+                        rediscovery.append(max(0.0, found[0] - back))
+                        last = found[0]
+                        last_rediscovery = (
+                            last if last_rediscovery is None else max(last_rediscovery, last)
+                        )
+                    else:
+                        not_rediscovered += 1
+    # restarts: every peer sees the new life; the new life finds every peer in range
+    reboot_seen: list[float] = []
+    reboot_finds: list[float] = []
+    for r, node in restarts:
+        for i in range(n):
+            if i == node:
+                continue
+            seen = [t for t, p, c in changes.get(i, ()) if p == node and c in UP_KINDS and t >= r]
+            if seen:
+                reboot_seen.append(min(seen) - r)
+            finds = [t for t, p, c in changes.get(node, ()) if p == i and c in UP_KINDS and t >= r]
+            if finds:
+                reboot_finds.append(min(finds) - r)
+    frames: dict[str, Any] = {"pairs": len(rejoined)}
+    if rejoined and rejoin_times and last_rediscovery is not None and discovery_fps:
+        a, b = int(min(rejoin_times)), min(len(discovery_fps), int(last_rediscovery) + 2)
+        spent = sum(discovery_fps[a:b])
+        frames.update(window_s=[a, b], frames=spent, per_pair=round(spent / len(rejoined), 2))
+        if first_move_s is not None:
+            s0 = max(0, int(first_move_s - BASELINE_S))
+            base = discovery_fps[s0 : int(first_move_s)]
+            if base:
+                rate = sum(base) / len(base)
+                excess = spent - rate * (b - a)
+                frames.update(
+                    steady_fps=round(rate, 2),
+                    excess_per_pair=round(excess / len(rejoined), 2),
+                )
+    return {
+        "loss_latency_s": _summary(loss_latency),
+        "missed_losses": missed_losses,
+        "lost_reports": classes,
+        "false_losses": classes["false"],
+        "false_loss_examples": false_pairs[:10],
+        "rediscovery_s": _summary(rediscovery),
+        "not_rediscovered": not_rediscovered,
+        "reboot_seen_by_peers_s": _summary(reboot_seen),
+        "reboot_finds_peers_s": _summary(reboot_finds),
+        "frames_per_rejoining_pair": frames,
+        "readiness_delivery": readiness_delivery(truth, down, changes, readiness, n, end),
+    }
+
+
+def readiness_delivery(
+    truth: Truth,
+    down: Mapping[int, Sequence[Interval]],
+    changes: Mapping[int, Sequence[Change]],
+    readiness: Sequence[tuple[float, Mapping[int, int]]],
+    n: int,
+    end: float,
+) -> dict[str, Any]:
+    """Samples received by the commander (node 0) from members in its range (module doc)."""
+    if not readiness:
+        return {"expected": 0, "delivered": 0, "ratio": None}
+    expected = delivered = 0.0
+
+    def count_at(m: int, t: float) -> int | None:
+        best = None
+        for pt, table in readiness:
+            if pt > t:
+                break
+            if m in table:
+                best = table[m]
+        return best
+
+    for m in range(1, n):
+        first = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
+        if not first:
+            continue
+        start = min(first)
+        for a, b, up in spans(reachable(truth, down, 0, m)):
+            a, b = max(a, start), min(b, end, readiness[-1][0])
+            if not up or b - a < 2.0:
+                continue
+            ca, cb = count_at(m, a), count_at(m, b)
+            if ca is None or cb is None:
+                continue
+            expected += (b - a) * READINESS_HZ
+            delivered += max(0, cb - ca)
+    ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
+    return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
+
+
+def _pearson(xs: Sequence[float], ys: Sequence[float]) -> float | None:
+    n = len(xs)
+    if n < 3:
+        return None
+    mx, my = sum(xs) / n, sum(ys) / n
+    sxy = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True))
+    sxx = sum((x - mx) ** 2 for x in xs)
+    syy = sum((y - my) ** 2 for y in ys)
+    if sxx == 0 or syy == 0:
+        return None
+    return round(float(sxy / (sxx * syy) ** 0.5), 3)
+
+
+def renewal_follows_q(polls: Sequence[Sequence[Any]], since_s: float = 0.0) -> dict[str, Any]:
+    """Whether each daemon's renewal period followed its link quality: per node the range
+    of Q and of the renewal period it reported, and their correlation over its polls from
+    ``since_s`` on (``polls``: ``[t, node, renewals sent, q, renewal_period_s,
+    advertised_lease_s]``). Pass the first move: before any frame is heard a flight link
+    file reads Q 0, and those start-up polls alone would make a correlation."""
+    by_node: dict[int, list[tuple[float, float]]] = {}
+    for row in polls:
+        t, node, _, q, period = row[:5]
+        if t < since_s:
+            continue
+        if isinstance(q, int | float) and isinstance(period, int | float):
+            by_node.setdefault(int(node), []).append((float(q), float(period)))
+    out: dict[str, Any] = {}
+    for node, pairs in sorted(by_node.items()):
+        qs, ps = [q for q, _ in pairs], [p for _, p in pairs]
+        out[str(node)] = {
+            "q": [round(min(qs), 3), round(max(qs), 3)],
+            "renewal_period_s": [round(min(ps), 3), round(max(ps), 3)],
+            "corr_q_period": _pearson(qs, ps),
+        }
+    return out

@@ -1,0 +1,212 @@
+"""The timeline figure of a flight run, from its run file alone (issue 20).
+
+    .venv/bin/python -m bench.wifi.flight_report bench/results/flight/runs/*.json
+
+Top: who sees whom. One row per ordered pair (observer i, peer j), one column per 0.5 s:
+green where i lists j as discovered and j is in i's range (ground truth), light grey where
+j is in range but i does not list it (not yet discovered, or lost while reachable), red
+where i still lists j although j is out of range or its stack is down (a loss not yet
+noticed: at most a lease is expected), white where j is out of range and not listed.
+Bottom: each drone's link quality as its radio saw it: the SNR of the frames it received
+in each second (mean over the transmitters heard; ns-3's ``MonitorSnifferRx``, the same
+frames its link file averages). The scenario's phases are shaded in both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from bench.wifi import flight_measures
+
+NOISE_DBM = -94.0
+UP = frozenset({"discovered", "regained", "restarted"})
+
+
+def listed(changes: Sequence[Sequence[Any]], peer: int, t: float) -> bool:
+    """Whether the observer lists ``peer`` at ``t`` by its changes (oldest first)."""
+    state = False
+    for ct, p, c in changes:
+        if ct > t:
+            break
+        if p == peer:
+            state = c in UP
+    return state
+
+
+def grid(run: Mapping[str, Any], step_s: float = 0.5) -> tuple[list[str], list[list[int]]]:
+    """Row labels and the 0..3 cells of the who-sees-whom panel (module doc)."""
+    from bench.wifi import flight  # the scenario rebuilds the truth from its seed
+
+    scenario = flight.make(run["scenario"], run["n"], run["seed"])
+    truth = scenario.truth(step_s)
+    down = {int(i): [tuple(x) for x in v] for i, v in run.get("down", {}).items()}
+    n = run["n"]
+    labels, rows = [], []
+    for i in range(n):
+        ch = sorted(tuple(x) for x in run["changes"].get(str(i), []))
+        for j in range(n):
+            if i == j:
+                continue
+            reach = flight_measures.reachable(truth, down, i, j)
+            row = []
+            for t, up in reach:
+                seen = listed(ch, j, t) and not any(a <= t < b for a, b in down.get(i, ()))
+                row.append(2 if seen and up else 1 if up else 3 if seen else 0)
+            labels.append(f"{i + 1}>{j + 1}")
+            rows.append(row)
+    return labels, rows
+
+
+def timeline(run: Mapping[str, Any], out: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    labels, rows = grid(run)
+    duration = run["duration_s"]
+    fig, (top, bottom) = plt.subplots(
+        2, 1, figsize=(11, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 1.4]}
+    )
+    cmap = ListedColormap(["#ffffff", "#d0d0d0", "#2e9b4f", "#d1352b"])
+    top.imshow(
+        rows, aspect="auto", interpolation="nearest", cmap=cmap, vmin=0, vmax=3,
+        extent=(0, duration, len(rows), 0),
+    )  # fmt: skip
+    n = run["n"]
+    step = max(1, len(labels) // 24)
+    top.set_yticks([k + 0.5 for k in range(0, len(labels), step)])
+    top.set_yticklabels(labels[::step], fontsize=6)
+    top.set_ylabel("observer > peer")
+    for k in range(1, n):
+        top.axhline(k * (n - 1), color="#888", linewidth=0.3)
+    m = run["measures"]
+    top.set_title(
+        f"{run['scenario']} ({run['description']}), {run['contender']}, N={n}, run {run['run']}"
+        f"{'' if run['valid'] else ' INVALID'}\n"
+        f"green listed & in range, grey in range not listed, red listed but unreachable; "
+        f"false losses {m['false_losses']}, rediscovery p50 {m['rediscovery_s']['p50']} s",
+        fontsize=9,
+    )
+    series: dict[int, tuple[list[float], list[float]]] = {i: ([], []) for i in range(n)}
+    for h in run.get("heard", []):
+        for i, heard in enumerate(h["rx"]):
+            if heard:
+                mean = sum(heard.values()) / len(heard)
+                series[i][0].append(h["t"])
+                series[i][1].append(mean - NOISE_DBM)
+    for i, (ts, snr) in series.items():
+        bottom.plot(ts, snr, linewidth=0.8, label=f"uav{i + 1}")
+    bottom.set_ylabel("SNR of frames heard (dB)")
+    bottom.set_xlabel("seconds since the start release")
+    bottom.legend(fontsize=6, ncol=min(n, 10), loc="lower left")
+    for _, a, b in run.get("phases", []):
+        for ax in (top, bottom):
+            ax.axvspan(a, b, color="#3060c0", alpha=0.08)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _v(value: Any, unit: str = "") -> str:
+    return "-" if value is None else f"{value:g}{unit}"
+
+
+def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One markdown row per run: validity and every measure (docs/benchmarks.md "Flight")."""
+    head = (
+        "| scenario | contender | N | run | valid (lag p99) | loss latency p50 / max | "
+        "missed | lost: real / intermittent / dropout / false | re-discovery p50 / max | "
+        "not re-discovered | reboot seen by peers / finds peers (max) | "
+        "frames per rejoining pair (above steady) | readiness delivery |"
+    )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    order = {name: k for k, name in enumerate(("fly-out", "fade", "split", "reboot", "blackout"))}
+    for r in sorted(runs, key=lambda x: (order.get(x["scenario"], 9), x["n"], x["run"])):
+        m = r["measures"]
+        lr = m["lost_reports"]
+        fr = m["frames_per_rejoining_pair"]
+        rd = m["readiness_delivery"]
+        frames = (
+            f"{fr['per_pair']:g} ({_v(fr.get('excess_per_pair'))})" if "per_pair" in fr else "-"
+        )
+        lines.append(
+            f"| {r['scenario']} | {r['contender']} | {r['n']} | {r['run']} | "
+            f"{'yes' if r['valid'] else 'NO'} ({r['rt_lag_p99_ms']:.2f} ms) | "
+            f"{_v(m['loss_latency_s']['p50'], ' s')} / {_v(m['loss_latency_s']['max'], ' s')} | "
+            f"{m['missed_losses']} | {lr['real']} / {lr.get('intermittent', 0)} / "
+            f"{lr['dropout']} / {lr['false']} | "
+            f"{_v(m['rediscovery_s']['p50'], ' s')} / {_v(m['rediscovery_s']['max'], ' s')} | "
+            f"{m['not_rediscovered']} | {_v(m['reboot_seen_by_peers_s']['max'], ' s')} / "
+            f"{_v(m['reboot_finds_peers_s']['max'], ' s')} | {frames} | "
+            f"{_v(None if rd['ratio'] is None else round(100 * rd['ratio'], 1), ' %')} "
+            f"({rd['delivered']}/{rd['expected']}) |"
+        )
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    p.add_argument("runs", nargs="+", type=Path)
+    p.add_argument(
+        "--remeasure",
+        action="store_true",
+        help="recompute each run file's measures from its own records and rewrite it",
+    )
+    p.add_argument(
+        "--table", action="store_true", help="print the runs as a markdown table, draw nothing"
+    )
+    args = p.parse_args(argv)
+    if args.table:
+        runs = [json.loads(path.read_text()) for path in args.runs]
+        print("\n".join(table(runs)))
+        return 0
+    for path in args.runs:
+        run = json.loads(path.read_text())
+        if args.remeasure:
+            run["measures"] = remeasure(run)
+            run["heard"] = compact_heard(run.get("heard", []))
+            path.write_text(json.dumps(run) + "\n")
+        print(timeline(run, path.with_suffix(".png")))
+    return 0
+
+
+def compact_heard(heard: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """``heard`` records with signals rounded to 0.1 dB (a run file of N=20 stays small)."""
+    return [
+        {"t": round(h["t"], 3), "rx": [{k: round(v, 1) for k, v in rx.items()} for rx in h["rx"]]}
+        for h in heard
+    ]
+
+
+def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
+    """The measures of a run file from its records alone (the scenario from its seed)."""
+    from bench.wifi import flight
+
+    scenario = flight.make(run["scenario"], run["n"], run["seed"])
+    changes = {int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()}
+    down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
+    readiness = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
+    first_move = min((w[0] for w in run["waypoints"] if w[0] > 0), default=None)
+    if first_move is None and run.get("events"):
+        first_move = min(e[0] for e in run["events"])
+    measures = flight_measures.measure(
+        scenario.truth(), changes, down, n=run["n"], lease_s=run["lease_s"],
+        restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
+        discovery_fps=run["discovery_fps"], first_move_s=first_move,
+    )  # fmt: skip
+    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
+        run.get("renewals", []), first_move or 0.0
+    )
+    return measures
+
+
+if __name__ == "__main__":
+    sys.exit(main())

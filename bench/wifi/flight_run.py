@@ -1,0 +1,434 @@
+"""Flight scenarios on the emulated 802.11 testbed (issue 20): one run per scenario, N,
+repeat and contender, measured against the scenario's ground truth.
+
+    sudo .venv/bin/python -m bench.wifi.flight_run --scenarios split --n 10 --repeat 1 \\
+        --contenders swarmd [--dilation 2] [--out bench/results/flight]
+
+Each run is a fresh testbed as in ``bench/wifi/run.py`` (namespaces, taps, the stacks
+behind the start barrier, the same validity rule: lag p99 above ``--max-lag-ms`` marks
+the run invalid), with the channel process ``bench.wifi.flight_channel``: the scenario's
+waypoints move the nodes from the release on and the link files are windowed. While it
+runs the harness polls every daemon's ``status`` (round robin) for its ``peer_changes``,
+each dated by the daemon's own ``ago_s``, and the commander's readiness table; it kills and
+restarts daemons at the scenario's reboot events. Written: ``OUT/runs/flight-<scenario>-
+<contender>-n<N>-r<k>.json`` (records, ground truth, measures: ``bench/wifi/flight_measures.py``)
+and a timeline figure per run (``bench/wifi/flight_report.py``).
+
+Only the swarmd variants report per-peer changes the harness can read; the stock stacks
+(and ROS 2) need an observer of their own (not written yet: the run is refused with that
+reason).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import itertools
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Final
+
+from bench.wifi import contenders as contenders_mod
+from bench.wifi import flight, flight_measures, flight_report, metrics
+from bench.wifi.barrier import RUN_NICE, StartBarrier, set_priority
+from bench.wifi.dilation import Dilation, scale_kernel_timers
+from bench.wifi.ns3_loader import unavailable_reason
+from bench.wifi.run import (
+    BARRIER_TIMEOUT_S,
+    SETTLE_S,
+    Interrupted,
+    _on_sigterm,
+    _wait_ready,
+    realtime_channel,
+    source_commit,
+)
+from bench.wifi.topology import BASE, Testbed
+from swarmd.control import DaemonUnreachable, RequestError, request
+
+REPO: Final = Path(__file__).resolve().parents[2]
+DEFAULT_OUT: Final = REPO / "bench" / "results" / "flight"
+LEASE_S: Final = 20.0  # the testbed bundle's lease (bench/wifi/bundle.py)
+POLL_S: Final = 0.25  # real seconds between harness steps
+STATUS_PER_STEP: Final = 2  # daemons polled per step: every daemon every N/2 steps
+_runs = itertools.count(1)
+
+
+@contextlib.contextmanager
+def flight_channel(
+    tb: Testbed, out: Path, stop: Path, waypoints: Path, flight_dir: Path, go: Path,
+    log: Path, env: Mapping[str, str],
+) -> Iterator[subprocess.Popen[bytes]]:  # fmt: skip
+    """ns-3 with the flight additions, in the hub namespace (as run.channel_process)."""
+    argv = [
+        "ip", "netns", "exec", tb.hub, "nice", "-n", "-10",
+        sys.executable, "-m", "bench.wifi.flight_channel",
+        "--n", str(tb.size), "--out", str(out), "--taps", tb.tap_prefix,
+        "--stop-file", str(stop), "--waypoints", str(waypoints),
+        "--flight-dir", str(flight_dir), "--go-file", str(go),
+    ]  # fmt: skip
+    with log.open("wb") as f:
+        proc = subprocess.Popen(
+            argv, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, env={**os.environ, **env}
+        )
+        try:
+            yield proc
+        finally:
+            if proc.poll() is None:
+                stop.touch()
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(timeout=10)
+
+
+class SwarmdObserver:
+    """Reads the daemons during a flight: peer changes (by daemon life) and readiness."""
+
+    def __init__(self, socks: Sequence[Path], names: Sequence[str]) -> None:
+        self.socks = list(socks)
+        self.index = {name: i for i, name in enumerate(names)}
+        self.changes: dict[int, list[tuple[float, int, str]]] = {i: [] for i in range(len(socks))}
+        self.readiness: list[tuple[float, dict[int, int]]] = []
+        # per status poll: (t, node, renewals sent, link Q, renewal period, advertised lease)
+        self.renewals: list[tuple[float, int, Any, Any, Any, Any]] = []
+        self._seen: dict[int, tuple[int, int]] = {}  # daemon -> (pid, last seq)
+        self._next = itertools.cycle(range(len(socks)))
+        self.polls = self.failures = 0
+
+    def _ask(self, i: int, cmd: str) -> Any:
+        try:
+            return request(str(self.socks[i]), cmd)
+        except (DaemonUnreachable, RequestError, OSError, ValueError):
+            self.failures += 1
+            return None
+
+    def poll(self, now: float) -> None:
+        """One harness step: a few daemons' status and the commander's readiness."""
+        for _ in range(STATUS_PER_STEP):
+            i = next(self._next)
+            st = self._ask(i, "status")
+            if isinstance(st, dict):
+                self.polls += 1
+                self._take(i, st, now)
+        table = self._ask(0, "readiness")
+        if isinstance(table, dict):
+            counts = {
+                self.index[k]: int(v["count"])
+                for k, v in table.items()
+                if k in self.index and isinstance(v, dict) and isinstance(v.get("count"), int)
+            }
+            self.readiness.append((now, counts))
+
+    def _take(self, i: int, st: Mapping[str, Any], now: float) -> None:
+        pc = st.get("peer_changes")
+        pid = (st.get("daemon") or {}).get("pid")
+        if not isinstance(pc, dict) or not isinstance(pid, int):
+            return
+        life, last = self._seen.get(i, (pid, 0))
+        if life != pid:  # a new daemon life numbers its changes from 1 again
+            last = 0
+        for c in pc.get("changes") or []:
+            if not isinstance(c, dict) or not isinstance(c.get("seq"), int) or c["seq"] <= last:
+                continue
+            peer = self.index.get(str(c.get("peer")))
+            ago = c.get("ago_s")
+            if peer is None or not isinstance(ago, int | float):
+                continue
+            self.changes[i].append((now - float(ago), peer, str(c.get("change"))))
+        self._seen[i] = (pid, max(last, int(pc.get("last_seq") or 0)))
+        kinds = (st.get("counters") or {}).get("tx_kind")
+        timing, link = st.get("timing") or {}, st.get("link") or {}
+        if isinstance(kinds, dict):
+            self.renewals.append(
+                (
+                    now,
+                    i,
+                    kinds.get("renewal"),
+                    link.get("q"),
+                    timing.get("renewal_period_s"),
+                    timing.get("advertised_lease_s"),
+                )
+            )
+
+
+def _restart(c: contenders_mod.Contender, node: int, state: str, env: Mapping[str, str]) -> None:
+    """Start node's daemon again (no barrier), its state dir deleted for ``lost``."""
+    if state == "lost":
+        shutil.rmtree(c.work / f"state-uav{node + 1}", ignore_errors=True)
+    cfg = c.work / f"uav{node + 1}.yaml"
+    log = (c.work / f"uav{node + 1}.log").open("ab")
+    c._logs.append(log)
+    c.procs[node] = c.drones[node].popen(
+        [sys.executable, "-m", "swarmd_lab.start_barrier", "run", "--config", str(cfg)],
+        env={k: v for k, v in env.items() if k != "SWARMD_START_BARRIER"},
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
+
+
+def run_flight(
+    contender: str,
+    scenario: flight.Scenario,
+    run: int,
+    *,
+    dilation: float,
+    max_lag_ms: float,
+    rt_priority: int,
+    keep: Path | None,
+) -> dict[str, Any]:
+    """One flight run; the run file's dict."""
+    if contender not in contenders_mod.SWARMD_VARIANTS:
+        raise ValueError(f"{contender}: no flight observer for this stack yet (swarmd only)")
+    n = scenario.n
+    prefix = f"{BASE}-{os.getpid()}-f{next(_runs)}"
+    dil = Dilation.start(dilation)
+    with tempfile.TemporaryDirectory(prefix="swbf-") as tmp, Testbed(prefix, n) as tb:
+        work = Path(tmp)
+        subnet = tb.drones[0].address.rsplit(".", 1)[0] + ".0/24"
+        scale_kernel_timers(tb.drones, dil.k, subnet)
+        chan, fdir = work / "channel", work / "flight"
+        chan.mkdir()
+        stop, go, log = work / "stop", work / "go", work / "channel.log"
+        waypoints = work / "waypoints.txt"
+        waypoints.write_text(scenario.waypoint_lines())
+        with flight_channel(tb, chan, stop, waypoints, fdir, go, log, dil.env()) as proc:
+            ready = _wait_ready(proc, chan / "ready.json", log)
+            tb.check_macs(ready["macs"])
+            sched = realtime_channel(proc.pid, rt_priority)
+            settled = time.monotonic() + dil.real_s(SETTLE_S)
+            c = contenders_mod.make(
+                contender, tb.drones, work, window_s=scenario.duration_s, messages=20,
+                link_dir=fdir, env=dil.env(),
+            )  # fmt: skip
+            assert isinstance(c, contenders_mod.SwarmdContender)
+            names = [f"uav{i + 1}" for i in range(n)]
+            obs = SwarmdObserver(c.socks, names)
+            env = contenders_mod._clean_env(dil.env())
+            down: dict[int, list[list[float]]] = {}
+            restarts: list[tuple[float, int]] = []
+            try:
+                with StartBarrier(work / "barrier.sock") as barrier:
+                    c.start(barrier.path)
+                    barrier.wait_all(c.procs, BARRIER_TIMEOUT_S)
+                    time.sleep(max(0.0, settled - time.monotonic()))
+                    for p in c.procs:
+                        set_priority(p.pid, RUN_NICE)
+                    go.touch()
+                    launch = dil.exp(time.time())
+                    barrier.release()
+                pending = sorted(scenario.events, key=lambda e: e.t)
+                end = launch + scenario.duration_s
+                while (now := dil.exp(time.time())) < end:
+                    while pending and now - launch >= pending[0].t:
+                        ev = pending.pop(0)
+                        if ev.action == "kill":
+                            c.procs[ev.node].send_signal(signal.SIGKILL)
+                            c.procs[ev.node].wait(timeout=10)
+                            down.setdefault(ev.node, []).append([now - launch, scenario.duration_s])
+                        else:
+                            _restart(c, ev.node, ev.state, env)
+                            down[ev.node][-1][1] = now - launch
+                            restarts.append((now - launch, ev.node))
+                    obs.poll(now)
+                    print(
+                        f"\rflight {scenario.name} {contender} n={n}: {now - launch:5.1f}/"
+                        f"{scenario.duration_s:.0f} s",
+                        end="",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    if proc.poll() is not None:
+                        raise RuntimeError(f"ns-3 channel died: {log.read_text()[-800:]}")
+                    time.sleep(POLL_S)
+                print(file=sys.stderr)
+                c.window_end()
+                stop.touch()
+                proc.wait(timeout=60)
+            finally:
+                for drone in tb.drones:
+                    drone.stop_children()
+                c.close()
+        stats = json.loads((chan / "stats.json").read_text())
+        go_info = json.loads((fdir / "go.json").read_text())
+        heard = [json.loads(x) for x in (fdir / "heard.jsonl").read_text().splitlines() if x]
+        if keep is not None:
+            keep.mkdir(parents=True, exist_ok=True)
+            for f in (*work.glob("*.log"), log):
+                dest = keep / f"flight-{scenario.name}-{contender}-n{n}-r{run}-{f.name}"
+                dest.write_bytes(f.read_bytes())
+    return assemble(
+        contender, scenario, run, stats, go_info, launch, obs, down, restarts, heard,
+        max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
+    )  # fmt: skip
+
+
+def assemble(
+    contender: str,
+    scenario: flight.Scenario,
+    run: int,
+    stats: Mapping[str, Any],
+    go_info: Mapping[str, float],
+    launch: float,
+    obs: SwarmdObserver,
+    down: Mapping[int, Sequence[Sequence[float]]],
+    restarts: Sequence[tuple[float, int]],
+    heard: Sequence[Mapping[str, Any]],
+    *,
+    max_lag_ms: float,
+    scheduling: str,
+    dilation: float,
+    tx_counters: Mapping[str, int],
+) -> dict[str, Any]:
+    window = int(scenario.duration_s)
+    # the channel's records by simulation second from go; the stacks' by the clock at go
+    go_sim = float(go_info["go_sim_s"])
+    m = metrics.run_measures(
+        stats, launch_wall=float(stats["wall_at_sim0"]) + go_sim, window_s=window, family="rtps"
+    )
+    disc = metrics.frame_series(stats, int(go_sim), window, ("rtps_discovery",))
+    go_exp = float(go_info.get("go_wall", launch))
+    changes = {
+        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v)] for i, v in obs.changes.items()
+    }
+    readiness = [(round(t - go_exp, 3), table) for t, table in obs.readiness]
+    renewals = [[round(t - go_exp, 3), *rest] for t, *rest in obs.renewals]
+    truth = scenario.truth()
+    first_move = min((t for t, _, _ in scenario.waypoints if t > 0), default=None)
+    if first_move is None and scenario.events:
+        first_move = min(e.t for e in scenario.events)
+    down_t = {i: [(a, b) for a, b in spans] for i, spans in down.items()}
+    measures = flight_measures.measure(
+        truth, changes, down_t, n=scenario.n, lease_s=LEASE_S, restarts=restarts,
+        readiness=readiness, discovery_fps=disc, first_move_s=first_move,
+    )  # fmt: skip
+    measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals, first_move or 0.0)
+    lag_ok = not (m["rt_lag_p99_ms"] > max_lag_ms)
+    return {
+        "kind": "flight",
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "contender": contender,
+        "n": scenario.n,
+        "run": run,
+        "seed": scenario.seed,
+        "duration_s": scenario.duration_s,
+        "valid": lag_ok,
+        "invalid_reason": None
+        if lag_ok
+        else f"real-time lag p99 {m['rt_lag_p99_ms']:.1f} ms > {max_lag_ms} ms",
+        "rt_lag_p50_ms": m["rt_lag_p50_ms"],
+        "rt_lag_p99_ms": m["rt_lag_p99_ms"],
+        "rt_lag_max_ms": m["rt_lag_max_ms"],
+        "measures": measures,
+        "lease_s": LEASE_S,
+        "phases": [list(p) for p in scenario.phases],
+        "waypoints": [[t, i, *p] for t, i, p in scenario.waypoints],
+        "events": [[e.t, e.node, e.action, e.state] for e in scenario.events],
+        "down": {str(i): v for i, v in down_t.items()},
+        "restarts": [list(r) for r in restarts],
+        "changes": {str(i): v for i, v in changes.items()},
+        "readiness": [[t, {str(k): v for k, v in table.items()}] for t, table in readiness],
+        "heard": flight_report.compact_heard([h for h in heard if h.get("t", -1) >= 0]),
+        "renewals": renewals,
+        "discovery_fps": disc,
+        "pps": m["pps"],
+        "tx_counters": dict(tx_counters),
+        "observer": {"status_polls": obs.polls, "failed_requests": obs.failures},
+        "go": {"sim_s": go_sim, "wall": go_exp, "harness_launch": launch},
+        "load_avg_at_start": list(os.getloadavg()),
+        "setup": {
+            "standard": "802.11g",
+            "ns3_scheduling": scheduling,
+            "dilation": dilation,
+            "max_lag_ms": max_lag_ms,
+            "range_m": round(flight.range_m(), 1),
+            "commit": source_commit(),
+        },
+    }
+
+
+def run_file_name(scenario: str, contender: str, n: int, run: int, k: float) -> str:
+    dilated = f"-k{k:g}" if k > 1.0 else ""
+    return f"flight-{scenario}-{contender}-n{n}{dilated}-r{run}.json"
+
+
+def one_line(r: Mapping[str, Any]) -> str:
+    m = r["measures"]
+    return (
+        f"{r['scenario']:8} {r['contender']:14} n={r['n']:<3} r{r['run']} "
+        f"{'valid' if r['valid'] else 'INVALID (' + str(r['invalid_reason']) + ')'}: "
+        f"loss p50 {m['loss_latency_s']['p50']} s (missed {m['missed_losses']}), "
+        f"false {m['false_losses']}, dropout {m['lost_reports']['dropout']}, "
+        f"rediscovery p50 {m['rediscovery_s']['p50']} max {m['rediscovery_s']['max']} s, "
+        f"frames/pair {m['frames_per_rejoining_pair'].get('per_pair')}, "
+        f"readiness {m['readiness_delivery']['ratio']}"
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    p.add_argument("--scenarios", default="split", help=f"of {', '.join(flight.SCENARIOS)}")
+    p.add_argument("--n", default="10")
+    p.add_argument("--repeat", type=int, default=1)
+    p.add_argument("--first-run", type=int, default=1)
+    p.add_argument("--contenders", default="swarmd")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--dilation", type=float, default=1.0)
+    p.add_argument("--max-lag-ms", type=float, default=20.0)
+    p.add_argument("--ns3-rt-priority", type=int, default=10)
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    p.add_argument("--keep-logs", action="store_true")
+    args = p.parse_args(argv)
+    scenarios = [s.strip() for s in args.scenarios.split(",") if s.strip()]
+    sizes = [int(x) for x in args.n.split(",") if x.strip()]
+    names = [c.strip() for c in args.contenders.split(",") if c.strip()]
+    for s in scenarios:
+        if s not in flight.SCENARIOS:
+            p.error(f"--scenarios: unknown {s!r}; use {', '.join(flight.SCENARIOS)}")
+    for c in names:
+        if c not in contenders_mod.SWARMD_VARIANTS:
+            p.error(f"--contenders: {c!r} has no flight observer yet; use a swarmd variant")
+    reason = unavailable_reason()
+    if reason is not None:
+        print(f"flight bench: {reason}", file=sys.stderr)
+        return 2
+    runs_dir = args.out / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    failures = 0
+    try:
+        for s, n, k, c in itertools.product(
+            scenarios, sizes, range(args.first_run, args.first_run + args.repeat), names
+        ):
+            scenario = flight.make(s, n, args.seed + k - 1)
+            try:
+                result = run_flight(
+                    c, scenario, k, dilation=args.dilation, max_lag_ms=args.max_lag_ms,
+                    rt_priority=args.ns3_rt_priority,
+                    keep=args.out / "logs" if args.keep_logs else None,
+                )  # fmt: skip
+            except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
+                print(f"\nflight bench: {s} {c} n={n} run {k} failed: {exc}", file=sys.stderr)
+                failures += 1
+                continue
+            path = runs_dir / run_file_name(s, c, n, k, args.dilation)
+            path.write_text(json.dumps(result) + "\n")
+            flight_report.timeline(result, path.with_suffix(".png"))
+            print(one_line(result))
+    except (KeyboardInterrupt, Interrupted):
+        print("flight bench: interrupted; testbed removed", file=sys.stderr)
+        return 130
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
