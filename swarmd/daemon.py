@@ -27,30 +27,35 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import fcntl
 import os
 import random
 import secrets
 import signal
 import socket
-import stat
-import struct
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import fields
+from collections.abc import Mapping
 from functools import partial
-from typing import Any, Final
+from typing import Any
 
 from swarmd import __version__
 from swarmd.auth.epoch import EpochError, EpochResult, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
-from swarmd.bundle.errors import KeyFileError
 from swarmd.bundle.model import Bundle
-from swarmd.config import ConfigError, DaemonConfig, Px4Section, config_mode_problem
+from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
-from swarmd.discovery.config import EngineConfig
+from swarmd.daemon_setup import (
+    KNOWN_LISTEN_NAMES,
+    NodeSecretsError,
+    engine_config,
+    link_sources,
+    listen_socket_name,
+    load_node_secrets,
+    open_spdp_socket,
+    open_unicast_socket,
+    resolve_ipv4,
+)
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import (
     Event,
@@ -65,209 +70,15 @@ from swarmd.discovery.events import (
 from swarmd.discovery.inputs import LinkSample
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, EX_UNAVAILABLE, StartupError
-from swarmd.link import SourceName
-from swarmd.link.file import FileSource
 from swarmd.link.monitor import LinkMonitor
-from swarmd.link.nl80211 import Nl80211Source
 from swarmd.link.source import LinkSource
-from swarmd.link.static import StaticSource
-from swarmd.link.wext import WextSource
 from swarmd.peerlog import PeerChangeKind, PeerHistory
-from swarmd.px4.transport import PX4_SOCKET, XRCE_SOCKET, parse_connection
 from swarmd.ros2app import Ros2App
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarmapp import SwarmApp
 from swarmd.udp import RECV_BUFFER_BYTES, BatchedSocket, Datagram, rcvbuf_capped
-
-SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
-IFNAMSIZ: Final = 16
-IP_MULTICAST_ALL: Final = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
-# Linux's default IP_MULTICAST_ALL=1 delivers every group any socket joined to every socket
-# bound to the port; off, the SPDP socket hears only 239.255.0.1 joined on our interface.
-
-
-class NodeSecretsError(ValueError):
-    """node.key is missing, of the old format, or not this node's; ``str()`` is one line."""
-
-
-def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
-    """This node's private keys: ``bundle.node_key`` (default node.key beside the bundle).
-
-    A dev bundle without a node key uses the publicly derivable dev keys, so
-    ``--unsigned-dev`` labs need no key files; a signed bundle always needs the file. The
-    keys must be the ones the bundle lists for ``config.node``. Raises ``NodeSecretsError``.
-    """
-    path = config.bundle.node_key_path
-    if bundle.dev and config.bundle.node_key is None and not os.path.exists(path):
-        secrets = NodeSecrets.dev(bundle.swarm, config.node)
-    else:
-        refuse_shared_secret(path)
-        try:
-            secrets = NodeSecrets.load(path)
-        except KeyFileError as exc:
-            if exc.problem == "key file not found":
-                raise NodeSecretsError(
-                    f"{path}: node key not found; fix: flash this node with "
-                    "'swarmctl bundle flash BUNDLE --node NAME --keys DIR' (or set bundle.node_key)"
-                ) from None
-            raise NodeSecretsError(str(exc)) from None
-    try:
-        KeyRing.from_bundle(bundle, config.node, secrets)
-    except NodeKeyMismatch as exc:
-        raise NodeSecretsError(f"{path}: {exc}") from None
-    except KeyError:
-        pass  # a node outside the bundle is reported by the node check, naming its line
-    return secrets
-
-
-def refuse_shared_secret(path: str) -> None:
-    """Like ssh with a private key: a node.key other users may read is refused.
-
-    Whoever reads it can sign SPDP and user data as this drone and derive its MAVLink
-    signing key (docs/security.md). Raises ``NodeSecretsError`` naming file, mode and fix;
-    a missing file is left to the loader's own message."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return
-    if st.st_mode & 0o077:
-        raise NodeSecretsError(
-            f"{path}: mode {stat.S_IMODE(st.st_mode):04o} lets other users read this node's "
-            f"private keys; fix: chmod 600 {path} (owner swarmd)"
-        )
-
-
-def interface_ipv4(ifname: str) -> str:
-    """The interface's (first) IPv4 address; ``OSError`` when it has none or does not exist."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        req = struct.pack("256s", ifname.encode()[: IFNAMSIZ - 1])
-        packed = fcntl.ioctl(s.fileno(), SIOCGIFADDR, req)
-    return socket.inet_ntoa(packed[20:24])
-
-
-def resolve_ipv4(config: DaemonConfig) -> str:
-    """The local IPv4 the engine announces: configured, else the interface's own."""
-    try:
-        socket.if_nametoindex(config.interface)
-    except OSError:
-        raise config.error(
-            "network.interface",
-            f"no interface {config.interface!r} on this host",
-            "name an existing interface ('ip -br link' lists them)",
-        ) from None
-    if config.ipv4 is not None:
-        return config.ipv4
-    try:
-        return interface_ipv4(config.interface)
-    except OSError:
-        raise config.error(
-            "network.interface",
-            f"interface {config.interface!r} has no IPv4 address",
-            "bring the link up with an address, or set network.ipv4",
-        ) from None
-
-
-def engine_config(config: DaemonConfig) -> EngineConfig:
-    """``EngineConfig`` from ``discovery.mode`` and ``discovery.overrides``."""
-    types = {f.name: f.type for f in fields(EngineConfig)}
-    values: dict[str, Any] = {}
-    for name, value in config.engine_overrides.items():
-        path = f"discovery.overrides.{name}"
-        if name not in types or name == "mode":
-            raise config.error(path, f"unknown engine setting {name!r}", "see EngineConfig")
-        if types[name] in ("bool", bool):  # a switch (vouch): 0 or 1
-            if value not in (0, 1):
-                raise config.error(path, f"{value} is not 0 or 1", "use 0 (off) or 1 (on)")
-            value = bool(value)
-        elif types[name] in ("int", int):
-            if value != int(value):
-                raise config.error(path, f"{value} is not a whole number", "use an integer")
-            value = int(value)
-        values[name] = value
-    try:
-        return EngineConfig(mode=config.engine_mode, **values)  # type: ignore[arg-type]
-    except ValueError as exc:
-        problem, _, fix = str(exc).partition("; fix: ")
-        path = next((f"discovery.overrides.{n}" for n in values if n in problem), "discovery")
-        raise config.error(path, problem, fix or "see docs/operations.md") from None
-
-
-def link_sources(config: DaemonConfig) -> list[LinkSource]:
-    """The configured link sources, in order."""
-    link = config.link
-    make: dict[SourceName, Callable[[], LinkSource]] = {
-        SourceName.NL80211: lambda: Nl80211Source(config.interface, snr_floor_db=link.snr_floor_db),
-        SourceName.WEXT: lambda: WextSource(
-            config.interface,
-            path=link.wext_path,
-            max_quality=link.wext_max_quality,
-            snr_floor_db=link.snr_floor_db,
-        ),
-        SourceName.FILE: lambda: FileSource(
-            link.file, max_age_s=link.file_max_age_s, snr_floor_db=link.snr_floor_db
-        ),
-        SourceName.STATIC: lambda: StaticSource(link.static_q),
-    }
-    return [make[SourceName(name)]() for name in link.sources]
-
-
-def open_spdp_socket(group: str, port: int, ipv4: str) -> socket.socket:
-    """The SPDP multicast socket: ``group:port`` joined on the interface owning ``ipv4``."""
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        # several participants on one host (tests, a ground station) share the SPDP port
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER_BYTES)
-        s.bind(("", port))
-        mreq = socket.inet_aton(group) + socket.inet_aton(ipv4)
-        s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
-        s.setsockopt(socket.IPPROTO_IP, IP_MULTICAST_ALL, 0)
-        _multicast_send_options(s, ipv4)
-        s.setblocking(False)
-    except BaseException:
-        s.close()
-        raise
-    return s
-
-
-def open_unicast_socket(port: int, ipv4: str) -> socket.socket:
-    """The metatraffic unicast socket; every datagram the engine queues leaves from it."""
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECV_BUFFER_BYTES)
-        s.bind(("", port))  # not ipv4: a re-addressed interface must not deafen us
-        _multicast_send_options(s, ipv4)
-        s.setblocking(False)
-    except BaseException:
-        s.close()
-        raise
-    return s
-
-
-def _multicast_send_options(s: socket.socket, ipv4: str) -> None:
-    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(ipv4))
-    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)  # the swarm is one hop
-    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)  # co-hosted participants
-
-
-# the FileDescriptorName= of systemd/swarmd-px4.socket and systemd/swarmd-xrce.socket
-KNOWN_LISTEN_NAMES: Final = (PX4_SOCKET.fd_name, XRCE_SOCKET.fd_name)
-
-
-def listen_socket_name(px4: Px4Section) -> str | None:
-    """Which socket unit's descriptor the configured PX4 link takes (sd_listen_fds names):
-    ``px4`` for a MAVLink ``udpin:``, ``xrce`` for the XRCE agent's ``udp:``; None for a UART,
-    ``udpout:`` or ``xrce-client`` (swarmd binds no port there: docs/px4.md)."""
-    if not px4.enabled:
-        return None
-    if px4.backend == "mavlink":
-        return PX4_SOCKET.fd_name if parse_connection(px4.connection).kind == "udpin" else None
-    if px4.backend == "xrce-agent" and px4.connection.startswith("udp:"):
-        return XRCE_SOCKET.fd_name
-    return None
 
 
 class Daemon:

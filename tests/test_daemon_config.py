@@ -141,7 +141,7 @@ def test_missing_file(tmp_path: Path) -> None:
 
 
 def test_vouch_switch_override_is_0_or_1() -> None:
-    from swarmd.daemon import engine_config
+    from swarmd.daemon_setup import engine_config
 
     off = parse_config(MINIMAL + "discovery:\n  overrides:\n    vouch: 0\n", "x.yaml")
     assert engine_config(off).vouch is False

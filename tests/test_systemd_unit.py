@@ -113,7 +113,7 @@ def test_xrce_socket_unit_holds_the_privileged_port_the_xrce_agent_listens_on() 
     """Issue 18 for the uXRCE-DDS agent: systemd binds the agent's default port from boot,
     below 1024, and passes it as 'xrce', the name the daemon takes for xrce-agent."""
     from swarmd.config import parse_config
-    from swarmd.daemon import listen_socket_name
+    from swarmd.daemon_setup import listen_socket_name
     from swarmd.px4.xrce_backend import parse_xrce_connection
 
     s = _unit_settings(XRCE_SOCKET_UNIT)

@@ -25,7 +25,8 @@ import structlog
 import structlog.testing
 
 from swarmd.config import load_config, parse_config
-from swarmd.daemon import Daemon, listen_socket_name
+from swarmd.daemon import Daemon
+from swarmd.daemon_setup import listen_socket_name
 from swarmd.exitcodes import EX_OSERR, StartupError
 from swarmd.link.static import StaticSource
 from swarmd.px4.xrce_backend import XrceBackend

@@ -90,7 +90,7 @@ def _key(args: argparse.Namespace) -> bytes:
             expected_sha256=config.bundle.expected_sha256,
             allow_dev=config.bundle.allow_dev,
         )
-        from swarmd.daemon import NodeSecretsError, load_node_secrets
+        from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
 
         seed = b""
         if config.px4.signing_key is None:  # derived, as the daemon does

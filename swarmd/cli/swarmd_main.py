@@ -52,7 +52,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     from swarmd import logs
     from swarmd.bundle.errors import BundleError
     from swarmd.bundle.loader import load_bundle
-    from swarmd.daemon import Daemon, NodeSecretsError, load_node_secrets, run
+    from swarmd.daemon import Daemon, run
+    from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
     from swarmd.discovery.config import EngineConfig
 
     engine_fields = frozenset(f.name for f in fields(EngineConfig)) - {"mode"}
