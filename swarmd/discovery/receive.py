@@ -41,7 +41,7 @@ from swarmd.discovery.events import (
     PeerRestarted,
 )
 from swarmd.discovery.foreign import ForeignParticipants
-from swarmd.discovery.leases import Leases
+from swarmd.discovery.leases import PROBE_AT, Leases
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase
 from swarmd.discovery.received import Alive
@@ -80,10 +80,11 @@ class ReceivePath:
         "_my_octet",
         "_my_prefix",
         "_on_vouch",
+        "_rejoined",
         "_peer_at",
         "_reack_gap_s",
         "_settle",
-        "_vouched_until",
+        "_held_until",
         "_vouching",
         "dropped",
         "phase",
@@ -109,6 +110,7 @@ class ReceivePath:
         lose: Callable[[Peer, str], None],
         settle: Callable[[], None],
         on_vouch: Callable[[Vouch, float], None],
+        rejoined: Callable[[float], None],
     ) -> None:
         # the engine's phase, as the receive path sees it: set by DiscoveryEngine._transition
         # (a slot of our own: read twice per datagram)
@@ -139,7 +141,7 @@ class ReceivePath:
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
         self._lease_queue = leases.queue
-        self._vouched_until = leases.vouched_until  # the dict itself, never replaced
+        self._held_until = leases.held_until  # the dict itself, never replaced
         self._commander = leases.commander
         self._vouching = leases.vouching
         self._debts = debts
@@ -147,6 +149,7 @@ class ReceivePath:
         self._lose = lose
         self._settle = settle
         self._on_vouch = on_vouch
+        self._rejoined = rejoined
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         """Handle one UDP payload from ``source``. Never raises for any ``data``."""
@@ -285,9 +288,9 @@ class ReceivePath:
             self._leases.listed_by += 1 if lists_me else -1
         peer.link_quality_permille = alive.link_quality_permille
         index = peer.index
-        self._lease_queue.renew(peer, lease_s, now)  # Leases.renew, inline
-        if self._vouched_until:
-            self._vouched_until.pop(index, None)  # its own lease runs again
+        self._lease_queue.renew(peer, lease_s * PROBE_AT, now)  # Leases.renew, inline
+        if self._held_until:
+            self._held_until.pop(index, None)  # its own lease runs again
         vouched = alive.vouched
         if vouched is not None and index == self._commander and not self._vouching:
             self._on_vouch(vouched, now)
@@ -327,6 +330,8 @@ class ReceivePath:
             if retry.due is not None or retry.attempts:
                 self._debts.disarm(peer)
             peer.times_discovered += 1
+            if peer.times_discovered > 1:
+                self._rejoined(now)  # a lost peer is back: the link evidently is too
             self._emit(
                 PeerDiscovered(
                     peer.participant.name,
