@@ -26,6 +26,7 @@ from swarmd_lab.testing import Swarm, auth_for, build_swarm, node_ipv4
 
 from swarmd.discovery import DiscoveryEngine, EngineConfig, LinkSample
 from swarmd.discovery.events import PeerDiscovered, PeerLost, PeerRestarted
+from swarmd.discovery.leases import PROBE_ATTEMPTS
 
 N = 10
 SEEDS = (1, 2, 3)
@@ -68,9 +69,22 @@ def _events(swarm: Swarm, kind: type, since: float) -> list[tuple[int, int, floa
 
 
 def _discovery_frames(engines: Iterable[DiscoveryEngine]) -> int:
-    return sum(
-        e.counters()["tx_kind"]["announce"] + e.counters()["tx_kind"]["reply"] for e in engines
-    )
+    """Announcements, replies and last-chance probes sent (renewals are not counted)."""
+    kinds = ("announce", "reply", "probe")
+    return sum(e.counters()["tx_kind"][k] for e in engines for k in kinds)
+
+
+def _probes(engines: Iterable[DiscoveryEngine]) -> int:
+    return sum(e.counters()["tx_kind"]["probe"] for e in engines)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_healthy_swarm_never_probes(seed: int) -> None:
+    """Renewals come at least twice per lease: no peer in range reaches its probe point."""
+    swarm = _swarm(seed, Links())
+    swarm.run_until(120.0)
+    assert _probes(swarm.engines) == 0
+    assert _events(swarm, PeerLost, 0.0) == []
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -90,10 +104,12 @@ def test_split_and_heal(seed: int) -> None:
     swarm.net.call_at(t_cut, split)
     swarm.net.call_at(t_heal, heal)
     swarm.run_until(t_heal)
+    # each side probes each peer it lost at most PROBE_ATTEMPTS times, then lets it go
+    assert 0 < _probes(swarm.engines) <= PROBE_ATTEMPTS * len(crossing_pairs(west))
     frames_at_heal = _discovery_frames(swarm.engines)
     swarm.run_until(t_heal + 30.0)
 
-    crossing = {(a, b) for a in range(N) for b in range(N) if (a in west) != (b in west)}
+    crossing = crossing_pairs(west)
     lost = _events(swarm, PeerLost, t_cut)
     assert {(a, b) for a, b, _ in lost} == crossing, "a peer on the same side was lost"
     assert all(t - t_cut <= LEASE_S for _, _, t in lost)
@@ -103,6 +119,10 @@ def test_split_and_heal(seed: int) -> None:
     heal_frames = _discovery_frames(swarm.engines) - frames_at_heal
     assert heal_frames <= FRAMES_PER_PAIR_TARGET * len(crossing) // 2  # per unordered pair
     assert swarm.all_discovered()
+
+
+def crossing_pairs(west: set[int]) -> set[tuple[int, int]]:
+    return {(a, b) for a in range(N) for b in range(N) if (a in west) != (b in west)}
 
 
 def _fade(seed: int, edge: int) -> Swarm:
