@@ -8,8 +8,12 @@ the receive path renews a lease ~3M times in a simulated 1000-drone minute.
 Vouching (adaptive mode, one commander in the bundle; docs/discovery.md, "Vouching"): the
 commander's renewals carry the members it heard directly in the last ``vouch_window_s``; only
 the commander's (signed) vouch is believed. A vouch is kept, not applied: it is consulted
-only when a lease runs out (``expire``), when the newest vouch listing the peer may hold it
-a while longer (``vouched_lease_s``), in a lazy heap of its own.
+only when a peer reaches its probe point (``expire``), when the newest vouch listing the peer
+may hold it a while longer (``vouched_lease_s``).
+
+Probing (docs/discovery.md, "Probing before a lease ends"): the queue is keyed at each peer's
+probe point (``PROBE_AT`` of its lease); a peer past it waits in the hold heap, and is probed in
+the last quarter of its lease or vouch, then lost when both ran out.
 
 The heard digest we send (bit i: we hear bundle index i) and the count of peers whose
 latest DATA(p) lists us are kept here too, incrementally, on discovery and loss.
