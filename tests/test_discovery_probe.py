@@ -1,0 +1,111 @@
+"""The last-chance probe and the rejoin pull-in (issue 20; docs/discovery.md, "Probing before
+a lease ends"), one engine driven by hand on virtual time."""
+
+from __future__ import annotations
+
+import pytest
+from swarmd_lab.testing import make_bundle, peer_datagram
+from test_discovery_engine import alive, drain, engine_for, run_to
+
+from swarmd.discovery import DiscoveryEngine, EngineConfig, PeerDiscovered, PeerLost
+from swarmd.discovery.digest import decode_heard
+from swarmd.discovery.leases import PROBE_AT, PROBE_ATTEMPTS
+
+LEASE_S = 20.0
+HEARD_AT = 5.0
+GAP_S = EngineConfig().retransmit_min_gap_s
+
+
+def _member_hearing_the_commander() -> tuple[DiscoveryEngine, int]:
+    """uav1 of a 2-drone bundle, which heard uav0 (listing it) at ``HEARD_AT``; uav0's index."""
+    engine = engine_for(2, index=1)
+    bundle = make_bundle(2)
+    run_to(engine, HEARD_AT)
+    engine.receive_datagram(
+        peer_datagram(bundle, 0, heard=(1,), lease_s=LEASE_S), ("10.0.0.1", 7410), HEARD_AT
+    )
+    assert any(isinstance(e, PeerDiscovered) for e in drain(engine))
+    return engine, 0
+
+
+def _probes(engine: DiscoveryEngine) -> int:
+    return int(engine.counters()["tx_kind"]["probe"])
+
+
+def test_a_silent_peer_is_probed_in_its_lease_last_quarter_then_lost_at_its_end() -> None:
+    engine, commander = _member_hearing_the_commander()
+    run_to(engine, HEARD_AT + 1.0)  # our answer to its DATA(p) (directed, listing it)
+    probe_times: list[float] = []
+    for t, data, _ in run_to(engine, HEARD_AT + LEASE_S - 0.001):
+        sample = alive(data)
+        if sample.destination is not None:
+            probe_times.append(t)
+            # its own bit cleared, so that it answers at once
+            assert commander not in decode_heard(sample.participant.heard or b"", 2)
+    assert _probes(engine) == PROBE_ATTEMPTS == len(probe_times)
+    assert min(probe_times) == pytest.approx(HEARD_AT + PROBE_AT * LEASE_S)
+    assert max(probe_times) < HEARD_AT + LEASE_S
+    assert not any(isinstance(e, PeerLost) for e in drain(engine))  # the lease still runs
+    run_to(engine, HEARD_AT + LEASE_S)
+    assert [type(e) for e in drain(engine)] == [PeerLost]
+    assert _probes(engine) == PROBE_ATTEMPTS  # nothing after the loss
+
+
+def test_an_answered_probe_keeps_the_peer_and_stops_the_probing() -> None:
+    engine, commander = _member_hearing_the_commander()
+    bundle = make_bundle(2)
+    first_probe = HEARD_AT + PROBE_AT * LEASE_S
+    run_to(engine, first_probe)
+    assert _probes(engine) == 1
+    # its answer, directed to us and listing us, arrives 0.1 s later
+    answer = peer_datagram(
+        bundle, 0, heard=(1,), sequence_number=2, lease_s=LEASE_S, destination=engine.guid_prefix
+    )
+    engine.receive_datagram(answer, ("10.0.0.1", 7410), first_probe + 0.1)
+    run_to(engine, first_probe + 0.1 + PROBE_AT * LEASE_S - 0.001)
+    assert _probes(engine) == 1
+    assert not any(isinstance(e, PeerLost) for e in drain(engine))
+    view = engine.peer(f"uav{commander}")
+    assert view is not None and view.state.name == "DISCOVERED"
+
+
+def test_a_rejoining_peer_pulls_our_next_multicast_in_once_per_gap() -> None:
+    """A lost peer heard again while another is missing: our next multicast comes within the
+    reply holdoff (counted as an announcement); a second rejoin within the re-ack gap (a peer
+    flapping, or a forger replaying in an unauthenticated swarm) pulls nothing more in."""
+    engine = engine_for(3, index=1)
+    bundle = make_bundle(3)
+    run_to(engine, HEARD_AT)
+    for peer in (0, 2):
+        engine.receive_datagram(
+            peer_datagram(bundle, peer, heard=(1,), lease_s=LEASE_S),
+            (f"10.0.0.{peer + 1}", 7410 + 2 * peer),
+            HEARD_AT,
+        )
+    run_to(engine, HEARD_AT + LEASE_S + 1.0)  # both lost (their probes unanswered)
+    assert sum(isinstance(e, PeerLost) for e in drain(engine)) == 2
+    back = HEARD_AT + LEASE_S + 2.0
+    renewal_due = engine.get_timer()
+    assert renewal_due is not None
+    announced = engine.counters()["tx_kind"]["announce"]
+    engine.receive_datagram(
+        peer_datagram(bundle, 0, heard=(1,), sequence_number=5, lease_s=LEASE_S),
+        ("10.0.0.1", 7410),
+        back,
+    )
+    pulled = engine.get_timer()
+    assert pulled is not None and back < pulled < min(renewal_due, back + 1.0)
+    sent = run_to(engine, pulled)
+    assert [alive(d).destination for _, d, _ in sent] == [None]  # one multicast
+    assert engine.counters()["tx_kind"]["announce"] == announced + 1
+    # lost again and back at once: within the gap of that multicast nothing is pulled in
+    # (its own answer may go, directed)
+    engine._lose(engine._peers[0], "lease")  # noqa: SLF001 - the shortest way to a re-loss
+    engine.receive_datagram(
+        peer_datagram(bundle, 0, heard=(1,), sequence_number=6, lease_s=LEASE_S),
+        ("10.0.0.1", 7410),
+        pulled + 0.01,
+    )
+    sent = run_to(engine, pulled + GAP_S - 0.02)
+    assert [d for _, d, _ in sent if alive(d).destination is None] == []
+    assert engine.counters()["tx_kind"]["announce"] == announced + 1
