@@ -4,22 +4,45 @@ a lease ends"), one engine driven by hand on virtual time."""
 from __future__ import annotations
 
 import pytest
-from swarmd_lab.testing import make_bundle, peer_datagram
-from test_discovery_engine import alive, drain, engine_for, run_to
+from swarmd_lab.testing import engine_for, make_bundle, peer_datagram
 
 from swarmd.discovery import DiscoveryEngine, EngineConfig, PeerDiscovered, PeerLost
 from swarmd.discovery.digest import decode_heard
+from swarmd.discovery.events import Event
 from swarmd.discovery.leases import PROBE_AT, PROBE_ATTEMPTS
+from swarmd.rtps.spdp import SpdpAlive, decode_spdp
 
 LEASE_S = 20.0
 HEARD_AT = 5.0
 GAP_S = EngineConfig().retransmit_min_gap_s
 
 
+def drain(engine: DiscoveryEngine) -> list[Event]:
+    out = []
+    while (e := engine.next_event()) is not None:
+        out.append(e)
+    return out
+
+
+def run_to(engine: DiscoveryEngine, end: float) -> list[tuple[float, bytes, tuple[str, int]]]:
+    """Fire the engine's timers up to ``end``; every datagram with its send time."""
+    sent: list[tuple[float, bytes, tuple[str, int]]] = []
+    while (t := engine.get_timer()) is not None and t <= end:
+        engine.handle_timer(t)
+        sent += [(t, d, a) for d, a in engine.datagrams_to_send()]
+    return sent
+
+
+def alive(datagram: bytes) -> SpdpAlive:
+    _, samples = decode_spdp(datagram)
+    assert len(samples) == 1 and isinstance(samples[0], SpdpAlive)
+    return samples[0]
+
+
 def _member_hearing_the_commander() -> tuple[DiscoveryEngine, int]:
     """uav1 of a 2-drone bundle, which heard uav0 (listing it) at ``HEARD_AT``; uav0's index."""
-    engine = engine_for(2, index=1)
     bundle = make_bundle(2)
+    engine = engine_for(bundle, 1, q=1.0)
     run_to(engine, HEARD_AT)
     engine.receive_datagram(
         peer_datagram(bundle, 0, heard=(1,), lease_s=LEASE_S), ("10.0.0.1", 7410), HEARD_AT
@@ -73,8 +96,8 @@ def test_a_rejoining_peer_pulls_our_next_multicast_in_once_per_gap() -> None:
     """A lost peer heard again while another is missing: our next multicast comes within the
     reply holdoff (counted as an announcement); a second rejoin within the re-ack gap (a peer
     flapping, or a forger replaying in an unauthenticated swarm) pulls nothing more in."""
-    engine = engine_for(3, index=1)
     bundle = make_bundle(3)
+    engine = engine_for(bundle, 1, q=1.0)
     run_to(engine, HEARD_AT)
     for peer in (0, 2):
         engine.receive_datagram(
