@@ -3,10 +3,13 @@ a lease ends"), one engine driven by hand on virtual time."""
 
 from __future__ import annotations
 
+from typing import cast
+
 import pytest
 from swarmd_lab.testing import engine_for, make_bundle, peer_datagram
 
 from swarmd.discovery import DiscoveryEngine, EngineConfig, PeerDiscovered, PeerLost
+from swarmd.discovery.config import Mode
 from swarmd.discovery.digest import decode_heard
 from swarmd.discovery.events import Event
 from swarmd.discovery.leases import PROBE_AT, PROBE_ATTEMPTS
@@ -39,10 +42,11 @@ def alive(datagram: bytes) -> SpdpAlive:
     return samples[0]
 
 
-def _member_hearing_the_commander() -> tuple[DiscoveryEngine, int]:
+def _member_hearing_the_commander(mode: str = "adaptive") -> tuple[DiscoveryEngine, int]:
     """uav1 of a 2-drone bundle, which heard uav0 (listing it) at ``HEARD_AT``; uav0's index."""
     bundle = make_bundle(2)
-    engine = engine_for(bundle, 1, q=1.0)
+    config = EngineConfig(mode=cast(Mode, mode))
+    engine = engine_for(bundle, 1, q=1.0, config=config)
     run_to(engine, HEARD_AT)
     engine.receive_datagram(
         peer_datagram(bundle, 0, heard=(1,), lease_s=LEASE_S), ("10.0.0.1", 7410), HEARD_AT
@@ -72,6 +76,15 @@ def test_a_silent_peer_is_probed_in_its_lease_last_quarter_then_lost_at_its_end(
     run_to(engine, HEARD_AT + LEASE_S)
     assert [type(e) for e in drain(engine)] == [PeerLost]
     assert _probes(engine) == PROBE_ATTEMPTS  # nothing after the loss
+
+
+def test_paper_mode_keeps_the_paper_liveliness_no_probe() -> None:
+    engine, _ = _member_hearing_the_commander("paper")
+    run_to(engine, HEARD_AT + LEASE_S - 0.001)
+    assert _probes(engine) == 0
+    assert not any(isinstance(e, PeerLost) for e in drain(engine))
+    run_to(engine, HEARD_AT + LEASE_S)
+    assert [type(e) for e in drain(engine)] == [PeerLost]
 
 
 def test_an_answered_probe_keeps_the_peer_and_stops_the_probing() -> None:

@@ -646,7 +646,10 @@ class DiscoveryEngine:
         hear us and answer at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them),
         instead of each side waiting out a renewal period or a backed-off retry. At most one
         per ``retransmit_min_gap_s`` since our last multicast, and the random delay lets a
-        rejoining group's members see one another's frame first: no storm."""
+        rejoining group's members see one another's frame first: no storm. Adaptive mode
+        only, as the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule."""
+        if self._config.mode != "adaptive":
+            return  # paper mode: the paper's schedule, nothing pulled in
         if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
             return
         if self._leases.heard.count >= len(self._peers):

@@ -37,7 +37,8 @@ from swarmd.rtps.spdp import Vouch
 # not heard for PROBE_AT of its lease (and held by no vouch) is sent a directed DATA(p) whose
 # heard digest omits it, so it answers at once; up to PROBE_ATTEMPTS of them, spread evenly
 # over the lease's last quarter. Renewals come at least twice per lease (n(Q) >= 2,
-# awareness.py), so a peer we hear normally never reaches its probe point.
+# awareness.py), so a peer we hear normally never reaches its probe point. Adaptive mode
+# only: paper mode keeps the paper's liveliness (a lease ends unrenewed, nothing asked).
 PROBE_AT: Final = 0.75
 PROBE_ATTEMPTS: Final = 4
 
@@ -55,6 +56,7 @@ class Leases:
         "_my_index",
         "_own_end",
         "_probes_sent",
+        "probe_at",
         "_peers",
         "_size",
         "_vouch_window_ms",
@@ -82,8 +84,9 @@ class Leases:
         self._my_index = my_index
         self._peers = peers  # the engine's table, by bundle index
         self._size = size
-        # keyed at each peer's probe point (last heard + PROBE_AT * lease), not its end
+        # keyed at each peer's probe point (last heard + probe_at * lease), not its end
         self.queue = LeaseQueue()
+        self.probe_at = PROBE_AT if config.mode == "adaptive" else 1.0
         # the heard digest we send, kept up to date on discovery and loss rather than
         # rebuilt from all N peers on every send
         self.heard = HeardBitmap(size)
@@ -116,7 +119,7 @@ class Leases:
 
     def renew(self, peer: Peer, now: float) -> None:
         """``peer`` was heard (its own traffic) at ``now``: its own lease runs again."""
-        self.queue.renew(peer, peer.lease_s * PROBE_AT, now)
+        self.queue.renew(peer, peer.lease_s * self.probe_at, now)
         if self.held_until:
             self.held_until.pop(peer.index, None)
 
@@ -155,7 +158,7 @@ class Leases:
             queue.remove(peer)
             # at its probe point: the lease itself runs the last quarter longer
             self._probes_sent[peer.index] = 0
-            own_end = earliest[0] + (1.0 - PROBE_AT) * peer.lease_s
+            own_end = earliest[0] + (1.0 - self.probe_at) * peer.lease_s
             self._examine(peer, now, own_end, expired, probes)
         heap = self.hold_heap
         while heap and heap[0][0] <= now:
@@ -183,7 +186,7 @@ class Leases:
             self._own_end.pop(index, None)
             self._probes_sent.pop(index, None)
             return
-        last_quarter = (1.0 - PROBE_AT) * peer.lease_s
+        last_quarter = (1.0 - self.probe_at) * peer.lease_s  # 0 in paper mode: no probe
         if now < end - last_quarter:
             self._hold(index, end - last_quarter, own_end)  # a vouch holds it: not yet
             return

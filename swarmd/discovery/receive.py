@@ -41,7 +41,7 @@ from swarmd.discovery.events import (
     PeerRestarted,
 )
 from swarmd.discovery.foreign import ForeignParticipants
-from swarmd.discovery.leases import PROBE_AT, Leases
+from swarmd.discovery.leases import Leases
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase
 from swarmd.discovery.received import Alive
@@ -80,6 +80,7 @@ class ReceivePath:
         "_my_octet",
         "_my_prefix",
         "_on_vouch",
+        "_probe_at",
         "_rejoined",
         "_peer_at",
         "_reack_gap_s",
@@ -142,6 +143,7 @@ class ReceivePath:
         self._leases = leases
         self._lease_queue = leases.queue
         self._held_until = leases.held_until  # the dict itself, never replaced
+        self._probe_at = leases.probe_at  # the lease queue's key: the probe point
         self._commander = leases.commander
         self._vouching = leases.vouching
         self._debts = debts
@@ -288,7 +290,7 @@ class ReceivePath:
             self._leases.listed_by += 1 if lists_me else -1
         peer.link_quality_permille = alive.link_quality_permille
         index = peer.index
-        self._lease_queue.renew(peer, lease_s * PROBE_AT, now)  # Leases.renew, inline
+        self._lease_queue.renew(peer, lease_s * self._probe_at, now)  # Leases.renew, inline
         if self._held_until:
             self._held_until.pop(index, None)  # its own lease runs again
         vouched = alive.vouched
