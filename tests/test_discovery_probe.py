@@ -42,10 +42,13 @@ def alive(datagram: bytes) -> SpdpAlive:
     return samples[0]
 
 
-def _member_hearing_the_commander(mode: str = "adaptive") -> tuple[DiscoveryEngine, int]:
-    """uav1 of a 2-drone bundle, which heard uav0 (listing it) at ``HEARD_AT``; uav0's index."""
+def _member_hearing_the_commander(
+    mode: str = "adaptive", announce_budget_fps: float = 50.0
+) -> tuple[DiscoveryEngine, int]:
+    """uav1 of a 2-drone bundle, which heard uav0 (listing it) at ``HEARD_AT``; uav0's
+    index."""
     bundle = make_bundle(2)
-    config = EngineConfig(mode=cast(Mode, mode))
+    config = EngineConfig(mode=cast(Mode, mode), announce_budget_fps=announce_budget_fps)
     engine = engine_for(bundle, 1, q=1.0, config=config)
     run_to(engine, HEARD_AT)
     engine.receive_datagram(
@@ -145,3 +148,30 @@ def test_a_rejoining_peer_pulls_our_next_multicast_in_once_per_gap() -> None:
     sent = run_to(engine, pulled + GAP_S - 0.02)
     assert [d for _, d, _ in sent if alive(d).destination is None] == []
     assert engine.counters()["tx_kind"]["announce"] == announced + 1
+
+
+def test_a_probe_is_answered_at_once_and_a_flood_of_them_at_most_once_per_gap() -> None:
+    """The probed side: a directed DATA(p) from a known peer that does not list us is
+    answered within ``reply_delay_max_s`` (not after adaptive mode's U(W, 2W) holdoff);
+    a forger repeating it (unauthenticated swarm) gets one answer per re-ack gap. An
+    announce budget of 0.25 frames/s makes adaptive mode's W 8 s (N / budget), as a swarm
+    of 400 at the default budget: its answer window (2W) outlasts the flood, so every
+    answer in it is this rule's."""
+    engine, commander = _member_hearing_the_commander(announce_budget_fps=0.25)
+    bundle = make_bundle(2)
+    run_to(engine, HEARD_AT + 1.0)  # our first answer, listing it
+    t0 = HEARD_AT + 2.0
+    reply_max = EngineConfig().reply_delay_max_s
+    answers: list[float] = []
+    sn = 10
+    t = t0
+    while t < t0 + 2.0:  # a probe every 10 ms for 2 s: 200 of them
+        sn += 1
+        probe = peer_datagram(
+            bundle, commander, heard=(), sequence_number=sn, destination=engine.guid_prefix
+        )
+        engine.receive_datagram(probe, ("10.0.0.1", 7410), t)
+        answers += [at for at, d, _ in run_to(engine, t + 0.01) if alive(d).destination]
+        t += 0.01
+    assert answers and answers[0] - t0 <= reply_max + 0.01
+    assert len(answers) <= 2.0 / GAP_S + 1

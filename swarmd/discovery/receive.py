@@ -351,6 +351,18 @@ class ReceivePath:
             # ping-pong; MinInterval bounds what a spoofer can make us send.
             peer.reack.mark(now)
             told = peer.told = False
+        elif directed and not lists_me and peer.reack.permits(now):
+            # a directed DATA(p) from a peer we know that does not list us: a last-chance
+            # probe (leases.PROBE_AT: it has not heard us for 3/4 of our lease) or a peer
+            # that has never heard us. Either way an answer is wanted now, not after the
+            # adaptive holdoff (U(W, 2W): 8-16 s at N = 200, past the probed lease's end):
+            # the paper's immediate directed reply (section 4.1), within reply_delay_max_s.
+            # MinInterval (the re-ack gap) bounds what a spoofer can make us send.
+            peer.reack.mark(now)
+            told = peer.told = False
+            self._debts.disarm(peer)  # a fresh debt: its backoff and attempts start over
+            self._debts.arm(peer, now + self._debts.prompt_delay())
+            return
         elif (
             not lists_me
             and told
