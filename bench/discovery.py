@@ -6,9 +6,10 @@
 For each swarm size, engine mode and channel (clean: no loss, Q = 1; lossy: 10 % loss per
 receiver, 2 ms jitter, Q = 0.5) it runs ``swarmd_lab.testing.build_swarm`` for
 ``--seconds`` of virtual time and reports, per node: every frame sent, discovery frames
-(announcements and directed replies) and lease renewals; the peak frames per second on the
-channel (1 s bins); when every ordered pair had heard each other at least once ("all met")
-and when all pairs were discovered at the same instant ("all at once"); and lease losses.
+(announcements and directed replies), lease renewals and last-chance probes; the peak
+frames per second on the channel (1 s bins); when every ordered pair had heard each other at
+least once ("all met") and when all pairs were discovered at the same instant ("all at
+once"); and lease losses.
 
 ``cyclone model`` is not a measurement: it is stock Cyclone DDS's SPDP schedule from
 docs/benchmarks.md's reference (one DATA(p) every 8 s plus 4 directed replies to each newly
@@ -65,6 +66,8 @@ def run(n: int, mode: str, channel_name: str, seconds: float, seed: int) -> dict
         "frames_per_node": round(len(tx) / n, 2),
         "discovery_frames_per_node": round((kinds["announce"] + kinds["reply"]) / n, 2),
         "renewals_per_node": round(kinds["renewal"] / n, 2),
+        # last-chance probes (docs/discovery.md, "Probing before a lease ends")
+        "probes_per_node": round(kinds["probe"] / n, 2),
         "multicast_per_node": round(sum(1 for t in tx if t.multicast) / n, 2),
         "peak_frames_per_s": max(bins.values()) if bins else 0,
         "all_met_s": None if swarm.all_met_at is None else round(swarm.all_met_at, 3),
@@ -99,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     header = (
         f"{'channel':7} {'mode':8} {'N':>4} {'frames/node':>11} {'disc/node':>9} "
-        f"{'renew/node':>10} {'peak f/s':>8} {'all met s':>9} {'at once s':>9} "
+        f"{'renew/node':>10} {'probe/node':>10} {'peak f/s':>8} {'all met s':>9} {'at once s':>9} "
         f"{'losses':>6} {'cyclone model':>13}"
     )
     print(f"first {args.seconds:g} s of virtual time, seed {args.seed}")
@@ -112,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{r['channel']:7} {r['mode']:8} {r['n']:>4} {r['frames_per_node']:>11.2f} "
             f"{r['discovery_frames_per_node']:>9.2f} {r['renewals_per_node']:>10.2f} "
+            f"{r['probes_per_node']:>10.2f} "
             f"{r['peak_frames_per_s']:>8} {fmt(r['all_met_s']):>9} {fmt(r['all_at_once_s']):>9} "
             f"{r['lease_losses']:>6} {r['cyclone_model_per_node']:>13.1f}"
         )

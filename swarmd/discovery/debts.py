@@ -215,6 +215,11 @@ class Debts:
         high = 2.0 * spread
         return spread + (high - spread) * self._rng.random()
 
+    def prompt_delay(self) -> float:
+        """The holdoff before an answer wanted at once (a probe): U(0, reply_delay_max_s),
+        the paper's immediate directed reply in either mode."""
+        return self._rng.uniform(0.0, self._config.reply_delay_max_s)
+
     def spread_s(self) -> float:
         """Adaptive mode's W at the current Q: the time N frames take at the budget rate."""
         q, spread = self._spread_at

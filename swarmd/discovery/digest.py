@@ -19,21 +19,27 @@ class HeardBitmap:
     """The digest a node sends, kept up to date one participant at a time (the engine marks a
     peer on discovery and unmarks it on loss instead of rebuilding N bits per send)."""
 
-    __slots__ = ("_bits", "_size")
+    __slots__ = ("_bits", "_size", "count")
 
     def __init__(self, swarm_size: int) -> None:
         self._size = swarm_size
         self._bits = bytearray(bitmap_size(swarm_size))
+        self.count = 0  # participants listed (the engine: peers discovered)
 
     def mark(self, index: int) -> None:
         """List participant ``index`` (``0 <= index < swarm_size``)."""
         if not 0 <= index < self._size:
             raise ValueError(f"participant index {index} outside the bundle's 0..{self._size - 1}")
-        self._bits[index >> 3] |= 1 << (index & 7)
+        bit = 1 << (index & 7)
+        if not self._bits[index >> 3] & bit:
+            self._bits[index >> 3] |= bit
+            self.count += 1
 
     def unmark(self, index: int) -> None:
-        if 0 <= index < self._size:
-            self._bits[index >> 3] &= ~(1 << (index & 7))
+        bit = 1 << (index & 7)
+        if 0 <= index < self._size and self._bits[index >> 3] & bit:
+            self._bits[index >> 3] &= ~bit
+            self.count -= 1
 
     def to_bytes(self) -> bytes:
         return bytes(self._bits)

@@ -173,6 +173,7 @@ class DiscoveryEngine:
         "_outbox",
         "_passive_deadline",
         "_passive_timer",
+        "_pulled_in",
         "_passive_window",
         "_peer_by_prefix",
         "_peers",
@@ -183,7 +184,7 @@ class DiscoveryEngine:
         "_rng",
         "_sender",
         "_timing",
-        "_vouch_heap",
+        "_hold_heap",
         "metatraffic_port",
         "phase",
         "spdp_multicast",
@@ -260,6 +261,7 @@ class DiscoveryEngine:
         self._passive_timer: float | None = None
         self._events: deque[Event] = deque()
         self._events_dropped = 0
+        self._pulled_in = False  # the pending renewal was pulled in to announce us (rejoin)
 
         # the concerns, each with its own state (see the theory of operation)
         swarm_size = len(bundle.participants)
@@ -313,13 +315,14 @@ class DiscoveryEngine:
             lose=self._lose,
             settle=self._settle_if_done,
             on_vouch=self._on_vouch,
+            rejoined=self._rejoined,
         )
         # what get_timer() (after every input) reads, one attribute away: the concerns' own
         # objects (never replaced), not copies; and the receive path's prefix lookup
         self._renewal = renewals.timer
         self._outbox = sender.outbox
         self._lease_queue = leases.queue
-        self._vouch_heap = leases.vouch_heap
+        self._hold_heap = leases.hold_heap
         self._retries = debts.retries
         self._peer_by_prefix = receive.peer_by_prefix
         if link is not None:
@@ -338,15 +341,16 @@ class DiscoveryEngine:
             return
         if self.phase is _BOOT and self._boot_deadline is not None and now >= self._boot_deadline:
             self._start_passive(now, "no link sample before the boot timeout; default Q")
-        # Leases.expire only when a lease or a vouch ran out (most timers are retries and
+        # Leases.expire only when a probe point, a hold or a vouch came (most timers are retries and
         # renewals): earliest() is cached, and the call and its sort are not free
         earliest = self._lease_queue.earliest()
-        vouch_heap = self._vouch_heap
-        if (earliest is not None and now >= earliest[0]) or (
-            vouch_heap and vouch_heap[0][0] <= now
-        ):
-            for peer in self._leases.expire(now):
+        hold_heap = self._hold_heap
+        if (earliest is not None and now >= earliest[0]) or (hold_heap and hold_heap[0][0] <= now):
+            probes: list[Peer] = []
+            for peer in self._leases.expire(now, probes):
                 self._lose(peer, "lease")
+            for peer in probes:
+                self._probe(peer, now)
         if (
             self.phase is _PASSIVE
             and self._passive_deadline is not None
@@ -429,8 +433,8 @@ class DiscoveryEngine:
         lease = self._lease_queue.earliest()
         if lease is not None and (best is None or lease[0] < best):
             best = lease[0]
-        if self._vouch_heap:
-            vouched = self._leases.next_vouched()
+        if self._hold_heap:
+            vouched = self._leases.next_held()
             if vouched is not None and (best is None or vouched < best):
                 best = vouched
         heap = self._retries
@@ -609,7 +613,8 @@ class DiscoveryEngine:
         if renewal_due or (
             not silent and (pending >= self._config.multicast_threshold or unreachable)
         ):
-            self._send(None, now, "renewal" if renewal_due and not due else "announce")
+            plain_renewal = renewal_due and not due and not self._pulled_in
+            self._send(None, now, "renewal" if plain_renewal else "announce")
             debts.covered_all(now)
             return
         for p in due:
@@ -634,6 +639,46 @@ class DiscoveryEngine:
             # stopped hearing us)
             self._renewal.restart(now, self._rng)
 
+    def _rejoined(self, now: float) -> None:
+        """A peer we had lost was heard again: its link is back, and so, likely, are those of
+        the others still missing (a heal, the commander's return). Pull our next multicast in
+        to a short random delay: one DATA(p) listing whom we hear lets every missing peer
+        hear us and answer at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them),
+        instead of each side waiting out a renewal period or a backed-off retry. At most one
+        per ``retransmit_min_gap_s`` since our last multicast, and the random delay lets a
+        rejoining group's members see one another's frame first: no storm. Adaptive mode
+        only, as the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule."""
+        if self._config.mode != "adaptive":
+            return  # paper mode: the paper's schedule, nothing pulled in
+        if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
+            return
+        if self._leases.heard.count >= len(self._peers):
+            return  # nobody else is missing
+        last = self._renewals.last_multicast
+        gap = self._config.retransmit_min_gap_s
+        if last is not None and now - last < gap:
+            return
+        at = now + self._debts.reply_delay()
+        renewal = self._renewal
+        if renewal.due is None or at < renewal.due:
+            renewal.due = at
+            self._pulled_in = True
+
+    def _probe(self, peer: Peer, now: float) -> None:
+        """The last-chance probe (``leases.PROBE_AT``): our DATA(p) directed to ``peer`` with
+        its bit cleared from our heard digest. A peer answers at once any frame that does
+        not list it (receive.py: it owes us a frame while we do not list it), and its
+        answer renews its lease here; ours is renewed there by the probe itself. Clearing
+        ``told`` is the truth (this frame did not list it) and makes us list it in our
+        answer to its reply."""
+        if peer.target() is None:
+            return
+        heard = self._leases.heard
+        heard.unmark(peer.index)
+        self._sender.send(peer, now, "probe")
+        heard.mark(peer.index)
+        peer.told = False
+
     # --------------------------------------------------------------- sending
 
     def _send(self, peer: Peer | None, now: float, kind: str) -> None:
@@ -641,6 +686,7 @@ class DiscoveryEngine:
         self._sender.send(peer, now, kind)
         if peer is None:
             self._renewals.last_multicast = now
+            self._pulled_in = False
             if self.phase in (_ANNOUNCE, _STEADY):
                 self._renewal.restart(now, self._rng)
 

@@ -80,10 +80,12 @@ class ReceivePath:
         "_my_octet",
         "_my_prefix",
         "_on_vouch",
+        "_probe_at",
+        "_rejoined",
         "_peer_at",
         "_reack_gap_s",
         "_settle",
-        "_vouched_until",
+        "_held_until",
         "_vouching",
         "dropped",
         "phase",
@@ -109,6 +111,7 @@ class ReceivePath:
         lose: Callable[[Peer, str], None],
         settle: Callable[[], None],
         on_vouch: Callable[[Vouch, float], None],
+        rejoined: Callable[[float], None],
     ) -> None:
         # the engine's phase, as the receive path sees it: set by DiscoveryEngine._transition
         # (a slot of our own: read twice per datagram)
@@ -139,7 +142,8 @@ class ReceivePath:
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
         self._lease_queue = leases.queue
-        self._vouched_until = leases.vouched_until  # the dict itself, never replaced
+        self._held_until = leases.held_until  # the dict itself, never replaced
+        self._probe_at = leases.probe_at  # the lease queue's key: the probe point
         self._commander = leases.commander
         self._vouching = leases.vouching
         self._debts = debts
@@ -147,6 +151,7 @@ class ReceivePath:
         self._lose = lose
         self._settle = settle
         self._on_vouch = on_vouch
+        self._rejoined = rejoined
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         """Handle one UDP payload from ``source``. Never raises for any ``data``."""
@@ -285,9 +290,9 @@ class ReceivePath:
             self._leases.listed_by += 1 if lists_me else -1
         peer.link_quality_permille = alive.link_quality_permille
         index = peer.index
-        self._lease_queue.renew(peer, lease_s, now)  # Leases.renew, inline
-        if self._vouched_until:
-            self._vouched_until.pop(index, None)  # its own lease runs again
+        self._lease_queue.renew(peer, lease_s * self._probe_at, now)  # Leases.renew, inline
+        if self._held_until:
+            self._held_until.pop(index, None)  # its own lease runs again
         vouched = alive.vouched
         if vouched is not None and index == self._commander and not self._vouching:
             self._on_vouch(vouched, now)
@@ -327,6 +332,8 @@ class ReceivePath:
             if retry.due is not None or retry.attempts:
                 self._debts.disarm(peer)
             peer.times_discovered += 1
+            if peer.times_discovered > 1:
+                self._rejoined(now)  # a lost peer is back: the link evidently is too
             self._emit(
                 PeerDiscovered(
                     peer.participant.name,
@@ -344,6 +351,18 @@ class ReceivePath:
             # ping-pong; MinInterval bounds what a spoofer can make us send.
             peer.reack.mark(now)
             told = peer.told = False
+        elif directed and not lists_me and peer.reack.permits(now):
+            # a directed DATA(p) from a peer we know that does not list us: a last-chance
+            # probe (leases.PROBE_AT: it has not heard us for 3/4 of our lease) or a peer
+            # that has never heard us. Either way an answer is wanted now, not after the
+            # adaptive holdoff (U(W, 2W): 8-16 s at N = 200, past the probed lease's end):
+            # the paper's immediate directed reply (section 4.1), within reply_delay_max_s.
+            # MinInterval (the re-ack gap) bounds what a spoofer can make us send.
+            peer.reack.mark(now)
+            told = peer.told = False
+            self._debts.disarm(peer)  # a fresh debt: its backoff and attempts start over
+            self._debts.arm(peer, now + self._debts.prompt_delay())
+            return
         elif (
             not lists_me
             and told

@@ -85,7 +85,13 @@ class Sender:
             "tx_unicast": 0,
             "datagrams_dropped": 0,
         }
-        self.tx_kind: dict[str, int] = {"announce": 0, "reply": 0, "renewal": 0, "dispose": 0}
+        self.tx_kind: dict[str, int] = {
+            "announce": 0,
+            "reply": 0,
+            "renewal": 0,
+            "probe": 0,
+            "dispose": 0,
+        }
 
     def participant_data(self, now: float) -> SpdpParticipant:
         """Our DATA(p) as of ``now``."""
