@@ -153,7 +153,7 @@ def fig8_lines(runs: Sequence[Mapping[str, Any]]) -> str:
                 return "not known"
             return "holds" if xs[0] > xs[1] > xs[2] else "does not hold"
 
-        shown = " > ".join(f"{tag} ({c}) {f}" for (tag, c), f in zip(FIG8, frames, strict=True))
+        shown = ", ".join(f"{tag} ({c}) {f}" for (tag, c), f in zip(FIG8, frames, strict=True))
         out.append(
             f"- {label}: frames {holds(frames)}: {shown}; datagrams {holds(data)}: "
             + " / ".join(str(d) for d in data)
