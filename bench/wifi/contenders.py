@@ -65,13 +65,24 @@ SWARMD_VARIANTS: Final[dict[str, SwarmdVariant]] = {
 }
 PEER_SCRIPTS: Final = {"cyclonedds": "cyclone_peer.py", "zenoh": "zenoh_peer.py"}
 FASTDDS: Final = ("fastdds", "fastdds-server")
-CONTENDERS: Final = (*SWARMD_VARIANTS, *PEER_SCRIPTS, *FASTDDS)
+# real rclpy nodes (bench/wifi/ros2_contenders.py; ros2-swarmd: a hook, no launch yet)
+ROS2: Final = ("ros2", "ros2-ds", "ros2-static", "ros2-swarmd")
+CONTENDERS: Final = (*SWARMD_VARIANTS, *PEER_SCRIPTS, *FASTDDS, *ROS2)
 DISCOVERY_SERVER_PORT: Final = 11811  # Fast DDS's default server port (ROS 2 tutorial)
 
 
 def family(contender: str) -> str:
     """Which discovery frame class counts for this contender (metrics.DISCOVERY_CLASSES)."""
     return "zenoh" if contender == "zenoh" else "rtps"
+
+
+def unavailable(name: str) -> str | None:
+    """Why contender ``name`` cannot run on this machine, found before any run (None: it can)."""
+    if name in ROS2:
+        from bench.wifi.ros2_contenders import unavailable as ros2_unavailable
+
+        return ros2_unavailable(name)
+    return None
 
 
 def dataplane_supported() -> bool:
@@ -175,6 +186,14 @@ class PeerContender(Contender):
     def _env(self) -> dict[str, str]:
         return _clean_env(self.extra_env)
 
+    def _drone_env(self, i: int, env: dict[str, str]) -> dict[str, str]:
+        """Drone ``i``'s environment (the ROS 2 contenders set it per drone)."""
+        return env
+
+    def _host(self, i: int, argv: list[str]) -> list[str]:
+        """How drone ``i`` runs ``argv`` (the ROS 2 contenders wrap it in its own host)."""
+        return argv
+
     def start(self, barrier: Path) -> None:
         env = self._env()
         for i, drone in enumerate(self.drones):
@@ -195,8 +214,8 @@ class PeerContender(Contender):
             ]
             self.procs.append(
                 drone.popen(
-                    _niced(argv),
-                    env=env,
+                    _niced(self._host(i, argv)),
+                    env=self._drone_env(i, env),
                     stdout=self._log(f"peer-{i}.log"),
                     stderr=subprocess.STDOUT,
                 )
@@ -446,4 +465,8 @@ def make(
         return PeerContender(name, drones, work, window_s=window_s, messages=messages, env=env)
     if name in FASTDDS:
         return FastddsContender(name, drones, work, window_s=window_s, messages=messages, env=env)
+    if name in ROS2:
+        from bench.wifi.ros2_contenders import Ros2Contender  # imports this module
+
+        return Ros2Contender(name, drones, work, window_s=window_s, messages=messages, env=env)
     raise ValueError(f"unknown contender {name!r}; use one of: {', '.join(CONTENDERS)}")

@@ -29,6 +29,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script, too
+
+from bench.wifi.report_ros2 import ROS2, ros2_markdown  # noqa: E402
+
 # Paper Table 5 (peak discovery traffic, packets/s, real-world 10 UAVs: mean, sd) and
 # Table 4 (simulated, N: R_drop_PHY %, R_drop_MAC %, R_retx_PHY %).
 PAPER_PEAK: Final = {
@@ -46,7 +50,7 @@ PAPER_TABLE4: Final = {
 }  # fmt: skip
 # the stock stacks swarmd is compared with, in the order of every table and plot
 STOCK: Final = ("cyclonedds", "zenoh", "fastdds", "fastdds-server")
-ORDER: Final = ("swarmd", "swarmd-paper", "swarmd-noaware", "swarmd-stock", *STOCK)
+ORDER: Final = ("swarmd", "swarmd-paper", "swarmd-noaware", "swarmd-stock", *STOCK, *ROS2)
 PEAK_TARGET: Final = 0.05  # swarmd's peak <= 5 % of each stock stack's, same run (issue 13)
 SUCCESS_TARGET: Final = 0.99
 DISCOVERY_TARGET: Final = 50  # swarmd's discovery frames in the first 60 s at N = 10
@@ -841,6 +845,7 @@ def tables_markdown(runs: Sequence[Mapping[str, Any]]) -> str:
         + invalid_runs(runs)
         + "\nswarmd's discovery frames, per valid run:\n\n"
         + breakdown_table(runs)
+        + ros2_markdown(runs)
     )
 
 

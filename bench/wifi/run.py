@@ -415,6 +415,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name in names:
         if name not in contenders_mod.CONTENDERS:
             p.error(f"--contenders: unknown {name!r}; use {', '.join(contenders_mod.CONTENDERS)}")
+        why = contenders_mod.unavailable(name)
+        if why is not None:
+            p.error(f"--contenders: {why}")
     if any(not 2 <= s <= 250 for s in sizes):
         p.error("--n: each size must be 2..250")
     try:

@@ -1,0 +1,117 @@
+"""ROS 2 workload peer: a real rclpy node (rmw_fastrtps_cpp, Fast DDS 3.2 from the PyPI wheels).
+
+The paper's workload as ROS 2 nodes: on every member a ``talker`` publishing a
+``std_msgs/msg/String`` ``"<member> <seq>"`` on ``/swarm_ready`` once per ``--period``, on the
+commander (index 0) a ``listener`` subscribing to it, ROS 2's default QoS (reliable, volatile,
+keep last 10), which is what ``create_publisher(String, topic, 10)`` gives. How discovery
+works is decided by the environment the harness starts the process with (stock SIMPLE,
+``ROS_DISCOVERY_SERVER`` or the generated profiles of ``swarmctl ros2 profile``:
+bench/wifi/ros2_contenders.py); the node is the same for all of them.
+
+The node turns off parameter services, rosout and the type description service, as
+docs/ros2.md asks of nodes on a static graph (static EDP lists only the declared endpoints):
+every ROS 2 contender runs this same node, so they differ by discovery alone. A default node
+would add 15 endpoints (reference/ros2-fastdds-facts.md) and so more SEDP under SIMPLE.
+
+The commander records what the other workload peers record (bench/wifi/peers/common.py) and
+``all_discovered``: the time its subscription had matched N-1 publishers (the ``matched``
+event of rmw_fastrtps: SPDP + SEDP, or SPDP + the static file, done for every member).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
+
+from bench.wifi.peers.common import (  # noqa: E402
+    Tally,
+    parse_args,
+    stop_event,
+    wait_start_barrier,
+    write_result,
+)
+
+TOPIC = "/swarm_ready"
+DEPTH = 10  # ROS 2's default history depth for a plain create_publisher(..., 10)
+SPIN_S = 0.02  # longest spin between two checks of the clock and the stop flag
+
+
+def main() -> int:
+    args = parse_args(__doc__ or "")
+    stop = stop_event()
+    # imports before the barrier: rclpy and the message types take seconds of CPU
+    import rclpy
+    from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+    from std_msgs.msg import String
+
+    wait_start_barrier(args.barrier)
+    # our own SIGTERM handler (stop_event) writes the result; rclpy's would raise instead
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    started = time.time()
+    node = Node(
+        "listener" if args.index == 0 else "talker",
+        start_parameter_services=False,
+        enable_rosout=False,
+        parameter_overrides=[Parameter("start_type_description_service", value=False)],
+    )
+    result: dict[str, Any] = {"started": started, "index": args.index}
+    deadline = time.monotonic() + args.duration
+    matched: list[float] = []  # the time the wanted number of peers had matched
+
+    def on_match(info: Any, wanted: int) -> None:
+        if not matched and int(info.current_count) >= wanted:
+            matched.append(time.time())
+
+    if args.index == 0:
+        tally = Tally(args.messages)
+
+        def heard(msg: String) -> None:
+            head = msg.data.split(" ", 1)[0]
+            if head.isdigit():
+                tally.add(int(head))
+
+        node.create_subscription(
+            String,
+            TOPIC,
+            heard,
+            DEPTH,
+            event_callbacks=SubscriptionEventCallbacks(
+                matched=lambda info: on_match(info, args.n - 1)
+            ),
+        )
+        while not stop.is_set() and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=SPIN_S)
+        result.update(received=tally.as_json(), all_discovered=matched[0] if matched else None)
+    else:
+        publisher = node.create_publisher(
+            String,
+            TOPIC,
+            DEPTH,
+            event_callbacks=PublisherEventCallbacks(matched=lambda info: on_match(info, 1)),
+        )
+        seq = 0
+        next_t = time.monotonic()
+        while not stop.is_set() and (now := time.monotonic()) < deadline:
+            if now >= next_t:
+                seq += 1
+                msg = String()
+                msg.data = f"{args.index} {seq} uav{args.index + 1} ready"
+                publisher.publish(msg)
+                next_t += args.period
+            rclpy.spin_once(node, timeout_sec=max(0.0, min(SPIN_S, next_t - now)))
+        result.update(sent=seq, commander_matched=matched[0] if matched else None)
+    write_result(args.out, result)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

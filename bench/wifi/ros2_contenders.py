@@ -1,0 +1,249 @@
+"""The ROS 2 contenders (issue 19): the paper's workload as real rclpy nodes on every drone.
+
+Every drone runs one ``bench/wifi/peers/ros2_peer.py`` process (a ``talker`` on each member, the
+``listener`` on the commander; rclpy 9.1 + rmw_fastrtps_cpp + Fast DDS 3.2.2 from the PyPI
+wheels, docs/dependencies.md) in its own emulated host: a private mount namespace with its own
+``/etc/machine-id`` and ``/dev/shm`` (``swarmd_lab.ros2_lab.host_argv``), because Fast DDS 3.2
+otherwise takes the namespaces for one host and moves the data through shared memory, off the
+channel. The contenders differ only in the environment the node starts with, which a *route*
+gives per drone:
+
+=============  =====================================================================
+contender      route
+=============  =====================================================================
+ros2           stock defaults: SIMPLE discovery, SPDP to 239.255.0.1, SEDP (the
+               paper's baseline; ROS 2 Kilted's default ``ROS_AUTOMATIC_DISCOVERY_RANGE``
+               is SUBNET)
+ros2-ds        Fast DDS Discovery Server: ``fast-discovery-server`` on the commander's
+               host, every node a client through ``ROS_DISCOVERY_SERVER=IP:11811``
+ros2-static    the files ``swarmctl ros2 profile`` writes from a bundle whose mission
+               declares the graph: unicast-only SPDP to explicit peers, STATIC EDP
+               (the paper's "Static discovery", Fig. 8; docs/ros2.md)
+ros2-swarmd    swarmd relays discovery to its drone's nodes (branch h-ros2-relay):
+               no launch yet, ``ROUTES["ros2-swarmd"]`` is the hook (below)
+=============  =====================================================================
+
+A route is a function ``(contender) -> list of per-drone environments``; it may start
+infrastructure on the drones first with ``contender.start_infrastructure`` (a process outside
+the start barrier that runs until the teardown, as the discovery server). To add
+``ros2-swarmd``, set ``ROUTES["ros2-swarmd"]`` to a function that starts a swarmd daemon on every
+drone that way (``contenders.SwarmdContender._config`` shows the testbed's daemon config) and
+returns the environment that points each node at its local swarmd.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import shutil
+import subprocess
+import sys
+import sysconfig
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Final
+
+from swarmd_lab.netns import Namespace
+from swarmd_lab.ros2_lab import host_argv, write_machine_id
+
+from bench.wifi.bundle import mission_text
+from bench.wifi.contenders import PEERS, PeerContender, _clean_env
+from bench.wifi.peers.ros2_peer import TOPIC
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.cli.swarmctl import main as swarmctl
+
+DISCOVERY_SERVER_PORT: Final = 11811  # Fast DDS's default server port (ROS 2 tutorial)
+SERVER_HOST_ID: Final = 1000  # the server's machine id: not the commander node's (own /dev/shm)
+# fast-discovery-server's "conventional server" command index: what `fastdds discovery`
+# (tools/fastdds/discovery/parser.py in the ros-fastdds wheel) passes before the options
+SERVER_COMMAND: Final = "42"
+ROS2_ENV_PREFIXES: Final = ("ROS_", "RMW_", "FASTDDS_", "FASTRTPS_")
+
+Route = Callable[["Ros2Contender"], list[dict[str, str]]]
+
+
+def wheels_missing() -> str | None:
+    """Why the ROS 2 contenders cannot run here (None: they can)."""
+    try:
+        import rclpy  # noqa: F401
+        import std_msgs.msg  # noqa: F401
+    except ImportError as exc:
+        return f"ROS 2 wheels not installed ({exc.name}; scripts/setup.sh installs them)"
+    if shutil.which("unshare") is None:
+        return "unshare missing (util-linux): each emulated host needs its own mount namespace"
+    if discovery_server_binary() is None:
+        return "fast-discovery-server missing beside the venv's python (ros-fastdds wheel)"
+    return None
+
+
+def discovery_server_binary() -> Path | None:
+    path = Path(sys.executable).parent / "fast-discovery-server"
+    return path if path.exists() else None
+
+
+def _wheel_library_path() -> str:
+    """The wheels' shared libraries: the binary has no RPATH to them (rclpy loads them itself)."""
+    site = Path(sysconfig.get_paths()["purelib"])
+    return f"{Path(sys.prefix) / 'lib'}:{site / 'ros_fastdds.libs'}"
+
+
+def ros2_env(extra: Mapping[str, str]) -> dict[str, str]:
+    """A node's environment: nothing of the caller's ROS 2 settings, Fast DDS as the rmw."""
+    env = {k: v for k, v in _clean_env(extra).items() if not k.startswith(ROS2_ENV_PREFIXES)}
+    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
+    env["ROS_DOMAIN_ID"] = "0"
+    return env
+
+
+def stock_route(c: Ros2Contender) -> list[dict[str, str]]:
+    """ROS 2's defaults: nothing but the rmw and the domain."""
+    return [ros2_env(c.extra_env) for _ in c.drones]
+
+
+def discovery_server_route(c: Ros2Contender) -> list[dict[str, str]]:
+    """``fast-discovery-server`` on the commander's host, every node a client of it.
+
+    As the ROS 2 tutorial "Using Fast DDS Discovery Server as discovery protocol" and the
+    Fast DDS 2.9 ``fastdds-server`` contender: the server listens on the commander's address
+    and starts before the nodes. It runs with its own machine id (and so its own /dev/shm
+    could not be shared anyway): it reaches the commander's node over the namespace's own
+    IP stack, never over the channel.
+    """
+    binary = discovery_server_binary()
+    if binary is None:
+        raise RuntimeError("fast-discovery-server missing beside the venv's python")
+    address = c.drones[0].address
+    argv = [str(binary), SERVER_COMMAND, "-i", "0", "-l", address]
+    argv += ["-p", str(DISCOVERY_SERVER_PORT)]
+    env = ros2_env(c.extra_env)
+    env["LD_LIBRARY_PATH"] = _wheel_library_path()
+    c.start_infrastructure(0, argv, env, "discovery-server", host_id=SERVER_HOST_ID)
+    envs = []
+    for _ in c.drones:
+        e = ros2_env(c.extra_env)
+        e["ROS_DISCOVERY_SERVER"] = f"{address}:{DISCOVERY_SERVER_PORT}"
+        envs.append(e)
+    return envs
+
+
+def ros2_mission_text(addresses: list[str]) -> str:
+    """The testbed's mission (bench/wifi/bundle.py) plus the ROS 2 graph of the workload."""
+    return (
+        mission_text(addresses, t_min_s=8.0, t_max_s=20.0, lease_s=20.0)
+        + f"""\
+ros2:
+  domain_id: 0
+  topics:
+    - {{name: {TOPIC}, type: std_msgs/msg/String, reliability: reliable,
+       durability: volatile, history_depth: 10}}
+  nodes:
+    - {{name: talker, drones: member, publishes: [{TOPIC}]}}
+    - {{name: listener, drones: commander, subscribes: [{TOPIC}]}}
+"""
+    )
+
+
+def read_env_file(path: Path) -> dict[str, str]:
+    """``KEY=VALUE`` lines of a generated ``<node>.env`` (``#`` comments skipped)."""
+    out = {}
+    for line in path.read_text().splitlines():
+        if line and not line.startswith("#"):
+            key, _, value = line.partition("=")
+            out[key] = value
+    return out
+
+
+def static_route(c: Ros2Contender) -> list[dict[str, str]]:
+    """The generated profiles: ``swarmctl ros2 profile`` on a bundle declaring the workload."""
+    directory = c.work / "ros2-bundle"
+    directory.mkdir(parents=True, exist_ok=True)
+    text = ros2_mission_text([d.address for d in c.drones])
+    bundle = directory / "bundle.swb"
+    bundle.write_bytes(build_dev_bundle(parse_mission(text, "wifibench-ros2.yaml")).data)
+    out = c.work / "ros2-profiles"
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        code = swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)])
+    if code != 0:
+        raise RuntimeError(f"swarmctl ros2 profile exited with {code}: {said.getvalue()[-400:]}")
+    envs = []
+    for i in range(len(c.drones)):
+        node = "listener" if i == 0 else "talker"
+        e = ros2_env(c.extra_env)
+        e.update(read_env_file(out / f"uav{i + 1}" / f"{node}.env"))
+        envs.append(e)
+    return envs
+
+
+# contender -> route; None: named but not built here (the hook for branch h-ros2-relay)
+ROUTES: Final[dict[str, Route | None]] = {
+    "ros2": stock_route,
+    "ros2-ds": discovery_server_route,
+    "ros2-static": static_route,
+    "ros2-swarmd": None,
+}
+
+
+def unavailable(name: str) -> str | None:
+    """Why contender ``name`` cannot run (None: it can)."""
+    if ROUTES.get(name) is None:
+        return (
+            f"{name}: no launch yet (swarmd relaying discovery to ROS 2 nodes, branch "
+            "h-ros2-relay); set bench.wifi.ros2_contenders.ROUTES[" + repr(name) + "]"
+        )
+    return wheels_missing()
+
+
+class Ros2Contender(PeerContender):
+    """rclpy workload nodes, one per drone in its own emulated host; the route sets discovery."""
+
+    def __init__(
+        self,
+        name: str,
+        drones: list[Namespace],
+        work: Path,
+        *,
+        window_s: float,
+        messages: int,
+        env: Mapping[str, str] | None = None,
+    ) -> None:
+        super().__init__(name, drones, work, window_s=window_s, messages=messages, env=env)
+        route = ROUTES.get(name)
+        if route is None:
+            raise ValueError(unavailable(name) or f"unknown ROS 2 contender {name!r}")
+        self.route: Route = route
+        self.infrastructure: list[subprocess.Popen[bytes]] = []
+        self._envs: list[dict[str, str]] = []
+
+    def _program(self) -> list[str]:
+        return [sys.executable, str(PEERS / "ros2_peer.py")]
+
+    def _machine_id(self, host_id: int) -> Path:
+        return write_machine_id(self.work, host_id)
+
+    def _host(self, i: int, argv: list[str]) -> list[str]:
+        return host_argv(argv, self._machine_id(i))
+
+    def _drone_env(self, i: int, env: dict[str, str]) -> dict[str, str]:
+        return self._envs[i]
+
+    def start_infrastructure(
+        self, i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int
+    ) -> subprocess.Popen[bytes]:
+        """Start ``argv`` on drone ``i`` outside the barrier (it is not a contender process:
+        it runs from now until the teardown, like a service already up on the drone)."""
+        proc = self.drones[i].popen(
+            host_argv(argv, self._machine_id(host_id)),
+            env=env,
+            stdout=self._log(f"{name}.log"),
+            stderr=subprocess.STDOUT,
+        )
+        self.infrastructure.append(proc)
+        return proc
+
+    def start(self, barrier: Path) -> None:
+        self._envs = self.route(self)
+        if len(self._envs) != self.n:
+            raise RuntimeError(f"{self.name}: the route gave {len(self._envs)} environments")
+        super().start(barrier)
