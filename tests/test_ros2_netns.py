@@ -10,15 +10,13 @@ Fast DDS 3.2 takes the three "hosts" for one and moves the data through shared m
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
-from swarmd_lab import netns
+from swarmd_lab import netns, ros2_lab
 from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
 
 from swarmd.cli.swarmctl import main as swarmctl
@@ -55,30 +53,8 @@ ros2:
 """
 
 
-def _env(env_file: Path) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "RMW_"))}
-    env.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
-    for line in env_file.read_text().splitlines():
-        if line and not line.startswith("#"):
-            key, _, value = line.partition("=")
-            env[key] = value
-    return env
-
-
 def _start_capture(hub: str, pcap: Path) -> subprocess.Popen[bytes]:
-    tshark = shutil.which("tshark") or "tshark"
-    proc = subprocess.Popen(  # noqa: S603 - argv list
-        ["ip", "netns", "exec", hub, tshark, "-i", netns.BRIDGE, "-w", str(pcap), "-q"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.monotonic() + CAPTURE_START_S
-    while time.monotonic() < deadline:  # tshark is capturing once the file has its header
-        if pcap.exists() and pcap.stat().st_size > 0:
-            return proc
-        time.sleep(0.1)
-    proc.kill()
-    pytest.fail("tshark did not start capturing on the LAN bridge")
+    return ros2_lab.start_capture(hub, netns.BRIDGE, pcap, CAPTURE_START_S)
 
 
 def test_three_drones_talk_and_call_with_generated_profiles_and_no_sedp(tmp_path: Path) -> None:
@@ -102,7 +78,7 @@ def test_three_drones_talk_and_call_with_generated_profiles_and_no_sedp(tmp_path
                 procs.append(
                     lan[i].popen(
                         host_argv(argv, write_machine_id(tmp_path, i)),
-                        env=_env(out / drone / f"{node}.env"),
+                        env=ros2_lab.node_env(out / drone / f"{node}.env"),
                         stdout=subprocess.PIPE,
                     )
                 )

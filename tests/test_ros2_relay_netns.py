@@ -18,7 +18,6 @@ Assertions are on what arrived and on the daemons' status, never on elapsed time
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -29,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from swarmd_lab import netns
+from swarmd_lab import netns, ros2_lab
 from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
 
 from swarmd.bundle.build import build_dev_bundle
@@ -109,30 +108,8 @@ def _discovered(sock: Path) -> int:
     return sum(p["state"] == "discovered" for p in _status(sock)["peers"])
 
 
-def _node_env(env_file: Path) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "RMW_"))}
-    env.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
-    for line in env_file.read_text().splitlines():
-        if line and not line.startswith("#"):
-            key, _, value = line.partition("=")
-            env[key] = value
-    return env
-
-
 def _start_capture(hub: str, pcap: Path) -> subprocess.Popen[bytes]:
-    tshark = shutil.which("tshark") or "tshark"
-    proc = subprocess.Popen(  # noqa: S603 - argv list
-        ["ip", "netns", "exec", hub, tshark, "-i", netns.BRIDGE, "-w", str(pcap), "-q"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.monotonic() + CAPTURE_START_S
-    while time.monotonic() < deadline:  # tshark is capturing once the file has its header
-        if pcap.exists() and pcap.stat().st_size > 0:
-            return proc
-        time.sleep(0.1)
-    proc.kill()
-    pytest.fail("tshark did not start capturing on the LAN bridge")
+    return ros2_lab.start_capture(hub, netns.BRIDGE, pcap, CAPTURE_START_S)
 
 
 def _forged_spdp(attacker: str) -> bytes:
@@ -214,7 +191,7 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         argv = [sys.executable, "-m", "swarmd_lab.ros2_node", node, "--seconds", str(seconds)]
         return lan[i].popen(
             host_argv([*argv, *extra], machine_ids[i]),
-            env=_node_env(profiles / DRONES[i] / f"{node}.env"),
+            env=ros2_lab.node_env(profiles / DRONES[i] / f"{node}.env"),
             stdout=subprocess.PIPE,
         )
 
@@ -368,7 +345,7 @@ def test_the_same_forgery_reaches_a_node_on_the_plain_route(
             [sys.executable, "-m", "swarmd_lab.ros2_node", "listener", "--seconds", "6"],
             write_machine_id(workdir, 0),
         ),
-        env=_node_env(profiles / "lead" / "listener.env"),
+        env=ros2_lab.node_env(profiles / "lead" / "listener.env"),
         stdout=subprocess.PIPE,
     )
     lead = next(p for p in bundle_ros2_participants(files.bundle) if p.drone == "lead")

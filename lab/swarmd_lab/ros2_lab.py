@@ -11,8 +11,10 @@ by their builtin endpoint (DDSI-RTPS 2.5 9.3.2: SPDP 0x000100c2/c7, SEDP publica
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -117,3 +119,34 @@ def discovery_counts(pcap: Path, senders: frozenset[str] | None = None) -> Disco
         sedp_swarmd += bool(ids & SEDP_IDS) and is_swarmd
         multicast += dst.startswith(("224.", "239."))
     return DiscoveryCounts(rtps, spdp, sedp, multicast, spdp_swarmd, sedp_swarmd)
+
+
+def node_env(env_file: Path) -> dict[str, str]:
+    """The environment a ROS 2 node starts with: ours without any ROS_*/RMW_* or Fast DDS
+    profile variable (so nothing of the caller's leaks in), plus the generated env file's."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "RMW_"))}
+    env.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
+    for line in env_file.read_text().splitlines():
+        if line and not line.startswith("#"):
+            key, _, value = line.partition("=")
+            env[key] = value
+    return env
+
+
+def start_capture(hub: str, bridge: str, pcap: Path, timeout_s: float) -> subprocess.Popen[bytes]:
+    """tshark writing ``pcap`` from ``bridge`` in namespace ``hub``; returns once it is
+    capturing (the file has its header). RuntimeError when it does not start in time."""
+    tshark = shutil.which("tshark") or "tshark"
+    proc = subprocess.Popen(  # noqa: S603 - argv list
+        ["ip", "netns", "exec", hub, tshark, "-i", bridge, "-w", str(pcap), "-q"],  # noqa: S607
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if pcap.exists() and pcap.stat().st_size > 0:
+            return proc
+        time.sleep(0.1)
+    proc.kill()
+    proc.wait()
+    raise RuntimeError(f"tshark did not start capturing on {bridge} in {hub}")
