@@ -1,9 +1,10 @@
 """The ROS 2 contenders of the emulated 802.11 testbed (issue 19, bench/wifi/ros2_contenders.py).
 
 The smoke run puts real rclpy nodes (stock SIMPLE, Discovery Server, generated static
-profiles) on a 3-drone ns-3 channel under time dilation and asserts that each discovered and
-delivered; never timings (the machine is shared). The rest checks, without a channel, what the
-contenders are built from (the generated static route, the ros2-swarmd hook) and what the
+profiles, swarmd's relay) on a 3-drone ns-3 channel under time dilation and asserts that each
+discovered and delivered; never timings (the machine is shared). The rest checks, without a
+channel, what the contenders are built from (the generated static route, the ros2-swarmd
+route, a contender without a route) and what the
 report computes from run files (first message of every member, the Fig. 8 ordering).
 """
 
@@ -33,7 +34,7 @@ from bench.wifi.topology import BASE
 from swarmd.config import load_config
 
 REPO = Path(__file__).resolve().parents[1]
-ROS2_RUNNABLE = ("ros2", "ros2-ds", "ros2-static")
+ROS2_RUNNABLE = ("ros2", "ros2-ds", "ros2-static", "ros2-swarmd")
 
 
 def _drones(n: int) -> list[Namespace]:
@@ -208,6 +209,8 @@ def test_wifi_smoke_ros2_contenders_dilated(tmp_path: Path) -> None:
     for r in runs.values():
         name = r["contender"]
         assert r["setup"]["dilation"] == 2.0
-        assert r["discovery_frames_60s"] > 0, f"{name}: no discovery on the channel"
+        if name != "ros2-swarmd":  # its nodes' discovery stays on lo; swarmd's own SPDP
+            # runs at the bundle's period, which a 6 s window may hold none of
+            assert r["discovery_frames_60s"] > 0, f"{name}: no discovery on the channel"
         assert r["all_discovered_s"] is not None, f"{name}: the listener matched no one"
         assert set(r["received"]) == {"1", "2"}, f"{name}: not every talker reached it"
