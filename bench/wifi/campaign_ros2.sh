@@ -15,7 +15,7 @@ OUT=${OUT:-bench/results/wifi-dilated}
 END=${END:-$(( $(date +%s) + 3600 ))}
 FIRST=${FIRST:-4}
 REPEATS=${REPEATS:-3}
-ALL=${CONTENDERS:-swarmd,fastdds,ros2,ros2-ds,ros2-static}
+ALL=${CONTENDERS:-swarmd,fastdds,ros2,ros2-ds,ros2-static,ros2-swarmd}
 mkdir -p "$OUT"
 echo "campaign-ros2: commit $(git rev-parse --short=10 HEAD), end $(date -u -d "@$END" +%H:%M:%S)"
 

@@ -65,7 +65,7 @@ SWARMD_VARIANTS: Final[dict[str, SwarmdVariant]] = {
 }
 PEER_SCRIPTS: Final = {"cyclonedds": "cyclone_peer.py", "zenoh": "zenoh_peer.py"}
 FASTDDS: Final = ("fastdds", "fastdds-server")
-# real rclpy nodes (bench/wifi/ros2_contenders.py; ros2-swarmd: a hook, no launch yet)
+# real rclpy nodes (bench/wifi/ros2_contenders.py; ros2-swarmd: swarmd relays their discovery)
 ROS2: Final = ("ros2", "ros2-ds", "ros2-static", "ros2-swarmd")
 CONTENDERS: Final = (*SWARMD_VARIANTS, *PEER_SCRIPTS, *FASTDDS, *ROS2)
 DISCOVERY_SERVER_PORT: Final = 11811  # Fast DDS's default server port (ROS 2 tutorial)

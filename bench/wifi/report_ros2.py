@@ -22,7 +22,14 @@ ROS2: Final = ("ros2", "ros2-ds", "ros2-static", "ros2-swarmd")
 BESIDE: Final = ("swarmd", "fastdds", "fastdds-server")
 STEP_ORDER: Final = (*BESIDE, *ROS2)
 # the paper's Fig. 8: Simple > Static > Preloading. Preloading is swarmd (its endpoints come
-# from the bundle, no EDP at all); ros2-swarmd would be the ROS 2 nodes' own preloading
+# from the bundle, no EDP at all); ros2-swarmd is the ROS 2 nodes' own preloading
+# ros2-swarmd's window is not like the others': its daemons converge before the release
+SWARMD_NOTE: Final = (
+    " `ros2-swarmd`: swarmd with `ros2.relay: true` on every drone, the nodes on the "
+    "`--via-swarmd` profiles, started once every daemon had N-1 peers (docs/testbed.md): "
+    "its discovery frames are swarmd's own periodic SPDP in the window, the nodes' "
+    "discovery stays on each drone's `lo`."
+)
 FIG8: Final = (("Simple", "ros2"), ("Static", "ros2-static"), ("Preloading", "swarmd"))
 
 
@@ -181,8 +188,9 @@ def ros2_markdown(runs: Sequence[Mapping[str, Any]]) -> str:
         "peers), *first message of every member* is when the commander had heard every member "
         "once (swarmd: polled every 0.25 s). Discovery frames are the channel's RTPS "
         "discovery class (builtin SPDP/SEDP entities, ACKs included; the split is data frames "
-        "+ ACKs); ROS 2's `ros_discovery_info` graph topic is user data there.\n\n"
-        "Per step:\n\n"
+        "+ ACKs); ROS 2's `ros_discovery_info` graph topic is user data there."
+        + (SWARMD_NOTE if "ros2-swarmd" in ran else "")
+        + "\n\nPer step:\n\n"
         + step_table(runs)
         + "\nMedians (range) over the valid runs of these steps:\n\n"
         + median_table(runs)

@@ -19,16 +19,16 @@ ros2-ds        Fast DDS Discovery Server: ``fast-discovery-server`` on the comma
 ros2-static    the files ``swarmctl ros2 profile`` writes from a bundle whose mission
                declares the graph: unicast-only SPDP to explicit peers, STATIC EDP
                (the paper's "Static discovery", Fig. 8; docs/ros2.md)
-ros2-swarmd    swarmd relays discovery to its drone's nodes (branch h-ros2-relay):
-               no launch yet, ``ROUTES["ros2-swarmd"]`` is the hook (below)
+ros2-swarmd    swarmd on every drone (``ros2.relay: true``, the same bundle) serves its
+               node's discovery on [::1]; the nodes get the ``swarmctl ros2 profile
+               --via-swarmd`` files: 0 ROS 2 discovery datagrams on the air, only
+               swarmd's own signed SPDP (docs/ros2.md, "The relay route")
 =============  =====================================================================
 
 A route is a function ``(contender) -> list of per-drone environments``; it may start
 infrastructure on the drones first with ``contender.start_infrastructure`` (a process outside
-the start barrier that runs until the teardown, as the discovery server). To add
-``ros2-swarmd``, set ``ROUTES["ros2-swarmd"]`` to a function that starts a swarmd daemon on every
-drone that way (``contenders.SwarmdContender._config`` shows the testbed's daemon config) and
-returns the environment that points each node at its local swarmd.
+the start barrier that runs until the teardown, as the discovery server and the swarmd
+daemons of ``ros2-swarmd``).
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Final
@@ -46,12 +47,15 @@ from typing import Final
 from swarmd_lab.netns import Namespace
 from swarmd_lab.ros2_lab import host_argv, write_machine_id
 
-from bench.wifi.bundle import mission_text
+from bench.wifi.bundle import SWARM, mission_text
 from bench.wifi.contenders import PEERS, PeerContender, _clean_env
 from bench.wifi.peers.ros2_peer import TOPIC
+from bench.wifi.topology import _sysctls as sysctls
 from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.control import DaemonUnreachable, RequestError, request
 
 DISCOVERY_SERVER_PORT: Final = 11811  # Fast DDS's default server port (ROS 2 tutorial)
 SERVER_HOST_ID: Final = 1000  # the server's machine id: not the commander node's (own /dev/shm)
@@ -59,6 +63,9 @@ SERVER_HOST_ID: Final = 1000  # the server's machine id: not the commander node'
 # (tools/fastdds/discovery/parser.py in the ros-fastdds wheel) passes before the options
 SERVER_COMMAND: Final = "42"
 ROS2_ENV_PREFIXES: Final = ("ROS_", "RMW_", "FASTDDS_", "FASTRTPS_")
+# ros2-swarmd: how long (real seconds) the daemons get to discover each other before the
+# nodes start; the bundle's Tmin 8 s / Tmax 20 s are experiment seconds, dilated by k
+SWARMD_CONVERGE_S: Final = 120.0
 
 Route = Callable[["Ros2Contender"], list[dict[str, str]]]
 
@@ -154,17 +161,25 @@ def read_env_file(path: Path) -> dict[str, str]:
     return out
 
 
-def static_route(c: Ros2Contender) -> list[dict[str, str]]:
-    """The generated profiles: ``swarmctl ros2 profile`` on a bundle declaring the workload."""
+def _write_ros2_bundle(c: Ros2Contender) -> tuple[Path, Path]:
+    """The testbed's bundle with the workload's ROS 2 graph, and its dev trust key."""
     directory = c.work / "ros2-bundle"
     directory.mkdir(parents=True, exist_ok=True)
     text = ros2_mission_text([d.address for d in c.drones])
     bundle = directory / "bundle.swb"
     bundle.write_bytes(build_dev_bundle(parse_mission(text, "wifibench-ros2.yaml")).data)
+    key = directory / "swarm.pub"
+    key.write_bytes(public_pem(raw_public(dev_signing_key(SWARM))))
+    return bundle, key
+
+
+def _profiles(c: Ros2Contender, bundle: Path, *extra: str) -> list[dict[str, str]]:
+    """``swarmctl ros2 profile`` on ``bundle``; each drone's node environment from its files."""
     out = c.work / "ros2-profiles"
     said = io.StringIO()
     with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-        code = swarmctl(["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out)])
+        argv = ["ros2", "profile", str(bundle), "--allow-dev", "--out", str(out), *extra]
+        code = swarmctl(argv)
     if code != 0:
         raise RuntimeError(f"swarmctl ros2 profile exited with {code}: {said.getvalue()[-400:]}")
     envs = []
@@ -176,22 +191,105 @@ def static_route(c: Ros2Contender) -> list[dict[str, str]]:
     return envs
 
 
-# contender -> route; None: named but not built here (the hook for branch h-ros2-relay)
+def static_route(c: Ros2Contender) -> list[dict[str, str]]:
+    """The generated profiles: ``swarmctl ros2 profile`` on a bundle declaring the workload."""
+    bundle, _key = _write_ros2_bundle(c)
+    return _profiles(c, bundle)
+
+
+def swarmd_config(c: Ros2Contender, i: int, bundle: Path, key: Path) -> Path:
+    """Drone ``i``'s daemon config: the testbed's (``contenders.SwarmdContender``), adaptive
+    mode with a static link quality (no ns-3 link file reaches a ROS 2 contender), no data
+    plane (the rclpy nodes carry the workload), and the relay on (docs/ros2.md)."""
+    text = f"""\
+node: uav{i + 1}
+bundle:
+  path: {bundle}
+  trusted_key: {key}
+  allow_dev: true
+network:
+  interface: eth0
+control:
+  socket: {swarmd_socket(c, i)}
+link:
+  sources: [static]
+  poll_interval_s: 1.0
+  static_q: 0.5
+discovery:
+  mode: adaptive
+ros2:
+  relay: true
+logging:
+  level: info
+  format: json
+"""
+    path = c.work / f"swarmd-uav{i + 1}.yaml"
+    path.write_text(text)
+    return path
+
+
+def swarmd_socket(c: Ros2Contender, i: int) -> Path:
+    return c.work / f"swarmd-uav{i + 1}.sock"
+
+
+def _discovered(c: Ros2Contender, i: int) -> bool:
+    try:
+        st = request(str(swarmd_socket(c, i)), "status")
+    except (DaemonUnreachable, RequestError, OSError, ValueError):
+        return False
+    return isinstance(st, dict) and st.get("peers_discovered") == c.n - 1
+
+
+def swarmd_route(c: Ros2Contender) -> list[dict[str, str]]:
+    """swarmd with ``ros2.relay: true`` on every drone, the nodes on ``--via-swarmd`` profiles.
+
+    The daemons start outside the barrier and the nodes only once every daemon has
+    discovered every other drone: swarmd is the drone's service already up when ROS 2 starts
+    (as the discovery server of ``ros2-ds``). Its discovery before the window is therefore
+    not in the window's counters; its periodic SPDP in the window is. What the window
+    measures is the nodes' own discovery, which the relays answer on ``[::1]``.
+    """
+    bundle, key = _write_ros2_bundle(c)
+    env = _clean_env(c.extra_env)
+    for drone in c.drones:
+        # the testbed turns IPv6 off in every drone (bench/wifi/topology.py, pitfall 4); the
+        # relay and the nodes' discovery need it on lo only, which never reaches the channel
+        sysctls(drone.name, [("net.ipv6.conf.lo.disable_ipv6", "0")])
+    for i in range(c.n):
+        argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "run"]
+        argv += ["--config", str(swarmd_config(c, i, bundle, key))]
+        c.start_infrastructure(i, argv, env, f"swarmd-uav{i + 1}", host_id=i)
+    deadline = time.monotonic() + SWARMD_CONVERGE_S
+    waiting = set(range(c.n))
+    while waiting:
+        waiting = {i for i in waiting if not _discovered(c, i)}
+        dead = [i for i, p in enumerate(c.infrastructure) if p.poll() is not None]
+        if dead:
+            log = c.work / f"swarmd-uav{dead[0] + 1}.log"
+            said = log.read_text(errors="replace")[-400:] if log.exists() else ""
+            raise RuntimeError(f"ros2-swarmd: swarmd exited on drones {dead}: {said}")
+        if waiting and time.monotonic() > deadline:
+            raise RuntimeError(
+                f"ros2-swarmd: drones {sorted(waiting)} discovered not every other drone "
+                f"in {SWARMD_CONVERGE_S:g} s (swarmd-uav*.log)"
+            )
+        time.sleep(0.25)
+    return _profiles(c, bundle, "--via-swarmd")
+
+
+# contender -> route; None: named but not built here
 ROUTES: Final[dict[str, Route | None]] = {
     "ros2": stock_route,
     "ros2-ds": discovery_server_route,
     "ros2-static": static_route,
-    "ros2-swarmd": None,
+    "ros2-swarmd": swarmd_route,
 }
 
 
 def unavailable(name: str) -> str | None:
     """Why contender ``name`` cannot run (None: it can)."""
     if ROUTES.get(name) is None:
-        return (
-            f"{name}: no launch yet (swarmd relaying discovery to ROS 2 nodes, branch "
-            "h-ros2-relay); set bench.wifi.ros2_contenders.ROUTES[" + repr(name) + "]"
-        )
+        return f"{name}: no launch yet; set bench.wifi.ros2_contenders.ROUTES[{name!r}]"
     return wheels_missing()
 
 
