@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import os
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle
+from swarmd.control import DaemonUnreachable, request
 
 
 def run_domain() -> int:
@@ -154,3 +158,24 @@ def clean_env(**extra: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k not in drop}
     env.update(extra)
     return env
+
+
+def until(cond: Callable[[], bool], what: Callable[[], str], wait_s: float) -> None:
+    """Poll ``cond`` every 0.1 s for up to ``wait_s`` (a daemon not answering yet counts as
+    not yet); AssertionError with ``what()`` when it never holds."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            if cond():
+                return
+        except DaemonUnreachable:
+            pass
+        if time.monotonic() > deadline:
+            raise AssertionError(f"gave up waiting: {what()}")
+        time.sleep(0.1)
+
+
+def daemon_status(sock: Path) -> dict[str, Any]:
+    """``swarmctl status --json``'s document, straight from the control socket."""
+    result: dict[str, Any] = request(str(sock), "status")
+    return result

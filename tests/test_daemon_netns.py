@@ -11,7 +11,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,9 +18,8 @@ from typing import Any
 import pytest
 from swarmd_lab.netns import Lan
 
-from swarmd.control import DaemonUnreachable, request
 from tests.conftest import CycloneFactory, LanFactory
-from tests.daemon_support import write_bundle, write_config
+from tests.daemon_support import daemon_status, until, write_bundle, write_config
 
 BIN = Path(sys.executable).parent
 N = 5
@@ -32,21 +30,11 @@ pytestmark = [pytest.mark.netns, pytest.mark.interop]
 
 
 def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while True:
-        try:
-            if cond():
-                return
-        except DaemonUnreachable:
-            pass
-        if time.monotonic() > deadline:
-            raise AssertionError(f"gave up waiting: {what()}")
-        time.sleep(0.1)
+    until(cond, what, WAIT_S)
 
 
 def _status(sock: Path) -> dict[str, Any]:
-    result: dict[str, Any] = request(str(sock), "status")
-    return result
+    return daemon_status(sock)
 
 
 def _states(sock: Path) -> dict[str, str]:

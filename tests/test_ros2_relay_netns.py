@@ -36,12 +36,11 @@ from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.cli.swarmctl import main as swarmctl
-from swarmd.control import DaemonUnreachable, request
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
 from swarmd.rtps.types import Duration, GuidPrefix, ProtocolVersion, VendorId
 from tests.conftest import LanFactory
-from tests.daemon_support import BundleFiles, run_domain, write_config
+from tests.daemon_support import BundleFiles, daemon_status, run_domain, until, write_config
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
@@ -87,21 +86,11 @@ RELAY_CONFIG = "ros2:\n  relay: true\n  lease_s: 6\n"
 
 
 def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while True:
-        try:
-            if cond():
-                return
-        except DaemonUnreachable:
-            pass
-        if time.monotonic() > deadline:
-            raise AssertionError(f"gave up waiting: {what()}")
-        time.sleep(0.1)
+    until(cond, what, WAIT_S)
 
 
 def _status(sock: Path) -> dict[str, Any]:
-    result: dict[str, Any] = request(str(sock), "status")
-    return result
+    return daemon_status(sock)
 
 
 def _discovered(sock: Path) -> int:
