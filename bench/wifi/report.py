@@ -24,203 +24,53 @@ import statistics
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script, too
 
-from bench.wifi.report_ros2 import ROS2, ros2_markdown  # noqa: E402
+from bench.wifi.report_data import (  # noqa: E402
+    CLASSES,
+    PAPER_PEAK,
+    PAPER_TABLE4,
+    PEAK_TARGET,
+    REPEATS_PLANNED,
+    SESSION2,
+    STOCK,
+    _fmt,
+    _median_run,
+    _order,
+    _ratio,
+    _spread,
+    _success_cell,
+    commit,
+    dilation,
+    load_runs,
+    main_k,
+    main_rows,
+    main_runs,
+    paired_ratios,
+    summarise,
+)
+from bench.wifi.report_plots import (  # noqa: E402
+    plots,
+)
+from bench.wifi.report_ros2 import ros2_markdown  # noqa: E402
+from bench.wifi.report_verdicts import (  # noqa: E402
+    Verdict,
+    coverage_verdicts,
+    discovery_verdict,
+    peak_verdicts,
+    repeat_lines,
+    success_verdicts,
+    verdicts_markdown,
+)
 
-# Paper Table 5 (peak discovery traffic, packets/s, real-world 10 UAVs: mean, sd) and
-# Table 4 (simulated, N: R_drop_PHY %, R_drop_MAC %, R_retx_PHY %).
-PAPER_PEAK: Final = {
-    "fastdds": (2593.56, 3948.21),
-    "cyclonedds": (852.89, 1312.24),
-    "swarmd": (61.11, 110.19),
-}
-PAPER_TABLE4: Final = {
-    "fastdds": {5: (1.82, 30.42, 76.82), 10: (4.87, 86.47, 76.70), 15: (17.60, 91.43, 75.03),
-                20: (49.10, 94.00, 72.30)},
-    "cyclonedds": {5: (13.22, 1.98, 72.03), 10: (33.90, 17.07, 72.93), 15: (59.90, 39.70, 66.37),
-                   20: (86.90, 55.40, 56.07)},
-    "swarmd": {5: (5.17, 2.20, 71.63), 10: (10.07, 13.03, 76.67), 15: (16.33, 25.77, 76.90),
-               20: (27.67, 36.70, 76.57)},
-}  # fmt: skip
-# the stock stacks swarmd is compared with, in the order of every table and plot
-STOCK: Final = ("cyclonedds", "zenoh", "fastdds", "fastdds-server")
-ORDER: Final = ("swarmd", "swarmd-paper", "swarmd-noaware", "swarmd-stock", *STOCK, *ROS2)
-PEAK_TARGET: Final = 0.05  # swarmd's peak <= 5 % of each stock stack's, same run (issue 13)
-SUCCESS_TARGET: Final = 0.99
-DISCOVERY_TARGET: Final = 50  # swarmd's discovery frames in the first 60 s at N = 10
-DISCOVERY_TARGET_N: Final = 10
-COVERAGE_N: Final = (10, 20)  # every stock contender needs valid runs at these N
-REPEATS_PLANNED: Final = 3
 # The docs block (docs/benchmarks.md, "Wireless testbed"): ``--docs`` rewrites what lies
 # between these two markers and nothing else (the flood section's pattern, bench/flood.py).
 DOCS_BEGIN: Final = "<!-- wifi:begin"
 DOCS_END: Final = "<!-- wifi:end -->"
-# the channel's frame classes (bench/wifi/channel_cpp.py kClsNames; ACKs folded into the
-# class they acknowledge by metrics.class_series, so the classes of a second sum to pps)
-CLASSES: Final = ("rtps_discovery", "rtps_user", "zenoh", "other", "ack")
-SESSION2: Final = "session-2 campaign (or earlier), before commit stamps"
-
-
-def load_runs(out: Path) -> list[dict[str, Any]]:
-    """Every run file under ``out/runs`` (never ``out/superseded``: runs set aside)."""
-    runs = []
-    for path in sorted((out / "runs").glob("*.json")):
-        try:
-            runs.append(json.loads(path.read_text()))
-        except json.JSONDecodeError as exc:  # a copy taken while run.py wrote it
-            raise ValueError(f"{path}: not a complete run file ({exc})") from exc
-    return runs
-
-
-def dilation(r: Mapping[str, Any]) -> float:
-    """The run's time-dilation factor (1: real time; runs before dilation existed too)."""
-    return float((r.get("setup") or {}).get("dilation", 1.0))
-
-
-def commit(r: Mapping[str, Any]) -> str:
-    """The commit a run was made at (``run.py`` records it since session 3; the session-2
-    campaign's runs have none and read as "session-2")."""
-    return str((r.get("setup") or {}).get("commit", "session-2"))
-
-
-def _order(contender: str) -> int:
-    return ORDER.index(contender) if contender in ORDER else len(ORDER)
-
-
-def _vals(xs: Iterable[float | None]) -> list[float]:
-    return [float(x) for x in xs if isinstance(x, int | float) and not math.isnan(x)]
-
-
-def _mean(xs: Iterable[float | None]) -> float | None:
-    vals = _vals(xs)
-    return statistics.fmean(vals) if vals else None
-
-
-def _std(xs: Iterable[float | None]) -> float | None:
-    vals = _vals(xs)
-    return statistics.stdev(vals) if len(vals) > 1 else (0.0 if vals else None)
-
-
-def _median(xs: Iterable[float | None]) -> float | None:
-    vals = _vals(xs)
-    return statistics.median(vals) if vals else None
-
-
-def _min(xs: Iterable[float | None]) -> float | None:
-    vals = _vals(xs)
-    return min(vals) if vals else None
-
-
-def _max(xs: Iterable[float | None]) -> float | None:
-    vals = _vals(xs)
-    return max(vals) if vals else None
-
-
-def summarise(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """One row per (contender, N, dilation k) over its valid runs."""
-    groups: dict[tuple[str, int, float], list[Mapping[str, Any]]] = defaultdict(list)
-    for r in runs:
-        groups[(r["contender"], int(r["n"]), dilation(r))].append(r)
-    rows = []
-    for (contender, n, k), group in sorted(
-        groups.items(), key=lambda kv: (kv[0][1], kv[0][2], _order(kv[0][0]), kv[0][0])
-    ):
-        valid = [r for r in group if r.get("valid")]
-        succ = [r["success"] for r in valid if r.get("success") is not None]
-
-        def col(key: str, rs: Sequence[Mapping[str, Any]] = valid) -> list[float | None]:
-            return [r.get(key) for r in rs]
-
-        rows.append(
-            {
-                "contender": contender,
-                "n": n,
-                "k": k,
-                "runs": len(group),
-                "valid_runs": len(valid),
-                "peak_pps_mean": _mean(col("peak_pps")),
-                "peak_pps_std": _std(col("peak_pps")),
-                "peak_pps_median": _median(col("peak_pps")),
-                "peak_pps_min": _min(col("peak_pps")),
-                "peak_pps_max": _max(col("peak_pps")),
-                "peak_discovery_pps_mean": _mean(col("peak_discovery_pps")),
-                "peak_discovery_pps_median": _median(col("peak_discovery_pps")),
-                "peak_discovery_pps_min": _min(col("peak_discovery_pps")),
-                "peak_discovery_pps_max": _max(col("peak_discovery_pps")),
-                "discovery_frames_60s_mean": _mean(col("discovery_frames_60s")),
-                "discovery_frames_60s_median": _median(col("discovery_frames_60s")),
-                "discovery_frames_60s_min": _min(col("discovery_frames_60s")),
-                "discovery_frames_60s_max": _max(col("discovery_frames_60s")),
-                "success_rate": (sum(1 for s in succ if s) / len(succ)) if succ else None,
-                "member_success_mean": _mean(col("success_rate")),
-                "member_success_min": _min(col("success_rate")),
-                "all_discovered_s_mean": _mean(col("all_discovered_s")),
-                "all_discovered_s_max": _max(col("all_discovered_s")),
-                "all_discovered_s_median": _median(col("all_discovered_s")),
-                "mac_drop_ratio": _median(col("mac_drop_ratio")),
-                "phy_drop_density": _median(col("phy_drop_density")),
-                "retx_ratio": _median(col("retx_ratio")),
-                "rt_lag_p99_ms_max": _max(col("rt_lag_p99_ms", group)),
-                "rt_lag_p99_ms_valid_max": _max(col("rt_lag_p99_ms")),
-                "invalid": [
-                    f"r{r['run']}: {r.get('invalid_reason')}" for r in group if not r.get("valid")
-                ],
-                "notes": sorted({r["note"] for r in group if r.get("note")}),
-            }
-        )
-    return rows
-
-
-def main_k(rows: Sequence[Mapping[str, Any]]) -> dict[tuple[str, int], float]:
-    """Per (contender, N), the dilation of its main runs: the k with the most valid runs,
-    ties to the larger k (else the largest k). At N = 5 that is the undilated repeats, with
-    the single dilated run beside them as the method's check; at N = 20 the k every stack
-    keeps up at. A k whose runs all lagged stays in the tables of checks and invalid runs,
-    never in the main one."""
-    out: dict[tuple[str, int], float] = {}
-    for r in sorted(rows, key=lambda r: (r["valid_runs"], r["k"])):
-        out[(r["contender"], r["n"])] = r["k"]
-    return out
-
-
-def main_rows(rows: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    ks = main_k(rows)
-    return [r for r in rows if r["k"] == ks[(r["contender"], r["n"])]]
-
-
-def main_runs(runs: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    """The runs of the main rows (each contender and N at its main k)."""
-    ks = main_k(summarise(runs))
-    return [r for r in runs if dilation(r) == ks.get((r["contender"], int(r["n"])))]
-
-
-def _fmt(x: float | None, spec: str = ".0f", scale: float = 1.0) -> str:
-    return "-" if x is None else f"{x * scale:{spec}}"
-
-
-def _ratio(a: float | None, b: float | None) -> str:
-    return "-" if a is None or not b else f"{100 * a / b:.1f} %"
-
-
-def _success_cell(row: Mapping[str, Any]) -> str:
-    if row["success_rate"] is not None:
-        low = row.get("member_success_min")
-        members = "" if low is None else f" (members ≥ {100 * low:.0f} %)"
-        return f"{100 * row['success_rate']:.0f} %{members}"
-    return "pending workload" if row["valid_runs"] else "-"
-
-
-def _spread(row: Mapping[str, Any], key: str) -> str:
-    med = row.get(f"{key}_median")
-    if med is None:
-        return "-"
-    return f"{med:.0f} ({row[f'{key}_min']:.0f}-{row[f'{key}_max']:.0f})"
 
 
 def table(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -279,27 +129,6 @@ def table(rows: Sequence[Mapping[str, Any]]) -> str:
         f"swarmd / Fast DDS, swarmd / Cyclone = {paper}."
     )
     return "\n".join(lines + ratio_lines) + "\n"
-
-
-def paired_ratios(
-    runs: Sequence[Mapping[str, Any]], other: str, key: str, *, include_invalid: bool = False
-) -> dict[tuple[int, float], list[float]]:
-    """Per (N, k), swarmd / ``other`` of ``key`` within each repeat where both runs are
-    valid and were made by the same code (``setup.commit``): the two ran back to back in
-    one campaign step, under the same machine load. A repeat number alone does not make a
-    pair: runs kept from an earlier campaign share numbers with today's. ``include_invalid``
-    pairs lagging runs too (indicative only, never the headline)."""
-    valid = {
-        (r["contender"], int(r["n"]), dilation(r), int(r["run"]), commit(r)): r
-        for r in runs
-        if r.get("valid") or include_invalid
-    }
-    out: dict[tuple[int, float], list[float]] = defaultdict(list)
-    for (contender, n, k, run, made_by), r in sorted(valid.items()):
-        o = valid.get((other, n, k, run, made_by))
-        if contender == "swarmd" and o is not None and o.get(key):
-            out[(n, k)].append(float(r[key]) / float(o[key]))
-    return dict(out)
 
 
 def _cell(xs: list[float]) -> str:
@@ -508,261 +337,6 @@ def commit_lines(runs: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-@dataclass(frozen=True, slots=True)
-class Verdict:
-    """One of issue 13's targets at one N (and contender): met (True), not met (False) or
-    not known from these runs (None), and the sentence with the numbers behind it."""
-
-    target: str  # "peak", "discovery", "success", "coverage"
-    n: int | None
-    contender: str | None
-    met: bool | None
-    text: str
-
-
-def _word(met: bool | None) -> str:
-    return {True: "**met**", False: "**not met**", None: "**not known**"}[met]
-
-
-def _range(xs: Sequence[float], spec: str = ".0f", scale: float = 1.0, unit: str = "") -> str:
-    """``median (min-max)``, or the one value."""
-    med = statistics.median(xs) * scale
-    if len(xs) == 1:
-        return f"{med:{spec}}{unit}"
-    return f"{med:{spec}}{unit} ({min(xs) * scale:{spec}}-{max(xs) * scale:{spec}})"
-
-
-def _count(n: int, one: str, many: str) -> str:
-    return f"{n} {one if n == 1 else many}"
-
-
-def same_run_pairs(
-    runs: Sequence[Mapping[str, Any]], other: str, n: int
-) -> list[tuple[Mapping[str, Any], Mapping[str, Any]]]:
-    """(swarmd, ``other``) run pairs at N: the same k, repeat and commit (one campaign step,
-    back to back; as ``paired_ratios``), both valid. Any k: a pair at the dilation check's
-    k (N = 5, k = 1 and 3) is as much one run as a pair at the main k."""
-    valid = [r for r in runs if r.get("valid") and int(r["n"]) == n]
-    by_key = {(r["contender"], dilation(r), int(r["run"]), commit(r)): r for r in valid}
-    return [
-        (r, by_key[(other, k, run, made_by)])
-        for (c, k, run, made_by), r in sorted(by_key.items())
-        if c == "swarmd" and (other, k, run, made_by) in by_key
-    ]
-
-
-def _main_k_text(runs: Sequence[Mapping[str, Any]], contender: str, n: int) -> str:
-    rows = [r for r in summarise(runs) if r["contender"] == contender and r["n"] == n]
-    if not rows:
-        return f"{contender}: no run"
-    k = main_k(rows)[(contender, n)]
-    row = next(r for r in rows if r["k"] == k)
-    made_by = sorted(
-        {
-            commit(r)
-            for r in runs
-            if r["contender"] == contender and int(r["n"]) == n and dilation(r) == k
-        }
-    )
-    return (
-        f"{contender}: {row['valid_runs']} valid of {row['runs']} at k = {k:g}, "
-        f"made at {', '.join(made_by)}"
-    )
-
-
-def peak_verdicts(runs: Sequence[Mapping[str, Any]]) -> list[Verdict]:
-    """swarmd's busiest second ≤ 5 % of each stock stack's, in same-run pairs, per N: met
-    when every pair is within, not met when any is over, not known without a pair."""
-    out = []
-    for n in sorted({int(r["n"]) for r in runs} | set(COVERAGE_N)):
-        for c in STOCK:
-            # at N = 10 and 20 the target holds for every stock stack, run or not
-            ran = any(r["contender"] == c and int(r["n"]) == n for r in runs)
-            if not ran and n not in COVERAGE_N:
-                continue
-            pairs = same_run_pairs(runs, c, n)
-            if not pairs:
-                out.append(
-                    Verdict(
-                        "peak",
-                        n,
-                        c,
-                        None,
-                        f"N={n}, {c}: {_word(None)}: no same-run pair (valid, same k, "
-                        f"repeat and commit): {_main_k_text(runs, 'swarmd', n)}; "
-                        f"{_main_k_text(runs, c, n)}",
-                    )
-                )
-                continue
-            ratios = [float(s["peak_pps"]) / float(o["peak_pps"]) for s, o in pairs]
-            over = sum(1 for x in ratios if x > PEAK_TARGET)
-            ks = sorted({dilation(s) for s, _ in pairs})
-            verdict = over == 0
-            within = f"{len(pairs) - over} of {_count(len(pairs), 'pair', 'pairs')} within 5 %"
-            out.append(
-                Verdict(
-                    "peak",
-                    n,
-                    c,
-                    verdict,
-                    f"N={n} (k = {'/'.join(f'{k:g}' for k in ks)}), {c}: {_word(verdict)}, "
-                    f"{within}: swarmd / {c} {_range(ratios, '.1f', 100, ' %')}, "
-                    f"swarmd {_range([float(s['peak_pps']) for s, _ in pairs])} against "
-                    f"{_range([float(o['peak_pps']) for _, o in pairs])} frames/s",
-                )
-            )
-    return out
-
-
-def discovery_verdict(runs: Sequence[Mapping[str, Any]]) -> Verdict:
-    """swarmd's discovery frames in the first 60 s at N = 10 ≤ 50, in every valid main run."""
-    n = DISCOVERY_TARGET_N
-    main = [
-        r
-        for r in main_runs(runs)
-        if r["contender"] == "swarmd" and int(r["n"]) == n and r.get("valid")
-    ]
-    if not main:
-        return Verdict(
-            "discovery", n, "swarmd", None, f"{_word(None)}: no valid swarmd run at N={n}"
-        )
-    frames = [float(r["discovery_frames_60s"]) for r in main]
-    over = sum(1 for x in frames if x > DISCOVERY_TARGET)
-    met = over == 0
-    how = (
-        f"{len(frames) - over} of {_count(len(frames), 'valid run', 'valid runs')} "
-        f"≤ {DISCOVERY_TARGET}"
-    )
-    return Verdict(
-        "discovery",
-        n,
-        "swarmd",
-        met,
-        f"{_word(met)}, {how} (k = {dilation(main[0]):g}): {_range(frames)} discovery frames "
-        f"in the first 60 s",
-    )
-
-
-def success_verdicts(runs: Sequence[Mapping[str, Any]]) -> list[Verdict]:
-    """Success ≥ 99 % (the share of members whose last message arrived in the window) in
-    every valid main run, per contender and N."""
-    out = []
-    groups: dict[tuple[int, str], list[Mapping[str, Any]]] = defaultdict(list)
-    for r in main_runs(runs):
-        groups[(int(r["n"]), r["contender"])].append(r)
-    for (n, c), group in sorted(groups.items(), key=lambda kv: (kv[0][0], _order(kv[0][1]))):
-        valid = [r for r in group if r.get("valid") and r.get("success_rate") is not None]
-        if not valid:
-            out.append(
-                Verdict(
-                    "success",
-                    n,
-                    c,
-                    None,
-                    f"N={n}, {c}: {_word(None)}: no valid run with a success measure "
-                    f"({len(group)} run(s), {sum(1 for r in group if r.get('valid'))} valid)",
-                )
-            )
-            continue
-        rates = [float(r["success_rate"]) for r in valid]
-        low = [r for r in valid if float(r["success_rate"]) < SUCCESS_TARGET]
-        met = not low
-        how = f"{len(valid) - len(low)} of {_count(len(valid), 'valid run', 'valid runs')} ≥ 99 %"
-        if not met:
-            worst = min(low, key=lambda r: float(r["success_rate"]))
-            failed = len(worst.get("failed_members") or [])
-            nth = (worst.get("setup") or {}).get("messages", "last")
-            how += (
-                f"; worst r{worst['run']}: {failed} of {int(worst['n']) - 1} members' message "
-                f"{nth} never reached the commander in the window"
-            )
-        out.append(
-            Verdict(
-                "success",
-                n,
-                c,
-                met,
-                f"N={n}, {c}: {_word(met)}, {how} (members {_range(rates, '.0f', 100, ' %')})",
-            )
-        )
-    return out
-
-
-def coverage_verdicts(runs: Sequence[Mapping[str, Any]]) -> list[Verdict]:
-    """Every stock contender has valid runs at N = 10 and 20 (at its main k)."""
-    out = []
-    main = main_runs(runs)
-    for c in STOCK:
-        counts = []
-        for n in COVERAGE_N:
-            group = [r for r in main if r["contender"] == c and int(r["n"]) == n]
-            valid = sum(1 for r in group if r.get("valid"))
-            text = (
-                f"N={n}: {valid} valid of {len(group)} at k = {dilation(group[0]):g}"
-                if group
-                else f"N={n}: no run"
-            )
-            counts.append((n, valid, text))
-        met = all(valid > 0 for _, valid, _ in counts)
-        out.append(
-            Verdict(
-                "coverage", None, c, met, f"{c}: {_word(met)}; " + "; ".join(t for *_, t in counts)
-            )
-        )
-    return out
-
-
-def repeat_lines(rows: Sequence[Mapping[str, Any]]) -> str:
-    """Markdown list: each main (contender, N) with fewer valid repeats than planned."""
-    lines = []
-    for r in sorted(main_rows(rows), key=lambda r: (r["n"], _order(r["contender"]))):
-        valid, total = r["valid_runs"], r["runs"]
-        if valid >= REPEATS_PLANNED:
-            continue
-        if total == 1:
-            what = "1 run only" + ("" if valid else ", invalid")
-        else:
-            what = f"{valid} of {total} repeats valid"
-            if total < REPEATS_PLANNED:
-                what += f", {REPEATS_PLANNED - total} not run"
-        lines.append(f"- {r['contender']} N={r['n']} k={r['k']:g}: {what}\n")
-    return "".join(lines) or f"none: every contender and N has {REPEATS_PLANNED} valid repeats\n"
-
-
-def _nth(runs: Sequence[Mapping[str, Any]]) -> str:
-    counts = sorted({int((r.get("setup") or {}).get("messages", 0)) for r in runs} - {0})
-    return "last" if len(counts) != 1 else f"last ({counts[0]}th)"
-
-
-def verdicts_markdown(runs: Sequence[Mapping[str, Any]]) -> str:
-    """The "Against the targets" list, computed (issue 13, "Done when")."""
-    peak = peak_verdicts(runs)
-    disc = discovery_verdict(runs)
-    succ = success_verdicts(runs)
-    cover = coverage_verdicts(runs)
-
-    def tally(vs: Sequence[Verdict]) -> str:
-        met = sum(1 for v in vs if v.met is True)
-        not_met = sum(1 for v in vs if v.met is False)
-        unknown = sum(1 for v in vs if v.met is None)
-        return f"met {met}, not met {not_met}, not known {unknown}"
-
-    parts = [
-        "- **swarmd's peak ≤ 5 % of each stock stack's in the same run** (busiest second of "
-        "all frames on the channel, ACKs included; per N and stock stack; "
-        f"{tally(peak)}):\n",
-        *(f"  - {v.text}\n" for v in peak),
-        f"- **≤ {DISCOVERY_TARGET} discovery frames in the first 60 s at N={DISCOVERY_TARGET_N}**"
-        f" (swarmd): {disc.text}\n",
-        f"- **success ≥ 99 %** (share of the members whose {_nth(runs)} message reached the "
-        f"commander in the window, in every valid run; per contender and N; {tally(succ)}):\n",
-        *(f"  - {v.text}\n" for v in succ),
-        f"- **every stock contender has valid runs at N = 10 and 20** ({tally(cover)}):\n",
-        *(f"  - {v.text}\n" for v in cover),
-    ]
-    return "".join(parts)
-
-
 def peak_composition(r: Mapping[str, Any]) -> tuple[int, dict[str, int]]:
     """The run's busiest second (its index in the window, the first if tied) and how its
     frames split over the channel's classes. ``peak_pps`` counts every PHY transmission in
@@ -776,12 +350,6 @@ def peak_composition(r: Mapping[str, Any]) -> tuple[int, dict[str, int]]:
     if rest:
         split["unclassified"] = rest
     return second, split
-
-
-def _median_run(group: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
-    """The repeat whose peak is the median (the lower middle one for an even count)."""
-    ordered = sorted(group, key=lambda r: (r["peak_pps"], r["run"]))
-    return ordered[(len(ordered) - 1) // 2]
 
 
 def class_table(runs: Sequence[Mapping[str, Any]], sizes: Sequence[int] = (10, 20)) -> str:
@@ -902,106 +470,6 @@ def write_docs(docs: Path, runs: Sequence[Mapping[str, Any]], out_label: str) ->
     docs.write_bytes(replace_block(text, docs_block(runs, out_label)).encode("utf-8"))
 
 
-def _fig10a(
-    plt: Any, valid: Sequence[Mapping[str, Any]], n: int, out: Path, extra: list[str]
-) -> list[Path]:
-    """Frames/s over the first 60 s at one N, every contender on one log axis: each valid
-    run thin, the repeat whose peak is the median thick (paper Fig. 10a plots one run)."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, contender in enumerate(sorted({r["contender"] for r in valid}, key=_order)):
-        group = [r for r in valid if r["contender"] == contender]
-        colour = colours[i % len(colours)]
-        for r in group:
-            series = r["pps"][:60]
-            ax.plot(range(len(series)), series, color=colour, lw=0.7, alpha=0.35)
-        med = _median_run(group)
-        series = med["pps"][:60]
-        ax.plot(
-            range(len(series)),
-            series,
-            color=colour,
-            lw=1.8,
-            label=f"{contender} (k = {dilation(med):g}; r{med['run']}, "
-            + (
-                "the only valid run)"
-                if len(group) == 1
-                else f"median peak of {len(group)} valid runs)"
-            ),
-        )
-    ax.set_yscale("symlog", linthresh=1)
-    ax.set_xlabel("experiment time since the start release (s)")
-    ax.set_ylabel("frames/s on the channel (PHY tx incl. ACKs)")
-    ax.set_title(f"Channel load during discovery, N = {n} (cf. paper Fig. 10a)")
-    ax.legend(fontsize=8)
-    ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    paths = [out / f"fig10a_pps_n{n}.png", *(out / name for name in extra)]
-    for path in paths:
-        fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return paths
-
-
-def plots(runs: Sequence[Mapping[str, Any]], out: Path) -> list[Path]:
-    """Figure 10a (frames/s over time) and Figure 11 (success rate against N) as PNG, from
-    the main runs (each contender and N at its main dilation; valid runs only)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    valid = [r for r in main_runs(runs) if r.get("valid")]
-    written: list[Path] = []
-    if valid:
-        sizes = sorted({int(r["n"]) for r in valid})
-        # the paper's figure is N = 10; without N = 10, the N with the most contenders
-        n_fig = max(
-            sizes,
-            key=lambda n: (n == 10, len({r["contender"] for r in valid if r["n"] == n}), n),
-        )
-        for n in sizes:
-            names = ["fig10a_pps.png"] if n == n_fig else []
-            written += _fig10a(plt, [r for r in valid if r["n"] == n], n, out, names)
-    measured = [r for r in valid if r.get("success_rate") is not None]
-    if measured:
-        fig, ax = plt.subplots(figsize=(7, 4.2))
-        names = sorted({r["contender"] for r in measured}, key=_order)
-        for i, contender in enumerate(names):
-            by_n: dict[int, list[Mapping[str, Any]]] = defaultdict(list)
-            for r in measured:
-                if r["contender"] == contender:
-                    by_n[int(r["n"])].append(r)
-            xs = sorted(by_n)
-            rates = [[100 * float(r["success_rate"]) for r in by_n[n]] for n in xs]
-            med = [statistics.median(v) for v in rates]
-            ks = "/".join(f"{dilation(by_n[n][0]):g}" for n in xs)
-            # a small sideways offset and a marker each: lines at 100 % would hide each other
-            dx = 0.25 * (i - (len(names) - 1) / 2)
-            ax.errorbar(
-                [x + dx for x in xs],
-                med,
-                yerr=[[m - min(v) for m, v in zip(med, rates, strict=True)],
-                      [max(v) - m for m, v in zip(med, rates, strict=True)]],
-                marker="osD^vP*X"[i % 8],
-                capsize=3,
-                label=f"{contender} (k = {ks} at N = {'/'.join(str(x) for x in xs)})",
-            )  # fmt: skip
-        ax.set_xticks(sorted({int(r["n"]) for r in measured}))
-        ax.set_xlabel("number of UAVs")
-        ax.set_ylabel("members whose last message arrived (%)")
-        ax.set_ylim(-5, 105)
-        ax.set_title("Success rate vs swarm size, valid runs (cf. paper Fig. 11)")
-        ax.legend(fontsize=8)
-        ax.grid(True, alpha=0.3)
-        path = out / "fig11_success.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-    return written
-
-
 def write_report(out: Path) -> list[Path]:
     """Summary JSON, markdown tables and plots for every run under ``out/runs``."""
     runs = load_runs(out)
@@ -1058,6 +526,31 @@ def _label(out: Path) -> str:
         return str(out.resolve().relative_to(repo))
     except ValueError:
         return str(out)
+
+
+# callers (run.py, the tests) use one module: the report's names, wherever they are defined
+__all__ = [
+    "SESSION2",
+    "Verdict",
+    "class_table",
+    "commit_lines",
+    "coverage_verdicts",
+    "discovery_verdict",
+    "docs_block",
+    "load_runs",
+    "main_k",
+    "main_rows",
+    "one_line",
+    "paired_ratios",
+    "peak_composition",
+    "peak_verdicts",
+    "repeat_lines",
+    "replace_block",
+    "success_verdicts",
+    "summarise",
+    "write_docs",
+    "write_report",
+]
 
 
 if __name__ == "__main__":
