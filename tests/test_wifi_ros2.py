@@ -93,7 +93,9 @@ def test_swarmd_route_runs_a_relaying_daemon_per_drone_and_via_swarmd_profiles(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     assert ROUTES["ros2-swarmd"] is swarmd_route
-    c = Ros2Contender("ros2-swarmd", _drones(3), tmp_path, window_s=5, messages=2)
+    c = Ros2Contender(
+        "ros2-swarmd", _drones(3), tmp_path, window_s=5, messages=2, link_dir=tmp_path / "chan"
+    )
     started: list[tuple[int, list[str]]] = []
 
     def start(i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int) -> Any:
@@ -117,6 +119,9 @@ def test_swarmd_route_runs_a_relaying_daemon_per_drone_and_via_swarmd_profiles(
         config = load_config(argv[argv.index("--config") + 1])
         assert config.node == f"uav{i + 1}"
         assert config.ros2.relay  # the daemon serves its node's discovery
+        # its link quality is the channel's, as the swarmd contender's (not a fixed 0.5)
+        assert config.link.file == str(tmp_path / "chan" / f"link-{i}.json")
+        assert "file" in config.link.sources
     for env in envs:
         xml = Path(env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()
         peers = xml.split("<initialPeersList>")[1].split("</initialPeersList>")[0]

@@ -468,5 +468,7 @@ def make(
     if name in ROS2:
         from bench.wifi.ros2_contenders import Ros2Contender  # imports this module
 
-        return Ros2Contender(name, drones, work, window_s=window_s, messages=messages, env=env)
+        return Ros2Contender(
+            name, drones, work, window_s=window_s, messages=messages, env=env, link_dir=link_dir
+        )
     raise ValueError(f"unknown contender {name!r}; use one of: {', '.join(CONTENDERS)}")

@@ -7,7 +7,8 @@ and the two times the issue asks for beside the stock stacks': when the commande
 every member (``all_discovered_from_launch_s``) and when it had the first message of every
 member (``first_all_s``, from the run's ``received``), both from the start release, in
 experiment seconds. Then the paper's Fig. 8 ordering (discovery traffic of Simple > Static >
-Preloading) judged on each step whose three runs are valid.
+Preloading) judged on each step whose three runs are valid (Preloading: swarmd, or ros2-swarmd in a
+step without swarmd), and issue 19's targets for ros2-swarmd.
 """
 
 from __future__ import annotations
@@ -31,6 +32,12 @@ SWARMD_NOTE: Final = (
     "discovery stays on each drone's `lo`."
 )
 FIG8: Final = (("Simple", "ros2"), ("Static", "ros2-static"), ("Preloading", "swarmd"))
+# a step without swarmd itself (the N = 20 steps run the four ROS 2 contenders only) judges
+# Preloading by the ROS 2 nodes' own preloading, ros2-swarmd
+PRELOADING_ROS2: Final = "ros2-swarmd"
+# issue 19's targets for ros2-swarmd
+PEAK_TARGET: Final = 0.05  # busiest second <= 5 % of stock ros2's, same step
+SUCCESS_N: Final = (20, 30)  # delivers 100 % at these N
 
 
 def _dilation(r: Mapping[str, Any]) -> float:
@@ -144,7 +151,8 @@ def fig8_lines(runs: Sequence[Mapping[str, Any]]) -> str:
     (channel frames incl. ACKs) and for discovery datagrams alone (the paper counts packets)?"""
     out = []
     for (n, k, rep, _made), group in steps(runs).items():
-        names = [c for _, c in FIG8]
+        fig8 = FIG8 if "swarmd" in group else (*FIG8[:2], ("Preloading", PRELOADING_ROS2))
+        names = [c for _, c in fig8]
         missing = [c for c in names if c not in group]
         invalid = [c for c in names if c in group and not group[c].get("valid")]
         label = f"N={n} k={k:g} r{rep}"
@@ -160,13 +168,87 @@ def fig8_lines(runs: Sequence[Mapping[str, Any]]) -> str:
                 return "not known"
             return "holds" if xs[0] > xs[1] > xs[2] else "does not hold"
 
-        shown = ", ".join(f"{tag} ({c}) {f}" for (tag, c), f in zip(FIG8, frames, strict=True))
+        shown = ", ".join(f"{tag} ({c}) {f}" for (tag, c), f in zip(fig8, frames, strict=True))
         out.append(
             f"- {label}: frames {holds(frames)}: {shown}; datagrams {holds(data)}: "
             + " / ".join(str(d) for d in data)
             + "\n"
         )
     return "".join(out) or "no step with a ROS 2 contender\n"
+
+
+def _word(met: bool | None) -> str:
+    return {True: "**met**", False: "**not met**", None: "**not known**"}[met]
+
+
+def target_lines(runs: Sequence[Mapping[str, Any]]) -> str:
+    """Issue 19's targets for ros2-swarmd, judged from the valid runs: 100 % delivery at N = 20
+    and 30; busiest second <= 5 % of stock ros2's in the same step; discovery frames in the
+    first 60 s no more than swarmd's own at the same N and k (its nodes send none on the
+    channel: what the channel counts is swarmd's SPDP)."""
+    by_step = steps(runs)
+    out = []
+    for n in SUCCESS_N:
+        rs = [
+            r
+            for g in (v for (sn, _k, _r, _m), v in by_step.items() if sn == n)
+            for c, r in g.items()
+            if c == "ros2-swarmd" and r.get("valid")
+        ]
+        rates = [float(r["success_rate"]) for r in rs if r.get("success_rate") is not None]
+        met = None if not rates else all(x >= 1.0 for x in rates)
+        shown = ", ".join(f"{100 * x:.0f} %" for x in rates) or "no valid run"
+        out.append(f"- ros2-swarmd delivers 100 % at N = {n}: {_word(met)} ({shown})\n")
+    ns = sorted({sn for (sn, _k, _r, _m) in by_step})
+    for n in ns:
+        ratios = [
+            int(g["ros2-swarmd"]["peak_pps"]) / int(g["ros2"]["peak_pps"])
+            for (sn, _k, _r, _m), g in by_step.items()
+            if sn == n
+            and all(c in g and g[c].get("valid") for c in ("ros2", "ros2-swarmd"))
+            and int(g["ros2"]["peak_pps"]) > 0
+        ]
+        met = None if not ratios else max(ratios) <= PEAK_TARGET
+        shown = (
+            ", ".join(f"{100 * x:.1f} %" for x in ratios) + f" in {len(ratios)} step(s)"
+            if ratios
+            else "no step with both valid"
+        )
+        out.append(
+            f"- N = {n}: ros2-swarmd's busiest second <= {100 * PEAK_TARGET:.0f} % of stock "
+            f"ros2's in the same step: {_word(met)} ({shown})\n"
+        )
+    for n in ns:
+        own = [
+            r
+            for r in runs
+            if r["contender"] == "ros2-swarmd" and int(r["n"]) == n and r.get("valid")
+        ]
+        for k in sorted({_dilation(r) for r in own}):
+            theirs = [int(r["discovery_frames_60s"]) for r in own if _dilation(r) == k]
+            swarmd = [
+                int(r["discovery_frames_60s"])
+                for r in runs
+                if r["contender"] == "swarmd"
+                and int(r["n"]) == n
+                and _dilation(r) == k
+                and r.get("valid")
+            ]
+            if not swarmd:
+                out.append(
+                    f"- N = {n} k = {k:g}: ros2-swarmd's discovery frames "
+                    f"{statistics.median(theirs):.0f} (median), no valid swarmd run to "
+                    "compare: **not known**\n"
+                )
+                continue
+            met = statistics.median(theirs) <= max(swarmd)
+            out.append(
+                f"- N = {n} k = {k:g}: ros2-swarmd's discovery frames in the first 60 s no "
+                f"more than swarmd's own: {_word(met)} (median {statistics.median(theirs):.0f} "
+                f"over {len(theirs)} run(s); swarmd {min(swarmd)}-{max(swarmd)} over "
+                f"{len(swarmd)} run(s), any step)\n"
+            )
+    return "".join(out)
 
 
 def ros2_markdown(runs: Sequence[Mapping[str, Any]]) -> str:
@@ -197,4 +279,6 @@ def ros2_markdown(runs: Sequence[Mapping[str, Any]]) -> str:
         + "\nThe paper's Fig. 8 ordering, discovery traffic of Simple (`ros2`) > Static "
         "(`ros2-static`) > Preloading (`swarmd`), per step with all three valid:\n\n"
         + fig8_lines(runs)
+        + "\nIssue 19's targets for `ros2-swarmd`, judged from these runs:\n\n"
+        + target_lines(runs)
     )

@@ -199,8 +199,18 @@ def static_route(c: Ros2Contender) -> list[dict[str, str]]:
 
 def swarmd_config(c: Ros2Contender, i: int, bundle: Path, key: Path) -> Path:
     """Drone ``i``'s daemon config: the testbed's (``contenders.SwarmdContender``), adaptive
-    mode with a static link quality (no ns-3 link file reaches a ROS 2 contender), no data
-    plane (the rclpy nodes carry the workload), and the relay on (docs/ros2.md)."""
+    mode with the link quality from the ns-3 link file as the swarmd contender's (a static
+    quality when the contender has no link files), no data plane (the rclpy nodes carry the
+    workload), and the relay on (docs/ros2.md)."""
+    if c.link_dir is not None:
+        link = f"""\
+  sources: [file, static]
+  file: {c.link_dir / f"link-{i}.json"}
+"""
+    else:
+        link = """\
+  sources: [static]
+"""
     text = f"""\
 node: uav{i + 1}
 bundle:
@@ -212,8 +222,7 @@ network:
 control:
   socket: {swarmd_socket(c, i)}
 link:
-  sources: [static]
-  poll_interval_s: 1.0
+{link}  poll_interval_s: 1.0
   static_q: 0.5
 discovery:
   mode: adaptive
@@ -305,8 +314,12 @@ class Ros2Contender(PeerContender):
         window_s: float,
         messages: int,
         env: Mapping[str, str] | None = None,
+        link_dir: Path | None = None,
     ) -> None:
         super().__init__(name, drones, work, window_s=window_s, messages=messages, env=env)
+        # the ns-3 link files (link-<i>.json): ros2-swarmd's daemons read their link quality
+        # there, as the swarmd contender's do
+        self.link_dir = link_dir
         route = ROUTES.get(name)
         if route is None:
             raise ValueError(unavailable(name) or f"unknown ROS 2 contender {name!r}")
