@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from swarmd_lab.netns import Lan, run_prefix, unavailable_reason  # noqa: E402
 
+from bench.docblock import write_block  # noqa: E402
 from tests.attacker.cpulimit import CpuLimit  # noqa: E402
 from tests.attacker.flood import forged_pool, run_flood  # noqa: E402
 from tests.attacker.host import Attacker  # noqa: E402
@@ -168,13 +169,7 @@ def docs_block(s: dict[str, Any], out: str) -> str:
 
 
 def write_docs(block: str) -> None:
-    text = DOCS.read_text()
-    if BEGIN in text and END in text:
-        head, rest = text.split(BEGIN, 1)
-        text = head + block + rest.split(END, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n" + block + "\n"
-    DOCS.write_text(text)
+    write_block(DOCS, BEGIN, END, block)
 
 
 def main(argv: list[str] | None = None) -> int:
