@@ -212,6 +212,11 @@ def prepare(
 # -- the journals ----------------------------------------------------------------------------
 
 
+def journal_wall(stamp: str) -> float:
+    """A journal line's ``timestamp`` (structlog's ISO 8601, UTC) in seconds since the epoch."""
+    return datetime.fromisoformat(stamp).timestamp()
+
+
 def journal(path: Path) -> list[dict[str, Any]]:
     """The command lines of one daemon's JSON log (all its lives), each with ``wall``: its
     timestamp in seconds since the epoch. Other lines, and torn ones, are skipped."""
@@ -231,7 +236,7 @@ def journal(path: Path) -> list[dict[str, Any]]:
         if not isinstance(rec, dict) or rec.get("event") not in JOURNAL_EVENTS:
             continue
         try:
-            rec["wall"] = datetime.fromisoformat(str(rec["timestamp"])).timestamp()
+            rec["wall"] = journal_wall(str(rec["timestamp"]))
         except (KeyError, ValueError):
             continue
         out.append(rec)
