@@ -35,7 +35,7 @@ def test_every_scenario_commands_after_discovery_and_settles_them_within_the_run
 
 
 def _reach(s: flight.Scenario, cue: flight.CommandCue, member: int) -> str:
-    down = {e.node: [] for e in s.events}
+    down: dict[int, list[tuple[float, float]]] = {e.node: [] for e in s.events}
     for e in s.events:
         if e.action == "kill":
             down[e.node].append((e.t, s.duration_s))
@@ -255,3 +255,22 @@ def test_remeasure_and_the_command_table_read_the_run_file_alone() -> None:
     assert len(lines) == 3
     assert lines[2].startswith("| split | swarmd | 4 | 1 | 1 (2 / 0 / 2) | 0 | 1 | 0 | 0 |")
     assert all(line.count("|") == lines[0].count("|") for line in lines)
+
+
+def test_a_vehicle_log_gives_its_arms_and_mode_changes(tmp_path: Path) -> None:
+    log = tmp_path / "uav3-vehicle.log"
+    go = flight_commands.journal_wall("2026-11-26T10:00:00Z")
+    log.write_text(
+        _line("vehicle_sim_started", 0.5) + "\n"
+        + _line("armed", 25.5, t=27.44) + "\n"
+        + _line("mode", 25.6, old="AUTO.LOITER", new="AUTO.TAKEOFF") + "\n"
+        + "not json\n"
+        + _line("disarmed", 40.0, why="landing") + "\n"
+    )  # fmt: skip
+    events = flight_commands.vehicle_events(log, go)
+    assert [e[1:] for e in events] == [
+        ["armed", None],
+        ["mode", "AUTO.TAKEOFF"],
+        ["disarmed", None],
+    ]
+    assert events[0][0] == pytest.approx(25.5)

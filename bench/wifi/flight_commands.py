@@ -69,6 +69,7 @@ FINISH_CAP_S: Final = 60.0  # at most this long waiting for swarmctl after the w
 JOURNAL_EVENTS: Final = frozenset(
     {"command_sent", "command_received", "command_expired", "command_outcome"}
 )
+VEHICLE_EVENTS: Final = frozenset({"armed", "disarmed", "mode"})
 REPORTED_UNREACHED: Final = frozenset({"unreachable", "refused"})
 REPORTED_RAN: Final = frozenset({"accepted", "completed"})
 
@@ -164,6 +165,14 @@ class CommandScript:
         journals = [journal(self.work / f"{name}.log") for name in self.names]
         return collect(self.reports(), journals, self.names, go_wall)
 
+    def vehicles(self, go_wall: float) -> dict[str, list[list[Any]]]:
+        """What each simulator did, ``[t since go, event, new mode]`` (``armed``,
+        ``disarmed``, ``mode``): the vehicle's side of an executed command."""
+        return {
+            str(i): vehicle_events(self.work / f"{name}-vehicle.log", go_wall)
+            for i, name in enumerate(self.names)
+        }
+
     def reports(self) -> list[dict[str, Any]]:
         out = []
         for it in self.issued:
@@ -240,6 +249,25 @@ def journal(path: Path) -> list[dict[str, Any]]:
         except (KeyError, ValueError):
             continue
         out.append(rec)
+    return out
+
+
+def vehicle_events(path: Path, go_wall: float) -> list[list[Any]]:
+    """A vehicle simulator's JSON log: its ``armed``/``disarmed``/``mode`` lines."""
+    out: list[list[Any]] = []
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        try:
+            rec = json.loads(line)
+            if not isinstance(rec, dict) or rec.get("event") not in VEHICLE_EVENTS:
+                continue
+            t = round(journal_wall(str(rec["timestamp"])) - go_wall, 3)
+        except (KeyError, ValueError):
+            continue
+        out.append([t, rec["event"], rec.get("new")])
     return out
 
 
@@ -381,11 +409,17 @@ def measure(
 
 
 def attach(
-    record: dict[str, Any], commands: Sequence[Mapping[str, Any]], scenario: flight.Scenario
+    record: dict[str, Any],
+    commands: Sequence[Mapping[str, Any]],
+    scenario: flight.Scenario,
+    vehicles: Mapping[str, Any] | None = None,
 ) -> None:
-    """Put the commands and their measures in a run file's record (``down`` from it)."""
+    """Put the commands, the vehicles' events and the command measures in a run file's
+    record (``down`` from it)."""
     down = {int(i): [(a, b) for a, b in v] for i, v in record.get("down", {}).items()}
     record["commands"] = list(commands)
+    if vehicles is not None:
+        record["vehicles"] = dict(vehicles)
     record["measures"]["commands"] = measure(commands, scenario.truth(), down)
 
 

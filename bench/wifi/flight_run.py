@@ -266,7 +266,8 @@ def run_flight(
                 c.close()
         stats = json.loads((chan / "stats.json").read_text())
         go_info = json.loads((fdir / "go.json").read_text())
-        issued = None if cmds is None else cmds.records(float(go_info.get("go_wall", launch)))
+        go_wall = float(go_info.get("go_wall", launch))
+        issued = None if cmds is None else (cmds.records(go_wall), cmds.vehicles(go_wall))
         heard = [json.loads(x) for x in (fdir / "heard.jsonl").read_text().splitlines() if x]
         if keep is not None:
             keep.mkdir(parents=True, exist_ok=True)
@@ -278,7 +279,7 @@ def run_flight(
         max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
     )  # fmt: skip
     if issued is not None:
-        flight_commands.attach(record, issued, scenario)
+        flight_commands.attach(record, issued[0], scenario, issued[1])
     return record
 
 
