@@ -300,6 +300,8 @@ class SwarmdContender(Contender):
         self._first: dict[str, float] = {}
         self._counts: dict[str, int] = {}
         self._last_full_poll = 0.0
+        # appended to every daemon's config (the flight runs' px4: section for a vehicle)
+        self.extra_config = ""
 
     def _config(self, i: int, bundle: Path, key: Path) -> Path:
         v = self.variant
@@ -335,7 +337,7 @@ discovery:
 {dataplane}logging:
   level: info
   format: json
-"""
+{self.extra_config}"""
         path = self.work / f"uav{i + 1}.yaml"
         path.write_text(text)
         return path

@@ -2,7 +2,9 @@
 
 A scenario is a list of waypoints ``(t, node, x, y, z)`` (seconds from the stacks' start
 release, metres) that ns-3 applies to each node's position (``bench/wifi/flight_cpp.py``),
-plus daemon events (reboots) the harness performs (``bench/wifi/flight_run.py``). Moving
+plus daemon events (reboots) the harness performs (``bench/wifi/flight_run.py``) and the
+operator's commands it issues through ``swarmctl`` (``CommandCue``,
+``bench/wifi/flight_commands.py``). Moving
 nodes get a waypoint every ``STEP_S``: the channel's log-distance loss, so every frame's
 received power, SNR and loss, and the link files swarmd's link source reads, follow them.
 
@@ -80,6 +82,25 @@ class DaemonEvent:
 
 
 @dataclass(frozen=True)
+class CommandCue:
+    """The operator's ``swarmctl <kind> --valid-for VALID_FOR_S --json`` on the commander at
+    ``t``, to the drones ``only`` (node indices; empty: every drone); ``why``: the moment
+    of the scenario it tests (issue 20, "Command authority in flight")."""
+
+    t: float
+    kind: str  # "takeoff" | "land" | "hold" | "abort"
+    valid_for_s: float
+    only: tuple[int, ...] = ()
+    why: str = ""
+
+
+# the first command of every scenario: vehicles ready (GPS fix within seconds of start)
+# and discovery done (SETTLE_S) before it, so the take-off finds every drone ready
+TAKEOFF_AT_S: Final = 25.0
+TAKEOFF = CommandCue(TAKEOFF_AT_S, "takeoff", 5.0, why="take-off, everyone in range")
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     n: int
@@ -90,6 +111,7 @@ class Scenario:
     description: str = ""
     # [start, end) of the interesting part (the figure shades it; heal measures start there)
     phases: tuple[tuple[str, float, float], ...] = field(default=())
+    commands: tuple[CommandCue, ...] = ()
 
     def positions_at(self, t: float) -> list[Position]:
         """Every node's position at ``t``: its last waypoint at or before ``t`` (the
@@ -160,6 +182,12 @@ def fly_out(n: int, seed: int) -> Scenario:
         "fly-out", n, seed, end + TAIL_S, tuple(sorted(wps)),
         description=f"1 m line -> {EDGE_M:.0f} m grid (diagonals out of range) and back",
         phases=(("out", out_at, back_at), ("back", back_at, end)),
+        commands=(
+            CommandCue(out_at, "takeoff", 5.0, why="take-off at the fly-out's start"),
+            CommandCue(out_at + 2 * MOVE_S + 5.0, "hold", 10.0,
+                       why="hold at the edge: the far corners beyond the commander's range"),
+            CommandCue(end + 5.0, "land", 10.0, why="land once back on the line"),
+        ),
     )  # fmt: skip
 
 
@@ -183,6 +211,17 @@ def fade(n: int, seed: int) -> Scenario:
         description=f"uav{n} swings {FADE_NEAR_M:.0f}-{FADE_FAR_M:.0f} m from the group "
         f"(about {rx_dbm(FADE_NEAR_M) - rx_dbm(FADE_FAR_M):.0f} dB) every {FADE_PERIOD_S:g} s",
         phases=(("fade", SETTLE_S, t),),
+        commands=(
+            TAKEOFF,
+            # to the fading drone at four phases of its swing (near, leaving, far, coming
+            # back), each valid for less than half a period
+            *(
+                CommandCue(SETTLE_S + 4 * FADE_PERIOD_S + phase, "hold", 3.0, (n - 1,),
+                           why=f"hold to the fading drone {phase:g} s into its swing")
+                for phase in (0.0, 2.0, 4.0, 6.0)
+            ),
+            CommandCue(t + 5.0, "land", 10.0, why="land after the fade"),
+        ),
     )  # fmt: skip
 
 
@@ -201,6 +240,14 @@ def split(n: int, seed: int) -> Scenario:
         description=f"uav{n // 2 + 1}..uav{n} fly {SPLIT_OFFSET_M:.0f} m away for "
         f"{SPLIT_HOLD_S:.0f} s and back",
         phases=(("split", out_at, back_at), ("heal", back_at, back_at + MOVE_S)),
+        commands=(
+            TAKEOFF,
+            CommandCue(out_at + MOVE_S + 5.0, "hold", 10.0,
+                       why="hold during the split, the far half still listed (lease running)"),
+            CommandCue(back_at - 5.0, "hold", 30.0,
+                       why="hold late in the split, valid past the heal"),
+            CommandCue(back_at + MOVE_S + 10.0, "land", 10.0, why="land after the heal"),
+        ),
     )  # fmt: skip
 
 
@@ -220,6 +267,14 @@ def reboot(n: int, seed: int) -> Scenario:
         tuple((0.0, i, p) for i, p in enumerate(home)), events,
         description=f"uav{node + 1}'s daemon killed for 5 s twice: state dir kept, then lost",
         phases=(("reboot, state kept", kept, kept + 5.0), ("reboot, state lost", lost, lost + 5)),
+        commands=(
+            TAKEOFF,
+            CommandCue(kept + 1.0, "hold", 10.0, (node,),
+                       why="hold to the rebooting drone while it is down, valid past its restart"),
+            CommandCue(lost + 1.0, "hold", 3.0, (node,),
+                       why="hold to the rebooting drone while down, expiring before it is back"),
+            CommandCue(lost + 20.0, "land", 10.0, why="land after the reboots"),
+        ),
     )  # fmt: skip
 
 
@@ -236,6 +291,12 @@ def blackout(n: int, seed: int) -> Scenario:
         "blackout", n, seed, back_at + 3.0 + TAIL_S, tuple(sorted(wps)),
         description=f"the commander out of everyone's range for {BLACKOUT_S:.0f} s",
         phases=(("blackout", out_at, back_at + 3.0),),
+        commands=(
+            TAKEOFF,
+            CommandCue(out_at - 1.0, "land", 10.0, why="land just before the commander's blackout"),
+            CommandCue(out_at + 15.0, "hold", 10.0, why="hold during the blackout"),
+            CommandCue(back_at + 10.0, "hold", 10.0, why="hold after the commander is back"),
+        ),
     )  # fmt: skip
 
 

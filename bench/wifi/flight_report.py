@@ -21,7 +21,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from bench.wifi import flight_measures
+from bench.wifi import flight_commands, flight_measures
 
 NOISE_DBM = -94.0
 UP = frozenset({"discovered", "regained", "restarted"})
@@ -152,6 +152,32 @@ def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     return lines
 
 
+def command_table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One markdown row per run that issued commands (``bench/wifi/flight_commands.py``):
+    the targets of issue 20's "Command authority in flight" and the delivery latency."""
+    head = (
+        "| scenario | contender | N | run | commands (pairs: reachable / marginal / "
+        "unreachable) | executed twice | executed late | reported unreachable, was reachable "
+        "| unreached, not reported | reported ran, not executed | reachable, not executed | "
+        "delivery latency p50 / max |"
+    )
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    order = {name: k for k, name in enumerate(("fly-out", "fade", "split", "reboot", "blackout"))}
+    with_commands = [r for r in runs if "commands" in r.get("measures", {})]
+    for r in sorted(with_commands, key=lambda x: (order.get(x["scenario"], 9), x["n"], x["run"])):
+        c = r["measures"]["commands"]
+        reach, lat = c["reach"], c["delivery_latency_s"]
+        lines.append(
+            f"| {r['scenario']} | {r['contender']} | {r['n']} | {r['run']} | "
+            f"{c['commands']} ({reach['reachable']} / {reach['marginal']} / "
+            f"{reach['unreachable']}) | {c['executed_twice']} | {c['executed_late']} | "
+            f"{c['reported_unreachable_but_reachable']} | {c['unreached_not_reported']} | "
+            f"{c['reported_ran_not_executed']} | {c['reachable_not_executed']} | "
+            f"{_v(lat['p50'], ' s')} / {_v(lat['max'], ' s')} |"
+        )
+    return lines
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("runs", nargs="+", type=Path)
@@ -167,6 +193,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.table:
         runs = [json.loads(path.read_text()) for path in args.runs]
         print("\n".join(table(runs)))
+        commands = command_table(runs)
+        if len(commands) > 2:
+            print("\n" + "\n".join(commands))
         return 0
     for path in args.runs:
         run = json.loads(path.read_text())
@@ -205,6 +234,8 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
         run.get("renewals", []), first_move or 0.0
     )
+    if "commands" in run:
+        measures["commands"] = flight_commands.measure(run["commands"], scenario.truth(), down)
     return measures
 
 

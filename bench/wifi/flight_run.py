@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from bench.wifi import contenders as contenders_mod
-from bench.wifi import flight, flight_measures, flight_report, metrics
+from bench.wifi import flight, flight_commands, flight_measures, flight_report, metrics
 from bench.wifi.barrier import RUN_NICE, StartBarrier, set_priority
 from bench.wifi.dilation import Dilation, scale_kernel_timers
 from bench.wifi.ns3_loader import unavailable_reason
@@ -184,8 +184,10 @@ def run_flight(
     max_lag_ms: float,
     rt_priority: int,
     keep: Path | None,
+    commands: bool = True,
 ) -> dict[str, Any]:
-    """One flight run; the run file's dict."""
+    """One flight run; the run file's dict (``commands``: the scenario's operator commands,
+    with a vehicle simulator per drone: ``bench/wifi/flight_commands.py``)."""
     if contender not in contenders_mod.SWARMD_VARIANTS:
         raise ValueError(f"{contender}: no flight observer for this stack yet (swarmd only)")
     n = scenario.n
@@ -213,6 +215,7 @@ def run_flight(
             names = [f"uav{i + 1}" for i in range(n)]
             obs = SwarmdObserver(c.socks, names)
             env = contenders_mod._clean_env(dil.env())
+            cmds = flight_commands.prepare(c, scenario, work, env, dil.real_s) if commands else None
             down: dict[int, list[list[float]]] = {}
             restarts: list[tuple[float, int]] = []
             try:
@@ -238,6 +241,8 @@ def run_flight(
                             _restart(c, ev.node, ev.state, env)
                             down[ev.node][-1][1] = now - launch
                             restarts.append((now - launch, ev.node))
+                    if cmds is not None:
+                        cmds.tick(now - launch)
                     obs.poll(now)
                     print(
                         f"\rflight {scenario.name} {contender} n={n}: {now - launch:5.1f}/"
@@ -250,6 +255,8 @@ def run_flight(
                         raise RuntimeError(f"ns-3 channel died: {log.read_text()[-800:]}")
                     time.sleep(POLL_S)
                 print(file=sys.stderr)
+                if cmds is not None:
+                    cmds.finish(time.monotonic)
                 c.window_end()
                 stop.touch()
                 proc.wait(timeout=60)
@@ -259,16 +266,21 @@ def run_flight(
                 c.close()
         stats = json.loads((chan / "stats.json").read_text())
         go_info = json.loads((fdir / "go.json").read_text())
+        go_wall = float(go_info.get("go_wall", launch))
+        issued = None if cmds is None else (cmds.records(go_wall), cmds.vehicles(go_wall))
         heard = [json.loads(x) for x in (fdir / "heard.jsonl").read_text().splitlines() if x]
         if keep is not None:
             keep.mkdir(parents=True, exist_ok=True)
             for f in (*work.glob("*.log"), log):
                 dest = keep / f"flight-{scenario.name}-{contender}-n{n}-r{run}-{f.name}"
                 dest.write_bytes(f.read_bytes())
-    return assemble(
+    record = assemble(
         contender, scenario, run, stats, go_info, launch, obs, down, restarts, heard,
         max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
     )  # fmt: skip
+    if issued is not None:
+        flight_commands.attach(record, issued[0], scenario, issued[1])
+    return record
 
 
 def assemble(
@@ -387,6 +399,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--ns3-rt-priority", type=int, default=10)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--keep-logs", action="store_true")
+    p.add_argument(
+        "--no-commands", action="store_true",
+        help="no vehicles, no operator commands (discovery measures only, as before)",
+    )  # fmt: skip
     args = p.parse_args(argv)
     scenarios = [s.strip() for s in args.scenarios.split(",") if s.strip()]
     sizes = [int(x) for x in args.n.split(",") if x.strip()]
@@ -415,6 +431,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     c, scenario, k, dilation=args.dilation, max_lag_ms=args.max_lag_ms,
                     rt_priority=args.ns3_rt_priority,
                     keep=args.out / "logs" if args.keep_logs else None,
+                    commands=not args.no_commands,
                 )  # fmt: skip
             except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
                 print(f"\nflight bench: {s} {c} n={n} run {k} failed: {exc}", file=sys.stderr)
@@ -423,7 +440,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             path = runs_dir / run_file_name(s, c, n, k, args.dilation)
             path.write_text(json.dumps(result) + "\n")
             flight_report.timeline(result, path.with_suffix(".png"))
-            print(one_line(result))
+            print(one_line(result), flight_commands.one_line(result["measures"]))
     except (KeyboardInterrupt, Interrupted):
         print("flight bench: interrupted; testbed removed", file=sys.stderr)
         return 130
