@@ -15,7 +15,7 @@ talks to which (``Bundle.matches``). A match becomes live when discovery reports
 SPDP) and dies with ``peer_down``. Each local endpoint is an RTPS writer or reader chosen by
 the topic's QoS in the bundle (``writer.py``, ``reader.py``).
 
-Authentication (issue 10, ``seal.py``, docs/security.md). Every datagram to a peer is
+Authentication (issue 10, ``seal.py``, ``channel.py``, docs/security.md). Every datagram to a peer is
 ``Header + submessages + AUTH``: a swarmd vendor submessage carrying this node's freshness
 (epoch, per-peer sequence) and an HMAC-SHA256 tag under the pair key the bundle gives the
 two nodes, bound to the peer's current epoch. A datagram from a peer is verified before it
@@ -43,7 +43,6 @@ Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input beco
 
 from __future__ import annotations
 
-import hmac
 from collections import Counter, OrderedDict, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -51,6 +50,7 @@ from typing import Any, Final, Protocol
 
 from swarmd.auth.freshness import U32_MAX, CounterExhausted, ReplayWindow, SendCounter
 from swarmd.bundle.model import Bundle, Durability, EndpointKind, Participant, Reliability, Topic
+from swarmd.dataplane.channel import Channel
 from swarmd.dataplane.events import (
     CommandReceived,
     DataPlaneEvent,
@@ -60,15 +60,7 @@ from swarmd.dataplane.events import (
 )
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
-from swarmd.dataplane.seal import (
-    EPOCH_HINT_MASK,
-    TRAILER_BYTES,
-    peek_trailer,
-    protected_part,
-    seal,
-    user_data_key,
-    verify,
-)
+from swarmd.dataplane.seal import TRAILER_BYTES, protected_part, seal, user_data_key
 from swarmd.dataplane.types import (
     MAX_REASON_CHARS,
     TYPES_BY_NAME,
@@ -150,16 +142,6 @@ class PairKeys(Protocol):
 
 
 @dataclass(slots=True)
-class _Channel:
-    """Authentication state with one bundle participant; kept across ``peer_down``."""
-
-    key: hmac.HMAC
-    tx: SendCounter  # our freshness towards this peer (per pair: a dense window there)
-    peer_epoch: int  # from its authenticated SPDP, via peer_up
-    window: ReplayWindow = field(default_factory=ReplayWindow)
-
-
-@dataclass(slots=True)
 class _Peer:
     participant: Participant
     locator: tuple[str, int]
@@ -208,7 +190,7 @@ class DataPlane:
         self.incarnation = incarnation
         self.epoch = epoch
         self._keys = keys
-        self._channels: dict[GuidPrefix, _Channel] = {}
+        self._channels: dict[GuidPrefix, Channel] = {}
         self._writers: dict[EntityId, tuple[Topic, Writer]] = {}
         self._readers: dict[EntityId, tuple[Topic, Reader]] = {}
         self._writer_by_topic: dict[str, Writer] = {}
@@ -450,10 +432,11 @@ class DataPlane:
             reason = "peer_not_up" if known else "unknown_participant"
             self._drop(reason, source, str(prefix))
             return
-        refused = self._authenticate(self._channels[prefix], data)
+        refused = self._channels[prefix].check(data, self.prefix, self.epoch)
         if refused is not None:
             self._drop(refused[0], source, f"{peer_name}: {refused[1]}")
             return
+        self.counters["rx_authenticated"] += 1
         try:
             message = decode_message(protected_part(data))
         except DecodeError as exc:  # authentic but malformed: a bug on the sender's side
@@ -546,42 +529,16 @@ class DataPlane:
 
     # --- internals --------------------------------------------------------------------------
 
-    def _channel(self, prefix: GuidPrefix, epoch: int) -> _Channel | None:
+    def _channel(self, prefix: GuidPrefix, epoch: int) -> Channel | None:
         """The authentication state with a bundle participant, made on first use."""
         channel = self._channels.get(prefix)
         if channel is None:
             pair_key = self._keys.pair_key(prefix)
             if pair_key is None:
                 return None
-            channel = _Channel(user_data_key(pair_key), SendCounter(self.epoch), epoch)
+            channel = Channel(user_data_key(pair_key), SendCounter(self.epoch), epoch)
             self._channels[prefix] = channel
         return channel
-
-    def _authenticate(self, channel: _Channel, data: bytes) -> tuple[str, str] | None:
-        """None when ``data`` is authentic and fresh (its freshness is then recorded), else
-        (reason, detail). Cheap checks first: a forgery costs at most one HMAC, and only if
-        it guessed a fresh sequence in the sender's current epoch and ours."""
-        trailer = peek_trailer(data)
-        if trailer is None:
-            return "auth_missing", "no swarmd authenticator at the end"
-        fresh = trailer.freshness
-        if fresh.epoch != channel.peer_epoch:
-            # Lower: a datagram of an earlier life (replay). Higher: the sender restarted
-            # and its new SPDP has not reached us yet; refused until it does.
-            older = fresh.epoch < channel.peer_epoch
-            reason = "auth_stale_epoch" if older else "auth_epoch_ahead"
-            return reason, f"epoch {fresh.epoch}, known {channel.peer_epoch}"
-        if trailer.epoch_hint != self.epoch & EPOCH_HINT_MASK:
-            # Made for another life of ours: a capture replayed after we restarted, or a
-            # sender that has not yet heard our new SPDP.
-            return "auth_receiver_epoch", f"hint {trailer.epoch_hint}, ours {self.epoch}"
-        if not channel.window.is_fresh(fresh):
-            return "auth_replayed", f"{fresh.epoch}/{fresh.seq}"
-        if not verify(channel.key, data, self.prefix, self.epoch):
-            return "auth_failed", f"{fresh.epoch}/{fresh.seq}"
-        channel.window.accept(fresh)
-        self.counters["rx_authenticated"] += 1
-        return None
 
     def _publish(self, topic: str, sample: Sample, now: float) -> int:
         writer = self._writer_by_topic.get(topic)
