@@ -50,6 +50,7 @@ from swarmd.swarm.core import (
     CommandExecuting,
     CommandExpired,
     CommandIssued,
+    CommandNotDelivered,
     CommandWithdrawn,
     MemberReadinessChanged,
     OutcomeRecorded,
@@ -412,6 +413,13 @@ class SwarmApp:
                 )
             case CommandWithdrawn():
                 self.log.info("command_withdrawn", command_id=event.command_id)
+            case CommandNotDelivered():
+                self.log.warning(
+                    "command_not_delivered",
+                    member=event.member,
+                    command_id=event.command_id,
+                    reason=event.reason,
+                )
             case OutcomeReported():
                 self.log.info(
                     "command_outcome",

@@ -27,9 +27,7 @@ from __future__ import annotations
 import pytest
 
 from swarmd.discovery import EngineConfig
-from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE
-
-RESTARTED = "restarted_before_reached"
+from swarmd.swarm.commander import NOT_REACHED, RESTARTED, UNREACHABLE
 from swarmd.swarm.core import PersistExecuted, SwarmCore, SwarmSettings
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight
@@ -221,13 +219,12 @@ def test_a_member_restarted_while_lost_is_not_handed_its_earlier_lifes_copy(
     swarm.run(3.0)
     flight.cut = lambda a, b: False
     bundle = swarm.bundle
-    for a in NEAR:
-        swarm.call(
-            a, lambda now, a=a: swarm.cores[a].peer_up("m03", address_of(bundle, "m03"), 2, now)
-        )
-        swarm.call(
-            "m03", lambda now, a=a: swarm.cores["m03"].peer_up(a, address_of(bundle, a), 1, now)
-        )
+    now = swarm.net.now
+    for a in NEAR:  # found again, the commander's side seeing the new epoch
+        swarm.cores[a].peer_up("m03", address_of(bundle, "m03"), 2, now)
+        swarm.cores["m03"].peer_up(a, address_of(bundle, a), 1, now)
+        swarm.net.poke(swarm.ids[a])
+    swarm.net.poke(swarm.ids["m03"])
     _discovery(flight, up=True, far=("m04",))
     swarm.run(0.5)
     assert swarm.net.now < issued + VALID_S
@@ -267,4 +264,3 @@ def test_no_echo_of_an_earlier_life_dates_a_new_command() -> None:
     swarm.call("m01", lambda now: reborn.peer_up("lead", address_of(bundle, "lead"), 1, now))
     swarm.run(2.0)
     assert [e.node for e in plane.time_echoes(["m01"], swarm.net.now)] == ["m01"]
-

@@ -5,6 +5,7 @@ See docs/dataplane.md.
 """
 
 from swarmd.dataplane.events import (
+    CommandCopyVoided,
     CommandReceived,
     DataPlaneEvent,
     Event,
@@ -37,6 +38,7 @@ __all__ = [
     "TOPIC_OUTCOME",
     "TOPIC_READY",
     "Command",
+    "CommandCopyVoided",
     "CommandKind",
     "CommandOutcome",
     "CommandReceived",

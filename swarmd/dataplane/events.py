@@ -43,6 +43,18 @@ class OutcomeReceived(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class CommandCopyVoided(Event):
+    """Commander side: ``member`` came back in another boot epoch (it restarted) before it
+    acknowledged its copy of command ``command_id``, still held because still valid. The
+    copy is dated by an echo of the member's earlier life, so it is not handed to the new
+    one (fail closed): the command will not run there (docs/dataplane.md, "Rejoining while
+    a command is valid")."""
+
+    member: str
+    command_id: int
+
+
+@dataclass(frozen=True, slots=True)
 class PacketDropped(Event):
     """Input that was not acted on; ``reason`` is a short snake_case tag also counted in
     ``DataPlane.status()``."""
@@ -52,4 +64,6 @@ class PacketDropped(Event):
     detail: str = ""
 
 
-DataPlaneEvent = ReadinessReceived | CommandReceived | OutcomeReceived | PacketDropped
+DataPlaneEvent = (
+    ReadinessReceived | CommandReceived | OutcomeReceived | CommandCopyVoided | PacketDropped
+)

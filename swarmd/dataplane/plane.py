@@ -15,17 +15,17 @@ talks to which (``Bundle.matches``). A match becomes live when discovery reports
 SPDP) and dies with ``peer_down``. Each local endpoint is an RTPS writer or reader chosen by
 the topic's QoS in the bundle (``writer.py``, ``reader.py``).
 
-Authentication (issue 10, ``seal.py``, ``channel.py``, docs/security.md). Every datagram to a peer is
-``Header + submessages + AUTH``: a swarmd vendor submessage carrying this node's freshness
-(epoch, per-peer sequence) and an HMAC-SHA256 tag under the pair key the bundle gives the
-two nodes, bound to the peer's current epoch. A datagram from a peer is verified before it
-can move anything (reader positions, acknowledged sets, readiness rows, dedup sets): its
-GUID prefix must be a bundle participant discovery reported up, then the cheap checks (a
-trailer, the sender's known epoch, our epoch's hint, a fresh sequence in the sender's
-replay window), then the tag; only then is it decoded and each submessage must address a
-matched endpoint pair. Replay windows, send counters and keys live per bundle participant
-and outlive ``peer_down``, so a peer lost and found again in the same epoch cannot be fed
-its own old datagrams.
+Authentication (issue 10, ``seal.py``, ``channel.py``, docs/security.md). Every datagram to
+a peer is ``Header + submessages + AUTH``: a swarmd vendor submessage carrying this node's
+freshness (epoch, per-peer sequence) and an HMAC-SHA256 tag under the pair key the bundle
+gives the two nodes, bound to the peer's current epoch. A datagram from a peer is verified
+before it can move anything (reader positions, acknowledged sets, readiness rows, dedup
+sets): its GUID prefix must be a bundle participant discovery reported up, then the cheap
+checks (a trailer, the sender's known epoch, our epoch's hint, a fresh sequence in the
+sender's replay window), then the tag; only then is it decoded and each submessage must
+address a matched endpoint pair. Replay windows, send counters and keys live per bundle
+participant and outlive ``peer_down``, so a peer lost and found again in the same epoch
+cannot be fed its own old datagrams.
 
 Commands go out as one sample (one SN, one command id) with one copy per target, each
 naming only that member and carrying only its time echo, so a command's size does not grow
@@ -52,6 +52,7 @@ from swarmd.auth.freshness import U32_MAX, CounterExhausted, ReplayWindow, SendC
 from swarmd.bundle.model import Bundle, Durability, EndpointKind, Participant, Reliability, Topic
 from swarmd.dataplane.channel import Channel
 from swarmd.dataplane.events import (
+    CommandCopyVoided,
     CommandReceived,
     DataPlaneEvent,
     OutcomeReceived,
@@ -155,6 +156,7 @@ class ReadinessStats:
     count: int = 0
     last: Readiness | None = None
     last_rx: float = 0.0
+    epoch: int = 0  # the member's boot epoch when ``last`` arrived: its clock's life
 
 
 Writer = BestEffortWriter | ReliableWriter
@@ -224,6 +226,9 @@ class DataPlane:
         self._outcomes: OrderedDict[tuple[str, int, int], None] = OrderedDict()
         self._readiness: dict[str, ReadinessStats] = {}
         self._next_command = 0
+        # The commander's command SNs still in its writer's history -> command id, so a
+        # member's copies that will not be handed over can be named (CommandCopyVoided).
+        self._command_ids: OrderedDict[int, int] = OrderedDict()
 
     # --- discovery inputs -------------------------------------------------------------------
 
@@ -232,10 +237,16 @@ class DataPlane:
         authenticated SPDP): its matched endpoints become live, and user data for it goes to
         ``locator``, whatever the caller chose (the daemon: the host discovery heard it at,
         with the bundle's user port for it, ``Bundle.user_port``). Again for a known peer in
-        the same epoch: only the locator moves. In another epoch the peer restarted: its
-        reliable state starts over (as after ``peer_down``), its replay window too, and our
-        datagrams are bound to the new epoch. An epoch lower than one seen before is ignored
-        (counted): it would let that earlier life's datagrams count again.
+        the same epoch: only the locator moves. Back after ``peer_down`` in the same epoch
+        (the same life: a link that came back): our writers resume its readers where they
+        were, handing over what was written for them meanwhile and is still held, i.e. the
+        commands still valid (docs/dataplane.md, "Rejoining while a command is valid"). In
+        another epoch the peer restarted: its reliable state starts over (as for a new
+        volatile reader), its replay window too, our datagrams are bound to the new epoch,
+        and each still-held command it never acknowledged is voided for it
+        (``CommandCopyVoided``: its echo dates it on the earlier life's clock). An epoch
+        lower than one seen before is ignored (counted): it would let that earlier life's
+        datagrams count again.
 
         A participant the key ring has no pair key for stays down (counted)."""
         peer = self.bundle.participant(name)
@@ -259,7 +270,8 @@ class DataPlane:
                 return
             self.peer_down(name, now)
             self.counters["peer_restarts"] += 1
-        if channel.peer_epoch != epoch:
+        same_life = channel.peer_epoch == epoch
+        if not same_life:
             channel.peer_epoch = epoch
             channel.window = ReplayWindow()
         state = _Peer(peer, locator)
@@ -268,15 +280,29 @@ class DataPlane:
         for match in self.bundle.matches(self.local, peer):
             entity = match.local.entity_id
             if match.local_kind == EndpointKind.WRITER and entity in self._writers:
-                self._queue(self._writers[entity][1].add_reader(match.remote, now))
+                writer = self._writers[entity][1]
+                if not same_life:
+                    self._void_copies(name, writer, writer.forget_reader(match.remote))
+                self._queue(writer.add_reader(match.remote, now, resume=same_life))
             elif match.local_kind == EndpointKind.READER and entity in self._readers:
                 self._readers[entity][1].add_writer(match.remote)
             else:
                 continue
             state.matched.append((entity, match.remote))
 
+    def _void_copies(self, name: str, writer: Writer, sns: list[int]) -> None:
+        if writer is not self._writer_by_topic.get(TOPIC_COMMAND):
+            return  # an outcome or another topic: the new life simply starts afresh
+        for sn in sns:
+            command_id = self._command_ids.get(sn)
+            if command_id is not None:
+                self.counters["command_copies_voided"] += 1
+                self._events.append(CommandCopyVoided(name, command_id))
+
     def peer_down(self, name: str, now: float) -> None:
-        """Discovery lost ``name`` (lease expiry or dispose): drop its proxies and traffic."""
+        """Discovery lost ``name`` (lease expiry or dispose): its traffic stops and its
+        proxies are unmatched (the writers keep their place for a return in the same life,
+        ``peer_up``)."""
         state = self._peers.pop(name, None)
         if state is None:
             return
@@ -329,6 +355,12 @@ class DataPlane:
             stats = self._readiness.get(name)
             if stats is None or stats.last is None:
                 continue
+            target = self._participants.get(name)
+            channel = None if target is None else self._channels.get(target.guid_prefix)
+            if channel is None or channel.peer_epoch != stats.epoch:
+                # A report of the member's earlier life: its stamp is on a clock that may
+                # have started again (a reboot), so it cannot date anything (fail closed).
+                continue
             echo = echo_of(name, stats.last.stamp_ms, stats.last_rx, now)
             if echo is not None:
                 out.append(echo)
@@ -341,6 +373,7 @@ class DataPlane:
         writer = self._writer_by_topic.get(TOPIC_COMMAND)
         if not isinstance(writer, ReliableWriter):
             return False
+        self._command_ids.pop(sn, None)
         return writer.withdraw(sn)
 
     def send_command(self, command: Command, now: float) -> int:
@@ -361,6 +394,9 @@ class DataPlane:
             raise ValueError(f"{self.local.name!r} has no writer on {TOPIC_COMMAND!r}")
         sn, out = writer.write(self._command_copies(command), now)
         self._queue(out)
+        self._command_ids[sn] = command.command_id
+        while len(self._command_ids) > MAX_HISTORY_DEPTH:  # older ones left the history
+            self._command_ids.popitem(last=False)
         return sn
 
     def _command_copies(self, command: Command) -> dict[GuidPrefix, bytes]:
@@ -507,7 +543,7 @@ class DataPlane:
     def readiness_received(self, node: str) -> ReadinessStats | None:
         """What ``node`` has sent us on ``swarm/ready`` (a copy), None if nothing yet."""
         s = self._readiness.get(node)
-        return None if s is None else ReadinessStats(s.count, s.last, s.last_rx)
+        return None if s is None else ReadinessStats(s.count, s.last, s.last_rx, s.epoch)
 
     def status(self, now: float) -> dict[str, Any]:
         """A JSON-ready snapshot for ``swarmctl status``."""
@@ -651,6 +687,7 @@ class DataPlane:
         stats.count += 1
         stats.last = sample
         stats.last_rx = now
+        stats.epoch = self._channels[self._participants[peer_name].guid_prefix].peer_epoch
         self._events.append(ReadinessReceived(peer_name, sample, stats.count))
 
     def _on_command(self, commander: str, command: Command) -> None:

@@ -5,6 +5,17 @@ Theory of operation (reliable writer, DDSI-RTPS 2.5 section 8.4.9 "Reliable Stat
 * One ``ReaderProxy`` per matched remote reader, created when discovery reports the peer.
   A VOLATILE writer treats every sample written before the match as irrelevant to that
   reader (``relevant_from``); TRANSIENT_LOCAL makes the whole history relevant.
+* A reader lost (``remove_reader``) and matched again in the same life (``add_reader(...,
+  resume=True)``: the owner knows the reader's boot epoch did not change) gets its proxy
+  back, not a new volatile one: what it acknowledged stays irrelevant to it, and every sample
+  written since that is still in the history (the owner withdraws what stopped being valid)
+  is handed over at once. DDSI-RTPS 2.5 8.4.7.5 leaves which changes are relevant to a
+  reader to the writer (``ChangeForReader.is_relevant``); DDS 1.4 2.2.3.4 (DURABILITY) and
+  2.2.3.16 (LIFESPAN) give the model: for a reader that was matched before, the history is
+  kept as TRANSIENT_LOCAL with a lifespan would keep it, and for a new reader the writer
+  stays VOLATILE. A reader whose life changed is ``forget_reader``-ed: the owner learns
+  which samples it never acknowledged (docs/dataplane.md, "Rejoining while a command is
+  valid").
 * ``write`` stores the sample in a keep-last-N history and pushes DATA to every proxy, with a
   HEARTBEAT piggy-backed in the same datagram so the reader acknowledges at once.
 * While a proxy has unacknowledged samples the writer HEARTBEATs it periodically; the period
@@ -56,6 +67,9 @@ MAX_EAGER_RESEND: Final = 4
 STALE_ACKNACK_HEARTBEATS: Final = 3
 MAX_INCARNATION: Final = (1 << 31) - 1  # SequenceNumber_t.high is an int32 (spec 9.3.2)
 MAX_HISTORY_DEPTH: Final = 1024  # keep-last N bound a bundle may ask for; caps writer memory
+# Proxies of lost readers kept for a resume. Only readers of bundle participants that
+# discovery reported up are ever matched, so the bundle bounds it; the cap is a backstop.
+MAX_LOST_READERS: Final = 4096
 
 
 # One sample's serialized payload: the same octets for every reader, or one copy per reader
@@ -101,6 +115,9 @@ class WriterCounters:
     acknacks_stale: int = 0
     evicted_unacked: int = 0
     withdrawn: int = 0  # samples removed before every reader had them (validity ended)
+    resumed: int = 0  # readers matched again in the same life, handed what they missed
+    handed_over: int = 0  # samples pushed to resumed readers at their return
+    lost_evicted: int = 0  # lost readers' proxies dropped by MAX_LOST_READERS
 
 
 @dataclass(slots=True)
@@ -116,12 +133,15 @@ class BestEffortWriter:
     def last_sn(self) -> int:
         return self.next_sn - 1
 
-    def add_reader(self, reader: Guid, now: float) -> list[Outgoing]:
-        self.readers[reader] = None
+    def add_reader(self, reader: Guid, now: float, *, resume: bool = False) -> list[Outgoing]:
+        self.readers[reader] = None  # nothing kept, nothing to hand over (spec 8.4.7.1)
         return []
 
     def remove_reader(self, reader: Guid) -> None:
         self.readers.pop(reader, None)
+
+    def forget_reader(self, reader: Guid) -> list[int]:
+        return []
 
     def matched(self, reader: Guid) -> bool:
         return reader in self.readers
@@ -173,15 +193,37 @@ class ReliableWriter:
         self.last_sn = self.first_ever - 1
         self.history: OrderedDict[int, SamplePayload] = OrderedDict()
         self.proxies: dict[Guid, ReaderProxy] = {}
+        self._lost: OrderedDict[Guid, ReaderProxy] = OrderedDict()  # see remove_reader
         self.heartbeat_count = 0
         self.counters = WriterCounters()
 
     # --- matching ---------------------------------------------------------------------------
 
-    def add_reader(self, reader: Guid, now: float) -> list[Outgoing]:
-        """Match a remote reader; a second call for the same reader keeps its state."""
+    def add_reader(self, reader: Guid, now: float, *, resume: bool = False) -> list[Outgoing]:
+        """Match a remote reader; a second call for the same reader keeps its state.
+
+        ``resume``: the reader was lost (``remove_reader``) and is back in the same life,
+        so it takes up its old place: samples it acknowledged stay irrelevant to it, those
+        written since (and still held) are pushed now, at most ``MAX_EAGER_RESEND`` of
+        them, the rest on its ACKNACK. Otherwise a reader lost before starts afresh."""
         if reader in self.proxies:
             return []
+        lost = self._lost.pop(reader, None)
+        if resume and lost is not None:
+            # Everything it acknowledged it holds (the same reader, the same life): making
+            # it irrelevant means a reader that reset its own proxy gets a GAP, not a copy.
+            lost.relevant_from = max(lost.relevant_from, lost.acked + 1)
+            lost.heartbeats_unanswered = 0
+            lost.period_s = self.period_s
+            self.proxies[reader] = lost
+            self.counters.resumed += 1
+            if not self._unacked(lost):
+                return []
+            out = self._push_unacked(lost)
+            self.counters.handed_over += sum(isinstance(o.submessage, Data) for o in out)
+            out.append(self._heartbeat(lost))
+            lost.next_heartbeat = now + lost.period_s
+            return out
         relevant_from = self.first_ever if self.transient_local else self.last_sn + 1
         proxy = ReaderProxy(reader, relevant_from=relevant_from, acked=relevant_from - 1)
         self.proxies[reader] = proxy
@@ -191,7 +233,31 @@ class ReliableWriter:
         return []
 
     def remove_reader(self, reader: Guid) -> None:
-        self.proxies.pop(reader, None)
+        """Unmatch a reader; its proxy is kept for a resume (``add_reader``) or a
+        ``forget_reader``, whichever the owner decides when the reader is seen again."""
+        proxy = self.proxies.pop(reader, None)
+        if proxy is None:
+            return
+        self._lost[reader] = proxy
+        self._lost.move_to_end(reader)
+        while len(self._lost) > MAX_LOST_READERS:
+            self._lost.popitem(last=False)
+            self.counters.lost_evicted += 1
+
+    def forget_reader(self, reader: Guid) -> list[int]:
+        """Drop a lost reader's kept place (it came back in another life, so it starts
+        afresh): the SNs still held that were addressed to it and that it never
+        acknowledged, oldest first. They will not reach it."""
+        lost = self._lost.pop(reader, None)
+        if lost is None:
+            return []
+        return [
+            sn
+            for sn, stored in self.history.items()
+            if sn > lost.acked
+            and sn >= lost.relevant_from
+            and payload_for(stored, reader) is not None
+        ]
 
     def matched(self, reader: Guid) -> bool:
         return reader in self.proxies
@@ -303,20 +369,27 @@ class ReliableWriter:
             # The last heartbeat went unanswered: the DATA most likely never arrived either.
             # Resending the oldest unacked samples with this heartbeat repairs in one datagram
             # instead of a HEARTBEAT -> ACKNACK -> DATA round trip (three chances to lose).
-            first = max(proxy.acked + 1, proxy.relevant_from)
-            irrelevant: list[int] = []
-            for sn, stored in self.history.items():
-                if sn < first or len(out) >= MAX_EAGER_RESEND:
-                    continue
-                copy = payload_for(stored, proxy.guid)
-                if copy is None:
-                    irrelevant.append(sn)
-                else:
-                    out.append(self._data(proxy, sn, copy))
-            self.counters.data_resent += len(out)
-            if irrelevant:  # its GAP was lost too: say again that these are not for it
-                out.append(self._gap(proxy, irrelevant))
+            out = self._push_unacked(proxy)
+            self.counters.data_resent += sum(isinstance(o.submessage, Data) for o in out)
         out.append(self._heartbeat(proxy))
+        return out
+
+    def _push_unacked(self, proxy: ReaderProxy) -> list[Outgoing]:
+        """DATA for the oldest unacked samples relevant to ``proxy`` (at most
+        ``MAX_EAGER_RESEND``), and a GAP for the ones among them that are not for it."""
+        first = max(proxy.acked + 1, proxy.relevant_from)
+        out: list[Outgoing] = []
+        irrelevant: list[int] = []
+        for sn, stored in self.history.items():
+            if sn < first or len(out) >= MAX_EAGER_RESEND:
+                continue
+            copy = payload_for(stored, proxy.guid)
+            if copy is None:
+                irrelevant.append(sn)
+            else:
+                out.append(self._data(proxy, sn, copy))
+        if irrelevant:  # its GAP was lost too: say again that these are not for it
+            out.append(self._gap(proxy, irrelevant))
         return out
 
     def _data(self, proxy: ReaderProxy, sn: int, payload: bytes) -> Outgoing:

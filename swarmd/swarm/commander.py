@@ -38,6 +38,11 @@ LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 UNREACHABLE_GRACE_S: Final = 2.0
 UNREACHABLE: Final = "unreachable"  # state: no answer while valid; it can no longer run there
 NOT_REACHED: Final = "not_reached_while_valid"  # its reason
+# Another reason for it, known before the validity ends: the member restarted (a new boot
+# epoch) before it acknowledged the command, and its copy, dated on the earlier life's
+# clock, is not handed to the new one (docs/dataplane.md, "Rejoining while a command is
+# valid"). It may have run before the restart: its readiness rows say what the vehicle did.
+RESTARTED: Final = "restarted_before_reached"
 
 # Effective-readiness reasons the commander adds to the members' own codes (docs/operations.md)
 NO_REPORT: Final = "no_report"  # nothing received from this member yet
@@ -151,6 +156,7 @@ class _NodeOutcome:
     result: CommandResult | None = None  # the final one: COMPLETED, REJECTED or FAILED
     reason: str = ""
     final_at: float | None = None
+    not_delivered: str | None = None  # why the command can no longer reach it (RESTARTED)
 
 
 @dataclass(slots=True)
@@ -219,6 +225,15 @@ class CommandTracker:
                 entry.accepted_at = now  # the ACCEPTED report was overtaken or lost
         return True
 
+    def not_delivered(self, command_id: int, node: str, reason: str) -> bool:
+        """The command can no longer reach ``node`` (``reason``); an answer it gave before,
+        or gives later, still wins. False when the command or the node is not tracked."""
+        tracked = self._commands.get(command_id)
+        if tracked is None or node not in tracked.outcomes:
+            return False
+        tracked.outcomes[node].not_delivered = reason
+        return True
+
     def snapshot(self, command_id: int, now: float) -> dict[str, Any] | None:
         """The JSON view of one command (``swarmctl`` polls it), None if unknown."""
         t = self._commands.get(command_id)
@@ -232,6 +247,8 @@ class CommandTracker:
             reason = o.reason
             if o.result is not None:
                 state = str(o.result.name).lower()
+            elif o.accepted_at is None and o.not_delivered is not None:
+                state, reason = UNREACHABLE, o.not_delivered
             elif o.accepted_at is None and lapsed:
                 state, reason = UNREACHABLE, NOT_REACHED
             else:

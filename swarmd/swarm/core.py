@@ -14,7 +14,10 @@ disabled). Driving sources, the driver's protocol (``swarmd.driver``):
   heartbeat timeout rather than up to a period later;
 - the commander's validity timers: when a command's validity ends, ``handle_timer``
   withdraws it from the writer (never retransmitted after), and the tracker calls the
-  targets that did not answer ``unreachable``;
+  targets that did not answer ``unreachable``; until then a target lost by discovery and
+  found again in the same boot epoch is handed the command by the data plane, and one
+  found in a new epoch (it restarted) is not, and is ``unreachable`` at once (reason
+  ``restarted_before_reached``, docs/dataplane.md "Rejoining while a command is valid");
 - calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
   ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
   ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
@@ -55,6 +58,7 @@ from dataclasses import dataclass
 from typing import Any, Final, assert_never
 
 from swarmd.dataplane import (
+    CommandCopyVoided,
     CommandReceived,
     DataPlane,
     OutcomeReceived,
@@ -67,7 +71,7 @@ from swarmd.dataplane.validity import EXPIRED, judge, stamp_ms, valid_ms_of
 from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
-from swarmd.swarm.commander import CommandTracker, ReadinessTable
+from swarmd.swarm.commander import RESTARTED, CommandTracker, ReadinessTable
 from swarmd.swarm.roles import Roles
 
 PX4_DISABLED: Final = "px4_disabled"
@@ -180,6 +184,17 @@ class CommandWithdrawn:
 
 
 @dataclass(frozen=True, slots=True)
+class CommandNotDelivered:
+    """The commander will not hand command ``command_id`` to ``member``: ``reason``
+    (``commander.RESTARTED``: it came back in a new boot epoch before acknowledging it);
+    the tracker says ``unreachable`` for it from now."""
+
+    member: str
+    command_id: int
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
 class OutcomeReported:
     """This node's own outcome for a command (sent on ``swarm/outcome``, or recorded in
     the commander's own tracker for its own drone)."""
@@ -219,6 +234,7 @@ SwarmEvent = (
     | CommandExecuting
     | CommandExpired
     | CommandWithdrawn
+    | CommandNotDelivered
     | OutcomeReported
     | OutcomeRecorded
     | UserDataDropped
@@ -433,6 +449,10 @@ class SwarmCore:
                             node, outcome.command_id, outcome.result, outcome.reason, known
                         )
                     )
+                case CommandCopyVoided(member=member, command_id=command_id):
+                    # its copy is dated on the earlier life's clock: never handed over
+                    self.tracker.not_delivered(command_id, member, RESTARTED)
+                    self._events.append(CommandNotDelivered(member, command_id, RESTARTED))
                 case PacketDropped(reason=reason, source=source, detail=detail):
                     self._events.append(UserDataDropped(reason, source, detail))
                 case _:
