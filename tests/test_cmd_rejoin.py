@@ -24,13 +24,18 @@ the same boot epoch after the heal):
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 
+from swarmd.cli import takeoff_cmd
+from swarmd.dataplane.types import CommandResult
 from swarmd.discovery import EngineConfig
-from swarmd.swarm.commander import NOT_REACHED, RESTARTED, UNREACHABLE
+from swarmd.swarm.commander import NOT_REACHED, RESTARTED, UNREACHABLE, CommandTracker
 from swarmd.swarm.core import PersistExecuted, SwarmCore, SwarmSettings
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight
+from tests.test_cmd_validity import _Outcomes
 from tests.test_dataplane_swarm import address_of, make_plane
 
 LEASE_S = EngineConfig().lease_s
@@ -264,3 +269,41 @@ def test_no_echo_of_an_earlier_life_dates_a_new_command() -> None:
     swarm.call("m01", lambda now: reborn.peer_up("lead", address_of(bundle, "lead"), 1, now))
     swarm.run(2.0)
     assert [e.node for e in plane.time_echoes(["m01"], swarm.net.now)] == ["m01"]
+
+
+def test_the_tracker_says_restarted_at_once_and_a_real_answer_still_wins() -> None:
+    tracker = CommandTracker()
+    tracker.sent(3, "hold", ["uav2", "uav3", "uav4"], 0.0, valid_for_s=30.0)
+    tracker.record(3, "uav4", CommandResult.ACCEPTED, "", 0.1)
+    assert tracker.not_delivered(3, "uav3", RESTARTED)
+    assert tracker.not_delivered(3, "uav4", RESTARTED)
+    assert not tracker.not_delivered(3, "uav9", RESTARTED)  # not a target
+    assert not tracker.not_delivered(4, "uav3", RESTARTED)  # not a command we track
+    snap = tracker.snapshot(3, 1.0)
+    assert snap is not None
+    nodes = snap["nodes"]
+    assert (nodes["uav3"]["state"], nodes["uav3"]["reason"]) == (UNREACHABLE, RESTARTED)
+    assert nodes["uav4"]["state"] == "accepted"  # it answered before its restart: the truth
+    assert nodes["uav2"]["state"] == "pending"  # still valid, still deliverable
+    tracker.record(3, "uav3", CommandResult.COMPLETED, "", 2.0)  # whatever said so, wins
+    again = tracker.snapshot(3, 2.0)
+    assert again is not None and again["nodes"]["uav3"]["state"] == "completed"
+
+
+def test_swarmctl_says_a_restarted_member_will_not_be_sent_the_command(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    tracker = CommandTracker()
+    tracker.sent(2, "takeoff", ["uav2", "uav3"], 0.0, valid_for_s=3.0)
+    tracker.record(2, "uav2", CommandResult.COMPLETED, "IN_AIR", 1.0)
+    tracker.not_delivered(2, "uav3", RESTARTED)
+    snap = tracker.snapshot(2, 1.5)
+    assert snap is not None and snap["done"]  # nothing left to wait for
+    args = argparse.Namespace(json=False, timeout=30.0)
+    reply = {"command_id": 2, "ready": ["uav2", "uav3"], "valid_for_s": 3.0}
+    code = takeoff_cmd._follow(_Outcomes(snap), takeoff_cmd._Run(args), reply, "takeoff")  # type: ignore[arg-type]
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "uav3: unreachable: it restarted before it acknowledged the command" in out
+    assert "can no longer run there" in out
+    assert out.splitlines()[-1].endswith("will not run there: uav3")

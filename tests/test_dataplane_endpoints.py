@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from swarmd.dataplane import writer as writer_module
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.reader import MAX_BUFFERED_SAMPLES, BestEffortReader, ReliableReader
 from swarmd.dataplane.writer import (
@@ -298,3 +299,80 @@ def test_a_sample_with_one_copy_per_reader_sends_each_its_own_and_gaps_the_rest(
     eager = w.on_timer(1.0)
     assert _payloads(eager, R) == [mine]
     assert _only(eager, R2, Data) == []
+
+
+# --- a reader lost and matched again (docs/dataplane.md, "Rejoining while a command is valid")
+
+
+def test_a_reader_resumed_in_the_same_life_is_handed_what_was_written_for_it_meanwhile() -> None:
+    """R acknowledged SN 1, was lost, SNs 2 (a copy for R) and 3 (none) were written; on
+    its return R gets its copy of 2 at once and a GAP for 3, and never 1 again."""
+    w = ReliableWriter(W, depth=8)
+    w.add_reader(R, 0.0)
+    w.add_reader(R2, 0.0)
+    s1, _ = w.write({R.prefix: payload(1), R2.prefix: payload(1)}, 0.0)
+    w.on_acknack(R, acknack(s1 + 1, [], 1), 0.1)
+    w.remove_reader(R)
+    s2, out2 = w.write({R.prefix: payload(2), R2.prefix: payload(2)}, 1.0)
+    assert _only(out2, R, Data) == []  # lost: nothing goes to it
+    s3, _ = w.write({R2.prefix: payload(3)}, 1.0)
+    back = w.add_reader(R, 5.0, resume=True)
+    (handed,) = _only(back, R, Data)
+    assert isinstance(handed, Data) and (handed.writer_sn, handed.serialized_payload) == (
+        s2,
+        payload(2),
+    )
+    (gap,) = _only(back, R, Gap)
+    assert isinstance(gap, Gap) and gap.gap_start == s3
+    (beat,) = _only(back, R, Heartbeat)
+    assert isinstance(beat, Heartbeat) and (beat.first_sn, beat.last_sn) == (s2, s3)
+    assert w.counters.resumed == 1 and w.counters.handed_over == 1
+    # a reader that reset its own proxy asks from 1: what it acknowledged is a GAP now
+    repair = w.on_acknack(R, acknack(1, [s1, s2, s3], 2), 5.1)
+    assert _payloads(repair, R) == [payload(2)]
+    # once it acknowledges, the writer is quiet again
+    w.on_acknack(R, acknack(s3 + 1, [], 3), 5.2)
+    w.on_acknack(R2, acknack(s3 + 1, [], 1), 5.2)
+    assert w.deadline() is None
+
+
+def test_a_withdrawn_sample_is_not_handed_to_a_resumed_reader() -> None:
+    """The owner withdraws a command at the end of its validity: a reader back after that
+    is not sent it (the heartbeat moves it past)."""
+    w = ReliableWriter(W, depth=8)
+    w.add_reader(R, 0.0)
+    w.remove_reader(R)
+    sn, _ = w.write({R.prefix: payload(1)}, 1.0)
+    assert w.withdraw(sn)
+    back = w.add_reader(R, 40.0, resume=True)
+    assert _only(back, R, Data) == []
+    beats = _only(back, R, Heartbeat)
+    assert all(isinstance(b, Heartbeat) and b.first_sn > sn for b in beats)
+
+
+def test_a_reader_back_in_another_life_starts_afresh_and_its_missed_copies_are_named() -> None:
+    w = ReliableWriter(W, depth=8)
+    w.add_reader(R, 0.0)
+    w.add_reader(R2, 0.0)
+    acked, _ = w.write({R.prefix: payload(1)}, 0.0)
+    w.on_acknack(R, acknack(acked + 1, [], 1), 0.1)
+    w.remove_reader(R)
+    mine, _ = w.write({R.prefix: payload(2)}, 1.0)
+    w.write({R2.prefix: payload(3)}, 1.0)
+    assert w.forget_reader(R) == [mine]  # unacked, addressed to R, still held
+    assert w.forget_reader(R) == []  # forgotten once
+    assert w.add_reader(R, 2.0, resume=True) == []  # no place kept: a new volatile reader
+    assert w.forget_reader(R2) == []  # never lost
+
+
+def test_lost_readers_kept_for_a_resume_are_capped(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(writer_module, "MAX_LOST_READERS", 1)
+    w = ReliableWriter(W, depth=8)
+    w.add_reader(R, 0.0)
+    w.add_reader(R2, 0.0)
+    w.remove_reader(R)
+    w.remove_reader(R2)  # evicts R's kept place
+    assert w.counters.lost_evicted == 1
+    w.write({R.prefix: payload(1), R2.prefix: payload(1)}, 1.0)
+    assert _only(w.add_reader(R, 2.0, resume=True), R, Data) == []  # afresh: volatile
+    assert len(_only(w.add_reader(R2, 2.0, resume=True), R2, Data)) == 1

@@ -38,7 +38,7 @@ from swarmd.exitcodes import (
     EX_UNREACHABLE,
     EX_USAGE,
 )
-from swarmd.swarm.commander import UNREACHABLE
+from swarmd.swarm.commander import RESTARTED, UNREACHABLE
 from swarmd.swarm.core import DEFAULT_VALID_FOR_S
 from swarmd.terminal import safe_text, safe_tree
 
@@ -260,6 +260,13 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
             state = node["state"]
             if seen.get(name) != state and state != "pending":
                 seen[name] = state
+                if state == UNREACHABLE and node.get("reason") == RESTARTED:
+                    run.say(
+                        f"  {name}: unreachable: it restarted before it acknowledged the "
+                        "command, which is not sent to its new life and can no longer run "
+                        "there (its readiness shows what the vehicle did)"
+                    )
+                    continue
                 if state == UNREACHABLE:
                     run.say(
                         f"  {name}: unreachable while the command was valid "
