@@ -77,35 +77,47 @@ def _rows(flight: Flight, cid: int) -> dict[str, tuple[str, str]]:
     return {name: (row["state"], row["reason"]) for name, row in snap["nodes"].items()}
 
 
-def _heal(flight: Flight, at: float, *, rediscovered_after_s: float = 1.0) -> None:
-    """The far side flies back in range at ``at``; discovery finds it (both directions,
-    same boot epoch) ``rediscovered_after_s`` later, the commander's side first."""
+def _heal(flight: Flight, at: float, *, member_lag_s: float = 0.0) -> None:
+    """The far side flies back in range at ``at``; the near side's discovery finds it
+    (same boot epoch) 1 s later, the far side's finds the near side ``member_lag_s``
+    after that (discovery is asymmetric: until then it drops the commander's datagrams as
+    ``peer_not_up`` and the writer keeps repairing)."""
     swarm = flight.swarm
 
     def back(now: float) -> None:
         flight.cut = lambda a, b: False
 
-    def found(now: float) -> None:
-        _discovery(flight, up=True)
+    def found_by_near(now: float) -> None:
+        for a in NEAR:
+            for b in FAR:
+                flight.discovery(a, b, True)
+
+    def found_by_far(now: float) -> None:
+        for a in NEAR:
+            for b in FAR:
+                flight.discovery(b, a, True)
 
     swarm.net.call_at(at, back)
-    swarm.net.call_at(at + rediscovered_after_s, found)
+    swarm.net.call_at(at + 1.0, found_by_near)
+    swarm.net.call_at(at + 1.0 + member_lag_s, found_by_far)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("member_lag_s", [0.0, 1.5])
 @pytest.mark.parametrize("back_after_s", [2.0, 12.0, 25.0])
 def test_a_command_issued_while_a_member_is_lost_runs_there_once_when_it_is_back_in_time(
-    back_after_s: float, seed: int
+    back_after_s: float, member_lag_s: float, seed: int
 ) -> None:
     """The ns-3 split's shape: issued while the far side is lost, the far side back and
-    re-discovered before the validity ends (25 s: back 4 s before the end, as in the run)."""
+    re-discovered before the validity ends (25 s: back 4 s before the end, as in the run),
+    the far side finding the commander at the same time or 1.5 s after it was found."""
     flight = _split(seed)
     swarm = flight.swarm
     cid, issued = _hold(flight)
     swarm.run(1.0)
     rows = _rows(flight, cid)
     assert {rows[m] for m in FAR} == {("pending", "")}, rows  # still valid: not yet unreachable
-    _heal(flight, issued + back_after_s)
+    _heal(flight, issued + back_after_s, member_lag_s=member_lag_s)
     swarm.run(VALID_S + 10.0)
     for name in NEAR[1:] + FAR:
         ran = flight.ran(name, cid)
@@ -307,3 +319,31 @@ def test_swarmctl_says_a_restarted_member_will_not_be_sent_the_command(
     assert "uav3: unreachable: it restarted before it acknowledged the command" in out
     assert "can no longer run there" in out
     assert out.splitlines()[-1].endswith("will not run there: uav3")
+
+
+def rejoin_delays(seed: int, loss: float) -> list[float]:
+    """Seconds from re-discovery (both sides at once, 12 s after the issue) to each far
+    member's vehicle request, with ``loss`` on every link after the heal."""
+    flight = _split(seed)
+    swarm = flight.swarm
+    cid, issued = _hold(flight)
+    swarm.run(12.0)
+    names = flight.names
+    swarm.net.link_loss = lambda s, d: loss if names[s] != names[d] else 0.0
+    found = swarm.net.now
+    _discovery(flight, up=True)
+    swarm.run(VALID_S)
+    return [flight.ran(name, cid)[0] - found for name in FAR]
+
+
+if __name__ == "__main__":  # python -m tests.test_cmd_rejoin
+    import statistics
+
+    print("| loss after the heal | re-discovery -> executed: median | p95 | max | runs |")
+    for loss in (0.0, 0.1, 0.3):
+        delays = [d for s in range(1, 51) for d in rejoin_delays(s, loss)]
+        p95 = statistics.quantiles(delays, n=20)[18]
+        print(
+            f"| {loss:.0%} | {statistics.median(delays) * 1e3:.0f} ms | {p95 * 1e3:.0f} ms "
+            f"| {max(delays) * 1e3:.0f} ms | {len(delays)} |"
+        )

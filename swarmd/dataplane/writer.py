@@ -11,11 +11,11 @@ Theory of operation (reliable writer, DDSI-RTPS 2.5 section 8.4.9 "Reliable Stat
   written since that is still in the history (the owner withdraws what stopped being valid)
   is handed over at once. DDSI-RTPS 2.5 8.4.7.5 leaves which changes are relevant to a
   reader to the writer (``ChangeForReader.is_relevant``); DDS 1.4 2.2.3.4 (DURABILITY) and
-  2.2.3.16 (LIFESPAN) give the model: for a reader that was matched before, the history is
-  kept as TRANSIENT_LOCAL with a lifespan would keep it, and for a new reader the writer
-  stays VOLATILE. A reader whose life changed is ``forget_reader``-ed: the owner learns
-  which samples it never acknowledged (docs/dataplane.md, "Rejoining while a command is
-  valid").
+  2.2.3.16 (LIFESPAN) give the model: to a reader matched before, in the same life, the
+  writer offers what TRANSIENT_LOCAL with a LIFESPAN would (samples not yet expired), to a
+  new reader it stays VOLATILE. A reader whose life changed is ``forget_reader``-ed: the
+  owner learns which samples it never acknowledged (docs/dataplane.md, "Rejoining while a
+  command is valid").
 * ``write`` stores the sample in a keep-last-N history and pushes DATA to every proxy, with a
   HEARTBEAT piggy-backed in the same datagram so the reader acknowledges at once.
 * While a proxy has unacknowledged samples the writer HEARTBEATs it periodically; the period
