@@ -35,7 +35,7 @@ from swarmd.swarm.commander import NOT_REACHED, RESTARTED, UNREACHABLE, CommandT
 from swarmd.swarm.core import PersistExecuted, SwarmCore, SwarmSettings
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight
-from tests.test_cmd_validity import _Outcomes
+from tests.test_cmd_validity import _command_datagrams, _inject, _Outcomes
 from tests.test_dataplane_swarm import address_of, make_plane
 
 LEASE_S = EngineConfig().lease_s
@@ -347,3 +347,32 @@ if __name__ == "__main__":  # python -m tests.test_cmd_rejoin
             f"| {loss:.0%} | {statistics.median(delays) * 1e3:.0f} ms | {p95 * 1e3:.0f} ms "
             f"| {max(delays) * 1e3:.0f} ms | {len(delays)} |"
         )
+
+
+def test_a_handed_over_copy_held_back_past_the_validity_is_refused() -> None:
+    """The delay attack on the hand-over: discovery on both sides finds the far side again
+    while its radio is still jammed, so the copies the commander hands over are heard only
+    by an attacker, who releases one after the validity. m03 refuses it as expired (its
+    own deadline from the echo), says so, and nothing later runs it."""
+    flight = _split(seed=9)
+    swarm = flight.swarm
+    request = {"kind": "hold", "valid_for_s": 5.0}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_command(request, now))
+    cid, issued = int(sent["command_id"]), swarm.net.now
+    swarm.run(1.0)
+    _discovery(flight, up=True)  # found again; the cut (the jammer) still holds
+    swarm.run(5.0)
+    held = _command_datagrams(swarm, cid, "m03", issued)
+    assert held, "the commander handed the HOLD over towards m03"
+    assert swarm.net.now > issued + 5.0
+    flight.cut = lambda a, b: False  # the jammer stops; its capture is released late
+    _inject(swarm, "m03", held[0])
+    assert flight.ran("m03", cid) == []
+    executor = swarm.cores["m03"].executor_status()["counters"]
+    assert executor["refused_expired"] == 1
+    for copy in held[1:]:
+        _inject(swarm, "m03", copy)
+    swarm.run(5.0)
+    assert flight.ran("m03", cid) == [] and flight.ran("m04", cid) == []
+    rows = _rows(flight, cid)
+    assert rows["m03"] == ("rejected", "expired"), rows
