@@ -19,7 +19,7 @@ the same boot epoch after the heal):
   answer, kept by its outcome writer across the loss, still reaches the operator;
 - restarted while lost (a new boot epoch, state dir kept or lost): the copy is dated for
   its earlier life, so it is not handed over (fail closed), and the operator is told at
-  once ``unreachable`` (``restarted_before_reached``), not at the end of the validity.
+  once ``unreachable`` (``restarted_before_acknowledging``), not at the end of the validity.
 """
 
 from __future__ import annotations
@@ -226,7 +226,7 @@ def test_a_member_restarted_while_lost_is_not_handed_its_earlier_lifes_copy(
     (after a reboot its monotonic clock starts again: the elapsed time would read short):
     the commander does not hand it over, whether or not the state dir survived (without
     it nothing else would stop a second run of a command that might have run), and tells
-    the operator ``unreachable`` (``restarted_before_reached``) as soon as it sees the new
+    the operator ``unreachable`` (``restarted_before_acknowledging``) as soon as it sees the new
     epoch. m04, back in its own life, runs it."""
     flight = _split(seed=5)
     swarm = flight.swarm

@@ -42,7 +42,7 @@ NOT_REACHED: Final = "not_reached_while_valid"  # its reason
 # epoch) before it acknowledged the command, and its copy, dated on the earlier life's
 # clock, is not handed to the new one (docs/dataplane.md, "Rejoining while a command is
 # valid"). It may have run before the restart: its readiness rows say what the vehicle did.
-RESTARTED: Final = "restarted_before_reached"
+RESTARTED: Final = "restarted_before_acknowledging"
 
 # Effective-readiness reasons the commander adds to the members' own codes (docs/operations.md)
 NO_REPORT: Final = "no_report"  # nothing received from this member yet

@@ -17,7 +17,7 @@ disabled). Driving sources, the driver's protocol (``swarmd.driver``):
   targets that did not answer ``unreachable``; until then a target lost by discovery and
   found again in the same boot epoch is handed the command by the data plane, and one
   found in a new epoch (it restarted) is not, and is ``unreachable`` at once (reason
-  ``restarted_before_reached``, docs/dataplane.md "Rejoining while a command is valid");
+  ``restarted_before_acknowledging``, docs/dataplane.md "Rejoining while a command is valid");
 - calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
   ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
   ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
