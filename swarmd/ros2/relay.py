@@ -83,6 +83,14 @@ MAX_UNKNOWN_PARTICIPANTS: Final = 16
 # undeclared endpoints kept per local participant (a node creating endpoints in a loop)
 MAX_UNDECLARED_PER_PARTICIPANT: Final = 32
 MAX_EVENTS: Final = 256  # queued events if the owner stops draining
+# A starting Fast DDS participant sends its first DATA(p) before it listens: its
+# RTPSParticipantImpl::enable() runs BuiltinProtocols::enable() (the first announcement)
+# and only then registers its receivers, and a datagram read in between is dropped
+# (ReceiverResource::OnDataReceived with no receiver; Fast DDS 3.2). The relay's answer on
+# loopback can land in that window (docs/ros2.md, "A late publisher"). Every later
+# datagram of the node is sent once it listens, so the relay answers the first
+# START_ANSWERS datagrams of each node life, not only the first.
+START_ANSWERS: Final = 2
 FASTDDS_PROTOCOL_VERSION: Final = ProtocolVersion(2, 3)
 ENTITY_KIND_WRITER_NO_KEY: Final = 0x03  # DDSI-RTPS 9.3.1.2
 ENTITY_KIND_READER_NO_KEY: Final = 0x04
@@ -191,6 +199,7 @@ class _Local:
     left: bool = False  # its last word was a DATA(p[UD])
     last_sn: int = 0
     datagrams: int = 0
+    answers_left: int = 0  # datagrams of this life still answered with everything relayed
     # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
     undeclared: set[tuple[str, int, str]] | None = None
 
@@ -276,6 +285,7 @@ class Ros2Relay:
             "undeclared_dropped": 0,
             "tx_spdp": 0,
             "tx_dispose": 0,
+            "tx_start_answers": 0,
         }
 
     # ---- the driving protocol ----------------------------------------------------------------
@@ -485,6 +495,10 @@ class Ros2Relay:
         if first:
             p = local.participant
             self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
+            local.answers_left = START_ANSWERS
+        if local.answers_left > 0:
+            local.answers_left -= 1
+            self.counters["tx_start_answers"] += 1
             self._send_all_to(local)
 
     def _left(self, prefix: GuidPrefix) -> None:
