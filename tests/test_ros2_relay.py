@@ -19,6 +19,7 @@ from swarmd.ros2.relay import (
     LOOPBACK,
     MAX_UNDECLARED_PER_PARTICIPANT,
     MAX_UNKNOWN_PARTICIPANTS,
+    LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
     RemoteParticipantsRelayed,
@@ -210,10 +211,12 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
         4.0,
     )
     assert relay.status(4.0)["local"][0]["state"] == "left"
-    assert relay.datagrams_to_send() == [] and _events(relay) == []
+    assert relay.datagrams_to_send() == []
+    assert _events(relay) == [LocalLivenessChanged(b"\x00", "listener", up=False)]
     relay.receive_datagram(_local_spdp(lead, 10), ("::1", 40002), 5.0)
     assert _events(relay) == [
-        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+        LocalLivenessChanged(b"\x01", "listener", up=True),
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True),
     ]
     assert len(relay.datagrams_to_send()) == 2
 
