@@ -6,6 +6,7 @@ The real-process test is tests/test_ros2_relay_netns.py."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from swarmd_lab.testing import auth_for, engine_for, make_bundle, node_ipv4, peer_datagram
@@ -152,6 +153,9 @@ def test_a_stopped_remote_node_is_disposed_at_once_and_announced_again_when_back
     assert _events(relay) == [RemoteNodeLiveness("drone-1", "talker", up=True)]
     text = "\n".join(render_status({"ros2": relay.status(5.0)}))
     assert "node stopped" not in text
+    relay.peer_liveness("drone-2", b"\x00", 6.0)
+    text = "\n".join(render_status({"ros2": relay.status(6.0)}))
+    assert re.search(r"drone-2 +talker +node stopped", text), text
 
 
 def test_liveness_before_discovery_is_kept_and_unknown_drones_are_counted() -> None:

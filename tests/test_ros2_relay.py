@@ -343,7 +343,7 @@ def test_status_view_lists_local_remote_unknown_and_undeclared_rows_safely() -> 
     )
     relay.receive_datagram(hostile, ("::1", 40001), 1.0)
     text = "\n".join(render_status({"ros2": relay.status(2.0)}))
-    assert "ros2 relay ::1:7399  lease 8 s" in text
+    assert "ros2 relay ::1:7399  lease 8 s  alive bitmap 01" in text
     rows = {line.split()[0] + " " + line.split()[1] for line in text.splitlines()[2:]}
     assert {"this drone", "drone-1 talker", "drone-2 talker", "unknown evil\\x1b[2Jnode"} <= rows
     assert re.search(r"undeclared writer +id 65535 +entity 0\.0\.1\.3 +not in the bundle", text)
