@@ -65,6 +65,7 @@ from swarmd.discovery.events import (
     PeerLocatorsChanged,
     PeerLost,
     PeerRestarted,
+    PeerRos2Liveness,
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
@@ -252,9 +253,16 @@ class Daemon:
         if self.config.ros2.relay:
             try:
                 self.ros2 = Ros2App(
-                    self.config, self.bundle, epoch=self.epoch.epoch, log=self.log, count=self.count
+                    self.config,
+                    self.bundle,
+                    epoch=self.epoch.epoch,
+                    log=self.log,
+                    count=self.count,
+                    on_liveness=self._ros2_liveness,
                 )
                 self.ros2.start(loop)
+                # every DATA(p) carries our nodes' liveness from the first (PID 0x8A06)
+                self._ros2_liveness(self.ros2.relay.alive_bitmap())
             except (StartupError, ConfigError):
                 await self._close_transports()
                 raise
@@ -449,6 +457,11 @@ class Daemon:
                 if self.app is not None:
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
                 self._ros2_peer(name, event.guid_prefix)
+            case PeerRos2Liveness(name=name, alive=alive):
+                # authenticated (the engine takes PID 0x8A06 only from a DATA(p) it accepted)
+                self.log.info("peer_ros2_liveness", peer=name, alive=alive.hex())
+                if self.ros2 is not None:
+                    self.ros2.peer_liveness(name, alive)
             case PeerLost(name=name, reason=reason):
                 self.log.info("peer_lost", peer=name, reason=reason)
                 self._record_change(event.guid_prefix, name, PeerChangeKind.LOST, reason)
@@ -472,6 +485,12 @@ class Daemon:
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _ros2_liveness(self, alive: bytes) -> None:
+        """Our relay's nodes changed liveness: into our signed DATA(p) (docs/ros2.md)."""
+        engine = self.engine
+        if engine is not None:
+            self._drive().call(lambda now: engine.set_ros2_alive(alive, now))
 
     def _ros2_peer(self, name: str, prefix: GuidPrefix) -> None:
         """An authenticated peer is up, moved or restarted: the relay serves its drone's

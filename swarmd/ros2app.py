@@ -25,8 +25,10 @@ from swarmd.driver import Driver
 from swarmd.exitcodes import EX_OSERR, StartupError
 from swarmd.ros2.relay import (
     LOOPBACK,
+    LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
+    RemoteNodeLiveness,
     RemoteParticipantsRelayed,
     Ros2Relay,
     UndeclaredEndpoint,
@@ -46,7 +48,10 @@ class Ros2App:
         epoch: int,
         log: Any,
         count: Callable[[str], None],
+        on_liveness: Callable[[bytes], None] | None = None,
     ) -> None:
+        """``on_liveness``: called with the relay's new alive bitmap when one of this
+        drone's nodes comes or goes (the daemon puts it in its signed DATA(p))."""
         """Raises ``ConfigError`` (one line, at ``ros2.relay``) for a bundle with no ROS 2
         graph."""
         participants = bundle_ros2_participants(bundle)
@@ -59,6 +64,7 @@ class Ros2App:
         self.config = config
         self.log = log
         self.count = count
+        self.on_liveness = on_liveness
         self.relay = Ros2Relay(
             participants,
             config.node,
@@ -104,6 +110,8 @@ class Ros2App:
             loop=loop,
             on_core_error=lambda: self.count("ros2_relay_exceptions"),
         )
+        relay = self.relay
+        self.driver.call(relay.started)
 
     def close(self) -> None:
         """Stop the timer and the socket. No dispose is sent: the local nodes keep their
@@ -121,6 +129,12 @@ class Ros2App:
         relay, driver = self.relay, self.driver
         if driver is not None:
             driver.call(lambda now: relay.peer_discovered(name, address, now))
+
+    def peer_liveness(self, name: str, alive: bytes) -> None:
+        """An authenticated peer's relay says which of its nodes are alive."""
+        relay, driver = self.relay, self.driver
+        if driver is not None:
+            driver.call(lambda now: relay.peer_liveness(name, alive, now))
 
     def peer_down(self, name: str) -> None:
         relay, driver = self.relay, self.driver
@@ -163,6 +177,12 @@ class Ros2App:
                     entity_id=entity,
                     fix="declare the endpoint in the mission's ros2 section and re-flash",
                 )
+            case LocalLivenessChanged(alive=alive, node=node, up=up):
+                self.log.info("ros2_node_liveness", node=node, up=up, alive=alive.hex())
+                if self.on_liveness is not None:
+                    self.on_liveness(alive)
+            case RemoteNodeLiveness(drone=drone, node=node, up=up):
+                self.log.info("ros2_remote_node_liveness", peer=drone, node=node, up=up)
             case RemoteParticipantsRelayed(drone=drone, participants=n, up=up):
                 self.log.info("ros2_relay_peer", peer=drone, participants=n, up=up)
             case _:

@@ -19,6 +19,7 @@ from swarmd.ros2.relay import (
     LOOPBACK,
     MAX_UNDECLARED_PER_PARTICIPANT,
     MAX_UNKNOWN_PARTICIPANTS,
+    LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
     RemoteParticipantsRelayed,
@@ -185,13 +186,17 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
         LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), False)
     ]
     assert len(relay.datagrams_to_send()) == 2
-    relay.receive_datagram(_local_spdp(lead, 6), ("::1", 40000), 2.0)  # a renewal
+    relay.receive_datagram(_local_spdp(lead, 6), ("::1", 40000), 1.5)  # its second: answered
+    assert len(relay.datagrams_to_send()) == 2 and _events(relay) == []
+    relay.receive_datagram(_local_spdp(lead, 7), ("::1", 40000), 2.0)  # a renewal
     assert relay.datagrams_to_send() == [] and _events(relay) == []
     relay.receive_datagram(_local_spdp(lead, 1), ("::1", 40001), 3.0)  # SN back to 1
     assert _events(relay) == [
         LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
     ]
     assert len(relay.datagrams_to_send()) == 2
+    relay.receive_datagram(_local_spdp(lead, 2), ("::1", 40001), 3.0)
+    relay.datagrams_to_send()
     row = relay.status(3.5)["local"][0]
     assert row["state"] == "heard" and row["last_heard_s"] == 0.5
     # its DATA(p[UD]) on shutdown: shown as left; back with SN going on: a restart anyway
@@ -206,12 +211,38 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
         4.0,
     )
     assert relay.status(4.0)["local"][0]["state"] == "left"
-    assert relay.datagrams_to_send() == [] and _events(relay) == []
+    assert relay.datagrams_to_send() == []
+    assert _events(relay) == [LocalLivenessChanged(b"\x00", "listener", up=False)]
     relay.receive_datagram(_local_spdp(lead, 10), ("::1", 40002), 5.0)
     assert _events(relay) == [
-        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+        LocalLivenessChanged(b"\x01", "listener", up=True),
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True),
     ]
     assert len(relay.datagrams_to_send()) == 2
+
+
+def test_a_starting_node_gets_everything_again_at_its_second_datagram() -> None:
+    """The late publisher of the testbed (docs/ros2.md, "A late publisher"): a starting
+    Fast DDS participant sends its first DATA(p) before its receivers are registered, and
+    drops what arrives in between; the relay's answer to that first datagram can be lost
+    that way. Its second datagram is sent once it listens: the relay answers it in full
+    too, then falls back to the renewals. Checked by content, not by timing."""
+    participants = _participants()
+    relay = _relay("drone-1")
+    talker = _by(participants, "drone-1")
+    relay.peer_discovered("lead", ADDRESS["lead"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    relay.datagrams_to_send()
+    expected = {GuidPrefix(p.guid_prefix) for p in participants if p.drone != "drone-1"}
+    answers = []
+    for sn in (1, 2, 3, 4):  # its announcement, two endpoint updates, a repeat
+        relay.receive_datagram(_local_spdp(talker, sn), ("::1", 40000), 0.5)
+        answers.append(relay.datagrams_to_send())
+    for out in answers[:2]:
+        assert {dest for _, dest in out} == {(LOOPBACK, talker.metatraffic_port)}
+        assert {_decoded(d).participant.guid_prefix for d, _ in out} == expected
+    assert answers[2] == [] and answers[3] == []
+    assert relay.counters["tx_start_answers"] == 2
 
 
 def test_an_unknown_participant_is_shown_never_relayed_and_its_table_is_capped() -> None:
@@ -312,7 +343,7 @@ def test_status_view_lists_local_remote_unknown_and_undeclared_rows_safely() -> 
     )
     relay.receive_datagram(hostile, ("::1", 40001), 1.0)
     text = "\n".join(render_status({"ros2": relay.status(2.0)}))
-    assert "ros2 relay ::1:7399  lease 8 s" in text
+    assert "ros2 relay ::1:7399  lease 8 s  alive bitmap 01" in text
     rows = {line.split()[0] + " " + line.split()[1] for line in text.splitlines()[2:]}
     assert {"this drone", "drone-1 talker", "drone-2 talker", "unknown evil\\x1b[2Jnode"} <= rows
     assert re.search(r"undeclared writer +id 65535 +entity 0\.0\.1\.3 +not in the bundle", text)

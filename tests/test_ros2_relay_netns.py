@@ -9,6 +9,8 @@ A fourth namespace on the same bridge is an outsider that forges a stock ROS 2 p
 One run checks, in order of the issue's list: messages on the declared topic from both
 members and the service across drones; 0 ROS 2 SPDP and 0 SEDP datagrams on the link (and
 swarmd's own SPDP, counted apart); a talker restarted under the same GUID prefix is heard
+again; a stopped talker is lost from the listener's graph on another drone (its relay tells
+the others through swarmd's signed SPDP, theirs dispose it) and is back when it starts
 again; a drone's swarmd restarted (SIGTERM: its peers dispose its ROS 2 participants, then
 find it again) and the nodes' traffic resumes; the forged participant reaches no node and is
 not relayed; an endpoint the bundle does not hold is reported by swarmd by node.
@@ -197,10 +199,17 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     pcap = workdir / "link.pcapng"
     capture = _start_capture(lan.hub, pcap)
     try:
-        listener = start_node(0, "listener", LISTEN_S, "--tag", "lead")
+        matched_log = workdir / "listener-matched.jsonl"
+        listener = start_node(
+            0, "listener", LISTEN_S, "--tag", "lead", "--matched-log", str(matched_log)
+        )
         steady = start_node(2, "talker", LISTEN_S, "--tag", "drone-2")
         first = start_node(1, "talker", FIRST_LIFE_S, "--tag", "drone-1")
+        _until(lambda: 2 in _matched(matched_log), lambda: str(_matched(matched_log)))
         first_result = result(first, FIRST_LIFE_S)
+        # drone-1's talker has stopped (its DATA(p[UD]) reached its relay only): the lead's
+        # listener loses it, through drone-1's signed liveness and the lead's relay
+        _until(lambda: _matched(matched_log)[-1:] == [1], lambda: str(_matched(matched_log)))
         # the lead's node and swarmd bind discovery on [::1] only (ss: local address column)
         sockets = lan[0].run(["ss", "-uanH"]).stdout.split("\n")
         local_ends = [line.split()[3] for line in sockets if len(line.split()) > 3]
@@ -214,6 +223,7 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         second = start_node(
             1, "talker", SECOND_LIFE_S, "--tag", "drone-1-again", "--undeclared", "/extra"
         )
+        _until(lambda: _matched(matched_log)[-1:] == [2], lambda: str(_matched(matched_log)))
         # drone-2's swarmd restarts while its talker runs: its peers dispose its ROS 2
         # participants at their nodes (DATA(p[UD]) from swarmd), then find it again
         daemons[2].send_signal(signal.SIGTERM)
@@ -240,6 +250,14 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         second_result = result(second, SECOND_LIFE_S)
         steady_result = result(steady, LISTEN_S)
         listener_result = result(listener, LISTEN_S)
+        # every node has now left: each drone's relay shows the others' nodes stopped
+        _until(
+            lambda: all(
+                {r["state"] for r in _status(s)["ros2"]["remote"]} == {"node stopped"}
+                for s in socks
+            ),
+            lambda: str([[r["state"] for r in _status(s)["ros2"]["remote"]] for s in socks]),
+        )
         statuses = [_status(s) for s in socks]
     finally:
         capture.terminate()
@@ -281,10 +299,12 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         assert ros2["counters"]["rx_malformed"] == 0
         assert ros2["counters"]["rx_wlp"] == 0  # relayed participants announce no WLP reader
     # every relay heard its node (which has now left: its DATA(p[UD]) on shutdown) and
-    # relays the other drones' participants
+    # tells the others; the lead's listener saw drone-1's talker go and come back
     for st in statuses:
         assert [r["state"] for r in st["ros2"]["local"]] == ["left"], st["ros2"]
-        assert {r["state"] for r in st["ros2"]["remote"]} == {"relayed"}, st["ros2"]
+        assert st["ros2"]["alive_bitmap"] == "00"
+    matched = _matched(matched_log)
+    assert matched[matched.index(2) :][:3] == [2, 1, 2], matched
     # the undeclared /extra publisher of drone-1's talker is reported, by node
     undeclared = statuses[1]["ros2"]["local"][0]["undeclared_endpoints"]
     assert [u["kind"] for u in undeclared] == ["writer"], undeclared
@@ -298,6 +318,13 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     for d in daemons:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0
+
+
+def _matched(log: Path) -> list[int]:
+    """The listener's matched publisher counts, in order (``ros2_node --matched-log``)."""
+    if not log.exists():
+        return []
+    return [json.loads(line)["matched"] for line in log.read_text().splitlines() if line]
 
 
 def _drain(sock: Any) -> int:

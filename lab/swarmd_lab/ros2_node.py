@@ -31,6 +31,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="TOPIC",
         help="also publish TOPIC (a String), which the bundle does not declare",
     )
+    parser.add_argument(
+        "--matched-log",
+        metavar="PATH",
+        help="listener: append a JSON line to PATH whenever its subscription's matched "
+        "publisher count changes (a remote node disposed or announced again)",
+    )
     args = parser.parse_args(argv)
 
     import rclpy
@@ -76,14 +82,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                 first_message_s = time.monotonic() - start
             received.append(msg.data)
 
-        node.create_subscription(String, args.topic, heard, 10)
+        subscription = node.create_subscription(String, args.topic, heard, 10)
         client: Any = node.create_client(Trigger, args.service)
+    matched = -1
     if args.undeclared:
         node.create_publisher(String, args.undeclared, 10)
     future = None
     end = start + args.seconds
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.1)
+        if args.role == "listener" and args.matched_log:
+            count = subscription.get_publisher_count()
+            if count != matched:
+                matched = count
+                with open(args.matched_log, "a") as log:
+                    log.write(json.dumps({"t": time.monotonic() - start, "matched": count}) + "\n")
         if args.role == "listener":
             if future is None and client.service_is_ready():
                 future = client.call_async(Trigger.Request())

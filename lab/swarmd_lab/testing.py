@@ -261,10 +261,12 @@ def peer_datagram(
     lease_s: float | None = None,
     auth: SpdpAuth | None = None,
     host: str | None = None,
+    ros2_alive: bytes | None = None,
 ) -> bytes:
     """A DATA(p) as bundle participant ``index``'s engine would send it, for hand-driven
     tests: ``heard`` lists indices, ``destination`` makes it directed (INFO_DST), ``auth``
-    seals it (each call takes the next freshness), ``host`` replaces its locators' address."""
+    seals it (each call takes the next freshness), ``host`` replaces its locators' address,
+    ``ros2_alive`` its relay's alive ROS 2 participants (PID 0x8A06)."""
     p = bundle.participants[index]
     meta = bundle.metatraffic_port(p)
     host = host or p.ipv4 or node_ipv4(index)
@@ -282,6 +284,7 @@ def peer_datagram(
         bundle_digest=bundle.content_sha256[:16] if bundle_digest is None else bundle_digest,
         heard=encode_heard(heard, bundle.size),
         link_quality_permille=1000,
+        ros2_alive=ros2_alive,
         authenticator=None if auth is None else PLACEHOLDER,
     )
     data = encode_spdp(

@@ -301,6 +301,9 @@ def render_ros2(ros2: Any) -> list[str]:
     remote = [r for r in ros2.get("remote", []) if isinstance(r, dict)]
     unknown = [r for r in ros2.get("unknown", []) if isinstance(r, dict)]
     lines = [f"ros2 relay {ros2.get('relay', '?')}  lease {_num(ros2.get('lease_s'), 'g', ' s')}"]
+    if ros2.get("alive_bitmap") is not None:
+        # what swarmd's signed DATA(p) tells the other drones (PID 0x8A06, docs/ros2.md)
+        lines[0] += f"  alive bitmap {ros2['alive_bitmap']}"
     rows = []
     for r in local:
         rows.append(

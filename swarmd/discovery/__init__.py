@@ -14,6 +14,7 @@ from swarmd.discovery.events import (
     PeerLocatorsChanged,
     PeerLost,
     PeerRestarted,
+    PeerRos2Liveness,
     PhaseChanged,
 )
 from swarmd.discovery.inputs import LinkSample
@@ -33,6 +34,7 @@ __all__ = [
     "PeerDiscovered",
     "PeerLocatorsChanged",
     "PeerLost",
+    "PeerRos2Liveness",
     "PeerRestarted",
     "PeerState",
     "PeerView",

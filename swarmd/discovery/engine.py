@@ -370,6 +370,27 @@ class DiscoveryEngine:
             q = self._renewals.q
             self._start_passive(now, f"link quality read (Q={q:.2f}, {sample.source})")
 
+    def set_ros2_alive(self, alive: bytes | None, now: float) -> None:
+        """Our ROS 2 relay's alive participants changed (docs/ros2.md, "Node liveness"):
+        carried from now on in every DATA(p) (PID 0x8A06, signed with the rest). A change
+        pulls our next multicast in, to now or ``retransmit_min_gap_s`` after the last one
+        (whichever is later), so the other drones hear it within that gap instead of a
+        renewal period; a local process flapping a node cannot make us send more than one
+        multicast per gap. Never called without a relay: the simulator's frames are as
+        before."""
+        sender = self._sender
+        if alive == sender.ros2_alive:
+            return
+        sender.ros2_alive = alive
+        if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
+            return  # BOOT/PASSIVE: our first announcement carries it
+        last = self._renewals.last_multicast
+        at = now if last is None else max(now, last + self._config.retransmit_min_gap_s)
+        renewal = self._renewal
+        if renewal.due is None or at < renewal.due:
+            renewal.due = at
+            self._pulled_in = True
+
     def peer_traffic(self, key: str | GuidPrefix, now: float) -> None:
         """Authenticated traffic from bundle peer ``key`` other than SPDP (a user-data
         datagram the data plane verified with the pair's key): the peer is alive, so its

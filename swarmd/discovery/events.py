@@ -99,6 +99,19 @@ class PeerLocatorsChanged(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class PeerRos2Liveness(Event):
+    """A discovered peer's relay says which of its drone's ROS 2 participants are alive
+    (PID 0x8A06, docs/ros2.md "Node liveness"): reported when it differs from its previous
+    DATA(p)'s. Only ever from a DATA(p) the engine accepted: authenticated in the daemon,
+    so a forged or replayed change never gets here. ``alive``: a bitmap over that drone's
+    ROS 2 participants in bundle order, LSB of byte 0 = the first."""
+
+    name: str
+    guid_prefix: GuidPrefix
+    alive: bytes
+
+
+@dataclass(frozen=True, slots=True)
 class PeerLost(Event):
     """A discovered bundle participant went away."""
 

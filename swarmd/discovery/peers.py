@@ -66,6 +66,8 @@ class Peer:
     link_quality_permille: int | None = None
     times_discovered: int = 0
     epoch: int | None = None  # its boot epoch, from its latest authenticated DATA(p)
+    # its relay's alive ROS 2 participants (PID 0x8A06), from its latest accepted DATA(p)
+    ros2_alive: bytes | None = None
     # matched endpoints, computed when first discovered: a bundle row per peer would cost
     # every engine O(N) ``Bundle.matches`` calls at start-up, mostly for nobody (sim at N=1000)
     matches: tuple[Match, ...] | None = None

@@ -39,6 +39,7 @@ from swarmd.discovery.events import (
     PeerDiscovered,
     PeerLocatorsChanged,
     PeerRestarted,
+    PeerRos2Liveness,
 )
 from swarmd.discovery.foreign import ForeignParticipants
 from swarmd.discovery.leases import Leases
@@ -289,6 +290,13 @@ class ReceivePath:
             lists_me = peer.lists_me = not lists_me
             self._leases.listed_by += 1 if lists_me else -1
         peer.link_quality_permille = alive.link_quality_permille
+        ros2_alive = alive.ros2_alive
+        if ros2_alive is not None and ros2_alive != peer.ros2_alive:
+            # its ROS 2 nodes' liveness (absent: no relay there; the sim never sends it)
+            peer.ros2_alive = ros2_alive
+            self._emit(
+                PeerRos2Liveness(peer.participant.name, peer.participant.guid_prefix, ros2_alive)
+            )
         index = peer.index
         self._lease_queue.renew(peer, lease_s * self._probe_at, now)  # Leases.renew, inline
         if self._held_until:

@@ -44,6 +44,7 @@ class Alive:
     metatraffic_locators: tuple[Locator, ...]
     default_locators: tuple[Locator, ...]
     locators: LocatorFacts
+    ros2_alive: bytes | None  # PID 0x8A06: the sender's relay's alive ROS 2 participants
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +139,7 @@ def decode_fresh(data: bytes) -> Decoded:
                     meta,
                     default,
                     locator_facts(part),
+                    part.ros2_alive,
                 )
             )
         else:

@@ -47,6 +47,7 @@ class Sender:
         "_wallclock",
         "counters",
         "outbox",
+        "ros2_alive",
         "sn",
         "spdp_multicast",
         "tx_kind",
@@ -76,6 +77,8 @@ class Sender:
         self._leases = leases  # the heard digest and the commander's vouch we send
         self._renewals = renewals  # the advertised Q and lease we send
         self.sn = 0
+        # our ROS 2 relay's alive participants (PID 0x8A06); None: no relay, nothing sent
+        self.ros2_alive: bytes | None = None
         self._content: SpdpParticipant | None = None
         self._encoded: dict[GuidPrefix | None, bytes] = {}
         self.outbox: deque[tuple[bytes, tuple[str, int]]] = deque()
@@ -111,6 +114,7 @@ class Sender:
             heard=leases.heard.to_bytes(),
             link_quality_permille=renewals.permille,
             vouched=leases.vouch(now),
+            ros2_alive=self.ros2_alive,
             authenticator=None if self._auth is None else PLACEHOLDER,
         )
 

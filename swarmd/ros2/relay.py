@@ -83,6 +83,18 @@ MAX_UNKNOWN_PARTICIPANTS: Final = 16
 # undeclared endpoints kept per local participant (a node creating endpoints in a loop)
 MAX_UNDECLARED_PER_PARTICIPANT: Final = 32
 MAX_EVENTS: Final = 256  # queued events if the owner stops draining
+# A starting Fast DDS participant sends its first DATA(p) before it listens: its
+# RTPSParticipantImpl::enable() runs BuiltinProtocols::enable() (the first announcement)
+# and only then registers its receivers, and a datagram read in between is dropped
+# (ReceiverResource::OnDataReceived with no receiver; Fast DDS 3.2). The relay's answer on
+# loopback can land in that window (docs/ros2.md, "A late publisher"). Every later
+# datagram of the node is sent once it listens, so the relay answers the first
+# START_ANSWERS datagrams of each node life, not only the first.
+START_ANSWERS: Final = 2
+# a local node's lease as the relay keeps it (its SPDP's PID_PARTICIPANT_LEASE_DURATION),
+# clamped: a node announcing 0 or years must neither flap nor be alive forever
+MIN_NODE_LEASE_S: Final = 1.0
+MAX_NODE_LEASE_S: Final = 300.0
 FASTDDS_PROTOCOL_VERSION: Final = ProtocolVersion(2, 3)
 ENTITY_KIND_WRITER_NO_KEY: Final = 0x03  # DDSI-RTPS 9.3.1.2
 ENTITY_KIND_READER_NO_KEY: Final = 0x04
@@ -172,6 +184,28 @@ class UndeclaredEndpoint(RelayEvent):
 
 
 @dataclass(frozen=True, slots=True)
+class LocalLivenessChanged(RelayEvent):
+    """Which of this drone's ROS 2 participants are alive changed (a node heard, left, or
+    its lease expired unheard). ``alive``: the bitmap swarmd carries in its signed SPDP
+    (PID 0x8A06) over this drone's participants in bundle order, LSB of byte 0 = the first;
+    ``node``/``up``: the participant that changed."""
+
+    alive: bytes
+    node: str
+    up: bool
+
+
+@dataclass(frozen=True, slots=True)
+class RemoteNodeLiveness(RelayEvent):
+    """An authenticated peer's relay says its node ``node`` stopped (``up`` False: the
+    relay disposed it at the local nodes) or is back (announced again)."""
+
+    drone: str
+    node: str
+    up: bool
+
+
+@dataclass(frozen=True, slots=True)
 class RemoteParticipantsRelayed(RelayEvent):
     """The relay started (``up``) or stopped serving a drone's ROS 2 participants."""
 
@@ -191,6 +225,11 @@ class _Local:
     left: bool = False  # its last word was a DATA(p[UD])
     last_sn: int = 0
     datagrams: int = 0
+    answers_left: int = 0  # datagrams of this life still answered with everything relayed
+    # alive as swarmd tells the other drones: heard within its lease, or (never heard) within
+    # one relay lease of the relay's start; None: no expiry (left, expired, or not started)
+    alive: bool = True
+    alive_until: float | None = None
     # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
     undeclared: set[tuple[str, int, str]] | None = None
 
@@ -260,6 +299,9 @@ class Ros2Relay:
             GuidPrefix(p.guid_prefix) for ps in self._remote_by_drone.values() for p in ps
         )
         self._present: dict[str, _Remote] = {}
+        # per drone, its relay's last authenticated word on its participants (absent: all
+        # alive, as a peer without a relay or before its first word)
+        self._remote_alive: dict[str, tuple[bool, ...]] = {}
         self._unknown: dict[GuidPrefix, _Unknown] = {}
         self._out: list[tuple[bytes, tuple[str, int]]] = []
         self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
@@ -276,6 +318,8 @@ class Ros2Relay:
             "undeclared_dropped": 0,
             "tx_spdp": 0,
             "tx_dispose": 0,
+            "tx_start_answers": 0,
+            "liveness_unknown_drone": 0,
         }
 
     # ---- the driving protocol ----------------------------------------------------------------
@@ -299,17 +343,38 @@ class Ros2Relay:
             else:
                 self._left(sample.guid_prefix)
 
+    def started(self, now: float) -> None:
+        """The relay's socket is up: a node not heard within one relay lease from now is
+        taken as stopped (its peers on other drones are told through swarmd)."""
+        for local in self._local.values():
+            if local.heard_at is None and local.alive:
+                local.alive_until = now + self.lease_s
+
     def handle_timer(self, now: float) -> None:
-        if self._next_renewal is None or now < self._next_renewal:
-            return
-        self._renew_all(now)
+        for local in self._local.values():
+            if local.alive and local.alive_until is not None and now >= local.alive_until:
+                self._set_local_alive(local, False)
+        if self._next_renewal is not None and now >= self._next_renewal:
+            self._renew_all(now)
 
     def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
         out, self._out = self._out, []
         return out
 
     def get_timer(self) -> float | None:
-        return self._next_renewal
+        deadlines = [u.alive_until for u in self._local.values() if u.alive_until is not None]
+        if self._next_renewal is not None:
+            deadlines.append(self._next_renewal)
+        return min(deadlines, default=None)
+
+    def alive_bitmap(self) -> bytes:
+        """This drone's participants alive, as PID 0x8A06 carries it (bundle order, LSB of
+        byte 0 = the first)."""
+        bits = bytearray((len(self._local) + 7) // 8)
+        for i, local in enumerate(self._local.values()):
+            if local.alive:
+                bits[i // 8] |= 1 << (i % 8)
+        return bytes(bits)
 
     def next_event(self) -> RelayEvent | None:
         return self._events.popleft() if self._events else None
@@ -327,7 +392,7 @@ class Ros2Relay:
             return
         self._present[drone] = _Remote(drone, address, now)
         self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True))
-        for p in remote:
+        for p in self._alive_remote(drone):
             self._send_alive(p, address, now)
         if self._next_renewal is None:
             self._next_renewal = now + self.period_s
@@ -340,19 +405,36 @@ class Ros2Relay:
         remote = self._remote_by_drone.get(drone, [])
         self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=False))
         for p in remote:
-            sn = self._next_sn()
-            datagram = encode_spdp_dispose(
-                GuidPrefix(p.guid_prefix),
-                sequence_number=sn,
-                timestamp=None,
-                vendor_id=VendorId(VENDOR_EPROSIMA),
-                protocol_version=FASTDDS_PROTOCOL_VERSION,
-            )
-            for local in self._local.values():
-                self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
-                self.counters["tx_dispose"] += 1
+            self._send_dispose(p)
         if not self._present:
             self._next_renewal = None
+
+    def peer_liveness(self, drone: str, alive: bytes, now: float) -> None:
+        """``drone``'s relay says which of its ROS 2 participants are alive (PID 0x8A06 of
+        its swarmd's DATA(p), which the discovery engine accepted: authenticated). A node
+        that stopped is disposed (DATA(p[UD])) at every local node, one that is back is
+        announced again at once; both only while swarmd has the drone. Bits past the
+        drone's participants are ignored, missing ones are "not alive"."""
+        remote = self._remote_by_drone.get(drone)
+        if not remote:
+            self.counters["liveness_unknown_drone"] += 1
+            return
+        new = tuple(
+            i // 8 < len(alive) and bool(alive[i // 8] >> (i % 8) & 1) for i in range(len(remote))
+        )
+        old = self._remote_alive.get(drone, (True,) * len(remote))
+        self._remote_alive[drone] = new
+        present = self._present.get(drone)
+        for p, was, up in zip(remote, old, new, strict=True):
+            if was == up:
+                continue
+            self._events.append(RemoteNodeLiveness(drone, p.node.name, up))
+            if present is None:
+                continue  # announced (or not) when swarmd finds the drone
+            if up:
+                self._send_alive(p, present.address, now)
+            else:
+                self._send_dispose(p)
 
     # ---- queries -----------------------------------------------------------------------------
 
@@ -385,7 +467,10 @@ class Ros2Relay:
                     if local.heard_at is None
                     else "left"
                     if local.left
-                    else "heard",
+                    else "heard"
+                    if local.alive
+                    else "lease expired",
+                    "alive": local.alive,
                     "last_heard_s": None
                     if local.heard_at is None
                     else round(now - local.heard_at, 3),
@@ -398,13 +483,18 @@ class Ros2Relay:
         remote_rows = []
         for drone, ps in self._remote_by_drone.items():
             present = self._present.get(drone)
-            for p in ps:
+            alive = self._remote_alive.get(drone, (True,) * len(ps))
+            for p, up in zip(ps, alive, strict=True):
                 remote_rows.append(
                     {
                         "drone": drone,
                         "node": p.node.name,
                         "guid_prefix": str(GuidPrefix(p.guid_prefix)),
-                        "state": "relayed" if present is not None else "waiting for drone",
+                        "state": "waiting for drone"
+                        if present is None
+                        else "relayed"
+                        if up
+                        else "node stopped",
                         "user_locator": None
                         if present is None
                         else f"{present.address}:{p.user_port}",
@@ -413,6 +503,7 @@ class Ros2Relay:
         return {
             "relay": f"{self.loopback}:{self.relay_port}",
             "lease_s": self.lease_s,
+            "alive_bitmap": self.alive_bitmap().hex(),
             "local": local_rows,
             "remote": remote_rows,
             "unknown": [
@@ -446,7 +537,7 @@ class Ros2Relay:
     def _send_all_to(self, local: _Local) -> None:
         port = local.participant.metatraffic_port
         for drone, present in self._present.items():
-            for p in self._remote_by_drone[drone]:
+            for p in self._alive_remote(drone):
                 datagram = encode_spdp(
                     self.synthesized(p, present.address),
                     sequence_number=self._next_sn(),
@@ -455,9 +546,37 @@ class Ros2Relay:
                 self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_spdp"] += 1
 
+    def _alive_remote(self, drone: str) -> list[Ros2Participant]:
+        remote = self._remote_by_drone.get(drone, [])
+        alive = self._remote_alive.get(drone)
+        if alive is None:
+            return remote
+        return [p for p, up in zip(remote, alive, strict=True) if up]
+
+    def _send_dispose(self, p: Ros2Participant) -> None:
+        datagram = encode_spdp_dispose(
+            GuidPrefix(p.guid_prefix),
+            sequence_number=self._next_sn(),
+            timestamp=None,
+            vendor_id=VendorId(VENDOR_EPROSIMA),
+            protocol_version=FASTDDS_PROTOCOL_VERSION,
+        )
+        for local in self._local.values():
+            self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
+            self.counters["tx_dispose"] += 1
+
+    def _set_local_alive(self, local: _Local, alive: bool) -> None:
+        if not alive:
+            local.alive_until = None
+        if local.alive == alive:
+            return
+        local.alive = alive
+        p = local.participant
+        self._events.append(LocalLivenessChanged(self.alive_bitmap(), p.node.name, alive))
+
     def _renew_all(self, now: float) -> None:
         for drone, present in self._present.items():
-            for p in self._remote_by_drone[drone]:
+            for p in self._alive_remote(drone):
                 self._send_alive(p, present.address, now)
         self._next_renewal = now + self.period_s if self._present else None
 
@@ -479,12 +598,21 @@ class Ros2Relay:
         first = local.heard_at is None or restarted
         local.left = False
         local.heard_at = now
+        lease = min(
+            max(participant.lease_duration.total_seconds(), MIN_NODE_LEASE_S), MAX_NODE_LEASE_S
+        )
+        local.alive_until = now + lease
+        self._set_local_alive(local, True)
         local.last_sn = sample.sequence_number
         local.datagrams += 1
         self._check_endpoints(local, participant)
         if first:
             p = local.participant
             self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
+            local.answers_left = START_ANSWERS
+        if local.answers_left > 0:
+            local.answers_left -= 1
+            self.counters["tx_start_answers"] += 1
             self._send_all_to(local)
 
     def _left(self, prefix: GuidPrefix) -> None:
@@ -494,6 +622,7 @@ class Ros2Relay:
         local = self._local.get(prefix)
         if local is not None:
             local.left = True
+            self._set_local_alive(local, False)
 
     def _heard_unknown(self, participant: SpdpParticipant, now: float) -> None:
         self.counters["rx_unknown"] += 1

@@ -99,6 +99,9 @@ PID_SWARMD_AUTHENTICATOR: Final = 0x8A04
 # indices of the members it heard directly within that window; docs/discovery.md)
 PID_SWARMD_VOUCHED: Final = 0x8A05
 MAX_VOUCH_WINDOW_MS: Final = 60_000
+# which of the sender's own ROS 2 participants (the bundle's, in bundle order) its relay
+# has alive: an octet sequence, LSB of byte 0 = the first (docs/ros2.md, "Node liveness")
+PID_SWARMD_ROS2_ALIVE: Final = 0x8A06
 SWARMD_PIDS: Final = frozenset(
     {
         PID_SWARMD_BUNDLE_DIGEST,
@@ -106,6 +109,7 @@ SWARMD_PIDS: Final = frozenset(
         PID_SWARMD_LINK_QUALITY,
         PID_SWARMD_AUTHENTICATOR,
         PID_SWARMD_VOUCHED,
+        PID_SWARMD_ROS2_ALIVE,
     }
 )
 
@@ -144,6 +148,7 @@ class SpdpParticipant:
     heard: bytes | None = None  # bitmap over bundle participant indices, LSB of byte 0 = index 0
     link_quality_permille: int | None = None
     vouched: Vouch | None = None  # the commander's vouch (PID 0x8A05)
+    ros2_alive: bytes | None = None  # PID 0x8A06: its relay's alive ROS 2 participants
     authenticator: bytes | None = None  # 72 octets, encoded last (swarmd.auth.spdp)
     # every other parameter, in wire order (stock vendors' PIDs, security tokens, ...)
     extra_parameters: tuple[Parameter, ...] = field(default=())
@@ -209,6 +214,8 @@ class SpdpParticipant:
                     + pack_octets(self.vouched.bitmap, little),
                 )
             )
+        if self.ros2_alive is not None:
+            out.append(Parameter(PID_SWARMD_ROS2_ALIVE, pack_octets(self.ros2_alive, little)))
         if self.authenticator is not None:
             # raw, not an octet sequence: fixed size, and last so a receiver finds it at a
             # fixed offset from the end of the datagram before decoding anything
@@ -324,6 +331,7 @@ _SWARMD_DECODERS: Final[dict[int, tuple[str, _Decoder]]] = {
     PID_SWARMD_LINK_QUALITY: ("link_quality_permille", _decode_link_quality),
     PID_SWARMD_AUTHENTICATOR: ("authenticator", lambda p, _little: p.value),
     PID_SWARMD_VOUCHED: ("vouched", _decode_vouched),
+    PID_SWARMD_ROS2_ALIVE: ("ros2_alive", value_octets),
 }
 # PIDs that SpdpParticipant models as fields; anything else lands in extra_parameters
 _MODELLED: Final = frozenset(_FIELD_DECODERS)

@@ -1,0 +1,260 @@
+"""ROS 2 node liveness relayed through swarmd (docs/ros2.md, "Node liveness"), on hand-set
+time: the relay's local bookkeeping (heard, left, lease expired unheard), the other drones'
+relays disposing and re-announcing, the engine carrying the bitmap in its signed DATA(p)
+(PID 0x8A06), and the attacks: a forged or replayed liveness change moves nothing.
+The real-process test is tests/test_ros2_relay_netns.py."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from swarmd_lab.testing import auth_for, engine_for, make_bundle, node_ipv4, peer_datagram
+
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.ros2 import Ros2Participant, bundle_ros2_participants
+from swarmd.cli.status_cmd import render_status
+from swarmd.discovery import DiscoveryEngine, PacketDropped, PeerRos2Liveness
+from swarmd.discovery.events import Event
+from swarmd.ros2.relay import (
+    LOOPBACK,
+    LocalLivenessChanged,
+    RelayEvent,
+    RemoteNodeLiveness,
+    Ros2Relay,
+)
+from swarmd.rtps.locator import Locator
+from swarmd.rtps.spdp import (
+    PID_SWARMD_ROS2_ALIVE,
+    SpdpAlive,
+    SpdpDisposed,
+    SpdpParticipant,
+    decode_spdp,
+    encode_spdp,
+)
+from swarmd.rtps.types import Duration, GuidPrefix, VendorId
+
+REPO = Path(__file__).resolve().parent.parent
+MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
+LEASE_S = 8.0
+NODE_LEASE_S = 20.0
+ADDRESS = {"lead": "10.42.0.10", "drone-1": "10.42.0.11", "drone-2": "10.42.0.12"}
+
+
+def _participants() -> tuple[Ros2Participant, ...]:
+    return bundle_ros2_participants(build_dev_bundle(parse_mission(MISSION)).bundle)
+
+
+def _by(drone: str) -> Ros2Participant:
+    return next(p for p in _participants() if p.drone == drone)
+
+
+def _relay(drone: str) -> Ros2Relay:
+    return Ros2Relay(_participants(), drone, domain_id=0, lease_s=LEASE_S, epoch=7)
+
+
+def _events(relay: Ros2Relay) -> list[RelayEvent]:
+    out = []
+    while (event := relay.next_event()) is not None:
+        out.append(event)
+    return out
+
+
+def _node_spdp(p: Ros2Participant, sn: int) -> bytes:
+    return encode_spdp(
+        SpdpParticipant(
+            GuidPrefix(p.guid_prefix),
+            vendor_id=VendorId(b"\x01\x0f"),
+            metatraffic_unicast_locators=(Locator.udpv6(LOOPBACK, p.metatraffic_port),),
+            lease_duration=Duration.from_seconds(NODE_LEASE_S),
+            entity_name="/",
+        ),
+        sequence_number=sn,
+        timestamp=None,
+    )
+
+
+def _sent(relay: Ros2Relay) -> list[tuple[str, GuidPrefix]]:
+    """("alive" | "dispose", participant) for each datagram the relay queued."""
+    out = []
+    for data, _dest in relay.datagrams_to_send():
+        _header, samples = decode_spdp(data)
+        for s in samples:
+            if isinstance(s, SpdpAlive):
+                out.append(("alive", s.participant.guid_prefix))
+            else:
+                assert isinstance(s, SpdpDisposed)
+                out.append(("dispose", s.guid_prefix))
+    return out
+
+
+# ---- the relay's own drone: which of its nodes are alive -----------------------------------
+
+
+def test_a_node_never_heard_is_alive_for_one_lease_then_stopped() -> None:
+    relay = _relay("drone-1")
+    relay.started(0.0)
+    assert relay.alive_bitmap() == b"\x01"  # swarmd's first DATA(p) announces it alive
+    assert relay.get_timer() == LEASE_S
+    relay.handle_timer(LEASE_S - 0.001)
+    assert _events(relay) == []
+    relay.handle_timer(LEASE_S)
+    assert _events(relay) == [LocalLivenessChanged(b"\x00", "talker", up=False)]
+    assert relay.get_timer() is None
+    row = relay.status(LEASE_S)["local"][0]
+    assert row["state"] == "not heard" and row["alive"] is False
+
+
+def test_a_heard_node_stays_alive_within_its_own_lease_and_expires_after() -> None:
+    relay = _relay("drone-1")
+    relay.started(0.0)
+    relay.receive_datagram(_node_spdp(_by("drone-1"), 1), ("::1", 40000), 1.0)
+    assert _events(relay)[0].__class__.__name__ == "LocalParticipantHeard"  # no change: alive
+    relay.handle_timer(LEASE_S)  # the grace of the never-heard is over; it was heard
+    assert _events(relay) == []
+    assert relay.get_timer() == 1.0 + NODE_LEASE_S
+    relay.receive_datagram(_node_spdp(_by("drone-1"), 2), ("::1", 40000), 5.0)  # renews
+    relay.handle_timer(1.0 + NODE_LEASE_S)
+    assert _events(relay) == []
+    relay.handle_timer(5.0 + NODE_LEASE_S)  # silent for its lease: killed (SIGKILL)
+    assert _events(relay) == [LocalLivenessChanged(b"\x00", "talker", up=False)]
+    assert relay.status(30.0)["local"][0]["state"] == "lease expired"
+    relay.receive_datagram(_node_spdp(_by("drone-1"), 1), ("::1", 40001), 31.0)  # restarted
+    events = _events(relay)
+    assert events[0] == LocalLivenessChanged(b"\x01", "talker", up=True)
+
+
+# ---- the other drones: dispose a stopped node, announce it again when back -----------------
+
+
+def test_a_stopped_remote_node_is_disposed_at_once_and_announced_again_when_back() -> None:
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    one, two = GuidPrefix(_by("drone-1").guid_prefix), GuidPrefix(_by("drone-2").guid_prefix)
+    relay.peer_liveness("drone-1", b"\x00", 1.0)
+    assert _sent(relay) == [("dispose", one)]
+    assert _events(relay) == [RemoteNodeLiveness("drone-1", "talker", up=False)]
+    # the renewals and a starting local node no longer get it
+    relay.handle_timer(relay.get_timer() or 0.0)
+    assert _sent(relay) == [("alive", two)]
+    relay.receive_datagram(_node_spdp(_by("lead"), 1), ("::1", 40000), 3.0)
+    assert _sent(relay) == [("alive", two)]
+    _events(relay)
+    rows = {r["drone"]: r["state"] for r in relay.status(3.0)["remote"]}
+    assert rows == {"drone-1": "node stopped", "drone-2": "relayed"}
+    relay.peer_liveness("drone-1", b"\x00", 4.0)  # the same word again: nothing
+    assert _sent(relay) == [] and _events(relay) == []
+    relay.peer_liveness("drone-1", b"\x01", 5.0)  # back: announced at once
+    assert _sent(relay) == [("alive", one)]
+    assert _events(relay) == [RemoteNodeLiveness("drone-1", "talker", up=True)]
+    text = "\n".join(render_status({"ros2": relay.status(5.0)}))
+    assert "node stopped" not in text
+    relay.peer_liveness("drone-2", b"\x00", 6.0)
+    text = "\n".join(render_status({"ros2": relay.status(6.0)}))
+    assert re.search(r"drone-2 +talker +node stopped", text), text
+
+
+def test_liveness_before_discovery_is_kept_and_unknown_drones_are_counted() -> None:
+    relay = _relay("lead")
+    relay.peer_liveness("drone-2", b"", 0.0)  # missing bits: not alive
+    assert _sent(relay) == []  # swarmd has not found drone-2: nothing to dispose
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 1.0)
+    assert _sent(relay) == []  # discovered, but its node is stopped: not announced
+    relay.peer_liveness("nobody", b"\xff", 1.0)
+    relay.peer_liveness("lead", b"\xff", 1.0)  # our own drone is not a remote one
+    assert relay.counters["liveness_unknown_drone"] == 2
+    assert _sent(relay) == []
+
+
+# ---- swarmd carries it, signed --------------------------------------------------------------
+
+BUNDLE = make_bundle(3)
+A1 = (node_ipv4(1), 7412)
+
+
+def _drain(engine: DiscoveryEngine) -> list[Event]:
+    out = []
+    while (e := engine.next_event()) is not None:
+        out.append(e)
+    return out
+
+
+def _liveness(events: list[Event]) -> list[bytes]:
+    return [e.alive for e in events if isinstance(e, PeerRos2Liveness)]
+
+
+def test_the_engine_sends_the_bitmap_only_with_a_relay_and_pulls_its_multicast_in() -> None:
+    e = engine_for(BUNDLE, 0)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, heard=(0, 1, 2)), A1, 0.1)
+    e.receive_datagram(peer_datagram(BUNDLE, 2, heard=(0, 1, 2)), (node_ipv4(2), 7414), 0.1)
+    now = 0.1
+    sent: list[bytes] = []
+    while (t := e.get_timer()) is not None and t < 60.0:
+        now = t
+        e.handle_timer(now)
+        sent += [d for d, _ in e.datagrams_to_send()]
+    assert sent and all(PID_SWARMD_ROS2_ALIVE.to_bytes(2, "little") not in d for d in sent)
+    renewal = e.get_timer()
+    assert renewal is not None
+    e.set_ros2_alive(b"\x02", now)
+    pulled = e.get_timer()
+    assert pulled is not None and pulled < renewal  # not a renewal period away
+    e.handle_timer(pulled)
+    (data, _dest), *_ = e.datagrams_to_send()
+    _header, samples = decode_spdp(data)
+    assert isinstance(samples[0], SpdpAlive)
+    assert samples[0].participant.ros2_alive == b"\x02"
+    # a local process flapping its node: at most one multicast per retransmit gap
+    e.set_ros2_alive(b"\x00", pulled)
+    again = e.get_timer()
+    assert again is not None and again >= pulled + 0.5
+
+
+def test_a_peers_signed_liveness_is_reported_once_per_change() -> None:
+    e = engine_for(BUNDLE, 0, auth=auth_for(BUNDLE, 0))
+    a1 = auth_for(BUNDLE, 1)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1, ros2_alive=b"\x01"), A1, 0.1)
+    assert _liveness(_drain(e)) == [b"\x01"]
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1, ros2_alive=b"\x01"), A1, 0.2)
+    assert _liveness(_drain(e)) == []
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1, ros2_alive=b"\x00"), A1, 0.3)
+    assert _liveness(_drain(e)) == [b"\x00"]
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.4)  # absent: no word
+    assert _liveness(_drain(e)) == []
+
+
+def test_a_forged_or_replayed_liveness_change_is_refused() -> None:
+    e = engine_for(BUNDLE, 0, auth=auth_for(BUNDLE, 0))
+    a1 = auth_for(BUNDLE, 1)
+    alive = peer_datagram(BUNDLE, 1, auth=a1, ros2_alive=b"\x01")
+    stopped = peer_datagram(BUNDLE, 1, auth=a1, ros2_alive=b"\x00")
+    e.receive_datagram(alive, A1, 0.1)
+    e.receive_datagram(stopped, A1, 0.2)
+    assert _liveness(_drain(e)) == [b"\x01", b"\x00"]
+    # replayed: the older, genuine "alive" word (an attacker reviving a stopped node)
+    e.receive_datagram(alive, A1, 0.3)
+    events = _drain(e)
+    assert _liveness(events) == [] and all(isinstance(x, PacketDropped) for x in events)
+    assert e.counters()["dropped"]["auth_replayed"] == 1
+    # forged: a fresh genuine datagram with its bitmap byte flipped on the air
+    fresh = peer_datagram(BUNDLE, 1, auth=a1, ros2_alive=b"\x00")
+    pid = PID_SWARMD_ROS2_ALIVE.to_bytes(2, "little") + (8).to_bytes(2, "little")
+    at = fresh.index(pid) + 8  # PID, length, octet count, then the bitmap
+    forged = fresh[:at] + b"\x01" + fresh[at + 1 :]
+    e.receive_datagram(forged, A1, 0.4)
+    # signed by another member (a captured drone speaking for uav1)
+    other = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 2, epoch=50), ros2_alive=b"\x01")
+    e.receive_datagram(other, A1, 0.5)
+    events = _drain(e)
+    assert _liveness(events) == [] and all(isinstance(x, PacketDropped) for x in events)
+    dropped = e.counters()["dropped"]
+    # the flipped bit fails uav1's tag; so does the other member's (its own pair keys), its
+    # counter made newer than uav1's so that freshness (checked first) lets it that far
+    assert dropped["auth_bad_tag"] == 2 and dropped["auth_replayed"] == 1
+    # the genuine datagram itself is still good afterwards: nothing was consumed by them
+    e.receive_datagram(fresh, A1, 0.6)
+    assert _liveness(_drain(e)) == []  # "stopped", as before: no change to report
