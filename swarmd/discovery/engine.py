@@ -631,38 +631,49 @@ class DiscoveryEngine:
         self._debts.disarm(peer)
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 
-    def _on_vouch(self, vouch: Vouch, now: float) -> None:
-        """The commander's vouch arrived (``Leases.apply_vouch``)."""
-        if self._leases.apply_vouch(vouch, now) and self.phase in (_ANNOUNCE, _STEADY):
+    def _on_vouch(self, vouch: Vouch, now: float, multicast: bool) -> None:
+        """The commander's vouch arrived (``Leases.apply_vouch``), in a multicast or in a
+        DATA(p) directed to us."""
+        listed = self._leases.apply_vouch(vouch, now)
+        if listed and multicast and self.phase in (_ANNOUNCE, _STEADY):
             # the others hold our lease from this vouch: our renewal waits a full period
             # from here, and runs as before once the vouches stop (commander dead, or it
-            # stopped hearing us)
+            # stopped hearing us). Only a multicast vouch: a directed one reached us alone,
+            # and the others hold nothing from it (issue 20's blackout: the last member the
+            # returning commander heard got the only vouch naming it in the commander's
+            # directed answer, stopped renewing, and was probed by all the others 15 s on)
             self._renewal.restart(now, self._rng)
 
-    def _rejoined(self, now: float) -> None:
+    def _rejoined(self, now: float) -> bool:
         """A peer we had lost was heard again: its link is back, and so, likely, are those of
         the others still missing (a heal, the commander's return). Pull our next multicast in
-        to a short random delay: one DATA(p) listing whom we hear lets every missing peer
-        hear us and answer at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them),
-        instead of each side waiting out a renewal period or a backed-off retry. At most one
-        per ``retransmit_min_gap_s`` since our last multicast, and the random delay lets a
-        rejoining group's members see one another's frame first: no storm. Adaptive mode
-        only, as the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule."""
+        to ``Debts.rejoin_delay`` (U(0, N / budget), whatever our Q still says about the
+        outage): one DATA(p) listing whom we hear lets every missing peer hear us and answer
+        at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them), instead of each side
+        waiting out a renewal period or a backed-off retry. Never sooner than
+        ``retransmit_min_gap_s`` after our last multicast, and the random delay spreads a
+        whole swarm's rejoin frames at the announce budget: no storm. Adaptive mode only, as
+        the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule.
+
+        True if a multicast is due by then (pulled in, or a renewal already sooner): it
+        answers the rejoined peer too. False: the caller answers that peer alone."""
         if self._config.mode != "adaptive":
-            return  # paper mode: the paper's schedule, nothing pulled in
+            return False  # paper mode: the paper's schedule, nothing pulled in
         if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
-            return
+            return False
         if self._leases.heard.count >= len(self._peers):
-            return  # nobody else is missing
+            return False  # nobody else is missing
+        at = now + self._debts.rejoin_delay()
         last = self._renewals.last_multicast
-        gap = self._config.retransmit_min_gap_s
-        if last is not None and now - last < gap:
-            return
-        at = now + self._debts.reply_delay()
+        if last is not None:
+            # one multicast per re-ack gap: a commander regaining 19 members one after the
+            # other sends one every gap while some are missing, not one per member
+            at = max(at, last + self._config.retransmit_min_gap_s)
         renewal = self._renewal
         if renewal.due is None or at < renewal.due:
             renewal.due = at
             self._pulled_in = True
+        return True
 
     def _probe(self, peer: Peer, now: float) -> None:
         """The last-chance probe (``leases.PROBE_AT``): our DATA(p) directed to ``peer`` with
