@@ -258,3 +258,21 @@ def test_the_markdown_table_has_a_row_per_run_in_scenario_order() -> None:
     assert lines[2].startswith("| fly-out | swarmd | 3 | 1 | NO (0.50 ms)")
     assert lines[3].startswith("| split | swarmd | 3 | 2 | yes")
     assert all(line.count("|") == lines[0].count("|") for line in lines)
+
+
+def test_renewal_and_vouch_rates_are_correlated_with_q_when_polled() -> None:
+    """Polls with the status ``rates`` (renewals sent, vouches sent, vouches received per
+    s): the renewal rate rises as Q falls (correlation -1 here); the commander's vouch rate
+    is the one it sent, a member's the one it received. Polls without them (older run
+    files) give the period alone."""
+    polls = [[float(t), 0, t, 1.0 - 0.2 * t, 3.0, 20.0, 0.1 + 0.02 * t, 0.2 + 0.01 * t, 0.0]
+             for t in range(5)]  # fmt: skip
+    polls += [[float(t), 1, t, 1.0 - 0.2 * t, 5.0, 20.0, 0.1, 0.0, 0.3 - 0.05 * t]
+              for t in range(5)]  # fmt: skip
+    polls += [[float(t), 2, t, 0.5, 3.0, 20.0] for t in range(5)]
+    got = flight_measures.renewal_follows_q(polls)
+    assert got["0"]["corr_q_renewal_rate"] == -1.0 and got["0"]["renewals_per_s"] == [0.1, 0.18]
+    assert got["0"]["vouch_rate"] == "sent" and got["0"]["corr_q_vouch_rate"] == -1.0
+    assert got["1"]["vouch_rate"] == "received" and got["1"]["corr_q_vouch_rate"] == 1.0
+    assert got["1"]["corr_q_renewal_rate"] is None  # the rate never moved
+    assert "renewals_per_s" not in got["2"] and got["2"]["corr_q_period"] is None

@@ -99,7 +99,14 @@ from swarmd.discovery.phases import Phase, Trigger, next_phase
 from swarmd.discovery.receive import ReceivePath
 from swarmd.discovery.renewals import Renewals
 from swarmd.discovery.sending import Sender, Wallclock
-from swarmd.discovery.status import foreign_json, link_json, peer_json, peer_view, timing_json
+from swarmd.discovery.status import (
+    foreign_json,
+    link_json,
+    peer_json,
+    peer_view,
+    rates_json,
+    timing_json,
+)
 from swarmd.discovery.timers import MinInterval, RetrySchedule
 from swarmd.discovery.views import ForeignView, PeerView
 from swarmd.rtps.locator import Locator
@@ -266,10 +273,10 @@ class DiscoveryEngine:
         # the concerns, each with its own state (see the theory of operation)
         swarm_size = len(bundle.participants)
         leases = self._leases = Leases(
-            bundle, my_index, self._peers, config=config, timing=timing, size=size
+            bundle, my_index, self._peers, config=config, timing=timing, size=size, now=now
         )
         renewals = self._renewals = Renewals(
-            config, timing, swarm_size=swarm_size, vouching=leases.vouching
+            config, timing, swarm_size=swarm_size, vouching=leases.vouching, now=now
         )
         debts = self._debts = Debts(
             self._peers,
@@ -507,6 +514,9 @@ class DiscoveryEngine:
             "tx_kind": dict(self._sender.tx_kind),
             "dropped": {str(reason): dropped[reason] for reason in DropReason},
             "foreign_evicted": self._foreign.table.evicted,
+            # frames sent carrying the commander's vouch; the commander's vouches taken
+            "vouches_sent": self._leases.vouches_sent.total,
+            "vouches_received": self._leases.vouches_received.total,
             # signatures verified, tags made and checked (the refusals are in "dropped")
             "auth": {} if self._auth is None else self._auth.counters(),
         }
@@ -532,6 +542,12 @@ class DiscoveryEngine:
             "passive_window_s": self._passive_window,
             "timing": timing_json(
                 self._timing, renewal_period_s=self._renewal.period_s, lease_s=renewals.lease_s()
+            ),
+            "rates": rates_json(
+                now,
+                renewals_sent=renewals.sent,
+                vouches_sent=self._leases.vouches_sent,
+                vouches_received=self._leases.vouches_received,
             ),
             "peers_discovered": discovered,
             "peers_total": total,
@@ -634,6 +650,7 @@ class DiscoveryEngine:
     def _on_vouch(self, vouch: Vouch, now: float, multicast: bool) -> None:
         """The commander's vouch arrived (``Leases.apply_vouch``), in a multicast or in a
         DATA(p) directed to us."""
+        self._leases.vouches_received.mark(now)
         listed = self._leases.apply_vouch(vouch, now)
         if listed and multicast and self.phase in (_ANNOUNCE, _STEADY):
             # the others hold our lease from this vouch: our renewal waits a full period
@@ -696,6 +713,8 @@ class DiscoveryEngine:
         """Our DATA(p) to ``peer``, or to the group (None): a multicast restarts the renewal."""
         self._sender.send(peer, now, kind)
         if peer is None:
+            if kind == "renewal":
+                self._renewals.sent.mark(now)
             self._renewals.last_multicast = now
             self._pulled_in = False
             if self.phase in (_ANNOUNCE, _STEADY):
