@@ -300,8 +300,8 @@ def renewal_follows_q(polls: Sequence[Sequence[Any]], since_s: float = 0.0) -> d
             if len(extra) == 3 and all(
                 isinstance(v, int | float) and not isinstance(v, bool) for v in extra
             ):
-                renew, sent, got = (float(v) for v in extra)
-                rates.setdefault(int(node), []).append((float(q), renew, sent, got))
+                r_renew, r_sent, r_got = (float(v) for v in extra)
+                rates.setdefault(int(node), []).append((float(q), r_renew, r_sent, r_got))
     out: dict[str, Any] = {}
     for node, pairs in sorted(by_node.items()):
         qs, ps = [q for q, _ in pairs], [p for _, p in pairs]
