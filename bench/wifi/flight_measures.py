@@ -28,6 +28,12 @@ Definitions (docs/benchmarks.md, "Flight"):
   measured in the ``BASELINE_S`` before the first move;
 - *readiness delivery*: samples the commander received from members while in its range
   and up, over 1 Hz times that time, counted from the commander's first discovery of each.
+  *In range* is the truth's: each of the pair receives the other's frames at -82 dBm or
+  more (where ns-3 detects a frame at all), both stacks running. A time in range runs from
+  its first truth sample in range to its last (the crossings fall between samples, and
+  time out of range is never counted: during a blackout the commander is out of every
+  member's range, so nothing is expected of it); the seconds from a member's return to
+  the commander's re-discovery of it count, since the protocol is what keeps them empty.
 """
 
 from __future__ import annotations
@@ -245,7 +251,12 @@ def readiness_delivery(
         if not first:
             continue
         start = min(first)
-        for a, b, up in spans(reachable(truth, down, 0, m)):
+        samples = reachable(truth, down, 0, m)
+        for a, b, up in spans(samples):
+            if up and b < samples[-1][0]:
+                # b is the first sample out of range: the pair parted somewhere in the step
+                # before it, so count to the last sample in range (never time unreachable)
+                b = max(t for t, v in samples if t < b)
             a, b = max(a, start), min(b, end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
