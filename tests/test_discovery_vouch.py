@@ -280,3 +280,40 @@ def test_the_vouch_pid_round_trips_and_refuses_an_absurd_window() -> None:
     )
     with pytest.raises(DecodeError):
         decode_spdp(too_long)
+
+
+def _directed(frame: bytes, to: int, n: int) -> bytes:
+    """``frame`` (one DATA(p)) sent directed to bundle participant ``to`` (INFO_DST)."""
+    _, samples = decode_spdp(frame)
+    part = samples[0].participant  # type: ignore[union-attr]
+    dst = make_bundle(n).participants[to].guid_prefix
+    return encode_spdp(part, sequence_number=2, timestamp=None, destination=dst)
+
+
+@pytest.mark.parametrize("directed", [False, True])
+def test_only_a_multicast_vouch_makes_a_member_hold_its_renewal(directed: bool) -> None:
+    """A vouch naming us lets our renewal wait a full period only when the others got it
+    too (a multicast). The commander's directed answer reached us alone: the others hold
+    nothing from it, and a member that stopped renewing on it was probed by every peer 15 s
+    later (issue 20's blackout, tests/test_flight_rejoin.py)."""
+    n = 4
+    engine = _heard_all_at_zero(n)
+    now = 0.0
+    while engine.phase.name != "STEADY" and now < 30.0:
+        now = engine.get_timer() or now + 1.0
+        engine.handle_timer(now)
+    assert engine.phase.name == "STEADY"
+    renewal = engine._renewals.timer  # noqa: SLF001 - the schedule is what is asserted
+    before = renewal.deadline()
+    assert before is not None
+    at = now + 0.5
+    frame = _vouching_frame(n, 0, (1, 2, 3), 2)
+    if directed:
+        frame = _directed(frame, 1, n)
+    engine.receive_datagram(frame, ("10.0.0.1", 7410), at)
+    after = renewal.deadline()
+    assert after is not None
+    if directed:
+        assert after == before  # our renewal goes out as planned
+    else:
+        assert after >= at + 0.9 * renewal.period_s  # a full (jittered) period from the vouch

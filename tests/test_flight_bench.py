@@ -258,3 +258,43 @@ def test_the_markdown_table_has_a_row_per_run_in_scenario_order() -> None:
     assert lines[2].startswith("| fly-out | swarmd | 3 | 1 | NO (0.50 ms)")
     assert lines[3].startswith("| split | swarmd | 3 | 2 | yes")
     assert all(line.count("|") == lines[0].count("|") for line in lines)
+
+
+def test_renewal_and_vouch_rates_are_correlated_with_q_when_polled() -> None:
+    """Polls with the status ``rates`` (renewals sent, vouches sent, vouches received per
+    s): the renewal rate rises as Q falls (correlation -1 here); the commander's vouch rate
+    is the one it sent, a member's the one it received. Polls without them (older run
+    files) give the period alone."""
+    polls = [[float(t), 0, t, 1.0 - 0.2 * t, 3.0, 20.0, 0.1 + 0.02 * t, 0.2 + 0.01 * t, 0.0]
+             for t in range(5)]  # fmt: skip
+    polls += [[float(t), 1, t, 1.0 - 0.2 * t, 5.0, 20.0, 0.1, 0.0, 0.3 - 0.05 * t]
+              for t in range(5)]  # fmt: skip
+    polls += [[float(t), 2, t, 0.5, 3.0, 20.0] for t in range(5)]
+    got = flight_measures.renewal_follows_q(polls)
+    assert got["0"]["corr_q_renewal_rate"] == -1.0 and got["0"]["renewals_per_s"] == [0.1, 0.18]
+    assert got["0"]["vouch_rate"] == "sent" and got["0"]["corr_q_vouch_rate"] == -1.0
+    assert got["1"]["vouch_rate"] == "received" and got["1"]["corr_q_vouch_rate"] == 1.0
+    assert got["1"]["corr_q_renewal_rate"] is None  # the rate never moved
+    assert "renewals_per_s" not in got["2"] and got["2"]["corr_q_period"] is None
+
+
+def test_readiness_counts_only_the_time_in_range_never_the_blackout() -> None:
+    """uav2 is out of the commander's range from 30 s to 60 s (truth samples every 0.5 s:
+    the last in range at 29.5, the first back at 60.0). Every sample it could send in range
+    arrived (1 Hz, up to 29.5 s and from the return on): nothing is expected during the
+    outage nor in the half step after its last sample in range (counted to 30.0 s, the
+    first sample out of range, before)."""
+    truth = _truth((30.0, 60.0), end=99.5)
+    changes = {0: [(0.0, 1, "discovered"), (0.0, 2, "discovered"), (50.0, 2, "lost"),
+                   (60.0, 2, "regained")]}  # fmt: skip
+
+    def sent(t: float) -> int:  # samples of uav2 received by t: one a second while in range
+        return int(min(t, 29.5)) + (int(t - 60.0) if t >= 60.0 else 0)
+
+    readiness = [(t / 2, {1: int(t / 2), 2: sent(t / 2)}) for t in range(200)]
+    m = flight_measures.measure(truth, changes, {}, n=3, lease_s=LEASE, readiness=readiness)
+    r = m["readiness_delivery"]
+    # expected: uav1 0-99.5 s, uav2 0-29.5 s and 60-99.5 s (168.5 s at 1 Hz)
+    assert r["expected"] == round(99.5 + 29.5 + 39.5) == 168
+    assert r["delivered"] == 99 + 29 + 39  # whole seconds of each span
+    assert r["ratio"] >= 0.99

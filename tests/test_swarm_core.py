@@ -374,3 +374,23 @@ def test_verified_user_data_reports_its_sender_alive_to_the_driver() -> None:
     assert all(count >= 3 for count in heard.values())  # ~1 Hz for 5 s
     for member in ("m01", "m02", "m03"):
         assert not [e for e in swarm.events[member] if isinstance(e, PeerTrafficVerified)]
+
+
+def test_a_member_reports_at_once_to_a_commander_it_finds_again() -> None:
+    """After a loss (the commander's blackout, issue 20) the member's next readiness report
+    leaves at the re-discovery, not up to a period later: the commander's row counts it
+    within the network's delay. One extra report, not a burst."""
+    swarm = Swarm(2)
+    swarm.cores["m01"].settings = SwarmSettings(readiness_period_s=1.0, stale_after_s=3.0)
+    swarm.run(5.0)
+    swarm.call("m01", lambda now: swarm.cores["m01"].peer_down("lead", now))
+    swarm.run(10.3)  # mid-period: the member's next tick is up to 1 s away
+    before = swarm.cores["m01"].counters["readiness_published"]
+    received = swarm.lead.table.rows(swarm.net.now)["m01"]["count"]
+    swarm.call("m01", lambda now: swarm.cores["m01"].peer_up(
+        "lead", address_of(swarm.bundle, "lead"), 1, now))  # fmt: skip
+    swarm.run(0.05)  # the channel's delay is 2-12 ms
+    assert swarm.cores["m01"].counters["readiness_published"] == before + 1
+    assert swarm.lead.table.rows(swarm.net.now)["m01"]["count"] == received + 1
+    swarm.run(2.0)  # then one a second again, from the re-discovery
+    assert swarm.cores["m01"].counters["readiness_published"] == before + 3

@@ -28,6 +28,12 @@ Definitions (docs/benchmarks.md, "Flight"):
   measured in the ``BASELINE_S`` before the first move;
 - *readiness delivery*: samples the commander received from members while in its range
   and up, over 1 Hz times that time, counted from the commander's first discovery of each.
+  *In range* is the truth's: each of the pair receives the other's frames at -82 dBm or
+  more (where ns-3 detects a frame at all), both stacks running. A time in range runs from
+  its first truth sample in range to its last (the crossings fall between samples, and
+  time out of range is never counted: during a blackout the commander is out of every
+  member's range, so nothing is expected of it); the seconds from a member's return to
+  the commander's re-discovery of it count, since the protocol is what keeps them empty.
 """
 
 from __future__ import annotations
@@ -245,7 +251,12 @@ def readiness_delivery(
         if not first:
             continue
         start = min(first)
-        for a, b, up in spans(reachable(truth, down, 0, m)):
+        samples = reachable(truth, down, 0, m)
+        for a, b, up in spans(samples):
+            if up and b < samples[-1][0]:
+                # b is the first sample out of range: the pair parted somewhere in the step
+                # before it, so count to the last sample in range (never time unreachable)
+                b = max(t for t, v in samples if t < b)
             a, b = max(a, start), min(b, end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
@@ -271,25 +282,56 @@ def _pearson(xs: Sequence[float], ys: Sequence[float]) -> float | None:
     return round(float(sxy / (sxx * syy) ** 0.5), 3)
 
 
+def _span(values: Sequence[float]) -> list[float]:
+    return [round(min(values), 4), round(max(values), 4)]
+
+
 def renewal_follows_q(polls: Sequence[Sequence[Any]], since_s: float = 0.0) -> dict[str, Any]:
     """Whether each daemon's renewal period followed its link quality: per node the range
     of Q and of the renewal period it reported, and their correlation over its polls from
     ``since_s`` on (``polls``: ``[t, node, renewals sent, q, renewal_period_s,
-    advertised_lease_s]``). Pass the first move: before any frame is heard a flight link
-    file reads Q 0, and those start-up polls alone would make a correlation."""
+    advertised_lease_s]``, and from the rate counters on ``renewals_sent_per_s,
+    vouches_sent_per_s, vouches_received_per_s``: status ``rates``, over its window). Pass
+    the first move: before any frame is heard a flight link file reads Q 0, and those
+    start-up polls alone would make a correlation.
+
+    With the rates: the range of the renewal rate and its correlation with Q (negative when
+    it follows the link: a poorer link, denser renewals), and the same for the vouch rate,
+    the vouches a node sent if it sent any (the commander), else those it received. The
+    rates are over a window (60 s in swarmd), so they lag Q by up to that window."""
     by_node: dict[int, list[tuple[float, float]]] = {}
+    rates: dict[int, list[tuple[float, float, float, float]]] = {}
     for row in polls:
         t, node, _, q, period = row[:5]
         if t < since_s:
             continue
         if isinstance(q, int | float) and isinstance(period, int | float):
             by_node.setdefault(int(node), []).append((float(q), float(period)))
+            extra = list(row[6:9])
+            if len(extra) == 3 and all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in extra
+            ):
+                r_renew, r_sent, r_got = (float(v) for v in extra)
+                rates.setdefault(int(node), []).append((float(q), r_renew, r_sent, r_got))
     out: dict[str, Any] = {}
     for node, pairs in sorted(by_node.items()):
         qs, ps = [q for q, _ in pairs], [p for _, p in pairs]
-        out[str(node)] = {
+        entry: dict[str, Any] = {
             "q": [round(min(qs), 3), round(max(qs), 3)],
             "renewal_period_s": [round(min(ps), 3), round(max(ps), 3)],
             "corr_q_period": _pearson(qs, ps),
         }
+        rows = rates.get(node)
+        if rows:
+            rq = [r[0] for r in rows]
+            renew = [r[1] for r in rows]
+            sent = [r[2] for r in rows]
+            kind = "sent" if any(sent) else "received"
+            vouch = sent if kind == "sent" else [r[3] for r in rows]
+            entry["renewals_per_s"] = _span(renew)
+            entry["corr_q_renewal_rate"] = _pearson(rq, renew)
+            entry["vouch_rate"] = kind
+            entry["vouches_per_s"] = _span(vouch)
+            entry["corr_q_vouch_rate"] = _pearson(rq, vouch)
+        out[str(node)] = entry
     return out

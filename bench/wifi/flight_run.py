@@ -98,8 +98,9 @@ class SwarmdObserver:
         self.index = {name: i for i, name in enumerate(names)}
         self.changes: dict[int, list[tuple[float, int, str]]] = {i: [] for i in range(len(socks))}
         self.readiness: list[tuple[float, dict[int, int]]] = []
-        # per status poll: (t, node, renewals sent, link Q, renewal period, advertised lease)
-        self.renewals: list[tuple[float, int, Any, Any, Any, Any]] = []
+        # per status poll: (t, node, renewals sent, link Q, renewal period, advertised lease,
+        # renewals sent / vouches sent / vouches received per s: status "rates")
+        self.renewals: list[tuple[Any, ...]] = []
         self._seen: dict[int, tuple[int, int]] = {}  # daemon -> (pid, last seq)
         self._next = itertools.cycle(range(len(socks)))
         self.polls = self.failures = 0
@@ -147,6 +148,7 @@ class SwarmdObserver:
         self._seen[i] = (pid, max(last, int(pc.get("last_seq") or 0)))
         kinds = (st.get("counters") or {}).get("tx_kind")
         timing, link = st.get("timing") or {}, st.get("link") or {}
+        rates = st.get("rates") or {}
         if isinstance(kinds, dict):
             self.renewals.append(
                 (
@@ -156,6 +158,9 @@ class SwarmdObserver:
                     link.get("q"),
                     timing.get("renewal_period_s"),
                     timing.get("advertised_lease_s"),
+                    rates.get("renewals_sent_per_s"),
+                    rates.get("vouches_sent_per_s"),
+                    rates.get("vouches_received_per_s"),
                 )
             )
 

@@ -258,6 +258,14 @@ def _render_status(status: dict[str, Any], wall_now: float) -> list[str]:
         f"link Q {_num(link.get('q'), '.2f')}  SNR {_num(link.get('snr_db'), '.1f', ' dB')}  "
         f"source {link.get('source') or '-'}",
     ]
+    rates = status.get("rates")
+    if isinstance(rates, dict):
+        lines.append(
+            f"per s over {_num(rates.get('window_s'), '.0f', ' s')}: "
+            f"renewals sent {_num(rates.get('renewals_sent_per_s'), '.3f')}  "
+            f"vouches sent {_num(rates.get('vouches_sent_per_s'), '.3f')}  "
+            f"received {_num(rates.get('vouches_received_per_s'), '.3f')}"
+        )
     timer = status.get("passive_timer_s")
     lines.append(
         "passive timer: " + (f"{_num(timer, '.1f')} s remaining" if timer is not None else "-")

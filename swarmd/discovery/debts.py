@@ -40,6 +40,7 @@ class Debts:
         "_peer_at",
         "_peers",
         "_pushed",
+        "_rejoin_spread_s",
         "_renewals",
         "_rng",
         "_spread_at",
@@ -81,6 +82,16 @@ class Debts:
         self.retries: list[tuple[float, int, int, RetrySchedule]] = []
         self._pushed = 0
         self._spread_at = (math.nan, 0.0)  # (Q, spread_s() at that Q)
+        # adaptive mode's W at Q = 1: N frames at the full announce budget (rejoin_delay)
+        self._rejoin_spread_s = passive_window_s(
+            "adaptive",
+            1.0,
+            swarm_size=swarm_size,
+            t_min_s=timing.t_min_s,
+            t_max_s=timing.t_max_s,
+            announce_budget_fps=config.announce_budget_fps,
+            q_floor=config.q_floor,
+        )
         self._backoff_now = Backoff(math.nan, math.nan)
 
     def owes(self, peer: Peer) -> bool:
@@ -219,6 +230,23 @@ class Debts:
         """The holdoff before an answer wanted at once (a probe): U(0, reply_delay_max_s),
         the paper's immediate directed reply in either mode."""
         return self._rng.uniform(0.0, self._config.reply_delay_max_s)
+
+    def rejoin_delay(self) -> float:
+        """The holdoff before our first frame to a peer we had lost and hear again (or the
+        multicast a rejoin pulls in, ``DiscoveryEngine._rejoined``): U(0, W1), W1 adaptive
+        mode's window at Q = 1 (N / announce budget: 0.2 s at N = 10, 0.4 s at N = 20).
+
+        Not U(W, 2W) at our Q: Q is read from the peers we heard over the last seconds, so
+        after an outage it still says "nobody" (a commander out of everyone's range reads
+        Q = 0) while the frame just heard shows the link is back. At Q <= q_floor the
+        holdoff was U(2, 4) s at N = 10 and U(4, 8) s at N = 20: the re-discoveries of
+        4.6-4.8 s on the emulated channel (docs/benchmarks.md, "Flight"). W1 still spreads
+        a whole swarm's rejoin frames at the announce budget (each drone pulls in at most
+        one multicast per re-ack gap), so a heal stays within the budget the start-up keeps.
+        Paper mode: its reply delay U(0, reply_delay_max_s), as before."""
+        if self._config.mode == "paper":
+            return self._rng.uniform(0.0, self._config.reply_delay_max_s)
+        return self._rejoin_spread_s * self._rng.random()
 
     def spread_s(self) -> float:
         """Adaptive mode's W at the current Q: the time N frames take at the budget rate."""

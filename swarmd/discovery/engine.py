@@ -99,7 +99,14 @@ from swarmd.discovery.phases import Phase, Trigger, next_phase
 from swarmd.discovery.receive import ReceivePath
 from swarmd.discovery.renewals import Renewals
 from swarmd.discovery.sending import Sender, Wallclock
-from swarmd.discovery.status import foreign_json, link_json, peer_json, peer_view, timing_json
+from swarmd.discovery.status import (
+    foreign_json,
+    link_json,
+    peer_json,
+    peer_view,
+    rates_json,
+    timing_json,
+)
 from swarmd.discovery.timers import MinInterval, RetrySchedule
 from swarmd.discovery.views import ForeignView, PeerView
 from swarmd.rtps.locator import Locator
@@ -266,10 +273,10 @@ class DiscoveryEngine:
         # the concerns, each with its own state (see the theory of operation)
         swarm_size = len(bundle.participants)
         leases = self._leases = Leases(
-            bundle, my_index, self._peers, config=config, timing=timing, size=size
+            bundle, my_index, self._peers, config=config, timing=timing, size=size, now=now
         )
         renewals = self._renewals = Renewals(
-            config, timing, swarm_size=swarm_size, vouching=leases.vouching
+            config, timing, swarm_size=swarm_size, vouching=leases.vouching, now=now
         )
         debts = self._debts = Debts(
             self._peers,
@@ -528,6 +535,9 @@ class DiscoveryEngine:
             "tx_kind": dict(self._sender.tx_kind),
             "dropped": {str(reason): dropped[reason] for reason in DropReason},
             "foreign_evicted": self._foreign.table.evicted,
+            # frames sent carrying the commander's vouch; the commander's vouches taken
+            "vouches_sent": self._leases.vouches_sent.total,
+            "vouches_received": self._leases.vouches_received.total,
             # signatures verified, tags made and checked (the refusals are in "dropped")
             "auth": {} if self._auth is None else self._auth.counters(),
         }
@@ -553,6 +563,12 @@ class DiscoveryEngine:
             "passive_window_s": self._passive_window,
             "timing": timing_json(
                 self._timing, renewal_period_s=self._renewal.period_s, lease_s=renewals.lease_s()
+            ),
+            "rates": rates_json(
+                now,
+                renewals_sent=renewals.sent,
+                vouches_sent=self._leases.vouches_sent,
+                vouches_received=self._leases.vouches_received,
             ),
             "peers_discovered": discovered,
             "peers_total": total,
@@ -652,38 +668,50 @@ class DiscoveryEngine:
         self._debts.disarm(peer)
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 
-    def _on_vouch(self, vouch: Vouch, now: float) -> None:
-        """The commander's vouch arrived (``Leases.apply_vouch``)."""
-        if self._leases.apply_vouch(vouch, now) and self.phase in (_ANNOUNCE, _STEADY):
+    def _on_vouch(self, vouch: Vouch, now: float, multicast: bool) -> None:
+        """The commander's vouch arrived (``Leases.apply_vouch``), in a multicast or in a
+        DATA(p) directed to us."""
+        self._leases.vouches_received.mark(now)
+        listed = self._leases.apply_vouch(vouch, now)
+        if listed and multicast and self.phase in (_ANNOUNCE, _STEADY):
             # the others hold our lease from this vouch: our renewal waits a full period
             # from here, and runs as before once the vouches stop (commander dead, or it
-            # stopped hearing us)
+            # stopped hearing us). Only a multicast vouch: a directed one reached us alone,
+            # and the others hold nothing from it (issue 20's blackout: the last member the
+            # returning commander heard got the only vouch naming it in the commander's
+            # directed answer, stopped renewing, and was probed by all the others 15 s on)
             self._renewal.restart(now, self._rng)
 
-    def _rejoined(self, now: float) -> None:
+    def _rejoined(self, now: float) -> bool:
         """A peer we had lost was heard again: its link is back, and so, likely, are those of
         the others still missing (a heal, the commander's return). Pull our next multicast in
-        to a short random delay: one DATA(p) listing whom we hear lets every missing peer
-        hear us and answer at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them),
-        instead of each side waiting out a renewal period or a backed-off retry. At most one
-        per ``retransmit_min_gap_s`` since our last multicast, and the random delay lets a
-        rejoining group's members see one another's frame first: no storm. Adaptive mode
-        only, as the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule."""
+        to ``Debts.rejoin_delay`` (U(0, N / budget), whatever our Q still says about the
+        outage): one DATA(p) listing whom we hear lets every missing peer hear us and answer
+        at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them), instead of each side
+        waiting out a renewal period or a backed-off retry. Never sooner than
+        ``retransmit_min_gap_s`` after our last multicast, and the random delay spreads a
+        whole swarm's rejoin frames at the announce budget: no storm. Adaptive mode only, as
+        the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule.
+
+        True if a multicast is due by then (pulled in, or a renewal already sooner): it
+        answers the rejoined peer too. False: the caller answers that peer alone."""
         if self._config.mode != "adaptive":
-            return  # paper mode: the paper's schedule, nothing pulled in
+            return False  # paper mode: the paper's schedule, nothing pulled in
         if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
-            return
+            return False
         if self._leases.heard.count >= len(self._peers):
-            return  # nobody else is missing
+            return False  # nobody else is missing
+        at = now + self._debts.rejoin_delay()
         last = self._renewals.last_multicast
-        gap = self._config.retransmit_min_gap_s
-        if last is not None and now - last < gap:
-            return
-        at = now + self._debts.reply_delay()
+        if last is not None:
+            # one multicast per re-ack gap: a commander regaining 19 members one after the
+            # other sends one every gap while some are missing, not one per member
+            at = max(at, last + self._config.retransmit_min_gap_s)
         renewal = self._renewal
         if renewal.due is None or at < renewal.due:
             renewal.due = at
             self._pulled_in = True
+        return True
 
     def _probe(self, peer: Peer, now: float) -> None:
         """The last-chance probe (``leases.PROBE_AT``): our DATA(p) directed to ``peer`` with
@@ -706,6 +734,8 @@ class DiscoveryEngine:
         """Our DATA(p) to ``peer``, or to the group (None): a multicast restarts the renewal."""
         self._sender.send(peer, now, kind)
         if peer is None:
+            if kind == "renewal":
+                self._renewals.sent.mark(now)
             self._renewals.last_multicast = now
             self._pulled_in = False
             if self.phase in (_ANNOUNCE, _STEADY):

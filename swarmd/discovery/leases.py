@@ -30,7 +30,8 @@ from swarmd.discovery.awareness import vouched_lease_s
 from swarmd.discovery.config import EngineConfig, Timing
 from swarmd.discovery.digest import HeardBitmap
 from swarmd.discovery.peers import MAX_PEER_LEASE_S, Peer, PeerState
-from swarmd.discovery.timers import LeaseQueue
+from swarmd.discovery.renewals import MAX_RATE_SAMPLES, RATE_WINDOW_S
+from swarmd.discovery.timers import LeaseQueue, WindowRate
 from swarmd.rtps.spdp import Vouch
 
 # The last-chance probe (docs/discovery.md, "Probing before a lease ends"): a discovered peer
@@ -68,6 +69,8 @@ class Leases:
         "hold_heap",
         "held_until",
         "vouches",
+        "vouches_received",
+        "vouches_sent",
         "vouching",
     )
 
@@ -80,6 +83,7 @@ class Leases:
         config: EngineConfig,
         timing: Timing,
         size: int,
+        now: float,
     ) -> None:
         self._my_index = my_index
         self._peers = peers  # the engine's table, by bundle index
@@ -108,6 +112,10 @@ class Leases:
         self._vouch_window_ms = round(config.vouch_window_s * 1000)
         # the commander's recent vouches (arrival, bitmap as an int, window s), oldest first
         self.vouches: deque[tuple[float, int, float]] = deque()
+        # the vouch rate (issue 20): frames we sent carrying one (the commander), and the
+        # commander's vouches we took (a member)
+        self.vouches_sent = WindowRate(RATE_WINDOW_S, MAX_RATE_SAMPLES, now)
+        self.vouches_received = WindowRate(RATE_WINDOW_S, MAX_RATE_SAMPLES, now)
         # the peers past their probe point, to be looked at again (a probe, a vouch's end,
         # the lease's end): when, in a lazy heap (entries whose time no longer matches
         # ``held_until`` are stale; hearing the peer drops its entry), with their own lease's

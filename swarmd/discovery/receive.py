@@ -111,8 +111,8 @@ class ReceivePath:
         emit: Callable[[Event], None],
         lose: Callable[[Peer, str], None],
         settle: Callable[[], None],
-        on_vouch: Callable[[Vouch, float], None],
-        rejoined: Callable[[float], None],
+        on_vouch: Callable[[Vouch, float, bool], None],
+        rejoined: Callable[[float], bool],
     ) -> None:
         # the engine's phase, as the receive path sees it: set by DiscoveryEngine._transition
         # (a slot of our own: read twice per datagram)
@@ -303,7 +303,7 @@ class ReceivePath:
             self._held_until.pop(index, None)  # its own lease runs again
         vouched = alive.vouched
         if vouched is not None and index == self._commander and not self._vouching:
-            self._on_vouch(vouched, now)
+            self._on_vouch(vouched, now, alive.destination is None)
         if moved:
             self._emit(
                 PeerLocatorsChanged(
@@ -314,6 +314,7 @@ class ReceivePath:
                 )
             )
         directed = alive.destination is not None
+        rejoin = False  # a lost peer heard again, answered by a frame of its own
         told = peer.told
         retry = peer.retry
         if restarted and not newly:
@@ -341,7 +342,10 @@ class ReceivePath:
                 self._debts.disarm(peer)
             peer.times_discovered += 1
             if peer.times_discovered > 1:
-                self._rejoined(now)  # a lost peer is back: the link evidently is too
+                # a lost peer is back: the link evidently is too. Our pulled-in multicast
+                # answers it; if none was pulled in, our answer to it alone comes as soon
+                # (Debts.rejoin_delay), not after the Q-stretched holdoff
+                rejoin = not self._rejoined(now)
             self._emit(
                 PeerDiscovered(
                     peer.participant.name,
@@ -386,7 +390,9 @@ class ReceivePath:
         elif not told or retry.due is None:
             # first answer after a holdoff; a peer we already told and are waiting on keeps
             # its backoff, since its frame may simply have crossed ours in flight
-            self._debts.arm(peer, now + self._debts.reply_delay())
+            debts = self._debts
+            delay = debts.rejoin_delay() if rejoin else debts.reply_delay()
+            debts.arm(peer, now + delay)
 
     def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int]) -> None:
         if sample.destination is not None and sample.destination != self._my_guid:

@@ -12,6 +12,7 @@ steps of ``link_report_step`` (hysteresis), so a jittery reading does not change
 from __future__ import annotations
 
 import random
+from typing import Final
 
 from swarmd.discovery.awareness import (
     advertised_lease_s,
@@ -21,7 +22,15 @@ from swarmd.discovery.awareness import (
 )
 from swarmd.discovery.config import EngineConfig, Timing
 from swarmd.discovery.inputs import LinkSample
-from swarmd.discovery.timers import Periodic
+from swarmd.discovery.timers import Periodic, WindowRate
+
+# The window the send and receive rates are read over (status()["rates"]): a minute holds
+# 6-18 renewals at the periods Q gives with a 20 s lease (3.4-10 s), enough for a rate to
+# follow Q without being one frame's noise.
+RATE_WINDOW_S: Final = 60.0
+# The times kept per rate: far above what we send (one renewal per re-ack gap at most) or a
+# live commander's vouches (one every few seconds), so only a flood reaches it.
+MAX_RATE_SAMPLES: Final = 1024
 
 
 class Renewals:
@@ -36,11 +45,18 @@ class Renewals:
         "link",
         "permille",
         "q",
+        "sent",
         "timer",
     )
 
     def __init__(
-        self, config: EngineConfig, timing: Timing, *, swarm_size: int, vouching: bool
+        self,
+        config: EngineConfig,
+        timing: Timing,
+        *,
+        swarm_size: int,
+        vouching: bool,
+        now: float,
     ) -> None:
         self._config = config
         self._timing = timing
@@ -51,6 +67,7 @@ class Renewals:
         self.permille = round(self.q * 1000)  # the Q we advertise (and plan with), in 1/1000
         self.timer = Periodic(self.period_s(), config.renewal_jitter)
         self.last_multicast: float | None = None  # when we last sent any multicast
+        self.sent = WindowRate(RATE_WINDOW_S, MAX_RATE_SAMPLES, now)  # plain renewals sent
 
     def on_link(self, sample: LinkSample, now: float, rng: random.Random) -> None:
         """A new reading: Q follows it; the advertised Q and the renewal period follow Q

@@ -143,6 +143,8 @@ class Sender:
         # the memo keeps the unsigned template; every datagram gets its own freshness
         self._queue(self._seal(payload), target, multicast=peer is None)
         self.tx_kind[kind] += 1
+        if content.vouched is not None:
+            self._leases.vouches_sent.mark(now)
 
     def dispose(
         self, directed: list[tuple[GuidPrefix, tuple[str, int]]], *, group_copies: int

@@ -12,6 +12,7 @@ from typing import Any, Final
 from swarmd.discovery.config import Timing
 from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.peers import Peer, PeerState
+from swarmd.discovery.timers import WindowRate
 from swarmd.discovery.views import ForeignView, PeerView
 
 _DISCOVERED: Final = PeerState.DISCOVERED
@@ -80,4 +81,24 @@ def timing_json(timing: Timing, *, renewal_period_s: float, lease_s: float) -> d
         "sources": dict(timing.sources),
         "renewal_period_s": round(renewal_period_s, 3),
         "advertised_lease_s": round(lease_s, 3),
+    }
+
+
+def rates_json(
+    now: float,
+    *,
+    renewals_sent: WindowRate,
+    vouches_sent: WindowRate,
+    vouches_received: WindowRate,
+) -> dict[str, Any]:
+    """What we sent and took per second over the last window (issue 20: whether the
+    renewal and vouch rates follow the link quality), with the totals since start."""
+    return {
+        "window_s": renewals_sent.window_s,
+        "renewals_sent_per_s": round(renewals_sent.per_s(now), 4),
+        "vouches_sent_per_s": round(vouches_sent.per_s(now), 4),
+        "vouches_received_per_s": round(vouches_received.per_s(now), 4),
+        "renewals_sent": renewals_sent.total,
+        "vouches_sent": vouches_sent.total,
+        "vouches_received": vouches_received.total,
     }

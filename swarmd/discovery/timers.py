@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import heapq
 import random
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -79,6 +80,41 @@ class MinInterval:
 
     def next_allowed(self) -> float | None:
         return None if self.last is None else self.last + self.interval_s
+
+
+class WindowRate:
+    """How often something happened: a total, and events per second over the last
+    ``window_s`` (issue 20: "the renewal/vouch rate following the link quality").
+
+    Pure, keyed by ``now``: ``mark`` keeps the times inside the window (at most ``cap``,
+    oldest dropped, so a peer flooding what we count cannot grow memory: the rate then
+    reads at most ``cap / window_s``); ``per_s`` changes nothing, so ``status()`` stays a
+    pure function of the state. Before a whole window has passed since ``start`` the rate
+    is over the time elapsed, not the whole window."""
+
+    __slots__ = ("_start", "_times", "total", "window_s")
+
+    def __init__(self, window_s: float, cap: int, start: float) -> None:
+        self.window_s = window_s
+        self.total = 0
+        self._start = start
+        self._times: deque[float] = deque(maxlen=cap)
+
+    def mark(self, now: float) -> None:
+        self.total += 1
+        times = self._times
+        times.append(now)
+        since = now - self.window_s
+        while times[0] <= since:
+            times.popleft()
+
+    def per_s(self, now: float) -> float:
+        """Events per second in (now - window_s, now]."""
+        span = min(self.window_s, now - self._start)
+        if span <= 0.0:
+            return 0.0
+        since = now - span
+        return sum(1 for t in self._times if since < t <= now) / span
 
 
 @dataclass(slots=True)

@@ -58,6 +58,7 @@ from dataclasses import dataclass
 from typing import Any, Final, assert_never
 
 from swarmd.dataplane import (
+    TOPIC_READY,
     CommandCopyVoided,
     CommandReceived,
     DataPlane,
@@ -72,7 +73,7 @@ from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.commander import RESTARTED, CommandTracker, ReadinessTable
-from swarmd.swarm.roles import Roles
+from swarmd.swarm.roles import Roles, reads
 
 PX4_DISABLED: Final = "px4_disabled"
 UNKNOWN_KIND: Final = "unknown_kind"
@@ -276,6 +277,7 @@ class SwarmCore:
         self._tick_at: float | None = None
         self._seq = 0
         self._last_key: tuple[bool, str | None] | None = None
+        self._readers_up: set[str] = set()  # peers up that read our readiness (peer_up)
         self._local_commands: set[int] = set()
         # (commander clock when the validity ends, command id, writer SN): the commander
         # withdraws each from its writer then, so repair never carries it late
@@ -327,9 +329,21 @@ class SwarmCore:
         if self.plane is not None and locator is not None:
             self.plane.peer_up(name, locator, now, epoch=epoch)
             self._drain_plane(now)
+            came = name not in self._readers_up
+            if came and reads(self.plane.bundle.participant(name), TOPIC_READY):
+                self._readers_up.add(name)  # bounded: bundle names only (participant())
+                if self.roles.reports_readiness and self._tick_at is not None:
+                    # A reader of our readiness (the commander) came, or came back after a
+                    # loss: it gets our report now, not up to a period later, as a DDS
+                    # writer hands a late-joining reader its last sample (DDS 2.2.3.4
+                    # DURABILITY TRANSIENT_LOCAL). After a 30 s blackout that period was a
+                    # third of the samples lost between the re-discovery and the first
+                    # report (issue 20). One extra report per reader per (re)discovery.
+                    self._tick_at = min(self._tick_at, now)
 
     def peer_down(self, name: str, now: float) -> None:
         self.table.on_peer(name, False)
+        self._readers_up.discard(name)
         if self.plane is not None:
             self.plane.peer_down(name, now)
             self._drain_plane(now)
