@@ -13,7 +13,12 @@ from hypothesis import strategies as st
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
-from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Participant, bundle_ros2_participants
+from swarmd.bundle.ros2 import (
+    GRAPH_TOPIC,
+    Ros2EndpointKind,
+    Ros2Participant,
+    bundle_ros2_participants,
+)
 from swarmd.cli.status_cmd import render_status
 from swarmd.ros2.relay import (
     LOOPBACK,
@@ -127,7 +132,16 @@ def test_a_discovered_drone_is_announced_to_every_local_node_from_the_bundle() -
     assert p.metatraffic_unicast_locators == (Locator.udpv6(LOOPBACK, RELAY_PORT),)
     assert p.builtin_endpoints == BES_SPDP_ONLY  # no SEDP, no WLP endpoint to start
     assert p.properties == static_edp_properties(talker)
-    assert len(p.properties) == len(talker.endpoints)
+    # every endpoint but its ros_discovery_info writer and reader: rmw's graph topic stays
+    # among the nodes of one drone (docs/ros2.md, "Graph traffic")
+    graph_ids = [
+        talker.first_user_id + i
+        for i, e in enumerate(talker.endpoints)
+        if e.dds_topic == GRAPH_TOPIC
+    ]
+    assert len(graph_ids) == 2
+    assert len(p.properties) == len(talker.endpoints) - 2
+    assert not any(name.endswith(f"_ID_{uid}") for name, _ in p.properties for uid in graph_ids)
     assert sample.sequence_number > EPOCH << 32
     assert _events(relay) == [RemoteParticipantsRelayed("drone-1", 1, up=True)]
     assert relay.get_timer() == pytest.approx(1.0 + LEASE_S / 4)

@@ -266,11 +266,17 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     for sock in attacker_rx:
         sock.close()
     counts = discovery_counts(pcap, frozenset(lan[i].address for i in range(3)))
+    graph = ros2_lab.graph_datagrams(
+        pcap,
+        ros2_lab.graph_entity_ids(bundle_ros2_participants(files.bundle)),
+        frozenset(lan[i].address for i in range(3)),
+    )
     forged = discovery_counts(pcap, frozenset({outsider.address}))
     print(f"\nrelay counters: {[st['ros2']['counters'] for st in statuses]}")
     print(
         f"\nlink, from the drones: {counts}; ROS 2 SPDP {counts.ros2_spdp}, ROS 2 SEDP "
-        f"{counts.ros2_sedp}, swarmd SPDP {counts.spdp_swarmd}; from the outsider: {forged}; "
+        f"{counts.ros2_sedp}, swarmd SPDP {counts.spdp_swarmd}, ROS 2 graph (ros_discovery_info) "
+        f"{graph}; from the outsider: {forged}; "
         f"listener {listener_result}"
     )
 
@@ -286,6 +292,8 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     # no ROS 2 discovery on the air; swarmd's own SPDP is there (and is all the SPDP)
     assert counts.ros2_spdp == 0
     assert counts.ros2_sedp == 0
+    # nor rmw's graph topic: it matches only between the nodes of one drone
+    assert graph == 0
     assert counts.spdp_swarmd > 0
     assert counts.multicast <= counts.spdp_swarmd  # swarmd's announcements only
     # the forged participant reached no node (no node sent it anything) and no relay

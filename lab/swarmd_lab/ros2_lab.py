@@ -15,10 +15,13 @@ import os
 import shutil
 import subprocess
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
+
+from swarmd.bundle.ros2 import GRAPH_TOPIC, Ros2Participant
+from swarmd.ros2.relay import static_edp_entity_id
 
 SPDP_IDS: Final = frozenset({"0x000100c2", "0x000100c7"})
 SEDP_IDS: Final = frozenset({"0x000003c2", "0x000003c7", "0x000004c2", "0x000004c7"})
@@ -150,3 +153,50 @@ def start_capture(hub: str, bridge: str, pcap: Path, timeout_s: float) -> subpro
     proc.kill()
     proc.wait()
     raise RuntimeError(f"tshark did not start capturing on {bridge} in {hub}")
+
+
+def graph_entity_ids(participants: Iterable[Ros2Participant]) -> frozenset[str]:
+    """The ``ros_discovery_info`` (rmw's graph topic) writer and reader entity ids of the
+    bundle's participants, as tshark prints them (``0x00006c03``): the profile fixes every
+    endpoint's entity id to its ``userDefinedID`` (swarmd.ros2.profile)."""
+    out = set()
+    for p in participants:
+        for i, e in enumerate(p.endpoints):
+            if e.dds_topic == GRAPH_TOPIC:
+                octets = static_edp_entity_id(p.first_user_id + i, e.kind).split(".")
+                out.add("0x" + "".join(f"{int(o):02x}" for o in octets))
+    return frozenset(out)
+
+
+def graph_datagrams(pcap: Path, entity_ids: frozenset[str], senders: frozenset[str]) -> int:
+    """Datagrams from ``senders`` with a submessage to or from one of ``entity_ids``: ROS 2's
+    graph traffic (``ros_discovery_info`` DATA, HEARTBEAT, ACKNACK) on the captured link."""
+    result = subprocess.run(  # noqa: S603 - argv list
+        [
+            shutil.which("tshark") or "tshark",
+            "-r",
+            str(pcap),
+            "-Y",
+            "rtps",
+            "-T",
+            "fields",
+            "-E",
+            "separator=;",
+            "-e",
+            "ip.src",
+            "-e",
+            "rtps.sm.wrEntityId",
+            "-e",
+            "rtps.sm.rdEntityId",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=_TSHARK_TIMEOUT_S,
+        check=True,
+    )
+    count = 0
+    for line in result.stdout.splitlines():
+        src, writers, readers = (line.split(";") + ["", ""])[:3]
+        if src in senders and (set(writers.split(",")) | set(readers.split(","))) & entity_ids:
+            count += 1
+    return count

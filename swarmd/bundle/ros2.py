@@ -126,21 +126,24 @@ def _dds_name(ros_name: str) -> str:
     return ros_name.removeprefix("/")
 
 
+# rmw's graph cache topic (rmw_dds_common: every participant's ParticipantEntitiesInfo)
+GRAPH_TOPIC: Final = "ros_discovery_info"
+
 # ROS 2's own endpoints of every rclpy node (rmw_fastrtps_shared_cpp, rcl): the participant's
 # graph cache topic, parameter events and rosout. Parameter and type-description services are
 # not listed: nodes on a static graph turn them off (docs/ros2.md).
 _BUILTIN: Final = (
     Ros2Endpoint(
-        "ros_discovery_info",
-        "ros_discovery_info",
+        GRAPH_TOPIC,
+        GRAPH_TOPIC,
         "rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_",
         Ros2EndpointKind.WRITER,
         Reliability.RELIABLE,
         Durability.TRANSIENT_LOCAL,
     ),
     Ros2Endpoint(
-        "ros_discovery_info",
-        "ros_discovery_info",
+        GRAPH_TOPIC,
+        GRAPH_TOPIC,
         "rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_",
         Ros2EndpointKind.READER,
         Reliability.RELIABLE,

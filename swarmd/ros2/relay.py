@@ -49,6 +49,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from swarmd.bundle.ros2 import (
+    GRAPH_TOPIC,
     VENDOR_EPROSIMA,
     Ros2EndpointKind,
     Ros2Participant,
@@ -129,9 +130,17 @@ def _property_kind(kind: Ros2EndpointKind) -> str:
 
 
 def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
-    """The static EDP part of ``p``'s SPDP property list, from the bundle."""
+    """The static EDP part of ``p``'s SPDP property list, from the bundle, without its
+    ``ros_discovery_info`` writer and reader: rmw's graph topic then matches only between
+    the nodes of one drone, so no node sends its graph updates (every entity it creates,
+    reliable and transient-local, to every node of the swarm: the busiest second of the
+    relay route on the testbed, docs/ros2.md "Graph traffic") over the Wi-Fi. Topics,
+    publisher counts and service readiness still come from static EDP; other drones' node
+    names are what swarmctl status shows."""
     out: list[tuple[str, str]] = []
     for i, e in enumerate(p.endpoints):
+        if e.dds_topic == GRAPH_TOPIC:
+            continue
         uid = p.first_user_id + i
         out.append(
             (
