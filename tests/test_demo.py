@@ -97,6 +97,7 @@ def test_demo_with_ros2_nodes_through_swarmd(tmp_path: Path) -> None:
     assert sorted(ros2["listener"]["senders"]) == ["drone-01", "drone-02"]
     assert ros2["listener"]["answers"]
     assert ros2["link"]["ros2_spdp"] == 0 and ros2["link"]["ros2_sedp"] == 0
+    assert ros2["link"]["ros2_graph"] == 0  # rmw's graph topic stays on each drone
     assert ros2["link"]["swarmd_spdp"] > 0
     assert "ROS 2 (rclpy through swarmd)" in proc.stdout
     assert not [n for n in list_namespaces() if n.startswith(f"swn-{pid}-")]

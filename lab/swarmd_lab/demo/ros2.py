@@ -22,10 +22,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Final
 
+from swarmd.bundle.errors import BundleError
+from swarmd.bundle.loader import load_bundle
+from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd_lab.demo.hosts import NamespaceHosts
 from swarmd_lab.demo.scenario import Drone, Scenario
 from swarmd_lab.netns import BRIDGE
-from swarmd_lab.ros2_lab import DiscoveryCounts, discovery_counts, host_argv, write_machine_id
+from swarmd_lab.ros2_lab import (
+    DiscoveryCounts,
+    discovery_counts,
+    graph_datagrams,
+    graph_entity_ids,
+    host_argv,
+    write_machine_id,
+)
 
 NODE_S: Final = 20.0  # how long each node runs (from the end of discovery)
 CAPTURE_START_S: Final = 10.0
@@ -37,6 +47,7 @@ class Ros2Result:
     listener: dict[str, Any] | None  # the listener's JSON line (swarmd_lab.ros2_node)
     talkers: int
     counts: DiscoveryCounts | None
+    graph: int | None = None  # rmw's ros_discovery_info datagrams on the link (0 expected)
 
     @property
     def ok(self) -> bool:
@@ -48,6 +59,7 @@ class Ros2Result:
             and bool(self.listener.get("answers"))
             and self.counts.ros2_spdp == 0
             and self.counts.ros2_sedp == 0
+            and not self.graph
         )
 
     def lines(self) -> list[str]:
@@ -64,7 +76,9 @@ class Ros2Result:
         if c is not None:
             out.append(
                 f"on the link from the drones: ROS 2 SPDP {c.ros2_spdp}, ROS 2 SEDP "
-                f"{c.ros2_sedp}; swarmd's own SPDP {c.spdp_swarmd}; RTPS in all {c.rtps}"
+                f"{c.ros2_sedp}, ROS 2 graph (ros_discovery_info) "
+                f"{'-' if self.graph is None else self.graph}; swarmd's own SPDP "
+                f"{c.spdp_swarmd}; RTPS in all {c.rtps}"
             )
         return out
 
@@ -79,6 +93,7 @@ class Ros2Result:
                 "rtps": c.rtps,
                 "ros2_spdp": c.ros2_spdp,
                 "ros2_sedp": c.ros2_sedp,
+                "ros2_graph": self.graph,
                 "swarmd_spdp": c.spdp_swarmd,
             },
         }
@@ -168,11 +183,17 @@ class Ros2Demo:
             if d.role == "commander":
                 listener = _last_json(self.s.log_path(d, "ros2"))
         counts = None
+        graph = None
         if self.pcap.exists():
+            senders = frozenset(d.address for d in self.s.drones)
             with contextlib.suppress(subprocess.SubprocessError, OSError):
-                counts = discovery_counts(self.pcap, frozenset(d.address for d in self.s.drones))
+                counts = discovery_counts(self.pcap, senders)
+            with contextlib.suppress(subprocess.SubprocessError, OSError, BundleError):
+                bundle = load_bundle(self.s.bundle_path, self.s.trusted_key, allow_dev=True)
+                ids = graph_entity_ids(bundle_ros2_participants(bundle))
+                graph = graph_datagrams(self.pcap, ids, senders)
         talkers = sum(1 for d in self.s.drones if d.role != "commander")
-        return Ros2Result(listener, talkers, counts)
+        return Ros2Result(listener, talkers, counts, graph)
 
     def stop_capture(self) -> None:
         if self._capture is not None and self._capture.poll() is None:
