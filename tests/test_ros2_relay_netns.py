@@ -266,10 +266,12 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     for sock in attacker_rx:
         sock.close()
     counts = discovery_counts(pcap, frozenset(lan[i].address for i in range(3)))
+    ros2_participants = bundle_ros2_participants(files.bundle)
     graph = ros2_lab.graph_datagrams(
         pcap,
-        ros2_lab.graph_entity_ids(bundle_ros2_participants(files.bundle)),
+        ros2_lab.graph_entity_ids(ros2_participants),
         frozenset(lan[i].address for i in range(3)),
+        ros2_lab.ros2_ports(ros2_participants),
     )
     forged = discovery_counts(pcap, frozenset({outsider.address}))
     print(f"\nrelay counters: {[st['ros2']['counters'] for st in statuses]}")

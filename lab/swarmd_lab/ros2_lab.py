@@ -155,6 +155,11 @@ def start_capture(hub: str, bridge: str, pcap: Path, timeout_s: float) -> subpro
     raise RuntimeError(f"tshark did not start capturing on {bridge} in {hub}")
 
 
+def ros2_ports(participants: Iterable[Ros2Participant]) -> frozenset[int]:
+    """Every port the bundle gives a ROS 2 participant (metatraffic and user data)."""
+    return frozenset(port for p in participants for port in (p.metatraffic_port, p.user_port))
+
+
 def graph_entity_ids(participants: Iterable[Ros2Participant]) -> frozenset[str]:
     """The ``ros_discovery_info`` (rmw's graph topic) writer and reader entity ids of the
     bundle's participants, as tshark prints them (``0x00006c03``): the profile fixes every
@@ -168,9 +173,13 @@ def graph_entity_ids(participants: Iterable[Ros2Participant]) -> frozenset[str]:
     return frozenset(out)
 
 
-def graph_datagrams(pcap: Path, entity_ids: frozenset[str], senders: frozenset[str]) -> int:
-    """Datagrams from ``senders`` with a submessage to or from one of ``entity_ids``: ROS 2's
-    graph traffic (``ros_discovery_info`` DATA, HEARTBEAT, ACKNACK) on the captured link."""
+def graph_datagrams(
+    pcap: Path, entity_ids: frozenset[str], senders: frozenset[str], ports: frozenset[int]
+) -> int:
+    """Datagrams from ``senders`` to one of the ROS 2 participants' ``ports`` with a
+    submessage to or from one of ``entity_ids``: ROS 2's graph traffic (``ros_discovery_info``
+    DATA, HEARTBEAT, ACKNACK) on the captured link. The ports matter: entity ids are unique
+    only within a participant, and swarmd's own endpoints use small ones too."""
     result = subprocess.run(  # noqa: S603 - argv list
         [
             shutil.which("tshark") or "tshark",
@@ -185,6 +194,8 @@ def graph_datagrams(pcap: Path, entity_ids: frozenset[str], senders: frozenset[s
             "-e",
             "ip.src",
             "-e",
+            "udp.dstport",
+            "-e",
             "rtps.sm.wrEntityId",
             "-e",
             "rtps.sm.rdEntityId",
@@ -196,7 +207,9 @@ def graph_datagrams(pcap: Path, entity_ids: frozenset[str], senders: frozenset[s
     )
     count = 0
     for line in result.stdout.splitlines():
-        src, writers, readers = (line.split(";") + ["", ""])[:3]
-        if src in senders and (set(writers.split(",")) | set(readers.split(","))) & entity_ids:
+        src, port, writers, readers = (line.split(";") + ["", "", ""])[:4]
+        if src not in senders or not port.isdigit() or int(port) not in ports:
+            continue
+        if (set(writers.split(",")) | set(readers.split(","))) & entity_ids:
             count += 1
     return count

@@ -34,6 +34,7 @@ from swarmd_lab.ros2_lab import (
     graph_datagrams,
     graph_entity_ids,
     host_argv,
+    ros2_ports,
     write_machine_id,
 )
 
@@ -190,8 +191,9 @@ class Ros2Demo:
                 counts = discovery_counts(self.pcap, senders)
             with contextlib.suppress(subprocess.SubprocessError, OSError, BundleError):
                 bundle = load_bundle(self.s.bundle_path, self.s.trusted_key, allow_dev=True)
-                ids = graph_entity_ids(bundle_ros2_participants(bundle))
-                graph = graph_datagrams(self.pcap, ids, senders)
+                participants = bundle_ros2_participants(bundle)
+                ids = graph_entity_ids(participants)
+                graph = graph_datagrams(self.pcap, ids, senders, ros2_ports(participants))
         talkers = sum(1 for d in self.s.drones if d.role != "commander")
         return Ros2Result(listener, talkers, counts, graph)
 
