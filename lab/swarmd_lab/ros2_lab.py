@@ -76,41 +76,31 @@ class DiscoveryCounts:
         return self.sedp - self.sedp_swarmd
 
 
+def rtps_fields(pcap: Path, *fields: str) -> list[list[str]]:
+    """``fields`` of every RTPS datagram in the capture (tshark's RTPS dissector), one list
+    per datagram; a field with several submessages' values holds them comma-separated."""
+    argv = [shutil.which("tshark") or "tshark", "-r", str(pcap), "-Y", "rtps", "-T", "fields"]
+    argv += ["-E", "separator=;"]
+    for f in fields:
+        argv += ["-e", f]
+    result = subprocess.run(  # noqa: S603 - argv list
+        argv, capture_output=True, text=True, timeout=_TSHARK_TIMEOUT_S, check=True
+    )
+    return [
+        (line.split(";") + [""] * len(fields))[: len(fields)]
+        for line in result.stdout.splitlines()
+        if line.strip()
+    ]
+
+
 def discovery_counts(pcap: Path, senders: frozenset[str] | None = None) -> DiscoveryCounts:
     """Count the capture's RTPS datagrams by discovery kind (tshark's RTPS dissector);
     ``senders``: only datagrams from these IPv4 addresses (the drones, not an attacker)."""
-    result = subprocess.run(  # noqa: S603 - argv list
-        [
-            shutil.which("tshark") or "tshark",
-            "-r",
-            str(pcap),
-            "-Y",
-            "rtps",
-            "-T",
-            "fields",
-            "-E",
-            "separator=;",
-            "-e",
-            "ip.src",
-            "-e",
-            "ip.dst",
-            "-e",
-            "rtps.sm.wrEntityId",
-            "-e",
-            "rtps.sm.rdEntityId",
-            "-e",
-            "rtps.vendorId",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=_TSHARK_TIMEOUT_S,
-        check=True,
+    rows = rtps_fields(
+        pcap, "ip.src", "ip.dst", "rtps.sm.wrEntityId", "rtps.sm.rdEntityId", "rtps.vendorId"
     )
     rtps = spdp = sedp = multicast = spdp_swarmd = sedp_swarmd = 0
-    for line in result.stdout.splitlines():
-        if not line.strip():
-            continue
-        src, dst, writers, readers, vendor = (line.split(";") + ["", "", "", ""])[:5]
+    for src, dst, writers, readers, vendor in rows:
         if senders is not None and src not in senders:
             continue
         ids = set(writers.split(",")) | set(readers.split(","))
@@ -180,34 +170,9 @@ def graph_datagrams(
     submessage to or from one of ``entity_ids``: ROS 2's graph traffic (``ros_discovery_info``
     DATA, HEARTBEAT, ACKNACK) on the captured link. The ports matter: entity ids are unique
     only within a participant, and swarmd's own endpoints use small ones too."""
-    result = subprocess.run(  # noqa: S603 - argv list
-        [
-            shutil.which("tshark") or "tshark",
-            "-r",
-            str(pcap),
-            "-Y",
-            "rtps",
-            "-T",
-            "fields",
-            "-E",
-            "separator=;",
-            "-e",
-            "ip.src",
-            "-e",
-            "udp.dstport",
-            "-e",
-            "rtps.sm.wrEntityId",
-            "-e",
-            "rtps.sm.rdEntityId",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=_TSHARK_TIMEOUT_S,
-        check=True,
-    )
+    rows = rtps_fields(pcap, "ip.src", "udp.dstport", "rtps.sm.wrEntityId", "rtps.sm.rdEntityId")
     count = 0
-    for line in result.stdout.splitlines():
-        src, port, writers, readers = (line.split(";") + ["", "", ""])[:4]
+    for src, port, writers, readers in rows:
         if src not in senders or not port.isdigit() or int(port) not in ports:
             continue
         if (set(writers.split(",")) | set(readers.split(","))) & entity_ids:
