@@ -274,3 +274,32 @@ def test_a_vehicle_log_gives_its_arms_and_mode_changes(tmp_path: Path) -> None:
         ["disarmed", None],
     ]
     assert events[0][0] == pytest.approx(25.5)
+
+
+def test_a_member_that_restarted_while_the_command_was_valid_is_counted_apart() -> None:
+    """The reboot scenario's hold: sent while uav3's daemon is down, valid past its restart.
+    The new life is not handed the earlier life's copy (it may have run there) and swarmctl
+    says ``unreachable``: by design, not a false report; a restart that is not followed by
+    that report still counts."""
+    truth = _truth(3, set(), (0.0, 0.0))
+    down = {2: [(40.0, 45.0)]}
+    hold = _command(41.0, 10.0, {2: "unreachable"}, {})
+    assert flight_commands.reach(truth, down, 2, 41.0, 51.0) == "reachable"
+    m = flight_commands.measure([hold], truth, down)
+    assert m["restarted_not_resent"] == 1
+    assert m["reported_unreachable_but_reachable"] == 0
+    assert m["reachable_not_executed"] == 0
+    # without the restart the same report is false
+    m = flight_commands.measure([hold], truth, {})
+    assert m["reported_unreachable_but_reachable"] == 1 and m["restarted_not_resent"] == 0
+
+
+def test_a_member_out_of_range_by_the_truth_that_ran_in_time_was_reached() -> None:
+    """The fading drone is in range 2.2 s of every 8 s: a hold can reach it in a window the
+    truth's 0.5 s step does not show. Ran in time and reported completed: right; ran late
+    is still counted (test above)."""
+    truth = _truth(3, {2}, (20.0, 60.0))
+    hold = _command(30.0, 10.0, {1: "completed", 2: "completed"}, {1: [30.1], 2: [33.0]})
+    m = flight_commands.measure([hold], truth, {})
+    assert m["unreached_not_reported"] == 0
+    assert m["ran_while_truth_out_of_range"] == 1

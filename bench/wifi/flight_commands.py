@@ -33,11 +33,17 @@ both daemons up, ``flight_measures.reachable``): ``reachable`` if that held for 
   the stamping delay of a log line) (target 0);
 - ``reported_unreachable_but_reachable``: swarmctl said ``unreachable`` for a member that
   was ``reachable`` (target 0);
-- ``unreached_not_reported``: a member ``unreachable`` throughout the validity that swarmctl
-  did not report ``unreachable`` or ``refused`` (target 0);
+- ``unreached_not_reported``: a member ``unreachable`` throughout the validity that did not
+  run it in time and that swarmctl did not report ``unreachable`` or ``refused`` (target 0);
 - ``reported_ran_not_executed``: swarmctl said ``accepted``/``completed`` and the member's
   journal has no ``command_received`` (target 0);
 - ``reachable_not_executed``: reachable members that did not run it (the delivery gap);
+- ``restarted_not_resent``: members whose daemon restarted while the command was valid,
+  reported ``unreachable`` and not run: the copy for the earlier life is not handed to the
+  new one (it may have run there: exactly once first; docs/dataplane.md), by design, not
+  counted as a false ``unreachable`` or a delivery gap;
+- ``ran_while_truth_out_of_range``: members the truth has ``unreachable`` that ran it in time
+  (reached in a window shorter than the truth's step): not counted as unreported;
 - ``delivery_latency_s``: issue to ``command_received`` at the members that were reachable.
 """
 
@@ -353,6 +359,8 @@ def measure(
     not_reported: list[list[Any]] = []
     ran_not_executed: list[list[Any]] = []
     reachable_missed: list[list[Any]] = []
+    not_resent: list[list[Any]] = []
+    ran_out_of_range: list[list[Any]] = []
     latency: list[float] = []
     pairs = 0
     classes = {"reachable": 0, "marginal": 0, "unreachable": 0}
@@ -374,16 +382,29 @@ def measure(
                 twice.append([cid, m, ran])
             if any(t > deadline + LATE_TOLERANCE_S for t in ran):
                 late.append([cid, m, ran, round(deadline, 3)])
-            if state == "unreachable" and kind == "reachable":
+            in_time = [t for t in ran if t <= deadline + LATE_TOLERANCE_S]
+            # the member's daemon started a new life while the command was valid: the copy
+            # addressed to the earlier life is not handed to the new one (docs/dataplane.md,
+            # "Rejoining while a command is valid": it may have run there) and the operator
+            # is told `unreachable`; by design, counted apart
+            restarted = any(a < deadline and b > float(issued) for a, b in down.get(m, ()))
+            if restarted and state == "unreachable" and not ran:
+                not_resent.append([cid, m])
+            elif state == "unreachable" and kind == "reachable":
                 false_unreachable.append([cid, m])
-            if kind == "unreachable" and state not in REPORTED_UNREACHED:
+            # a member the truth has out of range that ran the command in time was reached (in
+            # a window shorter than the truth's step, or below its -82 dBm edge): the report
+            # that it ran is right
+            if kind == "unreachable" and state not in REPORTED_UNREACHED and not in_time:
                 not_reported.append([cid, m, state])
+            if kind == "unreachable" and in_time:
+                ran_out_of_range.append([cid, m])
             if state in REPORTED_RAN and not ran:
                 ran_not_executed.append([cid, m, state])
             if kind == "reachable":
                 if ran:
                     latency.append(ran[0] - float(issued))
-                else:
+                elif [cid, m] not in not_resent:
                     reachable_missed.append([cid, m, state])
     return {
         "commands": len(commands),
@@ -396,6 +417,8 @@ def measure(
         "unreached_not_reported": len(not_reported),
         "reported_ran_not_executed": len(ran_not_executed),
         "reachable_not_executed": len(reachable_missed),
+        "restarted_not_resent": len(not_resent),
+        "ran_while_truth_out_of_range": len(ran_out_of_range),
         "delivery_latency_s": flight_measures._summary(latency),
         "examples": {
             "twice": twice[:10],
@@ -404,6 +427,8 @@ def measure(
             "unreached_not_reported": not_reported[:10],
             "reported_ran_not_executed": ran_not_executed[:10],
             "reachable_not_executed": reachable_missed[:10],
+            "restarted_not_resent": not_resent[:10],
+            "ran_while_truth_out_of_range": ran_out_of_range[:10],
         },
     }
 
