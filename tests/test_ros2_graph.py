@@ -15,17 +15,27 @@ from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Participant, bundle_ros2_participants
 from swarmd.ros2.graph import (
+    GRAPH_READER_PORT_TOP,
+    LOOPBACK4,
     MIN_RESEND_S,
-    GraphWriter,
+    UNIQUE_FLOW_SPAN,
+    GraphParticipant,
     decode_entities_info,
     encode_entities_info,
     entities_info,
     graph_endpoint_id,
+    graph_participant_prefix,
+    graph_reader_port,
+    graph_writer_user_id,
 )
+from swarmd.ros2.profile import drone_profiles
+from swarmd.ros2.relay import Ros2Relay
 from swarmd.rtps.errors import DecodeError
+from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import (
     AckNack,
     Data,
+    Gap,
     Header,
     Heartbeat,
     InfoDst,
@@ -33,7 +43,8 @@ from swarmd.rtps.message import (
     decode_message,
     encode_message,
 )
-from swarmd.rtps.types import GuidPrefix, ProtocolVersion, VendorId
+from swarmd.rtps.spdp import SpdpAlive, decode_spdp
+from swarmd.rtps.types import EntityId, GuidPrefix, ProtocolVersion, VendorId
 
 REPO = Path(__file__).resolve().parent.parent
 MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
@@ -96,15 +107,37 @@ def test_the_bundles_samples_round_trip(p: Ros2Participant) -> None:
     assert len(node.reader_gids) + len(node.writer_gids) == len(p.endpoints) - 2
 
 
-def _acknack(local: Ros2Participant, remote: Ros2Participant, base: int, bits: list[int]) -> bytes:
+G_PREFIX = graph_participant_prefix(bytes(range(1, 11)))
+
+
+def _graph(participants: tuple[Ros2Participant, ...]) -> GraphParticipant:
+    return GraphParticipant(
+        participants,
+        "lead",
+        prefix=G_PREFIX,
+        relay_locator=Locator.udpv6("::1", 7399),
+        domain_id=0,
+        lease_s=20.0,
+        epoch=EPOCH,
+    )
+
+
+def _acknack(
+    local: Ros2Participant,
+    writer_id: EntityId,
+    base: int,
+    bits: list[int],
+    *,
+    reader_id: EntityId | None = None,
+) -> bytes:
     header = Header(ProtocolVersion(2, 3), VendorId(b"\x01\x0f"), GuidPrefix(local.guid_prefix))
     return encode_message(
         header,
         [
-            InfoDst(GuidPrefix(remote.guid_prefix)),
+            InfoDst(G_PREFIX),
             AckNack(
-                graph_endpoint_id(local, Ros2EndpointKind.READER),
-                graph_endpoint_id(remote, Ros2EndpointKind.WRITER),
+                reader_id or graph_endpoint_id(local, Ros2EndpointKind.READER),
+                writer_id,
                 SequenceNumberSet.of(base, bits, num_bits=len(bits) and (max(bits) - base + 1)),
                 1,
             ),
@@ -112,58 +145,159 @@ def _acknack(local: Ros2Participant, remote: Ros2Participant, base: int, bits: l
     )
 
 
-def test_writer_offers_heartbeats_until_acknowledged_and_answers_acknacks() -> None:
+def _submessages(out: list[tuple[bytes, tuple[str, int]]]) -> list[object]:
+    return [sm for d, _ in out for sm in decode_message(d).submessages]
+
+
+def test_the_sample_follows_the_readers_acknack_and_heartbeats_stop_once_acknowledged() -> None:
     participants = _participants()
     lead = next(p for p in participants if p.drone == "lead")
     remote = next(p for p in participants if p.drone == "drone-1")
-    writer = GraphWriter(participants, "lead", period_s=5.0, epoch=EPOCH)
-    assert writer.get_timer() is None
-    writer.remote_up("drone-1", 0.0)
-    out = writer.datagrams_to_send()
-    assert {dest for _, dest in out} == {("::1", lead.user_port)}
-    first = decode_message(out[0][0])
-    assert first.header.guid_prefix == GuidPrefix(remote.guid_prefix)
-    data = next(sm for sm in first.submessages if isinstance(sm, Data))
-    assert data.writer_id == graph_endpoint_id(remote, Ros2EndpointKind.WRITER)
-    assert data.writer_sn == (EPOCH << 32) + 1
+    graph = _graph(participants)
+    assert graph.get_timer() is None
+    graph.publish(GuidPrefix(remote.guid_prefix), 0.0)
+    out = graph.datagrams_to_send()
+    # a HEARTBEAT offers it to every local node's graph reader, at its unique-flow port
+    assert {dest for _, dest in out} == {(LOOPBACK4, graph_reader_port(lead, participants))}
+    assert [type(sm) for sm in _submessages(out)] == [InfoDst, Heartbeat]
+    assert decode_message(out[0][0]).header.guid_prefix == G_PREFIX
+    # the reader's preemptive ACKNACK (it matched the writer): DATA numbered from 1
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 0, []), 0.1)
+    sms = _submessages(graph.datagrams_to_send())
+    data = next(sm for sm in sms if isinstance(sm, Data))
+    assert data.writer_id == graph.writer_id and data.writer_sn == 1
     assert data.serialized_payload is not None
     assert decode_entities_info(data.serialized_payload) == entities_info(remote)
     # not acknowledged: heartbeats, backing off
-    t1 = writer.get_timer()
-    assert t1 is not None and t1 == pytest.approx(0.5)
-    writer.handle_timer(t1)
-    hb = [sm for d, _ in writer.datagrams_to_send() for sm in decode_message(d).submessages]
-    assert [type(sm) for sm in hb] == [InfoDst, Heartbeat]
-    assert writer.get_timer() == pytest.approx(t1 + 1.0)
-    sn = (EPOCH << 32) + 1
+    t1 = graph.get_timer()
+    assert t1 is not None
+    graph.handle_timer(t1)
+    assert [type(sm) for sm in _submessages(graph.datagrams_to_send())] == [InfoDst, Heartbeat]
+    t2 = graph.get_timer()
+    assert t2 is not None and t2 - t1 > 0.5
     # a NACK of the sample: DATA again, once per MIN_RESEND_S
-    assert writer.receive_datagram(_acknack(lead, remote, sn, [sn]), 2.0)
-    assert len(writer.datagrams_to_send()) == 1
-    assert writer.receive_datagram(_acknack(lead, remote, sn, [sn]), 2.0 + MIN_RESEND_S / 2)
-    assert writer.datagrams_to_send() == []
-    assert writer.counters["graph_resend_limited"] == 1
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1]), 2.0)
+    assert any(isinstance(sm, Data) for sm in _submessages(graph.datagrams_to_send()))
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1]), 2.0 + MIN_RESEND_S / 2)
+    assert graph.datagrams_to_send() == []
+    assert graph.counters["graph_resend_limited"] == 1
     # acknowledged: no more heartbeats
-    assert writer.receive_datagram(_acknack(lead, remote, sn + 1, []), 3.0)
-    assert writer.get_timer() is None
-    # lost: nothing served for it, its ACKNACKs ignored
-    writer.remote_down("drone-1")
-    assert writer.receive_datagram(_acknack(lead, remote, sn, [sn]), 4.0)
-    assert writer.datagrams_to_send() == []
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 2, []), 3.0)
+    assert graph.get_timer() is None
+    assert graph.status()["readers_up_to_date"] == 1
 
 
-def test_an_acknack_from_a_foreign_prefix_or_for_an_unknown_writer_moves_nothing() -> None:
+def test_a_replaced_sample_is_a_gap_and_a_withdrawn_one_is_no_longer_offered() -> None:
+    participants = _participants()
+    lead = next(p for p in participants if p.drone == "lead")
+    one, two = (GuidPrefix(p.guid_prefix) for p in participants if p.drone != "lead")
+    graph = _graph(participants)
+    graph.publish(one, 0.0)  # 1
+    graph.publish(two, 0.0)  # 2
+    graph.publish(two, 0.0)  # 3: drone-2 announced again, sample 2 is gone
+    graph.datagrams_to_send()
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1, 2, 3]), 1.0)
+    sms = _submessages(graph.datagrams_to_send())
+    assert [sm.writer_sn for sm in sms if isinstance(sm, Data)] == [1, 3]
+    gap = next(sm for sm in sms if isinstance(sm, Gap))
+    assert (gap.gap_start, gap.gap_list.base, gap.gap_list.num_bits) == (2, 3, 0)
+    # withdrawn (the relay disposed the participants): nothing offered, the heartbeat
+    # says so (first = last + 1, DDSI-RTPS 8.3.7.5) and a NACK gets no DATA
+    graph.withdraw(one)
+    graph.withdraw(two)
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1, 3]), 2.0)
+    sms = _submessages(graph.datagrams_to_send())
+    assert not any(isinstance(sm, Data) for sm in sms)
+    hb = next(sm for sm in sms if isinstance(sm, Heartbeat))
+    assert (hb.first_sn, hb.last_sn) == (4, 3)
+
+
+def test_sequence_numbers_start_at_one_whatever_the_epoch() -> None:
+    # Fast DDS's reader walks the numbers below a writer's first one: a first sample at
+    # epoch << 32 hung a real node (docs/ros2.md "Graph preloading")
+    participants = _participants()
+    remote = next(p for p in participants if p.drone == "drone-1")
+    graph = _graph(participants)
+    graph.publish(GuidPrefix(remote.guid_prefix), 0.0)
+    hb = next(sm for sm in _submessages(graph.datagrams_to_send()) if isinstance(sm, Heartbeat))
+    assert (hb.first_sn, hb.last_sn, hb.count) == (1, 1, 1)
+
+
+def test_acknacks_from_elsewhere_move_nothing() -> None:
     participants = _participants()
     lead = next(p for p in participants if p.drone == "lead")
     remote = next(p for p in participants if p.drone == "drone-1")
-    writer = GraphWriter(participants, "lead", period_s=5.0, epoch=EPOCH)
-    writer.remote_up("drone-1", 0.0)
-    writer.datagrams_to_send()
-    sn = (EPOCH << 32) + 1
-    # from drone-1's own prefix (not a local node): counted, nothing sent
-    assert writer.receive_datagram(_acknack(remote, remote, sn + 1, []), 1.0)
-    assert writer.counters["graph_rx_ignored"] == 1
-    assert writer.get_timer() is not None  # still not acknowledged
-    # for a writer no bundle has: not ours
-    assert not writer.receive_datagram(_acknack(lead, lead, sn, [sn]), 1.0)
-    assert not writer.receive_datagram(b"RTPS garbage", 1.0)
-    assert writer.datagrams_to_send() == []
+    graph = _graph(participants)
+    graph.publish(GuidPrefix(remote.guid_prefix), 0.0)
+    graph.datagrams_to_send()
+    # from a remote drone's prefix, or another reader of the lead's node: counted, ignored
+    assert graph.receive_datagram(_acknack(remote, graph.writer_id, 2, []), 1.0)
+    other_reader = EntityId(b"\x00\x00\x99\x04")
+    assert graph.receive_datagram(
+        _acknack(lead, graph.writer_id, 2, [], reader_id=other_reader), 1.0
+    )
+    assert graph.counters["graph_rx_ignored"] == 2
+    assert graph.status()["readers_up_to_date"] == 0
+    # for another writer, or not RTPS: not the graph's (the relay counts it)
+    assert not graph.receive_datagram(
+        _acknack(lead, graph_endpoint_id(remote, Ros2EndpointKind.WRITER), 1, [1]), 1.0
+    )
+    assert not graph.receive_datagram(b"RTPS garbage", 1.0)
+    assert graph.datagrams_to_send() == []
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=200))
+def test_arbitrary_datagrams_never_raise(data: bytes) -> None:
+    graph = _graph(_participants())
+    graph.receive_datagram(b"RTPS\x02\x03\x01\x0f" + data, 0.0)
+    graph.receive_datagram(data, 0.0)
+
+
+def test_the_relay_announces_the_graph_participant_and_withdraws_with_the_drone() -> None:
+    participants = _participants()
+    lead = next(p for p in participants if p.drone == "lead")
+    relay = Ros2Relay(participants, "lead", domain_id=0, lease_s=20.0, graph_prefix=G_PREFIX)
+    assert relay.graph is not None
+    relay.peer_discovered("drone-1", "10.0.0.2", 0.0)
+    out = relay.datagrams_to_send()
+    to_node = [d for d, dest in out if dest == ("::1", lead.metatraffic_port)]
+    announced = {
+        s.participant.guid_prefix: s.participant
+        for d in to_node
+        for s in decode_spdp(d)[1]
+        if isinstance(s, SpdpAlive)
+    }
+    g = announced[G_PREFIX]
+    uid = graph_writer_user_id(participants)
+    assert g.properties == ((f"eProsimaEDPStatic_Writer_ALIVE_ID_{uid}", f"0.0.{uid}.3"),)
+    assert g.default_unicast_locators == (Locator.udpv6("::1", 7399),)
+    assert relay.graph.status()["samples"] == len([p for p in participants if p.drone == "drone-1"])
+    relay.peer_lost("drone-1", 1.0)
+    assert relay.graph.status()["samples"] == 0
+
+
+def test_the_relay_route_profile_places_the_graph_reader_and_lists_the_graph_writer() -> None:
+    bundle = build_dev_bundle(parse_mission(MISSION)).bundle
+    participants = bundle_ros2_participants(bundle)
+    assert bundle.ros2 is not None
+    addresses = {p.name: f"10.0.0.{p.index + 1}" for p in bundle.participants}
+    lead = next(p for p in participants if p.drone == "lead")
+    files = {
+        f.path: f.text
+        for f in drone_profiles(
+            bundle.ros2, participants, addresses, "lead", "/etc/swarmd/ros2", relay_port=7399
+        )
+    }
+    xml = files[f"lead/{lead.node.name}.xml"]
+    assert graph_reader_port(lead, participants) == GRAPH_READER_PORT_TOP
+    assert f"<portBase>{GRAPH_READER_PORT_TOP + UNIQUE_FLOW_SPAN}</portBase>" in xml
+    uid = graph_writer_user_id(participants)
+    assert f"<userId>{uid}</userId>" in files["lead/static-edp.xml"]
+    # the plain route has neither
+    plain = {
+        f.path: f.text
+        for f in drone_profiles(bundle.ros2, participants, addresses, "lead", "/etc/swarmd/ros2")
+    }
+    assert "portBase" not in plain[f"lead/{lead.node.name}.xml"]
+    assert f"<userId>{uid}</userId>" not in plain["lead/static-edp.xml"]

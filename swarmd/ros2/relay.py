@@ -136,8 +136,8 @@ def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
     the nodes of one drone, so no node sends its graph updates (every entity it creates,
     reliable and transient-local, to every node of the swarm: the busiest second of the
     relay route on the testbed, docs/ros2.md "Graph traffic") over the Wi-Fi. Topics,
-    publisher counts and service readiness still come from static EDP; other drones' node
-    names are what swarmctl status shows."""
+    publisher counts and service readiness still come from static EDP; the other drones' node
+    names come from swarmd's graph participant (swarmd.ros2.graph)."""
     out: list[tuple[str, str]] = []
     for i, e in enumerate(p.endpoints):
         if e.dds_topic == GRAPH_TOPIC:
