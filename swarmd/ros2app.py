@@ -14,6 +14,7 @@ nodes").
 from __future__ import annotations
 
 import asyncio
+import secrets
 import socket
 from collections.abc import Callable
 from typing import Any
@@ -23,6 +24,7 @@ from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.config import DaemonConfig
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_OSERR, StartupError
+from swarmd.ros2.graph import GRAPH_PREFIX_RANDOM_BYTES, LOOPBACK4, graph_participant_prefix
 from swarmd.ros2.relay import (
     LOOPBACK,
     LocalLivenessChanged,
@@ -72,8 +74,11 @@ class Ros2App:
             lease_s=config.ros2.lease_s,
             relay_port=config.ros2.relay_port,
             epoch=epoch,
+            # the graph writer's GUID is a secret of this drone (swarmd.ros2.graph, "Trust")
+            graph_prefix=graph_participant_prefix(secrets.token_bytes(GRAPH_PREFIX_RANDOM_BYTES)),
         )
         self.transport: BatchedSocket | None = None
+        self.transport4: BatchedSocket | None = None
         self.driver: Driver[bytes, Datagram, RelayEvent] | None = None
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -101,9 +106,30 @@ class Ros2App:
             ) from None
         transport = BatchedSocket(sock, "ros2_relay", self._received, self.count, loop)
         self.transport = transport
+        # the graph samples go to the nodes' unique-flow readers, UDPv4 on 127.0.0.1
+        # (swarmd.ros2.graph): a send-only socket bound there, any port; the kernel delivers
+        # 127.0.0.0/8 from lo only
+        sock4 = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock4.setblocking(False)
+            sock4.bind((LOOPBACK4, 0))
+        except OSError as exc:
+            sock4.close()
+            transport.close()
+            raise StartupError(
+                f"{self.config.file}: ros2.relay: cannot bind {LOOPBACK4} ({exc.strerror}); "
+                "fix: bring up lo with 127.0.0.1 (docs/ros2.md)",
+                EX_OSERR,
+            ) from None
+        transport4 = BatchedSocket(sock4, "ros2_graph", self._ignored, self.count, loop)
+        self.transport4 = transport4
+
+        def transmit(out: tuple[bytes, tuple[str, int]]) -> None:
+            (transport4 if out[1][0] == LOOPBACK4 else transport).sendto(out[0], out[1])
+
         self.driver = Driver(
             self.relay,
-            transmit=lambda out: transport.sendto(out[0], out[1]),
+            transmit=transmit,
             on_event=self._on_event,
             name="ros2_relay",
             log=self.log,
@@ -121,6 +147,9 @@ class Ros2App:
         if self.transport is not None:
             self.transport.close()
             self.transport = None
+        if self.transport4 is not None:
+            self.transport4.close()
+            self.transport4 = None
 
     # ---- discovery's authenticated peers -------------------------------------------------
 
@@ -145,6 +174,12 @@ class Ros2App:
         return self.relay.status(now)
 
     # ---- internals -----------------------------------------------------------------------
+
+    def _ignored(self, batch: list[Datagram], via: str) -> None:
+        """The send-only socket reads nothing (a local process writing to it is counted)."""
+        del via
+        for _ in batch:
+            self.count("ros2_graph_rx_ignored")
 
     def _received(self, batch: list[Datagram], via: str) -> None:
         if self.driver is not None:

@@ -37,6 +37,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="listener: append a JSON line to PATH whenever its subscription's matched "
         "publisher count changes (a remote node disposed or announced again)",
     )
+    parser.add_argument(
+        "--graph-every",
+        type=float,
+        metavar="S",
+        help="print the node's view of the ROS 2 graph every S seconds as a JSON line "
+        '({"graph": t, "nodes": [...], "publishers": N})',
+    )
     args = parser.parse_args(argv)
 
     import rclpy
@@ -89,8 +96,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         node.create_publisher(String, args.undeclared, 10)
     future = None
     end = start + args.seconds
+    next_graph = start
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.1)
+        if args.graph_every and time.monotonic() >= next_graph:
+            next_graph += args.graph_every
+            names = node.get_node_names_and_namespaces()
+            snapshot = {
+                "graph": round(time.monotonic() - start, 2),
+                "nodes": sorted(f"{ns.rstrip('/')}/{n}" for n, ns in names),
+                "publishers": node.count_publishers(args.topic),
+            }
+            print(json.dumps(snapshot), flush=True)
         if args.role == "listener" and args.matched_log:
             count = subscription.get_publisher_count()
             if count != matched:

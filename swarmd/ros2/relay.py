@@ -54,6 +54,7 @@ from swarmd.bundle.ros2 import (
     Ros2EndpointKind,
     Ros2Participant,
 )
+from swarmd.ros2.graph import GraphParticipant
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import Data, Heartbeat, decode_message
@@ -135,8 +136,8 @@ def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
     the nodes of one drone, so no node sends its graph updates (every entity it creates,
     reliable and transient-local, to every node of the swarm: the busiest second of the
     relay route on the testbed, docs/ros2.md "Graph traffic") over the Wi-Fi. Topics,
-    publisher counts and service readiness still come from static EDP; other drones' node
-    names are what swarmctl status shows."""
+    publisher counts and service readiness still come from static EDP; the other drones' node
+    names come from swarmd's graph participant (swarmd.ros2.graph)."""
     out: list[tuple[str, str]] = []
     for i, e in enumerate(p.endpoints):
         if e.dds_topic == GRAPH_TOPIC:
@@ -274,7 +275,10 @@ class Ros2Relay:
         relay_port: int = DEFAULT_RELAY_PORT,
         epoch: int = 0,
         loopback: str = LOOPBACK,
+        graph_prefix: GuidPrefix | None = None,
     ) -> None:
+        """``graph_prefix``: the GUID prefix of swarmd's graph participant (drawn at random
+        by the caller, swarmd.ros2.graph); None serves no node names."""
         if lease_s <= 0:
             raise ValueError("ros2 relay lease must be positive")
         self.drone = drone
@@ -315,6 +319,18 @@ class Ros2Relay:
         self._out: list[tuple[bytes, tuple[str, int]]] = []
         self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
         self._next_renewal: float | None = None
+        self.graph: GraphParticipant | None = None
+        if graph_prefix is not None:
+            graph = GraphParticipant(
+                participants,
+                drone,
+                prefix=graph_prefix,
+                relay_locator=self._relay_locator,
+                domain_id=domain_id,
+                lease_s=lease_s,
+                epoch=epoch,
+            )
+            self.graph = graph if graph.enabled else None
         self.counters: dict[str, int] = {
             "rx": 0,
             "rx_malformed": 0,
@@ -342,6 +358,8 @@ class Ros2Relay:
             self.counters["rx_malformed"] += 1
             return
         if not samples:
+            if self.graph is not None and self.graph.receive_datagram(data, now):
+                return  # an ACKNACK to swarmd's graph writer
             # what else a node sends its peers' discovery side: WLP (DDSI-RTPS 8.4.13) if
             # a relayed participant announced a WLP reader (it does not), else anything
             self.counters["rx_wlp" if _is_wlp(data) else "rx_not_spdp"] += 1
@@ -365,15 +383,22 @@ class Ros2Relay:
                 self._set_local_alive(local, False)
         if self._next_renewal is not None and now >= self._next_renewal:
             self._renew_all(now)
+        if self.graph is not None:
+            self.graph.handle_timer(now)
 
     def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
         out, self._out = self._out, []
+        if self.graph is not None:
+            out += self.graph.datagrams_to_send()
         return out
 
     def get_timer(self) -> float | None:
         deadlines = [u.alive_until for u in self._local.values() if u.alive_until is not None]
         if self._next_renewal is not None:
             deadlines.append(self._next_renewal)
+        graph_due = self.graph.get_timer() if self.graph is not None else None
+        if graph_due is not None:
+            deadlines.append(graph_due)
         return min(deadlines, default=None)
 
     def alive_bitmap(self) -> bytes:
@@ -401,8 +426,11 @@ class Ros2Relay:
             return
         self._present[drone] = _Remote(drone, address, now)
         self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True))
+        self._send_graph_spdp(None)
         for p in self._alive_remote(drone):
             self._send_alive(p, address, now)
+            if self.graph is not None:
+                self.graph.publish(GuidPrefix(p.guid_prefix), now)
         if self._next_renewal is None:
             self._next_renewal = now + self.period_s
 
@@ -441,7 +469,10 @@ class Ros2Relay:
             if present is None:
                 continue  # announced (or not) when swarmd finds the drone
             if up:
+                self._send_graph_spdp(None)
                 self._send_alive(p, present.address, now)
+                if self.graph is not None:
+                    self.graph.publish(GuidPrefix(p.guid_prefix), now)
             else:
                 self._send_dispose(p)
 
@@ -525,7 +556,9 @@ class Ros2Relay:
                 }
                 for u in self._unknown.values()
             ],
-            "counters": dict(self.counters),
+            "counters": dict(self.counters)
+            | (self.graph.counters if self.graph is not None else {}),
+            "graph": self.graph.status() if self.graph is not None else None,
         }
 
     # ---- internals ---------------------------------------------------------------------------
@@ -543,8 +576,20 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_spdp"] += 1
 
+    def _send_graph_spdp(self, local: _Local | None) -> None:
+        """swarmd's graph participant's DATA(p) to ``local`` (None: every local node)."""
+        if self.graph is None:
+            return
+        datagram = encode_spdp(self.graph.spdp(), sequence_number=self._next_sn(), timestamp=None)
+        targets = self._local.values() if local is None else (local,)
+        for target in targets:
+            self._out.append((datagram, (self.loopback, target.participant.metatraffic_port)))
+            self.counters["tx_spdp"] += 1
+
     def _send_all_to(self, local: _Local) -> None:
         port = local.participant.metatraffic_port
+        if self._present:
+            self._send_graph_spdp(local)
         for drone, present in self._present.items():
             for p in self._alive_remote(drone):
                 datagram = encode_spdp(
@@ -563,6 +608,8 @@ class Ros2Relay:
         return [p for p, up in zip(remote, alive, strict=True) if up]
 
     def _send_dispose(self, p: Ros2Participant) -> None:
+        if self.graph is not None:
+            self.graph.withdraw(GuidPrefix(p.guid_prefix))
         datagram = encode_spdp_dispose(
             GuidPrefix(p.guid_prefix),
             sequence_number=self._next_sn(),
@@ -584,6 +631,8 @@ class Ros2Relay:
         self._events.append(LocalLivenessChanged(self.alive_bitmap(), p.node.name, alive))
 
     def _renew_all(self, now: float) -> None:
+        if self._present:
+            self._send_graph_spdp(None)
         for drone, present in self._present.items():
             for p in self._alive_remote(drone):
                 self._send_alive(p, present.address, now)
@@ -619,6 +668,8 @@ class Ros2Relay:
             p = local.participant
             self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
             local.answers_left = START_ANSWERS
+            if self.graph is not None:
+                self.graph.local_restarted(prefix, now)
         if local.answers_left > 0:
             local.answers_left -= 1
             self.counters["tx_start_answers"] += 1
