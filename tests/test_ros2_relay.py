@@ -363,3 +363,20 @@ def test_status_view_lists_local_remote_unknown_and_undeclared_rows_safely() -> 
     assert re.search(r"undeclared writer +id 65535 +entity 0\.0\.1\.3 +not in the bundle", text)
     assert "waiting for drone" in text and "relayed" in text
     assert "\x1b" not in text
+
+
+def test_status_view_shows_the_graph_participant_and_no_hostile_value() -> None:
+    view = render_status(
+        {
+            "ros2": {
+                "relay": "::1:7399",
+                "graph": {"samples": 2, "readers": 1, "readers_up_to_date": 1},
+            }
+        }
+    )
+    assert "ros2 graph: 2 node entries served to 1 local graph readers, 1 up to date" in view
+    hostile = render_status(
+        {"ros2": {"relay": "::1:7399", "graph": {"samples": "\x1b[2J", "readers": None}}}
+    )
+    assert "ros2 graph: - node entries served to - local graph readers, - up to date" in hostile
+    assert not any("\x1b" in line for line in hostile)

@@ -312,6 +312,14 @@ def render_ros2(ros2: Any) -> list[str]:
     if ros2.get("alive_bitmap") is not None:
         # what swarmd's signed DATA(p) tells the other drones (PID 0x8A06, docs/ros2.md)
         lines[0] += f"  alive bitmap {ros2['alive_bitmap']}"
+    graph = ros2.get("graph")
+    if isinstance(graph, dict):
+        # graph preloading (docs/ros2.md): the other drones' node names, served on loopback
+        lines.append(
+            f"ros2 graph: {_num(graph.get('samples'), '.0f')} node entries served to "
+            f"{_num(graph.get('readers'), '.0f')} local graph readers, "
+            f"{_num(graph.get('readers_up_to_date'), '.0f')} up to date"
+        )
     rows = []
     for r in local:
         rows.append(
