@@ -105,10 +105,11 @@ def parse_line(line: str, own: int, n: int, rejected: Rejected) -> PeerEvent | N
         table: list[tuple[int, int]] = []
         for k, v in counts.items():
             c = _index(v)
-            if not (isinstance(k, str) and k.isdigit() and c is not None and c >= 0):
+            digits = isinstance(k, str) and k.isascii() and k.isdigit() and len(k) <= 6
+            if not (digits and c is not None and c >= 0):
                 rejected.junk += 1
                 return None
-            m = int(k)
+            m = int(str(k))
             if not 0 < m < n:
                 rejected.foreign += 1
                 return None

@@ -110,7 +110,7 @@ def drone_index(raw: bytes | str) -> int | None:
     else (a discovery server, a foreign participant on the domain, junk)."""
     text = raw.decode("ascii", "replace") if isinstance(raw, bytes) else raw
     text = text.strip().rstrip("\x00")
-    return int(text) if text.isdigit() and len(text) <= 6 else None
+    return int(text) if text.isascii() and text.isdigit() and len(text) <= 6 else None
 
 
 class FlightEvents:
