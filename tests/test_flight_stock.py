@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.wifi import flight_events, flight_measures, flight_run
+from bench.wifi import flight, flight_events, flight_measures, flight_report, flight_run
 from bench.wifi.flight_events import PeerEvents, Rejected, parse_line
 from bench.wifi.peers.common import FlightEvents, Tally, drone_index
 
@@ -214,6 +214,19 @@ def test_drone_index_takes_ascii_decimals_only(raw: bytes | str, want: int | Non
 def test_every_stock_flight_contender_has_a_stated_loss_timer() -> None:
     for name in flight_run.FLIGHT_CONTENDERS:
         assert flight_run.LOSS_TIMER_S[name] > 0
+
+
+def test_the_table_puts_stock_rows_beside_swarmds_with_their_loss_timer() -> None:
+    m = flight_measures.measure(flight.make("split", 3).truth(), {}, {}, n=3, lease_s=10.0)
+    base = {"scenario": "split", "n": 3, "run": 1, "valid": True, "rt_lag_p99_ms": 0.5}
+    runs = [
+        {**base, "contender": c, "lease_s": flight_run.LOSS_TIMER_S[c], "measures": m,
+         "setup": {"dilation": 2.0}}
+        for c in ("zenoh", "swarmd", "cyclonedds")
+    ]  # fmt: skip
+    rows = flight_report.table(runs)[2:]
+    assert [r.split(" | ")[1] for r in rows] == ["swarmd", "cyclonedds", "zenoh"]
+    assert "| 2, 20 s |" in rows[0] and "| 2, 10 s |" in rows[1]
 
 
 def test_flight_run_refuses_a_contender_without_observer() -> None:
