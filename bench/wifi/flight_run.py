@@ -52,6 +52,7 @@ from bench.wifi.run import (
     Interrupted,
     _on_sigterm,
     _wait_ready,
+    hub_channel,
     parse_dilation,
     realtime_channel,
     source_commit,
@@ -85,27 +86,9 @@ def flight_channel(
     log: Path, env: Mapping[str, str],
 ) -> Iterator[subprocess.Popen[bytes]]:  # fmt: skip
     """ns-3 with the flight additions, in the hub namespace (as run.channel_process)."""
-    argv = [
-        "ip", "netns", "exec", tb.hub, "nice", "-n", "-10",
-        sys.executable, "-m", "bench.wifi.flight_channel",
-        "--n", str(tb.size), "--out", str(out), "--taps", tb.tap_prefix,
-        "--stop-file", str(stop), "--waypoints", str(waypoints),
-        "--flight-dir", str(flight_dir), "--go-file", str(go),
-    ]  # fmt: skip
-    with log.open("wb") as f:
-        proc = subprocess.Popen(
-            argv, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, env={**os.environ, **env}
-        )
-        try:
-            yield proc
-        finally:
-            if proc.poll() is None:
-                stop.touch()
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait(timeout=10)
+    args = ["--waypoints", str(waypoints), "--flight-dir", str(flight_dir), "--go-file", str(go)]
+    with hub_channel(tb, "bench.wifi.flight_channel", out, stop, args, log, env) as proc:
+        yield proc
 
 
 class SwarmdObserver:
