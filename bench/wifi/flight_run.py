@@ -74,6 +74,7 @@ LOSS_TIMER_S: Final[dict[str, float]] = {
     "zenoh": 10.0,  # zenoh transport lease default 10 000 ms (keep-alive every 2.5 s)
     "ros2": 20.0,  # rmw_fastrtps on Fast DDS 3.2: leaseDuration default 20 s
 }
+PEER_TAIL_S: Final = 5.0  # a stock peer's window past the scenario's end (run_flight)
 FLIGHT_CONTENDERS: Final = (*contenders_mod.SWARMD_VARIANTS, *STOCK)
 POLL_S: Final = 0.25  # real seconds between harness steps
 STATUS_PER_STEP: Final = 2  # daemons polled per step: every daemon every N/2 steps
@@ -242,8 +243,11 @@ def run_flight(
             tb.check_macs(ready["macs"])
             sched = realtime_channel(proc.pid, rt_priority)
             settled = time.monotonic() + dil.real_s(SETTLE_S)
+            # a stock peer ends its window with a goodbye, which its peers would report as
+            # losses: it outlives the scenario by PEER_TAIL_S (changes after it are cut)
+            tail = PEER_TAIL_S if contender in STOCK else 0.0
             c = contenders_mod.make(
-                contender, tb.drones, work, window_s=scenario.duration_s, messages=20,
+                contender, tb.drones, work, window_s=scenario.duration_s + tail, messages=20,
                 link_dir=fdir, env=dil.env(),
             )  # fmt: skip
             obs: Observer
@@ -277,7 +281,7 @@ def run_flight(
                             down.setdefault(ev.node, []).append([now - launch, scenario.duration_s])
                         elif isinstance(c, contenders_mod.PeerContender):
                             # a stock peer keeps no state dir: "kept" and "lost" are alike
-                            c.restart(ev.node, end - now)
+                            c.restart(ev.node, end - now + PEER_TAIL_S)
                             down[ev.node][-1][1] = now - launch
                             restarts.append((now - launch, ev.node))
                         else:
@@ -347,7 +351,8 @@ def assemble(
     lease_s = LOSS_TIMER_S[contender]
     go_exp = float(go_info.get("go_wall", launch))
     changes = {
-        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v)] for i, v in obs.changes.items()
+        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v) if t - go_exp <= window]
+        for i, v in obs.changes.items()
     }
     readiness = [(round(t - go_exp, 3), table) for t, table in obs.readiness]
     renewals = [[round(t - go_exp, 3), *rest] for t, *rest in obs.renewals]
