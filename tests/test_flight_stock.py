@@ -234,6 +234,9 @@ def test_flight_run_refuses_a_contender_without_observer() -> None:
         flight_run.main(["--contenders", "ros2-static", "--n", "3"])
 
 
+@pytest.mark.netns
+@pytest.mark.interop
+@pytest.mark.timeout(900)
 @pytest.mark.skipif(
     os.environ.get("SWARMD_FLIGHT_SMOKE") != "1",
     reason="real flight runs, about 4 min per contender (ns-3, a 150 s split dilated k=1 at "
