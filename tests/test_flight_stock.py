@@ -239,7 +239,7 @@ def test_flight_run_refuses_a_contender_without_observer() -> None:
 @pytest.mark.timeout(900)
 @pytest.mark.skipif(
     os.environ.get("SWARMD_FLIGHT_SMOKE") != "1",
-    reason="real flight runs, about 4 min per contender (ns-3, a 150 s split dilated k=1 at "
+    reason="real flight runs, about 4 min per contender (ns-3, a 150 s split, undilated, at "
     "N=3); set SWARMD_FLIGHT_SMOKE=1 to run them",
 )
 @pytest.mark.parametrize("contender", flight_run.STOCK)
