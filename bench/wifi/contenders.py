@@ -194,32 +194,53 @@ class PeerContender(Contender):
         """How drone ``i`` runs ``argv`` (the ROS 2 contenders wrap it in its own host)."""
         return argv
 
+    # flight runs (bench/wifi/flight_run.py): every peer reports its stack's discovery
+    # events on its stdout (bench/wifi/peers/common.py, FlightEvents)
+    flight_events = False
+
+    def _argv(self, i: int, barrier: Path | None, duration_s: float) -> list[str]:
+        argv = [
+            *self._program(),
+            "--index",
+            str(i),
+            "--n",
+            str(self.n),
+            "--duration",
+            str(duration_s),
+            "--messages",
+            str(self.messages),
+            "--out",
+            str(self.work / f"peer-{i}.json"),
+        ]
+        if barrier is not None:
+            argv += ["--barrier", str(barrier)]
+        if self.flight_events:
+            argv += ["--events", "1"]
+        return argv
+
     def start(self, barrier: Path) -> None:
         env = self._env()
         for i, drone in enumerate(self.drones):
-            argv = [
-                *self._program(),
-                "--index",
-                str(i),
-                "--n",
-                str(self.n),
-                "--duration",
-                str(self.window_s),
-                "--messages",
-                str(self.messages),
-                "--out",
-                str(self.work / f"peer-{i}.json"),
-                "--barrier",
-                str(barrier),
-            ]
             self.procs.append(
                 drone.popen(
-                    _niced(self._host(i, argv)),
+                    _niced(self._host(i, self._argv(i, barrier, self.window_s))),
                     env=self._drone_env(i, env),
                     stdout=self._log(f"peer-{i}.log"),
                     stderr=subprocess.STDOUT,
                 )
             )
+
+    def restart(self, i: int, duration_s: float) -> None:
+        """Start drone ``i``'s peer again (a reboot in the air: no barrier, the rest of the
+        window), its log appended to (a flight event ``hello`` opens the new life)."""
+        log = (self.work / f"peer-{i}.log").open("ab")
+        self._logs.append(log)
+        self.procs[i] = self.drones[i].popen(
+            self._host(i, self._argv(i, None, duration_s)),
+            env=self._drone_env(i, self._env()),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
 
     def finish(self) -> Observation:
         deadline = time.monotonic() + 15.0

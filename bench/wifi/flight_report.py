@@ -24,6 +24,10 @@ from typing import Any
 from bench.wifi import flight_commands, flight_measures
 
 NOISE_DBM = -94.0
+CONTENDER_ORDER = (
+    "swarmd", "swarmd-paper", "swarmd-noaware", "swarmd-stock",
+    "cyclonedds", "fastdds", "fastdds-server", "zenoh", "ros2",
+)  # fmt: skip
 UP = frozenset({"discovered", "regained", "restarted"})
 
 
@@ -88,7 +92,8 @@ def timeline(run: Mapping[str, Any], out: Path) -> Path:
         top.axhline(k * (n - 1), color="#888", linewidth=0.3)
     m = run["measures"]
     top.set_title(
-        f"{run['scenario']} ({run['description']}), {run['contender']}, N={n}, run {run['run']}"
+        f"{run['scenario']} ({run['description']}), {run['contender']}, N={n}, run {run['run']}, "
+        f"loss timer {_v(run.get('lease_s'), ' s')}"
         f"{'' if run['valid'] else ' INVALID'}\n"
         f"green listed & in range, grey in range not listed, red listed but unreachable; "
         f"false losses {m['false_losses']}, rediscovery p50 {m['rediscovery_s']['p50']} s",
@@ -122,14 +127,22 @@ def _v(value: Any, unit: str = "") -> str:
 def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     """One markdown row per run: validity and every measure (docs/benchmarks.md "Flight")."""
     head = (
-        "| scenario | contender | N | run | valid (lag p99) | loss latency p50 / max | "
+        "| scenario | contender | N | run | valid (lag p99) | k, loss timer | "
+        "loss latency p50 / max | "
         "missed | lost: real / intermittent / dropout / false | re-discovery p50 / max | "
         "not re-discovered | reboot seen by peers / finds peers (max) | "
         "frames per rejoining pair (above steady) | readiness delivery |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     order = {name: k for k, name in enumerate(("fly-out", "fade", "split", "reboot", "blackout"))}
-    for r in sorted(runs, key=lambda x: (order.get(x["scenario"], 9), x["n"], x["run"])):
+    # swarmd's rows first, the stock contenders beside them (same scenario and N)
+    stacks = {name: k for k, name in enumerate(CONTENDER_ORDER)}
+
+    def key(x: Mapping[str, Any]) -> tuple[int, int, int, str, int]:
+        c = x["contender"]
+        return (order.get(x["scenario"], 9), x["n"], stacks.get(c, 99), c, x["run"])
+
+    for r in sorted(runs, key=key):
         m = r["measures"]
         lr = m["lost_reports"]
         fr = m["frames_per_rejoining_pair"]
@@ -140,6 +153,7 @@ def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
         lines.append(
             f"| {r['scenario']} | {r['contender']} | {r['n']} | {r['run']} | "
             f"{'yes' if r['valid'] else 'NO'} ({r['rt_lag_p99_ms']:.2f} ms) | "
+            f"{_v((r.get('setup') or {}).get('dilation'))}, {_v(r.get('lease_s'), ' s')} | "
             f"{_v(m['loss_latency_s']['p50'], ' s')} / {_v(m['loss_latency_s']['max'], ' s')} | "
             f"{m['missed_losses']} | {lr['real']} / {lr.get('intermittent', 0)} / "
             f"{lr['dropout']} / {lr['false']} | "

@@ -14,9 +14,14 @@ restarts daemons at the scenario's reboot events. Written: ``OUT/runs/flight-<sc
 <contender>-n<N>-r<k>.json`` (records, ground truth, measures: ``bench/wifi/flight_measures.py``)
 and a timeline figure per run (``bench/wifi/flight_report.py``).
 
-Only the swarmd variants report per-peer changes the harness can read; the stock stacks
-(and ROS 2) need an observer of their own (not written yet: the run is refused with that
-reason).
+The stock contenders (``cyclonedds``, ``fastdds``, ``fastdds-server``, ``zenoh``, ``ros2``)
+run their workload peers with ``--events 1``: each reports, by its own clock, what its
+stack's discovery API says of every other drone (``bench/wifi/peers/common.py``), and the
+harness reads those lines from the peers' logs after the run into the same ``changes`` and
+``readiness`` records (``bench/wifi/flight_events.py``). Their ``lease_s`` is the stack's
+default loss timer (``LOSS_TIMER_S``), since "time to report a loss" is mostly that timer.
+They boot with a discovery flood: run them dilated (``--dilation 5:2,10:3``, the testbed's
+k=3 at N=10) so that the run stays valid by the lag rule.
 """
 
 from __future__ import annotations
@@ -37,7 +42,14 @@ from pathlib import Path
 from typing import Any, Final
 
 from bench.wifi import contenders as contenders_mod
-from bench.wifi import flight, flight_commands, flight_measures, flight_report, metrics
+from bench.wifi import (
+    flight,
+    flight_commands,
+    flight_events,
+    flight_measures,
+    flight_report,
+    metrics,
+)
 from bench.wifi.barrier import RUN_NICE, StartBarrier, set_priority
 from bench.wifi.dilation import Dilation, scale_kernel_timers
 from bench.wifi.ns3_loader import unavailable_reason
@@ -47,6 +59,8 @@ from bench.wifi.run import (
     Interrupted,
     _on_sigterm,
     _wait_ready,
+    hub_channel,
+    parse_dilation,
     realtime_channel,
     source_commit,
 )
@@ -56,6 +70,19 @@ from swarmd.control import DaemonUnreachable, RequestError, request
 REPO: Final = Path(__file__).resolve().parents[2]
 DEFAULT_OUT: Final = REPO / "bench" / "results" / "flight"
 LEASE_S: Final = 20.0  # the testbed bundle's lease (bench/wifi/bundle.py)
+# the stock contenders with a flight observer, and each stack's default loss timer: the
+# participant lease after which a silent remote is dropped (docs/benchmarks.md, "Flight")
+STOCK: Final = ("cyclonedds", "fastdds", "fastdds-server", "zenoh", "ros2")
+LOSS_TIMER_S: Final[dict[str, float]] = {
+    **{name: LEASE_S for name in contenders_mod.SWARMD_VARIANTS},
+    "cyclonedds": 10.0,  # Cyclone DDS Discovery/LeaseDuration default "10 s"
+    "fastdds": 20.0,  # Fast DDS 2.9 discovery_config leaseDuration default 20 s
+    "fastdds-server": 20.0,  # the same lease, checked by the server and its clients
+    "zenoh": 10.0,  # zenoh transport lease default 10 000 ms (keep-alive every 2.5 s)
+    "ros2": 20.0,  # rmw_fastrtps on Fast DDS 3.2: leaseDuration default 20 s
+}
+PEER_TAIL_S: Final = 5.0  # a stock peer's window past the scenario's end (run_flight)
+FLIGHT_CONTENDERS: Final = (*contenders_mod.SWARMD_VARIANTS, *STOCK)
 POLL_S: Final = 0.25  # real seconds between harness steps
 STATUS_PER_STEP: Final = 2  # daemons polled per step: every daemon every N/2 steps
 _runs = itertools.count(1)
@@ -67,27 +94,9 @@ def flight_channel(
     log: Path, env: Mapping[str, str],
 ) -> Iterator[subprocess.Popen[bytes]]:  # fmt: skip
     """ns-3 with the flight additions, in the hub namespace (as run.channel_process)."""
-    argv = [
-        "ip", "netns", "exec", tb.hub, "nice", "-n", "-10",
-        sys.executable, "-m", "bench.wifi.flight_channel",
-        "--n", str(tb.size), "--out", str(out), "--taps", tb.tap_prefix,
-        "--stop-file", str(stop), "--waypoints", str(waypoints),
-        "--flight-dir", str(flight_dir), "--go-file", str(go),
-    ]  # fmt: skip
-    with log.open("wb") as f:
-        proc = subprocess.Popen(
-            argv, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, env={**os.environ, **env}
-        )
-        try:
-            yield proc
-        finally:
-            if proc.poll() is None:
-                stop.touch()
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait(timeout=10)
+    args = ["--waypoints", str(waypoints), "--flight-dir", str(flight_dir), "--go-file", str(go)]
+    with hub_channel(tb, "bench.wifi.flight_channel", out, stop, args, log, env) as proc:
+        yield proc
 
 
 class SwarmdObserver:
@@ -129,6 +138,9 @@ class SwarmdObserver:
             }
             self.readiness.append((now, counts))
 
+    def summary(self) -> dict[str, Any]:
+        return {"status_polls": self.polls, "failed_requests": self.failures}
+
     def _take(self, i: int, st: Mapping[str, Any], now: float) -> None:
         pc = st.get("peer_changes")
         pid = (st.get("daemon") or {}).get("pid")
@@ -165,6 +177,38 @@ class SwarmdObserver:
             )
 
 
+class PeerLogObserver:
+    """The stock peers' own reports (``bench/wifi/flight_events.py``), read from their logs
+    once the run is over: each line is dated by the peer, so nothing is lost by reading late."""
+
+    def __init__(self, n: int) -> None:
+        self.events = flight_events.PeerEvents(n)
+        self.renewals: list[tuple[float, int, Any, Any, Any, Any]] = []  # swarmd's only
+
+    @property
+    def changes(self) -> dict[int, list[tuple[float, int, str]]]:
+        return self.events.changes
+
+    @property
+    def readiness(self) -> list[tuple[float, dict[int, int]]]:
+        return self.events.readiness
+
+    def poll(self, now: float) -> None:
+        """Nothing to ask during the run."""
+
+    def collect(self, work: Path) -> None:
+        for i in range(self.events.n):
+            log = work / f"peer-{i}.log"
+            if log.exists():
+                self.events.feed(i, log.read_text(errors="replace").splitlines())
+
+    def summary(self) -> dict[str, Any]:
+        return {"source": "peer event lines", **self.events.summary()}
+
+
+Observer = SwarmdObserver | PeerLogObserver
+
+
 def _restart(c: contenders_mod.Contender, node: int, state: str, env: Mapping[str, str]) -> None:
     """Start node's daemon again (no barrier), its state dir deleted for ``lost``."""
     if state == "lost":
@@ -192,9 +236,10 @@ def run_flight(
     commands: bool = True,
 ) -> dict[str, Any]:
     """One flight run; the run file's dict (``commands``: the scenario's operator commands,
-    with a vehicle simulator per drone: ``bench/wifi/flight_commands.py``)."""
-    if contender not in contenders_mod.SWARMD_VARIANTS:
-        raise ValueError(f"{contender}: no flight observer for this stack yet (swarmd only)")
+    with a vehicle simulator per drone, swarmd variants only: ``bench/wifi/flight_commands.py``)."""
+    if contender not in FLIGHT_CONTENDERS:
+        raise ValueError(f"{contender}: no flight observer for this stack; use one of "
+                         f"{', '.join(FLIGHT_CONTENDERS)}")  # fmt: skip
     n = scenario.n
     prefix = f"{BASE}-{os.getpid()}-f{next(_runs)}"
     dil = Dilation.start(dilation)
@@ -212,13 +257,20 @@ def run_flight(
             tb.check_macs(ready["macs"])
             sched = realtime_channel(proc.pid, rt_priority)
             settled = time.monotonic() + dil.real_s(SETTLE_S)
+            # a stock peer ends its window with a goodbye, which its peers would report as
+            # losses: it outlives the scenario by PEER_TAIL_S (changes after it are cut)
+            tail = PEER_TAIL_S if contender in STOCK else 0.0
             c = contenders_mod.make(
-                contender, tb.drones, work, window_s=scenario.duration_s, messages=20,
+                contender, tb.drones, work, window_s=scenario.duration_s + tail, messages=20,
                 link_dir=fdir, env=dil.env(),
             )  # fmt: skip
-            assert isinstance(c, contenders_mod.SwarmdContender)
-            names = [f"uav{i + 1}" for i in range(n)]
-            obs = SwarmdObserver(c.socks, names)
+            obs: Observer
+            if isinstance(c, contenders_mod.SwarmdContender):
+                obs = SwarmdObserver(c.socks, [f"uav{i + 1}" for i in range(n)])
+            else:
+                assert isinstance(c, contenders_mod.PeerContender)
+                c.flight_events = True
+                obs = PeerLogObserver(n)
             env = contenders_mod._clean_env(dil.env())
             cmds = flight_commands.prepare(c, scenario, work, env, dil.real_s) if commands else None
             down: dict[int, list[list[float]]] = {}
@@ -242,6 +294,11 @@ def run_flight(
                             c.procs[ev.node].send_signal(signal.SIGKILL)
                             c.procs[ev.node].wait(timeout=10)
                             down.setdefault(ev.node, []).append([now - launch, scenario.duration_s])
+                        elif isinstance(c, contenders_mod.PeerContender):
+                            # a stock peer keeps no state dir: "kept" and "lost" are alike
+                            c.restart(ev.node, end - now + PEER_TAIL_S)
+                            down[ev.node][-1][1] = now - launch
+                            restarts.append((now - launch, ev.node))
                         else:
                             _restart(c, ev.node, ev.state, env)
                             down[ev.node][-1][1] = now - launch
@@ -269,6 +326,8 @@ def run_flight(
                 for drone in tb.drones:
                     drone.stop_children()
                 c.close()
+        if isinstance(obs, PeerLogObserver):
+            obs.collect(work)
         stats = json.loads((chan / "stats.json").read_text())
         go_info = json.loads((fdir / "go.json").read_text())
         go_wall = float(go_info.get("go_wall", launch))
@@ -295,7 +354,7 @@ def assemble(
     stats: Mapping[str, Any],
     go_info: Mapping[str, float],
     launch: float,
-    obs: SwarmdObserver,
+    obs: Observer,
     down: Mapping[int, Sequence[Sequence[float]]],
     restarts: Sequence[tuple[float, int]],
     heard: Sequence[Mapping[str, Any]],
@@ -311,10 +370,13 @@ def assemble(
     m = metrics.run_measures(
         stats, launch_wall=float(stats["wall_at_sim0"]) + go_sim, window_s=window, family="rtps"
     )
-    disc = metrics.frame_series(stats, int(go_sim), window, ("rtps_discovery",))
+    classes = metrics.DISCOVERY_CLASSES[contenders_mod.family(contender)]
+    disc = metrics.frame_series(stats, int(go_sim), window, classes)
+    lease_s = LOSS_TIMER_S[contender]
     go_exp = float(go_info.get("go_wall", launch))
     changes = {
-        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v)] for i, v in obs.changes.items()
+        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v) if t - go_exp <= window]
+        for i, v in obs.changes.items()
     }
     readiness = [(round(t - go_exp, 3), table) for t, table in obs.readiness]
     renewals = [[round(t - go_exp, 3), *rest] for t, *rest in obs.renewals]
@@ -324,7 +386,7 @@ def assemble(
         first_move = min(e.t for e in scenario.events)
     down_t = {i: [(a, b) for a, b in spans] for i, spans in down.items()}
     measures = flight_measures.measure(
-        truth, changes, down_t, n=scenario.n, lease_s=LEASE_S, restarts=restarts,
+        truth, changes, down_t, n=scenario.n, lease_s=lease_s, restarts=restarts,
         readiness=readiness, discovery_fps=disc, first_move_s=first_move,
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals, first_move or 0.0)
@@ -346,7 +408,7 @@ def assemble(
         "rt_lag_p99_ms": m["rt_lag_p99_ms"],
         "rt_lag_max_ms": m["rt_lag_max_ms"],
         "measures": measures,
-        "lease_s": LEASE_S,
+        "lease_s": lease_s,
         "phases": [list(p) for p in scenario.phases],
         "waypoints": [[t, i, *p] for t, i, p in scenario.waypoints],
         "events": [[e.t, e.node, e.action, e.state] for e in scenario.events],
@@ -359,7 +421,7 @@ def assemble(
         "discovery_fps": disc,
         "pps": m["pps"],
         "tx_counters": dict(tx_counters),
-        "observer": {"status_polls": obs.polls, "failed_requests": obs.failures},
+        "observer": obs.summary(),
         "go": {"sim_s": go_sim, "wall": go_exp, "harness_launch": launch},
         "load_avg_at_start": list(os.getloadavg()),
         "setup": {
@@ -399,7 +461,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--first-run", type=int, default=1)
     p.add_argument("--contenders", default="swarmd")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--dilation", type=float, default=1.0)
+    p.add_argument(
+        "--dilation",
+        default="1",
+        help="time dilation factor: one K for every N, or per N (5:2,10:3); unlisted N: 1",
+    )
     p.add_argument("--max-lag-ms", type=float, default=20.0)
     p.add_argument("--ns3-rt-priority", type=int, default=10)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -416,8 +482,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if s not in flight.SCENARIOS:
             p.error(f"--scenarios: unknown {s!r}; use {', '.join(flight.SCENARIOS)}")
     for c in names:
-        if c not in contenders_mod.SWARMD_VARIANTS:
-            p.error(f"--contenders: {c!r} has no flight observer yet; use a swarmd variant")
+        if c not in FLIGHT_CONTENDERS:
+            usable = ", ".join(FLIGHT_CONTENDERS)
+            p.error(f"--contenders: {c!r} has no flight observer; use {usable}")
+        reason = contenders_mod.unavailable(c)
+        if reason is not None:
+            p.error(f"--contenders: {reason}")
+    try:
+        dil_spec = parse_dilation(args.dilation)
+    except ValueError:
+        p.error(f"--dilation: {args.dilation!r} is neither K nor N:K,N:K")
+    per_n = dict(dil_spec) if isinstance(dil_spec, tuple) else dict.fromkeys(sizes, dil_spec)
+    if any(not k >= 1.0 for k in per_n.values()):
+        p.error("--dilation: factors must be >= 1")
     reason = unavailable_reason()
     if reason is not None:
         print(f"flight bench: {reason}", file=sys.stderr)
@@ -433,7 +510,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenario = flight.make(s, n, args.seed + k - 1)
             try:
                 result = run_flight(
-                    c, scenario, k, dilation=args.dilation, max_lag_ms=args.max_lag_ms,
+                    c, scenario, k, dilation=per_n.get(n, 1.0), max_lag_ms=args.max_lag_ms,
                     rt_priority=args.ns3_rt_priority,
                     keep=args.out / "logs" if args.keep_logs else None,
                     commands=not args.no_commands,
@@ -442,7 +519,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(f"\nflight bench: {s} {c} n={n} run {k} failed: {exc}", file=sys.stderr)
                 failures += 1
                 continue
-            path = runs_dir / run_file_name(s, c, n, k, args.dilation)
+            path = runs_dir / run_file_name(s, c, n, k, per_n.get(n, 1.0))
             path.write_text(json.dumps(result) + "\n")
             flight_report.timeline(result, path.with_suffix(".png"))
             print(one_line(result), flight_commands.one_line(result["measures"]))

@@ -29,7 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -126,14 +126,27 @@ def channel_process(
     tb: Testbed, out: Path, stop_file: Path, opts: Options, log: Path, env: dict[str, str]
 ) -> Iterator[subprocess.Popen[bytes]]:
     """The ns-3 process inside the hub namespace; killed by PID on any exit."""
+    args = [
+        "--spacing", str(opts.spacing_m), "--layout", opts.layout,
+        "--standard", opts.standard, "--mcast-mode", opts.mcast_mode,
+    ]  # fmt: skip
+    with hub_channel(tb, "bench.wifi.channel", out, stop_file, args, log, env) as proc:
+        yield proc
+
+
+@contextlib.contextmanager
+def hub_channel(
+    tb: Testbed, module: str, out: Path, stop_file: Path, args: Sequence[str], log: Path,
+    env: Mapping[str, str],
+) -> Iterator[subprocess.Popen[bytes]]:  # fmt: skip
+    """ns-3 channel ``module`` in the hub namespace with the testbed's common arguments and
+    ``args``; on any exit it is asked to stop (``stop_file``), then killed by PID."""
     # nice -10: on a shared host the stacks may be slowed (like a slow drone CPU), the
     # channel must not be (lag distorts the physics); still far from starving anyone
     argv = [
-        "ip", "netns", "exec", tb.hub, "nice", "-n", "-10",
-        sys.executable, "-m", "bench.wifi.channel",
+        "ip", "netns", "exec", tb.hub, "nice", "-n", "-10", sys.executable, "-m", module,
         "--n", str(tb.size), "--out", str(out), "--taps", tb.tap_prefix,
-        "--stop-file", str(stop_file), "--spacing", str(opts.spacing_m),
-        "--layout", opts.layout, "--standard", opts.standard, "--mcast-mode", opts.mcast_mode,
+        "--stop-file", str(stop_file), *args,
     ]  # fmt: skip
     with log.open("wb") as f:
         proc = subprocess.Popen(

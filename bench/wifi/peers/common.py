@@ -7,6 +7,16 @@ section 5.1: the subscriber receives the 20th message of every publisher within 
 window). Each peer writes one JSON result file when ``--duration`` ends or on SIGTERM.
 With ``--barrier PATH`` a peer, once imported, waits on the harness's start barrier
 (bench/wifi/barrier.py) before it creates its participant or session.
+
+With ``--events 1`` (the flight harness, bench/wifi/flight_run.py) a peer also reports what
+its stack's own discovery API tells it, one JSON line per event on its stdout (the log file
+the harness gave it), each dated by the peer's own wall clock (``FlightEvents``): ``hello``
+when its participant or session exists, ``up``/``down`` when a remote participant (session,
+node) carrying another drone's index appears or goes, and on the commander a ``readiness``
+snapshot of its tally once a second. The drone index comes from the stack's discovery data
+(DDS USER_DATA, a zenoh liveliness token's key, a ROS 2 node's namespace), set by the other
+peer from its ``--index``; ``key`` names the remote participant instance (a GUID, a zenoh id)
+so a reboot's new participant and the old one's late removal are told apart.
 """
 
 from __future__ import annotations
@@ -60,6 +70,7 @@ def parse_args(doc: str) -> argparse.Namespace:
     p.add_argument("--period", type=float, default=1.0, help="seconds between publications")
     p.add_argument("--out", type=Path, required=True, help="result JSON file")
     p.add_argument("--barrier", type=Path, help="UNIX socket of the harness's start barrier")
+    p.add_argument("--events", type=int, default=0, help="1: flight events on stdout")
     return p.parse_args()
 
 
@@ -88,3 +99,67 @@ def write_result(path: Path, result: dict[str, Any]) -> None:
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(result))
     os.replace(tmp, path)
+
+
+EVENT_TAG = "flight"  # the JSON field that marks an event line among a stack's log lines
+MAX_INSTANCES = 1024  # remote participants a peer remembers (a reboot adds one per life)
+
+
+def drone_index(raw: bytes | str) -> int | None:
+    """The drone index a remote participant carries (ASCII decimal), or None for anything
+    else (a discovery server, a foreign participant on the domain, junk)."""
+    text = raw.decode("ascii", "replace") if isinstance(raw, bytes) else raw
+    text = text.strip().rstrip("\x00")
+    return int(text) if text.isascii() and text.isdigit() and len(text) <= 6 else None
+
+
+class FlightEvents:
+    """A peer's event lines (module doc); a no-op when ``--events`` is 0.
+
+    Thread-safe: the stacks call back on their own threads. ``seen`` maps a remote instance
+    key to the drone index it announced, so a ``down`` (which carries only the key for DDS)
+    names the same drone as its ``up``.
+    """
+
+    def __init__(self, enabled: bool, own_index: int) -> None:
+        self.enabled = enabled
+        self.own = own_index
+        self.seen: dict[str, int] = {}
+        self.lock = threading.Lock()
+        self._next_readiness = 0.0
+
+    def _write(self, record: dict[str, Any]) -> None:
+        line = json.dumps({EVENT_TAG: record.pop("kind"), "t": time.time(), **record})
+        with self.lock:
+            print(line, flush=True)
+
+    def hello(self) -> None:
+        if self.enabled:
+            self._write({"kind": "hello", "self": self.own})
+
+    def up(self, key: str, index: int | None) -> None:
+        """Remote instance ``key`` alive, announcing drone ``index`` (None: not a drone)."""
+        if not self.enabled or index is None or index == self.own:
+            return
+        with self.lock:
+            if key in self.seen or len(self.seen) >= MAX_INSTANCES:
+                return
+            self.seen[key] = index
+        self._write({"kind": "up", "peer": index, "key": key})
+
+    def down(self, key: str) -> None:
+        if not self.enabled:
+            return
+        with self.lock:
+            index = self.seen.pop(key, None)
+        if index is not None:
+            self._write({"kind": "down", "peer": index, "key": key})
+
+    def readiness(self, tally: Tally) -> None:
+        """The commander's counts, at most once a second (monotonic, so dilated too)."""
+        if not self.enabled or time.monotonic() < self._next_readiness:
+            return
+        self._next_readiness = time.monotonic() + 1.0
+        with tally.lock:
+            counts = {str(m): c for m, c in sorted(tally.counts.items())}
+        self._write({"kind": "readiness", "counts": counts})

@@ -15,11 +15,20 @@
 // /dev/shm, so participants would talk past the emulated channel; on real drones (separate
 // hosts) shared memory is never used between them, so UDP only is what a swarm sees.
 //
+// With --events 1 (flight runs, bench/wifi/peers/common.py "FlightEvents") the participant
+// carries its drone index as USER_DATA and a DomainParticipantListener reports what Fast
+// DDS's participant discovery says, one JSON line on stdout per event: DISCOVERED_PARTICIPANT
+// is "up", REMOVED_PARTICIPANT (the remote said goodbye) and DROPPED_PARTICIPANT (its lease,
+// Fast DDS's default leaseDuration 20 s, expired) are "down", keyed by the remote's GUID. A
+// Discovery Server client hears of the other clients through the server and reports them
+// the same way; the server itself carries no index and is not reported.
+//
 // Built by scripts/setup.sh (bench/wifi/fastdds_build.py) into a gitignored cache.
 // Never fuzz it: Fast DDS 2.9.1 trusts the length of its own 0x80 statistics submessage.
 
 #include <fastdds/dds/domain/DomainParticipant.hpp>
 #include <fastdds/dds/domain/DomainParticipantFactory.hpp>
+#include <fastdds/dds/domain/DomainParticipantListener.hpp>
 #include <fastdds/dds/domain/qos/DomainParticipantQos.hpp>
 #include <fastdds/dds/publisher/DataWriter.hpp>
 #include <fastdds/dds/publisher/Publisher.hpp>
@@ -45,6 +54,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -150,6 +160,7 @@ struct Args
     double period = 1.0;
     std::string out;
     std::string barrier;
+    bool events = false;
 };
 
 bool ParseArgs(int argc, char** argv, Args& a)
@@ -164,6 +175,7 @@ bool ParseArgs(int argc, char** argv, Args& a)
         else if (k == "--period") a.period = std::atof(v.c_str());
         else if (k == "--out") a.out = v;
         else if (k == "--barrier") a.barrier = v;
+        else if (k == "--events") a.events = v == "1";
         else return false;
     }
     return a.index >= 0 && a.n >= 2 && a.duration > 0 && !a.out.empty();
@@ -199,6 +211,65 @@ std::string Num(double v)
     return o.str();
 }
 
+// One event line (common.py FlightEvents: {"flight": kind, "t": wall, ...}), whole and
+// flushed: the listener runs on Fast DDS's threads, the readiness snapshot on main's.
+std::mutex g_out;
+
+void Emit(const std::string& kind, const std::string& rest)
+{
+    std::ostringstream line;
+    line << "{\"flight\": \"" << kind << "\", \"t\": " << Num(WallNow()) << rest << "}\n";
+    std::lock_guard<std::mutex> lock(g_out);
+    std::fputs(line.str().c_str(), stdout);
+    std::fflush(stdout);
+}
+
+// The drone index a remote participant's USER_DATA carries (ASCII decimal), or -1.
+int DroneIndex(const std::vector<eprosima::fastrtps::rtps::octet>& data)
+{
+    if (data.empty() || data.size() > 6) return -1;
+    int v = 0;
+    for (auto c : data) {
+        if (c < '0' || c > '9') return -1;
+        v = v * 10 + (c - '0');
+    }
+    return v;
+}
+
+class DiscoveryEvents : public DomainParticipantListener
+{
+public:
+    explicit DiscoveryEvents(int own) : own_(own) {}
+
+    void on_participant_discovery(
+        DomainParticipant*, eprosima::fastrtps::rtps::ParticipantDiscoveryInfo&& info) override
+    {
+        using Info = eprosima::fastrtps::rtps::ParticipantDiscoveryInfo;
+        std::ostringstream guid;
+        guid << info.info.m_guid;
+        std::string key = guid.str();
+        std::lock_guard<std::mutex> lock(mu_);
+        if (info.status == Info::DISCOVERED_PARTICIPANT) {
+            int index = DroneIndex(info.info.m_userData.data_vec());
+            if (index < 0 || index == own_ || seen_.count(key) || seen_.size() >= 1024) return;
+            seen_[key] = index;
+            Emit("up", ", \"peer\": " + std::to_string(index) + ", \"key\": \"" + key + "\"");
+        } else if (info.status == Info::REMOVED_PARTICIPANT ||
+                   info.status == Info::DROPPED_PARTICIPANT) {
+            auto it = seen_.find(key);
+            if (it == seen_.end()) return;
+            Emit("down",
+                 ", \"peer\": " + std::to_string(it->second) + ", \"key\": \"" + key + "\"");
+            seen_.erase(it);
+        }
+    }
+
+private:
+    int own_;
+    std::mutex mu_;
+    std::map<std::string, int> seen_;  // remote GUID -> the index it announced
+};
+
 void WriteResult(const std::string& path, const std::string& json)
 {
     std::string tmp = path + ".tmp";
@@ -229,13 +300,20 @@ int main(int argc, char** argv)
     pqos.transport().user_transports.push_back(
         std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>());
     TypeSupport type(new ReadyType());
+    DiscoveryEvents listener(args.index);
+    if (args.events) {
+        std::string own = std::to_string(args.index);
+        pqos.user_data().data_vec(
+            std::vector<eprosima::fastrtps::rtps::octet>(own.begin(), own.end()));
+    }
 
     if (!WaitBarrier(args.barrier)) {
         std::fprintf(stderr, "fastdds_peer: cannot reach barrier %s\n", args.barrier.c_str());
         return 78;
     }
-    DomainParticipant* participant =
-        DomainParticipantFactory::get_instance()->create_participant(0, pqos);
+    if (args.events) Emit("hello", ", \"self\": " + std::to_string(args.index));
+    DomainParticipant* participant = DomainParticipantFactory::get_instance()->create_participant(
+        0, pqos, args.events ? &listener : nullptr, StatusMask::none());
     if (participant == nullptr) {
         std::fprintf(stderr, "fastdds_peer: create_participant failed\n");
         return 1;
@@ -267,6 +345,8 @@ int main(int argc, char** argv)
         std::map<int, int> counts;
         std::map<int, double> first, nth;
         double all_matched = -1;
+        double next_readiness = 0;
+        const std::map<int, int>& counts_by_member = counts;
         Ready sample;
         SampleInfo info;
         while (!g_stop.load() && std::chrono::steady_clock::now() < deadline) {
@@ -281,6 +361,18 @@ int main(int argc, char** argv)
                 SubscriptionMatchedStatus st;
                 reader->get_subscription_matched_status(st);
                 if (st.current_count >= args.n - 1) all_matched = WallNow();
+            }
+            if (args.events && WallNow() >= next_readiness) {
+                next_readiness = WallNow() + 1.0;
+                std::ostringstream counts;
+                counts << ", \"counts\": {";
+                bool firstCount = true;
+                for (auto& kv : counts_by_member) {
+                    counts << (firstCount ? "" : ", ") << "\"" << kv.first << "\": " << kv.second;
+                    firstCount = false;
+                }
+                counts << "}";
+                Emit("readiness", counts.str());
             }
             std::this_thread::sleep_for(std::chrono::milliseconds(20));
         }

@@ -16,6 +16,15 @@ would add 15 endpoints (reference/ros2-fastdds-facts.md) and so more SEDP under 
 The commander records what the other workload peers record (bench/wifi/peers/common.py) and
 ``all_discovered``: the time its subscription had matched N-1 publishers (the ``matched``
 event of rmw_fastrtps: SPDP + SEDP, or SPDP + the static file, done for every member).
+
+With ``--events 1`` (flight runs) the node lives in the namespace ``/drone<index>`` (the topic
+is absolute, so it is unchanged) and polls the rclpy graph (``get_node_names_and_namespaces``)
+every ``GRAPH_POLL_S``: a drone's namespace appearing is ``up``, disappearing ``down``. In ROS
+2 a node leaves the graph when rmw_fastrtps drops its participant: a goodbye, or the lease of
+Fast DDS 3.2's default participant (``leaseDuration`` 20 s) expiring. The publishers'
+matched-subscription counts could not tell which drone went, and on a member they only see
+the commander. A rebooted node's new participant and the old one share the namespace: the
+graph shows the drone present throughout, which is what a ROS 2 application would see.
 """
 
 from __future__ import annotations
@@ -28,7 +37,9 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
 
 from bench.wifi.peers.common import (  # noqa: E402
+    FlightEvents,
     Tally,
+    drone_index,
     parse_args,
     stop_event,
     wait_start_barrier,
@@ -38,6 +49,19 @@ from bench.wifi.peers.common import (  # noqa: E402
 TOPIC = "/swarm_ready"
 DEPTH = 10  # ROS 2's default history depth for a plain create_publisher(..., 10)
 SPIN_S = 0.02  # longest spin between two checks of the clock and the stop flag
+GRAPH_POLL_S = 0.25  # how often a flight peer reads the graph (a local cache: cheap)
+NAMESPACE = "/drone"  # + index: how a flight peer's node names its drone in the graph
+
+
+def graph_drones(names_and_namespaces: list[tuple[str, str]]) -> set[int]:
+    """The drone indices the graph lists (nodes in ``/drone<index>``; others are not drones)."""
+    found = set()
+    for _, namespace in names_and_namespaces:
+        if namespace.startswith(NAMESPACE):
+            index = drone_index(namespace[len(NAMESPACE) :])
+            if index is not None:
+                found.add(index)
+    return found
 
 
 def main() -> int:
@@ -55,8 +79,11 @@ def main() -> int:
     # our own SIGTERM handler (stop_event) writes the result; rclpy's would raise instead
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     started = time.time()
+    events = FlightEvents(bool(args.events), args.index)
+    events.hello()
     node = Node(
         "listener" if args.index == 0 else "talker",
+        namespace=f"{NAMESPACE}{args.index}" if events.enabled else None,
         start_parameter_services=False,
         enable_rosout=False,
         parameter_overrides=[Parameter("start_type_description_service", value=False)],
@@ -64,6 +91,22 @@ def main() -> int:
     result: dict[str, Any] = {"started": started, "index": args.index}
     deadline = time.monotonic() + args.duration
     matched: list[float] = []  # the time the wanted number of peers had matched
+
+    present: set[int] = set()
+    next_graph = 0.0
+
+    def watch_graph() -> None:
+        nonlocal next_graph
+        if not events.enabled or time.monotonic() < next_graph:
+            return
+        next_graph = time.monotonic() + GRAPH_POLL_S
+        now = graph_drones(node.get_node_names_and_namespaces()) - {args.index}
+        for j in sorted(now - present):
+            events.up(f"{NAMESPACE}{j}", j)
+        for j in sorted(present - now):
+            events.down(f"{NAMESPACE}{j}")
+        present.clear()
+        present.update(now)
 
     def on_match(info: Any, wanted: int) -> None:
         if not matched and int(info.current_count) >= wanted:
@@ -88,6 +131,8 @@ def main() -> int:
         )
         while not stop.is_set() and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=SPIN_S)
+            watch_graph()
+            events.readiness(tally)
         result.update(received=tally.as_json(), all_discovered=matched[0] if matched else None)
     else:
         publisher = node.create_publisher(
@@ -106,6 +151,7 @@ def main() -> int:
                 publisher.publish(msg)
                 next_t += args.period
             rclpy.spin_once(node, timeout_sec=max(0.0, min(SPIN_S, next_t - now)))
+            watch_graph()
         result.update(sent=seq, commander_matched=matched[0] if matched else None)
     write_result(args.out, result)
     node.destroy_node()
