@@ -298,3 +298,24 @@ def test_readiness_counts_only_the_time_in_range_never_the_blackout() -> None:
     assert r["expected"] == round(99.5 + 29.5 + 39.5) == 168
     assert r["delivered"] == 99 + 29 + 39  # whole seconds of each span
     assert r["ratio"] >= 0.99
+
+
+def test_an_extra_sample_at_re_discovery_does_not_hide_a_missing_one() -> None:
+    """uav2 sends one extra sample when the commander finds it again (the swarm core reports
+    at once to a reader that comes back), and loses 10 s of samples in its first span: the
+    extra one must not fill that hole (delivery is capped per span)."""
+    truth = _truth((30.0, 60.0), end=99.5)
+    changes = {0: [(0.0, 1, "discovered"), (0.0, 2, "discovered"), (50.0, 2, "lost"),
+                   (60.0, 2, "regained")]}  # fmt: skip
+
+    def sent(t: float) -> int:  # 0-29.5 s: 10 s missing; from 60.5 s: 3 extra (re-sent)
+        first = max(0, int(min(t, 29.5)) - 10) if t >= 10.0 else 0
+        second = (int(t - 60.0) + (3 if t >= 60.5 else 0)) if t >= 60.0 else 0
+        return first + second
+
+    readiness = [(t / 2, {1: int(t / 2), 2: sent(t / 2)}) for t in range(200)]
+    m = flight_measures.measure(truth, changes, {}, n=3, lease_s=LEASE, readiness=readiness)
+    r = m["readiness_delivery"]
+    # the 60-99.5 s span counts at most its 39.5 s (42 samples arrived in it)
+    assert r["delivered"] == round(99 + 19 + 39.5)
+    assert r["ratio"] == round(157.5 / 168.5, 4)

@@ -264,7 +264,10 @@ def readiness_delivery(
             if ca is None or cb is None:
                 continue
             expected += (b - a) * READINESS_HZ
-            delivered += max(0, cb - ca)
+            # capped per span: a member also reports at once when the commander finds it
+            # again (swarm core), so a span can hold a sample more than its seconds; that
+            # extra sample must not hide samples missing in another span
+            delivered += min(max(0, cb - ca), (b - a) * READINESS_HZ)
     ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 
