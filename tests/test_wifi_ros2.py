@@ -122,6 +122,8 @@ def test_swarmd_route_runs_a_relaying_daemon_per_drone_and_via_swarmd_profiles(
         # its link quality is the channel's, as the swarmd contender's (not a fixed 0.5)
         assert config.link.file == str(tmp_path / "chan" / f"link-{i}.json")
         assert "file" in config.link.sources
+        # swarmd's data plane on, as on a drone: the commander vouches on its readiness
+        assert config.dataplane.enabled
     for env in envs:
         xml = Path(env["FASTDDS_DEFAULT_PROFILES_FILE"]).read_text()
         peers = xml.split("<initialPeersList>")[1].split("</initialPeersList>")[0]

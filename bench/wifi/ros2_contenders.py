@@ -48,7 +48,7 @@ from swarmd_lab.netns import Namespace
 from swarmd_lab.ros2_lab import host_argv, write_machine_id
 
 from bench.wifi.bundle import SWARM, mission_text
-from bench.wifi.contenders import PEERS, PeerContender, _clean_env
+from bench.wifi.contenders import PEERS, PeerContender, _clean_env, dataplane_supported
 from bench.wifi.peers.ros2_peer import TOPIC
 from bench.wifi.topology import _sysctls as sysctls
 from swarmd.bundle.build import build_dev_bundle
@@ -200,8 +200,10 @@ def static_route(c: Ros2Contender) -> list[dict[str, str]]:
 def swarmd_config(c: Ros2Contender, i: int, bundle: Path, key: Path) -> Path:
     """Drone ``i``'s daemon config: the testbed's (``contenders.SwarmdContender``), adaptive
     mode with the link quality from the ns-3 link file as the swarmd contender's (a static
-    quality when the contender has no link files), no data plane (the rclpy nodes carry the
-    workload), and the relay on (docs/ros2.md)."""
+    quality when the contender has no link files), swarmd's data plane on as on a drone (its
+    1 Hz readiness to the commander is also what the commander vouches on: without it every
+    member renews on its own, docs/discovery.md "Vouching"), and the relay on
+    (docs/ros2.md). The rclpy nodes carry the benchmark's workload."""
     if c.link_dir is not None:
         link = f"""\
   sources: [file, static]
@@ -211,6 +213,11 @@ def swarmd_config(c: Ros2Contender, i: int, bundle: Path, key: Path) -> Path:
         link = """\
   sources: [static]
 """
+    dataplane = (
+        f"dataplane:\n  enabled: true\n  state_dir: {c.work / f'state-uav{i + 1}'}\n"
+        if dataplane_supported()
+        else ""
+    )
     text = f"""\
 node: uav{i + 1}
 bundle:
@@ -226,7 +233,7 @@ link:
   static_q: 0.5
 discovery:
   mode: adaptive
-ros2:
+{dataplane}ros2:
   relay: true
 logging:
   level: info
