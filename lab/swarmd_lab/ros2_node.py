@@ -32,6 +32,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="also publish TOPIC (a String), which the bundle does not declare",
     )
     parser.add_argument(
+        "--also-publish",
+        metavar="TOPIC",
+        help="listener: also publish TOPIC (a String tagged with --tag or the name) every "
+        f"{PUBLISH_PERIOD_S} s, so that it talks to the other drones' listeners too",
+    )
+    parser.add_argument(
         "--matched-log",
         metavar="PATH",
         help="listener: append a JSON line to PATH whenever its subscription's matched "
@@ -91,6 +97,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         subscription = node.create_subscription(String, args.topic, heard, 10)
         client: Any = node.create_client(Trigger, args.service)
+    if args.role == "listener" and args.also_publish:
+        also = node.create_publisher(String, args.also_publish, 10)
+
+        def tick_also() -> None:
+            msg = String()
+            msg.data = f"{args.tag or name} {sent[0]}"
+            sent[0] += 1
+            also.publish(msg)
+
+        node.create_timer(PUBLISH_PERIOD_S, tick_also)
     matched = -1
     if args.undeclared:
         node.create_publisher(String, args.undeclared, 10)
