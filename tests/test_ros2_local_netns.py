@@ -183,8 +183,10 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
         _until(lambda: 2 in _matched(lead_log), lambda: str(_matched(lead_log)))
         talker_out = output(talker, TALKER_S)
         # the talker has stopped: only it is marked, at home and at the lead
-        for log in (monitor_log, lead_log):
-            _until(lambda log=log: _matched(log)[-1:] == [1], lambda log=log: str(_matched(log)))
+        _until(
+            lambda: _matched(monitor_log)[-1:] == _matched(lead_log)[-1:] == [1],
+            lambda: f"monitor {_matched(monitor_log)} lead {_matched(lead_log)}",
+        )
         _until(
             lambda: (
                 {r["node"]: r["state"] for r in daemon_status(socks[0])["ros2"]["remote"]}
@@ -237,6 +239,6 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
     # nothing of ROS 2's discovery or graph on the air
     assert counts.ros2_spdp == 0 and counts.ros2_sedp == 0
     assert graph_on_air == 0
-    for d in daemons:
-        d.send_signal(signal.SIGTERM)
-        assert d.wait(timeout=WAIT_S) == 0
+    for daemon in daemons:
+        daemon.send_signal(signal.SIGTERM)
+        assert daemon.wait(timeout=WAIT_S) == 0

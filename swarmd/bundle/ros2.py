@@ -116,9 +116,7 @@ def ros2_guid_prefix(swarm: str, domain_id: int, drone_index: int, node_index: i
     and sends nothing, so the node index must sit inside them (two nodes of one drone are
     two processes); octets 0-3 stay the drone's ("same host", true of its nodes)."""
     tag = hashlib.sha256(f"{swarm}/{domain_id}/ros2".encode()).digest()[:ROS2_TAG_BYTES]
-    return (
-        VENDOR_EPROSIMA + drone_index.to_bytes(2, "big") + node_index.to_bytes(2, "big") + tag
-    )
+    return VENDOR_EPROSIMA + drone_index.to_bytes(2, "big") + node_index.to_bytes(2, "big") + tag
 
 
 def ros2_participant_id(top_swarm_index: int, node_index: int) -> int:
