@@ -40,8 +40,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--matched-log",
         metavar="PATH",
-        help="listener: append a JSON line to PATH whenever its subscription's matched "
-        "publisher count changes (a remote node disposed or announced again)",
+        help="append a JSON line to PATH whenever the listener's subscription's matched "
+        "publisher count (the talker's publisher's matched subscription count) changes "
+        "(a node disposed or announced again)",
     )
     parser.add_argument(
         "--graph-every",
@@ -124,8 +125,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "publishers": node.count_publishers(args.topic),
             }
             print(json.dumps(snapshot), flush=True)
-        if args.role == "listener" and args.matched_log:
-            count = subscription.get_publisher_count()
+        if args.matched_log:
+            count = (
+                subscription.get_publisher_count()
+                if args.role == "listener"
+                else publisher.get_subscription_count()
+            )
             if count != matched:
                 matched = count
                 with open(args.matched_log, "a") as log:
