@@ -232,6 +232,8 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
     # (the snapshots after the last one with /talker: the nodes' runs end together, so the
     # very last may already miss the other drone's node)
     assert drone1_status["alive_bitmap"] == "02", drone1_status
+    # the node that started second got the first one's own DATA(p) from the relay too
+    assert drone1_status["counters"]["tx_sibling_spdp"] >= 1, drone1_status["counters"]
     for graph, other in ((monitor_graph, "/listener"), (lead_graph, "/monitor")):
         last_with = max(i for i, s in enumerate(graph) if "/talker" in s["nodes"])
         after = graph[last_with + 1 :]
