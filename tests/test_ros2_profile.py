@@ -17,8 +17,14 @@ from swarmd.bundle.errors import BundleError, MissionError
 from swarmd.bundle.keys import dev_signing_key
 from swarmd.bundle.loader import read_bundle
 from swarmd.bundle.mission import parse_mission
-from swarmd.bundle.ros2 import MAX_USER_ID, bundle_ros2_participants
+from swarmd.bundle.ros2 import (
+    GRAPH_TOPIC,
+    MAX_USER_ID,
+    Ros2EndpointKind,
+    bundle_ros2_participants,
+)
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.ros2.graph import graph_reader_port
 from swarmd.ros2.profile import ProfileError, drone_profiles
 
 REPO = Path(__file__).resolve().parent.parent
@@ -151,6 +157,54 @@ def test_via_swarmd_profile_keeps_discovery_on_ipv6_loopback() -> None:
             assert endpoint.findtext(f"{NS}entityID") == endpoint.findtext(f"{NS}userDefinedID")
     plain = _profiles("drone-1")["drone-1/talker.xml"]
     assert "::1" not in plain and "UDPv6" not in plain
+
+
+def test_nodes_of_one_drone_are_one_host_and_separate_processes_to_fast_dds() -> None:
+    """Fast DDS takes participants whose GUID prefixes share octets 0-7 for one process and
+    delivers between them in memory, which two node processes cannot: no message would
+    flow (tests/test_ros2_local_netns.py). Octets 0-3 (vendor, "host id") stay the drone's."""
+    two = _replace(
+        "    - name: listener\n", "    - {name: helper, drones: [drone-1]}\n    - name: listener\n"
+    )
+    participants = bundle_ros2_participants(build_dev_bundle(parse_mission(two)).bundle)
+    mine = [p.guid_prefix for p in participants if p.drone == "drone-1"]
+    assert len(mine) == 2
+    assert mine[0][:4] == mine[1][:4]
+    assert mine[0][:8] != mine[1][:8]
+    assert len({p.guid_prefix[:8] for p in participants}) == len(participants)
+
+
+def test_graph_readers_are_listed_at_their_unique_flow_port_on_the_relay_route() -> None:
+    """rmw's graph reader listens on its own port (``graph_reader_port``, set by the relay
+    profile's portBase), not the user port: the static file points there on the relay route,
+    so the nodes of one drone get each other's graph samples."""
+    two = _replace(
+        "    - name: listener\n", "    - {name: helper, drones: [drone-1]}\n    - name: listener\n"
+    )
+    participants = bundle_ros2_participants(build_dev_bundle(parse_mission(two)).bundle)
+
+    def reader_ports(text: str) -> dict[int, int]:
+        root = ET.fromstring(text)  # noqa: S314 - our own generated text
+        out = {}
+        for r in root.iter("reader"):
+            locator = r.find("unicastLocator")
+            if r.findtext("topicName") == GRAPH_TOPIC and locator is not None:
+                out[int(r.findtext("userId") or "")] = int(locator.get("port") or "")
+        return out
+
+    relay = reader_ports(
+        _profiles("drone-1", relay_port=7399, mission=two)["drone-1/static-edp.xml"]
+    )
+    plain = reader_ports(_profiles("drone-1", mission=two)["drone-1/static-edp.xml"])
+    for p in participants:
+        uid = next(
+            p.first_user_id + i
+            for i, e in enumerate(p.endpoints)
+            if e.dds_topic == GRAPH_TOPIC and e.kind == Ros2EndpointKind.READER
+        )
+        assert relay[uid] == graph_reader_port(p, participants)
+        assert plain[uid] == p.user_port
+    assert sorted({relay[u] for u in relay}) == [6998, 6999]
 
 
 def test_static_edp_ids_are_unique_and_every_profile_id_is_listed() -> None:

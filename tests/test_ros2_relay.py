@@ -259,6 +259,71 @@ def test_a_starting_node_gets_everything_again_at_its_second_datagram() -> None:
     assert relay.counters["tx_start_answers"] == 2
 
 
+def _two_on_drone_1() -> tuple[Ros2Relay, Ros2Participant, Ros2Participant]:
+    two = MISSION.replace(
+        "    - name: listener\n", "    - {name: helper, drones: [drone-1]}\n    - name: listener\n"
+    )
+    participants = bundle_ros2_participants(build_dev_bundle(parse_mission(two)).bundle)
+    relay = Ros2Relay(participants, "drone-1", domain_id=0, lease_s=LEASE_S, epoch=EPOCH)
+    talker, helper = (p for p in participants if p.drone == "drone-1")
+    return relay, talker, helper
+
+
+def test_a_starting_node_gets_its_alive_siblings_own_announcement() -> None:
+    """Two nodes on one drone are each other's initial peers; the running one answers the
+    starting one at once, possibly before it listens (as the relay's answer can be lost:
+    docs/ros2.md, "Several nodes on one drone"). The relay passes the sibling's own latest
+    DATA(p), byte for byte, with its two start answers; nothing once the sibling left."""
+    relay, talker, helper = _two_on_drone_1()
+    helper_spdp = _local_spdp(helper, 7)
+    relay.receive_datagram(helper_spdp, ("::1", 40000), 0.0)
+    relay.datagrams_to_send()
+    answers = []
+    for sn in (1, 2, 3):
+        relay.receive_datagram(_local_spdp(talker, sn), ("::1", 40001), 0.5)
+        answers.append(relay.datagrams_to_send())
+    to_talker = (LOOPBACK, talker.metatraffic_port)
+    assert [out.count((helper_spdp, to_talker)) for out in answers] == [1, 1, 0]
+    assert relay.counters["tx_sibling_spdp"] == 2
+    # the helper leaves (DATA(p[UD])): a talker starting again gets nothing of it
+    relay.receive_datagram(
+        encode_spdp_dispose(GuidPrefix(helper.guid_prefix), sequence_number=8, timestamp=None),
+        ("::1", 40000),
+        1.0,
+    )
+    relay.receive_datagram(
+        encode_spdp_dispose(GuidPrefix(talker.guid_prefix), sequence_number=4, timestamp=None),
+        ("::1", 40001),
+        1.0,
+    )
+    relay.datagrams_to_send()
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40002), 1.5)
+    assert helper_spdp not in [d for d, _ in relay.datagrams_to_send()]
+
+
+def test_only_a_siblings_undirected_announcement_is_passed_on() -> None:
+    """A DATA(p) the sibling directed (INFO_DST) to one participant would be dropped by any
+    other: it is not kept to pass on; the next undirected one is."""
+    relay, talker, helper = _two_on_drone_1()
+    undirected = _local_spdp(helper, 7)
+    _header, samples = decode_spdp(undirected)
+    assert isinstance(samples[0], SpdpAlive)
+    directed = encode_spdp(
+        samples[0].participant,
+        sequence_number=8,
+        timestamp=None,
+        destination=GuidPrefix(talker.guid_prefix),
+    )
+    relay.receive_datagram(directed, ("::1", 40000), 0.0)
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40001), 0.5)
+    assert relay.counters["tx_sibling_spdp"] == 0
+    assert [r["state"] for r in relay.status(0.5)["local"]] == ["heard", "heard"]
+    relay.receive_datagram(undirected, ("::1", 40000), 0.6)
+    relay.datagrams_to_send()
+    relay.receive_datagram(_local_spdp(talker, 2), ("::1", 40001), 0.7)  # 2nd start answer
+    assert (undirected, (LOOPBACK, talker.metatraffic_port)) in relay.datagrams_to_send()
+
+
 def test_an_unknown_participant_is_shown_never_relayed_and_its_table_is_capped() -> None:
     relay = _relay("lead")
     relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)

@@ -32,10 +32,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="also publish TOPIC (a String), which the bundle does not declare",
     )
     parser.add_argument(
+        "--also-publish",
+        metavar="TOPIC",
+        help="listener: also publish TOPIC (a String tagged with --tag or the name) every "
+        f"{PUBLISH_PERIOD_S} s, so that it talks to the other drones' listeners too",
+    )
+    parser.add_argument(
         "--matched-log",
         metavar="PATH",
-        help="listener: append a JSON line to PATH whenever its subscription's matched "
-        "publisher count changes (a remote node disposed or announced again)",
+        help="append a JSON line to PATH whenever the listener's subscription's matched "
+        "publisher count (the talker's publisher's matched subscription count) changes "
+        "(a node disposed or announced again)",
     )
     parser.add_argument(
         "--graph-every",
@@ -91,6 +98,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         subscription = node.create_subscription(String, args.topic, heard, 10)
         client: Any = node.create_client(Trigger, args.service)
+    if args.role == "listener" and args.also_publish:
+        also = node.create_publisher(String, args.also_publish, 10)
+
+        def tick_also() -> None:
+            msg = String()
+            msg.data = f"{args.tag or name} {sent[0]}"
+            sent[0] += 1
+            also.publish(msg)
+
+        node.create_timer(PUBLISH_PERIOD_S, tick_also)
     matched = -1
     if args.undeclared:
         node.create_publisher(String, args.undeclared, 10)
@@ -108,8 +125,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "publishers": node.count_publishers(args.topic),
             }
             print(json.dumps(snapshot), flush=True)
-        if args.role == "listener" and args.matched_log:
-            count = subscription.get_publisher_count()
+        if args.matched_log:
+            count = (
+                subscription.get_publisher_count()
+                if args.role == "listener"
+                else publisher.get_subscription_count()
+            )
             if count != matched:
                 matched = count
                 with open(args.matched_log, "a") as log:

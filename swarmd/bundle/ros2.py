@@ -8,8 +8,12 @@ participants, its identity is derived, never drawn, so every drone and every gen
 profile agree on it without a message on the air:
 
 - GUID prefix = eProsima vendor id ``01.0f`` (these are stock Fast DDS participants) + the
-  drone index (u16: the bytes Fast DDS calls "host id") + SHA-256(``"<swarm>/<domain>/ros2"``)
-  [:4] + the node index (u32), so prefixes differ across drones, nodes and swarms.
+  drone index (u16: the bytes Fast DDS calls "host id") + the node index (u16) +
+  SHA-256(``"<swarm>/<domain>/ros2"``)[:6], so prefixes differ across drones, nodes and
+  swarms. Fast DDS takes two participants whose first 8 octets are equal for one process
+  and hands their data over in memory (its intra-process delivery), which two node
+  processes on one drone cannot do: the node index in octets 4-5 keeps each node's
+  "process" its own (docs/ros2.md, "Several nodes on one drone").
 - Participant id = highest swarmd participant index + 1 + node index; ports are the standard
   RTPS mapping for it in the ROS 2 domain (RTPS 9.6.1.1). The ROS 2 participants can so share
   swarmd's domain without taking a port swarmd's own participant uses on any drone.
@@ -29,10 +33,11 @@ from swarmd.bundle.model import Bundle, Durability, Qos, Reliability
 from swarmd.rtps.ports import max_participant_index, metatraffic_unicast_port, user_unicast_port
 
 VENDOR_EPROSIMA: Final = b"\x01\x0f"
-ROS2_TAG_BYTES: Final = 4
+ROS2_TAG_BYTES: Final = 6
 # Fast DDS keeps userDefinedID in an int16; 0 and negative ids mean "none" (never matched)
 MAX_USER_ID: Final = 32767
 MAX_ROS2_DRONE_INDEX: Final = 0xFFFF  # two prefix bytes
+MAX_ROS2_NODE_INDEX: Final = 0xFFFF  # two prefix bytes
 
 
 class Ros2EndpointKind(StrEnum):
@@ -104,8 +109,14 @@ class Ros2Participant:
 
 
 def ros2_guid_prefix(swarm: str, domain_id: int, drone_index: int, node_index: int) -> bytes:
+    """``01.0f | drone index u16 | node index u16 | SHA-256("<swarm>/<domain>/ros2")[:6]``.
+
+    Octets 0-7 are what Fast DDS compares to decide "same process" (``GUID_t::
+    is_on_same_process_as``): equal there, a writer delivers to a matched reader in memory
+    and sends nothing, so the node index must sit inside them (two nodes of one drone are
+    two processes); octets 0-3 stay the drone's ("same host", true of its nodes)."""
     tag = hashlib.sha256(f"{swarm}/{domain_id}/ros2".encode()).digest()[:ROS2_TAG_BYTES]
-    return VENDOR_EPROSIMA + drone_index.to_bytes(2, "big") + tag + node_index.to_bytes(4, "big")
+    return VENDOR_EPROSIMA + drone_index.to_bytes(2, "big") + node_index.to_bytes(2, "big") + tag
 
 
 def ros2_participant_id(top_swarm_index: int, node_index: int) -> int:
@@ -236,6 +247,8 @@ def ros2_participants(
     for drone, drone_index in by_drone:
         if drone_index > MAX_ROS2_DRONE_INDEX:
             raise ValueError(f"drone index {drone_index} exceeds {MAX_ROS2_DRONE_INDEX}")
+        if len(graph.nodes) - 1 > MAX_ROS2_NODE_INDEX:
+            raise ValueError(f"{len(graph.nodes)} ROS 2 nodes exceed {MAX_ROS2_NODE_INDEX + 1}")
         for node in graph.nodes:
             if drone not in node.drones:
                 continue

@@ -30,10 +30,17 @@ their upper half: a node that matched the SPDP writer of a relayed participant d
 whose sequence number is not above the last one it took, so a restarted swarmd must count on
 from above its earlier life.
 
-Trust. Nothing the relay sends comes from the air or from a ROS 2 node: only from the signed
-bundle and ``peer_discovered`` (an authenticated peer). What local nodes send it is read to
-show operators what runs (heard, matched to the bundle, unknown) and which endpoints a node
-has that the bundle does not hold; it is never relayed. Bad datagrams are counted and
+Several nodes on one drone find each other directly: each one's profile lists the others'
+[::1] discovery ports as initial peers. The relay only helps a starting one: with its start
+answers it passes on the other alive nodes' own latest DATA(p) (the answers they send it
+themselves can arrive before it listens, as the relay's can).
+
+Trust. Nothing the relay sends comes from the air: only from the signed bundle and
+``peer_discovered`` (an authenticated peer), and, to a starting node of this drone, the
+DATA(p) its sibling nodes on loopback sent (what they send that node's port anyway). What
+local nodes send it is otherwise read to show operators what runs (heard, matched to the
+bundle, unknown) and which endpoints a node has that the bundle does not hold, and never
+goes to another drone. Bad datagrams are counted and
 dropped; ``receive_datagram`` raises nothing.
 
 Driving sources: datagrams from the relay socket (``receive_datagram``), the timer
@@ -242,6 +249,9 @@ class _Local:
     alive_until: float | None = None
     # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
     undeclared: set[tuple[str, int, str]] | None = None
+    # its latest DATA(p) datagram as it sent it (to everyone, its own header): passed on to
+    # a sibling node of this drone that starts, with the relay's start answers
+    last_spdp: bytes | None = None
 
 
 @dataclass(slots=True)
@@ -344,6 +354,7 @@ class Ros2Relay:
             "tx_spdp": 0,
             "tx_dispose": 0,
             "tx_start_answers": 0,
+            "tx_sibling_spdp": 0,
             "liveness_unknown_drone": 0,
         }
 
@@ -353,7 +364,7 @@ class Ros2Relay:
         """An SPDP datagram a local ROS 2 participant sent the relay. Never raises."""
         self.counters["rx"] += 1
         try:
-            _header, samples = decode_spdp(data)
+            header, samples = decode_spdp(data)
         except DecodeError:
             self.counters["rx_malformed"] += 1
             return
@@ -366,7 +377,12 @@ class Ros2Relay:
             return
         for sample in samples:
             if isinstance(sample, SpdpAlive):
-                self._heard(sample, now)
+                own = (
+                    len(samples) == 1
+                    and sample.destination is None
+                    and header.guid_prefix == sample.participant.guid_prefix
+                )
+                self._heard(sample, now, data if own else None)
             else:
                 self._left(sample.guid_prefix)
 
@@ -600,6 +616,22 @@ class Ros2Relay:
                 self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_spdp"] += 1
 
+    def _send_siblings_to(self, local: _Local) -> None:
+        """The other alive nodes of this drone, to a starting ``local``: their own latest
+        DATA(p), as they sent it. They are its initial peers and answer its first DATA(p)
+        themselves, within milliseconds, which can land before the starting node listens
+        (as the relay's answer can: module docstring, START_ANSWERS); it would then take
+        them only from their next periodic DATA(p), seconds later (docs/ros2.md, "Several
+        nodes on one drone"). Nothing from the air: a loopback node's words, which it sends
+        that node's port anyway."""
+        port = local.participant.metatraffic_port
+        for sibling in self._local.values():
+            if sibling is local or not sibling.alive or sibling.left:
+                continue
+            if sibling.last_spdp is not None:
+                self._out.append((sibling.last_spdp, (self.loopback, port)))
+                self.counters["tx_sibling_spdp"] += 1
+
     def _alive_remote(self, drone: str) -> list[Ros2Participant]:
         remote = self._remote_by_drone.get(drone, [])
         alive = self._remote_alive.get(drone)
@@ -624,6 +656,7 @@ class Ros2Relay:
     def _set_local_alive(self, local: _Local, alive: bool) -> None:
         if not alive:
             local.alive_until = None
+            local.last_spdp = None
         if local.alive == alive:
             return
         local.alive = alive
@@ -638,7 +671,9 @@ class Ros2Relay:
                 self._send_alive(p, present.address, now)
         self._next_renewal = now + self.period_s if self._present else None
 
-    def _heard(self, sample: SpdpAlive, now: float) -> None:
+    def _heard(self, sample: SpdpAlive, now: float, datagram: bytes | None = None) -> None:
+        """``datagram``: the whole datagram when it is this one DATA(p), to everyone, under
+        the participant's own header (kept to pass on to a starting sibling)."""
         participant = sample.participant
         prefix = participant.guid_prefix
         local = self._local.get(prefix)
@@ -663,6 +698,8 @@ class Ros2Relay:
         self._set_local_alive(local, True)
         local.last_sn = sample.sequence_number
         local.datagrams += 1
+        if datagram is not None:
+            local.last_spdp = datagram
         self._check_endpoints(local, participant)
         if first:
             p = local.participant
@@ -674,6 +711,7 @@ class Ros2Relay:
             local.answers_left -= 1
             self.counters["tx_start_answers"] += 1
             self._send_all_to(local)
+            self._send_siblings_to(local)
 
     def _left(self, prefix: GuidPrefix) -> None:
         """A local node's DATA(p[UD]) (it is shutting down): shown as left; its next
@@ -682,6 +720,7 @@ class Ros2Relay:
         local = self._local.get(prefix)
         if local is not None:
             local.left = True
+            local.last_spdp = None
             self._set_local_alive(local, False)
 
     def _heard_unknown(self, participant: SpdpParticipant, now: float) -> None:
