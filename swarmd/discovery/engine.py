@@ -721,10 +721,11 @@ class DiscoveryEngine:
         silence on both sides (the group's members are vouched and do not renew) until a
         renewal happens to fall in a window. Our DATA(p) omits the lost peers from its heard
         digest, so each one that hears it finds itself no longer listed and answers within
-        the rejoin delay (``receive.py``), which rediscovers it here. Peers lost at the same
-        instant share one frame, and never more than one multicast per re-ack gap
-        (``_pull_in``): a peer really gone costs each observer one multicast on top of its
-        four probes. Adaptive mode only, in ANNOUNCE or STEADY (as ``_rejoined``)."""
+        the rejoin delay (``receive.py``), which rediscovers it here. At most one such frame
+        per renewal period (a split's leases end one after another), and an extra frame: the
+        renewal keeps its deadline (``_send``), or a split's drones would all renew in
+        lock-step from the loss on. A peer really gone costs each observer one multicast on
+        top of its four probes. Adaptive mode only, in ANNOUNCE or STEADY (as ``_rejoined``)."""
         if self._config.mode != "adaptive":
             return  # paper mode: the paper's schedule, nothing pulled in
         if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
@@ -737,7 +738,6 @@ class DiscoveryEngine:
         before = renewal.due
         self._pull_in(now)
         if renewal.due != before:
-            # an extra frame, not a renewal moved: the renewal keeps its own random phase
             self._resume_renewal = before
 
     def _pull_in(self, now: float) -> None:
