@@ -175,3 +175,85 @@ def test_a_probe_is_answered_at_once_and_a_flood_of_them_at_most_once_per_gap() 
         t += 0.01
     assert answers and answers[0] - t0 <= reply_max + 0.01
     assert len(answers) <= 2.0 / GAP_S + 1
+
+
+def _renewal_due(engine: DiscoveryEngine) -> float | None:
+    return engine._renewal.due  # noqa: SLF001 - the renewal's phase is what is asserted
+
+
+@pytest.mark.parametrize("mode", ["adaptive", "paper"])
+def test_a_lease_end_pulls_one_multicast_in_omitting_the_lost_and_keeps_the_renewal(
+    mode: str,
+) -> None:
+    """Issue 20's fade: a lease that ends while the link is back is followed by one
+    multicast within the rejoin delay (its heard digest omits the lost peer, so the peer, if
+    it hears it, answers at once), counted as an announcement; the renewal keeps its own
+    deadline. A second lease ending within a renewal period pulls nothing more in. Paper
+    mode: nothing at the loss."""
+    bundle = make_bundle(3)
+    config = EngineConfig(mode=cast(Mode, mode))
+    engine = engine_for(bundle, 1, q=1.0, config=config)
+    run_to(engine, HEARD_AT)
+    for peer, at in ((0, HEARD_AT), (2, HEARD_AT + 1.0)):  # both silent after this
+        engine.receive_datagram(
+            peer_datagram(bundle, peer, heard=(1,), lease_s=LEASE_S),
+            (f"10.0.0.{peer + 1}", 7410 + 2 * peer),
+            at,
+        )
+    end = HEARD_AT + LEASE_S
+    run_to(engine, end - 0.001)
+    assert not any(isinstance(e, PeerLost) for e in drain(engine))
+    renewal = _renewal_due(engine)
+    assert renewal is not None and renewal > end + 1.0
+    announced = engine.counters()["tx_kind"]["announce"]
+    window = len(bundle.participants) / config.announce_budget_fps  # rejoin delay's bound
+    sent = [(t, d) for t, d, _ in run_to(engine, end + window) if alive(d).destination is None]
+    assert [type(e) for e in drain(engine)] == [PeerLost]
+    if mode == "paper":
+        assert sent == []
+        return
+    assert len(sent) == 1
+    heard = decode_heard(alive(sent[0][1]).participant.heard or b"", 3)
+    assert 0 not in heard and 2 in heard
+    assert engine.counters()["tx_kind"]["announce"] == announced + 1
+    assert _renewal_due(engine) == renewal  # an extra frame: the renewal's phase kept
+    # uav2's lease ends 1 s later, within a renewal period: no second frame
+    later = [d for _, d, _ in run_to(engine, end + 1.5) if alive(d).destination is None]
+    assert sum(isinstance(e, PeerLost) for e in drain(engine)) == 1
+    assert later == []
+
+
+def test_a_peer_that_stops_listing_us_is_answered_within_the_rejoin_delay() -> None:
+    """The other side of the lease-end frame: a peer whose frame listed us sends one that
+    does not (it lost us). We read Q = 0, so the reply holdoff is U(W, 2W) with W = N /
+    (budget x q_floor) = 0.4 s, past the fade's windows; the answer comes within the rejoin
+    delay W1 = N / budget = 0.04 s instead. A peer flipping its bit (a forger, unauthenticated
+    swarm) gets such prompt answers at most once per re-ack gap."""
+    bundle = make_bundle(2)
+    engine = engine_for(bundle, 1, q=0.0)
+    run_to(engine, HEARD_AT)
+    engine.receive_datagram(
+        peer_datagram(bundle, 0, heard=(1,), lease_s=LEASE_S), ("10.0.0.1", 7410), HEARD_AT
+    )
+    run_to(engine, HEARD_AT + 1.0)  # our answer, listing it: told, and it lists us
+    rejoin_window = 2 / EngineConfig().announce_budget_fps
+    t0 = HEARD_AT + 2.0
+    engine.receive_datagram(
+        peer_datagram(bundle, 0, heard=(), sequence_number=2, lease_s=LEASE_S),
+        ("10.0.0.1", 7410),
+        t0,
+    )
+    answers = [t for t, _, _ in run_to(engine, t0 + 0.3)]
+    assert answers and answers[0] - t0 <= rejoin_window
+    # the flood: every 0.1 s a frame without us, 0.06 s later one listing us again (which
+    # disarms an answer still held back: only prompt answers get out)
+    sn, t, prompt = 2, t0 + 1.0, 0
+    while t < t0 + 3.0:
+        for heard, dt in (((), 0.0), ((1,), 0.06)):
+            sn += 1
+            frame = peer_datagram(bundle, 0, heard=heard, sequence_number=sn, lease_s=LEASE_S)
+            engine.receive_datagram(frame, ("10.0.0.1", 7410), t + dt)
+            end = t + dt + 0.05 if not heard else t + 0.1 - 0.001
+            prompt += sum(1 for _, d, _ in run_to(engine, end) if alive(d).destination)
+        t += 0.1
+    assert 1 <= prompt <= 2.0 / GAP_S + 1

@@ -181,6 +181,8 @@ class DiscoveryEngine:
         "_passive_deadline",
         "_passive_timer",
         "_pulled_in",
+        "_resume_renewal",
+        "_lease_end_sent",
         "_passive_window",
         "_peer_by_prefix",
         "_peers",
@@ -269,6 +271,10 @@ class DiscoveryEngine:
         self._events: deque[Event] = deque()
         self._events_dropped = 0
         self._pulled_in = False  # the pending renewal was pulled in to announce us (rejoin)
+        # the renewal's own deadline while a lease's end pulled an extra multicast in
+        # (_lease_ended): the multicast does not move the renewal's phase
+        self._resume_renewal: float | None = None
+        self._lease_end_sent: float | None = None  # when a lease's end last pulled one in
 
         # the concerns, each with its own state (see the theory of operation)
         swarm_size = len(bundle.participants)
@@ -354,8 +360,11 @@ class DiscoveryEngine:
         hold_heap = self._hold_heap
         if (earliest is not None and now >= earliest[0]) or (hold_heap and hold_heap[0][0] <= now):
             probes: list[Peer] = []
-            for peer in self._leases.expire(now, probes):
+            expired = self._leases.expire(now, probes)
+            for peer in expired:
                 self._lose(peer, "lease")
+            if expired:
+                self._lease_ended(now)
             for peer in probes:
                 self._probe(peer, now)
         if (
@@ -701,6 +710,39 @@ class DiscoveryEngine:
             return False
         if self._leases.heard.count >= len(self._peers):
             return False  # nobody else is missing
+        self._pull_in(now)
+        return True
+
+    def _lease_ended(self, now: float) -> None:
+        """One or more leases just ended (the peers are lost): pull our next multicast in to
+        ``Debts.rejoin_delay``, as a rejoin does. A lease that ends while the link is back
+        (issue 20's fade: the fading drone in range of the group ~1.5-2.5 s of every 8 s,
+        its last-chance probes all spent in the gap before) would otherwise be followed by
+        silence on both sides (the group's members are vouched and do not renew) until a
+        renewal happens to fall in a window. Our DATA(p) omits the lost peers from its heard
+        digest, so each one that hears it finds itself no longer listed and answers within
+        the rejoin delay (``receive.py``), which rediscovers it here. At most one such frame
+        per renewal period (a split's leases end one after another), and an extra frame: the
+        renewal keeps its deadline (``_send``), or a split's drones would all renew in
+        lock-step from the loss on. A peer really gone costs each observer one multicast on
+        top of its four probes. Adaptive mode only, in ANNOUNCE or STEADY (as ``_rejoined``)."""
+        if self._config.mode != "adaptive":
+            return  # paper mode: the paper's schedule, nothing pulled in
+        if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
+            return
+        renewal = self._renewal
+        last = self._lease_end_sent
+        if last is not None and now - last < renewal.period_s:
+            return  # one such frame per renewal period: leases ending one after another
+        self._lease_end_sent = now
+        before = renewal.due
+        self._pull_in(now)
+        if renewal.due != before:
+            self._resume_renewal = before
+
+    def _pull_in(self, now: float) -> None:
+        """Our next multicast at now + ``Debts.rejoin_delay()``, never sooner than
+        ``retransmit_min_gap_s`` after our last one (a renewal already sooner stays)."""
         at = now + self._debts.rejoin_delay()
         last = self._renewals.last_multicast
         if last is not None:
@@ -711,7 +753,6 @@ class DiscoveryEngine:
         if renewal.due is None or at < renewal.due:
             renewal.due = at
             self._pulled_in = True
-        return True
 
     def _probe(self, peer: Peer, now: float) -> None:
         """The last-chance probe (``leases.PROBE_AT``): our DATA(p) directed to ``peer`` with
@@ -739,7 +780,12 @@ class DiscoveryEngine:
             self._renewals.last_multicast = now
             self._pulled_in = False
             if self.phase in (_ANNOUNCE, _STEADY):
-                self._renewal.restart(now, self._rng)
+                resume = self._resume_renewal
+                if resume is not None and resume > now:
+                    self._renewal.due = resume
+                else:
+                    self._renewal.restart(now, self._rng)
+            self._resume_renewal = None
 
     def _emit(self, event: Event) -> None:
         if len(self._events) >= MAX_PENDING_EVENTS:

@@ -286,7 +286,9 @@ class ReceivePath:
         octet = self._my_octet
         listed = heard is not None and octet < len(heard) and (heard[octet] >> self._my_bit) & 1
         lists_me = peer.lists_me
+        stopped_listing = False  # its frame no longer lists us: it lost us (see below)
         if listed != lists_me:
+            stopped_listing = lists_me
             lists_me = peer.lists_me = not lists_me
             self._leases.listed_by += 1 if lists_me else -1
         peer.link_quality_permille = alive.link_quality_permille
@@ -391,6 +393,17 @@ class ReceivePath:
             # first answer after a holdoff; a peer we already told and are waiting on keeps
             # its backoff, since its frame may simply have crossed ours in flight
             debts = self._debts
+            if stopped_listing and not restarted and peer.reack.permits(now):
+                # A peer whose last frame listed us sends one that does not: it lost us (a
+                # lease that ended, its DATA(p) after the loss: DiscoveryEngine._lease_ended)
+                # and we hear it, so the link is back now. Answer within the rejoin delay,
+                # as for a rejoin, not after the Q-stretched holdoff U(W, 2W): issue 20's
+                # fade gives a pair ~1.5 s in range, and the holdoff (0.3-0.6 s at N = 10,
+                # up to 1.6 s at N = 20) let the window close first. Once per re-ack gap
+                # (the MinInterval of the repeat and probe rules): a peer flipping its bit
+                # cannot make us answer promptly more often than that.
+                peer.reack.mark(now)
+                rejoin = True
             delay = debts.rejoin_delay() if rejoin else debts.reply_delay()
             debts.arm(peer, now + delay)
 
