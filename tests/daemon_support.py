@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from collections.abc import Callable
@@ -80,13 +81,26 @@ topics:
     writers: [member]
     readers: [commander]
 """
-    built = build_dev_bundle(parse_mission(mission, "test-mission.yaml"))
+    return write_mission_bundle(directory, mission, swarm, "test-mission.yaml")
+
+
+def write_mission_bundle(directory: Path, mission: str, swarm: str, name: str) -> BundleFiles:
+    """Build and dev-sign ``mission`` (the text of a mission whose swarm is ``swarm``; ``name``
+    its file name in errors) and write the bundle and its trust key under ``directory``."""
+    built = build_dev_bundle(parse_mission(mission, name))
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / "bundle.swb"
     path.write_bytes(built.data)
     key = directory / "swarm.pub"
     key.write_bytes(public_pem(raw_public(dev_signing_key(swarm))))
     return BundleFiles(built.bundle, path, key)
+
+
+def matched_counts(log: Path) -> list[int]:
+    """A ROS 2 subscriber's matched publisher counts, in order (``ros2_node --matched-log``)."""
+    if not log.exists():
+        return []
+    return [json.loads(line)["matched"] for line in log.read_text().splitlines() if line]
 
 
 def swarm_sections(state_dir: Path, px4: str | None, *, period_s: float = 1.0) -> str:

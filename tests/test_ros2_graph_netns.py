@@ -26,9 +26,6 @@ import pytest
 from swarmd_lab import netns, ros2_lab
 from swarmd_lab.ros2_lab import discovery_counts, graph_datagrams, host_argv, write_machine_id
 
-from swarmd.bundle.build import build_dev_bundle
-from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
-from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import Ros2EndpointKind, bundle_ros2_participants
 from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.ros2.graph import (
@@ -45,7 +42,14 @@ from swarmd.ros2.graph import (
 from swarmd.rtps.message import Data, Header, Heartbeat, InfoDst, encode_message
 from swarmd.rtps.types import ENTITYID_UNKNOWN, EntityId, GuidPrefix, ProtocolVersion, VendorId
 from tests.conftest import LanFactory
-from tests.daemon_support import BundleFiles, daemon_status, run_domain, until, write_config
+from tests.daemon_support import (
+    BundleFiles,
+    daemon_status,
+    run_domain,
+    until,
+    write_config,
+    write_mission_bundle,
+)
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
@@ -91,12 +95,7 @@ def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
         ros2_domain=ROS2_DOMAIN,
         **{f"a{i}": a for i, a in enumerate(addresses)},
     )
-    built = build_dev_bundle(parse_mission(text, "ros2-graph.yaml"))
-    path = workdir / "bundle.swb"
-    path.write_bytes(built.data)
-    key = workdir / "swarm.pub"
-    key.write_bytes(public_pem(raw_public(dev_signing_key("ros2-graph"))))
-    return BundleFiles(built.bundle, path, key)
+    return write_mission_bundle(workdir, text, "ros2-graph", "ros2-graph.yaml")
 
 
 def _forged_graph_sample(

@@ -34,13 +34,18 @@ import pytest
 from swarmd_lab import netns, ros2_lab
 from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
 
-from swarmd.bundle.build import build_dev_bundle
-from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
-from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.cli.swarmctl import main as swarmctl
 from tests.conftest import LanFactory
-from tests.daemon_support import BundleFiles, daemon_status, run_domain, until, write_config
+from tests.daemon_support import (
+    BundleFiles,
+    daemon_status,
+    matched_counts,
+    run_domain,
+    until,
+    write_config,
+    write_mission_bundle,
+)
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
@@ -88,19 +93,7 @@ def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
         ros2_domain=ROS2_DOMAIN,
         **{f"a{i}": a for i, a in enumerate(addresses)},
     )
-    built = build_dev_bundle(parse_mission(text, "ros2-local.yaml"))
-    path = workdir / "bundle.swb"
-    path.write_bytes(built.data)
-    key = workdir / "swarm.pub"
-    key.write_bytes(public_pem(raw_public(dev_signing_key("ros2-local"))))
-    return BundleFiles(built.bundle, path, key)
-
-
-def _matched(log: Path) -> list[int]:
-    """A listener's matched publisher counts, in order (``ros2_node --matched-log``)."""
-    if not log.exists():
-        return []
-    return [json.loads(line)["matched"] for line in log.read_text().splitlines() if line]
+    return write_mission_bundle(workdir, text, "ros2-local", "ros2-local.yaml")
 
 
 def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:
@@ -179,13 +172,13 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
         talker = start_node(1, "talker", "talker", TALKER_S, "--tag", "drone-1")
         # the monitor matches the lead's publisher and its own drone's talker; the lead's
         # listener its own publisher and drone-1's talker
-        _until(lambda: 2 in _matched(monitor_log), lambda: str(_matched(monitor_log)))
-        _until(lambda: 2 in _matched(lead_log), lambda: str(_matched(lead_log)))
+        _until(lambda: 2 in matched_counts(monitor_log), lambda: str(matched_counts(monitor_log)))
+        _until(lambda: 2 in matched_counts(lead_log), lambda: str(matched_counts(lead_log)))
         talker_out = output(talker, TALKER_S)
         # the talker has stopped: only it is marked, at home and at the lead
         _until(
-            lambda: _matched(monitor_log)[-1:] == _matched(lead_log)[-1:] == [1],
-            lambda: f"monitor {_matched(monitor_log)} lead {_matched(lead_log)}",
+            lambda: matched_counts(monitor_log)[-1:] == matched_counts(lead_log)[-1:] == [1],
+            lambda: f"monitor {matched_counts(monitor_log)} lead {matched_counts(lead_log)}",
         )
         _until(
             lambda: (
@@ -215,7 +208,7 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
         f"\nlead: {lead_result}\nmonitor: {monitor_result}\ntalker: {talker_out[-1]}"
         f"\nlead graph: {[s['nodes'] for s in lead_graph]}"
         f"\nmonitor graph: {[s['nodes'] for s in monitor_graph]}"
-        f"\nmatched: monitor {_matched(monitor_log)} lead {_matched(lead_log)}"
+        f"\nmatched: monitor {matched_counts(monitor_log)} lead {matched_counts(lead_log)}"
         f"\ndrone-1 relay: {drone1_status['alive_bitmap']} {drone1_status['local']}"
         f"\nlink from the drones: {counts}; graph datagrams {graph_on_air}"
     )

@@ -33,16 +33,21 @@ import pytest
 from swarmd_lab import netns, ros2_lab
 from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
 
-from swarmd.bundle.build import build_dev_bundle
-from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
-from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
 from swarmd.rtps.types import Duration, GuidPrefix, ProtocolVersion, VendorId
 from tests.conftest import LanFactory
-from tests.daemon_support import BundleFiles, daemon_status, run_domain, until, write_config
+from tests.daemon_support import (
+    BundleFiles,
+    daemon_status,
+    matched_counts,
+    run_domain,
+    until,
+    write_config,
+    write_mission_bundle,
+)
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
@@ -131,12 +136,7 @@ def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
         ros2_domain=ROS2_DOMAIN,
         **{f"a{i}": a for i, a in enumerate(addresses)},
     )
-    built = build_dev_bundle(parse_mission(text, "ros2-relay.yaml"))
-    path = workdir / "bundle.swb"
-    path.write_bytes(built.data)
-    key = workdir / "swarm.pub"
-    key.write_bytes(public_pem(raw_public(dev_signing_key("ros2-relay"))))
-    return BundleFiles(built.bundle, path, key)
+    return write_mission_bundle(workdir, text, "ros2-relay", "ros2-relay.yaml")
 
 
 def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
@@ -205,11 +205,14 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         )
         steady = start_node(2, "talker", LISTEN_S, "--tag", "drone-2")
         first = start_node(1, "talker", FIRST_LIFE_S, "--tag", "drone-1")
-        _until(lambda: 2 in _matched(matched_log), lambda: str(_matched(matched_log)))
+        _until(lambda: 2 in matched_counts(matched_log), lambda: str(matched_counts(matched_log)))
         first_result = result(first, FIRST_LIFE_S)
         # drone-1's talker has stopped (its DATA(p[UD]) reached its relay only): the lead's
         # listener loses it, through drone-1's signed liveness and the lead's relay
-        _until(lambda: _matched(matched_log)[-1:] == [1], lambda: str(_matched(matched_log)))
+        _until(
+            lambda: matched_counts(matched_log)[-1:] == [1],
+            lambda: str(matched_counts(matched_log)),
+        )
         # the lead's node and swarmd bind discovery on [::1] only (ss: local address column)
         sockets = lan[0].run(["ss", "-uanH"]).stdout.split("\n")
         local_ends = [line.split()[3] for line in sockets if len(line.split()) > 3]
@@ -223,7 +226,10 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         second = start_node(
             1, "talker", SECOND_LIFE_S, "--tag", "drone-1-again", "--undeclared", "/extra"
         )
-        _until(lambda: _matched(matched_log)[-1:] == [2], lambda: str(_matched(matched_log)))
+        _until(
+            lambda: matched_counts(matched_log)[-1:] == [2],
+            lambda: str(matched_counts(matched_log)),
+        )
         # drone-2's swarmd restarts while its talker runs: its peers dispose its ROS 2
         # participants at their nodes (DATA(p[UD]) from swarmd), then find it again
         daemons[2].send_signal(signal.SIGTERM)
@@ -313,7 +319,7 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     for st in statuses:
         assert [r["state"] for r in st["ros2"]["local"]] == ["left"], st["ros2"]
         assert st["ros2"]["alive_bitmap"] == "00"
-    matched = _matched(matched_log)
+    matched = matched_counts(matched_log)
     assert matched[matched.index(2) :][:3] == [2, 1, 2], matched
     # the undeclared /extra publisher of drone-1's talker is reported, by node
     undeclared = statuses[1]["ros2"]["local"][0]["undeclared_endpoints"]
@@ -328,13 +334,6 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     for d in daemons:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0
-
-
-def _matched(log: Path) -> list[int]:
-    """The listener's matched publisher counts, in order (``ros2_node --matched-log``)."""
-    if not log.exists():
-        return []
-    return [json.loads(line)["matched"] for line in log.read_text().splitlines() if line]
 
 
 def _drain(sock: Any) -> int:
