@@ -90,6 +90,54 @@ def dataplane_supported() -> bool:
     return "dataplane" in CONFIG_FIELDS.get("<top>", ())
 
 
+def daemon_config(
+    i: int,
+    bundle: Path,
+    key: Path,
+    socket: Path,
+    *,
+    aware: bool,
+    link_file: Path | None,
+    mode: str,
+    overrides: Mapping[str, object] | None = None,
+    state_dir: Path,
+    sections: str = "",
+) -> str:
+    """Drone ``i``'s ``swarmd run`` config on the testbed: the bundle, the control socket, the
+    link quality from the ns-3 link file (``aware``; else a static Q of 0.5), the discovery
+    mode and overrides, swarmd's data plane (state in ``state_dir``) when this swarmd has
+    one, then ``sections`` (e.g. ``ros2:``). Shared by the swarmd and ros2-swarmd contenders."""
+    sources = "[file, static]" if aware and link_file is not None else "[static]"
+    file_line = f"  file: {link_file}\n" if link_file is not None else ""
+    over = (
+        "{" + ", ".join(f"{k}: {val}" for k, val in overrides.items()) + "}" if overrides else "{}"
+    )
+    dataplane = (
+        f"dataplane:\n  enabled: true\n  state_dir: {state_dir}\n" if dataplane_supported() else ""
+    )
+    return f"""\
+node: uav{i + 1}
+bundle:
+  path: {bundle}
+  trusted_key: {key}
+  allow_dev: true
+network:
+  interface: eth0
+control:
+  socket: {socket}
+link:
+  sources: {sources}
+  poll_interval_s: 1.0
+{file_line}  static_q: 0.5
+discovery:
+  mode: {mode}
+  overrides: {over}
+{dataplane}{sections}logging:
+  level: info
+  format: json
+"""
+
+
 def _clean_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
     drop = (
         "CYCLONEDDS_URI",
@@ -326,39 +374,11 @@ class SwarmdContender(Contender):
 
     def _config(self, i: int, bundle: Path, key: Path) -> Path:
         v = self.variant
-        sources = "[file, static]" if v.aware else "[static]"
-        overrides = (
-            "{" + ", ".join(f"{k}: {val}" for k, val in v.overrides.items()) + "}"
-            if v.overrides
-            else "{}"
-        )
-        dataplane = (
-            f"dataplane:\n  enabled: true\n  state_dir: {self.work / f'state-uav{i + 1}'}\n"
-            if dataplane_supported()
-            else ""
-        )
-        text = f"""\
-node: uav{i + 1}
-bundle:
-  path: {bundle}
-  trusted_key: {key}
-  allow_dev: true
-network:
-  interface: eth0
-control:
-  socket: {self.socks[i]}
-link:
-  sources: {sources}
-  poll_interval_s: 1.0
-  file: {self.link_dir / f"link-{i}.json"}
-  static_q: 0.5
-discovery:
-  mode: {v.mode}
-  overrides: {overrides}
-{dataplane}logging:
-  level: info
-  format: json
-{self.extra_config}"""
+        text = daemon_config(
+            i, bundle, key, self.socks[i],
+            aware=v.aware, link_file=self.link_dir / f"link-{i}.json", mode=v.mode,
+            overrides=v.overrides, state_dir=self.work / f"state-uav{i + 1}",
+        ) + self.extra_config  # fmt: skip
         path = self.work / f"uav{i + 1}.yaml"
         path.write_text(text)
         return path

@@ -48,7 +48,7 @@ from swarmd_lab.netns import Namespace
 from swarmd_lab.ros2_lab import host_argv, write_machine_id
 
 from bench.wifi.bundle import SWARM, mission_text
-from bench.wifi.contenders import PEERS, PeerContender, _clean_env, dataplane_supported
+from bench.wifi.contenders import PEERS, PeerContender, _clean_env, daemon_config
 from bench.wifi.peers.ros2_peer import TOPIC
 from bench.wifi.topology import _sysctls as sysctls
 from swarmd.bundle.build import build_dev_bundle
@@ -204,41 +204,12 @@ def swarmd_config(c: Ros2Contender, i: int, bundle: Path, key: Path) -> Path:
     1 Hz readiness to the commander is also what the commander vouches on: without it every
     member renews on its own, docs/discovery.md "Vouching"), and the relay on
     (docs/ros2.md). The rclpy nodes carry the benchmark's workload."""
-    if c.link_dir is not None:
-        link = f"""\
-  sources: [file, static]
-  file: {c.link_dir / f"link-{i}.json"}
-"""
-    else:
-        link = """\
-  sources: [static]
-"""
-    dataplane = (
-        f"dataplane:\n  enabled: true\n  state_dir: {c.work / f'state-uav{i + 1}'}\n"
-        if dataplane_supported()
-        else ""
-    )
-    text = f"""\
-node: uav{i + 1}
-bundle:
-  path: {bundle}
-  trusted_key: {key}
-  allow_dev: true
-network:
-  interface: eth0
-control:
-  socket: {swarmd_socket(c, i)}
-link:
-{link}  poll_interval_s: 1.0
-  static_q: 0.5
-discovery:
-  mode: adaptive
-{dataplane}ros2:
-  relay: true
-logging:
-  level: info
-  format: json
-"""
+    link_file = None if c.link_dir is None else c.link_dir / f"link-{i}.json"
+    text = daemon_config(
+        i, bundle, key, swarmd_socket(c, i),
+        aware=True, link_file=link_file, mode="adaptive",
+        state_dir=c.work / f"state-uav{i + 1}", sections="ros2:\n  relay: true\n",
+    )  # fmt: skip
     path = c.work / f"swarmd-uav{i + 1}.yaml"
     path.write_text(text)
     return path
