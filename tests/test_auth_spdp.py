@@ -102,10 +102,12 @@ def test_flood_from_other_addresses_never_spends_the_known_senders_budget() -> N
     auth = SpdpAuth(ring(1), 7, 0.0)
     assert isinstance(v.check(P[1].value, auth.seal(template(1)), SRC, 0.0), Freshness)
     v.note_address(P[1].value, SRC)  # the engine used it: SRC is member 1's address now
-    # a forger spoofing member 1's prefix from many addresses, all at t = 0
-    forged = seal(template(1), Freshness(8, 1), ring(2))
+    # a forger spoofing member 1's prefix from many addresses, all at t = 0, each datagram
+    # distinct (a repeat of one that failed is refused without spending: test_auth_tags)
+    forged = [seal(template(1), Freshness(8, 1 + i), ring(2)) for i in range(520)]
     refusals = [
-        v.check(P[1].value, forged, (f"10.9.{i // 250}.{i % 250}", 7412), 0.0) for i in range(500)
+        v.check(P[1].value, forged[i], (f"10.9.{i // 250}.{i % 250}", 7412), 0.0)
+        for i in range(500)
     ]
     # SRC is member 1's bundle address (ipv4 + metatraffic port): its own budget from the
     # first datagram on, so the forger had the whole global budget to itself
@@ -113,7 +115,7 @@ def test_flood_from_other_addresses_never_spends_the_known_senders_budget() -> N
     assert refusals.count(Refusal.BAD_SIGNATURE) == verified  # then no tokens left
     assert refusals.count(Refusal.BUDGET_GLOBAL) == 500 - verified
     # one address: its own budget runs out first
-    one = [v.check(P[1].value, forged, ("10.8.0.1", 1), 0.0) for _ in range(20)]
+    one = [v.check(P[1].value, forged[500 + k], ("10.8.0.1", 1), 0.0) for k in range(20)]
     assert one.count(Refusal.BUDGET_SENDER) >= 20 - NEW_ADDRESS_BURST
     # the real member at its known address still gets every datagram verified (its first
     # datagram above took one of its own tokens)

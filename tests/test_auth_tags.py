@@ -353,3 +353,60 @@ def test_a_restarted_engine_does_not_rediscover_a_dead_member_from_its_capture()
     e3 = engine_for(bundle, 0, auth=auth_for(bundle, 0, epoch=3))
     e3.receive_datagram(captured, ("10.0.0.66", 7412), 5.0)
     assert any(isinstance(x, PeerDiscovered) for x in iter(e3.next_event, None))
+
+
+# ---- a forgery whose tag held: one verification, however often it is sent -------------
+
+
+def _with_bad_signature(datagram: bytes) -> bytes:
+    """``datagram`` with one octet of its Ed25519 signature flipped: every receiver tag still
+    holds (the tags do not cover the signature), the signature does not."""
+    bad = bytearray(datagram)
+    bad[len(bad) - 4 - 10] ^= 0x40  # inside the 64 signature octets before the sentinel
+    return bytes(bad)
+
+
+def test_a_forgery_that_passed_the_tag_costs_one_verification_however_often_it_is_sent() -> None:
+    """The spoofed-address attack test's lead drone once counted 214 ``auth_bad_signature``:
+    one lucky tag in a pool of 1,400 forgeries, sent 214 times over, each copy spending a
+    verification and a token of the real sender's budget. Here the tag holds for certain (a
+    genuine datagram's, its signature broken) and the copy is sent 100 times, 2.5 times the
+    sender's burst: before the fix the sender's budget ran dry and its next genuine datagram
+    was refused."""
+    member = auth_for(BUNDLE, 1)
+    commander = auth_for(BUNDLE, 0, epoch=5)
+    lucky = _with_bad_signature(peer_datagram(BUNDLE, 0, auth=commander))
+    verdicts = [member.check(P[0].value, lucky, addr(0), 0.0) for _ in range(100)]
+    assert verdicts[0] == Refusal.BAD_SIGNATURE
+    assert set(verdicts[1:]) == {Refusal.REPEATED_FORGERY}
+    assert member.counters()["verified"] == 1
+    # the same instant: the commander's burst less the one token is there for its datagrams
+    for _ in range(int(SENDER_BURST) - 1):
+        d = peer_datagram(BUNDLE, 0, auth=commander)
+        assert isinstance(member.check(P[0].value, d, addr(0), 0.0), Freshness)
+
+
+def test_a_corrupted_copy_raced_ahead_of_a_genuine_datagram_does_not_get_it_refused() -> None:
+    """The table holds whole datagrams, signature included: an attacker who sniffs a genuine
+    datagram and gets a corrupted copy processed first costs one verification, and the
+    genuine one still passes (it is not the same octets)."""
+    member = auth_for(BUNDLE, 1)
+    genuine = peer_datagram(BUNDLE, 0, auth=auth_for(BUNDLE, 0, epoch=5))
+    for _ in range(5):
+        assert member.check(P[0].value, _with_bad_signature(genuine), addr(0), 0.0) in (
+            Refusal.BAD_SIGNATURE,
+            Refusal.REPEATED_FORGERY,
+        )
+    assert member.check(P[0].value, genuine, addr(0), 0.0) == Freshness(5, 1)
+    assert member.counters()["verified"] == 2
+
+
+def test_the_failed_datagram_table_is_capped() -> None:
+    from swarmd.auth.spdp import MAX_FAILED_DIGESTS
+
+    member = auth_for(BUNDLE, 1)
+    sender = auth_for(BUNDLE, 0, epoch=5)
+    for k in range(MAX_FAILED_DIGESTS + 40):
+        lucky = _with_bad_signature(peer_datagram(BUNDLE, 0, auth=sender))
+        assert member.check(P[0].value, lucky, addr(0), float(k)) == Refusal.BAD_SIGNATURE
+    assert member.verifier.failed_remembered == MAX_FAILED_DIGESTS

@@ -38,8 +38,23 @@ Receiving (``SpdpVerifier.check``), in order of cost, nothing changing before th
    datagram comes from the address its last used verified datagram came from, otherwise a
    per-(prefix, address) budget *and* a global budget for unverified addresses (else
    ``auth_budget_sender`` / ``auth_budget_global``);
-5. Ed25519 under the prefix's bundle key (else ``auth_bad_signature``);
-6. only then: the window accepts the freshness.
+5. not a datagram that already failed its signature here (else ``auth_repeated_forgery``):
+   one unkeyed BLAKE2b of the whole datagram against a bounded table of those that failed;
+6. Ed25519 under the prefix's bundle key (else ``auth_bad_signature``; the datagram joins
+   that table);
+7. only then: the window accepts the freshness.
+
+Why step 5: a forgery whose tag holds by chance (2^-16 per guess) fails its signature, so
+the window never moves past its freshness and the same bytes pass steps 1-4 every time they
+are sent again. An attacker cycling a fixed pool of forgeries therefore spent one
+verification per copy of the lucky one, not one in all: in the spoofed-address attack test a
+pool of 1,400 forgeries sent 214 times over (5,000/s for 60 s) held one lucky tag and cost the
+lead drone 214 verifications (and as many tokens of the real sender's budget) where one was
+due. With the table a lucky guess costs one verification, whatever the pool, so the cost of
+a blind forger stays one in 65,536 of what it sends. The table is keyed by the whole
+datagram (signature included): a genuine datagram, whose signature holds, can never be in
+it, so racing a sniffed genuine datagram with a corrupted copy cannot get the genuine one
+refused.
 
 The caller (the discovery engine) looks the prefix up in the bundle first (strangers never
 reach this) and changes its peer table only on a returned ``Freshness``. Once it has used
@@ -52,7 +67,9 @@ address (the attacker could then starve the real address by spending the shared 
 
 from __future__ import annotations
 
+import hashlib
 import struct
+from collections import OrderedDict
 from enum import StrEnum
 from typing import Final, Protocol
 
@@ -118,6 +135,14 @@ class Refusal(StrEnum):
     BUDGET_SENDER = "auth_budget_sender"
     BUDGET_GLOBAL = "auth_budget_global"
     BAD_SIGNATURE = "auth_bad_signature"
+    REPEATED_FORGERY = "auth_repeated_forgery"
+
+
+# Datagrams that failed their signature, remembered so a repeat costs no verification
+# (module docstring, step 5): 16-octet digests, oldest forgotten first. 512 entries is about
+# 40 KB; an attacker must find 512 lucky tags (2^25 forgeries on average) to push one out.
+MAX_FAILED_DIGESTS: Final = 512
+FAILED_DIGEST_BYTES: Final = 16
 
 
 def authenticator_overhead(tags: int) -> int:
@@ -221,7 +246,8 @@ class SpdpVerifier:
 
     Every table is bounded: windows, tag keys and known addresses by the bundle's size (only
     bundle prefixes get here, and windows only after verifying), new-address buckets by
-    ``MAX_NEW_ADDRESSES``. ``counters`` counts each refusal and each verification run."""
+    ``MAX_NEW_ADDRESSES``, failed datagrams by ``MAX_FAILED_DIGESTS``. ``counters`` counts
+    each refusal and each verification run."""
 
     def __init__(self, keyring: KeyRing, now: float, tags: ReceiverTags | None = None) -> None:
         self._keyring = keyring
@@ -249,6 +275,9 @@ class SpdpVerifier:
             NEW_ADDRESS_RATE, NEW_ADDRESS_BURST, MAX_NEW_ADDRESSES
         )
         self._global = TokenBucket(GLOBAL_NEW_ADDRESS_RATE, GLOBAL_NEW_ADDRESS_BURST, now)
+        # digests of datagrams that reached Ed25519 and failed (step 5), at most
+        # MAX_FAILED_DIGESTS, oldest first
+        self._failed: OrderedDict[bytes, None] = OrderedDict()
         self.counters: dict[str, int] = {r.value: 0 for r in Refusal}
         self.counters["auth_verified"] = 0
         self.counters["auth_untagged"] = 0  # checked without a tag for me (rotating window)
@@ -282,6 +311,9 @@ class SpdpVerifier:
             head = view[:head_end]
             if not tags.holds(prefix, tag, head, view[meta_at : n - 4 - SIGNATURE_BYTES]):
                 return self._refuse(Refusal.BAD_TAG)
+            digest = self._failed_before(data)
+            if digest is None:
+                return self._refuse(Refusal.REPEATED_FORGERY)
             if not self._tagged.take(prefix, now):
                 return self._refuse(Refusal.BUDGET_SENDER)
         elif tags is not None and (
@@ -292,6 +324,9 @@ class SpdpVerifier:
             return self._refuse(Refusal.BAD_TAG)
         else:
             self.counters["auth_untagged"] += 1
+            digest = self._failed_before(data)
+            if digest is None:
+                return self._refuse(Refusal.REPEATED_FORGERY)
             if self._known.get(prefix) == source:
                 if not self._sender.take(prefix, now):
                     return self._refuse(Refusal.BUDGET_SENDER)
@@ -306,12 +341,27 @@ class SpdpVerifier:
         freshness, signature, signed = opened
         self.counters["auth_verified"] += 1
         if not self._keyring.verify(prefix, signed, signature):
+            failed = self._failed
+            failed[digest] = None
+            if len(failed) > MAX_FAILED_DIGESTS:
+                failed.popitem(last=False)
             return self._refuse(Refusal.BAD_SIGNATURE)
         if window is None:
             window = self._windows[prefix] = ReplayWindow()
         window.accept(freshness)
         self.windows_changed = True
         return freshness
+
+    def _failed_before(self, data: bytes) -> bytes | None:
+        """The datagram's digest, or None when these very octets already failed their
+        signature here (step 5: a repeat is refused without a verification)."""
+        digest = hashlib.blake2b(data, digest_size=FAILED_DIGEST_BYTES).digest()
+        return None if digest in self._failed else digest
+
+    @property
+    def failed_remembered(self) -> int:
+        """How many failed datagrams are remembered (at most ``MAX_FAILED_DIGESTS``)."""
+        return len(self._failed)
 
     def note_address(self, prefix: bytes, source: tuple[str, int]) -> None:
         """A datagram from ``prefix`` that ``check`` verified came from ``source`` and was

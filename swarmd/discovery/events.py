@@ -41,6 +41,7 @@ class DropReason(StrEnum):
     AUTH_BUDGET_SENDER = "auth_budget_sender"  # this sender/address spent its verifications
     AUTH_BUDGET_GLOBAL = "auth_budget_global"  # unverified addresses spent the shared budget
     AUTH_BAD_SIGNATURE = "auth_bad_signature"  # not signed with the prefix's bundle key
+    AUTH_REPEATED_FORGERY = "auth_repeated_forgery"  # these octets already failed Ed25519 here
     # an authenticated DATA(p) announcing a loopback (from the air), multicast, unspecified or
     # broadcast unicast locator (issue 10, attack 7): refused whole, nothing moves
     BAD_LOCATOR = "bad_locator"
