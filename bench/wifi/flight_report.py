@@ -1,6 +1,8 @@
 """The timeline figure of a flight run, from its run file alone (issue 20).
 
     .venv/bin/python -m bench.wifi.flight_report bench/results/flight/runs/*.json
+    .venv/bin/python -m bench.wifi.flight_report --matrix RUNS... [--since-commit C] \
+        [--write-docs docs/benchmarks.md]      # the matrix: bench/wifi/flight_matrix.py
 
 Top: who sees whom. One row per ordered pair (observer i, peer j), one column per 0.5 s:
 green where i lists j as discovered and j is in i's range (ground truth), light grey where
@@ -16,12 +18,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from bench.wifi import flight_commands, flight_measures
+from bench.wifi import flight_commands, flight_matrix, flight_measures
 
 NOISE_DBM = -94.0
 CONTENDER_ORDER = (
@@ -203,7 +206,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--table", action="store_true", help="print the runs as a markdown table, draw nothing"
     )
-    args = p.parse_args(argv)
+    p.add_argument(
+        "--matrix",
+        action="store_true",
+        help="print the flight matrix (every scenario, contender, N = 10 and 20) of the run "
+        "files or directories named, with swarmd's targets judged; draw nothing",
+    )
+    p.add_argument(
+        "--since-commit",
+        default=None,
+        metavar="C",
+        help="with --matrix: count only the swarmd runs made at C or a descendant of it",
+    )
+    p.add_argument(
+        "--write-docs",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="with --matrix: rewrite the flight-matrix block of FILE instead of printing",
+    )
+    raw = list(sys.argv[1:] if argv is None else argv)
+    args = p.parse_args(raw)
+    if args.matrix:
+        return matrix(args.runs, args.since_commit, args.write_docs, raw)
+    if args.since_commit is not None or args.write_docs is not None:
+        p.error("--since-commit and --write-docs go with --matrix")
     if args.table:
         runs = [json.loads(path.read_text()) for path in args.runs]
         print("\n".join(table(runs)))
@@ -218,6 +245,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             run["heard"] = compact_heard(run.get("heard", []))
             path.write_text(json.dumps(run) + "\n")
         print(timeline(run, path.with_suffix(".png")))
+    return 0
+
+
+def matrix(paths: Sequence[Path], since: str | None, docs: Path | None, raw: list[str]) -> int:
+    """``--matrix``: the block of ``bench/wifi/flight_matrix.py``, printed or written."""
+    repo = Path(__file__).resolve().parents[2]
+    counts = None if since is None else flight_matrix.git_descends(since, repo)
+    command = ".venv/bin/python -m bench.wifi.flight_report " + shlex.join(raw)
+    docs_dir = (docs if docs is not None else repo / "docs" / "x.md").resolve().parent
+    text = flight_matrix.block(
+        flight_matrix.load(paths), command=command, docs_dir=docs_dir, counts=counts,
+        since=since,
+    )  # fmt: skip
+    if docs is None:
+        print(text)
+        return 0
+    try:
+        flight_matrix.write_docs(docs, text)
+    except ValueError as exc:
+        print(f"flight_report: {exc}", file=sys.stderr)
+        return 2
+    print(docs)
     return 0
 
 
