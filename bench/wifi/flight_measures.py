@@ -273,7 +273,6 @@ def readiness_delivery(
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 
 
-
 def _count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
     """Member m's received-sample count in the last poll at or before ``t``."""
     best = None
@@ -350,6 +349,7 @@ def readiness_after_returns(
                 }
             )
     return rows
+
 
 def _pearson(xs: Sequence[float], ys: Sequence[float]) -> float | None:
     n = len(xs)
