@@ -26,6 +26,7 @@ from swarmd.dataplane import (
     ReadinessReceived,
     encode_sample,
 )
+from swarmd.dataplane.early import EARLY_HOLD_S
 from swarmd.dataplane.seal import seal, user_data_key
 from swarmd.rtps import (
     AckNack,
@@ -159,18 +160,28 @@ def test_bad_input_is_dropped_with_a_reason(datagram: bytes, reason: str) -> Non
     assert plane.datagrams_to_send() == []
 
 
-def test_datagrams_from_a_peer_discovery_has_not_reported_are_dropped() -> None:
+def test_datagrams_from_a_peer_discovery_has_not_reported_are_held_not_taken() -> None:
+    """A peer discovery has not reported up moves nothing: its datagram is held (early.py)
+    and dropped ``peer_not_up`` unless discovery reports it within ``EARLY_HOLD_S``; then
+    it is checked and taken as if just received."""
     plane = make_plane(BUNDLE, "lead")
     plane.receive_datagram(
         from_peer(M1.guid_prefix, Data(READY_R, READY_W, 1, None, readiness("m01"))), SRC, 0.0
     )
+    assert drops(plane) == []
+    assert plane.readiness_received("m01") is None
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), EARLY_HOLD_S + 0.1, epoch=1)
     assert drops(plane) == ["peer_not_up"]
-    plane.peer_up("m01", address_of(BUNDLE, "m01"), 0.0, epoch=1)
-    plane.peer_down("m01", 1.0)
+    assert plane.readiness_received("m01") is None
+    plane.peer_down("m01", 2.0)
     plane.receive_datagram(
-        from_peer(M1.guid_prefix, Data(READY_R, READY_W, 2, None, readiness("m01"))), SRC, 2.0
+        from_peer(M1.guid_prefix, Data(READY_R, READY_W, 2, None, readiness("m01"))), SRC, 3.0
     )
-    assert drops(plane) == ["peer_not_up"]
+    assert drops(plane) == []
+    assert plane.readiness_received("m01") is None
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), 3.0 + EARLY_HOLD_S, epoch=1)
+    stats = plane.readiness_received("m01")
+    assert stats is not None and stats.count == 1
 
 
 def test_misuse_by_the_owner_is_a_clear_value_error() -> None:

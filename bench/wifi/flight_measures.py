@@ -38,6 +38,7 @@ Definitions (docs/benchmarks.md, "Flight"):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
@@ -272,6 +273,84 @@ def readiness_delivery(
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 
 
+def _count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
+    """Member m's received-sample count in the last poll at or before ``t``."""
+    best = None
+    for pt, table in readiness:
+        if pt > t:
+            break
+        if m in table:
+            best = table[m]
+    return best
+
+
+def readiness_after_returns(
+    truth: Truth,
+    down: Mapping[int, Sequence[Interval]],
+    changes: Mapping[int, Sequence[Change]],
+    readiness: Sequence[tuple[float, Mapping[int, int]]],
+    n: int,
+    end: float,
+) -> list[dict[str, Any]]:
+    """Where the readiness missing after a member's return into the commander's range goes:
+    one row per member and return (an in-range span after a gap, as ``readiness_delivery``
+    bounds it), with
+
+    - ``wait_s``: from the return (the truth's first sample in range) to the member's next
+      up-report of the commander: the member has no reader to write to, nothing can leave;
+    - ``member_first_s``: the commander's next up-report of the member minus the member's
+      (> 0: the member found the commander first, and a report it sent in between reached
+      a commander that still had it down: dropped ``peer_not_up``, docs/dataplane.md);
+    - ``first_counted_s``: from the return to the first poll whose count moved;
+    - ``expected``, ``delivered``, ``missing``: as ``readiness_delivery`` counts the span;
+    - ``sendable``: the reports a 1 Hz stream restarted at the member's re-discovery holds
+      in the span (capped as ``delivered`` is): ``expected - sendable`` is the wait's
+      share of ``missing``, ``sendable - delivered`` the reports sent and not counted.
+
+    A report sent at the member's re-discovery and taken is counted by the next poll (0.25
+    s apart in the runs); one counted only a period later was lost."""
+    rows: list[dict[str, Any]] = []
+    if not readiness:
+        return rows
+    last = min(end, readiness[-1][0])
+    for m in range(1, n):
+        samples = reachable(truth, down, 0, m)
+        runs = spans(samples)
+        for k, (a, b, up) in enumerate(runs):
+            if not up or k == 0:
+                continue
+            if b < samples[-1][0]:
+                b = max(t for t, v in samples if t < b)
+            b = min(b, last)
+            member_up = [t for t, p, c in changes.get(m, ()) if p == 0 and c in UP_KINDS]
+            lead_up = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
+            t_member = min((t for t in member_up if t >= a - TOLERANCE_S), default=None)
+            t_lead = min((t for t in lead_up if t >= a - TOLERANCE_S), default=None)
+            ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
+            if t_member is None or t_lead is None or ca is None or cb is None or b - a < 2.0:
+                continue
+            moved = [t for t, table in readiness if a < t <= b and table.get(m, ca) != ca]
+            expected = (b - a) * READINESS_HZ
+            delivered = min(max(0, cb - ca), expected)
+            # the member's stream restarts at its re-discovery (its tick is pulled in there,
+            # swarm core) and runs one a period: what it could send in the span
+            sendable = min(expected, math.floor((b - max(a, t_member)) * READINESS_HZ) + 1)
+            rows.append(
+                {
+                    "member": m,
+                    "return_s": a,
+                    "wait_s": round(max(0.0, t_member - a), 3),
+                    "member_first_s": round(t_lead - t_member, 3),
+                    "first_counted_s": None if not moved else round(moved[0] - a, 3),
+                    "expected": round(expected, 3),
+                    "delivered": round(delivered, 3),
+                    "missing": round(expected - delivered, 3),
+                    "sendable": round(sendable, 3),
+                }
+            )
+    return rows
+
+
 def _pearson(xs: Sequence[float], ys: Sequence[float]) -> float | None:
     n = len(xs)
     if n < 3:
@@ -338,3 +417,61 @@ def renewal_follows_q(polls: Sequence[Sequence[Any]], since_s: float = 0.0) -> d
             entry["corr_q_vouch_rate"] = _pearson(rq, vouch)
         out[str(node)] = entry
     return out
+
+
+def first_report_lost(row: Mapping[str, Any], period_s: float = 1.0 / READINESS_HZ) -> bool:
+    """Whether the report a member sent at its re-discovery of the commander was not taken:
+    the count moved only about a period after both had each other up (a taken one moves it
+    within the network's delay and the 0.25 s poll; half a period is the margin)."""
+    counted = row["first_counted_s"]
+    both_up = row["wait_s"] + max(0.0, row["member_first_s"])
+    return counted is not None and counted > both_up + period_s / 2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m bench.wifi.flight_measures --readiness-returns RUN.json ...``: per run,
+    where the readiness missing after the returns goes (``readiness_after_returns``)."""
+    import argparse
+    import json
+    from pathlib import Path
+
+    from bench.wifi import flight
+
+    p = argparse.ArgumentParser(description=main.__doc__)
+    p.add_argument("runs", nargs="+", type=Path)
+    p.add_argument("--readiness-returns", action="store_true", required=True)
+    p.add_argument("--verbose", action="store_true", help="one line per member and return")
+    args = p.parse_args(argv)
+    for path in args.runs:
+        run = json.loads(path.read_text())
+        truth = flight.make(run["scenario"], run["n"], run["seed"]).truth()
+        changes = {int(i): [(t, p_, c) for t, p_, c in v] for i, v in run["changes"].items()}
+        down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
+        polls = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
+        rows = readiness_after_returns(truth, down, changes, polls, run["n"], truth[-1][0])
+        whole = readiness_delivery(truth, down, changes, polls, run["n"], truth[-1][0])
+        missing = sum(r["missing"] for r in rows)
+        wait = sum(r["expected"] - r["sendable"] for r in rows)
+        unsent = sum(r["sendable"] - r["delivered"] for r in rows)
+        wait_s = sum(r["wait_s"] for r in rows)
+        first = [r for r in rows if r["member_first_s"] > 0]
+        lost = [r for r in rows if first_report_lost(r)]
+        print(
+            f"{path.name}: readiness {whole['delivered']}/{whole['expected']} "
+            f"(missing {whole['expected'] - whole['delivered']}); after {len(rows)} returns "
+            f"missing {missing:.1f} = {wait:.1f} in the wait for re-discovery ({wait_s:.1f} s "
+            f"in all) + {unsent:.1f} sent, not counted; member found the commander first "
+            f"{len(first)}, its first report lost {len(lost)} (member first: "
+            f"{sum(r in first for r in lost)}); had every report sent been counted: "
+            f"{(whole['delivered'] + unsent) / whole['expected']:.1%}"
+        )
+        if args.verbose:
+            for r in rows:
+                print("   ", json.dumps(r))
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

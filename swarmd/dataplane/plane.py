@@ -51,6 +51,7 @@ from typing import Any, Final, Protocol
 from swarmd.auth.freshness import U32_MAX, CounterExhausted, ReplayWindow, SendCounter
 from swarmd.bundle.model import Bundle, Durability, EndpointKind, Participant, Reliability, Topic
 from swarmd.dataplane.channel import Channel
+from swarmd.dataplane.early import EarlyDatagrams
 from swarmd.dataplane.events import (
     CommandCopyVoided,
     CommandReceived,
@@ -61,7 +62,14 @@ from swarmd.dataplane.events import (
 )
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
-from swarmd.dataplane.seal import TRAILER_BYTES, protected_part, seal, user_data_key
+from swarmd.dataplane.seal import (
+    EPOCH_HINT_MASK,
+    TRAILER_BYTES,
+    peek_trailer,
+    protected_part,
+    seal,
+    user_data_key,
+)
 from swarmd.dataplane.types import (
     MAX_REASON_CHARS,
     TYPES_BY_NAME,
@@ -218,6 +226,8 @@ class DataPlane:
         self._peers: dict[str, _Peer] = {}
         self._peer_by_prefix: dict[GuidPrefix, str] = {}
         self._pending: dict[GuidPrefix, list[Submessage]] = {}
+        # datagrams that beat their sender's discovery, taken at its peer_up (early.py)
+        self._early = EarlyDatagrams()
         self._events: deque[DataPlaneEvent] = deque()
         self.counters: Counter[str] = Counter()
         self._executed: OrderedDict[tuple[str, int], None] = OrderedDict()
@@ -289,6 +299,19 @@ class DataPlane:
             else:
                 continue
             state.matched.append((entity, match.remote))
+        self._release_early(peer.guid_prefix, name, now)
+
+    def _release_early(self, prefix: GuidPrefix, name: str, now: float) -> None:
+        """Take what ``name`` sent before we had it up, within ``EARLY_HOLD_S`` (a member's
+        report at its re-discovery of the commander, which reaches the commander before the
+        member's own SPDP answer does: docs/dataplane.md, "Readiness after a blackout").
+        Every check runs on it now, as on a datagram just received."""
+        fresh, expired = self._early.release(prefix, now)
+        for _, source in expired:
+            self._drop("peer_not_up", source, f"{name}: held past {self._early.hold_s} s")
+        for data, source in fresh:
+            self.counters["early_taken"] += 1
+            self._take(data, prefix, name, source, now)
 
     def _void_copies(self, name: str, writer: Writer, sns: list[int]) -> None:
         if writer is not self._writer_by_topic.get(TOPIC_COMMAND):
@@ -465,9 +488,30 @@ class DataPlane:
         peer_name = self._peer_by_prefix.get(prefix)
         if peer_name is None:
             known = self.bundle.by_prefix(prefix) is not None
+            if known and self._may_be_early(data):
+                # Discovery may report it up in a moment: held, not trusted (early.py)
+                self.counters["early_held"] += 1
+                for _, src in self._early.hold(prefix, data, source, now):
+                    self._drop("peer_not_up", src, f"{prefix}: held, not taken")
+                return
             reason = "peer_not_up" if known else "unknown_participant"
             self._drop(reason, source, str(prefix))
             return
+        self._take(data, prefix, peer_name, source, now)
+
+    def _may_be_early(self, data: bytes) -> bool:
+        """Cheap, stateless: whether a datagram from a bundle participant that is not up
+        is worth holding: no larger than we ever send, and sealed for this life of ours
+        (a capture made for an earlier one can never pass, docs/security.md)."""
+        if len(data) > MAX_DATAGRAM_BYTES:
+            return False
+        trailer = peek_trailer(data)
+        return trailer is not None and trailer.epoch_hint == self.epoch & EPOCH_HINT_MASK
+
+    def _take(
+        self, data: bytes, prefix: GuidPrefix, peer_name: str, source: tuple[str, int], now: float
+    ) -> None:
+        """A datagram from ``peer_name``, up: verify it, then let it move state."""
         refused = self._channels[prefix].check(data, self.prefix, self.epoch)
         if refused is not None:
             self._drop(refused[0], source, f"{peer_name}: {refused[1]}")
@@ -560,6 +604,7 @@ class DataPlane:
             # no per-member readiness here: the commander's table (status "readiness") is
             # the one place `swarmctl status --json` shows the count (ReadinessReceived.count)
             "executed_commands": len(self._executed),
+            "early_holding": len(self._early),  # held now (counters: early_held, _taken)
             "counters": dict(sorted(self.counters.items())),
         }
 
