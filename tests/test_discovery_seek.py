@@ -67,9 +67,7 @@ def _rediscovery_s(swarm: Swarm, back_at: dict[Pair, float]) -> dict[tuple[int, 
     return out
 
 
-def _frames(
-    swarm: Swarm, kinds: tuple[str, ...] = DISCOVERY_KINDS, nodes: range = range(N)
-) -> int:
+def _frames(swarm: Swarm, kinds: tuple[str, ...] = DISCOVERY_KINDS, nodes: range = range(N)) -> int:
     return sum(swarm.engines[i].counters()["tx_kind"][k] for i in nodes for k in kinds)
 
 
