@@ -17,6 +17,7 @@ from swarmd_lab.testing import Swarm, build_swarm, make_bundle, peer_datagram
 from swarmd.discovery import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import PeerLost
+from swarmd.discovery.seek import SEEK_MIN_S
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import Vouch, decode_spdp, encode_spdp
 from swarmd.rtps.types import Duration
@@ -162,7 +163,9 @@ def test_members_fall_back_to_renewals_when_the_commander_dies(seed: int) -> Non
     assert sorted(lost) == [(i, "uav0") for i in range(1, 10)]
     assert all(t <= last_frame + ARRIVAL + 20.0 for t in lost.values()), (last_frame, lost)
 
-    # silent while vouched, then they renew again, each about every 10 s (Q = 1) for 80 s
+    # silent while vouched, then they renew again, each about every 10 s (Q = 1) for 80 s,
+    # and seek the lost commander (seek.py) from its loss on: one seek per ~1 s among them
+    # all (suppression), not one per member
     def member_multicasts(start: float, end: float) -> int:
         return sum(
             1
@@ -170,8 +173,10 @@ def test_members_fall_back_to_renewals_when_the_commander_dies(seed: int) -> Non
             if t.node != COMMANDER and t.multicast and start < t.time <= end
         )
 
+    seeks = sum(e.counters()["tx_kind"]["seek"] for e in swarm.engines[1:])
+    assert seeks <= (120.0 - min(lost.values())) / SEEK_MIN_S + 9
     assert member_multicasts(10.0, died) == 0
-    assert 9 * 6 <= member_multicasts(died, 120.0) <= 9 * 10
+    assert 9 * 6 <= member_multicasts(died, 120.0) - seeks <= 9 * 10
 
 
 def test_paper_mode_neither_vouches_nor_takes_traffic_as_liveliness() -> None:

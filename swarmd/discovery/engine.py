@@ -98,6 +98,7 @@ from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase, Trigger, next_phase
 from swarmd.discovery.receive import ReceivePath
 from swarmd.discovery.renewals import Renewals
+from swarmd.discovery.seek import Seek
 from swarmd.discovery.sending import Sender, Wallclock
 from swarmd.discovery.status import (
     foreign_json,
@@ -191,6 +192,7 @@ class DiscoveryEngine:
         "_renewals",
         "_retries",
         "_rng",
+        "_seek",
         "_sender",
         "_timing",
         "_hold_heap",
@@ -309,6 +311,7 @@ class DiscoveryEngine:
             leases=leases,
             renewals=renewals,
         )
+        seek = self._seek = Seek(enabled=config.mode == "adaptive", rng=rng)
         dropped: Counter[DropReason] = Counter()
         foreign = self._foreign = ForeignParticipants(dropped, now)
         receive = self._receive = ReceivePath(
@@ -323,6 +326,7 @@ class DiscoveryEngine:
             dropped=dropped,
             leases=leases,
             debts=debts,
+            seek=seek,
             foreign=foreign,
             emit=self._emit,
             lose=self._lose,
@@ -363,8 +367,9 @@ class DiscoveryEngine:
             expired = self._leases.expire(now, probes)
             for peer in expired:
                 self._lose(peer, "lease")
-            if expired:
+            if expired and self.phase in (_ANNOUNCE, _STEADY):
                 self._lease_ended(now)
+                self._seek.start(expired, now)  # seek.py: a multicast every ~1 s while lost
             for peer in probes:
                 self._probe(peer, now)
         if (
@@ -373,6 +378,9 @@ class DiscoveryEngine:
             and now >= self._passive_deadline
         ):
             self._end_passive(now)
+        seek = self._seek
+        if seek.due is not None and now >= seek.due and seek.fire(now):
+            self._send(None, now, "seek")
         self._flush(now)
         self._settle_if_done()
 
@@ -400,12 +408,7 @@ class DiscoveryEngine:
         sender.ros2_alive = alive
         if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
             return  # BOOT/PASSIVE: our first announcement carries it
-        last = self._renewals.last_multicast
-        at = now if last is None else max(now, last + self._config.retransmit_min_gap_s)
-        renewal = self._renewal
-        if renewal.due is None or at < renewal.due:
-            renewal.due = at
-            self._pulled_in = True
+        self._pull_in(now, 0.0)
 
     def peer_traffic(self, key: str | GuidPrefix, now: float) -> None:
         """Authenticated traffic from bundle peer ``key`` other than SPDP (a user-data
@@ -474,6 +477,9 @@ class DiscoveryEngine:
             vouched = self._leases.next_held()
             if vouched is not None and (best is None or vouched < best):
                 best = vouched
+        seek = self._seek.due
+        if seek is not None and (best is None or seek < best):
+            best = seek
         heap = self._retries
         if heap:
             # Debts.next_retry() inline for its usual answer: the heap's head is live
@@ -710,7 +716,7 @@ class DiscoveryEngine:
             return False
         if self._leases.heard.count >= len(self._peers):
             return False  # nobody else is missing
-        self._pull_in(now)
+        self._pull_in(now, self._debts.rejoin_delay())
         return True
 
     def _lease_ended(self, now: float) -> None:
@@ -725,25 +731,23 @@ class DiscoveryEngine:
         per renewal period (a split's leases end one after another), and an extra frame: the
         renewal keeps its deadline (``_send``), or a split's drones would all renew in
         lock-step from the loss on. A peer really gone costs each observer one multicast on
-        top of its four probes. Adaptive mode only, in ANNOUNCE or STEADY (as ``_rejoined``)."""
+        top of its four probes. Adaptive mode only, in ANNOUNCE or STEADY (the caller checks)."""
         if self._config.mode != "adaptive":
             return  # paper mode: the paper's schedule, nothing pulled in
-        if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
-            return
         renewal = self._renewal
         last = self._lease_end_sent
         if last is not None and now - last < renewal.period_s:
             return  # one such frame per renewal period: leases ending one after another
         self._lease_end_sent = now
         before = renewal.due
-        self._pull_in(now)
+        self._pull_in(now, self._debts.rejoin_delay())
         if renewal.due != before:
             self._resume_renewal = before
 
-    def _pull_in(self, now: float) -> None:
-        """Our next multicast at now + ``Debts.rejoin_delay()``, never sooner than
-        ``retransmit_min_gap_s`` after our last one (a renewal already sooner stays)."""
-        at = now + self._debts.rejoin_delay()
+    def _pull_in(self, now: float, delay: float) -> None:
+        """Our next multicast at now + ``delay``, never sooner than ``retransmit_min_gap_s``
+        after our last one (a renewal already sooner stays)."""
+        at = now + delay
         last = self._renewals.last_multicast
         if last is not None:
             # one multicast per re-ack gap: a commander regaining 19 members one after the
@@ -778,6 +782,7 @@ class DiscoveryEngine:
             if kind == "renewal":
                 self._renewals.sent.mark(now)
             self._renewals.last_multicast = now
+            self._seek.sent(now)  # it omits every lost peer: it seeks them
             self._pulled_in = False
             if self.phase in (_ANNOUNCE, _STEADY):
                 resume = self._resume_renewal

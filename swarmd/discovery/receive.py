@@ -46,6 +46,7 @@ from swarmd.discovery.leases import Leases
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase
 from swarmd.discovery.received import Alive
+from swarmd.discovery.seek import Seek
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpDisposed, Vouch
 
@@ -85,6 +86,7 @@ class ReceivePath:
         "_rejoined",
         "_peer_at",
         "_reack_gap_s",
+        "_seek",
         "_settle",
         "_held_until",
         "_vouching",
@@ -107,6 +109,7 @@ class ReceivePath:
         dropped: Counter[DropReason],
         leases: Leases,
         debts: Debts,
+        seek: Seek,
         foreign: ForeignParticipants,
         emit: Callable[[Event], None],
         lose: Callable[[Peer, str], None],
@@ -148,6 +151,7 @@ class ReceivePath:
         self._commander = leases.commander
         self._vouching = leases.vouching
         self._debts = debts
+        self._seek = seek
         self._emit = emit
         self._lose = lose
         self._settle = settle
@@ -316,6 +320,8 @@ class ReceivePath:
                 )
             )
         directed = alive.destination is not None
+        if self._seek.due is not None and not newly and not directed:
+            self._seek.heard(heard, now)  # seek.py: its multicast may seek for us
         rejoin = False  # a lost peer heard again, answered by a frame of its own
         told = peer.told
         retry = peer.retry
@@ -377,6 +383,24 @@ class ReceivePath:
             self._debts.disarm(peer)  # a fresh debt: its backoff and attempts start over
             self._debts.arm(peer, now + self._debts.prompt_delay())
             return
+        elif (
+            not lists_me
+            and told
+            and peer.times_discovered > 1
+            and self._seek.enabled
+            and peer.told_at is not None
+            and now - peer.told_at >= self._reack_gap_s
+            and peer.reack.permits(now)
+        ):
+            # a peer we had lost and found again still seeks us (seek.py: its multicast
+            # omits us) although we listed it a re-ack gap ago: that frame was lost (a link
+            # at the edge of range). Answer within the rejoin delay, not the Q-stretched
+            # holdoff U(W, 2W) (2.7-8 s at Q near 0): on the channel such pairs waited
+            # 2.4-6.1 s after the first frame had crossed. Once per re-ack gap, and only
+            # while it seeks (bounded there); never at start-up (found once).
+            peer.reack.mark(now)
+            told = peer.told = False
+            rejoin = True
         elif (
             not lists_me
             and told

@@ -93,6 +93,7 @@ class Sender:
             "reply": 0,
             "renewal": 0,
             "probe": 0,
+            "seek": 0,
             "dispose": 0,
         }
 

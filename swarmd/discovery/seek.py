@@ -1,0 +1,118 @@
+"""Seeking lost peers: a short jittered multicast while bundle peers are lost (issue 20).
+
+Why (docs/discovery.md, "Seeking lost peers"): after a split or a fly-out, the link comes
+back with nothing on the air. Re-discovery then waits for whichever multicast comes next:
+a vouched member does not renew at all, the others renew every 3.4-10 s (their Q-stretched
+period), and the rejoin pull-in (``DiscoveryEngine._rejoined``) only helps once one frame
+has crossed. On the emulated channel that first frame crossed 2.1-6.1 s after the return
+(``bench/results/flight-rejoin/``).
+
+What: while a node has bundle peers it lost to a lease's end (adaptive mode, ANNOUNCE or
+STEADY), it keeps a multicast DATA(p) going every U(``SEEK_MIN_S``, ``SEEK_MAX_S``): the
+*seek* (tx kind ``seek``). Its heard digest omits the lost peers (they are unmarked when
+lost), so a lost peer that hears it finds itself unlisted, re-discovers us and answers
+within the rejoin delay (DDSI-RTPS 8.5.3 SPDP; the digest). A returning link therefore
+carries a frame from each side within ``SEEK_MAX_S``, and the answers follow within the
+rejoin delay (U(0, N / 50 fps): 0.2 s at N = 10, 0.4 s at N = 20).
+
+Suppression (SSDP's and mDNS's duplicate-answer suppression, RFC 6762 section 7.4): a
+multicast DATA(p) heard from a peer we currently have, whose heard digest omits every peer
+we seek, seeks them as well as ours would: our own seek goes back one period from it. Any
+multicast of our own counts as a seek too (it omits the lost peers). So a half of a split,
+all seeking the same other half, puts about one seek per period on the air, not one per
+drone.
+
+Bound: a peer not heard for ``SEEK_FOR_S`` is no longer sought (a drone really gone must not
+cost the channel forever); the renewals, which still omit it, remain. Paper mode never
+seeks: the paper's schedule is kept.
+
+Pure and keyed by ``now`` (style rule 6): this class decides when; the engine sends.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Final
+
+from swarmd.discovery.peers import Peer, PeerState
+
+# The seek period U(SEEK_MIN_S, SEEK_MAX_S). The target is re-discovery within 2 s of the
+# link's return (issue 20). The first frame across comes within SEEK_MAX_S; the side that
+# hears it answers within the rejoin delay W1, and the seeker's side, now hearing those
+# answers (which omit it), pulls its own in within W1 too: 1.2 + 2 x 0.4 = 2.0 s at N = 20,
+# 1.6 s at N = 10. The jitter (+-20 %) keeps a half's seekers from firing together, so the
+# one that fires first suppresses the others. At about one seek per second per side, a
+# split costs ~2 frames/s on top of the renewals (N = 10 renews ~1-3 frames/s).
+SEEK_MIN_S: Final = 0.8
+SEEK_MAX_S: Final = 1.2
+# How long a lost peer is sought, from when it was last heard: 10 minutes covers a split,
+# a fly-out, a commander blackout and a drone behind a building many times over (the
+# flights' outages last 30-60 s), and bounds what a drone really gone costs: ~500 seeks per
+# neighbourhood (one seeker per side after suppression), then the renewals alone.
+SEEK_FOR_S: Final = 600.0
+# The peers sought at once are the bundle's: bounded by N (no peer can grow the table).
+
+_LOST: Final = PeerState.LOST
+
+
+class Seek:
+    """The peers we seek (lost to a lease's end, last heard within ``SEEK_FOR_S``) and the
+    next seek's deadline."""
+
+    __slots__ = ("_rng", "due", "enabled", "sought")
+
+    def __init__(self, *, enabled: bool, rng: random.Random) -> None:
+        self.enabled = enabled  # adaptive mode: paper mode keeps the paper's schedule
+        self._rng = rng
+        self.sought: dict[int, Peer] = {}  # by bundle index; a peer found again is dropped lazily
+        self.due: float | None = None  # the next seek, None while nobody is sought
+
+    def _period(self) -> float:
+        return self._rng.uniform(SEEK_MIN_S, SEEK_MAX_S)
+
+    def start(self, lost: list[Peer], now: float) -> None:
+        """``lost`` just ended their leases (the engine is announcing or steady): seek them.
+        The first seek comes one period on (the lease's end pulled a multicast in already,
+        ``DiscoveryEngine._lease_ended``)."""
+        if not self.enabled or not lost:
+            return
+        for peer in lost:
+            self.sought[peer.index] = peer
+        if self.due is None:
+            self.due = now + self._period()
+
+    def _prune(self, now: float) -> None:
+        """Drop the peers found again (no longer LOST) and those sought long enough."""
+        stale = [
+            i
+            for i, p in self.sought.items()
+            if p.state is not _LOST or p.last_heard is None or now - p.last_heard >= SEEK_FOR_S
+        ]
+        for i in stale:
+            del self.sought[i]
+        if not self.sought:
+            self.due = None
+
+    def fire(self, now: float) -> bool:
+        """The seek's deadline came: True if a seek is to be sent now (someone is still
+        sought); the next one is then set by ``sent``."""
+        self._prune(now)
+        return self.due is not None
+
+    def sent(self, now: float) -> None:
+        """We multicast a DATA(p) (a seek, a renewal, an announcement): it omits every lost
+        peer, so it was a seek; the next one waits a period."""
+        if self.due is not None:
+            self.due = now + self._period()
+
+    def heard(self, heard: bytes | None, now: float) -> None:
+        """A peer we have multicast a DATA(p) with heard digest ``heard``: if it omits every
+        peer we seek, it sought them for us (suppression): ours waits a period from now."""
+        if self.due is None:
+            return
+        if heard is not None:
+            for index in self.sought:
+                octet = index >> 3
+                if octet < len(heard) and heard[octet] >> (index & 7) & 1:
+                    return  # it hears one we seek: its frame does not seek that one
+        self.due = max(self.due, now + self._period())
