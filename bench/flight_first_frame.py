@@ -1,6 +1,6 @@
 """Which frame crossed first after a pair's link came back, from flight run files (issue 20).
 
-    PYTHONPATH=. .venv/bin/python scripts/flight_first_frame.py \
+    .venv/bin/python -m bench.flight_first_frame \
         bench/results/flight-rejoin/runs/flight-{split,fly-out}-swarmd-n*.json
 
 For every re-discovery slower than 2 s (the testbed's measure, ``flight_measures``: from the
@@ -13,6 +13,7 @@ frame crossed within 2 s are listed apart: their answer is what came late.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -72,8 +73,18 @@ def report(path: Path) -> str:
 
 
 def main(argv: list[str]) -> int:
-    for name in argv:
-        print(report(Path(name)))
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.flight_first_frame",
+        description="For each re-discovery slower than 2 s in flight run files: whose frame "
+        "crossed first after the pair's link came back, and how long after.",
+    )
+    parser.add_argument("runs", nargs="+", type=Path, help="flight run files (*.json)")
+    args = parser.parse_args(argv)
+    for path in args.runs:
+        if not path.is_file():
+            print(f"{path}: no such run file", file=sys.stderr)
+            return 66  # EX_NOINPUT
+        print(report(path))
     return 0
 
 
