@@ -25,6 +25,11 @@ Fast DDS 3.2's default participant (``leaseDuration`` 20 s) expiring. The publis
 matched-subscription counts could not tell which drone went, and on a member they only see
 the commander. A rebooted node's new participant and the old one share the namespace: the
 graph shows the drone present throughout, which is what a ROS 2 application would see.
+A drone lost by lease expiry is listed again only when its participant publishes a new
+``ros_discovery_info`` sample (a node or endpoint created or destroyed): Fast DDS keeps the
+reader's last sequence number across the drop, so the old sample is never resent and
+rmw's graph cache, which dropped the node names with the participant, never relearns them
+(``bench/ros2_relist.py``; docs/benchmarks.md, "Flight").
 """
 
 from __future__ import annotations
@@ -64,6 +69,26 @@ def graph_drones(names_and_namespaces: list[tuple[str, str]]) -> set[int]:
     return found
 
 
+class GraphWatch:
+    """The graph poll's diff: the drones listed now against the last poll, as ``up``/``down``
+    events (the instance key is the drone's namespace: one node per drone). A drone that
+    leaves and is listed again gives ``down`` then ``up``: when stock ROS 2 does not list a
+    returning drone again, it is rmw's graph, not this diff (docs/benchmarks.md, "Flight")."""
+
+    def __init__(self, events: FlightEvents, own_index: int) -> None:
+        self.events = events
+        self.own = own_index
+        self.present: set[int] = set()
+
+    def update(self, names_and_namespaces: list[tuple[str, str]]) -> None:
+        now = graph_drones(names_and_namespaces) - {self.own}
+        for j in sorted(now - self.present):
+            self.events.up(f"{NAMESPACE}{j}", j)
+        for j in sorted(self.present - now):
+            self.events.down(f"{NAMESPACE}{j}")
+        self.present = now
+
+
 def main() -> int:
     args = parse_args(__doc__ or "")
     stop = stop_event()
@@ -92,7 +117,7 @@ def main() -> int:
     deadline = time.monotonic() + args.duration
     matched: list[float] = []  # the time the wanted number of peers had matched
 
-    present: set[int] = set()
+    graph = GraphWatch(events, args.index)
     next_graph = 0.0
 
     def watch_graph() -> None:
@@ -100,13 +125,7 @@ def main() -> int:
         if not events.enabled or time.monotonic() < next_graph:
             return
         next_graph = time.monotonic() + GRAPH_POLL_S
-        now = graph_drones(node.get_node_names_and_namespaces()) - {args.index}
-        for j in sorted(now - present):
-            events.up(f"{NAMESPACE}{j}", j)
-        for j in sorted(present - now):
-            events.down(f"{NAMESPACE}{j}")
-        present.clear()
-        present.update(now)
+        graph.update(node.get_node_names_and_namespaces())
 
     def on_match(info: Any, wanted: int) -> None:
         if not matched and int(info.current_count) >= wanted:
