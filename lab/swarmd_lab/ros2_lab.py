@@ -78,9 +78,14 @@ class DiscoveryCounts:
 
 def rtps_fields(pcap: Path, *fields: str) -> list[list[str]]:
     """``fields`` of every RTPS datagram in the capture (tshark's RTPS dissector), one list
-    per datagram; a field with several submessages' values holds them comma-separated."""
+    per datagram; a field with several submessages' values holds them comma-separated.
+
+    RTPS has no port of its own in tshark: it is found by a heuristic, which by default runs
+    after the port table. Fast DDS 3.2 puts a stock node's unique-flow graph reader at
+    ``portBase - 400`` = 7000 (and up), the AFS (RX) ports, so without trying the heuristic
+    first those datagrams are decoded as AFS and missed (bench/ros2_relist.py found it)."""
     argv = [shutil.which("tshark") or "tshark", "-r", str(pcap), "-Y", "rtps", "-T", "fields"]
-    argv += ["-E", "separator=;"]
+    argv += ["-o", "udp.try_heuristic_first:TRUE", "-E", "separator=;"]
     for f in fields:
         argv += ["-e", f]
     result = subprocess.run(  # noqa: S603 - argv list
