@@ -27,41 +27,18 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path += [str(REPO), str(REPO / "lab")]  # after PYTHONPATH: it picks the checkout
 
 from swarmd_lab import netns, ros2_lab  # noqa: E402
-from swarmd_lab.ros2_lab import host_argv, write_machine_id  # noqa: E402
 
-from swarmd.bundle.build import build_dev_bundle  # noqa: E402
-from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public  # noqa: E402
-from swarmd.bundle.mission import parse_mission  # noqa: E402
-from swarmd.cli.swarmctl import main as swarmctl  # noqa: E402
 from tests.daemon_support import (  # noqa: E402
-    BundleFiles,
+    Daemons,
     clean_env,
-    daemon_status,
-    until,
-    write_config,
+    relay_config,
+    ros2_profiles,
+    write_mission_bundle,
 )
 
 CONVERGE_S = 30.0
-MISSION = """
-swarm: ros2-local-start
-domain_id: 3
-discovery: {{t_min_s: 0.2, t_max_s: 0.5, lease_s: 4}}
-participants:
-  - {{name: lead, index: 0, role: commander, mavlink_sysid: 1, ipv4: {a0}}}
-  - {{name: drone-1, index: 1, role: member, mavlink_sysid: 2, ipv4: {a1}}}
-topics:
-  - {{name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}}
-ros2:
-  domain_id: 7
-  topics:
-    - {{name: /chatter, type: std_msgs/msg/String, reliability: reliable, history_depth: 10}}
-  services:
-    - {{name: /trigger, type: std_srvs/srv/Trigger}}
-  nodes:
-    - {{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}}
-    - {{name: monitor, drones: member, subscribes: [/chatter], calls: [/trigger]}}
-    - {{name: listener, drones: commander, subscribes: [/chatter], calls: [/trigger]}}
-"""
+DRONES = ("lead", "drone-1")
+NODES = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, ros2_lab.LISTENER_NODE)
 
 
 def _matched_at(log: Path) -> dict[int, float]:
@@ -77,54 +54,24 @@ def _matched_at(log: Path) -> dict[int, float]:
 def bench(runs: int, seconds: float, work: Path) -> list[dict[str, Any]]:
     results = []
     with netns.Lan(2) as lan:
-        text = MISSION.format(a0=lan[0].address, a1=lan[1].address)
-        built = build_dev_bundle(parse_mission(text, "ros2-local-start.yaml"))
-        bundle = work / "bundle.swb"
-        bundle.write_bytes(built.data)
-        key = work / "swarm.pub"
-        key.write_bytes(public_pem(raw_public(dev_signing_key("ros2-local-start"))))
-        files = BundleFiles(built.bundle, bundle, key)
+        addresses = [lan[0].address, lan[1].address]
+        text = ros2_lab.chatter_mission("ros2-local-start", 3, addresses, NODES)
+        files = write_mission_bundle(work, text, "ros2-local-start", "ros2-local-start.yaml")
         profiles = work / "profiles"
-        argv = ["ros2", "profile", str(bundle), "--allow-dev", "--out", str(profiles)]
-        if swarmctl([*argv, "--via-swarmd"]) != 0:
+        if ros2_profiles(files, profiles, "--via-swarmd") != 0:
             raise RuntimeError("swarmctl ros2 profile failed")
-        drones = ("lead", "drone-1")
-        socks = [work / f"{d}.sock" for d in drones]
-        daemons = []
-        for i, d in enumerate(drones):
-            config = write_config(
-                work / f"{d}.yaml",
-                files,
-                node=d,
-                interface=lan[i].ifname,
-                socket_path=str(socks[i]),
-                extra="ros2:\n  relay: true\n",
-            )
-            with (work / f"swarmd-{d}.log").open("wb") as err:
-                daemons.append(
-                    lan[i].popen(
-                        [sys.executable, "-m", "swarmd.cli.swarmd_main", "run", "--config"]
-                        + [str(config)],
-                        env=clean_env(),
-                        stderr=err,
-                    )
-                )
-        until(
-            lambda: all(
-                s.exists()
-                and sum(p["state"] == "discovered" for p in daemon_status(s)["peers"]) == 1
-                for s in socks
-            ),
-            lambda: "swarmd",
-            CONVERGE_S,
+        swarmd = [sys.executable, "-m", "swarmd.cli.swarmd_main"]
+        daemons = Daemons(
+            lan, work, files, DRONES, extra=relay_config(), command=swarmd, env=clean_env()
         )
-        machine_ids = [write_machine_id(work, i) for i in range(2)]
+        daemons.start_all(CONVERGE_S)
+        launcher = ros2_lab.NodeLauncher(lan, DRONES, profiles, work)
 
         def node(i: int, name: str, role: str, secs: float, *extra: str) -> Any:
-            node_argv = [sys.executable, "-m", "swarmd_lab.ros2_node", role, "--name", name]
-            return lan[i].popen(
-                host_argv([*node_argv, "--seconds", str(secs), *extra], machine_ids[i]),
-                env=ros2_lab.node_env(profiles / drones[i] / f"{name}.env"),
+            return launcher.start(
+                i,
+                name,
+                ros2_lab.node_argv(role, secs, *extra, name=name),
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,  # rclpy's traceback when terminated at the end
             )
@@ -142,7 +89,7 @@ def bench(runs: int, seconds: float, work: Path) -> list[dict[str, Any]]:
         for proc in (listener, monitor):
             proc.terminate()
             proc.wait(timeout=30)
-        for daemon in daemons:
+        for daemon in daemons.procs:
             daemon.terminate()
             daemon.wait(timeout=20)
     return results

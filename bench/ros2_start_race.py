@@ -34,32 +34,20 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path += [str(REPO), str(REPO / "lab")]  # after PYTHONPATH: it picks the checkout
 
 from swarmd_lab import netns, ros2_lab  # noqa: E402
-from swarmd_lab.ros2_lab import host_argv, write_machine_id  # noqa: E402
 
 from bench.wifi.ros2_contenders import ros2_mission_text  # noqa: E402
-from swarmd.bundle.build import build_dev_bundle  # noqa: E402
-from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public  # noqa: E402
-from swarmd.bundle.mission import parse_mission  # noqa: E402
-from swarmd.cli.swarmctl import main as swarmctl  # noqa: E402
 from tests.daemon_support import (  # noqa: E402
-    BundleFiles,
+    Daemons,
     clean_env,
     daemon_status,
-    until,
-    write_config,
+    relay_config,
+    ros2_profiles,
+    write_mission_bundle,
 )
 
 PEER = REPO / "bench" / "wifi" / "peers" / "ros2_peer.py"
 CONVERGE_S = 30.0
 BARRIER_S = 60.0
-
-
-def _converged(sock: Path, n: int) -> bool:
-    if not sock.exists():
-        return False
-    peers: list[dict[str, Any]] = daemon_status(sock)["peers"]
-    discovered: int = sum(p["state"] == "discovered" for p in peers)
-    return discovered == n - 1
 
 
 def one_run(n: int, seconds: float, work: Path) -> dict[str, Any]:
@@ -70,42 +58,22 @@ def one_run(n: int, seconds: float, work: Path) -> dict[str, Any]:
         text = ros2_mission_text([lan[i].address for i in range(n)]).replace(
             "t_min_s: 8.0, t_max_s: 20.0", "t_min_s: 0.5, t_max_s: 2.0"
         )
-        built = build_dev_bundle(parse_mission(text, "ros2-start-race.yaml"))
-        bundle = work / "bundle.swb"
-        bundle.write_bytes(built.data)
-        key = work / "swarm.pub"
-        key.write_bytes(public_pem(raw_public(dev_signing_key("wifibench"))))
-        files = BundleFiles(built.bundle, bundle, key)
+        files = write_mission_bundle(work, text, "wifibench", "ros2-start-race.yaml")
         profiles = work / "profiles"
-        argv = ["ros2", "profile", str(bundle), "--allow-dev", "--out", str(profiles)]
-        if swarmctl([*argv, "--via-swarmd"]) != 0:
+        if ros2_profiles(files, profiles, "--via-swarmd") != 0:
             raise RuntimeError("swarmctl ros2 profile failed")
-        socks = [work / f"uav{i + 1}.sock" for i in range(n)]
-        daemons = []
-        for i in range(n):
-            config = write_config(
-                work / f"uav{i + 1}.yaml",
-                files,
-                node=f"uav{i + 1}",
-                interface=lan[i].ifname,
-                socket_path=str(socks[i]),
-                extra="ros2:\n  relay: true\n",
-            )
-            with (work / f"swarmd-uav{i + 1}.log").open("wb") as log:
-                daemons.append(
-                    lan[i].popen(
-                        [sys.executable, "-m", "swarmd.cli.swarmd_main", "run", "--config"]
-                        + [str(config)],
-                        env=clean_env(),
-                        stderr=log,
-                    )
-                )
-        until(lambda: all(_converged(s, n) for s in socks), lambda: "swarmd", CONVERGE_S)
+        names = [f"uav{i + 1}" for i in range(n)]
+        swarmd = [sys.executable, "-m", "swarmd.cli.swarmd_main"]
+        daemons = Daemons(
+            lan, work, files, names, extra=relay_config(), command=swarmd, env=clean_env()
+        )
+        daemons.start_all(CONVERGE_S)
         barrier = work / "barrier.sock"
         server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         server.bind(str(barrier))
         server.listen(n)
         server.settimeout(BARRIER_S)
+        launcher = ros2_lab.NodeLauncher(lan, names, profiles, work)
         nodes = []
         for i in range(n):
             role = "listener" if i == 0 else "talker"
@@ -114,12 +82,7 @@ def one_run(n: int, seconds: float, work: Path) -> dict[str, Any]:
             peer_argv += ["--out", str(work / f"r{i}.json"), "--barrier", str(barrier)]
             with (work / f"node{i}.log").open("wb") as log:
                 nodes.append(
-                    lan[i].popen(
-                        host_argv(peer_argv, write_machine_id(work, i)),
-                        env=ros2_lab.node_env(profiles / f"uav{i + 1}" / f"{role}.env"),
-                        stdout=log,
-                        stderr=subprocess.STDOUT,
-                    )
+                    launcher.start(i, role, peer_argv, stdout=log, stderr=subprocess.STDOUT)
                 )
         waiting = [server.accept()[0] for _ in range(n)]
         time.sleep(0.5)  # every node imported rclpy and waits on the barrier
@@ -130,8 +93,8 @@ def one_run(n: int, seconds: float, work: Path) -> dict[str, Any]:
         server.close()
         for node in nodes:
             node.wait(timeout=seconds + BARRIER_S)
-        counters = [daemon_status(s)["ros2"]["counters"] for s in socks]
-        for d in daemons:
+        counters = [daemon_status(s)["ros2"]["counters"] for s in daemons.socks]
+        for d in daemons.procs:
             d.terminate()
             d.wait(timeout=20)
     matched: dict[int, float | None] = {}

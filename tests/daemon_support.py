@@ -4,17 +4,24 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle
+from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.control import DaemonUnreachable, request
+
+BIN = Path(sys.executable).parent  # the venv's console scripts (swarmd, swarmd-vehicle-sim)
 
 
 def run_domain() -> int:
@@ -94,6 +101,19 @@ def write_mission_bundle(directory: Path, mission: str, swarm: str, name: str) -
     key = directory / "swarm.pub"
     key.write_bytes(public_pem(raw_public(dev_signing_key(swarm))))
     return BundleFiles(built.bundle, path, key)
+
+
+def ros2_profiles(files: BundleFiles, out: Path, *options: str) -> int:
+    """``swarmctl ros2 profile`` for the dev-signed bundle ``files`` into ``out`` (``options``:
+    e.g. ``--via-swarmd``); its exit code."""
+    argv = ["ros2", "profile", str(files.path), "--trusted-key", str(files.trusted_key)]
+    return swarmctl([*argv, "--allow-dev", "--out", str(out), *options])
+
+
+def relay_config(lease_s: int | None = None) -> str:
+    """The ``ros2:`` section of a daemon on the relay route (docs/ros2.md); ``lease_s``: the
+    relay's lease, None: its default."""
+    return "ros2:\n  relay: true\n" + ("" if lease_s is None else f"  lease_s: {lease_s}\n")
 
 
 def matched_counts(log: Path) -> list[int]:
@@ -193,3 +213,90 @@ def daemon_status(sock: Path) -> dict[str, Any]:
     """``swarmctl status --json``'s document, straight from the control socket."""
     result: dict[str, Any] = request(str(sock), "status")
     return result
+
+
+@dataclass
+class Daemons:
+    """One ``swarmd run`` per host: ``names[i]`` on ``hosts[i]``, its config, control socket
+    and log (appended to across restarts) under ``workdir``. ``command``: how swarmd is run
+    (the console script; a bench runs the module so that ``PYTHONPATH`` picks the checkout)."""
+
+    hosts: Lan | Sequence[Namespace]
+    workdir: Path
+    files: BundleFiles
+    names: Sequence[str]
+    extra: str = ""  # appended to every config (``write_config``)
+    command: Sequence[str] = (str(BIN / "swarmd"),)
+    env: Mapping[str, str] | None = None
+    procs: list[subprocess.Popen[bytes]] = field(default_factory=list)
+
+    @property
+    def socks(self) -> list[Path]:
+        return [self.workdir / f"{name}.sock" for name in self.names]
+
+    @property
+    def logs(self) -> list[Path]:
+        return [self.workdir / f"{name}.log" for name in self.names]
+
+    def start(self, i: int) -> subprocess.Popen[bytes]:
+        """Write drone ``i``'s config and start (or restart) its daemon."""
+        config = write_config(
+            self.workdir / f"{self.names[i]}.yaml",
+            self.files,
+            node=self.names[i],
+            interface=self.hosts[i].ifname,
+            socket_path=str(self.socks[i]),
+            extra=self.extra,
+        )
+        with self.logs[i].open("ab") as err:
+            proc = self.hosts[i].popen(
+                [*self.command, "run", "--config", str(config)], env=self.env, stderr=err
+            )
+        if i < len(self.procs):
+            self.procs[i] = proc
+        else:
+            self.procs.append(proc)
+        return proc
+
+    def start_all(self, wait_s: float) -> list[subprocess.Popen[bytes]]:
+        """Start every daemon and wait (up to ``wait_s``) until each has discovered all others."""
+        for i in range(len(self.names)):
+            self.start(i)
+        until(
+            self.all_discovered,
+            lambda: str([daemon_status(s)["peers"] for s in self.socks if s.exists()]),
+            wait_s,
+        )
+        return self.procs
+
+    def all_discovered(self) -> bool:
+        others = len(self.names) - 1
+        return all(
+            sum(p["state"] == "discovered" for p in daemon_status(s)["peers"]) == others
+            for s in self.socks
+        )
+
+
+def start_vehicle_sim(
+    host: Namespace, sysid: int, log: Path, *extra: str
+) -> subprocess.Popen[bytes]:
+    """A MAVLink vehicle simulator (not PX4) for drone ``sysid`` (1-based; its seed
+    ``sysid - 1``) on ``host``'s loopback, where the daemon's ``px4:`` section listens
+    (``swarm_sections(..., "udpin:127.0.0.1:14540")``); JSON events to ``log``."""
+    with log.open("wb") as err:
+        return host.popen(
+            [
+                str(BIN / "swarmd-vehicle-sim"),
+                "--connect",
+                "udpout:127.0.0.1:14540",
+                "--sysid",
+                str(sysid),
+                "--seed",
+                str(sysid - 1),
+                "--gps-fix-after",
+                "0.5",
+                "--json-log",
+                *extra,
+            ],
+            stderr=err,
+        )

@@ -30,7 +30,8 @@ from swarmd.rtps.ports import spdp_multicast_port
 from swarmd.swarm.commander import UNREACHABLE
 from tests.attacker.host import Attacker
 from tests.conftest import LanFactory
-from tests.test_takeoff_netns import BIN, Drones, until
+from tests.daemon_support import BIN
+from tests.test_takeoff_netns import Drones, until
 
 pytestmark = [pytest.mark.netns]
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -33,9 +32,9 @@ from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.control import DaemonUnreachable, RequestError, request
 from tests.conftest import LanFactory
-from tests.daemon_support import BundleFiles, swarm_sections, write_bundle, write_config
+from tests.daemon_support import BIN, Daemons, write_bundle
+from tests.test_takeoff_netns import Drones
 
-BIN = Path(sys.executable).parent
 WAIT_S = 30.0
 LEASE_S = 3.0  # short, so the split outlasts a lease within a bounded test
 # 6 drones: the two halves of a split; every cross pair rejoins at the heal
@@ -107,17 +106,10 @@ def test_split_and_heal(lan_factory: LanFactory, workdir: Path) -> None:
     lan: Lan = lan_factory(SPLIT_N)
     files = write_bundle(workdir, SPLIT_N, domain_id=0, lease_s=LEASE_S, t_min_s=0.2, t_max_s=0.6)
     names = [f"uav{i + 1}" for i in range(SPLIT_N)]
-    socks = [workdir / f"{n}.sock" for n in names]
-    for i, name in enumerate(names):
-        cfg = write_config(
-            workdir / f"{name}.yaml",
-            files,
-            node=name,
-            interface=lan[i].ifname,
-            socket_path=str(socks[i]),
-        )
-        with (workdir / f"{name}.log").open("wb") as err:
-            lan[i].popen([str(BIN / "swarmd"), "run", "--config", str(cfg)], stderr=err)
+    daemons = Daemons(lan, workdir, files, names)
+    socks = daemons.socks
+    for i in range(SPLIT_N):
+        daemons.start(i)
     half = SPLIT_N // 2
     side = {name: 0 if i < half else 1 for i, name in enumerate(names)}
 
@@ -189,62 +181,15 @@ def test_split_and_heal(lan_factory: LanFactory, workdir: Path) -> None:
 # -- reboot in the air --------------------------------------------------------------------
 
 
-class Swarm:
-    """Four drones (uav1 commands), each a ``swarmd run`` and a vehicle simulator."""
+class Swarm(Drones):
+    """Four drones (uav1 commands), each a ``swarmd run`` and a vehicle simulator, on a
+    short lease."""
 
     def __init__(self, lan: Lan, workdir: Path) -> None:
-        self.lan, self.workdir, self.n = lan, workdir, 4
-        self.names = [f"uav{i + 1}" for i in range(self.n)]
-        self.socks = [workdir / f"{n}.sock" for n in self.names]
-        self.state = workdir / "state"
-        self.files: BundleFiles = write_bundle(
-            workdir / "bundle", self.n, domain_id=0, lease_s=LEASE_S, t_min_s=0.2, t_max_s=0.6
-        )
-        self.daemons: list[subprocess.Popen[bytes]] = []
-        self.lives = [0] * self.n
-        for i in range(self.n):
-            self.daemons.append(self.start_daemon(i))
-            with (workdir / f"{self.names[i]}-sim.log").open("wb") as err:
-                lan[i].popen(
-                    [
-                        str(BIN / "swarmd-vehicle-sim"),
-                        "--connect",
-                        "udpout:127.0.0.1:14540",
-                        "--sysid",
-                        str(i + 1),
-                        "--seed",
-                        str(i),
-                        "--gps-fix-after",
-                        "0.5",
-                        "--json-log",
-                    ],
-                    stderr=err,
-                )
-
-    def start_daemon(self, i: int) -> subprocess.Popen[bytes]:
-        name = self.names[i]
-        cfg = write_config(
-            self.workdir / f"{name}.yaml",
-            self.files,
-            node=name,
-            interface=self.lan[i].ifname,
-            socket_path=str(self.socks[i]),
-            extra=swarm_sections(self.state, "udpin:127.0.0.1:14540"),
-        )
-        self.lives[i] += 1
-        with (self.workdir / f"{name}-{self.lives[i]}.log").open("wb") as err:
-            return self.lan[i].popen([str(BIN / "swarmd"), "run", "--config", str(cfg)], stderr=err)
-
-    def status(self, i: int = 0) -> dict[str, Any]:
-        return status(self.socks[i])
-
-    def table(self) -> dict[str, dict[str, Any]]:
-        rows: dict[str, dict[str, Any]] = self.status()["readiness"]
-        return rows
+        super().__init__(lan, workdir, [[] for _ in range(4)], lease_s=LEASE_S)
 
     def armed(self, i: int) -> int:
-        lines = (self.workdir / f"{self.names[i]}-sim.log").read_text().splitlines()
-        return sum(1 for x in lines if x.startswith("{") and json.loads(x)["event"] == "armed")
+        return len(self.sim_events(i, "armed"))
 
 
 @pytest.mark.parametrize("state_kept", [True, False], ids=["state-kept", "state-lost"])
@@ -278,13 +223,13 @@ def test_reboot_in_the_air(lan_factory: LanFactory, workdir: Path, state_kept: b
     seq_before = swarm.status(0)["peer_changes"]["last_seq"]
 
     # mid-flight: uav2's daemon dies (no goodbye); its vehicle flies on
-    swarm.daemons[1].send_signal(signal.SIGKILL)
-    swarm.daemons[1].wait(timeout=10)
+    swarm.daemons.procs[1].send_signal(signal.SIGKILL)
+    swarm.daemons.procs[1].wait(timeout=10)
     state_file = swarm.state / "dataplane-uav2.json"
     assert state_file.exists()
     if not state_kept:
         state_file.unlink()
-    swarm.daemons[1] = swarm.start_daemon(1)
+    swarm.daemons.start(1)
 
     # the commander sees the new life (a higher signed epoch), and readiness resumes
     def back() -> bool:

@@ -18,16 +18,14 @@ import secrets
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 from swarmd_lab import netns, ros2_lab
-from swarmd_lab.ros2_lab import discovery_counts, graph_datagrams, host_argv, write_machine_id
+from swarmd_lab.ros2_lab import discovery_counts, graph_datagrams
 
 from swarmd.bundle.ros2 import Ros2EndpointKind, bundle_ros2_participants
-from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.ros2.graph import (
     GRAPH_PREFIX_RANDOM_BYTES,
     NodeEntitiesInfo,
@@ -44,10 +42,11 @@ from swarmd.rtps.types import ENTITYID_UNKNOWN, EntityId, GuidPrefix, ProtocolVe
 from tests.conftest import LanFactory
 from tests.daemon_support import (
     BundleFiles,
+    Daemons,
     daemon_status,
+    relay_config,
+    ros2_profiles,
     run_domain,
-    until,
-    write_config,
     write_mission_bundle,
 )
 
@@ -59,7 +58,6 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
 ]
 
-BIN = Path(sys.executable).parent
 WAIT_S = 30.0
 RUN_S = 22.0  # both nodes
 STOP_DRONE1_AFTER_S = 11.0  # then drone-1's swarmd stops: its talker must leave the graph
@@ -67,34 +65,11 @@ CAPTURE_START_S = 10.0
 FORGERY_ROUNDS = 5
 ROS2_DOMAIN = 7
 
-MISSION = """
-swarm: ros2-graph
-domain_id: {domain}
-discovery: {{t_min_s: 0.2, t_max_s: 0.5, lease_s: 4}}
-participants:
-  - {{name: lead, index: 0, role: commander, mavlink_sysid: 1, ipv4: {a0}}}
-  - {{name: drone-1, index: 1, role: member, mavlink_sysid: 2, ipv4: {a1}}}
-topics:
-  - {{name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}}
-ros2:
-  domain_id: {ros2_domain}
-  topics:
-    - {{name: /chatter, type: std_msgs/msg/String, reliability: reliable, history_depth: 10}}
-  services:
-    - {{name: /trigger, type: std_srvs/srv/Trigger}}
-  nodes:
-    - {{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}}
-    - {{name: listener, drones: commander, subscribes: [/chatter], calls: [/trigger]}}
-"""
 DRONES = ("lead", "drone-1")
 
 
 def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
-    text = MISSION.format(
-        domain=run_domain(),
-        ros2_domain=ROS2_DOMAIN,
-        **{f"a{i}": a for i, a in enumerate(addresses)},
-    )
+    text = ros2_lab.chatter_mission("ros2-graph", run_domain(), addresses, ros2_domain=ROS2_DOMAIN)
     return write_mission_bundle(workdir, text, "ros2-graph", "ros2-graph.yaml")
 
 
@@ -128,44 +103,14 @@ def test_a_node_lists_the_other_drones_nodes_with_no_graph_traffic_on_the_air(
     lead_p = next(p for p in participants if p.drone == "lead")
     talker_p = next(p for p in participants if p.drone == "drone-1")
     profiles = workdir / "profiles"
-    code = swarmctl(
-        ["ros2", "profile", str(files.path), "--trusted-key", str(files.trusted_key)]
-        + ["--allow-dev", "--out", str(profiles), "--via-swarmd"]
-    )
+    code = ros2_profiles(files, profiles, "--via-swarmd")
     assert code == 0
-    socks = [workdir / f"{d}.sock" for d in DRONES]
-    configs = [
-        write_config(
-            workdir / f"{d}.yaml",
-            files,
-            node=d,
-            interface=lan[i].ifname,
-            socket_path=str(socks[i]),
-            extra="ros2:\n  relay: true\n  lease_s: 6\n",
-        )
-        for i, d in enumerate(DRONES)
-    ]
-    daemons = []
-    for i, d in enumerate(DRONES):
-        with (workdir / f"{d}.log").open("ab") as err:
-            argv = [str(BIN / "swarmd"), "run", "--config", str(configs[i])]
-            daemons.append(lan[i].popen(argv, stderr=err))
-    until(
-        lambda: all(
-            sum(p["state"] == "discovered" for p in daemon_status(s)["peers"]) == 1 for s in socks
-        ),
-        lambda: str([daemon_status(s)["peers"] for s in socks if s.exists()]),
-        WAIT_S,
-    )
-    machine_ids = [write_machine_id(workdir, i) for i in range(2)]
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config(lease_s=6))
+    daemons, socks = swarm.start_all(WAIT_S), swarm.socks
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
 
     def start_node(i: int, node: str, *extra: str) -> subprocess.Popen[bytes]:
-        argv = [sys.executable, "-m", "swarmd_lab.ros2_node", node, "--seconds", str(RUN_S)]
-        return lan[i].popen(
-            host_argv([*argv, *extra], machine_ids[i]),
-            env=ros2_lab.node_env(profiles / DRONES[i] / f"{node}.env"),
-            stdout=subprocess.PIPE,
-        )
+        return nodes.start(i, node, ros2_lab.node_argv(node, RUN_S, *extra))
 
     pcap = workdir / "link.pcapng"
     capture = ros2_lab.start_capture(lan.hub, netns.BRIDGE, pcap, CAPTURE_START_S)

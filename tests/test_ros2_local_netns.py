@@ -24,26 +24,25 @@ from __future__ import annotations
 import json
 import shutil
 import signal
-import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 from swarmd_lab import netns, ros2_lab
-from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
+from swarmd_lab.ros2_lab import discovery_counts
 
 from swarmd.bundle.ros2 import bundle_ros2_participants
-from swarmd.cli.swarmctl import main as swarmctl
 from tests.conftest import LanFactory
 from tests.daemon_support import (
     BundleFiles,
+    Daemons,
     daemon_status,
     matched_counts,
+    relay_config,
+    ros2_profiles,
     run_domain,
     until,
-    write_config,
     write_mission_bundle,
 )
 
@@ -55,43 +54,24 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
 ]
 
-BIN = Path(sys.executable).parent
 WAIT_S = 30.0
 RUN_S = 30.0  # the lead's listener and drone-1's monitor
 TALKER_S = 12.0  # drone-1's talker, then it stops (DATA(p[UD])) while the others run
 CAPTURE_START_S = 10.0
 ROS2_DOMAIN = 7
 
-MISSION = """
-swarm: ros2-local
-domain_id: {domain}
-discovery: {{t_min_s: 0.2, t_max_s: 0.5, lease_s: 4}}
-participants:
-  - {{name: lead, index: 0, role: commander, mavlink_sysid: 1, ipv4: {a0}}}
-  - {{name: drone-1, index: 1, role: member, mavlink_sysid: 2, ipv4: {a1}}}
-topics:
-  - {{name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}}
-ros2:
-  domain_id: {ros2_domain}
-  topics:
-    - {{name: /chatter, type: std_msgs/msg/String, reliability: reliable, history_depth: 10}}
-  services:
-    - {{name: /trigger, type: std_srvs/srv/Trigger}}
-  nodes:
-    - {{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}}
-    - {{name: monitor, drones: member, subscribes: [/chatter], calls: [/trigger]}}
-    - {{name: listener, drones: commander, publishes: [/chatter], subscribes: [/chatter],
-       calls: [/trigger]}}
-"""
 DRONES = ("lead", "drone-1")
-RELAY_CONFIG = "ros2:\n  relay: true\n  lease_s: 6\n"
+# the lead's listener also publishes on the topic it listens to
+LEAD_LISTENER = (
+    "{name: listener, drones: commander, publishes: [/chatter], subscribes: [/chatter],"
+    " calls: [/trigger]}"
+)
 
 
 def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
-    text = MISSION.format(
-        domain=run_domain(),
-        ros2_domain=ROS2_DOMAIN,
-        **{f"a{i}": a for i, a in enumerate(addresses)},
+    nodes = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, LEAD_LISTENER)
+    text = ros2_lab.chatter_mission(
+        "ros2-local", run_domain(), addresses, nodes, ros2_domain=ROS2_DOMAIN
     )
     return write_mission_bundle(workdir, text, "ros2-local", "ros2-local.yaml")
 
@@ -107,44 +87,15 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
     files = _write_bundle(workdir, [lan[i].address for i in range(2)])
     participants = bundle_ros2_participants(files.bundle)
     profiles = workdir / "profiles"
-    code = swarmctl(
-        ["ros2", "profile", str(files.path), "--trusted-key", str(files.trusted_key)]
-        + ["--allow-dev", "--out", str(profiles), "--via-swarmd"]
-    )
+    code = ros2_profiles(files, profiles, "--via-swarmd")
     assert code == 0
-    socks = [workdir / f"{d}.sock" for d in DRONES]
-    configs = [
-        write_config(
-            workdir / f"{d}.yaml",
-            files,
-            node=d,
-            interface=lan[i].ifname,
-            socket_path=str(socks[i]),
-            extra=RELAY_CONFIG,
-        )
-        for i, d in enumerate(DRONES)
-    ]
-    daemons = []
-    for i, d in enumerate(DRONES):
-        with (workdir / f"{d}.log").open("ab") as err:
-            argv = [str(BIN / "swarmd"), "run", "--config", str(configs[i])]
-            daemons.append(lan[i].popen(argv, stderr=err))
-    _until(
-        lambda: all(
-            sum(p["state"] == "discovered" for p in daemon_status(s)["peers"]) == 1 for s in socks
-        ),
-        lambda: str([daemon_status(s)["peers"] for s in socks if s.exists()]),
-    )
-    machine_ids = [write_machine_id(workdir, i) for i in range(2)]
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config(lease_s=6))
+    daemons, socks = swarm.start_all(WAIT_S), swarm.socks
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
 
     def start_node(i: int, node: str, role: str, seconds: float, *extra: str) -> Any:
-        argv = [sys.executable, "-m", "swarmd_lab.ros2_node", role, "--name", node]
-        argv += ["--seconds", str(seconds), "--graph-every", "1", *extra]
-        return lan[i].popen(
-            host_argv(argv, machine_ids[i]),
-            env=ros2_lab.node_env(profiles / DRONES[i] / f"{node}.env"),
-            stdout=subprocess.PIPE,
-        )
+        argv = ros2_lab.node_argv(role, seconds, "--graph-every", "1", *extra, name=node)
+        return nodes.start(i, node, argv)
 
     def output(proc: Any, seconds: float) -> list[dict[str, Any]]:
         stdout, _ = proc.communicate(timeout=seconds + 30)

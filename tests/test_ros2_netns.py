@@ -12,12 +12,11 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from swarmd_lab import netns, ros2_lab
-from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
+from swarmd_lab.ros2_lab import discovery_counts
 
 from swarmd.cli.swarmctl import main as swarmctl
 
@@ -32,26 +31,6 @@ pytestmark = [
 RUN_S = 14.0
 CAPTURE_START_S = 10.0
 
-MISSION = """
-swarm: ros2-netns
-domain_id: 0
-participants:
-  - {{name: lead, index: 0, role: commander, mavlink_sysid: 1, ipv4: {a0}}}
-  - {{name: drone-1, index: 1, role: member, mavlink_sysid: 2, ipv4: {a1}}}
-  - {{name: drone-2, index: 2, role: member, mavlink_sysid: 3, ipv4: {a2}}}
-topics:
-  - {{name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}}
-ros2:
-  domain_id: 7
-  topics:
-    - {{name: /chatter, type: std_msgs/msg/String, reliability: reliable, history_depth: 10}}
-  services:
-    - {{name: /trigger, type: std_srvs/srv/Trigger}}
-  nodes:
-    - {{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}}
-    - {{name: listener, drones: commander, subscribes: [/chatter], calls: [/trigger]}}
-"""
-
 
 def _start_capture(hub: str, pcap: Path) -> subprocess.Popen[bytes]:
     return ros2_lab.start_capture(hub, netns.BRIDGE, pcap, CAPTURE_START_S)
@@ -59,9 +38,9 @@ def _start_capture(hub: str, pcap: Path) -> subprocess.Popen[bytes]:
 
 def test_three_drones_talk_and_call_with_generated_profiles_and_no_sedp(tmp_path: Path) -> None:
     with netns.Lan(3) as lan:
-        addresses = {f"a{i}": lan[i].address for i in range(3)}
+        addresses = [lan[i].address for i in range(3)]
         mission = tmp_path / "mission.yaml"
-        mission.write_text(MISSION.format(**addresses))
+        mission.write_text(ros2_lab.chatter_mission("ros2-netns", 0, addresses, discovery=None))
         bundle = tmp_path / "s.swb"
         assert swarmctl(["bundle", "build", str(mission), "-o", str(bundle), "--unsigned-dev"]) == 0
         out = tmp_path / "profiles"
@@ -70,18 +49,12 @@ def test_three_drones_talk_and_call_with_generated_profiles_and_no_sedp(tmp_path
         pcap = tmp_path / "link.pcapng"
         capture = _start_capture(lan.hub, pcap)
         drones = [("lead", "listener"), ("drone-1", "talker"), ("drone-2", "talker")]
+        nodes = ros2_lab.NodeLauncher(lan, [drone for drone, _ in drones], out, tmp_path)
         procs = []
         try:
             for i, (drone, node) in enumerate(drones):
-                argv = [sys.executable, "-m", "swarmd_lab.ros2_node", node, "--tag", drone]
-                argv += ["--seconds", str(RUN_S)]
-                procs.append(
-                    lan[i].popen(
-                        host_argv(argv, write_machine_id(tmp_path, i)),
-                        env=ros2_lab.node_env(out / drone / f"{node}.env"),
-                        stdout=subprocess.PIPE,
-                    )
-                )
+                argv = ros2_lab.node_argv(node, RUN_S, "--tag", drone)
+                procs.append(nodes.start(i, node, argv))
             results = []
             for proc in procs:
                 stdout, _ = proc.communicate(timeout=RUN_S + 30)

@@ -23,7 +23,6 @@ import json
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -31,21 +30,22 @@ from typing import Any
 
 import pytest
 from swarmd_lab import netns, ros2_lab
-from swarmd_lab.ros2_lab import discovery_counts, host_argv, write_machine_id
+from swarmd_lab.ros2_lab import discovery_counts
 
 from swarmd.bundle.ros2 import bundle_ros2_participants
-from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
 from swarmd.rtps.types import Duration, GuidPrefix, ProtocolVersion, VendorId
 from tests.conftest import LanFactory
 from tests.daemon_support import (
     BundleFiles,
+    Daemons,
     daemon_status,
     matched_counts,
+    relay_config,
+    ros2_profiles,
     run_domain,
     until,
-    write_config,
     write_mission_bundle,
 )
 
@@ -57,7 +57,6 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
 ]
 
-BIN = Path(sys.executable).parent
 WAIT_S = 30.0
 LISTEN_S = 40.0  # the listener and drone-2's talker run through every step below
 FIRST_LIFE_S = 8.0  # drone-1's talker, before its restart
@@ -68,28 +67,7 @@ ROS2_DOMAIN = 7
 # a talker's messages that may still be in flight (or lost to the restart) at the end
 TAIL_MESSAGES = 15
 
-MISSION = """
-swarm: ros2-relay
-domain_id: {domain}
-discovery: {{t_min_s: 0.2, t_max_s: 0.5, lease_s: 4}}
-participants:
-  - {{name: lead, index: 0, role: commander, mavlink_sysid: 1, ipv4: {a0}}}
-  - {{name: drone-1, index: 1, role: member, mavlink_sysid: 2, ipv4: {a1}}}
-  - {{name: drone-2, index: 2, role: member, mavlink_sysid: 3, ipv4: {a2}}}
-topics:
-  - {{name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}}
-ros2:
-  domain_id: {ros2_domain}
-  topics:
-    - {{name: /chatter, type: std_msgs/msg/String, reliability: reliable, history_depth: 10}}
-  services:
-    - {{name: /trigger, type: std_srvs/srv/Trigger}}
-  nodes:
-    - {{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}}
-    - {{name: listener, drones: commander, subscribes: [/chatter], calls: [/trigger]}}
-"""
 DRONES = ("lead", "drone-1", "drone-2")
-RELAY_CONFIG = "ros2:\n  relay: true\n  lease_s: 6\n"
 
 
 def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:
@@ -98,10 +76,6 @@ def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:
 
 def _status(sock: Path) -> dict[str, Any]:
     return daemon_status(sock)
-
-
-def _discovered(sock: Path) -> int:
-    return sum(p["state"] == "discovered" for p in _status(sock)["peers"])
 
 
 def _start_capture(hub: str, pcap: Path) -> subprocess.Popen[bytes]:
@@ -131,11 +105,7 @@ def _forged_spdp(attacker: str) -> bytes:
 
 
 def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
-    text = MISSION.format(
-        domain=run_domain(),
-        ros2_domain=ROS2_DOMAIN,
-        **{f"a{i}": a for i, a in enumerate(addresses)},
-    )
+    text = ros2_lab.chatter_mission("ros2-relay", run_domain(), addresses, ros2_domain=ROS2_DOMAIN)
     return write_mission_bundle(workdir, text, "ros2-relay", "ros2-relay.yaml")
 
 
@@ -146,45 +116,14 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     outsider = lan[3]
     files = _write_bundle(workdir, [lan[i].address for i in range(3)])
     profiles = workdir / "profiles"
-    code = swarmctl(
-        ["ros2", "profile", str(files.path), "--trusted-key", str(files.trusted_key)]
-        + ["--allow-dev", "--out", str(profiles), "--via-swarmd"]
-    )
+    code = ros2_profiles(files, profiles, "--via-swarmd")
     assert code == 0
-    socks = [workdir / f"{d}.sock" for d in DRONES]
-    logs = [workdir / f"{d}.log" for d in DRONES]
-    configs = [
-        write_config(
-            workdir / f"{d}.yaml",
-            files,
-            node=d,
-            interface=lan[i].ifname,
-            socket_path=str(socks[i]),
-            extra=RELAY_CONFIG,
-        )
-        for i, d in enumerate(DRONES)
-    ]
-
-    def start_swarmd(i: int) -> subprocess.Popen[bytes]:
-        with logs[i].open("ab") as err:
-            return lan[i].popen(
-                [str(BIN / "swarmd"), "run", "--config", str(configs[i])], stderr=err
-            )
-
-    daemons = [start_swarmd(i) for i in range(3)]
-    _until(
-        lambda: all(_discovered(s) == 2 for s in socks),
-        lambda: str([_status(s)["peers"] for s in socks if s.exists()]),
-    )
-    machine_ids = [write_machine_id(workdir, i) for i in range(3)]
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config(lease_s=6))
+    daemons, socks, logs = swarm.start_all(WAIT_S), swarm.socks, swarm.logs
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
 
     def start_node(i: int, node: str, seconds: float, *extra: str) -> subprocess.Popen[bytes]:
-        argv = [sys.executable, "-m", "swarmd_lab.ros2_node", node, "--seconds", str(seconds)]
-        return lan[i].popen(
-            host_argv([*argv, *extra], machine_ids[i]),
-            env=ros2_lab.node_env(profiles / DRONES[i] / f"{node}.env"),
-            stdout=subprocess.PIPE,
-        )
+        return nodes.start(i, node, ros2_lab.node_argv(node, seconds, *extra))
 
     def result(proc: subprocess.Popen[bytes], seconds: float) -> dict[str, Any]:
         stdout, _ = proc.communicate(timeout=seconds + 30)
@@ -234,7 +173,7 @@ def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
         # participants at their nodes (DATA(p[UD]) from swarmd), then find it again
         daemons[2].send_signal(signal.SIGTERM)
         assert daemons[2].wait(timeout=WAIT_S) == 0
-        daemons[2] = start_swarmd(2)
+        swarm.start(2)
         # the outsider forges a ROS 2 participant at every port a node or swarmd has on
         # the drones' address (bounded: FORGERY_ROUNDS x drones x ports)
         forgery = _forged_spdp(outsider.address)
@@ -357,22 +296,13 @@ def test_the_same_forgery_reaches_a_node_on_the_plain_route(
     base = lan[0].address.rsplit(".", 1)[0]
     files = _write_bundle(workdir, [lan[0].address, f"{base}.201", f"{base}.202"])
     profiles = workdir / "profiles"
-    code = swarmctl(
-        ["ros2", "profile", str(files.path), "--trusted-key", str(files.trusted_key)]
-        + ["--allow-dev", "--out", str(profiles), "--drone", "lead"]
-    )
+    code = ros2_profiles(files, profiles, "--drone", "lead")
     assert code == 0
     rx = outsider.socket()
     rx.bind((outsider.address, 7410))
     rx.setblocking(False)
-    node = lan[0].popen(
-        host_argv(
-            [sys.executable, "-m", "swarmd_lab.ros2_node", "listener", "--seconds", "6"],
-            write_machine_id(workdir, 0),
-        ),
-        env=ros2_lab.node_env(profiles / "lead" / "listener.env"),
-        stdout=subprocess.PIPE,
-    )
+    lead_host = ros2_lab.NodeLauncher([lan[0]], ["lead"], profiles, workdir)
+    node = lead_host.start(0, "listener", ros2_lab.node_argv("listener", 6))
     lead = next(p for p in bundle_ros2_participants(files.bundle) if p.drone == "lead")
     sender = outsider.socket()
     try:

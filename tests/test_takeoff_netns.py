@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,9 +29,15 @@ from swarmd_lab.netns import Lan
 
 from swarmd.control import DaemonUnreachable, RequestError, request
 from tests.conftest import LanFactory
-from tests.daemon_support import BundleFiles, swarm_sections, write_bundle, write_config
+from tests.daemon_support import (
+    BIN,
+    BundleFiles,
+    Daemons,
+    start_vehicle_sim,
+    swarm_sections,
+    write_bundle,
+)
 
-BIN = Path(sys.executable).parent
 WAIT_S = 40.0
 LINK_LOSS_BOUND_S = 3.0  # the issue's bound: PX4 link loss flips readiness within 3 s
 
@@ -50,40 +55,22 @@ class Drones:
         self.n = len(sim_args)
         self.names = [f"uav{i + 1}" for i in range(self.n)]
         self.socks = [workdir / f"{n}.sock" for n in self.names]
+        self.state = workdir / "state"  # the daemons' (dataplane state_dir)
         self.files: BundleFiles = write_bundle(
             workdir / "bundle", self.n, domain_id=0, lease_s=lease_s, t_min_s=0.2, t_max_s=0.6
         )
+        self.daemons = Daemons(
+            lan,
+            workdir,
+            self.files,
+            self.names,
+            extra=swarm_sections(self.state, "udpin:127.0.0.1:14540"),
+        )
         self.sims: list[subprocess.Popen[bytes]] = []
         for i, name in enumerate(self.names):
-            cfg = write_config(
-                workdir / f"{name}.yaml",
-                self.files,
-                node=name,
-                interface=lan[i].ifname,
-                socket_path=str(self.socks[i]),
-                extra=swarm_sections(workdir / "state", "udpin:127.0.0.1:14540"),
-            )
-            with (workdir / f"{name}.log").open("wb") as err:
-                lan[i].popen([str(BIN / "swarmd"), "run", "--config", str(cfg)], stderr=err)
-            with (workdir / f"{name}-sim.log").open("wb") as err:
-                self.sims.append(
-                    lan[i].popen(
-                        [
-                            str(BIN / "swarmd-vehicle-sim"),
-                            "--connect",
-                            "udpout:127.0.0.1:14540",
-                            "--sysid",
-                            str(i + 1),
-                            "--seed",
-                            str(i),
-                            "--gps-fix-after",
-                            "0.5",
-                            "--json-log",
-                            *sim_args[i],
-                        ],
-                        stderr=err,
-                    )
-                )
+            self.daemons.start(i)
+            log = workdir / f"{name}-sim.log"
+            self.sims.append(start_vehicle_sim(lan[i], i + 1, log, *sim_args[i]))
 
     def status(self, i: int = 0) -> dict[str, Any]:
         result: dict[str, Any] = request(str(self.socks[i]), "status")

@@ -14,14 +14,16 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import IO, Final
 
 from swarmd.bundle.ros2 import GRAPH_TOPIC, Ros2Participant
 from swarmd.ros2.relay import static_edp_entity_id
+from swarmd_lab.netns import Lan, Namespace
 
 SPDP_IDS: Final = frozenset({"0x000100c2", "0x000100c7"})
 SEDP_IDS: Final = frozenset({"0x000003c2", "0x000003c7", "0x000004c2", "0x000004c7"})
@@ -33,6 +35,62 @@ SWARMD_VENDOR: Final = frozenset({"0x5357", "21335"})
 _MOUNT_SCRIPT: Final = (
     'mount --bind "$0" /etc/machine-id && mount -t tmpfs -o size=64m tmpfs /dev/shm && exec "$@"'
 )
+
+
+# The ROS 2 nodes of the lab's missions (``chatter_mission``), as YAML flow mappings: a
+# talker serves /trigger, a listener (or a second subscriber, the monitor) calls it.
+TALKER_NODE: Final = "{name: talker, drones: member, publishes: [/chatter], serves: [/trigger]}"
+LISTENER_NODE: Final = (
+    "{name: listener, drones: commander, subscribes: [/chatter], calls: [/trigger]}"
+)
+MONITOR_NODE: Final = "{name: monitor, drones: member, subscribes: [/chatter], calls: [/trigger]}"
+# swarmd's own discovery quick (announcements every 0.2-0.5 s), so a run converges in seconds
+QUICK_DISCOVERY: Final = "{t_min_s: 0.2, t_max_s: 0.5, lease_s: 4}"
+
+
+def drone_names(n: int) -> list[str]:
+    """The drones of a ``chatter_mission`` of ``n``: the lead, then drone-1 .. drone-(n-1)."""
+    return ["lead", *(f"drone-{i}" for i in range(1, n))]
+
+
+def chatter_mission(
+    swarm: str,
+    domain_id: int,
+    addresses: Sequence[str],
+    nodes: Sequence[str] = (TALKER_NODE, LISTENER_NODE),
+    *,
+    ros2_domain: int = 7,
+    discovery: str | None = QUICK_DISCOVERY,
+) -> str:
+    """The text of a mission for real ROS 2 nodes in namespaces: one drone per address (the
+    lead commands, ``drone_names``), swarmd's readiness topic, the ROS 2 topic ``/chatter``
+    (std_msgs/String, reliable, depth 10) and service ``/trigger`` (std_srvs/Trigger), and
+    ``nodes`` (YAML flow mappings: ``TALKER_NODE``, ...); ``discovery`` None: the defaults."""
+    participants = [
+        f"  - {{name: {name}, index: {i}, role: {'commander' if i == 0 else 'member'}, "
+        f"mavlink_sysid: {i + 1}, ipv4: {address}}}"
+        for i, (name, address) in enumerate(
+            zip(drone_names(len(addresses)), addresses, strict=True)
+        )
+    ]
+    lines = [f"swarm: {swarm}", f"domain_id: {domain_id}"]
+    if discovery is not None:
+        lines.append(f"discovery: {discovery}")
+    lines += ["participants:", *participants]
+    lines += [
+        "topics:",
+        '  - {name: swarm/ready, type: "swarmd::Readiness", writers: member, readers: commander}',
+        "ros2:",
+        f"  domain_id: {ros2_domain}",
+        "  topics:",
+        "    - {name: /chatter, type: std_msgs/msg/String, reliability: reliable,"
+        " history_depth: 10}",
+        "  services:",
+        "    - {name: /trigger, type: std_srvs/srv/Trigger}",
+        "  nodes:",
+        *(f"    - {node}" for node in nodes),
+    ]
+    return "\n".join(lines) + "\n"
 
 
 def write_machine_id(directory: Path, host_index: int) -> Path:
@@ -129,6 +187,49 @@ def node_env(env_file: Path) -> dict[str, str]:
             key, _, value = line.partition("=")
             env[key] = value
     return env
+
+
+def node_argv(role: str, seconds: float, *extra: str, name: str | None = None) -> list[str]:
+    """The command of one ``swarmd_lab.ros2_node`` (``role``: talker or listener; ``name``:
+    its node name when not the role's) running ``seconds``, with ``extra`` options."""
+    argv = [sys.executable, "-m", "swarmd_lab.ros2_node", role]
+    if name is not None:
+        argv += ["--name", name]
+    return [*argv, "--seconds", str(seconds), *extra]
+
+
+class NodeLauncher:
+    """Starts ROS 2 nodes on hosts as on drones of their own: drone ``drones[i]`` is
+    ``hosts[i]``, its nodes in a private mount namespace with the drone's machine id (written
+    under ``workdir``) and its own ``/dev/shm`` (``host_argv``), each in the environment of its
+    generated ``profiles/<drone>/<node>.env`` (``node_env``)."""
+
+    def __init__(
+        self,
+        hosts: Lan | Sequence[Namespace],
+        drones: Sequence[str],
+        profiles: Path,
+        workdir: Path,
+    ) -> None:
+        self.hosts, self.drones, self.profiles = hosts, drones, profiles
+        self.machine_ids = [write_machine_id(workdir, i) for i in range(len(drones))]
+
+    def start(
+        self,
+        i: int,
+        node: str,
+        argv: Sequence[str],
+        *,
+        stdout: int | IO[bytes] | None = subprocess.PIPE,
+        stderr: int | IO[bytes] | None = None,
+    ) -> subprocess.Popen[bytes]:
+        """``argv`` (the command of ``node``) on drone ``i``."""
+        return self.hosts[i].popen(
+            host_argv(argv, self.machine_ids[i]),
+            env=node_env(self.profiles / self.drones[i] / f"{node}.env"),
+            stdout=stdout,
+            stderr=stderr,
+        )
 
 
 def start_capture(hub: str, bridge: str, pcap: Path, timeout_s: float) -> subprocess.Popen[bytes]:
