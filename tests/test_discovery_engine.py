@@ -6,7 +6,7 @@ import random
 from pathlib import Path
 
 import pytest
-from swarmd_lab.testing import make_bundle, node_ipv4, peer_datagram
+from swarmd_lab.testing import drain, make_bundle, node_ipv4, peer_datagram, run_to
 
 from swarmd.bundle.model import DiscoveryParams
 from swarmd.discovery import (
@@ -25,7 +25,6 @@ from swarmd.discovery.engine import (
     MAX_DISPOSE_UNICAST,
     MAX_PENDING_EVENTS,
 )
-from swarmd.discovery.events import Event
 from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.rtps.spdp import BES_SPDP_ONLY, SpdpAlive, SpdpDisposed, decode_spdp
@@ -56,22 +55,6 @@ def engine_for(
         local_ipv4=node_ipv4(index),
         link=None if q is None else LinkSample(q=q),
     )
-
-
-def drain(engine: DiscoveryEngine) -> list[Event]:
-    out = []
-    while (e := engine.next_event()) is not None:
-        out.append(e)
-    return out
-
-
-def run_to(engine: DiscoveryEngine, end: float) -> list[tuple[float, bytes, tuple[str, int]]]:
-    """Fire the engine's timers up to ``end``; every datagram with its send time."""
-    sent: list[tuple[float, bytes, tuple[str, int]]] = []
-    while (t := engine.get_timer()) is not None and t <= end:
-        engine.handle_timer(t)
-        sent += [(t, d, a) for d, a in engine.datagrams_to_send()]
-    return sent
 
 
 def alive(datagram: bytes) -> SpdpAlive:

@@ -6,34 +6,17 @@ from __future__ import annotations
 from typing import cast
 
 import pytest
-from swarmd_lab.testing import engine_for, make_bundle, peer_datagram
+from swarmd_lab.testing import drain, engine_for, make_bundle, peer_datagram, run_to
 
 from swarmd.discovery import DiscoveryEngine, EngineConfig, PeerDiscovered, PeerLost
 from swarmd.discovery.config import Mode
 from swarmd.discovery.digest import decode_heard
-from swarmd.discovery.events import Event
 from swarmd.discovery.leases import PROBE_AT, PROBE_ATTEMPTS
 from swarmd.rtps.spdp import SpdpAlive, decode_spdp
 
 LEASE_S = 20.0
 HEARD_AT = 5.0
 GAP_S = EngineConfig().retransmit_min_gap_s
-
-
-def drain(engine: DiscoveryEngine) -> list[Event]:
-    out = []
-    while (e := engine.next_event()) is not None:
-        out.append(e)
-    return out
-
-
-def run_to(engine: DiscoveryEngine, end: float) -> list[tuple[float, bytes, tuple[str, int]]]:
-    """Fire the engine's timers up to ``end``; every datagram with its send time."""
-    sent: list[tuple[float, bytes, tuple[str, int]]] = []
-    while (t := engine.get_timer()) is not None and t <= end:
-        engine.handle_timer(t)
-        sent += [(t, d, a) for d, a in engine.datagrams_to_send()]
-    return sent
 
 
 def alive(datagram: bytes) -> SpdpAlive:

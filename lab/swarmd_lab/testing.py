@@ -249,6 +249,23 @@ def engine_for(
     )
 
 
+def drain(engine: DiscoveryEngine) -> list[Event]:
+    """Every event the engine has pending, in order."""
+    out = []
+    while (e := engine.next_event()) is not None:
+        out.append(e)
+    return out
+
+
+def run_to(engine: DiscoveryEngine, end: float) -> list[tuple[float, bytes, tuple[str, int]]]:
+    """Fire the engine's timers up to ``end``; every datagram with its send time."""
+    sent: list[tuple[float, bytes, tuple[str, int]]] = []
+    while (t := engine.get_timer()) is not None and t <= end:
+        engine.handle_timer(t)
+        sent += [(t, d, a) for d, a in engine.datagrams_to_send()]
+    return sent
+
+
 def peer_datagram(
     bundle: Bundle,
     index: int,
