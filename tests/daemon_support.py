@@ -194,15 +194,22 @@ def clean_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def until(cond: Callable[[], bool], what: Callable[[], str], wait_s: float) -> None:
-    """Poll ``cond`` every 0.1 s for up to ``wait_s`` (a daemon not answering yet counts as
-    not yet); AssertionError with ``what()`` when it never holds."""
+def until(
+    cond: Callable[[], bool],
+    what: Callable[[], object],
+    wait_s: float,
+    *,
+    not_yet: tuple[type[Exception], ...] = (DaemonUnreachable,),
+) -> None:
+    """Poll ``cond`` every 0.1 s for up to ``wait_s`` (one of ``not_yet`` raised, by default a
+    daemon not answering yet, counts as not yet); AssertionError with ``what()`` when it never
+    holds."""
     deadline = time.monotonic() + wait_s
     while True:
         try:
             if cond():
                 return
-        except DaemonUnreachable:
+        except not_yet:
             pass
         if time.monotonic() > deadline:
             raise AssertionError(f"gave up waiting: {what()}")

@@ -33,6 +33,7 @@ from swarmd_lab.netns import Lan, Namespace
 from swarmd.control import DaemonUnreachable, RequestError, request
 from tests.conftest import LanFactory
 from tests.daemon_support import BIN, Daemons, write_bundle
+from tests.daemon_support import until as wait_until
 from tests.test_takeoff_netns import Drones
 
 WAIT_S = 30.0
@@ -44,16 +45,8 @@ pytestmark = [pytest.mark.netns]
 
 
 def until(cond: Callable[[], bool], what: Callable[[], object], cap_s: float = WAIT_S) -> None:
-    deadline = time.monotonic() + cap_s
-    while True:
-        try:
-            if cond():
-                return
-        except (DaemonUnreachable, RequestError, KeyError, OSError):
-            pass
-        if time.monotonic() > deadline:
-            raise AssertionError(f"gave up waiting: {what()}")
-        time.sleep(0.1)
+    not_yet = (DaemonUnreachable, RequestError, KeyError, OSError)
+    wait_until(cond, what, cap_s, not_yet=not_yet)
 
 
 def status(sock: Path) -> dict[str, Any]:

@@ -37,6 +37,7 @@ from tests.daemon_support import (
     swarm_sections,
     write_bundle,
 )
+from tests.daemon_support import until as wait_until
 
 WAIT_S = 40.0
 LINK_LOSS_BOUND_S = 3.0  # the bound: PX4 link loss flips readiness within 3 s
@@ -97,16 +98,7 @@ class Drones:
 
 
 def until(cond: Callable[[], bool], what: Callable[[], object]) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while True:
-        try:
-            if cond():
-                return
-        except (DaemonUnreachable, KeyError):
-            pass
-        if time.monotonic() > deadline:
-            raise AssertionError(f"gave up waiting: {what()}")
-        time.sleep(0.1)
+    wait_until(cond, what, WAIT_S, not_yet=(DaemonUnreachable, KeyError))
 
 
 def _ready(rows: dict[str, dict[str, Any]], name: str) -> bool:
