@@ -58,7 +58,12 @@ def test_a_reboots_late_removal_of_the_old_instance_is_not_a_loss() -> None:
             line("down", 58.0, peer=2, key="old"),  # the old one's lease expires
         ],
     )
-    assert ev.changes[0] == [(1.0, 2, "discovered")]
+    # the new life seen is a restart (as swarmd's observer reports a new epoch), so the
+    # reboot measure "seen by peers" has it; the old instance's end is no loss
+    assert ev.changes[0] == [(1.0, 2, "discovered"), (45.0, 2, "restarted")]
+    restarts = [(44.0, 2)]
+    seen = [t - r for r, node in restarts for t, p, c in ev.changes[0] if p == node and t >= r]
+    assert seen == [1.0]
 
 
 def test_a_new_life_of_the_observer_starts_from_nobody() -> None:
@@ -146,7 +151,10 @@ def test_instances_per_pair_are_capped() -> None:
     cap = flight_events.MAX_KEYS_PER_PAIR
     ev.feed(0, [line("up", float(k), peer=1, key=f"k{k}") for k in range(cap + 10)])
     assert ev.rejected.unmatched == 10
-    assert ev.changes[0] == [(0.0, 1, "discovered")]
+    # each instance past the first is a new life seen (bounded by the cap too)
+    assert ev.changes[0] == [(0.0, 1, "discovered")] + [
+        (float(k), 1, "restarted") for k in range(1, cap)
+    ]
 
 
 def test_changes_from_events_measure_like_swarmds() -> None:

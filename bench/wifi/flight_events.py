@@ -20,6 +20,11 @@ The peer lines are read from files the stacks also log into, so they are untrust
 that names a drone outside the run or the observer itself, or is not a well-formed event,
 is counted and dropped, never raised (``counts``). Every table is bounded by N and
 ``MAX_KEYS_PER_PAIR``.
+
+A second instance of a listed drone is its new life: ``restarted``, as swarmd's observer
+says of a new epoch (before this, the stock reboot runs of 2026-11-26 up to Cyclone's,
+Fast DDS's, zenoh's and ROS 2's at N = 10 folded it silently, so "seen by peers" has no
+figure for them).
 """
 
 from __future__ import annotations
@@ -170,6 +175,11 @@ class PeerEvents:
                 change = "regained" if ev.peer in life.ever else "discovered"
                 life.ever.add(ev.peer)
                 self.changes[own].append((ev.t, ev.peer, change))
+            else:
+                # another instance of a drone still listed: its new life, seen while the old
+                # one's lease runs (swarmd's observer reports a new epoch the same way), so
+                # the reboot measure has when each peer saw the restarted drone
+                self.changes[own].append((ev.t, ev.peer, "restarted"))
         else:
             if ev.key not in keys:
                 self.rejected.unmatched += 1
