@@ -165,6 +165,27 @@ def test_a_reboot_is_seen_by_peers_and_its_own_stack_is_not_blamed() -> None:
     assert m["false_losses"] == 0 and m["missed_losses"] == 0
 
 
+def test_each_restart_is_measured_within_its_own_life() -> None:
+    """A stock peer logs its new life's first discoveries on its own clock, a few ms before
+    the harness records the start (Fast DDS's reboot run: -0.02 s). Those count as found at
+    once; before, they were skipped and the next life's finds, 40 s on, were credited to
+    this restart (Fast DDS, N = 10: finds p50 39.9 s)."""
+    truth = _truth((-1.0, -1.0))
+    down = {2: [(40.0, 45.0), (80.0, 85.0)]}
+    changes = {
+        0: [(1.0, 2, "discovered")],
+        1: [(1.0, 2, "discovered")],
+        2: [(1.0, 0, "discovered"), (1.0, 1, "discovered"),
+            (44.98, 0, "discovered"), (44.99, 1, "discovered"),   # life 2, logged early
+            (84.99, 0, "discovered"), (85.2, 1, "discovered")],   # life 3
+    }  # fmt: skip
+    m = flight_measures.measure(
+        truth, changes, down, n=3, lease_s=LEASE, restarts=[(45.0, 2), (85.0, 2)]
+    )
+    assert m["reboot_finds_peers_s"]["count"] == 4
+    assert m["reboot_finds_peers_s"]["max"] == 0.2
+
+
 def test_the_timeline_figure_is_drawn_from_the_run_file_alone(tmp_path: Path) -> None:
     s = flight.make("split", 4)
     run = {

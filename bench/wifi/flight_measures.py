@@ -186,15 +186,25 @@ def measure(
     reboot_seen: list[float] = []
     reboot_finds: list[float] = []
     for r, node in restarts:
+        # this life's window: from TOLERANCE_S before the harness recorded the start (a
+        # stock peer logs its first discoveries on its own clock, before the harness's start
+        # call returns: Fast DDS at -0.02 s) to the node's next restart. Unbounded, a life
+        # that logged its finds early was credited with the next life's, 40 s on
+        lives = [t for t, j in restarts if j == node and t > r]
+        a, b = r - TOLERANCE_S, min(lives, default=math.inf)
         for i in range(n):
             if i == node:
                 continue
-            seen = [t for t, p, c in changes.get(i, ()) if p == node and c in UP_KINDS and t >= r]
+            seen = [
+                t for t, p, c in changes.get(i, ()) if p == node and c in UP_KINDS and a <= t < b
+            ]
             if seen:
-                reboot_seen.append(min(seen) - r)
-            finds = [t for t, p, c in changes.get(node, ()) if p == i and c in UP_KINDS and t >= r]
+                reboot_seen.append(max(0.0, min(seen) - r))
+            finds = [
+                t for t, p, c in changes.get(node, ()) if p == i and c in UP_KINDS and a <= t < b
+            ]
             if finds:
-                reboot_finds.append(min(finds) - r)
+                reboot_finds.append(max(0.0, min(finds) - r))
     frames: dict[str, Any] = {"pairs": len(rejoined)}
     if rejoined and rejoin_times and last_rediscovery is not None and discovery_fps:
         a, b = int(min(rejoin_times)), min(len(discovery_fps), int(last_rediscovery) + 2)
