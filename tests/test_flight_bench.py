@@ -165,6 +165,22 @@ def test_a_reboot_is_seen_by_peers_and_its_own_stack_is_not_blamed() -> None:
     assert m["false_losses"] == 0 and m["missed_losses"] == 0
 
 
+def test_a_loss_logged_just_before_the_recorded_kill_is_not_false() -> None:
+    """zenoh's peers report a killed drone lost at once (its session closes), 42 ms before
+    the harness's record of the kill: that is the kill's loss (intermittent: 5 s down,
+    shorter than a lease), not a false loss; a report 10 s before the kill still is."""
+    truth = _truth((-1.0, -1.0))
+    down = {2: [(40.045, 45.055)]}
+    changes = {
+        0: [(1.0, 2, "discovered"), (40.003, 2, "lost"), (45.14, 2, "regained")],
+        1: [(1.0, 2, "discovered"), (30.0, 2, "lost"), (45.14, 2, "regained")],
+        2: [(1.0, 0, "discovered"), (1.0, 1, "discovered")],
+    }
+    m = flight_measures.measure(truth, changes, down, n=3, lease_s=LEASE, restarts=[(45.06, 2)])
+    assert m["lost_reports"]["intermittent"] == 1
+    assert m["false_losses"] == 1  # node 1's, 10 s before the kill
+
+
 def test_each_restart_is_measured_within_its_own_life() -> None:
     """A stock peer logs its new life's first discoveries on its own clock, a few ms before
     the harness records the start (Fast DDS's reboot run: -0.02 s). Those count as found at
