@@ -170,14 +170,17 @@ def test_a_loss_logged_just_before_the_recorded_kill_is_not_false() -> None:
     the harness's record of the kill: that is the kill's loss (intermittent: 5 s down,
     shorter than a lease), not a false loss; a report 10 s before the kill still is."""
     truth = _truth((-1.0, -1.0))
-    down = {2: [(40.045, 45.055)]}
+    down = {2: [(40.045, 45.055), (80.01, 85.02)]}
     changes = {
-        0: [(1.0, 2, "discovered"), (40.003, 2, "lost"), (45.14, 2, "regained")],
+        0: [(1.0, 2, "discovered"), (40.003, 2, "lost"), (45.14, 2, "regained"),
+            (79.97, 2, "lost"), (85.1, 2, "regained")],
         1: [(1.0, 2, "discovered"), (30.0, 2, "lost"), (45.14, 2, "regained")],
         2: [(1.0, 0, "discovered"), (1.0, 1, "discovered")],
-    }
-    m = flight_measures.measure(truth, changes, down, n=3, lease_s=LEASE, restarts=[(45.06, 2)])
-    assert m["lost_reports"]["intermittent"] == 1
+    }  # fmt: skip
+    m = flight_measures.measure(
+        truth, changes, down, n=3, lease_s=LEASE, restarts=[(45.06, 2), (85.02, 2)]
+    )
+    assert m["lost_reports"]["intermittent"] == 2
     assert m["false_losses"] == 1  # node 1's, 10 s before the kill
 
 

@@ -92,12 +92,15 @@ def _value_at(samples: Sequence[tuple[float, bool]], t: float) -> bool:
 def classify_loss(samples: Sequence[tuple[float, bool]], t: float, lease_s: float) -> str:
     """``real`` | ``intermittent`` | ``dropout`` | ``false`` for a ``lost`` reported at
     ``t`` (module doc). A report up to ``TOLERANCE_S`` before the peer becomes
-    unreachable is of that loss: the truth is sampled every 0.5 s and the harness records a
-    kill once it returns, while a stack that sees the session close (zenoh: at once) may log
-    it first (zenoh's reboot run: lost at 40.003 s, the kill recorded from 40.045 s, all 18
-    such reports counted false before)."""
-    if _value_at(samples, t) and not _value_at(samples, t + TOLERANCE_S):
-        t += TOLERANCE_S
+    unreachable is of that loss: the harness records a kill once it returns, while a stack
+    that sees the session close (zenoh: at once) may log it first (zenoh's reboot run: lost
+    at 40.003 s and 79.97 s, the kills recorded from 40.045 s and 80.01 s: all 18 such
+    reports counted false before). The truth is sampled every 0.5 s, so "unreachable" is
+    read at the first sample after ``t + TOLERANCE_S``."""
+    if _value_at(samples, t):
+        ahead = next((st for st, _ in samples if st > t + TOLERANCE_S), None)
+        if ahead is not None and not _value_at(samples, ahead):
+            t = ahead
     if not _value_at(samples, t):
         for a, b, up in spans(samples):
             if not up and a <= t <= b:
