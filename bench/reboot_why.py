@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import random
 import statistics
 import sys
 from collections.abc import Mapping, Sequence
@@ -45,9 +44,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "lab"))
 
-from swarmd_lab.testing import Swarm, auth_for, build_swarm, node_ipv4  # noqa: E402
+from swarmd_lab.testing import Swarm, build_swarm  # noqa: E402
 
-from swarmd.discovery import DiscoveryEngine, EngineConfig, LinkSample  # noqa: E402
+from swarmd.discovery import EngineConfig, LinkSample  # noqa: E402
 from swarmd.discovery.awareness import passive_window_s  # noqa: E402
 from swarmd.discovery.debts import Debts  # noqa: E402
 from swarmd.discovery.events import PeerDiscovered, PeerRestarted  # noqa: E402
@@ -186,22 +185,9 @@ def one_restart(
                     # the same slots, one method more: the engine and its receive path hold
                     # this one object
                     other._debts.__class__ = _FastAnswers  # noqa: SLF001 - a what-if
-        participant = swarm.bundle.participants[node]
-        engine = DiscoveryEngine(
-            swarm.bundle,
-            participant.name,
-            config=EngineConfig(),
-            rng=random.Random(seed * 1000 + node),  # noqa: S311 - seeded on purpose
-            now=now,
-            local_ipv4=node_ipv4(participant.index),
-            link=LinkSample(q=q_draw, source="static"),
-            auth=auth_for(swarm.bundle, node, epoch=2, now=now),
-        )
+        swarm.restart(node, now, seed=seed * 1000 + node, q=q_draw)
         if q_draw != q_self:
-            engine.update_link_quality(LinkSample(q=q_self, source="static"), now)
-        swarm.engines[node] = engine
-        swarm.net.isolate(node, False)
-        swarm.net.replace(node, engine)
+            swarm.engines[node].update_link_quality(LinkSample(q=q_self, source="static"), now)
 
     swarm.net.call_at(1.0, read)
     swarm.net.call_at(KILL_S, lambda now: swarm.net.isolate(node))

@@ -10,12 +10,10 @@ outage. Virtual time, authenticated engines on MemNet, every drone at Q = 0.3.
 
 from __future__ import annotations
 
-import random
-
 import pytest
-from swarmd_lab.testing import Swarm, auth_for, build_swarm, node_ipv4
+from swarmd_lab.testing import Swarm, build_swarm
 
-from swarmd.discovery import DiscoveryEngine, EngineConfig, LinkSample
+from swarmd.discovery import LinkSample
 from swarmd.discovery.events import PeerDiscovered, PeerRestarted
 
 N = 20
@@ -43,21 +41,7 @@ def _restart(seed: int) -> tuple[Swarm, list[float], dict[int, float], int]:
             swarm.net.poke(i)
 
     def reboot(now: float) -> None:
-        participant = swarm.bundle.participants[NODE]
-        engine = DiscoveryEngine(
-            swarm.bundle,
-            participant.name,
-            config=EngineConfig(),
-            rng=random.Random(seed * 1000 + NODE),  # noqa: S311 - seeded on purpose
-            now=now,
-            local_ipv4=node_ipv4(participant.index),
-            link=LinkSample(q=Q_LOW, source="static"),
-            auth=auth_for(swarm.bundle, NODE, epoch=2, now=now),
-        )
-        swarm.engines[NODE] = engine
-        swarm.net.isolate(NODE, False)
-        swarm.net.replace(NODE, engine)
-        swarm.net.poke(NODE)
+        swarm.restart(NODE, now, seed=seed * 1000 + NODE, q=Q_LOW)
 
     swarm.net.call_at(1.0, low_q)
     swarm.net.call_at(KILL_S, lambda now: swarm.net.isolate(NODE))

@@ -156,6 +156,26 @@ class Swarm:
     def run_until(self, end: float) -> None:
         self.net.run_until(end)
 
+    def restart(self, node: int, now: float, *, seed: int, q: float, epoch: int = 2) -> None:
+        """Node ``node``'s process restarts at ``now``: a new authenticated engine (boot epoch
+        ``epoch``, link quality ``q``, rng seeded ``seed``) takes its place on the net,
+        which no longer cuts it off."""
+        participant = self.bundle.participants[node]
+        engine = DiscoveryEngine(
+            self.bundle,
+            participant.name,
+            config=EngineConfig(),
+            rng=random.Random(seed),  # noqa: S311 - seeded on purpose
+            now=now,
+            local_ipv4=node_ipv4(participant.index),
+            link=LinkSample(q=q, source="static"),
+            auth=auth_for(self.bundle, node, epoch=epoch, now=now),
+        )
+        self.engines[node] = engine
+        self.net.isolate(node, False)
+        self.net.replace(node, engine)
+        self.net.poke(node)
+
 
 def build_swarm(
     n: int,
