@@ -449,38 +449,48 @@ def _p50_note(ok: Sequence[RunFile]) -> str:
     return f"; p50 {summary(p50, '.2f', ' s')}" if p50 else ""
 
 
+# each target: (name, the run's figure, passes, the bound as written, format, unit, note,
+# the scenarios it judges: None for all)
+_RULES: Final[
+    tuple[
+        tuple[
+            str,
+            Callable[[Run], float | None],
+            Callable[[float], bool],
+            str,
+            str,
+            str,
+            Callable[[Sequence[RunFile]], str] | None,
+            frozenset[str] | None,
+        ],
+        ...,
+    ]
+] = (
+    ("false", false_losses, lambda v: v <= FALSE_LOSSES_MAX, "with none", ".0f", "", None, None),
+    (
+        "rediscovery", rediscovery_max, lambda v: v <= REDISCOVERY_MAX_S, "≤ 2 s", ".2f", " s",
+        _p50_note, None,
+    ),
+    (
+        "frames", frames_per_pair, lambda v: v <= FRAMES_PER_PAIR_MAX, "≤ 4", ".2f", "", None,
+        frozenset(HEALS),
+    ),
+    (
+        "readiness", readiness, lambda v: v >= 100.0 * READINESS_MIN, "≥ 99 %", ".1f", " %",
+        None, None,
+    ),
+)  # fmt: skip
+
+
 def verdicts(runs: Sequence[RunFile]) -> list[Verdict]:
     """issue 20's targets for swarmd, per N and scenario (``Verdict``)."""
-    out = []
-    for n in SIZES:
-        for s in SCENARIOS:
-            files = cell_runs(runs, s, SWARMD, n)
-            out.append(
-                _judge(
-                    "false", s, n, files, false_losses,
-                    lambda v: v <= FALSE_LOSSES_MAX, "with none", ".0f", "",
-                )
-            )  # fmt: skip
-            out.append(
-                _judge(
-                    "rediscovery", s, n, files, rediscovery_max,
-                    lambda v: v <= REDISCOVERY_MAX_S, "≤ 2 s", ".2f", " s", _p50_note,
-                )
-            )  # fmt: skip
-            if s in HEALS:
-                out.append(
-                    _judge(
-                        "frames", s, n, files, frames_per_pair,
-                        lambda v: v <= FRAMES_PER_PAIR_MAX, "≤ 4", ".2f", "",
-                    )
-                )  # fmt: skip
-            out.append(
-                _judge(
-                    "readiness", s, n, files, readiness,
-                    lambda v: v >= 100.0 * READINESS_MIN, "≥ 99 %", ".1f", " %",
-                )
-            )  # fmt: skip
-    return out
+    return [
+        _judge(target, s, n, cell_runs(runs, s, SWARMD, n), read, passes, bound, spec, unit, extra)
+        for n in SIZES
+        for s in SCENARIOS
+        for target, read, passes, bound, spec, unit, extra, only in _RULES
+        if only is None or s in only
+    ]
 
 
 TARGETS: Final = (

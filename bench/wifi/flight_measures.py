@@ -256,16 +256,6 @@ def readiness_delivery(
     if not readiness:
         return {"expected": 0, "delivered": 0, "ratio": None}
     expected = delivered = 0.0
-
-    def count_at(m: int, t: float) -> int | None:
-        best = None
-        for pt, table in readiness:
-            if pt > t:
-                break
-            if m in table:
-                best = table[m]
-        return best
-
     for m in range(1, n):
         first = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
         if not first:
@@ -280,7 +270,7 @@ def readiness_delivery(
             a, b = max(a, start), min(b, end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
-            ca, cb = count_at(m, a), count_at(m, b)
+            ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
             if ca is None or cb is None:
                 continue
             expected += (b - a) * READINESS_HZ
