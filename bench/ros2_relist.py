@@ -35,7 +35,6 @@ import argparse
 import contextlib
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -177,32 +176,14 @@ def set_cut(hub: str, drone: int, on: bool) -> None:
         )
 
 
-def _tshark_rows(pcap: Path, *fields: str) -> list[list[str]]:
-    """Time, source, destination and ``fields`` of every RTPS datagram in the capture.
+def _datagram_rows(pcap: Path, *fields: str) -> list[list[str]]:
+    """Time, source, destination and ``fields`` of every RTPS datagram in the capture
+    (``ros2_lab.rtps_fields``: it finds Fast DDS's graph traffic on UDP 7000/7001 too)."""
+    from swarmd_lab.ros2_lab import rtps_fields
 
-    RTPS over UDP is a heuristic dissector in tshark, and a port table entry wins over it by
-    default: Fast DDS 3.2's datagrams to UDP 7000/7001 (where rmw's ``ros_discovery_info``
-    DATA goes here) are decoded as AFS RX and missed. ``udp.try_heuristic_first`` fixes it.
-    """
-    argv = [
-        shutil.which("tshark") or "tshark",
-        "-r",
-        str(pcap),
-        "-o",
-        "udp.try_heuristic_first:TRUE",
-    ]
-    argv += ["-Y", "rtps", "-T", "fields", "-E", "separator=;"]
-    for f in ("frame.time_epoch", "ip.src", "ip.dst", *fields):
-        argv += ["-e", f]
-    result = subprocess.run(  # noqa: S603 - argv list
-        argv, capture_output=True, text=True, timeout=TSHARK_TIMEOUT_S, check=True
+    return rtps_fields(
+        pcap, "frame.time_epoch", "ip.src", "ip.dst", *fields, timeout_s=TSHARK_TIMEOUT_S
     )
-    width = 3 + len(fields)
-    return [
-        (line.split(";") + [""] * width)[:width]
-        for line in result.stdout.splitlines()
-        if line.strip()
-    ]
 
 
 def graph_writer_id(pcap: Path, sender: str) -> str | None:
@@ -210,7 +191,7 @@ def graph_writer_id(pcap: Path, sender: str) -> str | None:
     SEDP it sent: PID_TOPIC_NAME paired with PID_ENDPOINT_GUID (one pair per DATA, several
     DATA per datagram), the writer being the endpoint of a writer kind (DDSI-RTPS 2.5 9.3.1.2:
     0x02 with key, 0x03 without)."""
-    rows = _tshark_rows(pcap, "rtps.param.topicName", "rtps.param.endpoint_guid")
+    rows = _datagram_rows(pcap, "rtps.param.topicName", "rtps.param.endpoint_guid")
     for _, src, _, topics, guids in rows:
         names, endpoints = topics.split(","), guids.split(",")
         if src != sender or len(names) != len(endpoints):
@@ -226,7 +207,7 @@ def graph_traffic(
 ) -> dict[str, Any]:
     """What the capture shows of drone ``drone``'s graph between ``since`` and ``until``
     (the nodes' teardown after ``until`` sends more): ``summarize_graph_rows``."""
-    rows = _tshark_rows(pcap, *GRAPH_FIELDS)
+    rows = _datagram_rows(pcap, *GRAPH_FIELDS)
     writer = graph_writer_id(pcap, addresses[drone])
     return summarize_graph_rows(rows, addresses, drone, writer, since, until)
 
@@ -335,21 +316,8 @@ def first_listing(
     return found
 
 
-def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.terminate()
-    for p in procs:
-        try:
-            p.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(timeout=STOP_TIMEOUT_S)
-
-
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from swarmd_lab import netns, ros2_lab
-    from swarmd_lab.ros2_lab import host_argv, write_machine_id
 
     from bench.wifi.ros2_contenders import ros2_env
 
@@ -386,7 +354,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 with logs[i].open("wb") as out:
                     procs.append(
                         lan[i].popen(
-                            host_argv(argv, write_machine_id(work, i)),
+                            ros2_lab.own_host_argv(argv, work, i),
                             env=env,
                             stdout=out,
                             stderr=subprocess.STDOUT,
@@ -398,7 +366,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             set_cut(lan.hub, 1, on=False)
             time.sleep(max(0.0, end_at - time.time()))
         finally:
-            _stop(procs)
+            netns.stop_processes(procs, STOP_TIMEOUT_S)
             capture.terminate()
             capture.wait(timeout=STOP_TIMEOUT_S)
     changes = observer_changes(logs[0], 3)

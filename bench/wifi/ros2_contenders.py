@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import Final
 
 from swarmd_lab.netns import Namespace
-from swarmd_lab.ros2_lab import host_argv, write_machine_id
+from swarmd_lab.ros2_lab import own_host_argv
 
 from bench.wifi.bundle import SWARM, mission_text
 from bench.wifi.contenders import PEERS, PeerContender, _clean_env, daemon_config
@@ -308,11 +308,8 @@ class Ros2Contender(PeerContender):
     def _program(self) -> list[str]:
         return [sys.executable, str(PEERS / "ros2_peer.py")]
 
-    def _machine_id(self, host_id: int) -> Path:
-        return write_machine_id(self.work, host_id)
-
     def _host(self, i: int, argv: list[str]) -> list[str]:
-        return host_argv(argv, self._machine_id(i))
+        return own_host_argv(argv, self.work, i)
 
     def _drone_env(self, i: int, env: dict[str, str]) -> dict[str, str]:
         return self._envs[i]
@@ -323,7 +320,7 @@ class Ros2Contender(PeerContender):
         """Start ``argv`` on drone ``i`` outside the barrier (it is not a contender process:
         it runs from now until the teardown, like a service already up on the drone)."""
         proc = self.drones[i].popen(
-            host_argv(argv, self._machine_id(host_id)),
+            own_host_argv(argv, self.work, host_id),
             env=env,
             stdout=self._log(f"{name}.log"),
             stderr=subprocess.STDOUT,

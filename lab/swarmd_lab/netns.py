@@ -182,6 +182,21 @@ def configure_host(name: str, cidr: str, ifname: str = IFNAME) -> None:
     _ip("-n", name, "route", "add", MULTICAST_NET, "dev", ifname)
 
 
+def stop_processes(procs: Sequence[subprocess.Popen[bytes]], timeout_s: float) -> None:
+    """SIGTERM every process of ``procs`` that still runs (all at once, so daemons leave
+    cleanly and tell their peers in parallel), then wait up to ``timeout_s`` for each and
+    SIGKILL a straggler (waiting for it again, at most ``timeout_s``)."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in procs:
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=timeout_s)
+
+
 def _setns(fd: int, nstype: int) -> None:
     """setns(2) for the calling thread (``os.setns`` only exists from Python 3.12)."""
     libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
@@ -279,15 +294,7 @@ class Namespace:
 
     def stop_children(self) -> None:
         """Terminate (then kill) the processes ``popen`` started that still run."""
-        for proc in self._children:
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in self._children:
-            try:
-                proc.wait(timeout=_STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=_STOP_TIMEOUT_S)
+        stop_processes(self._children, _STOP_TIMEOUT_S)
         self._children.clear()
 
 

@@ -116,6 +116,12 @@ def host_argv(argv: Sequence[str], machine_id: Path) -> list[str]:
     ]
 
 
+def own_host_argv(argv: Sequence[str], workdir: Path, host_index: int) -> list[str]:
+    """``argv`` as run on emulated host ``host_index``: with that host's own machine id
+    (``write_machine_id`` under ``workdir``) and its own ``/dev/shm`` (``host_argv``)."""
+    return host_argv(argv, write_machine_id(workdir, host_index))
+
+
 @dataclass(frozen=True, slots=True)
 class DiscoveryCounts:
     rtps: int  # RTPS datagrams on the link
@@ -134,9 +140,10 @@ class DiscoveryCounts:
         return self.sedp - self.sedp_swarmd
 
 
-def rtps_fields(pcap: Path, *fields: str) -> list[list[str]]:
+def rtps_fields(pcap: Path, *fields: str, timeout_s: float = _TSHARK_TIMEOUT_S) -> list[list[str]]:
     """``fields`` of every RTPS datagram in the capture (tshark's RTPS dissector), one list
-    per datagram; a field with several submessages' values holds them comma-separated.
+    per datagram; a field with several submessages' values holds them comma-separated;
+    tshark may read for ``timeout_s``.
 
     RTPS has no port of its own in tshark: it is found by a heuristic, which by default runs
     after the port table. Fast DDS 3.2 puts a stock node's unique-flow graph reader at
@@ -147,7 +154,7 @@ def rtps_fields(pcap: Path, *fields: str) -> list[list[str]]:
     for f in fields:
         argv += ["-e", f]
     result = subprocess.run(  # noqa: S603 - argv list
-        argv, capture_output=True, text=True, timeout=_TSHARK_TIMEOUT_S, check=True
+        argv, capture_output=True, text=True, timeout=timeout_s, check=True
     )
     return [
         (line.split(";") + [""] * len(fields))[: len(fields)]

@@ -16,14 +16,13 @@ namespaces go with it; ``close()`` is idempotent and runs on every exit path of 
 
 from __future__ import annotations
 
-import contextlib
 import subprocess
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import IO, Final
 
 from swarmd_lab.demo.scenario import PX4_PORT, Drone
-from swarmd_lab.netns import Lan
+from swarmd_lab.netns import Lan, stop_processes
 
 STOP_TIMEOUT_S: Final = 5.0
 
@@ -58,21 +57,9 @@ class Hosts:
         self._procs.append(proc)
         return proc
 
-    def terminate(self, procs: Sequence[subprocess.Popen[bytes]]) -> None:
-        """SIGTERM (daemons leave cleanly, telling their peers), then SIGKILL stragglers."""
-        for p in procs:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(timeout=STOP_TIMEOUT_S)
-
     def close(self) -> None:
-        self.terminate(self._procs)
+        """SIGTERM (daemons leave cleanly, telling their peers), then SIGKILL stragglers."""
+        stop_processes(self._procs, STOP_TIMEOUT_S)
         self._procs.clear()
 
 

@@ -27,15 +27,15 @@ from swarmd.bundle.loader import load_bundle
 from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd_lab.demo.hosts import NamespaceHosts
 from swarmd_lab.demo.scenario import Drone, Scenario
-from swarmd_lab.netns import BRIDGE
+from swarmd_lab.netns import BRIDGE, stop_processes
 from swarmd_lab.ros2_lab import (
     DiscoveryCounts,
     discovery_counts,
     graph_datagrams,
     graph_entity_ids,
-    host_argv,
+    own_host_argv,
     ros2_ports,
-    write_machine_id,
+    start_capture,
 )
 
 NODE_S: Final = 20.0  # how long each node runs (from the end of discovery)
@@ -141,19 +141,10 @@ class Ros2Demo:
         subprocess.run(argv, check=True, capture_output=True, timeout=60)  # noqa: S603
 
     def start_capture(self) -> None:
-        tshark = shutil.which("tshark") or "tshark"
-        argv = ["ip", "netns", "exec", self.hosts.lan.hub, tshark, "-i", BRIDGE]
-        self._capture = subprocess.Popen(  # noqa: S603 - argv list
-            [*argv, "-w", str(self.pcap), "-q"],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        deadline = time.monotonic() + CAPTURE_START_S
-        while time.monotonic() < deadline:  # capturing once the file has its header
-            if self.pcap.exists() and self.pcap.stat().st_size > 0:
-                return
-            time.sleep(0.1)
-        raise RuntimeError("tshark did not start capturing on the LAN bridge")
+        try:
+            self._capture = start_capture(self.hosts.lan.hub, BRIDGE, self.pcap, CAPTURE_START_S)
+        except RuntimeError:  # the demo's operator line names no namespace
+            raise RuntimeError("tshark did not start capturing on the LAN bridge") from None
 
     def start_nodes(self) -> None:
         for d in self.s.drones:
@@ -167,7 +158,7 @@ class Ros2Demo:
             argv += ["--tag", d.name, "--seconds", str(NODE_S)]
             log = self.s.log_path(d, "ros2").open("wb")
             self._logs.append(log)
-            wrapped = host_argv(argv, write_machine_id(self.s.root, d.index))
+            wrapped = own_host_argv(argv, self.s.root, d.index)
             self._nodes.append((d, self.hosts.popen(d.index, wrapped, log)))
 
     def finish(self) -> Ros2Result:
@@ -198,13 +189,8 @@ class Ros2Demo:
         return Ros2Result(listener, talkers, counts, graph)
 
     def stop_capture(self) -> None:
-        if self._capture is not None and self._capture.poll() is None:
-            self._capture.terminate()
-            try:
-                self._capture.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                self._capture.kill()
-                self._capture.wait(timeout=STOP_TIMEOUT_S)
+        if self._capture is not None:
+            stop_processes([self._capture], STOP_TIMEOUT_S)
 
 
 def _last_json(path: Path) -> dict[str, Any] | None:
