@@ -15,8 +15,9 @@ import socket
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from types import TracebackType
 from typing import Final, Protocol
+
+from swarmd_lab.closing import Closing
 
 LAUNCH_NICE: Final = 10  # imports at nice 10 while ns-3 runs at -10: a 1:~100 CPU weight
 RUN_NICE: Final = 0  # during the window the stacks run at normal priority, as before
@@ -35,7 +36,7 @@ class BarrierError(RuntimeError):
     """The contenders did not all reach the barrier (one died or start-up hung)."""
 
 
-class StartBarrier:
+class StartBarrier(Closing):
     """A listening UNIX socket; ``wait_all`` counts arrivals, ``release`` lets them go."""
 
     def __init__(self, path: Path) -> None:
@@ -87,17 +88,6 @@ class StartBarrier:
         self.release()
         self._listener.close()
         self.path.unlink(missing_ok=True)
-
-    def __enter__(self) -> StartBarrier:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def set_priority(pid: int, nice: int) -> None:

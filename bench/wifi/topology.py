@@ -21,9 +21,9 @@ from __future__ import annotations
 import subprocess
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from types import TracebackType
 from typing import Final
 
+from swarmd_lab.closing import Closing
 from swarmd_lab.netns import (
     Namespace,
     NamespaceRecord,
@@ -71,7 +71,7 @@ def ns3_mac(index: int) -> str:
 
 
 @dataclass
-class Testbed:
+class Testbed(Closing):
     """Build with ``with Testbed(prefix, n) as tb:``; torn down on every exit path."""
 
     prefix: str
@@ -93,23 +93,7 @@ class Testbed:
     def address(self, index: int) -> str:
         return f"10.78.{self.subnet_octet}.{index + 1}"
 
-    def __enter__(self) -> Testbed:
-        try:
-            self.build()
-        except BaseException:
-            self.close()
-            raise
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
-    def build(self) -> None:
+    def _open(self) -> None:
         cleanup_dead_runs(BASE)
         no_v6 = [
             ("net.ipv6.conf.all.disable_ipv6", "1"),

@@ -35,8 +35,9 @@ import subprocess
 import threading
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from types import TracebackType
 from typing import IO, Final
+
+from swarmd_lab.closing import Closing
 
 NETNS_DIR: Final = "/run/netns"
 DEFAULT_BASE: Final = "swn"  # swarmd netns; distinct from hand-made "swt-*" names
@@ -298,7 +299,7 @@ class Namespace:
         self._children.clear()
 
 
-class Lan:
+class Lan(Closing):
     """N namespaces on one bridge; build with ``with Lan(n) as lan:``, torn down on any exit.
 
     ``lan.hosts[i]`` is host i (address ``.i+1``). Teardown runs on normal exit, on
@@ -329,23 +330,7 @@ class Lan:
         # host and from each other's bridges, so X only has to be readable, not unique.
         return f"10.77.{sum(self.prefix.encode()) % 256}.0/24"
 
-    def __enter__(self) -> Lan:
-        try:
-            self._build()
-        except BaseException:
-            self.close()
-            raise
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
-    def _build(self) -> None:
+    def _open(self) -> None:
         self._namespaces.add(self.hub)
         _ip("-n", self.hub, "link", "add", BRIDGE, "type", "bridge", "mcast_snooping", "0")
         _ip("-n", self.hub, "link", "set", BRIDGE, "up")
