@@ -9,7 +9,6 @@ whatever part of it exists, so it must be idempotent).
 
 from __future__ import annotations
 
-from types import TracebackType
 from typing import Self
 
 
@@ -31,10 +30,5 @@ class Closing:
             raise
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
