@@ -19,13 +19,48 @@ from the harness as a last resort.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from bench.wifi.channel_cpp import SOURCE
 from bench.wifi.ns3_loader import import_ns
+
+
+@contextlib.contextmanager
+def ns3_channel(*sources: str) -> Iterator[tuple[Any, float]]:
+    """ns-3 imported (cppyy's patched TapBridge in a private temp dir) with the channel's
+    C++ (``channel_cpp.SOURCE``) and ``sources`` defined: yields cppyy's global namespace
+    (``swb``, the channel's C++) and the seconds the import took (10-25 s: every header)."""
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="swbtc-", dir="/tmp") as tmp:
+        ns, cppyy = import_ns(Path(tmp))
+        t_import = time.monotonic() - t0
+        for source in (SOURCE, *sources):
+            cppyy.cppdef(source)
+        yield cppyy.gbl, t_import
+    del ns
+
+
+def setup(swb: Any, args: argparse.Namespace, *, layout: str, lag_tick_s: float) -> None:
+    """Build the channel of ``args`` (``--n``, ``--spacing``, ``--standard``, ``--taps``,
+    ``--out``, ``--stop-file``, ``--mcast-mode`` and the log-distance loss options)."""
+    swb.Setup(
+        args.n, args.spacing, layout, args.standard, args.taps, str(args.out),
+        str(args.stop_file), args.mcast_mode, lag_tick_s, args.tx_power_dbm, args.exponent,
+        args.reference_loss_db,
+    )  # fmt: skip
+
+
+def run_to_end(swb: Any, out: Path) -> None:
+    """Simulate until the stop file appears, then write ``out/stats.json`` and free ns-3."""
+    swb.Run()
+    swb.WriteStats(str(out / "stats.json"))
+    swb.Destroy()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,35 +80,16 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="swbtc-", dir="/tmp") as tmp:
-        ns, cppyy = import_ns(Path(tmp))
-        t_import = time.monotonic() - t0
-        cppyy.cppdef(SOURCE)
-        swb = cppyy.gbl.swb
-        swb.Setup(
-            args.n,
-            args.spacing,
-            args.layout,
-            args.standard,
-            args.taps,
-            str(args.out),
-            str(args.stop_file),
-            args.mcast_mode,
-            args.lag_tick_s,
-            args.tx_power_dbm,
-            args.exponent,
-            args.reference_loss_db,
-        )
+    with ns3_channel() as (cpp, t_import):
+        swb = cpp.swb
+        setup(swb, args, layout=args.layout, lag_tick_s=args.lag_tick_s)
         print(
             f"channel: ns-3 imported in {t_import:.1f} s, set up in "
             f"{time.monotonic() - t0 - t_import:.1f} s; running",
             file=sys.stderr,
             flush=True,
         )
-        swb.Run()
-        swb.WriteStats(str(args.out / "stats.json"))
-        swb.Destroy()
-    del ns
+        run_to_end(swb, args.out)
     return 0
 
 

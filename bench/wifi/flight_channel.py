@@ -13,13 +13,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 from bench.wifi import flight_cpp
-from bench.wifi.channel_cpp import SOURCE
-from bench.wifi.ns3_loader import import_ns
+from bench.wifi.channel import ns3_channel, run_to_end, setup
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,16 +39,9 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     args.flight_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="swbtc-", dir="/tmp") as tmp:
-        ns, cppyy = import_ns(Path(tmp))
-        cppyy.cppdef(SOURCE)
-        cppyy.cppdef(flight_cpp.SOURCE)
-        swb, swbf = cppyy.gbl.swb, cppyy.gbl.swbf
-        swb.Setup(
-            args.n, args.spacing, "line", args.standard, args.taps, str(args.out),
-            str(args.stop_file), args.mcast_mode, 0.005, args.tx_power_dbm, args.exponent,
-            args.reference_loss_db,
-        )  # fmt: skip
+    with ns3_channel(flight_cpp.SOURCE) as (cpp, _):
+        swb, swbf = cpp.swb, cpp.swbf
+        setup(swb, args, layout="line", lag_tick_s=0.005)
         loaded = swbf.Install(
             args.n, str(args.waypoints), str(args.flight_dir), str(args.go_file),
             flight_cpp.WINDOW_S, -94.0,
@@ -63,10 +54,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
             flush=True,
         )
-        swb.Run()
-        swb.WriteStats(str(args.out / "stats.json"))
-        swb.Destroy()
-    del ns
+        run_to_end(swb, args.out)
     return 0
 
 
