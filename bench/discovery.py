@@ -51,9 +51,7 @@ def run(n: int, mode: str, channel_name: str, seconds: float, seed: int) -> dict
     swarm = build_swarm(n, seed=seed, config=config, channel=channel, q=q)
     swarm.run_until(seconds)
     tx = [t for t in swarm.net.transmissions if t.time <= seconds]
-    kinds: Counter[str] = Counter()
-    for engine in swarm.engines:
-        kinds.update(engine.counters()["tx_kind"])
+    kinds = swarm.tx_kinds()
     bins = Counter(int(t.time) for t in tx)
     return {
         "n": n,

@@ -32,7 +32,6 @@ import importlib.util
 import random
 import statistics
 import sys
-from collections import Counter
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -156,9 +155,7 @@ def run(
         for t, j, c in changes[i]
         if c == "lost"
     ]
-    kinds: Counter[str] = Counter()
-    for engine in swarm.engines:
-        kinds.update(engine.counters()["tx_kind"])
+    kinds = swarm.tx_kinds()
     result["tx_kind"] = {k: kinds[k] for k in ("announce", "reply", "probe", "renewal")}
     return result
 

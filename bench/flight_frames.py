@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -24,13 +23,6 @@ from swarmd_lab.testing import Swarm, build_swarm  # noqa: E402
 from swarmd.discovery import LinkSample, PeerLost  # noqa: E402
 
 N = 10
-
-
-def kinds(swarm: Swarm) -> Counter[str]:
-    total: Counter[str] = Counter()
-    for engine in swarm.engines:
-        total.update(engine.counters()["tx_kind"])
-    return total
 
 
 def losses(swarm: Swarm, since: float) -> int:
@@ -45,7 +37,7 @@ def fade(seed: int) -> str:
     swarm = build_swarm(N, seed=seed)
     swarm.net.link_loss = lambda a, b: 1.0 if out["now"] and edge in (a, b) else 0.0
     swarm.run_until(30.0)
-    before = kinds(swarm)
+    before = swarm.tx_kinds()
 
     def swing(now: float) -> None:
         out["now"] = not out["now"]
@@ -56,7 +48,7 @@ def fade(seed: int) -> str:
 
     swarm.net.call_at(30.0, swing)
     swarm.run_until(180.0)
-    delta = kinds(swarm) - before
+    delta = swarm.tx_kinds() - before
     return f"fade  seed {seed}: 30-180 s {dict(delta)}, PeerLost {losses(swarm, 30.0)}"
 
 
@@ -66,15 +58,15 @@ def split(seed: int) -> str:
     swarm = build_swarm(N, seed=seed)
     swarm.net.link_loss = lambda a, b: 1.0 if apart["now"] and (a in west) != (b in west) else 0.0
     swarm.run_until(30.0)
-    start = kinds(swarm)
+    start = swarm.tx_kinds()
     swarm.net.call_at(30.0, lambda now: apart.update(now=True))
     swarm.net.call_at(90.0, lambda now: apart.update(now=False))
     swarm.run_until(90.0)
-    at_heal = kinds(swarm)
+    at_heal = swarm.tx_kinds()
     swarm.run_until(120.0)
     return (
         f"split seed {seed}: 30-90 s {dict(at_heal - start)}, "
-        f"90-120 s {dict(kinds(swarm) - at_heal)}, PeerLost {losses(swarm, 30.0)}"
+        f"90-120 s {dict(swarm.tx_kinds() - at_heal)}, PeerLost {losses(swarm, 30.0)}"
     )
 
 

@@ -16,24 +16,16 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from swarmd_lab.testing import Swarm, build_swarm  # noqa: E402
+from swarmd_lab.testing import build_swarm  # noqa: E402
 
 from swarmd.discovery import LinkSample, PeerDiscovered  # noqa: E402
 
 Q_LAG_S = 3.0
-
-
-def kinds(swarm: Swarm) -> Counter[str]:
-    total: Counter[str] = Counter()
-    for engine in swarm.engines:
-        total.update(engine.counters()["tx_kind"])
-    return total
 
 
 def run(n: int, seed: int, apart: set[int], q_cut: float, t_cut: float, t_back: float) -> str:
@@ -55,14 +47,14 @@ def run(n: int, seed: int, apart: set[int], q_cut: float, t_cut: float, t_back: 
     swarm.net.call_at(t_back, lambda now: cut.update(now=False))
     swarm.net.call_at(t_back + Q_LAG_S, lambda now: read(1.0, now))
     swarm.run_until(t_back)
-    at_return = kinds(swarm)
+    at_return = swarm.tx_kinds()
     swarm.run_until(t_back + 25.0)
     first: dict[tuple[int, int], float] = {}
     for i, events in enumerate(swarm.events):
         for t, e in events:
             if t >= t_back and isinstance(e, PeerDiscovered):
                 first.setdefault((i, swarm.index_of[e.name]), t - t_back)
-    spent = kinds(swarm) - at_return
+    spent = swarm.tx_kinds() - at_return
     pairs = max(1, len(first) // 2)
     heal = {k: spent[k] for k in ("announce", "reply", "probe")}
     per_pair = sum(heal.values()) / pairs

@@ -158,8 +158,8 @@ def memnet(run_path: Path, seeds: Sequence[int], startup_s: float, what_ifs: Seq
 
 
 def _first_frames(swarm: Swarm) -> int:
-    kinds = ("announce", "reply")
-    return sum(e.counters()["tx_kind"][k] for e in swarm.engines for k in kinds)
+    kinds = swarm.tx_kinds()
+    return kinds["announce"] + kinds["reply"]
 
 
 def one_restart(

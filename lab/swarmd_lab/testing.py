@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import random
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -155,6 +156,14 @@ class Swarm:
 
     def run_until(self, end: float) -> None:
         self.net.run_until(end)
+
+    def tx_kinds(self) -> Counter[str]:
+        """Discovery frames sent so far by kind (``counters()["tx_kind"]``: announce,
+        reply, probe, renewal, ...), summed over the engines."""
+        total: Counter[str] = Counter()
+        for engine in self.engines:
+            total.update(engine.counters()["tx_kind"])
+        return total
 
     def restart(self, node: int, now: float, *, seed: int, q: float, epoch: int = 2) -> None:
         """Node ``node``'s process restarts at ``now``: a new authenticated engine (boot epoch
