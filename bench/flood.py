@@ -24,7 +24,6 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -35,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from swarmd_lab.netns import Lan, run_prefix, unavailable_reason  # noqa: E402
 
-from bench.docblock import write_block  # noqa: E402
+from bench.docblock import head_commit, write_block  # noqa: E402
 from tests.attacker.cpulimit import CpuLimit  # noqa: E402
 from tests.attacker.flood import forged_pool, run_flood  # noqa: E402
 from tests.attacker.host import Attacker  # noqa: E402
@@ -51,16 +50,6 @@ POOL = 2000
 # member's prefix with a newer freshness signed by the attacker (2 mod 4: a budget refusal,
 # or a signature check while the budget lasts)
 KINDS = {"mixed": (1, 0), "foreign": (2, 1), "replayed": (4, 0), "resigned": (4, 2)}
-
-
-def _commit() -> str:
-    proc = subprocess.run(  # noqa: S603 - fixed argv
-        ["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],  # noqa: S607
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    return proc.stdout.strip() or "unknown"
 
 
 def run(
@@ -112,7 +101,7 @@ def run(
     cpu = [v for r in runs for v in r["cpu_percent"].values()]
     idle = [v for r in runs for v in r["idle_cpu_percent"].values()]
     return {
-        "commit": _commit(),
+        "commit": head_commit(),
         "host": f"{platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}",
         "rate_hz": rate,
         "kind": kind,

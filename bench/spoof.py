@@ -30,7 +30,6 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 import threading
@@ -42,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from swarmd_lab.netns import Lan, run_prefix, unavailable_reason  # noqa: E402
 
-from bench.docblock import write_block  # noqa: E402
+from bench.docblock import head_commit, write_block  # noqa: E402
 from tests.attacker.flood import run_flood  # noqa: E402
 from tests.attacker.host import Attacker  # noqa: E402
 from tests.attacker.spoof import Spoofer, spoof_pool  # noqa: E402
@@ -54,16 +53,6 @@ RESULTS = REPO / "bench" / "results" / "security"
 BEGIN = "<!-- spoof:begin (bench/spoof.py --write-docs) -->"
 END = "<!-- spoof:end -->"
 PER_STREAM = 200  # distinct forgeries per spoofed stream (7 streams)
-
-
-def _commit() -> str:
-    proc = subprocess.run(  # noqa: S603 - fixed argv
-        ["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],  # noqa: S607
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    return proc.stdout.strip() or "unknown"
 
 
 def _one_rate(
@@ -131,7 +120,7 @@ def run(label: str, rates: list[float], seconds: float, claim: str) -> dict[str,
             lan.close()
     return {
         "label": label,
-        "commit": _commit(),
+        "commit": head_commit(),
         "host": f"{platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}",
         "seconds": seconds,
         "claim": claim,

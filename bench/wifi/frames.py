@@ -42,6 +42,7 @@ from typing import Final
 
 from swarmd_lab.netns import Namespace, NamespaceRecord, add_veth, configure_host
 
+from bench.docblock import head_commit
 from bench.wifi import contenders as contenders_mod
 from bench.wifi.barrier import StartBarrier
 from bench.wifi.topology import _ip, _sysctls, ns3_mac
@@ -264,15 +265,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = p.parse_args(argv)
     if not 2 <= a.n <= 250 or a.window < 3:
         p.error("--n 2..250, --window >= 3")
-    head = subprocess.run(
-        ["git", "-C", str(contenders_mod.REPO), "rev-parse", "--short", "HEAD"],
-        capture_output=True,
-        text=True,
-        check=False,
-    ).stdout.strip()
+    head = head_commit()
     frames, launch = run(a.n, a.window, a.contender, a.keep)
     args = " ".join(sys.argv[1:] if argv is None else argv)
-    print(f"# python -m bench.wifi.frames {args}  (commit {head or 'unknown'})")
+    print(f"# python -m bench.wifi.frames {args}  (commit {head})")
     print(report(frames, launch, a.window, a.steady_from))
     return 0
 
