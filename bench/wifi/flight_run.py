@@ -390,7 +390,6 @@ def assemble(
         readiness=readiness, discovery_fps=disc, first_move_s=first_move,
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals, first_move or 0.0)
-    lag_ok = not (m["rt_lag_p99_ms"] > max_lag_ms)
     return {
         "kind": "flight",
         "scenario": scenario.name,
@@ -400,10 +399,7 @@ def assemble(
         "run": run,
         "seed": scenario.seed,
         "duration_s": scenario.duration_s,
-        "valid": lag_ok,
-        "invalid_reason": None
-        if lag_ok
-        else f"real-time lag p99 {m['rt_lag_p99_ms']:.1f} ms > {max_lag_ms} ms",
+        **metrics.lag_validity(m, max_lag_ms),
         "rt_lag_p50_ms": m["rt_lag_p50_ms"],
         "rt_lag_p99_ms": m["rt_lag_p99_ms"],
         "rt_lag_max_ms": m["rt_lag_max_ms"],

@@ -99,6 +99,15 @@ def lag_stats(stats: Mapping[str, Any], start_s: float) -> dict[str, float]:
     }
 
 
+def lag_validity(lag: Mapping[str, float], max_lag_ms: float) -> dict[str, Any]:
+    """A run's ``valid`` and ``invalid_reason`` from its ``lag_stats``: valid unless the
+    real-time lag p99 exceeds ``max_lag_ms`` (NaN, no samples: not judged, so valid)."""
+    p99 = lag["rt_lag_p99_ms"]
+    ok = not (p99 > max_lag_ms)
+    reason = None if ok else f"real-time lag p99 {p99:.1f} ms > {max_lag_ms} ms"
+    return {"valid": ok, "invalid_reason": reason}
+
+
 def success(
     received: Mapping[str, Mapping[str, Any]],
     members: Sequence[int],

@@ -298,15 +298,11 @@ def assemble(
         rate, failed = None, []
     else:
         rate, failed = metrics.success(obs.received, range(1, n), launch, opts.window_s)
-    lag_ok = not (m["rt_lag_p99_ms"] > opts.max_lag_ms)  # NaN: no samples, not judged
     return {
         "contender": contender,
         "n": n,
         "run": run,
-        "valid": lag_ok,
-        "invalid_reason": None
-        if lag_ok
-        else f"real-time lag p99 {m['rt_lag_p99_ms']:.1f} ms > {opts.max_lag_ms} ms",
+        **metrics.lag_validity(m, opts.max_lag_ms),
         "peak_pps": m["peak_pps"],
         "peak_discovery_pps": m["peak_discovery_pps"],
         "discovery_frames_60s": m["discovery_frames_60s"],
