@@ -494,36 +494,35 @@ class Channel:
         assert frame is not None  # noqa: S101
         s, d = tx.sender, frame.dgram.dst
         ok, collided = self._received(tx, d)
-        c = self.counters
         self._state[s] = _WAIT_ACK
         timeout = ack_timeout_s(frame.rate)
         self._ack_timer[s] = self.clock.call_at(now + timeout, lambda: self._ack_timeout(s))
-        if not ok:
-            if collided:
-                c.phy_rx_fail_collision += 1
-            else:
-                c.phy_rx_fail_error += 1
+        if not self._count_reception(ok, collided):
             return
-        c.phy_rx += 1
         self.clock.call_at(now + SIFS_S, lambda: self._start_tx(d, self.clock.now, None, frame))
         if not frame.delivered:
             # a retransmission whose ACK was lost arrives twice; the MAC filters duplicates
             frame.delivered = True
             self._deliver(d, frame.dgram, now)
 
+    def _count_reception(self, ok: bool, collided: bool) -> bool:
+        """Count one unicast frame (DATA or ACK) at its receiver's PHY: received, or lost to
+        a collision or to the channel's error; whether it was received."""
+        c = self.counters
+        if ok:
+            c.phy_rx += 1
+        elif collided:
+            c.phy_rx_fail_collision += 1
+        else:
+            c.phy_rx_fail_error += 1
+        return ok
+
     def _end_ack(self, tx: _Tx, now: float) -> None:
         frame = tx.ack_of
         assert frame is not None  # noqa: S101
         s = frame.dgram.src
-        ok, collided = self._received(tx, s)
-        c = self.counters
-        if not ok:
-            if collided:
-                c.phy_rx_fail_collision += 1
-            else:
-                c.phy_rx_fail_error += 1
+        if not self._count_reception(*self._received(tx, s)):
             return
-        c.phy_rx += 1
         timer = self._ack_timer[s]
         if timer is None or self._state[s] != _WAIT_ACK or not self._queues[s]:
             return
