@@ -127,6 +127,17 @@ def _v(value: Any, unit: str = "") -> str:
     return "-" if value is None else f"{value:g}{unit}"
 
 
+def _head(head: str) -> list[str]:
+    """A markdown table's ``head`` row and the separator under its columns."""
+    return [head, "|" + "---|" * (head.count("|") - 1)]
+
+
+def _scenario_rank(run: Mapping[str, Any]) -> int:
+    """Where ``run``'s scenario stands in the tables (flight_matrix.SCENARIOS; others last)."""
+    order = flight_matrix.SCENARIOS
+    return order.index(run["scenario"]) if run["scenario"] in order else 9
+
+
 def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     """One markdown row per run: validity and every measure (docs/benchmarks.md "Flight")."""
     head = (
@@ -136,14 +147,13 @@ def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
         "not re-discovered | reboot seen by peers / finds peers (max) | "
         "frames per rejoining pair (above steady) | readiness delivery |"
     )
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    order = {name: k for k, name in enumerate(("fly-out", "fade", "split", "reboot", "blackout"))}
+    lines = _head(head)
     # swarmd's rows first, the stock contenders beside them (same scenario and N)
     stacks = {name: k for k, name in enumerate(CONTENDER_ORDER)}
 
     def key(x: Mapping[str, Any]) -> tuple[int, int, int, str, int]:
         c = x["contender"]
-        return (order.get(x["scenario"], 9), x["n"], stacks.get(c, 99), c, x["run"])
+        return (_scenario_rank(x), x["n"], stacks.get(c, 99), c, x["run"])
 
     for r in sorted(runs, key=key):
         m = r["measures"]
@@ -178,10 +188,9 @@ def command_table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
         "| unreached, not reported | reported ran, not executed | reachable, not executed | "
         "delivery latency p50 / max |"
     )
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    order = {name: k for k, name in enumerate(("fly-out", "fade", "split", "reboot", "blackout"))}
+    lines = _head(head)
     with_commands = [r for r in runs if "commands" in r.get("measures", {})]
-    for r in sorted(with_commands, key=lambda x: (order.get(x["scenario"], 9), x["n"], x["run"])):
+    for r in sorted(with_commands, key=lambda x: (_scenario_rank(x), x["n"], x["run"])):
         c = r["measures"]["commands"]
         reach, lat = c["reach"], c["delivery_latency_s"]
         lines.append(
