@@ -25,6 +25,12 @@ ros2-swarmd    swarmd on every drone (``ros2.relay: true``, the same bundle) ser
                swarmd's own signed SPDP (docs/ros2.md, "The relay route")
 =============  =====================================================================
 
+In flight (``bench/wifi/flight_run.py``, ``--events 1``) ``ros2-swarmd``'s mission declares
+one node ``drone<i>`` per drone (``ros2_mission_text``), since on the relay route the node
+names of other drones come from the bundle (docs/testbed.md, "Flight scenarios"), and a
+reboot kills and restarts the drone's node and its swarmd (``Ros2Contender.kill``,
+``restart``).
+
 A route is a function ``(contender) -> list of per-drone environments``; it may start
 infrastructure on the drones first with ``contender.start_infrastructure`` (a process outside
 the start barrier that runs until the teardown, as the discovery server and the swarmd
