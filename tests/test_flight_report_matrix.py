@@ -120,9 +120,12 @@ def test_the_tables_put_every_scenario_and_contender_in_place() -> None:
     rows = {line.split(" | ")[0].lstrip("| "): line for line in lines[start + 4 : start + 9]}
     assert (
         rows["blackout"]
-        == "| blackout | 97.0 % | not run | not run | not run | not run | not run |"
+        == "| blackout | 97.0 % | not run | not run | not run | not run | not run | not run |"
     )
-    assert rows["split"] == "| split | not run | not run | not run | not run | 91.0 % | not run |"
+    assert (
+        rows["split"]
+        == "| split | not run | not run | not run | not run | 91.0 % | not run | not run |"
+    )
     assert set(rows) == set(fm.SCENARIOS)
 
 

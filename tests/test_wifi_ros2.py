@@ -98,7 +98,10 @@ def test_swarmd_route_runs_a_relaying_daemon_per_drone_and_via_swarmd_profiles(
     )
     started: list[tuple[int, list[str]]] = []
 
-    def start(i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int) -> Any:
+    def start(
+        i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int,
+        append: bool = False,
+    ) -> Any:  # fmt: skip
         started.append((i, argv))
         c.infrastructure.append(subprocess.Popen(["sleep", "30"]))  # a live "daemon"
         return c.infrastructure[-1]
@@ -136,7 +139,10 @@ def test_swarmd_route_stops_when_a_daemon_exits(
 ) -> None:
     c = Ros2Contender("ros2-swarmd", _drones(2), tmp_path, window_s=5, messages=2)
 
-    def start(i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int) -> Any:
+    def start(
+        i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int,
+        append: bool = False,
+    ) -> Any:  # fmt: skip
         c.infrastructure.append(subprocess.Popen(["true"]))
         c.infrastructure[-1].wait()
         return c.infrastructure[-1]

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -278,9 +279,15 @@ class PeerContender(Contender):
                 )
             )
 
-    def restart(self, i: int, duration_s: float) -> None:
+    def kill(self, i: int) -> None:
+        """A reboot in the air: drone ``i``'s peer killed at once (SIGKILL: no goodbye)."""
+        self.procs[i].send_signal(signal.SIGKILL)
+        self.procs[i].wait(timeout=10)
+
+    def restart(self, i: int, duration_s: float, state: str = "kept") -> None:
         """Start drone ``i``'s peer again (a reboot in the air: no barrier, the rest of the
-        window), its log appended to (a flight event ``hello`` opens the new life)."""
+        window), its log appended to (a flight event ``hello`` opens the new life). A stock
+        peer keeps no state dir: ``state`` ``kept`` and ``lost`` are alike."""
         log = (self.work / f"peer-{i}.log").open("ab")
         self._logs.append(log)
         self.procs[i] = self.drones[i].popen(

@@ -49,6 +49,7 @@ COLUMNS: Final = (
     ("fastdds-server", "Discovery Server"),
     ("zenoh", "zenoh"),
     ("ros2", "ROS 2"),
+    ("ros2-swarmd", "ROS 2 on swarmd"),  # the node's graph, its discovery from swarmd's relay
 )
 SWARMD: Final = "swarmd"
 

@@ -15,7 +15,9 @@ restarts daemons at the scenario's reboot events. Written: ``OUT/runs/flight-<sc
 and a timeline figure per run (``bench/wifi/flight_report.py``).
 
 The stock contenders (``cyclonedds``, ``fastdds``, ``fastdds-server``, ``zenoh``, ``ros2``)
-run their workload peers with ``--events 1``: each reports, by its own clock, what its
+and ``ros2-swarmd`` (the same rclpy node, its discovery served by swarmd's relay on each
+drone, the daemons reading the flight link files; a reboot restarts both) run their
+workload peers with ``--events 1``: each reports, by its own clock, what its
 stack's discovery API says of every other drone (``bench/wifi/peers/common.py``), and the
 harness reads those lines from the peers' logs after the run into the same ``changes`` and
 ``readiness`` records (``bench/wifi/flight_events.py``). Their ``lease_s`` is the stack's
@@ -80,9 +82,20 @@ LOSS_TIMER_S: Final[dict[str, float]] = {
     "fastdds-server": 20.0,  # the same lease, checked by the server and its clients
     "zenoh": 10.0,  # zenoh transport lease default 10 000 ms (keep-alive every 2.5 s)
     "ros2": 20.0,  # rmw_fastrtps on Fast DDS 3.2: leaseDuration default 20 s
+    # ROS 2 on swarmd: swarmd's lease decides. The relay renews every drone swarmd has to its
+    # nodes on [::1] every relay lease / 4 (Ros2Relay._renew_all: loopback, never lost), so
+    # the node's own lease of the synthesized participant never runs out while swarmd has
+    # the drone; swarmd's peer_lost (its lease, the bundle's 20 s) makes the relay send
+    # DATA(p[UD]) at once (Ros2Relay.peer_lost) and rmw drops the node from the graph
+    "ros2-swarmd": LEASE_S,
 }
 PEER_TAIL_S: Final = 5.0  # a stock peer's window past the scenario's end (run_flight)
-FLIGHT_CONTENDERS: Final = (*contenders_mod.SWARMD_VARIANTS, *STOCK)
+# ROS 2 on swarmd (issue 20): the drones run swarmd with the relay and the rclpy node, and
+# the node's graph is the observer, as for stock ros2 (bench/wifi/ros2_contenders.py)
+ROS2_ON_SWARMD: Final = ("ros2-swarmd",)
+# the contenders observed through their workload peers' event lines (PeerLogObserver)
+PEER_OBSERVED: Final = (*STOCK, *ROS2_ON_SWARMD)
+FLIGHT_CONTENDERS: Final = (*contenders_mod.SWARMD_VARIANTS, *PEER_OBSERVED)
 POLL_S: Final = 0.25  # real seconds between harness steps
 STATUS_PER_STEP: Final = 2  # daemons polled per step: every daemon every N/2 steps
 _runs = itertools.count(1)
@@ -259,7 +272,7 @@ def run_flight(
             settled = time.monotonic() + dil.real_s(SETTLE_S)
             # a stock peer ends its window with a goodbye, which its peers would report as
             # losses: it outlives the scenario by PEER_TAIL_S (changes after it are cut)
-            tail = PEER_TAIL_S if contender in STOCK else 0.0
+            tail = PEER_TAIL_S if contender in PEER_OBSERVED else 0.0
             c = contenders_mod.make(
                 contender, tb.drones, work, window_s=scenario.duration_s + tail, messages=20,
                 link_dir=fdir, env=dil.env(),
@@ -291,12 +304,14 @@ def run_flight(
                     while pending and now - launch >= pending[0].t:
                         ev = pending.pop(0)
                         if ev.action == "kill":
-                            c.procs[ev.node].send_signal(signal.SIGKILL)
-                            c.procs[ev.node].wait(timeout=10)
+                            if isinstance(c, contenders_mod.PeerContender):
+                                c.kill(ev.node)  # ros2-swarmd: the node and its swarmd
+                            else:
+                                c.procs[ev.node].send_signal(signal.SIGKILL)
+                                c.procs[ev.node].wait(timeout=10)
                             down.setdefault(ev.node, []).append([now - launch, scenario.duration_s])
                         elif isinstance(c, contenders_mod.PeerContender):
-                            # a stock peer keeps no state dir: "kept" and "lost" are alike
-                            c.restart(ev.node, end - now + PEER_TAIL_S)
+                            c.restart(ev.node, end - now + PEER_TAIL_S, ev.state)
                             down[ev.node][-1][1] = now - launch
                             restarts.append((now - launch, ev.node))
                         else:

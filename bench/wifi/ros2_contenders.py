@@ -25,6 +25,12 @@ ros2-swarmd    swarmd on every drone (``ros2.relay: true``, the same bundle) ser
                swarmd's own signed SPDP (docs/ros2.md, "The relay route")
 =============  =====================================================================
 
+In flight (``bench/wifi/flight_run.py``, ``--events 1``) ``ros2-swarmd``'s mission declares
+one node ``drone<i>`` per drone (``ros2_mission_text``), since on the relay route the node
+names of other drones come from the bundle (docs/testbed.md, "Flight scenarios"), and a
+reboot kills and restarts the drone's node and its swarmd (``Ros2Contender.kill``,
+``restart``).
+
 A route is a function ``(contender) -> list of per-drone environments``; it may start
 infrastructure on the drones first with ``contender.start_infrastructure`` (a process outside
 the start barrier that runs until the teardown, as the discovery server and the swarmd
@@ -36,6 +42,7 @@ from __future__ import annotations
 import contextlib
 import io
 import shutil
+import signal
 import subprocess
 import sys
 import sysconfig
@@ -49,6 +56,7 @@ from swarmd_lab.ros2_lab import own_host_argv
 
 from bench.wifi.bundle import SWARM, mission_text
 from bench.wifi.contenders import PEERS, PeerContender, _clean_env, daemon_config
+from bench.wifi.peers.ros2_peer import NAMESPACE as GRAPH_NAMESPACE
 from bench.wifi.peers.ros2_peer import TOPIC
 from bench.wifi.topology import _sysctls as sysctls
 from swarmd.bundle.build import build_dev_bundle
@@ -134,8 +142,22 @@ def discovery_server_route(c: Ros2Contender) -> list[dict[str, str]]:
     return envs
 
 
-def ros2_mission_text(addresses: list[str]) -> str:
-    """The testbed's mission (bench/wifi/bundle.py) plus the ROS 2 graph of the workload."""
+def ros2_mission_text(addresses: list[str], *, per_drone: bool = False) -> str:
+    """The testbed's mission (bench/wifi/bundle.py) plus the ROS 2 graph of the workload:
+    a ``talker`` on every member and the ``listener`` on the commander, or with
+    ``per_drone`` one node per drone named ``flight_node_name(i)`` (the flight observer of
+    the relay route: module ``bench/wifi/peers/ros2_peer.py``), the same endpoints."""
+    if per_drone:
+        nodes = [
+            f"    - {{name: {flight_node_name(i)}, drones: [uav{i + 1}], "
+            + (f"subscribes: [{TOPIC}]}}" if i == 0 else f"publishes: [{TOPIC}]}}")
+            for i in range(len(addresses))
+        ]
+    else:
+        nodes = [
+            f"    - {{name: talker, drones: member, publishes: [{TOPIC}]}}",
+            f"    - {{name: listener, drones: commander, subscribes: [{TOPIC}]}}",
+        ]
     return (
         mission_text(addresses, t_min_s=8.0, t_max_s=20.0, lease_s=20.0)
         + f"""\
@@ -145,10 +167,15 @@ ros2:
     - {{name: {TOPIC}, type: std_msgs/msg/String, reliability: reliable,
        durability: volatile, history_depth: 10}}
   nodes:
-    - {{name: talker, drones: member, publishes: [{TOPIC}]}}
-    - {{name: listener, drones: commander, subscribes: [{TOPIC}]}}
 """
+        + "".join(line + "\n" for line in nodes)
     )
+
+
+def flight_node_name(i: int) -> str:
+    """Drone ``i``'s node on the relay route in flight: its fully qualified name
+    ``/drone<i>`` is what the flight observer reads a drone from (``graph_drones``)."""
+    return f"{GRAPH_NAMESPACE.removeprefix('/')}{i}"
 
 
 def read_env_file(path: Path) -> dict[str, str]:
@@ -165,7 +192,7 @@ def _write_ros2_bundle(c: Ros2Contender) -> tuple[Path, Path]:
     """The testbed's bundle with the workload's ROS 2 graph, and its dev trust key."""
     directory = c.work / "ros2-bundle"
     directory.mkdir(parents=True, exist_ok=True)
-    text = ros2_mission_text([d.address for d in c.drones])
+    text = ros2_mission_text([d.address for d in c.drones], per_drone=c.per_drone_nodes)
     bundle = directory / "bundle.swb"
     bundle.write_bytes(build_dev_bundle(parse_mission(text, "wifibench-ros2.yaml")).data)
     key = directory / "swarm.pub"
@@ -184,9 +211,8 @@ def _profiles(c: Ros2Contender, bundle: Path, *extra: str) -> list[dict[str, str
         raise RuntimeError(f"swarmctl ros2 profile exited with {code}: {said.getvalue()[-400:]}")
     envs = []
     for i in range(len(c.drones)):
-        node = "listener" if i == 0 else "talker"
         e = ros2_env(c.extra_env)
-        e.update(read_env_file(out / f"uav{i + 1}" / f"{node}.env"))
+        e.update(read_env_file(out / f"uav{i + 1}" / f"{c.node_name(i)}.env"))
         envs.append(e)
     return envs
 
@@ -237,20 +263,18 @@ def swarmd_route(c: Ros2Contender) -> list[dict[str, str]]:
     measures is the nodes' own discovery, which the relays answer on ``[::1]``.
     """
     bundle, key = _write_ros2_bundle(c)
-    env = _clean_env(c.extra_env)
     for drone in c.drones:
         # the testbed turns IPv6 off in every drone (bench/wifi/topology.py, pitfall 4); the
         # relay and the nodes' discovery need it on lo only, which never reaches the channel
         sysctls(drone.name, [("net.ipv6.conf.lo.disable_ipv6", "0")])
     for i in range(c.n):
-        argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "run"]
-        argv += ["--config", str(swarmd_config(c, i, bundle, key))]
-        c.start_infrastructure(i, argv, env, f"swarmd-uav{i + 1}", host_id=i)
+        swarmd_config(c, i, bundle, key)
+        c.start_daemon(i)
     deadline = time.monotonic() + SWARMD_CONVERGE_S
     waiting = set(range(c.n))
     while waiting:
         waiting = {i for i in waiting if not _discovered(c, i)}
-        dead = [i for i, p in enumerate(c.infrastructure) if p.poll() is not None]
+        dead = [i for i, p in c.daemons.items() if p.poll() is not None]
         if dead:
             log = c.work / f"swarmd-uav{dead[0] + 1}.log"
             said = log.read_text(errors="replace")[-400:] if log.exists() else ""
@@ -303,7 +327,24 @@ class Ros2Contender(PeerContender):
             raise ValueError(unavailable(name) or f"unknown ROS 2 contender {name!r}")
         self.route: Route = route
         self.infrastructure: list[subprocess.Popen[bytes]] = []
+        self.daemons: dict[int, subprocess.Popen[bytes]] = {}  # ros2-swarmd: drone -> swarmd
         self._envs: list[dict[str, str]] = []
+
+    @property
+    def per_drone_nodes(self) -> bool:
+        """One node per drone named ``flight_node_name(i)`` (the relay route in flight: the
+        node's graph names the other drones as the bundle does, ``ros2_mission_text``)."""
+        return self.flight_events and self.route is swarmd_route
+
+    def node_name(self, i: int) -> str:
+        """Drone ``i``'s node as the bundle declares it."""
+        if self.per_drone_nodes:
+            return flight_node_name(i)
+        return "listener" if i == 0 else "talker"
+
+    def _argv(self, i: int, barrier: Path | None, duration_s: float) -> list[str]:
+        argv = super()._argv(i, barrier, duration_s)
+        return [*argv, "--node", self.node_name(i)] if self.per_drone_nodes else argv
 
     def _program(self) -> list[str]:
         return [sys.executable, str(PEERS / "ros2_peer.py")]
@@ -315,18 +356,62 @@ class Ros2Contender(PeerContender):
         return self._envs[i]
 
     def start_infrastructure(
-        self, i: int, argv: list[str], env: dict[str, str], name: str, *, host_id: int
+        self,
+        i: int,
+        argv: list[str],
+        env: dict[str, str],
+        name: str,
+        *,
+        host_id: int,
+        append: bool = False,
     ) -> subprocess.Popen[bytes]:
         """Start ``argv`` on drone ``i`` outside the barrier (it is not a contender process:
-        it runs from now until the teardown, like a service already up on the drone)."""
+        it runs from now until the teardown, like a service already up on the drone);
+        ``append``: to the log of an earlier life (a reboot)."""
+        if append:
+            log = (self.work / f"{name}.log").open("ab")
+            self._logs.append(log)
+        else:
+            log = self._log(f"{name}.log")
         proc = self.drones[i].popen(
             own_host_argv(argv, self.work, host_id),
             env=env,
-            stdout=self._log(f"{name}.log"),
+            stdout=log,
             stderr=subprocess.STDOUT,
         )
         self.infrastructure.append(proc)
         return proc
+
+    def start_daemon(self, i: int, *, append: bool = False) -> subprocess.Popen[bytes]:
+        """Drone ``i``'s ``swarmd run`` on its config (``swarmd_config``), in the drone's
+        host (its machine id, as its node's)."""
+        argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "run"]
+        argv += ["--config", str(self.work / f"swarmd-uav{i + 1}.yaml")]
+        name = f"swarmd-uav{i + 1}"
+        env = _clean_env(self.extra_env)
+        self.daemons[i] = self.start_infrastructure(i, argv, env, name, host_id=i, append=append)
+        return self.daemons[i]
+
+    def kill(self, i: int) -> None:
+        """A reboot's power cut (docs/testbed.md, "Flight"): the node and, on the relay
+        route, the drone's swarmd too: both run on its companion computer."""
+        super().kill(i)
+        daemon = self.daemons.get(i)
+        if daemon is not None and daemon.poll() is None:
+            daemon.send_signal(signal.SIGKILL)
+            daemon.wait(timeout=10)
+
+    def restart(self, i: int, duration_s: float, state: str = "kept") -> None:
+        """The reboot's start: on the relay route swarmd first (its state dir deleted for
+        ``lost``), then at once the node, as a companion computer starts its services in
+        parallel at boot, not after swarmd has found anyone (which the route's first start
+        waits for). The node's SPDP to a relay not yet listening is lost; its next
+        announcement, or the relay's DATA(p) once swarmd finds a drone, makes up for it."""
+        if i in self.daemons:
+            if state == "lost":
+                shutil.rmtree(self.work / f"state-uav{i + 1}", ignore_errors=True)
+            self.start_daemon(i, append=True)
+        super().restart(i, duration_s, state)
 
     def start(self, barrier: Path) -> None:
         self._envs = self.route(self)

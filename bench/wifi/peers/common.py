@@ -62,6 +62,11 @@ class Tally:
 
 
 def parse_args(doc: str) -> argparse.Namespace:
+    return parser(doc).parse_args()
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+    """Every peer's arguments (a peer may add its own before parsing)."""
     p = argparse.ArgumentParser(description=doc.splitlines()[0])
     p.add_argument("--index", type=int, required=True, help="0 = commander, else member")
     p.add_argument("--n", type=int, required=True, help="swarm size")
@@ -71,7 +76,7 @@ def parse_args(doc: str) -> argparse.Namespace:
     p.add_argument("--out", type=Path, required=True, help="result JSON file")
     p.add_argument("--barrier", type=Path, help="UNIX socket of the harness's start barrier")
     p.add_argument("--events", type=int, default=0, help="1: flight events on stdout")
-    return p.parse_args()
+    return p
 
 
 def wait_start_barrier(path: Path | None) -> None:

@@ -30,6 +30,13 @@ A drone lost by lease expiry is listed again only when its participant publishes
 reader's last sequence number across the drop, so the old sample is never resent and
 rmw's graph cache, which dropped the node names with the participant, never relearns them
 (``bench/ros2_relist.py``; docs/benchmarks.md, "Flight").
+
+``--node NAME`` (the ``ros2-swarmd`` flight route) names the node ``NAME`` in the root
+namespace instead: on the relay route the other drones' node names come from swarmd's graph
+participant, which gives each the name the bundle declares, in ``/`` (swarmd.ros2.graph), so
+the flight mission declares one node ``drone<index>`` per drone and each node takes its
+own. A drone is then read from the node's fully qualified name, ``/drone<index>`` either
+way (``graph_drones``).
 """
 
 from __future__ import annotations
@@ -45,7 +52,7 @@ from bench.wifi.peers.common import (  # noqa: E402
     FlightEvents,
     Tally,
     drone_index,
-    parse_args,
+    parser,
     stop_event,
     wait_start_barrier,
     write_result,
@@ -59,11 +66,16 @@ NAMESPACE = "/drone"  # + index: how a flight peer's node names its drone in the
 
 
 def graph_drones(names_and_namespaces: list[tuple[str, str]]) -> set[int]:
-    """The drone indices the graph lists (nodes in ``/drone<index>``; others are not drones)."""
+    """The drone indices the graph lists: nodes whose fully qualified name starts with the
+    segment ``/drone<index>`` (a node in the namespace ``/drone<index>``, the stock flight
+    peers, or a node named ``drone<index>`` in ``/``, the relay route's); others are not
+    drones."""
     found = set()
-    for _, namespace in names_and_namespaces:
-        if namespace.startswith(NAMESPACE):
-            index = drone_index(namespace[len(NAMESPACE) :])
+    for name, namespace in names_and_namespaces:
+        qualified = namespace.rstrip("/") + "/" + name
+        head = "/" + qualified.split("/")[1]  # "" before the leading slash
+        if head.startswith(NAMESPACE):
+            index = drone_index(head[len(NAMESPACE) :])
             if index is not None:
                 found.add(index)
     return found
@@ -90,7 +102,9 @@ class GraphWatch:
 
 
 def main() -> int:
-    args = parse_args(__doc__ or "")
+    p = parser(__doc__ or "")
+    p.add_argument("--node", help="the node's name in the root namespace (module doc)")
+    args = p.parse_args()
     stop = stop_event()
     # imports before the barrier: rclpy and the message types take seconds of CPU
     import rclpy
@@ -106,9 +120,10 @@ def main() -> int:
     started = time.time()
     events = FlightEvents(bool(args.events), args.index)
     events.hello()
+    name = args.node or ("listener" if args.index == 0 else "talker")
     node = Node(
-        "listener" if args.index == 0 else "talker",
-        namespace=f"{NAMESPACE}{args.index}" if events.enabled else None,
+        name,
+        namespace=f"{NAMESPACE}{args.index}" if events.enabled and not args.node else None,
         start_parameter_services=False,
         enable_rosout=False,
         parameter_overrides=[Parameter("start_type_description_service", value=False)],
