@@ -1,0 +1,243 @@
+"""The flight matrix as a campaign (issue 20): which cells still lack a run, what they cost,
+and running them one at a time until a deadline.
+
+    .venv/bin/python -m bench.wifi.flight_campaign                     # the plan: what is missing
+    .venv/bin/python -m bench.wifi.flight_campaign --json              # the same, for scripts
+    sudo .venv/bin/python -m bench.wifi.flight_campaign --run --until 02:30 \\
+        --repeats 1 --n 20 --contenders cyclonedds,fastdds,zenoh,ros2   # run what fits
+
+A cell is (repeat, N, scenario, contender); its run file is the name ``flight_run`` writes
+(``flight-<scenario>-<contender>-n<N>[-k<K>]-r<repeat>.json``) in the contender's directory:
+swarmd's in ``--swarmd-out`` (the engine as shipped: ``bench/results/flight-seek``), every
+other contender's in ``--stock-out``. A cell whose file exists is done, whatever its
+validity (the matrix counts invalid runs as such; a rerun is a new repeat). Cells are taken
+repeat by repeat (every cell's first run before any second one), then by N, scenario and
+contender in the order given, so a campaign cut short leaves whole columns, not scattered
+cells.
+
+Each run is ``python -m bench.wifi.flight_run`` for one cell, one at a time (the testbed's
+runs never overlap: they share the two cores), bounded by ``timeout``. The estimate of a
+run's real time is ``(scenario + the stock peers' tail) x k + OVERHEAD_S``: the dilated
+window is nearly all of it (a Cyclone DDS split at N = 20, k = 6: 930 s estimated, 951 s
+taken). A cell whose estimate would end after ``--until`` is skipped and the next, shorter
+one tried. The time dilation k per contender and N is the testbed's: swarmd undilated (it
+has no boot flood to follow), the others 3 at N = 10 and 6 at N = 20 (docs/benchmarks.md
+"Time dilation": at k = 4 zenoh and Fast DDS lagged at N = 20).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Final
+
+from bench.wifi import flight
+from bench.wifi.flight_run import (
+    FLIGHT_CONTENDERS,
+    PEER_OBSERVED,
+    PEER_TAIL_S,
+    REPO,
+    run_file_name,
+)
+from bench.wifi.run import parse_dilation
+
+SWARMD: Final = "swarmd"
+# the matrix's contenders, in its column order (bench/wifi/flight_matrix.py)
+CONTENDERS: Final = (
+    "swarmd", "cyclonedds", "fastdds", "fastdds-server", "zenoh", "ros2", "ros2-swarmd",
+)  # fmt: skip
+SIZES: Final = (10, 20)
+DILATED_K: Final = "10:3,20:6"  # every contender but swarmd (module doc)
+OVERHEAD_S: Final = 60.0  # namespaces, start-up, the barrier, assembling the run file
+SLACK_S: Final = 600.0  # timeout past a run's estimate before it is stopped
+SWARMD_OUT: Final = REPO / "bench" / "results" / "flight-seek"
+STOCK_OUT: Final = REPO / "bench" / "results" / "flight-stock"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One run of the matrix: what it is, where its file goes, what it costs."""
+
+    repeat: int
+    n: int
+    scenario: str
+    contender: str
+    k: float
+    path: Path
+    estimate_s: float
+
+    @property
+    def done(self) -> bool:
+        return self.path.exists()
+
+    def argv(self, python: str) -> list[str]:
+        return [
+            python, "-m", "bench.wifi.flight_run", "--scenarios", self.scenario,
+            "--n", str(self.n), "--first-run", str(self.repeat), "--contenders",
+            self.contender, "--dilation", f"{self.k:g}", "--out", str(self.path.parents[1]),
+        ]  # fmt: skip
+
+    def label(self) -> str:
+        return f"n={self.n} {self.scenario} {self.contender} r{self.repeat} k={self.k:g}"
+
+
+def estimate_s(scenario: str, n: int, contender: str, k: float) -> float:
+    """Real seconds one run takes (module doc)."""
+    tail = PEER_TAIL_S if contender in PEER_OBSERVED else 0.0
+    return (flight.make(scenario, n).duration_s + tail) * k + OVERHEAD_S
+
+
+def plan(
+    repeats: int,
+    sizes: Sequence[int],
+    scenarios: Sequence[str],
+    contenders: Sequence[str],
+    dilation: dict[int, float],
+    swarmd_out: Path,
+    stock_out: Path,
+) -> list[Cell]:
+    """Every cell, in campaign order (module doc)."""
+    out = []
+    for repeat in range(1, repeats + 1):
+        for n in sizes:
+            for s in scenarios:
+                for c in contenders:
+                    k = 1.0 if c == SWARMD else dilation.get(n, 1.0)
+                    where = swarmd_out if c == SWARMD else stock_out
+                    path = where / "runs" / run_file_name(s, c, n, repeat, k)
+                    out.append(Cell(repeat, n, s, c, k, path, estimate_s(s, n, c, k)))
+    return out
+
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds / 60:.0f} min"
+
+
+def plan_lines(cells: Sequence[Cell]) -> list[str]:
+    todo = [c for c in cells if not c.done]
+    lines = [
+        f"flight campaign: {len(cells) - len(todo)} of {len(cells)} cells have a run file; "
+        f"{len(todo)} missing, about {sum(c.estimate_s for c in todo) / 3600:.1f} h of runs "
+        "(one at a time)"
+    ]
+    for repeat in sorted({c.repeat for c in todo}):
+        mine = [c for c in todo if c.repeat == repeat]
+        lines.append(
+            f"  repeat {repeat}: {len(mine)} missing, {_minutes(sum(c.estimate_s for c in mine))}"
+        )
+        for c in mine:
+            lines.append(f"    {c.label():40} ~{_minutes(c.estimate_s):>7}  {c.path.name}")
+    return lines
+
+
+def parse_until(text: str, now: dt.datetime) -> float:
+    """``HH:MM`` (today, or tomorrow if already past, in the machine's local time) as epoch
+    seconds."""
+    hour, _, minute = text.partition(":")
+    at = now.replace(hour=int(hour), minute=int(minute), second=0, microsecond=0)
+    if at <= now:
+        at += dt.timedelta(days=1)
+    return at.timestamp()
+
+
+class _Stop(Exception):
+    pass
+
+
+def _raise_stop(signum: int, frame: FrameType | None) -> None:
+    raise _Stop
+
+
+def run_cells(cells: Sequence[Cell], until: float, python: str) -> int:
+    """Run the missing cells that fit before ``until``; 0 if every run started wrote its
+    file, 1 if one failed, 130 if stopped."""
+    todo = [c for c in cells if not c.done]
+    failed = 0
+    signal.signal(signal.SIGTERM, _raise_stop)
+    for i, c in enumerate(todo, 1):
+        now = time.time()
+        if now + c.estimate_s > until:
+            print(f"[{i}/{len(todo)}] skip {c.label()}: ~{_minutes(c.estimate_s)} would end "
+                  "after --until", flush=True)  # fmt: skip
+            continue
+        start = time.strftime("%H:%M:%S")
+        print(f"[{i}/{len(todo)}] {start} {c.label()} (~{_minutes(c.estimate_s)})", flush=True)
+        proc = subprocess.Popen(c.argv(python), cwd=REPO)
+        try:
+            proc.wait(timeout=c.estimate_s + SLACK_S)
+        except subprocess.TimeoutExpired:
+            print(f"  {c.label()}: past its estimate by {SLACK_S:.0f} s, stopped", flush=True)
+            proc.terminate()  # flight_run removes its testbed on SIGTERM
+            proc.wait(timeout=120)
+        except (KeyboardInterrupt, _Stop):
+            proc.terminate()
+            proc.wait(timeout=120)
+            print("flight campaign: stopped; the run under way was removed", file=sys.stderr)
+            return 130
+        if proc.returncode != 0 or not c.done:
+            failed += 1
+            print(f"  {c.label()}: no run file (exit {proc.returncode})", flush=True)
+    return 1 if failed else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0] if __doc__ else None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--repeats", type=int, default=3, help="repeats per cell (default 3)")
+    p.add_argument("--n", default=",".join(map(str, SIZES)), help="sizes (default 10,20)")
+    p.add_argument("--scenarios", default=",".join(flight.SCENARIOS))
+    p.add_argument("--contenders", default=",".join(CONTENDERS))
+    p.add_argument("--dilation", default=DILATED_K, help="N:K for every contender but swarmd")
+    p.add_argument("--swarmd-out", type=Path, default=SWARMD_OUT)
+    p.add_argument("--stock-out", type=Path, default=STOCK_OUT)
+    p.add_argument("--json", action="store_true", help="the plan as JSON")
+    p.add_argument("--run", action="store_true", help="run the missing cells (root)")
+    p.add_argument("--until", help="with --run: start no run that would end after HH:MM")
+    args = p.parse_args(argv)
+    scenarios = [s for s in args.scenarios.split(",") if s]
+    contenders = [c for c in args.contenders.split(",") if c]
+    for s in scenarios:
+        if s not in flight.SCENARIOS:
+            p.error(f"--scenarios: unknown {s!r}; use {', '.join(flight.SCENARIOS)}")
+    for c in contenders:
+        if c not in FLIGHT_CONTENDERS:
+            p.error(f"--contenders: {c!r} has no flight observer; use {', '.join(CONTENDERS)}")
+    try:
+        sizes = [int(x) for x in args.n.split(",") if x]
+        spec = parse_dilation(args.dilation)
+    except ValueError:
+        p.error("--n: sizes as 10,20; --dilation: N:K,N:K")
+    dilation = dict(spec) if isinstance(spec, tuple) else dict.fromkeys(sizes, spec)
+    if args.repeats < 1:
+        p.error("--repeats: at least 1")
+    cells = plan(
+        args.repeats, sizes, scenarios, contenders, dilation, args.swarmd_out, args.stock_out
+    )
+    if args.json:
+        print(json.dumps([{**asdict(c), "path": str(c.path), "done": c.done} for c in cells]))
+    else:
+        print("\n".join(plan_lines(cells)))
+    if not args.run:
+        return 0
+    if args.until is None:
+        p.error("--run needs --until HH:MM (every campaign is bounded in time)")
+    try:
+        until = parse_until(args.until, dt.datetime.now())
+    except ValueError:
+        p.error(f"--until: {args.until!r} is not HH:MM")
+    return run_cells(cells, until, sys.executable)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
