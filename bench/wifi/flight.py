@@ -21,7 +21,10 @@ The five scenarios of issue 20 (N drones, uav1 = node 0 commands; the group is a
 - ``fly-out``: from a 1 m line (on the ground) to a grid at ``EDGE_M`` (neighbours near the
   edge of range, diagonals beyond it) and back;
 - ``fade``: the last drone swings between ``FADE_NEAR_M`` and ``FADE_FAR_M`` from the
-  formation (about 17 dB of RSSI) every ``FADE_PERIOD_S``, for ``FADE_S``;
+  formation (about 17 dB of RSSI) for ``FADE_S``, each swing's period drawn from the seed,
+  ``FADE_PERIOD_S`` +- ``FADE_PERIOD_SPREAD_S`` (a drone at the edge of range does not swing
+  with a clock's period; an exactly periodic fade locks onto a stack's fixed announcement
+  period: docs/testbed.md, "An irregular fade"); ``period_spread_s=0`` is the old periodic one;
 - ``split``: the second half flies ``SPLIT_OFFSET_M`` away for ``SPLIT_HOLD_S``, then back;
 - ``reboot``: nobody moves; drone N/2's daemon is killed and restarted, once with its
   state dir kept and once with it deleted;
@@ -47,7 +50,9 @@ FORMATION_M: Final = 5.0
 EDGE_M: Final = 45.0  # grid neighbours at -80.3 dBm: in range; diagonals (64 m) beyond it
 FADE_NEAR_M: Final = 30.0
 FADE_FAR_M: Final = 110.0  # 30*log10(110/30) = 16.9 dB of RSSI swing
-FADE_PERIOD_S: Final = 8.0
+FADE_PERIOD_S: Final = 8.0  # a swing's mean period (out and back)
+FADE_PERIOD_SPREAD_S: Final = 2.0  # each swing's period ~ U(6, 10) s
+FADE_HOLD_VALID_S: Final = 3.0  # the holds to the fading drone: at most half a swing
 FADE_S: Final = 120.0
 SPLIT_OFFSET_M: Final = 150.0
 SPLIT_HOLD_S: Final = 60.0
@@ -191,7 +196,13 @@ def fly_out(n: int, seed: int) -> Scenario:
     )  # fmt: skip
 
 
-def fade(n: int, seed: int) -> Scenario:
+def fade(n: int, seed: int, period_spread_s: float = FADE_PERIOD_SPREAD_S) -> Scenario:
+    """uav<n> swings out and back for ``FADE_S``; each swing's period is drawn from the
+    scenario's rng, U(``FADE_PERIOD_S`` - ``period_spread_s``, ... + ``period_spread_s``).
+    ``period_spread_s=0`` gives the exactly periodic fade (every ``FADE_PERIOD_S``) of the
+    runs before the irregular one, waypoint for waypoint (``tests/test_flight_fade.py``)."""
+    if not 0.0 <= period_spread_s < FADE_PERIOD_S:
+        raise ValueError(f"fade: period_spread_s {period_spread_s} not in [0, {FADE_PERIOD_S})")
     rng = random.Random(seed)
     home = _jitter(grid(n - 1, FORMATION_M), rng, 0.3)
     cx = sum(p[0] for p in home) / len(home)
@@ -201,24 +212,35 @@ def fade(n: int, seed: int) -> Scenario:
     wps: list[tuple[float, int, Position]] = [(0.0, i, p) for i, p in enumerate(home)]
     wps.append((0.0, n - 1, near))
     t = SETTLE_S
-    half = FADE_PERIOD_S / 2
+    swings: list[tuple[float, float]] = []  # (start, period)
     while t < SETTLE_S + FADE_S:
+        # drawn after the placement, so the placement is the periodic fade's for a seed
+        period = rng.uniform(FADE_PERIOD_S - period_spread_s, FADE_PERIOD_S + period_spread_s)
+        half = period / 2
         wps += _move(n - 1, near, far, t, t + half)
-        wps += _move(n - 1, far, near, t + half, t + FADE_PERIOD_S)
-        t += FADE_PERIOD_S
+        wps += _move(n - 1, far, near, t + half, t + period)
+        swings.append((t, period))
+        t += period
+    every = (
+        f"{FADE_PERIOD_S - period_spread_s:g}-{FADE_PERIOD_S + period_spread_s:g}"
+        if period_spread_s > 0
+        else f"{FADE_PERIOD_S:g}"
+    )
+    # the holds go to the fading drone at four phases of its fifth swing (near, leaving,
+    # far, coming back), by that swing's own period
+    hold_at, hold_period = swings[4]
     return Scenario(
         "fade", n, seed, t + TAIL_S, tuple(sorted(wps)),
         description=f"uav{n} swings {FADE_NEAR_M:.0f}-{FADE_FAR_M:.0f} m from the group "
-        f"(about {rx_dbm(FADE_NEAR_M) - rx_dbm(FADE_FAR_M):.0f} dB) every {FADE_PERIOD_S:g} s",
+        f"(about {rx_dbm(FADE_NEAR_M) - rx_dbm(FADE_FAR_M):.0f} dB) every {every} s",
         phases=(("fade", SETTLE_S, t),),
         commands=(
             TAKEOFF,
-            # to the fading drone at four phases of its swing (near, leaving, far, coming
-            # back), each valid for less than half a period
             *(
-                CommandCue(SETTLE_S + 4 * FADE_PERIOD_S + phase, "hold", 3.0, (n - 1,),
-                           why=f"hold to the fading drone {phase:g} s into its swing")
-                for phase in (0.0, 2.0, 4.0, 6.0)
+                CommandCue(hold_at + quarter * hold_period, "hold", FADE_HOLD_VALID_S, (n - 1,),
+                           why=f"hold to the fading drone {quarter * hold_period:.3g} s into "
+                           "its swing")
+                for quarter in (0.0, 0.25, 0.5, 0.75)
             ),
             CommandCue(t + 5.0, "land", 10.0, why="land after the fade"),
         ),
