@@ -95,3 +95,15 @@ def test_a_periodic_fade_swings_every_8_s() -> None:
     assert periods == pytest.approx([8.0] * 15)
     with pytest.raises(ValueError, match="period_spread_s"):
         flight.fade(10, 1, period_spread_s=8.0)
+
+
+def test_a_run_file_of_the_periodic_fade_is_measured_on_the_periodic_fade() -> None:
+    # the run files before the irregular fade hold the periodic waypoints: their truth (and
+    # so their re-measure and figure) must be that fade's, not the seed's irregular one
+    periodic, irregular = flight.fade(10, 1, period_spread_s=0.0), flight.make("fade", 10, 1)
+    assert periodic.waypoints != irregular.waypoints
+    for s in (periodic, irregular):
+        run = {"scenario": "fade", "n": 10, "seed": 1}
+        run["waypoints"] = [[t, i, *p] for t, i, p in s.waypoints]
+        assert flight.of_run(run) == s
+    assert flight.of_run({"scenario": "fade", "n": 10, "seed": 1}) == irregular

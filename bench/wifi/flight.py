@@ -1,11 +1,11 @@
 """Flight scenarios for the ns-3 testbed (issue 20): scripted, seeded, pure.
 
 A scenario is a list of waypoints ``(t, node, x, y, z)`` (seconds from the stacks' start
-release, metres) that ns-3 applies to each node's position (``bench/wifi/flight_cpp.py``),
-plus daemon events (reboots) the harness performs (``bench/wifi/flight_run.py``) and the
-operator's commands it issues through ``swarmctl`` (``CommandCue``,
-``bench/wifi/flight_commands.py``). Moving
-nodes get a waypoint every ``STEP_S``: the channel's log-distance loss, so every frame's
+release, metres; each drone's stack starts ``start_offsets`` after it) that ns-3 applies
+to each node's position (``bench/wifi/flight_cpp.py``), plus daemon events (reboots) the
+harness performs (``bench/wifi/flight_run.py``) and the operator's commands it issues
+through ``swarmctl`` (``CommandCue``, ``bench/wifi/flight_commands.py``). Moving nodes get
+a waypoint every ``STEP_S``: the channel's log-distance loss, so every frame's
 received power, SNR and loss, and the link files swarmd's link source reads, follow them.
 
 *Ground truth* is the same propagation model evaluated on the same waypoints: a pair is
@@ -35,9 +35,9 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Any, Final
 
 STEP_S: Final = 0.5  # a moving node's waypoint spacing (0.5 s at 10 m/s: 5 m, < 0.5 dB)
 TX_POWER_DBM: Final = 16.0206  # the testbed channel's defaults (bench/wifi/channel.py)
@@ -59,6 +59,12 @@ SPLIT_HOLD_S: Final = 60.0
 MOVE_S: Final = 10.0  # flying out or back
 BLACKOUT_S: Final = 30.0
 TAIL_S: Final = 40.0  # after the last move: rediscovery must fit in it (lease 20 s)
+# the staggered start (docs/testbed.md, "Staggered start"): each drone's stack starts
+# U(0, stagger) after the release. Default: the longest fixed announcement period among the
+# stacks (Cyclone DDS re-sends SPDP every lease - 2 s = 8 s, no jitter), so no two stacks'
+# schedules stay aligned by the start alone
+STAGGER_S: Final = 8.0
+MAX_STAGGER_S: Final = 15.0  # every stack up at least 10 s before the take-off cue (25 s)
 
 
 def rx_dbm(distance_m: float) -> float:
@@ -147,6 +153,18 @@ class Scenario:
         return "".join(
             f"{t:.3f} {i} {x:.3f} {y:.3f} {z:.3f}\n" for t, i, (x, y, z) in self.waypoints
         )
+
+
+def start_offsets(n: int, seed: int, stagger_s: float) -> tuple[float, ...]:
+    """Each drone's start after the release (experiment seconds, ms), U(0, ``stagger_s``),
+    from its own rng seeded by the run's ``seed`` (the scenario's draws stay as they are);
+    ``stagger_s`` 0: every drone at the release (the lockstep start)."""
+    if not 0.0 <= stagger_s <= MAX_STAGGER_S:
+        raise ValueError(f"stagger {stagger_s} s not in [0, {MAX_STAGGER_S:g}] s")
+    if stagger_s == 0.0:
+        return (0.0,) * n
+    rng = random.Random(f"start stagger {seed}")
+    return tuple(round(rng.uniform(0.0, stagger_s), 3) for _ in range(n))
 
 
 def grid(n: int, spacing_m: float, origin: Position = (0.0, 0.0, 10.0)) -> list[Position]:
@@ -337,3 +355,20 @@ def make(name: str, n: int, seed: int = 1) -> Scenario:
     if n < 3:
         raise ValueError("a flight scenario needs at least 3 drones")
     return SCENARIOS[name](n, seed)
+
+
+def of_run(run: Mapping[str, Any]) -> Scenario:
+    """The scenario a run file was measured on, from its name, N and seed: ``make``, except a
+    fade run from before the irregular fade, whose recorded waypoints are the periodic
+    fade's (``period_spread_s=0``): its truth must be the one its drones flew."""
+    scenario = make(run["scenario"], run["n"], run["seed"])
+    recorded = run.get("waypoints")
+    if run["scenario"] != "fade" or recorded is None or _recorded(scenario) == recorded:
+        return scenario
+    periodic = fade(run["n"], run["seed"], period_spread_s=0.0)
+    return periodic if _recorded(periodic) == recorded else scenario
+
+
+def _recorded(scenario: Scenario) -> list[list[Any]]:
+    """The waypoints as a run file holds them (``flight_run.assemble``)."""
+    return [[t, i, *p] for t, i, p in scenario.waypoints]
