@@ -69,3 +69,25 @@ def test_the_run_file_records_the_stagger() -> None:
     }
     # assemble's default (a caller that knows of no stagger): everyone at the release
     assert flight_run.stagger_setup(0.0, (), (), 2)["start_offsets_s"] == [0.0, 0.0]
+
+
+def test_lockstep_counts_changes_near_one_phase_of_the_period() -> None:
+    from bench import flight_lockstep
+
+    run = {
+        "changes": {
+            "0": [[8.1, 1, "discovered"], [15.9, 2, "regained"], [20.0, 1, "lost"]],
+            "1": [[3.0, 0, "discovered"], [24.05, 2, "regained"]],
+        },
+        "heard": [
+            {"t": 1.45, "rx": [{"1": -60.0}, {"0": -60.0, "2": -80.0}, {}]},
+            {"t": 2.45, "rx": [{}, {}, {"1": -81.0}]},
+        ],
+    }
+    ph = flight_lockstep.phases(run, 8.0)
+    assert sorted(round(v, 2) for v in ph) == [0.05, 0.1, 3.0, 7.9]  # "lost" is not counted
+    assert flight_lockstep.near_phase(ph, 8.0, 0.0, 0.25) == 3  # 7.9 is 0.1 before 0
+    assert flight_lockstep.near_phase(ph, 8.0, 3.0, 0.25) == 1
+    assert flight_lockstep.densest_bin(ph) == (0.0, 2)
+    # node 2: heard by node 1 in the first second; itself hears node 1 in the second
+    assert flight_lockstep.fade_hearing(run, 2, 0.0, 10.0, 8.0) == ([1.45], [2.45])
