@@ -140,11 +140,12 @@ class StartBarrier(Closing):
             for i in order:
                 self._hurry.wait(max(0.0, t0 + delays_s[i] - time.monotonic()))
                 conn = by_index[i]
+                # dated before the byte goes: whoever sees the drone started sees the date
+                self.released_at[i] = time.monotonic()
                 try:
                     conn.sendall(b"g")
                 except OSError:
                     pass  # it died meanwhile; the run will show it
-                self.released_at[i] = time.monotonic()
                 conn.close()
 
         self._stagger = threading.Thread(target=send_in_turn, name="stagger", daemon=True)
