@@ -2,12 +2,14 @@
 link cut exactly when the ns-3 scenario has it out of range (issue 20; docs/benchmarks.md,
 "Flight", "The fade's slow re-discovery").
 
-    .venv/bin/python bench/flight_fade.py [--n 10 20] [--seeds 1 .. 10] [--engine-root DIR]
+    .venv/bin/python bench/flight_fade.py [--n 10 20] [--seeds 1 .. 10] [--engine-root DIR] \
+        [--periodic]
 
 The scenario is ``bench/wifi/flight.fade(n, 1)`` (the runs' seed: uav<n> swings 30-110 m
-from the group every 8 s from 30 s to 150 s); the ground truth it defines (a pair is in
-range at -82 dBm or more, a step every 0.5 s) decides every datagram: delivered in range,
-lost out of it. As on the channel:
+from the group from 30 s for 120 s, each swing 6-10 s as the seed draws it; ``--periodic``:
+every 8 s exactly, the fade of the runs and figures before the irregular one); the ground
+truth it defines (a pair is in range at -82 dBm or more, a step every 0.5 s) decides every
+datagram: delivered in range, lost out of it. As on the channel:
 
 - each drone reads its link quality every second, eq. 2 from the mean signal of the drones
   in its range (``flight_cpp``'s windowed link file; none in range: SNR 0, Q = 0), so the
@@ -53,7 +55,14 @@ def _load(name: str, path: Path) -> ModuleType:
 
 
 def run(
-    n: int, seed: int, *, prompt_readiness: bool, loss: float, flight: Any, measures: Any
+    n: int,
+    seed: int,
+    *,
+    prompt_readiness: bool,
+    loss: float,
+    flight: Any,
+    measures: Any,
+    periodic: bool = False,
 ) -> dict[str, Any]:
     from swarmd_lab.testing import build_swarm
 
@@ -61,7 +70,7 @@ def run(
     from swarmd.discovery.events import PeerDiscovered, PeerLost, PeerRestarted
     from swarmd.discovery.peers import PeerState
 
-    scenario = flight.make("fade", n, 1)
+    scenario = flight.fade(n, 1, period_spread_s=0.0) if periodic else flight.make("fade", n, 1)
     step = flight.STEP_S
     truth = scenario.truth(step)
     in_range: list[list[list[bool]]] = [m for _, m in truth]
@@ -231,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
         help="each datagram and readiness report in range lost with this p",
     )
     parser.add_argument("--verbose", action="store_true", help="every loss and its end")
+    parser.add_argument(
+        "--periodic", action="store_true", help="the old fade: every swing exactly 8 s"
+    )
     args = parser.parse_args(argv)
     root = args.engine_root.resolve()
     sys.path[:0] = [str(root), str(root / "lab")]
@@ -247,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
                 loss=args.loss,
                 flight=flight,
                 measures=measures,
+                periodic=args.periodic,
             )
             red, lost = r["rediscovery_s"], r["lost_reports"]
             back = r["back_to_found"]

@@ -28,7 +28,7 @@ SAME_FRAME_S = 0.06
 def report(path: Path) -> str:
     run = json.loads(path.read_text())
     n = run["n"]
-    truth = flight.make(run["scenario"], n, run["seed"]).truth()
+    truth = flight.of_run(run).truth()
     changes = {int(i): sorted((t, p, c) for t, p, c in v) for i, v in run["changes"].items()}
     ups = [(t, i, p) for i, cs in changes.items() for t, p, c in cs if c in fm.UP_KINDS]
     slow: set[tuple[int, int, float]] = set()

@@ -169,3 +169,64 @@ def test_swarmd_with_no_barrier_listening_exits_78_in_one_line(
     assert len(lines) == 1, proc.stderr
     assert f"SWARMD_START_BARRIER={missing}: cannot connect" in lines[0]
     assert not (workdir / "ctl.sock").exists()
+
+
+# a process that waits on the barrier as the peers do, then prints once released; "fork":
+# behind a shell that forks it (the ROS 2 host's sh), so the barrier must walk its parents
+_WAITER = (
+    "import sys; sys.path[:0] = sys.argv[2:]\n"
+    "from bench.wifi.peers.common import wait_start_barrier\n"
+    "from pathlib import Path\n"
+    "wait_start_barrier(Path(sys.argv[1])); print('gone', flush=True)\n"
+)
+
+
+def _waiter(path: Path, *, behind_shell: bool) -> subprocess.Popen[bytes]:
+    argv = [sys.executable, "-c", _WAITER, str(path), *sys.path]
+    if behind_shell:
+        # `sh -c '...; exit $?'`: sh forks the waiter and waits (no exec)
+        argv = ["sh", "-c", '"$@"; exit $?', "sh", *argv]
+    return subprocess.Popen(argv, stdout=subprocess.PIPE)
+
+
+def test_a_staggered_release_holds_each_drone_until_its_own_offset(workdir: Path) -> None:
+    path = workdir / "b.sock"
+    procs = [_waiter(path, behind_shell=i == 1) for i in range(3)]
+    try:
+        with StartBarrier(path) as barrier:
+            barrier.wait_all(procs, timeout_s=JOIN_S)
+            # drone 1 (behind a forking shell) far in the future, the others at once
+            barrier.release_staggered(procs, [0.0, 600.0, 0.0])
+            for i in (0, 2):
+                out = procs[i].stdout
+                assert out is not None
+                assert out.readline() == b"gone\n"
+            assert sorted(barrier.released_at) == [0, 2]
+            assert procs[1].poll() is None, "drone 1 went before its offset"
+        # closing the barrier lets the one still waiting go at once
+        assert procs[1].stdout is not None
+        assert procs[1].stdout.readline() == b"gone\n"
+        assert sorted(barrier.released_at) == [0, 1, 2]
+    finally:
+        for p in procs:
+            p.kill()
+            p.communicate()  # reaps it and closes its stdout pipe
+
+
+def test_a_connection_from_no_contender_is_refused_by_a_staggered_release(
+    workdir: Path,
+) -> None:
+    path = workdir / "b.sock"
+    stand_in = _sleeper()  # counted by wait_all, but the connection is this test's own
+    client = threading.Thread(target=peer_wait, args=(path,), daemon=True)
+    try:
+        with StartBarrier(path) as barrier:
+            client.start()
+            barrier.wait_all([stand_in], timeout_s=JOIN_S)
+            with pytest.raises(BarrierError, match="none of the contender processes"):
+                barrier.release_staggered([stand_in], [1.0])
+        client.join(JOIN_S)  # close() released it all the same
+        assert not client.is_alive()
+    finally:
+        stand_in.kill()
+        stand_in.wait()

@@ -1,11 +1,11 @@
 """Flight scenarios for the ns-3 testbed (issue 20): scripted, seeded, pure.
 
 A scenario is a list of waypoints ``(t, node, x, y, z)`` (seconds from the stacks' start
-release, metres) that ns-3 applies to each node's position (``bench/wifi/flight_cpp.py``),
-plus daemon events (reboots) the harness performs (``bench/wifi/flight_run.py``) and the
-operator's commands it issues through ``swarmctl`` (``CommandCue``,
-``bench/wifi/flight_commands.py``). Moving
-nodes get a waypoint every ``STEP_S``: the channel's log-distance loss, so every frame's
+release, metres; each drone's stack starts ``start_offsets`` after it) that ns-3 applies
+to each node's position (``bench/wifi/flight_cpp.py``), plus daemon events (reboots) the
+harness performs (``bench/wifi/flight_run.py``) and the operator's commands it issues
+through ``swarmctl`` (``CommandCue``, ``bench/wifi/flight_commands.py``). Moving nodes get
+a waypoint every ``STEP_S``: the channel's log-distance loss, so every frame's
 received power, SNR and loss, and the link files swarmd's link source reads, follow them.
 
 *Ground truth* is the same propagation model evaluated on the same waypoints: a pair is
@@ -21,7 +21,10 @@ The five scenarios of issue 20 (N drones, uav1 = node 0 commands; the group is a
 - ``fly-out``: from a 1 m line (on the ground) to a grid at ``EDGE_M`` (neighbours near the
   edge of range, diagonals beyond it) and back;
 - ``fade``: the last drone swings between ``FADE_NEAR_M`` and ``FADE_FAR_M`` from the
-  formation (about 17 dB of RSSI) every ``FADE_PERIOD_S``, for ``FADE_S``;
+  formation (about 17 dB of RSSI) for ``FADE_S``, each swing's period drawn from the seed,
+  ``FADE_PERIOD_S`` +- ``FADE_PERIOD_SPREAD_S`` (a drone at the edge of range does not swing
+  with a clock's period; an exactly periodic fade locks onto a stack's fixed announcement
+  period: docs/testbed.md, "An irregular fade"); ``period_spread_s=0`` is the old periodic one;
 - ``split``: the second half flies ``SPLIT_OFFSET_M`` away for ``SPLIT_HOLD_S``, then back;
 - ``reboot``: nobody moves; drone N/2's daemon is killed and restarted, once with its
   state dir kept and once with it deleted;
@@ -32,9 +35,9 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Any, Final
 
 STEP_S: Final = 0.5  # a moving node's waypoint spacing (0.5 s at 10 m/s: 5 m, < 0.5 dB)
 TX_POWER_DBM: Final = 16.0206  # the testbed channel's defaults (bench/wifi/channel.py)
@@ -47,13 +50,21 @@ FORMATION_M: Final = 5.0
 EDGE_M: Final = 45.0  # grid neighbours at -80.3 dBm: in range; diagonals (64 m) beyond it
 FADE_NEAR_M: Final = 30.0
 FADE_FAR_M: Final = 110.0  # 30*log10(110/30) = 16.9 dB of RSSI swing
-FADE_PERIOD_S: Final = 8.0
+FADE_PERIOD_S: Final = 8.0  # a swing's mean period (out and back)
+FADE_PERIOD_SPREAD_S: Final = 2.0  # each swing's period ~ U(6, 10) s
+FADE_HOLD_VALID_S: Final = 3.0  # the holds to the fading drone: at most half a swing
 FADE_S: Final = 120.0
 SPLIT_OFFSET_M: Final = 150.0
 SPLIT_HOLD_S: Final = 60.0
 MOVE_S: Final = 10.0  # flying out or back
 BLACKOUT_S: Final = 30.0
 TAIL_S: Final = 40.0  # after the last move: rediscovery must fit in it (lease 20 s)
+# the staggered start (docs/testbed.md, "Staggered start"): each drone's stack starts
+# U(0, stagger) after the release. Default: the longest fixed announcement period among the
+# stacks (Cyclone DDS re-sends SPDP every lease - 2 s = 8 s, no jitter), so no two stacks'
+# schedules stay aligned by the start alone
+STAGGER_S: Final = 8.0
+MAX_STAGGER_S: Final = 15.0  # every stack up at least 10 s before the take-off cue (25 s)
 
 
 def rx_dbm(distance_m: float) -> float:
@@ -144,6 +155,18 @@ class Scenario:
         )
 
 
+def start_offsets(n: int, seed: int, stagger_s: float) -> tuple[float, ...]:
+    """Each drone's start after the release (experiment seconds, ms), U(0, ``stagger_s``),
+    from its own rng seeded by the run's ``seed`` (the scenario's draws stay as they are);
+    ``stagger_s`` 0: every drone at the release (the lockstep start)."""
+    if not 0.0 <= stagger_s <= MAX_STAGGER_S:
+        raise ValueError(f"stagger {stagger_s} s not in [0, {MAX_STAGGER_S:g}] s")
+    if stagger_s == 0.0:
+        return (0.0,) * n
+    rng = random.Random(f"start stagger {seed}")
+    return tuple(round(rng.uniform(0.0, stagger_s), 3) for _ in range(n))
+
+
 def grid(n: int, spacing_m: float, origin: Position = (0.0, 0.0, 10.0)) -> list[Position]:
     cols = math.ceil(math.sqrt(n))
     ox, oy, oz = origin
@@ -191,7 +214,13 @@ def fly_out(n: int, seed: int) -> Scenario:
     )  # fmt: skip
 
 
-def fade(n: int, seed: int) -> Scenario:
+def fade(n: int, seed: int, period_spread_s: float = FADE_PERIOD_SPREAD_S) -> Scenario:
+    """uav<n> swings out and back for ``FADE_S``; each swing's period is drawn from the
+    scenario's rng, U(``FADE_PERIOD_S`` - ``period_spread_s``, ... + ``period_spread_s``).
+    ``period_spread_s=0`` gives the exactly periodic fade (every ``FADE_PERIOD_S``) of the
+    runs before the irregular one, waypoint for waypoint (``tests/test_flight_fade.py``)."""
+    if not 0.0 <= period_spread_s < FADE_PERIOD_S:
+        raise ValueError(f"fade: period_spread_s {period_spread_s} not in [0, {FADE_PERIOD_S})")
     rng = random.Random(seed)
     home = _jitter(grid(n - 1, FORMATION_M), rng, 0.3)
     cx = sum(p[0] for p in home) / len(home)
@@ -201,24 +230,35 @@ def fade(n: int, seed: int) -> Scenario:
     wps: list[tuple[float, int, Position]] = [(0.0, i, p) for i, p in enumerate(home)]
     wps.append((0.0, n - 1, near))
     t = SETTLE_S
-    half = FADE_PERIOD_S / 2
+    swings: list[tuple[float, float]] = []  # (start, period)
     while t < SETTLE_S + FADE_S:
+        # drawn after the placement, so the placement is the periodic fade's for a seed
+        period = rng.uniform(FADE_PERIOD_S - period_spread_s, FADE_PERIOD_S + period_spread_s)
+        half = period / 2
         wps += _move(n - 1, near, far, t, t + half)
-        wps += _move(n - 1, far, near, t + half, t + FADE_PERIOD_S)
-        t += FADE_PERIOD_S
+        wps += _move(n - 1, far, near, t + half, t + period)
+        swings.append((t, period))
+        t += period
+    every = (
+        f"{FADE_PERIOD_S - period_spread_s:g}-{FADE_PERIOD_S + period_spread_s:g}"
+        if period_spread_s > 0
+        else f"{FADE_PERIOD_S:g}"
+    )
+    # the holds go to the fading drone at four phases of its fifth swing (near, leaving,
+    # far, coming back), by that swing's own period
+    hold_at, hold_period = swings[4]
     return Scenario(
         "fade", n, seed, t + TAIL_S, tuple(sorted(wps)),
         description=f"uav{n} swings {FADE_NEAR_M:.0f}-{FADE_FAR_M:.0f} m from the group "
-        f"(about {rx_dbm(FADE_NEAR_M) - rx_dbm(FADE_FAR_M):.0f} dB) every {FADE_PERIOD_S:g} s",
+        f"(about {rx_dbm(FADE_NEAR_M) - rx_dbm(FADE_FAR_M):.0f} dB) every {every} s",
         phases=(("fade", SETTLE_S, t),),
         commands=(
             TAKEOFF,
-            # to the fading drone at four phases of its swing (near, leaving, far, coming
-            # back), each valid for less than half a period
             *(
-                CommandCue(SETTLE_S + 4 * FADE_PERIOD_S + phase, "hold", 3.0, (n - 1,),
-                           why=f"hold to the fading drone {phase:g} s into its swing")
-                for phase in (0.0, 2.0, 4.0, 6.0)
+                CommandCue(hold_at + quarter * hold_period, "hold", FADE_HOLD_VALID_S, (n - 1,),
+                           why=f"hold to the fading drone {quarter * hold_period:.3g} s into "
+                           "its swing")
+                for quarter in (0.0, 0.25, 0.5, 0.75)
             ),
             CommandCue(t + 5.0, "land", 10.0, why="land after the fade"),
         ),
@@ -315,3 +355,20 @@ def make(name: str, n: int, seed: int = 1) -> Scenario:
     if n < 3:
         raise ValueError("a flight scenario needs at least 3 drones")
     return SCENARIOS[name](n, seed)
+
+
+def of_run(run: Mapping[str, Any]) -> Scenario:
+    """The scenario a run file was measured on, from its name, N and seed: ``make``, except a
+    fade run from before the irregular fade, whose recorded waypoints are the periodic
+    fade's (``period_spread_s=0``): its truth must be the one its drones flew."""
+    scenario = make(run["scenario"], run["n"], run["seed"])
+    recorded = run.get("waypoints")
+    if run["scenario"] != "fade" or recorded is None or _recorded(scenario) == recorded:
+        return scenario
+    periodic = fade(run["n"], run["seed"], period_spread_s=0.0)
+    return periodic if _recorded(periodic) == recorded else scenario
+
+
+def _recorded(scenario: Scenario) -> list[list[Any]]:
+    """The waypoints as a run file holds them (``flight_run.assemble``)."""
+    return [[t, i, *p] for t, i, p in scenario.waypoints]

@@ -453,7 +453,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     for path in args.runs:
         run = json.loads(path.read_text())
-        truth = flight.make(run["scenario"], run["n"], run["seed"]).truth()
+        truth = flight.of_run(run).truth()
         changes = {int(i): [(t, p_, c) for t, p_, c in v] for i, v in run["changes"].items()}
         down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
         polls = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]

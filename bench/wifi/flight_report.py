@@ -49,7 +49,7 @@ def grid(run: Mapping[str, Any], step_s: float = 0.5) -> tuple[list[str], list[l
     """Row labels and the 0..3 cells of the who-sees-whom panel (module doc)."""
     from bench.wifi import flight  # the scenario rebuilds the truth from its seed
 
-    scenario = flight.make(run["scenario"], run["n"], run["seed"])
+    scenario = flight.of_run(run)
     truth = scenario.truth(step_s)
     down = {int(i): [tuple(x) for x in v] for i, v in run.get("down", {}).items()}
     n = run["n"]
@@ -291,7 +291,7 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
     """The measures of a run file from its records alone (the scenario from its seed)."""
     from bench.wifi import flight
 
-    scenario = flight.make(run["scenario"], run["n"], run["seed"])
+    scenario = flight.of_run(run)
     changes = {int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()}
     down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
     readiness = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]

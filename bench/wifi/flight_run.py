@@ -2,7 +2,7 @@
 repeat and contender, measured against the scenario's ground truth.
 
     sudo .venv/bin/python -m bench.wifi.flight_run --scenarios split --n 10 --repeat 1 \\
-        --contenders swarmd [--dilation 2] [--out bench/results/flight]
+        --contenders swarmd [--dilation 2] [--stagger-s 8] [--out bench/results/flight]
 
 Each run is a fresh testbed as in ``bench/wifi/run.py`` (namespaces, taps, the stacks
 behind the start barrier, the same validity rule: lag p99 above ``--max-lag-ms`` marks
@@ -10,7 +10,10 @@ the run invalid), with the channel process ``bench.wifi.flight_channel``: the sc
 waypoints move the nodes from the release on and the link files are windowed. While it
 runs the harness polls every daemon's ``status`` (round robin) for its ``peer_changes``,
 each dated by the daemon's own ``ago_s``, and the commander's readiness table; it kills and
-restarts daemons at the scenario's reboot events. Written: ``OUT/runs/flight-<scenario>-
+restarts daemons at the scenario's reboot events. The barrier releases each drone's stack
+at its own offset after the release, U(0, ``--stagger-s``) (``flight.start_offsets``,
+docs/testbed.md, "Staggered start"; 0: all at once); the offsets go into the run file's
+``setup``. Written: ``OUT/runs/flight-<scenario>-
 <contender>-n<N>-r<k>.json`` (records, ground truth, measures: ``bench/wifi/flight_measures.py``)
 and a timeline figure per run (``bench/wifi/flight_report.py``).
 
@@ -52,7 +55,7 @@ from bench.wifi import (
     flight_report,
     metrics,
 )
-from bench.wifi.barrier import RUN_NICE, StartBarrier, set_priority
+from bench.wifi.barrier import RUN_NICE, Process, StartBarrier, set_priority
 from bench.wifi.dilation import Dilation, scale_kernel_timers
 from bench.wifi.ns3_loader import unavailable_reason
 from bench.wifi.run import (
@@ -237,6 +240,18 @@ def _restart(c: contenders_mod.Contender, node: int, state: str, env: Mapping[st
     )
 
 
+def release(
+    barrier: StartBarrier, procs: Sequence[Process], offsets_s: Sequence[float], k: float
+) -> None:
+    """Let the stacks go: all at once when every offset is 0 (the lockstep start), else
+    each at its offset on the experiment clock, which runs ``k`` times slower than the
+    harness's real one (bench/wifi/dilation.py)."""
+    if any(offsets_s):
+        barrier.release_staggered(procs, [o * k for o in offsets_s])
+    else:
+        barrier.release()
+
+
 def run_flight(
     contender: str,
     scenario: flight.Scenario,
@@ -247,13 +262,16 @@ def run_flight(
     rt_priority: int,
     keep: Path | None,
     commands: bool = True,
+    stagger_s: float = flight.STAGGER_S,
 ) -> dict[str, Any]:
     """One flight run; the run file's dict (``commands``: the scenario's operator commands,
-    with a vehicle simulator per drone, swarmd variants only: ``bench/wifi/flight_commands.py``)."""
+    with a vehicle simulator per drone, swarmd variants only: ``bench/wifi/flight_commands.py``;
+    ``stagger_s``: each drone's stack starts U(0, ``stagger_s``) after the release)."""
     if contender not in FLIGHT_CONTENDERS:
         raise ValueError(f"{contender}: no flight observer for this stack; use one of "
                          f"{', '.join(FLIGHT_CONTENDERS)}")  # fmt: skip
     n = scenario.n
+    offsets = flight.start_offsets(n, scenario.seed, stagger_s)
     prefix = f"{BASE}-{os.getpid()}-f{next(_runs)}"
     dil = Dilation.start(dilation)
     with tempfile.TemporaryDirectory(prefix="swbf-") as tmp, Testbed(prefix, n) as tb:
@@ -288,16 +306,19 @@ def run_flight(
             cmds = flight_commands.prepare(c, scenario, work, env, dil.real_s) if commands else None
             down: dict[int, list[list[float]]] = {}
             restarts: list[tuple[float, int]] = []
+            # open for the whole run: a staggered release sends its last byte up to
+            # stagger_s after the release (close() lets whoever still waits go at once)
+            barrier = StartBarrier(work / "barrier.sock")
             try:
-                with StartBarrier(work / "barrier.sock") as barrier:
-                    c.start(barrier.path)
-                    barrier.wait_all(c.procs, BARRIER_TIMEOUT_S)
-                    time.sleep(max(0.0, settled - time.monotonic()))
-                    for p in c.procs:
-                        set_priority(p.pid, RUN_NICE)
-                    go.touch()
-                    launch = dil.exp(time.time())
-                    barrier.release()
+                c.start(barrier.path)
+                barrier.wait_all(c.procs, BARRIER_TIMEOUT_S)
+                time.sleep(max(0.0, settled - time.monotonic()))
+                for p in c.procs:
+                    set_priority(p.pid, RUN_NICE)
+                go.touch()
+                launch = dil.exp(time.time())
+                released_mono = time.monotonic()
+                release(barrier, c.procs, offsets, dil.k)
                 pending = sorted(scenario.events, key=lambda e: e.t)
                 end = launch + scenario.duration_s
                 while (now := dil.exp(time.time())) < end:
@@ -338,9 +359,17 @@ def run_flight(
                 stop.touch()
                 proc.wait(timeout=60)
             finally:
+                barrier.close()
                 for drone in tb.drones:
                     drone.stop_children()
                 c.close()
+        # each stack's start as released, on the experiment clock from the release
+        started = [
+            round((barrier.released_at[i] - released_mono) / dil.k, 3)
+            if i in barrier.released_at
+            else 0.0
+            for i in range(n)
+        ]
         if isinstance(obs, PeerLogObserver):
             obs.collect(work)
         stats = json.loads((chan / "stats.json").read_text())
@@ -356,6 +385,7 @@ def run_flight(
     record = assemble(
         contender, scenario, run, stats, go_info, launch, obs, down, restarts, heard,
         max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
+        stagger=(stagger_s, offsets, started),
     )  # fmt: skip
     if issued is not None:
         flight_commands.attach(record, issued[0], scenario, issued[1])
@@ -378,7 +408,13 @@ def assemble(
     scheduling: str,
     dilation: float,
     tx_counters: Mapping[str, int],
+    stagger: tuple[float, Sequence[float], Sequence[float]] = (0.0, (), ()),
 ) -> dict[str, Any]:
+    """The run file's dict. ``stagger``: ``--stagger-s``, each drone's planned start after
+    the release and its start as released (experiment seconds; empty: all at the release).
+    Every measure starts at a scenario phase or command cue after ``flight.MAX_STAGGER_S``,
+    so none counts a stack that had not started yet as lost or late."""
+    stagger_s, offsets, started = stagger
     window = int(scenario.duration_s)
     # the channel's records by simulation second from go; the stacks' by the clock at go
     go_sim = float(go_info["go_sim_s"])
@@ -441,8 +477,22 @@ def assemble(
             "dilation": dilation,
             "max_lag_ms": max_lag_ms,
             "range_m": round(flight.range_m(), 1),
+            **stagger_setup(stagger_s, offsets, started, scenario.n),
             "commit": source_commit(),
         },
+    }
+
+
+def stagger_setup(
+    stagger_s: float, offsets: Sequence[float], started: Sequence[float], n: int
+) -> dict[str, Any]:
+    """The run file's ``setup`` fields of the start: ``stagger_s`` (``--stagger-s``),
+    ``start_offsets_s`` (each drone's planned start after the release) and ``started_s``
+    (when the barrier let it go), experiment seconds; none given: all at the release."""
+    return {
+        "stagger_s": stagger_s,
+        "start_offsets_s": [float(o) for o in offsets] or [0.0] * n,
+        "started_s": [float(o) for o in started] or [0.0] * n,
     }
 
 
@@ -478,6 +528,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="time dilation factor: one K for every N, or per N (5:2,10:3); unlisted N: 1",
     )
     p.add_argument("--max-lag-ms", type=float, default=20.0)
+    p.add_argument(
+        "--stagger-s", type=float, default=flight.STAGGER_S,
+        help="each drone's stack starts U(0, S) s after the release (0: all at once, the "
+        f"lockstep start; at most {flight.MAX_STAGGER_S:g})",
+    )  # fmt: skip
     p.add_argument("--ns3-rt-priority", type=int, default=10)
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--keep-logs", action="store_true")
@@ -506,6 +561,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     per_n = dict(dil_spec) if isinstance(dil_spec, tuple) else dict.fromkeys(sizes, dil_spec)
     if any(not k >= 1.0 for k in per_n.values()):
         p.error("--dilation: factors must be >= 1")
+    if not 0.0 <= args.stagger_s <= flight.MAX_STAGGER_S:
+        p.error(f"--stagger-s: {args.stagger_s} not in [0, {flight.MAX_STAGGER_S:g}]")
     reason = unavailable_reason()
     if reason is not None:
         print(f"flight bench: {reason}", file=sys.stderr)
@@ -524,7 +581,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     c, scenario, k, dilation=per_n.get(n, 1.0), max_lag_ms=args.max_lag_ms,
                     rt_priority=args.ns3_rt_priority,
                     keep=args.out / "logs" if args.keep_logs else None,
-                    commands=not args.no_commands,
+                    commands=not args.no_commands, stagger_s=args.stagger_s,
                 )  # fmt: skip
             except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
                 print(f"\nflight bench: {s} {c} n={n} run {k} failed: {exc}", file=sys.stderr)
