@@ -8,12 +8,13 @@ and running them one at a time until a deadline.
 
 A cell is (repeat, N, scenario, contender); its run file is the name ``flight_run`` writes
 (``flight-<scenario>-<contender>-n<N>[-k<K>]-r<repeat>.json``) in the contender's directory:
-swarmd's in ``--swarmd-out`` (the engine as shipped: ``bench/results/flight-seek``), every
-other contender's in ``--stock-out``. A cell whose file exists is done, whatever its
-validity (the matrix counts invalid runs as such; a rerun is a new repeat). Cells are taken
-repeat by repeat (every cell's first run before any second one), then by N, scenario and
-contender in the order given, so a campaign cut short leaves whole columns, not scattered
-cells.
+swarmd's in ``--swarmd-out``, every other contender's in ``--stock-out``; both are
+``bench/results/flight-stagger`` by default, the runs under the staggered start that the
+matrix in docs/benchmarks.md reads (the lockstep runs before it: docs/flight-lockstep.md).
+A cell whose file exists is done, whatever its validity (the matrix counts invalid runs as
+such; a rerun is a new repeat). Cells are taken repeat by repeat (every cell's first run
+before any second one), then by N, scenario and contender in the order given, so a campaign
+cut short leaves whole columns, not scattered cells.
 
 Each run is ``python -m bench.wifi.flight_run`` for one cell, one at a time (the testbed's
 runs never overlap: they share the two cores), bounded by ``timeout``. The estimate of a
@@ -59,8 +60,8 @@ SIZES: Final = (10, 20)
 DILATED_K: Final = "10:3,20:6"  # every contender but swarmd (module doc)
 OVERHEAD_S: Final = 60.0  # namespaces, start-up, the barrier, assembling the run file
 SLACK_S: Final = 600.0  # timeout past a run's estimate before it is stopped
-SWARMD_OUT: Final = REPO / "bench" / "results" / "flight-seek"
-STOCK_OUT: Final = REPO / "bench" / "results" / "flight-stock"
+SWARMD_OUT: Final = REPO / "bench" / "results" / "flight-stagger"
+STOCK_OUT: Final = SWARMD_OUT
 
 
 @dataclass(frozen=True)
