@@ -50,6 +50,11 @@ from swarmd.discovery.seek import Seek
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpDisposed, Vouch
 
+# prompt answers to a peer that lost us while we kept it: spaced LOST_US_GAP_S x 2^k, at
+# most LOST_US_GAP_MAX_S apart (the receive path's lost_us rule)
+LOST_US_GAP_S: Final = 0.5
+LOST_US_GAP_MAX_S: Final = 8.0
+
 # Enum members bound once: in CPython 3.11 ``Phase.ANNOUNCE`` is a ~50 ns class-attribute
 # lookup, and the receive path asks several of them per datagram.
 _ANNOUNCE: Final = Phase.ANNOUNCE
@@ -294,7 +299,20 @@ class ReceivePath:
         if listed != lists_me:
             stopped_listing = lists_me
             lists_me = peer.lists_me = not lists_me
+            peer.lost_us = stopped_listing
+            if lists_me:
+                peer.lost_us_answers, peer.lost_us_answered_at = 0, None
+            peer.lost_us_hears = 0
             self._leases.listed_by += 1 if lists_me else -1
+        if peer.lost_us and heard is not None:
+            # it hears more peers than in its last frame: its receiver works again (a
+            # drone back in range finds the others first), so our next answer may cross:
+            # the spacing of the lost_us rule starts over (only while it has lost us: the
+            # count costs nothing on the usual path)
+            hears = int.from_bytes(heard).bit_count()
+            if hears > peer.lost_us_hears:
+                peer.lost_us_answers, peer.lost_us_answered_at = 0, None
+            peer.lost_us_hears = hears
         peer.link_quality_permille = alive.link_quality_permille
         ros2_alive = alive.ros2_alive
         if ros2_alive is not None and ros2_alive != peer.ros2_alive:
@@ -410,6 +428,33 @@ class ReceivePath:
             peer.reack.mark(now)
             told = peer.told = False
             rejoin = True
+        elif (
+            not lists_me
+            and peer.lost_us
+            and not restarted
+            and peer.reack.permits(now)
+            and (
+                peer.lost_us_answered_at is None
+                or now - peer.lost_us_answered_at
+                >= min(LOST_US_GAP_S * 2.0**peer.lost_us_answers, LOST_US_GAP_MAX_S)
+            )
+        ):
+            # it listed us, then lost us, and still seeks us (its frames omit us) although
+            # we kept it: a peer that could not hear us while we heard it (a drone at the
+            # edge of range), or one whose first answer from us was lost too. Answer
+            # within the rejoin delay, as a fresh debt (the retries we spent while it could
+            # not hear us may be exhausted, and the Q-stretched backoff or our next renewal
+            # outlasts its in-range window: in the irregular fade at N = 20 such a pair
+            # waited 32 s). One answer, not a new series of retries: its next seek heard is
+            # our next cue. Spaced 0.5, 1, 2, 4, 8, 8 ... s, and the spacing starts over
+            # when its frames list more peers (it hears again, above): a drone that hears
+            # nobody (a deaf receiver) costs each peer one frame per 8 s, not one per seek.
+            peer.reack.mark(now)
+            peer.lost_us_answers += 1
+            peer.lost_us_answered_at = now
+            told = peer.told = False
+            rejoin = True
+            peer.retry.attempts = peer.retry.max_attempts - 1  # this answer only
         elif (
             not lists_me
             and told
