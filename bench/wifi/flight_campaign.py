@@ -50,6 +50,7 @@ from bench.wifi.flight_run import (
     run_file_name,
 )
 from bench.wifi.run import parse_dilation
+from swarmd.cli.pipes import reader_may_close_stdout
 
 SWARMD: Final = "swarmd"
 # the matrix's contenders, in its column order (bench/wifi/flight_matrix.py)
@@ -241,4 +242,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    with reader_may_close_stdout():
+        code = main()
+    raise SystemExit(code)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.wifi import flight_commands, flight_matrix, flight_measures
+from swarmd.cli.pipes import reader_may_close_stdout
 
 NOISE_DBM = -94.0
 CONTENDER_ORDER = (
@@ -312,4 +313,6 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    with reader_may_close_stdout():
+        code = main()
+    sys.exit(code)

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from swarmd import __version__
 from swarmd.cli import bundle_cmd, px4_cmd, ros2_cmd, status_cmd, takeoff_cmd
+from swarmd.cli.pipes import reader_may_close_stdout
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,12 +32,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    func = getattr(args, "func", None)
-    if func is None:
-        parser.print_help(sys.stderr)
-        return 2
-    code: int = func(args)
+    with reader_may_close_stdout():
+        args = parser.parse_args(argv)
+        func = getattr(args, "func", None)
+        if func is None:
+            parser.print_help(sys.stderr)
+            return 2
+        code: int = func(args)
     return code
 
 
