@@ -122,8 +122,8 @@ def state(plane: DataPlane) -> dict[str, Any]:
         "readers": readers,
         "writers": writers,
         "readiness": copy.deepcopy(plane._readiness),
-        "executed": list(plane._executed),
-        "outcomes": list(plane._outcomes),
+        "executed": plane._ledger.executed,
+        "outcomes": list(plane._ledger._outcomes),
         "windows": windows,
     }
 

@@ -13,8 +13,8 @@ from swarmd.dataplane.events import (
     PacketDropped,
     ReadinessReceived,
 )
+from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS
 from swarmd.dataplane.plane import (
-    MAX_EXECUTED_COMMANDS,
     TOPIC_COMMAND,
     TOPIC_OUTCOME,
     TOPIC_READY,

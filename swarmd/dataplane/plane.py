@@ -32,10 +32,10 @@ naming only that member and carrying only its time echo, so a command's size doe
 with the swarm (``send_command``; docs/dataplane.md, "One copy per member").
 
 Exactly-once commands: the reliable reader delivers each SN of a writer life at most once;
-above it, a bounded set of executed ``(commander, command_id)`` pairs turns re-deliveries
-(a commander resending the same id, a proxy reset after ``peer_down``/``peer_up``) into
-no-ops. Command ids carry the commander's incarnation in their high 32 bits, so a restarted
-commander never reuses one (docs/dataplane.md, "Exactly once").
+above it, a bounded set of executed ``(commander, command_id)`` pairs (``ledger.py``) turns
+re-deliveries (a commander resending the same id, a proxy reset after ``peer_down``/
+``peer_up``) into no-ops. Command ids carry the commander's incarnation in their high 32
+bits, so a restarted commander never reuses one (docs/dataplane.md, "Exactly once").
 
 Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input becomes a
 ``PacketDropped`` event and a counter. Any other exception escaping it is a bug.
@@ -43,7 +43,7 @@ Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input beco
 
 from __future__ import annotations
 
-from collections import Counter, OrderedDict, deque
+from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Final, Protocol
@@ -60,6 +60,7 @@ from swarmd.dataplane.events import (
     PacketDropped,
     ReadinessReceived,
 )
+from swarmd.dataplane.ledger import CommandLedger, command_copies
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
 from swarmd.dataplane.seal import (
@@ -128,12 +129,6 @@ TOPIC_TYPES: Final = {
 
 # Stay under a Wi-Fi MTU (1500 - IPv4 20 - UDP 8) with margin: never IP-fragment user data.
 MAX_DATAGRAM_BYTES: Final = 1400
-# Executed (commander, command id) pairs remembered for dedup. A reliable writer keeps at most
-# MAX_HISTORY_DEPTH samples, so an id older than this many commands can no longer be resent by
-# an honest commander; the cap stops a flood of fresh ids from growing memory without bound.
-MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
-# (node, command id, result) outcomes already reported up, same reasoning on the commander.
-MAX_SEEN_OUTCOMES: Final = 4096
 # Highest SN accepted from the wire. A reader's ACKNACK base is one above the last SN it
 # delivered and must still fit SequenceNumber_t (int32 high word, spec 9.3.2); a writer's
 # incarnation scheme stays far below (writer.MAX_INCARNATION << 32).
@@ -230,15 +225,10 @@ class DataPlane:
         self._early = EarlyDatagrams()
         self._events: deque[DataPlaneEvent] = deque()
         self.counters: Counter[str] = Counter()
-        self._executed: OrderedDict[tuple[str, int], None] = OrderedDict()
-        for key in executed_command_ids:
-            self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
-        self._outcomes: OrderedDict[tuple[str, int, int], None] = OrderedDict()
+        # executed ids (member), outcomes seen and command SNs (commander): ledger.py
+        self._ledger = CommandLedger(self.counters, executed_command_ids)
         self._readiness: dict[str, ReadinessStats] = {}
         self._next_command = 0
-        # The commander's command SNs still in its writer's history -> command id, so a
-        # member's copies that will not be handed over can be named (CommandCopyVoided).
-        self._command_ids: OrderedDict[int, int] = OrderedDict()
 
     # --- discovery inputs -------------------------------------------------------------------
 
@@ -317,7 +307,7 @@ class DataPlane:
         if writer is not self._writer_by_topic.get(TOPIC_COMMAND):
             return  # an outcome or another topic: the new life simply starts afresh
         for sn in sns:
-            command_id = self._command_ids.get(sn)
+            command_id = self._ledger.command_at(sn)
             if command_id is not None:
                 self.counters["command_copies_voided"] += 1
                 self._events.append(CommandCopyVoided(name, command_id))
@@ -396,7 +386,7 @@ class DataPlane:
         writer = self._writer_by_topic.get(TOPIC_COMMAND)
         if not isinstance(writer, ReliableWriter):
             return False
-        self._command_ids.pop(sn, None)
+        self._ledger.command_withdrawn(sn)
         return writer.withdraw(sn)
 
     def send_command(self, command: Command, now: float) -> int:
@@ -417,35 +407,13 @@ class DataPlane:
             raise ValueError(f"{self.local.name!r} has no writer on {TOPIC_COMMAND!r}")
         sn, out = writer.write(self._command_copies(command), now)
         self._queue(out)
-        self._command_ids[sn] = command.command_id
-        while len(self._command_ids) > MAX_HISTORY_DEPTH:  # older ones left the history
-            self._command_ids.popitem(last=False)
+        self._ledger.command_written(sn, command.command_id)
         return sn
 
     def _command_copies(self, command: Command) -> dict[GuidPrefix, bytes]:
-        """One encoded copy of ``command`` per target, keyed by the target's GUID prefix.
-
-        Encoded here, at issue, so a bad field raises ``PayloadError`` to the caller now
-        and never later inside a repair (``receive_datagram`` never raises)."""
+        """One encoded copy of ``command`` per target (``ledger.command_copies``)."""
         names = list(command.targets) or self._command_readers()
-        echoes = {echo.node: echo for echo in command.echoes}
-        copies: dict[GuidPrefix, bytes] = {}
-        for name in names:
-            target = self._participants.get(name)
-            if target is None or target.name == self.local.name:
-                self.counters["command_target_unknown"] += 1
-                continue
-            echo = echoes.get(name)
-            copy = Command(
-                command.command_id,
-                command.kind,
-                command.altitude_m,
-                [name],
-                command.valid_ms,
-                [] if echo is None else [echo],
-            )
-            copies[target.guid_prefix] = encode_sample(copy)
-        return copies
+        return command_copies(command, names, self._participants, self.local.name, self.counters)
 
     def _command_readers(self) -> list[str]:
         """Every bundle participant with a reader matching our command writer."""
@@ -469,7 +437,7 @@ class DataPlane:
     @property
     def executed_command_ids(self) -> list[tuple[str, int]]:
         """The dedup set, oldest first; persist it to keep exactly-once across restarts."""
-        return list(self._executed)
+        return self._ledger.executed
 
     # --- network and timer inputs -----------------------------------------------------------
 
@@ -603,7 +571,7 @@ class DataPlane:
             "readers": {t.name: _fields_of(r.counters) for t, r in self._readers.values()},
             # no per-member readiness here: the commander's table (status "readiness") is
             # the one place `swarmctl status --json` shows the count (ReadinessReceived.count)
-            "executed_commands": len(self._executed),
+            "executed_commands": len(self._ledger.executed),
             "early_holding": len(self._early),  # held now (counters: early_held, _taken)
             "counters": dict(sorted(self.counters.items())),
         }
@@ -739,11 +707,9 @@ class DataPlane:
         if command.targets and self.local.name not in command.targets:
             self.counters["command_not_targeted"] += 1
             return
-        key = (commander, command.command_id)
-        if key in self._executed:
+        if not self._ledger.first_run(commander, command.command_id):
             self.counters["command_duplicate"] += 1
             return
-        self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
         self.counters["commands_received"] += 1
         self._events.append(CommandReceived(commander, command))
 
@@ -751,18 +717,10 @@ class DataPlane:
         if outcome.node != peer_name:
             self._drop("node_mismatch", source, f"{peer_name} sent outcome of {outcome.node}")
             return
-        key = (peer_name, outcome.command_id, int(outcome.result.value))
-        if key in self._outcomes:
+        if not self._ledger.new_outcome(peer_name, outcome.command_id, int(outcome.result.value)):
             self.counters["outcome_duplicate"] += 1
             return
-        self._remember(self._outcomes, key, MAX_SEEN_OUTCOMES)
         self._events.append(OutcomeReceived(peer_name, outcome))
-
-    def _remember(self, table: OrderedDict[Any, None], key: Any, cap: int) -> None:
-        table[key] = None
-        while len(table) > cap:
-            table.popitem(last=False)
-            self.counters["dedup_evicted"] += 1
 
 
 def _make_writer(guid: Guid, topic: Topic, incarnation: int) -> Writer:

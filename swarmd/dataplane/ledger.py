@@ -1,0 +1,128 @@
+"""The data plane's command bookkeeping: which commands ran here, which outcomes arrived,
+which writer SN carries which command, and the per-member copies of a command.
+
+Sans-IO and clock-free: plain bounded tables the plane (``plane.py``) consults after a
+sample passed authentication and decoding. Split out of ``plane.py`` by concern (the
+plane keeps the wire: matching, authentication, readers and writers).
+
+- Member side, exactly once (docs/dataplane.md, "Exactly once"): the executed
+  ``(commander, command id)`` pairs. The reliable reader delivers each SN of a writer life
+  at most once; this set turns re-deliveries of an id (a commander resending it, a proxy
+  reset after ``peer_down``/``peer_up``, a restart with the state file kept) into no-ops.
+- Commander side: the ``(node, command id, result)`` outcomes already reported up, and the
+  command SNs still in the writer's history (so a member's copies that will not be handed
+  over can be named by command id, ``CommandCopyVoided``).
+"""
+
+from __future__ import annotations
+
+from collections import Counter, OrderedDict
+from collections.abc import Iterable, Mapping
+from typing import Any, Final
+
+from swarmd.bundle.model import Participant
+from swarmd.dataplane.types import Command, encode_sample
+from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
+from swarmd.rtps.types import GuidPrefix
+
+# Executed (commander, command id) pairs remembered for dedup. A reliable writer keeps at most
+# MAX_HISTORY_DEPTH samples, so an id older than this many commands can no longer be resent by
+# an honest commander; the cap stops a flood of fresh ids from growing memory without bound.
+MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
+# (node, command id, result) outcomes already reported up, same reasoning on the commander.
+MAX_SEEN_OUTCOMES: Final = 4096
+
+
+class CommandLedger:
+    """The bounded command tables of one node's data plane (see the module docstring).
+
+    ``counters`` is the plane's: evictions are counted there (``dedup_evicted``)."""
+
+    def __init__(self, counters: Counter[str], executed: Iterable[tuple[str, int]] = ()) -> None:
+        self._counters = counters
+        self._executed: OrderedDict[tuple[str, int], None] = OrderedDict()
+        for key in executed:
+            self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
+        self._outcomes: OrderedDict[tuple[str, int, int], None] = OrderedDict()
+        # The commander's command SNs still in its writer's history -> command id.
+        self._command_ids: OrderedDict[int, int] = OrderedDict()
+
+    # --- member side ------------------------------------------------------------------------
+
+    def first_run(self, commander: str, command_id: int) -> bool:
+        """True the first time ``commander``'s ``command_id`` is seen here (it is then
+        remembered as executed); False for every later copy."""
+        key = (commander, command_id)
+        if key in self._executed:
+            return False
+        self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
+        return True
+
+    @property
+    def executed(self) -> list[tuple[str, int]]:
+        """The executed pairs, oldest first."""
+        return list(self._executed)
+
+    # --- commander side ---------------------------------------------------------------------
+
+    def new_outcome(self, node: str, command_id: int, result: int) -> bool:
+        """True the first time ``node`` reports ``result`` for ``command_id``."""
+        key = (node, command_id, result)
+        if key in self._outcomes:
+            return False
+        self._remember(self._outcomes, key, MAX_SEEN_OUTCOMES)
+        return True
+
+    def command_written(self, sn: int, command_id: int) -> None:
+        self._command_ids[sn] = command_id
+        while len(self._command_ids) > MAX_HISTORY_DEPTH:  # older ones left the history
+            self._command_ids.popitem(last=False)
+
+    def command_at(self, sn: int) -> int | None:
+        """The command id written as ``sn``, while the writer may still hold it."""
+        return self._command_ids.get(sn)
+
+    def command_withdrawn(self, sn: int) -> None:
+        self._command_ids.pop(sn, None)
+
+    # --- internals --------------------------------------------------------------------------
+
+    def _remember(self, table: OrderedDict[Any, None], key: Any, cap: int) -> None:
+        table[key] = None
+        while len(table) > cap:
+            table.popitem(last=False)
+            self._counters["dedup_evicted"] += 1
+
+
+def command_copies(
+    command: Command,
+    names: Iterable[str],
+    participants: Mapping[str, Participant],
+    local_name: str,
+    counters: Counter[str],
+) -> dict[GuidPrefix, bytes]:
+    """One encoded copy of ``command`` per target in ``names``, keyed by the target's GUID
+    prefix, each naming only that member and carrying only its own time echo
+    (docs/dataplane.md, "One copy per member"). Names that are not participants, or this
+    node, are skipped (counted ``command_target_unknown``).
+
+    Encoded here, at issue, so a bad field raises ``PayloadError`` to the caller now
+    and never later inside a repair (``receive_datagram`` never raises)."""
+    echoes = {echo.node: echo for echo in command.echoes}
+    copies: dict[GuidPrefix, bytes] = {}
+    for name in names:
+        target = participants.get(name)
+        if target is None or target.name == local_name:
+            counters["command_target_unknown"] += 1
+            continue
+        echo = echoes.get(name)
+        copy = Command(
+            command.command_id,
+            command.kind,
+            command.altitude_m,
+            [name],
+            command.valid_ms,
+            [] if echo is None else [echo],
+        )
+        copies[target.guid_prefix] = encode_sample(copy)
+    return copies
