@@ -30,6 +30,7 @@ from swarmd.config import DaemonConfig
 from swarmd.control import RequestInvalid
 from swarmd.dataplane import DataPlane, PairKeys
 from swarmd.dataplane.convert import ReadinessVerdict
+from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
 from swarmd.px4.bridge import Px4Bridge, Px4Config
@@ -55,6 +56,7 @@ from swarmd.swarm.core import (
     MemberReadinessChanged,
     OutcomeRecorded,
     OutcomeReported,
+    OutcomesReReported,
     PeerTrafficVerified,
     PersistExecuted,
     SwarmCore,
@@ -292,6 +294,7 @@ class SwarmApp:
                 epoch=self.epoch,
                 incarnation=self.state.boot,
                 executed_command_ids=self.state.executed,
+                executed_outcomes=self.state.outcomes,
             )
         except ValueError as exc:
             raise StartupError(f"bundle rejected by the data plane: {exc}", EX_CONFIG) from None
@@ -379,8 +382,8 @@ class SwarmApp:
 
     def _on_event(self, event: SwarmEvent) -> None:
         match event:
-            case PersistExecuted(executed=executed):
-                self._persist(executed)
+            case PersistExecuted(executed=executed, outcomes=outcomes):
+                self._persist(executed, outcomes)
             case VehicleRequest():
                 if self.bridge is not None:
                     self.bridge.submit(event)
@@ -428,6 +431,12 @@ class SwarmApp:
                     result=event.result.name,
                     reason=event.reason,
                 )
+            case OutcomesReReported():
+                self.log.info(
+                    "command_outcomes_rereported",
+                    commander=event.commander,
+                    command_ids=list(event.command_ids),
+                )
             case OutcomeRecorded():
                 self.log.info(
                     "command_outcome_received",
@@ -445,10 +454,13 @@ class SwarmApp:
             case _:
                 assert_never(event)
 
-    def _persist(self, executed: tuple[tuple[str, int], ...]) -> None:
+    def _persist(
+        self, executed: tuple[tuple[str, int], ...], outcomes: tuple[KeptOutcome, ...]
+    ) -> None:
         if self.state is None:
             return
         self.state.executed = list(executed)
+        self.state.outcomes = list(outcomes)
         try:
             self.state.save()
         except StateDirError as exc:

@@ -30,7 +30,7 @@ import pytest
 from swarmd.dataplane.types import Command, CommandKind
 from swarmd.discovery import EngineConfig
 from swarmd.px4.vehicle import TaskKind, VehicleRequest
-from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE
+from swarmd.swarm.commander import NOT_REACHED, RESTARTED_RUNNING, UNREACHABLE
 from swarmd.swarm.core import (
     DEFAULT_VALID_FOR_S,
     PersistExecuted,
@@ -173,15 +173,22 @@ def _reboot(flight: Flight, name: str, *, state_kept: bool) -> SwarmCore:
     and comes back in the next boot epoch and incarnation; discovery on both sides
     reports the restart (its new SPDP)."""
     swarm = flight.swarm
-    saved: tuple[tuple[str, int], ...] = ()
+    kept = PersistExecuted(())
     if state_kept:
         persisted = [e for e in swarm.events[name] if isinstance(e, PersistExecuted)]
-        saved = persisted[-1].executed if persisted else ()
+        kept = persisted[-1] if persisted else kept
     bundle = swarm.bundle
     vehicle = swarm.vehicles[name]
     core = SwarmCore(
         Roles.of(bundle, bundle.participant(name)),
-        make_plane(bundle, name, epoch=2, incarnation=1, executed_command_ids=list(saved)),
+        make_plane(
+            bundle,
+            name,
+            epoch=2,
+            incarnation=1,
+            executed_command_ids=list(kept.executed),
+            executed_outcomes=list(kept.outcomes),
+        ),
         verdict=vehicle.verdict_at,
         link_q=lambda: 0.8,
         settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
@@ -237,11 +244,16 @@ def test_a_member_rebooting_mid_command_never_runs_it_twice(answer_lost: bool) -
     for name in ("m02", "m03"):
         assert len(flight.ran(name, cid)) == 1
     row = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)["nodes"]["m01"]
-    # what the commander says about m01 (docs/dataplane.md, "Command authority in flight"):
-    # with its answer delivered, "accepted" (the restarted daemon lost the task, so no
-    # COMPLETED); with its answer lost, "unreachable": it will not run there again, though
-    # it did run once. The vehicle's own readiness (landed state) tells the operator which.
-    assert row["state"] == (UNREACHABLE if answer_lost else "accepted"), row
+    # what the commander says about m01 (docs/dataplane.md, "Outcomes across a restart"):
+    # "accepted" whether its answer was delivered or lost, told again by its new life from
+    # the outcome it persisted, which also says the restart cut the task short (no
+    # COMPLETED will come); the vehicle's readiness (landed state) says how far it got.
+    # Before outcomes were persisted, a lost answer left "unreachable" here.
+    assert (row["state"], row["reason"], row["after_restart"]) == (
+        "accepted",
+        RESTARTED_RUNNING,
+        True,
+    ), row
 
 
 def test_a_rebooted_member_without_its_state_dir_would_run_a_resent_id_again() -> None:

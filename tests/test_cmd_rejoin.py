@@ -193,14 +193,21 @@ def _restart_while_lost(flight: Flight, name: str, *, state_kept: bool) -> Swarm
     incarnation, the executed ids of its last ``PersistExecuted`` if its state dir is
     kept. Discovery is left to the caller (it is still lost on both sides)."""
     swarm = flight.swarm
-    saved: tuple[tuple[str, int], ...] = ()
+    kept = PersistExecuted(())
     if state_kept:
         persisted = [e for e in swarm.events[name] if isinstance(e, PersistExecuted)]
-        saved = persisted[-1].executed if persisted else ()
+        kept = persisted[-1] if persisted else kept
     bundle = swarm.bundle
     core = SwarmCore(
         Roles.of(bundle, bundle.participant(name)),
-        make_plane(bundle, name, epoch=2, incarnation=1, executed_command_ids=list(saved)),
+        make_plane(
+            bundle,
+            name,
+            epoch=2,
+            incarnation=1,
+            executed_command_ids=list(kept.executed),
+            executed_outcomes=list(kept.outcomes),
+        ),
         verdict=swarm.vehicles[name].verdict_at,
         link_q=lambda: 0.8,
         settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),

@@ -33,6 +33,7 @@ from swarmd.dataplane import (
     Readiness,
     ReadinessReceived,
 )
+from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.seal import AUTH_SUBMESSAGE_ID, protected_part, user_data_key, verify
 from swarmd.rtps import AckNack, Data, Gap, Heartbeat, InfoDst, SkippedSubmessage, decode_message
 from swarmd.rtps.types import VENDORID_SWARMD
@@ -80,6 +81,7 @@ def make_plane(
     epoch: int = 1,
     incarnation: int = 0,
     executed_command_ids: list[tuple[str, int]] | tuple[()] = (),
+    executed_outcomes: list[KeptOutcome] | tuple[()] = (),
 ) -> DataPlane:
     return DataPlane(
         bundle,
@@ -88,6 +90,7 @@ def make_plane(
         epoch=epoch,
         incarnation=incarnation,
         executed_command_ids=executed_command_ids,
+        executed_outcomes=executed_outcomes,
     )
 
 

@@ -9,7 +9,10 @@ until every targeted drone is ready (nothing is sent if that does not happen wit
 Every command has a validity (``--valid-for``; defaults per kind in
 ``swarmd.swarm.core.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
 it for good. A drone that did not answer while the command was valid is reported
-``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity").
+``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity"). A
+drone whose daemon restarted before its answer arrived tells the commander afterwards what
+it did; such a row is marked as told after a restart (``after_restart`` in ``--json``;
+docs/dataplane.md, "Outcomes across a restart").
 
 Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
 1 some drone refused, failed, was unreachable while the command was valid, or did not
@@ -276,6 +279,9 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                 extra = f" ({node['reason']})" if node.get("reason") else ""
                 at = node.get("done_s") if node.get("done_s") is not None else node["latency_s"]
                 when = f" after {at:.3f} s" if isinstance(at, int | float) else ""
+                if node.get("after_restart"):
+                    # docs/dataplane.md, "Outcomes across a restart"
+                    when += ", told by the drone after its daemon restarted"
                 run.say(f"  {name}: {state}{extra}{when}")
         if snap["done"] or run.expired():
             break
@@ -329,11 +335,14 @@ def render_outcomes(snap: dict[str, Any]) -> list[str]:
     for name, n in snap["nodes"].items():
         latency = n.get("latency_s")
         done = n.get("done_s")
+        reason = str(n.get("reason") or "-")
+        if n.get("after_restart"):
+            reason += " [after restart]"
         rows.append(
             [
                 name,
                 str(n["state"]).upper(),
-                str(n.get("reason") or "-"),
+                reason,
                 "-" if latency is None else f"{latency * 1000:.0f} ms",
                 "-" if done is None else f"{done:.2f} s",
             ]

@@ -36,10 +36,14 @@ class CommandReceived(Event):
 
 @dataclass(frozen=True, slots=True)
 class OutcomeReceived(Event):
-    """A member's report on a command; once per (node, command id, result)."""
+    """A member's report on a command; once per (node, boot epoch, command id, result).
+    ``epoch``: the boot epoch of the member's life that sent it (its authenticated
+    datagram's), so the commander can tell a later life's re-report of an earlier life's
+    outcome (docs/dataplane.md, "Outcomes across a restart")."""
 
     node: str
     outcome: CommandOutcome
+    epoch: int = 0
 
 
 @dataclass(frozen=True, slots=True)

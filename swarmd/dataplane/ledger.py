@@ -9,7 +9,12 @@ plane keeps the wire: matching, authentication, readers and writers).
   ``(commander, command id)`` pairs. The reliable reader delivers each SN of a writer life
   at most once; this set turns re-deliveries of an id (a commander resending it, a proxy
   reset after ``peer_down``/``peer_up``, a restart with the state file kept) into no-ops.
-- Commander side: the ``(node, command id, result)`` outcomes already reported up, and the
+  Next to each id, the outcome this node decided for it (``KeptOutcome``), persisted with
+  the ids, so a restarted member can tell its commander what it did before the restart
+  (docs/dataplane.md, "Outcomes across a restart"); the ids restored at start-up, with
+  their outcomes, are the earlier lives' (``earlier_outcomes``).
+- Commander side: the ``(node, boot epoch, command id, result)`` outcomes already reported
+  up (the epoch: a member's later life may re-report what its earlier one said), and the
   command SNs still in the writer's history (so a member's copies that will not be handed
   over can be named by command id, ``CommandCopyVoided``).
 """
@@ -32,18 +37,34 @@ MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
 # (node, command id, result) outcomes already reported up, same reasoning on the commander.
 MAX_SEEN_OUTCOMES: Final = 4096
 
+# (commander, command id, CommandResult value, reason): what this node decided for a command
+KeptOutcome = tuple[str, int, int, str]
+
 
 class CommandLedger:
     """The bounded command tables of one node's data plane (see the module docstring).
 
     ``counters`` is the plane's: evictions are counted there (``dedup_evicted``)."""
 
-    def __init__(self, counters: Counter[str], executed: Iterable[tuple[str, int]] = ()) -> None:
+    def __init__(
+        self,
+        counters: Counter[str],
+        executed: Iterable[tuple[str, int]] = (),
+        outcomes: Iterable[KeptOutcome] = (),
+    ) -> None:
+        """``executed`` and ``outcomes``: what an earlier life persisted (``executed``,
+        ``outcomes``). An outcome whose id is not among ``executed`` is ignored: it can only
+        be older than the cap (evicted) or not this node's."""
         self._counters = counters
-        self._executed: OrderedDict[tuple[str, int], None] = OrderedDict()
+        # (commander, id) -> (result, reason) once decided, None until then (write-ahead)
+        self._executed: OrderedDict[tuple[str, int], tuple[int, str] | None] = OrderedDict()
         for key in executed:
             self._remember(self._executed, key, MAX_EXECUTED_COMMANDS)
-        self._outcomes: OrderedDict[tuple[str, int, int], None] = OrderedDict()
+        for commander, command_id, result, reason in outcomes:
+            if (commander, command_id) in self._executed:
+                self._executed[commander, command_id] = (result, reason)
+        self._earlier: tuple[KeptOutcome, ...] = tuple(self.outcomes)
+        self._outcomes: OrderedDict[tuple[str, int, int, int], None] = OrderedDict()
         # The commander's command SNs still in its writer's history -> command id.
         self._command_ids: OrderedDict[int, int] = OrderedDict()
 
@@ -63,11 +84,33 @@ class CommandLedger:
         """The executed pairs, oldest first."""
         return list(self._executed)
 
+    def decided(self, commander: str, command_id: int, result: int, reason: str) -> bool:
+        """Keep ``result`` (and ``reason``) next to an executed id; False (nothing kept)
+        when the id is not, or no longer, in the executed set."""
+        key = (commander, command_id)
+        if key not in self._executed:
+            return False
+        self._executed[key] = (result, reason)
+        return True
+
+    @property
+    def outcomes(self) -> list[KeptOutcome]:
+        """The decided outcomes, in the executed set's order (oldest first)."""
+        return [(c, i, kept[0], kept[1]) for (c, i), kept in self._executed.items() if kept]
+
+    def earlier_outcomes(self, commander: str, limit: int) -> list[KeptOutcome]:
+        """The newest ``limit`` outcomes restored at start-up for ``commander``'s ids,
+        oldest first: what this node's earlier lives decided."""
+        if limit <= 0:
+            return []
+        return [kept for kept in self._earlier if kept[0] == commander][-limit:]
+
     # --- commander side ---------------------------------------------------------------------
 
-    def new_outcome(self, node: str, command_id: int, result: int) -> bool:
-        """True the first time ``node`` reports ``result`` for ``command_id``."""
-        key = (node, command_id, result)
+    def new_outcome(self, node: str, epoch: int, command_id: int, result: int) -> bool:
+        """True the first time ``node`` in boot ``epoch`` reports ``result`` for
+        ``command_id``."""
+        key = (node, epoch, command_id, result)
         if key in self._outcomes:
             return False
         self._remember(self._outcomes, key, MAX_SEEN_OUTCOMES)
@@ -87,7 +130,7 @@ class CommandLedger:
 
     # --- internals --------------------------------------------------------------------------
 
-    def _remember(self, table: OrderedDict[Any, None], key: Any, cap: int) -> None:
+    def _remember(self, table: OrderedDict[Any, Any], key: Any, cap: int) -> None:
         table[key] = None
         while len(table) > cap:
             table.popitem(last=False)

@@ -60,7 +60,7 @@ from swarmd.dataplane.events import (
     PacketDropped,
     ReadinessReceived,
 )
-from swarmd.dataplane.ledger import CommandLedger, command_copies
+from swarmd.dataplane.ledger import CommandLedger, KeptOutcome, command_copies
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
 from swarmd.dataplane.seal import (
@@ -178,13 +178,15 @@ class DataPlane:
         epoch: int,
         incarnation: int = 0,
         executed_command_ids: Iterable[tuple[str, int]] = (),
+        executed_outcomes: Iterable[KeptOutcome] = (),
     ) -> None:
         """``keys`` gives the pairwise keys (``KeyRing``); ``epoch`` is this node's boot
         epoch, the one its SPDP announces (``swarmd.auth.epoch``): peers bind the datagrams
         they send here to it. ``incarnation`` must grow with every restart of this node (a
         persisted boot counter, or wall-clock seconds); it keeps sequence numbers and
         command ids unique across restarts. ``executed_command_ids`` restores the dedup set
-        a previous life saved from ``executed_command_ids``."""
+        a previous life saved from ``executed_command_ids``, ``executed_outcomes`` what it
+        decided for them (``executed_outcomes``; ``earlier_outcomes``)."""
         if not 0 <= incarnation <= MAX_INCARNATION:
             raise ValueError(f"incarnation {incarnation} outside 0..{MAX_INCARNATION}")
         if not 0 <= epoch <= U32_MAX:
@@ -226,7 +228,7 @@ class DataPlane:
         self._events: deque[DataPlaneEvent] = deque()
         self.counters: Counter[str] = Counter()
         # executed ids (member), outcomes seen and command SNs (commander): ledger.py
-        self._ledger = CommandLedger(self.counters, executed_command_ids)
+        self._ledger = CommandLedger(self.counters, executed_command_ids, executed_outcomes)
         self._readiness: dict[str, ReadinessStats] = {}
         self._next_command = 0
 
@@ -427,10 +429,20 @@ class DataPlane:
         ]
 
     def report_outcome(
-        self, command_id: int, result: CommandResult, now: float, reason: str = ""
+        self,
+        command_id: int,
+        result: CommandResult,
+        now: float,
+        reason: str = "",
+        *,
+        commander: str | None = None,
     ) -> int:
-        """Tell the commander(s) what this member did with ``command_id`` (reliable)."""
+        """Tell the commander(s) what this member did with ``command_id`` (reliable).
+        With ``commander`` (whose command it is), the outcome is also kept next to the
+        executed id, for ``executed_outcomes``."""
         reason = reason.encode("utf-8")[:MAX_REASON_CHARS].decode("utf-8", "ignore")
+        if commander is not None:
+            self._ledger.decided(commander, command_id, int(result.value), reason)
         outcome = CommandOutcome(command_id, self.local.name, result, reason)
         return self._publish(TOPIC_OUTCOME, outcome, now)
 
@@ -438,6 +450,28 @@ class DataPlane:
     def executed_command_ids(self) -> list[tuple[str, int]]:
         """The dedup set, oldest first; persist it to keep exactly-once across restarts."""
         return self._ledger.executed
+
+    @property
+    def executed_outcomes(self) -> list[KeptOutcome]:
+        """What was decided for the executed ids (``report_outcome(commander=)``), oldest
+        first; persist it with them so a restarted member can re-report it."""
+        return self._ledger.outcomes
+
+    def earlier_outcomes(self, commander: str, limit: int) -> list[KeptOutcome]:
+        """The newest outcomes an earlier life of this node decided for ``commander``'s
+        ids (restored at start-up), oldest first: at most ``limit``, and at most the
+        outcome writer's history depth, so writing them all at once pushes none out of
+        the history before it is acknowledged."""
+        writer = self._writer_by_topic.get(TOPIC_OUTCOME)
+        depth = writer.depth if isinstance(writer, ReliableWriter) else 1
+        return self._ledger.earlier_outcomes(commander, min(limit, depth))
+
+    def peer_epoch(self, name: str) -> int | None:
+        """The boot epoch of ``name``'s life this node last authenticated (kept across
+        ``peer_down``), None if never."""
+        participant = self._participants.get(name)
+        channel = None if participant is None else self._channels.get(participant.guid_prefix)
+        return None if channel is None else channel.peer_epoch
 
     # --- network and timer inputs -----------------------------------------------------------
 
@@ -717,10 +751,13 @@ class DataPlane:
         if outcome.node != peer_name:
             self._drop("node_mismatch", source, f"{peer_name} sent outcome of {outcome.node}")
             return
-        if not self._ledger.new_outcome(peer_name, outcome.command_id, int(outcome.result.value)):
+        epoch = self._channels[self._participants[peer_name].guid_prefix].peer_epoch
+        if not self._ledger.new_outcome(
+            peer_name, epoch, outcome.command_id, int(outcome.result.value)
+        ):
             self.counters["outcome_duplicate"] += 1
             return
-        self._events.append(OutcomeReceived(peer_name, outcome))
+        self._events.append(OutcomeReceived(peer_name, outcome, epoch))
 
 
 def _make_writer(guid: Guid, topic: Topic, incarnation: int) -> Writer:

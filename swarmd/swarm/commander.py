@@ -18,7 +18,7 @@ received from every publisher"); its name and meaning are stable for the benchma
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -43,6 +43,11 @@ NOT_REACHED: Final = "not_reached_while_valid"  # its reason
 # clock, is not handed to the new one (docs/dataplane.md, "Rejoining while a command is
 # valid"). It may have run before the restart: its readiness rows say what the vehicle did.
 RESTARTED: Final = "restarted_before_acknowledging"
+# The reason of an ``accepted`` row whose member re-reported, from a later life, that its
+# earlier life accepted the command and restarted before the task ended: no completion
+# will come (the new life does not run it), and whether the vehicle finished is for its
+# readiness rows to say (docs/dataplane.md, "Outcomes across a restart").
+RESTARTED_RUNNING: Final = "restarted_before_finishing"
 
 # Effective-readiness reasons the commander adds to the members' own codes (docs/operations.md)
 NO_REPORT: Final = "no_report"  # nothing received from this member yet
@@ -157,6 +162,10 @@ class _NodeOutcome:
     reason: str = ""
     final_at: float | None = None
     not_delivered: str | None = None  # why the command can no longer reach it (RESTARTED)
+    epoch_at_issue: int | None = None  # its boot epoch as the commander knew it at issue
+    # what it says came from a later life than the one the command was sent to: a
+    # re-report of what its earlier life decided (nothing more will come for this command)
+    after_restart: bool = False
 
 
 @dataclass(slots=True)
@@ -192,7 +201,11 @@ class CommandTracker:
         altitude_m: float | None = None,
         refused: dict[str, str] | None = None,
         valid_for_s: float | None = None,
+        epochs: Mapping[str, int] | None = None,
     ) -> None:
+        """``epochs``: each target's boot epoch as the data plane knew it at issue (the
+        life the command is sent to), for telling a later life's answer in ``record``."""
+        known = epochs or {}
         self._commands[command_id] = _Tracked(
             command_id,
             kind,
@@ -200,7 +213,7 @@ class CommandTracker:
             tuple(targets),
             dict(refused or {}),
             now,
-            {name: _NodeOutcome() for name in targets},
+            {name: _NodeOutcome(epoch_at_issue=known.get(name)) for name in targets},
             valid_for_s,
         )
         while len(self._commands) > MAX_TRACKED_COMMANDS:
@@ -208,14 +221,33 @@ class CommandTracker:
             self.evicted += 1
 
     def record(
-        self, command_id: int, node: str, result: CommandResult, reason: str, now: float
+        self,
+        command_id: int,
+        node: str,
+        result: CommandResult,
+        reason: str,
+        now: float,
+        *,
+        epoch: int | None = None,
     ) -> bool:
-        """A member's outcome; False when it answers no command we track (or not to it)."""
+        """A member's outcome; False when it answers no command we track (or not to it).
+
+        ``epoch``: the boot epoch of the member's life that sent it. Higher than the one
+        the command was sent to: a later life re-reporting what the earlier one decided
+        (the command never reaches a later life, docs/dataplane.md "Rejoining while a
+        command is valid"). It fills only what the row does not know yet, and marks the
+        row ``after_restart``; a row with a final result keeps it (a replayed or repeated
+        old outcome cannot change it)."""
         tracked = self._commands.get(command_id)
         if tracked is None or node not in tracked.outcomes:
             self.unknown_outcomes += 1
             return False
         entry = tracked.outcomes[node]
+        later = (
+            epoch is not None and entry.epoch_at_issue is not None and epoch > entry.epoch_at_issue
+        )
+        if later and entry.result is None:
+            entry.after_restart = True
         if result == CommandResult.ACCEPTED:
             if entry.accepted_at is None:
                 entry.accepted_at = now
@@ -247,6 +279,8 @@ class CommandTracker:
             reason = o.reason
             if o.result is not None:
                 state = str(o.result.name).lower()
+            elif o.accepted_at is not None and o.after_restart:
+                reason = RESTARTED_RUNNING  # accepted, then restarted: no final will come
             elif o.accepted_at is None and o.not_delivered is not None:
                 state, reason = UNREACHABLE, o.not_delivered
             elif o.accepted_at is None and lapsed:
@@ -258,9 +292,16 @@ class CommandTracker:
                 "reason": reason,
                 "latency_s": None if o.accepted_at is None else round(o.accepted_at - t.sent_at, 4),
                 "done_s": None if o.final_at is None else round(o.final_at - t.sent_at, 4),
+                "after_restart": o.after_restart,
             }
         for name, reason in t.refused.items():
-            nodes[name] = {"state": "refused", "reason": reason, "latency_s": None, "done_s": None}
+            nodes[name] = {
+                "state": "refused",
+                "reason": reason,
+                "latency_s": None,
+                "done_s": None,
+                "after_restart": False,
+            }
         return {
             "command_id": t.command_id,
             "kind": t.kind,

@@ -67,12 +67,24 @@ from swarmd.dataplane import (
     ReadinessReceived,
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
-from swarmd.dataplane.types import MAX_VALID_MS, Command, CommandKind, CommandResult
+from swarmd.dataplane.ledger import KeptOutcome
+from swarmd.dataplane.types import (
+    MAX_VALID_MS,
+    Command,
+    CommandKind,
+    CommandResult,
+    PayloadError,
+)
 from swarmd.dataplane.validity import EXPIRED, judge, stamp_ms, valid_ms_of
 from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
-from swarmd.swarm.commander import RESTARTED, CommandTracker, ReadinessTable
+from swarmd.swarm.commander import (
+    MAX_TRACKED_COMMANDS,
+    RESTARTED,
+    CommandTracker,
+    ReadinessTable,
+)
 from swarmd.swarm.roles import Roles, reads
 
 PX4_DISABLED: Final = "px4_disabled"
@@ -96,6 +108,14 @@ MAX_VALID_FOR_S: Final = MAX_VALID_MS / 1000.0
 # control socket with long validities from growing the heap (the earliest is withdrawn now:
 # it only stops retransmitting sooner, members still judge its validity themselves).
 MAX_PENDING_WITHDRAWALS: Final = MAX_HISTORY_DEPTH
+# A restarted member re-reports what its earlier life decided (docs/dataplane.md, "Outcomes
+# across a restart") to each commander it finds within this long of its start, once per
+# commander per life (the reliable writer repairs it from there), at most this many: the
+# commander tracks no more commands than that (and the plane bounds it by the outcome
+# writer's history depth too). Five minutes covers a daemon restart and a 30 s blackout
+# many times over; past it the operator has long acted on what swarmctl said.
+REREPORT_WINDOW_S: Final = 300.0
+MAX_REREPORTED: Final = MAX_TRACKED_COMMANDS
 DEFAULT_VALID_FOR_S: Final = {
     CommandKind.TAKEOFF: 3.0,
     CommandKind.HOLD: 5.0,
@@ -127,9 +147,12 @@ class RequestInvalid(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class PersistExecuted:
-    """Write the executed command ids to the state file now, before executing (write-ahead)."""
+    """Write the executed command ids to the state file now: before executing (write-ahead),
+    and again with each outcome decided (``outcomes``: (commander, id, CommandResult value,
+    reason) next to the ids, for re-reporting after a restart)."""
 
     executed: tuple[tuple[str, int], ...]
+    outcomes: tuple[KeptOutcome, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,6 +230,15 @@ class OutcomeReported:
 
 
 @dataclass(frozen=True, slots=True)
+class OutcomesReReported:
+    """This node restarted and re-reported to ``commander`` the outcomes its earlier life
+    decided for ``command_ids`` (docs/dataplane.md, "Outcomes across a restart")."""
+
+    commander: str
+    command_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class OutcomeRecorded:
     """A member's outcome reached the commander's tracker (``known``: a command it sent)."""
 
@@ -237,6 +269,7 @@ SwarmEvent = (
     | CommandWithdrawn
     | CommandNotDelivered
     | OutcomeReported
+    | OutcomesReReported
     | OutcomeRecorded
     | UserDataDropped
     | PeerTrafficVerified
@@ -272,7 +305,7 @@ class SwarmCore:
         if roles.is_commander and self.has_vehicle:
             self.table.add_local(roles.me)  # the commander's own drone flies with the swarm
         self.tracker = CommandTracker()
-        self.counters: dict[str, int] = {"readiness_published": 0}
+        self.counters: dict[str, int] = {"readiness_published": 0, "outcomes_rereported": 0}
         self.executor_counters: dict[str, int] = {}
         self._tick_at: float | None = None
         self._seq = 0
@@ -282,15 +315,20 @@ class SwarmCore:
         # (commander clock when the validity ends, command id, writer SN): the commander
         # withdraws each from its writer then, so repair never carries it late
         self._expiries: list[tuple[float, int, int]] = []
-        self._running: OrderedDict[int, CommandKind] = OrderedDict()  # id -> kind, on vehicle
+        # id -> (kind, commander), on the vehicle
+        self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
         self._seen: OrderedDict[int, None] = OrderedDict()  # ids started (bounded)
         self._events: deque[SwarmEvent] = deque()
+        # re-reporting an earlier life's outcomes: until when, and to which commanders done
+        self._rereport_until: float | None = None
+        self._rereported: set[str] = set()  # bounded: bundle names only
 
     # ---- driving protocol ---------------------------------------------------------------
 
     def start(self, now: float) -> None:
         """Publish the first readiness report now, then every period."""
         self._tick_at = now
+        self._rereport_until = now + REREPORT_WINDOW_S
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         if self.plane is None:
@@ -329,6 +367,7 @@ class SwarmCore:
         if self.plane is not None and locator is not None:
             self.plane.peer_up(name, locator, now, epoch=epoch)
             self._drain_plane(now)
+            self._rereport(name, now)
             came = name not in self._readers_up
             if came and reads(self.plane.bundle.participant(name), TOPIC_READY):
                 self._readers_up.add(name)  # bounded: bundle names only (participant())
@@ -359,17 +398,19 @@ class SwarmCore:
 
     def task_finished(self, done: TaskFinished, now: float) -> None:
         """The vehicle ended the task of command ``done.token``."""
-        kind = self._running.pop(done.token, None)
-        if kind is None:
+        running = self._running.pop(done.token, None)
+        if running is None:
             return  # not ours (a direct take-off through the bridge), or reported already
+        kind, commander = running
         if done.ok:
-            self._report(done.token, kind.name, CommandResult.COMPLETED, done.reason, now)
-            return
-        refused = isinstance(done.outcome, TakeoffFailed) and (
+            result = CommandResult.COMPLETED
+        elif isinstance(done.outcome, TakeoffFailed) and (
             done.outcome.reason == FailReason.NOT_READY
-        )
-        result = CommandResult.REJECTED if refused else CommandResult.FAILED
-        self._report(done.token, kind.name, result, done.reason, now)
+        ):
+            result = CommandResult.REJECTED
+        else:
+            result = CommandResult.FAILED
+        self._report(done.token, kind.name, result, done.reason, now, commander)
 
     # ---- the commander's requests -------------------------------------------------------
 
@@ -451,12 +492,12 @@ class SwarmCore:
                 case CommandReceived(commander=commander, command=command):
                     self._events.append(PeerTrafficVerified(commander))
                     # write-ahead: a crash loses the command, never repeats it
-                    self._events.append(PersistExecuted(tuple(self.plane.executed_command_ids)))
+                    self._persist()
                     self._execute(commander, command, now)
-                case OutcomeReceived(node=node, outcome=outcome):
+                case OutcomeReceived(node=node, outcome=outcome, epoch=epoch):
                     self._events.append(PeerTrafficVerified(node))
                     known = self.tracker.record(
-                        outcome.command_id, node, outcome.result, outcome.reason, now
+                        outcome.command_id, node, outcome.result, outcome.reason, now, epoch=epoch
                     )
                     self._events.append(
                         OutcomeRecorded(
@@ -495,7 +536,12 @@ class SwarmCore:
         except ValueError:
             self._count("received_unknown")
             self._report(
-                command.command_id, str(command.kind), CommandResult.REJECTED, UNKNOWN_KIND, now
+                command.command_id,
+                str(command.kind),
+                CommandResult.REJECTED,
+                UNKNOWN_KIND,
+                now,
+                commander,
             )
             return
         if command.command_id in self._seen:
@@ -513,7 +559,9 @@ class SwarmCore:
                 self._events.append(
                     CommandExpired(commander, command.command_id, kind, judgement.detail)
                 )
-                self._report(command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now)
+                self._report(
+                    command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now, commander
+                )
                 return
         takeoff = kind == CommandKind.TAKEOFF
         self._events.append(
@@ -522,14 +570,23 @@ class SwarmCore:
             )
         )
         if not self.has_vehicle:
-            self._report(command.command_id, kind.name, CommandResult.REJECTED, PX4_DISABLED, now)
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, PX4_DISABLED, now, commander
+            )
             return
         match kind:
             case CommandKind.TAKEOFF:
                 verdict = self._verdict(now)
                 if not verdict.ready:
                     reason = str(verdict.reason)
-                    self._report(command.command_id, kind.name, CommandResult.REJECTED, reason, now)
+                    self._report(
+                        command.command_id,
+                        kind.name,
+                        CommandResult.REJECTED,
+                        reason,
+                        now,
+                        commander,
+                    )
                     return
                 task = TaskKind.TAKEOFF
             case CommandKind.LAND:
@@ -540,20 +597,63 @@ class SwarmCore:
                 task = TaskKind.ABORT
             case _:
                 assert_never(kind)
-        self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now)
-        self._running[command.command_id] = kind
+        self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now, commander)
+        self._running[command.command_id] = (kind, commander)
         alt = float(command.altitude_m) if takeoff else None
         self._events.append(VehicleRequest(command.command_id, task, alt))
 
     def _report(
-        self, command_id: int, kind: str, result: CommandResult, reason: str, now: float
+        self,
+        command_id: int,
+        kind: str,
+        result: CommandResult,
+        reason: str,
+        now: float,
+        commander: str,
     ) -> None:
         self._count(f"outcome_{result.name.lower()}")
         self._events.append(OutcomeReported(command_id, kind, result, reason))
         if command_id in self._local_commands:
             self.tracker.record(command_id, self.roles.me, result, reason, now)
         elif self.plane is not None:
-            self.plane.report_outcome(command_id, result, now, reason)
+            self.plane.report_outcome(command_id, result, now, reason, commander=commander)
+            # the second write: the outcome next to its id, for a re-report after a restart
+            self._persist()
+
+    def _persist(self) -> None:
+        assert self.plane is not None  # noqa: S101 - callers checked it
+        plane = self.plane
+        self._events.append(
+            PersistExecuted(tuple(plane.executed_command_ids), tuple(plane.executed_outcomes))
+        )
+
+    def _rereport(self, commander: str, now: float) -> None:
+        """``commander`` was found: if this is a new life (restarted with its state file)
+        within ``REREPORT_WINDOW_S`` of its start, send it, once, the outcomes its earlier
+        lives decided for its commands, on the outcome writer it already authenticates.
+        Only an answer: nothing is executed (docs/dataplane.md, "Outcomes across a
+        restart")."""
+        if (
+            self.plane is None
+            or self._rereport_until is None
+            or now > self._rereport_until
+            or commander in self._rereported
+        ):
+            return
+        earlier = self.plane.earlier_outcomes(commander, MAX_REREPORTED)
+        if not earlier:
+            return
+        self._rereported.add(commander)
+        ids: list[int] = []
+        for _, command_id, result, reason in earlier:
+            try:
+                self.plane.report_outcome(command_id, CommandResult(result), now, reason)
+            except (ValueError, PayloadError):  # a state file edited by hand: skip it
+                self._count("rereport_invalid")
+                continue
+            ids.append(command_id)
+        self.counters["outcomes_rereported"] += len(ids)
+        self._events.append(OutcomesReReported(commander, tuple(ids)))
 
     def _verdict(self, now: float) -> ReadinessVerdict:
         return NO_VEHICLE if self._vehicle is None else self._vehicle(now)
@@ -630,6 +730,7 @@ class SwarmCore:
             echoes=plane.time_echoes(remote, now),
         )
         takeoff_alt = alt if kind == CommandKind.TAKEOFF else None
+        epochs = {name: e for name in remote if (e := plane.peer_epoch(name)) is not None}
         self.tracker.sent(
             command.command_id,
             kind.name.lower(),
@@ -638,6 +739,7 @@ class SwarmCore:
             altitude_m=takeoff_alt,
             refused=refused,
             valid_for_s=valid_ms / 1000.0,
+            epochs=epochs,
         )
         self._events.append(
             CommandIssued(command.command_id, kind, takeoff_alt, tuple(targets), dict(refused))

@@ -4,14 +4,21 @@ One small JSON file per node in the state directory (``dataplane.state_dir``, sy
 ``StateDirectory=swarmd`` = ``/var/lib/swarmd``), named after the node so co-hosted daemons
 (tests, a ground station running several participants) never share one::
 
-    {"boot": 7, "executed": [["lead", 30064771073], ...]}
+    {"boot": 7, "executed": [["lead", 30064771073], ...],
+     "outcomes": [["lead", 30064771073, 1, "IN_AIR"], ...]}
 
 Why: the data plane's exactly-once argument (docs/dataplane.md, "Exactly once") needs an
 ``incarnation`` that grows with every restart (sequence numbers and command ids of a
 restarted commander stay above its earlier lives), and a member that restarts must not
 execute again a command the commander still holds in its history. The executed ids are
 written *before* the command reaches the autopilot (write-ahead): a crash between the two
-loses a command, never repeats one — for a take-off, the safe side.
+loses a command, never repeats one — for a take-off, the safe side. Each outcome decided
+for an executed id (commander, id, ``CommandResult`` value, reason) is written after the
+decision, in ``outcomes`` (a second write; the write-ahead of the id is unchanged), so a
+restarted member can re-report it (docs/dataplane.md, "Outcomes across a restart"). A file
+without ``outcomes`` (written before they were kept) loads with none; a daemon that does
+not know the key ignores it. An unreadable ``outcomes`` list is dropped alone: the ids,
+which exactly-once depends on, are kept.
 
 Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
 file, never half of one. An unreadable or corrupt file is reported and replaced: losing the
@@ -28,6 +35,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
+from swarmd.dataplane.ledger import KeptOutcome
+from swarmd.dataplane.types import MAX_REASON_CHARS, CommandResult
 from swarmd.dataplane.writer import MAX_INCARNATION
 
 FILE_PATTERN: Final = "dataplane-{node}.json"
@@ -45,11 +54,17 @@ class NodeState:
     path: Path
     boot: int = 0
     executed: list[tuple[str, int]] = field(default_factory=list)
+    outcomes: list[KeptOutcome] = field(default_factory=list)
     recovered_from: str | None = None  # why an unreadable file was replaced, for the log
 
     def save(self) -> None:
         """Write atomically; raises ``StateDirError`` (one line) on failure."""
-        body = {"boot": self.boot, "executed": [[c, i] for c, i in self.executed]}
+        body: dict[str, object] = {
+            "boot": self.boot,
+            "executed": [[c, i] for c, i in self.executed],
+        }
+        if self.outcomes:  # without any, the file stays as it was before they were kept
+            body["outcomes"] = [list(kept) for kept in self.outcomes]
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:
             with open(tmp, "w", encoding="utf-8") as out:
@@ -100,4 +115,24 @@ def load(path: Path) -> NodeState:
             raise ValueError(f"boot {boot_count!r} out of range")
     except (ValueError, KeyError, TypeError) as exc:
         return NodeState(path, recovered_from=f"corrupt ({type(exc).__name__}: {exc})")
-    return NodeState(path, boot_count, executed)
+    try:
+        outcomes = [_outcome(kept) for kept in body.get("outcomes", [])]
+    except (ValueError, TypeError) as exc:  # the ids stand; only the answers are lost
+        why = f"outcomes dropped ({type(exc).__name__}: {exc})"
+        return NodeState(path, boot_count, executed, recovered_from=why)
+    return NodeState(path, boot_count, executed, outcomes)
+
+
+def _outcome(kept: object) -> KeptOutcome:
+    """One persisted outcome, checked as the wire would check it (it is sent again)."""
+    if not isinstance(kept, list) or len(kept) != 4:
+        raise ValueError(f"outcome {kept!r} is not [commander, id, result, reason]")
+    commander, command_id, result, reason = kept
+    if not (isinstance(commander, str) and isinstance(reason, str)):
+        raise TypeError(f"outcome {kept!r}: commander and reason must be strings")
+    if isinstance(command_id, bool) or not isinstance(command_id, int) or command_id < 0:
+        raise ValueError(f"outcome {kept!r}: bad command id")
+    CommandResult(result)  # raises ValueError for a result the wire does not have
+    if "\x00" in reason or len(reason.encode("utf-8")) > MAX_REASON_CHARS:
+        raise ValueError(f"outcome {kept!r}: reason too long or holding NUL")
+    return (commander, command_id, int(result), reason)
