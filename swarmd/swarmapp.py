@@ -511,6 +511,8 @@ class SwarmApp:
                 "tx_closed": self.counters.get("tx_closed", 0),
             }
             dataplane["readiness_published"] = swarm.counters["readiness_published"]
+            # what this life re-reported of its earlier lives' outcomes (docs/dataplane.md)
+            dataplane["outcomes_rereported"] = swarm.counters["outcomes_rereported"]
             dataplane["state_save_errors"] = self.counters["state_save_errors"]
         px4: dict[str, Any] = {"enabled": self.bridge is not None}
         if self.bridge is not None:

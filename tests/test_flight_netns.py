@@ -253,6 +253,12 @@ def test_reboot_in_the_air(lan_factory: LanFactory, workdir: Path, state_kept: b
     assert swarm.armed(1) == 1
     outcome = request(str(swarm.socks[0]), "outcomes", command_id=cid)
     assert outcome["nodes"]["uav2"]["state"] == "completed"
+    # the answer had got through before the kill: the new life's re-report of it (from the
+    # outcome kept in the state file) changes nothing (docs/dataplane.md, "Outcomes
+    # across a restart")
+    assert outcome["nodes"]["uav2"]["after_restart"] is False
+    rereported = member["dataplane"]["outcomes_rereported"]
+    assert rereported == (1 if state_kept else 0), member["dataplane"]
     # and a fresh take-off to the flying drone is refused by the drone itself
     again = request(str(swarm.socks[0]), "command", kind="takeoff", only=["uav2"], alt_m=5)
     until(
