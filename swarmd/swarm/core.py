@@ -26,7 +26,14 @@ Outputs: ``datagrams_to_send()``, ``get_timer()``, ``next_event()``. Two events 
 for the driver, in this order for each command: ``PersistExecuted`` (write the state file
 before anything moves: a crash then loses a command, never repeats it; docs/dataplane.md,
 "Exactly once") and ``px4.vehicle.VehicleRequest`` (what the vehicle should do, tagged with
-the command id). The others are for the log.
+the command id). Each outcome a member decides is followed by another ``PersistExecuted``
+carrying it next to its id. The others are for the log.
+
+After a restart (docs/dataplane.md, "Outcomes across a restart"): the outcomes an earlier
+life persisted are re-reported, once, to each commander discovery finds within
+``REREPORT_WINDOW_S`` of ``start`` (``_rereport``); they only answer, nothing is executed.
+The commander's tracker tells such an answer by the member's boot epoch, higher than the
+one the command was sent to, and marks the row ``after_restart``.
 
 A member's decisions (``_execute``): each command id once (the data plane hands each id
 once per life, persisted across restarts; the core also refuses an id it already runs, for
