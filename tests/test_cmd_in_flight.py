@@ -75,6 +75,37 @@ class Flight:
         """When ``name``'s vehicle was told to carry out ``command_id``."""
         return [t for n, r, t in self.moved if n == name and r.token == command_id]
 
+    def kept(self, name: str) -> PersistExecuted:
+        """What ``name``'s state dir holds: its last ``PersistExecuted`` (none: empty)."""
+        persisted = [e for e in self.swarm.events[name] if isinstance(e, PersistExecuted)]
+        return persisted[-1] if persisted else PersistExecuted(())
+
+    def restart(self, name: str, *, epoch: int, kept: PersistExecuted) -> SwarmCore:
+        """``name``'s daemon restarts in boot ``epoch`` (incarnation ``epoch - 1``) with
+        ``kept`` from its state dir; the vehicle (the test's) keeps flying. Discovery of the
+        new life is the caller's."""
+        swarm = self.swarm
+        bundle = swarm.bundle
+        plane = make_plane(
+            bundle,
+            name,
+            epoch=epoch,
+            incarnation=epoch - 1,
+            executed_command_ids=list(kept.executed),
+            executed_outcomes=list(kept.outcomes),
+        )
+        core = SwarmCore(
+            Roles.of(bundle, bundle.participant(name)),
+            plane,
+            verdict=swarm.vehicles[name].verdict_at,
+            link_q=lambda: 0.8,
+            settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
+        )
+        swarm.cores[name] = core
+        core.start(swarm.net.now)
+        swarm.net.replace(swarm.ids[name], core)
+        return core
+
     def discovery(self, a: str, b: str, up: bool) -> None:
         """Discovery at ``a`` reports ``b`` lost or found (same boot epoch)."""
         core = self.swarm.cores[a]
@@ -173,30 +204,11 @@ def _reboot(flight: Flight, name: str, *, state_kept: bool) -> SwarmCore:
     and comes back in the next boot epoch and incarnation; discovery on both sides
     reports the restart (its new SPDP)."""
     swarm = flight.swarm
-    kept = PersistExecuted(())
-    if state_kept:
-        persisted = [e for e in swarm.events[name] if isinstance(e, PersistExecuted)]
-        kept = persisted[-1] if persisted else kept
-    bundle = swarm.bundle
-    vehicle = swarm.vehicles[name]
-    core = SwarmCore(
-        Roles.of(bundle, bundle.participant(name)),
-        make_plane(
-            bundle,
-            name,
-            epoch=2,
-            incarnation=1,
-            executed_command_ids=list(kept.executed),
-            executed_outcomes=list(kept.outcomes),
-        ),
-        verdict=vehicle.verdict_at,
-        link_q=lambda: 0.8,
-        settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
+    core = flight.restart(
+        name, epoch=2, kept=flight.kept(name) if state_kept else PersistExecuted(())
     )
-    swarm.cores[name] = core
+    bundle = swarm.bundle
     now = swarm.net.now
-    core.start(now)
-    swarm.net.replace(swarm.ids[name], core)
     for other in swarm.cores:
         if other != name:
             core.peer_up(other, address_of(bundle, other), 1, now)

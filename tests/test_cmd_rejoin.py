@@ -32,11 +32,10 @@ from swarmd.cli import takeoff_cmd
 from swarmd.dataplane.types import CommandResult
 from swarmd.discovery import EngineConfig
 from swarmd.swarm.commander import NOT_REACHED, RESTARTED, UNREACHABLE, CommandTracker
-from swarmd.swarm.core import PersistExecuted, SwarmCore, SwarmSettings
-from swarmd.swarm.roles import Roles
+from swarmd.swarm.core import PersistExecuted, SwarmCore
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _command_datagrams, _inject, _Outcomes
-from tests.test_dataplane_swarm import address_of, make_plane
+from tests.test_dataplane_swarm import address_of
 
 LEASE_S = EngineConfig().lease_s
 VALID_S = 30.0  # the ns-3 run's HOLD
@@ -193,28 +192,10 @@ def _restart_while_lost(flight: Flight, name: str, *, state_kept: bool) -> Swarm
     incarnation, the executed ids of its last ``PersistExecuted`` if its state dir is
     kept. Discovery is left to the caller (it is still lost on both sides)."""
     swarm = flight.swarm
-    kept = PersistExecuted(())
-    if state_kept:
-        persisted = [e for e in swarm.events[name] if isinstance(e, PersistExecuted)]
-        kept = persisted[-1] if persisted else kept
-    bundle = swarm.bundle
-    core = SwarmCore(
-        Roles.of(bundle, bundle.participant(name)),
-        make_plane(
-            bundle,
-            name,
-            epoch=2,
-            incarnation=1,
-            executed_command_ids=list(kept.executed),
-            executed_outcomes=list(kept.outcomes),
-        ),
-        verdict=swarm.vehicles[name].verdict_at,
-        link_q=lambda: 0.8,
-        settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
+    core = flight.restart(
+        name, epoch=2, kept=flight.kept(name) if state_kept else PersistExecuted(())
     )
-    swarm.cores[name] = core
-    core.start(swarm.net.now)
-    swarm.net.replace(swarm.ids[name], core)
+    bundle = swarm.bundle
     for other in swarm.cores:  # its own side of the cut: m03 and m04 see each other
         if other != name and other in FAR:
             core.peer_up(other, address_of(bundle, other), 1, swarm.net.now)

@@ -28,7 +28,7 @@ from typing import Any
 import pytest
 
 from swarmd.cli import takeoff_cmd
-from swarmd.dataplane import MAX_EXECUTED_COMMANDS, DataPlane
+from swarmd.dataplane import MAX_EXECUTED_COMMANDS
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.discovery import EngineConfig
 from swarmd.px4.vehicle import TaskKind, VehicleRequest
@@ -49,13 +49,11 @@ from swarmd.swarm.core import (
     OutcomesReReported,
     PersistExecuted,
     SwarmCore,
-    SwarmSettings,
 )
-from swarmd.swarm.roles import Roles
 from swarmd.swarm.statefile import boot, load, state_path
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _Outcomes
-from tests.test_dataplane_swarm import address_of, keyring
+from tests.test_dataplane_swarm import address_of
 from tests.test_swarm_core import VEHICLE_TASK_S
 
 LEASE_S = EngineConfig().lease_s
@@ -64,9 +62,9 @@ TAKEOFF_VALID_S = DEFAULT_VALID_FOR_S[CommandKind.TAKEOFF]
 
 def _kept(flight: Flight, name: str) -> PersistExecuted:
     """What ``name``'s state dir holds: its last ``PersistExecuted``."""
-    persisted = [e for e in flight.swarm.events[name] if isinstance(e, PersistExecuted)]
-    assert persisted, name
-    return persisted[-1]
+    kept = flight.kept(name)
+    assert kept.executed, name
+    return kept
 
 
 def _restart(
@@ -82,27 +80,7 @@ def _restart(
     test's) keeps flying. ``discovered``: discovery on both sides reports the new life now;
     else the caller does it (the member is still cut off)."""
     swarm = flight.swarm
-    state = kept or _kept(flight, name)
-    bundle = swarm.bundle
-    plane = DataPlane(
-        bundle,
-        name,
-        keys=keyring(bundle, name),
-        epoch=epoch,
-        incarnation=epoch - 1,
-        executed_command_ids=list(state.executed),
-        executed_outcomes=list(state.outcomes),
-    )
-    core = SwarmCore(
-        Roles.of(bundle, bundle.participant(name)),
-        plane,
-        verdict=swarm.vehicles[name].verdict_at,
-        link_q=lambda: 0.8,
-        settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
-    )
-    swarm.cores[name] = core
-    core.start(swarm.net.now)
-    swarm.net.replace(swarm.ids[name], core)
+    core = flight.restart(name, epoch=epoch, kept=kept or _kept(flight, name))
     if discovered:
         _found(flight, name, epoch)
     swarm.net.poke(swarm.ids[name])
@@ -178,12 +156,10 @@ def test_back_while_valid_the_row_says_what_the_member_did(
     assert swarm.cores["m01"].counters["outcomes_rereported"] == 1
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_back_after_the_validity_an_answer_replaces_unreachable(seed: int) -> None:
-    """m01 takes the TAKEOFF and completes it, everything it says is lost, then it is cut
-    off both ways and restarts while cut off; the commander's discovery loses it and its
-    row turns ``unreachable`` at the validity's end. Found again well after that, its new
-    life re-reports COMPLETED, which replaces the row."""
+def _unreachable_after_a_restart(seed: int) -> tuple[Flight, int]:
+    """m01 takes a TAKEOFF and completes it while everything it says is lost, restarts
+    while cut off both ways, and is lost by the commander's discovery: past the validity
+    its row is ``unreachable`` (not reached while valid). Returns the flight and the id."""
     flight = Flight(3, seed)
     swarm = flight.swarm
     swarm.run(3.0)
@@ -197,6 +173,17 @@ def test_back_after_the_validity_an_answer_replaces_unreachable(seed: int) -> No
     flight.discovery("lead", "m01", False)
     swarm.run(max(0.0, issued + TAKEOFF_VALID_S + UNREACHABLE_GRACE_S + 1.0 - swarm.net.now))
     assert (_row(flight, cid)["state"], _row(flight, cid)["reason"]) == (UNREACHABLE, NOT_REACHED)
+    return flight, cid
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_back_after_the_validity_an_answer_replaces_unreachable(seed: int) -> None:
+    """m01 takes the TAKEOFF and completes it, everything it says is lost, then it is cut
+    off both ways and restarts while cut off; the commander's discovery loses it and its
+    row turns ``unreachable`` at the validity's end. Found again well after that, its new
+    life re-reports COMPLETED, which replaces the row."""
+    flight, cid = _unreachable_after_a_restart(seed)
+    swarm = flight.swarm
     swarm.run(10.0)
     flight.cut = lambda a, b: False
     _found(flight, "m01", 2)
@@ -480,18 +467,8 @@ def rereport_delay(seed: int, loss: float) -> float:
     """Seconds from the commander's re-discovery of m01's new life (after the validity, its
     row ``unreachable``) to the row saying ``completed``, with ``loss`` on every link from
     the heal on (the re-report is repaired like any outcome)."""
-    flight = Flight(3, seed)
+    flight, cid = _unreachable_after_a_restart(seed)
     swarm = flight.swarm
-    swarm.run(3.0)
-    flight.cut = lambda a, b: a == "m01"
-    cid, issued = _takeoff(flight)
-    swarm.run(VEHICLE_TASK_S + 0.5)
-    flight.cut = lambda a, b: "m01" in (a, b)
-    _restart(flight, "m01", epoch=2, discovered=False)
-    swarm.run(LEASE_S)
-    flight.discovery("lead", "m01", False)
-    swarm.run(max(0.0, issued + TAKEOFF_VALID_S + UNREACHABLE_GRACE_S + 1.0 - swarm.net.now))
-    assert _row(flight, cid)["state"] == UNREACHABLE
     swarm.net.link_loss = lambda s, d: loss
     _found(flight, "m01", 2)
     found = swarm.net.now
