@@ -25,159 +25,52 @@ block is put after the "## Flight" heading's intro (before its first "###").
 
 from __future__ import annotations
 
-import math
-import statistics
 import subprocess
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 from bench.docblock import write_block
 
-Run = Mapping[str, Any]
-
-SCENARIOS: Final = ("fly-out", "fade", "split", "reboot", "blackout")
-SIZES: Final = (10, 20)
-# (contender as the run files name it, column title): issue 20's contenders
-COLUMNS: Final = (
-    ("swarmd", "swarmd"),
-    ("cyclonedds", "Cyclone DDS"),
-    ("fastdds", "Fast DDS"),
-    ("fastdds-server", "Discovery Server"),
-    ("zenoh", "zenoh"),
-    ("ros2", "ROS 2"),
-    ("ros2-swarmd", "ROS 2 on swarmd"),  # the node's graph, its discovery from swarmd's relay
+# the matrix is split by concern (cells and tables, the targets, this: which runs, the
+# figures, the block); this module stays the one to import (flight_report, the tests)
+from bench.wifi.flight_cells import (
+    COLUMNS,
+    MEASURES,
+    SCENARIOS,
+    SIZES,
+    SWARMD,
+    Measure,
+    Run,
+    RunFile,
+    cell,
+    cell_runs,
+    commit,
+    dilation,
+    rediscovery_max,
+    rediscovery_p50,
+    runs_cell,
+    started,
+    summary,
+    tables,
+    valid,
 )
-SWARMD: Final = "swarmd"
+from bench.wifi.flight_verdicts import RULES, Verdict, verdict_lines, verdicts
 
-# issue 20's targets for swarmd
-FALSE_LOSSES_MAX: Final = 0
-REDISCOVERY_MAX_S: Final = 2.0
-FRAMES_PER_PAIR_MAX: Final = 4.0
-READINESS_MIN: Final = 0.99
-# the scenarios with a heal (a return after a gap every rejoining pair shares); fade's
-# window runs from the drone's first return to its last re-discovery, the whole fade with
-# every renewal in it, and reboot has no rejoining pairs: the frames target is not theirs
-HEALS: Final = frozenset({"fly-out", "split", "blackout"})
+__all__ = [
+    "BEGIN", "COLUMNS", "END", "MEASURES", "RULES", "SCENARIOS", "SECTION", "SIZES", "SWARMD",
+    "Measure", "Run", "RunFile", "Selection", "Verdict", "block", "cell", "cell_runs",
+    "commit", "commit_lines", "dilation", "figure_lines", "figure_run", "git_descends", "load",
+    "rediscovery_max", "rediscovery_p50", "runs_cell", "select", "started", "summary",
+    "tables", "valid", "verdict_lines", "verdicts", "write_docs",
+]  # fmt: skip
 
 BEGIN: Final = "<!-- flight-matrix:begin (python -m bench.wifi.flight_report --matrix) -->"
 END: Final = "<!-- flight-matrix:end -->"
 SECTION: Final = "## Flight (issue 20)"
-
-
-@dataclass(frozen=True, slots=True)
-class RunFile:
-    """One run record and where it was read from (the figure lies beside it)."""
-
-    path: Path
-    run: Run
-
-
-@dataclass(frozen=True, slots=True)
-class Measure:
-    """A column of the issue's measures: how to read it from one run and how to show it."""
-
-    title: str
-    read: Callable[[Run], float | None]
-    unit: str  # " s", " %", ""
-    spec: str  # format of one value
-    total: bool = False  # the sum over the valid runs, not their median
-    note: Callable[[Sequence[Run]], str] | None = None  # after the value, from the runs
-
-
-@dataclass(frozen=True, slots=True)
-class Verdict:
-    """One of issue 20's targets for swarmd at one scenario and N: met (True), not met
-    (False) or not known from these runs (None), and the sentence with the numbers."""
-
-    target: str
-    scenario: str
-    n: int
-    met: bool | None
-    text: str
-    reason: str = ""  # why not known: "no run", ...
-
-
-def _m(run: Run) -> Mapping[str, Any]:
-    measures: Mapping[str, Any] = run.get("measures") or {}
-    return measures
-
-
-def _num(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    return float(value)
-
-
-def _restarted(run: Run) -> bool:
-    return bool(run.get("restarts"))
-
-
-def loss_reported_p50(run: Run) -> float | None:
-    return _num((_m(run).get("loss_latency_s") or {}).get("p50"))
-
-
-def false_losses(run: Run) -> float | None:
-    return _num(_m(run).get("false_losses"))
-
-
-def rediscovery_p50(run: Run) -> float | None:
-    """The p50 of the pairs found again after a reported loss; in a run without any and
-    with a restart, of the peers' first sight of the new daemon life."""
-    found = _m(run).get("rediscovery_s") or {}
-    if found.get("count"):
-        return _num(found.get("p50"))
-    if _restarted(run):
-        return _num((_m(run).get("reboot_seen_by_peers_s") or {}).get("p50"))
-    return None
-
-
-def rediscovery_max(run: Run) -> float | None:
-    """The slowest pair found again: after a reported loss, and, in a run with a restart,
-    either way after it (peers seeing the new life, the new life listing each peer);
-    ``inf`` when a pair reported lost was never found again in the run."""
-    if (_num(_m(run).get("not_rediscovered")) or 0) > 0:
-        return math.inf
-    keys = ["rediscovery_s"]
-    if _restarted(run):
-        keys += ["reboot_seen_by_peers_s", "reboot_finds_peers_s"]
-    values = [_num((_m(run).get(k) or {}).get("max")) for k in keys]
-    present = [v for v in values if v is not None]
-    return max(present) if present else None
-
-
-def frames_per_pair(run: Run) -> float | None:
-    return _num((_m(run).get("frames_per_rejoining_pair") or {}).get("per_pair"))
-
-
-def readiness(run: Run) -> float | None:
-    ratio = _num((_m(run).get("readiness_delivery") or {}).get("ratio"))
-    return None if ratio is None else 100.0 * ratio
-
-
-def missed_note(runs: Sequence[Run]) -> str:
-    """Real losses (a gap of at least the lease) that no ``lost`` reported, summed."""
-    missed = sum(int(_num(_m(r).get("missed_losses")) or 0) for r in runs)
-    return f", {missed} missed" if missed else ""
-
-
-def never_note(runs: Sequence[Run]) -> str:
-    """Pairs reported lost and never found again in the run, summed."""
-    never = sum(int(_num(_m(r).get("not_rediscovered")) or 0) for r in runs)
-    return f", {never} never found" if never else ""
-
-
-MEASURES: Final = (
-    Measure("loss reported, p50 of each run", loss_reported_p50, " s", ".1f", note=missed_note),
-    Measure("false losses, sum over the valid runs", false_losses, "", ".0f", total=True),
-    Measure("re-discovery p50", rediscovery_p50, " s", ".2f"),
-    Measure("re-discovery max", rediscovery_max, " s", ".2f", note=never_note),
-    Measure("discovery frames per rejoining pair", frames_per_pair, "", ".2f"),
-    Measure("readiness delivery", readiness, " %", ".1f"),
-)
 
 
 # --- which runs ------------------------------------------------------------------------
@@ -196,20 +89,6 @@ def load(paths: Iterable[Path]) -> list[RunFile]:
             files = [path]
         out.extend(RunFile(f, json.loads(f.read_text())) for f in files)
     return out
-
-
-def commit(run: Run) -> str:
-    return str((run.get("setup") or {}).get("commit") or "unknown")
-
-
-def dilation(run: Run) -> float:
-    k = _num((run.get("setup") or {}).get("dilation"))
-    return 1.0 if k is None else k
-
-
-def started(run: Run) -> float | None:
-    go = run.get("go") or {}
-    return _num(go.get("harness_launch")) or _num(go.get("wall"))
 
 
 def git_descends(since: str, repo: Path) -> Callable[[str], bool]:
@@ -264,89 +143,6 @@ def select(files: Sequence[RunFile], counts: Callable[[str], bool] | None) -> Se
     return Selection(runs, older, outside, dup)
 
 
-def cell_runs(runs: Sequence[RunFile], scenario: str, contender: str, n: int) -> list[RunFile]:
-    return [
-        f
-        for f in runs
-        if f.run["scenario"] == scenario and f.run["contender"] == contender and f.run["n"] == n
-    ]
-
-
-def valid(files: Sequence[RunFile]) -> list[RunFile]:
-    return [f for f in files if f.run.get("valid") is True]
-
-
-# --- cells -----------------------------------------------------------------------------
-
-
-def _fmt(x: float, spec: str) -> str:
-    return "never" if math.isinf(x) else f"{x:{spec}}"
-
-
-def summary(values: Sequence[float], spec: str, unit: str) -> str:
-    """``median (min-max)``, or the one value."""
-    mid = statistics.median(values)
-    med = _fmt(mid, spec) + ("" if math.isinf(mid) else unit)
-    low, high = _fmt(min(values), spec), _fmt(max(values), spec)
-    if low == high:
-        return med
-    return f"{med} ({low}-{high})"
-
-
-def cell(files: Sequence[RunFile], measure: Measure) -> str:
-    """One measure over one cell's valid runs (module doc)."""
-    if not files:
-        return "not run"
-    ok = valid(files)
-    if not ok:
-        return f"no valid run (0/{len(files)})"
-    values = [v for v in (measure.read(f.run) for f in ok) if v is not None]
-    if not values:
-        return "-"
-    text = (
-        f"{_fmt(sum(values), measure.spec)}{measure.unit}"
-        if measure.total
-        else summary(values, measure.spec, measure.unit)
-    )
-    if measure.note is not None:
-        text += measure.note([f.run for f in ok])
-    return text if len(values) == len(ok) else f"{text} [{len(values)}/{len(ok)}]"
-
-
-def runs_cell(files: Sequence[RunFile]) -> str:
-    if not files:
-        return "not run"
-    ks = sorted({dilation(f.run) for f in files})
-    return f"{len(valid(files))}/{len(files)} (k {'/'.join(f'{k:g}' for k in ks)})"
-
-
-def _table(rows: Sequence[Sequence[str]]) -> list[str]:
-    head = ["scenario", *(title for _, title in COLUMNS)]
-    return [
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
-        *("| " + " | ".join(row) + " |" for row in rows),
-    ]
-
-
-def tables(runs: Sequence[RunFile], n: int) -> list[str]:
-    """Markdown: the "runs" table and one table per measure at N (rows scenario, columns
-    contender)."""
-    out = [f"**runs, valid/total (time dilation k)**, N = {n}:", ""]
-    out += _table(
-        [
-            [s, *(runs_cell(cell_runs(runs, s, c, n)) for c, _ in COLUMNS)]
-            for s in SCENARIOS
-        ]
-    )  # fmt: skip
-    for measure in MEASURES:
-        out += ["", f"**{measure.title}**, N = {n}:", ""]
-        out += _table(
-            [[s, *(cell(cell_runs(runs, s, c, n), measure) for c, _ in COLUMNS)] for s in SCENARIOS]
-        )
-    return out
-
-
 # --- figures ---------------------------------------------------------------------------
 
 
@@ -394,138 +190,6 @@ def _relpath(target: Path, start: Path) -> str:
 
 
 # --- verdicts --------------------------------------------------------------------------
-
-
-def _word(met: bool | None) -> str:
-    return {True: "**met**", False: "**not met**", None: "**not known**"}[met]
-
-
-def _runs_word(k: int) -> str:
-    return f"{k} valid run" + ("" if k == 1 else "s")
-
-
-def _judge(
-    target: str,
-    scenario: str,
-    n: int,
-    files: Sequence[RunFile],
-    read: Callable[[Run], float | None],
-    passes: Callable[[float], bool],
-    bound: str,
-    spec: str,
-    unit: str,
-    extra: Callable[[Sequence[RunFile]], str] | None = None,
-) -> Verdict:
-    """Met when every valid run with the measure passes, not met when any fails, not known
-    without a valid run that has it."""
-    ok = valid(files)
-    head = f"N={n}, {scenario}: "
-    if not ok:
-        why = "no run" if not files else f"no valid run (0 of {len(files)})"
-        return Verdict(target, scenario, n, None, head + f"{_word(None)}: {why}", why)
-    values = [v for v in (read(f.run) for f in ok) if v is not None]
-    if not values:
-        return Verdict(
-            target,
-            scenario,
-            n,
-            None,
-            head + f"{_word(None)}: not measured in {_runs_word(len(ok))}",
-        )
-    within = sum(1 for v in values if passes(v))
-    met = within == len(values)
-    text = (
-        f"{head}{_word(met)}, {within} of {_runs_word(len(values))} {bound}: "
-        f"{summary(values, spec, unit)}"
-    )
-    if len(values) < len(ok):
-        text += f" ({len(ok) - len(values)} valid run(s) without it)"
-    if extra is not None:
-        text += extra(ok)
-    return Verdict(target, scenario, n, met, text)
-
-
-def _p50_note(ok: Sequence[RunFile]) -> str:
-    p50 = [v for v in (rediscovery_p50(f.run) for f in ok) if v is not None]
-    return f"; p50 {summary(p50, '.2f', ' s')}" if p50 else ""
-
-
-# each target: (name, the run's figure, passes, the bound as written, format, unit, note,
-# the scenarios it judges: None for all)
-_RULES: Final[
-    tuple[
-        tuple[
-            str,
-            Callable[[Run], float | None],
-            Callable[[float], bool],
-            str,
-            str,
-            str,
-            Callable[[Sequence[RunFile]], str] | None,
-            frozenset[str] | None,
-        ],
-        ...,
-    ]
-] = (
-    ("false", false_losses, lambda v: v <= FALSE_LOSSES_MAX, "with none", ".0f", "", None, None),
-    (
-        "rediscovery", rediscovery_max, lambda v: v <= REDISCOVERY_MAX_S, "≤ 2 s", ".2f", " s",
-        _p50_note, None,
-    ),
-    (
-        "frames", frames_per_pair, lambda v: v <= FRAMES_PER_PAIR_MAX, "≤ 4", ".2f", "", None,
-        frozenset(HEALS),
-    ),
-    (
-        "readiness", readiness, lambda v: v >= 100.0 * READINESS_MIN, "≥ 99 %", ".1f", " %",
-        None, None,
-    ),
-)  # fmt: skip
-
-
-def verdicts(runs: Sequence[RunFile]) -> list[Verdict]:
-    """issue 20's targets for swarmd, per N and scenario (``Verdict``)."""
-    return [
-        _judge(target, s, n, cell_runs(runs, s, SWARMD, n), read, passes, bound, spec, unit, extra)
-        for n in SIZES
-        for s in SCENARIOS
-        for target, read, passes, bound, spec, unit, extra, only in _RULES
-        if only is None or s in only
-    ]
-
-
-TARGETS: Final = (
-    ("false", "no false losses of peers that stayed in range (0; the sum per run)"),
-    (
-        "rediscovery",
-        "re-discovery ≤ 2 s (each valid run's slowest pair; reboot: either way after the "
-        "restart too)",
-    ),
-    (
-        "frames",
-        "≤ 4 discovery frames per rejoining pair at the heal (fly-out, split, blackout: fade's "
-        "window is the whole fade, reboot has no rejoining pair)",
-    ),
-    ("readiness", "readiness delivery among drones in range ≥ 99 %"),
-)
-
-
-def verdict_lines(vs: Sequence[Verdict]) -> list[str]:
-    out = []
-    for target, title in TARGETS:
-        mine = [v for v in vs if v.target == target]
-        tally = (
-            f"met {sum(1 for v in mine if v.met is True)}, "
-            f"not met {sum(1 for v in mine if v.met is False)}, "
-            f"not known {sum(1 for v in mine if v.met is None)}"
-        )
-        out.append(f"- **{title}** ({tally}):")
-        out += [f"  - {v.text}" for v in mine if v.reason != "no run"]
-        unrun = [f"N={v.n} {v.scenario}" for v in mine if v.reason == "no run"]
-        if unrun:
-            out.append(f"  - {_word(None)}, no run: {', '.join(unrun)}")
-    return out
-
 
 # --- the block -------------------------------------------------------------------------
 

@@ -1,0 +1,230 @@
+"""What a cell of the flight matrix says (``bench/wifi/flight_matrix.py``): the run files'
+fields each measure reads, and the per-N tables (rows the scenarios, columns the
+contenders). A cell is the median over that cell's **valid** runs with the range when there
+are more than one (false losses: their sum), "not run" without a run file, "-" when no
+valid run carries the measure.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+Run = Mapping[str, Any]
+
+SCENARIOS: Final = ("fly-out", "fade", "split", "reboot", "blackout")
+SIZES: Final = (10, 20)
+# (contender as the run files name it, column title): issue 20's contenders
+COLUMNS: Final = (
+    ("swarmd", "swarmd"),
+    ("cyclonedds", "Cyclone DDS"),
+    ("fastdds", "Fast DDS"),
+    ("fastdds-server", "Discovery Server"),
+    ("zenoh", "zenoh"),
+    ("ros2", "ROS 2"),
+    ("ros2-swarmd", "ROS 2 on swarmd"),  # the node's graph, its discovery from swarmd's relay
+)
+SWARMD: Final = "swarmd"
+
+
+@dataclass(frozen=True, slots=True)
+class RunFile:
+    """One run record and where it was read from (the figure lies beside it)."""
+
+    path: Path
+    run: Run
+
+
+@dataclass(frozen=True, slots=True)
+class Measure:
+    """A column of the issue's measures: how to read it from one run and how to show it."""
+
+    title: str
+    read: Callable[[Run], float | None]
+    unit: str  # " s", " %", ""
+    spec: str  # format of one value
+    total: bool = False  # the sum over the valid runs, not their median
+    note: Callable[[Sequence[Run]], str] | None = None  # after the value, from the runs
+
+
+def _m(run: Run) -> Mapping[str, Any]:
+    measures: Mapping[str, Any] = run.get("measures") or {}
+    return measures
+
+
+def _num(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value)
+
+
+def _restarted(run: Run) -> bool:
+    return bool(run.get("restarts"))
+
+
+def loss_reported_p50(run: Run) -> float | None:
+    return _num((_m(run).get("loss_latency_s") or {}).get("p50"))
+
+
+def false_losses(run: Run) -> float | None:
+    return _num(_m(run).get("false_losses"))
+
+
+def rediscovery_p50(run: Run) -> float | None:
+    """The p50 of the pairs found again after a reported loss; in a run without any and
+    with a restart, of the peers' first sight of the new daemon life."""
+    found = _m(run).get("rediscovery_s") or {}
+    if found.get("count"):
+        return _num(found.get("p50"))
+    if _restarted(run):
+        return _num((_m(run).get("reboot_seen_by_peers_s") or {}).get("p50"))
+    return None
+
+
+def rediscovery_max(run: Run) -> float | None:
+    """The slowest pair found again: after a reported loss, and, in a run with a restart,
+    either way after it (peers seeing the new life, the new life listing each peer);
+    ``inf`` when a pair reported lost was never found again in the run."""
+    if (_num(_m(run).get("not_rediscovered")) or 0) > 0:
+        return math.inf
+    keys = ["rediscovery_s"]
+    if _restarted(run):
+        keys += ["reboot_seen_by_peers_s", "reboot_finds_peers_s"]
+    values = [_num((_m(run).get(k) or {}).get("max")) for k in keys]
+    present = [v for v in values if v is not None]
+    return max(present) if present else None
+
+
+def frames_per_pair(run: Run) -> float | None:
+    return _num((_m(run).get("frames_per_rejoining_pair") or {}).get("per_pair"))
+
+
+def readiness(run: Run) -> float | None:
+    ratio = _num((_m(run).get("readiness_delivery") or {}).get("ratio"))
+    return None if ratio is None else 100.0 * ratio
+
+
+def missed_note(runs: Sequence[Run]) -> str:
+    """Real losses (a gap of at least the lease) that no ``lost`` reported, summed."""
+    missed = sum(int(_num(_m(r).get("missed_losses")) or 0) for r in runs)
+    return f", {missed} missed" if missed else ""
+
+
+def never_note(runs: Sequence[Run]) -> str:
+    """Pairs reported lost and never found again in the run, summed."""
+    never = sum(int(_num(_m(r).get("not_rediscovered")) or 0) for r in runs)
+    return f", {never} never found" if never else ""
+
+
+MEASURES: Final = (
+    Measure("loss reported, p50 of each run", loss_reported_p50, " s", ".1f", note=missed_note),
+    Measure("false losses, sum over the valid runs", false_losses, "", ".0f", total=True),
+    Measure("re-discovery p50", rediscovery_p50, " s", ".2f"),
+    Measure("re-discovery max", rediscovery_max, " s", ".2f", note=never_note),
+    Measure("discovery frames per rejoining pair", frames_per_pair, "", ".2f"),
+    Measure("readiness delivery", readiness, " %", ".1f"),
+)
+
+
+# --- run files ------------------------------------------------------------------------
+
+
+def commit(run: Run) -> str:
+    return str((run.get("setup") or {}).get("commit") or "unknown")
+
+
+def dilation(run: Run) -> float:
+    k = _num((run.get("setup") or {}).get("dilation"))
+    return 1.0 if k is None else k
+
+
+def started(run: Run) -> float | None:
+    go = run.get("go") or {}
+    return _num(go.get("harness_launch")) or _num(go.get("wall"))
+
+
+def cell_runs(runs: Sequence[RunFile], scenario: str, contender: str, n: int) -> list[RunFile]:
+    return [
+        f
+        for f in runs
+        if f.run["scenario"] == scenario and f.run["contender"] == contender and f.run["n"] == n
+    ]
+
+
+def valid(files: Sequence[RunFile]) -> list[RunFile]:
+    return [f for f in files if f.run.get("valid") is True]
+
+
+# --- cells -----------------------------------------------------------------------------
+
+
+def _fmt(x: float, spec: str) -> str:
+    return "never" if math.isinf(x) else f"{x:{spec}}"
+
+
+def summary(values: Sequence[float], spec: str, unit: str) -> str:
+    """``median (min-max)``, or the one value."""
+    mid = statistics.median(values)
+    med = _fmt(mid, spec) + ("" if math.isinf(mid) else unit)
+    low, high = _fmt(min(values), spec), _fmt(max(values), spec)
+    if low == high:
+        return med
+    return f"{med} ({low}-{high})"
+
+
+def cell(files: Sequence[RunFile], measure: Measure) -> str:
+    """One measure over one cell's valid runs (module doc)."""
+    if not files:
+        return "not run"
+    ok = valid(files)
+    if not ok:
+        return f"no valid run (0/{len(files)})"
+    values = [v for v in (measure.read(f.run) for f in ok) if v is not None]
+    if not values:
+        return "-"
+    text = (
+        f"{_fmt(sum(values), measure.spec)}{measure.unit}"
+        if measure.total
+        else summary(values, measure.spec, measure.unit)
+    )
+    if measure.note is not None:
+        text += measure.note([f.run for f in ok])
+    return text if len(values) == len(ok) else f"{text} [{len(values)}/{len(ok)}]"
+
+
+def runs_cell(files: Sequence[RunFile]) -> str:
+    if not files:
+        return "not run"
+    ks = sorted({dilation(f.run) for f in files})
+    return f"{len(valid(files))}/{len(files)} (k {'/'.join(f'{k:g}' for k in ks)})"
+
+
+def _table(rows: Sequence[Sequence[str]]) -> list[str]:
+    head = ["scenario", *(title for _, title in COLUMNS)]
+    return [
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+        *("| " + " | ".join(row) + " |" for row in rows),
+    ]
+
+
+def tables(runs: Sequence[RunFile], n: int) -> list[str]:
+    """Markdown: the "runs" table and one table per measure at N (rows scenario, columns
+    contender)."""
+    out = [f"**runs, valid/total (time dilation k)**, N = {n}:", ""]
+    out += _table(
+        [
+            [s, *(runs_cell(cell_runs(runs, s, c, n)) for c, _ in COLUMNS)]
+            for s in SCENARIOS
+        ]
+    )  # fmt: skip
+    for measure in MEASURES:
+        out += ["", f"**{measure.title}**, N = {n}:", ""]
+        out += _table(
+            [[s, *(cell(cell_runs(runs, s, c, n), measure) for c, _ in COLUMNS)] for s in SCENARIOS]
+        )
+    return out

@@ -1,0 +1,190 @@
+"""issue 20's targets judged from the flight runs (``bench/wifi/flight_matrix.py``'s
+"Targets" list): one table of rules (``RULES``), each read per run, every verdict met / not
+met / not known with the numbers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+from bench.wifi.flight_cells import (
+    COLUMNS,
+    SCENARIOS,
+    SIZES,
+    SWARMD,
+    Run,
+    RunFile,
+    cell_runs,
+    false_losses,
+    frames_per_pair,
+    readiness,
+    rediscovery_max,
+    rediscovery_p50,
+    summary,
+    valid,
+)
+
+# issue 20's targets for swarmd
+FALSE_LOSSES_MAX: Final = 0
+REDISCOVERY_MAX_S: Final = 2.0
+FRAMES_PER_PAIR_MAX: Final = 4.0
+READINESS_MIN: Final = 0.99
+# the scenarios with a heal (a return after a gap every rejoining pair shares); fade's
+# window runs from the drone's first return to its last re-discovery, the whole fade with
+# every renewal in it, and reboot has no rejoining pairs: the frames target is not theirs
+HEALS: Final = frozenset({"fly-out", "split", "blackout"})
+
+
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """One of issue 20's targets for one contender (swarmd unless the rule says) at one
+    scenario and N: met (True), not met (False) or not known from these runs (None), and
+    the sentence with the numbers."""
+
+    target: str
+    scenario: str
+    n: int
+    met: bool | None
+    text: str
+    reason: str = ""  # why not known: "no run", ...
+    contender: str = SWARMD
+
+
+@dataclass(frozen=True, slots=True)
+class Rule:
+    """One target: what it reads from a run, when a run passes, and how it is written."""
+
+    target: str  # the key
+    title: str  # the target as the "Targets" list writes it
+    read: Callable[[Run], float | None]  # the run's figure; None: the run does not have it
+    passes: Callable[[float], bool]
+    bound: str  # the bound as written after "k of n valid runs"
+    spec: str  # format of one figure
+    unit: str
+    note: Callable[[Sequence[RunFile]], str] | None = None  # after the figures (valid runs)
+    scenarios: frozenset[str] | None = None  # those it judges; None: every one
+    # contenders judged besides swarmd, only where one of their valid runs has the figure
+    also: tuple[str, ...] = ()
+    # why no valid run has the figure, when "not measured" would not say it (valid runs)
+    unmeasured: Callable[[Sequence[RunFile]], str] | None = None
+
+
+def _word(met: bool | None) -> str:
+    return {True: "**met**", False: "**not met**", None: "**not known**"}[met]
+
+
+def _runs_word(k: int) -> str:
+    return f"{k} valid run" + ("" if k == 1 else "s")
+
+
+def _title(contender: str) -> str:
+    return next((title for c, title in COLUMNS if c == contender), contender)
+
+
+def _judge(rule: Rule, scenario: str, n: int, files: Sequence[RunFile], contender: str) -> Verdict:
+    """Met when every valid run with the figure passes, not met when any fails, not known
+    without a valid run that has it."""
+    ok = valid(files)
+    who = "" if contender == SWARMD else f"{_title(contender)}, "
+    head = f"{who}N={n}, {scenario}: "
+
+    def verdict(met: bool | None, text: str, reason: str = "") -> Verdict:
+        return Verdict(rule.target, scenario, n, met, text, reason, contender)
+
+    if not ok:
+        why = "no run" if not files else f"no valid run (0 of {len(files)})"
+        return verdict(None, head + f"{_word(None)}: {why}", why)
+    values = [v for v in (rule.read(f.run) for f in ok) if v is not None]
+    if not values:
+        why = f"not measured in {_runs_word(len(ok))}"
+        if rule.unmeasured is not None:
+            why = rule.unmeasured(ok) or why
+        return verdict(None, head + f"{_word(None)}: {why}")
+    within = sum(1 for v in values if rule.passes(v))
+    met = within == len(values)
+    text = (
+        f"{head}{_word(met)}, {within} of {_runs_word(len(values))} {rule.bound}: "
+        f"{summary(values, rule.spec, rule.unit)}"
+    )
+    if len(values) < len(ok):
+        text += f" ({len(ok) - len(values)} valid run(s) without it)"
+    if rule.note is not None:
+        text += rule.note(ok)
+    return verdict(met, text)
+
+
+def _p50_note(ok: Sequence[RunFile]) -> str:
+    p50 = [v for v in (rediscovery_p50(f.run) for f in ok) if v is not None]
+    return f"; p50 {summary(p50, '.2f', ' s')}" if p50 else ""
+
+
+RULES: Final = (
+    Rule(
+        "false", "no false losses of peers that stayed in range (0; the sum per run)",
+        false_losses, lambda v: v <= FALSE_LOSSES_MAX, "with none", ".0f", "",
+    ),
+    Rule(
+        "rediscovery",
+        "re-discovery ≤ 2 s (each valid run's slowest pair; reboot: either way after the "
+        "restart too)",
+        rediscovery_max, lambda v: v <= REDISCOVERY_MAX_S, "≤ 2 s", ".2f", " s", _p50_note,
+    ),
+    Rule(
+        "frames",
+        "≤ 4 discovery frames per rejoining pair at the heal (fly-out, split, blackout: fade's "
+        "window is the whole fade, reboot has no rejoining pair)",
+        frames_per_pair, lambda v: v <= FRAMES_PER_PAIR_MAX, "≤ 4", ".2f", "",
+        scenarios=HEALS,
+    ),
+    Rule(
+        "readiness", "readiness delivery among drones in range ≥ 99 %",
+        readiness, lambda v: v >= 100.0 * READINESS_MIN, "≥ 99 %", ".1f", " %",
+    ),
+)  # fmt: skip
+
+
+def _judged(rule: Rule, runs: Sequence[RunFile]) -> list[str]:
+    """swarmd, and each of ``rule.also`` that has the figure in one of its valid runs."""
+    extra = [
+        c
+        for c in rule.also
+        if any(f.run["contender"] == c and rule.read(f.run) is not None for f in valid(runs))
+    ]
+    return [SWARMD, *extra]
+
+
+def verdicts(runs: Sequence[RunFile]) -> list[Verdict]:
+    """issue 20's targets, per N and scenario (``Verdict``), from ``RULES``."""
+    judged = {rule.target: _judged(rule, runs) for rule in RULES}
+    return [
+        _judge(rule, s, n, cell_runs(runs, s, c, n), c)
+        for n in SIZES
+        for s in SCENARIOS
+        for rule in RULES
+        if rule.scenarios is None or s in rule.scenarios
+        for c in judged[rule.target]
+    ]
+
+
+def verdict_lines(vs: Sequence[Verdict]) -> list[str]:
+    """The "Targets" list: per rule its tally, a line per verdict, the cells not run."""
+    out = []
+    for rule in RULES:
+        mine = [v for v in vs if v.target == rule.target]
+        tally = (
+            f"met {sum(1 for v in mine if v.met is True)}, "
+            f"not met {sum(1 for v in mine if v.met is False)}, "
+            f"not known {sum(1 for v in mine if v.met is None)}"
+        )
+        out.append(f"- **{rule.title}** ({tally}):")
+        out += [f"  - {v.text}" for v in mine if v.reason != "no run"]
+        unrun = [
+            ("" if v.contender == SWARMD else f"{_title(v.contender)} ") + f"N={v.n} {v.scenario}"
+            for v in mine
+            if v.reason == "no run"
+        ]
+        if unrun:
+            out.append(f"  - {_word(None)}, no run: {', '.join(unrun)}")
+    return out
