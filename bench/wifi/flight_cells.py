@@ -1,8 +1,8 @@
 """What a cell of the flight matrix says (``bench/wifi/flight_matrix.py``): the run files'
 fields each measure reads, and the per-N tables (rows the scenarios, columns the
 contenders). A cell is the median over that cell's **valid** runs with the range when there
-are more than one (false losses: their sum), "not run" without a run file, "-" when no
-valid run carries the measure.
+are more than one (false losses, commands: their sum), "not run" without a run file, "-"
+when no valid run carries the measure (a stack without swarmd's commands or renewals).
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
+
+from bench.wifi.flight_measures import Q_MOVED_MIN, period_follows_q
 
 Run = Mapping[str, Any]
 
@@ -49,6 +51,9 @@ class Measure:
     spec: str  # format of one value
     total: bool = False  # the sum over the valid runs, not their median
     note: Callable[[Sequence[Run]], str] | None = None  # after the value, from the runs
+    # the cell's text from the valid runs that have the measure, instead of their median
+    show: Callable[[Sequence[Run]], str] | None = None
+    legend: str = ""  # after the table's title: what the cell holds, when it needs saying
 
 
 def _m(run: Run) -> Mapping[str, Any]:
@@ -120,6 +125,90 @@ def never_note(runs: Sequence[Run]) -> str:
     return f", {never} never found" if never else ""
 
 
+# the command measures of a run (bench/wifi/flight_commands.py, ``measure``): those that
+# must be 0 (issue 20, "Command authority in flight"), as the commands table shows them
+COMMAND_FAULTS: Final = (
+    ("executed_twice", "twice"),
+    ("executed_late", "late"),
+    ("unreached_not_reported", "unreached, not reported"),
+    ("reported_unreachable_but_reachable", "reported unreachable while reachable"),
+)
+# shown after them when not 0: the delivery gap, a report of a run that did not happen,
+# and the copies a restart voided (by design: exactly once first; docs/dataplane.md)
+COMMAND_OTHERS: Final = (
+    ("reachable_not_executed", "reachable, not run"),
+    ("reported_ran_not_executed", "reported ran, not run"),
+    ("restarted_not_resent", "voided by a restart"),
+)
+
+
+def run_commands(run: Run) -> Mapping[str, Any] | None:
+    found = _m(run).get("commands")
+    return found if isinstance(found, Mapping) else None
+
+
+def command_faults(run: Run) -> float | None:
+    """The (command, member) pairs that broke exactly-once, validity or the report of the
+    unreachable, summed; None for a run without commands (a stack without swarmd's)."""
+    c = run_commands(run)
+    if c is None:
+        return None
+    return float(sum(int(_num(c.get(key)) or 0) for key, _ in COMMAND_FAULTS))
+
+
+def command_sum(runs: Sequence[Run], key: str) -> int:
+    """One command measure summed over ``runs`` (0 where a run has none)."""
+    return sum(int(_num((run_commands(r) or {}).get(key)) or 0) for r in runs)
+
+
+def commands_text(runs: Sequence[Run]) -> str:
+    """issued / pairs / each of ``COMMAND_FAULTS``, summed over ``runs``; then each of
+    ``COMMAND_OTHERS`` that is not 0."""
+    keys = ["commands", "pairs", *(key for key, _ in COMMAND_FAULTS)]
+    text = " / ".join(str(command_sum(runs, key)) for key in keys)
+    others = [(command_sum(runs, key), what) for key, what in COMMAND_OTHERS]
+    return text + "".join(f"; {k} {what}" for k, what in others if k)
+
+
+def run_follows(run: Run) -> Mapping[str, Any] | None:
+    found = _m(run).get("renewal_follows_q")
+    return found if isinstance(found, Mapping) and found else None
+
+
+def renewal_daemons(run: Run) -> float | None:
+    """How many daemons' renewal periods were polled; None without (a stock stack)."""
+    found = run_follows(run)
+    return None if found is None else float(len(found))
+
+
+def renewal_lowest_r(run: Run) -> float | None:
+    """The lowest correlation of Q with the renewal period over the daemons whose Q moved by
+    ``Q_MOVED_MIN`` or more (``flight_measures.period_follows_q``); None without one."""
+    judged, _ = period_follows_q(run_follows(run) or {})
+    return min(judged) if judged else None
+
+
+def renewal_split(runs: Sequence[Run]) -> tuple[list[float], list[float]]:
+    """Over ``runs``: the correlations of the daemons whose Q moved by ``Q_MOVED_MIN`` or
+    more, and how far Q moved at the others (``flight_measures.period_follows_q``)."""
+    judged: list[float] = []
+    others: list[float] = []
+    for r in runs:
+        j, o = period_follows_q(run_follows(r) or {})
+        judged += j
+        others += o
+    return judged, others
+
+
+def renewal_text(runs: Sequence[Run]) -> str:
+    """The correlations of the daemons whose Q moved (median and range), how many of the
+    daemons polled; or that Q moved at none, and the largest move."""
+    judged, others = renewal_split(runs)
+    if not judged:
+        return f"Q did not move (≤ {max(others, default=0.0):.2f})"
+    return f"r {summary(judged, '.2f', '')}, {len(judged)} of {len(judged) + len(others)}"
+
+
 MEASURES: Final = (
     Measure("loss reported, p50 of each run", loss_reported_p50, " s", ".1f", note=missed_note),
     Measure("false losses, sum over the valid runs", false_losses, "", ".0f", total=True),
@@ -127,7 +216,24 @@ MEASURES: Final = (
     Measure("re-discovery max", rediscovery_max, " s", ".2f", note=never_note),
     Measure("discovery frames per rejoining pair", frames_per_pair, "", ".2f"),
     Measure("readiness delivery", readiness, " %", ".1f"),
-)
+    Measure(
+        "commands", command_faults, "", ".0f", show=commands_text,
+        legend="issued / (command, member) pairs / run twice / run late / unreached, not "
+        "reported / reported unreachable while reachable, summed over the valid runs; then, "
+        "when not 0: reachable, not run; reported ran, not run; voided by a restart "
+        "(`bench/wifi/flight_commands.py`); \"-\": the runs carry no commands (the stock "
+        "stacks have no command path)",
+    ),
+    Measure(
+        "renewal period follows Q", renewal_daemons, "", ".0f", show=renewal_text,
+        legend=f"each daemon's Pearson r of its Q with its renewal period (status polls "
+        f"after the first move): median (range) over the daemons whose Q moved by "
+        f"≥ {Q_MOVED_MIN:g} (two of the engine's hysteresis steps; below, the period may "
+        f"rightly stay put), of the daemons polled; \"Q did not move\": less at every "
+        f"daemon (the largest move); \"-\": the runs have no renewal polls (a stock stack "
+        f"has no renewal period to poll)",
+    ),
+)  # fmt: skip
 
 
 # --- run files ------------------------------------------------------------------------
@@ -186,11 +292,12 @@ def cell(files: Sequence[RunFile], measure: Measure) -> str:
     values = [v for v in (measure.read(f.run) for f in ok) if v is not None]
     if not values:
         return "-"
-    text = (
-        f"{_fmt(sum(values), measure.spec)}{measure.unit}"
-        if measure.total
-        else summary(values, measure.spec, measure.unit)
-    )
+    if measure.show is not None:
+        text = measure.show([f.run for f in ok if measure.read(f.run) is not None])
+    elif measure.total:
+        text = f"{_fmt(sum(values), measure.spec)}{measure.unit}"
+    else:
+        text = summary(values, measure.spec, measure.unit)
     if measure.note is not None:
         text += measure.note([f.run for f in ok])
     return text if len(values) == len(ok) else f"{text} [{len(values)}/{len(ok)}]"
@@ -223,7 +330,8 @@ def tables(runs: Sequence[RunFile], n: int) -> list[str]:
         ]
     )  # fmt: skip
     for measure in MEASURES:
-        out += ["", f"**{measure.title}**, N = {n}:", ""]
+        legend = f" {measure.legend}" if measure.legend else ""
+        out += ["", f"**{measure.title}**, N = {n}:{legend}", ""]
         out += _table(
             [[s, *(cell(cell_runs(runs, s, c, n), measure) for c, _ in COLUMNS)] for s in SCENARIOS]
         )

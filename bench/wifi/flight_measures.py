@@ -428,6 +428,35 @@ def renewal_follows_q(polls: Sequence[Sequence[Any]], since_s: float = 0.0) -> d
     return out
 
 
+# A daemon's Q "moved" when its polled range spans two or more of the engine's hysteresis
+# steps (``EngineConfig.link_report_step``, 0.1): the advertised Q, and with it the renewal
+# period, changes only on a reading a step away from the Q it stands at
+# (swarmd/discovery/renewals.py, ``Renewals.on_link``), and a range of two steps has one end
+# a step or more from wherever it stood. Within less, the period may rightly stay put.
+Q_MOVED_MIN: Final = 0.2
+
+
+def period_follows_q(follows: Mapping[str, Any]) -> tuple[list[float], list[float]]:
+    """From ``renewal_follows_q``'s result: the correlation of Q with the renewal period at
+    each daemon whose Q moved by ``Q_MOVED_MIN`` or more (0.0 where the period did not move
+    at all: it did not follow), and how far Q moved at every other daemon (not judged:
+    within the hysteresis, or too few polls for a correlation)."""
+    judged: list[float] = []
+    others: list[float] = []
+    for entry in follows.values():
+        low, high = entry["q"]
+        moved = round(float(high) - float(low), 3)
+        r = entry.get("corr_q_period")
+        p_low, p_high = entry["renewal_period_s"]
+        if moved >= Q_MOVED_MIN and isinstance(r, int | float):
+            judged.append(float(r))
+        elif moved >= Q_MOVED_MIN and p_low == p_high:
+            judged.append(0.0)
+        else:
+            others.append(moved)
+    return judged, others
+
+
 def first_report_lost(row: Mapping[str, Any], period_s: float = 1.0 / READINESS_HZ) -> bool:
     """Whether the report a member sent at its re-discovery of the commander was not taken:
     the count moved only about a period after both had each other up (a taken one moves it
