@@ -1,0 +1,147 @@
+"""A drone's ROS 2 data reaches its peers again after an in-air reboot (issue 20, docs/ros2.md
+"A restart under the same GUIDs").
+
+Two drones in network namespaces, each with swarmd on the relay route (``ros2.relay: true``)
+and one real rclpy node (``swarmd_lab.ros2_lab``: its own machine id and ``/dev/shm``): the
+lead's listener, drone-1's talker. swarmd's discovery lease (20 s, as in flight) outlasts
+every outage below, so the lead's swarmd never loses drone-1: the attack-style reboot of the
+flight scenario (``flight_run --scenarios reboot --contenders ros2-swarmd``).
+
+The bundle fixes each node's GUID prefix and entity ids, so a restarted talker's writer has
+the GUID of its earlier life and numbers its samples from 1 again. The listener's reader
+still holds the earlier writer proxy (its relay renews it) and drops every sample numbered
+at or below the last one it took (DDSI-RTPS 2.5 8.4.12.1: a reader's writer proxy keeps
+the highest sequence number received). The talker's first life is therefore made longer
+than the bound of its second: before the fix not one message of the second life arrives.
+
+1. drone-1's swarmd and talker are SIGKILLed and restarted, the state dir kept (a reboot);
+2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running.
+
+In each, the listener must hear the new life within ``RECOVER_S`` (a liveness bound on
+real processes with generous slack; nothing else is timed).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from swarmd_lab import ros2_lab
+
+from tests.conftest import LanFactory
+from tests.daemon_support import (
+    BundleFiles,
+    Daemons,
+    daemon_status,
+    relay_config,
+    ros2_profiles,
+    run_domain,
+    until,
+    write_mission_bundle,
+)
+
+pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
+
+pytestmark = [
+    pytest.mark.netns,
+    pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
+]
+
+WAIT_S = 30.0
+# the talker's first life after the listener first heard it: at 5 messages/s, ~75 samples,
+# more than its second life can send within RECOVER_S (so none would pass an old proxy)
+FIRST_LIFE_S = 15.0
+RECOVER_S = 12.0
+SECOND_LIFE_S = 30.0
+LISTEN_S = 90.0
+ROS2_DOMAIN = 7
+# swarmd's discovery: quick announcements, the flight's 20 s lease (no PeerLost in a reboot)
+DISCOVERY = "{t_min_s: 0.2, t_max_s: 0.5, lease_s: 20}"
+DRONES = ("lead", "drone-1")
+
+
+def _senders(log: Path) -> dict[str, dict[str, Any]]:
+    """The listener's first message per sender tag (``ros2_node --senders-log``)."""
+    if not log.exists():
+        return {}
+    rows = [json.loads(line) for line in log.read_text().splitlines() if line]
+    return {row["sender"]: row for row in rows}
+
+
+def _lead_events(log: Path, peer: str) -> list[str]:
+    return [
+        e["event"]
+        for e in (json.loads(x) for x in log.read_text().splitlines() if x.startswith("{"))
+        if e.get("peer") == peer and e["event"] in ("peer_lost", "peer_restarted")
+    ]
+
+
+@pytest.mark.parametrize("swarmd_too", [True, False], ids=["reboot", "node-only"])
+def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
+    lan_factory: LanFactory, workdir: Path, swarmd_too: bool
+) -> None:
+    lan = lan_factory(2)
+    text = ros2_lab.chatter_mission(
+        "ros2-reboot",
+        run_domain(),
+        [lan[0].address, lan[1].address],
+        ros2_domain=ROS2_DOMAIN,
+        discovery=DISCOVERY,
+    )
+    files: BundleFiles = write_mission_bundle(workdir, text, "ros2-reboot", "ros2-reboot.yaml")
+    profiles = workdir / "profiles"
+    assert ros2_profiles(files, profiles, "--via-swarmd") == 0
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config())
+    daemons = swarm.start_all(WAIT_S)
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    senders_log = workdir / "listener-senders.jsonl"
+
+    def talker(tag: str, seconds: float) -> subprocess.Popen[bytes]:
+        argv = ros2_lab.node_argv("talker", seconds, "--tag", tag)
+        return nodes.start(1, "talker", argv, stdout=subprocess.DEVNULL)
+
+    listener = nodes.start(
+        0,
+        "listener",
+        ros2_lab.node_argv("listener", LISTEN_S, "--senders-log", str(senders_log)),
+    )
+    first = talker("life-1", LISTEN_S)
+    until(lambda: "life-1" in _senders(senders_log), lambda: _senders(senders_log), WAIT_S)
+    time.sleep(FIRST_LIFE_S)  # the first life numbers its samples past the second's bound
+
+    first.send_signal(signal.SIGKILL)  # no DATA(p[UD]): the node's lease has not run out
+    first.wait(timeout=WAIT_S)
+    if swarmd_too:
+        daemons[1].send_signal(signal.SIGKILL)
+        daemons[1].wait(timeout=WAIT_S)
+        swarm.start(1)  # the same config and state dir: its boot epoch rises
+        until(
+            lambda: daemon_status(swarm.socks[1])["ros2"] is not None,
+            lambda: "drone-1's swarmd is not up",
+            WAIT_S,
+        )
+    second = talker("life-2", SECOND_LIFE_S)
+    try:
+        until(
+            lambda: "life-2" in _senders(senders_log),
+            lambda: f"the listener heard {sorted(_senders(senders_log))}",
+            RECOVER_S,
+        )
+    finally:
+        heard = _senders(senders_log)
+        print(f"\nlistener's first message per sender: {heard}")
+        for proc in (second, listener):
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=WAIT_S)
+    # the reboot went through the restart path: the lead's swarmd never lost drone-1
+    events = _lead_events(swarm.logs[0], "drone-1")
+    assert events == (["peer_restarted"] if swarmd_too else []), events
+    for d in swarm.procs:
+        d.send_signal(signal.SIGTERM)
+        assert d.wait(timeout=WAIT_S) == 0
