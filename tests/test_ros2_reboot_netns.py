@@ -74,11 +74,12 @@ def _senders(log: Path) -> dict[str, dict[str, Any]]:
     return {row["sender"]: row for row in rows}
 
 
-def _lead_events(log: Path, peer: str) -> list[str]:
+def _log(log: Path, peer: str, *names: str) -> list[dict[str, Any]]:
+    """The daemon's JSON log lines about ``peer`` whose event is one of ``names``."""
     return [
-        e["event"]
+        e
         for e in (json.loads(x) for x in log.read_text().splitlines() if x.startswith("{"))
-        if e.get("peer") == peer and e["event"] in ("peer_lost", "peer_restarted")
+        if e.get("peer") == peer and e["event"] in names
     ]
 
 
@@ -110,6 +111,7 @@ def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
         0,
         "listener",
         ros2_lab.node_argv("listener", LISTEN_S, "--senders-log", str(senders_log)),
+        stdout=subprocess.DEVNULL,
     )
     first = talker("life-1", LISTEN_S)
     until(lambda: "life-1" in _senders(senders_log), lambda: _senders(senders_log), WAIT_S)
@@ -139,9 +141,16 @@ def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
         for proc in (second, listener):
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=WAIT_S)
-    # the reboot went through the restart path: the lead's swarmd never lost drone-1
-    events = _lead_events(swarm.logs[0], "drone-1")
+    # the lead's swarmd never lost drone-1: a reboot is its signed restart (a higher epoch)
+    lead_log = swarm.logs[0]
+    events = [e["event"] for e in _log(lead_log, "drone-1", "peer_lost", "peer_restarted")]
     assert events == (["peer_restarted"] if swarmd_too else []), events
+    # and the lead's relay disposed drone-1's node and announced it again, once: for the
+    # reboot on the restart, for the node alone on drone-1's signed restart count
+    relayed = _log(lead_log, "drone-1", "ros2_relay_peer", "ros2_remote_node_liveness")
+    again = [(e["event"], e["up"]) for e in relayed if e["restarted"]]
+    want = "ros2_relay_peer" if swarmd_too else "ros2_remote_node_liveness"
+    assert again == [(want, True)], relayed
     for d in swarm.procs:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0

@@ -48,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--senders-log",
         metavar="PATH",
         help="listener: append a JSON line to PATH when a message of a sender (its tag) not "
-        "heard before arrives ({\"t\": s, \"sender\": tag, \"number\": n})",
+        'heard before arrives ({"t": s, "sender": tag, "number": n})',
     )
     parser.add_argument(
         "--graph-every",
