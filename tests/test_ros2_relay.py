@@ -206,7 +206,9 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
     assert relay.datagrams_to_send() == [] and _events(relay) == []
     relay.receive_datagram(_local_spdp(lead, 1), ("::1", 40001), 3.0)  # SN back to 1
     assert _events(relay) == [
-        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+        # a new life, counted in the signed liveness word (bitmap, then its restarts)
+        LocalLivenessChanged(b"\x01\x01", "listener", up=True),
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True),
     ]
     assert len(relay.datagrams_to_send()) == 2
     relay.receive_datagram(_local_spdp(lead, 2), ("::1", 40001), 3.0)
@@ -226,10 +228,10 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
     )
     assert relay.status(4.0)["local"][0]["state"] == "left"
     assert relay.datagrams_to_send() == []
-    assert _events(relay) == [LocalLivenessChanged(b"\x00", "listener", up=False)]
+    assert _events(relay) == [LocalLivenessChanged(b"\x00\x01", "listener", up=False)]
     relay.receive_datagram(_local_spdp(lead, 10), ("::1", 40002), 5.0)
     assert _events(relay) == [
-        LocalLivenessChanged(b"\x01", "listener", up=True),
+        LocalLivenessChanged(b"\x01\x02", "listener", up=True),
         LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True),
     ]
     assert len(relay.datagrams_to_send()) == 2
