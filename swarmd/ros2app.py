@@ -27,12 +27,14 @@ from swarmd.exitcodes import EX_OSERR, StartupError
 from swarmd.ros2.graph import GRAPH_PREFIX_RANDOM_BYTES, LOOPBACK4, graph_participant_prefix
 from swarmd.ros2.relay import (
     LOOPBACK,
+    Ros2Relay,
+)
+from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
     RemoteNodeLiveness,
     RemoteParticipantsRelayed,
-    Ros2Relay,
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )

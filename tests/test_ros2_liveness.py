@@ -28,11 +28,13 @@ from swarmd.discovery import (
 from swarmd.discovery.events import Event
 from swarmd.ros2.relay import (
     LOOPBACK,
+    Ros2Relay,
+)
+from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
     RelayEvent,
     RemoteNodeLiveness,
     RemoteParticipantsRelayed,
-    Ros2Relay,
 )
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (

@@ -10,9 +10,10 @@ flight scenario (``flight_run --scenarios reboot --contenders ros2-swarmd``).
 The bundle fixes each node's GUID prefix and entity ids, so a restarted talker's writer has
 the GUID of its earlier life and numbers its samples from 1 again. The listener's reader
 still holds the earlier writer proxy (its relay renews it) and drops every sample numbered
-at or below the last one it took (DDSI-RTPS 2.5 8.4.12.1: a reader's writer proxy keeps
-the highest sequence number received). The talker's first life is therefore made longer
-than the bound of its second: before the fix not one message of the second life arrives.
+at or below the last one it took (DDSI-RTPS 2.5 8.4.12, the reliable StatefulReader: its
+writer proxy keeps the highest sequence number received). The talker's first life is
+therefore made longer than the bound of its second: before the fix (698603e) not one
+message of the second life arrived, in either case.
 
 1. drone-1's swarmd and talker are SIGKILLed and restarted, the state dir kept (a reboot);
 2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running.

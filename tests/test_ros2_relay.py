@@ -24,15 +24,17 @@ from swarmd.ros2.relay import (
     LOOPBACK,
     MAX_UNDECLARED_PER_PARTICIPANT,
     MAX_UNKNOWN_PARTICIPANTS,
+    Ros2Relay,
+    static_edp_entity_id,
+    static_edp_properties,
+)
+from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
     RemoteParticipantsRelayed,
-    Ros2Relay,
     UndeclaredEndpoint,
     UnknownParticipantHeard,
-    static_edp_entity_id,
-    static_edp_properties,
 )
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (

@@ -33,8 +33,9 @@ from above its earlier life.
 A restart under the same GUIDs. The bundle fixes every node's GUID prefix and entity ids, so
 a node that restarts has the writers of its earlier life, numbering their samples from 1
 again, and a remote node's reader that still holds their writer proxies drops every sample
-numbered at or below the last one it took (DDSI-RTPS 2.5 8.4.12.1: the proxy keeps the
-highest sequence number received): the new life is silent until it outnumbers the old. The
+numbered at or below the last one it took (DDSI-RTPS 2.5 8.4.12, the reliable
+StatefulReader: its writer proxy keeps the highest sequence number received): the new life
+is silent until it outnumbers the old. The
 proxies must go: the relay sends the local nodes the participant's ``DATA(p[UD])`` and, at
 once after it, its ``DATA(p)`` again (Fast DDS removes the participant and its endpoint
 proxies on the dispose, and matches the announcement afresh). It does so for
@@ -62,7 +63,8 @@ goes to another drone. Bad datagrams are counted and
 dropped; ``receive_datagram`` raises nothing.
 
 Driving sources: datagrams from the relay socket (``receive_datagram``), the timer
-(``handle_timer``), and the daemon's discovery events (``peer_discovered``/``peer_lost``).
+(``handle_timer``), and the daemon's discovery events (``peer_discovered``/``peer_lost``/
+``peer_liveness``). Its events are in ``swarmd.ros2.relay_events``.
 """
 
 from __future__ import annotations
@@ -80,6 +82,15 @@ from swarmd.bundle.ros2 import (
     Ros2Participant,
 )
 from swarmd.ros2.graph import GraphParticipant
+from swarmd.ros2.relay_events import (
+    LocalLivenessChanged,
+    LocalParticipantHeard,
+    RelayEvent,
+    RemoteNodeLiveness,
+    RemoteParticipantsRelayed,
+    UndeclaredEndpoint,
+    UnknownParticipantHeard,
+)
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import Data, Heartbeat, decode_message
@@ -175,85 +186,6 @@ def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
             )
         )
     return tuple(out)
-
-
-# ---- events (frozen, past tense, one base) ------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class RelayEvent:
-    """Base of the relay's events."""
-
-
-@dataclass(frozen=True, slots=True)
-class LocalParticipantHeard(RelayEvent):
-    """A local ROS 2 participant of the bundle announced itself (``restarted``: after an
-    earlier life this relay saw)."""
-
-    drone: str
-    node: str
-    guid_prefix: GuidPrefix
-    restarted: bool
-
-
-@dataclass(frozen=True, slots=True)
-class UnknownParticipantHeard(RelayEvent):
-    """A participant the bundle does not place on this drone announced itself on loopback;
-    it is shown, never relayed. ``vendor`` as two hex octets."""
-
-    guid_prefix: GuidPrefix
-    vendor: str
-    name: str | None
-
-
-@dataclass(frozen=True, slots=True)
-class UndeclaredEndpoint(RelayEvent):
-    """A local node announced a static endpoint the bundle does not hold for it (Fast DDS's
-    EDPStatic property): it matches nothing, silently, in Fast DDS; reported here by node."""
-
-    drone: str
-    node: str
-    kind: str  # "writer" | "reader"
-    user_id: int  # the profile's userDefinedID (65535 or negative: none was given)
-    entity_id: str
-
-
-@dataclass(frozen=True, slots=True)
-class LocalLivenessChanged(RelayEvent):
-    """Which of this drone's ROS 2 participants are alive changed (a node heard, left, or
-    its lease expired unheard), or one of them restarted. ``alive``: the liveness word
-    swarmd carries in its signed SPDP (PID 0x8A06, ``Ros2Relay.liveness``): the bitmap over
-    this drone's participants in bundle order, LSB of byte 0 = the first, then each one's
-    restart count; ``node``/``up``: the participant that changed."""
-
-    alive: bytes
-    node: str
-    up: bool
-
-
-@dataclass(frozen=True, slots=True)
-class RemoteNodeLiveness(RelayEvent):
-    """An authenticated peer's relay says its node ``node`` stopped (``up`` False: the
-    relay disposed it at the local nodes) or is back (announced again); ``restarted``: it
-    came back under a running swarmd without having been seen stopped (disposed and
-    announced again at once)."""
-
-    drone: str
-    node: str
-    up: bool
-    restarted: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class RemoteParticipantsRelayed(RelayEvent):
-    """The relay started (``up``) or stopped serving a drone's ROS 2 participants;
-    ``restarted``: the drone's swarmd restarted, its participants were disposed and
-    announced again."""
-
-    drone: str
-    participants: int
-    up: bool
-    restarted: bool = False
 
 
 # ---- state --------------------------------------------------------------------------------
