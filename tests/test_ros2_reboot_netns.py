@@ -16,9 +16,11 @@ therefore made longer than the bound of its second: before the fix (698603e) not
 message of the second life arrived, in either case.
 
 1. drone-1's swarmd and talker are SIGKILLed and restarted, the state dir kept (a reboot);
-2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running.
+2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running;
+3. as 2, with a second node on drone-1 (a subscriber, the monitor) that finds the talker
+   directly on [::1] and holds its writer proxy too.
 
-In each, the listener must hear the new life within ``RECOVER_S`` (a liveness bound on
+In each, the subscribers must hear the new life within ``RECOVER_S`` (a liveness bound on
 real processes with generous slack; nothing else is timed).
 """
 
@@ -156,6 +158,75 @@ def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
     again = [(e["event"], e["up"]) for e in relayed if e["restarted"]]
     want = "ros2_relay_peer" if swarmd_too else "ros2_remote_node_liveness"
     assert again == [(want, True)], relayed
+    for d in swarm.procs:
+        d.send_signal(signal.SIGTERM)
+        assert d.wait(timeout=WAIT_S) == 0
+
+
+def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
+    lan_factory: LanFactory, workdir: Path
+) -> None:
+    """Nodes of one drone find each other directly on [::1] (docs/ros2.md, "Several nodes
+    on one drone"): drone-1's monitor holds the talker's writer proxy as the lead's
+    listener does. The talker alone is SIGKILLed and restarted at once."""
+    lan = lan_factory(2)
+    nodes_declared = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, ros2_lab.LISTENER_NODE)
+    text = ros2_lab.chatter_mission(
+        "ros2-reboot",
+        run_domain(),
+        [lan[0].address, lan[1].address],
+        nodes_declared,
+        ros2_domain=ROS2_DOMAIN,
+        discovery=DISCOVERY,
+    )
+    files = write_mission_bundle(workdir, text, "ros2-reboot", "ros2-reboot.yaml")
+    profiles = workdir / "profiles"
+    assert ros2_profiles(files, profiles, "--via-swarmd") == 0
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config())
+    swarm.start_all(WAIT_S)
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    logs = {who: workdir / f"{who}-senders.jsonl" for who in ("lead", "monitor")}
+
+    def subscriber(i: int, node: str, log: Path) -> subprocess.Popen[bytes]:
+        argv = ros2_lab.node_argv("listener", LISTEN_S, "--senders-log", str(log), name=node)
+        return nodes.start(i, node, argv, stdout=subprocess.DEVNULL)
+
+    def talker(tag: str) -> subprocess.Popen[bytes]:
+        argv = ros2_lab.node_argv("talker", LISTEN_S, "--tag", tag)
+        return nodes.start(1, "talker", argv, stdout=subprocess.DEVNULL)
+
+    listener = subscriber(0, "listener", logs["lead"])
+    monitor = subscriber(1, "monitor", logs["monitor"])
+    first = talker("life-1")
+    until(
+        lambda: all("life-1" in _senders(log) for log in logs.values()),
+        lambda: {who: sorted(_senders(log)) for who, log in logs.items()},
+        WAIT_S,
+    )
+    time.sleep(FIRST_LIFE_S)
+    first.send_signal(signal.SIGKILL)
+    first.wait(timeout=WAIT_S)
+    second = talker("life-2")
+    restarted_at = time.monotonic()
+    try:
+        until(
+            lambda: all("life-2" in _senders(log) for log in logs.values()),
+            lambda: {who: sorted(_senders(log)) for who, log in logs.items()},
+            RECOVER_S,
+        )
+    finally:
+        print(
+            f"\nnew life heard by both {time.monotonic() - restarted_at:.1f} s after the "
+            f"talker's restart: { {who: _senders(log) for who, log in logs.items()} }"
+        )
+        for proc in (second, monitor, listener):
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=WAIT_S)
+    # drone-1's relay disposed the talker at the monitor once; the lead's relay re-matched
+    # it on drone-1's signed restart count
+    counters = daemon_status(swarm.socks[1])["ros2"]["counters"]
+    assert counters["tx_sibling_dispose"] == 1, counters
+    assert daemon_status(swarm.socks[0])["ros2"]["counters"]["remote_restarts"] == 1
     for d in swarm.procs:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0

@@ -305,6 +305,49 @@ def test_a_starting_node_gets_its_alive_siblings_own_announcement() -> None:
     assert helper_spdp not in [d for d, _ in relay.datagrams_to_send()]
 
 
+def test_a_node_killed_and_started_again_is_disposed_at_its_siblings_first() -> None:
+    """Its sibling still holds the writer proxies of its earlier life and drops its new
+    DATA(p), numbered from 1 again (docs/ros2.md, "A restart under the same GUIDs"): the
+    relay sends the sibling the node's DATA(p[UD]), numbered above anything the relay sent
+    before, then the node's own new DATA(p) as it sent it. Not after a DATA(p[UD]) of its
+    own (the sibling got that one), nor to a sibling that is not alive."""
+    relay, talker, helper = _two_on_drone_1()
+    relay.receive_datagram(_local_spdp(helper, 7), ("::1", 40000), 0.0)
+    for sn in (1, 2, 3):
+        relay.receive_datagram(_local_spdp(talker, sn), ("::1", 40001), 0.5)
+    before = relay.datagrams_to_send()
+    to_helper = (LOOPBACK, helper.metatraffic_port)
+    second_life = _local_spdp(talker, 1)
+    relay.receive_datagram(second_life, ("::1", 40002), 1.0)  # SIGKILLed, started again
+    to_sibling = [d for d, dest in relay.datagrams_to_send() if dest == to_helper]
+    dispose, announcement = to_sibling
+    _header, samples = decode_spdp(dispose)
+    assert samples == [SpdpDisposed(GuidPrefix(talker.guid_prefix), samples[0].sequence_number)]
+    assert samples[0].sequence_number > max(
+        s.sequence_number for d, _ in before for s in decode_spdp(d)[1]
+    )
+    assert announcement == second_life
+    assert relay.counters["tx_sibling_dispose"] == 1
+    # its own DATA(p[UD]) reached the sibling: nothing to dispose when it comes back
+    relay.receive_datagram(
+        encode_spdp_dispose(GuidPrefix(talker.guid_prefix), sequence_number=4, timestamp=None),
+        ("::1", 40002),
+        2.0,
+    )
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40003), 2.5)
+    assert relay.counters["tx_sibling_dispose"] == 1
+    # the sibling is gone (both leases ran out): a restart, and no one to tell
+    relay.receive_datagram(_local_spdp(talker, 2), ("::1", 40003), 2.6)
+    relay.handle_timer(1000.0)
+    assert [r["alive"] for r in relay.status(1000.0)["local"]] == [False, False]
+    _events(relay)
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40004), 1000.0)
+    assert LocalParticipantHeard("drone-1", "talker", GuidPrefix(talker.guid_prefix), True) in (
+        _events(relay)
+    )
+    assert relay.counters["tx_sibling_dispose"] == 1
+
+
 def test_only_a_siblings_undirected_announcement_is_passed_on() -> None:
     """A DATA(p) the sibling directed (INFO_DST) to one participant would be dropped by any
     other: it is not kept to pass on; the next undirected one is."""

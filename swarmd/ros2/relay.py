@@ -315,6 +315,7 @@ class Ros2Relay:
             "tx_dispose": 0,
             "tx_start_answers": 0,
             "tx_sibling_spdp": 0,
+            "tx_sibling_dispose": 0,
             "liveness_unknown_drone": 0,
             "remote_restarts": 0,
         }
@@ -626,6 +627,32 @@ class Ros2Relay:
                 self._out.append((sibling.last_spdp, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
 
+    def _send_restart_to_siblings(self, local: _Local, datagram: bytes | None) -> None:
+        """``local`` started again without having sent its ``DATA(p[UD])`` (SIGKILL, a
+        crash): the other alive nodes of this drone, which find it directly on [::1],
+        still hold the writer proxies of its earlier life (module docstring, "A restart
+        under the same GUIDs"), and their SPDP readers drop its new DATA(p) too (numbered
+        from 1 again). They get its DATA(p[UD]), numbered above everything (the relay's
+        epoch), then ``datagram``, its own new DATA(p) as it sent it: Fast DDS forgets a
+        writer's numbers when its participant is disposed (not when its lease runs out)."""
+        siblings = [s for s in self._local.values() if s is not local and s.alive and not s.left]
+        if not siblings:
+            return
+        dispose = encode_spdp_dispose(
+            GuidPrefix(local.participant.guid_prefix),
+            sequence_number=self._next_sn(),
+            timestamp=None,
+            vendor_id=VendorId(VENDOR_EPROSIMA),
+            protocol_version=FASTDDS_PROTOCOL_VERSION,
+        )
+        for sibling in siblings:
+            port = sibling.participant.metatraffic_port
+            self._out.append((dispose, (self.loopback, port)))
+            self.counters["tx_sibling_dispose"] += 1
+            if datagram is not None:
+                self._out.append((datagram, (self.loopback, port)))
+                self.counters["tx_sibling_spdp"] += 1
+
     def _alive_remote(self, drone: str) -> list[Ros2Participant]:
         remote = self._remote_by_drone.get(drone, [])
         alive = self._remote_alive.get(drone)
@@ -683,6 +710,8 @@ class Ros2Relay:
             local.left or sample.sequence_number < local.last_sn
         )
         first = local.heard_at is None or restarted
+        # a new life without its DATA(p[UD]) (killed): its siblings still hold its proxies
+        unannounced_restart = restarted and not local.left
         if restarted:
             # a new life under the same GUIDs: counted in the signed liveness word, so the
             # other drones' relays drop its old proxies even if its bit never went down
@@ -705,6 +734,8 @@ class Ros2Relay:
             local.answers_left = START_ANSWERS
             if self.graph is not None:
                 self.graph.local_restarted(prefix, now)
+            if unannounced_restart:
+                self._send_restart_to_siblings(local, datagram)
         if local.answers_left > 0:
             local.answers_left -= 1
             self.counters["tx_start_answers"] += 1
