@@ -49,6 +49,10 @@ proxies on the dispose, and matches the announcement afresh). It does so for
   participant, its restarts modulo 256); a changed count for a node that stayed alive is
   the restart (``peer_liveness``). The count survives a lost DATA(p): any later one carries it.
 
+On the node's own drone its sibling nodes, which find it directly, hold its old proxies too:
+a node's new life without its ``DATA(p[UD])`` first is disposed at them, then its own new
+DATA(p) passed on (``_send_restart_to_siblings``).
+
 Several nodes on one drone find each other directly: each one's profile lists the others'
 [::1] discovery ports as initial peers. The relay only helps a starting one: with its start
 answers it passes on the other alive nodes' own latest DATA(p) (the answers they send it
@@ -58,9 +62,10 @@ Trust. Nothing the relay sends comes from the air: only from the signed bundle a
 ``peer_discovered`` (an authenticated peer), and, to a starting node of this drone, the
 DATA(p) its sibling nodes on loopback sent (what they send that node's port anyway). What
 local nodes send it is otherwise read to show operators what runs (heard, matched to the
-bundle, unknown) and which endpoints a node has that the bundle does not hold, and never
-goes to another drone. Bad datagrams are counted and
-dropped; ``receive_datagram`` raises nothing.
+bundle, unknown) and which endpoints a node has that the bundle does not hold, and to keep
+this drone's liveness word (alive, restarts) and its siblings' view of a restarted node;
+none of it goes to another drone but that word, in swarmd's signed DATA(p). Bad datagrams
+are counted and dropped; ``receive_datagram`` raises nothing.
 
 Driving sources: datagrams from the relay socket (``receive_datagram``), the timer
 (``handle_timer``), and the daemon's discovery events (``peer_discovered``/``peer_lost``/
