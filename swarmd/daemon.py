@@ -262,7 +262,7 @@ class Daemon:
                 )
                 self.ros2.start(loop)
                 # every DATA(p) carries our nodes' liveness from the first (PID 0x8A06)
-                self._ros2_liveness(self.ros2.relay.alive_bitmap())
+                self._ros2_liveness(self.ros2.relay.liveness())
             except (StartupError, ConfigError):
                 await self._close_transports()
                 raise
@@ -456,7 +456,9 @@ class Daemon:
                 # its data-plane state belongs to its earlier life: the plane resets it
                 if self.app is not None:
                     self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
-                self._ros2_peer(name, event.guid_prefix)
+                # its ROS 2 nodes' writers number from 1 again under the same GUIDs: the
+                # relay disposes them at our nodes and announces them again (docs/ros2.md)
+                self._ros2_peer(name, event.guid_prefix, restarted=True)
             case PeerRos2Liveness(name=name, alive=alive):
                 # authenticated (the engine takes PID 0x8A06 only from a DATA(p) it accepted)
                 self.log.info("peer_ros2_liveness", peer=name, alive=alive.hex())
@@ -492,11 +494,11 @@ class Daemon:
         if engine is not None:
             self._drive().call(lambda now: engine.set_ros2_alive(alive, now))
 
-    def _ros2_peer(self, name: str, prefix: GuidPrefix) -> None:
-        """An authenticated peer is up, moved or restarted: the relay serves its drone's
-        ROS 2 nodes at the address discovery has for it."""
+    def _ros2_peer(self, name: str, prefix: GuidPrefix, *, restarted: bool = False) -> None:
+        """An authenticated peer is up, moved or ``restarted`` (a higher signed epoch): the
+        relay serves its drone's ROS 2 nodes at the address discovery has for it."""
         if self.ros2 is not None:
-            self.ros2.peer_up(name, self._peer_ipv4(prefix))
+            self.ros2.peer_up(name, self._peer_ipv4(prefix), restarted=restarted)
 
     def _record_change(
         self, prefix: GuidPrefix, name: str, kind: PeerChangeKind, reason: str | None

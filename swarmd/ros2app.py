@@ -27,12 +27,14 @@ from swarmd.exitcodes import EX_OSERR, StartupError
 from swarmd.ros2.graph import GRAPH_PREFIX_RANDOM_BYTES, LOOPBACK4, graph_participant_prefix
 from swarmd.ros2.relay import (
     LOOPBACK,
+    Ros2Relay,
+)
+from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
     RemoteNodeLiveness,
     RemoteParticipantsRelayed,
-    Ros2Relay,
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )
@@ -153,11 +155,12 @@ class Ros2App:
 
     # ---- discovery's authenticated peers -------------------------------------------------
 
-    def peer_up(self, name: str, address: str | None) -> None:
-        """An authenticated peer is up (or moved, or restarted) at ``address``."""
+    def peer_up(self, name: str, address: str | None, *, restarted: bool = False) -> None:
+        """An authenticated peer is up (or moved) at ``address``; ``restarted``: its swarmd
+        restarted (``PeerRestarted``), its nodes are disposed and announced again."""
         relay, driver = self.relay, self.driver
         if driver is not None:
-            driver.call(lambda now: relay.peer_discovered(name, address, now))
+            driver.call(lambda now: relay.peer_discovered(name, address, now, restarted=restarted))
 
     def peer_liveness(self, name: str, alive: bytes) -> None:
         """An authenticated peer's relay says which of its nodes are alive."""
@@ -216,9 +219,11 @@ class Ros2App:
                 self.log.info("ros2_node_liveness", node=node, up=up, alive=alive.hex())
                 if self.on_liveness is not None:
                     self.on_liveness(alive)
-            case RemoteNodeLiveness(drone=drone, node=node, up=up):
-                self.log.info("ros2_remote_node_liveness", peer=drone, node=node, up=up)
-            case RemoteParticipantsRelayed(drone=drone, participants=n, up=up):
-                self.log.info("ros2_relay_peer", peer=drone, participants=n, up=up)
+            case RemoteNodeLiveness(drone=drone, node=node, up=up, restarted=restarted):
+                self.log.info(
+                    "ros2_remote_node_liveness", peer=drone, node=node, up=up, restarted=restarted
+                )
+            case RemoteParticipantsRelayed(drone=drone, participants=n, up=up, restarted=again):
+                self.log.info("ros2_relay_peer", peer=drone, participants=n, up=up, restarted=again)
             case _:
                 self.log.info("ros2_relay_event", event_type=type(event).__name__)

@@ -1,8 +1,11 @@
 """ROS 2 node liveness relayed through swarmd (docs/ros2.md, "Node liveness"), on hand-set
 time: the relay's local bookkeeping (heard, left, lease expired unheard), the other drones'
 relays disposing and re-announcing, the engine carrying the bitmap in its signed DATA(p)
-(PID 0x8A06), and the attacks: a forged or replayed liveness change moves nothing.
-The real-process test is tests/test_ros2_relay_netns.py."""
+(PID 0x8A06), and the attacks: a forged or replayed liveness change moves nothing. A
+restart under the same GUIDs (docs/ros2.md, "A restart under the same GUIDs"): a peer's
+swarmd restarted, or one of its nodes under a running swarmd (its count in the signed
+word), is disposed and announced again at the local nodes; only an authenticated restart.
+The real-process tests are tests/test_ros2_relay_netns.py and tests/test_ros2_reboot_netns.py."""
 
 from __future__ import annotations
 
@@ -15,14 +18,23 @@ from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import Ros2Participant, bundle_ros2_participants
 from swarmd.cli.status_cmd import render_status
-from swarmd.discovery import DiscoveryEngine, PacketDropped, PeerRos2Liveness
+from swarmd.discovery import (
+    DiscoveryEngine,
+    PacketDropped,
+    PeerDiscovered,
+    PeerRestarted,
+    PeerRos2Liveness,
+)
 from swarmd.discovery.events import Event
 from swarmd.ros2.relay import (
     LOOPBACK,
+    Ros2Relay,
+)
+from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
     RelayEvent,
     RemoteNodeLiveness,
-    Ros2Relay,
+    RemoteParticipantsRelayed,
 )
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (
@@ -100,7 +112,7 @@ def test_a_node_never_heard_is_alive_for_one_lease_then_stopped() -> None:
     relay.handle_timer(LEASE_S - 0.001)
     assert _events(relay) == []
     relay.handle_timer(LEASE_S)
-    assert _events(relay) == [LocalLivenessChanged(b"\x00", "talker", up=False)]
+    assert _events(relay) == [LocalLivenessChanged(b"\x00\x00", "talker", up=False)]
     assert relay.get_timer() is None
     row = relay.status(LEASE_S)["local"][0]
     assert row["state"] == "not heard" and row["alive"] is False
@@ -118,11 +130,11 @@ def test_a_heard_node_stays_alive_within_its_own_lease_and_expires_after() -> No
     relay.handle_timer(1.0 + NODE_LEASE_S)
     assert _events(relay) == []
     relay.handle_timer(5.0 + NODE_LEASE_S)  # silent for its lease: killed (SIGKILL)
-    assert _events(relay) == [LocalLivenessChanged(b"\x00", "talker", up=False)]
+    assert _events(relay) == [LocalLivenessChanged(b"\x00\x00", "talker", up=False)]
     assert relay.status(30.0)["local"][0]["state"] == "lease expired"
     relay.receive_datagram(_node_spdp(_by("drone-1"), 1), ("::1", 40001), 31.0)  # restarted
     events = _events(relay)
-    assert events[0] == LocalLivenessChanged(b"\x01", "talker", up=True)
+    assert events[0] == LocalLivenessChanged(b"\x01\x01", "talker", up=True)  # its 2nd life
 
 
 # ---- the other drones: dispose a stopped node, announce it again when back -----------------
@@ -258,3 +270,150 @@ def test_a_forged_or_replayed_liveness_change_is_refused() -> None:
     # the genuine datagram itself is still good afterwards: nothing was consumed by them
     e.receive_datagram(fresh, A1, 0.6)
     assert _liveness(_drain(e)) == []  # "stopped", as before: no change to report
+
+
+# ---- a restart under the same GUIDs ---------------------------------------------------------
+
+
+def test_a_peers_swarmd_restart_disposes_its_nodes_and_announces_them_again() -> None:
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    one, two = GuidPrefix(_by("drone-1").guid_prefix), GuidPrefix(_by("drone-2").guid_prefix)
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 1.0)  # the same drone, same address
+    assert _sent(relay) == [] and _events(relay) == []
+    # its swarmd restarted (PeerRestarted): the earlier life's proxies go, the new one is
+    # matched afresh; dispose first, the same participant announced right after
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 2.0, restarted=True)
+    assert _sent(relay) == [("dispose", one), ("alive", one)]
+    assert _events(relay) == [RemoteParticipantsRelayed("drone-1", 1, up=True, restarted=True)]
+    # a drone swarmd had lost: nothing of it is at the nodes, it is only announced
+    relay.peer_lost("drone-2", 3.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 4.0, restarted=True)
+    assert _sent(relay) == [("alive", two)]
+    assert _events(relay) == [RemoteParticipantsRelayed("drone-2", 1, up=True)]
+    # a node its relay says is stopped was disposed already and stays so
+    relay.peer_liveness("drone-1", b"\x00", 5.0)
+    assert _sent(relay) == [("dispose", one)]
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 6.0, restarted=True)
+    assert _sent(relay) == []
+
+
+def test_a_local_nodes_new_life_is_counted_in_the_signed_liveness_word() -> None:
+    relay = _relay("drone-1")
+    relay.started(0.0)
+    talker = _by("drone-1")
+    for sn in (1, 2, 3):
+        relay.receive_datagram(_node_spdp(talker, sn), ("::1", 40000), float(sn))
+    _events(relay)
+    assert relay.liveness() == b"\x01\x00"  # the bitmap, then one restart count per node
+    # SIGKILLed and started again within its lease: its bit never went down
+    relay.receive_datagram(_node_spdp(talker, 1), ("::1", 40001), 4.0)
+    assert _events(relay)[0] == LocalLivenessChanged(b"\x01\x01", "talker", up=True)
+    assert relay.liveness() == b"\x01\x01" and relay.alive_bitmap() == b"\x01"
+    assert relay.status(4.0)["local"][0]["restarts"] == 1
+    relay.receive_datagram(_node_spdp(talker, 2), ("::1", 40001), 5.0)  # a renewal: no event
+    assert _events(relay) == []
+    # counted modulo 256: one octet per node on the air
+    for i in range(255):
+        relay.receive_datagram(_node_spdp(talker, 9), ("::1", 40002), 6.0 + i)
+        relay.receive_datagram(_node_spdp(talker, 1), ("::1", 40002), 6.5 + i)
+    assert relay.liveness() == b"\x01\x00"
+
+
+def test_a_remote_nodes_new_life_is_disposed_and_announced_again() -> None:
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    one = GuidPrefix(_by("drone-1").guid_prefix)
+    relay.peer_liveness("drone-1", b"\x01\x00", 1.0)  # its first word: the base
+    assert _sent(relay) == [] and _events(relay) == []
+    relay.peer_liveness("drone-1", b"\x01\x01", 2.0)  # a new life, still alive
+    assert _sent(relay) == [("dispose", one), ("alive", one)]
+    assert _events(relay) == [RemoteNodeLiveness("drone-1", "talker", up=True, restarted=True)]
+    assert relay.counters["remote_restarts"] == 1
+    relay.peer_liveness("drone-1", b"\x01\x01", 3.0)  # the same word: nothing
+    assert _sent(relay) == []
+    # a relay that sends only the bitmap (an older swarmd): no count, no restart seen
+    relay.peer_liveness("drone-1", b"\x01", 4.0)
+    relay.peer_liveness("drone-1", b"\x01\x02", 5.0)
+    assert _sent(relay) == [] and _events(relay) == []
+    # stopped (and counted): disposed once; back: announced once, nothing left to dispose
+    relay.peer_liveness("drone-1", b"\x00\x03", 6.0)
+    assert _sent(relay) == [("dispose", one)]
+    relay.peer_liveness("drone-1", b"\x01\x04", 7.0)
+    assert _sent(relay) == [("alive", one)]
+    assert _events(relay) == [
+        RemoteNodeLiveness("drone-1", "talker", up=False),
+        RemoteNodeLiveness("drone-1", "talker", up=True),
+    ]
+    # a word while swarmd does not have the drone moves nothing at the nodes
+    relay.peer_lost("drone-1", 8.0)
+    relay.datagrams_to_send()
+    relay.peer_liveness("drone-1", b"\x01\x05", 9.0)
+    assert _sent(relay) == []
+
+
+ROS2_BUNDLE = build_dev_bundle(parse_mission(MISSION)).bundle
+UAV1 = (ADDRESS["drone-1"], 7412)
+
+
+def _to_relay(relay: Ros2Relay, events: list[Event], now: float) -> None:
+    """The daemon's routing of discovery's events to its relay (swarmd.daemon)."""
+    for event in events:
+        if isinstance(event, PeerDiscovered):
+            relay.peer_discovered(event.name, ADDRESS[event.name], now)
+        elif isinstance(event, PeerRestarted):
+            relay.peer_discovered(event.name, ADDRESS[event.name], now, restarted=True)
+        elif isinstance(event, PeerRos2Liveness):
+            relay.peer_liveness(event.name, event.alive, now)
+
+
+def test_only_an_authenticated_restart_makes_the_relay_dispose() -> None:
+    """The attacker's way to cut a drone's ROS 2 data for a moment, over and over: a forged
+    or replayed restart (a higher epoch, or a changed restart count) is refused by the
+    engine before the relay hears of it; genuine restarts cost two loopback datagrams per
+    participant and local node each, one per epoch rise."""
+    e = engine_for(ROS2_BUNDLE, 0, auth=auth_for(ROS2_BUNDLE, 0))
+    relay = _relay("lead")
+    one = GuidPrefix(_by("drone-1").guid_prefix)
+    life = auth_for(ROS2_BUNDLE, 1, epoch=5)
+    captured = peer_datagram(ROS2_BUNDLE, 1, auth=life, ros2_alive=b"\x01\x00")
+    e.receive_datagram(captured, UAV1, 0.1)
+    _to_relay(relay, _drain(e), 0.1)
+    assert _sent(relay) == [("alive", one)]
+    # forged: uav1 at a higher epoch, sealed by another member (a captured drone)
+    forged = peer_datagram(
+        ROS2_BUNDLE, 1, auth=auth_for(ROS2_BUNDLE, 2, epoch=50), ros2_alive=b"\x01\x07"
+    )
+    # forged: a genuine fresh datagram with its restart count changed on the air
+    fresh = peer_datagram(ROS2_BUNDLE, 1, auth=life, ros2_alive=b"\x01\x00")
+    pid = PID_SWARMD_ROS2_ALIVE.to_bytes(2, "little") + (8).to_bytes(2, "little")
+    at = fresh.index(pid) + 9  # PID, length, octet count, the bitmap, then the count
+    flipped = fresh[:at] + b"\x09" + fresh[at + 1 :]
+    for i, attack in enumerate((forged, flipped, captured)):  # captured: a replay
+        e.receive_datagram(attack, UAV1, 0.2 + i / 10)
+        events = _drain(e)
+        assert all(isinstance(x, PacketDropped) for x in events), events
+        _to_relay(relay, events, 0.2)
+    assert _sent(relay) == []
+    dropped = e.counters()["dropped"]
+    assert dropped["auth_bad_tag"] == 2 and dropped["auth_replayed"] == 1
+    # genuine restarts, each a higher epoch: one dispose and one announcement each
+    for epoch in (6, 7, 8):
+        restarted = peer_datagram(
+            ROS2_BUNDLE, 1, auth=auth_for(ROS2_BUNDLE, 1, epoch=epoch), ros2_alive=b"\x01\x00"
+        )
+        e.receive_datagram(restarted, UAV1, float(epoch))
+        events = _drain(e)
+        assert [x.epoch for x in events if isinstance(x, PeerRestarted)] == [epoch]
+        _to_relay(relay, events, float(epoch))
+        assert _sent(relay) == [("dispose", one), ("alive", one)]
+        e.receive_datagram(restarted, UAV1, epoch + 0.5)  # its replay: refused, nothing
+        _to_relay(relay, _drain(e), epoch + 0.5)
+        assert _sent(relay) == []

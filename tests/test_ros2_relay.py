@@ -24,15 +24,17 @@ from swarmd.ros2.relay import (
     LOOPBACK,
     MAX_UNDECLARED_PER_PARTICIPANT,
     MAX_UNKNOWN_PARTICIPANTS,
+    Ros2Relay,
+    static_edp_entity_id,
+    static_edp_properties,
+)
+from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
     LocalParticipantHeard,
     RelayEvent,
     RemoteParticipantsRelayed,
-    Ros2Relay,
     UndeclaredEndpoint,
     UnknownParticipantHeard,
-    static_edp_entity_id,
-    static_edp_properties,
 )
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (
@@ -206,7 +208,9 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
     assert relay.datagrams_to_send() == [] and _events(relay) == []
     relay.receive_datagram(_local_spdp(lead, 1), ("::1", 40001), 3.0)  # SN back to 1
     assert _events(relay) == [
-        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True)
+        # a new life, counted in the signed liveness word (bitmap, then its restarts)
+        LocalLivenessChanged(b"\x01\x01", "listener", up=True),
+        LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True),
     ]
     assert len(relay.datagrams_to_send()) == 2
     relay.receive_datagram(_local_spdp(lead, 2), ("::1", 40001), 3.0)
@@ -226,10 +230,10 @@ def test_a_local_node_heard_first_or_after_a_restart_gets_everything_at_once() -
     )
     assert relay.status(4.0)["local"][0]["state"] == "left"
     assert relay.datagrams_to_send() == []
-    assert _events(relay) == [LocalLivenessChanged(b"\x00", "listener", up=False)]
+    assert _events(relay) == [LocalLivenessChanged(b"\x00\x01", "listener", up=False)]
     relay.receive_datagram(_local_spdp(lead, 10), ("::1", 40002), 5.0)
     assert _events(relay) == [
-        LocalLivenessChanged(b"\x01", "listener", up=True),
+        LocalLivenessChanged(b"\x01\x02", "listener", up=True),
         LocalParticipantHeard("lead", "listener", GuidPrefix(lead.guid_prefix), True),
     ]
     assert len(relay.datagrams_to_send()) == 2
@@ -299,6 +303,49 @@ def test_a_starting_node_gets_its_alive_siblings_own_announcement() -> None:
     relay.datagrams_to_send()
     relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40002), 1.5)
     assert helper_spdp not in [d for d, _ in relay.datagrams_to_send()]
+
+
+def test_a_node_killed_and_started_again_is_disposed_at_its_siblings_first() -> None:
+    """Its sibling still holds the writer proxies of its earlier life and drops its new
+    DATA(p), numbered from 1 again (docs/ros2.md, "A restart under the same GUIDs"): the
+    relay sends the sibling the node's DATA(p[UD]), numbered above anything the relay sent
+    before, then the node's own new DATA(p) as it sent it. Not after a DATA(p[UD]) of its
+    own (the sibling got that one), nor to a sibling that is not alive."""
+    relay, talker, helper = _two_on_drone_1()
+    relay.receive_datagram(_local_spdp(helper, 7), ("::1", 40000), 0.0)
+    for sn in (1, 2, 3):
+        relay.receive_datagram(_local_spdp(talker, sn), ("::1", 40001), 0.5)
+    before = relay.datagrams_to_send()
+    to_helper = (LOOPBACK, helper.metatraffic_port)
+    second_life = _local_spdp(talker, 1)
+    relay.receive_datagram(second_life, ("::1", 40002), 1.0)  # SIGKILLed, started again
+    to_sibling = [d for d, dest in relay.datagrams_to_send() if dest == to_helper]
+    dispose, announcement = to_sibling
+    _header, samples = decode_spdp(dispose)
+    assert samples == [SpdpDisposed(GuidPrefix(talker.guid_prefix), samples[0].sequence_number)]
+    assert samples[0].sequence_number > max(
+        s.sequence_number for d, _ in before for s in decode_spdp(d)[1]
+    )
+    assert announcement == second_life
+    assert relay.counters["tx_sibling_dispose"] == 1
+    # its own DATA(p[UD]) reached the sibling: nothing to dispose when it comes back
+    relay.receive_datagram(
+        encode_spdp_dispose(GuidPrefix(talker.guid_prefix), sequence_number=4, timestamp=None),
+        ("::1", 40002),
+        2.0,
+    )
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40003), 2.5)
+    assert relay.counters["tx_sibling_dispose"] == 1
+    # the sibling is gone (both leases ran out): a restart, and no one to tell
+    relay.receive_datagram(_local_spdp(talker, 2), ("::1", 40003), 2.6)
+    relay.handle_timer(1000.0)
+    assert [r["alive"] for r in relay.status(1000.0)["local"]] == [False, False]
+    _events(relay)
+    relay.receive_datagram(_local_spdp(talker, 1), ("::1", 40004), 1000.0)
+    assert LocalParticipantHeard("drone-1", "talker", GuidPrefix(talker.guid_prefix), True) in (
+        _events(relay)
+    )
+    assert relay.counters["tx_sibling_dispose"] == 1
 
 
 def test_only_a_siblings_undirected_announcement_is_passed_on() -> None:

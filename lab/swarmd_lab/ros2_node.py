@@ -45,6 +45,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "(a node disposed or announced again)",
     )
     parser.add_argument(
+        "--senders-log",
+        metavar="PATH",
+        help="listener: append a JSON line to PATH when a message of a sender (its tag) not "
+        'heard before arrives ({"t": s, "sender": tag, "number": n})',
+    )
+    parser.add_argument(
         "--graph-every",
         type=float,
         metavar="S",
@@ -68,6 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parameter_overrides=[Parameter("start_type_description_service", value=False)],
     )
     received: list[str] = []
+    senders_heard: set[str] = set()
     answers: list[str] = []
     first_message_s: float | None = None
     start = time.monotonic()
@@ -95,6 +102,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             if first_message_s is None:
                 first_message_s = time.monotonic() - start
             received.append(msg.data)
+            sender, _, number = msg.data.rpartition(" ")
+            if args.senders_log and sender not in senders_heard:
+                senders_heard.add(sender)
+                line = {"t": time.monotonic() - start, "sender": sender, "number": number}
+                with open(args.senders_log, "a") as log:
+                    log.write(json.dumps(line) + "\n")
 
         subscription = node.create_subscription(String, args.topic, heard, 10)
         client: Any = node.create_client(Trigger, args.service)

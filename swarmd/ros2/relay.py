@@ -30,6 +30,29 @@ their upper half: a node that matched the SPDP writer of a relayed participant d
 whose sequence number is not above the last one it took, so a restarted swarmd must count on
 from above its earlier life.
 
+A restart under the same GUIDs. The bundle fixes every node's GUID prefix and entity ids, so
+a node that restarts has the writers of its earlier life, numbering their samples from 1
+again, and a remote node's reader that still holds their writer proxies drops every sample
+numbered at or below the last one it took (DDSI-RTPS 2.5 8.4.12, the reliable
+StatefulReader: its writer proxy keeps the highest sequence number received): the new life
+is silent until it outnumbers the old. The
+proxies must go: the relay sends the local nodes the participant's ``DATA(p[UD])`` and, at
+once after it, its ``DATA(p)`` again (Fast DDS removes the participant and its endpoint
+proxies on the dispose, and matches the announcement afresh). It does so for
+
+- a drone whose swarmd restarted (``peer_discovered(restarted=True)``: the engine's
+  ``PeerRestarted``, a higher boot epoch in an authenticated DATA(p)): its nodes restarted
+  with it, or will be matched again at no cost;
+- a node of another drone that restarted under a running swarmd: that drone's relay saw it
+  (a smaller SPDP sequence number, or a ``DATA(p[UD])`` before) and counts the node's lives
+  in the liveness word its swarmd signs (PID 0x8A06: the alive bitmap, then one octet per
+  participant, its restarts modulo 256); a changed count for a node that stayed alive is
+  the restart (``peer_liveness``). The count survives a lost DATA(p): any later one carries it.
+
+On the node's own drone its sibling nodes, which find it directly, hold its old proxies too:
+a node's new life without its ``DATA(p[UD])`` first is disposed at them, then its own new
+DATA(p) passed on (``_send_restart_to_siblings``).
+
 Several nodes on one drone find each other directly: each one's profile lists the others'
 [::1] discovery ports as initial peers. The relay only helps a starting one: with its start
 answers it passes on the other alive nodes' own latest DATA(p) (the answers they send it
@@ -39,12 +62,14 @@ Trust. Nothing the relay sends comes from the air: only from the signed bundle a
 ``peer_discovered`` (an authenticated peer), and, to a starting node of this drone, the
 DATA(p) its sibling nodes on loopback sent (what they send that node's port anyway). What
 local nodes send it is otherwise read to show operators what runs (heard, matched to the
-bundle, unknown) and which endpoints a node has that the bundle does not hold, and never
-goes to another drone. Bad datagrams are counted and
-dropped; ``receive_datagram`` raises nothing.
+bundle, unknown) and which endpoints a node has that the bundle does not hold, and to keep
+this drone's liveness word (alive, restarts) and its siblings' view of a restarted node;
+none of it goes to another drone but that word, in swarmd's signed DATA(p). Bad datagrams
+are counted and dropped; ``receive_datagram`` raises nothing.
 
 Driving sources: datagrams from the relay socket (``receive_datagram``), the timer
-(``handle_timer``), and the daemon's discovery events (``peer_discovered``/``peer_lost``).
+(``handle_timer``), and the daemon's discovery events (``peer_discovered``/``peer_lost``/
+``peer_liveness``). Its events are in ``swarmd.ros2.relay_events``.
 """
 
 from __future__ import annotations
@@ -62,6 +87,15 @@ from swarmd.bundle.ros2 import (
     Ros2Participant,
 )
 from swarmd.ros2.graph import GraphParticipant
+from swarmd.ros2.relay_events import (
+    LocalLivenessChanged,
+    LocalParticipantHeard,
+    RelayEvent,
+    RemoteNodeLiveness,
+    RemoteParticipantsRelayed,
+    UndeclaredEndpoint,
+    UnknownParticipantHeard,
+)
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import Data, Heartbeat, decode_message
@@ -159,78 +193,6 @@ def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
-# ---- events (frozen, past tense, one base) ------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class RelayEvent:
-    """Base of the relay's events."""
-
-
-@dataclass(frozen=True, slots=True)
-class LocalParticipantHeard(RelayEvent):
-    """A local ROS 2 participant of the bundle announced itself (``restarted``: after an
-    earlier life this relay saw)."""
-
-    drone: str
-    node: str
-    guid_prefix: GuidPrefix
-    restarted: bool
-
-
-@dataclass(frozen=True, slots=True)
-class UnknownParticipantHeard(RelayEvent):
-    """A participant the bundle does not place on this drone announced itself on loopback;
-    it is shown, never relayed. ``vendor`` as two hex octets."""
-
-    guid_prefix: GuidPrefix
-    vendor: str
-    name: str | None
-
-
-@dataclass(frozen=True, slots=True)
-class UndeclaredEndpoint(RelayEvent):
-    """A local node announced a static endpoint the bundle does not hold for it (Fast DDS's
-    EDPStatic property): it matches nothing, silently, in Fast DDS; reported here by node."""
-
-    drone: str
-    node: str
-    kind: str  # "writer" | "reader"
-    user_id: int  # the profile's userDefinedID (65535 or negative: none was given)
-    entity_id: str
-
-
-@dataclass(frozen=True, slots=True)
-class LocalLivenessChanged(RelayEvent):
-    """Which of this drone's ROS 2 participants are alive changed (a node heard, left, or
-    its lease expired unheard). ``alive``: the bitmap swarmd carries in its signed SPDP
-    (PID 0x8A06) over this drone's participants in bundle order, LSB of byte 0 = the first;
-    ``node``/``up``: the participant that changed."""
-
-    alive: bytes
-    node: str
-    up: bool
-
-
-@dataclass(frozen=True, slots=True)
-class RemoteNodeLiveness(RelayEvent):
-    """An authenticated peer's relay says its node ``node`` stopped (``up`` False: the
-    relay disposed it at the local nodes) or is back (announced again)."""
-
-    drone: str
-    node: str
-    up: bool
-
-
-@dataclass(frozen=True, slots=True)
-class RemoteParticipantsRelayed(RelayEvent):
-    """The relay started (``up``) or stopped serving a drone's ROS 2 participants."""
-
-    drone: str
-    participants: int
-    up: bool
-
-
 # ---- state --------------------------------------------------------------------------------
 
 
@@ -247,6 +209,7 @@ class _Local:
     # one relay lease of the relay's start; None: no expiry (left, expired, or not started)
     alive: bool = True
     alive_until: float | None = None
+    restarts: int = 0  # lives after the first this relay saw, modulo 256 (PID 0x8A06)
     # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
     undeclared: set[tuple[str, int, str]] | None = None
     # its latest DATA(p) datagram as it sent it (to everyone, its own header): passed on to
@@ -325,6 +288,8 @@ class Ros2Relay:
         # per drone, its relay's last authenticated word on its participants (absent: all
         # alive, as a peer without a relay or before its first word)
         self._remote_alive: dict[str, tuple[bool, ...]] = {}
+        # per drone, the restart counts of its last word (absent or None: it sent none)
+        self._remote_restarts: dict[str, tuple[int, ...] | None] = {}
         self._unknown: dict[GuidPrefix, _Unknown] = {}
         self._out: list[tuple[bytes, tuple[str, int]]] = []
         self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
@@ -355,7 +320,9 @@ class Ros2Relay:
             "tx_dispose": 0,
             "tx_start_answers": 0,
             "tx_sibling_spdp": 0,
+            "tx_sibling_dispose": 0,
             "liveness_unknown_drone": 0,
+            "remote_restarts": 0,
         }
 
     # ---- the driving protocol ----------------------------------------------------------------
@@ -418,32 +385,47 @@ class Ros2Relay:
         return min(deadlines, default=None)
 
     def alive_bitmap(self) -> bytes:
-        """This drone's participants alive, as PID 0x8A06 carries it (bundle order, LSB of
-        byte 0 = the first)."""
+        """This drone's participants alive (bundle order, LSB of byte 0 = the first)."""
         bits = bytearray((len(self._local) + 7) // 8)
         for i, local in enumerate(self._local.values()):
             if local.alive:
                 bits[i // 8] |= 1 << (i % 8)
         return bytes(bits)
 
+    def liveness(self) -> bytes:
+        """What swarmd's signed DATA(p) carries for this drone's nodes (PID 0x8A06): the
+        alive bitmap, then one octet per participant in bundle order, its restarts modulo
+        256 (module docstring, "A restart under the same GUIDs"). A relay that reads only
+        the bitmap ignores the octets after it."""
+        return self.alive_bitmap() + bytes(local.restarts for local in self._local.values())
+
     def next_event(self) -> RelayEvent | None:
         return self._events.popleft() if self._events else None
 
     # ---- discovery's events (authenticated peers) --------------------------------------------
 
-    def peer_discovered(self, drone: str, address: str | None, now: float) -> None:
+    def peer_discovered(
+        self, drone: str, address: str | None, now: float, *, restarted: bool = False
+    ) -> None:
         """swarmd's discovery has ``drone`` at ``address``: relay its ROS 2 participants to
-        every local one now, and from then on within their lease."""
+        every local one now, and from then on within their lease. ``restarted``: its swarmd
+        restarted (the engine's ``PeerRestarted``: a higher epoch in an authenticated
+        DATA(p), never anything else): its participants, announced before, are disposed at
+        the local nodes and announced again at once, so their readers drop the writer
+        proxies of the earlier life (module docstring, "A restart under the same GUIDs")."""
         remote = self._remote_by_drone.get(drone)
         if not remote or address is None:
             return
         known = self._present.get(drone)
-        if known is not None and known.address == address:
+        if known is not None and known.address == address and not restarted:
             return
         self._present[drone] = _Remote(drone, address, now)
-        self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True))
+        again = restarted and known is not None
+        self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True, restarted=again))
         self._send_graph_spdp(None)
         for p in self._alive_remote(drone):
+            if again:
+                self._send_dispose(p)
             self._send_alive(p, address, now)
             if self.graph is not None:
                 self.graph.publish(GuidPrefix(p.guid_prefix), now)
@@ -475,16 +457,33 @@ class Ros2Relay:
         new = tuple(
             i // 8 < len(alive) and bool(alive[i // 8] >> (i % 8) & 1) for i in range(len(remote))
         )
+        # the restart counts after the bitmap (a relay that sends none: no restart is seen)
+        counted = len(alive) >= (len(remote) + 7) // 8 + len(remote)
+        restarts = tuple(alive[(len(remote) + 7) // 8 :][: len(remote)]) if counted else None
         old = self._remote_alive.get(drone, (True,) * len(remote))
+        old_restarts = self._remote_restarts.get(drone)
         self._remote_alive[drone] = new
+        self._remote_restarts[drone] = restarts
         present = self._present.get(drone)
-        for p, was, up in zip(remote, old, new, strict=True):
-            if was == up:
+        for i, (p, was, up) in enumerate(zip(remote, old, new, strict=True)):
+            # a new life of a node that was and is alive: its proxies must go (DATA(p[UD]))
+            restarted = (
+                was
+                and up
+                and restarts is not None
+                and old_restarts is not None
+                and restarts[i] != old_restarts[i]
+            )
+            if was == up and not restarted:
                 continue
-            self._events.append(RemoteNodeLiveness(drone, p.node.name, up))
+            self._events.append(RemoteNodeLiveness(drone, p.node.name, up, restarted))
+            if restarted:
+                self.counters["remote_restarts"] += 1
             if present is None:
                 continue  # announced (or not) when swarmd finds the drone
             if up:
+                if restarted:
+                    self._send_dispose(p)
                 self._send_graph_spdp(None)
                 self._send_alive(p, present.address, now)
                 if self.graph is not None:
@@ -527,6 +526,7 @@ class Ros2Relay:
                     if local.alive
                     else "lease expired",
                     "alive": local.alive,
+                    "restarts": local.restarts,
                     "last_heard_s": None
                     if local.heard_at is None
                     else round(now - local.heard_at, 3),
@@ -632,6 +632,32 @@ class Ros2Relay:
                 self._out.append((sibling.last_spdp, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
 
+    def _send_restart_to_siblings(self, local: _Local, datagram: bytes | None) -> None:
+        """``local`` started again without having sent its ``DATA(p[UD])`` (SIGKILL, a
+        crash): the other alive nodes of this drone, which find it directly on [::1],
+        still hold the writer proxies of its earlier life (module docstring, "A restart
+        under the same GUIDs"), and their SPDP readers drop its new DATA(p) too (numbered
+        from 1 again). They get its DATA(p[UD]), numbered above everything (the relay's
+        epoch), then ``datagram``, its own new DATA(p) as it sent it: Fast DDS forgets a
+        writer's numbers when its participant is disposed (not when its lease runs out)."""
+        siblings = [s for s in self._local.values() if s is not local and s.alive and not s.left]
+        if not siblings:
+            return
+        dispose = encode_spdp_dispose(
+            GuidPrefix(local.participant.guid_prefix),
+            sequence_number=self._next_sn(),
+            timestamp=None,
+            vendor_id=VendorId(VENDOR_EPROSIMA),
+            protocol_version=FASTDDS_PROTOCOL_VERSION,
+        )
+        for sibling in siblings:
+            port = sibling.participant.metatraffic_port
+            self._out.append((dispose, (self.loopback, port)))
+            self.counters["tx_sibling_dispose"] += 1
+            if datagram is not None:
+                self._out.append((datagram, (self.loopback, port)))
+                self.counters["tx_sibling_spdp"] += 1
+
     def _alive_remote(self, drone: str) -> list[Ros2Participant]:
         remote = self._remote_by_drone.get(drone, [])
         alive = self._remote_alive.get(drone)
@@ -653,15 +679,15 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_dispose"] += 1
 
-    def _set_local_alive(self, local: _Local, alive: bool) -> None:
+    def _set_local_alive(self, local: _Local, alive: bool, restarted: bool = False) -> None:
         if not alive:
             local.alive_until = None
             local.last_spdp = None
-        if local.alive == alive:
+        if local.alive == alive and not restarted:
             return
         local.alive = alive
         p = local.participant
-        self._events.append(LocalLivenessChanged(self.alive_bitmap(), p.node.name, alive))
+        self._events.append(LocalLivenessChanged(self.liveness(), p.node.name, alive))
 
     def _renew_all(self, now: float) -> None:
         if self._present:
@@ -689,13 +715,19 @@ class Ros2Relay:
             local.left or sample.sequence_number < local.last_sn
         )
         first = local.heard_at is None or restarted
+        # a new life without its DATA(p[UD]) (killed): its siblings still hold its proxies
+        unannounced_restart = restarted and not local.left
+        if restarted:
+            # a new life under the same GUIDs: counted in the signed liveness word, so the
+            # other drones' relays drop its old proxies even if its bit never went down
+            local.restarts = (local.restarts + 1) & 0xFF
         local.left = False
         local.heard_at = now
         lease = min(
             max(participant.lease_duration.total_seconds(), MIN_NODE_LEASE_S), MAX_NODE_LEASE_S
         )
         local.alive_until = now + lease
-        self._set_local_alive(local, True)
+        self._set_local_alive(local, True, restarted)
         local.last_sn = sample.sequence_number
         local.datagrams += 1
         if datagram is not None:
@@ -707,6 +739,8 @@ class Ros2Relay:
             local.answers_left = START_ANSWERS
             if self.graph is not None:
                 self.graph.local_restarted(prefix, now)
+            if unannounced_restart:
+                self._send_restart_to_siblings(local, datagram)
         if local.answers_left > 0:
             local.answers_left -= 1
             self.counters["tx_start_answers"] += 1

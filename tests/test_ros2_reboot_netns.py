@@ -1,0 +1,232 @@
+"""A drone's ROS 2 data reaches its peers again after an in-air reboot (issue 20, docs/ros2.md
+"A restart under the same GUIDs").
+
+Two drones in network namespaces, each with swarmd on the relay route (``ros2.relay: true``)
+and one real rclpy node (``swarmd_lab.ros2_lab``: its own machine id and ``/dev/shm``): the
+lead's listener, drone-1's talker. swarmd's discovery lease (20 s, as in flight) outlasts
+every outage below, so the lead's swarmd never loses drone-1: the attack-style reboot of the
+flight scenario (``flight_run --scenarios reboot --contenders ros2-swarmd``).
+
+The bundle fixes each node's GUID prefix and entity ids, so a restarted talker's writer has
+the GUID of its earlier life and numbers its samples from 1 again. The listener's reader
+still holds the earlier writer proxy (its relay renews it) and drops every sample numbered
+at or below the last one it took (DDSI-RTPS 2.5 8.4.12, the reliable StatefulReader: its
+writer proxy keeps the highest sequence number received). The talker's first life is
+therefore made longer than the bound of its second: before the fix (698603e) not one
+message of the second life arrived, in either case.
+
+1. drone-1's swarmd and talker are SIGKILLed and restarted, the state dir kept (a reboot);
+2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running;
+3. as 2, with a second node on drone-1 (a subscriber, the monitor) that finds the talker
+   directly on [::1] and holds its writer proxy too.
+
+In each, the subscribers must hear the new life within ``RECOVER_S`` (a liveness bound on
+real processes with generous slack; nothing else is timed).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from swarmd_lab import ros2_lab
+
+from tests.conftest import LanFactory
+from tests.daemon_support import (
+    BundleFiles,
+    Daemons,
+    daemon_status,
+    relay_config,
+    ros2_profiles,
+    run_domain,
+    until,
+    write_mission_bundle,
+)
+
+pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
+
+pytestmark = [
+    pytest.mark.netns,
+    pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
+]
+
+WAIT_S = 30.0
+# the talker's first life after the listener first heard it: at 5 messages/s, ~75 samples,
+# more than its second life can send within RECOVER_S (so none would pass an old proxy)
+FIRST_LIFE_S = 15.0
+RECOVER_S = 12.0
+SECOND_LIFE_S = 30.0
+LISTEN_S = 90.0
+ROS2_DOMAIN = 7
+# swarmd's discovery: quick announcements, the flight's 20 s lease (no PeerLost in a reboot)
+DISCOVERY = "{t_min_s: 0.2, t_max_s: 0.5, lease_s: 20}"
+DRONES = ("lead", "drone-1")
+
+
+def _senders(log: Path) -> dict[str, dict[str, Any]]:
+    """The listener's first message per sender tag (``ros2_node --senders-log``)."""
+    if not log.exists():
+        return {}
+    rows = [json.loads(line) for line in log.read_text().splitlines() if line]
+    return {row["sender"]: row for row in rows}
+
+
+def _log(log: Path, peer: str, *names: str) -> list[dict[str, Any]]:
+    """The daemon's JSON log lines about ``peer`` whose event is one of ``names``."""
+    return [
+        e
+        for e in (json.loads(x) for x in log.read_text().splitlines() if x.startswith("{"))
+        if e.get("peer") == peer and e["event"] in names
+    ]
+
+
+@pytest.mark.parametrize("swarmd_too", [True, False], ids=["reboot", "node-only"])
+def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
+    lan_factory: LanFactory, workdir: Path, swarmd_too: bool
+) -> None:
+    lan = lan_factory(2)
+    text = ros2_lab.chatter_mission(
+        "ros2-reboot",
+        run_domain(),
+        [lan[0].address, lan[1].address],
+        ros2_domain=ROS2_DOMAIN,
+        discovery=DISCOVERY,
+    )
+    files: BundleFiles = write_mission_bundle(workdir, text, "ros2-reboot", "ros2-reboot.yaml")
+    profiles = workdir / "profiles"
+    assert ros2_profiles(files, profiles, "--via-swarmd") == 0
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config())
+    daemons = swarm.start_all(WAIT_S)
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    senders_log = workdir / "listener-senders.jsonl"
+
+    def talker(tag: str, seconds: float) -> subprocess.Popen[bytes]:
+        argv = ros2_lab.node_argv("talker", seconds, "--tag", tag)
+        return nodes.start(1, "talker", argv, stdout=subprocess.DEVNULL)
+
+    listener = nodes.start(
+        0,
+        "listener",
+        ros2_lab.node_argv("listener", LISTEN_S, "--senders-log", str(senders_log)),
+        stdout=subprocess.DEVNULL,
+    )
+    first = talker("life-1", LISTEN_S)
+    until(lambda: "life-1" in _senders(senders_log), lambda: _senders(senders_log), WAIT_S)
+    time.sleep(FIRST_LIFE_S)  # the first life numbers its samples past the second's bound
+
+    first.send_signal(signal.SIGKILL)  # no DATA(p[UD]): the node's lease has not run out
+    first.wait(timeout=WAIT_S)
+    if swarmd_too:
+        daemons[1].send_signal(signal.SIGKILL)
+        daemons[1].wait(timeout=WAIT_S)
+        swarm.start(1)  # the same config and state dir: its boot epoch rises
+        until(
+            lambda: daemon_status(swarm.socks[1])["ros2"] is not None,
+            lambda: "drone-1's swarmd is not up",
+            WAIT_S,
+        )
+    second = talker("life-2", SECOND_LIFE_S)
+    restarted_at = time.monotonic()
+    try:
+        until(
+            lambda: "life-2" in _senders(senders_log),
+            lambda: f"the listener heard {sorted(_senders(senders_log))}",
+            RECOVER_S,
+        )
+    finally:
+        # shown, not asserted: from the talker's restart to the poll that saw its message
+        print(
+            f"\nnew life heard {time.monotonic() - restarted_at:.1f} s after the talker's "
+            f"restart; the listener's first message per sender: {_senders(senders_log)}"
+        )
+        for proc in (second, listener):
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=WAIT_S)
+    # the lead's swarmd never lost drone-1: a reboot is its signed restart (a higher epoch)
+    lead_log = swarm.logs[0]
+    events = [e["event"] for e in _log(lead_log, "drone-1", "peer_lost", "peer_restarted")]
+    assert events == (["peer_restarted"] if swarmd_too else []), events
+    # and the lead's relay disposed drone-1's node and announced it again, once: for the
+    # reboot on the restart, for the node alone on drone-1's signed restart count
+    relayed = _log(lead_log, "drone-1", "ros2_relay_peer", "ros2_remote_node_liveness")
+    again = [(e["event"], e["up"]) for e in relayed if e["restarted"]]
+    want = "ros2_relay_peer" if swarmd_too else "ros2_remote_node_liveness"
+    assert again == [(want, True)], relayed
+    for d in swarm.procs:
+        d.send_signal(signal.SIGTERM)
+        assert d.wait(timeout=WAIT_S) == 0
+
+
+def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
+    lan_factory: LanFactory, workdir: Path
+) -> None:
+    """Nodes of one drone find each other directly on [::1] (docs/ros2.md, "Several nodes
+    on one drone"): drone-1's monitor holds the talker's writer proxy as the lead's
+    listener does. The talker alone is SIGKILLed and restarted at once."""
+    lan = lan_factory(2)
+    nodes_declared = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, ros2_lab.LISTENER_NODE)
+    text = ros2_lab.chatter_mission(
+        "ros2-reboot",
+        run_domain(),
+        [lan[0].address, lan[1].address],
+        nodes_declared,
+        ros2_domain=ROS2_DOMAIN,
+        discovery=DISCOVERY,
+    )
+    files = write_mission_bundle(workdir, text, "ros2-reboot", "ros2-reboot.yaml")
+    profiles = workdir / "profiles"
+    assert ros2_profiles(files, profiles, "--via-swarmd") == 0
+    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config())
+    swarm.start_all(WAIT_S)
+    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    logs = {who: workdir / f"{who}-senders.jsonl" for who in ("lead", "monitor")}
+
+    def subscriber(i: int, node: str, log: Path) -> subprocess.Popen[bytes]:
+        argv = ros2_lab.node_argv("listener", LISTEN_S, "--senders-log", str(log), name=node)
+        return nodes.start(i, node, argv, stdout=subprocess.DEVNULL)
+
+    def talker(tag: str) -> subprocess.Popen[bytes]:
+        argv = ros2_lab.node_argv("talker", LISTEN_S, "--tag", tag)
+        return nodes.start(1, "talker", argv, stdout=subprocess.DEVNULL)
+
+    listener = subscriber(0, "listener", logs["lead"])
+    monitor = subscriber(1, "monitor", logs["monitor"])
+    first = talker("life-1")
+    until(
+        lambda: all("life-1" in _senders(log) for log in logs.values()),
+        lambda: {who: sorted(_senders(log)) for who, log in logs.items()},
+        WAIT_S,
+    )
+    time.sleep(FIRST_LIFE_S)
+    first.send_signal(signal.SIGKILL)
+    first.wait(timeout=WAIT_S)
+    second = talker("life-2")
+    restarted_at = time.monotonic()
+    try:
+        until(
+            lambda: all("life-2" in _senders(log) for log in logs.values()),
+            lambda: {who: sorted(_senders(log)) for who, log in logs.items()},
+            RECOVER_S,
+        )
+    finally:
+        print(
+            f"\nnew life heard by both {time.monotonic() - restarted_at:.1f} s after the "
+            f"talker's restart: { {who: _senders(log) for who, log in logs.items()} }"
+        )
+        for proc in (second, monitor, listener):
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=WAIT_S)
+    # drone-1's relay disposed the talker at the monitor once; the lead's relay re-matched
+    # it on drone-1's signed restart count
+    counters = daemon_status(swarm.socks[1])["ros2"]["counters"]
+    assert counters["tx_sibling_dispose"] == 1, counters
+    assert daemon_status(swarm.socks[0])["ros2"]["counters"]["remote_restarts"] == 1
+    for d in swarm.procs:
+        d.send_signal(signal.SIGTERM)
+        assert d.wait(timeout=WAIT_S) == 0
