@@ -73,6 +73,17 @@ def _events(relay: Ros2Relay) -> list[RelayEvent]:
     return out
 
 
+def _lead_with_two_peers() -> tuple[Ros2Relay, GuidPrefix, GuidPrefix]:
+    """The lead's relay with drone-1 and drone-2 discovered and their announcements drained;
+    their GUID prefixes."""
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    relay.datagrams_to_send()
+    _events(relay)
+    return relay, GuidPrefix(_by("drone-1").guid_prefix), GuidPrefix(_by("drone-2").guid_prefix)
+
+
 def _node_spdp(p: Ros2Participant, sn: int) -> bytes:
     return encode_spdp(
         SpdpParticipant(
@@ -141,12 +152,7 @@ def test_a_heard_node_stays_alive_within_its_own_lease_and_expires_after() -> No
 
 
 def test_a_stopped_remote_node_is_disposed_at_once_and_announced_again_when_back() -> None:
-    relay = _relay("lead")
-    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
-    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
-    relay.datagrams_to_send()
-    _events(relay)
-    one, two = GuidPrefix(_by("drone-1").guid_prefix), GuidPrefix(_by("drone-2").guid_prefix)
+    relay, one, two = _lead_with_two_peers()
     relay.peer_liveness("drone-1", b"\x00", 1.0)
     assert _sent(relay) == [("dispose", one)]
     assert _events(relay) == [RemoteNodeLiveness("drone-1", "talker", up=False)]
@@ -276,12 +282,7 @@ def test_a_forged_or_replayed_liveness_change_is_refused() -> None:
 
 
 def test_a_peers_swarmd_restart_disposes_its_nodes_and_announces_them_again() -> None:
-    relay = _relay("lead")
-    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
-    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
-    relay.datagrams_to_send()
-    _events(relay)
-    one, two = GuidPrefix(_by("drone-1").guid_prefix), GuidPrefix(_by("drone-2").guid_prefix)
+    relay, one, two = _lead_with_two_peers()
     relay.peer_discovered("drone-1", ADDRESS["drone-1"], 1.0)  # the same drone, same address
     assert _sent(relay) == [] and _events(relay) == []
     # its swarmd restarted (PeerRestarted): the earlier life's proxies go, the new one is
