@@ -25,8 +25,7 @@ import pytest
 from swarmd_lab.testing import Swarm, build_swarm
 
 from swarmd.discovery.events import PeerDiscovered, PeerLost
-from swarmd.discovery.receive import LOST_US_GAP_MAX_S
-from swarmd.discovery.seek import SEEK_MAX_S
+from swarmd.discovery.seek import LOST_US_GAP_MAX_S, SEEK_MAX_S
 
 N = 20
 FADER = N - 1
