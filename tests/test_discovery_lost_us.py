@@ -150,6 +150,36 @@ def test_the_side_table_holds_only_the_peers_that_lost_us_and_forgets_them() -> 
     assert table == {}
 
 
+# ------------------------------------------------------------------ the answer's holdoff
+
+
+@pytest.mark.parametrize("seed", range(1, 11))
+def test_the_answer_to_a_peer_that_lost_few_goes_within_their_share_of_the_budget(
+    seed: int,
+) -> None:
+    """The residual of the fade at N = 20 (docs/discovery.md): a window of 1 s, the cue late
+    in it, and the answer held back by the rejoin delay U(0, N / 50) = U(0, 0.4 s) landed
+    after it closed. Only the peers the cue omits may answer it, so the holdoff is spread
+    over them: U(0, 3 / 50 s) when it omits 3 (us and two others); before, up to 0.4 s."""
+    bundle = make_bundle(N)
+    engine = engine_for(bundle, 0, seed=seed, q=0.5)
+    addr = (node_ipv4(FADER), bundle.metatraffic_port(bundle.participants[FADER]))
+    for i in range(1, N):  # every peer heard, each listing everyone
+        frame = peer_datagram(bundle, i, heard=tuple(range(N)), sequence_number=1)
+        source = (node_ipv4(i), bundle.metatraffic_port(bundle.participants[i]))
+        engine.receive_datagram(frame, source, 1.0)
+    run_to(engine, 5.0)  # we announced, listing them all: nothing owed
+    assert engine.counters()["tx_kind"]["reply"] == 0
+    cue_at = 5.5
+    omits = (0, 1, 2)  # its frame omits us and two others
+    heard = tuple(i for i in range(N) if i not in omits)
+    cue = peer_datagram(bundle, FADER, heard=heard, sequence_number=2)
+    engine.receive_datagram(cue, addr, cue_at)
+    window = len(omits) / EngineConfig().announce_budget_fps  # 0.06 s
+    sent = run_to(engine, cue_at + window)
+    assert [t for t, _, to in sent if to == addr], "no answer within 0.06 s of the cue"
+
+
 # ------------------------------------------------------------------ a captured member's attack
 
 ATTACK_N = 10

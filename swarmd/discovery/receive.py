@@ -157,7 +157,7 @@ class ReceivePath:
         # the peers that lost us while we kept them (seek.SoughtBy: the lost_us rule), ours
         # alone but for the engine's _lose, which forgets a lost peer; and its table, read
         # once per datagram (the dict itself, never replaced: empty on the usual path)
-        self.sought_by = SoughtBy()
+        self.sought_by = SoughtBy(bundle.size)
         self._seekers = self.sought_by.entries
         self._emit = emit
         self._lose = lose
@@ -443,9 +443,13 @@ class ReceivePath:
             # (Never for a restarted peer: the branch above takes every restart.)
             peer.reack.mark(now)
             self.sought_by.answered(peer.index, now)
-            told = peer.told = False
-            rejoin = True
+            peer.told = False
             retry.leave_one_attempt()  # this answer only
+            # held back U(0, omitted / budget), not the rejoin delay U(0, N / budget): only
+            # the peers its frame omits may answer it too (Debts.cue_delay)
+            debts = self._debts
+            debts.arm(peer, now + debts.cue_delay(self.sought_by.omitted(peer.index)))
+            return
         elif (
             not lists_me
             and told

@@ -157,9 +157,10 @@ class SoughtBy:
     an entry, its own: it holds at most the peer table's N - 1 rows, the bundle's cap (no
     peer can add more than one, a stranger none)."""
 
-    __slots__ = ("entries",)
+    __slots__ = ("_swarm_size", "entries")
 
-    def __init__(self) -> None:
+    def __init__(self, swarm_size: int) -> None:
+        self._swarm_size = swarm_size  # N, the bundle's participants
         self.entries: dict[int, _Seeker] = {}  # by bundle index; empty on the usual path
 
     def lost_us(self, index: int) -> None:
@@ -189,6 +190,13 @@ class SoughtBy:
             return False
         at = entry.answered_at
         return at is None or now - at >= _LOST_US_SPACING.plain_s(entry.answers)
+
+    def omitted(self, index: int) -> int:
+        """How many bundle peers the latest frame of peer ``index`` omits (at least 1: us):
+        the peers that may answer that same frame (those it lists owe it nothing)."""
+        entry = self.entries.get(index)
+        hears = 0 if entry is None else entry.hears
+        return max(1, self._swarm_size - 1 - hears)
 
     def answered(self, index: int, now: float) -> None:
         """We answered peer ``index`` promptly at ``now`` (after ``may_answer``)."""
