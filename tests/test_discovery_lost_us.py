@@ -10,8 +10,9 @@ reach uav20. The same shape on MemNet, virtual time: from ``T_CUT`` every frame 
 fader is lost (it hears nobody; everyone hears it), until ``T_BACK``. It loses all its peers,
 they keep it, and once it hears again it must find every one within the rule's own bound:
 its next seek (at most ``SEEK_MAX_S`` after the return), the answers of the peers whose
-spacing allows one (within the rejoin delay W1 = N / 50 = 0.4 s), its pull-in multicast,
-which now lists the peers it found (W1), and the others' answers to that (W1): 2.4 s. That
+spacing allows one (within ``Debts.cue_delay``, at most W1 = N / 50 = 0.4 s), its pull-in
+multicast, which now lists the peers it found (W1), and the others' answers to that (W1):
+2.4 s. That
 is harsher than the flight's fade (there the fader hears in every window; here it heard
 nobody for 40 s, so every peer's spacing had grown to its cap), and the issue's 2 s target
 is judged on the flight runs. Before the rule: 2.9-6.5 s. And a drone that stays deaf must
@@ -157,10 +158,11 @@ def test_the_side_table_holds_only_the_peers_that_lost_us_and_forgets_them() -> 
 def test_the_answer_to_a_peer_that_lost_few_goes_within_their_share_of_the_budget(
     seed: int,
 ) -> None:
-    """The residual of the fade at N = 20 (docs/discovery.md): a window of 1 s, the cue late
-    in it, and the answer held back by the rejoin delay U(0, N / 50) = U(0, 0.4 s) landed
-    after it closed. Only the peers the cue omits may answer it, so the holdoff is spread
-    over them: U(0, 3 / 50 s) when it omits 3 (us and two others); before, up to 0.4 s."""
+    """The residual of the fade at N = 20 (docs/discovery.md, "The residual"): a window of
+    1 s, the cue most likely late in it, and an answer held back by the rejoin delay
+    U(0, N / 50) = U(0, 0.4 s) can land after it closed. Only the peers the cue omits may
+    answer it, so the holdoff is spread over them: U(0, 3 / 50 s) when it omits 3 (us and
+    two others); before, up to 0.4 s (9 of these 10 seeds fail then)."""
     bundle = make_bundle(N)
     engine = engine_for(bundle, 0, seed=seed, q=0.5)
     addr = (node_ipv4(FADER), bundle.metatraffic_port(bundle.participants[FADER]))

@@ -431,22 +431,23 @@ class ReceivePath:
             # The lost_us rule: it listed us, then lost us, and still seeks us (its frames
             # omit us) although we kept it: a peer that could not hear us while we heard it
             # (a drone at the edge of range), or one whose first answer from us was lost
-            # too. Answer within the rejoin delay (below: rejoin), not after the Q-stretched
-            # holdoff, and with one attempt left whatever the earlier need spent (the
-            # retries spent while it could not hear us may be exhausted, and the backoff or
-            # our next renewal outlasts its in-range window: in the irregular fade at N = 20
-            # such a pair waited 32 s). One answer, not a new series of retries: its next
-            # frame that omits us is our next cue. Spaced by SoughtBy (1, 2, 4, 8, 8 ... s
-            # after each answer, starting over when its frames list more peers) and by the
-            # re-ack gap, whatever the peer sends: a drone that hears nobody costs each peer
-            # one answer per 8 s, a peer toggling its digest one per re-ack gap at most.
-            # (Never for a restarted peer: the branch above takes every restart.)
+            # too. Answer at once, within Debts.cue_delay (U(0, omitted / budget): only the
+            # peers its frame omits may answer it too; not the rejoin delay U(0, N /
+            # budget), which let an answer land after a 1 s window closed, nor the
+            # Q-stretched holdoff), with one attempt left whatever the earlier need spent
+            # (the retries spent while it could not hear us may be exhausted, and the
+            # backoff or our next renewal outlasts its in-range window: in the irregular
+            # fade at N = 20 such a pair waited 32 s). One answer, not a new series of
+            # retries: its next frame that omits us is our next cue. Spaced by SoughtBy
+            # (1, 2, 4, 8, 8 ... s after each answer, starting over when its frames list
+            # more peers) and by the re-ack gap, whatever the peer sends: a drone that hears
+            # nobody costs each peer one answer per 8 s, a peer toggling its digest one per
+            # re-ack gap at most. (Never for a restarted peer: the branch above takes every
+            # restart.)
             peer.reack.mark(now)
             self.sought_by.answered(peer.index, now)
             peer.told = False
             retry.leave_one_attempt()  # this answer only
-            # held back U(0, omitted / budget), not the rejoin delay U(0, N / budget): only
-            # the peers its frame omits may answer it too (Debts.cue_delay)
             debts = self._debts
             debts.arm(peer, now + debts.cue_delay(self.sought_by.omitted(peer.index)))
             return
