@@ -188,6 +188,35 @@ def test_retry_schedule_keeps_the_earliest_deadline_and_stops_when_exhausted() -
     assert retry.deadline() == 9.0
 
 
+def test_backoff_plain_is_the_unjittered_delay_and_draws_nothing() -> None:
+    backoff = Backoff(1.0, 8.0)
+    rng = random.Random(3)
+    state = rng.getstate()
+    assert [backoff.plain_s(k) for k in (0, 1, 2, 3, 4, 5, 9)] == [1, 1, 2, 4, 8, 8, 8]
+    assert rng.getstate() == state  # no draw: the caller's seeded schedule does not move
+    for k in range(1, 8):
+        assert backoff.plain_s(k) <= backoff.delay_s(k, rng) <= backoff.plain_s(k) * 1.25
+
+
+@pytest.mark.parametrize("spent", [0, 1, 3, 4])
+def test_retry_schedule_can_leave_exactly_one_attempt_whatever_was_spent(spent: int) -> None:
+    retry = RetrySchedule(max_attempts=4)
+    for _ in range(spent):
+        retry.arm(1.0)
+        retry.sent()
+    retry.leave_one_attempt()
+    assert retry.attempts == 3  # one of four left
+    assert retry.arm(2.0) and retry.deadline() == 2.0  # one more may be armed ...
+    retry.sent()
+    assert retry.exhausted  # ... and sent, then no more
+    assert not retry.arm(3.0) and retry.deadline() is None
+    retry.reset()  # the next need starts fresh: all four again
+    for _ in range(4):
+        assert retry.arm(4.0)
+        retry.sent()
+    assert retry.exhausted
+
+
 def test_min_interval_and_periodic() -> None:
     limiter = MinInterval(0.5)
     assert limiter.permits(0.0) and limiter.next_allowed() is None

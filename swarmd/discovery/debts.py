@@ -248,6 +248,23 @@ class Debts:
             return self._rng.uniform(0.0, self._config.reply_delay_max_s)
         return self._rejoin_spread_s * self._rng.random()
 
+    def cue_delay(self, answerers: int) -> float:
+        """The holdoff before our answer to a peer that lost us while we kept it (the lost_us
+        rule, receive.py): U(0, min(W1, answerers / budget)), ``answerers`` the peers its
+        frame omits (``seek.SoughtBy.omitted``), the only ones that may answer that frame.
+
+        Not the rejoin delay U(0, W1), W1 = N / budget (0.4 s at N = 20): a drone at the edge
+        of range is in range 0.25-1.5 s at a time (issue 20's fade), and an answer held back
+        up to 0.4 s after the frame that cued it can land after the window closed
+        (docs/discovery.md, "A peer that lost us while we kept it"). The answers one frame
+        can draw are still spread at the announce budget: a drone that lost 3 of 19 peers
+        draws them within 0.06 s, one that lost the whole swarm within W1, as before.
+        Paper mode: U(0, reply_delay_max_s), as ``rejoin_delay``."""
+        if self._config.mode == "paper":
+            return self._rng.uniform(0.0, self._config.reply_delay_max_s)
+        spread = min(self._rejoin_spread_s, answerers / self._config.announce_budget_fps)
+        return spread * self._rng.random()
+
     def spread_s(self) -> float:
         """Adaptive mode's W at the current Q: the time N frames take at the budget rate."""
         q, spread = self._spread_at

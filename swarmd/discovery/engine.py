@@ -48,6 +48,8 @@ others together:
 * ``debts.Debts``: which peers are owed a frame, the retry heap, holdoff and backoff;
 * ``leases.Leases``: leases, the commander's vouches, the heard digest;
 * ``renewals.Renewals``: our link quality, the renewal period, the advertised lease;
+* ``seek.Seek``: a short multicast while peers are lost; ``seek.SoughtBy``, the peers that
+  lost us while we kept them (the receive path's lost_us rule);
 * ``foreign.ForeignParticipants``: participants outside the bundle, reports, decode budget;
 * ``sending.Sender``: our DATA(p) and DATA(p[UD]), the sequence number, the outbox;
 * ``status``: the typed views and JSON forms; ``received``: what a datagram says.
@@ -85,12 +87,7 @@ from swarmd.bundle.model import Bundle, Participant
 from swarmd.discovery.awareness import draw_passive_timer_s, passive_window_s
 from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.debts import Debts
-from swarmd.discovery.events import (
-    DropReason,
-    Event,
-    PeerLost,
-    PhaseChanged,
-)
+from swarmd.discovery.events import DropReason, Event, PeerLost, PhaseChanged
 from swarmd.discovery.foreign import ForeignParticipants
 from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.leases import Leases
@@ -681,6 +678,7 @@ class DiscoveryEngine:
         self._leases.forget(peer)
         peer.told = False
         self._debts.disarm(peer)
+        self._receive.sought_by.forget(peer.index)  # seek.SoughtBy: it lost us, we lost it
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 
     def _on_vouch(self, vouch: Vouch, now: float, multicast: bool) -> None:

@@ -59,14 +59,6 @@ class Peer:
     last_heard: float | None = None
     lease_s: float = 0.0
     lists_me: bool = False
-    # it listed us, then sent a frame that does not: it lost us, and every frame of it that
-    # still omits us seeks us (seek.py), until one lists us again (receive.py)
-    lost_us: bool = False
-    # our prompt answers to it since it lost us, and when the last went (receive.py: spaced
-    # LOST_US_GAP_S x 2^k, at most LOST_US_GAP_MAX_S apart); reset once it lists us again
-    lost_us_answers: int = 0
-    lost_us_answered_at: float | None = None
-    lost_us_hears: int = 0  # how many peers its latest frame lists, while it has lost us
     told: bool = False
     told_at: float | None = None
     last_sn: int | None = None

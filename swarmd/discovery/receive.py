@@ -46,14 +46,9 @@ from swarmd.discovery.leases import Leases
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase
 from swarmd.discovery.received import Alive
-from swarmd.discovery.seek import Seek
+from swarmd.discovery.seek import Seek, SoughtBy
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpDisposed, Vouch
-
-# prompt answers to a peer that lost us while we kept it: spaced LOST_US_GAP_S x 2^k, at
-# most LOST_US_GAP_MAX_S apart (the receive path's lost_us rule)
-LOST_US_GAP_S: Final = 0.5
-LOST_US_GAP_MAX_S: Final = 8.0
 
 # Enum members bound once: in CPython 3.11 ``Phase.ANNOUNCE`` is a ~50 ns class-attribute
 # lookup, and the receive path asks several of them per datagram.
@@ -92,12 +87,14 @@ class ReceivePath:
         "_peer_at",
         "_reack_gap_s",
         "_seek",
+        "_seekers",
         "_settle",
         "_held_until",
         "_vouching",
         "dropped",
         "phase",
         "rx_datagrams",
+        "sought_by",
     )
 
     def __init__(
@@ -157,6 +154,11 @@ class ReceivePath:
         self._vouching = leases.vouching
         self._debts = debts
         self._seek = seek
+        # the peers that lost us while we kept them (seek.SoughtBy: the lost_us rule), ours
+        # alone but for the engine's _lose, which forgets a lost peer; and its table, read
+        # once per datagram (the dict itself, never replaced: empty on the usual path)
+        self.sought_by = SoughtBy(bundle.size)
+        self._seekers = self.sought_by.entries
         self._emit = emit
         self._lose = lose
         self._settle = settle
@@ -299,20 +301,15 @@ class ReceivePath:
         if listed != lists_me:
             stopped_listing = lists_me
             lists_me = peer.lists_me = not lists_me
-            peer.lost_us = stopped_listing
             if lists_me:
-                peer.lost_us_answers, peer.lost_us_answered_at = 0, None
-            peer.lost_us_hears = 0
+                self.sought_by.forget(peer.index)  # it found us: the lost_us rule is done
+            else:
+                self.sought_by.lost_us(peer.index)  # it lost us: the rule's spacing starts
             self._leases.listed_by += 1 if lists_me else -1
-        if peer.lost_us and heard is not None:
-            # it hears more peers than in its last frame: its receiver works again (a
-            # drone back in range finds the others first), so our next answer may cross:
-            # the spacing of the lost_us rule starts over (only while it has lost us: the
-            # count costs nothing on the usual path)
-            hears = int.from_bytes(heard).bit_count()
-            if hears > peer.lost_us_hears:
-                peer.lost_us_answers, peer.lost_us_answered_at = 0, None
-            peer.lost_us_hears = hears
+        if self._seekers and heard is not None:
+            # while some peer has lost us (never on the usual path): if it is this one and
+            # hears more peers than before, the rule's spacing starts over (SoughtBy.heard)
+            self.sought_by.heard(peer.index, heard)
         peer.link_quality_permille = alive.link_quality_permille
         ros2_alive = alive.ros2_alive
         if ros2_alive is not None and ros2_alive != peer.ros2_alive:
@@ -429,32 +426,31 @@ class ReceivePath:
             told = peer.told = False
             rejoin = True
         elif (
-            not lists_me
-            and peer.lost_us
-            and not restarted
-            and peer.reack.permits(now)
-            and (
-                peer.lost_us_answered_at is None
-                or now - peer.lost_us_answered_at
-                >= min(LOST_US_GAP_S * 2.0**peer.lost_us_answers, LOST_US_GAP_MAX_S)
-            )
+            not lists_me and peer.reack.permits(now) and self.sought_by.may_answer(peer.index, now)
         ):
-            # it listed us, then lost us, and still seeks us (its frames omit us) although
-            # we kept it: a peer that could not hear us while we heard it (a drone at the
-            # edge of range), or one whose first answer from us was lost too. Answer
-            # within the rejoin delay, as a fresh debt (the retries we spent while it could
-            # not hear us may be exhausted, and the Q-stretched backoff or our next renewal
-            # outlasts its in-range window: in the irregular fade at N = 20 such a pair
-            # waited 32 s). One answer, not a new series of retries: its next seek heard is
-            # our next cue. Spaced 0.5, 1, 2, 4, 8, 8 ... s, and the spacing starts over
-            # when its frames list more peers (it hears again, above): a drone that hears
-            # nobody (a deaf receiver) costs each peer one frame per 8 s, not one per seek.
+            # The lost_us rule: it listed us, then lost us, and still seeks us (its frames
+            # omit us) although we kept it: a peer that could not hear us while we heard it
+            # (a drone at the edge of range), or one whose first answer from us was lost
+            # too. Answer at once, within Debts.cue_delay (U(0, omitted / budget): only the
+            # peers its frame omits may answer it too; not the rejoin delay U(0, N /
+            # budget), which let an answer land after a 1 s window closed, nor the
+            # Q-stretched holdoff), with one attempt left whatever the earlier need spent
+            # (the retries spent while it could not hear us may be exhausted, and the
+            # backoff or our next renewal outlasts its in-range window: in the irregular
+            # fade at N = 20 such a pair waited 32 s). One answer, not a new series of
+            # retries: its next frame that omits us is our next cue. Spaced by SoughtBy
+            # (1, 2, 4, 8, 8 ... s after each answer, starting over when its frames list
+            # more peers) and by the re-ack gap, whatever the peer sends: a drone that hears
+            # nobody costs each peer one answer per 8 s, a peer toggling its digest one per
+            # re-ack gap at most. (Never for a restarted peer: the branch above takes every
+            # restart.)
             peer.reack.mark(now)
-            peer.lost_us_answers += 1
-            peer.lost_us_answered_at = now
-            told = peer.told = False
-            rejoin = True
-            peer.retry.attempts = peer.retry.max_attempts - 1  # this answer only
+            self.sought_by.answered(peer.index, now)
+            peer.told = False
+            retry.leave_one_attempt()  # this answer only
+            debts = self._debts
+            debts.arm(peer, now + debts.cue_delay(self.sought_by.omitted(peer.index)))
+            return
         elif (
             not lists_me
             and told

@@ -26,15 +26,25 @@ Bound: a peer not heard for ``SEEK_FOR_S`` is no longer sought (a drone really g
 cost the channel forever); the renewals, which still omit it, remain. Paper mode never
 seeks: the paper's schedule is kept.
 
-Pure and keyed by ``now`` (style rule 6): this class decides when; the engine sends.
+The answering half (``SoughtBy``; docs/discovery.md, "A peer that lost us while we kept
+it"): a peer whose frames listed us and then stopped has lost us, and each of its frames that
+still omits us seeks us. If we kept it (we hear it; it does not hear us: a drone at the edge
+of range), the receive path answers such a frame promptly, spaced by ``SoughtBy``. Its state
+lives here, in a table of the few peers that currently lost us, not on every ``Peer`` (four
+fields there cost ~32 MB across the simulator's 1000 x 999 peers, for a rule that fires at
+the edge of range only).
+
+Pure and keyed by ``now`` (style rule 6): these classes decide when; the engine sends.
 """
 
 from __future__ import annotations
 
 import random
+from dataclasses import dataclass
 from typing import Final
 
 from swarmd.discovery.peers import Peer, PeerState
+from swarmd.discovery.timers import Backoff
 
 # The seek period U(SEEK_MIN_S, SEEK_MAX_S). The target is re-discovery within 2 s of the
 # link's return (issue 20). The first frame across comes within SEEK_MAX_S; the side that
@@ -51,6 +61,15 @@ SEEK_MAX_S: Final = 1.2
 # neighbourhood (one seeker per side after suppression), then the renewals alone.
 SEEK_FOR_S: Final = 600.0
 # The peers sought at once are the bundle's: bounded by N (no peer can grow the table).
+
+# The lost_us rule's spacing: after our k-th prompt answer to a peer that lost us, the next
+# waits LOST_US_GAP_S x 2^(k-1), at most LOST_US_GAP_MAX_S (1, 2, 4, 8, 8 ... s); the first
+# waits only the re-ack gap since our last prompt answer to it (retransmit_min_gap_s,
+# 0.5 s). No jitter: the cue is the peer's own frame. A drone that hears nobody (a deaf
+# receiver) thus costs each peer one answer per 8 s, not one per seek (~1 s).
+LOST_US_GAP_S: Final = 1.0
+LOST_US_GAP_MAX_S: Final = 8.0
+_LOST_US_SPACING: Final = Backoff(LOST_US_GAP_S, LOST_US_GAP_MAX_S, jitter=0.0)
 
 _LOST: Final = PeerState.LOST
 
@@ -116,3 +135,71 @@ class Seek:
                 if octet < len(heard) and heard[octet] >> (index & 7) & 1:
                     return  # it hears one we seek: its frame does not seek that one
         self.due = max(self.due, now + self._period())
+
+
+@dataclass(slots=True)
+class _Seeker:
+    """A peer that lost us: our prompt answers to it since, the last one's time, and how
+    many peers its latest frame lists."""
+
+    answers: int = 0
+    answered_at: float | None = None
+    hears: int = 0
+
+
+class SoughtBy:
+    """The peers that lost us while we kept them (their frames listed us, then stopped) and
+    the spacing of our prompt answers to them (the receive path's lost_us rule).
+
+    An entry is made when a peer's frame stops listing us (``lost_us``) and removed when
+    one lists us again, or when we lose the peer (its lease ended, or it left: ``forget``).
+    The table is keyed by bundle index and only an authenticated bundle peer's frame makes
+    an entry, its own: it holds at most the peer table's N - 1 rows, the bundle's cap (no
+    peer can add more than one, a stranger none)."""
+
+    __slots__ = ("_swarm_size", "entries")
+
+    def __init__(self, swarm_size: int) -> None:
+        self._swarm_size = swarm_size  # N, the bundle's participants
+        self.entries: dict[int, _Seeker] = {}  # by bundle index; empty on the usual path
+
+    def lost_us(self, index: int) -> None:
+        """Peer ``index``'s frame stopped listing us: its spacing starts fresh."""
+        self.entries[index] = _Seeker()
+
+    def forget(self, index: int) -> None:
+        """It lists us again, or we lost it: the rule no longer applies."""
+        self.entries.pop(index, None)
+
+    def heard(self, index: int, heard: bytes) -> None:
+        """A frame of peer ``index`` with heard digest ``heard``. If it lost us and hears
+        more peers than in its last frame, its receiver works again (a drone back in range
+        finds the others first), so our next answer may cross: the spacing starts over."""
+        entry = self.entries.get(index)
+        if entry is None:
+            return
+        hears = int.from_bytes(heard).bit_count()
+        if hears > entry.hears:
+            entry.answers, entry.answered_at = 0, None
+        entry.hears = hears
+
+    def may_answer(self, index: int, now: float) -> bool:
+        """Whether peer ``index`` lost us and its spacing allows a prompt answer at ``now``."""
+        entry = self.entries.get(index)
+        if entry is None:
+            return False
+        at = entry.answered_at
+        return at is None or now - at >= _LOST_US_SPACING.plain_s(entry.answers)
+
+    def omitted(self, index: int) -> int:
+        """How many bundle peers the latest frame of peer ``index`` omits (at least 1: us):
+        the peers that may answer that same frame (those it lists owe it nothing)."""
+        entry = self.entries.get(index)
+        hears = 0 if entry is None else entry.hears
+        return max(1, self._swarm_size - 1 - hears)
+
+    def answered(self, index: int, now: float) -> None:
+        """We answered peer ``index`` promptly at ``now`` (after ``may_answer``)."""
+        entry = self.entries[index]
+        entry.answers += 1
+        entry.answered_at = now

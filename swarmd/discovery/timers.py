@@ -27,6 +27,12 @@ class Backoff:
         high = 1.0 + self.jitter
         return plain * (1.0 + (high - 1.0) * rng.random())
 
+    def plain_s(self, attempt: int) -> float:
+        """``base * 2^(attempt - 1)`` capped at ``cap``, without the jitter (no draw): a
+        spacing whose cue is already jittered (the lost_us rule answers a peer's own
+        frames, ``seek.SoughtBy``). ``delay_s`` computes the same inline (hot path)."""
+        return min(self.cap_s, self.base_s * (2.0 ** max(0, attempt - 1)))
+
 
 @dataclass(slots=True)
 class RetrySchedule:
@@ -56,6 +62,12 @@ class RetrySchedule:
     def reset(self) -> None:
         self.due = None
         self.attempts = 0
+
+    def leave_one_attempt(self) -> None:
+        """Allow exactly one more attempt for the current need, however many were spent
+        (none or all): one answer, not a new series of retries (the lost_us rule,
+        ``receive.py``; ``reset`` still starts the next need fresh)."""
+        self.attempts = self.max_attempts - 1
 
     @property
     def exhausted(self) -> bool:
