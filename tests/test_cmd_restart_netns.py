@@ -1,0 +1,182 @@
+"""The lost answer across a restart, with real daemons in namespaces (issue 20).
+
+Four drones (``swarmd run`` + ``swarmd-vehicle-sim`` each, ``tests.test_flight_netns``'s
+``Swarm``, lease 3 s). An nftables rule in the commander's (uav1's) namespace drops every
+packet uav2 sends (``cut``): uav2 still receives what uav1 sends, so the TAKEOFF reaches it,
+but its ACCEPTED and COMPLETED never arrive. The whole address is dropped rather than only
+uav2's user-data port: that is the one-way radio loss the defect is about (the commander
+also loses uav2 by lease, as it would), and it is the split tests' own rule, not another
+set-up. ``swarmctl takeoff --only uav2`` then ends saying ``unreachable`` while uav2's
+vehicle is airborne, read from uav2's own ``swarmctl status``.
+
+uav2's daemon is SIGKILLed once its outcome is in its state file, and restarted; the rule is
+deleted before the restart, or after it (the new life then re-reports into the cut, and the
+reliable writer's repair has to carry it once the rule goes). With the state file kept, the
+commander's row ends ``completed`` (reason: the landed state uav2 completed the take-off in)
+with ``after_restart``, and uav2 counts one re-reported outcome. With it deleted (the
+control case), the new life has nothing to re-report, writes no outcome, and the row stays
+``unreachable``. Either way the vehicle armed once and the new life received no take-off
+(docs/dataplane.md, "Outcomes across a restart").
+
+Assertions are on states, counters and the daemons' own records, never on elapsed time;
+each wait has a cap so a stuck run fails instead of hanging.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from swarmd.dataplane import TOPIC_OUTCOME
+from swarmd.dataplane.types import CommandResult
+from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE
+from swarmd.swarm.statefile import load, state_path
+from tests.conftest import LanFactory
+from tests.test_flight_netns import Swarm, cut, heal, until
+
+pytestmark = [pytest.mark.netns]
+
+COMMANDER, MEMBER = 0, 1  # uav1 commands; uav2 is the member whose answer is lost
+
+
+def _row(swarm: Swarm, command_id: int) -> dict[str, Any]:
+    """The commander's row for uav2 in ``command_id``, as ``swarmctl status --json`` lists
+    its tracked commands."""
+    (tracked,) = [c for c in swarm.status(COMMANDER)["commands"] if c["command_id"] == command_id]
+    node: dict[str, Any] = tracked["nodes"]["uav2"]
+    return node
+
+
+def _kept(swarm: Swarm) -> list[list[Any]]:
+    """uav2's persisted outcomes (the state file's ``outcomes``), [] before the file exists."""
+    path = state_path(swarm.state, "uav2")
+    return [list(o) for o in load(path).outcomes] if path.exists() else []
+
+
+@pytest.mark.parametrize(
+    "heal_first", [True, False], ids=["heal-then-restart", "restart-then-heal"]
+)
+@pytest.mark.parametrize("state_kept", [True, False], ids=["state-kept", "state-lost"])
+def test_an_answer_lost_before_a_restart_is_told_after_it(
+    lan_factory: LanFactory, workdir: Path, state_kept: bool, heal_first: bool
+) -> None:
+    swarm = Swarm(lan_factory(4), workdir)
+    until(
+        lambda: len(swarm.table()) == swarm.n and all(r["ready"] for r in swarm.table().values()),
+        lambda: swarm.table(),
+    )
+    # cut right after a fresh report, so uav2's row is still fresh when the take-off is issued
+    count = swarm.table()["uav2"]["count"]
+    until(lambda: swarm.table()["uav2"]["count"] > count, lambda: swarm.table())
+    commander, member = swarm.lan[COMMANDER], swarm.lan[MEMBER]
+    cut([commander], [member])
+
+    up = swarm.swarmctl("takeoff", "--only", "uav2", "--alt", "5", "--json")
+    body = json.loads(up.stdout)
+    cid = body["command_id"]
+    # the operator is told what the commander knows: no answer while it was valid
+    told = body["nodes"]["uav2"]
+    assert (told["state"], told["reason"], told["after_restart"]) == (
+        UNREACHABLE,
+        NOT_REACHED,
+        False,
+    ), body
+    assert up.returncode != 0, up.stdout
+    # ... but uav2 took it: its own status says its vehicle is in the air, and its answers
+    # (the outcome kept next to the executed id) are in its state file
+    until(
+        lambda: swarm.status(MEMBER)["px4"]["readiness"]["landed_state"] == "IN_AIR",
+        lambda: swarm.status(MEMBER)["px4"],
+    )
+
+    # COMPLETED, with the landed state the take-off ended in (TAKEOFF or IN_AIR)
+    def completed() -> list[list[Any]]:
+        return [o for o in _kept(swarm) if o[:3] == ["uav1", cid, CommandResult.COMPLETED.value]]
+
+    until(lambda: len(completed()) == 1, lambda: _kept(swarm))
+    ((*_, landed),) = completed()
+    assert swarm.armed(MEMBER) == 1
+    epoch_before = swarm.status(MEMBER)["dataplane"]["epoch"]
+
+    # uav2's daemon dies (no goodbye) with its answers unheard; its vehicle flies on
+    swarm.daemons.procs[MEMBER].send_signal(signal.SIGKILL)
+    swarm.daemons.procs[MEMBER].wait(timeout=10)
+    if not state_kept:
+        state_path(swarm.state, "uav2").unlink()
+    if heal_first:
+        assert heal([commander]) > 0  # the cut really dropped uav2's traffic
+    swarm.daemons.start(MEMBER)
+
+    def new_life() -> dict[str, Any]:
+        st: dict[str, Any] = swarm.status(MEMBER)
+        assert st["dataplane"]["epoch"] != epoch_before  # an old socket's answer: not yet
+        return st
+
+    rereported = 1 if state_kept else 0
+    if not heal_first:
+        # the new life finds the commander through the cut and re-reports into it
+        until(
+            lambda: (
+                "uav1" in {p["name"] for p in new_life()["peers"] if p["state"] == "discovered"}
+                and new_life()["dataplane"]["outcomes_rereported"] == rereported
+            ),
+            lambda: swarm.status(MEMBER),
+        )
+        assert _row(swarm, cid)["state"] == UNREACHABLE  # nothing got through the cut
+        assert heal([commander]) > 0
+
+    # the commander knows uav2's new life and hears its reports again
+    def heard_again() -> bool:
+        epoch = new_life()["dataplane"]["epoch"]
+        row = swarm.table()["uav2"]
+        return bool(
+            swarm.status(COMMANDER)["dataplane"]["peer_epochs"].get("uav2") == epoch
+            and row["peer_up"]
+            and row["landed_state"] == "IN_AIR"
+        )
+
+    until(heard_again, lambda: (swarm.table().get("uav2"), swarm.status(COMMANDER)["dataplane"]))
+    if state_kept:
+        # the re-report arrives: the row says what uav2 did, told after its restart
+        until(lambda: _row(swarm, cid)["state"] == "completed", lambda: _row(swarm, cid))
+        until(
+            lambda: new_life()["dataplane"]["writers"][TOPIC_OUTCOME]["unacked_readers"] == 0,
+            lambda: new_life()["dataplane"]["writers"],
+        )
+        outcome_writer = new_life()["dataplane"]["writers"][TOPIC_OUTCOME]
+        print(f"uav2's new life, outcome writer: {outcome_writer}")
+        assert outcome_writer["written"] == 1  # the re-report, and nothing else
+        if not heal_first:  # its first copy went into the cut: a repair carried it
+            assert outcome_writer["data_resent"] + outcome_writer["handed_over"] >= 1
+    else:
+        # nothing to re-report: the new life wrote no outcome, so none can come; the row
+        # is read once the commander hears the new life's readiness (the same link)
+        assert new_life()["dataplane"]["writers"][TOPIC_OUTCOME]["written"] == 0
+        count = swarm.table()["uav2"]["count"]
+        until(lambda: swarm.table()["uav2"]["count"] > count + 1, lambda: swarm.table())
+
+    shown = swarm.swarmctl("status", "--json")
+    assert shown.returncode == 0, shown.stderr
+    (tracked,) = [c for c in json.loads(shown.stdout)["commands"] if c["command_id"] == cid]
+    row = tracked["nodes"]["uav2"]
+    if state_kept:
+        assert (row["state"], row["reason"], row["after_restart"]) == ("completed", landed, True)
+        assert tracked["done"] is True
+    else:
+        assert (row["state"], row["reason"], row["after_restart"]) == (
+            UNREACHABLE,
+            NOT_REACHED,
+            False,
+        )
+
+    # never run twice: the vehicle armed once; the new life received no take-off and ran
+    # nothing; with the state kept it still knows the executed id
+    member_st = new_life()
+    assert member_st["dataplane"]["outcomes_rereported"] == rereported, member_st["dataplane"]
+    assert member_st["executor"]["counters"].get("received_takeoff", 0) == 0
+    assert member_st["dataplane"]["executed_commands"] == (1 if state_kept else 0)
+    assert swarm.armed(MEMBER) == 1
