@@ -1,13 +1,14 @@
 """The lost answer across a restart, with real daemons in namespaces (issue 20).
 
 Four drones (``swarmd run`` + ``swarmd-vehicle-sim`` each, ``tests.test_flight_netns``'s
-``Swarm``, lease 3 s). An nftables rule in the commander's (uav1's) namespace drops every
-packet uav2 sends (``cut``): uav2 still receives what uav1 sends, so the TAKEOFF reaches it,
-but its ACCEPTED and COMPLETED never arrive. The whole address is dropped rather than only
-uav2's user-data port: that is the one-way radio loss the defect is about (the commander
-also loses uav2 by lease, as it would), and it is the split tests' own rule, not another
-set-up. ``swarmctl takeoff --only uav2`` then ends saying ``unreachable`` while uav2's
-vehicle is airborne, read from uav2's own ``swarmctl status``.
+``Swarm``, lease 3 s). An nftables rule in the commander's (uav1's) namespace drops what
+uav2 sends (``cut``): uav2 still receives what uav1 sends, so the TAKEOFF reaches it, but its
+ACCEPTED and COMPLETED never arrive. Two rules, because they take the commander down two
+paths: every packet from uav2's address (the one-way radio loss the defect is about; uav1
+also loses uav2 by lease, then regains its new life), or only what uav2 sends to uav1's
+user-data port (discovery still passes, so uav1 keeps uav2 up and sees the restart as a new
+signed epoch, ``restarted``). ``swarmctl takeoff --only uav2`` then ends saying
+``unreachable`` while uav2's vehicle is airborne, read from uav2's own ``swarmctl status``.
 
 uav2's daemon is SIGKILLed once its outcome is in its state file, and restarted; the rule is
 deleted before the restart, or after it (the new life then re-reports into the cut, and the
@@ -61,8 +62,13 @@ def _kept(swarm: Swarm) -> list[list[Any]]:
     "heal_first", [True, False], ids=["heal-then-restart", "restart-then-heal"]
 )
 @pytest.mark.parametrize("state_kept", [True, False], ids=["state-kept", "state-lost"])
+@pytest.mark.parametrize("user_data_only", [False, True], ids=["all", "user-data"])
 def test_an_answer_lost_before_a_restart_is_told_after_it(
-    lan_factory: LanFactory, workdir: Path, state_kept: bool, heal_first: bool
+    lan_factory: LanFactory,
+    workdir: Path,
+    state_kept: bool,
+    heal_first: bool,
+    user_data_only: bool,
 ) -> None:
     swarm = Swarm(lan_factory(4), workdir)
     until(
@@ -73,7 +79,11 @@ def test_an_answer_lost_before_a_restart_is_told_after_it(
     count = swarm.table()["uav2"]["count"]
     until(lambda: swarm.table()["uav2"]["count"] > count, lambda: swarm.table())
     commander, member = swarm.lan[COMMANDER], swarm.lan[MEMBER]
-    cut([commander], [member])
+    # what uav2 sends to uav1: everything, or only to uav1's user-data port (discovery
+    # then keeps uav2 up at uav1, which sees the restart as a new epoch, not a loss)
+    ports = [swarm.files.bundle.user_port(swarm.files.bundle.participants[COMMANDER])]
+    cut([commander], [member], udp_ports=ports if user_data_only else ())
+    seq_before = swarm.status(COMMANDER)["peer_changes"]["last_seq"]
 
     up = swarm.swarmctl("takeoff", "--only", "uav2", "--alt", "5", "--json")
     body = json.loads(up.stdout)
@@ -158,6 +168,13 @@ def test_an_answer_lost_before_a_restart_is_told_after_it(
         assert new_life()["dataplane"]["writers"][TOPIC_OUTCOME]["written"] == 0
         count = swarm.table()["uav2"]["count"]
         until(lambda: swarm.table()["uav2"]["count"] > count + 1, lambda: swarm.table())
+
+    seen = [
+        (c["change"], c["reason"])
+        for c in swarm.status(COMMANDER)["peer_changes"]["changes"]
+        if c["seq"] > seq_before and c["peer"] == "uav2"
+    ]
+    print(f"uav1 saw uav2: {seen}")
 
     shown = swarm.swarmctl("status", "--json")
     assert shown.returncode == 0, shown.stderr
