@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from swarmd_lab.demo.observe import read_log
 
 from swarmd.dataplane import TOPIC_OUTCOME
 from swarmd.dataplane.types import CommandResult
@@ -189,6 +190,22 @@ def test_an_answer_lost_before_a_restart_is_told_after_it(
             NOT_REACHED,
             False,
         )
+
+    # the daemons' own records: uav2's lives (one log, appended) re-reported cid once, or
+    # never; uav1 recorded one answer for cid, the re-report (the earlier life's ACCEPTED and
+    # COMPLETED never got through), or none
+    rereports = [
+        (e["commander"], e["command_ids"])
+        for e in read_log(swarm.daemons.logs[MEMBER])
+        if e.get("event") == "command_outcomes_rereported"
+    ]
+    answers = [
+        (e["member"], e["result"], e["known"])
+        for e in read_log(swarm.daemons.logs[COMMANDER])
+        if e.get("event") == "command_outcome_received" and e["command_id"] == cid
+    ]
+    assert rereports == ([("uav1", [cid])] if state_kept else []), rereports
+    assert answers == ([("uav2", "COMPLETED", True)] if state_kept else []), answers
 
     # never run twice: the vehicle armed once; the new life received no take-off and ran
     # nothing; with the state kept it still knows the executed id
