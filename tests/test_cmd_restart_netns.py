@@ -26,6 +26,7 @@ each wait has a cap so a stuck run fails instead of hanging.
 from __future__ import annotations
 
 import json
+import math
 import signal
 from pathlib import Path
 from typing import Any
@@ -35,13 +36,19 @@ from swarmd_lab.demo.observe import read_log
 
 from swarmd.dataplane import TOPIC_OUTCOME
 from swarmd.dataplane.types import CommandResult
+from swarmd.dataplane.writer import HEARTBEAT_BACKOFF, HEARTBEAT_PERIOD_S, MAX_HEARTBEAT_PERIOD_S
 from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE
 from swarmd.swarm.statefile import load, state_path
 from tests.conftest import LanFactory
+from tests.daemon_support import BIN
 from tests.test_flight_netns import Swarm, cut, heal, until
 
 pytestmark = [pytest.mark.netns]
 
+# heartbeats a writer sends unanswered before its period reaches its maximum (writer.py)
+HEARTBEATS_TO_MAX_PERIOD = 1 + math.ceil(
+    math.log(MAX_HEARTBEAT_PERIOD_S / HEARTBEAT_PERIOD_S, HEARTBEAT_BACKOFF)
+)
 COMMANDER, MEMBER = 0, 1  # uav1 commands; uav2 is the member whose answer is lost
 
 
@@ -59,6 +66,42 @@ def _kept(swarm: Swarm) -> list[list[Any]]:
     return [list(o) for o in load(path).outcomes] if path.exists() else []
 
 
+def _completed(swarm: Swarm, command_id: int) -> str:
+    """Wait until uav2 has persisted COMPLETED for ``command_id``; its reason: the landed
+    state the take-off ended in (TAKEOFF or IN_AIR)."""
+
+    def completed() -> list[list[Any]]:
+        done = ["uav1", command_id, CommandResult.COMPLETED.value]
+        return [o for o in _kept(swarm) if o[:3] == done]
+
+    until(lambda: len(completed()) == 1, lambda: _kept(swarm))
+    ((*_, landed),) = completed()
+    return str(landed)
+
+
+def _ready_and_cut(swarm: Swarm, *, user_data_only: bool) -> None:
+    """Once every drone is ready, the rule in uav1's namespace: what uav2 sends to uav1,
+    everything, or only to uav1's user-data port (discovery then keeps uav2 up at uav1,
+    which sees the restart as a new epoch, not a loss)."""
+    until(
+        lambda: len(swarm.table()) == swarm.n and all(r["ready"] for r in swarm.table().values()),
+        lambda: swarm.table(),
+    )
+    # cut right after a fresh report, so uav2's row is still fresh when the take-off is issued
+    count = swarm.table()["uav2"]["count"]
+    until(lambda: swarm.table()["uav2"]["count"] > count, lambda: swarm.table())
+    ports = [swarm.files.bundle.user_port(swarm.files.bundle.participants[COMMANDER])]
+    cut([swarm.lan[COMMANDER]], [swarm.lan[MEMBER]], udp_ports=ports if user_data_only else ())
+
+
+def _kill(swarm: Swarm, *, state_kept: bool) -> None:
+    """uav2's daemon dies (no goodbye); its vehicle flies on. Its state file stays or goes."""
+    swarm.daemons.procs[MEMBER].send_signal(signal.SIGKILL)
+    swarm.daemons.procs[MEMBER].wait(timeout=10)
+    if not state_kept:
+        state_path(swarm.state, "uav2").unlink()
+
+
 @pytest.mark.parametrize(
     "heal_first", [True, False], ids=["heal-then-restart", "restart-then-heal"]
 )
@@ -72,18 +115,8 @@ def test_an_answer_lost_before_a_restart_is_told_after_it(
     user_data_only: bool,
 ) -> None:
     swarm = Swarm(lan_factory(4), workdir)
-    until(
-        lambda: len(swarm.table()) == swarm.n and all(r["ready"] for r in swarm.table().values()),
-        lambda: swarm.table(),
-    )
-    # cut right after a fresh report, so uav2's row is still fresh when the take-off is issued
-    count = swarm.table()["uav2"]["count"]
-    until(lambda: swarm.table()["uav2"]["count"] > count, lambda: swarm.table())
-    commander, member = swarm.lan[COMMANDER], swarm.lan[MEMBER]
-    # what uav2 sends to uav1: everything, or only to uav1's user-data port (discovery
-    # then keeps uav2 up at uav1, which sees the restart as a new epoch, not a loss)
-    ports = [swarm.files.bundle.user_port(swarm.files.bundle.participants[COMMANDER])]
-    cut([commander], [member], udp_ports=ports if user_data_only else ())
+    _ready_and_cut(swarm, user_data_only=user_data_only)
+    commander = swarm.lan[COMMANDER]
     seq_before = swarm.status(COMMANDER)["peer_changes"]["last_seq"]
 
     up = swarm.swarmctl("takeoff", "--only", "uav2", "--alt", "5", "--json")
@@ -103,21 +136,11 @@ def test_an_answer_lost_before_a_restart_is_told_after_it(
         lambda: swarm.status(MEMBER)["px4"]["readiness"]["landed_state"] == "IN_AIR",
         lambda: swarm.status(MEMBER)["px4"],
     )
-
-    # COMPLETED, with the landed state the take-off ended in (TAKEOFF or IN_AIR)
-    def completed() -> list[list[Any]]:
-        return [o for o in _kept(swarm) if o[:3] == ["uav1", cid, CommandResult.COMPLETED.value]]
-
-    until(lambda: len(completed()) == 1, lambda: _kept(swarm))
-    ((*_, landed),) = completed()
+    landed = _completed(swarm, cid)
     assert swarm.armed(MEMBER) == 1
     epoch_before = swarm.status(MEMBER)["dataplane"]["epoch"]
 
-    # uav2's daemon dies (no goodbye) with its answers unheard; its vehicle flies on
-    swarm.daemons.procs[MEMBER].send_signal(signal.SIGKILL)
-    swarm.daemons.procs[MEMBER].wait(timeout=10)
-    if not state_kept:
-        state_path(swarm.state, "uav2").unlink()
+    _kill(swarm, state_kept=state_kept)  # with its answers unheard
     if heal_first:
         assert heal([commander]) > 0  # the cut really dropped uav2's traffic
     swarm.daemons.start(MEMBER)
@@ -214,3 +237,51 @@ def test_an_answer_lost_before_a_restart_is_told_after_it(
     assert member_st["executor"]["counters"].get("received_takeoff", 0) == 0
     assert member_st["dataplane"]["executed_commands"] == (1 if state_kept else 0)
     assert swarm.armed(MEMBER) == 1
+
+
+def test_swarmctl_takeoff_still_following_ends_with_the_re_report(
+    lan_factory: LanFactory, workdir: Path
+) -> None:
+    """The operator's own ``swarmctl takeoff --valid-for 20`` is still following when uav2
+    (its answers cut off, as above) restarts with its state and re-reports into the cut.
+    When the rule goes, uav1 sees the new life (``restarted_before_acknowledging``) and,
+    within ``UNREACHABLE_GRACE_S``, the re-report, which a repair has to carry: swarmctl
+    ends ``completed``, ``after_restart``, exit 0. Before the row waited that grace (it
+    was settled the moment uav1 saw the new epoch), swarmctl stopped there and said
+    ``unreachable``."""
+    swarm = Swarm(lan_factory(4), workdir)
+    _ready_and_cut(swarm, user_data_only=False)
+    sock = swarm.socks[COMMANDER]
+    out = workdir / "takeoff.json"
+    argv = ["takeoff", "--only", "uav2", "--alt", "5", "--valid-for", "20", "--json"]
+    with out.open("wb") as sink:
+        follow = swarm.lan[COMMANDER].popen(
+            [str(BIN / "swarmctl"), *argv, "--socket", str(sock)], stdout=sink
+        )
+    until(lambda: len(swarm.status(COMMANDER)["commands"]) == 1, lambda: follow.poll())
+    cid = swarm.status(COMMANDER)["commands"][0]["command_id"]
+    landed = _completed(swarm, cid)
+    assert _row(swarm, cid)["state"] == "pending"  # nothing got through the cut
+    _kill(swarm, state_kept=True)
+    swarm.daemons.start(MEMBER)
+
+    # the new life re-reports into the cut, and its unanswered heartbeats back off to
+    # MAX_HEARTBEAT_PERIOD_S (0.2 s x 1.5 per heartbeat: the 6th); uav1 sees that life when
+    # the rule goes, and the re-report up to a heartbeat period later
+    def backed_off() -> bool:
+        st = swarm.status(MEMBER)["dataplane"]
+        return bool(
+            st["outcomes_rereported"] == 1
+            and st["writers"][TOPIC_OUTCOME]["heartbeats_sent"] >= HEARTBEATS_TO_MAX_PERIOD
+        )
+
+    until(backed_off, lambda: swarm.status(MEMBER)["dataplane"])
+    assert heal([swarm.lan[COMMANDER]]) > 0
+
+    assert follow.wait(timeout=60) == 0, out.read_text()
+    body = json.loads(out.read_text())
+    row = body["nodes"]["uav2"]
+    assert (row["state"], row["reason"], row["after_restart"]) == ("completed", landed, True)
+    assert body["valid_left_s"] > 0  # it ended on the answer, not at the validity's end
+    assert swarm.armed(MEMBER) == 1
+    assert swarm.status(MEMBER)["executor"]["counters"].get("received_takeoff", 0) == 0
