@@ -34,7 +34,9 @@ LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 # answer before calling it unreachable. A member decides within the validity (its deadline
 # is never later than the commander's, docs/dataplane.md "Validity"), but its ACCEPTED may
 # still be in flight or under repair (0.2 s, then x1.5 per lost heartbeat): 2 s covers four
-# repairs. An answer arriving later still replaces the row (the truth wins).
+# repairs. An answer arriving later still replaces the row (the truth wins). A row made
+# unreachable earlier, because the member restarted (RESTARTED), waits as long before it
+# counts as settled: the new life's re-report may be under repair just the same.
 UNREACHABLE_GRACE_S: Final = 2.0
 UNREACHABLE: Final = "unreachable"  # state: no answer while valid; it can no longer run there
 NOT_REACHED: Final = "not_reached_while_valid"  # its reason
