@@ -31,7 +31,13 @@ import pytest
 from swarmd.cli import takeoff_cmd
 from swarmd.dataplane.types import CommandResult
 from swarmd.discovery import EngineConfig
-from swarmd.swarm.commander import NOT_REACHED, RESTARTED, UNREACHABLE, CommandTracker
+from swarmd.swarm.commander import (
+    NOT_REACHED,
+    RESTARTED,
+    UNREACHABLE,
+    UNREACHABLE_GRACE_S,
+    CommandTracker,
+)
 from swarmd.swarm.core import PersistExecuted, SwarmCore
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _command_datagrams, _inject, _Outcomes
@@ -275,10 +281,10 @@ def test_the_tracker_says_restarted_at_once_and_a_real_answer_still_wins() -> No
     tracker = CommandTracker()
     tracker.sent(3, "hold", ["uav2", "uav3", "uav4"], 0.0, valid_for_s=30.0)
     tracker.record(3, "uav4", CommandResult.ACCEPTED, "", 0.1)
-    assert tracker.not_delivered(3, "uav3", RESTARTED)
-    assert tracker.not_delivered(3, "uav4", RESTARTED)
-    assert not tracker.not_delivered(3, "uav9", RESTARTED)  # not a target
-    assert not tracker.not_delivered(4, "uav3", RESTARTED)  # not a command we track
+    assert tracker.not_delivered(3, "uav3", RESTARTED, 0.5)
+    assert tracker.not_delivered(3, "uav4", RESTARTED, 0.5)
+    assert not tracker.not_delivered(3, "uav9", RESTARTED, 0.5)  # not a target
+    assert not tracker.not_delivered(4, "uav3", RESTARTED, 0.5)  # not a command we track
     snap = tracker.snapshot(3, 1.0)
     assert snap is not None
     nodes = snap["nodes"]
@@ -296,9 +302,9 @@ def test_swarmctl_says_a_restarted_member_will_not_be_sent_the_command(
     tracker = CommandTracker()
     tracker.sent(2, "takeoff", ["uav2", "uav3"], 0.0, valid_for_s=3.0)
     tracker.record(2, "uav2", CommandResult.COMPLETED, "IN_AIR", 1.0)
-    tracker.not_delivered(2, "uav3", RESTARTED)
-    snap = tracker.snapshot(2, 1.5)
-    assert snap is not None and snap["done"]  # nothing left to wait for
+    tracker.not_delivered(2, "uav3", RESTARTED, 1.0)
+    snap = tracker.snapshot(2, 1.0 + UNREACHABLE_GRACE_S)
+    assert snap is not None and snap["done"]  # the grace for a re-report over: nothing left
     args = argparse.Namespace(json=False, timeout=30.0)
     reply = {"command_id": 2, "ready": ["uav2", "uav3"], "valid_for_s": 3.0}
     code = takeoff_cmd._follow(_Outcomes(snap), takeoff_cmd._Run(args), reply, "takeoff")  # type: ignore[arg-type]

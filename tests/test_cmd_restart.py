@@ -156,6 +156,50 @@ def test_back_while_valid_the_row_says_what_the_member_did(
     assert swarm.cores["m01"].counters["outcomes_rereported"] == 1
 
 
+@pytest.mark.parametrize("state_kept", [True, False], ids=["state-kept", "state-lost"])
+def test_seen_restarted_before_its_re_report_arrives_the_row_is_not_settled_yet(
+    state_kept: bool,
+) -> None:
+    """Found by ``tests/test_cmd_restart_netns.py``'s daemons: the commander sees m01's new
+    life (its signed epoch: ``restarted_before_acknowledging``) before the re-report gets
+    through (m01's first copy is lost; a repair brings it up to a second later). The row
+    says ``unreachable`` at once, as before, but it is not settled for the grace an answer
+    in flight gets (``UNREACHABLE_GRACE_S``): swarmctl, which stops following at ``done``,
+    used to end there and tell the operator ``unreachable`` about a drone in the air. With
+    the state lost nothing comes, and the row settles when the grace is over, long before
+    the validity ends."""
+    flight = Flight(3, seed=4)
+    swarm = flight.swarm
+    swarm.run(3.0)
+    flight.cut = lambda a, b: a == "m01"  # what m01 sends from now on is lost
+    cid, issued = _takeoff(flight, valid_for_s=30.0)
+    swarm.run(VEHICLE_TASK_S + 0.5)
+    assert len(flight.ran("m01", cid)) == 1
+    kept = None if state_kept else PersistExecuted((), ())
+    _restart(flight, "m01", epoch=2, discovered=True, kept=kept)  # the re-report: into the cut
+    seen = swarm.net.now
+    swarm.run(0.5)
+    snap = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)
+    row = snap["nodes"]["m01"]
+    assert (row["state"], row["reason"]) == (UNREACHABLE, RESTARTED), row  # told at once
+    assert snap["done"] is False, snap  # but an answer may still be on its way
+    flight.cut = lambda a, b: False
+    swarm.run(UNREACHABLE_GRACE_S)
+    snap = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)
+    row = snap["nodes"]["m01"]
+    assert snap["done"] is True, snap
+    if state_kept:
+        assert (row["state"], row["after_restart"]) == ("completed", True), row
+    else:
+        assert (row["state"], row["reason"], row["after_restart"]) == (
+            UNREACHABLE,
+            RESTARTED,
+            False,
+        )
+    assert swarm.net.now < seen + UNREACHABLE_GRACE_S + 1.0 < issued + 30.0
+    assert [r.token for r in _vehicle_requests(flight, "m01")] == [cid]
+
+
 def _unreachable_after_a_restart(seed: int) -> tuple[Flight, int]:
     """m01 takes a TAKEOFF and completes it while everything it says is lost, restarts
     while cut off both ways, and is lost by the commander's discovery: past the validity
@@ -318,7 +362,7 @@ def test_the_tracker_takes_a_later_lifes_answer_only_where_it_adds_the_truth() -
     tracker = CommandTracker()
     tracker.sent(7, "takeoff", ["a", "b", "c", "d"], 0.0, valid_for_s=3.0, epochs={"a": 1, "b": 1})
     accepted, completed = CommandResult.ACCEPTED, CommandResult.COMPLETED
-    assert tracker.not_delivered(7, "a", RESTARTED)
+    assert tracker.not_delivered(7, "a", RESTARTED, 0.5)
     tracker.record(7, "a", completed, "IN_AIR", 1.0, epoch=2)  # a later life: re-reported
     tracker.record(7, "b", completed, "IN_AIR", 1.0, epoch=1)  # its own life: as before
     tracker.record(7, "b", accepted, "", 1.5, epoch=2)  # b restarted after: adds nothing

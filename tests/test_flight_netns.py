@@ -23,7 +23,7 @@ import json
 import signal
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -58,15 +58,18 @@ def states(sock: Path) -> dict[str, str]:
     return {p["name"]: p["state"] for p in status(sock)["peers"]}
 
 
-def cut(hosts: list[Namespace], away: list[Namespace]) -> None:
+def cut(hosts: list[Namespace], away: list[Namespace], *, udp_ports: Sequence[int] = ()) -> None:
     """In each of ``hosts``' namespaces drop every IPv4 packet from ``away`` (multicast
-    SPDP and unicast alike): the radio shadow of a building between the two groups."""
+    SPDP and unicast alike): the radio shadow of a building between the two groups.
+    ``udp_ports``: only what goes to these UDP ports (e.g. the user-data ports: discovery
+    still passes)."""
     sources = ", ".join(h.address for h in away)
+    ports = f"udp dport {{ {', '.join(str(p) for p in udp_ports)} }} " if udp_ports else ""
     ruleset = f"""\
 table inet swt_split {{
   chain input {{
     type filter hook input priority 0; policy accept;
-    ip saddr {{ {sources} }} counter drop
+    ip saddr {{ {sources} }} {ports}counter drop
   }}
 }}
 """

@@ -34,7 +34,9 @@ LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 # answer before calling it unreachable. A member decides within the validity (its deadline
 # is never later than the commander's, docs/dataplane.md "Validity"), but its ACCEPTED may
 # still be in flight or under repair (0.2 s, then x1.5 per lost heartbeat): 2 s covers four
-# repairs. An answer arriving later still replaces the row (the truth wins).
+# repairs. An answer arriving later still replaces the row (the truth wins). A row made
+# unreachable earlier, because the member restarted (RESTARTED), waits as long before it
+# counts as settled: the new life's re-report may be under repair just the same.
 UNREACHABLE_GRACE_S: Final = 2.0
 UNREACHABLE: Final = "unreachable"  # state: no answer while valid; it can no longer run there
 NOT_REACHED: Final = "not_reached_while_valid"  # its reason
@@ -162,6 +164,7 @@ class _NodeOutcome:
     reason: str = ""
     final_at: float | None = None
     not_delivered: str | None = None  # why the command can no longer reach it (RESTARTED)
+    not_delivered_at: float = 0.0  # since when (the row settles UNREACHABLE_GRACE_S later)
     epoch_at_issue: int | None = None  # its boot epoch as the commander knew it at issue
     # what it says came from a later life than the one the command was sent to: a
     # re-report of what its earlier life decided (nothing more will come for this command)
@@ -257,13 +260,14 @@ class CommandTracker:
                 entry.accepted_at = now  # the ACCEPTED report was overtaken or lost
         return True
 
-    def not_delivered(self, command_id: int, node: str, reason: str) -> bool:
+    def not_delivered(self, command_id: int, node: str, reason: str, now: float) -> bool:
         """The command can no longer reach ``node`` (``reason``); an answer it gave before,
         or gives later, still wins. False when the command or the node is not tracked."""
         tracked = self._commands.get(command_id)
         if tracked is None or node not in tracked.outcomes:
             return False
-        tracked.outcomes[node].not_delivered = reason
+        entry = tracked.outcomes[node]
+        entry.not_delivered, entry.not_delivered_at = reason, now
         return True
 
     def snapshot(self, command_id: int, now: float) -> dict[str, Any] | None:
@@ -283,6 +287,11 @@ class CommandTracker:
                 reason = RESTARTED_RUNNING  # accepted, then restarted: no final will come
             elif o.accepted_at is None and o.not_delivered is not None:
                 state, reason = UNREACHABLE, o.not_delivered
+                # Said at once, settled only after the grace an answer in flight gets: the
+                # restarted member's re-report of what its earlier life did may still be
+                # under repair (docs/dataplane.md, "Outcomes across a restart")
+                if now < o.not_delivered_at + UNREACHABLE_GRACE_S:
+                    settled = False
             elif o.accepted_at is None and lapsed:
                 state, reason = UNREACHABLE, NOT_REACHED
             else:

@@ -513,7 +513,7 @@ class SwarmCore:
                     )
                 case CommandCopyVoided(member=member, command_id=command_id):
                     # its copy is dated on the earlier life's clock: never handed over
-                    self.tracker.not_delivered(command_id, member, RESTARTED)
+                    self.tracker.not_delivered(command_id, member, RESTARTED, now)
                     self._events.append(CommandNotDelivered(member, command_id, RESTARTED))
                 case PacketDropped(reason=reason, source=source, detail=detail):
                     self._events.append(UserDataDropped(reason, source, detail))
