@@ -1,8 +1,16 @@
-"""The fade's geometry replayed on MemNet: how the fading drone's slow re-discoveries arise
-(issue 20; docs/discovery.md, "A peer that lost us while we kept it").
+"""A flight's geometry replayed on MemNet: how slow re-discoveries arise (issue 20;
+docs/discovery.md, "A peer that lost us while we kept it"; docs/benchmarks.md, "The fly-out
+at N = 20").
 
     .venv/bin/python -m bench.flight_fade_replay \
         bench/results/flight-lost-us/runs/flight-fade-swarmd-n20-r1.json --seeds 200
+    .venv/bin/python -m bench.flight_fade_replay \
+        bench/results/flight-stagger/runs/flight-fly-out-swarmd-n20-r1.json --seeds 100 \
+        --edge-db 1.5 --edge-loss 0.5
+
+The scenario is the run file's (``--scenario`` only checks it): in the fade the observer is
+the fading drone (the last), whose re-discoveries are the slow ones; in every other scenario
+(fly-out, split) every drone observes every peer.
 
 The run file gives the scenario (its seed rebuilds the waypoints, ``bench/wifi/flight.py``)
 and each drone's link quality Q (the median of its status polls). Every seed builds the swarm
@@ -10,17 +18,23 @@ on MemNet (``swarmd_lab.testing.build_swarm``, virtual time, engines started tog
 moves it through the same flight: a datagram from i reaches j while j receives i at
 ``flight.RANGE_DBM`` or more (the truth's definition of in range: the channel's
 log-distance loss, evaluated every 0.25 s), and is lost otherwise. No collisions, no 802.11
-rates, no ARP: what remains is the engines' own schedule.
+rates, no ARP: what remains is the engines' own schedule. ``--edge-db D --edge-loss P``
+adds the one channel effect the fly-out's slow pairs point at: a frame received less than
+D dB above the threshold is lost with probability P if multicast (802.11 sends a group frame
+once, unacknowledged) and P ** 4 if directed (MAC-acknowledged and retried; 4 is a rough
+stand-in for the retries that fit in a frame's time, not a measured figure).
 
-For every peer the fading drone lost and found again: the time from the pair's return (both
+For every peer an observer lost and found again: the time from the pair's return (both
 ways in range) to the re-discovery. Each one slower than 2 s is classed by what happened in
-the pair's first window (``_classify``):
+the pair's first window (``_classify``; "the fader" is the observer):
 
 - ``lease-in-window``: the fader's lease of the peer ended inside the window (the peer, a
   vouched member, sends nothing unasked, and the fader's frames listed it until then), and
   no frame of the fader omitting it crossed before the window closed;
 - ``answer-late``: such a frame (the lost_us rule's cue) crossed, and the peer's answer left
   after the window closed;
+- ``answer-lost`` (only with ``--edge-loss``): the peer's answer (directed to the fader, or
+  a multicast) left inside the window and none reached the fader;
 - ``no-answer``: a cue crossed and the peer sent no answer within 1 s of the window's end
   (its spacing);
 - ``no-cue``: the fader had lost the peer before the window and sent nothing across in it.
@@ -54,10 +68,13 @@ SLOW_S = 2.0  # issue 20's target
 class Replay:
     """One run file's geometry and link qualities, replayed per seed."""
 
-    def __init__(self, run: dict[str, Any]) -> None:
+    def __init__(self, run: dict[str, Any], edge_db: float = 0.0, edge_loss: float = 0.0) -> None:
         self.scenario = flight.of_run(run)
         self.n: int = run["n"]
         self.fader = self.n - 1
+        # who re-discovers: the fading drone in the fade, every drone otherwise
+        self.observers = [self.fader] if run["scenario"] == "fade" else list(range(self.n))
+        self.edge_db, self.edge_loss = edge_db, edge_loss
         polls: dict[int, list[float]] = {}
         for poll in run["renewals"]:  # (t, node, renewals, Q, ...)
             if poll[3] is not None:
@@ -76,6 +93,15 @@ class Replay:
     def crosses(self, src: int, dst: int, t: float) -> bool:
         return self.rx_at(int(t / STEP_S))[src][dst] >= flight.RANGE_DBM
 
+    def loss(self, src: int, dst: int, t: float, multicast: bool) -> float:
+        """The chance a frame from ``src`` at ``t`` is lost at ``dst`` (the module docstring)."""
+        margin = self.rx_at(int(t / STEP_S))[src][dst] - flight.RANGE_DBM
+        if margin < 0.0:
+            return 1.0
+        if margin >= self.edge_db:
+            return 0.0
+        return self.edge_loss if multicast else self.edge_loss**4
+
     def swarm(self, seed: int, until: float) -> Swarm:
         swarm = build_swarm(self.n, seed=seed, q=0.5)
 
@@ -89,16 +115,21 @@ class Replay:
         for i in range(self.n):
             read_q(i)
         net = swarm.net
-        net.link_loss = lambda src, dst: 0.0 if self.crosses(src, dst, net.now) else 1.0
+        # MemNet appends the transmission before it asks each receiver's loss
+        net.link_loss = lambda src, dst: self.loss(
+            src, dst, net.now, net.transmissions[-1].multicast
+        )
         swarm.run_until(until)
         return swarm
 
-    def window(self, j: int, after: float) -> tuple[float, float]:
-        """The pair's first time both ways in range at or after ``after``: (start, length)."""
+    def window(self, j: int, after: float, observer: int | None = None) -> tuple[float, float]:
+        """The pair's (``observer``, default the fader, and ``j``) first time both ways in
+        range at or after ``after``: (start, length)."""
+        i = self.fader if observer is None else observer
 
         def both(step: int) -> bool:
             t = step * STEP_S
-            return self.crosses(self.fader, j, t) and self.crosses(j, self.fader, t)
+            return self.crosses(i, j, t) and self.crosses(j, i, t)
 
         s = int(after / STEP_S)
         while s < self.last_step and not both(s):
@@ -118,22 +149,28 @@ def _changes(swarm: Swarm, observer: int, peer: int) -> list[tuple[float, bool]]
     ]
 
 
-def rediscoveries(replay: Replay, seed: int) -> list[tuple[float, int, float, float, float]]:
-    """(latency, peer, return, window length, lost at) of each re-discovery by the fader."""
+Found = tuple[float, int, int, float, float, float]  # latency, observer, peer, back, length, lost
+
+
+def rediscoveries(replay: Replay, seed: int) -> list[Found]:
+    """(latency, observer, peer, return, window length, lost at) of each re-discovery."""
     swarm = replay.swarm(seed, replay.scenario.duration_s)
-    out: list[tuple[float, int, float, float, float]] = []
-    for j in range(replay.n - 1):
-        changes = _changes(swarm, replay.fader, j)
-        for (lost_at, found0), (found_at, found1) in zip(changes, changes[1:], strict=False):
-            if not found0 and found1:
-                back, length = replay.window(j, lost_at)
-                out.append((found_at - back, j, back, length, lost_at))
+    out: list[Found] = []
+    for i in replay.observers:
+        for j in range(replay.n):
+            if j == i:
+                continue
+            changes = _changes(swarm, i, j)
+            for (lost_at, found0), (found_at, found1) in zip(changes, changes[1:], strict=False):
+                if not found0 and found1:
+                    back, length = replay.window(j, lost_at, i)
+                    out.append((found_at - back, i, j, back, length, lost_at))
     return out
 
 
-def _classify(replay: Replay, seed: int, j: int, back: float, length: float) -> str:
+def _classify(replay: Replay, seed: int, f: int, j: int, back: float, length: float) -> str:
     swarm = replay.swarm(seed, back + length + 1.0)
-    end, f = back + length, replay.fader
+    end = back + length
     lost_at = max(t for t, found in _changes(swarm, f, j) if not found and t <= end + 1.0)
     if lost_at >= back:
         return "lease-in-window"
@@ -145,27 +182,37 @@ def _classify(replay: Replay, seed: int, j: int, back: float, length: float) -> 
     answers = [
         x.time
         for x in sent
-        if x.node == j and x.target[0] == fader_at and cues[0] <= x.time < end + 1.0
+        if x.node == j
+        and (x.target[0] == fader_at or (x.multicast and replay.edge_loss > 0.0))
+        and cues[0] <= x.time < end + 1.0
     ]
-    return "answer-late" if answers else "no-answer"
+    if not answers:
+        return "no-answer"
+    # with edge loss an answer can leave in time and still not cross (without it, one
+    # that left inside the window would have been heard)
+    return "answer-lost" if replay.edge_loss > 0.0 and answers[0] < end else "answer-late"
 
 
-def report(path: Path, seeds: int) -> str:
-    replay = Replay(json.loads(path.read_text()))
+def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0) -> str:
+    replay = Replay(json.loads(path.read_text()), edge_db, edge_loss)
     rows = [(seed, *r) for seed in range(1, seeds + 1) for r in rediscoveries(replay, seed)]
     slow = sorted((r for r in rows if r[1] > SLOW_S), key=lambda r: -r[1])
     latencies = sorted(r[1] for r in rows)
-    kinds = Counter(_classify(replay, s, j, back, length) for s, _, j, back, length, _ in slow)
+    kinds = Counter(
+        _classify(replay, s, i, j, back, length) for s, _, i, j, back, length, _ in slow
+    )
+    who = f"uav{replay.n}" if replay.observers == [replay.fader] else "every drone"
+    edge = f" (edge loss {edge_loss:g} within {edge_db:g} dB)" if edge_loss else ""
     out = [
-        f"{path.name}, {seeds} seeds on MemNet: {len(rows)} re-discoveries by uav{replay.n}, "
+        f"{path.name}, {seeds} seeds on MemNet{edge}: {len(rows)} re-discoveries by {who}, "
         f"{len(slow)} over {SLOW_S:g} s; p50 {latencies[len(latencies) // 2]:.2f} s, "
         f"max {latencies[-1]:.2f} s",
         "  slow, by what happened in the pair's first window: "
         + ", ".join(f"{k} {v}" for k, v in kinds.most_common()),
     ]
     out += [
-        f"  {lat:.2f} s: seed {s}, uav{j + 1} back {back:.2f} s for {length:.2f} s"
-        for s, lat, j, back, length, _ in slow[:5]
+        f"  {lat:.2f} s: seed {s}, uav{i + 1} of uav{j + 1} back {back:.2f} s for {length:.2f} s"
+        for s, lat, i, j, back, length, _ in slow[:5]
     ]
     return "\n".join(out)
 
@@ -173,16 +220,34 @@ def report(path: Path, seeds: int) -> str:
 def main(argv: Sequence[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m bench.flight_fade_replay",
-        description="Replay a flight fade run's geometry on MemNet and class the fading "
-        "drone's re-discoveries slower than 2 s.",
+        description="Replay a flight run's geometry on MemNet and class the re-discoveries "
+        "slower than 2 s (the fading drone's in a fade, every drone's otherwise).",
     )
-    parser.add_argument("run", type=Path, help="a flight fade run file (*.json)")
+    parser.add_argument("run", type=Path, help="a flight run file (*.json)")
     parser.add_argument("--seeds", type=int, default=20, help="MemNet seeds 1..S (default 20)")
+    parser.add_argument(
+        "--scenario",
+        choices=sorted(flight.SCENARIOS),
+        help="the run file's scenario, checked (default: whatever the run file is)",
+    )
+    parser.add_argument(
+        "--edge-db", type=float, default=0.0, help="the edge's width above -82 dBm (dB)"
+    )
+    parser.add_argument(
+        "--edge-loss", type=float, default=0.0, help="a multicast's loss at the edge (0-1)"
+    )
     args = parser.parse_args(argv)
     if not args.run.is_file():
         print(f"{args.run}: no such run file", file=sys.stderr)
         return 66  # EX_NOINPUT
-    print(report(args.run, args.seeds))
+    scenario = json.loads(args.run.read_text()).get("scenario")
+    if args.scenario is not None and scenario != args.scenario:
+        print(f"{args.run}: a {scenario} run, not {args.scenario}", file=sys.stderr)
+        return 65  # EX_DATAERR
+    if not 0.0 <= args.edge_loss <= 1.0 or args.edge_db < 0.0:
+        print("--edge-loss: use 0..1; --edge-db: use >= 0", file=sys.stderr)
+        return 64  # EX_USAGE
+    print(report(args.run, args.seeds, args.edge_db, args.edge_loss))
     return 0
 
 

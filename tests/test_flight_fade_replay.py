@@ -33,3 +33,36 @@ def test_the_report_counts_and_classes_the_fader_s_rediscoveries() -> None:
 
 def test_a_missing_run_file_is_one_line_and_a_nonzero_exit(tmp_path: Path) -> None:
     assert main([str(tmp_path / "none.json")]) == 66
+
+
+FLY_OUT = Path(__file__).resolve().parent.parent / (
+    "bench/results/flight-stagger/runs/flight-fly-out-swarmd-n20-r1.json"
+)
+
+
+def test_the_fly_out_is_replayed_for_every_drone_and_its_slow_pair_s_window() -> None:
+    replay = Replay(json.loads(FLY_OUT.read_text()))
+    assert replay.observers == list(range(20))
+    # uav12 (index 11) and uav14 (index 13) after uav14 lost uav12 at 52.9 s: back at 89.0 s
+    # by the geometry (-81.7 dBm), in range from then on
+    start, length = replay.window(11, 52.9, 13)
+    assert start == 89.0 and length > 40.0
+
+
+def test_edge_loss_hits_multicasts_at_the_edge_only() -> None:
+    replay = Replay(json.loads(FLY_OUT.read_text()), edge_db=1.5, edge_loss=0.5)
+    assert replay.loss(11, 13, 88.0, True) == 1.0  # -82.8 dBm: out of range
+    assert replay.loss(11, 13, 89.0, True) == 0.5  # -81.7 dBm: the edge
+    assert replay.loss(11, 13, 89.0, False) == 0.5**4  # directed: MAC retries
+    assert replay.loss(11, 13, 91.5, True) == 0.0  # -78.5 dBm: clear
+
+
+def test_the_fly_out_report_counts_every_drone_s_rediscoveries() -> None:
+    text = report(FLY_OUT, 1)
+    found = re.search(r"(\d+) re-discoveries by every drone, (\d+) over 2 s", text)
+    assert found is not None, text
+    assert int(found.group(1)) > 100
+
+
+def test_a_scenario_that_is_not_the_run_file_s_is_refused() -> None:
+    assert main([str(FLY_OUT), "--scenario", "fade"]) == 65
