@@ -1,0 +1,100 @@
+"""A seek put off by a frame that cannot reach the peer sought (``seek.Seek.heard``; issue 20).
+
+The suppression rule (seek.py, RFC 6762 section 7.4's duplicate-answer suppression) puts our
+seek off when we hear a peer's multicast whose heard digest omits every peer we seek: that
+frame "seeks them as well as ours would". On one link it does; in a swarm strung out over
+more than one radio range it need not: the peer we hear may be out of range of the peers we
+seek. In the fly-out replay at N = 20 (seed 71, docs/discovery.md, "A seek put off by a frame
+that cannot reach") uav9 and uav15 came back into range while uav5's seeks (out of uav15's
+range) put off uav9's and uav20's (out of uav9's range) put off uav15's: neither sent a frame
+the other could hear, and the pair waited for a seek to win the race.
+
+The shape on MemNet, virtual time: two sides of ``SIDE`` drones, formed together, then cut
+apart at ``T_CUT``; at ``T_BACK`` only the edge pair (``EDGE_L``, ``EDGE_R``) is back in range.
+Every other drone of a side still seeks the whole other side, out of range, so every frame
+each edge drone hears from its own side omits every peer it seeks. Times asserted are
+virtual, never the host's.
+"""
+
+from __future__ import annotations
+
+import pytest
+from swarmd_lab.testing import Swarm, build_swarm
+
+from swarmd.discovery.events import PeerDiscovered, PeerLost
+from swarmd.discovery.seek import SEEK_MAX_S
+
+SEEDS = (1, 2, 3, 4, 5, 6, 7, 8)
+# On main (42902ec) the suppression has no bound and both tests fail: the edge pair is found
+# 2.2-6.1 s after its return in seeds 2, 5, 6, 8 (0.4-1.7 s in the others), and in every seed
+# an edge drone falls silent for 5.3-9.6 s at a time while the cut lasts. The fix is a separate
+# commit (seek.SEEK_PUT_OFF_MAX_S) that removes this mark.
+DEFECT = pytest.mark.xfail(strict=True, reason="seek suppression without a bound (issue 20)")
+SIDE = 6
+N = 2 * SIDE
+EDGE_L, EDGE_R = SIDE - 1, SIDE  # the pair that comes back
+T_CUT = 30.0
+T_BACK = 60.0  # every lease across the cut has ended by then (and the seeks have started)
+REDISCOVERY_TARGET_S = 2.0  # issue 20
+
+
+def _side(i: int) -> int:
+    return 0 if i < SIDE else 1
+
+
+def _strung_out_swarm(seed: int) -> Swarm:
+    swarm = build_swarm(N, seed=seed)
+
+    def loss(a: int, b: int) -> float:
+        if _side(a) == _side(b) or swarm.net.now < T_CUT:
+            return 0.0
+        back = swarm.net.now >= T_BACK and {a, b} == {EDGE_L, EDGE_R}
+        return 0.0 if back else 1.0
+
+    swarm.net.link_loss = loss
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the scenario"
+    return swarm
+
+
+def _found_again_s(swarm: Swarm, observer: int, peer: int) -> float:
+    """From ``T_BACK`` to ``observer``'s re-discovery of ``peer`` (inf: never); the peer must
+    have been lost in the cut first."""
+    name = swarm.bundle.participants[peer].name
+    changes = [
+        (t, isinstance(e, PeerDiscovered))
+        for t, e in swarm.events[observer]
+        if t >= T_CUT and isinstance(e, PeerDiscovered | PeerLost) and e.name == name
+    ]
+    assert changes and not changes[0][1] and changes[0][0] < T_BACK, "the pair was not lost"
+    return next((t - T_BACK for t, found in changes if found), float("inf"))
+
+
+@DEFECT
+def test_an_edge_pair_whose_sides_seek_out_of_its_range_is_found_within_2_s() -> None:
+    """Every seed's edge pair (one test over all seeds: the race is won in some)."""
+    latencies: dict[int, float] = {}
+    for seed in SEEDS:
+        swarm = _strung_out_swarm(seed)
+        swarm.run_until(T_BACK + 10.0)
+        latencies[seed] = max(
+            _found_again_s(swarm, EDGE_L, EDGE_R), _found_again_s(swarm, EDGE_R, EDGE_L)
+        )
+    assert max(latencies.values()) <= REDISCOVERY_TARGET_S, latencies
+
+
+@DEFECT
+@pytest.mark.parametrize("seed", SEEDS)
+def test_each_edge_drone_keeps_seeking_while_its_side_seeks_out_of_range(seed: int) -> None:
+    """Cut for good (no return): each edge drone still sends a frame the other side could
+    hear at least every 2 x SEEK_MAX_S, whatever its side's frames (they cannot reach)."""
+    swarm = _strung_out_swarm(seed)
+    swarm.run_until(T_BACK)  # the cut's seeks are under way; the edge pair is not back yet
+    for edge in (EDGE_L, EDGE_R):
+        sent = [
+            x.time
+            for x in swarm.net.transmissions
+            if x.node == edge and x.multicast and T_BACK - 20.0 <= x.time < T_BACK
+        ]
+        gaps = [b - a for a, b in zip([T_BACK - 20.0, *sent], [*sent, T_BACK], strict=True)]
+        assert max(gaps) <= 2 * SEEK_MAX_S + 1e-9, (edge, [round(g, 2) for g in gaps])
