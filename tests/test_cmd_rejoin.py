@@ -1,7 +1,7 @@
 """A valid command reaches a member that comes back while it is valid (issue 20, "Command
 authority in flight"; docs/dataplane.md, "Rejoining while a command is valid").
 
-The defect the ns-3 split run found (docs/benchmarks.md, "Commands in flight"): a HOLD
+The defect the ns-3 split run found (docs/flight-history.md, "Commands in flight"): a HOLD
 issued while three members were split off and lost by discovery, valid 30 s; they came
 back and were re-discovered 15-18 s before its end, never got it, and the operator was told
 ``unreachable``. The command writer was volatile and ``peer_down`` dropped the lost

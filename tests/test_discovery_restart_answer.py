@@ -1,6 +1,6 @@
 """A peer that restarted mid-flight is answered within the rejoin delay (issue 20, reboot).
 
-On the ns-3 channel (docs/benchmarks.md, "The rebooted drone at N = 20") a rebooted drone
+On the ns-3 channel (docs/flight-history.md, "The rebooted drone at N = 20") a rebooted drone
 listed its 19 peers up to 3.8 s after its restart: each peer answered its first
 announcement after the first-answer holdoff U(W, 2W) at the peer's own Q (W = N / (50 Q):
 1.3 s at the grid's corners, Q 0.30), read before the restart. Now the answer comes within

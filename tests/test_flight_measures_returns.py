@@ -1,5 +1,5 @@
 """``flight_measures.readiness_after_returns`` on synthetic records: where the readiness a
-member sends after coming back into the commander's range goes (docs/benchmarks.md,
+member sends after coming back into the commander's range goes (docs/flight-history.md,
 "Where the blackout's missing readiness goes")."""
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ each member only when that member's answer arrives, a rejoin delay U(0, N / 50 s
 member down, and the rule that only peers discovery reported up move anything dropped it
 (``peer_not_up``): in the six blackout runs on the ns-3 channel one report per member
 that found the commander first, 74 of 75 such (member, return) pairs, most of the readiness
-the blackout lost (docs/benchmarks.md, "Where the blackout's missing readiness goes").
+the blackout lost (docs/flight-history.md, "Where the blackout's missing readiness goes").
 
 ``EarlyDatagrams`` keeps the last few such datagrams of a bundle participant for
 ``EARLY_HOLD_S`` and hands them back when discovery reports it up; the plane then runs
