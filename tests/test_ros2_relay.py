@@ -25,8 +25,6 @@ from swarmd.ros2.relay import (
     MAX_UNDECLARED_PER_PARTICIPANT,
     MAX_UNKNOWN_PARTICIPANTS,
     Ros2Relay,
-    static_edp_entity_id,
-    static_edp_properties,
 )
 from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
@@ -36,6 +34,7 @@ from swarmd.ros2.relay_events import (
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )
+from swarmd.ros2.relay_spdp import static_edp_entity_id, static_edp_properties
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (
     BES_SPDP_ONLY,
