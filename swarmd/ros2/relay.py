@@ -76,7 +76,6 @@ from __future__ import annotations
 
 import ipaddress
 from collections import deque
-from dataclasses import dataclass
 from typing import Any, Final
 
 from swarmd.bundle.ros2 import (
@@ -100,6 +99,7 @@ from swarmd.ros2.relay_spdp import (
     is_wlp,
     static_edp_properties,
 )
+from swarmd.ros2.relay_state import LocalNode, RemoteDrone, UnknownParticipant
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (
@@ -139,44 +139,6 @@ START_ANSWERS: Final = 2
 # clamped: a node announcing 0 or years must neither flap nor be alive forever
 MIN_NODE_LEASE_S: Final = 1.0
 MAX_NODE_LEASE_S: Final = 300.0
-# ---- state --------------------------------------------------------------------------------
-
-
-@dataclass(slots=True)
-class _Local:
-    participant: Ros2Participant
-    declared: frozenset[tuple[str, int]]  # ("Writer"|"Reader", userId)
-    heard_at: float | None = None
-    left: bool = False  # its last word was a DATA(p[UD])
-    last_sn: int = 0
-    datagrams: int = 0
-    answers_left: int = 0  # datagrams of this life still answered with everything relayed
-    # alive as swarmd tells the other drones: heard within its lease, or (never heard) within
-    # one relay lease of the relay's start; None: no expiry (left, expired, or not started)
-    alive: bool = True
-    alive_until: float | None = None
-    restarts: int = 0  # lives after the first this relay saw, modulo 256 (PID 0x8A06)
-    # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
-    undeclared: set[tuple[str, int, str]] | None = None
-    # its latest DATA(p) datagram as it sent it (to everyone, its own header): passed on to
-    # a sibling node of this drone that starts, with the relay's start answers
-    last_spdp: bytes | None = None
-
-
-@dataclass(slots=True)
-class _Unknown:
-    guid_prefix: GuidPrefix
-    vendor: str
-    name: str | None
-    heard_at: float
-    datagrams: int
-
-
-@dataclass(slots=True)
-class _Remote:
-    drone: str
-    address: str
-    since: float
 
 
 class Ros2Relay:
@@ -213,7 +175,7 @@ class Ros2Relay:
         )
         # SN = epoch (31 bits) | counter: above every SN of an earlier life of this relay
         self._sn = (epoch & 0x7FFF_FFFF) << 32
-        self._local: dict[GuidPrefix, _Local] = {}
+        self._local: dict[GuidPrefix, LocalNode] = {}
         self._remote_by_drone: dict[str, list[Ros2Participant]] = {}
         for p in participants:
             if p.drone == drone:
@@ -224,19 +186,19 @@ class Ros2Relay:
                     )
                     for i, e in enumerate(p.endpoints)
                 )
-                self._local[GuidPrefix(p.guid_prefix)] = _Local(p, declared)
+                self._local[GuidPrefix(p.guid_prefix)] = LocalNode(p, declared)
             else:
                 self._remote_by_drone.setdefault(p.drone, []).append(p)
         self._remote_prefixes = frozenset(
             GuidPrefix(p.guid_prefix) for ps in self._remote_by_drone.values() for p in ps
         )
-        self._present: dict[str, _Remote] = {}
+        self._present: dict[str, RemoteDrone] = {}
         # per drone, its relay's last authenticated word on its participants (absent: all
         # alive, as a peer without a relay or before its first word)
         self._remote_alive: dict[str, tuple[bool, ...]] = {}
         # per drone, the restart counts of its last word (absent or None: it sent none)
         self._remote_restarts: dict[str, tuple[int, ...] | None] = {}
-        self._unknown: dict[GuidPrefix, _Unknown] = {}
+        self._unknown: dict[GuidPrefix, UnknownParticipant] = {}
         self._out: list[tuple[bytes, tuple[str, int]]] = []
         self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
         self._next_renewal: float | None = None
@@ -365,7 +327,7 @@ class Ros2Relay:
         known = self._present.get(drone)
         if known is not None and known.address == address and not restarted:
             return
-        self._present[drone] = _Remote(drone, address, now)
+        self._present[drone] = RemoteDrone(drone, address, now)
         again = restarted and known is not None
         self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True, restarted=again))
         self._send_graph_spdp(None)
@@ -538,7 +500,7 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_spdp"] += 1
 
-    def _send_graph_spdp(self, local: _Local | None) -> None:
+    def _send_graph_spdp(self, local: LocalNode | None) -> None:
         """swarmd's graph participant's DATA(p) to ``local`` (None: every local node)."""
         if self.graph is None:
             return
@@ -548,7 +510,7 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, target.participant.metatraffic_port)))
             self.counters["tx_spdp"] += 1
 
-    def _send_all_to(self, local: _Local) -> None:
+    def _send_all_to(self, local: LocalNode) -> None:
         port = local.participant.metatraffic_port
         if self._present:
             self._send_graph_spdp(local)
@@ -562,7 +524,7 @@ class Ros2Relay:
                 self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_spdp"] += 1
 
-    def _send_siblings_to(self, local: _Local) -> None:
+    def _send_siblings_to(self, local: LocalNode) -> None:
         """The other alive nodes of this drone, to a starting ``local``: their own latest
         DATA(p), as they sent it. They are its initial peers and answer its first DATA(p)
         themselves, within milliseconds, which can land before the starting node listens
@@ -578,7 +540,7 @@ class Ros2Relay:
                 self._out.append((sibling.last_spdp, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
 
-    def _send_restart_to_siblings(self, local: _Local, datagram: bytes | None) -> None:
+    def _send_restart_to_siblings(self, local: LocalNode, datagram: bytes | None) -> None:
         """``local`` started again without having sent its ``DATA(p[UD])`` (SIGKILL, a
         crash): the other alive nodes of this drone, which find it directly on [::1],
         still hold the writer proxies of its earlier life (module docstring, "A restart
@@ -625,7 +587,7 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_dispose"] += 1
 
-    def _set_local_alive(self, local: _Local, alive: bool, restarted: bool = False) -> None:
+    def _set_local_alive(self, local: LocalNode, alive: bool, restarted: bool = False) -> None:
         if not alive:
             local.alive_until = None
             local.last_spdp = None
@@ -716,10 +678,10 @@ class Ros2Relay:
             del self._unknown[oldest.guid_prefix]
             self.counters["unknown_evicted"] += 1
         vendor = participant.vendor_id.value.hex()
-        self._unknown[prefix] = _Unknown(prefix, vendor, participant.entity_name, now, 1)
+        self._unknown[prefix] = UnknownParticipant(prefix, vendor, participant.entity_name, now, 1)
         self._events.append(UnknownParticipantHeard(prefix, vendor, participant.entity_name))
 
-    def _check_endpoints(self, local: _Local, participant: SpdpParticipant) -> None:
+    def _check_endpoints(self, local: LocalNode, participant: SpdpParticipant) -> None:
         for name, value in participant.properties:
             m = STATIC_EDP_PROPERTY.fullmatch(name)
             if m is None:
