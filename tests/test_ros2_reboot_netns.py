@@ -18,7 +18,11 @@ message of the second life arrived, in either case.
 1. drone-1's swarmd and talker are SIGKILLed and restarted, the state dir kept (a reboot);
 2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running;
 3. as 2, with a second node on drone-1 (a subscriber, the monitor) that finds the talker
-   directly on [::1] and holds its writer proxy too.
+   directly on [::1] and holds its writer proxy too;
+4. as 3, the talker down longer than its own lease: the monitor drops it by lease, which
+   keeps the reader's record of the writer's last sequence number (Fast DDS
+   ``BaseReader::may_remove_history_record``), and a dispose for a participant it no longer
+   knows removes nothing.
 
 In each, the subscribers must hear the new life within ``RECOVER_S`` (a liveness bound on
 real processes with generous slack; nothing else is timed).
@@ -27,6 +31,7 @@ real processes with generous slack; nothing else is timed).
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -67,6 +72,10 @@ ROS2_DOMAIN = 7
 # swarmd's discovery: quick announcements, the flight's 20 s lease (no PeerLost in a reboot)
 DISCOVERY = "{t_min_s: 0.2, t_max_s: 0.5, lease_s: 20}"
 DRONES = ("lead", "drone-1")
+# the talker's own SPDP lease in case 4, set in its generated profile (20 s there, Fast DDS's
+# default): short, so that the test's outage outlasts it within a few seconds
+SHORT_NODE_LEASE_S = 4
+PAST_LEASE_S = 3 * SHORT_NODE_LEASE_S
 
 
 def _senders(log: Path) -> dict[str, dict[str, Any]]:
@@ -163,12 +172,42 @@ def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
         assert d.wait(timeout=WAIT_S) == 0
 
 
+def _shorten_lease(profile: Path, lease_s: int) -> None:
+    """The node's SPDP lease (and announcement period, a quarter of it) in its generated
+    profile (swarmd.ros2.profile, ``leaseDuration``)."""
+    text = profile.read_text()
+    lease = re.compile(r"<leaseDuration><sec>\d+</sec></leaseDuration>")
+    period = re.compile(r"<leaseAnnouncement><sec>\d+</sec></leaseAnnouncement>")
+    assert lease.search(text) and period.search(text), profile
+    text = lease.sub(f"<leaseDuration><sec>{lease_s}</sec></leaseDuration>", text)
+    text = period.sub(
+        f"<leaseAnnouncement><sec>{max(1, lease_s // 4)}</sec></leaseAnnouncement>", text
+    )
+    profile.write_text(text)
+
+
+@pytest.mark.parametrize(
+    "past_lease",
+    [
+        pytest.param(False, id="at-once"),
+        # open: 1 pass in 3 runs at 9df76f3 (docs/ros2.md, "A node back after its own lease")
+        pytest.param(
+            True,
+            id="past-its-lease",
+            marks=pytest.mark.xfail(
+                reason="the siblings' re-match before the dispose is not yet reliable",
+                strict=False,
+            ),
+        ),
+    ],
+)
 def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
-    lan_factory: LanFactory, workdir: Path
+    lan_factory: LanFactory, workdir: Path, past_lease: bool
 ) -> None:
     """Nodes of one drone find each other directly on [::1] (docs/ros2.md, "Several nodes
     on one drone"): drone-1's monitor holds the talker's writer proxy as the lead's
-    listener does. The talker alone is SIGKILLed and restarted at once."""
+    listener does. The talker alone is SIGKILLed and restarted at once, or after more than
+    its own lease (the monitor then drops it by lease and keeps its old numbers)."""
     lan = lan_factory(2)
     nodes_declared = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, ros2_lab.LISTENER_NODE)
     text = ros2_lab.chatter_mission(
@@ -182,6 +221,8 @@ def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
     files = write_mission_bundle(workdir, text, "ros2-reboot", "ros2-reboot.yaml")
     profiles = workdir / "profiles"
     assert ros2_profiles(files, profiles, "--via-swarmd") == 0
+    if past_lease:
+        _shorten_lease(profiles / "drone-1" / "talker.xml", SHORT_NODE_LEASE_S)
     swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config())
     swarm.start_all(WAIT_S)
     nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
@@ -206,6 +247,10 @@ def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
     time.sleep(FIRST_LIFE_S)
     first.send_signal(signal.SIGKILL)
     first.wait(timeout=WAIT_S)
+    if past_lease:
+        time.sleep(PAST_LEASE_S)  # the monitor drops the talker by lease
+        state = {r["node"]: r["state"] for r in daemon_status(swarm.socks[1])["ros2"]["local"]}
+        assert state["talker"] == "lease expired", state
     second = talker("life-2")
     restarted_at = time.monotonic()
     try:
@@ -219,14 +264,20 @@ def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
             f"\nnew life heard by both {time.monotonic() - restarted_at:.1f} s after the "
             f"talker's restart: { {who: _senders(log) for who, log in logs.items()} }"
         )
+        drone_1 = daemon_status(swarm.socks[1])["ros2"]
+        print(f"drone-1's relay: {drone_1['counters']}, {drone_1['local']}")
         for proc in (second, monitor, listener):
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=WAIT_S)
     # drone-1's relay disposed the talker at the monitor once; the lead's relay re-matched
-    # it on drone-1's signed restart count
+    # it on drone-1's signed restart count (past its lease: its bit went down, a dispose,
+    # and up again, an announcement: no restart to count there)
     counters = daemon_status(swarm.socks[1])["ros2"]["counters"]
     assert counters["tx_sibling_dispose"] == 1, counters
-    assert daemon_status(swarm.socks[0])["ros2"]["counters"]["remote_restarts"] == 1
+    # past its lease the relay announced it to the monitor first (then disposed it)
+    assert counters["tx_sibling_lapsed"] == (1 if past_lease else 0), counters
+    remote_restarts = daemon_status(swarm.socks[0])["ros2"]["counters"]["remote_restarts"]
+    assert remote_restarts == (0 if past_lease else 1)
     for d in swarm.procs:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0
