@@ -51,7 +51,9 @@ proxies on the dispose, and matches the announcement afresh). It does so for
 
 On the node's own drone its sibling nodes, which find it directly, hold its old proxies too:
 a node's new life without its ``DATA(p[UD])`` first is disposed at them, then its own new
-DATA(p) passed on (``_send_restart_to_siblings``).
+DATA(p) passed on (``_send_dispose_to_siblings``); at once, or, for a node that was silent
+past its lease (they dropped it by lease, which keeps its old numbers), once its own DATA(p)
+has listed its endpoints to them and the list stayed the same ``SIBLING_REMATCH_S``.
 
 Several nodes on one drone find each other directly: each one's profile lists the others'
 [::1] discovery ports as initial peers. The relay only helps a starting one: with its start
@@ -139,6 +141,26 @@ START_ANSWERS: Final = 2
 # clamped: a node announcing 0 or years must neither flap nor be alive forever
 MIN_NODE_LEASE_S: Final = 1.0
 MAX_NODE_LEASE_S: Final = 300.0
+# A node back after its own lease ("_heard", docs/ros2.md "A node back after its own lease"):
+# its siblings get its dispose once its own DATA(p) has listed its endpoints to them (they
+# create them as it starts; the dispose removes only matched writers' numbers) and that list
+# has stayed the same this long; at the latest SIBLING_REMATCH_MAX_S after its first DATA(p)
+SIBLING_REMATCH_S: Final = 0.5
+SIBLING_REMATCH_MAX_S: Final = 3.0
+# a node restarting within a quarter of its lease (at most 1 s) of its end may already be
+# dropped by its siblings' lease check (their timers are not the relay's): it is handled as
+# lapsed, which costs nothing more (the dispose comes later, that is all). A fraction: a
+# node claiming the shortest lease must not make every restart one of these
+SIBLING_LEASE_SLACK_FRACTION: Final = 0.25
+SIBLING_LEASE_SLACK_S: Final = 1.0
+
+
+def _is_static_edp(name: str) -> bool:
+    return STATIC_EDP_PROPERTY.fullmatch(name) is not None
+
+
+def _lease_slack_s(lease_s: float) -> float:
+    return min(SIBLING_LEASE_SLACK_S, SIBLING_LEASE_SLACK_FRACTION * lease_s)
 
 
 class Ros2Relay:
@@ -229,6 +251,7 @@ class Ros2Relay:
             "tx_start_answers": 0,
             "tx_sibling_spdp": 0,
             "tx_sibling_dispose": 0,
+            "sibling_dispose_deferred": 0,
             "liveness_unknown_drone": 0,
             "remote_restarts": 0,
         }
@@ -270,6 +293,10 @@ class Ros2Relay:
 
     def handle_timer(self, now: float) -> None:
         for local in self._local.values():
+            # first: a dispose due before the node's lease ran out is still owed
+            if local.sibling_dispose_at is not None and now >= local.sibling_dispose_at:
+                local.sibling_dispose_at = None
+                self._send_dispose_to_siblings(local, local.last_spdp)
             if local.alive and local.alive_until is not None and now >= local.alive_until:
                 self._set_local_alive(local, False)
         if self._next_renewal is not None and now >= self._next_renewal:
@@ -285,6 +312,9 @@ class Ros2Relay:
 
     def get_timer(self) -> float | None:
         deadlines = [u.alive_until for u in self._local.values() if u.alive_until is not None]
+        deadlines += [
+            u.sibling_dispose_at for u in self._local.values() if u.sibling_dispose_at is not None
+        ]
         if self._next_renewal is not None:
             deadlines.append(self._next_renewal)
         graph_due = self.graph.get_timer() if self.graph is not None else None
@@ -540,15 +570,15 @@ class Ros2Relay:
                 self._out.append((sibling.last_spdp, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
 
-    def _send_restart_to_siblings(self, local: LocalNode, datagram: bytes | None) -> None:
+    def _send_dispose_to_siblings(self, local: LocalNode, datagram: bytes | None) -> None:
         """``local`` started again without having sent its ``DATA(p[UD])`` (SIGKILL, a
         crash): the other alive nodes of this drone, which find it directly on [::1],
         still hold the writer proxies of its earlier life (module docstring, "A restart
         under the same GUIDs"), and their SPDP readers drop its new DATA(p) too (numbered
         from 1 again). They get its DATA(p[UD]), numbered above everything (the relay's
-        epoch), then ``datagram``, its own new DATA(p) as it sent it: Fast DDS forgets a
+        epoch), then ``datagram``, its own latest DATA(p) as it sent it: Fast DDS forgets a
         writer's numbers when its participant is disposed (not when its lease runs out)."""
-        siblings = [s for s in self._local.values() if s is not local and s.alive and not s.left]
+        siblings = self._siblings_of(local)
         if not siblings:
             return
         dispose = encode_spdp_dispose(
@@ -565,6 +595,9 @@ class Ros2Relay:
             if datagram is not None:
                 self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
+
+    def _siblings_of(self, local: LocalNode) -> list[LocalNode]:
+        return [s for s in self._local.values() if s is not local and s.alive and not s.left]
 
     def _alive_remote(self, drone: str) -> list[Ros2Participant]:
         remote = self._remote_by_drone.get(drone, [])
@@ -591,6 +624,7 @@ class Ros2Relay:
         if not alive:
             local.alive_until = None
             local.last_spdp = None
+            local.sibling_dispose_at = None
         if local.alive == alive and not restarted:
             return
         local.alive = alive
@@ -625,6 +659,12 @@ class Ros2Relay:
         first = local.heard_at is None or restarted
         # a new life without its DATA(p[UD]) (killed): its siblings still hold its proxies
         unannounced_restart = restarted and not local.left
+        # ... or, silent past its lease (by the relay's book, with slack), dropped it by lease
+        lapsed = unannounced_restart and (
+            local.alive_until is None
+            or local.heard_at is None
+            or now >= local.alive_until - _lease_slack_s(local.alive_until - local.heard_at)
+        )
         if restarted:
             # a new life under the same GUIDs: counted in the signed liveness word, so the
             # other drones' relays drop its old proxies even if its bit never went down
@@ -641,14 +681,33 @@ class Ros2Relay:
         if datagram is not None:
             local.last_spdp = datagram
         self._check_endpoints(local, participant)
+        static_edp = frozenset(n for n, _v in participant.properties if _is_static_edp(n))
+        if static_edp != local.static_edp and local.sibling_dispose_at is not None:
+            local.sibling_dispose_at = min(now + SIBLING_REMATCH_S, local.sibling_dispose_by)
+        local.static_edp = static_edp
         if first:
             p = local.participant
             self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
             local.answers_left = START_ANSWERS
             if self.graph is not None:
                 self.graph.local_restarted(prefix, now)
-            if unannounced_restart:
-                self._send_restart_to_siblings(local, datagram)
+            local.sibling_dispose_at = None
+            if lapsed and self._siblings_of(local):
+                # its siblings dropped it by lease, which keeps its writers' last numbers
+                # (Fast DDS 3.2 BaseReader::remove_persistence_guid erases the record only
+                # when not removed by lease), and a dispose of a participant they do not
+                # know removes nothing: they re-create it from its own DATA(p) (the lease
+                # drop erased its SPDP writer's record, so they take them) and match its
+                # writers from the kept record; the dispose, once that list is quiet,
+                # removes them not by lease. Nothing of its is sent before: numbered above
+                # its own, it would make their SPDP reader drop the DATA(p)s that list its
+                # endpoints (StatelessReader::change_received records a matched SPDP writer's
+                # number), and the dispose would find no writer to remove
+                local.sibling_dispose_at = now + SIBLING_REMATCH_S
+                local.sibling_dispose_by = now + SIBLING_REMATCH_MAX_S
+                self.counters["sibling_dispose_deferred"] += 1
+            elif unannounced_restart:
+                self._send_dispose_to_siblings(local, datagram)
         if local.answers_left > 0:
             local.answers_left -= 1
             self.counters["tx_start_answers"] += 1

@@ -29,6 +29,13 @@ class LocalNode:
     # its latest DATA(p) datagram as it sent it (to everyone, its own header): passed on to
     # a sibling node of this drone that starts, with the relay's start answers
     last_spdp: bytes | None = None
+    # the static EDP property names of its latest DATA(p) (the endpoints it has created)
+    static_edp: frozenset[str] = frozenset()
+    # a new life after its lease ran out: when its siblings get its dispose (the endpoint
+    # list quiet for SIBLING_REMATCH_S), and the latest that may be (SIBLING_REMATCH_MAX_S
+    # after the life's first DATA(p)); None: none pending ("Ros2Relay._heard")
+    sibling_dispose_at: float | None = None
+    sibling_dispose_by: float = 0.0
 
 
 @dataclass(slots=True)
