@@ -18,7 +18,12 @@ message of the second life arrived, in either case.
 1. drone-1's swarmd and talker are SIGKILLed and restarted, the state dir kept (a reboot);
 2. drone-1's talker alone is SIGKILLed and restarted at once, swarmd running;
 3. as 2, with a second node on drone-1 (a subscriber, the monitor) that finds the talker
-   directly on [::1] and holds its writer proxy too.
+   directly on [::1] and holds its writer proxy too;
+4. as 3, the talker down longer than its own lease: the monitor drops it by lease, which
+   keeps the reader's record of the writer's last sequence number (Fast DDS
+   ``BaseReader::may_remove_history_record``), and a dispose removes only the numbers of
+   writers it has matched again (``SWARMD_ROS2_PCAP=dir`` captures drone-1's loopback and
+   shows the SPDP datagrams about the talker's new life at the monitor).
 
 In each, the subscribers must hear the new life within ``RECOVER_S`` (a liveness bound on
 real processes with generous slack; nothing else is timed).
@@ -27,6 +32,8 @@ real processes with generous slack; nothing else is timed).
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
 import signal
 import subprocess
@@ -35,8 +42,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from swarmd_lab import ros2_lab
+from swarmd_lab import ros2_lab, rtps_timeline
 
+from swarmd.bundle.ros2 import bundle_ros2_participants
 from tests.conftest import LanFactory
 from tests.daemon_support import (
     BundleFiles,
@@ -67,6 +75,10 @@ ROS2_DOMAIN = 7
 # swarmd's discovery: quick announcements, the flight's 20 s lease (no PeerLost in a reboot)
 DISCOVERY = "{t_min_s: 0.2, t_max_s: 0.5, lease_s: 20}"
 DRONES = ("lead", "drone-1")
+# the talker's own SPDP lease in case 4, set in its generated profile (20 s there, Fast DDS's
+# default): short, so that the test's outage outlasts it within a few seconds
+SHORT_NODE_LEASE_S = 4
+PAST_LEASE_S = 3 * SHORT_NODE_LEASE_S
 
 
 def _senders(log: Path) -> dict[str, dict[str, Any]]:
@@ -163,13 +175,47 @@ def test_a_restarted_drones_ros2_samples_reach_its_peer_again(
         assert d.wait(timeout=WAIT_S) == 0
 
 
+def _show_arrivals(pcap: Path, port: int, prefix: bytes) -> None:
+    """Shown, not asserted (``SWARMD_ROS2_PCAP``): the SPDP datagrams about the talker's
+    last life at the monitor's port, the relay's and its own, in the order they came."""
+    arrivals = rtps_timeline.last_life(rtps_timeline.read_arrivals(pcap, port, prefix.hex()))
+    start = arrivals[0].at if arrivals else 0.0
+    for a in arrivals[:32]:
+        kind = "dispose" if a.disposed else f"alive, {a.static_endpoints} static endpoints"
+        who = "relay" if a.from_relay else "node"
+        print(f"  at the monitor {a.at - start:+.3f} s: {who} sn {a.sequence_number} {kind}")
+
+
+def _shorten_lease(profile: Path, lease_s: int) -> None:
+    """The node's SPDP lease (and announcement period, a quarter of it) in its generated
+    profile (swarmd.ros2.profile, ``leaseDuration``)."""
+    text = profile.read_text()
+    lease = re.compile(r"<leaseDuration><sec>\d+</sec></leaseDuration>")
+    period = re.compile(r"<leaseAnnouncement><sec>\d+</sec></leaseAnnouncement>")
+    assert lease.search(text) and period.search(text), profile
+    text = lease.sub(f"<leaseDuration><sec>{lease_s}</sec></leaseDuration>", text)
+    text = period.sub(
+        f"<leaseAnnouncement><sec>{max(1, lease_s // 4)}</sec></leaseAnnouncement>", text
+    )
+    profile.write_text(text)
+
+
+@pytest.mark.parametrize("past_lease", [False, True], ids=["at-once", "past-its-lease"])
 def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
-    lan_factory: LanFactory, workdir: Path
+    lan_factory: LanFactory, workdir: Path, past_lease: bool
 ) -> None:
     """Nodes of one drone find each other directly on [::1] (docs/ros2.md, "Several nodes
     on one drone"): drone-1's monitor holds the talker's writer proxy as the lead's
-    listener does. The talker alone is SIGKILLed and restarted at once."""
+    listener does. The talker alone is SIGKILLed and restarted at once, or after more than
+    its own lease (the monitor then drops it by lease and keeps its old numbers)."""
     lan = lan_factory(2)
+    # investigation aid: drone-1's loopback captured (tshark) and the talker's last life's
+    # SPDP datagrams at the monitor shown (docs/ros2.md, "A node back after its own lease")
+    pcap_dir = os.environ.get("SWARMD_ROS2_PCAP")
+    if pcap_dir:
+        pcap = Path(pcap_dir) / "drone-1-lo.pcapng"
+        pcap.parent.mkdir(parents=True, exist_ok=True)
+        capture = ros2_lab.start_capture(lan[1].name, "lo", pcap, WAIT_S)
     nodes_declared = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, ros2_lab.LISTENER_NODE)
     text = ros2_lab.chatter_mission(
         "ros2-reboot",
@@ -182,6 +228,8 @@ def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
     files = write_mission_bundle(workdir, text, "ros2-reboot", "ros2-reboot.yaml")
     profiles = workdir / "profiles"
     assert ros2_profiles(files, profiles, "--via-swarmd") == 0
+    if past_lease:
+        _shorten_lease(profiles / "drone-1" / "talker.xml", SHORT_NODE_LEASE_S)
     swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config())
     swarm.start_all(WAIT_S)
     nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
@@ -206,6 +254,10 @@ def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
     time.sleep(FIRST_LIFE_S)
     first.send_signal(signal.SIGKILL)
     first.wait(timeout=WAIT_S)
+    if past_lease:
+        time.sleep(PAST_LEASE_S)  # the monitor drops the talker by lease
+        state = {r["node"]: r["state"] for r in daemon_status(swarm.socks[1])["ros2"]["local"]}
+        assert state["talker"] == "lease expired", state
     second = talker("life-2")
     restarted_at = time.monotonic()
     try:
@@ -219,14 +271,26 @@ def test_a_restarted_nodes_samples_reach_its_sibling_on_the_same_drone_again(
             f"\nnew life heard by both {time.monotonic() - restarted_at:.1f} s after the "
             f"talker's restart: { {who: _senders(log) for who, log in logs.items()} }"
         )
+        drone_1 = daemon_status(swarm.socks[1])["ros2"]
+        print(f"drone-1's relay: {drone_1['counters']}, {drone_1['local']}")
         for proc in (second, monitor, listener):
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=WAIT_S)
+        if pcap_dir:
+            capture.terminate()
+            capture.wait(timeout=WAIT_S)
+            ours = {p.node.name: p for p in bundle_ros2_participants(files.bundle)}
+            port, prefix = ours["monitor"].metatraffic_port, ours["talker"].guid_prefix
+            _show_arrivals(pcap, port, prefix)
     # drone-1's relay disposed the talker at the monitor once; the lead's relay re-matched
-    # it on drone-1's signed restart count
+    # it on drone-1's signed restart count (past its lease: its bit went down, a dispose,
+    # and up again, an announcement: no restart to count there)
     counters = daemon_status(swarm.socks[1])["ros2"]["counters"]
     assert counters["tx_sibling_dispose"] == 1, counters
-    assert daemon_status(swarm.socks[0])["ros2"]["counters"]["remote_restarts"] == 1
+    # past its lease the dispose waited for the talker's own DATA(p) to list its writers
+    assert counters["sibling_dispose_deferred"] == (1 if past_lease else 0), counters
+    remote_restarts = daemon_status(swarm.socks[0])["ros2"]["counters"]["remote_restarts"]
+    assert remote_restarts == (0 if past_lease else 1)
     for d in swarm.procs:
         d.send_signal(signal.SIGTERM)
         assert d.wait(timeout=WAIT_S) == 0

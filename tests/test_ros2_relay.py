@@ -24,9 +24,10 @@ from swarmd.ros2.relay import (
     LOOPBACK,
     MAX_UNDECLARED_PER_PARTICIPANT,
     MAX_UNKNOWN_PARTICIPANTS,
+    MIN_NODE_LEASE_S,
+    SIBLING_REMATCH_MAX_S,
+    SIBLING_REMATCH_S,
     Ros2Relay,
-    static_edp_entity_id,
-    static_edp_properties,
 )
 from swarmd.ros2.relay_events import (
     LocalLivenessChanged,
@@ -36,6 +37,7 @@ from swarmd.ros2.relay_events import (
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )
+from swarmd.ros2.relay_spdp import static_edp_entity_id, static_edp_properties
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import (
     BES_SPDP_ONLY,
@@ -46,7 +48,7 @@ from swarmd.rtps.spdp import (
     encode_spdp,
     encode_spdp_dispose,
 )
-from swarmd.rtps.types import GuidPrefix, VendorId
+from swarmd.rtps.types import Duration, GuidPrefix, VendorId
 
 REPO = Path(__file__).resolve().parent.parent
 MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
@@ -82,11 +84,17 @@ def _events(relay: Ros2Relay) -> list[RelayEvent]:
     return out
 
 
-def _local_spdp(p: Ros2Participant, sn: int, properties: tuple[tuple[str, str], ...] = ()) -> bytes:
+def _local_spdp(
+    p: Ros2Participant,
+    sn: int,
+    properties: tuple[tuple[str, str], ...] = (),
+    lease_s: float = 100.0,
+) -> bytes:
     """What a --via-swarmd node sends the relay (its own DATA(p) from [::1])."""
     return encode_spdp(
         SpdpParticipant(
             GuidPrefix(p.guid_prefix),
+            lease_duration=Duration.from_seconds(lease_s),
             vendor_id=VendorId(b"\x01\x0f"),
             metatraffic_unicast_locators=(Locator.udpv6(LOOPBACK, p.metatraffic_port),),
             default_unicast_locators=(Locator.udpv4(ADDRESS[p.drone], p.user_port),),
@@ -346,6 +354,166 @@ def test_a_node_killed_and_started_again_is_disposed_at_its_siblings_first() -> 
         _events(relay)
     )
     assert relay.counters["tx_sibling_dispose"] == 1
+
+
+def _edp(*uids: int) -> tuple[tuple[str, str], ...]:
+    """A node's static EDP properties for writers ``uids`` (what it lists as it creates them)."""
+    return tuple(
+        (f"eProsimaEDPStatic_Writer_ALIVE_ID_{u}", static_edp_entity_id(u, Ros2EndpointKind.WRITER))
+        for u in uids
+    )
+
+
+def _to(relay: Ros2Relay, node: Ros2Participant, prefix: GuidPrefix) -> list[bytes]:
+    """The datagrams out to ``node`` that speak of participant ``prefix``."""
+    port = node.metatraffic_port
+    return [
+        d
+        for d, dest in relay.datagrams_to_send()
+        if dest == (LOOPBACK, port) and decode_spdp(d)[0].guid_prefix == prefix
+    ]
+
+
+def _lapsed_talker(
+    relay: Ros2Relay, talker: Ros2Participant, helper: Ros2Participant, lease_s: float = 4.0
+) -> float:
+    """The helper alive (60 s lease), the talker heard with ``lease_s`` and then silent
+    past it (dropped by lease at the relay, as at its sibling); returns the time."""
+    relay.receive_datagram(_local_spdp(helper, 1, lease_s=60.0), ("::1", 40000), 0.0)
+    for sn in (1, 2, 3):
+        spdp = _local_spdp(talker, sn, _edp(8, 12), lease_s=lease_s)
+        relay.receive_datagram(spdp, ("::1", 40001), float(sn))
+    relay.handle_timer(3.0 + lease_s)
+    assert [r["state"] for r in relay.status(3.0 + lease_s)["local"]][0] == "lease expired"
+    relay.datagrams_to_send()
+    return 30.0
+
+
+def test_a_node_back_after_its_lease_is_disposed_at_its_siblings_once_it_listed_its_writers() -> (
+    None
+):
+    """Its sibling dropped it by lease and kept its writers' last numbers; a dispose finds
+    only writers it matched again (docs/ros2.md, "A node back after its own lease"). So the
+    relay sends nothing of the node while it starts (its own DATA(p)s, which list its
+    endpoints as it creates them, must reach the sibling's SPDP reader unhindered: nothing
+    numbered above them), and the dispose, then its latest own DATA(p), once its endpoint
+    list has been the same for SIBLING_REMATCH_S."""
+    relay, talker, helper = _two_on_drone_1()
+    t = _lapsed_talker(relay, talker, helper)
+    prefix = GuidPrefix(talker.guid_prefix)
+    lives = [(t, ()), (t + 0.01, _edp(8)), (t + 0.05, _edp(8, 12)), (t + 0.3, _edp(8, 12))]
+    for sn, (at, edp) in enumerate(lives, start=1):
+        relay.receive_datagram(_local_spdp(talker, sn, edp, lease_s=4.0), ("::1", 40002), at)
+        assert _to(relay, helper, prefix) == []
+    assert relay.get_timer() == t + 0.05 + SIBLING_REMATCH_S
+    relay.handle_timer(t + 0.05 + SIBLING_REMATCH_S - 0.001)
+    assert _to(relay, helper, prefix) == []
+    relay.handle_timer(t + 0.05 + SIBLING_REMATCH_S)
+    dispose, latest = _to(relay, helper, prefix)
+    assert decode_spdp(dispose)[1] == [
+        SpdpDisposed(prefix, decode_spdp(dispose)[1][0].sequence_number)
+    ]
+    assert latest == _local_spdp(talker, 4, _edp(8, 12), lease_s=4.0)
+    assert relay.counters["sibling_dispose_deferred"] == 1
+    assert relay.counters["tx_sibling_dispose"] == 1
+    relay.handle_timer(t + 10.0)
+    assert relay.counters["tx_sibling_dispose"] == 1
+
+
+def test_a_quick_restart_is_disposed_at_once_and_one_near_its_lease_end_waits() -> None:
+    """Well within its lease the sibling still knows the node: the dispose at once finds its
+    writers (test above for the dispose's content). Within a quarter of its lease of the
+    end (the sibling's lease timer is not the relay's) it is handled as lapsed."""
+    relay, talker, helper = _two_on_drone_1()
+    relay.receive_datagram(_local_spdp(helper, 1, lease_s=60.0), ("::1", 40000), 0.0)
+    relay.receive_datagram(_local_spdp(talker, 5, lease_s=4.0), ("::1", 40001), 1.0)
+    relay.receive_datagram(_local_spdp(talker, 1, lease_s=4.0), ("::1", 40002), 2.0)
+    assert relay.counters["tx_sibling_dispose"] == 1
+    assert relay.counters["sibling_dispose_deferred"] == 0
+    relay.receive_datagram(_local_spdp(talker, 9, lease_s=4.0), ("::1", 40002), 3.0)
+    relay.receive_datagram(_local_spdp(talker, 1, lease_s=4.0), ("::1", 40003), 6.2)
+    assert relay.counters["tx_sibling_dispose"] == 1
+    assert relay.counters["sibling_dispose_deferred"] == 1
+    relay.handle_timer(6.2 + SIBLING_REMATCH_S)
+    assert relay.counters["tx_sibling_dispose"] == 2
+
+
+def test_a_node_growing_its_endpoint_list_forever_is_disposed_by_the_deadline() -> None:
+    """Attack: a process on the drone speaks as the lapsed talker and lists one more
+    endpoint every 0.3 s (bounded: 100): the dispose comes SIBLING_REMATCH_MAX_S after the
+    life's first DATA(p) all the same, once."""
+    relay, talker, helper = _two_on_drone_1()
+    t = _lapsed_talker(relay, talker, helper)
+    for i in range(100):
+        at = t + 0.3 * i
+        relay.handle_timer(at)
+        spdp = _local_spdp(talker, i + 1, _edp(*range(8, 9 + i)), lease_s=4.0)
+        relay.receive_datagram(spdp, ("::1", 40002), at)
+        if relay.counters["tx_sibling_dispose"]:
+            break
+    assert relay.counters["tx_sibling_dispose"] == 1
+    assert t + SIBLING_REMATCH_MAX_S - 0.3 <= at <= t + SIBLING_REMATCH_MAX_S + 0.3
+
+
+def test_a_replayed_new_life_past_its_lease_is_disposed_at_the_siblings_once() -> None:
+    """Attack: a process on the drone replays the lapsed node's new life's first DATA(p)
+    1000 times (bounded), then continues it: one deferred dispose per sibling."""
+    relay, talker, helper = _two_on_drone_1()
+    t = _lapsed_talker(relay, talker, helper)
+    replayed = _local_spdp(talker, 1, lease_s=4.0)
+    for i in range(1000):
+        relay.receive_datagram(replayed, ("::1", 40002), t + i * 0.0001)
+    for sn in range(2, 500):
+        relay.receive_datagram(_local_spdp(talker, sn, lease_s=4.0), ("::1", 40002), t + 0.2)
+    relay.handle_timer(t + 5.0)
+    assert relay.counters["sibling_dispose_deferred"] == 1
+    assert relay.counters["tx_sibling_dispose"] == 1
+
+
+@pytest.mark.parametrize("cadence_s", [0.1, 0.76, 1.5])
+def test_a_local_process_cycling_lives_gets_one_dispose_per_life_at_the_siblings(
+    cadence_s: float,
+) -> None:
+    """Attack: a process on the drone speaks as the talker with the shortest lease it may
+    claim (0 s, clamped to MIN_NODE_LEASE_S) and a new life every ``cadence_s`` for 60 s of
+    virtual time (bounded loop): at most one dispose (and one DATA(p)) per life the relay
+    counts, per sibling, whether at once or deferred."""
+    relay, talker, helper = _two_on_drone_1()
+    prefix = GuidPrefix(talker.guid_prefix)
+    relay.receive_datagram(_local_spdp(helper, 1, lease_s=300.0), ("::1", 40000), 0.0)
+    relay.receive_datagram(_local_spdp(talker, 100, lease_s=0.0), ("::1", 40001), 0.0)
+    lives, at_helper, now = 0, 0, 0.0
+    for step in range(1, int(60.0 / cadence_s) + 1):
+        now = step * cadence_s
+        relay.handle_timer(now)
+        at_helper += len(_to(relay, helper, prefix))
+        for sn in (1, 2):  # each life: two DATA(p)s, the second listing a writer
+            spdp = _local_spdp(talker, sn, _edp(8) if sn == 2 else (), lease_s=0.0)
+            relay.receive_datagram(spdp, ("::1", 40002 + step), now)
+        at_helper += len(_to(relay, helper, prefix))
+        lives += 1
+    relay.handle_timer(now + SIBLING_REMATCH_MAX_S)
+    at_helper += len(_to(relay, helper, prefix))
+    disposes = relay.counters["tx_sibling_dispose"]
+    assert 0 < disposes <= lives
+    assert at_helper == 2 * disposes  # each: the dispose, then the node's latest DATA(p)
+    if cadence_s > MIN_NODE_LEASE_S:  # every life lapsed: each deferred, each sent
+        assert relay.counters["sibling_dispose_deferred"] == lives == disposes
+
+
+def test_a_liveness_word_from_the_air_cannot_dispose_this_drones_nodes_at_their_siblings() -> None:
+    """Attack: words naming this drone (its own participants, every restart count
+    changing; 1000, bounded) are not this drone's relay's to act on: counted, no datagram
+    about a local node goes to its sibling."""
+    relay, talker, helper = _two_on_drone_1()
+    relay.receive_datagram(_local_spdp(helper, 1, lease_s=60.0), ("::1", 40000), 0.0)
+    relay.receive_datagram(_local_spdp(talker, 1, lease_s=60.0), ("::1", 40001), 0.0)
+    relay.datagrams_to_send()
+    for i in range(1000):
+        relay.peer_liveness("drone-1", bytes([0xFF, i & 0xFF, i & 0xFF]), 1.0 + i * 0.001)
+    assert _to(relay, helper, GuidPrefix(talker.guid_prefix)) == []
+    assert relay.counters["liveness_unknown_drone"] == 1000
+    assert relay.counters["tx_sibling_dispose"] == 0
 
 
 def test_only_a_siblings_undirected_announcement_is_passed_on() -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import IO, Final
 
 from swarmd.bundle.ros2 import GRAPH_TOPIC, Ros2Participant
-from swarmd.ros2.relay import static_edp_entity_id
+from swarmd.ros2.relay_spdp import static_edp_entity_id
 from swarmd_lab.netns import Lan, Namespace
 
 SPDP_IDS: Final = frozenset({"0x000100c2", "0x000100c7"})

@@ -51,7 +51,9 @@ proxies on the dispose, and matches the announcement afresh). It does so for
 
 On the node's own drone its sibling nodes, which find it directly, hold its old proxies too:
 a node's new life without its ``DATA(p[UD])`` first is disposed at them, then its own new
-DATA(p) passed on (``_send_restart_to_siblings``).
+DATA(p) passed on (``_send_dispose_to_siblings``); at once, or, for a node that was silent
+past its lease (they dropped it by lease, which keeps its old numbers), once its own DATA(p)
+has listed its endpoints to them and the list stayed the same ``SIBLING_REMATCH_S``.
 
 Several nodes on one drone find each other directly: each one's profile lists the others'
 [::1] discovery ports as initial peers. The relay only helps a starting one: with its start
@@ -75,13 +77,10 @@ Driving sources: datagrams from the relay socket (``receive_datagram``), the tim
 from __future__ import annotations
 
 import ipaddress
-import re
 from collections import deque
-from dataclasses import dataclass
 from typing import Any, Final
 
 from swarmd.bundle.ros2 import (
-    GRAPH_TOPIC,
     VENDOR_EPROSIMA,
     Ros2EndpointKind,
     Ros2Participant,
@@ -96,9 +95,15 @@ from swarmd.ros2.relay_events import (
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )
+from swarmd.ros2.relay_spdp import (
+    FASTDDS_PROTOCOL_VERSION,
+    STATIC_EDP_PROPERTY,
+    is_wlp,
+    static_edp_properties,
+)
+from swarmd.ros2.relay_state import LocalNode, RemoteDrone, UnknownParticipant
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
-from swarmd.rtps.message import Data, Heartbeat, decode_message
 from swarmd.rtps.spdp import (
     BES_SPDP_ONLY,
     SpdpAlive,
@@ -108,10 +113,8 @@ from swarmd.rtps.spdp import (
     encode_spdp_dispose,
 )
 from swarmd.rtps.types import (
-    ENTITYID_P2P_MESSAGE_WRITER,
     Duration,
     GuidPrefix,
-    ProtocolVersion,
     VendorId,
 )
 
@@ -138,99 +141,26 @@ START_ANSWERS: Final = 2
 # clamped: a node announcing 0 or years must neither flap nor be alive forever
 MIN_NODE_LEASE_S: Final = 1.0
 MAX_NODE_LEASE_S: Final = 300.0
-FASTDDS_PROTOCOL_VERSION: Final = ProtocolVersion(2, 3)
-ENTITY_KIND_WRITER_NO_KEY: Final = 0x03  # DDSI-RTPS 9.3.1.2
-ENTITY_KIND_READER_NO_KEY: Final = 0x04
-MAX_ENTITY_KEY: Final = 0xFFFFFF
-# Fast DDS's EDPStatic property names (its SPDP lists each alive static endpoint)
-_STATIC_EDP_PROPERTY: Final = re.compile(r"eProsimaEDPStatic_(Writer|Reader)_ALIVE_ID_(-?\d{1,6})")
+# A node back after its own lease ("_heard", docs/ros2.md "A node back after its own lease"):
+# its siblings get its dispose once its own DATA(p) has listed its endpoints to them (they
+# create them as it starts; the dispose removes only matched writers' numbers) and that list
+# has stayed the same this long; at the latest SIBLING_REMATCH_MAX_S after its first DATA(p)
+SIBLING_REMATCH_S: Final = 0.5
+SIBLING_REMATCH_MAX_S: Final = 3.0
+# a node restarting within a quarter of its lease (at most 1 s) of its end may already be
+# dropped by its siblings' lease check (their timers are not the relay's): it is handled as
+# lapsed, which costs nothing more (the dispose comes later, that is all). A fraction: a
+# node claiming the shortest lease must not make every restart one of these
+SIBLING_LEASE_SLACK_FRACTION: Final = 0.25
+SIBLING_LEASE_SLACK_S: Final = 1.0
 
 
-def static_edp_entity_id(user_id: int, kind: Ros2EndpointKind) -> str:
-    """The property value Fast DDS's EDPStatic gives an endpoint whose profile sets
-    ``entityID`` = ``user_id``: the 4 entity id octets in decimal, dot-separated."""
-    key = user_id & MAX_ENTITY_KEY
-    kind_octet = (
-        ENTITY_KIND_WRITER_NO_KEY if kind == Ros2EndpointKind.WRITER else ENTITY_KIND_READER_NO_KEY
-    )
-    return f"{key >> 16 & 0xFF}.{key >> 8 & 0xFF}.{key & 0xFF}.{kind_octet}"
+def _is_static_edp(name: str) -> bool:
+    return STATIC_EDP_PROPERTY.fullmatch(name) is not None
 
 
-def _is_wlp(datagram: bytes) -> bool:
-    try:
-        message = decode_message(datagram)
-    except DecodeError:
-        return False
-    return any(
-        isinstance(sm, Data | Heartbeat) and sm.writer_id == ENTITYID_P2P_MESSAGE_WRITER
-        for sm in message.submessages
-    )
-
-
-def _property_kind(kind: Ros2EndpointKind) -> str:
-    return "Writer" if kind == Ros2EndpointKind.WRITER else "Reader"
-
-
-def static_edp_properties(p: Ros2Participant) -> tuple[tuple[str, str], ...]:
-    """The static EDP part of ``p``'s SPDP property list, from the bundle, without its
-    ``ros_discovery_info`` writer and reader: rmw's graph topic then matches only between
-    the nodes of one drone, so no node sends its graph updates (every entity it creates,
-    reliable and transient-local, to every node of the swarm: the busiest second of the
-    relay route on the testbed, docs/ros2.md "Graph traffic") over the Wi-Fi. Topics,
-    publisher counts and service readiness still come from static EDP; the other drones' node
-    names come from swarmd's graph participant (swarmd.ros2.graph)."""
-    out: list[tuple[str, str]] = []
-    for i, e in enumerate(p.endpoints):
-        if e.dds_topic == GRAPH_TOPIC:
-            continue
-        uid = p.first_user_id + i
-        out.append(
-            (
-                f"eProsimaEDPStatic_{_property_kind(e.kind)}_ALIVE_ID_{uid}",
-                static_edp_entity_id(uid, e.kind),
-            )
-        )
-    return tuple(out)
-
-
-# ---- state --------------------------------------------------------------------------------
-
-
-@dataclass(slots=True)
-class _Local:
-    participant: Ros2Participant
-    declared: frozenset[tuple[str, int]]  # ("Writer"|"Reader", userId)
-    heard_at: float | None = None
-    left: bool = False  # its last word was a DATA(p[UD])
-    last_sn: int = 0
-    datagrams: int = 0
-    answers_left: int = 0  # datagrams of this life still answered with everything relayed
-    # alive as swarmd tells the other drones: heard within its lease, or (never heard) within
-    # one relay lease of the relay's start; None: no expiry (left, expired, or not started)
-    alive: bool = True
-    alive_until: float | None = None
-    restarts: int = 0  # lives after the first this relay saw, modulo 256 (PID 0x8A06)
-    # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
-    undeclared: set[tuple[str, int, str]] | None = None
-    # its latest DATA(p) datagram as it sent it (to everyone, its own header): passed on to
-    # a sibling node of this drone that starts, with the relay's start answers
-    last_spdp: bytes | None = None
-
-
-@dataclass(slots=True)
-class _Unknown:
-    guid_prefix: GuidPrefix
-    vendor: str
-    name: str | None
-    heard_at: float
-    datagrams: int
-
-
-@dataclass(slots=True)
-class _Remote:
-    drone: str
-    address: str
-    since: float
+def _lease_slack_s(lease_s: float) -> float:
+    return min(SIBLING_LEASE_SLACK_S, SIBLING_LEASE_SLACK_FRACTION * lease_s)
 
 
 class Ros2Relay:
@@ -267,7 +197,7 @@ class Ros2Relay:
         )
         # SN = epoch (31 bits) | counter: above every SN of an earlier life of this relay
         self._sn = (epoch & 0x7FFF_FFFF) << 32
-        self._local: dict[GuidPrefix, _Local] = {}
+        self._local: dict[GuidPrefix, LocalNode] = {}
         self._remote_by_drone: dict[str, list[Ros2Participant]] = {}
         for p in participants:
             if p.drone == drone:
@@ -278,19 +208,19 @@ class Ros2Relay:
                     )
                     for i, e in enumerate(p.endpoints)
                 )
-                self._local[GuidPrefix(p.guid_prefix)] = _Local(p, declared)
+                self._local[GuidPrefix(p.guid_prefix)] = LocalNode(p, declared)
             else:
                 self._remote_by_drone.setdefault(p.drone, []).append(p)
         self._remote_prefixes = frozenset(
             GuidPrefix(p.guid_prefix) for ps in self._remote_by_drone.values() for p in ps
         )
-        self._present: dict[str, _Remote] = {}
+        self._present: dict[str, RemoteDrone] = {}
         # per drone, its relay's last authenticated word on its participants (absent: all
         # alive, as a peer without a relay or before its first word)
         self._remote_alive: dict[str, tuple[bool, ...]] = {}
         # per drone, the restart counts of its last word (absent or None: it sent none)
         self._remote_restarts: dict[str, tuple[int, ...] | None] = {}
-        self._unknown: dict[GuidPrefix, _Unknown] = {}
+        self._unknown: dict[GuidPrefix, UnknownParticipant] = {}
         self._out: list[tuple[bytes, tuple[str, int]]] = []
         self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
         self._next_renewal: float | None = None
@@ -321,6 +251,7 @@ class Ros2Relay:
             "tx_start_answers": 0,
             "tx_sibling_spdp": 0,
             "tx_sibling_dispose": 0,
+            "sibling_dispose_deferred": 0,
             "liveness_unknown_drone": 0,
             "remote_restarts": 0,
         }
@@ -340,7 +271,7 @@ class Ros2Relay:
                 return  # an ACKNACK to swarmd's graph writer
             # what else a node sends its peers' discovery side: WLP (DDSI-RTPS 8.4.13) if
             # a relayed participant announced a WLP reader (it does not), else anything
-            self.counters["rx_wlp" if _is_wlp(data) else "rx_not_spdp"] += 1
+            self.counters["rx_wlp" if is_wlp(data) else "rx_not_spdp"] += 1
             return
         for sample in samples:
             if isinstance(sample, SpdpAlive):
@@ -362,6 +293,10 @@ class Ros2Relay:
 
     def handle_timer(self, now: float) -> None:
         for local in self._local.values():
+            # first: a dispose due before the node's lease ran out is still owed
+            if local.sibling_dispose_at is not None and now >= local.sibling_dispose_at:
+                local.sibling_dispose_at = None
+                self._send_dispose_to_siblings(local, local.last_spdp)
             if local.alive and local.alive_until is not None and now >= local.alive_until:
                 self._set_local_alive(local, False)
         if self._next_renewal is not None and now >= self._next_renewal:
@@ -377,6 +312,9 @@ class Ros2Relay:
 
     def get_timer(self) -> float | None:
         deadlines = [u.alive_until for u in self._local.values() if u.alive_until is not None]
+        deadlines += [
+            u.sibling_dispose_at for u in self._local.values() if u.sibling_dispose_at is not None
+        ]
         if self._next_renewal is not None:
             deadlines.append(self._next_renewal)
         graph_due = self.graph.get_timer() if self.graph is not None else None
@@ -419,7 +357,7 @@ class Ros2Relay:
         known = self._present.get(drone)
         if known is not None and known.address == address and not restarted:
             return
-        self._present[drone] = _Remote(drone, address, now)
+        self._present[drone] = RemoteDrone(drone, address, now)
         again = restarted and known is not None
         self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True, restarted=again))
         self._send_graph_spdp(None)
@@ -592,7 +530,7 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_spdp"] += 1
 
-    def _send_graph_spdp(self, local: _Local | None) -> None:
+    def _send_graph_spdp(self, local: LocalNode | None) -> None:
         """swarmd's graph participant's DATA(p) to ``local`` (None: every local node)."""
         if self.graph is None:
             return
@@ -602,7 +540,7 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, target.participant.metatraffic_port)))
             self.counters["tx_spdp"] += 1
 
-    def _send_all_to(self, local: _Local) -> None:
+    def _send_all_to(self, local: LocalNode) -> None:
         port = local.participant.metatraffic_port
         if self._present:
             self._send_graph_spdp(local)
@@ -616,7 +554,7 @@ class Ros2Relay:
                 self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_spdp"] += 1
 
-    def _send_siblings_to(self, local: _Local) -> None:
+    def _send_siblings_to(self, local: LocalNode) -> None:
         """The other alive nodes of this drone, to a starting ``local``: their own latest
         DATA(p), as they sent it. They are its initial peers and answer its first DATA(p)
         themselves, within milliseconds, which can land before the starting node listens
@@ -632,15 +570,15 @@ class Ros2Relay:
                 self._out.append((sibling.last_spdp, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
 
-    def _send_restart_to_siblings(self, local: _Local, datagram: bytes | None) -> None:
+    def _send_dispose_to_siblings(self, local: LocalNode, datagram: bytes | None) -> None:
         """``local`` started again without having sent its ``DATA(p[UD])`` (SIGKILL, a
         crash): the other alive nodes of this drone, which find it directly on [::1],
         still hold the writer proxies of its earlier life (module docstring, "A restart
         under the same GUIDs"), and their SPDP readers drop its new DATA(p) too (numbered
         from 1 again). They get its DATA(p[UD]), numbered above everything (the relay's
-        epoch), then ``datagram``, its own new DATA(p) as it sent it: Fast DDS forgets a
+        epoch), then ``datagram``, its own latest DATA(p) as it sent it: Fast DDS forgets a
         writer's numbers when its participant is disposed (not when its lease runs out)."""
-        siblings = [s for s in self._local.values() if s is not local and s.alive and not s.left]
+        siblings = self._siblings_of(local)
         if not siblings:
             return
         dispose = encode_spdp_dispose(
@@ -657,6 +595,9 @@ class Ros2Relay:
             if datagram is not None:
                 self._out.append((datagram, (self.loopback, port)))
                 self.counters["tx_sibling_spdp"] += 1
+
+    def _siblings_of(self, local: LocalNode) -> list[LocalNode]:
+        return [s for s in self._local.values() if s is not local and s.alive and not s.left]
 
     def _alive_remote(self, drone: str) -> list[Ros2Participant]:
         remote = self._remote_by_drone.get(drone, [])
@@ -679,10 +620,11 @@ class Ros2Relay:
             self._out.append((datagram, (self.loopback, local.participant.metatraffic_port)))
             self.counters["tx_dispose"] += 1
 
-    def _set_local_alive(self, local: _Local, alive: bool, restarted: bool = False) -> None:
+    def _set_local_alive(self, local: LocalNode, alive: bool, restarted: bool = False) -> None:
         if not alive:
             local.alive_until = None
             local.last_spdp = None
+            local.sibling_dispose_at = None
         if local.alive == alive and not restarted:
             return
         local.alive = alive
@@ -717,6 +659,12 @@ class Ros2Relay:
         first = local.heard_at is None or restarted
         # a new life without its DATA(p[UD]) (killed): its siblings still hold its proxies
         unannounced_restart = restarted and not local.left
+        # ... or, silent past its lease (by the relay's book, with slack), dropped it by lease
+        lapsed = unannounced_restart and (
+            local.alive_until is None
+            or local.heard_at is None
+            or now >= local.alive_until - _lease_slack_s(local.alive_until - local.heard_at)
+        )
         if restarted:
             # a new life under the same GUIDs: counted in the signed liveness word, so the
             # other drones' relays drop its old proxies even if its bit never went down
@@ -733,14 +681,33 @@ class Ros2Relay:
         if datagram is not None:
             local.last_spdp = datagram
         self._check_endpoints(local, participant)
+        static_edp = frozenset(n for n, _v in participant.properties if _is_static_edp(n))
+        if static_edp != local.static_edp and local.sibling_dispose_at is not None:
+            local.sibling_dispose_at = min(now + SIBLING_REMATCH_S, local.sibling_dispose_by)
+        local.static_edp = static_edp
         if first:
             p = local.participant
             self._events.append(LocalParticipantHeard(p.drone, p.node.name, prefix, restarted))
             local.answers_left = START_ANSWERS
             if self.graph is not None:
                 self.graph.local_restarted(prefix, now)
-            if unannounced_restart:
-                self._send_restart_to_siblings(local, datagram)
+            local.sibling_dispose_at = None
+            if lapsed and self._siblings_of(local):
+                # its siblings dropped it by lease, which keeps its writers' last numbers
+                # (Fast DDS 3.2 BaseReader::remove_persistence_guid erases the record only
+                # when not removed by lease), and a dispose of a participant they do not
+                # know removes nothing: they re-create it from its own DATA(p) (the lease
+                # drop erased its SPDP writer's record, so they take them) and match its
+                # writers from the kept record; the dispose, once that list is quiet,
+                # removes them not by lease. Nothing of its is sent before: numbered above
+                # its own, it would make their SPDP reader drop the DATA(p)s that list its
+                # endpoints (StatelessReader::change_received records a matched SPDP writer's
+                # number), and the dispose would find no writer to remove
+                local.sibling_dispose_at = now + SIBLING_REMATCH_S
+                local.sibling_dispose_by = now + SIBLING_REMATCH_MAX_S
+                self.counters["sibling_dispose_deferred"] += 1
+            elif unannounced_restart:
+                self._send_dispose_to_siblings(local, datagram)
         if local.answers_left > 0:
             local.answers_left -= 1
             self.counters["tx_start_answers"] += 1
@@ -770,12 +737,12 @@ class Ros2Relay:
             del self._unknown[oldest.guid_prefix]
             self.counters["unknown_evicted"] += 1
         vendor = participant.vendor_id.value.hex()
-        self._unknown[prefix] = _Unknown(prefix, vendor, participant.entity_name, now, 1)
+        self._unknown[prefix] = UnknownParticipant(prefix, vendor, participant.entity_name, now, 1)
         self._events.append(UnknownParticipantHeard(prefix, vendor, participant.entity_name))
 
-    def _check_endpoints(self, local: _Local, participant: SpdpParticipant) -> None:
+    def _check_endpoints(self, local: LocalNode, participant: SpdpParticipant) -> None:
         for name, value in participant.properties:
-            m = _STATIC_EDP_PROPERTY.fullmatch(name)
+            m = STATIC_EDP_PROPERTY.fullmatch(name)
             if m is None:
                 continue
             kind, uid = m.group(1), int(m.group(2))
