@@ -34,6 +34,13 @@ Definitions (docs/benchmarks.md, "Flight"):
   time out of range is never counted: during a blackout the commander is out of every
   member's range, so nothing is expected of it); the seconds from a member's return to
   the commander's re-discovery of it count, since the protocol is what keeps them empty.
+  A span is counted from the commander's first readiness poll on (what it had received
+  before is not known) and from the member's own start (``started``, the staggered
+  release: on the relay route the commander's graph lists a drone's node from the bundle
+  as soon as its swarmd is found, seconds before the node exists). A member missing from
+  a poll's table had sent nothing that arrived yet: its count there is 0 (the stock
+  stacks' tallies list a member from its first sample on; before session 9 such a span
+  was dropped whole, so those stacks were judged on the spans after a return alone).
 """
 
 from __future__ import annotations
@@ -140,8 +147,10 @@ def measure(
     readiness: Sequence[tuple[float, Mapping[int, int]]] = (),
     discovery_fps: Sequence[int] = (),
     first_move_s: float | None = None,
+    started: Sequence[float] = (),
 ) -> dict[str, Any]:
-    """Every measure of one run (module doc); JSON-ready."""
+    """Every measure of one run (module doc); JSON-ready. ``started``: each drone's stack's
+    release after go (the run file's ``setup.started_s``; empty: all at go)."""
     loss_latency: list[float] = []
     missed_losses = 0
     classes = {"real": 0, "intermittent": 0, "dropout": 0, "false": 0}
@@ -240,7 +249,7 @@ def measure(
         "reboot_seen_by_peers_s": _summary(reboot_seen),
         "reboot_finds_peers_s": _summary(reboot_finds),
         "frames_per_rejoining_pair": frames,
-        "readiness_delivery": readiness_delivery(truth, down, changes, readiness, n, end),
+        "readiness_delivery": readiness_delivery(truth, down, changes, readiness, n, end, started),
     }
 
 
@@ -251,16 +260,20 @@ def readiness_delivery(
     readiness: Sequence[tuple[float, Mapping[int, int]]],
     n: int,
     end: float,
+    started: Sequence[float] = (),
 ) -> dict[str, Any]:
-    """Samples received by the commander (node 0) from members in its range (module doc)."""
+    """Samples received by the commander (node 0) from members in its range (module doc);
+    ``started``: each drone's release after go (empty: all at go)."""
     if not readiness:
         return {"expected": 0, "delivered": 0, "ratio": None}
     expected = delivered = 0.0
+    first_poll = readiness[0][0]
     for m in range(1, n):
         first = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
         if not first:
             continue
-        start = min(first)
+        released = started[m] if m < len(started) else 0.0
+        start = max(min(first), first_poll, released)
         samples = reachable(truth, down, 0, m)
         for a, b, up in spans(samples):
             if up and b < samples[-1][0]:
@@ -283,13 +296,13 @@ def readiness_delivery(
 
 
 def _count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
-    """Member m's received-sample count in the last poll at or before ``t``."""
+    """Member m's received-sample count in the last poll at or before ``t``: 0 where that
+    poll does not list m (nothing of it arrived yet), None before the first poll."""
     best = None
     for pt, table in readiness:
         if pt > t:
             break
-        if m in table:
-            best = table[m]
+        best = table.get(m, 0)
     return best
 
 
@@ -338,7 +351,7 @@ def readiness_after_returns(
             ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
             if t_member is None or t_lead is None or ca is None or cb is None or b - a < 2.0:
                 continue
-            moved = [t for t, table in readiness if a < t <= b and table.get(m, ca) != ca]
+            moved = [t for t, table in readiness if a < t <= b and table.get(m, 0) != ca]
             expected = (b - a) * READINESS_HZ
             delivered = min(max(0, cb - ca), expected)
             # the member's stream restarts at its re-discovery (its tick is pulled in there,
@@ -487,7 +500,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
         polls = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
         rows = readiness_after_returns(truth, down, changes, polls, run["n"], truth[-1][0])
-        whole = readiness_delivery(truth, down, changes, polls, run["n"], truth[-1][0])
+        started = (run.get("setup") or {}).get("started_s") or ()
+        whole = readiness_delivery(
+            truth, down, changes, polls, run["n"], truth[-1][0], [float(s) for s in started]
+        )
         missing = sum(r["missing"] for r in rows)
         wait = sum(r["expected"] - r["sendable"] for r in rows)
         unsent = sum(r["sendable"] - r["delivered"] for r in rows)

@@ -303,6 +303,7 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
         scenario.truth(), changes, down, n=run["n"], lease_s=run["lease_s"],
         restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
         discovery_fps=run["discovery_fps"], first_move_s=first_move,
+        started=[float(s) for s in (run.get("setup") or {}).get("started_s") or ()],
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
         run.get("renewals", []), first_move or 0.0

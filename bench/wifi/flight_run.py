@@ -439,6 +439,7 @@ def assemble(
     measures = flight_measures.measure(
         truth, changes, down_t, n=scenario.n, lease_s=lease_s, restarts=restarts,
         readiness=readiness, discovery_fps=disc, first_move_s=first_move,
+        started=[float(o) for o in started],
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(renewals, first_move or 0.0)
     return {
