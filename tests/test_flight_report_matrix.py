@@ -318,3 +318,20 @@ def test_docs_flight_matrix_is_what_the_committed_runs_generate(page: str) -> No
         docs_dir=repo / "docs", counts=counts, since=since,
     )  # fmt: skip
     assert text in docs
+
+
+def test_every_run_in_the_staggered_matrix_was_flown_staggered() -> None:
+    """The staggered matrix (docs/benchmarks.md) reads ``bench/results/flight-stagger/``
+    alone: a lockstep run there (``setup.stagger_s`` 0 or absent, as every run before
+    ``flight_run --stagger-s`` existed) would be judged as a staggered one. Session 9 found
+    one such file copied in by hand; lockstep runs go to ``flight-stock-lockstep/``."""
+    import json
+
+    runs = sorted(
+        (Path(__file__).resolve().parents[1] / "bench/results/flight-stagger/runs").glob("*.json")
+    )
+    assert runs
+    lockstep = [
+        run.name for run in runs if not json.loads(run.read_text())["setup"].get("stagger_s")
+    ]
+    assert lockstep == []
