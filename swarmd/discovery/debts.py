@@ -233,7 +233,7 @@ class Debts:
 
     def rejoin_delay(self) -> float:
         """The holdoff before our first frame to a peer we had lost and hear again (or the
-        multicast a rejoin pulls in, ``DiscoveryEngine._rejoined``): U(0, W1), W1 adaptive
+        multicast a rejoin pulls in, ``pullin.PullIn.rejoined``): U(0, W1), W1 adaptive
         mode's window at Q = 1 (N / announce budget: 0.2 s at N = 10, 0.4 s at N = 20).
 
         Not U(W, 2W) at our Q: Q is read from the peers we heard over the last seconds, so

@@ -469,7 +469,7 @@ class ReceivePath:
             debts = self._debts
             if stopped_listing and not restarted and peer.reack.permits(now):
                 # A peer whose last frame listed us sends one that does not: it lost us (a
-                # lease that ended, its DATA(p) after the loss: DiscoveryEngine._lease_ended)
+                # lease that ended, its DATA(p) after the loss: pullin.PullIn.lease_ended)
                 # and we hear it, so the link is back now. Answer within the rejoin delay,
                 # as for a rejoin, not after the Q-stretched holdoff U(W, 2W): issue 20's
                 # fade gives a pair ~1.5 s in range, and the holdoff (0.3-0.6 s at N = 10,

@@ -3,7 +3,7 @@
 Why (docs/discovery.md, "Seeking lost peers"): after a split or a fly-out, the link comes
 back with nothing on the air. Re-discovery then waits for whichever multicast comes next:
 a vouched member does not renew at all, the others renew every 3.4-10 s (their Q-stretched
-period), and the rejoin pull-in (``DiscoveryEngine._rejoined``) only helps once one frame
+period), and the rejoin pull-in (``pullin.PullIn.rejoined``) only helps once one frame
 has crossed. On the emulated channel that first frame crossed 2.1-6.1 s after the return
 (``bench/results/flight-rejoin/``).
 
@@ -92,7 +92,7 @@ class Seek:
     def start(self, lost: list[Peer], now: float) -> None:
         """``lost`` just ended their leases (the engine is announcing or steady): seek them.
         The first seek comes one period on (the lease's end pulled a multicast in already,
-        ``DiscoveryEngine._lease_ended``)."""
+        ``pullin.PullIn.lease_ended``)."""
         if not self.enabled or not lost:
             return
         for peer in lost:
