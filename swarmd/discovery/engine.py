@@ -694,7 +694,9 @@ class DiscoveryEngine:
             self._renewal.restart(now, self._rng)
 
     def _rejoined(self, now: float) -> bool:
-        """A lost peer was heard again (``pullin.PullIn.rejoined``)."""
+        """A lost peer was heard again (``pullin.PullIn.rejoined``): the others still lost may
+        be back within seconds, so the seek's put-off bound holds again (``Seek.returned``)."""
+        self._seek.returned(now)
         phase = self.phase
         return self._pull.rejoined(now, announcing=phase is _ANNOUNCE or phase is _STEADY)
 
