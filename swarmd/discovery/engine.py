@@ -663,6 +663,8 @@ class DiscoveryEngine:
             plain_renewal = renewal_due and not due and not self._pull.pulled_in
             self._send(None, now, "renewal" if plain_renewal else "announce")
             debts.covered_all(now)
+            for p in debts.take_found_again(now):  # a directed copy each (MAC-acknowledged)
+                self._send(p, now, "reply")
             return
         for p in due:
             target = p.target()
@@ -676,6 +678,7 @@ class DiscoveryEngine:
         self._leases.forget(peer)
         peer.told = False
         self._debts.disarm(peer)
+        self._debts.found_again.discard(peer.index)
         self._receive.sought_by.forget(peer.index)  # seek.SoughtBy: it lost us, we lost it
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 
