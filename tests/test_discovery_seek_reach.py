@@ -18,11 +18,21 @@ virtual, never the host's.
 
 from __future__ import annotations
 
+import random
+
 import pytest
-from swarmd_lab.testing import Swarm, build_swarm
+from swarmd_lab.testing import Swarm, build_swarm, make_bundle
 
 from swarmd.discovery.events import PeerDiscovered, PeerLost
-from swarmd.discovery.seek import SEEK_MAX_S, SEEK_MIN_S, SEEK_PUT_OFF_FOR_S, SEEK_PUT_OFF_MAX_S
+from swarmd.discovery.peers import Peer, PeerState
+from swarmd.discovery.seek import (
+    SEEK_MAX_S,
+    SEEK_MIN_S,
+    SEEK_PUT_OFF_FOR_S,
+    SEEK_PUT_OFF_MAX_S,
+    Seek,
+)
+from swarmd.discovery.timers import MinInterval, RetrySchedule
 
 SEEDS = (1, 2, 3, 4, 5, 6, 7, 8)
 # On the engine before seek.SEEK_PUT_OFF_MAX_S (42902ec: the suppression had no bound) the
@@ -124,3 +134,35 @@ def test_a_dead_commander_draws_one_seek_per_period_once_the_loss_is_stale(seed:
     window = 60.0
     swarm.run_until(stale + window)
     assert window / SEEK_MAX_S - 1 <= members_seeks() - before <= window / SEEK_MIN_S + 1
+
+
+def _lost_peer(index: int, last_heard: float) -> Peer:
+    bundle = make_bundle(4)
+    peer = Peer(bundle.participants[index], index, None, RetrySchedule(4), MinInterval(0.5))
+    peer.state = PeerState.LOST
+    peer.last_heard = last_heard
+    return peer
+
+
+def test_the_put_off_bound_holds_while_the_loss_is_fresh_and_again_after_a_return() -> None:
+    """``Seek`` alone, hand-set time: a frame that omits the sought peer puts our seek off by
+    a period, but while the loss is fresh no later than SEEK_PUT_OFF_MAX_S after our own
+    last multicast; once it is stale, a full period from the frame; a lost peer's return
+    makes it fresh again."""
+    seek = Seek(enabled=True, rng=random.Random(1))
+    seek.start([_lost_peer(1, last_heard=10.0)], now=30.0)
+    omits = bytes(1)  # a heard digest that lists nobody
+
+    def put_off_at(now: float) -> float:
+        seek.sent(now)  # our own multicast
+        assert seek.due is not None
+        seek.due = now + SEEK_MIN_S  # whatever its draw: a put-off moves it
+        for k in range(1, 6):  # a seek heard every 0.9 s puts ours off each time
+            seek.heard(omits, now + 0.9 * k)
+        return seek.due - now
+
+    assert put_off_at(31.0) <= SEEK_PUT_OFF_MAX_S + 1e-9  # fresh: 21 s after its last frame
+    stale = 10.0 + SEEK_PUT_OFF_FOR_S + 1.0
+    assert put_off_at(stale) >= 4.5 + SEEK_MIN_S  # stale: each frame puts it off a period
+    seek.returned(stale + 10.0)  # another lost peer was heard again
+    assert put_off_at(stale + 10.0) <= SEEK_PUT_OFF_MAX_S + 1e-9
