@@ -68,8 +68,9 @@ SEEK_MIN_S: Final = 0.8
 SEEK_MAX_S: Final = 1.2
 # How long a lost peer is sought, from when it was last heard: 10 minutes covers a split,
 # a fly-out, a commander blackout and a drone behind a building many times over (the
-# flights' outages last 30-60 s), and bounds what a drone really gone costs: ~500 seeks per
-# neighbourhood (one seeker per side after suppression), then the renewals alone.
+# flights' outages last 30-60 s), and bounds what a drone really gone costs: ~600 seeks per
+# neighbourhood (one seeker per side after suppression, each drone at least every
+# SEEK_PUT_OFF_MAX_S in the first minute), then the renewals alone.
 SEEK_FOR_S: Final = 600.0
 # How far the suppression may put our seek off, from our own last multicast, while a loss is
 # fresh: two periods. Without it each of a side's k seekers fires in about one period of
@@ -81,7 +82,8 @@ SEEK_PUT_OFF_MAX_S: Final = 2 * SEEK_MAX_S
 # 30-60 s. What it costs: each drone that lost a peer seeks at least every
 # SEEK_PUT_OFF_MAX_S for the rest of this window (the lease took the first ~20 s of it), then
 # the neighbourhood's one seek per period; a drone gone for good costs its 9 peers at N = 10
-# about 1.3 x what unbounded suppression did over SEEK_FOR_S (docs/discovery.md).
+# 613 seeks over SEEK_FOR_S, 1.16 x the 528 of unbounded suppression (seed 1,
+# ``python -m bench.seek_cost``; docs/discovery.md).
 SEEK_PUT_OFF_FOR_S: Final = 60.0
 # The peers sought at once are the bundle's: bounded by N (no peer can grow the table).
 
