@@ -152,9 +152,17 @@ def _changes(swarm: Swarm, observer: int, peer: int) -> list[tuple[float, bool]]
 Found = tuple[float, int, int, float, float, float]  # latency, observer, peer, back, length, lost
 
 
-def rediscoveries(replay: Replay, seed: int) -> list[Found]:
-    """(latency, observer, peer, return, window length, lost at) of each re-discovery."""
+DISCOVERY_KINDS = ("announce", "reply", "probe", "seek")  # not the renewals
+
+
+def rediscoveries(replay: Replay, seed: int, frames: Counter[str] | None = None) -> list[Found]:
+    """(latency, observer, peer, return, window length, lost at) of each re-discovery;
+    ``frames`` (if given) adds the run's discovery frames by kind, every drone's."""
     swarm = replay.swarm(seed, replay.scenario.duration_s)
+    if frames is not None:
+        for engine in swarm.engines:
+            kinds = engine.counters()["tx_kind"]
+            frames.update({k: kinds[k] for k in DISCOVERY_KINDS if kinds.get(k)})
     out: list[Found] = []
     for i in replay.observers:
         for j in range(replay.n):
@@ -195,7 +203,8 @@ def _classify(replay: Replay, seed: int, f: int, j: int, back: float, length: fl
 
 def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0) -> str:
     replay = Replay(json.loads(path.read_text()), edge_db, edge_loss)
-    rows = [(seed, *r) for seed in range(1, seeds + 1) for r in rediscoveries(replay, seed)]
+    frames: Counter[str] = Counter()
+    rows = [(seed, *r) for seed in range(1, seeds + 1) for r in rediscoveries(replay, seed, frames)]
     slow = sorted((r for r in rows if r[1] > SLOW_S), key=lambda r: -r[1])
     latencies = sorted(r[1] for r in rows)
     kinds = Counter(
@@ -210,6 +219,13 @@ def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0)
         "  slow, by what happened in the pair's first window: "
         + ", ".join(f"{k} {v}" for k, v in kinds.most_common()),
     ]
+    if who == "every drone":  # each pair's re-discovery is counted from both ends
+        pairs = len(rows) / 2
+        per_pair = ", ".join(f"{k} {frames[k] / pairs:.2f}" for k in DISCOVERY_KINDS)
+        out.append(
+            f"  discovery frames per rejoining pair (the whole run, formation included): "
+            f"{sum(frames.values()) / pairs:.2f} ({per_pair})"
+        )
     out += [
         f"  {lat:.2f} s: seed {s}, uav{i + 1} of uav{j + 1} back {back:.2f} s for {length:.2f} s"
         for s, lat, i, j, back, length, _ in slow[:5]

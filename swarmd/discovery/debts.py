@@ -48,6 +48,7 @@ class Debts:
         "_timing",
         "announcing",
         "armed",
+        "found_again",
         "retries",
         "silent",
     )
@@ -79,6 +80,9 @@ class Debts:
         # live, without a lookup in the peer table (the counter keeps heapq from comparing
         # schedules when a retry is re-armed at the same instant)
         self.armed: set[int] = set()
+        # peers found again whose answer is our next pulled-in multicast: each also gets a
+        # directed copy (take_found_again). Bundle indices: at most the bundle's peers
+        self.found_again: set[int] = set()
         self.retries: list[tuple[float, int, int, RetrySchedule]] = []
         self._pushed = 0
         self._spread_at = (math.nan, 0.0)  # (Q, spread_s() at that Q)
@@ -200,6 +204,31 @@ class Debts:
                     backoff = self.backoff()
                 self.arm(p, now + backoff.delay_s(retry.attempts, self._rng))
 
+    def take_found_again(self, now: float) -> list[Peer]:
+        """The peers found again since our last multicast that still do not list us: the
+        multicast just sent answers them, and each also gets it directed, which the MAC
+        acknowledges and retries (802.11 sends a group frame once, unacknowledged, and at
+        the edge of range it was the one lost: docs/discovery.md, "A seek put off by a frame
+        that cannot reach"). Each copy takes the peer's re-ack gap (``Peer.reack``), as every
+        cue-driven directed frame does: a captured member that is lost and found again over
+        and over (dispose, DATA(p)) draws at most one directed frame per gap from us."""
+        if not self.found_again:
+            return []
+        found, self.found_again = self.found_again, set()
+        peers = self._peers
+        out: list[Peer] = []
+        for i in sorted(found):
+            p = peers[i]
+            if (
+                p.state is _DISCOVERED
+                and not p.lists_me
+                and p.target() is not None
+                and p.reack.permits(now)
+            ):
+                p.reack.mark(now)
+                out.append(p)
+        return out
+
     def covered(self, peer: Peer, now: float) -> None:
         """``peer`` was just sent a frame listing everyone we hear: count the attempt."""
         if peer.discovered:
@@ -233,7 +262,7 @@ class Debts:
 
     def rejoin_delay(self) -> float:
         """The holdoff before our first frame to a peer we had lost and hear again (or the
-        multicast a rejoin pulls in, ``DiscoveryEngine._rejoined``): U(0, W1), W1 adaptive
+        multicast a rejoin pulls in, ``pullin.PullIn.rejoined``): U(0, W1), W1 adaptive
         mode's window at Q = 1 (N / announce budget: 0.2 s at N = 10, 0.4 s at N = 20).
 
         Not U(W, 2W) at our Q: Q is read from the peers we heard over the last seconds, so

@@ -51,6 +51,7 @@ others together:
 * ``seek.Seek``: a short multicast while peers are lost; ``seek.SoughtBy``, the peers that
   lost us while we kept them (the receive path's lost_us rule);
 * ``foreign.ForeignParticipants``: participants outside the bundle, reports, decode budget;
+* ``pullin.PullIn``: pulling our next multicast in after a rejoin or a lease's end;
 * ``sending.Sender``: our DATA(p) and DATA(p[UD]), the sequence number, the outbox;
 * ``status``: the typed views and JSON forms; ``received``: what a datagram says.
 
@@ -93,6 +94,7 @@ from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.leases import Leases
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase, Trigger, next_phase
+from swarmd.discovery.pullin import PullIn
 from swarmd.discovery.receive import ReceivePath
 from swarmd.discovery.renewals import Renewals
 from swarmd.discovery.seek import Seek
@@ -178,9 +180,7 @@ class DiscoveryEngine:
         "_outbox",
         "_passive_deadline",
         "_passive_timer",
-        "_pulled_in",
-        "_resume_renewal",
-        "_lease_end_sent",
+        "_pull",
         "_passive_window",
         "_peer_by_prefix",
         "_peers",
@@ -269,11 +269,6 @@ class DiscoveryEngine:
         self._passive_timer: float | None = None
         self._events: deque[Event] = deque()
         self._events_dropped = 0
-        self._pulled_in = False  # the pending renewal was pulled in to announce us (rejoin)
-        # the renewal's own deadline while a lease's end pulled an extra multicast in
-        # (_lease_ended): the multicast does not move the renewal's phase
-        self._resume_renewal: float | None = None
-        self._lease_end_sent: float | None = None  # when a lease's end last pulled one in
 
         # the concerns, each with its own state (see the theory of operation)
         swarm_size = len(bundle.participants)
@@ -307,6 +302,9 @@ class DiscoveryEngine:
             wallclock=wallclock,
             leases=leases,
             renewals=renewals,
+        )
+        self._pull = PullIn(
+            config, debts=debts, leases=leases, renewals=renewals, peer_count=len(self._peers)
         )
         seek = self._seek = Seek(enabled=config.mode == "adaptive", rng=rng)
         dropped: Counter[DropReason] = Counter()
@@ -365,7 +363,7 @@ class DiscoveryEngine:
             for peer in expired:
                 self._lose(peer, "lease")
             if expired and self.phase in (_ANNOUNCE, _STEADY):
-                self._lease_ended(now)
+                self._pull.lease_ended(now)
                 self._seek.start(expired, now)  # seek.py: a multicast every ~1 s while lost
             for peer in probes:
                 self._probe(peer, now)
@@ -405,7 +403,7 @@ class DiscoveryEngine:
         sender.ros2_alive = alive
         if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
             return  # BOOT/PASSIVE: our first announcement carries it
-        self._pull_in(now, 0.0)
+        self._pull.pull_in(now, 0.0)
 
     def peer_traffic(self, key: str | GuidPrefix, now: float) -> None:
         """Authenticated traffic from bundle peer ``key`` other than SPDP (a user-data
@@ -662,9 +660,11 @@ class DiscoveryEngine:
         if renewal_due or (
             not silent and (pending >= self._config.multicast_threshold or unreachable)
         ):
-            plain_renewal = renewal_due and not due and not self._pulled_in
+            plain_renewal = renewal_due and not due and not self._pull.pulled_in
             self._send(None, now, "renewal" if plain_renewal else "announce")
             debts.covered_all(now)
+            for p in debts.take_found_again(now):  # a directed copy each (MAC-acknowledged)
+                self._send(p, now, "reply")
             return
         for p in due:
             target = p.target()
@@ -678,6 +678,7 @@ class DiscoveryEngine:
         self._leases.forget(peer)
         peer.told = False
         self._debts.disarm(peer)
+        self._debts.found_again.discard(peer.index)
         self._receive.sought_by.forget(peer.index)  # seek.SoughtBy: it lost us, we lost it
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 
@@ -696,65 +697,11 @@ class DiscoveryEngine:
             self._renewal.restart(now, self._rng)
 
     def _rejoined(self, now: float) -> bool:
-        """A peer we had lost was heard again: its link is back, and so, likely, are those of
-        the others still missing (a heal, the commander's return). Pull our next multicast in
-        to ``Debts.rejoin_delay`` (U(0, N / budget), whatever our Q still says about the
-        outage): one DATA(p) listing whom we hear lets every missing peer hear us and answer
-        at once (DDSI-RTPS 8.5.3 SPDP; our heard digest omits them), instead of each side
-        waiting out a renewal period or a backed-off retry. Never sooner than
-        ``retransmit_min_gap_s`` after our last multicast, and the random delay spreads a
-        whole swarm's rejoin frames at the announce budget: no storm. Adaptive mode only, as
-        the probe (``leases.PROBE_AT``): paper mode keeps the paper's schedule.
-
-        True if a multicast is due by then (pulled in, or a renewal already sooner): it
-        answers the rejoined peer too. False: the caller answers that peer alone."""
-        if self._config.mode != "adaptive":
-            return False  # paper mode: the paper's schedule, nothing pulled in
-        if self.phase is not _ANNOUNCE and self.phase is not _STEADY:
-            return False
-        if self._leases.heard.count >= len(self._peers):
-            return False  # nobody else is missing
-        self._pull_in(now, self._debts.rejoin_delay())
-        return True
-
-    def _lease_ended(self, now: float) -> None:
-        """One or more leases just ended (the peers are lost): pull our next multicast in to
-        ``Debts.rejoin_delay``, as a rejoin does. A lease that ends while the link is back
-        (issue 20's fade: the fading drone in range of the group ~1.5-2.5 s of every 8 s,
-        its last-chance probes all spent in the gap before) would otherwise be followed by
-        silence on both sides (the group's members are vouched and do not renew) until a
-        renewal happens to fall in a window. Our DATA(p) omits the lost peers from its heard
-        digest, so each one that hears it finds itself no longer listed and answers within
-        the rejoin delay (``receive.py``), which rediscovers it here. At most one such frame
-        per renewal period (a split's leases end one after another), and an extra frame: the
-        renewal keeps its deadline (``_send``), or a split's drones would all renew in
-        lock-step from the loss on. A peer really gone costs each observer one multicast on
-        top of its four probes. Adaptive mode only, in ANNOUNCE or STEADY (the caller checks)."""
-        if self._config.mode != "adaptive":
-            return  # paper mode: the paper's schedule, nothing pulled in
-        renewal = self._renewal
-        last = self._lease_end_sent
-        if last is not None and now - last < renewal.period_s:
-            return  # one such frame per renewal period: leases ending one after another
-        self._lease_end_sent = now
-        before = renewal.due
-        self._pull_in(now, self._debts.rejoin_delay())
-        if renewal.due != before:
-            self._resume_renewal = before
-
-    def _pull_in(self, now: float, delay: float) -> None:
-        """Our next multicast at now + ``delay``, never sooner than ``retransmit_min_gap_s``
-        after our last one (a renewal already sooner stays)."""
-        at = now + delay
-        last = self._renewals.last_multicast
-        if last is not None:
-            # one multicast per re-ack gap: a commander regaining 19 members one after the
-            # other sends one every gap while some are missing, not one per member
-            at = max(at, last + self._config.retransmit_min_gap_s)
-        renewal = self._renewal
-        if renewal.due is None or at < renewal.due:
-            renewal.due = at
-            self._pulled_in = True
+        """A lost peer was heard again (``pullin.PullIn.rejoined``): the others still lost may
+        be back within seconds, so the seek's put-off bound holds again (``Seek.returned``)."""
+        self._seek.returned(now)
+        phase = self.phase
+        return self._pull.rejoined(now, announcing=phase is _ANNOUNCE or phase is _STEADY)
 
     def _probe(self, peer: Peer, now: float) -> None:
         """The last-chance probe (``leases.PROBE_AT``): our DATA(p) directed to ``peer`` with
@@ -781,14 +728,7 @@ class DiscoveryEngine:
                 self._renewals.sent.mark(now)
             self._renewals.last_multicast = now
             self._seek.sent(now)  # it omits every lost peer: it seeks them
-            self._pulled_in = False
-            if self.phase in (_ANNOUNCE, _STEADY):
-                resume = self._resume_renewal
-                if resume is not None and resume > now:
-                    self._renewal.due = resume
-                else:
-                    self._renewal.restart(now, self._rng)
-            self._resume_renewal = None
+            self._pull.sent(now, self._rng, announcing=self.phase in (_ANNOUNCE, _STEADY))
 
     def _emit(self, event: Event) -> None:
         if len(self._events) >= MAX_PENDING_EVENTS:

@@ -378,6 +378,11 @@ class ReceivePath:
                 # answers it; if none was pulled in, our answer to it alone comes as soon
                 # (Debts.rejoin_delay), not after the Q-stretched holdoff
                 rejoin = not self._rejoined(now)
+                if not rejoin:
+                    # the pulled-in multicast answers it, and a directed copy rides with it
+                    # (Debts.take_found_again): at the edge of range a group frame, sent once
+                    # and unacknowledged, is the one lost (docs/benchmarks.md, "The fly-out")
+                    self._debts.found_again.add(index)
             self._emit(
                 PeerDiscovered(
                     peer.participant.name,
@@ -469,7 +474,7 @@ class ReceivePath:
             debts = self._debts
             if stopped_listing and not restarted and peer.reack.permits(now):
                 # A peer whose last frame listed us sends one that does not: it lost us (a
-                # lease that ended, its DATA(p) after the loss: DiscoveryEngine._lease_ended)
+                # lease that ended, its DATA(p) after the loss: pullin.PullIn.lease_ended)
                 # and we hear it, so the link is back now. Answer within the rejoin delay,
                 # as for a rejoin, not after the Q-stretched holdoff U(W, 2W): issue 20's
                 # fade gives a pair ~1.5 s in range, and the holdoff (0.3-0.6 s at N = 10,

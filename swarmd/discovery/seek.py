@@ -3,7 +3,7 @@
 Why (docs/discovery.md, "Seeking lost peers"): after a split or a fly-out, the link comes
 back with nothing on the air. Re-discovery then waits for whichever multicast comes next:
 a vouched member does not renew at all, the others renew every 3.4-10 s (their Q-stretched
-period), and the rejoin pull-in (``DiscoveryEngine._rejoined``) only helps once one frame
+period), and the rejoin pull-in (``pullin.PullIn.rejoined``) only helps once one frame
 has crossed. On the emulated channel that first frame crossed 2.1-6.1 s after the return
 (``bench/results/flight-rejoin/``).
 
@@ -22,6 +22,16 @@ multicast of our own counts as a seek too (it omits the lost peers). So a half o
 all seeking the same other half, puts about one seek per period on the air, not one per
 drone.
 
+A put-off bound while the loss is fresh: the frame we heard reaches the peers we seek only
+if they are in its sender's range, and at the edge of a swarm strung out over more than
+one radio range they may be in ours and not in its (docs/discovery.md, "A seek put off by a
+frame that cannot reach"). So while a loss is fresh (a sought peer last heard, or a lost
+peer heard again, within ``SEEK_PUT_OFF_FOR_S``), the suppression puts our seek off no
+further than ``SEEK_PUT_OFF_MAX_S`` from our own last multicast: every drone seeks itself at
+least that often, and the edge drone's seek reaches across. Past that window the outage is
+a long one (a drone gone for good, a dead commander) and the suppression is whole again: one
+seek per period per neighbourhood, as before, for the rest of ``SEEK_FOR_S``.
+
 Bound: a peer not heard for ``SEEK_FOR_S`` is no longer sought (a drone really gone must not
 cost the channel forever); the renewals, which still omit it, remain. Paper mode never
 seeks: the paper's schedule is kept.
@@ -39,6 +49,7 @@ Pure and keyed by ``now`` (style rule 6): these classes decide when; the engine 
 
 from __future__ import annotations
 
+import math
 import random
 from dataclasses import dataclass
 from typing import Final
@@ -57,9 +68,23 @@ SEEK_MIN_S: Final = 0.8
 SEEK_MAX_S: Final = 1.2
 # How long a lost peer is sought, from when it was last heard: 10 minutes covers a split,
 # a fly-out, a commander blackout and a drone behind a building many times over (the
-# flights' outages last 30-60 s), and bounds what a drone really gone costs: ~500 seeks per
-# neighbourhood (one seeker per side after suppression), then the renewals alone.
+# flights' outages last 30-60 s), and bounds what a drone really gone costs: ~600 seeks per
+# neighbourhood (one seeker per side after suppression, each drone at least every
+# SEEK_PUT_OFF_MAX_S in the first minute), then the renewals alone.
 SEEK_FOR_S: Final = 600.0
+# How far the suppression may put our seek off, from our own last multicast, while a loss is
+# fresh: two periods. Without it each of a side's k seekers fires in about one period of
+# k + 1, and an edge pair back in range waited 2.2-6.1 s (k = 5,
+# tests/test_discovery_seek_reach.py on the engine before).
+SEEK_PUT_OFF_MAX_S: Final = 2 * SEEK_MAX_S
+# How long a loss is fresh, from when the sought peer was last heard (or a lost peer was heard
+# again: a returning link brings the others back within seconds): the flights' outages last
+# 30-60 s. What it costs: each drone that lost a peer seeks at least every
+# SEEK_PUT_OFF_MAX_S for the rest of this window (the lease took the first ~20 s of it), then
+# the neighbourhood's one seek per period; a drone gone for good costs its 9 peers at N = 10
+# 613 seeks over SEEK_FOR_S, 1.16 x the 528 of unbounded suppression (seed 1,
+# ``python -m bench.seek_cost``; docs/discovery.md).
+SEEK_PUT_OFF_FOR_S: Final = 60.0
 # The peers sought at once are the bundle's: bounded by N (no peer can grow the table).
 
 # The lost_us rule's spacing: after our k-th prompt answer to a peer that lost us, the next
@@ -78,13 +103,16 @@ class Seek:
     """The peers we seek (lost to a lease's end, last heard within ``SEEK_FOR_S``) and the
     next seek's deadline."""
 
-    __slots__ = ("_rng", "due", "enabled", "sought")
+    __slots__ = ("_rng", "due", "enabled", "fresh_at", "sent_at", "sought")
 
     def __init__(self, *, enabled: bool, rng: random.Random) -> None:
         self.enabled = enabled  # adaptive mode: paper mode keeps the paper's schedule
         self._rng = rng
         self.sought: dict[int, Peer] = {}  # by bundle index; a peer found again is dropped lazily
         self.due: float | None = None  # the next seek, None while nobody is sought
+        self.sent_at = -math.inf  # our last multicast (which sought every lost peer)
+        # the freshest loss: a sought peer's last hearing, or a lost peer heard again
+        self.fresh_at = -math.inf
 
     def _period(self) -> float:
         return self._rng.uniform(SEEK_MIN_S, SEEK_MAX_S)
@@ -92,11 +120,13 @@ class Seek:
     def start(self, lost: list[Peer], now: float) -> None:
         """``lost`` just ended their leases (the engine is announcing or steady): seek them.
         The first seek comes one period on (the lease's end pulled a multicast in already,
-        ``DiscoveryEngine._lease_ended``)."""
+        ``pullin.PullIn.lease_ended``)."""
         if not self.enabled or not lost:
             return
         for peer in lost:
             self.sought[peer.index] = peer
+            if peer.last_heard is not None and peer.last_heard > self.fresh_at:
+                self.fresh_at = peer.last_heard
         if self.due is None:
             self.due = now + self._period()
 
@@ -121,12 +151,21 @@ class Seek:
     def sent(self, now: float) -> None:
         """We multicast a DATA(p) (a seek, a renewal, an announcement): it omits every lost
         peer, so it was a seek; the next one waits a period."""
+        self.sent_at = now
         if self.due is not None:
             self.due = now + self._period()
 
+    def returned(self, now: float) -> None:
+        """A peer we had lost was heard again: the link is coming back, so the others still
+        sought may be back within seconds, at the edge of range: the loss is fresh again."""
+        self.fresh_at = now
+
     def heard(self, heard: bytes | None, now: float) -> None:
         """A peer we have multicast a DATA(p) with heard digest ``heard``: if it omits every
-        peer we seek, it sought them for us (suppression): ours waits a period from now."""
+        peer we seek, it sought them for us (suppression): ours waits a period from now; but
+        while the loss is fresh, no later than ``SEEK_PUT_OFF_MAX_S`` after our own last
+        multicast (that frame may not reach the peers we seek: we may be nearer them than
+        the peer we heard)."""
         if self.due is None:
             return
         if heard is not None:
@@ -134,7 +173,10 @@ class Seek:
                 octet = index >> 3
                 if octet < len(heard) and heard[octet] >> (index & 7) & 1:
                     return  # it hears one we seek: its frame does not seek that one
-        self.due = max(self.due, now + self._period())
+        put_off = now + self._period()
+        if now - self.fresh_at < SEEK_PUT_OFF_FOR_S:
+            put_off = min(put_off, self.sent_at + SEEK_PUT_OFF_MAX_S)
+        self.due = max(self.due, put_off)
 
 
 @dataclass(slots=True)

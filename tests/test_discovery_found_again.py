@@ -1,0 +1,177 @@
+"""A found-again peer gets our pulled-in multicast directed too (``Debts.take_found_again``;
+issue 20, docs/benchmarks.md, "The fly-out at N = 20").
+
+At the edge of range the answer lost was a multicast: 802.11 sends a group frame once,
+unacknowledged, while a directed one is acknowledged and retried by the MAC. So the multicast
+a rejoin pulls in (``pullin.PullIn.rejoined``) is followed by a directed copy to each peer
+found again since our last multicast that does not list us yet. The shape on MemNet, virtual
+time: two sides of ``SIDE``, cut apart from ``T_CUT`` to ``T_BACK``; after the return every
+multicast from the left side to the right one is lost (the right side's reach the left), so
+the right side can only learn that the left heard it from a directed frame.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+from swarmd_lab.testing import Swarm, auth_for, build_swarm, node_ipv4, peer_datagram
+
+from swarmd.auth.spdp import PLACEHOLDER
+from swarmd.discovery.config import EngineConfig
+from swarmd.discovery.events import PeerDiscovered
+from swarmd.rtps.spdp import encode_spdp_dispose
+
+SEEDS = (1, 2, 3, 4, 5)
+SIDE = 3
+N = 2 * SIDE
+T_CUT = 30.0
+T_BACK = 60.0
+ANSWER_S = 0.5  # the rejoin delay's 0.12 s at N = 6, with room; the answer's own time
+
+
+def _left(i: int) -> bool:
+    return i < SIDE
+
+
+def _healed_swarm(seed: int, until: float) -> Swarm:
+    swarm = build_swarm(N, seed=seed)
+    net = swarm.net
+
+    def loss(a: int, b: int) -> float:
+        if _left(a) == _left(b) or net.now < T_CUT:
+            return 0.0
+        if net.now < T_BACK:
+            return 1.0
+        # MemNet appends the transmission before it asks each receiver's loss
+        return 1.0 if _left(a) and net.transmissions[-1].multicast else 0.0
+
+    net.link_loss = loss
+    swarm.run_until(until)
+    return swarm
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_the_right_side_finds_the_left_again_by_its_directed_copies(seed: int) -> None:
+    """Each right drone's first multicast after the return crosses, and the left drones that
+    find it answer by a multicast (lost) and a directed copy: the right drone finds each of
+    them within ANSWER_S of that frame (the rejoin delay U(0, N / 50 fps) is 0.12 s here)."""
+    swarm = _healed_swarm(seed, T_BACK + 10.0)
+    for r in range(SIDE, N):
+        asked = min(
+            x.time
+            for x in swarm.net.transmissions
+            if x.node == r and x.multicast and x.time >= T_BACK
+        )
+        for left in range(SIDE):
+            name = swarm.bundle.participants[left].name
+            found = [
+                t
+                for t, e in swarm.events[r]
+                if t >= T_BACK and isinstance(e, PeerDiscovered) and e.name == name
+            ]
+            assert found, (r, left)
+            assert found[0] - asked <= ANSWER_S, (r, left, found[0] - asked)
+
+
+def test_a_copy_goes_with_the_multicast_and_only_to_peers_found_again() -> None:
+    swarm = _healed_swarm(1, T_BACK + 10.0)
+    sent = swarm.net.transmissions
+    multicasts = {(x.node, x.time) for x in sent if x.multicast and x.time >= T_BACK}
+    right = {node_ipv4(i) for i in range(SIDE, N)}
+    copies = [
+        x for x in sent if not x.multicast and _left(x.node) and (x.node, x.time) in multicasts
+    ]
+    assert copies  # the left side answered the right's seeks by a multicast and copies
+    assert all(x.target[0] in right for x in copies)  # never to a peer it had not lost
+
+
+# ------------------------------------------------------------------ a captured member's attack
+
+ATTACK_N = 10
+ATTACKER = ATTACK_N - 1  # uav9, captured: its genuine key, the attacker's firmware
+HONEST = range(ATTACK_N - 2)
+MISSING = ATTACK_N - 2  # uav8, cut off: every honest drone has a peer still missing
+T_ATTACK = 60.0
+ATTACK_FOR_S = 30.0  # the bounded virtual-time window
+ATTACK_PERIOD_S = 0.05  # a leave and a return every 0.1 s: 600 frames in all
+REACK_GAP_S = EngineConfig().retransmit_min_gap_s  # 0.5 s
+
+
+class _LeavingAndReturning:
+    """uav9 after capture: every ``ATTACK_PERIOD_S`` a multicast sealed with its real key,
+    alternately a DATA(p[UD]) (it leaves: the others lose it) and a DATA(p) that lists
+    nobody (it is back: the others find it again, and owe it a copy of their next
+    multicast). Sending stops at ``T_ATTACK + ATTACK_FOR_S``."""
+
+    def __init__(self, swarm: Swarm, now: float) -> None:
+        self._swarm = swarm
+        self._auth = auth_for(swarm.bundle, ATTACKER, now=now)
+        self._next: float | None = now
+        self._sn = 10_000  # above its honest life's
+        self._out: list[tuple[bytes, tuple[str, int]]] = []
+        self.sent = 0
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        pass
+
+    def handle_timer(self, now: float) -> None:
+        bundle = self._swarm.bundle
+        group = self._swarm.engines[0].spdp_multicast
+        while self._next is not None and self._next <= now:
+            self._sn += 1
+            if self.sent % 2 == 0:
+                template = encode_spdp_dispose(
+                    bundle.participants[ATTACKER].guid_prefix,
+                    sequence_number=self._sn,
+                    timestamp=None,
+                    authenticator=PLACEHOLDER,
+                )
+                frame = self._auth.seal(template)
+            else:
+                frame = peer_datagram(bundle, ATTACKER, sequence_number=self._sn, auth=self._auth)
+            self._out.append((frame, group))
+            self.sent += 1
+            self._next += ATTACK_PERIOD_S
+            if self._next > T_ATTACK + ATTACK_FOR_S:
+                self._next = None
+
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        return self._next
+
+    def next_event(self) -> None:
+        return None
+
+
+def test_a_captured_member_leaving_and_returning_draws_at_most_one_copy_per_reack_gap() -> None:
+    """The copy is a new send path driven by a peer's frames: each is gated by that peer's
+    re-ack gap (``Debts.take_found_again``), so a captured member that leaves and returns 10
+    times a second draws at most one directed frame per gap from each honest drone, and
+    the honest drones' multicasts stay at one per gap too (``PullIn.pull_in``)."""
+    swarm = build_swarm(ATTACK_N, seed=7, authenticated=True)
+    swarm.run_until(30.0)
+    assert swarm.all_discovered(), "the swarm did not form before the attack"
+    swarm.net.isolate(MISSING)  # lost by everyone by T_ATTACK: somebody is missing
+    swarm.run_until(T_ATTACK)
+    attacker = _LeavingAndReturning(swarm, T_ATTACK)
+    swarm.net.replace(ATTACKER, attacker)
+    start = len(swarm.net.transmissions)
+    swarm.run_until(T_ATTACK + ATTACK_FOR_S)
+    assert attacker.sent >= ATTACK_FOR_S / ATTACK_PERIOD_S  # the attack ran, ...
+    found = Counter(
+        i
+        for i in HONEST
+        for t, e in swarm.events[i]
+        if t >= T_ATTACK and isinstance(e, PeerDiscovered) and e.name == "uav9"
+    )
+    assert min(found[i] for i in HONEST) >= ATTACK_FOR_S / REACK_GAP_S  # ... and took hold
+    sent = swarm.net.transmissions[start:]
+    copies = Counter(x.node for x in sent if not x.multicast and x.target[0] == node_ipv4(ATTACKER))
+    multicasts = Counter(x.node for x in sent if x.multicast and x.node in HONEST)
+    bound = ATTACK_FOR_S / REACK_GAP_S + 1
+    assert copies and max(copies.values()) <= bound, copies
+    assert max(multicasts.values()) <= bound, multicasts
