@@ -5,7 +5,7 @@ at N = 20").
     .venv/bin/python -m bench.flight_fade_replay \
         bench/results/flight-lost-us/runs/flight-fade-swarmd-n20-r1.json --seeds 200
     .venv/bin/python -m bench.flight_fade_replay \
-        bench/results/flight-stagger/runs/flight-fly-out-swarmd-n20-r1.json --seeds 100 \
+        bench/results/flight-stagger-1e20f9e/runs/flight-fly-out-swarmd-n20-r1.json --seeds 100 \
         --edge-db 1.5 --edge-loss 0.5
 
 The scenario is the run file's (``--scenario`` only checks it): in the fade the observer is

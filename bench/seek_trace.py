@@ -2,7 +2,7 @@
 other side? (issue 20; docs/discovery.md, "A seek put off by a frame that cannot reach").
 
     .venv/bin/python -m bench.seek_trace \
-        bench/results/flight-stagger/runs/flight-fly-out-swarmd-n20-r1.json \
+        bench/results/flight-stagger-1e20f9e/runs/flight-fly-out-swarmd-n20-r1.json \
         --seed 71 --pair 9 15 --since 84 --until 89
 
 Replays the run's geometry on MemNet as ``bench.flight_fade_replay`` does (clean channel) and

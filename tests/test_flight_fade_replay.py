@@ -36,7 +36,7 @@ def test_a_missing_run_file_is_one_line_and_a_nonzero_exit(tmp_path: Path) -> No
 
 
 FLY_OUT = Path(__file__).resolve().parent.parent / (
-    "bench/results/flight-stagger/runs/flight-fly-out-swarmd-n20-r1.json"
+    "bench/results/flight-stagger-1e20f9e/runs/flight-fly-out-swarmd-n20-r1.json"
 )
 
 

@@ -9,7 +9,7 @@ from bench.seek_trace import main, trace
 from swarmd.discovery import receive, seek
 
 RUN = Path(__file__).resolve().parent.parent / (
-    "bench/results/flight-stagger/runs/flight-fly-out-swarmd-n20-r1.json"
+    "bench/results/flight-stagger-1e20f9e/runs/flight-fly-out-swarmd-n20-r1.json"
 )
 
 
