@@ -20,7 +20,7 @@ from __future__ import annotations
 from swarmd_lab.testing import Swarm, build_swarm, node_ipv4
 
 from swarmd.discovery.events import PeerDiscovered
-from swarmd.discovery.seek import SEEK_PUT_OFF_FOR_S
+from swarmd.discovery.seek import SEEK_FOR_S, SEEK_PUT_OFF_FOR_S
 
 N = 6
 GONE = N - 1  # uav5: lost for good (its frames are what the attacker captured)
@@ -187,3 +187,37 @@ def test_a_relayed_genuine_frame_draws_the_copy_to_the_signed_locator_not_the_re
     for i in HONEST:
         mine = sorted(x.time for x in copies if x.node == i)
         assert all(b - a >= gap - 1e-9 for a, b in zip(mine, mine[1:], strict=False)), i
+
+
+def test_a_peer_back_every_minute_does_not_extend_the_seek_for_one_gone_for_good() -> None:
+    """uav4 (a captured member, or a real drone whose frames a relay lets across) is back
+    for 1.5 s every minute, so every loss of it is fresh and every return freshens the
+    seek again (``Seek.returned``): the others seek it at the put-off bound's pace for as
+    long as it goes on (``bench/seek_return_cost.py`` measures what that costs per hour).
+    It cannot extend what uav5, gone for good, costs: uav5 is sought ``SEEK_FOR_S`` from its
+    own last frame and then no more, whatever the freshness (``Seek._prune``)."""
+    swarm = build_swarm(N, seed=3, authenticated=True)
+    net = swarm.net
+    back_every_s, open_s = 60.0, 1.5
+
+    def loss(a: int, b: int) -> float:
+        if a == b or net.now < T_CUT:
+            return 0.0
+        if GONE in (a, b):
+            return 1.0
+        if MISSING in (a, b):  # uav4: in range for open_s of every back_every_s
+            return 0.0 if (net.now - T_CUT) % back_every_s < open_s else 1.0
+        return 0.0
+
+    net.link_loss = loss
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the scenario"
+    end = T_CUT + SEEK_FOR_S + 2 * back_every_s  # bounded: 12 minutes of virtual time
+    swarm.run_until(end)
+    for i in HONEST:
+        engine = swarm.engines[i]
+        gone = engine._peers[GONE]
+        assert gone.last_heard is not None and gone.last_heard <= T_CUT
+        assert GONE not in engine._seek.sought, i  # sought SEEK_FOR_S, then no more
+        assert len(_found(swarm, i, MISSING, T_CUT)) >= 10, i  # uav4 did come back
+        assert end - engine._seek.fresh_at < back_every_s, i  # and kept the loss fresh
