@@ -455,6 +455,29 @@ def test_a_node_growing_its_endpoint_list_forever_is_disposed_by_the_deadline() 
     assert t + SIBLING_REMATCH_MAX_S - 0.3 <= at <= t + SIBLING_REMATCH_MAX_S + 0.3
 
 
+def test_a_pending_dispose_is_dropped_by_the_next_life_and_never_reaches_it() -> None:
+    """Attack: a process on the drone speaks as the lapsed talker (a new life: a smaller
+    sequence number) and, before its deferred dispose is due, starts another life within
+    that life's lease (the quick-restart path: dispose at once). The first life's dispose
+    must not follow: sent after the second life's own DATA(p), it would remove the writers
+    the sibling has just matched for it (Fast DDS forgets a disposed participant's writers).
+    One dispose in all, none after the second life's (fails if a new life keeps the last
+    one's ``sibling_dispose_at``)."""
+    relay, talker, helper = _two_on_drone_1()
+    t = _lapsed_talker(relay, talker, helper)
+    relay.receive_datagram(_local_spdp(talker, 1, lease_s=4.0), ("::1", 40002), t)
+    relay.receive_datagram(_local_spdp(talker, 2, _edp(8), lease_s=4.0), ("::1", 40002), t + 0.05)
+    assert relay.counters["sibling_dispose_deferred"] == 1
+    assert relay.counters["tx_sibling_dispose"] == 0
+    relay.receive_datagram(_local_spdp(talker, 1, _edp(8), lease_s=4.0), ("::1", 40003), t + 0.1)
+    assert relay.counters["tx_sibling_dispose"] == 1  # the second life's, at once
+    relay.datagrams_to_send()
+    for k in range(1, 21):  # 10 s of timers (bounded), past SIBLING_REMATCH_MAX_S
+        relay.handle_timer(t + 0.1 + 0.5 * k)
+    assert relay.counters["tx_sibling_dispose"] == 1
+    assert _to(relay, helper, GuidPrefix(talker.guid_prefix)) == []
+
+
 def test_a_replayed_new_life_past_its_lease_is_disposed_at_the_siblings_once() -> None:
     """Attack: a process on the drone replays the lapsed node's new life's first DATA(p)
     1000 times (bounded), then continues it: one deferred dispose per sibling."""

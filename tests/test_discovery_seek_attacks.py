@@ -1,0 +1,223 @@
+"""Attacks on this session's seek and rejoin paths (issue 20; docs/security.md, "Seek and
+rejoin paths (issue 20)").
+
+Two inputs were added or changed: a lost peer heard again now freshens the seek's put-off
+bound (``Seek.returned``), and the multicast such a return pulls in also goes directed to
+each peer found again (``Debts.take_found_again``). Both run only on a DATA(p) that passed
+its signature and replay window, so an outsider's forgery never reaches them; these tests
+drive the two other attackers on MemNet, virtual time, authenticated engines:
+
+* a sniffer that replays a lost peer's captured DATA(p)s (attacker 1 of the threat model);
+* a relay that forwards a lost peer's genuine, fresh DATA(p)s from its own address (the
+  "relay a genuine datagram" of attacker 1: the frames are the peer's, the address is not).
+
+The captured member (attacker 2) leaving and returning is
+``tests/test_discovery_found_again.py::test_a_captured_member_leaving_and_returning_draws_at_most_one_copy_per_reack_gap``.
+"""
+
+from __future__ import annotations
+
+from swarmd_lab.testing import Swarm, build_swarm, node_ipv4
+
+from swarmd.discovery.events import PeerDiscovered
+from swarmd.discovery.seek import SEEK_FOR_S, SEEK_PUT_OFF_FOR_S
+
+N = 6
+GONE = N - 1  # uav5: lost for good (its frames are what the attacker captured)
+MISSING = N - 2  # uav4: also lost, so a return pulls a multicast in (``PullIn.rejoined``)
+HONEST = range(N - 2)
+T_CUT = 30.0
+# the loss is stale by then at every honest drone: the seek's put-off bound is off
+T_ATTACK = T_CUT + SEEK_PUT_OFF_FOR_S + 20.0
+ATTACK_FOR_S = 30.0
+ATTACKER_HOST = "10.66.0.66"
+
+
+class _Attacker:
+    """A host on the swarm's link at ``ATTACKER_HOST``, in the SPDP group: it records every
+    datagram it hears from ``victim_host`` and, from ``start`` to ``start + ATTACK_FOR_S``,
+    sends what it holds to the group every ``period_s`` (bounded by the window: at most
+    ``ATTACK_FOR_S / period_s`` rounds). ``fresh_only``: each datagram is sent once, the
+    newest first (a relay of what it has not forwarded yet); otherwise every captured one,
+    every round (a replayer)."""
+
+    def __init__(
+        self,
+        group: tuple[str, int],
+        victim_host: str,
+        *,
+        start: float,
+        period_s: float,
+        fresh_only: bool,
+    ) -> None:
+        self._group = group
+        self._victim = victim_host
+        self._next: float | None = start
+        self._end = start + ATTACK_FOR_S
+        self._period_s = period_s
+        self._fresh_only = fresh_only
+        self.captured: list[bytes] = []
+        self._forwarded = 0
+        self._out: list[tuple[bytes, tuple[str, int]]] = []
+        self.sent = 0
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        if source[0] == self._victim:
+            self.captured.append(data)
+
+    def handle_timer(self, now: float) -> None:
+        while self._next is not None and self._next <= now:
+            if self._fresh_only:
+                batch = self.captured[self._forwarded :]
+                self._forwarded = len(self.captured)
+            else:
+                batch = list(self.captured)
+            self._out += [(d, self._group) for d in batch]
+            self.sent += len(batch)
+            self._next += self._period_s
+            if self._next > self._end:
+                self._next = None
+
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        return self._next
+
+    def next_event(self) -> None:
+        return None
+
+
+def _swarm_with_attacker(
+    seed: int, *, fresh_only: bool, period_s: float
+) -> tuple[Swarm, _Attacker]:
+    swarm = build_swarm(N, seed=seed, authenticated=True)
+    swarm.run_until(1.0)  # every engine exists: the group and ports are known
+    group = swarm.engines[0].spdp_multicast
+    attacker = _Attacker(
+        group, node_ipv4(GONE), start=T_ATTACK, period_s=period_s, fresh_only=fresh_only
+    )
+    swarm.net.add(
+        attacker,
+        ATTACKER_HOST,
+        (swarm.engines[0].metatraffic_port, group[1]),
+        groups=(group,),
+        source_port=swarm.engines[0].metatraffic_port,
+    )
+    return swarm, attacker
+
+
+def _found(swarm: Swarm, observer: int, peer: int, since: float) -> list[float]:
+    name = swarm.bundle.participants[peer].name
+    return [
+        t
+        for t, e in swarm.events[observer]
+        if t >= since and isinstance(e, PeerDiscovered) and e.name == name
+    ]
+
+
+def test_replayed_frames_of_a_lost_peer_neither_return_it_nor_freshen_the_seek() -> None:
+    """A sniffer holding every DATA(p) uav5 sent before it was lost replays them all from its
+    own address every second for 30 s, once the loss is stale. Each is refused as a replay
+    (``auth_replayed``) before anything moves: uav5 is not found again, the seek's loss stays
+    stale (``Seek.fresh_at`` unchanged: the put-off bound stays off), no directed copy is
+    owed (``Debts.found_again``) and nothing is sent to the replayer's address. Without the
+    replay window each replay is a return: uav5 found again, the loss fresh again (so the
+    bound on for another ``SEEK_PUT_OFF_FOR_S``), and a directed copy owed."""
+    swarm, attacker = _swarm_with_attacker(1, fresh_only=False, period_s=1.0)
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the attack"
+    swarm.net.isolate(GONE)
+    swarm.net.isolate(MISSING)
+    swarm.run_until(T_ATTACK)
+    assert attacker.captured, "the sniffer heard nothing of uav5"
+    engines = [swarm.engines[i] for i in HONEST]
+    fresh_before = [e._seek.fresh_at for e in engines]
+    assert all(T_ATTACK - f >= SEEK_PUT_OFF_FOR_S for f in fresh_before)  # stale
+    replayed_before = [e.counters()["dropped"]["auth_replayed"] for e in engines]
+    start = len(swarm.net.transmissions)
+    swarm.run_until(T_ATTACK + ATTACK_FOR_S + 1.0)
+    assert attacker.sent >= len(attacker.captured) * ATTACK_FOR_S  # the attack ran
+    for i, engine in zip(HONEST, engines, strict=True):
+        assert _found(swarm, i, GONE, T_CUT) == [], i
+        assert engine._seek.fresh_at == fresh_before[i], i
+        assert not engine._debts.found_again, i
+        replayed = engine.counters()["dropped"]["auth_replayed"] - replayed_before[i]
+        assert replayed >= attacker.sent // 2, (i, replayed, attacker.sent)
+    sent = swarm.net.transmissions[start:]
+    assert not [x for x in sent if x.node in HONEST and x.target[0] == ATTACKER_HOST]
+    assert not [x for x in sent if x.node in HONEST and x.target[0] == node_ipv4(GONE)]
+
+
+def test_a_relayed_genuine_frame_draws_the_copy_to_the_signed_locator_not_the_relay() -> None:
+    """uav5 is alive but out of the others' range; a relay in range of both forwards uav5's
+    genuine, fresh DATA(p)s from the relay's own address (a wormhole). They are uav5's: the
+    others find it again, as they would through any repeater, and the directed copy of the
+    pulled-in multicast (``Debts.take_found_again``) goes where uav5's signed DATA(p) says
+    (its metatraffic locator), never to the UDP source, so the relay cannot turn the copies
+    onto an address of its choice. At most one copy per re-ack gap per drone, as every
+    cue-driven directed frame."""
+    swarm, attacker = _swarm_with_attacker(2, fresh_only=True, period_s=0.5)
+    net = swarm.net
+    attacker_id = N
+
+    def loss(a: int, b: int) -> float:
+        if net.now < T_CUT or attacker_id in (a, b):
+            return 0.0
+        return 1.0 if GONE in (a, b) and a != b else 0.0
+
+    net.link_loss = loss
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the attack"
+    net.isolate(MISSING)  # somebody else is still missing: a return pulls a multicast in
+    swarm.run_until(T_ATTACK)
+    attacker.captured.clear()  # relay only what uav5 sends from now on: fresh frames
+    start = len(net.transmissions)
+    swarm.run_until(T_ATTACK + ATTACK_FOR_S + 1.0)
+    assert attacker.sent > 0
+    assert all(_found(swarm, i, GONE, T_ATTACK) for i in HONEST)  # the relay's frames took
+    sent = net.transmissions[start:]
+    assert not [x for x in sent if x.node in HONEST and x.target[0] == ATTACKER_HOST]
+    copies = [
+        x for x in sent if x.node in HONEST and not x.multicast and x.target[0] == node_ipv4(GONE)
+    ]
+    assert copies  # the copies were sent: to uav5's signed locator
+    gap = swarm.engines[0]._config.retransmit_min_gap_s
+    for i in HONEST:
+        mine = sorted(x.time for x in copies if x.node == i)
+        assert all(b - a >= gap - 1e-9 for a, b in zip(mine, mine[1:], strict=False)), i
+
+
+def test_a_peer_back_every_minute_does_not_extend_the_seek_for_one_gone_for_good() -> None:
+    """uav4 (a captured member, or a real drone whose frames a relay lets across) is back
+    for 1.5 s every minute, so every loss of it is fresh and every return freshens the
+    seek again (``Seek.returned``): the others seek it at the put-off bound's pace for as
+    long as it goes on (``bench/seek_return_cost.py`` measures what that costs per hour).
+    It cannot extend what uav5, gone for good, costs: uav5 is sought ``SEEK_FOR_S`` from its
+    own last frame and then no more, whatever the freshness (``Seek._prune``)."""
+    swarm = build_swarm(N, seed=3, authenticated=True)
+    net = swarm.net
+    back_every_s, open_s = 60.0, 1.5
+
+    def loss(a: int, b: int) -> float:
+        if a == b or net.now < T_CUT:
+            return 0.0
+        if GONE in (a, b):
+            return 1.0
+        if MISSING in (a, b):  # uav4: in range for open_s of every back_every_s
+            return 0.0 if (net.now - T_CUT) % back_every_s < open_s else 1.0
+        return 0.0
+
+    net.link_loss = loss
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the scenario"
+    end = T_CUT + SEEK_FOR_S + 2 * back_every_s  # bounded: 12 minutes of virtual time
+    swarm.run_until(end)
+    for i in HONEST:
+        engine = swarm.engines[i]
+        gone = engine._peers[GONE]
+        assert gone.last_heard is not None and gone.last_heard <= T_CUT
+        assert GONE not in engine._seek.sought, i  # sought SEEK_FOR_S, then no more
+        assert len(_found(swarm, i, MISSING, T_CUT)) >= 10, i  # uav4 did come back
+        assert end - engine._seek.fresh_at < back_every_s, i  # and kept the loss fresh
