@@ -152,7 +152,7 @@ def test_a_member_given_another_members_echo_refuses() -> None:
         )
         for name, echo in (("m01", wrong), ("m02", own["m02"]))
     }
-    writer = plane._writer_by_topic[TOPIC_COMMAND]  # the commander's bug, played by hand
+    writer = plane._endpoints.by_topic[TOPIC_COMMAND]  # the commander's bug, played by hand
     swarm.call("lead", lambda t: plane._queue(writer.write(copies, t)[1]))
     nodes = swarm.run_until_done(command.command_id)["nodes"]
     assert (nodes["m01"]["state"], nodes["m01"]["reason"]) == ("rejected", EXPIRED)

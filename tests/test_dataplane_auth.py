@@ -36,7 +36,7 @@ from swarmd.dataplane import (
     Readiness,
     encode_sample,
 )
-from swarmd.dataplane.plane import MAX_SEQUENCE_NUMBER
+from swarmd.dataplane.endpoints import MAX_SEQUENCE_NUMBER
 from swarmd.dataplane.reader import ReliableReader
 from swarmd.dataplane.seal import (
     TAG_BYTES,
@@ -111,11 +111,11 @@ def state(plane: DataPlane) -> dict[str, Any]:
     (acknowledged sets), readiness rows, dedup sets, replay windows."""
     readers = {
         t.name: copy.deepcopy(r.proxies if isinstance(r, ReliableReader) else r.highest)
-        for t, r in plane._readers.values()
+        for t, r in plane._endpoints.readers.values()
     }
     writers = {
         t.name: (w.last_sn, copy.deepcopy(w.proxies) if isinstance(w, ReliableWriter) else None)
-        for t, w in plane._writers.values()
+        for t, w in plane._endpoints.writers.values()
     }
     windows = {p: (c.peer_epoch, c.window.high) for p, c in plane._channels.items()}
     return {
@@ -189,7 +189,7 @@ def still_commands(swarm: Swarm) -> None:
 
 def next_sn(swarm: Swarm, member: str = "m01") -> int:
     lead = swarm.bundle.participant("lead")
-    reader = swarm.planes[member]._readers[CMD_R][1]
+    reader = swarm.planes[member]._endpoints.readers[CMD_R][1]
     assert isinstance(reader, ReliableReader)
     return reader.proxies[
         lead.guid(next(e for e in lead.endpoints if e.topic == TOPIC_COMMAND))
@@ -302,7 +302,7 @@ def test_a_forged_readiness_at_a_high_sn_cannot_pin_a_row() -> None:
 def test_forged_outcomes_cannot_report_a_command_completed() -> None:
     swarm = flying_swarm()
     m01 = swarm.bundle.participant("m01")
-    reader = swarm.planes["lead"]._readers[OUT_R][1]
+    reader = swarm.planes["lead"]._endpoints.readers[OUT_R][1]
     assert isinstance(reader, ReliableReader)
     writer = m01.guid(next(e for e in m01.endpoints if e.topic == TOPIC_OUTCOME))
     sn = reader.proxies[writer].next_expected

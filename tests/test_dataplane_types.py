@@ -11,7 +11,7 @@ from cyclonedds_idl._support import Endianness
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarmd.dataplane.plane import TOPIC_TYPES
+from swarmd.dataplane.endpoints import TOPIC_TYPES
 from swarmd.dataplane.types import (
     MAX_ALTITUDE_M,
     MAX_NAME_CHARS,

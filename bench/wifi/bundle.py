@@ -1,7 +1,7 @@
 """The testbed's dev bundle: N participants uav1..uavN (uav1 commands) on domain 0.
 
 Topics are the data plane's well-known ones with the types it requires
-(``swarmd.dataplane.plane.TOPIC_TYPES``): the 1 Hz ``swarm/ready`` from every member to
+(``swarmd.dataplane.endpoints.TOPIC_TYPES``): the 1 Hz ``swarm/ready`` from every member to
 the commander (best effort, keep last 1, as in firmware_bundle/missions), ``swarm/command``
 and ``swarm/outcome``. Discovery timing is the paper's: Tmin 8 s, Tmax 20 s, lease 20 s.
 """

@@ -4,6 +4,7 @@ Sans-IO (no asyncio, socket or time); ``DataPlane`` is the one class an owner dr
 See docs/dataplane.md.
 """
 
+from swarmd.dataplane.endpoints import TOPIC_COMMAND, TOPIC_OUTCOME, TOPIC_READY
 from swarmd.dataplane.events import (
     CommandCopyVoided,
     CommandReceived,
@@ -14,13 +15,7 @@ from swarmd.dataplane.events import (
     ReadinessReceived,
 )
 from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS
-from swarmd.dataplane.plane import (
-    TOPIC_COMMAND,
-    TOPIC_OUTCOME,
-    TOPIC_READY,
-    DataPlane,
-    PairKeys,
-)
+from swarmd.dataplane.plane import DataPlane, PairKeys
 from swarmd.dataplane.types import (
     Command,
     CommandKind,

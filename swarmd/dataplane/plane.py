@@ -13,7 +13,8 @@ Theory of operation. There is no SEDP: the bundle says which endpoint of which p
 talks to which (``Bundle.matches``). A match becomes live when discovery reports the peer
 (``peer_up``, with the default unicast locator and the boot epoch from its authenticated
 SPDP) and dies with ``peer_down``. Each local endpoint is an RTPS writer or reader chosen by
-the topic's QoS in the bundle (``writer.py``, ``reader.py``).
+the topic's QoS in the bundle (``writer.py``, ``reader.py``); ``endpoints.py`` holds them and
+routes each authenticated submessage to the one it addresses.
 
 Authentication (issue 10, ``seal.py``, ``channel.py``, docs/security.md). Every datagram to
 a peer is ``Header + submessages + AUTH``: a swarmd vendor submessage carrying this node's
@@ -49,9 +50,17 @@ from dataclasses import dataclass, field
 from typing import Any, Final, Protocol
 
 from swarmd.auth.freshness import U32_MAX, CounterExhausted, ReplayWindow, SendCounter
-from swarmd.bundle.model import Bundle, Durability, EndpointKind, Participant, Reliability, Topic
+from swarmd.bundle.model import Bundle, EndpointKind, Participant, Topic
 from swarmd.dataplane.channel import Channel
 from swarmd.dataplane.early import EarlyDatagrams
+from swarmd.dataplane.endpoints import (
+    TOPIC_COMMAND,
+    TOPIC_OUTCOME,
+    TOPIC_READY,
+    Endpoints,
+    Refused,
+    Writer,
+)
 from swarmd.dataplane.events import (
     CommandCopyVoided,
     CommandReceived,
@@ -62,7 +71,7 @@ from swarmd.dataplane.events import (
 )
 from swarmd.dataplane.ledger import CommandLedger, KeptOutcome, command_copies
 from swarmd.dataplane.outgoing import Outgoing
-from swarmd.dataplane.reader import BestEffortReader, Delivered, ReaderResult, ReliableReader
+from swarmd.dataplane.reader import Delivered
 from swarmd.dataplane.seal import (
     EPOCH_HINT_MASK,
     TRAILER_BYTES,
@@ -86,13 +95,7 @@ from swarmd.dataplane.types import (
     encode_sample,
 )
 from swarmd.dataplane.validity import echo_of
-from swarmd.dataplane.writer import (
-    MAX_HISTORY_DEPTH,
-    MAX_INCARNATION,
-    BestEffortWriter,
-    ReliableWriter,
-    first_sequence_number,
-)
+from swarmd.dataplane.writer import MAX_INCARNATION, ReliableWriter
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.message import (
     AckNack,
@@ -108,7 +111,6 @@ from swarmd.rtps.message import (
     encode_submessage,
 )
 from swarmd.rtps.types import (
-    ENTITYID_UNKNOWN,
     PROTOCOLVERSION_SWARMD,
     UNKNOWN_GUID_PREFIX,
     VENDORID_SWARMD,
@@ -117,22 +119,8 @@ from swarmd.rtps.types import (
     GuidPrefix,
 )
 
-TOPIC_READY: Final = "swarm/ready"
-TOPIC_COMMAND: Final = "swarm/command"
-TOPIC_OUTCOME: Final = "swarm/outcome"
-# The type each well-known topic must declare in the bundle.
-TOPIC_TYPES: Final = {
-    TOPIC_READY: "swarmd::Readiness",
-    TOPIC_COMMAND: "swarmd::Command",
-    TOPIC_OUTCOME: "swarmd::CommandOutcome",
-}
-
 # Stay under a Wi-Fi MTU (1500 - IPv4 20 - UDP 8) with margin: never IP-fragment user data.
 MAX_DATAGRAM_BYTES: Final = 1400
-# Highest SN accepted from the wire. A reader's ACKNACK base is one above the last SN it
-# delivered and must still fit SequenceNumber_t (int32 high word, spec 9.3.2); a writer's
-# incarnation scheme stays far below (writer.MAX_INCARNATION << 32).
-MAX_SEQUENCE_NUMBER: Final = (1 << 63) - (1 << 32)
 # Undrained events kept; past it drop reports are counted, not queued (samples always are).
 MAX_PENDING_EVENTS: Final = 4096
 
@@ -160,10 +148,6 @@ class ReadinessStats:
     last: Readiness | None = None
     last_rx: float = 0.0
     epoch: int = 0  # the member's boot epoch when ``last`` arrived: its clock's life
-
-
-Writer = BestEffortWriter | ReliableWriter
-Reader = BestEffortReader | ReliableReader
 
 
 class DataPlane:
@@ -198,27 +182,8 @@ class DataPlane:
         self.epoch = epoch
         self._keys = keys
         self._channels: dict[GuidPrefix, Channel] = {}
-        self._writers: dict[EntityId, tuple[Topic, Writer]] = {}
-        self._readers: dict[EntityId, tuple[Topic, Reader]] = {}
-        self._writer_by_topic: dict[str, Writer] = {}
-        for endpoint in self.local.endpoints:
-            topic = bundle.topic(endpoint.topic)
-            expected = TOPIC_TYPES.get(topic.name)
-            if expected is not None and topic.type_name != expected:
-                raise ValueError(
-                    f"bundle topic {topic.name!r} declares type {topic.type_name!r}; "
-                    f"swarmd's data plane carries {expected!r} on it: fix the mission's topics"
-                )
-            if topic.type_name not in TYPES_BY_NAME:
-                continue  # a topic the data plane does not carry (e.g. swarm/position)
-            guid = self.local.guid(endpoint)
-            if endpoint.kind == EndpointKind.WRITER:
-                writer = _make_writer(guid, topic, incarnation)
-                self._writers[guid.entity_id] = (topic, writer)
-                self._writer_by_topic[topic.name] = writer
-            else:
-                reader = _make_reader(guid, topic)
-                self._readers[guid.entity_id] = (topic, reader)
+        # our writers and readers, and what reaches them (endpoints.py)
+        self._endpoints = Endpoints(bundle, self.local, incarnation)
         self._participants: dict[str, Participant] = {p.name: p for p in bundle.participants}
         self._peers: dict[str, _Peer] = {}
         self._peer_by_prefix: dict[GuidPrefix, str] = {}
@@ -281,13 +246,13 @@ class DataPlane:
         self._peer_by_prefix[peer.guid_prefix] = name
         for match in self.bundle.matches(self.local, peer):
             entity = match.local.entity_id
-            if match.local_kind == EndpointKind.WRITER and entity in self._writers:
-                writer = self._writers[entity][1]
+            if match.local_kind == EndpointKind.WRITER and entity in self._endpoints.writers:
+                writer = self._endpoints.writers[entity][1]
                 if not same_life:
                     self._void_copies(name, writer, writer.forget_reader(match.remote))
                 self._queue(writer.add_reader(match.remote, now, resume=same_life))
-            elif match.local_kind == EndpointKind.READER and entity in self._readers:
-                self._readers[entity][1].add_writer(match.remote)
+            elif match.local_kind == EndpointKind.READER and entity in self._endpoints.readers:
+                self._endpoints.readers[entity][1].add_writer(match.remote)
             else:
                 continue
             state.matched.append((entity, match.remote))
@@ -306,7 +271,7 @@ class DataPlane:
             self._take(data, prefix, name, source, now)
 
     def _void_copies(self, name: str, writer: Writer, sns: list[int]) -> None:
-        if writer is not self._writer_by_topic.get(TOPIC_COMMAND):
+        if writer is not self._endpoints.by_topic.get(TOPIC_COMMAND):
             return  # an outcome or another topic: the new life simply starts afresh
         for sn in sns:
             command_id = self._ledger.command_at(sn)
@@ -324,10 +289,10 @@ class DataPlane:
         self._peer_by_prefix.pop(state.participant.guid_prefix, None)
         self._pending.pop(state.participant.guid_prefix, None)
         for entity, remote in state.matched:
-            if entity in self._writers:
-                self._writers[entity][1].remove_reader(remote)
+            if entity in self._endpoints.writers:
+                self._endpoints.writers[entity][1].remove_reader(remote)
             else:
-                self._readers[entity][1].remove_writer(remote)
+                self._endpoints.readers[entity][1].remove_writer(remote)
 
     @property
     def peers_up(self) -> list[str]:
@@ -385,7 +350,7 @@ class DataPlane:
         """Stop (re)sending the command written as ``sn``: its validity ended, so repair
         must not carry it to a member late. Readers are told it is gone (GAP). True when
         it was still held."""
-        writer = self._writer_by_topic.get(TOPIC_COMMAND)
+        writer = self._endpoints.by_topic.get(TOPIC_COMMAND)
         if not isinstance(writer, ReliableWriter):
             return False
         self._ledger.command_withdrawn(sn)
@@ -404,7 +369,7 @@ class DataPlane:
 
         Resending a command with the same id is safe: members execute an id once.
         """
-        writer = self._writer_by_topic.get(TOPIC_COMMAND)
+        writer = self._endpoints.by_topic.get(TOPIC_COMMAND)
         if writer is None:
             raise ValueError(f"{self.local.name!r} has no writer on {TOPIC_COMMAND!r}")
         sn, out = writer.write(self._command_copies(command), now)
@@ -419,8 +384,8 @@ class DataPlane:
 
     def _command_readers(self) -> list[str]:
         """Every bundle participant with a reader matching our command writer."""
-        writer = self._writer_by_topic[TOPIC_COMMAND]
-        entity = next(e for e, (_, w) in self._writers.items() if w is writer)
+        writer = self._endpoints.by_topic[TOPIC_COMMAND]
+        entity = next(e for e, (_, w) in self._endpoints.writers.items() if w is writer)
         return [
             p.name
             for p in self.bundle.participants
@@ -462,7 +427,7 @@ class DataPlane:
         ids (restored at start-up), oldest first: at most ``limit``, and at most the
         outcome writer's history depth, so writing them all at once pushes none out of
         the history before it is acknowledged."""
-        writer = self._writer_by_topic.get(TOPIC_OUTCOME)
+        writer = self._endpoints.by_topic.get(TOPIC_OUTCOME)
         depth = writer.depth if isinstance(writer, ReliableWriter) else 1
         return self._ledger.earlier_outcomes(commander, min(limit, depth))
 
@@ -533,14 +498,17 @@ class DataPlane:
             elif not for_us:
                 self._drop("not_for_us", source)
             elif isinstance(sm, AckNack):
-                self._on_acknack(prefix, sm, source, now)
+                replies = self._endpoints.acknack(prefix, sm, now)
+                if isinstance(replies, Refused):
+                    self._drop(replies.reason, source, replies.detail)
+                else:
+                    self._queue(replies)
             else:
                 self._on_reader_input(peer_name, prefix, sm, source, now)
 
     def handle_timer(self, now: float) -> None:
         """Send the heartbeats that are due."""
-        for _, writer in self._writers.values():
-            self._queue(writer.on_timer(now))
+        self._queue(self._endpoints.on_timer(now))
 
     # --- outputs ----------------------------------------------------------------------------
 
@@ -580,8 +548,7 @@ class DataPlane:
 
     def get_timer(self) -> float | None:
         """The earliest heartbeat deadline, on the caller's clock; None when all is acked."""
-        deadlines = [d for _, w in self._writers.values() if (d := w.deadline()) is not None]
-        return min(deadlines) if deadlines else None
+        return self._endpoints.deadline()
 
     def next_event(self) -> DataPlaneEvent | None:
         return self._events.popleft() if self._events else None
@@ -593,6 +560,7 @@ class DataPlane:
 
     def status(self, now: float) -> dict[str, Any]:
         """A JSON-ready snapshot for ``swarmctl status``."""
+        writers, readers = self._endpoints.status()
         return {
             "incarnation": self.incarnation,
             "epoch": self.epoch,
@@ -601,8 +569,8 @@ class DataPlane:
                 name: self._channels[p.participant.guid_prefix].peer_epoch
                 for name, p in sorted(self._peers.items())
             },
-            "writers": {t.name: _writer_status(w) for t, w in self._writers.values()},
-            "readers": {t.name: _fields_of(r.counters) for t, r in self._readers.values()},
+            "writers": writers,
+            "readers": readers,
             # no per-member readiness here: the commander's table (status "readiness") is
             # the one place `swarmctl status --json` shows the count (ReadinessReceived.count)
             "executed_commands": len(self._ledger.executed),
@@ -624,7 +592,7 @@ class DataPlane:
         return channel
 
     def _publish(self, topic: str, sample: Sample, now: float) -> int:
-        writer = self._writer_by_topic.get(topic)
+        writer = self._endpoints.by_topic.get(topic)
         if writer is None:
             raise ValueError(f"{self.local.name!r} has no writer on {topic!r} in the bundle")
         sn, out = writer.write(encode_sample(sample), now)
@@ -642,16 +610,6 @@ class DataPlane:
         else:
             self.counters["events_overflow"] += 1
 
-    def _on_acknack(
-        self, prefix: GuidPrefix, ack: AckNack, source: tuple[str, int], now: float
-    ) -> None:
-        entry = self._writers.get(ack.writer_id)
-        remote = Guid(prefix, ack.reader_id)
-        if entry is None or not entry[1].matched(remote):
-            self._drop("unmatched_acknack", source, f"{remote} -> {ack.writer_id}")
-            return
-        self._queue(entry[1].on_acknack(remote, ack, now))
-
     def _on_reader_input(
         self,
         peer_name: str,
@@ -660,45 +618,16 @@ class DataPlane:
         source: tuple[str, int],
         now: float,
     ) -> None:
-        remote = Guid(prefix, sm.writer_id)
-        entry = self._find_reader(sm.reader_id, remote)
-        if entry is None:
-            self._drop("unmatched_writer", source, f"{remote} -> {sm.reader_id}")
+        taken = self._endpoints.reader_input(prefix, sm)
+        if isinstance(taken, Refused):
+            self._drop(taken.reason, source, taken.detail)
             return
-        topic, reader = entry
-        result: ReaderResult
-        if isinstance(sm, Data):
-            if not 1 <= sm.writer_sn <= MAX_SEQUENCE_NUMBER:
-                self._drop("invalid_sn", source, str(sm.writer_sn))
-                return
-            result = reader.on_data(remote, sm)
-        elif isinstance(sm, Heartbeat):
-            # spec 8.3.7.5: firstSN >= 1, lastSN >= firstSN - 1
-            if not 1 <= sm.first_sn <= sm.last_sn + 1 <= MAX_SEQUENCE_NUMBER + 1:
-                self._drop("invalid_sn", source, f"HEARTBEAT [{sm.first_sn}, {sm.last_sn}]")
-                return
-            result = reader.on_heartbeat(remote, sm)
-        else:
-            if not 1 <= sm.gap_start <= sm.gap_list.base <= MAX_SEQUENCE_NUMBER:
-                self._drop("invalid_sn", source, f"GAP {sm.gap_start} {sm.gap_list.base}")
-                return
-            result = reader.on_gap(remote, sm)
+        topic, result = taken
         if result.dropped is not None:
             self.counters[result.dropped] += 1  # normal protocol noise, not an event
         self._queue(result.replies)
         for delivered in result.delivered:
             self._deliver(peer_name, topic, delivered, source, now)
-
-    def _find_reader(self, reader_id: EntityId, remote: Guid) -> tuple[Topic, Reader] | None:
-        if reader_id == ENTITYID_UNKNOWN:  # spec 8.4.15.3: to every matched reader of it
-            for entry in self._readers.values():
-                if entry[1].matched(remote):
-                    return entry
-            return None
-        found = self._readers.get(reader_id)
-        if found is None or not found[1].matched(remote):
-            return None
-        return found
 
     def _deliver(
         self,
@@ -758,32 +687,3 @@ class DataPlane:
             self.counters["outcome_duplicate"] += 1
             return
         self._events.append(OutcomeReceived(peer_name, outcome, epoch))
-
-
-def _make_writer(guid: Guid, topic: Topic, incarnation: int) -> Writer:
-    if topic.qos.reliability == Reliability.RELIABLE:
-        return ReliableWriter(
-            guid,
-            depth=min(max(topic.qos.history_depth, 1), MAX_HISTORY_DEPTH),
-            transient_local=topic.qos.durability == Durability.TRANSIENT_LOCAL,
-            incarnation=incarnation,
-        )
-    return BestEffortWriter(guid, next_sn=first_sequence_number(incarnation))
-
-
-def _make_reader(guid: Guid, topic: Topic) -> Reader:
-    if topic.qos.reliability == Reliability.RELIABLE:
-        return ReliableReader(guid)
-    return BestEffortReader(guid)
-
-
-def _fields_of(obj: Any) -> dict[str, Any]:
-    """The fields of a slotted counters dataclass as a dict."""
-    return {name: getattr(obj, name) for name in obj.__slots__}
-
-
-def _writer_status(writer: Writer) -> dict[str, Any]:
-    out: dict[str, Any] = {"last_sn": writer.last_sn, **_fields_of(writer.counters)}
-    if isinstance(writer, ReliableWriter):
-        out["unacked_readers"] = sum(1 for p in writer.proxies.values() if p.acked < writer.last_sn)
-    return out
