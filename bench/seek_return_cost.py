@@ -26,7 +26,7 @@ per hour (multicast, of which seeks, and directed), for three cases:
 ``--reflection`` prints instead what a captured member that leaves (its signed DATA(p[UD]))
 and returns (its signed DATA(p)) 10 times a second draws from the others at its signed
 locator, which it chooses (any unicast address but loopback and the receiver's own): the
-directed copies of ``Debts.take_found_again``, with and without them, against the bytes it
+directed copies of ``Debts.take_late_copies``, with and without them, against the bytes it
 sent itself (the case of ``tests/test_discovery_found_again.py``, 30 s).
 
 Nothing asserted (the unit tests assert the bounds).
@@ -151,13 +151,13 @@ def reflection(n: int, seed: int, *, copies: bool, missing: bool) -> tuple[int, 
     attacker = _Cycling(swarm, captured, 60.0, 30.0)
     swarm.net.replace(captured, attacker)
     start = len(swarm.net.transmissions)
-    take = Debts.take_found_again
+    take = Debts.take_late_copies
     if not copies:
-        Debts.take_found_again = lambda self, now: []  # type: ignore[method-assign]
+        Debts.take_late_copies = lambda self, now: []  # type: ignore[method-assign]
     try:
         swarm.run_until(90.0)
     finally:
-        Debts.take_found_again = take  # type: ignore[method-assign]
+        Debts.take_late_copies = take  # type: ignore[method-assign]
     sent = swarm.net.transmissions[start:]
     to_it = [x for x in sent if not x.multicast and x.target[0] == node_ipv4(captured)]
     mine = [x for x in sent if x.node == captured]

@@ -2,10 +2,11 @@
 rejoin paths (issue 20)").
 
 Two inputs were added or changed: a lost peer heard again now freshens the seek's put-off
-bound (``Seek.returned``), and the multicast such a return pulls in also goes directed to
-each peer found again (``Debts.take_found_again``). Both run only on a DATA(p) that passed
-its signature and replay window, so an outsider's forgery never reaches them; these tests
-drive the two other attackers on MemNet, virtual time, authenticated engines:
+bound (``Seek.returned``), and the multicast such a return pulls in also goes directed, a
+re-ack gap later, to each peer found again not listing us by then
+(``Debts.take_late_copies``). Both run only on a DATA(p) that passed its signature and
+replay window, so an outsider's forgery never reaches them; these tests drive the two other
+attackers on MemNet, virtual time, authenticated engines:
 
 * a sniffer that replays a lost peer's captured DATA(p)s (attacker 1 of the threat model);
 * a relay that forwards a lost peer's genuine, fresh DATA(p)s from its own address (the
@@ -154,7 +155,7 @@ def test_a_relayed_genuine_frame_draws_the_copy_to_the_signed_locator_not_the_re
     """uav5 is alive but out of the others' range; a relay in range of both forwards uav5's
     genuine, fresh DATA(p)s from the relay's own address (a wormhole). They are uav5's: the
     others find it again, as they would through any repeater, and the directed copy of the
-    pulled-in multicast (``Debts.take_found_again``) goes where uav5's signed DATA(p) says
+    pulled-in multicast (``Debts.take_late_copies``) goes where uav5's signed DATA(p) says
     (its metatraffic locator), never to the UDP source, so the relay cannot turn the copies
     onto an address of its choice. At most one copy per re-ack gap per drone, as every
     cue-driven directed frame."""

@@ -49,6 +49,8 @@ class Debts:
         "announcing",
         "armed",
         "found_again",
+        "late_copies",
+        "late_due",
         "retries",
         "silent",
     )
@@ -80,9 +82,14 @@ class Debts:
         # live, without a lookup in the peer table (the counter keeps heapq from comparing
         # schedules when a retry is re-armed at the same instant)
         self.armed: set[int] = set()
-        # peers found again whose answer is our next pulled-in multicast: each also gets a
-        # directed copy (take_found_again). Bundle indices: at most the bundle's peers
+        # peers found again whose answer is our next pulled-in multicast: each may also get a
+        # directed copy a re-ack gap later (defer_found_again). Bundle indices: at most the
+        # bundle's peers
         self.found_again: set[int] = set()
+        # those copies' deadlines, by bundle index (at most the bundle's peers), and the
+        # earliest of them, read by the engine's get_timer() (None: none owed)
+        self.late_copies: dict[int, float] = {}
+        self.late_due: float | None = None
         self.retries: list[tuple[float, int, int, RetrySchedule]] = []
         self._pushed = 0
         self._spread_at = (math.nan, 0.0)  # (Q, spread_s() at that Q)
@@ -204,20 +211,38 @@ class Debts:
                     backoff = self.backoff()
                 self.arm(p, now + backoff.delay_s(retry.attempts, self._rng))
 
-    def take_found_again(self, now: float) -> list[Peer]:
-        """The peers found again since our last multicast that still do not list us: the
-        multicast just sent answers them, and each also gets it directed, which the MAC
+    def defer_found_again(self, now: float) -> None:
+        """Our multicast just sent answers the peers found again since the last one: each
+        that has not listed us a re-ack gap (``retransmit_min_gap_s``, the peer's
+        ``Peer.reack``) from now gets it directed then (``take_late_copies``), which the MAC
         acknowledges and retries (802.11 sends a group frame once, unacknowledged, and at
         the edge of range it was the one lost: docs/discovery.md, "A seek put off by a frame
-        that cannot reach"). Each copy takes the peer's re-ack gap (``Peer.reack``), as every
-        cue-driven directed frame does: a captured member that is lost and found again over
-        and over (dispose, DATA(p)) draws at most one directed frame per gap from us."""
+        that cannot reach"). In the clean case the peer hears the multicast and lists us
+        within its rejoin delay U(0, W1), W1 <= the gap: no copy. A peer already waiting
+        keeps its earlier deadline."""
         if not self.found_again:
-            return []
+            return
         found, self.found_again = self.found_again, set()
+        at = now + self._config.retransmit_min_gap_s
+        late = self.late_copies
+        for i in found:
+            late.setdefault(i, at)
+        self.late_due = min(late.values())
+
+    def take_late_copies(self, now: float) -> list[Peer]:
+        """The peers whose copy falls due at ``now`` and that still do not list us, in
+        bundle order: each gets our DATA(p) directed. Each copy takes the peer's re-ack gap
+        (``Peer.reack``), as every cue-driven directed frame does: a captured member that
+        is lost and found again over and over (dispose, DATA(p)) draws at most one directed
+        frame per gap from us."""
+        late = self.late_copies
+        due = sorted(i for i, at in late.items() if at <= now)
+        for i in due:
+            del late[i]
+        self.late_due = min(late.values()) if late else None
         peers = self._peers
         out: list[Peer] = []
-        for i in sorted(found):
+        for i in due:
             p = peers[i]
             if (
                 p.state is _DISCOVERED
@@ -228,6 +253,13 @@ class Debts:
                 p.reack.mark(now)
                 out.append(p)
         return out
+
+    def forget_found_again(self, index: int) -> None:
+        """The peer is lost again: no copy is owed to it."""
+        self.found_again.discard(index)
+        if self.late_copies.pop(index, None) is not None:
+            late = self.late_copies
+            self.late_due = min(late.values()) if late else None
 
     def covered(self, peer: Peer, now: float) -> None:
         """``peer`` was just sent a frame listing everyone we hear: count the attempt."""

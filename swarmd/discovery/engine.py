@@ -376,6 +376,10 @@ class DiscoveryEngine:
         seek = self._seek
         if seek.due is not None and now >= seek.due and seek.fire(now):
             self._send(None, now, "seek")
+        debts = self._debts
+        if debts.late_due is not None and now >= debts.late_due:
+            for p in debts.take_late_copies(now):  # MAC-acknowledged, where our multicast is not
+                self._send(p, now, "reply")
         self._flush(now)
         self._settle_if_done()
 
@@ -475,6 +479,9 @@ class DiscoveryEngine:
         seek = self._seek.due
         if seek is not None and (best is None or seek < best):
             best = seek
+        late = self._debts.late_due
+        if late is not None and (best is None or late < best):
+            best = late
         heap = self._retries
         if heap:
             # Debts.next_retry() inline for its usual answer: the heap's head is live
@@ -663,8 +670,7 @@ class DiscoveryEngine:
             plain_renewal = renewal_due and not due and not self._pull.pulled_in
             self._send(None, now, "renewal" if plain_renewal else "announce")
             debts.covered_all(now)
-            for p in debts.take_found_again(now):  # a directed copy each (MAC-acknowledged)
-                self._send(p, now, "reply")
+            debts.defer_found_again(now)  # a directed copy each a gap on, if still unlisted
             return
         for p in due:
             target = p.target()
@@ -678,7 +684,7 @@ class DiscoveryEngine:
         self._leases.forget(peer)
         peer.told = False
         self._debts.disarm(peer)
-        self._debts.found_again.discard(peer.index)
+        self._debts.forget_found_again(peer.index)
         self._receive.sought_by.forget(peer.index)  # seek.SoughtBy: it lost us, we lost it
         self._emit(PeerLost(peer.participant.name, peer.participant.guid_prefix, reason))
 

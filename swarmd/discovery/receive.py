@@ -379,9 +379,10 @@ class ReceivePath:
                 # (Debts.rejoin_delay), not after the Q-stretched holdoff
                 rejoin = not self._rejoined(now)
                 if not rejoin:
-                    # the pulled-in multicast answers it, and a directed copy rides with it
-                    # (Debts.take_found_again): at the edge of range a group frame, sent once
-                    # and unacknowledged, is the one lost (docs/benchmarks.md, "The fly-out")
+                    # the pulled-in multicast answers it, and a directed copy follows a gap on
+                    # if it still does not list us (Debts.defer_found_again): at the edge of
+                    # range a group frame, sent once and unacknowledged, is the one lost
+                    # (docs/benchmarks.md, "The fly-out")
                     self._debts.found_again.add(index)
             self._emit(
                 PeerDiscovered(
