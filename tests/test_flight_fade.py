@@ -107,3 +107,16 @@ def test_a_run_file_of_the_periodic_fade_is_measured_on_the_periodic_fade() -> N
         run["waypoints"] = [[t, i, *p] for t, i, p in s.waypoints]
         assert flight.of_run(run) == s
     assert flight.of_run({"scenario": "fade", "n": 10, "seed": 1}) == irregular
+
+
+def test_the_fader_s_losses_are_counted_with_their_largest_burst() -> None:
+    losses: list[tuple[float, int, int, float | None]] = [
+        (45.2, 19, 1, 45.3),
+        (104.58, 19, 2, 104.9),
+        (104.58, 19, 3, None),
+        (104.58, 19, 4, 105.1),
+        (104.58, 0, 19, 105.0),  # another observer's loss: not the fader's
+        (130.58, 19, 5, 130.8),
+    ]
+    assert flight_fade.fader_losses(losses, 19) == (5, 3, 104.58)
+    assert flight_fade.fader_losses(losses, 7) == (0, 0, None)
