@@ -84,7 +84,16 @@ def run(
     def now_range() -> list[list[bool]]:
         return in_range[min(last, int(net.now / step + 1e-9))]
 
-    net.link_loss = lambda a, b: loss if now_range()[a][b] else 1.0
+    commander_to_fader: list[float] = []  # the commander's frames in the fader's range
+
+    def link_loss(a: int, b: int) -> float:
+        if not now_range()[a][b]:
+            return 1.0
+        if a == 0 and b == n - 1:
+            commander_to_fader.append(net.now)
+        return loss
+
+    net.link_loss = link_loss
     report_rng = random.Random(seed)  # noqa: S311 - seeded simulation
     commander = 0
     names = [p.name for p in swarm.bundle.participants]
@@ -167,6 +176,7 @@ def run(
         for t, j, c in changes[i]
         if c == "lost"
     ]
+    result["commander_to_fader"] = commander_to_fader
     kinds = swarm.tx_kinds()
     result["tx_kind"] = {k: kinds[k] for k in ("announce", "reply", "probe", "renewal")}
     return result
@@ -287,6 +297,12 @@ def main(argv: list[str] | None = None) -> int:
             worst_all.append(max([red["max"] or 0.0, *back]))
             worst_measured.append(red["max"] or 0.0)
             fader_lost, burst, burst_at = fader_losses(r["losses"], n - 1)
+            # the commander's last frame that reached the fader (sure only at --loss 0): a
+            # vouched lease ends lease - w - 0.5 = 17 s after it (docs/discovery.md, "Vouching")
+            vouch_at = max(
+                (t for t in r["commander_to_fader"] if t < (burst_at or 0.0)), default=None
+            )
+            since = None if vouch_at is None or burst_at is None else round(burst_at - vouch_at, 2)
             fader_all.append(fader_lost)
             bursts.append(burst)
             print(
@@ -295,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"not re-discovered {r['not_rediscovered']} {r['tx_kind']}; every loss, from the "
                 f"return to re-discovery: max {max(back, default=None)} "
                 f"over 2 s {sum(1 for b in back if b > 2.0)}/{len(back)}; uav{n} lost "
-                f"{fader_lost} (largest burst {burst} at {burst_at})"
+                f"{fader_lost} (largest burst {burst} at {burst_at}, {since} s after the "
+                f"commander's last frame in its range)"
                 + (
                     f"\n    lost (t, observer, peer, found again): {r['losses']}"
                     if args.verbose
