@@ -245,8 +245,24 @@ def losses_line(losses: dict[int, list[Lost]], rows: Sequence[tuple[Any, ...]]) 
     )
 
 
+def run_losses_line(run: dict[str, Any], observers: Sequence[int]) -> str:
+    """The run file's own losses by ``observers`` (its ``changes``: per observer [t, peer,
+    kind]), to set beside the replay's."""
+    lost = [
+        (round(float(t), 3), i)
+        for i in observers
+        for t, _, kind in run["changes"].get(str(i), [])
+        if kind == "lost"
+    ]
+    at_once = Counter(lost)
+    bursts = sorted(((k, t) for (t, _), k in at_once.items() if k >= BURST), key=lambda b: b[1])
+    said = ", ".join(f"{k} at {t:g} s" for k, t in bursts) or "none"
+    return f"  the run itself: PeerLost by the observers {len(lost)}; bursts of {BURST}+: {said}"
+
+
 def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0) -> str:
-    replay = Replay(json.loads(path.read_text()), edge_db, edge_loss)
+    run = json.loads(path.read_text())
+    replay = Replay(run, edge_db, edge_loss)
     frames: Counter[str] = Counter()
     losses: dict[int, list[Lost]] = {seed: [] for seed in range(1, seeds + 1)}
     rows = [
@@ -268,6 +284,7 @@ def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0)
         "  slow, by what happened in the pair's first window: "
         + ", ".join(f"{k} {v}" for k, v in kinds.most_common()),
         losses_line(losses, rows),
+        run_losses_line(run, replay.observers),
     ]
     if who == "every drone":  # each pair's re-discovery is counted from both ends
         pairs = len(rows) / 2

@@ -7,7 +7,14 @@ import json
 import re
 from pathlib import Path
 
-from bench.flight_fade_replay import Replay, losses_line, main, rediscoveries, report
+from bench.flight_fade_replay import (
+    Replay,
+    losses_line,
+    main,
+    rediscoveries,
+    report,
+    run_losses_line,
+)
 
 RUN = Path(__file__).resolve().parent.parent / (
     "bench/results/flight-lost-us/runs/flight-fade-swarmd-n20-r1.json"
@@ -86,3 +93,10 @@ def test_the_report_lists_the_fader_s_losses_found_again_or_not() -> None:
     # every re-discovery follows one of these losses
     assert len(rows) <= len(losses)
     assert {(lost_at, j) for *_, j, _, _, lost_at in rows} <= {(t, j) for t, _, j in losses}
+
+
+def test_the_run_s_own_losses_are_set_beside_the_replay_s() -> None:
+    run = json.loads(RUN.read_text())  # flight-lost-us: uav20 lost 11, five of them at once
+    line = run_losses_line(run, [19])
+    assert line == "  the run itself: PeerLost by the observers 11; bursts of 5+: 5 at 62.904 s"
+    assert run_losses_line(run, [0]).endswith("bursts of 5+: none")
