@@ -24,7 +24,10 @@ for all. The measures are the testbed's own (``bench/wifi/flight_measures.measur
 engines' events), printed per seed with the slowest re-discovery (observer <- peer, the
 return into range, the re-discovery) and the discovery frames by kind. ``--engine-root``
 runs another checkout's engine (a ``git worktree`` of an older commit) under the same
-harness: the scenario and the measures always come from this tree.
+harness: the scenario and the measures always come from this tree. Each seed's line and a
+last line per N also count the fading drone's own PeerLost events and their largest burst at
+one instant (a vouched lease's end: docs/flight-history.md, "The fading drone's losses at
+N = 20 (session 9)").
 """
 
 from __future__ import annotations
@@ -81,7 +84,16 @@ def run(
     def now_range() -> list[list[bool]]:
         return in_range[min(last, int(net.now / step + 1e-9))]
 
-    net.link_loss = lambda a, b: loss if now_range()[a][b] else 1.0
+    commander_to_fader: list[float] = []  # the commander's frames in the fader's range
+
+    def link_loss(a: int, b: int) -> float:
+        if not now_range()[a][b]:
+            return 1.0
+        if a == 0 and b == n - 1:
+            commander_to_fader.append(net.now)
+        return loss
+
+    net.link_loss = link_loss
     report_rng = random.Random(seed)  # noqa: S311 - seeded simulation
     commander = 0
     names = [p.name for p in swarm.bundle.participants]
@@ -164,9 +176,26 @@ def run(
         for t, j, c in changes[i]
         if c == "lost"
     ]
+    result["commander_to_fader"] = commander_to_fader
     kinds = swarm.tx_kinds()
     result["tx_kind"] = {k: kinds[k] for k in ("announce", "reply", "probe", "renewal")}
     return result
+
+
+def fader_losses(
+    losses: list[tuple[float, int, int, float | None]], fader: int
+) -> tuple[int, int, float | None]:
+    """The fading drone's (``fader``) PeerLost count in ``result["losses"]`` (t, observer,
+    peer, found again), its largest burst (peers lost at one instant: a vouched lease's end
+    loses every member the commander's last vouch listed) and that burst's time."""
+    at_once: dict[float, int] = {}
+    for t, i, _, _ in losses:
+        if i == fader:
+            at_once[t] = at_once.get(t, 0) + 1
+    if not at_once:
+        return 0, 0, None
+    t_max = max(at_once, key=lambda t: (at_once[t], -t))
+    return sum(at_once.values()), at_once[t_max], t_max
 
 
 def _back_to_found(
@@ -251,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
     for n in args.n:
         worst_all: list[float] = []
         worst_measured: list[float] = []
+        fader_all: list[int] = []  # the fading drone's PeerLost per seed
+        bursts: list[int] = []  # its largest burst per seed
         for seed in args.seeds:
             r = run(
                 n,
@@ -265,12 +296,23 @@ def main(argv: list[str] | None = None) -> int:
             back = r["back_to_found"]
             worst_all.append(max([red["max"] or 0.0, *back]))
             worst_measured.append(red["max"] or 0.0)
+            fader_lost, burst, burst_at = fader_losses(r["losses"], n - 1)
+            # the commander's last frame that reached the fader (sure only at --loss 0): a
+            # vouched lease ends lease - w - 0.5 = 17 s after it (docs/discovery.md, "Vouching")
+            vouch_at = max(
+                (t for t in r["commander_to_fader"] if t < (burst_at or 0.0)), default=None
+            )
+            since = None if vouch_at is None or burst_at is None else round(burst_at - vouch_at, 2)
+            fader_all.append(fader_lost)
+            bursts.append(burst)
             print(
                 f"fade N={n} seed {seed}: lost {lost} re-discovery n={red['count']} "
                 f"p50 {red['p50']} max {red['max']} slowest {r['slowest']} "
                 f"not re-discovered {r['not_rediscovered']} {r['tx_kind']}; every loss, from the "
                 f"return to re-discovery: max {max(back, default=None)} "
-                f"over 2 s {sum(1 for b in back if b > 2.0)}/{len(back)}"
+                f"over 2 s {sum(1 for b in back if b > 2.0)}/{len(back)}; uav{n} lost "
+                f"{fader_lost} (largest burst {burst} at {burst_at}, {since} s after the "
+                f"commander's last frame in its range)"
                 + (
                     f"\n    lost (t, observer, peer, found again): {r['losses']}"
                     if args.verbose
@@ -283,6 +325,14 @@ def main(argv: list[str] | None = None) -> int:
             f"fade N={n}: re-discovery max per seed (the testbed's measure) {worst_measured}, "
             f"over 2 s in {over} of {len(worst_measured)} seeds; counting every loss "
             f"(dropouts too) {worst_all}, over 2 s in {over_all}"
+        )
+        ranked = sorted(fader_all)
+        big = sum(1 for b in bursts if b >= 13)
+        print(
+            f"fade N={n}: uav{n}'s PeerLost per seed {fader_all} (sum {sum(fader_all)}, "
+            f"min {ranked[0]}, p50 {ranked[len(ranked) // 2]}, max {ranked[-1]}; at most 1 in "
+            f"{sum(1 for k in fader_all if k <= 1)} seeds); a burst of 5+ at one instant in "
+            f"{sum(1 for b in bursts if b >= 5)} seeds, of 13+ in {big}"
         )
     return 0
 

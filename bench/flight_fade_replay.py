@@ -39,6 +39,11 @@ the pair's first window (``_classify``; "the fader" is the observer):
   (its spacing);
 - ``no-cue``: the fader had lost the peer before the window and sent nothing across in it.
 
+The report also counts the observers' PeerLost events (found again or not): per seed, in
+bursts of 5 or more at one instant (a vouched lease's end: every member the commander's last
+vouch listed is lost together), and how many were found again within 2 s (docs/flight-history.md,
+"The fading drone's losses at N = 20 (session 9)").
+
 Nothing asserted: a reading (``tests/test_discovery_lost_us.py`` holds the rule's shapes).
 """
 
@@ -155,10 +160,26 @@ Found = tuple[float, int, int, float, float, float]  # latency, observer, peer, 
 DISCOVERY_KINDS = ("announce", "reply", "probe", "seek")  # not the renewals
 
 
-def rediscoveries(replay: Replay, seed: int, frames: Counter[str] | None = None) -> list[Found]:
+Lost = tuple[float, int, int]  # t, observer, peer: one PeerLost
+
+
+def rediscoveries(
+    replay: Replay,
+    seed: int,
+    frames: Counter[str] | None = None,
+    losses: list[Lost] | None = None,
+) -> list[Found]:
     """(latency, observer, peer, return, window length, lost at) of each re-discovery;
-    ``frames`` (if given) adds the run's discovery frames by kind, every drone's."""
+    ``frames`` (if given) adds the run's discovery frames by kind, every drone's; ``losses``
+    (if given) gets each observer's PeerLost events, found again or not."""
     swarm = replay.swarm(seed, replay.scenario.duration_s)
+    if losses is not None:
+        losses += [
+            (t, i, swarm.index_of[e.name])
+            for i in replay.observers
+            for t, e in swarm.events[i]
+            if isinstance(e, PeerLost)
+        ]
     if frames is not None:
         for engine in swarm.engines:
             kinds = engine.counters()["tx_kind"]
@@ -201,10 +222,54 @@ def _classify(replay: Replay, seed: int, f: int, j: int, back: float, length: fl
     return "answer-lost" if replay.edge_loss > 0.0 and answers[0] < end else "answer-late"
 
 
+BURST = 5  # this many losses by one observer at one instant: a vouched lease's end
+
+
+def losses_line(losses: dict[int, list[Lost]], rows: Sequence[tuple[Any, ...]]) -> str:
+    """The observers' PeerLost events per seed (``losses``: seed -> its losses; ``rows``:
+    (seed, latency, ...) of the re-discoveries), and how many were found again within 2 s."""
+    per_seed = sorted(len(v) for v in losses.values())
+    total = sum(per_seed)
+    bursts, largest = 0, 0
+    for seed_losses in losses.values():
+        at_once = Counter((round(t, 6), i) for t, i, _ in seed_losses)
+        bursts += sum(1 for k in at_once.values() if k >= BURST)
+        largest = max([largest, *at_once.values()])
+    fast = sum(1 for r in rows if r[1] <= SLOW_S)
+    return (
+        f"  PeerLost by the observers: {total} in {len(per_seed)} seeds (per seed min "
+        f"{per_seed[0]}, p50 {per_seed[len(per_seed) // 2]}, max {per_seed[-1]}; at most 1 in "
+        f"{sum(1 for k in per_seed if k <= 1)}); {bursts} bursts of {BURST}+ at one instant "
+        f"(largest {largest}); "
+        f"re-discovered within {SLOW_S:g} s: {fast}"
+    )
+
+
+def run_losses_line(run: dict[str, Any], observers: Sequence[int]) -> str:
+    """The run file's own losses by ``observers`` (its ``changes``: per observer [t, peer,
+    kind]), to set beside the replay's."""
+    lost = [
+        (round(float(t), 3), i)
+        for i in observers
+        for t, _, kind in run["changes"].get(str(i), [])
+        if kind == "lost"
+    ]
+    at_once = Counter(lost)
+    bursts = sorted(((k, t) for (t, _), k in at_once.items() if k >= BURST), key=lambda b: b[1])
+    said = ", ".join(f"{k} at {t:g} s" for k, t in bursts) or "none"
+    return f"  the run itself: PeerLost by the observers {len(lost)}; bursts of {BURST}+: {said}"
+
+
 def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0) -> str:
-    replay = Replay(json.loads(path.read_text()), edge_db, edge_loss)
+    run = json.loads(path.read_text())
+    replay = Replay(run, edge_db, edge_loss)
     frames: Counter[str] = Counter()
-    rows = [(seed, *r) for seed in range(1, seeds + 1) for r in rediscoveries(replay, seed, frames)]
+    losses: dict[int, list[Lost]] = {seed: [] for seed in range(1, seeds + 1)}
+    rows = [
+        (seed, *r)
+        for seed in range(1, seeds + 1)
+        for r in rediscoveries(replay, seed, frames, losses[seed])
+    ]
     slow = sorted((r for r in rows if r[1] > SLOW_S), key=lambda r: -r[1])
     latencies = sorted(r[1] for r in rows)
     kinds = Counter(
@@ -218,6 +283,8 @@ def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0)
         f"max {latencies[-1]:.2f} s",
         "  slow, by what happened in the pair's first window: "
         + ", ".join(f"{k} {v}" for k, v in kinds.most_common()),
+        losses_line(losses, rows),
+        run_losses_line(run, replay.observers),
     ]
     if who == "every drone":  # each pair's re-discovery is counted from both ends
         pairs = len(rows) / 2

@@ -107,3 +107,32 @@ def test_a_run_file_of_the_periodic_fade_is_measured_on_the_periodic_fade() -> N
         run["waypoints"] = [[t, i, *p] for t, i, p in s.waypoints]
         assert flight.of_run(run) == s
     assert flight.of_run({"scenario": "fade", "n": 10, "seed": 1}) == irregular
+
+
+def test_the_fader_s_losses_are_counted_with_their_largest_burst() -> None:
+    losses: list[tuple[float, int, int, float | None]] = [
+        (45.2, 19, 1, 45.3),
+        (104.58, 19, 2, 104.9),
+        (104.58, 19, 3, None),
+        (104.58, 19, 4, 105.1),
+        (104.58, 0, 19, 105.0),  # another observer's loss: not the fader's
+        (130.58, 19, 5, 130.8),
+    ]
+    assert flight_fade.fader_losses(losses, 19) == (5, 3, 104.58)
+    assert flight_fade.fader_losses(losses, 7) == (0, 0, None)
+
+
+def test_the_fader_s_burst_of_losses_is_the_commander_s_vouch_running_out() -> None:
+    # the irregular fade of the N = 20 runs (seed 1), engines seed 2: the fading drone's leases
+    # of the members rest on the commander's vouches (lease - w - 0.5 = 17 s from the last
+    # one it heard); when no vouch lands in its short windows in the commander's range, the
+    # members it listed are lost together (docs/flight-history.md, "The fading drone's losses
+    # at N = 20 (session 9)")
+    result = flight_fade.run(
+        20, 2, prompt_readiness=True, loss=0.0, flight=flight, measures=flight_measures
+    )
+    _, burst, burst_at = flight_fade.fader_losses(result["losses"], 19)
+    assert burst >= 13 and burst_at is not None
+    last_heard = max(t for t in result["commander_to_fader"] if t < burst_at)
+    assert burst_at - last_heard == pytest.approx(17.0, abs=0.05)
+    assert result["lost_reports"]["false"] == 0

@@ -7,7 +7,14 @@ import json
 import re
 from pathlib import Path
 
-from bench.flight_fade_replay import Replay, main, report
+from bench.flight_fade_replay import (
+    Replay,
+    losses_line,
+    main,
+    rediscoveries,
+    report,
+    run_losses_line,
+)
 
 RUN = Path(__file__).resolve().parent.parent / (
     "bench/results/flight-lost-us/runs/flight-fade-swarmd-n20-r1.json"
@@ -66,3 +73,30 @@ def test_the_fly_out_report_counts_every_drone_s_rediscoveries() -> None:
 
 def test_a_scenario_that_is_not_the_run_file_s_is_refused() -> None:
     assert main([str(FLY_OUT), "--scenario", "fade"]) == 65
+
+
+def test_the_losses_line_counts_per_seed_bursts_and_quick_returns() -> None:
+    burst = [(104.578, 19, peer) for peer in range(6)]  # a vouched lease's end: 6 at once
+    losses = {1: [*burst, (130.0, 19, 7)], 2: [], 3: [(50.0, 19, 3)]}
+    rows = [(1, 0.3), (1, 0.9), (1, 2.5), (3, 1.0)]  # (seed, latency): one over 2 s
+    line = losses_line(losses, rows)
+    assert "8 in 3 seeds (per seed min 0, p50 1, max 7; at most 1 in 2)" in line
+    assert "1 bursts of 5+ at one instant (largest 6)" in line
+    assert line.endswith("re-discovered within 2 s: 3")
+
+
+def test_the_report_lists_the_fader_s_losses_found_again_or_not() -> None:
+    replay = Replay(json.loads(RUN.read_text()))
+    losses: list[tuple[float, int, int]] = []
+    rows = rediscoveries(replay, 1, losses=losses)
+    assert losses and {i for _, i, _ in losses} == {19}
+    # every re-discovery follows one of these losses
+    assert len(rows) <= len(losses)
+    assert {(lost_at, j) for *_, j, _, _, lost_at in rows} <= {(t, j) for t, _, j in losses}
+
+
+def test_the_run_s_own_losses_are_set_beside_the_replay_s() -> None:
+    run = json.loads(RUN.read_text())  # flight-lost-us: uav20 lost 11, five of them at once
+    line = run_losses_line(run, [19])
+    assert line == "  the run itself: PeerLost by the observers 11; bursts of 5+: 5 at 62.904 s"
+    assert run_losses_line(run, [0]).endswith("bursts of 5+: none")
