@@ -39,13 +39,18 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from swarmd_lab.testing import Swarm, auth_for, build_swarm, node_ipv4, peer_datagram
+from swarmd_lab.testing import (
+    ScriptedSender,
+    Swarm,
+    auth_for,
+    build_swarm,
+    leave_or_return_datagram,
+    node_ipv4,
+)
 
-from swarmd.auth.spdp import PLACEHOLDER
 from swarmd.discovery import seek
 from swarmd.discovery.debts import Debts
 from swarmd.discovery.seek import SEEK_FOR_S
-from swarmd.rtps.spdp import encode_spdp_dispose
 
 T_CUT = 30.0
 OPEN_S = 1.5
@@ -88,53 +93,30 @@ def _run(n: int, seed: int, *, every_s: float | None, hours: float) -> PerHour:
     )
 
 
-class _Cycling:
+class _Cycling(ScriptedSender):
     """The captured member: every 0.05 s for ``for_s`` from ``start``, alternately its
     signed dispose and a signed DATA(p) listing nobody, to the group."""
 
     def __init__(self, swarm: Swarm, index: int, start: float, for_s: float) -> None:
+        super().__init__(start)
         self._swarm, self._index = swarm, index
         self._auth = auth_for(swarm.bundle, index, now=start)
-        self._next: float | None = start
         self._end = start + for_s
         self._sn = 10_000
-        self._out: list[tuple[bytes, tuple[str, int]]] = []
         self.sent_bytes = 0
 
-    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
-        pass
-
     def handle_timer(self, now: float) -> None:
-        bundle = self._swarm.bundle
         group = self._swarm.engines[0].spdp_multicast
         while self._next is not None and self._next <= now:
             self._sn += 1
-            if self._sn % 2:
-                prefix = bundle.participants[self._index].guid_prefix
-                frame = self._auth.seal(
-                    encode_spdp_dispose(
-                        prefix, sequence_number=self._sn, timestamp=None, authenticator=PLACEHOLDER
-                    )
-                )
-            else:
-                frame = peer_datagram(
-                    bundle, self._index, sequence_number=self._sn, auth=self._auth
-                )
+            frame = leave_or_return_datagram(
+                self._swarm.bundle, self._index, sequence_number=self._sn, auth=self._auth
+            )
             self._out.append((frame, group))
             self.sent_bytes += len(frame)
             self._next += 0.05
             if self._next > self._end:
                 self._next = None
-
-    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
-        out, self._out = self._out, []
-        return out
-
-    def get_timer(self) -> float | None:
-        return self._next
-
-    def next_event(self) -> None:
-        return None
 
 
 def reflection(n: int, seed: int, *, copies: bool, missing: bool) -> tuple[int, int, int, int]:

@@ -17,12 +17,17 @@ from __future__ import annotations
 from collections import Counter
 
 import pytest
-from swarmd_lab.testing import Swarm, auth_for, build_swarm, node_ipv4, peer_datagram
+from swarmd_lab.testing import (
+    ScriptedSender,
+    Swarm,
+    auth_for,
+    build_swarm,
+    leave_or_return_datagram,
+    node_ipv4,
+)
 
-from swarmd.auth.spdp import PLACEHOLDER
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.events import PeerDiscovered
-from swarmd.rtps.spdp import encode_spdp_dispose
 
 SEEDS = (1, 2, 3, 4, 5)
 SIDE = 3
@@ -135,54 +140,32 @@ ATTACK_PERIOD_S = 0.05  # a leave and a return every 0.1 s: 600 frames in all
 SLOW_PERIOD_S = 0.8
 
 
-class _LeavingAndReturning:
+class _LeavingAndReturning(ScriptedSender):
     """uav9 after capture: every ``ATTACK_PERIOD_S`` a multicast sealed with its real key,
     alternately a DATA(p[UD]) (it leaves: the others lose it) and a DATA(p) that lists
     nobody (it is back: the others find it again, and owe it a copy of their next
     multicast). Sending stops at ``T_ATTACK + ATTACK_FOR_S``."""
 
     def __init__(self, swarm: Swarm, now: float, period_s: float = ATTACK_PERIOD_S) -> None:
+        super().__init__(now)
         self._swarm = swarm
         self._period_s = period_s
         self._auth = auth_for(swarm.bundle, ATTACKER, now=now)
-        self._next: float | None = now
         self._sn = 10_000  # above its honest life's
-        self._out: list[tuple[bytes, tuple[str, int]]] = []
         self.sent = 0
 
-    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
-        pass
-
     def handle_timer(self, now: float) -> None:
-        bundle = self._swarm.bundle
         group = self._swarm.engines[0].spdp_multicast
         while self._next is not None and self._next <= now:
-            self._sn += 1
-            if self.sent % 2 == 0:
-                template = encode_spdp_dispose(
-                    bundle.participants[ATTACKER].guid_prefix,
-                    sequence_number=self._sn,
-                    timestamp=None,
-                    authenticator=PLACEHOLDER,
-                )
-                frame = self._auth.seal(template)
-            else:
-                frame = peer_datagram(bundle, ATTACKER, sequence_number=self._sn, auth=self._auth)
+            self._sn += 1  # odd first: it leaves, then it is back
+            frame = leave_or_return_datagram(
+                self._swarm.bundle, ATTACKER, sequence_number=self._sn, auth=self._auth
+            )
             self._out.append((frame, group))
             self.sent += 1
             self._next += self._period_s
             if self._next > T_ATTACK + ATTACK_FOR_S:
                 self._next = None
-
-    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
-        out, self._out = self._out, []
-        return out
-
-    def get_timer(self) -> float | None:
-        return self._next
-
-    def next_event(self) -> None:
-        return None
 
 
 @pytest.mark.parametrize("period_s", [ATTACK_PERIOD_S, SLOW_PERIOD_S])

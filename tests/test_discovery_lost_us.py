@@ -27,6 +27,7 @@ from collections.abc import Callable
 
 import pytest
 from swarmd_lab.testing import (
+    ScriptedSender,
     Swarm,
     auth_for,
     build_swarm,
@@ -197,7 +198,7 @@ ATTACK_W1 = ATTACK_N / 50  # the rejoin delay's window at N = 10
 Digest = Callable[[int], tuple[int, ...]]  # the heard digest it sends to a victim
 
 
-class _CapturedMember:
+class _CapturedMember(ScriptedSender):
     """uav9 after capture, on the net in its own place: every ``ATTACK_PERIOD_S`` a DATA(p)
     sealed with its real key (a new life: boot epoch 2) whose heard digest is the next of
     ``digests`` (per victim), multicast or directed to each honest peer; it answers
@@ -211,13 +212,12 @@ class _CapturedMember:
         directed: bool,
         now: float,
     ) -> None:
+        super().__init__(now)
         self._swarm = swarm
         self._digests = digests
         self._directed = directed
         self._auth = auth_for(swarm.bundle, ATTACKER, epoch=2, now=now)
-        self._next: float | None = now
         self._sn = 10_000  # above its former life's: only the epoch says "restarted"
-        self._out: list[tuple[bytes, tuple[str, int]]] = []
         self.sent = 0
 
     def _frame(self, victim: int | None, heard: tuple[int, ...]) -> bytes:
@@ -231,9 +231,6 @@ class _CapturedMember:
             destination=destination,
             auth=self._auth,
         )
-
-    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
-        pass
 
     def handle_timer(self, now: float) -> None:
         while self._next is not None and self._next <= now:
@@ -250,16 +247,6 @@ class _CapturedMember:
             self._next += ATTACK_PERIOD_S
             if self._next > T_ATTACK + ATTACK_FOR_S:
                 self._next = None
-
-    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
-        out, self._out = self._out, []
-        return out
-
-    def get_timer(self) -> float | None:
-        return self._next
-
-    def next_event(self) -> None:
-        return None
 
 
 def _all_honest(victim: int) -> tuple[int, ...]:

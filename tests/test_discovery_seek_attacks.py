@@ -18,7 +18,7 @@ The captured member (attacker 2) leaving and returning is
 
 from __future__ import annotations
 
-from swarmd_lab.testing import Swarm, build_swarm, node_ipv4
+from swarmd_lab.testing import ScriptedSender, Swarm, build_swarm, node_ipv4
 
 from swarmd.discovery.events import PeerDiscovered
 from swarmd.discovery.seek import SEEK_FOR_S, SEEK_PUT_OFF_FOR_S
@@ -34,7 +34,7 @@ ATTACK_FOR_S = 30.0
 ATTACKER_HOST = "10.66.0.66"
 
 
-class _Attacker:
+class _Attacker(ScriptedSender):
     """A host on the swarm's link at ``ATTACKER_HOST``, in the SPDP group: it records every
     datagram it hears from ``victim_host`` and, from ``start`` to ``start + ATTACK_FOR_S``,
     sends what it holds to the group every ``period_s`` (bounded by the window: at most
@@ -51,15 +51,14 @@ class _Attacker:
         period_s: float,
         fresh_only: bool,
     ) -> None:
+        super().__init__(start)
         self._group = group
         self._victim = victim_host
-        self._next: float | None = start
         self._end = start + ATTACK_FOR_S
         self._period_s = period_s
         self._fresh_only = fresh_only
         self.captured: list[bytes] = []
         self._forwarded = 0
-        self._out: list[tuple[bytes, tuple[str, int]]] = []
         self.sent = 0
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
@@ -78,16 +77,6 @@ class _Attacker:
             self._next += self._period_s
             if self._next > self._end:
                 self._next = None
-
-    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
-        out, self._out = self._out, []
-        return out
-
-    def get_timer(self) -> float | None:
-        return self._next
-
-    def next_event(self) -> None:
-        return None
 
 
 def _swarm_with_attacker(

@@ -39,7 +39,7 @@ from swarmd.discovery.events import Event, PeerDiscovered, PeerLost
 from swarmd.discovery.inputs import LinkSample
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.ports import SPDP_MULTICAST_GROUP, spdp_multicast_port
-from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
+from swarmd.rtps.spdp import SpdpParticipant, encode_spdp, encode_spdp_dispose
 from swarmd.rtps.types import Duration, GuidPrefix
 from swarmd_lab.memnet import Channel, MemNet
 
@@ -337,3 +337,47 @@ def peer_datagram(
         participant, sequence_number=sequence_number, timestamp=None, destination=destination
     )
     return data if auth is None else auth.seal(data)
+
+
+def leave_or_return_datagram(
+    bundle: Bundle, index: int, *, sequence_number: int, auth: SpdpAuth
+) -> bytes:
+    """A captured member flapping (its genuine key, the attacker's firmware): at an odd
+    ``sequence_number`` its signed DATA(p[UD]) (it leaves: the others lose it), at an even
+    one its signed DATA(p) listing nobody (it is back: the others find it again)."""
+    if sequence_number % 2:
+        template = encode_spdp_dispose(
+            bundle.participants[index].guid_prefix,
+            sequence_number=sequence_number,
+            timestamp=None,
+            authenticator=PLACEHOLDER,
+        )
+        return auth.seal(template)
+    return peer_datagram(bundle, index, sequence_number=sequence_number, auth=auth)
+
+
+class ScriptedSender:
+    """A node of a ``Swarm``'s MemNet (or any Driver) that only sends: the scripted
+    attackers and relays of the tests and benches. A subclass queues datagrams in ``_out``
+    from ``handle_timer`` and keeps its next tick in ``_next`` (None once it is done, so
+    every script is bounded); it hears nothing unless it overrides ``receive_datagram``."""
+
+    def __init__(self, start: float | None) -> None:
+        self._next: float | None = start
+        self._out: list[tuple[bytes, tuple[str, int]]] = []
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        return None
+
+    def handle_timer(self, now: float) -> None:
+        raise NotImplementedError
+
+    def datagrams_to_send(self) -> list[tuple[bytes, tuple[str, int]]]:
+        out, self._out = self._out, []
+        return out
+
+    def get_timer(self) -> float | None:
+        return self._next
+
+    def next_event(self) -> None:
+        return None
