@@ -4,7 +4,7 @@ member sends after coming back into the commander's range goes (docs/flight-hist
 
 from __future__ import annotations
 
-from bench.wifi.flight_measures import first_report_lost, readiness_after_returns
+from bench.wifi.flight_measures import first_report_lost, poll_gap, readiness_after_returns
 
 STEP_S = 0.5
 END_S = 40.0
@@ -61,3 +61,21 @@ def test_a_first_report_counted_at_once_is_not_lost() -> None:
     )
     assert not first_report_lost(rows[0])
     assert rows[0]["delivered"] == 20.0
+
+
+def test_polls_a_period_apart_cannot_tell_a_lost_first_report() -> None:
+    """The stock contenders' tallies are written 1 s apart: a report taken at once and one
+    lost whose successor came a period later both show at the poll after: not known."""
+    before = [0.1 + k for k in range(10)]
+    after = [20.5 + k for k in range(1, 20)]
+    rows = readiness_after_returns(
+        _truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S
+    )
+    assert first_report_lost(rows[0], poll_gap_s=0.25) is True
+    assert first_report_lost(rows[0], poll_gap_s=1.0) is None
+
+
+def test_the_poll_gap_is_the_median_spacing() -> None:
+    assert poll_gap(_polls([])) == 0.25
+    assert poll_gap([(0.0, {}), (1.0, {}), (2.0, {}), (7.0, {})]) == 1.0
+    assert poll_gap([(0.0, {})]) == 0.0

@@ -330,7 +330,8 @@ def readiness_after_returns(
       share of ``missing``, ``sendable - delivered`` the reports sent and not counted.
 
     A report sent at the member's re-discovery and taken is counted by the next poll (0.25
-    s apart in the runs); one counted only a period later was lost."""
+    s apart in swarmd's runs, 1 s in the stock tallies); one counted only a period later was
+    lost, where the polls are close enough to tell (``first_report_lost``)."""
     rows: list[dict[str, Any]] = []
     if not readiness:
         return rows
@@ -470,13 +471,31 @@ def period_follows_q(follows: Mapping[str, Any]) -> tuple[list[float], list[floa
     return judged, others
 
 
-def first_report_lost(row: Mapping[str, Any], period_s: float = 1.0 / READINESS_HZ) -> bool:
+# what a report taken at once may take to show in the commander's count besides the poll
+# gap: the network's delay and the commander's handling (the runs' links: a few ms)
+TAKEN_DELAY_S: Final = 0.25
+
+
+def first_report_lost(
+    row: Mapping[str, Any], poll_gap_s: float = 0.25, period_s: float = 1.0 / READINESS_HZ
+) -> bool | None:
     """Whether the report a member sent at its re-discovery of the commander was not taken:
-    the count moved only about a period after both had each other up (a taken one moves it
-    within the network's delay and the 0.25 s poll; half a period is the margin)."""
+    a taken one moves the count by the first poll after it arrives (within ``poll_gap_s`` +
+    ``TAKEN_DELAY_S`` of both having each other up); a lost one's successor comes a
+    ``period_s`` later. None where the polls are too far apart to tell the two (the stock
+    contenders' tallies are written 1 s apart, a period: swarmd's commander is polled every
+    0.25 s)."""
+    if poll_gap_s + TAKEN_DELAY_S >= period_s:
+        return None
     counted = row["first_counted_s"]
     both_up = row["wait_s"] + max(0.0, row["member_first_s"])
-    return counted is not None and counted > both_up + period_s / 2
+    return counted is not None and counted > both_up + poll_gap_s + TAKEN_DELAY_S
+
+
+def poll_gap(polls: Sequence[tuple[float, Any]]) -> float:
+    """The commander's polls' median spacing (0.0 with fewer than two polls)."""
+    gaps = sorted(b[0] - a[0] for a, b in zip(polls, polls[1:], strict=False))
+    return gaps[len(gaps) // 2] if gaps else 0.0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -509,14 +528,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         unsent = sum(r["sendable"] - r["delivered"] for r in rows)
         wait_s = sum(r["wait_s"] for r in rows)
         first = [r for r in rows if r["member_first_s"] > 0]
-        lost = [r for r in rows if first_report_lost(r)]
+        gap_s = poll_gap(polls)
+        judged = [first_report_lost(r, gap_s) for r in rows]
+        lost = [r for r, j in zip(rows, judged, strict=True) if j]
+        lost_text = (
+            f"{len(lost)} (member first: {sum(r in first for r in lost)})"
+            if all(j is not None for j in judged)
+            else f"not known (polls {gap_s:.2f} s apart)"
+        )
         print(
             f"{path.name}: readiness {whole['delivered']}/{whole['expected']} "
             f"(missing {whole['expected'] - whole['delivered']}); after {len(rows)} returns "
             f"missing {missing:.1f} = {wait:.1f} in the wait for re-discovery ({wait_s:.1f} s "
             f"in all) + {unsent:.1f} sent, not counted; member found the commander first "
-            f"{len(first)}, its first report lost {len(lost)} (member first: "
-            f"{sum(r in first for r in lost)}); had every report sent been counted: "
+            f"{len(first)}, its first report lost {lost_text}; had every report sent been counted: "
             f"{(whole['delivered'] + unsent) / whole['expected']:.1%}"
         )
         if args.verbose:
