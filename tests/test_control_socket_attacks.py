@@ -210,3 +210,58 @@ def test_a_local_non_root_user_cannot_connect(sock_path: str) -> None:
         return done.stdout.strip()
 
     assert _serve_and(sock_path, as_nobody) == "refused"
+
+
+def test_clients_that_never_read_their_replies_are_closed_so_swarmctl_gets_in(
+    sock_path: str,
+) -> None:
+    """Session 10 review: MAX_CLIENTS connections each send a burst of complete requests
+    with large replies and never read one. The request deadline only covered reading a
+    line, so each handler waited forever for its reply to drain (and its close for the
+    unsent buffer to flush): the cap stayed full and swarmctl was locked out until the
+    daemon restarted. Now a reply that cannot be delivered within the deadline closes the
+    connection (counted), and a new request is served."""
+    big_reply = "x" * 60_000
+    burst = b'{"cmd": "big"}\n' * 64  # ~3.8 MB of replies: far past any socket buffer
+
+    def stalled_then_ping(server: ControlServer) -> tuple[Any, Any, int]:
+        stalled = []
+        for _ in range(MAX_CLIENTS):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.settimeout(30)
+            s.connect(sock_path)
+            s.sendall(burst)  # complete lines, every one; then never a read
+            stalled.append(s)
+        locked_out = None
+        give_up = time.monotonic() + 60.0  # eventually, within a generous bound
+        while locked_out is None and time.monotonic() < give_up:
+            try:
+                locked_out = _first_line(sock_path)
+            except (BrokenPipeError, ConnectionResetError):
+                time.sleep(0.05)
+        served = None
+        give_up = time.monotonic() + 30.0  # 30x the injected deadline
+        while served != {"ok": True, "result": "pong"} and time.monotonic() < give_up:
+            time.sleep(0.05)
+            try:
+                served = _exchange(sock_path, [b'{"cmd": "ping"}\n'])[0]
+            except (BrokenPipeError, ConnectionResetError, json.JSONDecodeError):
+                served = None
+        for s in stalled:
+            s.close()
+        return locked_out, served, server.slow_clients_closed
+
+    handlers = {"ping": lambda _req: "pong", "big": lambda _req: big_reply}
+
+    async def main() -> tuple[Any, Any, int]:
+        server = ControlServer(sock_path, handlers, request_deadline_s=1.0)
+        await server.start()
+        try:
+            return await asyncio.to_thread(stalled_then_ping, server)
+        finally:
+            await asyncio.wait_for(server.close(), 30.0)
+
+    locked_out, served, closed = asyncio.run(main())
+    assert locked_out == {"ok": False, "error": "too many control clients"}
+    assert served == {"ok": True, "result": "pong"}
+    assert closed == MAX_CLIENTS
