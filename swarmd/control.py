@@ -2,7 +2,7 @@
 
 One request per line, one reply per line, any number of requests per connection (``swarmctl
 watch`` keeps one open), each line complete within ``REQUEST_DEADLINE_S`` of connecting or of
-the last reply::
+the last reply, and each reply taken by the client within the same deadline::
 
     -> {"cmd": "status"}
     <- {"ok": true, "result": {...}}
@@ -80,6 +80,7 @@ class ControlServer:
         self.requests = 0
         self.rejected_clients = 0  # refused at the cap
         self.idle_clients_closed = 0  # no complete request line within the deadline
+        self.slow_clients_closed = 0  # a reply not taken within the deadline
         self._server: asyncio.Server | None = None
         self._clients: set[asyncio.Task[None]] = set()
 
@@ -129,7 +130,15 @@ class ControlServer:
                 if not line:
                     break
                 writer.write(encode_line(self.dispatch(line)))
-                await writer.drain()
+                try:
+                    # a client that sends requests and never reads the replies: without
+                    # this bound drain() waited forever and the slot was never freed
+                    async with asyncio.timeout(self.request_deadline_s):
+                        await writer.drain()
+                except TimeoutError:
+                    self.slow_clients_closed += 1
+                    writer.transport.abort()  # close() would wait for the unread replies
+                    break
         except (ConnectionError, asyncio.CancelledError):
             pass
         finally:
@@ -161,8 +170,15 @@ class ControlServer:
 
 async def _close_writer(writer: asyncio.StreamWriter) -> None:
     writer.close()
-    with contextlib.suppress(ConnectionError, asyncio.CancelledError):
-        await writer.wait_closed()
+    try:
+        # close() waits to flush what is buffered; a peer that never reads would hold the
+        # handler here, so a close that does not finish within a second is an abort
+        async with asyncio.timeout(1.0):
+            await writer.wait_closed()
+    except TimeoutError:
+        writer.transport.abort()
+    except (ConnectionError, asyncio.CancelledError):
+        pass
 
 
 def _remove_stale(path: str) -> None:
