@@ -265,3 +265,34 @@ def test_clients_that_never_read_their_replies_are_closed_so_swarmctl_gets_in(
     assert locked_out == {"ok": False, "error": "too many control clients"}
     assert served == {"ok": True, "result": "pong"}
     assert closed == MAX_CLIENTS
+
+
+@pytest.mark.parametrize("dir_mode", [0o777, 0o1777, 0o770])
+def test_a_socket_folder_another_user_can_write_is_refused(dir_mode: int) -> None:
+    """Session 10 review: ``control.socket`` in a folder others can write (``/tmp``, a shared
+    folder). In one without the sticky bit any local user unlinks swarmd's socket and binds
+    their own in its place: swarmctl then talks to them (a made-up status, the operator's
+    take-off request captured); with it they squat the path before swarmd starts and swarmd
+    refuses to start. The server refuses such a folder before binding, naming it."""
+    folder = Path(f"/tmp/swa-{os.getpid()}-{dir_mode:o}")
+    folder.mkdir()
+    try:
+        os.chmod(folder, dir_mode)
+        path = str(folder / "s.sock")
+
+        async def start() -> None:
+            server = ControlServer(path, {"ping": lambda _req: "pong"})
+            try:
+                await server.start()
+            finally:
+                await server.close()
+
+        with pytest.raises(RuntimeError) as caught:
+            asyncio.run(start())
+        assert str(folder) in str(caught.value)
+        assert "\n" not in str(caught.value)
+        assert not os.path.exists(path)  # refused before binding
+    finally:
+        for child in folder.iterdir():
+            child.unlink()
+        folder.rmdir()
