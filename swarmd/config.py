@@ -415,6 +415,13 @@ class _Checker:
                     self.fail(
                         f["mode"], "control.mode", f"{raw!r} is not a file mode", 'write "0660"'
                     )
+                if mode & 0o007:  # connect(2) needs only the write bit: take-off for anyone
+                    self.fail(
+                        f["mode"],
+                        "control.mode",
+                        f"{raw!r} opens the control socket to every local user",
+                        'write "0660" (root and group swarmd)',
+                    )
                 values["control_socket_mode"] = mode
 
         self.section(top, "control", control)

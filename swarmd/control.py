@@ -27,6 +27,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Final
 
+from swarmd.bundle.keys import others_can_write
+
 MAX_LINE_BYTES: Final = 64 * 1024  # a request is tiny; this bounds a hostile client's buffer
 MAX_CLIENTS: Final = 16  # stops a local user from exhausting the daemon's file descriptors
 CLIENT_TIMEOUT_S: Final = 2.0  # swarmctl's wait for one reply
@@ -44,6 +46,10 @@ Handler = Callable[[Mapping[str, Any]], Any]
 
 class ControlSocketBusy(RuntimeError):
     """Another live process already answers on the control socket path."""
+
+
+class ControlSocketUnsafe(RuntimeError):
+    """The socket's folder lets another local user replace the socket; ``str()`` is one line."""
 
 
 class DaemonUnreachable(RuntimeError):
@@ -86,8 +92,17 @@ class ControlServer:
 
     async def start(self) -> None:
         """Bind, replacing a stale socket file; ``ControlSocketBusy`` when one is live."""
+        folder = Path(self.path).parent
+        shared = others_can_write(folder)
+        if shared is not None:
+            # another user could unlink our socket and bind theirs in its place (swarmctl
+            # would talk to them), or squat the path before we start (session 10 review)
+            raise ControlSocketUnsafe(
+                f"its folder {folder} is {shared}; fix: use a folder only swarmd writes "
+                "(/run/swarmd, systemd's RuntimeDirectory=swarmd), or chmod go-w it"
+            )
         _remove_stale(self.path)
-        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
         # umask-independent: create, then chmod before anyone can race in via the group bit
         self._server = await asyncio.start_unix_server(
             self._serve, path=self.path, limit=MAX_LINE_BYTES

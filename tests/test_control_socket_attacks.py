@@ -247,6 +247,10 @@ def test_clients_that_never_read_their_replies_are_closed_so_swarmctl_gets_in(
                 served = _exchange(sock_path, [b'{"cmd": "ping"}\n'])[0]
             except (BrokenPipeError, ConnectionResetError, json.JSONDecodeError):
                 served = None
+        # one freed slot serves the ping; the others time out on their own clocks: wait for
+        # them (a stalled socket closed first would count as a hang-up, not a slow reader)
+        while server.slow_clients_closed < MAX_CLIENTS and time.monotonic() < give_up:
+            time.sleep(0.05)
         for s in stalled:
             s.close()
         return locked_out, served, server.slow_clients_closed
