@@ -28,6 +28,7 @@ import contextlib
 import errno
 import hashlib
 import os
+import pwd
 import re
 import secrets
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ SIGNING_KEY_FILE: Final = "swarm-signing.key"
 SIGNING_PUB_FILE: Final = "swarm-signing.pub"
 NODES_DIR: Final = "nodes"
 PRIVATE_MODE: Final = 0o600
+SERVICE_USER: Final = "swarmd"  # systemd/swarmd.service's User=
 PUBLIC_MODE: Final = 0o644
 PUBLIC_KEY_BYTES: Final = 32
 _DEV_DOMAIN: Final = b"swarmd insecure dev key v1|"
@@ -309,25 +311,36 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
 
 
 def others_can_write(directory: Path) -> str | None:
-    """Why another local user could plant or swap files in ``directory`` (None: nobody can).
+    """Why another local user could write ``directory`` (a folder: plant or swap files in
+    it; a file: rewrite it), or None when nobody but root, swarmd and this daemon's user can.
 
     swarmd's state (boot counter, executed command ids, epoch, replay windows, node.key)
-    is only as trustworthy as the folder it is read from: a folder writable by a group or
-    by everyone, or owned by another user, lets them plant a state file the daemon takes
-    as its memory of executed commands. Root owning it is fine (root is out of scope).
-    A missing or unreachable folder is not refused here: the caller creates it, as its
-    own, or fails to with its own one line.
+    and its trust anchors (config, bundle, swarm key) are only as trustworthy as where
+    they are read from: writable by a group or by everyone, or owned by another user, lets
+    that user plant a state file or a key the daemon believes (docs/security.md, "Local
+    boundaries (session 10 review)"). Root owning it is fine (root is out of scope). A
+    missing or unreachable path is not refused here: the caller creates it, as its own,
+    or fails to with its own one line.
     """
     try:
         st = os.stat(directory)
     except OSError:
         return None
-    if st.st_uid not in (os.geteuid(), 0):
-        return f"owned by uid {st.st_uid}, not by this daemon's user (uid {os.geteuid()})"
+    if st.st_uid not in _trusted_owners():
+        return f"owned by uid {st.st_uid}, not by root, swarmd or this daemon's user"
     if st.st_mode & 0o022:
         who = "others" if st.st_mode & 0o002 else "its group"
         return f"writable by {who} (mode {st.st_mode & 0o7777:04o})"
     return None
+
+
+def _trusted_owners() -> set[int]:
+    """Root, this process's user, and the service's user (``User=swarmd`` in
+    systemd/swarmd.service): root running the daemon by hand reads swarmd's flashed files."""
+    owners = {0, os.geteuid()}
+    with contextlib.suppress(KeyError):
+        owners.add(pwd.getpwnam(SERVICE_USER).pw_uid)
+    return owners
 
 
 def refuse_shared_dir(directory: Path, field: str, error: type[OSError]) -> None:
