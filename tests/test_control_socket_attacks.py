@@ -23,7 +23,13 @@ from typing import Any
 
 import pytest
 
-from swarmd.control import MAX_CLIENTS, MAX_LINE_BYTES, ControlClient, ControlServer
+from swarmd.control import (
+    MAX_CLIENTS,
+    MAX_LINE_BYTES,
+    ControlClient,
+    ControlServer,
+    RequestInvalid,
+)
 
 NOBODY = 65534
 SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
@@ -300,3 +306,45 @@ def test_a_socket_folder_another_user_can_write_is_refused(dir_mode: int) -> Non
         for child in folder.iterdir():
             child.unlink()
         folder.rmdir()
+
+
+HOSTILE_ERROR = "uav2 \x1b]0;owned\x07 \x1b[2J \x9b31m \u202e"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["status"], ["peers"], ["outcomes", "1"], ["takeoff", "--yes"]],
+)
+def test_swarmctl_prints_a_daemon_error_as_data(sock_path: str, argv: list[str]) -> None:
+    """Session 10 review: swarmctl made the daemon's *results* safe for a terminal but
+    printed its *error* lines raw on stderr. An error can carry text that is not the
+    operator's (a handler's exception message); with escapes in it, it cleared and
+    retitled the operator's terminal. Real swarmctl process, real socket."""
+
+    def refuse(_req: Any) -> Any:
+        raise RequestInvalid(HOSTILE_ERROR)
+
+    handlers = {name: refuse for name in ("status", "peers", "outcomes", "takeoff", "command")}
+
+    def run_swarmctl(_server: ControlServer) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [str(Path(sys.executable).parent / "swarmctl"), *argv, "--socket", sock_path],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+
+    async def main() -> subprocess.CompletedProcess[str]:
+        server = ControlServer(sock_path, handlers)
+        await server.start()
+        try:
+            return await asyncio.to_thread(run_swarmctl, server)
+        finally:
+            await server.close()
+
+    proc = asyncio.run(main())
+    assert proc.returncode != 0
+    assert "uav2" in proc.stderr, proc.stderr  # the error was shown ...
+    shown = proc.stdout + proc.stderr
+    assert "\x1b" not in shown and "\x9b" not in shown and "\u202e" not in shown  # ... as data
