@@ -348,3 +348,28 @@ def test_swarmctl_prints_a_daemon_error_as_data(sock_path: str, argv: list[str])
     assert "uav2" in proc.stderr, proc.stderr  # the error was shown ...
     shown = proc.stdout + proc.stderr
     assert "\x1b" not in shown and "\x9b" not in shown and "\u202e" not in shown  # ... as data
+
+
+def test_the_socket_is_never_open_to_others_between_bind_and_chmod(
+    sock_path: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Session 10 review: bind(2) creates the socket file with 0777 less the umask, and the
+    chmod to ``control.mode`` came after. Under a umask without the "other" bits (0000:
+    a hand-started daemon from some shells and init scripts) any local user who connected
+    in between kept that connection. Checked at the instant before the chmod."""
+    seen: list[int] = []
+    real_chmod = os.chmod
+
+    def spying_chmod(path: Any, mode: int, *args: Any, **kwargs: Any) -> None:
+        if str(path) == sock_path:
+            seen.append(os.stat(path).st_mode & 0o777)
+        real_chmod(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "chmod", spying_chmod)
+    old = os.umask(0)
+    try:
+        _serve_and(sock_path, lambda _s: None)
+    finally:
+        os.umask(old)
+    assert seen, "the server no longer chmods its socket: check this test still applies"
+    assert all(mode & 0o077 == 0 for mode in seen), [f"{m:04o}" for m in seen]
