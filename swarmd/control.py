@@ -103,11 +103,29 @@ class ControlServer:
             )
         _remove_stale(self.path)
         folder.mkdir(parents=True, exist_ok=True)
-        # umask-independent: create, then chmod before anyone can race in via the group bit
-        self._server = await asyncio.start_unix_server(
-            self._serve, path=self.path, limit=MAX_LINE_BYTES
-        )
-        os.chmod(self.path, self.mode)
+        # bind(2) makes the file 0777 less the umask; under a umask of 0 anyone could connect
+        # before the chmod and keep the connection (session 10 review). Bound under 0177 (the
+        # file is ours alone), synchronously so no other task runs under that umask, then
+        # opened to control.mode's group.
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        old_umask = os.umask(0o177)
+        try:
+            sock.bind(self.path)
+        except OSError:
+            sock.close()
+            raise
+        finally:
+            os.umask(old_umask)
+        try:
+            os.chmod(self.path, self.mode)
+            self._server = await asyncio.start_unix_server(
+                self._serve, sock=sock, limit=MAX_LINE_BYTES
+            )
+        except BaseException:
+            sock.close()
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.path)
+            raise
 
     async def close(self) -> None:
         if self._server is not None:
