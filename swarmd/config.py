@@ -19,6 +19,7 @@ from typing import Final, NoReturn
 
 import yaml
 
+from swarmd.bundle.keys import others_can_write
 from swarmd.bundle.model import Bundle, NotAParticipant, Participant
 from swarmd.discovery.config import MODES
 from swarmd.link import SourceName
@@ -141,6 +142,34 @@ class DaemonConfig:
         """A ``ConfigError`` pointing at ``path``'s line (for checks made after loading)."""
         return ConfigError(self.file, self.lines.get(path), path, problem, fix)
 
+    def check_trusted_files(self) -> None:
+        """Raise ``ConfigError`` (one line) when another local user could rewrite the config,
+        the bundle or its trust key, or swap one in its folder: whoever replaces the swarm
+        key and the bundle flies their own mission on this node (docs/security.md, "Local
+        boundaries (session 10 review)"). Checked before any of them is trusted."""
+        problem = trust_problem(self.file)
+        if problem is not None:
+            raise ConfigError(
+                self.file,
+                None,
+                "<file>",
+                f"{problem}, so another user could rewrite this config",
+                "chown root:swarmd and chmod 640 it, in a folder only root writes "
+                "(/etc/swarmd, 0750)",
+            )
+        for key, path in (
+            ("bundle.trusted_key", self.bundle.trusted_key),
+            ("bundle.path", self.bundle.path),
+        ):
+            problem = trust_problem(path) if path is not None else None
+            if problem is not None:
+                raise self.error(
+                    key,
+                    f"{problem}, so another user could swap it",
+                    "make it and its folder writable by root or swarmd alone (chmod go-w; "
+                    "/etc/swarmd/keys, /var/lib/swarmd)",
+                )
+
     def member_of(self, bundle: Bundle) -> Participant:
         """This node's participant in ``bundle``; a ``ConfigError`` at ``node`` if none."""
         try:
@@ -200,6 +229,18 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
 }
 
 Nodes = dict[str, yaml.Node]
+
+
+def trust_problem(path: str | Path) -> str | None:
+    """Why another local user could rewrite ``path`` or swap it in its folder, or None.
+
+    A missing file is None here: reading it fails with its own one line."""
+    file = Path(path)
+    for kind, where in (("file", file), ("folder", file.parent)):
+        why = others_can_write(where)
+        if why is not None:
+            return f"{kind} {where} is {why}"
+    return None
 
 
 def config_mode_problem(path: str | Path) -> str | None:
@@ -414,6 +455,13 @@ class _Checker:
                 if not 0 <= mode <= 0o777:
                     self.fail(
                         f["mode"], "control.mode", f"{raw!r} is not a file mode", 'write "0660"'
+                    )
+                if mode & 0o007:  # connect(2) needs only the write bit: take-off for anyone
+                    self.fail(
+                        f["mode"],
+                        "control.mode",
+                        f"{raw!r} opens the control socket to every local user",
+                        'write "0660" (root and group swarmd)',
                     )
                 values["control_socket_mode"] = mode
 

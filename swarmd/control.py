@@ -2,7 +2,7 @@
 
 One request per line, one reply per line, any number of requests per connection (``swarmctl
 watch`` keeps one open), each line complete within ``REQUEST_DEADLINE_S`` of connecting or of
-the last reply::
+the last reply, and each reply taken by the client within the same deadline::
 
     -> {"cmd": "status"}
     <- {"ok": true, "result": {...}}
@@ -27,6 +27,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Final
 
+from swarmd.bundle.keys import others_can_write
+
 MAX_LINE_BYTES: Final = 64 * 1024  # a request is tiny; this bounds a hostile client's buffer
 MAX_CLIENTS: Final = 16  # stops a local user from exhausting the daemon's file descriptors
 CLIENT_TIMEOUT_S: Final = 2.0  # swarmctl's wait for one reply
@@ -44,6 +46,10 @@ Handler = Callable[[Mapping[str, Any]], Any]
 
 class ControlSocketBusy(RuntimeError):
     """Another live process already answers on the control socket path."""
+
+
+class ControlSocketUnsafe(RuntimeError):
+    """The socket's folder lets another local user replace the socket; ``str()`` is one line."""
 
 
 class DaemonUnreachable(RuntimeError):
@@ -80,18 +86,46 @@ class ControlServer:
         self.requests = 0
         self.rejected_clients = 0  # refused at the cap
         self.idle_clients_closed = 0  # no complete request line within the deadline
+        self.slow_clients_closed = 0  # a reply not taken within the deadline
         self._server: asyncio.Server | None = None
         self._clients: set[asyncio.Task[None]] = set()
 
     async def start(self) -> None:
         """Bind, replacing a stale socket file; ``ControlSocketBusy`` when one is live."""
+        folder = Path(self.path).parent
+        shared = others_can_write(folder)
+        if shared is not None:
+            # another user could unlink our socket and bind theirs in its place (swarmctl
+            # would talk to them), or squat the path before we start (session 10 review)
+            raise ControlSocketUnsafe(
+                f"its folder {folder} is {shared}; fix: use a folder only swarmd writes "
+                "(/run/swarmd, systemd's RuntimeDirectory=swarmd), or chmod go-w it"
+            )
         _remove_stale(self.path)
-        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        # umask-independent: create, then chmod before anyone can race in via the group bit
-        self._server = await asyncio.start_unix_server(
-            self._serve, path=self.path, limit=MAX_LINE_BYTES
-        )
-        os.chmod(self.path, self.mode)
+        folder.mkdir(parents=True, exist_ok=True)
+        # bind(2) makes the file 0777 less the umask; under a umask of 0 anyone could connect
+        # before the chmod and keep the connection (session 10 review). Bound under 0177 (the
+        # file is ours alone), synchronously so no other task runs under that umask, then
+        # opened to control.mode's group.
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        old_umask = os.umask(0o177)
+        try:
+            sock.bind(self.path)
+        except OSError:
+            sock.close()
+            raise
+        finally:
+            os.umask(old_umask)
+        try:
+            os.chmod(self.path, self.mode)
+            self._server = await asyncio.start_unix_server(
+                self._serve, sock=sock, limit=MAX_LINE_BYTES
+            )
+        except BaseException:
+            sock.close()
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.path)
+            raise
 
     async def close(self) -> None:
         if self._server is not None:
@@ -129,7 +163,15 @@ class ControlServer:
                 if not line:
                     break
                 writer.write(encode_line(self.dispatch(line)))
-                await writer.drain()
+                try:
+                    # a client that sends requests and never reads the replies: without
+                    # this bound drain() waited forever and the slot was never freed
+                    async with asyncio.timeout(self.request_deadline_s):
+                        await writer.drain()
+                except TimeoutError:
+                    self.slow_clients_closed += 1
+                    writer.transport.abort()  # close() would wait for the unread replies
+                    break
         except (ConnectionError, asyncio.CancelledError):
             pass
         finally:
@@ -161,8 +203,15 @@ class ControlServer:
 
 async def _close_writer(writer: asyncio.StreamWriter) -> None:
     writer.close()
-    with contextlib.suppress(ConnectionError, asyncio.CancelledError):
-        await writer.wait_closed()
+    try:
+        # close() waits to flush what is buffered; a peer that never reads would hold the
+        # handler here, so a close that does not finish within a second is an abort
+        async with asyncio.timeout(1.0):
+            await writer.wait_closed()
+    except TimeoutError:
+        writer.transport.abort()
+    except (ConnectionError, asyncio.CancelledError):
+        pass
 
 
 def _remove_stale(path: str) -> None:

@@ -630,6 +630,7 @@ class Daemon:
         if self._control is not None:  # hostile or stuck local clients (docs/security.md)
             counters["daemon"]["control_clients_refused"] = self._control.rejected_clients
             counters["daemon"]["control_clients_idle_closed"] = self._control.idle_clients_closed
+            counters["daemon"]["control_clients_slow_closed"] = self._control.slow_clients_closed
         st["counters"] = counters
         if self.app is not None:
             st.update(self.app.status())

@@ -23,7 +23,13 @@ from typing import Any
 
 import pytest
 
-from swarmd.control import MAX_CLIENTS, MAX_LINE_BYTES, ControlClient, ControlServer
+from swarmd.control import (
+    MAX_CLIENTS,
+    MAX_LINE_BYTES,
+    ControlClient,
+    ControlServer,
+    RequestInvalid,
+)
 
 NOBODY = 65534
 SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
@@ -210,3 +216,160 @@ def test_a_local_non_root_user_cannot_connect(sock_path: str) -> None:
         return done.stdout.strip()
 
     assert _serve_and(sock_path, as_nobody) == "refused"
+
+
+def test_clients_that_never_read_their_replies_are_closed_so_swarmctl_gets_in(
+    sock_path: str,
+) -> None:
+    """Session 10 review: MAX_CLIENTS connections each send a burst of complete requests
+    with large replies and never read one. The request deadline only covered reading a
+    line, so each handler waited forever for its reply to drain (and its close for the
+    unsent buffer to flush): the cap stayed full and swarmctl was locked out until the
+    daemon restarted. Now a reply that cannot be delivered within the deadline closes the
+    connection (counted), and a new request is served."""
+    big_reply = "x" * 60_000
+    burst = b'{"cmd": "big"}\n' * 64  # ~3.8 MB of replies: far past any socket buffer
+
+    def stalled_then_ping(server: ControlServer) -> tuple[Any, Any, int]:
+        stalled = []
+        for _ in range(MAX_CLIENTS):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.settimeout(30)
+            s.connect(sock_path)
+            s.sendall(burst)  # complete lines, every one; then never a read
+            stalled.append(s)
+        locked_out = None
+        give_up = time.monotonic() + 60.0  # eventually, within a generous bound
+        while locked_out is None and time.monotonic() < give_up:
+            try:
+                locked_out = _first_line(sock_path)
+            except (BrokenPipeError, ConnectionResetError):
+                time.sleep(0.05)
+        served = None
+        give_up = time.monotonic() + 30.0  # 30x the injected deadline
+        while served != {"ok": True, "result": "pong"} and time.monotonic() < give_up:
+            time.sleep(0.05)
+            try:
+                served = _exchange(sock_path, [b'{"cmd": "ping"}\n'])[0]
+            except (BrokenPipeError, ConnectionResetError, json.JSONDecodeError):
+                served = None
+        # one freed slot serves the ping; the others time out on their own clocks: wait for
+        # them (a stalled socket closed first would count as a hang-up, not a slow reader)
+        while server.slow_clients_closed < MAX_CLIENTS and time.monotonic() < give_up:
+            time.sleep(0.05)
+        for s in stalled:
+            s.close()
+        return locked_out, served, server.slow_clients_closed
+
+    handlers = {"ping": lambda _req: "pong", "big": lambda _req: big_reply}
+
+    async def main() -> tuple[Any, Any, int]:
+        server = ControlServer(sock_path, handlers, request_deadline_s=1.0)
+        await server.start()
+        try:
+            return await asyncio.to_thread(stalled_then_ping, server)
+        finally:
+            await asyncio.wait_for(server.close(), 30.0)
+
+    locked_out, served, closed = asyncio.run(main())
+    assert locked_out == {"ok": False, "error": "too many control clients"}
+    assert served == {"ok": True, "result": "pong"}
+    assert closed == MAX_CLIENTS
+
+
+@pytest.mark.parametrize("dir_mode", [0o777, 0o1777, 0o770])
+def test_a_socket_folder_another_user_can_write_is_refused(dir_mode: int) -> None:
+    """Session 10 review: ``control.socket`` in a folder others can write (``/tmp``, a shared
+    folder). In one without the sticky bit any local user unlinks swarmd's socket and binds
+    their own in its place: swarmctl then talks to them (a made-up status, the operator's
+    take-off request captured); with it they squat the path before swarmd starts and swarmd
+    refuses to start. The server refuses such a folder before binding, naming it."""
+    folder = Path(f"/tmp/swa-{os.getpid()}-{dir_mode:o}")
+    folder.mkdir()
+    try:
+        os.chmod(folder, dir_mode)
+        path = str(folder / "s.sock")
+
+        async def start() -> None:
+            server = ControlServer(path, {"ping": lambda _req: "pong"})
+            try:
+                await server.start()
+            finally:
+                await server.close()
+
+        with pytest.raises(RuntimeError) as caught:
+            asyncio.run(start())
+        assert str(folder) in str(caught.value)
+        assert "\n" not in str(caught.value)
+        assert not os.path.exists(path)  # refused before binding
+    finally:
+        for child in folder.iterdir():
+            child.unlink()
+        folder.rmdir()
+
+
+HOSTILE_ERROR = "uav2 \x1b]0;owned\x07 \x1b[2J \x9b31m \u202e"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["status"], ["peers"], ["takeoff"], ["hold"]],
+)
+def test_swarmctl_prints_a_daemon_error_as_data(sock_path: str, argv: list[str]) -> None:
+    """Session 10 review: swarmctl made the daemon's *results* safe for a terminal but
+    printed its *error* lines raw on stderr. An error can carry text that is not the
+    operator's (a handler's exception message); with escapes in it, it cleared and
+    retitled the operator's terminal. Real swarmctl process, real socket."""
+
+    def refuse(_req: Any) -> Any:
+        raise RequestInvalid(HOSTILE_ERROR)
+
+    handlers = {name: refuse for name in ("status", "peers", "takeoff", "command")}
+
+    def run_swarmctl(_server: ControlServer) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [str(Path(sys.executable).parent / "swarmctl"), *argv, "--socket", sock_path],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+
+    async def main() -> subprocess.CompletedProcess[str]:
+        server = ControlServer(sock_path, handlers)
+        await server.start()
+        try:
+            return await asyncio.to_thread(run_swarmctl, server)
+        finally:
+            await server.close()
+
+    proc = asyncio.run(main())
+    assert proc.returncode != 0
+    assert "uav2" in proc.stderr, proc.stderr  # the error was shown ...
+    shown = proc.stdout + proc.stderr
+    assert "\x1b" not in shown and "\x9b" not in shown and "\u202e" not in shown  # ... as data
+
+
+def test_the_socket_is_never_open_to_others_between_bind_and_chmod(
+    sock_path: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Session 10 review: bind(2) creates the socket file with 0777 less the umask, and the
+    chmod to ``control.mode`` came after. Under a umask without the "other" bits (0000:
+    a hand-started daemon from some shells and init scripts) any local user who connected
+    in between kept that connection. Checked at the instant before the chmod."""
+    seen: list[int] = []
+    real_chmod = os.chmod
+
+    def spying_chmod(path: Any, mode: int, *args: Any, **kwargs: Any) -> None:
+        if str(path) == sock_path:
+            seen.append(os.stat(path).st_mode & 0o777)
+        real_chmod(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "chmod", spying_chmod)
+    old = os.umask(0)
+    try:
+        _serve_and(sock_path, lambda _s: None)
+    finally:
+        os.umask(old)
+    assert seen, "the server no longer chmods its socket: check this test still applies"
+    assert all(mode & 0o077 == 0 for mode in seen), [f"{m:04o}" for m in seen]

@@ -74,6 +74,11 @@ def test_minimal_config_resolves_relative_paths_and_defaults() -> None:
         ("link:\n  sources: [file, file]\n", 8, "link.sources", "listed twice"),
         ("link:\n  static_q: high\n", 8, "link.static_q", "expected a number"),
         ("control:\n  mode: 999\n", 8, "control.mode", "is not a file mode"),
+        # session 10 review: any "other" bit lets every local user reach the socket (the
+        # write bit is connect(2)), i.e. take off the swarm
+        ("control:\n  mode: '0666'\n", 8, "control.mode", "every local user"),
+        ("control:\n  mode: '0662'\n", 8, "control.mode", "every local user"),
+        ("control:\n  mode: '0604'\n", 8, "control.mode", "every local user"),
         ("discovery:\n  mode: fast\n", 8, "discovery.mode", "unknown value 'fast'"),
         ("logging:\n  level: loud\n", 8, "logging.level", "unknown value 'loud'"),
         ("discovery:\n  overrides:\n    lease: 3\n", 9, "discovery.overrides.lease", "unknown"),

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.auth.freshness import U32_MAX
-from swarmd.bundle.keys import write_file_atomic
+from swarmd.bundle.keys import refuse_shared_dir, write_file_atomic
 
 FILE_PATTERN: Final = "auth-epoch-{node}"
 _UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
@@ -74,6 +74,8 @@ def next_epoch(state_dir: str | Path, node: str, wallclock_s: float) -> EpochRes
 
     Raises ``EpochError`` when the directory cannot be written or the epoch is exhausted."""
     directory = Path(state_dir)
+    # the epoch lives beside node.key: a folder others can write could hold a planted one
+    refuse_shared_dir(directory, "bundle.node_key", EpochError)
     path = epoch_path(directory, node)
     stored, problem = read_epoch(path)
     if stored is not None and stored >= U32_MAX:

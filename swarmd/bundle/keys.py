@@ -25,9 +25,12 @@ they only make dev bundles byte-for-byte reproducible and catch accidental corru
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
+import pwd
 import re
+import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -43,6 +46,7 @@ SIGNING_KEY_FILE: Final = "swarm-signing.key"
 SIGNING_PUB_FILE: Final = "swarm-signing.pub"
 NODES_DIR: Final = "nodes"
 PRIVATE_MODE: Final = 0o600
+SERVICE_USER: Final = "swarmd"  # systemd/swarmd.service's User=
 PUBLIC_MODE: Final = 0o644
 PUBLIC_KEY_BYTES: Final = 32
 _DEV_DOMAIN: Final = b"swarmd insecure dev key v1|"
@@ -275,11 +279,23 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
     """Write ``data`` to ``path`` via a same-directory temp file, fsync and rename.
 
     The temp file is created with ``mode`` already set, so a private key is never readable
-    by others, not even for the instant between create and chmod.
+    by others, not even for the instant between create and chmod. Its name is random and
+    it is created ``O_EXCL | O_NOFOLLOW``: with a predictable name (it was
+    ``.<name>.tmp-<pid>``) a symlink planted there by anyone who can write the folder made
+    us truncate and overwrite what it pointed at (docs/security.md, "Local boundaries
+    (session 10 review)"); now a planted name is never opened, only missed.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, mode)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+    for _attempt in range(16):  # 2^64 names: a collision is a planted file, try another
+        tmp = path.with_name(f".{path.name}.tmp-{secrets.token_hex(8)}")
+        try:
+            fd = os.open(tmp, flags, mode)
+            break
+        except FileExistsError:
+            continue
+    else:
+        raise FileExistsError(errno.EEXIST, "no free temporary name", str(path.parent))
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -292,6 +308,51 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
             tmp.unlink()
         raise
     fsync_dir(path.parent)
+
+
+def others_can_write(directory: Path) -> str | None:
+    """Why another local user could write ``directory`` (a folder: plant or swap files in
+    it; a file: rewrite it), or None when nobody but root, swarmd and this daemon's user can.
+
+    swarmd's state (boot counter, executed command ids, epoch, replay windows, node.key)
+    and its trust anchors (config, bundle, swarm key) are only as trustworthy as where
+    they are read from: writable by a group or by everyone, or owned by another user, lets
+    that user plant a state file or a key the daemon believes (docs/security.md, "Local
+    boundaries (session 10 review)"). Root owning it is fine (root is out of scope). A
+    missing or unreachable path is not refused here: the caller creates it, as its own,
+    or fails to with its own one line.
+    """
+    try:
+        st = os.stat(directory)
+    except OSError:
+        return None
+    if st.st_uid not in _trusted_owners():
+        return f"owned by uid {st.st_uid}, not by root, swarmd or this daemon's user"
+    if st.st_mode & 0o022:
+        who = "others" if st.st_mode & 0o002 else "its group"
+        return f"writable by {who} (mode {st.st_mode & 0o7777:04o})"
+    return None
+
+
+def _trusted_owners() -> set[int]:
+    """Root, this process's user, and the service's user (``User=swarmd`` in
+    systemd/swarmd.service): root running the daemon by hand reads swarmd's flashed files."""
+    owners = {0, os.geteuid()}
+    with contextlib.suppress(KeyError):
+        owners.add(pwd.getpwnam(SERVICE_USER).pw_uid)
+    return owners
+
+
+def refuse_shared_dir(directory: Path, field: str, error: type[OSError]) -> None:
+    """Raise ``error`` (one line naming the folder, the config field and the fix) when
+    another local user could write ``directory`` (``others_can_write``)."""
+    why = others_can_write(directory)
+    if why is not None:
+        raise error(
+            f"{directory} is {why}, so another user could plant swarmd's state there; "
+            f"fix: chown it to swarmd and chmod 700 it, or point {field} at a folder "
+            "only swarmd writes (/var/lib/swarmd)"
+        )
 
 
 def fsync_dir(directory: Path) -> None:

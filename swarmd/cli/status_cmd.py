@@ -25,7 +25,7 @@ from typing import Any, Final, TextIO
 from swarmd.config import DEFAULT_SOCKET
 from swarmd.control import REQUEST_DEADLINE_S, ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import EX_OK, EX_UNREACHABLE
-from swarmd.terminal import safe_tree
+from swarmd.terminal import safe_text, safe_tree
 
 SOCKET_ENV: Final = "SWARMD_SOCKET"
 CLEAR_SCREEN: Final = "\x1b[H\x1b[2J"
@@ -67,7 +67,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 
 def _fail(message: str) -> int:
-    print(f"swarmctl: {message}", file=sys.stderr)
+    print(f"swarmctl: {safe_text(message)}", file=sys.stderr)
     return EX_UNREACHABLE
 
 

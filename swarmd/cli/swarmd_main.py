@@ -61,6 +61,10 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         config = load_config(args.config, engine_fields=engine_fields)
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
+    try:
+        config.check_trusted_files()  # before the bundle or its key is believed
+    except ConfigError as exc:
+        return _fail(f"config rejected: {exc}", EX_CONFIG)
     logs.configure(config.log_level, config.log_format)
     log = logs.get_logger(node=config.node)
     try:

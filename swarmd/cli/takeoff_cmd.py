@@ -131,7 +131,7 @@ def _session(args: argparse.Namespace, body: Callable[[ControlClient, _Run], int
         with ControlClient(args.socket) as client:
             return body(client, run)
     except DaemonUnreachable as exc:
-        print(f"swarmctl: {exc}", file=sys.stderr)
+        print(f"swarmctl: {safe_text(str(exc))}", file=sys.stderr)
         return EX_UNREACHABLE
     except KeyboardInterrupt:  # a command already sent keeps running on the drones
         print("swarmctl: interrupted", file=sys.stderr)
@@ -184,7 +184,7 @@ def _simple(args: argparse.Namespace) -> int:
 
 
 def _usage(message: str) -> int:
-    print(f"swarmctl: {message}", file=sys.stderr)
+    print(f"swarmctl: {safe_text(message)}", file=sys.stderr)
     return EX_USAGE
 
 

@@ -21,26 +21,29 @@ not know the key ignores it. An unreadable ``outcomes`` list is dropped alone: t
 which exactly-once depends on, are kept.
 
 Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
-file, never half of one. An unreadable or corrupt file is reported and replaced: losing the
-dedup set is the documented degraded mode, refusing to start would ground the drone.
+file, never half of one. The directory must be writable by this daemon's user alone (or
+root): start-up refuses one others can write, whose files another user could have planted
+(docs/security.md, "Local boundaries (session 10 review)"). An unreadable or corrupt file
+is reported and replaced: losing the dedup set is the documented degraded mode, refusing to
+start would ground the drone.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
+from swarmd.bundle.keys import refuse_shared_dir, write_file_atomic
 from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.types import MAX_REASON_CHARS, CommandResult
 from swarmd.dataplane.writer import MAX_INCARNATION
 
 FILE_PATTERN: Final = "dataplane-{node}.json"
 _UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
+STATE_FILE_MODE: Final = 0o640  # what UMask=0027 made of open(..., "w"): the group reads
 
 
 class StateDirError(OSError):
@@ -65,16 +68,12 @@ class NodeState:
         }
         if self.outcomes:  # without any, the file stays as it was before they were kept
             body["outcomes"] = [list(kept) for kept in self.outcomes]
-        tmp = self.path.with_name(self.path.name + ".tmp")
+        data = json.dumps(body, separators=(",", ":")).encode("utf-8")
         try:
-            with open(tmp, "w", encoding="utf-8") as out:
-                json.dump(body, out, separators=(",", ":"))
-                out.flush()
-                os.fsync(out.fileno())
-            os.replace(tmp, self.path)
+            # a random O_EXCL|O_NOFOLLOW temp name: a symlink planted at the old fixed
+            # "<file>.tmp" made this write go through to its target (session 10 review)
+            write_file_atomic(self.path, data, STATE_FILE_MODE)
         except OSError as exc:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
             raise StateDirError(f"cannot write {self.path}: {exc.strerror}") from None
 
 
@@ -88,6 +87,7 @@ def boot(state_dir: str | Path, node: str) -> NodeState:
     Raises ``StateDirError`` when the directory cannot be created or written.
     """
     directory = Path(state_dir)
+    refuse_shared_dir(directory, "dataplane.state_dir", StateDirError)
     try:
         directory.mkdir(parents=True, exist_ok=True, mode=0o750)
     except OSError as exc:
