@@ -30,6 +30,8 @@ from swarmd.discovery.seek import (
     SEEK_MIN_S,
     SEEK_PUT_OFF_FOR_S,
     SEEK_PUT_OFF_MAX_S,
+    SEEK_PUT_OFF_SEEKERS_MAX,
+    SEEK_SEEKERS_WINDOW_S,
     Seek,
 )
 from swarmd.discovery.timers import MinInterval, RetrySchedule
@@ -158,7 +160,7 @@ def test_the_put_off_bound_holds_while_the_loss_is_fresh_and_again_after_a_retur
         assert seek.due is not None
         seek.due = now + SEEK_MIN_S  # whatever its draw: a put-off moves it
         for k in range(1, 6):  # a seek heard every 0.9 s puts ours off each time
-            seek.heard(omits, now + 0.9 * k)
+            seek.heard(omits, now + 0.9 * k, 2)  # one seeker
         return seek.due - now
 
     assert put_off_at(31.0) <= SEEK_PUT_OFF_MAX_S + 1e-9  # fresh: 21 s after its last frame
@@ -166,3 +168,55 @@ def test_the_put_off_bound_holds_while_the_loss_is_fresh_and_again_after_a_retur
     assert put_off_at(stale) >= 4.5 + SEEK_MIN_S  # stale: each frame puts it off a period
     seek.returned(stale + 10.0)  # another lost peer was heard again
     assert put_off_at(stale + 10.0) <= SEEK_PUT_OFF_MAX_S + 1e-9
+
+
+def test_the_put_off_bound_holds_for_a_drone_that_hears_few_seekers_only() -> None:
+    """``Seek`` alone, hand-set time, the loss fresh: frames from up to
+    SEEK_PUT_OFF_SEEKERS_MAX distinct seekers (one of them over and over) leave the bound on;
+    one more seeker within SEEK_SEEKERS_WINDOW_S lifts it (a dense neighbourhood: each frame
+    puts our seek a full period off); once the window has passed without them, the few that
+    remain keep it again."""
+    seek = Seek(enabled=True, rng=random.Random(2))
+    seek.start([_lost_peer(1, last_heard=10.0)], now=20.0)
+    omits = bytes(1)
+    few = SEEK_PUT_OFF_SEEKERS_MAX
+
+    def put_off_by(seekers: list[int], now: float) -> float:
+        seek.sent(now)
+        assert seek.due is not None
+        seek.due = now + SEEK_MIN_S
+        for k, seeker in enumerate(seekers, start=1):
+            seek.heard(omits, now + 0.2 * k, seeker)
+        return seek.due - now
+
+    many_frames_few_seekers = [2 + k % few for k in range(3 * few)]  # 0.2 s apart: 3 s
+    assert put_off_by(many_frames_few_seekers, 21.0) <= SEEK_PUT_OFF_MAX_S + 1e-9
+    one_more = [*range(2, 2 + few), 2 + few, 2, 3, 2, 3, 2, 3, 2, 3]
+    assert put_off_by(one_more, 30.0) >= 0.2 * len(one_more) + SEEK_MIN_S  # lifted
+    later = 30.0 + SEEK_SEEKERS_WINDOW_S + 1.0
+    assert put_off_by([2, 3] * 10, later) <= SEEK_PUT_OFF_MAX_S + 1e-9  # two seekers now
+
+
+def test_a_member_gone_from_a_dense_swarm_draws_about_one_seek_per_period_while_fresh() -> None:
+    """The bound's cost no longer grows with N: at N = 20 every drone hears the 18 others that
+    lost the same peer, more than SEEK_PUT_OFF_SEEKERS_MAX, so the suppression is whole from
+    the start (about one seek per period among them all), where the bound everywhere drew
+    ~N / SEEK_PUT_OFF_MAX_S a second while the loss was fresh (`python -m bench.seek_cost
+    --n 20`: 309 seeks in the commander's first minute on the engine before, 25 unbounded)."""
+    n, gone = 20, 19
+    swarm = build_swarm(n, seed=1)
+
+    def loss(a: int, b: int) -> float:
+        return 1.0 if gone in (a, b) and a != b and swarm.net.now >= T_CUT else 0.0
+
+    swarm.net.link_loss = loss
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the scenario"
+
+    def seeks() -> int:
+        return sum(e.counters()["tx_kind"]["seek"] for e in swarm.engines[:gone])
+
+    window = SEEK_PUT_OFF_FOR_S  # fresh from the gone peer's last frame (before T_CUT)
+    swarm.run_until(T_CUT + window)
+    assert seeks() > 0, "nobody lost the gone drone"
+    assert seeks() <= window / SEEK_MIN_S + 1, seeks()
