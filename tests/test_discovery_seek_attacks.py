@@ -225,7 +225,9 @@ def test_a_peer_back_every_minute_does_not_extend_the_seek_for_one_gone_for_good
 # seeks then wait on frames that cannot reach, and the edge pair on a race.
 SIDE = 6  # side A: uav0-uav5, side B: uav6-uav11; uav5 is A's edge drone
 EDGE = SIDE - 1
-BRIDGES = (2 * SIDE, 2 * SIDE + 1)  # uav12, uav13: in range of both sides, lose nobody
+# uav12..: in range of both sides, they lose nobody (their frames list side B: no seekers);
+# one more than the seekers count may hold besides the edge drone's five honest ones
+BRIDGES = tuple(range(2 * SIDE, 2 * SIDE + SEEK_PUT_OFF_SEEKERS_MAX - (SIDE - 1) + 1))
 FORGE_T = T_CUT + 15.0  # every lease across the cut has ended: the seeks are under way
 FORGE_FOR_S = 15.0
 FORGE_PERIOD_S = 0.25
@@ -233,7 +235,7 @@ FORGE_PERIOD_S = 0.25
 
 class _Forger(ScriptedSender):
     """A host in range of everyone, without a key: it records side A's frames (which omit
-    side B, lost to them) and, from ``FORGE_T`` for ``FORGE_FOR_S``, resends each new one
+    side B, lost to them) and, from ``FORGE_T`` for ``FORGE_FOR_S``, resends the latest one
     every ``FORGE_PERIOD_S`` under each bridge's GUID prefix in turn (the prefix rewritten
     wherever it occurs: the header's and the DATA(p)'s), so each looks like a bridge's frame
     that seeks side B (at most ``FORGE_FOR_S / FORGE_PERIOD_S`` rounds)."""
@@ -310,8 +312,9 @@ def test_forged_seekers_neither_count_nor_lift_the_edge_drones_put_off_bound() -
     """Authenticated: each forged frame fails its bridge's signature and is refused before
     anything moves, so the edge drone counts only its own side's five seekers (the bridges'
     genuine frames list side B: they seek nothing) and keeps seeking at least every
-    ``SEEK_PUT_OFF_MAX_S``. Unauthenticated (the control), the same frames count two more
-    seekers, seven, and lift the bound: the edge drone falls silent longer than that."""
+    ``SEEK_PUT_OFF_MAX_S``. Unauthenticated (the control), the same frames count the bridges
+    as seekers too, one more than ``SEEK_PUT_OFF_SEEKERS_MAX``, and lift the bound: the edge
+    drone falls silent longer than that."""
     swarm, forger, gaps = _forged_edge(authenticated=True)
     seek = swarm.engines[EDGE]._seek
     assert set(seek.seekers) <= set(range(SIDE)) - {EDGE}, sorted(seek.seekers)
