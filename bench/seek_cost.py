@@ -1,7 +1,7 @@
 """What a peer gone for good costs the others in seeks (issue 20; docs/discovery.md, "A seek put
 off by a frame that cannot reach").
 
-    .venv/bin/python -m bench.seek_cost [--seeds 5] [--n 10]
+    .venv/bin/python -m bench.seek_cost [--seeds 5] [--n 10] [--unbounded] [--case gone|commander]
 
 Two cases on MemNet, virtual time, the clean channel:
 
@@ -12,8 +12,10 @@ Two cases on MemNet, virtual time, the clean channel:
 * *a dead commander*: uav0 isolated at 40 s (as in ``tests/test_discovery_vouch.py``), the
   members' seeks from 40 s on, per minute, up to ``SEEK_FOR_S`` past its death.
 
-Prints, per seed, the seeks sent by all the others, and for the commander the busiest minute
-after the first; nothing asserted (the tests assert the bounds).
+Prints, per seed, the seeks sent by all the others, and for the commander the seeks per minute;
+nothing asserted (the tests assert the bounds). ``--unbounded`` runs the engine with the seek's
+put-off bound off (``seek.SEEK_PUT_OFF_FOR_S`` set to 0 for this process: every loss is stale,
+the suppression is whole), the baseline the bound's cost is judged against.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from collections.abc import Sequence
 
 from swarmd_lab.testing import Swarm, build_swarm
 
+from swarmd.discovery import seek
 from swarmd.discovery.seek import SEEK_FOR_S, SEEK_MAX_S
 
 T_CUT = 30.0
@@ -69,14 +72,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.seek_cost", description=__doc__)
     parser.add_argument("--seeds", type=int, default=5, help="seeds 1..S (default 5)")
     parser.add_argument("--n", type=int, default=10, help="drones (default 10)")
+    parser.add_argument(
+        "--unbounded", action="store_true", help="the put-off bound off (the baseline)"
+    )
+    parser.add_argument(
+        "--case", choices=("both", "gone", "commander"), default="both", help="default both"
+    )
     args = parser.parse_args(argv)
+    if args.unbounded:
+        # Seek.heard reads the module global on each call: 0 makes every loss stale
+        seek.SEEK_PUT_OFF_FOR_S = 0.0  # type: ignore[misc]
+    label = "unbounded" if args.unbounded else "engine"
     for seed in range(1, args.seeds + 1):
-        gone = member_gone(args.n, seed)
-        minutes = dead_commander(args.n, seed)
-        print(
-            f"N = {args.n} seed {seed}: member gone for good: {gone} seeks by the others; "
-            f"dead commander: {sum(minutes)} seeks by the members, per minute {minutes}"
-        )
+        parts = [f"N = {args.n} seed {seed} ({label}):"]
+        if args.case in ("both", "gone"):
+            parts.append(f"member gone for good: {member_gone(args.n, seed)} seeks by the others;")
+        if args.case in ("both", "commander"):
+            minutes = dead_commander(args.n, seed)
+            parts.append(
+                f"dead commander: {sum(minutes)} seeks by the members, per minute {minutes}"
+            )
+        print(" ".join(parts), flush=True)
     return 0
 
 

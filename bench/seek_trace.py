@@ -39,9 +39,9 @@ def _suppressions(log: list[tuple[float, int, int, float, float]]) -> Iterator[N
         sender[0] = peer.index
         receive_heard(self, peer, *args, **kw)
 
-    def heard_by_seek(self: seek.Seek, heard: bytes | None, now: float) -> None:
+    def heard_by_seek(self: seek.Seek, heard: bytes | None, now: float, seeker: int) -> None:
         before = self.due
-        seek_heard(self, heard, now)
+        seek_heard(self, heard, now, seeker)
         if before is not None and self.due != before:
             log.append((now, id(self), sender[0], before, self.due or 0.0))
 

@@ -21,7 +21,12 @@ from __future__ import annotations
 from swarmd_lab.testing import ScriptedSender, Swarm, build_swarm, node_ipv4
 
 from swarmd.discovery.events import PeerDiscovered
-from swarmd.discovery.seek import SEEK_FOR_S, SEEK_PUT_OFF_FOR_S
+from swarmd.discovery.seek import (
+    SEEK_FOR_S,
+    SEEK_PUT_OFF_FOR_S,
+    SEEK_PUT_OFF_MAX_S,
+    SEEK_PUT_OFF_SEEKERS_MAX,
+)
 
 N = 6
 GONE = N - 1  # uav5: lost for good (its frames are what the attacker captured)
@@ -211,3 +216,114 @@ def test_a_peer_back_every_minute_does_not_extend_the_seek_for_one_gone_for_good
         assert GONE not in engine._seek.sought, i  # sought SEEK_FOR_S, then no more
         assert len(_found(swarm, i, MISSING, T_CUT)) >= 10, i  # uav4 did come back
         assert end - engine._seek.fresh_at < back_every_s, i  # and kept the loss fresh
+
+
+# The seekers count (``Seek.seekers``, ``SEEK_PUT_OFF_SEEKERS_MAX``): a drone keeps the seek's
+# put-off bound only while it heard at most that many seekers of the peers it seeks. A forger
+# that made it count more would lift the bound where it matters, at the edge of a swarm strung
+# out over more than one radio range (tests/test_discovery_seek_reach.py): the edge drone's
+# seeks then wait on frames that cannot reach, and the edge pair on a race.
+SIDE = 6  # side A: uav0-uav5, side B: uav6-uav11; uav5 is A's edge drone
+EDGE = SIDE - 1
+# uav12..: in range of both sides, they lose nobody (their frames list side B: no seekers);
+# one more than the seekers count may hold besides the edge drone's five honest ones
+BRIDGES = tuple(range(2 * SIDE, 2 * SIDE + SEEK_PUT_OFF_SEEKERS_MAX - (SIDE - 1) + 1))
+FORGE_T = T_CUT + 15.0  # every lease across the cut has ended: the seeks are under way
+FORGE_FOR_S = 15.0
+FORGE_PERIOD_S = 0.25
+
+
+class _Forger(ScriptedSender):
+    """A host in range of everyone, without a key: it records side A's frames (which omit
+    side B, lost to them) and, from ``FORGE_T`` for ``FORGE_FOR_S``, resends the latest one
+    every ``FORGE_PERIOD_S`` under each bridge's GUID prefix in turn (the prefix rewritten
+    wherever it occurs: the header's and the DATA(p)'s), so each looks like a bridge's frame
+    that seeks side B (at most ``FORGE_FOR_S / FORGE_PERIOD_S`` rounds)."""
+
+    def __init__(
+        self, group: tuple[str, int], side_a: dict[str, bytes], bridges: list[bytes]
+    ) -> None:
+        super().__init__(FORGE_T)
+        self._group = group
+        self._side_a = side_a  # host -> its GUID prefix octets
+        self._bridges = bridges
+        self._latest: tuple[bytes, bytes] | None = None  # (datagram, its sender's prefix)
+        self.sent = 0
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        prefix = self._side_a.get(source[0])
+        if prefix is not None and data[8:20] == prefix:
+            self._latest = (data, prefix)
+
+    def handle_timer(self, now: float) -> None:
+        while self._next is not None and self._next <= now:
+            if self._latest is not None:
+                data, prefix = self._latest
+                bridge = self._bridges[self.sent % len(self._bridges)]
+                self._out.append((data.replace(prefix, bridge), self._group))
+                self.sent += 1
+            self._next += FORGE_PERIOD_S
+            if self._next > FORGE_T + FORGE_FOR_S:
+                self._next = None
+
+
+def _forged_edge(*, authenticated: bool) -> tuple[Swarm, _Forger, list[float]]:
+    """Two sides cut apart at ``T_CUT`` for good, two bridges in range of both, the forger in
+    range of all; the edge drone's multicast gaps while the forgery runs."""
+    n = 2 * SIDE + len(BRIDGES)
+    swarm = build_swarm(n, seed=4, authenticated=authenticated)
+    net = swarm.net
+
+    def loss(a: int, b: int) -> float:
+        if net.now < T_CUT or a >= 2 * SIDE or b >= 2 * SIDE:  # a bridge or the forger
+            return 0.0
+        return 0.0 if (a < SIDE) == (b < SIDE) else 1.0
+
+    net.link_loss = loss
+    swarm.run_until(1.0)
+    group = swarm.engines[0].spdp_multicast
+    prefixes = [p.guid_prefix.value for p in swarm.bundle.participants]
+    forger = _Forger(
+        group,
+        {node_ipv4(i): prefixes[i] for i in range(SIDE) if i != EDGE},
+        [prefixes[b] for b in BRIDGES],
+    )
+    net.add(
+        forger,
+        ATTACKER_HOST,
+        (swarm.engines[0].metatraffic_port, group[1]),
+        groups=(group,),
+        source_port=swarm.engines[0].metatraffic_port,
+    )
+    swarm.run_until(T_CUT)
+    assert swarm.all_discovered(), "the swarm did not form before the attack"
+    swarm.run_until(FORGE_T + FORGE_FOR_S + 0.5)  # the last forged frame delivered too
+    assert forger.sent >= FORGE_FOR_S / FORGE_PERIOD_S  # the forgery ran
+    sent = [
+        x.time
+        for x in net.transmissions
+        if x.node == EDGE and x.multicast and FORGE_T <= x.time < FORGE_T + FORGE_FOR_S
+    ]
+    edges = [FORGE_T, *sent, FORGE_T + FORGE_FOR_S]
+    return swarm, forger, [b - a for a, b in zip(edges, edges[1:], strict=False)]
+
+
+def test_forged_seekers_neither_count_nor_lift_the_edge_drones_put_off_bound() -> None:
+    """Authenticated: each forged frame fails its bridge's signature and is refused before
+    anything moves, so the edge drone counts only its own side's five seekers (the bridges'
+    genuine frames list side B: they seek nothing) and keeps seeking at least every
+    ``SEEK_PUT_OFF_MAX_S``. Unauthenticated (the control), the same frames count the bridges
+    as seekers too, one more than ``SEEK_PUT_OFF_SEEKERS_MAX``, and lift the bound: the edge
+    drone falls silent longer than that."""
+    swarm, forger, gaps = _forged_edge(authenticated=True)
+    seek = swarm.engines[EDGE]._seek
+    assert set(seek.seekers) <= set(range(SIDE)) - {EDGE}, sorted(seek.seekers)
+    assert len(seek.seekers) <= SEEK_PUT_OFF_SEEKERS_MAX
+    dropped = swarm.engines[EDGE].counters()["dropped"]
+    assert dropped["auth_bad_tag"] >= forger.sent, dict(dropped)
+    assert max(gaps) <= SEEK_PUT_OFF_MAX_S + 1e-9, [round(g, 2) for g in gaps]
+
+    swarm, forger, gaps = _forged_edge(authenticated=False)
+    seek = swarm.engines[EDGE]._seek
+    assert set(BRIDGES) <= set(seek.seekers), sorted(seek.seekers)
+    assert max(gaps) > SEEK_PUT_OFF_MAX_S, [round(g, 2) for g in gaps]

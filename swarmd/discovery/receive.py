@@ -336,7 +336,7 @@ class ReceivePath:
             )
         directed = alive.destination is not None
         if self._seek.due is not None and not newly and not directed:
-            self._seek.heard(heard, now)  # seek.py: its multicast may seek for us
+            self._seek.heard(heard, now, index)  # seek.py: its multicast may seek for us
         rejoin = False  # a lost peer heard again, answered by a frame of its own
         told = peer.told
         retry = peer.retry

@@ -30,7 +30,11 @@ peer heard again, within ``SEEK_PUT_OFF_FOR_S``), the suppression puts our seek 
 further than ``SEEK_PUT_OFF_MAX_S`` from our own last multicast: every drone seeks itself at
 least that often, and the edge drone's seek reaches across. Past that window the outage is
 a long one (a drone gone for good, a dead commander) and the suppression is whole again: one
-seek per period per neighbourhood, as before, for the rest of ``SEEK_FOR_S``.
+seek per period per neighbourhood, as before, for the rest of ``SEEK_FOR_S``. The bound is
+kept only by a drone that heard few seekers lately (at most ``SEEK_PUT_OFF_SEEKERS_MAX``
+within ``SEEK_SEEKERS_WINDOW_S``): the edge of a strung-out swarm, where it is needed. In a
+dense neighbourhood every drone would otherwise seek every 2.4 s, a cost growing with N
+(docs/discovery.md, "The put-off bound at scale").
 
 Bound: a peer not heard for ``SEEK_FOR_S`` is no longer sought (a drone really gone must not
 cost the channel forever); the renewals, which still omit it, remain. Paper mode never
@@ -85,6 +89,22 @@ SEEK_PUT_OFF_MAX_S: Final = 2 * SEEK_MAX_S
 # 613 seeks over SEEK_FOR_S, 1.16 x the 528 of unbounded suppression (seed 1,
 # ``python -m bench.seek_cost``; docs/discovery.md).
 SEEK_PUT_OFF_FOR_S: Final = 60.0
+# Which drones keep the put-off bound: those that heard at most SEEK_PUT_OFF_SEEKERS_MAX other
+# seekers of the peers they seek within SEEK_SEEKERS_WINDOW_S (a seeker: a bundle peer whose
+# multicast put our seek off). With the bound on everywhere the fresh window cost ~N / 2.4
+# seeks a second (a drone gone for good, seed 1: 543 seeks at N = 20 against 279 without the
+# bound, 797 against 66 at N = 50; ``python -m bench.seek_cost``): every drone of a dense
+# neighbourhood sought at least every 2.4 s although each reaches what the others reach. The
+# bound is for the edge of a swarm strung out over more than one radio range, where a drone
+# hears only the few of its side near it. 8: the bound's worst cost is then a neighbourhood of
+# 10 (1.16x at N = 10, 1.19x at N = 9, what session 9 accepted), and a strung-out side of up
+# to 9 drones keeps it (tests/test_discovery_seek_reach.py; a side of 10 or more is back to the
+# suppression's race: docs/discovery.md, "The put-off bound at scale").
+SEEK_PUT_OFF_SEEKERS_MAX: Final = 8
+# How far back a seeker counts: every seeker of a dense neighbourhood sends a multicast within
+# it (a seek put off by at most SEEK_PUT_OFF_MAX_S while the bound holds, or its renewal), so
+# the count does not fall below the neighbourhood's size between its frames.
+SEEK_SEEKERS_WINDOW_S: Final = 10.0
 # The peers sought at once are the bundle's: bounded by N (no peer can grow the table).
 
 # The lost_us rule's spacing: after our k-th prompt answer to a peer that lost us, the next
@@ -103,7 +123,7 @@ class Seek:
     """The peers we seek (lost to a lease's end, last heard within ``SEEK_FOR_S``) and the
     next seek's deadline."""
 
-    __slots__ = ("_rng", "due", "enabled", "fresh_at", "sent_at", "sought")
+    __slots__ = ("_rng", "due", "enabled", "fresh_at", "seekers", "sent_at", "sought")
 
     def __init__(self, *, enabled: bool, rng: random.Random) -> None:
         self.enabled = enabled  # adaptive mode: paper mode keeps the paper's schedule
@@ -113,6 +133,11 @@ class Seek:
         self.sent_at = -math.inf  # our last multicast (which sought every lost peer)
         # the freshest loss: a sought peer's last hearing, or a lost peer heard again
         self.fresh_at = -math.inf
+        # the peers whose multicast put our seek off while the loss was fresh: bundle index ->
+        # the latest such frame, oldest first (re-inserted on each). Only an authenticated
+        # bundle peer's frame reaches ``heard`` (receive.py), each under its own index: at
+        # most the peer table's N - 1 rows, the bundle's cap; a forger or a stranger adds none
+        self.seekers: dict[int, float] = {}
 
     def _period(self) -> float:
         return self._rng.uniform(SEEK_MIN_S, SEEK_MAX_S)
@@ -141,6 +166,7 @@ class Seek:
             del self.sought[i]
         if not self.sought:
             self.due = None
+            self.seekers.clear()
 
     def fire(self, now: float) -> bool:
         """The seek's deadline came: True if a seek is to be sent now (someone is still
@@ -160,12 +186,13 @@ class Seek:
         sought may be back within seconds, at the edge of range: the loss is fresh again."""
         self.fresh_at = now
 
-    def heard(self, heard: bytes | None, now: float) -> None:
-        """A peer we have multicast a DATA(p) with heard digest ``heard``: if it omits every
-        peer we seek, it sought them for us (suppression): ours waits a period from now; but
-        while the loss is fresh, no later than ``SEEK_PUT_OFF_MAX_S`` after our own last
-        multicast (that frame may not reach the peers we seek: we may be nearer them than
-        the peer we heard)."""
+    def heard(self, heard: bytes | None, now: float, seeker: int) -> None:
+        """Bundle peer ``seeker`` (index), which we have, multicast a DATA(p) with heard digest
+        ``heard``: if it omits every peer we seek, it sought them for us (suppression): ours
+        waits a period from now; but while the loss is fresh, and we heard at most
+        ``SEEK_PUT_OFF_SEEKERS_MAX`` such seekers lately, no later than
+        ``SEEK_PUT_OFF_MAX_S`` after our own last multicast (that frame may not reach the
+        peers we seek: we may be nearer them than the peer we heard)."""
         if self.due is None:
             return
         if heard is not None:
@@ -175,8 +202,24 @@ class Seek:
                     return  # it hears one we seek: its frame does not seek that one
         put_off = now + self._period()
         if now - self.fresh_at < SEEK_PUT_OFF_FOR_S:
-            put_off = min(put_off, self.sent_at + SEEK_PUT_OFF_MAX_S)
+            seekers = self.seekers
+            seekers.pop(seeker, None)
+            seekers[seeker] = now  # the newest last
+            if self._few_seekers(now):
+                put_off = min(put_off, self.sent_at + SEEK_PUT_OFF_MAX_S)
         self.due = max(self.due, put_off)
+
+    def _few_seekers(self, now: float) -> bool:
+        """Whether at most ``SEEK_PUT_OFF_SEEKERS_MAX`` seekers put our seek off within
+        ``SEEK_SEEKERS_WINDOW_S``: newest first, so it reads at most that many + 1 rows."""
+        count = 0
+        for at in reversed(self.seekers.values()):
+            if now - at >= SEEK_SEEKERS_WINDOW_S:
+                return True  # the rest are older still
+            count += 1
+            if count > SEEK_PUT_OFF_SEEKERS_MAX:
+                return False
+        return True
 
 
 @dataclass(slots=True)
