@@ -30,7 +30,7 @@ from swarmd.dataplane.types import Readiness, encode_sample
 from swarmd.rtps.message import Data, Header, encode_message
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD
 from swarmd.swarm.core import SwarmSettings
-from tests.test_dataplane_plane import BUNDLE, LEAD, M1, READY_R, READY_W, from_peer
+from tests.test_dataplane_plane import BUNDLE, LEAD, M1, READY_R, READY_W, drain, from_peer
 from tests.test_dataplane_swarm import address_of, keyring, make_plane
 from tests.test_swarm_core import Swarm
 
@@ -122,9 +122,10 @@ def _readiness_datagram(seq: int) -> bytes:
 
 def test_a_forged_datagram_held_for_a_down_peer_moves_nothing() -> None:
     """Attacker: datagrams under m01's prefix while the commander has m01 down, one with a
-    flipped tag bit, one a replay of a datagram the commander already took. Both are held,
-    both refused at m01's peer_up; no readiness moves. A flood under the prefix keeps at
-    most ``MAX_EARLY_PER_PEER`` held."""
+    flipped tag bit, one a replay of a datagram the commander already took. Neither is
+    held (``auth_failed``, ``auth_replayed`` on arrival), nothing is refused later at m01's
+    peer_up, no readiness moves. m01's own datagrams past the cap keep at most
+    ``MAX_EARLY_PER_PEER`` held."""
     plane = make_plane(BUNDLE, "lead")
     plane.peer_up("m01", address_of(BUNDLE, "m01"), 0.0, epoch=1)
     taken = _readiness_datagram(1)
@@ -133,25 +134,22 @@ def test_a_forged_datagram_held_for_a_down_peer_moves_nothing() -> None:
     plane.peer_down("m01", 1.0)
     forged = bytearray(_readiness_datagram(2))
     forged[-1] ^= 0x01
-    for data in (bytes(forged), taken):
-        plane.receive_datagram(data, ("10.0.0.66", 7411), 1.2)
-    assert plane.status(1.2)["early_holding"] == 2
     while plane.next_event() is not None:
         pass
-    plane.peer_up("m01", address_of(BUNDLE, "m01"), 1.5, epoch=1)
-    events = []
-    while (event := plane.next_event()) is not None:
-        events.append(event)
-    assert not [e for e in events if isinstance(e, ReadinessReceived)]
-    assert sorted(e.reason for e in events if isinstance(e, PacketDropped)) == [
+    for data in (bytes(forged), taken):
+        plane.receive_datagram(data, ("10.0.0.66", 7411), 1.2)
+    assert plane.status(1.2)["early_holding"] == 0
+    assert sorted(e.reason for e in drain(plane) if isinstance(e, PacketDropped)) == [
         "auth_failed",
         "auth_replayed",
     ]
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), 1.5, epoch=1)
+    assert not [e for e in drain(plane) if isinstance(e, ReadinessReceived | PacketDropped)]
     stats = plane.readiness_received("m01")
     assert stats is not None and stats.count == 1
     plane.peer_down("m01", 2.0)
     for k in range(3 * MAX_EARLY_PER_PEER):
-        plane.receive_datagram(bytes(forged), ("10.0.0.66", 7411), 2.0 + k * 0.01)
+        plane.receive_datagram(_readiness_datagram(10 + k), ("10.0.0.2", 7411), 2.0 + k * 0.01)
     assert plane.status(2.2)["early_holding"] == MAX_EARLY_PER_PEER
 
 
@@ -243,3 +241,17 @@ def test_replayed_captures_cannot_push_a_held_genuine_report_out() -> None:
     assert plane.counters["dropped_auth_replayed"] >= 3
     assert plane.status(1.4)["early_holding"] <= MAX_EARLY_PER_PEER
     assert 9 in _taken_at_peer_up(plane, 1.5)
+
+
+def test_copies_of_the_newest_held_datagram_cannot_push_the_others_out() -> None:
+    """Attacker replaying the newest of m01's held reports (it verifies, its freshness is
+    the highest) again and again: an exact copy is not held twice, so m01's other held
+    reports are all counted at its peer_up. Held once per copy, they pushed the others out."""
+    plane, _ = _down_with_one_report_held()  # SN 9
+    newer = [_sealed_readiness("m01", "m01", seq) for seq in (10, 11)]
+    for data in newer:
+        plane.receive_datagram(data, ("10.0.0.2", 7411), 1.15)
+    for k in range(2 * MAX_EARLY_PER_PEER):
+        plane.receive_datagram(newer[-1], ("10.0.0.66", 7411), 1.2 + k * 0.01)
+    assert plane.status(1.4)["early_holding"] == 3
+    assert sorted(_taken_at_peer_up(plane, 1.5)) == [9, 10, 11]
