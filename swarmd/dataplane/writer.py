@@ -52,7 +52,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Final
 
-from swarmd.auth.budget import TokenBucket
 from swarmd.dataplane.outgoing import Outgoing
 from swarmd.rtps.message import MAX_SN_SET_BITS, AckNack, Data, Gap, Heartbeat, SequenceNumberSet
 from swarmd.rtps.types import Guid, GuidPrefix
@@ -114,10 +113,9 @@ class ReaderProxy:
     heartbeats_unanswered: int = 0  # heartbeats since the last accepted ACKNACK
     period_s: float = HEARTBEAT_PERIOD_S
     next_heartbeat: float = 0.0
-    # answers to its ACKNACKs (ACKNACK_REPLY_RATE); full at the match
-    replies: TokenBucket = field(
-        default_factory=lambda: TokenBucket(ACKNACK_REPLY_RATE, ACKNACK_REPLY_BURST, 0.0)
-    )
+    # answers to its ACKNACKs left (a token bucket: ACKNACK_REPLY_RATE), as of reply_at
+    reply_tokens: float = ACKNACK_REPLY_BURST
+    reply_at: float = 0.0
 
 
 @dataclass(slots=True)
@@ -348,11 +346,16 @@ class ReliableWriter:
         requested = list(state.members())  # at most MAX_SN_SET_BITS (the codec's bound)
         if not requested:
             return out  # a pure acknowledgement asks for nothing: no answer, no token spent
-        if not proxy.replies.take(now):
+        if now > proxy.reply_at:
+            refill = (now - proxy.reply_at) * ACKNACK_REPLY_RATE
+            proxy.reply_tokens = min(ACKNACK_REPLY_BURST, proxy.reply_tokens + refill)
+            proxy.reply_at = now
+        if proxy.reply_tokens < 1.0:
             # Past the reader's answer rate: acknowledged above, answered at the next
             # HEARTBEAT's ACKNACK (due by now + period_s).
             self.counters.acknacks_unanswered += 1
             return out
+        proxy.reply_tokens -= 1.0
         for sn in requested:
             # resend even below ``acked``: a reader that restarted lost what it had acked
             if sn > self.last_sn:
