@@ -17,7 +17,12 @@ every ``HEARTBEAT_PERIOD_S``) never meets it. Virtual time, the data plane's in-
 from __future__ import annotations
 
 from swarmd.dataplane import TOPIC_COMMAND, CommandKind
-from swarmd.dataplane.writer import ACKNACK_REPLY_BURST, ACKNACK_REPLY_RATE, HEARTBEAT_PERIOD_S
+from swarmd.dataplane.writer import (
+    ACKNACK_REPLY_BURST,
+    ACKNACK_REPLY_RATE,
+    HEARTBEAT_PERIOD_S,
+    ReliableWriter,
+)
 from swarmd.rtps import AckNack, SequenceNumberSet
 from tests.test_dataplane_auth import ATTACKER, CMD_R, CMD_W, flying_swarm, sealed
 from tests.test_dataplane_swarm import address_of
@@ -34,6 +39,7 @@ def acknack_flood(rate: int, flood_s: float) -> tuple[int, int, int, int]:
     lead.send_command(lead.make_command(CommandKind.HOLD), swarm.now)
     lead.datagrams_to_send()  # the command's first send: not the attacker's doing
     writer = lead._endpoints.by_topic[TOPIC_COMMAND]
+    assert isinstance(writer, ReliableWriter)
     first = writer.first_available
     everything = SequenceNumberSet.of(first, list(range(first, first + 64)))
     start = swarm.now
