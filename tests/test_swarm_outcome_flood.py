@@ -13,13 +13,21 @@ time, the swarm core on the data plane's in-memory network.
 
 from __future__ import annotations
 
-from swarmd.dataplane import CommandResult
+from functools import partial
+
+from swarmd.dataplane import CommandResult, DataPlane
 from swarmd.swarm.core import (
     UNKNOWN_OUTCOME_REPORT_BURST,
     UNKNOWN_OUTCOME_REPORTS_PER_S,
     OutcomeRecorded,
 )
 from tests.test_swarm_core import Swarm
+
+
+def invent(plane: DataPlane, command_id: int, now: float) -> int:
+    return plane.report_outcome(
+        command_id, CommandResult.COMPLETED, now, "forged", commander="lead"
+    )
 
 
 def test_invented_outcomes_from_a_captured_member_are_reported_at_a_bounded_rate() -> None:
@@ -29,17 +37,11 @@ def test_invented_outcomes_from_a_captured_member_are_reported_at_a_bounded_rate
     assert captured is not None
     invented, flood_s = 400, 2.0
     for k in range(invented):
-        swarm.call(
-            "m01",
-            lambda now, k=k: captured.report_outcome(
-                900_000 + k, CommandResult.COMPLETED, now, "forged", commander="lead"
-            ),
-        )
+        command_id = 900_000 + k
+        swarm.call("m01", partial(invent, captured, command_id))
         swarm.run(flood_s / invented)
     swarm.run(1.0)
-    unknown = [
-        e for e in swarm.events["lead"] if isinstance(e, OutcomeRecorded) and not e.known
-    ]
+    unknown = [e for e in swarm.events["lead"] if isinstance(e, OutcomeRecorded) and not e.known]
     assert swarm.lead.tracker.unknown_outcomes == invented  # every one reached the tracker
     allowed = UNKNOWN_OUTCOME_REPORT_BURST + UNKNOWN_OUTCOME_REPORTS_PER_S * (flood_s + 1.0)
     assert len(unknown) <= allowed
