@@ -15,7 +15,9 @@ octets of IPv4 and UDP headers every datagram also carries on the air.
 CPU: median of ``--repeat`` timeit runs of ``--number`` calls, microseconds per call, for
 ``seal`` (HMAC-SHA256 over the datagram) and ``verify`` of a readiness datagram, and for the
 data plane's whole ``receive_datagram`` on a forged datagram refused by a cheap check, on
-one refused by its tag, and on an authentic one.
+one refused by its tag, and on an authentic one; and on a forgery under the prefix of a
+member the receiver has not up (the early hold's case: refused by its tag before it may
+take a slot, docs/security.md "Network paths end to end").
 """
 
 from __future__ import annotations
@@ -207,6 +209,12 @@ def timings(bundle: Bundle, repeat: int, number: int) -> dict[str, float]:
     body = protected_part(datagram)
     fresh = Freshness(EPOCH, 1)
     forged = datagram[:-TAG_BYTES] + bytes(TAG_BYTES)
+    # a member the lead has not up: its datagrams may be held (dataplane/early.py)
+    down = plane(bundle, members[1])
+    down.peer_up("lead", ("10.42.0.10", 7411), 0.0, epoch=EPOCH)
+    down.publish_readiness(Readiness(members[1], 1, True, "", False, 1, 3, 14, 87, 800), 0.0)
+    ((down_datagram, _),) = down.datagrams_to_send()
+    forged_down = down_datagram[:-TAG_BYTES] + bytes(TAG_BYTES)
     missing = body  # no authenticator at all
     source = ("10.42.0.11", 7413)
 
@@ -227,6 +235,7 @@ def timings(bundle: Bundle, repeat: int, number: int) -> dict[str, float]:
         "receive_datagram, refused: no authenticator": refused(missing),
         "receive_datagram, refused: replayed sequence": refused(datagram),
         "receive_datagram, refused: bad tag": refused(forged),
+        "receive_datagram, refused: bad tag, sender not up (early hold)": refused(forged_down),
     }
     lead.receive_datagram(datagram, source, 0.0)  # now a replay for the case above
     while lead.next_event() is not None:

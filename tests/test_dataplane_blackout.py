@@ -24,13 +24,13 @@ from functools import partial
 from swarmd.auth.freshness import Freshness
 from swarmd.dataplane.early import EARLY_HOLD_S, MAX_EARLY_PER_PEER
 from swarmd.dataplane.events import PacketDropped, ReadinessReceived
-from swarmd.dataplane.plane import MAX_DATAGRAM_BYTES
+from swarmd.dataplane.plane import MAX_DATAGRAM_BYTES, DataPlane
 from swarmd.dataplane.seal import seal, user_data_key
 from swarmd.dataplane.types import Readiness, encode_sample
 from swarmd.rtps.message import Data, Header, encode_message
 from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD
 from swarmd.swarm.core import SwarmSettings
-from tests.test_dataplane_plane import BUNDLE, LEAD, M1, READY_R, READY_W, from_peer
+from tests.test_dataplane_plane import BUNDLE, LEAD, M1, READY_R, READY_W, drain, from_peer
 from tests.test_dataplane_swarm import address_of, keyring, make_plane
 from tests.test_swarm_core import Swarm
 
@@ -122,9 +122,10 @@ def _readiness_datagram(seq: int) -> bytes:
 
 def test_a_forged_datagram_held_for_a_down_peer_moves_nothing() -> None:
     """Attacker: datagrams under m01's prefix while the commander has m01 down, one with a
-    flipped tag bit, one a replay of a datagram the commander already took. Both are held,
-    both refused at m01's peer_up; no readiness moves. A flood under the prefix keeps at
-    most ``MAX_EARLY_PER_PEER`` held."""
+    flipped tag bit, one a replay of a datagram the commander already took. Neither is
+    held (``auth_failed``, ``auth_replayed`` on arrival), nothing is refused later at m01's
+    peer_up, no readiness moves. m01's own datagrams past the cap keep at most
+    ``MAX_EARLY_PER_PEER`` held."""
     plane = make_plane(BUNDLE, "lead")
     plane.peer_up("m01", address_of(BUNDLE, "m01"), 0.0, epoch=1)
     taken = _readiness_datagram(1)
@@ -133,25 +134,22 @@ def test_a_forged_datagram_held_for_a_down_peer_moves_nothing() -> None:
     plane.peer_down("m01", 1.0)
     forged = bytearray(_readiness_datagram(2))
     forged[-1] ^= 0x01
-    for data in (bytes(forged), taken):
-        plane.receive_datagram(data, ("10.0.0.66", 7411), 1.2)
-    assert plane.status(1.2)["early_holding"] == 2
     while plane.next_event() is not None:
         pass
-    plane.peer_up("m01", address_of(BUNDLE, "m01"), 1.5, epoch=1)
-    events = []
-    while (event := plane.next_event()) is not None:
-        events.append(event)
-    assert not [e for e in events if isinstance(e, ReadinessReceived)]
-    assert sorted(e.reason for e in events if isinstance(e, PacketDropped)) == [
+    for data in (bytes(forged), taken):
+        plane.receive_datagram(data, ("10.0.0.66", 7411), 1.2)
+    assert plane.status(1.2)["early_holding"] == 0
+    assert sorted(e.reason for e in drain(plane) if isinstance(e, PacketDropped)) == [
         "auth_failed",
         "auth_replayed",
     ]
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), 1.5, epoch=1)
+    assert not [e for e in drain(plane) if isinstance(e, ReadinessReceived | PacketDropped)]
     stats = plane.readiness_received("m01")
     assert stats is not None and stats.count == 1
     plane.peer_down("m01", 2.0)
     for k in range(3 * MAX_EARLY_PER_PEER):
-        plane.receive_datagram(bytes(forged), ("10.0.0.66", 7411), 2.0 + k * 0.01)
+        plane.receive_datagram(_readiness_datagram(10 + k), ("10.0.0.2", 7411), 2.0 + k * 0.01)
     assert plane.status(2.2)["early_holding"] == MAX_EARLY_PER_PEER
 
 
@@ -170,3 +168,90 @@ def test_what_cannot_be_ours_is_dropped_at_once_not_held() -> None:
         plane.receive_datagram(datagram, ("10.0.0.2", 7411), 0.0)
     assert plane.status(0.0)["early_holding"] == 0
     assert plane.counters["dropped_peer_not_up"] == 3
+
+
+def _sealed_readiness(sender: str, key_of: str, seq: int, *, epoch: int = 1) -> bytes:
+    """m01's readiness (DATA SN ``seq``) to the commander in freshness ``epoch``/``seq``,
+    its tag made with ``key_of``'s pair key with the commander (m01's own: genuine)."""
+    prefix = BUNDLE.participant(sender).guid_prefix
+    sample = Readiness(sender, seq, True, "", False, 1, 3, 10, 50, 700)
+    header = Header(PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, prefix)
+    message = encode_message(header, [Data(READY_R, READY_W, seq, None, encode_sample(sample))])
+    pair = keyring(BUNDLE, "lead").pair_key(BUNDLE.participant(key_of).guid_prefix)
+    assert pair is not None
+    return seal(user_data_key(pair), message, Freshness(epoch, seq), LEAD.guid_prefix, 1)
+
+
+def _down_with_one_report_held() -> tuple[DataPlane, bytes]:
+    """The commander had m01 up (SN 1 taken), then down; m01's genuine report SN 9 arrives
+    before its re-discovery and is held."""
+    plane = make_plane(BUNDLE, "lead")
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), 0.0, epoch=1)
+    plane.receive_datagram(_sealed_readiness("m01", "m01", 1), ("10.0.0.2", 7411), 0.1)
+    plane.peer_down("m01", 1.0)
+    genuine = _sealed_readiness("m01", "m01", 9)
+    plane.receive_datagram(genuine, ("10.0.0.2", 7411), 1.1)
+    assert plane.status(1.1)["early_holding"] == 1
+    return plane, genuine
+
+
+def _taken_at_peer_up(plane: DataPlane, now: float) -> list[int]:
+    """m01 up again: the readiness sequence numbers the commander counts from the hold."""
+    while plane.next_event() is not None:
+        pass
+    plane.peer_up("m01", address_of(BUNDLE, "m01"), now, epoch=1)
+    taken = []
+    while (event := plane.next_event()) is not None:
+        if isinstance(event, ReadinessReceived):
+            taken.append(event.sample.seq)
+    return taken
+
+
+def test_an_outsiders_forgeries_cannot_push_a_held_genuine_report_out() -> None:
+    """Attacker without keys, and a captured member (m02) tagging with its own pair key:
+    datagrams under m01's prefix, sealed for the commander's life (the epoch hint is public,
+    in its SPDP), more than the hold keeps. They are refused on arrival (``auth_failed``),
+    never held, so m01's genuine report still counts at m01's peer_up. On a plane that holds
+    before it verifies, the flood displaced it (the report was lost, as in the blackout)."""
+    plane, _ = _down_with_one_report_held()
+    flood = 3 * MAX_EARLY_PER_PEER
+    for k in range(flood):
+        outsider = bytearray(_sealed_readiness("m01", "m01", 20 + k))
+        outsider[-1] ^= 0x01  # a guessed tag
+        captured = _sealed_readiness("m01", "m02", 40 + k)  # m02's key, m01's prefix
+        plane.receive_datagram(bytes(outsider), ("10.0.0.66", 7411), 1.2 + k * 0.01)
+        plane.receive_datagram(captured, ("10.0.0.3", 7411), 1.2 + k * 0.01)
+    assert plane.status(1.4)["early_holding"] == 1
+    assert plane.counters["dropped_auth_failed"] == 2 * flood
+    assert _taken_at_peer_up(plane, 1.5) == [9]
+
+
+def test_replayed_captures_cannot_push_a_held_genuine_report_out() -> None:
+    """Attacker replaying genuine datagrams of m01: one the commander already took (the
+    replay window refuses it on arrival), and older ones of m01's life the commander never
+    received (they verify), each sent again and again. The hold keeps the freshest
+    (highest freshness), so the genuine SN 9 report is never displaced by older captures."""
+    plane, _ = _down_with_one_report_held()
+    taken_before = _sealed_readiness("m01", "m01", 1)
+    older = [_sealed_readiness("m01", "m01", seq) for seq in range(2, 2 + MAX_EARLY_PER_PEER)]
+    for k in range(3):
+        plane.receive_datagram(taken_before, ("10.0.0.66", 7411), 1.2 + k * 0.01)
+        for data in older:
+            plane.receive_datagram(data, ("10.0.0.66", 7411), 1.2 + k * 0.01)
+    assert plane.counters["dropped_auth_replayed"] >= 3
+    assert plane.status(1.4)["early_holding"] <= MAX_EARLY_PER_PEER
+    assert 9 in _taken_at_peer_up(plane, 1.5)
+
+
+def test_copies_of_the_newest_held_datagram_cannot_push_the_others_out() -> None:
+    """Attacker replaying the newest of m01's held reports (it verifies, its freshness is
+    the highest) again and again: an exact copy is not held twice, so m01's other held
+    reports are all counted at its peer_up. Held once per copy, they pushed the others out."""
+    plane, _ = _down_with_one_report_held()  # SN 9
+    newer = [_sealed_readiness("m01", "m01", seq) for seq in (10, 11)]
+    for data in newer:
+        plane.receive_datagram(data, ("10.0.0.2", 7411), 1.15)
+    for k in range(2 * MAX_EARLY_PER_PEER):
+        plane.receive_datagram(newer[-1], ("10.0.0.66", 7411), 1.2 + k * 0.01)
+    assert plane.status(1.4)["early_holding"] == 3
+    assert sorted(_taken_at_peer_up(plane, 1.5)) == [9, 10, 11]

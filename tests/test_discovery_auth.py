@@ -407,3 +407,23 @@ def test_flipping_any_bit_of_a_signed_dispose_gets_it_refused(where: int, bit: i
     assert not any(isinstance(x, PeerLost) for x in drain(e))
     e.receive_datagram(d, A1, 0.3)  # the genuine dispose still works afterwards
     assert not discovered(e, 1)
+
+
+def test_a_members_dispose_or_alive_under_an_invented_header_prefix_moves_nothing() -> None:
+    """Session 10 network review. Authentication is chosen by the RTPS header's prefix: an
+    invented one takes the foreign path (no tag, no signature, only the decode budget). So a
+    DATA(p[UD]) or DATA(p) naming a member inside such a header must never reach that
+    member's state: the decoder refuses a sample whose participant differs from the header
+    (``decode_error``), and the member stays discovered, its locators unchanged."""
+    e = receiver()
+    a1 = auth_for(BUNDLE, 1, epoch=5)
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    drain(e)
+    invented = bytes(range(100, 112))
+    dispose = bytearray(encode_spdp_dispose(P[1], sequence_number=9, timestamp=None))
+    dispose[8:20] = invented
+    assert refused(e, bytes(dispose), ATTACKER, 0.2) == {"decode_error": 1}
+    alive = bytearray(peer_datagram(BUNDLE, 1))  # unsigned: the foreign path never verifies
+    alive[8:20] = invented
+    assert refused(e, bytes(alive), ATTACKER, 0.3) == {"decode_error": 1}
+    assert discovered(e, 1)

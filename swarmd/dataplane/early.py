@@ -13,10 +13,17 @@ the blackout lost (docs/flight-history.md, "Where the blackout's missing readine
 ``EarlyDatagrams`` keeps the last few such datagrams of a bundle participant for
 ``EARLY_HOLD_S`` and hands them back when discovery reports it up; the plane then runs
 every check on them as on any datagram (verify, then change state: style rule 16), so a
-held datagram moves nothing until its authenticator checks. Nothing here is trusted: a
-forgery held is a forgery refused at release (``auth_failed``), a capture held is refused
-by the replay window (``auth_replayed``). What a forger gains is displacing a genuine held
-datagram, which jamming the channel gains too. Pure, keyed by ``now``; no clock.
+held datagram moves nothing until its authenticator checks again at release.
+
+Who may take a slot (session 10 network review, docs/security.md "Network paths end to
+end"): the plane holds a datagram only once its tag verified for this life of ours and
+its freshness is not one the sender's replay window already has (``DataPlane._may_hold``),
+so an outsider's forgery, or a captured member's under another member's prefix, is
+refused on arrival and never displaces a genuine held datagram. What is left is a
+replayer holding genuine datagrams of the sender's current life that we never took; past
+the cap the hold therefore drops the *stalest freshness* (epoch, sequence), not the
+oldest arrival, so an older capture never pushes out a newer report, and an exact copy of
+a held datagram is not held twice. Pure, keyed by ``now``; no clock.
 """
 
 from __future__ import annotations
@@ -24,7 +31,11 @@ from __future__ import annotations
 from collections import deque
 from typing import Final
 
+from swarmd.auth.freshness import Freshness
 from swarmd.rtps.types import GuidPrefix
+
+# (arrival ``now``, the datagram, its source, its trailer's freshness)
+Held = tuple[float, bytes, tuple[str, int], Freshness]
 
 # One readiness period (1 Hz, the paper's workload): the commander's re-discovery of a
 # member follows the member's within the rejoin delay, U(0, N / 50 s) = 0.4 s at N = 20
@@ -34,8 +45,9 @@ from swarmd.rtps.types import GuidPrefix
 # deadline earlier, docs/dataplane.md, "Validity").
 EARLY_HOLD_S: Final = 1.0
 # Per participant: what one peer_up can release. A re-discovery queues at most a readiness
-# report and a reliable writer's hand-over (DATA + HEARTBEAT, one datagram or two); a forger
-# flooding one participant's prefix only cycles these slots.
+# report and a reliable writer's hand-over (DATA + HEARTBEAT, one datagram or two). Only
+# datagrams whose tag verified take a slot, and past the cap the stalest freshness leaves:
+# a forger cannot cycle these slots, a replayer of older captures cannot either.
 MAX_EARLY_PER_PEER: Final = 4
 
 
@@ -43,45 +55,57 @@ class EarlyDatagrams:
     """Held datagrams per sender prefix: at most ``per_peer`` each, for ``hold_s``.
 
     The caller holds only datagrams whose prefix is a bundle participant's (so the table
-    has at most one queue per participant) and of at most its datagram bound, and counts
-    what ``hold`` and ``release`` say was dropped."""
+    has at most one queue per participant), of at most its datagram bound and whose tag
+    verified, and counts what ``hold`` and ``release`` say was dropped."""
 
     def __init__(self, hold_s: float = EARLY_HOLD_S, per_peer: int = MAX_EARLY_PER_PEER) -> None:
         self.hold_s = hold_s
         self.per_peer = per_peer
-        self._held: dict[GuidPrefix, deque[tuple[float, bytes, tuple[str, int]]]] = {}
+        self._held: dict[GuidPrefix, deque[Held]] = {}
 
     def __len__(self) -> int:
         return sum(len(q) for q in self._held.values())
 
     def hold(
-        self, prefix: GuidPrefix, data: bytes, source: tuple[str, int], now: float
+        self,
+        prefix: GuidPrefix,
+        data: bytes,
+        source: tuple[str, int],
+        freshness: Freshness,
+        now: float,
     ) -> list[tuple[bytes, tuple[str, int]]]:
-        """Keep ``data`` from ``prefix``; returns what left the queue unreleased (expired,
-        or the oldest past the cap)."""
+        """Keep ``data`` (whose trailer says ``freshness``) from ``prefix``; returns what
+        left the queue unreleased: expired, the stalest freshness past the cap (``data``
+        itself when it is the stalest), or ``data`` when the very datagram is held."""
         queue = self._held.setdefault(prefix, deque())
         gone = self._expire(queue, now)
-        queue.append((now, data, source))
-        while len(queue) > self.per_peer:
-            _, old, src = queue.popleft()
-            gone.append((old, src))
+        if any(held[1] == data for held in queue):
+            gone.append((data, source))  # a copy adds nothing: it would only take a slot
+            return gone
+        queue.append((now, data, source, freshness))
+        if len(queue) > self.per_peer:
+            stalest = min(queue, key=lambda held: (held[3].epoch, held[3].seq))
+            queue.remove(stalest)
+            gone.append((stalest[1], stalest[2]))
         return gone
 
     def release(
         self, prefix: GuidPrefix, now: float
     ) -> tuple[list[tuple[bytes, tuple[str, int]]], list[tuple[bytes, tuple[str, int]]]]:
-        """Everything held from ``prefix``, oldest first: (still fresh, expired)."""
+        """Everything held from ``prefix``: (still fresh, in freshness order, the order
+        the sender made them; expired)."""
         queue = self._held.pop(prefix, None)
         if queue is None:
             return [], []
         gone = self._expire(queue, now)
-        return [(data, source) for _, data, source in queue], gone
+        ordered = sorted(queue, key=lambda held: (held[3].epoch, held[3].seq))
+        return [(data, source) for _, data, source, _ in ordered], gone
 
-    def _expire(
-        self, queue: deque[tuple[float, bytes, tuple[str, int]]], now: float
-    ) -> list[tuple[bytes, tuple[str, int]]]:
+    def _expire(self, queue: deque[Held], now: float) -> list[tuple[bytes, tuple[str, int]]]:
+        # Arrival order is kept in the deque (eviction by freshness removes from the middle),
+        # so the expired ones are still at its left.
         gone: list[tuple[bytes, tuple[str, int]]] = []
         while queue and now - queue[0][0] > self.hold_s:
-            _, data, source = queue.popleft()
+            _, data, source, _ = queue.popleft()
             gone.append((data, source))
         return gone

@@ -44,12 +44,19 @@ Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input beco
 
 from __future__ import annotations
 
+import hmac
 from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Final, Protocol
 
-from swarmd.auth.freshness import U32_MAX, CounterExhausted, ReplayWindow, SendCounter
+from swarmd.auth.freshness import (
+    U32_MAX,
+    CounterExhausted,
+    Freshness,
+    ReplayWindow,
+    SendCounter,
+)
 from swarmd.bundle.model import Bundle, EndpointKind, Participant, Topic
 from swarmd.dataplane.channel import Channel
 from swarmd.dataplane.early import EarlyDatagrams
@@ -75,10 +82,12 @@ from swarmd.dataplane.reader import Delivered
 from swarmd.dataplane.seal import (
     EPOCH_HINT_MASK,
     TRAILER_BYTES,
+    Trailer,
     peek_trailer,
     protected_part,
     seal,
     user_data_key,
+    verify,
 )
 from swarmd.dataplane.types import (
     MAX_REASON_CHARS,
@@ -182,6 +191,8 @@ class DataPlane:
         self.epoch = epoch
         self._keys = keys
         self._channels: dict[GuidPrefix, Channel] = {}
+        # prepared MAC states of participants without a channel yet (the early hold's check)
+        self._keys_prepared: dict[GuidPrefix, hmac.HMAC] = {}
         # our writers and readers, and what reaches them (endpoints.py)
         self._endpoints = Endpoints(bundle, self.local, incarnation)
         self._participants: dict[str, Participant] = {p.name: p for p in bundle.participants}
@@ -455,10 +466,16 @@ class DataPlane:
         peer_name = self._peer_by_prefix.get(prefix)
         if peer_name is None:
             known = self.bundle.by_prefix(prefix) is not None
-            if known and self._may_be_early(data):
-                # Discovery may report it up in a moment: held, not trusted (early.py)
+            trailer = self._may_be_early(data) if known else None
+            if trailer is not None:
+                # Discovery may report it up in a moment: held if its tag holds, and still
+                # checked in full at release (early.py)
+                refused = self._may_hold(prefix, data, trailer.freshness)
+                if refused is not None:
+                    self._drop(refused[0], source, f"{prefix}: {refused[1]}, not held")
+                    return
                 self.counters["early_held"] += 1
-                for _, src in self._early.hold(prefix, data, source, now):
+                for _, src in self._early.hold(prefix, data, source, trailer.freshness, now):
                     self._drop("peer_not_up", src, f"{prefix}: held, not taken")
                 return
             reason = "peer_not_up" if known else "unknown_participant"
@@ -466,14 +483,37 @@ class DataPlane:
             return
         self._take(data, prefix, peer_name, source, now)
 
-    def _may_be_early(self, data: bytes) -> bool:
-        """Cheap, stateless: whether a datagram from a bundle participant that is not up
-        is worth holding: no larger than we ever send, and sealed for this life of ours
-        (a capture made for an earlier one can never pass, docs/security.md)."""
+    def _may_be_early(self, data: bytes) -> Trailer | None:
+        """Cheap, stateless: the trailer of a datagram from a bundle participant that is
+        not up if it is worth holding: no larger than we ever send, and sealed for this life
+        of ours (a capture made for an earlier one can never pass, docs/security.md)."""
         if len(data) > MAX_DATAGRAM_BYTES:
-            return False
+            return None
         trailer = peek_trailer(data)
-        return trailer is not None and trailer.epoch_hint == self.epoch & EPOCH_HINT_MASK
+        if trailer is None or trailer.epoch_hint != self.epoch & EPOCH_HINT_MASK:
+            return None
+        return trailer
+
+    def _may_hold(
+        self, prefix: GuidPrefix, data: bytes, fresh: Freshness
+    ) -> tuple[str, str] | None:
+        """Whether a datagram of a participant not up may take a slot in the early hold:
+        None if so, else (reason, detail). Cheapest first, as ``Channel.check``: an earlier
+        life of the sender, or a freshness its replay window already took (a capture), then
+        the tag for this life of ours (one HMAC). The sender's epoch cannot be checked yet
+        (its SPDP has not been taken), and nothing moves here: the window moves at release,
+        where every check runs again. Without this a forger cycled the hold's slots and
+        pushed a genuine report out (docs/security.md, "Network paths end to end")."""
+        channel = self._channels.get(prefix)
+        if channel is not None and fresh.epoch <= channel.peer_epoch:
+            if fresh.epoch < channel.peer_epoch:
+                return "auth_stale_epoch", f"epoch {fresh.epoch}, known {channel.peer_epoch}"
+            if not channel.window.is_fresh(fresh):
+                return "auth_replayed", f"{fresh.epoch}/{fresh.seq}"
+        key = self._user_data_key(prefix)
+        if key is None or not verify(key, data, self.prefix, self.epoch):
+            return "auth_failed", f"{fresh.epoch}/{fresh.seq}"
+        return None
 
     def _take(
         self, data: bytes, prefix: GuidPrefix, peer_name: str, source: tuple[str, int], now: float
@@ -584,12 +624,27 @@ class DataPlane:
         """The authentication state with a bundle participant, made on first use."""
         channel = self._channels.get(prefix)
         if channel is None:
+            key = self._user_data_key(prefix)
+            if key is None:
+                return None
+            channel = Channel(key, SendCounter(self.epoch), epoch)
+            self._channels[prefix] = channel
+        return channel
+
+    def _user_data_key(self, prefix: GuidPrefix) -> hmac.HMAC | None:
+        """The prepared user-data MAC state with a bundle participant (its channel's once
+        it has one), None without a pair key. At most one per bundle participant: only
+        bundle prefixes reach here."""
+        channel = self._channels.get(prefix)
+        if channel is not None:
+            return channel.key
+        key = self._keys_prepared.get(prefix)
+        if key is None:
             pair_key = self._keys.pair_key(prefix)
             if pair_key is None:
                 return None
-            channel = Channel(user_data_key(pair_key), SendCounter(self.epoch), epoch)
-            self._channels[prefix] = channel
-        return channel
+            key = self._keys_prepared[prefix] = user_data_key(pair_key)
+        return key
 
     def _publish(self, topic: str, sample: Sample, now: float) -> int:
         writer = self._endpoints.by_topic.get(topic)

@@ -27,6 +27,9 @@ Theory of operation (reliable writer, DDSI-RTPS 2.5 section 8.4.9 "Reliable Stat
 * An ACKNACK acknowledges everything below its bitmap base and requests the bitmap's
   members: each is resent as DATA if still in history and relevant, or covered by a GAP
   (evicted from keep-last history, or written before a volatile match; spec 8.4.9.2.8).
+  A reader's requests are answered at most ``ACKNACK_REPLY_RATE`` times a second (burst
+  ``ACKNACK_REPLY_BURST``; spec 8.4.7.1 leaves it to the writer, nackSuppressionDuration):
+  the acknowledgement still counts, only the answer waits for the next HEARTBEAT's ACKNACK.
 * Heartbeats are sent per reader (INFO_DST-directed, unicast) and announce
   ``[max(first in history, relevant_from), last written]``.
 * A sample may carry one payload for every reader, or one copy per reader
@@ -70,6 +73,14 @@ MAX_HISTORY_DEPTH: Final = 1024  # keep-last N bound a bundle may ask for; caps 
 # Proxies of lost readers kept for a resume. Only readers of bundle participants that
 # discovery reported up are ever matched, so the bundle bounds it; the cap is a backstop.
 MAX_LOST_READERS: Final = 4096
+# Answers (repairs, GAPs) to one reader's ACKNACKs, a second, and how many may come at once.
+# A reader ACKNACKs each HEARTBEAT (at most every HEARTBEAT_PERIOD_S, 5/s, plus the ones
+# piggy-backed on writes and repairs), so an honest one never waits on it. It stops a
+# captured member (docs/security.md, "Network paths end to end"): every one of its fresh
+# ACKNACKs was answered at once, to the locator it signed (any unicast address: a victim),
+# 2.5x its own bytes at any rate (tests/test_dataplane_acknack_flood.py).
+ACKNACK_REPLY_RATE: Final = 20.0
+ACKNACK_REPLY_BURST: Final = 4.0
 
 
 # One sample's serialized payload: the same octets for every reader, or one copy per reader
@@ -102,6 +113,9 @@ class ReaderProxy:
     heartbeats_unanswered: int = 0  # heartbeats since the last accepted ACKNACK
     period_s: float = HEARTBEAT_PERIOD_S
     next_heartbeat: float = 0.0
+    # answers to its ACKNACKs left (a token bucket: ACKNACK_REPLY_RATE), as of reply_at
+    reply_tokens: float = ACKNACK_REPLY_BURST
+    reply_at: float = 0.0
 
 
 @dataclass(slots=True)
@@ -113,6 +127,7 @@ class WriterCounters:
     gaps_sent: int = 0
     acknacks_received: int = 0
     acknacks_stale: int = 0
+    acknacks_unanswered: int = 0  # fresh ACKNACKs past ACKNACK_REPLY_RATE: counted, not answered
     evicted_unacked: int = 0
     withdrawn: int = 0  # samples removed before every reader had them (validity ended)
     resumed: int = 0  # readers matched again in the same life, handed what they missed
@@ -328,7 +343,20 @@ class ReliableWriter:
         proxy.next_heartbeat = now + self.period_s
         out: list[Outgoing] = []
         irrelevant: list[int] = []
-        for sn in state.members():
+        requested = list(state.members())  # at most MAX_SN_SET_BITS (the codec's bound)
+        if not requested:
+            return out  # a pure acknowledgement asks for nothing: no answer, no token spent
+        if now > proxy.reply_at:
+            refill = (now - proxy.reply_at) * ACKNACK_REPLY_RATE
+            proxy.reply_tokens = min(ACKNACK_REPLY_BURST, proxy.reply_tokens + refill)
+            proxy.reply_at = now
+        if proxy.reply_tokens < 1.0:
+            # Past the reader's answer rate: acknowledged above, answered at the next
+            # HEARTBEAT's ACKNACK (due by now + period_s).
+            self.counters.acknacks_unanswered += 1
+            return out
+        proxy.reply_tokens -= 1.0
+        for sn in requested:
             # resend even below ``acked``: a reader that restarted lost what it had acked
             if sn > self.last_sn:
                 continue

@@ -64,6 +64,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, assert_never
 
+from swarmd.auth.budget import TokenBucket
 from swarmd.dataplane import (
     TOPIC_READY,
     CommandCopyVoided,
@@ -123,6 +124,12 @@ MAX_PENDING_WITHDRAWALS: Final = MAX_HISTORY_DEPTH
 # many times over; past it the operator has long acted on what swarmctl said.
 REREPORT_WINDOW_S: Final = 300.0
 MAX_REREPORTED: Final = MAX_TRACKED_COMMANDS
+# Outcomes for commands this commander never sent (to that member), reported (and so logged)
+# at most this often; the rest are counted. Honest ones are rare (a member re-reporting what
+# an earlier life decided for an earlier commander life); a captured member can invent them
+# as fast as it writes (docs/security.md, "Network paths end to end").
+UNKNOWN_OUTCOME_REPORTS_PER_S: Final = 1.0
+UNKNOWN_OUTCOME_REPORT_BURST: Final = 10.0
 DEFAULT_VALID_FOR_S: Final = {
     CommandKind.TAKEOFF: 3.0,
     CommandKind.HOLD: 5.0,
@@ -312,7 +319,14 @@ class SwarmCore:
         if roles.is_commander and self.has_vehicle:
             self.table.add_local(roles.me)  # the commander's own drone flies with the swarm
         self.tracker = CommandTracker()
-        self.counters: dict[str, int] = {"readiness_published": 0, "outcomes_rereported": 0}
+        self.counters: dict[str, int] = {
+            "readiness_published": 0,
+            "outcomes_rereported": 0,
+            "unknown_outcomes_suppressed": 0,
+        }
+        self._unknown_outcome_reports = TokenBucket(
+            UNKNOWN_OUTCOME_REPORTS_PER_S, UNKNOWN_OUTCOME_REPORT_BURST, 0.0
+        )
         self.executor_counters: dict[str, int] = {}
         self._tick_at: float | None = None
         self._seq = 0
@@ -506,6 +520,11 @@ class SwarmCore:
                     known = self.tracker.record(
                         outcome.command_id, node, outcome.result, outcome.reason, now, epoch=epoch
                     )
+                    if not known and not self._unknown_outcome_reports.take(now):
+                        # an answer to no command we sent: counted by the tracker, reported
+                        # at a bounded rate (a captured member inventing them: a log line each)
+                        self.counters["unknown_outcomes_suppressed"] += 1
+                        continue
                     self._events.append(
                         OutcomeRecorded(
                             node, outcome.command_id, outcome.result, outcome.reason, known
