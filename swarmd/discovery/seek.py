@@ -31,9 +31,12 @@ further than ``SEEK_PUT_OFF_MAX_S`` from our own last multicast: every drone see
 least that often, and the edge drone's seek reaches across. Past that window the outage is
 a long one (a drone gone for good, a dead commander) and the suppression is whole again: one
 seek per period per neighbourhood, as before, for the rest of ``SEEK_FOR_S``. The bound is
-kept only by a drone that heard few seekers lately (at most ``SEEK_PUT_OFF_SEEKERS_MAX``
-within ``SEEK_SEEKERS_WINDOW_S``): the edge of a strung-out swarm, where it is needed. In a
-dense neighbourhood every drone would otherwise seek every 2.4 s, a cost growing with N
+kept by a drone that heard few seekers lately (at most ``SEEK_PUT_OFF_SEEKERS_MAX`` within
+``SEEK_SEEKERS_WINDOW_S``), and in a denser neighbourhood by the first
+``SEEK_PUT_OFF_RANK_MAX`` of the seekers per sought peer, ranked by a keyed hash of the two
+GUIDs: about that many per peer lost, whatever N, so a drone gone for good costs a few
+bounded seekers, not N / 2.4 seeks a second, while a side that lost a whole other side (where
+an edge drone may be the only one in reach) keeps most of its drones bounded
 (docs/discovery.md, "The put-off bound at scale").
 
 Bound: a peer not heard for ``SEEK_FOR_S`` is no longer sought (a drone really gone must not
@@ -100,8 +103,7 @@ SEEK_PUT_OFF_FOR_S: Final = 60.0
 # bound is for the edge of a swarm strung out over more than one radio range, where a drone
 # hears only the few of its side near it. 8: the bound's worst cost is then a neighbourhood of
 # 10 (1.16x at N = 10, 1.19x at N = 9, what session 9 accepted), and a strung-out side of up
-# to 9 drones keeps it (tests/test_discovery_seek_reach.py; a side of 10 or more is back to the
-# suppression's race: docs/discovery.md, "The put-off bound at scale").
+# to 9 drones keeps it (tests/test_discovery_seek_reach.py). A denser side: the rank below.
 SEEK_PUT_OFF_SEEKERS_MAX: Final = 8
 # How far back a seeker counts: every seeker of a dense neighbourhood sends a multicast within
 # it (a seek put off by at most SEEK_PUT_OFF_MAX_S while the bound holds, or its renewal), so
