@@ -23,6 +23,8 @@ adds the one channel effect the fly-out's slow pairs point at: a frame received 
 D dB above the threshold is lost with probability P if multicast (802.11 sends a group frame
 once, unacknowledged) and P ** 4 if directed (MAC-acknowledged and retried; 4 is a rough
 stand-in for the retries that fit in a frame's time, not a measured figure).
+``--seekers-max K`` sets ``seek.SEEK_PUT_OFF_SEEKERS_MAX`` for this process (1000: the
+seek's put-off bound kept by every drone, as before branch h-seek-scale).
 
 For every peer an observer lost and found again: the time from the pair's return (both
 ways in range) to the re-discovery. Each one slower than 2 s is classed by what happened in
@@ -63,6 +65,7 @@ from typing import Any
 from swarmd_lab.testing import Swarm, build_swarm, node_ipv4
 
 from bench.wifi import flight
+from swarmd.discovery import seek
 from swarmd.discovery.events import PeerDiscovered, PeerLost
 from swarmd.discovery.inputs import LinkSample
 
@@ -319,7 +322,16 @@ def main(argv: Sequence[str]) -> int:
     parser.add_argument(
         "--edge-loss", type=float, default=0.0, help="a multicast's loss at the edge (0-1)"
     )
+    parser.add_argument(
+        "--seekers-max",
+        type=int,
+        help="override seek.SEEK_PUT_OFF_SEEKERS_MAX (1000: the put-off bound kept by every "
+        "drone, as before branch h-seek-scale)",
+    )
     args = parser.parse_args(argv)
+    if args.seekers_max is not None:
+        # Seek._few_seekers reads the module global on each call
+        seek.SEEK_PUT_OFF_SEEKERS_MAX = args.seekers_max  # type: ignore[misc]
     if not args.run.is_file():
         print(f"{args.run}: no such run file", file=sys.stderr)
         return 66  # EX_NOINPUT

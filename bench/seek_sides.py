@@ -61,7 +61,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sides", type=int, nargs="+", default=[6, 8, 9, 10])
     parser.add_argument("--seeds", type=int, default=8, help="seeds 1..S (default 8)")
     parser.add_argument("--seekers-max", type=int, help="override SEEK_PUT_OFF_SEEKERS_MAX")
+    parser.add_argument("--rank-max", type=int, help="override SEEK_PUT_OFF_RANK_MAX")
     args = parser.parse_args(argv)
+    if args.rank_max is not None:
+        # Seek._ranked_first reads the module global on each call (0: the rank keeps none)
+        seek.SEEK_PUT_OFF_RANK_MAX = args.rank_max  # type: ignore[misc]
     if args.seekers_max is not None:
         # Seek._few_seekers reads the module global on each call
         seek.SEEK_PUT_OFF_SEEKERS_MAX = args.seekers_max  # type: ignore[misc]
@@ -69,7 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         found = [edge_pair_found_s(side, seed) for seed in range(1, args.seeds + 1)]
         slow = sum(f > 2.0 for f in found)
         print(
-            f"side {side} (seekers max {seek.SEEK_PUT_OFF_SEEKERS_MAX}): edge pair found again "
+            f"side {side} (seekers max {seek.SEEK_PUT_OFF_SEEKERS_MAX}, rank max "
+            f"{seek.SEEK_PUT_OFF_RANK_MAX}): edge pair found again "
             f"after max {max(found):.2f} s, over 2 s in {slow} of {len(found)} seeds: "
             f"{[round(f, 2) for f in found]}",
             flush=True,

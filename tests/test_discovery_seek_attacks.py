@@ -18,8 +18,10 @@ The captured member (attacker 2) leaving and returning is
 
 from __future__ import annotations
 
+import pytest
 from swarmd_lab.testing import ScriptedSender, Swarm, build_swarm, node_ipv4
 
+from swarmd.discovery import seek as seek_module
 from swarmd.discovery.events import PeerDiscovered
 from swarmd.discovery.seek import (
     SEEK_FOR_S,
@@ -308,13 +310,20 @@ def _forged_edge(*, authenticated: bool) -> tuple[Swarm, _Forger, list[float]]:
     return swarm, forger, [b - a for a, b in zip(edges, edges[1:], strict=False)]
 
 
-def test_forged_seekers_neither_count_nor_lift_the_edge_drones_put_off_bound() -> None:
+def test_forged_seekers_neither_count_nor_lift_the_edge_drones_put_off_bound(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """Authenticated: each forged frame fails its bridge's signature and is refused before
     anything moves, so the edge drone counts only its own side's five seekers (the bridges'
     genuine frames list side B: they seek nothing) and keeps seeking at least every
     ``SEEK_PUT_OFF_MAX_S``. Unauthenticated (the control), the same frames count the bridges
     as seekers too, one more than ``SEEK_PUT_OFF_SEEKERS_MAX``, and lift the bound: the edge
-    drone falls silent longer than that."""
+    drone falls silent longer than that. The rank (``SEEK_PUT_OFF_RANK_MAX``) is off here so
+    that the count alone decides: uav5 ranks first for one of side B, so the rank would keep
+    its bound through the control's forgery too (a forger would need three identities that
+    outrank it for every peer of side B; the rank reads the same table, so a refused frame
+    moves it no more than the count)."""
+    monkeypatch.setattr(seek_module, "SEEK_PUT_OFF_RANK_MAX", 0)
     swarm, forger, gaps = _forged_edge(authenticated=True)
     seek = swarm.engines[EDGE]._seek
     assert set(seek.seekers) <= set(range(SIDE)) - {EDGE}, sorted(seek.seekers)

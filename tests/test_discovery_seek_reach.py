@@ -23,6 +23,7 @@ import random
 import pytest
 from swarmd_lab.testing import Swarm, build_swarm, make_bundle
 
+from swarmd.bundle.model import Bundle
 from swarmd.discovery.events import PeerDiscovered, PeerLost
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.seek import (
@@ -30,9 +31,11 @@ from swarmd.discovery.seek import (
     SEEK_MIN_S,
     SEEK_PUT_OFF_FOR_S,
     SEEK_PUT_OFF_MAX_S,
+    SEEK_PUT_OFF_RANK_MAX,
     SEEK_PUT_OFF_SEEKERS_MAX,
     SEEK_SEEKERS_WINDOW_S,
     Seek,
+    _pair_rank,
 )
 from swarmd.discovery.timers import MinInterval, RetrySchedule
 
@@ -111,14 +114,13 @@ def test_a_side_as_large_as_the_cap_allows_finds_its_edge_pair_within_2_s() -> N
     assert max(latencies.values()) <= REDISCOVERY_TARGET_S, latencies
 
 
-@pytest.mark.xfail(strict=True, reason="a denser side lifts the put-off bound: the old race")
 def test_a_side_denser_than_the_cap_finds_its_edge_pair_within_2_s() -> None:
-    """The price of a bound whose cost does not grow with N (docs/discovery.md, "The put-off
-    bound at scale"): sides of SEEK_PUT_OFF_SEEKERS_MAX + 2 drones, each edge drone hearing
-    one seeker too many, are back to the suppression's race (up to 6.83 s in 6 of 8 seeds,
-    where the bound everywhere found them within 1.73 s: `python -m bench.seek_sides
-    --seekers-max 1000`). Strict: passing means the cap no longer decides this shape, and
-    the docs are wrong."""
+    """Sides of SEEK_PUT_OFF_SEEKERS_MAX + 2 drones, each edge drone hearing one seeker too
+    many for the count: the rank keeps the bound for the first SEEK_PUT_OFF_RANK_MAX of a
+    side per sought peer, and the edge drones are among them for one of the other side's
+    peers (docs/discovery.md, "The put-off bound at scale"). With the count alone (h-seek-
+    scale) this was a strict xfail: up to 6.83 s in 6 of 8 seeds (`python -m
+    bench.seek_sides --sides 10 --rank-max 0`)."""
     latencies = _edge_pair_found_s(SEEK_PUT_OFF_SEEKERS_MAX + 2)
     assert max(latencies.values()) <= REDISCOVERY_TARGET_S, latencies
 
@@ -168,12 +170,42 @@ def test_a_dead_commander_draws_one_seek_per_period_once_the_loss_is_stale(seed:
     assert window / SEEK_MAX_S - 1 <= members_seeks() - before <= window / SEEK_MIN_S + 1
 
 
-def _lost_peer(index: int, last_heard: float) -> Peer:
-    bundle = make_bundle(4)
-    peer = Peer(bundle.participants[index], index, None, RetrySchedule(4), MinInterval(0.5))
-    peer.state = PeerState.LOST
-    peer.last_heard = last_heard
-    return peer
+UNIT_N = 16  # the unit tests' bundle: the sought peer, us, and up to 14 seekers
+SOUGHT = 1
+
+
+def _peers(bundle: Bundle) -> list[Peer | None]:
+    return [Peer(p, p.index, None, RetrySchedule(4), MinInterval(0.5)) for p in bundle.participants]
+
+
+def _by_rank(bundle: Bundle) -> list[int]:
+    """Every participant but the sought peer, in the rank order for ``SOUGHT``."""
+    key = bundle.participants[SOUGHT].guid_prefix.value
+    return sorted(
+        (p.index for p in bundle.participants if p.index != SOUGHT),
+        key=lambda i: _pair_rank(bundle.participants[i].guid_prefix.value, key),
+    )
+
+
+def _seek_as(me: int, seed: int, *, last_heard: float, now: float) -> tuple[Seek, list[int]]:
+    """A ``Seek`` of participant ``me`` of a ``UNIT_N`` bundle that lost ``SOUGHT`` (last
+    heard at ``last_heard``) at ``now``; the other participants (seekers to be), best rank
+    first."""
+    bundle = make_bundle(UNIT_N)
+    peer_at = _peers(bundle)
+    peer_at[me] = None
+    seek = Seek(
+        enabled=True,
+        rng=random.Random(seed),
+        peer_at=peer_at,
+        my_guid_prefix=bundle.participants[me].guid_prefix.value,
+    )
+    lost = peer_at[SOUGHT]
+    assert lost is not None
+    lost.state = PeerState.LOST
+    lost.last_heard = last_heard
+    seek.start([lost], now=now)
+    return seek, [i for i in _by_rank(bundle) if i != me]
 
 
 def test_the_put_off_bound_holds_while_the_loss_is_fresh_and_again_after_a_return() -> None:
@@ -181,8 +213,7 @@ def test_the_put_off_bound_holds_while_the_loss_is_fresh_and_again_after_a_retur
     a period, but while the loss is fresh no later than SEEK_PUT_OFF_MAX_S after our own
     last multicast; once it is stale, a full period from the frame; a lost peer's return
     makes it fresh again."""
-    seek = Seek(enabled=True, rng=random.Random(1))
-    seek.start([_lost_peer(1, last_heard=10.0)], now=30.0)
+    seek, others = _seek_as(2, 1, last_heard=10.0, now=30.0)
     omits = bytes(1)  # a heard digest that lists nobody
 
     def put_off_at(now: float) -> float:
@@ -190,7 +221,7 @@ def test_the_put_off_bound_holds_while_the_loss_is_fresh_and_again_after_a_retur
         assert seek.due is not None
         seek.due = now + SEEK_MIN_S  # whatever its draw: a put-off moves it
         for k in range(1, 6):  # a seek heard every 0.9 s puts ours off each time
-            seek.heard(omits, now + 0.9 * k, 2)  # one seeker
+            seek.heard(omits, now + 0.9 * k, others[0])  # one seeker
         return seek.due - now
 
     assert put_off_at(31.0) <= SEEK_PUT_OFF_MAX_S + 1e-9  # fresh: 21 s after its last frame
@@ -206,9 +237,9 @@ def test_the_put_off_bound_holds_for_a_drone_that_hears_few_seekers_only() -> No
     one more seeker within SEEK_SEEKERS_WINDOW_S lifts it (a dense neighbourhood: each frame
     puts our seek a full period off); once the window has passed without them, the few that
     remain keep it again."""
-    seek = Seek(enabled=True, rng=random.Random(2))
-    seek.start([_lost_peer(1, last_heard=10.0)], now=20.0)
-    omits = bytes(1)
+    last = _by_rank(make_bundle(UNIT_N))[-1]  # ranked last: only the count keeps its bound
+    seek, others = _seek_as(last, 2, last_heard=10.0, now=20.0)
+    omits = bytes(2)
     few = SEEK_PUT_OFF_SEEKERS_MAX
 
     def put_off_by(seekers: list[int], now: float) -> float:
@@ -216,15 +247,53 @@ def test_the_put_off_bound_holds_for_a_drone_that_hears_few_seekers_only() -> No
         assert seek.due is not None
         seek.due = now + SEEK_MIN_S
         for k, seeker in enumerate(seekers, start=1):
-            seek.heard(omits, now + 0.2 * k, seeker)
+            seek.heard(omits, now + 0.2 * k, others[seeker])
         return seek.due - now
 
-    many_frames_few_seekers = [2 + k % few for k in range(3 * few)]  # 0.2 s apart: 3 s
+    many_frames_few_seekers = [k % few for k in range(3 * few)]  # 0.2 s apart: 3 s
     assert put_off_by(many_frames_few_seekers, 21.0) <= SEEK_PUT_OFF_MAX_S + 1e-9
-    one_more = [*range(2, 2 + few), 2 + few, 2, 3, 2, 3, 2, 3, 2, 3]
+    one_more = [*range(few), few, 0, 1, 0, 1, 0, 1, 0, 1]
     assert put_off_by(one_more, 30.0) >= 0.2 * len(one_more) + SEEK_MIN_S  # lifted
     later = 30.0 + SEEK_SEEKERS_WINDOW_S + 1.0
-    assert put_off_by([2, 3] * 10, later) <= SEEK_PUT_OFF_MAX_S + 1e-9  # two seekers now
+    assert put_off_by([0, 1] * 10, later) <= SEEK_PUT_OFF_MAX_S + 1e-9  # two seekers now
+
+
+@pytest.mark.parametrize("place", range(SEEK_PUT_OFF_RANK_MAX + 2))
+def test_in_a_dense_neighbourhood_the_first_ranked_keep_the_put_off_bound(place: int) -> None:
+    """``Seek`` alone, hand-set time, the loss fresh, every other participant of the bundle
+    (14, more than SEEK_PUT_OFF_SEEKERS_MAX) heard seeking: the drone whose keyed hash for
+    the sought peer ranks among the first SEEK_PUT_OFF_RANK_MAX keeps the bound, the next
+    ones do not (each frame puts their seek a full period off)."""
+    by_rank = _by_rank(make_bundle(UNIT_N))
+    seek, others = _seek_as(by_rank[place], 3, last_heard=10.0, now=20.0)
+    assert len(others) > SEEK_PUT_OFF_SEEKERS_MAX
+    seek.sent(21.0)
+    assert seek.due is not None
+    seek.due = 21.0 + SEEK_MIN_S
+    frames = others * 2  # every seeker twice, 0.1 s apart: 2.8 s
+    for k, seeker in enumerate(frames, start=1):
+        seek.heard(bytes(2), 21.0 + 0.1 * k, seeker)
+    if place < SEEK_PUT_OFF_RANK_MAX:
+        assert seek.due - 21.0 <= SEEK_PUT_OFF_MAX_S + 1e-9
+    else:
+        assert seek.due - 21.0 >= 0.1 * len(frames) + SEEK_MIN_S
+
+
+def test_the_rank_orders_the_drones_differently_for_each_sought_peer() -> None:
+    """``_pair_rank`` (a function of the two GUID prefixes, which every drone reads from the
+    same bundle) orders the participants differently for each sought peer, and puts
+    different drones first: a side that lost many peers spreads the bound over many of its
+    drones, not always the same few."""
+    bundle = make_bundle(UNIT_N)
+    prefixes = [p.guid_prefix.value for p in bundle.participants]
+
+    def order(key: bytes) -> tuple[int, ...]:
+        return tuple(sorted(range(UNIT_N), key=lambda i: _pair_rank(prefixes[i], key)))
+
+    orders = {order(key) for key in prefixes}
+    assert len(orders) == UNIT_N
+    firsts = {ranked[0] for ranked in orders}
+    assert len(firsts) > 1
 
 
 def test_a_member_gone_from_a_dense_swarm_draws_about_one_seek_per_period_while_fresh() -> None:

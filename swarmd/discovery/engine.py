@@ -306,7 +306,12 @@ class DiscoveryEngine:
         self._pull = PullIn(
             config, debts=debts, leases=leases, renewals=renewals, peer_count=len(self._peers)
         )
-        seek = self._seek = Seek(enabled=config.mode == "adaptive", rng=rng)
+        seek = self._seek = Seek(
+            enabled=config.mode == "adaptive",
+            rng=rng,
+            peer_at=peer_at,
+            my_guid_prefix=me.guid_prefix.value,
+        )
         dropped: Counter[DropReason] = Counter()
         foreign = self._foreign = ForeignParticipants(dropped, now)
         receive = self._receive = ReceivePath(

@@ -31,9 +31,12 @@ further than ``SEEK_PUT_OFF_MAX_S`` from our own last multicast: every drone see
 least that often, and the edge drone's seek reaches across. Past that window the outage is
 a long one (a drone gone for good, a dead commander) and the suppression is whole again: one
 seek per period per neighbourhood, as before, for the rest of ``SEEK_FOR_S``. The bound is
-kept only by a drone that heard few seekers lately (at most ``SEEK_PUT_OFF_SEEKERS_MAX``
-within ``SEEK_SEEKERS_WINDOW_S``): the edge of a strung-out swarm, where it is needed. In a
-dense neighbourhood every drone would otherwise seek every 2.4 s, a cost growing with N
+kept by a drone that heard few seekers lately (at most ``SEEK_PUT_OFF_SEEKERS_MAX`` within
+``SEEK_SEEKERS_WINDOW_S``), and in a denser neighbourhood by the first
+``SEEK_PUT_OFF_RANK_MAX`` of the seekers per sought peer, ranked by a keyed hash of the two
+GUIDs: about that many per peer lost, whatever N, so a drone gone for good costs a few
+bounded seekers, not N / 2.4 seeks a second, while a side that lost a whole other side (where
+an edge drone may be the only one in reach) keeps most of its drones bounded
 (docs/discovery.md, "The put-off bound at scale").
 
 Bound: a peer not heard for ``SEEK_FOR_S`` is no longer sought (a drone really gone must not
@@ -53,8 +56,10 @@ Pure and keyed by ``now`` (style rule 6): these classes decide when; the engine 
 
 from __future__ import annotations
 
+import hashlib
 import math
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
@@ -98,13 +103,24 @@ SEEK_PUT_OFF_FOR_S: Final = 60.0
 # bound is for the edge of a swarm strung out over more than one radio range, where a drone
 # hears only the few of its side near it. 8: the bound's worst cost is then a neighbourhood of
 # 10 (1.16x at N = 10, 1.19x at N = 9, what session 9 accepted), and a strung-out side of up
-# to 9 drones keeps it (tests/test_discovery_seek_reach.py; a side of 10 or more is back to the
-# suppression's race: docs/discovery.md, "The put-off bound at scale").
+# to 9 drones keeps it (tests/test_discovery_seek_reach.py). A denser side: the rank below.
 SEEK_PUT_OFF_SEEKERS_MAX: Final = 8
 # How far back a seeker counts: every seeker of a dense neighbourhood sends a multicast within
 # it (a seek put off by at most SEEK_PUT_OFF_MAX_S while the bound holds, or its renewal), so
 # the count does not fall below the neighbourhood's size between its frames.
 SEEK_SEEKERS_WINDOW_S: Final = 10.0
+# Which drones of a denser neighbourhood keep the bound all the same: those ranked among the
+# first SEEK_PUT_OFF_RANK_MAX for one of the peers they seek, ranking themselves and the
+# seekers heard within SEEK_SEEKERS_WINDOW_S by a keyed hash of (participant, sought peer)
+# (``_pair_rank``). Every drone of a side hears about the same seekers, so about this many
+# keep the bound per sought peer, whatever the side's size, and a different few for each
+# peer: a side that lost a whole other side (a split, a strung-out swarm cut in two) has
+# each of its drones ranked first for one of them with a good chance, the edge drone
+# included; a drone gone for good draws this many bounded seekers, not N. No draw from the
+# engine's RNG: the simulator's seeded runs cannot move. 3: sides of 10-12 find their edge
+# pair within 2 s (tests/test_discovery_seek_reach.py, ``python -m bench.seek_sides``);
+# the cost at N = 20 and 50 in docs/discovery.md, "The put-off bound at scale".
+SEEK_PUT_OFF_RANK_MAX: Final = 3
 # The peers sought at once are the bundle's: bounded by N (no peer can grow the table).
 
 # The lost_us rule's spacing: after our k-th prompt answer to a peer that lost us, the next
@@ -123,11 +139,33 @@ class Seek:
     """The peers we seek (lost to a lease's end, last heard within ``SEEK_FOR_S``) and the
     next seek's deadline."""
 
-    __slots__ = ("_rng", "due", "enabled", "fresh_at", "seekers", "sent_at", "sought")
+    __slots__ = (
+        "_mine",
+        "_peer_at",
+        "_rng",
+        "due",
+        "enabled",
+        "fresh_at",
+        "seekers",
+        "sent_at",
+        "sought",
+    )
 
-    def __init__(self, *, enabled: bool, rng: random.Random) -> None:
+    def __init__(
+        self,
+        *,
+        enabled: bool,
+        rng: random.Random,
+        peer_at: Sequence[Peer | None],
+        my_guid_prefix: bytes,
+    ) -> None:
         self.enabled = enabled  # adaptive mode: paper mode keeps the paper's schedule
         self._rng = rng
+        # the engine's peers by bundle index (None: us, or an index the bundle skips) and our
+        # GUID prefix: the rank's hash inputs, fixed by the signed bundle (no peer chooses
+        # its rank)
+        self._peer_at = peer_at
+        self._mine = my_guid_prefix
         self.sought: dict[int, Peer] = {}  # by bundle index; a peer found again is dropped lazily
         self.due: float | None = None  # the next seek, None while nobody is sought
         self.sent_at = -math.inf  # our last multicast (which sought every lost peer)
@@ -205,8 +243,9 @@ class Seek:
             seekers = self.seekers
             seekers.pop(seeker, None)
             seekers[seeker] = now  # the newest last
-            if self._few_seekers(now):
-                put_off = min(put_off, self.sent_at + SEEK_PUT_OFF_MAX_S)
+            bound = self.sent_at + SEEK_PUT_OFF_MAX_S
+            if bound < put_off and (self._few_seekers(now) or self._ranked_first(now)):
+                put_off = bound
         self.due = max(self.due, put_off)
 
     def _few_seekers(self, now: float) -> bool:
@@ -220,6 +259,42 @@ class Seek:
             if count > SEEK_PUT_OFF_SEEKERS_MAX:
                 return False
         return True
+
+    def _ranked_first(self, now: float) -> bool:
+        """Whether, for one of the peers we seek, fewer than ``SEEK_PUT_OFF_RANK_MAX`` of the
+        seekers heard within ``SEEK_SEEKERS_WINDOW_S`` rank before us (``_pair_rank``). Reads
+        the seekers (at most N - 1, the bundle's cap) once per sought peer, stopping at the
+        rank's cap."""
+        seekers: list[bytes] = []
+        peer_at = self._peer_at
+        for index, at in reversed(self.seekers.items()):
+            if now - at >= SEEK_SEEKERS_WINDOW_S:
+                break  # the rest are older still
+            seeker = peer_at[index]
+            if seeker is not None:
+                seekers.append(seeker.participant.guid_prefix.value)
+        for peer in self.sought.values():
+            if peer.state is not _LOST:
+                continue  # found again, dropped at the next prune
+            key = peer.participant.guid_prefix.value
+            ours = _pair_rank(self._mine, key)
+            before = 0  # the seekers ranked before us, counted up to the cap
+            for prefix in seekers:
+                if before >= SEEK_PUT_OFF_RANK_MAX:
+                    break
+                if _pair_rank(prefix, key) < ours:
+                    before += 1
+            if before < SEEK_PUT_OFF_RANK_MAX:
+                return True
+        return False
+
+
+def _pair_rank(participant: bytes, sought: bytes) -> int:
+    """A participant's place among the seekers of peer ``sought``: BLAKE2b keyed by the sought
+    peer's GUID prefix over the participant's (RFC 7693; deterministic across drones and
+    runs, unlike Python's ``hash``). Every drone computes the same order from the bundle, a
+    different one for each sought peer."""
+    return int.from_bytes(hashlib.blake2b(participant, key=sought, digest_size=8).digest())
 
 
 @dataclass(slots=True)
