@@ -151,7 +151,18 @@ class Daemon:
         loop = asyncio.get_running_loop()
         self._loop = loop
         self._started = loop.time()
-        self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
+        me = self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
+        if me.ipv4 is not None and me.ipv4 != self.local_ipv4:
+            # every peer refuses a DATA(p) whose locators name another address than the
+            # bundle's pin (docs/security.md, "Pinned addresses"): we would never be found
+            field = "network.ipv4" if self.config.ipv4 is not None else "network.interface"
+            raise self.config.error(
+                field,
+                f"this node announces {self.local_ipv4}, but the bundle "
+                f"{self.config.bundle.path} pins {me.name} at ipv4 {me.ipv4}",
+                f"give {self.config.interface} the address {me.ipv4} (network.ipv4), or "
+                f"rebuild the bundle with ipv4: {self.local_ipv4} for {me.name}",
+            )
         try:
             self.keyring = KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
         except NodeKeyMismatch as exc:

@@ -542,6 +542,48 @@ def test_forged_alive_redirect_refused(lab: Lab) -> None:
     lab.assert_commander_commands_all()
 
 
+def test_captured_members_signed_redirect_refused_where_the_bundle_pins_it(lab: Lab) -> None:
+    """Attack 4 by a captured member: drone-1's own key signs its DATA(p) naming the
+    attacker's host (a victim) as both locators. Genuine, fresh, and refused whole
+    (``bad_locator``): the flashed mission pins every drone's ``ipv4``. Then a command to
+    drone-1 and a settle: nothing reaches the victim, drone-1's locator stays, the commander
+    still commands all (docs/security.md, "Pinned addresses")."""
+    sw, atk = lab.swarm, lab.attacker
+    here = sw.attacker_ns.address
+    own = atk.member(sw.names[M1])
+    assert own is not None and own.freshness is not None
+    real_locator = next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
+    before = lab.refusals()
+    lab.dirty = True  # genuine: it moves drone-1's replay windows at the others
+    user, meta = atk.listener(17411), atk.listener(17410)
+    try:
+        ring = lab.captured(M1)
+        for k in range(3):
+            freshness = Freshness(own.freshness.epoch, own.freshness.seq + 1 + k)
+            atk.multicast(
+                forge.forged_alive(
+                    own.participant,
+                    lab.sn(),
+                    unicast=(here, 17411),
+                    metatraffic=(here, 17410),
+                    resign=(freshness, ring),
+                )
+            )
+            time.sleep(0.3)
+        hold = sw.swarmctl(LEAD, "hold", "--only", sw.names[M1], "--timeout", "8", "--json")
+        stolen = drain(user, SETTLE_S) + drain(meta, 0.5)
+    finally:
+        user.close()
+        meta.close()
+    locator = next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
+    assert locator == real_locator
+    assert stolen == [], f"{len(stolen)} datagrams reached the victim"
+    assert hold.returncode == 0, hold.stdout + hold.stderr
+    for i in (LEAD, M2):
+        assert lab.moved(before, i, SPDP + "bad_locator") >= 1, lab.refused_since(before, i)
+    lab.assert_commander_commands_all()
+
+
 # -- 5. replay of a captured TAKEOFF after a member restarts without its state file --------
 
 

@@ -214,6 +214,40 @@ def test_unknown_node_is_a_config_error_naming_the_node_line(
         asyncio.run(main())
 
 
+def test_an_address_other_than_the_bundles_pin_stops_start_up_naming_the_fix(
+    workdir: Path,
+) -> None:
+    """Its peers would refuse every DATA(p) it sends (the pin binds its locators): one line
+    naming the config file, the field, the bundle's pin and the fix, before any socket."""
+    pinned = write_bundle(
+        workdir, 2, domain_id=run_domain(), ipv4=["127.0.0.1", "127.0.0.2"], swarm="pinned"
+    )
+    daemon = _daemon(workdir, pinned, "uav2")  # announces 127.0.0.1, pinned at 127.0.0.2
+
+    async def main() -> None:
+        try:
+            await daemon.start()
+        finally:
+            await daemon.stop("test")
+
+    with pytest.raises(ConfigError) as info:
+        asyncio.run(main())
+    line = str(info.value)
+    assert "\n" not in line
+    assert line.startswith(f"{workdir / 'uav2.yaml'}:") and "field network.ipv4:" in line
+    assert "127.0.0.2" in line and str(pinned.path) in line
+    # the control: uav1 is pinned at the 127.0.0.1 it announces, and starts
+    uav1 = _daemon(workdir, pinned, "uav1")
+
+    async def control() -> None:
+        try:
+            await uav1.start()
+        finally:
+            await uav1.stop("test")
+
+    asyncio.run(control())
+
+
 def test_missing_interface_is_a_config_error(workdir: Path, files: BundleFiles) -> None:
     cfg = write_config(
         workdir / "c.yaml", files, node="uav1", interface="nosuchif0", socket_path="/x"

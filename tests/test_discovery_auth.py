@@ -151,9 +151,15 @@ def test_loopback_multicast_and_unspecified_locators_are_refused() -> None:
         d = peer_datagram(BUNDLE, 1, auth=a1, host=host)
         assert refused(e, d, A1, 0.1) == {"bad_locator": 1}, host
     # co-hosted daemons talk over loopback: a loopback locator from a loopback source is fine
+    # (where the bundle pins no address: a pin binds the locators to it, loopback or not)
     d = peer_datagram(BUNDLE, 1, auth=a1, host="127.0.0.1")
+    assert refused(e, d, ("127.0.0.1", 7412), 0.2) == {"bad_locator": 1}
+    unpinned = make_bundle(3, with_ipv4=False)
+    e = engine_for(unpinned, 0, auth=auth_for(unpinned, 0))
+    d = peer_datagram(unpinned, 1, auth=auth_for(unpinned, 1), host="127.0.0.1")
     e.receive_datagram(d, ("127.0.0.1", 7412), 0.2)
-    assert discovered(e, 1)
+    view = e.peer(unpinned.participants[1].guid_prefix)
+    assert view is not None and view.discovered
 
 
 # Untagged datagrams: in a swarm larger than the tag window (MAX_RECEIVER_TAGS + 1 nodes),
@@ -262,18 +268,21 @@ def test_restart_is_reported_and_the_earlier_life_is_stale() -> None:
 
 
 def test_locators_follow_only_authenticated_changes() -> None:
-    e = receiver()
-    a1 = auth_for(BUNDLE, 1)
-    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1), A1, 0.1)
+    """Where the bundle pins no address for the member (DHCP): a pinned one cannot move
+    (tests/test_discovery_pinned_locator.py)."""
+    bundle = make_bundle(3, with_ipv4=False)
+    e = engine_for(bundle, 0, auth=auth_for(bundle, 0))
+    a1 = auth_for(bundle, 1)
+    e.receive_datagram(peer_datagram(bundle, 1, auth=a1), A1, 0.1)
     drain(e)
     # the attacker's redirect (issue 10, attack 4): refused, the locator stays
-    forged = peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 2, epoch=50), host="10.0.0.66")
+    forged = peer_datagram(bundle, 1, auth=auth_for(bundle, 2, epoch=50), host="10.0.0.66")
     assert refused(e, forged, ATTACKER, 0.2) == {"auth_bad_tag": 1}
     # the member itself moves: reported, and used from now on
-    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=a1, host="10.0.7.7"), ("10.0.7.7", 7412), 0.3)
+    e.receive_datagram(peer_datagram(bundle, 1, auth=a1, host="10.0.7.7"), ("10.0.7.7", 7412), 0.3)
     (moved,) = [x for x in drain(e) if isinstance(x, PeerLocatorsChanged)]
     assert [str(x) for x in moved.default_unicast_locators] == ["udp/10.0.7.7:7413"]
-    view = e.peer(P[1])
+    view = e.peer(bundle.participants[1].guid_prefix)
     assert view is not None and view.locator == ("10.0.7.7", 7412)
 
 

@@ -23,6 +23,7 @@ from swarmd_lab.testing import ScriptedSender, Swarm, build_swarm, node_ipv4
 
 from swarmd.discovery import seek as seek_module
 from swarmd.discovery.events import PeerDiscovered
+from swarmd.discovery.received import ipv4_octets
 from swarmd.discovery.seek import (
     SEEK_FOR_S,
     SEEK_PUT_OFF_FOR_S,
@@ -240,15 +241,24 @@ class _Forger(ScriptedSender):
     side B, lost to them) and, from ``FORGE_T`` for ``FORGE_FOR_S``, resends the latest one
     every ``FORGE_PERIOD_S`` under each bridge's GUID prefix in turn (the prefix rewritten
     wherever it occurs: the header's and the DATA(p)'s), so each looks like a bridge's frame
-    that seeks side B (at most ``FORGE_FOR_S / FORGE_PERIOD_S`` rounds)."""
+    that seeks side B (at most ``FORGE_FOR_S / FORGE_PERIOD_S`` rounds), its locators
+    rewritten to the bridge's address (the bundle pins each drone's: any other is refused
+    whole, keyed or not)."""
 
     def __init__(
-        self, group: tuple[str, int], side_a: dict[str, bytes], bridges: list[bytes]
+        self,
+        group: tuple[str, int],
+        side_a: dict[str, bytes],
+        bridges: list[bytes],
+        bridge_hosts: list[str],
     ) -> None:
         super().__init__(FORGE_T)
         self._group = group
         self._side_a = side_a  # host -> its GUID prefix octets
         self._bridges = bridges
+        # a UDPv4 locator's address field: 12 zero octets, then the IPv4 address
+        self._bridge_addresses = [bytes(12) + ipv4_octets(h) for h in bridge_hosts]
+        self._latest_address = b""
         self._latest: tuple[bytes, bytes] | None = None  # (datagram, its sender's prefix)
         self.sent = 0
 
@@ -256,13 +266,16 @@ class _Forger(ScriptedSender):
         prefix = self._side_a.get(source[0])
         if prefix is not None and data[8:20] == prefix:
             self._latest = (data, prefix)
+            self._latest_address = bytes(12) + ipv4_octets(source[0])
 
     def handle_timer(self, now: float) -> None:
         while self._next is not None and self._next <= now:
             if self._latest is not None:
                 data, prefix = self._latest
-                bridge = self._bridges[self.sent % len(self._bridges)]
-                self._out.append((data.replace(prefix, bridge), self._group))
+                k = self.sent % len(self._bridges)
+                forged = data.replace(prefix, self._bridges[k])
+                forged = forged.replace(self._latest_address, self._bridge_addresses[k])
+                self._out.append((forged, self._group))
                 self.sent += 1
             self._next += FORGE_PERIOD_S
             if self._next > FORGE_T + FORGE_FOR_S:
@@ -289,6 +302,7 @@ def _forged_edge(*, authenticated: bool) -> tuple[Swarm, _Forger, list[float]]:
         group,
         {node_ipv4(i): prefixes[i] for i in range(SIDE) if i != EDGE},
         [prefixes[b] for b in BRIDGES],
+        [node_ipv4(b) for b in BRIDGES],
     )
     net.add(
         forger,

@@ -307,14 +307,17 @@ def peer_datagram(
     lease_s: float | None = None,
     auth: SpdpAuth | None = None,
     host: str | None = None,
+    default_host: str | None = None,
+    metatraffic_port: int | None = None,
     ros2_alive: bytes | None = None,
 ) -> bytes:
     """A DATA(p) as bundle participant ``index``'s engine would send it, for hand-driven
     tests: ``heard`` lists indices, ``destination`` makes it directed (INFO_DST), ``auth``
-    seals it (each call takes the next freshness), ``host`` replaces its locators' address,
-    ``ros2_alive`` its relay's alive ROS 2 participants (PID 0x8A06)."""
+    seals it (each call takes the next freshness), ``host`` replaces its locators' address
+    (``default_host`` only its default locator's, ``metatraffic_port`` its metatraffic
+    locator's port), ``ros2_alive`` its relay's alive ROS 2 participants (PID 0x8A06)."""
     p = bundle.participants[index]
-    meta = bundle.metatraffic_port(p)
+    meta = bundle.metatraffic_port(p) if metatraffic_port is None else metatraffic_port
     host = host or p.ipv4 or node_ipv4(index)
     group = (SPDP_MULTICAST_GROUP, spdp_multicast_port(bundle.domain_id))
     participant = SpdpParticipant(
@@ -322,7 +325,7 @@ def peer_datagram(
         domain_id=bundle.domain_id if domain_id is None else domain_id,
         metatraffic_unicast_locators=(Locator.udpv4(host, meta),),
         metatraffic_multicast_locators=(Locator.udpv4(*group),),
-        default_unicast_locators=(Locator.udpv4(host, bundle.user_port(p)),),
+        default_unicast_locators=(Locator.udpv4(default_host or host, bundle.user_port(p)),),
         lease_duration=Duration.from_seconds(
             bundle.discovery.lease_s if lease_s is None else lease_s
         ),

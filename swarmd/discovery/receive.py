@@ -85,6 +85,7 @@ class ReceivePath:
         "_probe_at",
         "_rejoined",
         "_peer_at",
+        "_pin_at",
         "_reack_gap_s",
         "_seek",
         "_seekers",
@@ -136,6 +137,8 @@ class ReceivePath:
         # simulator hands one multicast to 999 engines in a row: one table stays in the CPU
         # cache, 999 per-engine dicts would not (~3 cache misses per datagram at N = 1000).
         self._index_of = received.index_map(bundle)
+        # by bundle index: the address the bundle pins for that peer, if any (shared too)
+        self._pin_at = received.pin_table(bundle)
         self._peer_at = peer_at
         self._my_guid = me.guid_prefix
         self._my_prefix = me.guid_prefix.value
@@ -245,7 +248,16 @@ class ReceivePath:
         if peer is None:  # pragma: no cover - our own prefix is filtered by the header check
             self._drop(DropReason.OWN, source)
             return
-        if not alive.locators.usable(source[0], self._local_octets, self._local_dotted):
+        locators = alive.locators
+        # Where the bundle pins the peer's address (the mission's ipv4), every UDPv4 unicast
+        # locator it signs must name it, any port: a captured member keeps its key, so its
+        # signature says nothing about the address, and every send to it (directed frames,
+        # the data plane, the ROS 2 relay) goes there (docs/security.md, "Pinned
+        # addresses"). Inline: a subset test on the pre-chewed octets, once per datagram.
+        pinned = self._pin_at[peer.index]
+        if not locators.usable(source[0], self._local_octets, self._local_dotted) or (
+            pinned is not None and not locators.octets <= pinned
+        ):
             self._drop(DropReason.BAD_LOCATOR, source)
             return
         if self._auth is not None:

@@ -193,6 +193,36 @@ def index_map(bundle: Bundle) -> Mapping[bytes, int]:
     return found
 
 
+# Each participant's pinned address (the mission's ``ipv4``), by bundle index, as the one
+# octet set its unicast locators must stay within; None where the bundle pins none (DHCP).
+# One read-only table per bundle participant list, shared like ``index_map`` (same bound).
+_pin_tables: dict[tuple[tuple[int, str | None], ...], tuple[frozenset[bytes] | None, ...]] = {}
+_last_pin_table: tuple[tuple[Participant, ...], tuple[frozenset[bytes] | None, ...]] | None = None
+
+
+def pin_table(bundle: Bundle) -> tuple[frozenset[bytes] | None, ...]:
+    """By bundle index: the address a DATA(p) of that participant may name in its unicast
+    locators (any port), if the bundle pins one (``ReceivePath._on_alive``)."""
+    global _last_pin_table  # a one-entry cache in front of _pin_tables
+    participants = bundle.participants
+    last = _last_pin_table
+    if last is not None and last[0] is participants:
+        return last[1]
+    key = tuple((p.index, p.ipv4) for p in participants)
+    found = _pin_tables.get(key)
+    if found is None:
+        size = max((p.index for p in participants), default=-1) + 1
+        table: list[frozenset[bytes] | None] = [None] * size
+        for index, ipv4 in key:
+            if ipv4 is not None:
+                table[index] = frozenset((ipv4_octets(ipv4),))
+        if len(_pin_tables) >= MAX_INDEX_MAPS:
+            _pin_tables.clear()
+        found = _pin_tables[key] = tuple(table)
+    _last_pin_table = (participants, found)
+    return found
+
+
 def unicast_target(locators: tuple[Locator, ...]) -> tuple[str, int] | None:
     """The first usable UDPv4 unicast locator (DDSI-RTPS 8.5.3.1 metatrafficUnicastLocatorList)."""
     for loc in locators:
