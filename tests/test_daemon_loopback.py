@@ -67,6 +67,20 @@ def _daemon(workdir: Path, files: BundleFiles, node: str, *, dataplane: bool = F
     )
 
 
+def _start_error(daemon: Daemon) -> str:
+    """The ConfigError a daemon's start-up stops with (stopped either way)."""
+
+    async def main() -> None:
+        try:
+            await daemon.start()
+        finally:
+            await daemon.stop("test")
+
+    with pytest.raises(ConfigError) as info:
+        asyncio.run(main())
+    return str(info.value)
+
+
 async def _until(cond: Callable[[], bool], what: str | Callable[[], str]) -> None:
     loop = asyncio.get_running_loop()
     deadline = loop.time() + WAIT_S
@@ -224,15 +238,7 @@ def test_an_address_other_than_the_bundles_pin_stops_start_up_naming_the_fix(
     )
     daemon = _daemon(workdir, pinned, "uav2")  # announces 127.0.0.1, pinned at 127.0.0.2
 
-    async def main() -> None:
-        try:
-            await daemon.start()
-        finally:
-            await daemon.stop("test")
-
-    with pytest.raises(ConfigError) as info:
-        asyncio.run(main())
-    line = str(info.value)
+    line = _start_error(daemon)
     assert "\n" not in line
     assert line.startswith(f"{workdir / 'uav2.yaml'}:") and "field network.ipv4:" in line
     assert "127.0.0.2" in line and str(pinned.path) in line
@@ -408,15 +414,7 @@ def test_ros2_relay_without_a_ros2_graph_is_a_config_error(
         env={},
     )
 
-    async def main() -> None:
-        try:
-            await daemon.start()
-        finally:
-            await daemon.stop("test")
-
-    with pytest.raises(ConfigError) as info:
-        asyncio.run(main())
-    text = str(info.value)
+    text = _start_error(daemon)
     assert "\n" not in text and "field ros2.relay: " in text
     assert "no ROS 2 graph" in text and "; fix: " in text
 

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from swarmd_lab.testing import auth_for, engine_for, make_bundle, node_ipv4, peer_datagram
+from swarmd_lab.testing import auth_for, drain, engine_for, make_bundle, node_ipv4, peer_datagram
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.discovery import DiscoveryEngine, PacketDropped, PeerDiscovered
-from swarmd.discovery.events import Event
 from swarmd.ros2.relay import Ros2Relay
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpAlive, decode_spdp
@@ -31,13 +30,6 @@ BUNDLE = make_bundle(3)  # pins uav{i} at node_ipv4(i)
 P = [p.guid_prefix for p in BUNDLE.participants]
 A1 = (node_ipv4(1), 7412)  # member uav1's pinned address, metatraffic port
 VICTIM = "10.9.9.9"  # a host of the captured member's choice, not in the swarm
-
-
-def drain(engine: DiscoveryEngine) -> list[Event]:
-    out = []
-    while (e := engine.next_event()) is not None:
-        out.append(e)
-    return out
 
 
 def state(engine: DiscoveryEngine, now: float) -> tuple[Any, ...]:
