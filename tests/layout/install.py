@@ -32,6 +32,13 @@ REPO: Final = Path(__file__).resolve().parents[2]
 HERE: Final = Path(__file__).resolve().parent
 MISSION: Final = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
 NODE: Final = "lead"
+# the address the mission pins for NODE: the drone's network.ipv4 must be it (the daemon
+# refuses to start otherwise, docs/security.md "Pinned addresses"); put on the namespace's lo
+NODE_IPV4: Final = str(
+    next(
+        p["ipv4"] for p in yaml.safe_load(MISSION.read_text())["participants"] if p["name"] == NODE
+    )
+)
 SWARM: Final = str(yaml.safe_load(MISSION.read_text())["swarm"])
 REPLY_S: Final = 60.0
 PROBE_S: Final = 30.0
@@ -53,7 +60,7 @@ def shipped_config(**px4: Any) -> str:
     """config/swarmd.yaml with only the per-drone values set (and px4 overrides)."""
     cfg = yaml.safe_load((REPO / "config" / "swarmd.yaml").read_text())
     cfg["node"] = NODE
-    cfg["network"] = {"interface": "lo", "ipv4": "127.0.0.1"}
+    cfg["network"] = {"interface": "lo", "ipv4": NODE_IPV4}
     cfg["link"]["sources"] = ["static"]
     cfg["logging"]["format"] = "json"
     cfg["px4"].update(px4)
@@ -88,6 +95,7 @@ class ProductionLayout:
             "package": str(REPO / "swarmd"),
             "config": config if config is not None else shipped_config(),
             "flashed": str(flashed),
+            "node_ipv4": NODE_IPV4,
             "log": str(self.log),
         }
         self.proc = subprocess.Popen(  # noqa: S603 - fixed argv

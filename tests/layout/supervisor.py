@@ -94,6 +94,7 @@ def lay_out(spec: dict[str, Any]) -> None:
             Path(path).mkdir(parents=True, exist_ok=True)
             sh("mount", "--bind", stage, path)
     sh("ip", "link", "set", "lo", "up")
+    sh("ip", "addr", "add", f"{spec['node_ipv4']}/32", "dev", "lo")  # the mission's pin
     # 3. user, groups
     sh("useradd", "--system", "--home-dir", "/var/lib/swarmd", "--shell", "/usr/sbin/nologin",
        "swarmd")  # fmt: skip
