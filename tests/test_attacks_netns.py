@@ -507,37 +507,54 @@ def test_forged_readiness_high_sn_refused(lab: Lab) -> None:
 # -- 4. redirect: an alive with the attacker's locator --------------------------------------
 
 
-def test_forged_alive_redirect_refused(lab: Lab) -> None:
+def _redirect(
+    lab: Lab, forge_alives: Callable[[tuple[str, int], tuple[str, int]], None], settle_s: float
+) -> None:
+    """The shape both redirect attacks share: ``forge_alives(unicast, metatraffic)`` sends
+    DATA(p)s of drone-1 naming the attacker's host, then the commander sends drone-1 a
+    HOLD. Nothing may reach the attacker's ports, drone-1's locator at the commander must
+    not move, and the HOLD must still be acknowledged (the real drone-1 got it)."""
     sw, atk = lab.swarm, lab.attacker
     here = sw.attacker_ns.address
-    learned = atk.member(sw.names[M1])
-    assert learned is not None
-    real_locator = next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
-    before = lab.refusals()
+
+    def locator() -> object:
+        return next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
+
+    real_locator = locator()
     user, meta = atk.listener(17411), atk.listener(17410)
     try:
+        forge_alives((here, 17411), (here, 17410))
+        hold = sw.swarmctl(LEAD, "hold", "--only", sw.names[M1], "--timeout", "8", "--json")
+        stolen = drain(user, settle_s) + drain(meta, 0.5)
+    finally:
+        user.close()
+        meta.close()
+    assert locator() == real_locator
+    assert stolen == [], f"{len(stolen)} datagrams reached the attacker's host"
+    assert hold.returncode == 0, hold.stdout + hold.stderr
+
+
+def test_forged_alive_redirect_refused(lab: Lab) -> None:
+    atk = lab.attacker
+    learned = atk.member(lab.swarm.names[M1])
+    assert learned is not None
+    before = lab.refusals()
+
+    def replayed_then_resigned(unicast: tuple[str, int], metatraffic: tuple[str, int]) -> None:
         for _ in range(3):
             for resign in (None, (lab.fresh(M1), ATTACKER_KEY)):  # replayed, then re-signed
                 atk.multicast(
                     forge.forged_alive(
                         learned.participant,
                         lab.sn(),
-                        unicast=(here, 17411),
-                        metatraffic=(here, 17410),
+                        unicast=unicast,
+                        metatraffic=metatraffic,
                         resign=resign,
                     )
                 )
             time.sleep(0.3)
-        # a command to that member now: where does it go?
-        hold = sw.swarmctl(LEAD, "hold", "--only", sw.names[M1], "--timeout", "8", "--json")
-        stolen = drain(user, 0.5) + drain(meta, 0.5)
-    finally:
-        user.close()
-        meta.close()
-    locator = next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
-    assert locator == real_locator
-    assert stolen == [], f"{len(stolen)} datagrams reached the attacker"
-    assert hold.returncode == 0, hold.stdout + hold.stderr
+
+    _redirect(lab, replayed_then_resigned, 0.5)
     lab.assert_replays_and_resigns_refused(before, LEAD, 3)
     lab.assert_commander_commands_all()
 
@@ -548,37 +565,29 @@ def test_captured_members_signed_redirect_refused_where_the_bundle_pins_it(lab: 
     (``bad_locator``): the flashed mission pins every drone's ``ipv4``. Then a command to
     drone-1 and a settle: nothing reaches the victim, drone-1's locator stays, the commander
     still commands all (docs/security.md, "Pinned addresses")."""
-    sw, atk = lab.swarm, lab.attacker
-    here = sw.attacker_ns.address
-    own = atk.member(sw.names[M1])
+    atk = lab.attacker
+    own = atk.member(lab.swarm.names[M1])
     assert own is not None and own.freshness is not None
-    real_locator = next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
     before = lab.refusals()
     lab.dirty = True  # genuine: it moves drone-1's replay windows at the others
-    user, meta = atk.listener(17411), atk.listener(17410)
-    try:
-        ring = lab.captured(M1)
+    ring = lab.captured(M1)
+
+    def signed_by_drone_1(unicast: tuple[str, int], metatraffic: tuple[str, int]) -> None:
+        assert own.freshness is not None
         for k in range(3):
             freshness = Freshness(own.freshness.epoch, own.freshness.seq + 1 + k)
             atk.multicast(
                 forge.forged_alive(
                     own.participant,
                     lab.sn(),
-                    unicast=(here, 17411),
-                    metatraffic=(here, 17410),
+                    unicast=unicast,
+                    metatraffic=metatraffic,
                     resign=(freshness, ring),
                 )
             )
             time.sleep(0.3)
-        hold = sw.swarmctl(LEAD, "hold", "--only", sw.names[M1], "--timeout", "8", "--json")
-        stolen = drain(user, SETTLE_S) + drain(meta, 0.5)
-    finally:
-        user.close()
-        meta.close()
-    locator = next(p["locator"] for p in sw.status(LEAD)["peers"] if p["name"] == sw.names[M1])
-    assert locator == real_locator
-    assert stolen == [], f"{len(stolen)} datagrams reached the victim"
-    assert hold.returncode == 0, hold.stdout + hold.stderr
+
+    _redirect(lab, signed_by_drone_1, SETTLE_S)
     for i in (LEAD, M2):
         assert lab.moved(before, i, SPDP + "bad_locator") >= 1, lab.refused_since(before, i)
     lab.assert_commander_commands_all()
