@@ -283,8 +283,14 @@ def readiness_delivery(
             a, b = max(a, start), min(b, end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
+            # the span's time ends where its count does, at the last poll at or before b:
+            # what arrived after that poll is not known, so its time is not expected
+            # either (before session 11 a span's last 0-1 s was expected and its samples
+            # never counted: up to one per span-end with the stock tallies' 1 s polls,
+            # a quarter of one with swarmd's 0.25 s)
+            b = _last_poll(readiness, b)
             ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
-            if ca is None or cb is None:
+            if ca is None or cb is None or b <= a:
                 continue
             expected += (b - a) * READINESS_HZ
             # capped per span: a member also reports at once when the commander finds it
@@ -293,6 +299,16 @@ def readiness_delivery(
             delivered += min(max(0, cb - ca), (b - a) * READINESS_HZ)
     ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
+
+
+def _last_poll(readiness: Sequence[tuple[float, Mapping[int, int]]], t: float) -> float:
+    """The time of the last poll at or before ``t`` (``t`` itself before the first)."""
+    best = t
+    for pt, _ in readiness:
+        if pt > t:
+            break
+        best = pt
+    return best
 
 
 def _count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
@@ -344,7 +360,7 @@ def readiness_after_returns(
                 continue
             if b < samples[-1][0]:
                 b = max(t for t, v in samples if t < b)
-            b = min(b, last)
+            b = _last_poll(readiness, min(b, last))  # as readiness_delivery bounds it
             member_up = [t for t, p, c in changes.get(m, ()) if p == 0 and c in UP_KINDS]
             lead_up = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
             t_member = min((t for t in member_up if t >= a - TOLERANCE_S), default=None)
