@@ -288,8 +288,8 @@ def readiness_delivery(
             # either (before session 11 a span's last 0-1 s was expected and its samples
             # never counted: up to one per span-end with the stock tallies' 1 s polls,
             # a quarter of one with swarmd's 0.25 s)
-            b = _last_poll(readiness, b)
-            ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
+            b = last_poll(readiness, b)
+            ca, cb = count_at(readiness, m, a), count_at(readiness, m, b)
             if ca is None or cb is None or b <= a:
                 continue
             expected += (b - a) * READINESS_HZ
@@ -301,7 +301,7 @@ def readiness_delivery(
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 
 
-def _last_poll(readiness: Sequence[tuple[float, Mapping[int, int]]], t: float) -> float:
+def last_poll(readiness: Sequence[tuple[float, Mapping[int, int]]], t: float) -> float:
     """The time of the last poll at or before ``t`` (``t`` itself before the first)."""
     best = t
     for pt, _ in readiness:
@@ -311,7 +311,7 @@ def _last_poll(readiness: Sequence[tuple[float, Mapping[int, int]]], t: float) -
     return best
 
 
-def _count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
+def count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
     """Member m's received-sample count in the last poll at or before ``t``: 0 where that
     poll does not list m (nothing of it arrived yet), None before the first poll."""
     best = None
@@ -360,12 +360,12 @@ def readiness_after_returns(
                 continue
             if b < samples[-1][0]:
                 b = max(t for t, v in samples if t < b)
-            b = _last_poll(readiness, min(b, last))  # as readiness_delivery bounds it
+            b = last_poll(readiness, min(b, last))  # as readiness_delivery bounds it
             member_up = [t for t, p, c in changes.get(m, ()) if p == 0 and c in UP_KINDS]
             lead_up = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
             t_member = min((t for t in member_up if t >= a - TOLERANCE_S), default=None)
             t_lead = min((t for t in lead_up if t >= a - TOLERANCE_S), default=None)
-            ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
+            ca, cb = count_at(readiness, m, a), count_at(readiness, m, b)
             if t_member is None or t_lead is None or ca is None or cb is None or b - a < 2.0:
                 continue
             moved = [t for t, table in readiness if a < t <= b and table.get(m, 0) != ca]
