@@ -104,3 +104,21 @@ def test_per_second_holds_every_counted_sample_and_expected_second() -> None:
     # every sample counted inside a span, none from the blackout's seconds
     assert abs(got - sum(float(r["delivered"]) for r in rows)) < 1.0
     assert all(g == 0.0 and e == 0.0 for s, g, e in series if 31 <= s < 59)
+
+
+def test_the_other_readings_give_back_the_onsets_and_only_them() -> None:
+    """uav2's 5.5 s start-up onset (4.5 samples) and 3.5 s return onset (2.5): one sample
+    back at each onset adds 2; without the start-up onset's missing samples 4.5 more, and
+    nothing of its return or of uav3."""
+    rows = _rows()
+    expected = sum(float(r["expected"]) for r in rows)
+    delivered = sum(float(r["delivered"]) for r in rows)
+    other = flight_readiness.readings(rows)
+    assert other["measured"] == round(delivered / expected, 4)
+    assert other["one_back"] == round((delivered + 2) / expected, 4)
+    assert other["no_start_onsets"] == round((delivered + 4.5) / expected, 4)
+    assert flight_readiness.readings([]) == {
+        "measured": None,
+        "one_back": None,
+        "no_start_onsets": None,
+    }

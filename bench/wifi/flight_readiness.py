@@ -139,6 +139,26 @@ def by_phase(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, float]]:
     return out
 
 
+def readings(rows: Sequence[Mapping[str, Any]]) -> dict[str, float | None]:
+    """The run's readiness as measured, and two other readings of the same rows (the
+    workload's fairness, docs/flight-history.md, session 11): ``one_back``, had every
+    onset brought one sample back (what a reliable, transient-local reader of a keep-last-1
+    writer gets at the match, at most); ``no_start_onsets``, had the start-up spans' onsets
+    missed nothing (as if each were counted from its first sample, not from the
+    commander's discovery of the member)."""
+    expected = sum(float(r["expected"]) for r in rows)
+    delivered = sum(float(r["delivered"]) for r in rows)
+    if expected <= 0:
+        return {"measured": None, "one_back": None, "no_start_onsets": None}
+    back = sum(min(1.0, float(r["onset_missing"])) for r in rows)
+    start_onsets = sum(float(r["onset_missing"]) for r in rows if r["phase"] == "start")
+    return {
+        "measured": round(delivered / expected, 4),
+        "one_back": round(min(1.0, (delivered + back) / expected), 4),
+        "no_start_onsets": round(min(1.0, (delivered + start_onsets) / expected), 4),
+    }
+
+
 def per_second(
     rows: Sequence[Mapping[str, Any]], readiness: Polls
 ) -> list[tuple[int, float, float]]:
@@ -173,6 +193,10 @@ def per_second(
         return []
     first, last = min(expected), max(expected)
     return [(s_, got.get(s_, 0.0), expected.get(s_, 0.0)) for s_ in range(first, last + 1)]
+
+
+def _pct(ratio: float | None) -> str:
+    return "-" if ratio is None else f"{ratio:.1%}"
 
 
 def _load(path: Any) -> dict[str, Any]:
@@ -248,9 +272,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = d["rows"]
         expected = sum(r["expected"] for r in rows)
         missing = sum(r["missing"] for r in rows)
+        other = readings(rows)
         print(
             f"{path.name}: expected {expected:.0f}, missing {missing:.1f} "
-            f"({missing / expected if expected else 0:.1%})"
+            f"({missing / expected if expected else 0:.1%}); had each onset one sample "
+            f"back: {_pct(other['one_back'])}; without the start-up onsets: "
+            f"{_pct(other['no_start_onsets'])}"
         )
         for phase, s in by_phase(rows).items():
             print(
