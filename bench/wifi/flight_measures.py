@@ -40,7 +40,10 @@ Definitions (docs/benchmarks.md, "Flight"):
   as soon as its swarmd is found, seconds before the node exists). A member missing from
   a poll's table had sent nothing that arrived yet: its count there is 0 (the stock
   stacks' tallies list a member from its first sample on; before session 9 such a span
-  was dropped whole, so those stacks were judged on the spans after a return alone).
+  was dropped whole, so those stacks were judged on the spans after a return alone). A
+  span ends at the commander's last poll in it, where its count does (before session 11
+  its last 0-1 s was expected and what arrived in it never counted: up to a sample per
+  span-end with the stock tallies' 1 s polls, a quarter of one with swarmd's 0.25 s).
 """
 
 from __future__ import annotations
