@@ -40,7 +40,10 @@ Definitions (docs/benchmarks.md, "Flight"):
   as soon as its swarmd is found, seconds before the node exists). A member missing from
   a poll's table had sent nothing that arrived yet: its count there is 0 (the stock
   stacks' tallies list a member from its first sample on; before session 9 such a span
-  was dropped whole, so those stacks were judged on the spans after a return alone).
+  was dropped whole, so those stacks were judged on the spans after a return alone). A
+  span ends at the commander's last poll in it, where its count does (before session 11
+  its last 0-1 s was expected and what arrived in it never counted: up to a sample per
+  span-end with the stock tallies' 1 s polls, a quarter of one with swarmd's 0.25 s).
 """
 
 from __future__ import annotations
@@ -283,8 +286,14 @@ def readiness_delivery(
             a, b = max(a, start), min(b, end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
-            ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
-            if ca is None or cb is None:
+            # the span's time ends where its count does, at the last poll at or before b:
+            # what arrived after that poll is not known, so its time is not expected
+            # either (before session 11 a span's last 0-1 s was expected and its samples
+            # never counted: up to one per span-end with the stock tallies' 1 s polls,
+            # a quarter of one with swarmd's 0.25 s)
+            b = last_poll(readiness, b)
+            ca, cb = count_at(readiness, m, a), count_at(readiness, m, b)
+            if ca is None or cb is None or b <= a:
                 continue
             expected += (b - a) * READINESS_HZ
             # capped per span: a member also reports at once when the commander finds it
@@ -295,7 +304,17 @@ def readiness_delivery(
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 
 
-def _count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
+def last_poll(readiness: Sequence[tuple[float, Mapping[int, int]]], t: float) -> float:
+    """The time of the last poll at or before ``t`` (``t`` itself before the first)."""
+    best = t
+    for pt, _ in readiness:
+        if pt > t:
+            break
+        best = pt
+    return best
+
+
+def count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: float) -> int | None:
     """Member m's received-sample count in the last poll at or before ``t``: 0 where that
     poll does not list m (nothing of it arrived yet), None before the first poll."""
     best = None
@@ -344,12 +363,12 @@ def readiness_after_returns(
                 continue
             if b < samples[-1][0]:
                 b = max(t for t, v in samples if t < b)
-            b = min(b, last)
+            b = last_poll(readiness, min(b, last))  # as readiness_delivery bounds it
             member_up = [t for t, p, c in changes.get(m, ()) if p == 0 and c in UP_KINDS]
             lead_up = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
             t_member = min((t for t in member_up if t >= a - TOLERANCE_S), default=None)
             t_lead = min((t for t in lead_up if t >= a - TOLERANCE_S), default=None)
-            ca, cb = _count_at(readiness, m, a), _count_at(readiness, m, b)
+            ca, cb = count_at(readiness, m, a), count_at(readiness, m, b)
             if t_member is None or t_lead is None or ca is None or cb is None or b - a < 2.0:
                 continue
             moved = [t for t, table in readiness if a < t <= b and table.get(m, 0) != ca]
