@@ -291,7 +291,8 @@ def test_peers_refuse_a_drone_that_flies_an_older_bundle() -> None:
     mission = load_mission(SWARM3)
     older, newer = build_dev_bundle(mission, serial=1), build_dev_bundle(mission, serial=2)
     assert older.bundle.content_sha256 != newer.bundle.content_sha256
-    me = newer.bundle.participants[0]
+    me, peer = newer.bundle.participants[0], older.bundle.participants[1]
+    assert me.ipv4 is not None and peer.ipv4 is not None  # swarm3 pins every address
     engine = DiscoveryEngine(
         newer.bundle,
         me.name,
@@ -302,7 +303,6 @@ def test_peers_refuse_a_drone_that_flies_an_older_bundle() -> None:
         link=LinkSample(q=1.0),
     )
     drain(engine)
-    peer = older.bundle.participants[1]
     engine.receive_datagram(peer_datagram(older.bundle, 1), (peer.ipv4, 7412), 0.1)
     events = drain(engine)
     assert [e.reason for e in events if isinstance(e, ForeignParticipantSeen)] == [
