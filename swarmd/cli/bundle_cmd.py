@@ -151,7 +151,11 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_check)
 
-    p = bsub.add_parser("rollback", help="restore the previous bundle on a drone")
+    p = bsub.add_parser(
+        "rollback",
+        help="restore the previous bundle on a drone (only before swarmd started on the newer "
+        "one: its floor refuses a lower serial; then rebuild with a higher --serial)",
+    )
     p.add_argument("--target", required=True, metavar="DIR|[user@]host:DIR")
     _ssh_args(p)
     p.set_defaults(func=cmd_rollback)
@@ -570,4 +574,10 @@ def cmd_rollback(args: argparse.Namespace) -> int:
     target = parse_target(args.target)
     rollback(target, ssh=Ssh(tuple(args.ssh_option)))
     print(f"rolled back {target} to its previous bundle")
+    print(
+        f"{PROG}: note: a drone whose swarmd already started on the newer bundle refuses "
+        "this lower serial (exit 78); then rebuild the older mission with 'bundle build "
+        '--serial N\' above it (docs/operations.md, "Bundle serial")',
+        file=sys.stderr,
+    )
     return EX_OK
