@@ -55,6 +55,12 @@ class BundleConfig:
     def node_key_path(self) -> str:
         return self.node_key or str(Path(self.path).parent / "node.key")
 
+    @property
+    def node_state_dir(self) -> str:
+        """node.key's folder (/var/lib/swarmd on a drone): the boot epoch, the SPDP replay
+        windows and the bundle floor live beside it."""
+        return os.path.dirname(os.path.abspath(self.node_key_path))
+
 
 @dataclass(frozen=True, slots=True)
 class LinkConfig:

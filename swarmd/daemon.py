@@ -38,10 +38,13 @@ from functools import partial
 from typing import Any
 
 from swarmd import __version__
-from swarmd.auth.epoch import EpochError, EpochResult, next_epoch
+from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
+from swarmd.bundle.errors import BundleError
+from swarmd.bundle.floor import FloorError, FloorWriteError, serial_of
+from swarmd.bundle.floor import enforce as enforce_floor
 from swarmd.bundle.model import Bundle
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
@@ -109,7 +112,7 @@ class Daemon:
         # raised and made durable in start(), before the first send (swarmd.auth.epoch),
         # in the folder of node.key (/var/lib/swarmd on a drone: the state directory)
         self.epoch: EpochResult | None = None
-        self._epoch_dir = os.path.dirname(os.path.abspath(config.bundle.node_key_path))
+        self._epoch_dir = config.bundle.node_state_dir
         # SPDP replay windows persisted beside the epoch (swarmd.auth.windows): a restart
         # does not make a dead member's captured DATA(p) fresh again
         self._spdp_auth: SpdpAuth | None = None
@@ -167,6 +170,7 @@ class Daemon:
             self.keyring = KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
         except NodeKeyMismatch as exc:
             raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
+        self._enforce_bundle_floor()
         try:
             self.epoch = next_epoch(self._epoch_dir, self.config.node, time.time())
         except EpochError as exc:
@@ -333,6 +337,43 @@ class Daemon:
         mode_problem = config_mode_problem(self.config.file)
         if mode_problem is not None:  # docs/deploy.md: 0640 root:swarmd
             self.log.warning("config_mode", path=self.config.file, problem=mode_problem)
+
+    def _enforce_bundle_floor(self) -> None:
+        """Refuse a rolled-back bundle, else raise the floor to it, before the first send
+        (swarmd.bundle.floor, docs/security.md "Bundle rollback"). Its file lives beside
+        the boot epoch, so an epoch without a floor means the floor was deleted (or this is
+        the first start of a swarmd that keeps one): logged, not refused."""
+        source = self.config.bundle.path
+        try:
+            result = enforce_floor(
+                self.bundle,
+                source=source,
+                state_dir=self._epoch_dir,
+                node=self.config.node,
+                commit=True,
+            )
+        except BundleError as exc:
+            raise StartupError(f"bundle rejected: {exc}", EX_CONFIG) from None
+        except FloorError as exc:
+            raise StartupError(f"bundle floor rejected: {exc}", EX_CONFIG) from None
+        except FloorWriteError as exc:
+            raise StartupError(str(exc), EX_CANTCREAT) from None
+        if result.previous is None and epoch_path(self._epoch_dir, self.config.node).exists():
+            self.log.warning(
+                "bundle_floor_missing",
+                path=str(result.path),
+                serial=self.bundle.serial,
+                why="this node booted before (its epoch file exists) but holds no bundle "
+                "floor: deleted, or the first start of a swarmd that keeps one",
+            )
+        if result.raised:
+            self.log.info(
+                "bundle_floor_raised",
+                path=str(result.path),
+                serial=serial_of(self.bundle),
+                previous=None if result.previous is None else result.previous.serial,
+                sha256=self.bundle.content_sha256.hex(),
+            )
 
     def _px4_listen_socket(self) -> socket.socket | None:
         """The socket systemd bound for the vehicle link: ``swarmd-px4.socket`` (named

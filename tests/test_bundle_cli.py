@@ -285,3 +285,39 @@ def test_dev_bundle_flashes_with_derived_keys_and_shows_as_dev(
     code, out, _ = run(capsys, "show", str(dev), "--json", "--node", "drone-03")
     s = json.loads(out)
     assert s["dev"] and list(s["matches"]) == ["drone-03"]
+
+
+def test_build_serial_is_one_more_than_the_bundle_it_replaces_or_given(
+    tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """docs/security.md, "Bundle rollback": drones refuse a serial below the highest they
+    accepted, so every build must go above the bundle it replaces."""
+    key, pub = str(keys / "swarm-signing.key"), keys / "swarm-signing.pub"
+    assert load_bundle(bundle, pub).serial == 1  # a first build: no bundle at -o yet
+    # rebuilt in place: one more than the bundle at -o
+    code, out, _ = run(capsys, "build", str(SWARM3), "-o", str(bundle), "--sign-key", key)
+    assert code == 0 and "serial 2 (replaces serial 1" in out
+    assert load_bundle(bundle, pub).serial == 2
+    following = tmp_path / "following.swb"
+    code, out, _ = run(
+        capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key,
+        "--replaces", str(bundle), "--json",
+    )  # fmt: skip
+    assert code == 0 and json.loads(out)["serial"] == 3
+    code, _, _ = run(
+        capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key, "--serial", "40"
+    )
+    assert code == 0 and load_bundle(following, pub).serial == 40
+    code, out, _ = run(capsys, "show", str(following), "--json")
+    assert code == 0 and json.loads(out)["serial"] == 40
+    for bad in ("0", "-3", "4294967296", "x"):
+        code, _, err = run(
+            capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key, "--serial", bad
+        )
+        assert code == EX_BAD_ARGS and err.count("\n") == 1, (bad, err)
+    assert load_bundle(following, pub).serial == 40  # nothing written
+    code, _, err = run(
+        capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key,
+        "--replaces", str(tmp_path / "missing.swb"),
+    )  # fmt: skip
+    assert code == EX_CONFIG and "missing.swb" in err

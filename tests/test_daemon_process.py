@@ -71,7 +71,9 @@ def test_ready_watchdog_and_clean_sigterm(workdir: Path, files: BundleFiles) -> 
     assert proc.returncode == 0
     lines = [json.loads(line) for line in err.splitlines()]  # every log line is JSON
     events = [e["event"] for e in lines]
-    assert events[0] == "link_source_retired"  # no nl80211 here (or lo is not wireless)
+    # a first start records the bundle's serial as this node's floor (docs/security.md)
+    assert events[0] == "bundle_floor_raised" and lines[0]["serial"] == 1
+    assert events[1] == "link_source_retired"  # no nl80211 here (or lo is not wireless)
     assert "started" in events
     assert lines[-1]["event"] == "stopped"
     assert lines[-1]["reason"] == "SIGTERM"

@@ -185,6 +185,8 @@ def test_config_state_and_secrets_are_not_readable_by_other_users(
     modes: dict[str, list[Any]] = layout.python(FILES_CHECK, "/etc/swarmd", STATE, user=None)
     assert NODE_KEY in modes and f"{STATE}/bundle.swb" in modes and CONFIG in modes
     assert any("auth-epoch" in path for path in modes)  # written by the daemon, under umask
+    # the anti-rollback floor (docs/security.md, "Bundle rollback"): the daemon's, 0640
+    assert modes[f"{STATE}/bundle-floor-lead"] == [0o640, "swarmd"]
     # the state directory shuts everyone else out (what it holds besides node.key is public:
     # the bundle, swarm.pub, node.name, the boot epoch every SPDP announces); node.key is the
     # daemon's alone even without it; the config and its directory are root's and swarmd's

@@ -7,6 +7,7 @@ Modules, in data-flow order:
 - ``build``: mission + keys -> sealed bundle bytes (``build_bundle``).
 - ``encoding``: the canonical byte layout (docs/bundle-format.md).
 - ``loader``: the daemon side, bytes -> verified ``model.Bundle`` (``load_bundle``).
+- ``floor``: the daemon's anti-rollback floor, the highest bundle serial it accepted.
 - ``model``: what a verified bundle tells the discovery engine.
 - ``summary``: the ``show`` / ``verify`` views; ``flash``: writing bundles to drones.
 

@@ -4,7 +4,8 @@ Everything is derived, nothing drawn (paper section 4.2: endpoint data decided b
 flight): GUID prefixes from (swarm, domain, index) via ``derive_guid_prefix``, entity ids
 from the topic's position via ``endpoint_entity_id``, ports from the participant index via
 the standard RTPS port mapping. The only inputs beyond the mission are the per-node public
-keys and the signing key, so the same mission and keys give byte-identical bundles.
+keys, the signing key and the serial, so the same mission, keys and serial give
+byte-identical bundles.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from swarmd.bundle.keys import (
 )
 from swarmd.bundle.mission import Mission
 from swarmd.bundle.model import (
+    SERIAL_MAX,
     Bundle,
     Endpoint,
     EndpointKind,
@@ -54,9 +56,12 @@ def build_bundle(
     node_public_keys: Mapping[str, tuple[bytes, bytes]],
     *,
     dev: bool = False,
+    serial: int = 1,
 ) -> Built:
     """Seal ``mission`` with ``signing_key``; ``node_public_keys`` maps every name to its
-    raw (Ed25519, X25519) public keys."""
+    raw (Ed25519, X25519) public keys. ``serial`` (1..``SERIAL_MAX``) must be above that of
+    every bundle this one replaces: drones refuse a lower one (swarmd.bundle.floor)."""
+    check_serial(serial)
     topics = tuple(Topic(t.name, t.type_name, t.qos, t.index) for t in mission.topics)
     # (topic index, writer before reader) keeps each participant's endpoint list canonical
     endpoints: dict[str, list[Endpoint]] = {p.name: [] for p in mission.participants}
@@ -95,6 +100,7 @@ def build_bundle(
             participants,
             ports,
             mission.ros2,
+            serial,
         )
     )
     data = seal(body, signing_key, dev=dev)
@@ -108,14 +114,22 @@ def build_bundle(
         signing_public_key=raw_public(signing_key),
         dev=dev,
         ros2=mission.ros2,
+        serial=serial,
     )
     return Built(data, bundle, dev)
 
 
-def build_dev_bundle(mission: Mission) -> Built:
+def check_serial(serial: int) -> None:
+    """Raise ``ValueError`` (one line) for a serial outside 1..``SERIAL_MAX`` (0 is what a
+    bundle without a serial counts as, so a built one starts at 1)."""
+    if isinstance(serial, bool) or not 1 <= serial <= SERIAL_MAX:
+        raise ValueError(f"serial {serial!r} is not in 1..{SERIAL_MAX}")
+
+
+def build_dev_bundle(mission: Mission, *, serial: int = 1) -> Built:
     """A bundle signed with the publicly derivable dev keys (``--unsigned-dev``)."""
     node_keys = {p.name: dev_node_keys(mission.swarm, p.name).public for p in mission.participants}
-    return build_bundle(mission, dev_signing_key(mission.swarm), node_keys, dev=True)
+    return build_bundle(mission, dev_signing_key(mission.swarm), node_keys, dev=True, serial=serial)
 
 
 def read_node_public_keys(mission: Mission, keys_dir: str | Path) -> dict[str, tuple[bytes, bytes]]:
@@ -140,14 +154,15 @@ def build_from_files(
     keys_dir: str | Path | None,
     *,
     dev: bool = False,
+    serial: int = 1,
 ) -> Built:
     """The CLI's build: keys from files, or the dev keys when ``dev``."""
     if dev:
-        return build_dev_bundle(mission)
+        return build_dev_bundle(mission, serial=serial)
     if sign_key is None:
         raise KeyFileError(
             "-", "no signing key", "pass --sign-key KEY, or --unsigned-dev for a lab bundle"
         )
     key = load_private_key(sign_key)
     directory = Path(keys_dir) if keys_dir is not None else Path(sign_key).parent
-    return build_bundle(mission, key, read_node_public_keys(mission, directory))
+    return build_bundle(mission, key, read_node_public_keys(mission, directory), serial=serial)

@@ -80,10 +80,13 @@ def body_value(
     participants: tuple[Participant, ...],
     ports: Mapping[int, tuple[int, int]],
     ros2: Ros2Graph | None = None,
+    serial: int | None = None,
 ) -> dict[str, Any]:
     """The JSON value of a bundle body; ``ports`` maps index -> (metatraffic, user) port.
     A mission without a ROS 2 graph has no ``ros2`` key, so its bytes (and content hash)
-    are what they were before ROS 2 graphs existed."""
+    are what they were before ROS 2 graphs existed. ``serial`` (docs/bundle-format.md,
+    "Serial") is in the body, so the content hash and the signature cover it; None (only
+    for re-encoding a bundle built before serials) leaves the key out."""
     value = {
         "swarm": swarm,
         "domain_id": domain_id,
@@ -129,6 +132,8 @@ def body_value(
     if ros2 is not None:
         indices = {p.name: p.index for p in participants}
         value["ros2"] = graph_value(ros2, ros2_participants(swarm, indices, ros2))
+    if serial is not None:
+        value["serial"] = serial
     return value
 
 
@@ -150,6 +155,7 @@ def encode_body(bundle: Bundle) -> bytes:
             bundle.participants,
             ports,
             bundle.ros2,
+            bundle.serial,
         )
     )
 

@@ -41,6 +41,7 @@ from swarmd.bundle.encoding import (
 from swarmd.bundle.errors import BundleError, KeyFileError
 from swarmd.bundle.keys import PUBLIC_KEY_BYTES, fingerprint, load_public_key
 from swarmd.bundle.model import (
+    SERIAL_MAX,
     Bundle,
     DiscoveryParams,
     Durability,
@@ -340,6 +341,11 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
     ros2 = None
     if isinstance(value, dict) and "ros2" in value:
         ros2 = graph_from_value(value["ros2"], swarm, {p.name: p.index for p in participants})
+    serial = None
+    if "serial" in value:  # absent: built before serials (the floor treats it as 0)
+        serial = _field(value, "serial", int, "body")
+        if not 1 <= serial <= SERIAL_MAX:
+            raise _BodyError(f"body.serial: {serial} is not in 1..{SERIAL_MAX}")
     return Bundle(
         swarm=swarm,
         domain_id=domain_id,
@@ -350,4 +356,5 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
         signing_public_key=env.signer,
         dev=env.dev,
         ros2=ros2,
+        serial=serial,
     )

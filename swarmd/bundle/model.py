@@ -131,6 +131,9 @@ class Bundle:
     signing_public_key: bytes  # raw Ed25519 public key of the swarm signing key
     dev: bool = False  # an --unsigned-dev bundle: its node keys are publicly derivable
     ros2: Ros2Graph | None = None  # the operator's ROS 2 graph (issue 19, docs/ros2.md)
+    # the anti-rollback serial (1..SERIAL_MAX, in the signed body): drones refuse a serial
+    # below the highest they accepted (swarmd.bundle.floor); None: built before serials
+    serial: int | None = None
 
     @property
     def size(self) -> int:
@@ -189,6 +192,8 @@ class Bundle:
 
 
 SWARM_TAG_BYTES: Final = 6
+# a u32, like every counter on the wire: 4 billion re-signings outlast any swarm
+SERIAL_MAX: Final = 0xFFFF_FFFF
 
 
 def derive_guid_prefix(swarm: str, domain_id: int, index: int) -> GuidPrefix:

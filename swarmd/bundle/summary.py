@@ -72,6 +72,7 @@ def summary(
         "signer_public_key": bundle.signing_public_key.hex(),
         "dev": dev,
         "trust": trust,
+        "serial": bundle.serial,  # null: built before serials
         "discovery": {
             "t_min_s": bundle.discovery.t_min_s,
             "t_max_s": bundle.discovery.t_max_s,
@@ -134,6 +135,8 @@ def human(s: dict[str, Any]) -> str:
         f"swarm      {s['swarm']}  domain {s['domain_id']}  "
         f"{len(s['participants'])} participants, {len(s['topics'])} topics",
         f"sha256     {s['content_sha256']}",
+        "serial     "
+        + ("none (built before serials)" if s["serial"] is None else str(s["serial"])),
         f"signer     {s['signer']}  {trust}" + ("  [DEV: insecure lab key]" if s["dev"] else ""),
         f"discovery  Tmin {d['t_min_s']:g} s, Tmax {d['t_max_s']:g} s, lease {d['lease_s']:g} s",
         "",

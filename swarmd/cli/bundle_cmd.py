@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from swarmd.bundle.build import build_from_files
+from swarmd.bundle.build import build_from_files, check_serial
 from swarmd.bundle.encoding import EnvelopeError, split
 from swarmd.bundle.errors import BundleError, FlashError, KeyFileError, MissionError
 from swarmd.bundle.flash import (
@@ -38,7 +38,7 @@ from swarmd.bundle.keys import (
 )
 from swarmd.bundle.loader import read_bundle
 from swarmd.bundle.mission import load_mission
-from swarmd.bundle.model import Bundle, Participant
+from swarmd.bundle.model import SERIAL_MAX, Bundle, Participant
 from swarmd.bundle.summary import human, summary
 from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_CONFIG, EX_DATAERR, EX_FAILED, EX_OK
 
@@ -86,6 +86,18 @@ def register(sub: Any) -> None:
         "--unsigned-dev",
         action="store_true",
         help="lab only: sign with the public dev key; drones refuse it unless bundle.allow_dev",
+    )
+    p.add_argument(
+        "--serial",
+        metavar="N",
+        help="the anti-rollback serial, 1..4294967295 (default: one more than the bundle it "
+        "replaces: --replaces, else the bundle already at -o, else 1); drones refuse a "
+        "serial below the highest they accepted, and another bundle with that same serial",
+    )
+    p.add_argument(
+        "--replaces",
+        metavar="OLD.swb",
+        help="the bundle this one replaces: the serial becomes its serial + 1",
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_build)
@@ -139,7 +151,11 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_check)
 
-    p = bsub.add_parser("rollback", help="restore the previous bundle on a drone")
+    p = bsub.add_parser(
+        "rollback",
+        help="restore the previous bundle on a drone (only before swarmd started on the newer "
+        "one: its floor refuses a lower serial; then rebuild with a higher --serial)",
+    )
     p.add_argument("--target", required=True, metavar="DIR|[user@]host:DIR")
     _ssh_args(p)
     p.set_defaults(func=cmd_rollback)
@@ -211,6 +227,10 @@ def _load(args: argparse.Namespace, *, inspect: bool) -> _Loaded:
     return _Loaded(bundle, data, dev, trust)
 
 
+def _serial_text(bundle: Bundle) -> str:
+    return "none (built before serials)" if bundle.serial is None else str(bundle.serial)
+
+
 def _guard(func: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
     """Map the bundle errors to one stderr line and their exit codes."""
 
@@ -260,8 +280,16 @@ def cmd_build(args: argparse.Namespace) -> int:
     if args.sign_key is not None and args.unsigned_dev:
         _err("--sign-key and --unsigned-dev exclude each other")
         return EX_BAD_ARGS
+    if args.serial is not None and args.replaces is not None:
+        _err("--serial and --replaces exclude each other")
+        return EX_BAD_ARGS
+    serial, replaced = _build_serial(args)
+    if serial is None:
+        return EX_BAD_ARGS
     mission = load_mission(args.mission)
-    built = build_from_files(mission, args.sign_key, args.keys, dev=args.unsigned_dev)
+    built = build_from_files(
+        mission, args.sign_key, args.keys, dev=args.unsigned_dev, serial=serial
+    )
     out = Path(args.output)
     try:
         write_file_atomic(out, built.data, PUBLIC_MODE)
@@ -287,15 +315,66 @@ def cmd_build(args: argparse.Namespace) -> int:
                 "content_sha256": b.content_sha256.hex(),
                 "signer": fingerprint(b.signing_public_key),
                 "dev": built.dev,
+                "serial": serial,
+                "replaces": replaced,
             }
         )
     else:
+        after = (
+            ""
+            if replaced is None
+            else f" (replaces serial {replaced['serial']} of {replaced['file']})"
+        )
         print(
             f"wrote {out}: swarm {b.swarm}, {b.size} participants, {len(b.topics)} topics, "
             f"{len(built.data)} bytes, sha256 {b.content_sha256.hex()}, "
-            f"signer {fingerprint(b.signing_public_key)}"
+            f"signer {fingerprint(b.signing_public_key)}, serial {serial}{after}"
         )
     return EX_OK
+
+
+def _build_serial(args: argparse.Namespace) -> tuple[int | None, dict[str, Any] | None]:
+    """The new bundle's serial and what it replaces: ``--serial``, else one more than
+    ``--replaces`` (which must verify), else one more than the bundle already at ``-o``
+    (a file there that is no bundle is overwritten, as before, with serial 1 and a
+    warning), else 1. (None, None) after a one-line usage error."""
+    if args.serial is not None:
+        try:
+            serial = int(args.serial)
+            check_serial(serial)
+        except ValueError:
+            _err(f"--serial {args.serial}: not a whole number in 1..{SERIAL_MAX}")
+            return None, None
+        return serial, None
+    previous = args.replaces if args.replaces is not None else args.output
+    if args.replaces is None and not Path(previous).exists():
+        return 1, None
+    try:
+        data = Path(previous).read_bytes()
+        old = read_bundle(data, source=str(previous), allow_dev=True, require_anchor=False)
+    except OSError as exc:
+        if args.replaces is None:
+            raise
+        raise BundleError(
+            str(previous), f"cannot read: {exc.strerror}", "check --replaces"
+        ) from None
+    except BundleError as exc:
+        if args.replaces is not None:
+            raise
+        print(
+            f"{PROG}: warning: {previous} is not a bundle ({exc.problem}); it is overwritten "
+            "with serial 1",
+            file=sys.stderr,
+        )
+        return 1, None
+    base = 0 if old.serial is None else old.serial
+    if base >= SERIAL_MAX:
+        raise BundleError(
+            str(previous),
+            f"serial {base} is the last one",
+            "rotate the swarm signing key and reset every drone's floor (docs/operations.md)",
+        )
+    return base + 1, {"file": str(previous), "serial": base}
 
 
 @_guard
@@ -313,13 +392,14 @@ def cmd_verify(args: argparse.Namespace) -> int:
                 "signer": fingerprint(b.signing_public_key),
                 "trust": loaded.trust,
                 "dev": loaded.dev,
+                "serial": b.serial,
             }
         )
     else:
         print(
             f"OK {args.bundle}: swarm {b.swarm}, {b.size} participants, "
             f"sha256 {b.content_sha256.hex()}, signer {fingerprint(b.signing_public_key)} "
-            f"({loaded.trust}{', DEV' if loaded.dev else ''})"
+            f"({loaded.trust}{', DEV' if loaded.dev else ''}), serial {_serial_text(b)}"
         )
     return EX_OK
 
@@ -494,4 +574,10 @@ def cmd_rollback(args: argparse.Namespace) -> int:
     target = parse_target(args.target)
     rollback(target, ssh=Ssh(tuple(args.ssh_option)))
     print(f"rolled back {target} to its previous bundle")
+    print(
+        f"{PROG}: note: a drone whose swarmd already started on the newer bundle refuses "
+        "this lower serial (exit 78); then rebuild the older mission with 'bundle build "
+        '--serial N\' above it (docs/operations.md, "Bundle serial")',
+        file=sys.stderr,
+    )
     return EX_OK

@@ -1,8 +1,10 @@
 """``swarmd``: the daemon entry point (``swarmd run --config FILE``).
 
 Exit codes (sysexits): 0 clean stop (SIGTERM/SIGINT), 2 usage, 69 the control socket is
-held by another live swarmd, 71 a UDP socket cannot be bound or joined, 78 bad config or a
-rejected bundle (systemd's ``RestartPreventExitStatus=78`` stops a restart loop on those).
+held by another live swarmd, 71 a UDP socket cannot be bound or joined, 73 a state file
+(boot epoch, bundle floor) cannot be written or its folder is unsafe, 78 bad config or a
+rejected bundle, a rolled-back one included (systemd's ``RestartPreventExitStatus=78``
+stops a restart loop on those).
 Every failure before the loop runs is one line on stderr, never a traceback.
 
 ``main(argv, before_run=...)`` takes an optional hook called after the config and bundle
@@ -22,7 +24,7 @@ from dataclasses import fields
 
 from swarmd import __version__
 from swarmd.config import ConfigError, load_config
-from swarmd.exitcodes import EX_CONFIG, EX_USAGE, StartupError
+from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_USAGE, StartupError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,6 +53,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     # imported here so `swarmd --help` stays fast and works without the engine's deps
     from swarmd import logs
     from swarmd.bundle.errors import BundleError
+    from swarmd.bundle.floor import FloorError, FloorWriteError
+    from swarmd.bundle.floor import enforce as enforce_floor
     from swarmd.bundle.loader import load_bundle
     from swarmd.daemon import Daemon, run
     from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
@@ -84,6 +88,24 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         secrets = load_node_secrets(config, bundle)
     except NodeSecretsError as exc:
         return _fail(f"node key rejected: {exc}", EX_CONFIG)
+    # the anti-rollback floor (docs/security.md, "Bundle rollback"), read only: a refusal
+    # here is one line before anything runs; Daemon.start checks again and raises the floor
+    # (`check-config` never does: a bundle checked but not run must not lock out the
+    # bundle the drone runs now)
+    try:
+        enforce_floor(
+            bundle,
+            source=config.bundle.path,
+            state_dir=config.bundle.node_state_dir,
+            node=config.node,
+            commit=False,
+        )
+    except BundleError as exc:
+        return _fail(f"bundle rejected: {exc}", EX_CONFIG)
+    except FloorError as exc:
+        return _fail(f"bundle floor rejected: {exc}", EX_CONFIG)
+    except FloorWriteError as exc:
+        return _fail(str(exc), EX_CANTCREAT)
     if args.command == "check-config":
         try:
             Daemon(config, bundle, log=log, node_secrets=secrets)
