@@ -32,6 +32,7 @@ from typing import Any
 import pytest
 from swarmd_lab.netns import Lan
 
+from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.px4.xrce_backend import XrceBackend
 from swarmd.px4.xrce_key import GENERATED_MAX
 from swarmd.xrce.agent import XrceAgent
@@ -380,3 +381,8 @@ def test_a_flooder_on_the_drone_does_not_keep_the_fmu_out_over_real_sockets(lan2
     assert stats["client"].startswith(f"{result['address'][0]}:{result['address'][1]} ")
     refused = stats["refused"]
     assert refused["over_budget"] >= 1000 and set(refused) <= {"wrong_key", "over_budget"}
+    # the keys the agent compared: the flood's it checked, and the vehicle's
+    assert stats["key_checks"] - refused.get("wrong_key", 0) in (1, 2, 3)  # the vehicle's tries
+    line = render_px4_backend(stats)
+    assert f"refused {sum(refused.values())} clients" in line
+    assert f"{refused['over_budget']} of them over the key-check budget (unchecked)" in line
