@@ -6,7 +6,9 @@ loopback only. Prints markdown.
 
 1. the sans-IO agent alone: ``--count`` CREATE_CLIENTs of distinct wrong keys from ``--ports``
    source ports, fed as fast as the core takes them (no socket): the core's ceiling;
-2. real sockets: swarmd's XRCE backend (the daemon's agent) on a free 127.0.0.1 port, the
+2. the sans-IO agent on virtual time: 1000 a second for 10 virtual minutes: the long-run
+   rate, where a budget's burst no longer counts;
+3. real sockets: swarmd's XRCE backend (the daemon's agent) on a free 127.0.0.1 port, the
    attacker a thread sending distinct wrong keys from ``--ports`` sockets as fast as it can,
    at most ``--count`` datagrams or ``--seconds``; then what the agent checked, what it
    answered and what the attacker learnt from the answers.
@@ -76,6 +78,29 @@ def sans_io(count: int, ports: int) -> str:
     return (
         f"| sans-IO core | {len(datagrams)} | {elapsed:.2f} | {n} "
         f"| {agent.refused.get('over_budget', 0)} | {answers} | {rate:,.0f} "
+        f"| {expected_time(rate)} |"
+    )
+
+
+def virtual_minutes(minutes: int, per_s: int, ports: int) -> str:
+    """The long run, on virtual time: ``per_s`` wrong keys a second for ``minutes``."""
+    agent = XrceAgent(expected_key=VEHICLE_KEY.to_bytes(4, "big"))
+    key = 0
+    answers = 0
+    duration_s = minutes * 60
+    for tick in range(duration_s * 100):  # 10 ms steps
+        now = tick / 100
+        for _ in range(per_s // 100):
+            key += 1
+            agent.receive_datagram(create_client(key), ("127.0.0.1", 40000 + key % ports), now)
+        answers += len(agent.datagrams_to_send())
+        while agent.next_event() is not None:
+            pass
+    n = checked(dict(agent.refused))
+    rate = n / duration_s
+    return (
+        f"| sans-IO core, {minutes} virtual minutes at {per_s}/s | {key} | {duration_s} (virtual) "
+        f"| {n} | {agent.refused.get('over_budget', 0)} | {answers} | {rate:,.2f} "
         f"| {expected_time(rate)} |"
     )
 
@@ -168,6 +193,7 @@ def main() -> int:
         "| checks/s | expected time to guess (2^30 tries) |\n|---|---:|---:|---:|---:|---|---:|---|"
     )
     print(sans_io(count, args.ports))
+    print(virtual_minutes(10, 1000, args.ports))
     print(asyncio.run(real_sockets(count, seconds, args.ports)))
     return 0
 
