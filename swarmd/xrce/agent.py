@@ -24,13 +24,14 @@ pings, and while connected sends a time-sync request every 1 s besides its sampl
 ``src/modules/uxrce_dds_client/uxrce_dds_client.cpp``, ``checkConnectivity`` and ``run``).
 The same key from the same address is PX4 restarted behind the same port (always so on a
 UART) and starts the session afresh at once. Neither refusal is answered: a client that
-hears nothing retries (Micro XRCE-DDS sends CREATE_CLIENT up to 10 times, 1 s apart, as it
-must over a transport that loses datagrams), and silence tells a local prober nothing, not
-even that its try was checked. Each key compared spends the ``KeyCheckBudget`` (per source
-and per origin, ``keycheck.py``); a CREATE_CLIENT over it is dropped unchecked, so a flood
-tests at most a few keys a second (``refused["over_budget"]``). Every refusal is counted in
-``refused`` and reported as ``ClientRefused``. The key is a session identifier sent in the
-clear, not a credential (docs/px4.md, "One agent, one vehicle").
+hears nothing retries (Micro XRCE-DDS resends CREATE_CLIENT, by default 10 times 1 s apart,
+as it must over a transport that loses datagrams), and silence tells a local prober
+nothing, not even that its try was checked. Each key compared spends the
+``KeyCheckBudget`` (per source and per origin, ``keycheck.py``); a CREATE_CLIENT over it is
+dropped unchecked, so a flood tests at most a few keys a second (``refused["over_budget"]``).
+Every refusal is counted in ``refused`` and reported as ``ClientRefused``. The key is a
+session identifier sent in the clear, not a credential (docs/px4.md, "One agent, one
+vehicle").
 Without ``expected_key`` (lab tools, the golden-session oracle) the agent is unbound: up to
 ``MAX_SESSIONS`` clients, samples and commands routed among all of them, as MicroXRCEAgent.
 

@@ -29,9 +29,10 @@ session lives), so how many later tries are checked tells a prober nothing eithe
 The figures: ``ORIGIN_CHECKS_PER_S`` = 3 per origin: 2^30 tries (half the generated key
 space) take 11 years from the loopback alone, and 1.26 years with every origin of the capped
 table spent at once (the bound ``max_checks_per_s``, 27 a second; only with the agent on every
-interface and 8 addresses to send from). PX4 retries a CREATE_CLIENT every 1 s from one
-port (Micro XRCE-DDS client, ``UXR_CONFIG_MIN_SESSION_CONNECTION_INTERVAL``): one check per
-try, within its source's share.
+interface and 8 addresses to send from). PX4 resends an unanswered CREATE_CLIENT from one
+port every ``UXR_CONFIG_MIN_SESSION_CONNECTION_INTERVAL`` (1000 ms by default, Micro XRCE-DDS
+client) and opens a new port for each set-up attempt: one check per try, within its
+source's share (a build with a shorter interval gets its first 3 tries checked at once).
 """
 
 from __future__ import annotations
