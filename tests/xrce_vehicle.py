@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 from collections.abc import Callable
 from typing import Final
 
@@ -73,11 +74,19 @@ class XrceVehicle:
         host, port = self._transport.get_extra_info("sockname")[:2]
         return (host, port)
 
-    async def start(self) -> None:
+    async def start(self, sock: socket.socket | None = None) -> None:
+        """Open the session; ``sock``: a bound UDP socket to use (another namespace's)."""
         loop = asyncio.get_running_loop()
-        self._transport, _ = await loop.create_datagram_endpoint(
-            lambda: _Datagrams(self), remote_addr=self.agent
-        )
+        if sock is None:
+            self._transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Datagrams(self), remote_addr=self.agent
+            )
+        else:
+            sock.connect(self.agent)
+            sock.setblocking(False)
+            self._transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Datagrams(self), sock=sock
+            )
         self.driver = Driver(
             self.engine, transmit=self._send, on_event=self._event, name="vehicle", loop=loop
         )

@@ -384,6 +384,9 @@ def render_px4_backend(b: dict[str, Any]) -> str:
         clients = _sum_counters(b.get("refused") or {}, "")
         if clients:
             line += f", refused {clients} clients (last {b.get('last_refused') or '?'})"
+        unchecked = (b.get("refused") or {}).get("over_budget")
+        if isinstance(unchecked, int) and unchecked:  # a key-guessing flood (docs/security.md)
+            line += f", {unchecked} of them over the key-check budget (unchecked)"
         if b.get("foreign_samples"):
             line += (
                 f", dropped {b['foreign_samples']} samples of system id "

@@ -9,7 +9,8 @@ socket or UART and turns the engine's events into observations.
 
 As the agent with a key (the daemon always has one, docs/px4.md "One agent, one vehicle"),
 the engine is bound to one vehicle: a second client is refused (``refused`` in ``stats()``,
-logged at the 1st, 10th, 100th ... refusal), and the translator drops samples whose
+logged at the 1st, 10th, 100th ... refusal; ``over_budget``: dropped unchecked by the
+key-check budget, ``key_checks``: keys compared), and the translator drops samples whose
 ``vehicle_status.system_id`` is not ``sysid``.
 
 Connections: ``udp:HOST:PORT`` -- the agent listens on it, the client sends to it;
@@ -211,6 +212,10 @@ class XrceBackend:
             # one vehicle (docs/px4.md "One agent, one vehicle")
             "bound": isinstance(self.engine, XrceAgent) and self.engine.bound,
             "refused": dict(self.engine.refused) if isinstance(self.engine, XrceAgent) else {},
+            # client keys compared; CREATE_CLIENTs over the budget are refused.over_budget
+            "key_checks": (
+                self.engine.key_checks.checks if isinstance(self.engine, XrceAgent) else 0
+            ),
             "last_refused": self.last_refused,
             "foreign_samples": self.translator.foreign_samples,
             "foreign_system_id": self.translator.foreign_system_id,

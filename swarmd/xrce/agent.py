@@ -23,10 +23,15 @@ silent for ``VEHICLE_DEAD_AFTER_S`` (PX4 itself gives up on an agent after 3 mis
 pings, and while connected sends a time-sync request every 1 s besides its samples and pings:
 ``src/modules/uxrce_dds_client/uxrce_dds_client.cpp``, ``checkConnectivity`` and ``run``).
 The same key from the same address is PX4 restarted behind the same port (always so on a
-UART) and starts the session afresh at once. Both refusals answer the same STATUS_AGENT
-(ERR_DENIED), so a refusal does not tell a local prober whether it guessed the key. Every
-refusal is counted in ``refused`` and reported as ``ClientRefused``. The key is a session
-identifier sent in the clear, not a credential (docs/px4.md, "One agent, one vehicle").
+UART) and starts the session afresh at once. Neither refusal is answered: a client that
+hears nothing retries (Micro XRCE-DDS resends CREATE_CLIENT, by default 10 times 1 s apart,
+as it must over a transport that loses datagrams), and silence tells a local prober
+nothing, not even that its try was checked. Each key compared spends the
+``KeyCheckBudget`` (per source and per origin, ``keycheck.py``); a CREATE_CLIENT over it is
+dropped unchecked, so a flood tests at most a few keys a second (``refused["over_budget"]``).
+Every refusal is counted in ``refused`` and reported as ``ClientRefused``. The key is a
+session identifier sent in the clear, not a credential (docs/px4.md, "One agent, one
+vehicle").
 Without ``expected_key`` (lab tools, the golden-session oracle) the agent is unbound: up to
 ``MAX_SESSIONS`` clients, samples and commands routed among all of them, as MicroXRCEAgent.
 
@@ -57,6 +62,7 @@ from swarmd.xrce.events import (
     SessionCreated,
     SessionEnded,
 )
+from swarmd.xrce.keycheck import KeyCheckBudget
 from swarmd.xrce.message import (
     OBJECT_ID_CLIENT,
     XRCE_COOKIE,
@@ -113,6 +119,10 @@ SAMPLE_IDENTITY_SIZE: Final = 24  # GUID_t (16) + SequenceNumber_t (8), before s
 # our requests' writer GUID: prefix "swarmd" + zero padding, entity 00 00 04 03 (a writer)
 REQUESTER_GUID: Final = b"swarmd\0\0\0\0\0\0" + bytes((0, 0, 4, 3))
 STREAM_BEST_EFFORT: Final = 0x01
+# Refusals that depend on the key, left unanswered (bound agent): an answer would tell a
+# prober its try was checked, and a different one for the right key would tell it the key.
+# The refusals that do not look at the key (cookie, version, session id) are answered.
+UNANSWERED: Final = frozenset({"wrong_key", "vehicle_alive", "over_budget"})
 
 
 @dataclass(slots=True)
@@ -171,8 +181,10 @@ class XrceAgent(Endpoint):
         self.agent = agent or AgentRepresentation()
         super().__init__()
         self.sessions: dict[Address, Session] = {}
-        # CREATE_CLIENTs refused by reason (wrong_key, vehicle_alive, cookie, ...)
+        # CREATE_CLIENTs refused by reason (wrong_key, vehicle_alive, over_budget, cookie, ...)
         self.refused: Counter[str] = Counter()
+        # bound: how many client keys may be compared, per source and origin (keycheck.py)
+        self.key_checks = KeyCheckBudget()
         self._request_seq = 0
         self.timestamps_answered = 0
         self.pings_answered = 0
@@ -331,6 +343,10 @@ class XrceAgent(Endpoint):
             status, why = Status.ERR_INCOMPATIBLE, "incompatible_version"
         elif cc.session_id in (0x00, 0x80):
             status, why = Status.ERR_INVALID_DATA, "sessionless_id"
+        elif self.expected_key is not None and not self.key_checks.allow(source, now):
+            # over the budget: dropped before the key is looked at, unanswered (keycheck.py)
+            self._refuse(source, cc.client_key, "over_budget")
+            return
         elif self.expected_key is not None and cc.client_key != self.expected_key:
             status, why = Status.ERR_DENIED, "wrong_key"
         old = self.sessions.get(source)
@@ -347,8 +363,9 @@ class XrceAgent(Endpoint):
                     status, why = Status.ERR_RESOURCES, "too_many_sessions"
         if status != Status.OK:
             self._refuse(source, cc.client_key, why)
-            reply = StatusAgent(status, 0, self.agent)
-            self._out.append((encode_message(reply_header, [reply]), source))
+            if why not in UNANSWERED:
+                reply = StatusAgent(status, 0, self.agent)
+                self._out.append((encode_message(reply_header, [reply]), source))
             return
         if old is not None:
             self._emit(SessionEnded(source, old.client_key, "replaced"))
@@ -362,7 +379,7 @@ class XrceAgent(Endpoint):
         session exists or it is dead (silent ``VEHICLE_DEAD_AFTER_S``), which then ends."""
         for addr, s in list(self.sessions.items()):
             if now - s.last_heard < VEHICLE_DEAD_AFTER_S:
-                # ERR_DENIED as for a wrong key: the answer is no key oracle (module docstring)
+                # unanswered as a wrong key is: no key oracle (module docstring)
                 return Status.ERR_DENIED, "vehicle_alive"
             del self.sessions[addr]
             self._emit(SessionEnded(addr, s.client_key, "replaced"))
