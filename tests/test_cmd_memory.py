@@ -37,15 +37,15 @@ from swarmd.dataplane.validity import (
     issued_in_life,
     stamp_ms,
 )
-from swarmd.swarm.commander import RESTARTED_RUNNING
+from swarmd.swarm.commander import RESTARTED, RESTARTED_RUNNING, CommandTracker
 from swarmd.swarm.core import (
     OutcomeReported,
-    PersistExecuted,
     SwarmCore,
     SwarmSettings,
 )
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight, _issue, _reboot
+from tests.test_cmd_validity import _follow_output
 from tests.test_dataplane_swarm import address_of, make_plane
 
 # ---- the member's rule, pure ---------------------------------------------------------------
@@ -323,4 +323,34 @@ def test_a_new_command_after_a_lost_memory_runs() -> None:
     swarm.run(2.0)
     assert len(flight.ran("m01", cid)) == 1
     kept = flight.kept("m01")
-    assert isinstance(kept, PersistExecuted) and ("lead", cid) in kept.executed
+    assert ("lead", cid) in kept.executed
+
+
+def test_swarmctl_tells_the_operator_to_issue_a_new_command(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The row of the test above as ``swarmctl`` follows it: the reason, what it means and
+    what to do; the drone's refusal counts as not confirmed (exit 1)."""
+    tracker = CommandTracker()
+    tracker.sent(2, "takeoff", ["uav2", "uav3"], 0.0, valid_for_s=3.0, epochs={"uav3": 1})
+    tracker.record(2, "uav2", CommandResult.COMPLETED, "IN_AIR", 1.0)
+    tracker.not_delivered(2, "uav3", RESTARTED, 1.2)
+    tracker.record(2, "uav3", CommandResult.REJECTED, MEMORY_LOST, 1.5, epoch=2)
+    snap = tracker.snapshot(2, 10.0)
+    assert snap is not None
+    row = snap["nodes"]["uav3"]
+    assert (row["state"], row["reason"], row["after_restart"]) == ("rejected", MEMORY_LOST, True)
+    code, out = _follow_output(snap, capsys)
+    assert code == 1
+    assert "uav3: refused (memory_lost)" in out and "Issue a new command" in out
+
+
+def test_a_later_lifes_memory_lost_does_not_hide_an_earlier_acceptance() -> None:
+    """uav3 accepted in its first life; its next life refused a resend (``memory_lost``):
+    the row stays ``accepted``, what the first life said."""
+    tracker = CommandTracker()
+    tracker.sent(2, "takeoff", ["uav3"], 0.0, valid_for_s=3.0, epochs={"uav3": 1})
+    tracker.record(2, "uav3", CommandResult.ACCEPTED, "", 0.1, epoch=1)
+    tracker.record(2, "uav3", CommandResult.REJECTED, MEMORY_LOST, 1.5, epoch=2)
+    snap = tracker.snapshot(2, 1.6)
+    assert snap is not None and snap["nodes"]["uav3"]["state"] == "accepted"
