@@ -40,7 +40,11 @@ once per life, persisted across restarts; the core also refuses an id it already
 the commander's own drone, which bypasses the data plane). A command from the commander
 that reaches it after its validity (``swarmd.dataplane.validity.judge``: dated on this
 node's own clock from the readiness report the commander echoes in it) is REJECTED
-``expired`` and never runs (docs/dataplane.md, "Validity"). Without a vehicle every command
+``expired`` and never runs (docs/dataplane.md, "Validity"). One it cannot prove, by the
+same echo on its own clock, was issued after this life began (``start``) is REJECTED
+``memory_lost``: an earlier life may have run it, and its record of executed ids (the state
+file) may be lost (``validity.issued_in_life``; docs/dataplane.md, "A life runs only its
+own commands"). Without a vehicle every command
 is REJECTED ``px4_disabled``. TAKEOFF is refused at once (REJECTED, reason = the readiness
 code) when the vehicle is not ready *now* (the commander's view is up to one report old),
 else ACCEPTED at once (the commander's latency measure) and sent to the vehicle; LAND, HOLD
