@@ -48,6 +48,7 @@ from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import core
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.core import (
+    CommandBeforeLife,
     CommandExecuting,
     CommandExpired,
     CommandIssued,
@@ -409,6 +410,15 @@ class SwarmApp:
             case CommandExpired():
                 self.log.warning(
                     "command_expired",
+                    commander=event.commander,
+                    command_id=event.command_id,
+                    kind=event.kind.name,
+                    detail=event.detail,
+                )
+            case CommandBeforeLife():
+                # docs/operations.md, "memory_lost": issue a new command to run it now
+                self.log.warning(
+                    "command_refused_memory_lost",
                     commander=event.commander,
                     command_id=event.command_id,
                     kind=event.kind.name,

@@ -324,7 +324,9 @@ def test_a_replayed_old_outcome_cannot_change_a_newer_row() -> None:
     row_b = _row(flight, cid_b)
     assert (row_b["state"], row_b["after_restart"]) == ("completed", False), row_b
     lead_addr = address_of(swarm.bundle, "lead")
-    marker = cid_a.to_bytes(8, "little")
+    # an outcome sample of A from m01 (XCDR1: u64 id, then the node as a string); the id
+    # alone (epoch << 32 | 1) also reads as an SN of a writer in incarnation 1
+    marker = cid_a.to_bytes(8, "little") + (4).to_bytes(4, "little") + b"m01\x00"
     captured = [
         t.payload
         for t in swarm.net.transmissions

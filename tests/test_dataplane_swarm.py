@@ -310,7 +310,8 @@ def test_commander_restart_with_new_incarnation_keeps_exactly_once() -> None:
         swarm.up("lead", m)
         swarm.up(m, "lead")
     second = new.make_command(CommandKind.LAND)
-    assert second.command_id >> 32 == 1 and second.command_id != first.command_id
+    # ids carry the boot epoch (2 now), not the boot counter, which a lost state file resets
+    assert second.command_id >> 32 == new.epoch == 2 and second.command_id != first.command_id
     swarm.run_until(
         60.0,
         [

@@ -33,6 +33,7 @@ from typing import Any, Final, TextIO
 from swarmd.cli.status_cmd import socket_argument, table
 from swarmd.control import ControlClient, DaemonUnreachable, RequestError
 from swarmd.dataplane.types import CommandKind
+from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.exitcodes import (
     EX_FAILED,
     EX_INTERRUPTED,
@@ -268,6 +269,15 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                         f"  {name}: unreachable: it restarted before it acknowledged the "
                         "command, which is not sent to its new life and can no longer run "
                         "there (its readiness shows what the vehicle did)"
+                    )
+                    continue
+                if state == "rejected" and node.get("reason") == MEMORY_LOST:
+                    # docs/operations.md, "memory_lost"
+                    run.say(
+                        f"  {name}: refused (memory_lost): its daemon restarted without its "
+                        "record of the commands it ran, and this one was issued before; it "
+                        "may have run it then (its readiness shows what the vehicle did). "
+                        "Issue a new command to run it now"
                     )
                     continue
                 if state == UNREACHABLE:

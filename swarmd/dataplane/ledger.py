@@ -16,7 +16,9 @@ plane keeps the wire: matching, authentication, readers and writers).
 - Commander side: the ``(node, boot epoch, command id, result)`` outcomes already reported
   up (the epoch: a member's later life may re-report what its earlier one said), and the
   command SNs still in the writer's history (so a member's copies that will not be handed
-  over can be named by command id, ``CommandCopyVoided``).
+  over can be named by command id, ``CommandCopyVoided``), and the first dating of each
+  command it sent (validity and per-target echoes), which every later send of the same id
+  carries (docs/dataplane.md, "A life runs only its own commands").
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any, Final
 
 from swarmd.bundle.model import Participant
-from swarmd.dataplane.types import Command, encode_sample
+from swarmd.dataplane.types import Command, TimeEcho, encode_sample
 from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.rtps.types import GuidPrefix
 
@@ -36,6 +38,12 @@ from swarmd.rtps.types import GuidPrefix
 MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
 # (node, command id, result) outcomes already reported up, same reasoning on the commander.
 MAX_SEEN_OUTCOMES: Final = 4096
+
+# Commands whose first dating (validity, echoes) the commander keeps for a resend of the
+# same id. The tracker keeps no more commands (swarm.commander.MAX_TRACKED_COMMANDS); a
+# resend of an id made in this life but dated longer ago goes without echoes (refused
+# ``expired``: fail closed). Memory: 64 x one echo per target.
+MAX_DATED_COMMANDS: Final = 64
 
 # (commander, command id, CommandResult value, reason): what this node decided for a command
 KeptOutcome = tuple[str, int, int, str]
@@ -67,6 +75,9 @@ class CommandLedger:
         self._outcomes: OrderedDict[tuple[str, int, int, int], None] = OrderedDict()
         # The commander's command SNs still in its writer's history -> command id.
         self._command_ids: OrderedDict[int, int] = OrderedDict()
+        # command id -> (valid_ms, echoes) as first sent (the commander's)
+        self._datings: OrderedDict[int, tuple[int, tuple[TimeEcho, ...]]] = OrderedDict()
+        self._undated_up_to = -1  # the highest id whose dating was evicted
 
     # --- member side ------------------------------------------------------------------------
 
@@ -124,6 +135,37 @@ class CommandLedger:
     def command_at(self, sn: int) -> int | None:
         """The command id written as ``sn``, while the writer may still hold it."""
         return self._command_ids.get(sn)
+
+    def dated(self, command: Command, made_here: bool) -> Command:
+        """``command`` as it is sent: the first time its id is sent, as given (and its
+        dating is kept); later, with the first send's validity and echoes (those of its
+        targets), whatever the caller put in: a resend can neither outlive the first
+        validity nor pass, at a member, as issued later than it was. ``made_here``: the id
+        was made by this life (``DataPlane.make_command``); such an id whose dating is no
+        longer kept (ids grow: at most the highest evicted) goes without echoes (its
+        members refuse it, fail closed)."""
+        first = self._datings.get(command.command_id)
+        if first is None:
+            if made_here and command.command_id <= self._undated_up_to:
+                self._counters["command_resent_undated"] += 1
+                first = (command.valid_ms, ())
+            else:
+                self._datings[command.command_id] = (command.valid_ms, tuple(command.echoes))
+                while len(self._datings) > MAX_DATED_COMMANDS:
+                    evicted, _ = self._datings.popitem(last=False)
+                    self._undated_up_to = max(self._undated_up_to, evicted)
+                return command
+        self._counters["command_resent"] += 1
+        valid_ms, echoes = first
+        targets = set(command.targets)
+        return Command(
+            command.command_id,
+            command.kind,
+            command.altitude_m,
+            list(command.targets),
+            valid_ms,
+            [e for e in echoes if not targets or e.node in targets],
+        )
 
     def command_withdrawn(self, sn: int) -> None:
         self._command_ids.pop(sn, None)

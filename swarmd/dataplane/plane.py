@@ -35,8 +35,10 @@ with the swarm (``send_command``; docs/dataplane.md, "One copy per member").
 Exactly-once commands: the reliable reader delivers each SN of a writer life at most once;
 above it, a bounded set of executed ``(commander, command_id)`` pairs (``ledger.py``) turns
 re-deliveries (a commander resending the same id, a proxy reset after ``peer_down``/
-``peer_up``) into no-ops. Command ids carry the commander's incarnation in their high 32
-bits, so a restarted commander never reuses one (docs/dataplane.md, "Exactly once").
+``peer_up``) into no-ops. Command ids carry the commander's boot epoch in their high 32
+bits, so a restarted commander never reuses one, even when its state file (the boot
+counter) was lost (docs/dataplane.md, "Exactly once"). An id is dated once: a resend
+carries its first send's validity and echoes (``ledger.CommandLedger.dated``).
 
 Invariant: ``receive_datagram`` never raises, whatever the bytes; bad input becomes a
 ``PacketDropped`` event and a counter. Any other exception escaping it is a bug.
@@ -207,6 +209,8 @@ class DataPlane:
         self._ledger = CommandLedger(self.counters, executed_command_ids, executed_outcomes)
         self._readiness: dict[str, ReadinessStats] = {}
         self._next_command = 0
+        # the high 32 bits of our command ids: this life's, never an earlier one's
+        self._id_life = epoch if epoch else incarnation
 
     # --- discovery inputs -------------------------------------------------------------------
 
@@ -329,12 +333,15 @@ class DataPlane:
         valid_ms: int = 0,
         echoes: Iterable[TimeEcho] = (),
     ) -> Command:
-        """A command with a fresh id: ``incarnation << 32 | counter``, never reused.
+        """A command with a fresh id: ``epoch << 32 | counter``, never reused: the boot
+        epoch grows with every start even when the state file, and with it the boot counter
+        (``incarnation``), is lost (``swarmd.auth.epoch``: the epoch file or the wall
+        clock). Only with no epoch (0) the incarnation stands in.
 
         ``valid_ms`` and ``echoes`` date it for the members (``validity.py``); without them
         a member refuses it as expired. ``time_echoes`` gives the echoes."""
         self._next_command += 1
-        command_id = (self.incarnation << 32) | self._next_command
+        command_id = (self._id_life << 32) | self._next_command
         return Command(command_id, kind, float(altitude_m), list(targets), valid_ms, list(echoes))
 
     def time_echoes(self, members: Iterable[str], now: float) -> list[TimeEcho]:
@@ -378,15 +385,28 @@ class DataPlane:
         are sent a GAP for the SN. Targets that are not bundle participants, or this node
         itself, are skipped (counted ``command_target_unknown``).
 
-        Resending a command with the same id is safe: members execute an id once.
+        Resending a command with the same id is safe: members execute an id once, and
+        the resend carries the first send's dating (``dated``), so a member whose daemon
+        restarted meanwhile refuses it (``memory_lost``) rather than run it again.
         """
         writer = self._endpoints.by_topic.get(TOPIC_COMMAND)
         if writer is None:
             raise ValueError(f"{self.local.name!r} has no writer on {TOPIC_COMMAND!r}")
+        command = self.dated(command)
         sn, out = writer.write(self._command_copies(command), now)
         self._queue(out)
         self._ledger.command_written(sn, command.command_id)
         return sn
+
+    def dated(self, command: Command) -> Command:
+        """``command`` with the dating it is sent with: its own the first time its id is
+        sent, the first send's after (docs/dataplane.md, "A life runs only its own
+        commands")."""
+        made_here = (
+            command.command_id >> 32 == self._id_life
+            and (command.command_id & 0xFFFF_FFFF) <= self._next_command
+        )
+        return self._ledger.dated(command, made_here)
 
     def _command_copies(self, command: Command) -> dict[GuidPrefix, bytes]:
         """One encoded copy of ``command`` per target (``ledger.command_copies``)."""

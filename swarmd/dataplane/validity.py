@@ -24,6 +24,16 @@ the command is refused. Clock rates differ (crystals within +-100 ppm each): the
 measured ``age + valid`` is shortened by both tolerances before the member compares it with
 its own elapsed time, so drift also errs towards refusing.
 
+A life runs only its own commands (docs/dataplane.md, "A life runs only its own
+commands"). The same echo bounds the issue from below: it happened no earlier than
+``stamp + age`` on the member's clock (``age`` shortened by the drift allowance: the
+commander's clock may run fast). A member whose daemon started at ``life_start`` (its clock)
+runs a command only if that bound is at or after ``life_start`` (``issued_in_life``):
+whatever it ran before, in a life whose record of executed ids may be lost, was issued
+before. A stamp of an earlier OS boot (the monotonic clock started again) reads, modulo
+2^32, as later than now or as before the life: refused either way, but for a coincidence
+named in docs/security.md.
+
 Pure functions; no clock, no I/O.
 """
 
@@ -45,6 +55,9 @@ DRIFT_PPM: Final = 200
 MAX_ECHO_AGE_MS: Final = 600_000
 
 EXPIRED: Final = "expired"  # the reason a member reports (REJECTED) for a late command
+# ... and for one it cannot prove was issued after its daemon started (its executed-id
+# record may be lost: it may have run it before)
+MEMORY_LOST: Final = "memory_lost"
 
 
 def stamp_ms(now: float) -> int:
@@ -91,6 +104,26 @@ def judge(command: Command, me: str, now: float) -> Judgement:
         detail = f"{elapsed_ms} ms since our report, {granted_ms} ms granted"
         return Judgement(False, remaining, detail)
     return Judgement(True, remaining, "")
+
+
+def issued_in_life(command: Command, me: str, life_start: float, now: float) -> Judgement:
+    """Whether ``command``'s echo for ``me`` proves, on ``me``'s clock, that it was issued
+    at or after ``life_start`` (when this life's record of executed ids began), at ``now``.
+    Fails closed: no echo proves nothing."""
+    echo = _echo_for(command.echoes, me)
+    if echo is None:
+        return Judgement(False, 0, f"no time reference for {me}")
+    # the issue on our clock is no earlier than the report's stamp (rounded down) plus the
+    # commander's age, shortened by the drift allowance (its clock may run fast)
+    age_low_ms = echo.age_ms * (1_000_000 - DRIFT_PPM) // 1_000_000
+    issued_low_ms = (echo.stamp_ms + age_low_ms) % STAMP_MODULUS
+    since_issue_ms = (stamp_ms(now) - issued_low_ms) % STAMP_MODULUS
+    # both on the same rounded-down millisecond scale: exact, and never negative
+    since_life_ms = math.floor(now * 1000.0) - math.floor(life_start * 1000.0)
+    if since_issue_ms > since_life_ms:
+        detail = f"issued at least {since_issue_ms} ms ago, this life began {since_life_ms} ms ago"
+        return Judgement(False, since_life_ms - since_issue_ms, detail)
+    return Judgement(True, since_life_ms - since_issue_ms, "")
 
 
 def _echo_for(echoes: Iterable[TimeEcho], me: str) -> TimeEcho | None:

@@ -24,6 +24,7 @@ from typing import Any, Final
 
 from swarmd.dataplane.convert import LANDED_STATES
 from swarmd.dataplane.types import CommandResult, Readiness
+from swarmd.dataplane.validity import MEMORY_LOST
 
 # Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
 # flight, the cap only stops a runaway script from growing the daemon.
@@ -240,7 +241,8 @@ class CommandTracker:
         (the command never reaches a later life, docs/dataplane.md "Rejoining while a
         command is valid"). It fills only what the row does not know yet, and marks the
         row ``after_restart``; a row with a final result keeps it (a replayed or repeated
-        old outcome cannot change it)."""
+        old outcome cannot change it). A later life's ``memory_lost`` (it refused a copy
+        it could not date into its own life) fills only a row with no answer yet."""
         tracked = self._commands.get(command_id)
         if tracked is None or node not in tracked.outcomes:
             self.unknown_outcomes += 1
@@ -249,6 +251,10 @@ class CommandTracker:
         later = (
             epoch is not None and entry.epoch_at_issue is not None and epoch > entry.epoch_at_issue
         )
+        if later and reason == MEMORY_LOST and entry.accepted_at is not None:
+            # the later life refused a resend it could not date into its own life: that
+            # says nothing of what the earlier life, which accepted it, did
+            return True
         if later and entry.result is None:
             entry.after_restart = True
         if result == CommandResult.ACCEPTED:

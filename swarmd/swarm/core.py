@@ -40,7 +40,11 @@ once per life, persisted across restarts; the core also refuses an id it already
 the commander's own drone, which bypasses the data plane). A command from the commander
 that reaches it after its validity (``swarmd.dataplane.validity.judge``: dated on this
 node's own clock from the readiness report the commander echoes in it) is REJECTED
-``expired`` and never runs (docs/dataplane.md, "Validity"). Without a vehicle every command
+``expired`` and never runs (docs/dataplane.md, "Validity"). One it cannot prove, by the
+same echo on its own clock, was issued after this life began (``start``) is REJECTED
+``memory_lost``: an earlier life may have run it, and its record of executed ids (the state
+file) may be lost (``validity.issued_in_life``; docs/dataplane.md, "A life runs only its
+own commands"). Without a vehicle every command
 is REJECTED ``px4_disabled``. TAKEOFF is refused at once (REJECTED, reason = the readiness
 code) when the vehicle is not ready *now* (the commander's view is up to one report old),
 else ACCEPTED at once (the commander's latency measure) and sent to the vehicle; LAND, HOLD
@@ -75,7 +79,6 @@ from swarmd.dataplane import (
     ReadinessReceived,
 )
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
-from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.types import (
     MAX_VALID_MS,
     Command,
@@ -83,7 +86,14 @@ from swarmd.dataplane.types import (
     CommandResult,
     PayloadError,
 )
-from swarmd.dataplane.validity import EXPIRED, judge, stamp_ms, valid_ms_of
+from swarmd.dataplane.validity import (
+    EXPIRED,
+    MEMORY_LOST,
+    issued_in_life,
+    judge,
+    stamp_ms,
+    valid_ms_of,
+)
 from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M, FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
@@ -93,7 +103,57 @@ from swarmd.swarm.commander import (
     CommandTracker,
     ReadinessTable,
 )
+from swarmd.swarm.events import (
+    CommandBeforeLife,
+    CommandExecuting,
+    CommandExpired,
+    CommandIssued,
+    CommandNotDelivered,
+    CommandWithdrawn,
+    MemberReadinessChanged,
+    OutcomeRecorded,
+    OutcomeReported,
+    OutcomesReReported,
+    PeerTrafficVerified,
+    PersistExecuted,
+    SwarmEvent,
+    UserDataDropped,
+)
 from swarmd.swarm.roles import Roles, reads
+
+# the events moved to events.py are still importable from here
+__all__ = [
+    "SwarmCore",
+    "SwarmSettings",
+    "RequestInvalid",
+    "NoVehicle",
+    "NO_VEHICLE",
+    "PX4_DISABLED",
+    "UNKNOWN_KIND",
+    "COMMAND_KINDS",
+    "DEFAULT_VALID_FOR_S",
+    "MAX_REREPORTED",
+    "MAX_RUNNING_IDS",
+    "MAX_VALID_FOR_S",
+    "MAX_PENDING_WITHDRAWALS",
+    "REREPORT_WINDOW_S",
+    "UNKNOWN_OUTCOME_REPORTS_PER_S",
+    "UNKNOWN_OUTCOME_REPORT_BURST",
+    "CommandBeforeLife",
+    "CommandExecuting",
+    "CommandExpired",
+    "CommandIssued",
+    "CommandNotDelivered",
+    "CommandWithdrawn",
+    "MemberReadinessChanged",
+    "OutcomeRecorded",
+    "OutcomeReported",
+    "OutcomesReReported",
+    "PeerTrafficVerified",
+    "PersistExecuted",
+    "SwarmEvent",
+    "UserDataDropped",
+]
 
 PX4_DISABLED: Final = "px4_disabled"
 UNKNOWN_KIND: Final = "unknown_kind"
@@ -160,137 +220,6 @@ class RequestInvalid(ValueError):
 
 
 @dataclass(frozen=True, slots=True)
-class PersistExecuted:
-    """Write the executed command ids to the state file now: before executing (write-ahead),
-    and again with each outcome decided (``outcomes``: (commander, id, CommandResult value,
-    reason) next to the ids, for re-reporting after a restart)."""
-
-    executed: tuple[tuple[str, int], ...]
-    outcomes: tuple[KeptOutcome, ...] = ()
-
-
-@dataclass(frozen=True, slots=True)
-class PeerTrafficVerified:
-    """A datagram from ``node`` passed the data plane's MAC under the pair's key: ``node``
-    is alive. The daemon hands it to discovery (``DiscoveryEngine.peer_traffic``), so the
-    commander's leases on members ride on their 1 Hz readiness (docs/discovery.md)."""
-
-    node: str
-
-
-@dataclass(frozen=True, slots=True)
-class MemberReadinessChanged:
-    member: str
-    ready: bool
-    reason: str | None
-
-
-@dataclass(frozen=True, slots=True)
-class CommandIssued:
-    command_id: int
-    kind: CommandKind
-    altitude_m: float | None
-    targets: tuple[str, ...]
-    refused: Mapping[str, str]
-
-
-@dataclass(frozen=True, slots=True)
-class CommandExecuting:
-    commander: str
-    command_id: int
-    kind: CommandKind
-    altitude_m: float | None
-
-
-@dataclass(frozen=True, slots=True)
-class CommandExpired:
-    """A member refused a command that reached it after its validity (REJECTED
-    ``expired``); ``detail`` says by how much, or that it could not be dated."""
-
-    commander: str
-    command_id: int
-    kind: CommandKind
-    detail: str
-
-
-@dataclass(frozen=True, slots=True)
-class CommandWithdrawn:
-    """The commander's validity for a command ended: its writer no longer holds it, so
-    repair never carries it to a member that did not have it by then."""
-
-    command_id: int
-
-
-@dataclass(frozen=True, slots=True)
-class CommandNotDelivered:
-    """The commander will not hand command ``command_id`` to ``member``: ``reason``
-    (``commander.RESTARTED``: it came back in a new boot epoch before acknowledging it);
-    the tracker says ``unreachable`` for it from now."""
-
-    member: str
-    command_id: int
-    reason: str
-
-
-@dataclass(frozen=True, slots=True)
-class OutcomeReported:
-    """This node's own outcome for a command (sent on ``swarm/outcome``, or recorded in
-    the commander's own tracker for its own drone)."""
-
-    command_id: int
-    kind: str
-    result: CommandResult
-    reason: str
-
-
-@dataclass(frozen=True, slots=True)
-class OutcomesReReported:
-    """This node restarted and re-reported to ``commander`` the outcomes its earlier life
-    decided for ``command_ids`` (docs/dataplane.md, "Outcomes across a restart")."""
-
-    commander: str
-    command_ids: tuple[int, ...]
-
-
-@dataclass(frozen=True, slots=True)
-class OutcomeRecorded:
-    """A member's outcome reached the commander's tracker (``known``: a command it sent)."""
-
-    member: str
-    command_id: int
-    result: CommandResult
-    reason: str
-    known: bool
-
-
-@dataclass(frozen=True, slots=True)
-class UserDataDropped:
-    """The data plane dropped a user datagram (its ``PacketDropped``; discovery's has the
-    same name for SPDP): for the debug log, counted in the plane's status."""
-
-    reason: str
-    source: tuple[str, int] | None
-    detail: str
-
-
-SwarmEvent = (
-    PersistExecuted
-    | VehicleRequest
-    | MemberReadinessChanged
-    | CommandIssued
-    | CommandExecuting
-    | CommandExpired
-    | CommandWithdrawn
-    | CommandNotDelivered
-    | OutcomeReported
-    | OutcomesReReported
-    | OutcomeRecorded
-    | UserDataDropped
-    | PeerTrafficVerified
-)
-
-
-@dataclass(frozen=True, slots=True)
 class SwarmSettings:
     readiness_period_s: float = 1.0
     stale_after_s: float = 3.0
@@ -340,6 +269,8 @@ class SwarmCore:
         self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
         self._seen: OrderedDict[int, None] = OrderedDict()  # ids started (bounded)
         self._events: deque[SwarmEvent] = deque()
+        # when this life began (``start``): it runs only commands issued after it
+        self._life_start: float | None = None
         # re-reporting an earlier life's outcomes: until when, and to which commanders done
         self._rereport_until: float | None = None
         self._rereported: set[str] = set()  # bounded: bundle names only
@@ -349,6 +280,7 @@ class SwarmCore:
     def start(self, now: float) -> None:
         """Publish the first readiness report now, then every period."""
         self._tick_at = now
+        self._life_start = now
         self._rereport_until = now + REREPORT_WINDOW_S
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
@@ -576,19 +508,8 @@ class SwarmCore:
         while len(self._seen) > MAX_RUNNING_IDS:
             self._seen.popitem(last=False)
         self._count(f"received_{kind.name.lower()}")
-        if commander != self.roles.me:  # our own drone runs its commands at issue
-            judgement = judge(command, self.roles.me, now)
-            if not judgement.valid:
-                # too late (or undatable): refused for good; its id is already persisted
-                # as executed, so no later copy can run it either (docs/dataplane.md)
-                self._count("refused_expired")
-                self._events.append(
-                    CommandExpired(commander, command.command_id, kind, judgement.detail)
-                )
-                self._report(
-                    command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now, commander
-                )
-                return
+        if commander != self.roles.me and not self._may_run(commander, command, kind, now):
+            return  # our own drone runs its commands at issue
         takeoff = kind == CommandKind.TAKEOFF
         self._events.append(
             CommandExecuting(
@@ -627,6 +548,32 @@ class SwarmCore:
         self._running[command.command_id] = (kind, commander)
         alt = float(command.altitude_m) if takeoff else None
         self._events.append(VehicleRequest(command.command_id, task, alt))
+
+    def _may_run(self, commander: str, command: Command, kind: CommandKind, now: float) -> bool:
+        """Whether a command from another node may run now, else refuse it (REJECTED) for
+        good: its id is already persisted as executed, so no later copy can run it either
+        (docs/dataplane.md, "Validity" and "A life runs only its own commands")."""
+        judgement = judge(command, self.roles.me, now)
+        if not judgement.valid:  # too late, or undatable
+            self._count("refused_expired")
+            event: CommandExpired | CommandBeforeLife = CommandExpired(
+                commander, command.command_id, kind, judgement.detail
+            )
+            reason = EXPIRED
+        else:
+            # issued before this life began (or not started: nothing proves it): this life
+            # cannot know whether an earlier one ran it, its record may be lost
+            start = self._life_start
+            life = None if start is None else issued_in_life(command, self.roles.me, start, now)
+            if life is not None and life.valid:
+                return True
+            self._count("refused_memory_lost")
+            detail = "not started" if life is None else life.detail
+            event = CommandBeforeLife(commander, command.command_id, kind, detail)
+            reason = MEMORY_LOST
+        self._events.append(event)
+        self._report(command.command_id, kind.name, CommandResult.REJECTED, reason, now, commander)
+        return False
 
     def _report(
         self,

@@ -24,8 +24,10 @@ Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old
 file, never half of one. The directory must be writable by this daemon's user alone (or
 root): start-up refuses one others can write, whose files another user could have planted
 (docs/security.md, "Local boundaries (session 10 review)"). An unreadable or corrupt file
-is reported and replaced: losing the dedup set is the documented degraded mode, refusing to
-start would ground the drone.
+is reported and replaced (refusing to start would ground the drone): the dedup set is lost,
+and exactly once then rests on the member's own rule that a life runs only commands issued
+after it began (docs/dataplane.md, "A life runs only its own commands"), which holds with or
+without this file.
 """
 
 from __future__ import annotations

@@ -1,0 +1,159 @@
+"""The swarm core's events (``SwarmCore.next_event``): frozen, past-tense dataclasses.
+
+Split out of ``core.py`` by concern. Two are orders for the driver, in this order for each
+command: ``PersistExecuted`` (write the state file before anything moves) and
+``swarmd.px4.vehicle.VehicleRequest``; the others are for the log.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from swarmd.dataplane.ledger import KeptOutcome
+from swarmd.dataplane.types import CommandKind, CommandResult
+from swarmd.px4.vehicle import VehicleRequest
+
+
+@dataclass(frozen=True, slots=True)
+class PersistExecuted:
+    """Write the executed command ids to the state file now: before executing (write-ahead),
+    and again with each outcome decided (``outcomes``: (commander, id, CommandResult value,
+    reason) next to the ids, for re-reporting after a restart)."""
+
+    executed: tuple[tuple[str, int], ...]
+    outcomes: tuple[KeptOutcome, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class PeerTrafficVerified:
+    """A datagram from ``node`` passed the data plane's MAC under the pair's key: ``node``
+    is alive. The daemon hands it to discovery (``DiscoveryEngine.peer_traffic``), so the
+    commander's leases on members ride on their 1 Hz readiness (docs/discovery.md)."""
+
+    node: str
+
+
+@dataclass(frozen=True, slots=True)
+class MemberReadinessChanged:
+    member: str
+    ready: bool
+    reason: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class CommandIssued:
+    command_id: int
+    kind: CommandKind
+    altitude_m: float | None
+    targets: tuple[str, ...]
+    refused: Mapping[str, str]
+
+
+@dataclass(frozen=True, slots=True)
+class CommandExecuting:
+    commander: str
+    command_id: int
+    kind: CommandKind
+    altitude_m: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class CommandExpired:
+    """A member refused a command that reached it after its validity (REJECTED
+    ``expired``); ``detail`` says by how much, or that it could not be dated."""
+
+    commander: str
+    command_id: int
+    kind: CommandKind
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandBeforeLife:
+    """A member refused a command it cannot prove was issued after its daemon started
+    (REJECTED ``memory_lost``): its record of the commands it ran may be lost, and it may
+    have run this one before (docs/dataplane.md, "A life runs only its own commands")."""
+
+    commander: str
+    command_id: int
+    kind: CommandKind
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandWithdrawn:
+    """The commander's validity for a command ended: its writer no longer holds it, so
+    repair never carries it to a member that did not have it by then."""
+
+    command_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class CommandNotDelivered:
+    """The commander will not hand command ``command_id`` to ``member``: ``reason``
+    (``commander.RESTARTED``: it came back in a new boot epoch before acknowledging it);
+    the tracker says ``unreachable`` for it from now."""
+
+    member: str
+    command_id: int
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class OutcomeReported:
+    """This node's own outcome for a command (sent on ``swarm/outcome``, or recorded in
+    the commander's own tracker for its own drone)."""
+
+    command_id: int
+    kind: str
+    result: CommandResult
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class OutcomesReReported:
+    """This node restarted and re-reported to ``commander`` the outcomes its earlier life
+    decided for ``command_ids`` (docs/dataplane.md, "Outcomes across a restart")."""
+
+    commander: str
+    command_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class OutcomeRecorded:
+    """A member's outcome reached the commander's tracker (``known``: a command it sent)."""
+
+    member: str
+    command_id: int
+    result: CommandResult
+    reason: str
+    known: bool
+
+
+@dataclass(frozen=True, slots=True)
+class UserDataDropped:
+    """The data plane dropped a user datagram (its ``PacketDropped``; discovery's has the
+    same name for SPDP): for the debug log, counted in the plane's status."""
+
+    reason: str
+    source: tuple[str, int] | None
+    detail: str
+
+
+SwarmEvent = (
+    PersistExecuted
+    | VehicleRequest
+    | MemberReadinessChanged
+    | CommandIssued
+    | CommandExecuting
+    | CommandExpired
+    | CommandBeforeLife
+    | CommandWithdrawn
+    | CommandNotDelivered
+    | OutcomeReported
+    | OutcomesReReported
+    | OutcomeRecorded
+    | UserDataDropped
+    | PeerTrafficVerified
+)

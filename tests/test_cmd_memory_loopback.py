@@ -1,0 +1,113 @@
+"""Exactly once across a lost state file, with real daemons on the host loopback
+(docs/dataplane.md, "A life runs only its own commands").
+
+Two daemons in one process (``tests.test_takeoff_loopback``'s ``Swarm``: real sockets,
+real RTPS, each with a vehicle simulator on its own MAVLink port): uav1 commands, uav2
+takes a HOLD (not a TAKEOFF: resent to a vehicle already airborne, a TAKEOFF is also
+refused by the member's readiness gate, which would hide the defect this test is about;
+a HOLD has no such gate and ran a second time before the defence). uav2's daemon stops,
+its state file is deleted (a lost or corrupt file is replaced the same way,
+``statefile.load``), and it starts again (its vehicle keeps flying); the commander sees
+its new boot epoch. The commander's data plane then sends
+the same command id again (no ``swarmctl`` path does: this is the plane's
+``send_command``, called in the commander's process), with a fresh echo its caller made;
+the plane sends it with the first send's dating.
+
+Asserted: uav2's new life refuses it (REJECTED ``memory_lost``, its executor counter
+``refused_memory_lost``), never accepts it (its vehicle is not told again), and the
+commander's row keeps what the first life said.
+Waits have caps; nothing asserts how fast anything happened.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+from swarmd_lab.px4.vehicle_sim import start_sim
+
+from swarmd.dataplane.types import Command, CommandKind
+from swarmd.px4.transport import parse_connection
+from swarmd.swarm.statefile import state_path
+from tests.daemon_support import run_domain, write_bundle
+from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until
+
+
+def _executor(swarm: Swarm, i: int) -> dict[str, int]:
+    app = swarm.daemons[i].app
+    assert app is not None
+    counters: dict[str, int] = app.status()["executor"]["counters"]
+    return counters
+
+
+def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(workdir: Path) -> None:
+    files = write_bundle(workdir, 2, domain_id=run_domain(), lease_s=20.0)
+    swarm = Swarm(workdir, files)
+
+    async def main() -> None:
+        daemons = [swarm.daemon(0), swarm.daemon(1)]
+        for d in daemons:
+            await d.start()
+            swarm.daemons.append(d)
+        for i in range(2):
+            endpoint = parse_connection(f"udpout:127.0.0.1:{_mavlink_port(i)}")
+            swarm.sims.append(await start_sim(_sim(i + 1), endpoint, seed=i))
+        try:
+            app = swarm.commander.app
+            assert app is not None
+            await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
+            sent = app.request_command({"kind": "hold", "only": ["uav2"], "valid_for_s": 60.0})
+            cid = int(sent["command_id"])
+            await until(
+                lambda: (
+                    app.request_outcomes({"command_id": cid})["nodes"]["uav2"]["state"]
+                    in ("accepted", "completed")
+                ),
+                lambda: app.request_outcomes({"command_id": cid}),
+            )
+            assert _executor(swarm, 1).get("outcome_accepted") == 1
+            plane = app.plane
+            assert plane is not None
+            epoch_before = plane.peer_epoch("uav2")
+
+            # uav2's daemon restarts without its state file; its vehicle keeps flying
+            await swarm.daemons[1].stop("test")
+            state_path(workdir / "state", "uav2").unlink()
+            reborn = swarm.daemon(1)
+            await reborn.start()
+            swarm.daemons[1] = reborn
+            await until(
+                lambda: (plane.peer_epoch("uav2") or 0) > (epoch_before or 0),
+                lambda: (plane.peer_epoch("uav2"), swarm.table()["uav2"]),
+            )
+
+            assert app.driver is not None
+            driver = app.driver
+            # a report of the new life reached the commander: its caller can date it afresh
+            # (without one, it would go undated and be refused ``expired`` before and after)
+            await until(
+                lambda: bool(driver.call(lambda now: plane.time_echoes(["uav2"], now))),
+                lambda: swarm.table()["uav2"],
+            )
+
+            def resend(now: float) -> int:
+                echoes = plane.time_echoes(["uav2"], now)
+                return plane.send_command(
+                    Command(cid, CommandKind.HOLD, 0.0, ["uav2"], 60_000, echoes), now
+                )
+
+            driver.call(resend)
+            await until(
+                lambda: _executor(swarm, 1).get("refused_memory_lost", 0) >= 1,
+                lambda: _executor(swarm, 1),
+            )
+            counters = _executor(swarm, 1)
+            assert counters.get("refused_memory_lost") == 1
+            assert "outcome_accepted" not in counters, counters  # the new life ran nothing
+            row: dict[str, Any] = app.request_outcomes({"command_id": cid})["nodes"]["uav2"]
+            assert row["state"] in ("accepted", "completed"), row
+        finally:
+            await swarm.stop()
+
+    asyncio.run(main())
