@@ -169,7 +169,7 @@ def command_by_n(bundle10: Bundle) -> list[dict[str, Any]]:
         for i, name in enumerate(members):
             lead.peer_up(name, (f"10.1.{i // 250}.{i % 250 + 1}", 7411), 0.0, epoch=EPOCH)
         # a report received 250 ms before the issue, stamped by a member's clock at 4e9 ms
-        echoes = [TimeEcho(name, 4_000_000_000 + i, 250) for i, name in enumerate(members)]
+        echoes = [TimeEcho(name, 4_000_000_000 + i, 250, EPOCH) for i, name in enumerate(members)]
         takeoff = lead.make_command(
             CommandKind.TAKEOFF, altitude_m=10.0, targets=members, valid_ms=3000, echoes=echoes
         )

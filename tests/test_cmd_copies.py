@@ -57,7 +57,7 @@ def _issue_to_all(bundle: Bundle, names: list[str]) -> tuple[DataPlane, Command,
     lead = make_plane(bundle, "lead")
     for i, name in enumerate(names):
         lead.peer_up(name, (f"10.1.{i // 250}.{i % 250 + 1}", 7411), 0.0, epoch=1)
-    echoes = [TimeEcho(name, 4_000_000_000 + i, 250 + i) for i, name in enumerate(names)]
+    echoes = [TimeEcho(name, 4_000_000_000 + i, 250 + i, 1) for i, name in enumerate(names)]
     command = lead.make_command(
         CommandKind.TAKEOFF, altitude_m=10.0, targets=names, valid_ms=3000, echoes=echoes
     )
@@ -118,7 +118,7 @@ def test_the_last_member_of_1000_verifies_and_dates_its_copy() -> None:
     for i, name in enumerate(names):
         lead.peer_up(name, (f"10.1.{i // 250}.{i % 250 + 1}", 7411), 0.0, epoch=1)
     member.peer_up("lead", ("10.1.9.9", 7411), 0.0, epoch=1)
-    echoes = [TimeEcho(name, stamp_ms(0.0), 100) for name in names]
+    echoes = [TimeEcho(name, stamp_ms(0.0), 100, 1) for name in names]
     command = lead.make_command(
         CommandKind.TAKEOFF, altitude_m=10.0, targets=names, valid_ms=3000, echoes=echoes
     )
@@ -141,7 +141,7 @@ def test_a_member_given_another_members_echo_refuses() -> None:
     assert plane is not None
     now = swarm.net.now
     own = {e.node: e for e in plane.time_echoes(["m01", "m02"], now)}
-    wrong = TimeEcho("m02", own["m01"].stamp_ms, own["m01"].age_ms)
+    wrong = TimeEcho("m02", own["m01"].stamp_ms, own["m01"].age_ms, own["m01"].epoch)
     command = plane.make_command(
         CommandKind.TAKEOFF, altitude_m=5.0, targets=["m01", "m02"], valid_ms=3000
     )

@@ -22,13 +22,16 @@ from __future__ import annotations
 
 import math
 
-from swarmd.dataplane.types import Command, CommandKind, CommandResult
-from swarmd.dataplane.validity import MEMORY_LOST
-from swarmd.px4.vehicle import TaskFinished
-from swarmd.swarm.core import OutcomeReported, SwarmCore, SwarmSettings
+import pytest
+
+from swarmd.dataplane.types import Command, CommandKind, CommandResult, TimeEcho
+from swarmd.dataplane.validity import EXPIRED, MEMORY_LOST, another_life, stamp_ms
+from swarmd.px4.vehicle import TaskFinished, VehicleRequest
+from swarmd.swarm.core import CommandBeforeLife, OutcomeReported, SwarmCore, SwarmSettings
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight
 from tests.test_dataplane_swarm import address_of, make_plane
+from tests.test_swarm_core import Swarm
 
 
 class ClockedCore(SwarmCore):
@@ -206,3 +209,83 @@ def test_a_daemon_restart_cannot_line_the_clocks_up_even_under_a_slewed_commande
     swarm.run(3.0)
     assert len(flight.ran("m01", old.command_id)) == 1
     assert _refused_memory_lost(flight, old.command_id)
+
+
+# ---- the rule, on one member ------------------------------------------------------------------
+
+
+def _dated(stamp: int, age_ms: int, epoch: int, valid_ms: int = 30_000) -> Command:
+    echo = TimeEcho("m01", stamp, age_ms, epoch)
+    return Command(7, CommandKind.TAKEOFF, 5.0, ["m01"], valid_ms, [echo])
+
+
+def _verdict(life_s: float, command: Command, now: float) -> tuple[bool, str, str]:
+    """m01 (boot epoch 1, its daemon started at ``life_s``) takes ``command`` from the
+    commander at ``now``: (ran, reason of its answer, detail of a memory_lost refusal)."""
+    member = Swarm(1).cores["m01"]
+    member.start(life_s)
+    member._execute("lead", command, now)
+    events = list(iter(member.next_event, None))
+    ran = any(isinstance(e, VehicleRequest) for e in events)
+    reasons = [e.reason for e in events if isinstance(e, OutcomeReported)]
+    details = [e.detail for e in events if isinstance(e, CommandBeforeLife)]
+    return ran, reasons[-1] if reasons else "", details[0] if details else ""
+
+
+def test_another_life_reads_the_echo_for_this_member_only() -> None:
+    assert another_life(_dated(0, 0, 1), "m01", 1) is None
+    assert another_life(_dated(0, 0, 1), "m01", 2) is not None  # an earlier life's
+    assert another_life(_dated(0, 0, 3), "m01", 2) is not None  # no life of ours yet
+    assert another_life(_dated(0, 0, 1), "m02", 2) is None  # no echo for m02: judge's
+    bare = Command(7, CommandKind.TAKEOFF, 5.0, ["m01"], 3000, [])
+    assert another_life(bare, "m01", 2) is None
+
+
+@pytest.mark.parametrize("echo_epoch", [0, 2, 2**32 - 1])
+def test_an_echo_of_another_epoch_is_refused_even_when_the_clock_would_pass_it(
+    echo_epoch: int,
+) -> None:
+    """The echo's stamp and age date the issue 1 s after this life began and 1 s before
+    now, well inside its validity: the clock rules pass it; the epoch refuses it."""
+    life, now = 100.0, 102.0
+    ran, reason, detail = _verdict(life, _dated(stamp_ms(life + 0.5), 500, echo_epoch), now)
+    assert (ran, reason) == (False, MEMORY_LOST)
+    assert f"epoch {echo_epoch}" in detail
+    ran, reason, _ = _verdict(life, _dated(stamp_ms(life + 0.5), 500, 1), now)
+    assert (ran, reason) == (True, "")  # the same copy dated by this life: runs
+
+
+def test_an_echo_of_another_epoch_says_memory_lost_even_when_late() -> None:
+    """Checked first: another life's stamp is on a clock that says nothing about lateness
+    here, so the answer is what the member knows: it was issued to an earlier life."""
+    life, now = 100.0, 200.0
+    ran, reason, _ = _verdict(life, _dated(stamp_ms(life), 0, 0, valid_ms=1000), now)
+    assert (ran, reason) == (False, MEMORY_LOST)
+    ran, reason, _ = _verdict(life, _dated(stamp_ms(life), 0, 1, valid_ms=1000), now)
+    assert (ran, reason) == (False, EXPIRED)  # this life's echo: late, as before
+
+
+def test_a_reused_epoch_still_meets_the_clock_rule() -> None:
+    """Why ``issued_in_life`` stays: a node whose epoch file is lost and whose wall clock
+    reads the same seconds again (no RTC, no NTP: ``swarmd.auth.epoch``) may start a life
+    in an epoch it had before. A copy dated by a report of that earlier life (2 s before
+    this one began) names this epoch, and is refused by this life's clock."""
+    life, now = 100.0, 101.0
+    ran, reason, detail = _verdict(life, _dated(stamp_ms(life - 2.0), 500, 1), now)
+    assert (ran, reason) == (False, MEMORY_LOST)
+    assert "this life began" in detail  # the clock rule's refusal, not the epoch's
+
+
+def test_the_commander_echoes_the_epoch_it_authenticated_the_report_under() -> None:
+    """``time_echoes`` names the member's boot epoch of the echoed report: 1, then 2 once
+    the restarted member's first report of its new life arrived (none in between)."""
+    flight = Flight(1, seed=53)
+    swarm = flight.swarm
+    swarm.run(3.0)
+    plane = swarm.lead.plane
+    assert plane is not None
+    assert [e.epoch for e in plane.time_echoes(["m01"], swarm.net.now)] == [1]
+    _clocked(flight, "m01", epoch=7, epochs={"lead": 1})
+    assert plane.time_echoes(["m01"], swarm.net.now) == []
+    swarm.run(1.0)
+    assert [e.epoch for e in plane.time_echoes(["m01"], swarm.net.now)] == [7]

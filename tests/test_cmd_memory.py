@@ -52,7 +52,9 @@ from tests.test_dataplane_swarm import address_of, make_plane
 
 
 def _command(stamp: int, age_ms: int, valid_ms: int = 30_000) -> Command:
-    return Command(7, CommandKind.TAKEOFF, 5.0, ["m01"], valid_ms, [TimeEcho("m01", stamp, age_ms)])
+    return Command(
+        7, CommandKind.TAKEOFF, 5.0, ["m01"], valid_ms, [TimeEcho("m01", stamp, age_ms, 1)]
+    )
 
 
 def test_a_copy_dated_before_the_life_began_is_refused() -> None:
@@ -102,7 +104,7 @@ def test_a_copy_dated_on_the_clock_of_an_earlier_os_boot_is_refused(old_uptime_s
 def test_no_echo_or_another_members_echo_cannot_prove_anything() -> None:
     bare = Command(7, CommandKind.TAKEOFF, 5.0, ["m01"], 3000, [])
     assert not issued_in_life(bare, "m01", 0.0, 1.0).valid
-    other = Command(7, CommandKind.TAKEOFF, 5.0, ["m01"], 3000, [TimeEcho("m02", 500, 0)])
+    other = Command(7, CommandKind.TAKEOFF, 5.0, ["m01"], 3000, [TimeEcho("m02", 500, 0, 1)])
     assert not issued_in_life(other, "m01", 0.0, 1.0).valid
 
 

@@ -277,23 +277,23 @@ def _cmd(valid_ms: int, echoes: list[TimeEcho]) -> Command:
 
 
 def test_no_validity_or_no_echo_fails_closed() -> None:
-    assert not judge(_cmd(0, [TimeEcho("m", 0, 0)]), "m", 0.0).valid
+    assert not judge(_cmd(0, [TimeEcho("m", 0, 0, 1)]), "m", 0.0).valid
     assert not judge(_cmd(3000, []), "m", 0.0).valid
-    assert not judge(_cmd(3000, [TimeEcho("other", 0, 0)]), "m", 0.0).valid
-    assert judge(_cmd(3000, [TimeEcho("m", 0, 0)]), "m", 0.0).valid
+    assert not judge(_cmd(3000, [TimeEcho("other", 0, 0, 1)]), "m", 0.0).valid
+    assert judge(_cmd(3000, [TimeEcho("m", 0, 0, 1)]), "m", 0.0).valid
 
 
 def test_a_stamp_from_the_future_reads_as_long_ago() -> None:
     """A stamp ahead of the member's clock (another boot of it, or garbage) wraps to an
     elapsed time of about 2^32 ms: refused."""
     now = 100.0
-    ahead = TimeEcho("m", stamp_ms(now) + 5, 0)
+    ahead = TimeEcho("m", stamp_ms(now) + 5, 0, 1)
     assert not judge(_cmd(MAX_VALID_MS, [ahead]), "m", now).valid
 
 
 def test_the_millisecond_stamp_wraps_without_losing_time() -> None:
     wrap_s = STAMP_MODULUS / 1000.0
-    echo = TimeEcho("m", stamp_ms(wrap_s - 0.5), 0)  # sent 0.5 s before the wrap
+    echo = TimeEcho("m", stamp_ms(wrap_s - 0.5), 0, 1)  # sent 0.5 s before the wrap
     assert judge(_cmd(3000, [echo]), "m", wrap_s + 2.0).valid  # 2.5 s later
     assert not judge(_cmd(3000, [echo]), "m", wrap_s + 2.6).valid  # 3.1 s later
 
@@ -344,6 +344,7 @@ def test_a_member_never_runs_a_command_after_the_commanders_deadline(
         "m",
         stamp_ms(member_clock(0.0)),
         int((commander_clock(issued_at) - commander_clock(received_at)) * 1000),
+        1,
     )
     if echo.age_ms > MAX_VALID_MS * 10:
         return  # the commander does not echo reports that old (MAX_ECHO_AGE_MS)

@@ -17,6 +17,7 @@ from swarmd.dataplane.types import (
     MAX_NAME_CHARS,
     MAX_REASON_CHARS,
     MAX_TARGETS,
+    MAX_VALID_MS,
     TYPES_BY_NAME,
     Command,
     CommandKind,
@@ -62,10 +63,13 @@ def test_readiness_bytes_follow_xcdr1_alignment() -> None:
 
 
 def test_command_body_is_padded_and_options_say_by_how_much() -> None:
-    cmd = Command(1, CommandKind.TAKEOFF, 10.0, ["a"], 3000, [TimeEcho("a", 7, 40)])
+    cmd = Command(1, CommandKind.TAKEOFF, 10.0, ["a"], 3000, [TimeEcho("a", 7, 40, 2)])
     # u64 id, enum as u32, float32, sequence length, string length, "a\0": 26 octets, then
-    # u32 valid_ms aligned to 4, the echoes' length and one TimeEcho (string, u32, u32): 54
-    body = struct.pack("<QIfII2s2xIII2s2xII", 1, 0, 10.0, 1, 2, b"a\0", 3000, 1, 2, b"a\0", 7, 40)
+    # u32 valid_ms aligned to 4, the echoes' length and one TimeEcho (string, u32 stamp,
+    # u32 age, u32 epoch): 58
+    body = struct.pack(
+        "<QIfII2s2xIII2s2xIII", 1, 0, 10.0, 1, 2, b"a\0", 3000, 1, 2, b"a\0", 7, 40, 2
+    )
     payload = encode_sample(cmd)
     assert payload == b"\x00\x01\x00\x00" + body
     assert decode_sample(payload, Command) == cmd
@@ -76,6 +80,21 @@ def test_command_body_is_padded_and_options_say_by_how_much() -> None:
     out = CommandOutcome(7, "uav1", CommandResult.REJECTED, "x")
     body = struct.pack("<QI5s3xII2s", 7, 5, b"uav1\0", 2, 2, b"x\0")
     assert encode_sample(out) == b"\x00\x01\x00\x02" + body + b"\x00\x00"
+
+
+def test_an_echo_without_its_epoch_is_refused_not_misread() -> None:
+    """The layout before the echo named its life (string, u32 stamp, u32 age): a peer of
+    that build is 4 octets short at the end, so its command is refused, never read with
+    another field as the epoch; so is every proper prefix of the new layout's body."""
+    old = struct.pack("<QIfII2s2xIII2s2xII", 1, 0, 10.0, 1, 2, b"a\0", 3000, 1, 2, b"a\0", 7, 40)
+    with pytest.raises(PayloadError):
+        decode_sample(b"\x00\x01\x00\x00" + old, Command)
+    payload = encode_sample(
+        Command(1, CommandKind.TAKEOFF, 10.0, ["a"], 3000, [TimeEcho("a", 7, 40, 2)])
+    )
+    for end in range(4, len(payload)):
+        with pytest.raises(PayloadError):
+            decode_sample(payload[:end], Command)
 
 
 @pytest.mark.parametrize("padding", [1, 2, 3])
@@ -116,6 +135,8 @@ def test_other_encapsulations_are_refused(encapsulation: bytes) -> None:
         (Command(1, CommandKind.LAND, math.nan, []), "altitude"),
         (Command(1, CommandKind.LAND, 0.0, ["m"] * (MAX_TARGETS + 1)), "targets"),
         (Command(2**64, CommandKind.LAND, 0.0, []), "command_id"),
+        (Command(1, CommandKind.LAND, 0.0, [], 3000, [TimeEcho("m", 0, 0, 2**32)]), "epoch"),
+        (Command(1, CommandKind.LAND, 0.0, [], 3000, [TimeEcho("m", 0, 0, -1)]), "epoch"),
         (CommandOutcome(1, "", CommandResult.FAILED, "f" * 200), "reason"),
     ],
 )
@@ -148,6 +169,8 @@ readiness_st = st.builds(
     battery_pct=st.integers(-1, 100),
     link_q_permille=st.integers(0, 1000),
 )
+u32 = st.integers(0, 2**32 - 1)
+echo_st = st.builds(TimeEcho, node=names, stamp_ms=u32, age_ms=u32, epoch=u32)
 command_st = st.one_of(
     st.builds(
         Command,
@@ -155,6 +178,8 @@ command_st = st.one_of(
         kind=st.just(CommandKind.TAKEOFF),
         altitude_m=st.floats(0.5, MAX_ALTITUDE_M, width=32),
         targets=st.lists(names, max_size=5),
+        valid_ms=st.integers(0, MAX_VALID_MS),
+        echoes=st.lists(echo_st, max_size=3),
     ),
     st.builds(
         Command,
@@ -162,6 +187,8 @@ command_st = st.one_of(
         kind=st.sampled_from([CommandKind.LAND, CommandKind.HOLD, CommandKind.ABORT]),
         altitude_m=st.just(0.0),
         targets=st.lists(names, max_size=5),
+        valid_ms=st.integers(0, MAX_VALID_MS),
+        echoes=st.lists(echo_st, max_size=3),
     ),
 )
 outcome_st = st.builds(

@@ -359,7 +359,7 @@ class DataPlane:
                 # A report of the member's earlier life: its stamp is on a clock that may
                 # have started again (a reboot), so it cannot date anything (fail closed).
                 continue
-            echo = echo_of(name, stats.last.stamp_ms, stats.last_rx, now)
+            echo = echo_of(name, stats.last.stamp_ms, stats.last_rx, now, epoch=stats.epoch)
             if echo is not None:
                 out.append(echo)
         return out

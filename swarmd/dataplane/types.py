@@ -12,6 +12,7 @@ IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
     };
     struct TimeEcho {                  // one member's last report, as the commander saw it
       string<64> node; uint32 stamp_ms; uint32 age_ms;
+      uint32 epoch;                    // the member's boot epoch that report was sealed in
     };
     struct Command {                   // swarm/command, commander -> members
       uint64 command_id; CommandKind kind; float altitude_m;
@@ -105,11 +106,15 @@ class Readiness(IdlStruct, typename="swarmd::Readiness"):
 class TimeEcho(IdlStruct, typename="swarmd::TimeEcho"):
     """The last readiness report of ``node`` the commander holds when it issues a command:
     the member's own ``stamp_ms`` from it, and ``age_ms``, how long before the command was
-    issued the commander received it (commander's clock). See docs/dataplane.md, "Validity"."""
+    issued the commander received it (commander's clock), and ``epoch``, the member's boot
+    epoch the commander's plane authenticated that report under: the life whose clock the
+    stamp is on. See docs/dataplane.md, "Validity" and "A life runs only its own commands"."""
 
     node: NodeName
     stamp_ms: uint32
     age_ms: uint32
+    # the member refuses an echo of another life (its clock may have started again)
+    epoch: uint32
 
 
 @dataclass
@@ -209,6 +214,7 @@ def validate(sample: Sample) -> None:
             _check_str(echo.node, "echoes[].node", MAX_NAME_CHARS)
             _check_int(echo.stamp_ms, "echoes[].stamp_ms", _U32)
             _check_int(echo.age_ms, "echoes[].age_ms", _U32)
+            _check_int(echo.epoch, "echoes[].epoch", _U32)
     else:
         _check_int(sample.command_id, "command_id", _U64)
         _check_str(sample.node, "node", MAX_NAME_CHARS)

@@ -31,8 +31,11 @@ commander's clock may run fast). A member whose daemon started at ``life_start``
 runs a command only if that bound is at or after ``life_start`` (``issued_in_life``):
 whatever it ran before, in a life whose record of executed ids may be lost, was issued
 before. A stamp of an earlier OS boot (the monotonic clock started again) reads, modulo
-2^32, as later than now or as before the life: refused either way, but for a coincidence
-named in docs/security.md.
+2^32, as later than now or as before the life, or, by coincidence, as inside it. So each
+echo also names the member's boot epoch under which the commander authenticated the
+echoed report (``TimeEcho.epoch``), and a member refuses an echo of any other epoch than
+its current one before reading its stamp (``another_life``). The clock rule stays for an
+epoch used twice (a lost epoch file with no wall clock, ``swarmd.auth.epoch``).
 
 Pure functions; no clock, no I/O.
 """
@@ -65,13 +68,16 @@ def stamp_ms(now: float) -> int:
     return math.floor(now * 1000.0) % STAMP_MODULUS
 
 
-def echo_of(node: str, report_stamp_ms: int, received_at: float, now: float) -> TimeEcho | None:
-    """The echo of a report of ``node`` stamped ``report_stamp_ms`` and received at
-    ``received_at`` (this node's clock), for a command issued ``now``; None when too old."""
+def echo_of(
+    node: str, report_stamp_ms: int, received_at: float, now: float, *, epoch: int
+) -> TimeEcho | None:
+    """The echo of a report of ``node`` stamped ``report_stamp_ms``, authenticated under
+    ``node``'s boot ``epoch`` and received at ``received_at`` (this node's clock), for a
+    command issued ``now``; None when too old."""
     age_ms = math.floor(max(0.0, now - received_at) * 1000.0)  # down: the deadline errs early
     if age_ms > MAX_ECHO_AGE_MS:
         return None
-    return TimeEcho(node, report_stamp_ms % STAMP_MODULUS, age_ms)
+    return TimeEcho(node, report_stamp_ms % STAMP_MODULUS, age_ms, epoch)
 
 
 def valid_ms_of(valid_for_s: float) -> int:
@@ -124,6 +130,18 @@ def issued_in_life(command: Command, me: str, life_start: float, now: float) -> 
         detail = f"issued at least {since_issue_ms} ms ago, this life began {since_life_ms} ms ago"
         return Judgement(False, since_life_ms - since_issue_ms, detail)
     return Judgement(True, since_life_ms - since_issue_ms, "")
+
+
+def another_life(command: Command, me: str, epoch: int) -> str | None:
+    """Why ``command``'s echo for ``me`` dates another life of ``me`` than the one in boot
+    ``epoch`` (its current one), or None when it names this life or there is no echo (then
+    ``judge`` refuses it: nothing dates it). The echoed report was authenticated under the
+    epoch the echo names, so its stamp is on that life's clock: after an OS reboot, a clock
+    that started again (docs/dataplane.md, "A life runs only its own commands")."""
+    echo = _echo_for(command.echoes, me)
+    if echo is None or echo.epoch == epoch:
+        return None
+    return f"dated by a report of boot epoch {echo.epoch}, this life is epoch {epoch}"
 
 
 def _echo_for(echoes: Iterable[TimeEcho], me: str) -> TimeEcho | None:

@@ -40,8 +40,10 @@ once per life, persisted across restarts; the core also refuses an id it already
 the commander's own drone, which bypasses the data plane). A command from the commander
 that reaches it after its validity (``swarmd.dataplane.validity.judge``: dated on this
 node's own clock from the readiness report the commander echoes in it) is REJECTED
-``expired`` and never runs (docs/dataplane.md, "Validity"). One it cannot prove, by the
-same echo on its own clock, was issued after this life began (``start``) is REJECTED
+``expired`` and never runs (docs/dataplane.md, "Validity"). One whose echo dates another
+life of this node (a report of another boot epoch, ``validity.another_life``: checked
+first, its stamp is on a clock that may have started again), or that it cannot prove, by
+the same echo on its own clock, was issued after this life began (``start``), is REJECTED
 ``memory_lost``: an earlier life may have run it, and its record of executed ids (the state
 file) may be lost (``validity.issued_in_life``; docs/dataplane.md, "A life runs only its
 own commands"). Without a vehicle every command
@@ -89,6 +91,7 @@ from swarmd.dataplane.types import (
 from swarmd.dataplane.validity import (
     EXPIRED,
     MEMORY_LOST,
+    another_life,
     issued_in_life,
     judge,
     stamp_ms,
@@ -553,6 +556,20 @@ class SwarmCore:
         """Whether a command from another node may run now, else refuse it (REJECTED) for
         good: its id is already persisted as executed, so no later copy can run it either
         (docs/dataplane.md, "Validity" and "A life runs only its own commands")."""
+        # First the life the echo dates: a report of another boot epoch of ours is on a
+        # clock that may have started again (an OS reboot), so neither its lateness nor its
+        # issue can be read on ours; it was issued to that life, which may have run it.
+        plane = self.plane
+        other = (
+            "no data plane" if plane is None else another_life(command, self.roles.me, plane.epoch)
+        )
+        if other is not None:
+            self._count("refused_memory_lost")
+            self._events.append(CommandBeforeLife(commander, command.command_id, kind, other))
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, MEMORY_LOST, now, commander
+            )
+            return False
         judgement = judge(command, self.roles.me, now)
         if not judgement.valid:  # too late, or undatable
             self._count("refused_expired")
