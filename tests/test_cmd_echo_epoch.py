@@ -2,20 +2,23 @@
 own commands"; docs/security.md, "An OS reboot's clock coincidence").
 
 ``validity.issued_in_life`` proves, on the member's own monotonic clock, that a command was
-issued after its daemon started. Two ways the clocks can line up so that a command of an
-earlier life passes that proof, each an attack written here on virtual time:
+issued after its daemon started. Where the clocks can line up so that a command of an
+earlier life passes that proof, written on virtual time:
 
-- *an OS reboot*: the monotonic clock starts again, so the earlier boot's report stamp can
-  fall, on the new clock, between the new daemon's start and now, inside the validity;
-- *a daemon restart under a slewed commander clock*: the commander's ``age`` is measured on
-  its ``CLOCK_MONOTONIC``, which NTP slewing speeds up or slows down (``clock_gettime(2)``:
-  "affected by the incremental adjustments performed by adjtime(3) and NTP"; chrony slews
-  at up to 83,333 ppm by default, ``maxslewrate``), far past the 200 ppm crystal allowance,
-  so the bound ``stamp + age`` can land after the member's restart.
+- *an OS reboot* (the attack, failing before the echo named its epoch): the monotonic
+  clock starts again, so the earlier boot's report stamp can fall, on the new clock,
+  between the new daemon's start and now, inside the validity; the member restarted
+  without its state file (its executed ids lost), and the earlier boot's command, with its
+  original echo, sent again through the data plane ran a second time;
+- *a daemon restart* (a guard, passing before and after): one clock, and nothing the
+  commander's clock does lines the lives up, even when its ``CLOCK_MONOTONIC`` is slewed
+  far past the 200 ppm crystal allowance (``clock_gettime(2)``: "affected by the
+  incremental adjustments performed by adjtime(3) and NTP"; chrony slews at up to
+  83,333 ppm by default, ``maxslewrate``).
 
-In both, the member restarted without its state file (its executed ids lost), and the
-earlier boot's command, with its original echo, is sent again through the data plane: it
-must not run a second time.
+The defence: each ``TimeEcho`` names the member's boot epoch of the report it dates, and a
+member refuses (REJECTED ``memory_lost``) an echo of any other epoch than its current one
+(``validity.another_life``); the clock rule stays for an epoch used twice.
 """
 
 from __future__ import annotations
