@@ -556,7 +556,7 @@ def _serial_files(target: Target, ssh: Ssh | None, *, strict: bool) -> _Files:
         f"for f in {BUNDLE_FILE} {_PREV_FILE} {NODE_NAME_FILE} {_FLOOR_GLOB}; do "
         f'[ -f "$f" ] || continue; {unreadable}; set -- "$@" "$f"; done; '
         '[ "$#" -eq 0 ] || tar -cf - "$@"\n',
-        "read the serials",
+        "read the serials" if strict else "prepare",  # a flash's first contact: its prepare
     )
     members: _Files = {}
     if not raw:
