@@ -12,6 +12,13 @@ The socket is a Unix stream socket (default ``/run/swarmd/swarmd.sock``, mode 06
 access is file permissions: root and the ``swarmd`` group. It works over ``ssh drone
 swarmctl status`` because swarmctl runs on the drone. The server side is asyncio (it lives
 in the daemon's loop); the client side is plain blocking sockets, so swarmctl needs no loop.
+
+Who sent it: at accept the server reads the client's credentials from the kernel
+(``SO_PEERCRED``, unix(7): the pid, uid and gid of the process that connected, as they were
+at ``connect``; a client cannot choose them) and hands them to the *sender handlers*, the
+state-changing requests (``takeoff``, ``command``), which log them and keep them with the
+command (``sent_by``). It is a record, not a gate: who may connect at all stays the socket
+file's mode and group (docs/security.md, "Control socket").
 """
 
 from __future__ import annotations
@@ -20,10 +27,13 @@ import asyncio
 import contextlib
 import json
 import os
+import pwd
 import select
 import socket
 import stat
+import struct
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
@@ -42,6 +52,51 @@ CLIENT_TIMEOUT_S: Final = 2.0  # swarmctl's wait for one reply
 REQUEST_DEADLINE_S: Final = 10.0
 
 Handler = Callable[[Mapping[str, Any]], Any]
+
+
+@dataclass(frozen=True, slots=True)
+class PeerCredentials:
+    """The connecting process as the kernel saw it at ``connect`` (``SO_PEERCRED``)."""
+
+    pid: int
+    uid: int
+    gid: int
+
+    @property
+    def user(self) -> str | None:
+        """The uid's login name; None when the password database has no entry for it."""
+        try:
+            return pwd.getpwuid(self.uid).pw_name
+        except KeyError:
+            return None
+
+    def log_fields(self) -> dict[str, Any]:
+        """The fields every state-changing request's log line carries (docs/operations.md)."""
+        return {
+            "peer_uid": self.uid,
+            "peer_user": self.user,
+            "peer_pid": self.pid,
+            "peer_gid": self.gid,
+        }
+
+
+# A state-changing request's handler: the request and who sent it (None: the kernel did not
+# say, e.g. a socketpair in a test or a platform without SO_PEERCRED)
+SenderHandler = Callable[[Mapping[str, Any], PeerCredentials | None], Any]
+_UCRED: Final = struct.Struct("3i")  # struct ucred {pid_t pid; uid_t uid; gid_t gid;}
+
+
+def peer_credentials(sock: Any) -> PeerCredentials | None:
+    """``SO_PEERCRED`` of a connected Unix socket; None where the kernel does not give it."""
+    option = getattr(socket, "SO_PEERCRED", None)
+    if sock is None or option is None:
+        return None
+    try:
+        raw = sock.getsockopt(socket.SOL_SOCKET, option, _UCRED.size)
+        pid, uid, gid = _UCRED.unpack(raw)
+    except (OSError, struct.error):
+        return None
+    return PeerCredentials(pid, uid, gid)
 
 
 class ControlSocketBusy(RuntimeError):
@@ -76,12 +131,15 @@ class ControlServer:
         path: str,
         handlers: Mapping[str, Handler],
         *,
+        sender_handlers: Mapping[str, SenderHandler] | None = None,
         mode: int = 0o660,
         request_deadline_s: float = REQUEST_DEADLINE_S,
     ) -> None:
         self.path = path
         self.mode = mode
         self.handlers = dict(handlers)
+        # the state-changing requests: these also get the sender's credentials
+        self.sender_handlers = dict(sender_handlers or {})
         self.request_deadline_s = request_deadline_s
         self.requests = 0
         self.rejected_clients = 0  # refused at the cap
@@ -146,6 +204,8 @@ class ControlServer:
             await _close_writer(writer)
             return
         self._clients.add(task)
+        # read once, at accept: the kernel's record of who connected (unix(7))
+        peer = peer_credentials(writer.get_extra_info("socket"))
         try:
             while True:
                 try:
@@ -162,7 +222,7 @@ class ControlServer:
                     break
                 if not line:
                     break
-                writer.write(encode_line(self.dispatch(line)))
+                writer.write(encode_line(self.dispatch(line, peer)))
                 try:
                     # a client that sends requests and never reads the replies: without
                     # this bound drain() waited forever and the slot was never freed
@@ -178,8 +238,8 @@ class ControlServer:
             self._clients.discard(task)
             await _close_writer(writer)
 
-    def dispatch(self, line: bytes) -> dict[str, Any]:
-        """One request line -> the reply object. Never raises."""
+    def dispatch(self, line: bytes, peer: PeerCredentials | None = None) -> dict[str, Any]:
+        """One request line from ``peer`` -> the reply object. Never raises."""
         self.requests += 1
         try:
             request = json.loads(line)
@@ -189,11 +249,16 @@ class ControlServer:
             return {"ok": False, "error": "request is not JSON"}
         if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
             return {"ok": False, "error": 'request must be an object like {"cmd": "status"}'}
-        handler = self.handlers.get(request["cmd"])
-        if handler is None:
-            known = ", ".join(sorted(self.handlers))
-            return {"ok": False, "error": f"unknown command {request['cmd']!r}; known: {known}"}
+        cmd = request["cmd"]
+        sender_handler = self.sender_handlers.get(cmd)
+        handler = self.handlers.get(cmd)
+        if handler is None and sender_handler is None:
+            known = ", ".join(sorted({*self.handlers, *self.sender_handlers}))
+            return {"ok": False, "error": f"unknown command {cmd!r}; known: {known}"}
         try:
+            if sender_handler is not None:
+                return {"ok": True, "result": sender_handler(request, peer)}
+            assert handler is not None  # noqa: S101 - one of the two is set (checked above)
             return {"ok": True, "result": handler(request)}
         except RequestInvalid as exc:
             return {"ok": False, "error": str(exc)}

@@ -294,9 +294,12 @@ class Daemon:
                 "peers": lambda _r: self.status()["peers"],
                 "ping": lambda _r: "pong",
                 "readiness": lambda _r: app.table.rows(loop.time()),
+                "outcomes": app.request_outcomes,
+            },
+            # the state-changing requests: logged with who sent them (SO_PEERCRED)
+            sender_handlers={
                 "takeoff": app.request_takeoff,
                 "command": app.request_command,
-                "outcomes": app.request_outcomes,
             },
             mode=self.config.control_socket_mode,
         )

@@ -22,12 +22,12 @@ from __future__ import annotations
 import os
 import socket
 from collections.abc import Callable, Mapping
-from typing import Any, assert_never
+from typing import Any, Final, assert_never
 
 from swarmd.auth.keys import NodeSecrets
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig
-from swarmd.control import RequestInvalid
+from swarmd.control import PeerCredentials, RequestInvalid
 from swarmd.dataplane import DataPlane, PairKeys
 from swarmd.dataplane.convert import ReadinessVerdict
 from swarmd.dataplane.ledger import KeptOutcome
@@ -60,6 +60,7 @@ from swarmd.swarm.core import (
     OutcomesReReported,
     PeerTrafficVerified,
     PersistExecuted,
+    SentBy,
     SwarmCore,
     SwarmEvent,
     SwarmSettings,
@@ -70,6 +71,10 @@ from swarmd.swarm.statefile import NodeState, StateDirError, boot
 from swarmd.userdata import UserDataSocket
 
 Datagram = tuple[bytes, tuple[str, int]]
+# command_requested logs the request's kind and targets as the client wrote them; a valid
+# one has a short kind and at most a swarm's names, so these only bound a hostile line
+MAX_LOGGED_ARG_CHARS: Final = 64
+MAX_LOGGED_TARGETS: Final = 64
 
 
 class SwarmApp:
@@ -398,6 +403,7 @@ class SwarmApp:
                     altitude_m=event.altitude_m,
                     targets=list(event.targets),
                     refused=dict(event.refused),
+                    sent_by=None if event.sent_by is None else event.sent_by.as_json(),
                 )
             case CommandExecuting():
                 self.log.info(
@@ -479,13 +485,53 @@ class SwarmApp:
 
     # ---- commander requests (control socket) ----------------------------------------------
 
-    def request_takeoff(self, request: Mapping[str, Any]) -> dict[str, Any]:
-        """Take-off of the targeted nodes that are ready now; ``require_all``: all or none."""
-        return self._request(self._core().request_takeoff, request)
+    # The state-changing requests (ControlServer's sender handlers): each is logged as
+    # ``command_requested`` with who sent it, whatever became of it (docs/operations.md)
 
-    def request_command(self, request: Mapping[str, Any]) -> dict[str, Any]:
+    def request_takeoff(
+        self, request: Mapping[str, Any], peer: PeerCredentials | None = None
+    ) -> dict[str, Any]:
+        """Take-off of the targeted nodes that are ready now; ``require_all``: all or none."""
+        return self._sent_request("takeoff", self._core().request_takeoff, request, peer)
+
+    def request_command(
+        self, request: Mapping[str, Any], peer: PeerCredentials | None = None
+    ) -> dict[str, Any]:
         """Any command to the targets as they are: members judge for themselves."""
-        return self._request(self._core().request_command, request)
+        return self._sent_request("command", self._core().request_command, request, peer)
+
+    def _sent_request(
+        self,
+        cmd: str,
+        handler: Callable[..., dict[str, Any]],
+        request: Mapping[str, Any],
+        peer: PeerCredentials | None,
+    ) -> dict[str, Any]:
+        sent_by = None if peer is None else SentBy(peer.uid, peer.user, peer.pid)
+        who = {} if peer is None else peer.log_fields()
+        # the request's own words, as data (a client chooses them), cut to what a valid
+        # request holds so one log line stays a line's worth
+        only = request.get("only")
+        asked = {
+            "kind": str(request.get("kind", cmd))[:MAX_LOGGED_ARG_CHARS],
+            "only": [str(n)[:MAX_LOGGED_ARG_CHARS] for n in only[:MAX_LOGGED_TARGETS]]
+            if isinstance(only, list)
+            else None,
+        }
+        try:
+            answer = self._request(lambda r, now: handler(r, now, sent_by=sent_by), request)
+        except RequestInvalid as exc:
+            self.log.info("command_requested", cmd=cmd, **asked, **who, sent=False, error=str(exc))
+            raise
+        self.log.info(
+            "command_requested",
+            cmd=cmd,
+            **asked,
+            **who,
+            sent=bool(answer.get("sent")),
+            command_id=answer.get("command_id"),
+        )
+        return answer
 
     def request_outcomes(self, request: Mapping[str, Any]) -> dict[str, Any]:
         return self._request(self._core().request_outcomes, request)

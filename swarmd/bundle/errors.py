@@ -45,5 +45,12 @@ class FlashError(RuntimeError):
     """Writing a bundle to a drone failed; the previous bundle is still in place."""
 
 
+class SerialRefused(FlashError):
+    """``swarmctl bundle`` refuses to put a bundle in place that the drone's swarmd would
+    refuse at start for its serial (below the floor, or the floor's serial with another
+    hash; docs/security.md, "Bundle rollback"): exit 78, the daemon's code for it. One line,
+    nothing written."""
+
+
 class KeyFileError(FileProblem):
     """A key file that is missing, unreadable or not an Ed25519 key; one line, like the rest."""

@@ -20,6 +20,14 @@ Trust on first flash: ``swarm.pub`` is written when the target has none. When it
 the bundle is signed by another key, flashing refuses unless ``replace_trust`` (key rotation),
 so a laptop with the wrong keys cannot silently re-anchor a drone.
 
+Serials (docs/security.md, "Bundle rollback"): the daemon refuses at start a bundle whose
+serial is below its floor (``bundle-floor-<node>`` beside node.key), or the floor's serial
+with another hash (exit 78). ``flash`` refuses, before writing, a bundle below the serial of
+the one the target carries or below its floor where readable (``allow_lower_serial``
+overrides it; the daemon still refuses). ``rollback`` reads the target's floor and refuses
+to restore a ``bundle.swb.prev`` the daemon would refuse: a rollback past a started daemon
+is done by rebuilding the older mission with a higher serial.
+
 The ssh form uses the system ``ssh``/``scp`` (the operator's agent, known_hosts and config
 apply) and needs only POSIX sh, coreutils and tar on the drone.
 """
@@ -40,7 +48,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from swarmd.bundle.errors import BundleError, FlashError, KeyFileError
+from swarmd.bundle.errors import BundleError, FlashError, KeyFileError, SerialRefused
+from swarmd.bundle.floor import FILE_PATTERN as FLOOR_FILE_PATTERN
+from swarmd.bundle.floor import Floor, FloorError, floor_path, parse_floor, serial_of
+from swarmd.bundle.floor import check as check_floor
 from swarmd.bundle.keys import (
     PRIVATE_MODE,
     PUBLIC_MODE,
@@ -267,8 +278,8 @@ def flash_local(
     try:
         _verify_flashed(payload, target, None)
     except FlashError:
-        if replaced:
-            rollback_local(target)
+        if replaced:  # back to what the drone carried a moment ago: no serial check
+            _restore_local(target)
         raise
     return FlashResult(
         payload.node, str(target), payload.bundle.content_sha256.hex(), replaced, write_trust
@@ -289,7 +300,14 @@ def _keep_previous(path: Path, new: bytes) -> bool:
 
 
 def rollback_local(target: Target) -> None:
-    """Put ``bundle.swb.prev`` (and ``node.key.prev``) back in place."""
+    """Put ``bundle.swb.prev`` (and ``node.key.prev``) back in place, unless the target's
+    floor says its swarmd would refuse it (``SerialRefused``, nothing moved)."""
+    files = _serial_files(target, None, strict=True)
+    _check_rollback(files, target)
+    _restore_local(target)
+
+
+def _restore_local(target: Target) -> None:
     d = Path(target.directory)
     prev = d / (BUNDLE_FILE + PREVIOUS_SUFFIX)
     if not prev.exists():
@@ -419,8 +437,8 @@ def flash_ssh(
     try:
         _verify_flashed(payload, target, ssh)
     except FlashError:
-        if replaced:
-            rollback_ssh(target, ssh)
+        if replaced:  # back to what the drone carried a moment ago: no serial check
+            _restore_ssh(target, ssh, None)
         raise
     return FlashResult(
         payload.node, str(target), payload.bundle.content_sha256.hex(), replaced, write_trust
@@ -439,12 +457,27 @@ def _sha(data: bytes) -> str:
 
 
 def rollback_ssh(target: Target, ssh: Ssh) -> None:
+    """``rollback_local`` over ssh: the floor check runs here on the files read back (one
+    round trip), and the restore only if ``bundle.swb.prev`` still has the checked hash."""
+    files = _serial_files(target, ssh, strict=True)
+    checked = _check_rollback(files, target)
+    _restore_ssh(target, ssh, _sha(checked))
+
+
+def _restore_ssh(target: Target, ssh: Ssh, prev_sha256: str | None) -> None:
     assert target.host is not None  # noqa: S101 - callers dispatch on host
     prev = BUNDLE_FILE + PREVIOUS_SUFFIX
     script = [
         "set -eu",
         f"d={_q(target.directory)}",
         f'[ -f "$d/{prev}" ] || {{ echo "no {prev} to roll back to" >&2; exit 1; }}',
+    ]
+    if prev_sha256 is not None:  # what was checked is what is restored
+        script.append(
+            f'[ "$(sha256sum < "$d/{prev}" | cut -d" " -f1)" = {prev_sha256} ] || '
+            f'{{ echo "{prev} changed since it was checked; run rollback again" >&2; exit 1; }}'
+        )
+    script += [
         f'if [ -f "$d/{NODE_KEY_FILE}{PREVIOUS_SUFFIX}" ]; then '
         f'mv -f "$d/{NODE_KEY_FILE}{PREVIOUS_SUFFIX}" "$d/{NODE_KEY_FILE}"; fi',
         f'mv -f "$d/{prev}" "$d/{BUNDLE_FILE}"',
@@ -454,9 +487,17 @@ def rollback_ssh(target: Target, ssh: Ssh) -> None:
 
 
 def flash(
-    payload: FlashPayload, target: Target, *, ssh: Ssh | None = None, replace_trust: bool = False
+    payload: FlashPayload,
+    target: Target,
+    *,
+    ssh: Ssh | None = None,
+    replace_trust: bool = False,
+    allow_lower_serial: bool = False,
 ) -> FlashResult:
-    """Flash ``payload`` to ``target`` (local directory or ssh)."""
+    """Flash ``payload`` to ``target`` (local directory or ssh). ``SerialRefused`` before
+    anything is written when its serial is below the target's (``check_flash_serial``)."""
+    if not allow_lower_serial:
+        check_flash_serial(payload, target, ssh=ssh)
     if target.host is None:
         return flash_local(payload, target, replace_trust=replace_trust)
     return flash_ssh(payload, target, ssh or Ssh(), replace_trust=replace_trust)
@@ -467,3 +508,158 @@ def rollback(target: Target, *, ssh: Ssh | None = None) -> None:
         rollback_local(target)
     else:
         rollback_ssh(target, ssh or Ssh())
+
+
+# -- the serial guard (docs/security.md, "Bundle rollback") -----------------------------------
+
+_PREV_FILE: Final = BUNDLE_FILE + PREVIOUS_SUFFIX
+_FLOOR_GLOB: Final = FLOOR_FILE_PATTERN.format(node="*")
+# stands for a floor file that exists but this user cannot read (a real file never holds
+# it: a name is not bytes a file can have)
+_UNREADABLE: Final = "unreadable"
+_Files = dict[str, bytes | str]
+
+
+def _serial_files(target: Target, ssh: Ssh | None, *, strict: bool) -> _Files:
+    """name -> bytes of the target's bundle, previous bundle, node name and floor files
+    (absent ones left out). A floor file this user cannot read is ``_UNREADABLE`` when
+    ``strict`` (a rollback must not pass for want of it), else left out (a flash checks
+    the floor where readable, and the current bundle's serial in any case)."""
+    if target.host is None:
+        d = Path(target.directory)
+        out: _Files = {}
+        for path in [d / BUNDLE_FILE, d / _PREV_FILE, d / NODE_NAME_FILE, *d.glob(_FLOOR_GLOB)]:
+            try:
+                out[path.name] = path.read_bytes()
+            except FileNotFoundError:
+                continue
+            except OSError as exc:
+                if path.name.startswith(_FLOOR_GLOB[:-1]):
+                    if strict:
+                        out[path.name] = _UNREADABLE
+                    continue
+                raise FlashError(f"{target}: cannot read {path.name}: {exc.strerror}") from None
+        return out
+    assert target.host is not None  # noqa: S101 - dispatched on host above
+    # one round trip; an unreadable floor is named on stderr of a failing script (strict)
+    # or skipped, so tar never stops on it
+    unreadable = (
+        '[ -r "$f" ] || { echo "cannot read $f (the floor of swarmd on this drone): run the '
+        'rollback as its owner or root" >&2; exit 3; }'
+        if strict
+        else '[ -r "$f" ] || continue'
+    )
+    # a first flash: no directory, or none of the files (nothing printed, nothing to check)
+    raw = (ssh or Ssh()).run(
+        target.host,
+        f"cd {_q(target.directory)} 2>/dev/null || exit 0; set -- && "
+        f"for f in {BUNDLE_FILE} {_PREV_FILE} {NODE_NAME_FILE} {_FLOOR_GLOB}; do "
+        f'[ -f "$f" ] || continue; {unreadable}; set -- "$@" "$f"; done; '
+        '[ "$#" -eq 0 ] || tar -cf - "$@"\n',
+        "read the serials" if strict else "prepare",  # a flash's first contact: its prepare
+    )
+    members: _Files = {}
+    if not raw:
+        return members
+    try:
+        with tarfile.open(fileobj=io.BytesIO(raw), mode="r:") as tar:
+            for info in tar.getmembers():
+                f = tar.extractfile(info)
+                if f is not None:
+                    members[info.name] = f.read()
+    except tarfile.TarError as exc:
+        raise FlashError(f"{target}: cannot read the files back: {exc}") from None
+    return members
+
+
+def _decoded(data: bytes, source: str) -> Bundle | None:
+    """The bundle in ``data`` without a trust anchor (only its serial and hash are used:
+    the daemon verifies the signature); None when it is no bundle."""
+    try:
+        return read_bundle(data, source=source, allow_dev=True, require_anchor=False)
+    except BundleError:
+        return None
+
+
+def _floor_on(files: _Files, target: Target, node: str) -> tuple[Floor, str] | None:
+    """The floor of ``node`` among the files read from ``target``, with its path."""
+    path = floor_path(target.directory, node)
+    raw = files.get(path.name)
+    where = f"{target}/{path.name}" if target.host is not None else str(path)
+    if raw is None:
+        return None
+    if isinstance(raw, str):  # _UNREADABLE
+        raise SerialRefused(
+            f"{where}: cannot read this node's bundle floor; fix: run as its owner or root"
+        )
+    try:
+        return parse_floor(raw, path, f"{target}/{BUNDLE_FILE}"), where
+    except FloorError as exc:
+        raise SerialRefused(str(exc)) from None
+
+
+def _check_rollback(files: _Files, target: Target) -> bytes:
+    """The ``bundle.swb.prev`` to restore; ``SerialRefused`` when swarmd on the target
+    would refuse it at start (below its floor, or the floor's serial with another hash)."""
+    prev = files.get(_PREV_FILE)
+    if not isinstance(prev, bytes):
+        raise FlashError(f"{target}: no {_PREV_FILE} to roll back to")
+    name = files.get(NODE_NAME_FILE)
+    if isinstance(name, bytes):
+        nodes = [name.decode(errors="replace").strip()]
+    else:  # no node name: every floor present counts (the strictest)
+        prefix = _FLOOR_GLOB[:-1]
+        nodes = [n[len(prefix) :] for n in files if n.startswith(prefix)]
+    source = f"{target}/{_PREV_FILE}"
+    for node in nodes:
+        found = _floor_on(files, target, node)
+        if found is None:
+            continue
+        floor, where = found
+        bundle = _decoded(prev, source)
+        if bundle is None:
+            raise SerialRefused(
+                f"{target}: rollback refused: {_PREV_FILE} is not a readable bundle, and "
+                f"swarmd there keeps a floor ({where}); fix: flash the bundle you want"
+            )
+        try:
+            check_floor(bundle, floor, source=source, path=Path(where))
+        except BundleError as exc:
+            raise SerialRefused(
+                f"{target}: rollback refused, swarmd there would not start on it (exit 78): {exc}"
+            ) from None
+    return prev
+
+
+def check_flash_serial(payload: FlashPayload, target: Target, *, ssh: Ssh | None) -> None:
+    """``SerialRefused`` when ``payload``'s serial is below the serial of the bundle the
+    target carries, or fails the target's floor for ``payload.node`` where readable (below
+    it, or its serial with another hash: what swarmd there would refuse at start)."""
+    files = _serial_files(target, ssh, strict=False)
+    new = payload.bundle
+    current_data = files.get(BUNDLE_FILE)
+    current = _decoded(current_data, BUNDLE_FILE) if isinstance(current_data, bytes) else None
+    override = "--allow-lower-serial flashes it anyway, and swarmd there still refuses it"
+    if current is not None and serial_of(new) < serial_of(current):
+        higher = serial_of(current) + 1
+        raise SerialRefused(
+            f"{target}: flash refused: the bundle's serial {serial_of(new)} is below the "
+            f"serial {serial_of(current)} of the bundle the drone carries (sha256 "
+            f"{current.content_sha256.hex()}): an older bundle; fix: flash the newest "
+            f"bundle, or rebuild this mission with 'swarmctl bundle build --serial {higher}' "
+            f"({override})"
+        )
+    try:
+        found = _floor_on(files, target, payload.node)
+    except SerialRefused:
+        found = None  # a floor that does not parse: the daemon says so at start
+    if found is None:
+        return
+    floor, where = found
+    try:
+        check_floor(new, floor, source=f"{target}/{BUNDLE_FILE}", path=Path(where))
+    except BundleError as exc:
+        raise SerialRefused(
+            f"{target}: flash refused, swarmd there would not start on it (exit 78): {exc} "
+            f"({override})"
+        ) from None

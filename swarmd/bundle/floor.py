@@ -89,6 +89,12 @@ def read_floor(path: Path, bundle_source: str) -> Floor | None:
         return None
     except OSError as exc:
         raise _corrupt(path, bundle_source, f"unreadable ({exc.strerror})") from None
+    return parse_floor(raw, path, bundle_source)
+
+
+def parse_floor(raw: bytes, path: Path, bundle_source: str) -> Floor:
+    """A floor file's bytes (read here, or over ssh by ``swarmctl bundle``); ``FloorError``
+    when they do not parse."""
     try:
         if len(raw) > MAX_FLOOR_BYTES:
             raise ValueError(f"over {MAX_FLOOR_BYTES} bytes")

@@ -16,7 +16,13 @@ from typing import Any
 
 from swarmd.bundle.build import build_from_files, check_serial
 from swarmd.bundle.encoding import EnvelopeError, split
-from swarmd.bundle.errors import BundleError, FlashError, KeyFileError, MissionError
+from swarmd.bundle.errors import (
+    BundleError,
+    FlashError,
+    KeyFileError,
+    MissionError,
+    SerialRefused,
+)
 from swarmd.bundle.flash import (
     DEFAULT_TARGET_DIR,
     FlashPayload,
@@ -133,6 +139,13 @@ def register(sub: Any) -> None:
         action="store_true",
         help="overwrite the drone's swarm.pub when it trusts another key (key rotation)",
     )
+    p.add_argument(
+        "--allow-lower-serial",
+        action="store_true",
+        help="write the bundle even when its serial is below the one the drone carries or "
+        "its bundle floor (a bench reset); swarmd on the drone still refuses a serial below "
+        "its floor at start (exit 78) until that floor file is deleted",
+    )
     _trust_args(p)
     _ssh_args(p)
     p.add_argument("--json", action="store_true")
@@ -153,8 +166,8 @@ def register(sub: Any) -> None:
 
     p = bsub.add_parser(
         "rollback",
-        help="restore the previous bundle on a drone (only before swarmd started on the newer "
-        "one: its floor refuses a lower serial; then rebuild with a higher --serial)",
+        help="restore the previous bundle on a drone; refused (exit 78) when the drone's "
+        "bundle floor says its swarmd would refuse it: then rebuild with a higher --serial",
     )
     p.add_argument("--target", required=True, metavar="DIR|[user@]host:DIR")
     _ssh_args(p)
@@ -244,6 +257,9 @@ def _guard(func: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Name
             if getattr(args, "json", False):
                 _print_json({"ok": False, "error": str(exc)})
             _err(f"bundle rejected: {exc}")
+            return EX_CONFIG
+        except SerialRefused as exc:  # what the drone's swarmd would refuse: its code
+            _err(str(exc))
             return EX_CONFIG
         except FlashError as exc:
             _err(str(exc))
@@ -498,12 +514,19 @@ def cmd_flash(args: argparse.Namespace) -> int:
         return EX_BAD_ARGS
     ssh = Ssh(tuple(args.ssh_option))
     results: list[dict[str, Any]] = []
-    failed = 0
+    failed = refused = 0
     for payload, target in payloads:
         try:
-            r = flash(payload, target, ssh=ssh, replace_trust=args.replace_trust_key)
+            r = flash(
+                payload,
+                target,
+                ssh=ssh,
+                replace_trust=args.replace_trust_key,
+                allow_lower_serial=args.allow_lower_serial,
+            )
         except FlashError as exc:
             failed += 1
+            refused += isinstance(exc, SerialRefused)
             _err(f"{payload.node}: {exc}")
             results.append(
                 {"node": payload.node, "target": str(target), "ok": False, "error": str(exc)}
@@ -531,6 +554,8 @@ def cmd_flash(args: argparse.Namespace) -> int:
             print(f"flashed {r.node} -> {r.target}: sha256 {r.content_sha256} verified{extra}")
     if args.json:
         _print_json({"ok": failed == 0, "results": results})
+    if failed and failed == refused:  # only serial refusals: the daemon's own code for them
+        return EX_CONFIG
     return EX_CANTCREAT if failed else EX_OK
 
 
@@ -574,10 +599,4 @@ def cmd_rollback(args: argparse.Namespace) -> int:
     target = parse_target(args.target)
     rollback(target, ssh=Ssh(tuple(args.ssh_option)))
     print(f"rolled back {target} to its previous bundle")
-    print(
-        f"{PROG}: note: a drone whose swarmd already started on the newer bundle refuses "
-        "this lower serial (exit 78); then rebuild the older mission with 'bundle build "
-        '--serial N\' above it (docs/operations.md, "Bundle serial")',
-        file=sys.stderr,
-    )
     return EX_OK

@@ -303,6 +303,9 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
         _final(run.args, cid, snap, code)
     else:
         print("\n".join(render_outcomes(snap)))
+        sender = sent_by_text(snap)
+        if sender is not None:
+            print(sender)
         unreachable = [n for n, v in nodes.items() if v["state"] == UNREACHABLE]
         print(
             f"{kind}: {sum(n['state'] == 'completed' for n in nodes.values())}/{len(nodes)} "
@@ -336,6 +339,16 @@ def _still_valid(snap: dict[str, Any]) -> str:
 def _final(args: argparse.Namespace, cid: int | None, body: dict[str, Any], code: int) -> None:
     if args.json:
         print(json.dumps({"command_id": cid, **body, "exit_code": code}, indent=2))
+
+
+def sent_by_text(snap: dict[str, Any]) -> str | None:
+    """``sent by USER (uid N, pid P)``: the control socket client the commander recorded
+    for this command (SO_PEERCRED, docs/operations.md); None when it recorded none."""
+    who = safe_tree(snap).get("sent_by")
+    if not isinstance(who, dict):
+        return None
+    name = who.get("user") or "uid without a name"
+    return f"sent by {name} (uid {who.get('uid')}, pid {who.get('pid')})"
 
 
 def render_outcomes(snap: dict[str, Any]) -> list[str]:

@@ -25,6 +25,7 @@ from typing import Any, Final
 from swarmd.dataplane.convert import LANDED_STATES
 from swarmd.dataplane.types import CommandResult, Readiness
 from swarmd.dataplane.validity import MEMORY_LOST
+from swarmd.swarm.events import SentBy
 
 # Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
 # flight, the cap only stops a runaway script from growing the daemon.
@@ -182,6 +183,7 @@ class _Tracked:
     sent_at: float
     outcomes: dict[str, _NodeOutcome] = field(default_factory=dict)
     valid_for_s: float | None = None  # None: no validity (a command tracked by hand)
+    sent_by: SentBy | None = None  # the control socket client that asked for it
 
 
 FINAL_RESULTS: Final = (CommandResult.COMPLETED, CommandResult.REJECTED, CommandResult.FAILED)
@@ -206,9 +208,11 @@ class CommandTracker:
         refused: dict[str, str] | None = None,
         valid_for_s: float | None = None,
         epochs: Mapping[str, int] | None = None,
+        sent_by: SentBy | None = None,
     ) -> None:
         """``epochs``: each target's boot epoch as the data plane knew it at issue (the
-        life the command is sent to), for telling a later life's answer in ``record``."""
+        life the command is sent to), for telling a later life's answer in ``record``.
+        ``sent_by``: who asked for it (shown with its outcomes)."""
         known = epochs or {}
         self._commands[command_id] = _Tracked(
             command_id,
@@ -219,6 +223,7 @@ class CommandTracker:
             now,
             {name: _NodeOutcome(epoch_at_issue=known.get(name)) for name in targets},
             valid_for_s,
+            sent_by,
         )
         while len(self._commands) > MAX_TRACKED_COMMANDS:
             self._commands.popitem(last=False)
@@ -329,6 +334,7 @@ class CommandTracker:
             if t.valid_for_s is None
             else round(max(0.0, t.sent_at + t.valid_for_s - now), 3),
             "done": settled,
+            "sent_by": None if t.sent_by is None else t.sent_by.as_json(),
             "nodes": nodes,
         }
 

@@ -119,6 +119,7 @@ from swarmd.swarm.events import (
     OutcomesReReported,
     PeerTrafficVerified,
     PersistExecuted,
+    SentBy,
     SwarmEvent,
     UserDataDropped,
 )
@@ -146,6 +147,7 @@ __all__ = [
     "CommandExecuting",
     "CommandExpired",
     "CommandIssued",
+    "SentBy",
     "CommandNotDelivered",
     "CommandWithdrawn",
     "MemberReadinessChanged",
@@ -370,8 +372,11 @@ class SwarmCore:
 
     # ---- the commander's requests -------------------------------------------------------
 
-    def request_takeoff(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
-        """Take-off of the targeted nodes that are ready now; ``require_all``: all or none."""
+    def request_takeoff(
+        self, request: Mapping[str, Any], now: float, *, sent_by: SentBy | None = None
+    ) -> dict[str, Any]:
+        """Take-off of the targeted nodes that are ready now; ``require_all``: all or none.
+        ``sent_by``: who asked (kept with the command, and in ``CommandIssued``)."""
         plane = self._require_commander()
         alt = self._altitude(request)
         targets = self._targets(request.get("only"))
@@ -381,7 +386,9 @@ class SwarmCore:
             return {"sent": False, "command_id": None, "ready": ready, "refused": refused}
         if not ready:
             return {"sent": False, "command_id": None, "ready": [], "refused": refused}
-        command_id = self._send(plane, CommandKind.TAKEOFF, ready, alt, refused, valid_for, now)
+        command_id = self._send(
+            plane, CommandKind.TAKEOFF, ready, alt, refused, valid_for, now, sent_by
+        )
         return {
             "sent": True,
             "command_id": command_id,
@@ -390,7 +397,9 @@ class SwarmCore:
             "valid_for_s": valid_for,
         }
 
-    def request_command(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
+    def request_command(
+        self, request: Mapping[str, Any], now: float, *, sent_by: SentBy | None = None
+    ) -> dict[str, Any]:
         """Any command to the targets as they are: members judge for themselves."""
         plane = self._require_commander()
         kind = COMMAND_KINDS.get(str(request.get("kind", "")).lower())
@@ -399,7 +408,7 @@ class SwarmCore:
         alt = self._altitude(request) if kind == CommandKind.TAKEOFF else 0.0
         targets = self._targets(request.get("only"))
         valid_for = self._valid_for(request, kind)
-        command_id = self._send(plane, kind, targets, alt, {}, valid_for, now)
+        command_id = self._send(plane, kind, targets, alt, {}, valid_for, now, sent_by)
         return {
             "sent": True,
             "command_id": command_id,
@@ -709,6 +718,7 @@ class SwarmCore:
         refused: dict[str, str],
         valid_for_s: float,
         now: float,
+        sent_by: SentBy | None = None,
     ) -> int:
         remote = [n for n in targets if n != self.roles.me]
         valid_ms = valid_ms_of(valid_for_s)
@@ -730,9 +740,12 @@ class SwarmCore:
             refused=refused,
             valid_for_s=valid_ms / 1000.0,
             epochs=epochs,
+            sent_by=sent_by,
         )
         self._events.append(
-            CommandIssued(command.command_id, kind, takeoff_alt, tuple(targets), dict(refused))
+            CommandIssued(
+                command.command_id, kind, takeoff_alt, tuple(targets), dict(refused), sent_by
+            )
         )
         if remote:  # an empty target list would mean "every member" on the wire
             sn = plane.send_command(command, now)

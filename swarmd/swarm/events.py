@@ -42,12 +42,27 @@ class MemberReadinessChanged:
 
 
 @dataclass(frozen=True, slots=True)
+class SentBy:
+    """Who asked the commander for a command: the control socket client's credentials as
+    the kernel gave them at connect (``SO_PEERCRED``; ``user`` None when the uid has no
+    name). A record for the operator's log, not an authority (docs/security.md)."""
+
+    uid: int
+    user: str | None
+    pid: int
+
+    def as_json(self) -> dict[str, int | str | None]:
+        return {"uid": self.uid, "user": self.user, "pid": self.pid}
+
+
+@dataclass(frozen=True, slots=True)
 class CommandIssued:
     command_id: int
     kind: CommandKind
     altitude_m: float | None
     targets: tuple[str, ...]
     refused: Mapping[str, str]
+    sent_by: SentBy | None = None  # None: issued without a control socket client (tests)
 
 
 @dataclass(frozen=True, slots=True)
