@@ -346,7 +346,7 @@ def test_another_user_announcing_a_declared_node_is_dropped_and_nothing_moves(cl
     (signed to the other drones) does not move. Then the node's own user is heard."""
 
     async def main() -> tuple[dict[str, Any], list[bytes], dict[str, Any], list[Any]]:
-        log, alive = _Log(), []
+        log, alive = _Log(), list[bytes]()
         app = _ros2_app(frozenset({ME}), log, alive)
         app.start(asyncio.get_running_loop())
         try:
