@@ -30,6 +30,7 @@ grows memory. The cost is measured by ``bench/sender_uid.py``.
 from __future__ import annotations
 
 import ipaddress
+import re
 import sys
 import time
 from collections.abc import Callable, Hashable
@@ -41,15 +42,18 @@ from typing import Final
 # quarter second under steady traffic.
 TTL_S: Final = 0.25
 # A miss (a port not in the table read) re-reads it, within this budget: a flood from fresh
-# ports costs at most this many reads a second (~0.1 ms each with a few hundred sockets:
-# bench/sender_uid.py), and a quiet table re-reads at once for a new sender.
-MISS_READS_PER_S: Final = 50.0
-MISS_READ_BURST: Final = 10.0
+# ports costs at most this many reads a second (each read's cost grows with the sockets on
+# the computer: bench/sender_uid.py), and a quiet table re-reads at once for a new sender.
+MISS_READS_PER_S: Final = 10.0
+MISS_READ_BURST: Final = 5.0
 # Bytes read from each table (~150 bytes a socket: ~40,000 sockets), and loopback or
 # wildcard sockets indexed: a local user can open sockets until its file limit, and must not
 # grow this process's memory with them.
 MAX_TABLE_BYTES: Final = 6 << 20
 MAX_INDEXED_SOCKETS: Final = 32_768
+_LINE: Final = re.compile(
+    r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
+)
 _WILDCARDS: Final = frozenset({"0.0.0.0", "::"})  # noqa: S104 - addresses we read, not bind
 
 
@@ -161,11 +165,8 @@ class SenderUids:
             if len(raw) > MAX_TABLE_BYTES:
                 self.counters["truncated"] += 1
                 raw = raw[:MAX_TABLE_BYTES]
-            for line in raw.decode("ascii", "replace").splitlines()[1:]:
-                parts = line.split()
-                if len(parts) < 8:
-                    continue
-                hex_address, _, hex_port = parts[1].partition(":")
+            # "sl: local_address rem_address st tx:rx tr:when retrnsmt uid ...": one C scan
+            for hex_address, hex_port, text_uid in _LINE.findall(raw.decode("ascii", "replace")):
                 try:
                     if hex_address in self._addresses:
                         address = self._addresses[hex_address]
@@ -175,7 +176,7 @@ class SenderUids:
                             self._addresses[hex_address] = address
                     if address is None:
                         continue  # bound elsewhere: it cannot send from a loopback address
-                    port, uid = int(hex_port, 16), int(parts[7])
+                    port, uid = int(hex_port, 16), int(text_uid)
                 except ValueError:
                     continue  # a line we cannot parse names nobody
                 if indexed >= MAX_INDEXED_SOCKETS:
