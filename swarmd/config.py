@@ -11,6 +11,7 @@ from __future__ import annotations
 import ipaddress
 import math
 import os
+import pwd
 import stat
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -98,6 +99,9 @@ class Px4Section:
     namespace: str | None = None  # PX4's UXRCE_DDS_NS (topics rt/<ns>/fmu/...)
     # xrce-client: the DDS domain of swarmd's participant in the agent = UXRCE_DDS_DOM_ID
     xrce_domain_id: int = 0
+    # xrce-agent with PX4 SITL on this computer's loopback: the uid PX4 runs as; every other
+    # local user's loopback datagram is dropped (swarmd.senderuid). None: not told apart
+    loopback_user: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +125,9 @@ class Ros2Section:
     relay_port: int = 7399  # swarmd.ros2.relay.DEFAULT_RELAY_PORT, on [::1] only
     # the lease the relay announces for other drones' ROS 2 participants; renewed 4 times in it
     lease_s: float = 20.0
+    # the uids allowed to be this drone's ROS 2 nodes: another local user's datagram to the
+    # relay is dropped (swarmd.senderuid). None: every local process is taken as a node
+    node_users: frozenset[int] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -228,9 +235,10 @@ _FIELDS: Final[dict[str, tuple[str, ...]]] = {
         "xrce_key",
         "namespace",
         "xrce_domain_id",
+        "loopback_user",
     ),
     "dataplane": ("enabled", "readiness_period_s", "stale_after_s", "state_dir"),
-    "ros2": ("relay", "relay_port", "lease_s"),
+    "ros2": ("relay", "relay_port", "lease_s", "node_users"),
     "logging": ("level", "format"),
 }
 
@@ -366,6 +374,21 @@ class _Checker:
         if not isinstance(value, str) or value not in names:
             self.fail(node, path, f"unknown value {value!r}", f"use one of: {', '.join(names)}")
         return value
+
+    def user(self, node: yaml.Node, path: str) -> int:
+        """A local user by name (resolved here, from the passwd database) or uid."""
+        value = self.value(node, path)
+        if isinstance(value, int) and not isinstance(value, bool):
+            if not 0 <= value < 0xFFFF_FFFF:  # (uid_t) -1 is "no user"
+                self.fail(node, path, f"{value} is no uid", "write a user name or a uid")
+            return value
+        if not isinstance(value, str) or not value:
+            self.fail(node, path, f"expected a user, got {value!r}", "write a user name or uid")
+        try:
+            return pwd.getpwnam(value).pw_uid
+        except KeyError:
+            self.fail(node, path, f"no user {value!r} on this computer",
+                      "create it, or write the user the process runs as (id -un)")  # fmt: skip
 
     def section(self, top: Nodes, name: str, parse: Callable[[Nodes], None]) -> None:
         if name in top:
@@ -653,7 +676,21 @@ class _Checker:
                 else None
             ),
             xrce_domain_id=xrce_domain_id,
+            loopback_user=self.loopback_user(f, backend),
         )
+
+    def loopback_user(self, f: Nodes, backend: str) -> int | None:
+        if "loopback_user" not in f:
+            return None
+        node, path = f["loopback_user"], "px4.loopback_user"
+        if backend != "xrce-agent":
+            self.fail(
+                node,
+                path,
+                f"only the xrce-agent backend tells loopback users apart ({backend} does not)",
+                "remove it, or use px4.backend: xrce-agent",
+            )
+        return self.user(node, path)
 
     def dataplane(self, f: Nodes) -> DataplaneSection:
         d = DataplaneSection()
@@ -700,7 +737,17 @@ class _Checker:
             lease_s=self.number(f["lease_s"], "ros2.lease_s", 2.0, 600.0, " s")
             if "lease_s" in f
             else d.lease_s,
+            node_users=self.node_users(f["node_users"]) if "node_users" in f else None,
         )
+
+    def node_users(self, node: yaml.Node) -> frozenset[int]:
+        path = "ros2.node_users"
+        if isinstance(node, yaml.ScalarNode):
+            return frozenset({self.user(node, path)})
+        if not isinstance(node, yaml.SequenceNode) or not node.value:
+            self.fail(node, path, "expected a user or a list of users",
+                      "write e.g. node_users: [ros]  (names or uids)")  # fmt: skip
+        return frozenset(self.user(item, path) for item in node.value)
 
     def overrides(self, node: yaml.Node) -> dict[str, float]:
         if not isinstance(node, yaml.MappingNode):

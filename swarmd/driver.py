@@ -76,27 +76,36 @@ class Driver(Generic[InT, OutT, EvT]):
 
     # ---- inputs -------------------------------------------------------------------------
 
-    def datagram_received(self, data: InT, source: Any) -> None:
-        """One datagram (or observation) for the core, at ``loop.time()``."""
+    def datagram_received(
+        self, data: InT, source: Any, receive: Callable[[InT, Any, float], None] | None = None
+    ) -> None:
+        """One datagram (or observation) for the core, at ``loop.time()``; ``receive`` as
+        in ``datagrams_received``."""
         if self.closed:
             return
         try:
-            self.core.receive_datagram(data, source, self.loop.time())
+            (receive or self.core.receive_datagram)(data, source, self.loop.time())
         except Exception:  # the core promises not to raise on input: a bug, keep running
             self._count_error("core_errors", "core_receive_failed")
         self.drain()
 
-    def datagrams_received(self, batch: Iterable[tuple[InT, Any]]) -> None:
+    def datagrams_received(
+        self,
+        batch: Iterable[tuple[InT, Any]],
+        receive: Callable[[InT, Any, float], None] | None = None,
+    ) -> None:
         """Several datagrams read at one wake-up, each with its source, then one drain.
 
         The same ``now`` for all (they were read at the same instant): what the core sends
         or reports in answer goes out once per batch, not once per datagram, so a flood's
         cost is the core's refusal and not the driver's bookkeeping (docs/security.md,
-        "Flood")."""
+        "Flood"). ``receive``: the adapter's way into the core instead of its
+        ``receive_datagram`` (one that attaches what the adapter knows of the sender, such
+        as its local user: swarmd.senderuid)."""
         if self.closed:
             return
         now = self.loop.time()
-        receive = self.core.receive_datagram
+        receive = receive or self.core.receive_datagram
         for data, source in batch:
             try:
                 receive(data, source, now)

@@ -38,6 +38,7 @@ from swarmd.ros2.relay_events import (
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )
+from swarmd.senderuid import SenderUids
 from swarmd.udp import BatchedSocket, Datagram
 
 
@@ -53,6 +54,7 @@ class Ros2App:
         log: Any,
         count: Callable[[str], None],
         on_liveness: Callable[[bytes], None] | None = None,
+        sender_uids: SenderUids | None = None,
     ) -> None:
         """``on_liveness``: called with the relay's new alive bitmap when one of this
         drone's nodes comes or goes (the daemon puts it in its signed DATA(p))."""
@@ -78,6 +80,12 @@ class Ros2App:
             epoch=epoch,
             # the graph writer's GUID is a secret of this drone (swarmd.ros2.graph, "Trust")
             graph_prefix=graph_participant_prefix(secrets.token_bytes(GRAPH_PREFIX_RANDOM_BYTES)),
+            node_uids=config.ros2.node_users,
+        )
+        # who sent a datagram (its socket's uid): looked up only when the relay tells users
+        # apart (``ros2.node_users``); ``sender_uids`` is injected by tests
+        self.sender_uids = (
+            (sender_uids or SenderUids()) if config.ros2.node_users is not None else None
         )
         self.transport: BatchedSocket | None = None
         self.transport4: BatchedSocket | None = None
@@ -139,6 +147,12 @@ class Ros2App:
             on_core_error=lambda: self.count("ros2_relay_exceptions"),
         )
         relay = self.relay
+        if relay.node_uids is None:
+            # docs/security.md, "ROS 2 nodes": any local process can speak as a declared node
+            self.log.info(
+                "ros2_local_users_not_told_apart",
+                fix="set ros2.node_users to the users the ROS 2 nodes run as (docs/ros2.md)",
+            )
         self.driver.call(relay.started)
 
     def close(self) -> None:
@@ -185,8 +199,18 @@ class Ros2App:
             self.count("ros2_graph_rx_ignored")
 
     def _received(self, batch: list[Datagram], via: str) -> None:
-        if self.driver is not None:
+        if self.driver is None:
+            return
+        uids, relay = self.sender_uids, self.relay
+        if uids is None:
             self.driver.datagrams_received(batch)
+            return
+
+        def receive(data: bytes, source: Any, now: float) -> None:
+            # the kernel's word on the sender; the relay decides (Ros2Relay.node_uids)
+            relay.receive_datagram(data, source, now, uids.uid_of(source))
+
+        self.driver.datagrams_received(batch, receive)
 
     def _on_event(self, event: RelayEvent) -> None:
         match event:

@@ -178,6 +178,7 @@ class SwarmApp:
                         xrce_key=xrce_key,
                         namespace=px4.namespace,
                         xrce_domain_id=px4.xrce_domain_id,
+                        loopback_user=px4.loopback_user,
                         listen_socket=self.px4_socket,
                         readiness=ReadinessConfig(
                             heartbeat_timeout_s=px4.heartbeat_timeout_s,

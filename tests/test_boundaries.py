@@ -49,7 +49,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "driver": frozenset({"sansio"}),
     # px4's asyncio adapter (bridge) runs its core through the driver; its sans-IO modules
     # cannot (the driver imports asyncio: test_sans_io_rooms)
-    "px4": CORE | {"xrce", "driver"},
+    "px4": CORE | {"xrce", "driver", "senderuid"},
     "swarm": CORE | {"auth", "dataplane", "discovery", "px4"},
     # adapters and the daemon tier
     "link": frozenset({"discovery", "exitcodes"}),  # produces discovery's LinkSample
@@ -63,6 +63,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     "peerlog": frozenset(),
     # batched UDP reads (daemon tier): the SPDP sockets' and the user-data socket's
     "udp": frozenset(),
+    # who sent a loopback datagram: its socket's uid in /proc/net/udp{,6} (daemon tier, used
+    # by the ROS 2 relay's and the XRCE agent's adapters; the cores get the uid)
+    "senderuid": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
     "userdata": CORE | {"udp"},
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
@@ -75,7 +78,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     # sources, SPDP sockets, the systemd socket name (daemon tier, split from daemon.py)
     "daemon_setup": CORE | {"auth", "discovery", "link", "px4", "config", "udp"},
     # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
-    "ros2app": CORE | {"ros2", "config", "driver", "udp"},
+    "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {

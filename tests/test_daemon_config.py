@@ -177,3 +177,37 @@ def test_bad_ros2_field_is_one_line(extra: str, field: str) -> None:
     with pytest.raises(ConfigError, match=f"field {field}: ") as info:
         parse_config(MINIMAL + extra, "c.yaml")
     assert "\n" not in str(info.value) and "; fix: " in str(info.value)
+
+
+def test_local_users_by_name_or_uid_and_absent_means_not_told_apart() -> None:
+    """``ros2.node_users`` and ``px4.loopback_user`` (docs/operations.md): names resolve
+    here, uids are taken as written; absent, None (every local sender is taken)."""
+    assert parse_config(MINIMAL, "c.yaml").ros2.node_users is None
+    assert parse_config(MINIMAL, "c.yaml").px4.loopback_user is None
+    cfg = parse_config(MINIMAL + "ros2:\n  node_users: [root, 1234]\n", "c.yaml")
+    assert cfg.ros2.node_users == frozenset({0, 1234})
+    one = parse_config(MINIMAL + "ros2:\n  node_users: nobody\n", "c.yaml")
+    assert one.ros2.node_users == frozenset({65534})
+    px4 = "px4:\n  backend: xrce-agent\n  connection: udp:127.0.0.1:8888\n  loopback_user: nobody\n"
+    assert parse_config(MINIMAL + px4, "c.yaml").px4.loopback_user == 65534
+
+
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        ("ros2:\n  node_users: [no-such-user-here]\n", "ros2.node_users"),
+        ("ros2:\n  node_users: []\n", "ros2.node_users"),
+        ("ros2:\n  node_users: -1\n", "ros2.node_users"),
+        ("ros2:\n  node_users: {a: 1}\n", "ros2.node_users"),
+        ("px4:\n  loopback_user: root\n", "px4.loopback_user"),  # the mavlink backend
+        (
+            "px4:\n  backend: xrce-agent\n  connection: udp:127.0.0.1:8888\n"
+            "  loopback_user: no-such-user-here\n",
+            "px4.loopback_user",
+        ),
+    ],
+)
+def test_bad_local_user_field_is_one_line(extra: str, field: str) -> None:
+    with pytest.raises(ConfigError, match=f"field {field}: ") as info:
+        parse_config(MINIMAL + extra, "c.yaml")
+    assert "\n" not in str(info.value) and "; fix: " in str(info.value)

@@ -262,6 +262,43 @@ def test_a_flooder_from_many_loopback_ports_delays_a_loopback_vehicle_while_it_f
     assert agent.refused["over_budget"] > 0
 
 
+def test_with_px4s_loopback_user_a_flood_of_another_user_cannot_delay_a_loopback_vehicle() -> None:
+    """The residual above, closed by ``px4.loopback_user`` (the agent's ``vehicle_uid``):
+    the same flood from every loopback port, sent by another local user (the kernel's socket
+    table names it: swarmd.senderuid), is dropped unread; the vehicle of the configured user
+    gets its session at its first try, mid-flood. Real processes: tests/test_local_uid.py."""
+    px4_uid, flooder_uid = 1000, 65534
+    agent = XrceAgent(expected_key=KEY_BYTES, vehicle_uid=px4_uid)
+    vehicle, vehicle_at = _client(), ("127.0.0.1", 40000)
+    sources, keys = _loopback_sources(60_000), _wrong_keys()
+    established_at = None
+    now = 0.0
+    while now < 10.0:
+        now = round(now + STEP_S, 6)
+        for _ in range(round(FLOOD_PER_S * STEP_S)):
+            agent.receive_datagram(_create_client(next(keys)), next(sources), now, flooder_uid)
+        assert agent.datagrams_to_send() == []
+        if now == 2.0:
+            vehicle.connect(AGENT, now)
+        vehicle.handle_timer(now)
+        for _ in range(100):
+            out = vehicle.datagrams_to_send()
+            for data, _dest in out:
+                agent.receive_datagram(data, vehicle_at, now, px4_uid)
+            back = agent.datagrams_to_send()
+            for data, _dest in back:
+                vehicle.receive_datagram(data, AGENT, now)
+            if not out and not back:
+                break
+        while agent.next_event() is not None:
+            pass
+        if established_at is None and vehicle.state == "established":
+            established_at = now
+    assert established_at is not None and established_at <= 2.0 + STEP_S, established_at
+    assert agent.dropped["foreign_user"] == round(FLOOD_PER_S * STEP_S) * 1000
+    assert agent.refused["over_budget"] == 0 and agent.key_checks.checks == 1
+
+
 def test_the_dead_session_window_and_restarts_still_work_under_the_budget() -> None:
     """A restarted PX4 behind a new port is accepted at its first try after the dead window,
     and again at once behind the same port, with no answer to its refused tries."""

@@ -67,6 +67,8 @@ class Px4Config:
     xrce_key: int | None = None
     namespace: str | None = None  # PX4 UXRCE_DDS_NS
     xrce_domain_id: int = 0  # xrce-client: its participant's DDS domain (UXRCE_DDS_DOM_ID)
+    # xrce-agent: the uid PX4 SITL runs as on loopback (px4.loopback_user); None: any local user
+    loopback_user: int | None = None
     readiness: ReadinessConfig = field(default_factory=ReadinessConfig)
     takeoff: TakeoffConfig = field(default_factory=TakeoffConfig)
     # the socket systemd bound for a MAVLink udpin: (swarmd-px4.socket) or the XRCE agent's
@@ -109,6 +111,7 @@ class Px4Bridge:
                 expected_key=config.xrce_key,
                 namespace=config.namespace,
                 domain_id=config.xrce_domain_id,
+                loopback_user=config.loopback_user,
                 log=log,
                 inherited=config.listen_socket,
             )

@@ -35,6 +35,7 @@ from swarmd.px4.backend import ObservationSink
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.transport import XRCE_SOCKET, ByteLink, Endpoint, bind_udpin, open_link
 from swarmd.px4.xrce_translate import Px4Translator
+from swarmd.senderuid import SenderUids
 from swarmd.xrce.agent import XrceAgent
 from swarmd.xrce.client import XrceClient
 from swarmd.xrce.events import (
@@ -95,9 +96,14 @@ class XrceBackend:
         expected_key: int | None = None,
         namespace: str | None = None,
         domain_id: int = 0,
+        loopback_user: int | None = None,
         log: Any = None,
         inherited: socket.socket | None = None,
+        sender_uids: SenderUids | None = None,
     ) -> None:
+        """``loopback_user`` (xrce-agent): the uid PX4 SITL runs as; the agent then drops
+        every other local user's loopback datagram, told by the kernel's socket table
+        (``sender_uids``, swarmd.senderuid; injected by tests)."""
         if not 1 <= sysid <= 255:
             raise ValueError("px4.sysid must be 1..255")
         self.mode: Mode = mode
@@ -115,6 +121,7 @@ class XrceBackend:
             self.engine = XrceAgent(
                 clock_offset_s=0.0,
                 expected_key=None if expected_key is None else expected_key.to_bytes(4, "big"),
+                vehicle_uid=loopback_user,
             )
         else:
             self.engine = XrceClient(
@@ -124,6 +131,11 @@ class XrceBackend:
                 domain_id=domain_id,
             )
         self.counters: Counter[str] = Counter()
+        self.loopback_user = loopback_user if mode == "xrce-agent" else None
+        # who sent a loopback datagram: looked up only when the agent tells users apart
+        self._sender_uids = (
+            (sender_uids or SenderUids()) if self.loopback_user is not None else None
+        )
         self.session: str = "none"
         self.client: str | None = None
         self.last_refused: str | None = None  # "ADDR key KEY (reason)" of the last refusal
@@ -149,6 +161,17 @@ class XrceBackend:
         self._clock_offset = time.time() - loop.time()
         if isinstance(self.engine, XrceAgent):
             self.engine.clock_offset_s = self._clock_offset
+            if (
+                self.loopback_user is None
+                and self._log is not None
+                and self.endpoint.kind != "serial"
+            ):
+                # docs/security.md, "XRCE's 32-bit key": a many-port loopback flood delays a
+                # loopback PX4 while it lasts; px4.loopback_user closes it for SITL
+                self._log.info(
+                    "xrce_local_users_not_told_apart",
+                    fix="set px4.loopback_user to PX4 SITL's user (docs/px4.md)",
+                )
         ep = self.endpoint
         if ep.kind == "serial":
             self._link = await open_link(ep, self._on_serial)
@@ -250,9 +273,17 @@ class XrceBackend:
             self._receive(payload, SERIAL_PEER)
 
     def _receive(self, data: bytes, source: Address) -> None:
-        if self._driver is not None:
-            self.counters["datagrams_in"] += 1
+        if self._driver is None:
+            return
+        self.counters["datagrams_in"] += 1
+        uids, engine = self._sender_uids, self.engine
+        if uids is None or not isinstance(engine, XrceAgent):
             self._driver.datagram_received(data, source)
+            return
+        uid = uids.uid_of(source)  # the kernel's word; the agent decides (XrceAgent)
+        self._driver.datagram_received(
+            data, source, lambda d, s, now: engine.receive_datagram(d, s, now, uid)
+        )
 
     def _transmit(self, out: tuple[bytes, Address]) -> None:
         data, dest = out

@@ -66,7 +66,9 @@ DATA(p) its sibling nodes on loopback sent (what they send that node's port anyw
 local nodes send it is otherwise read to show operators what runs (heard, matched to the
 bundle, unknown) and which endpoints a node has that the bundle does not hold, and to keep
 this drone's liveness word (alive, restarts) and its siblings' view of a restarted node;
-none of it goes to another drone but that word, in swarmd's signed DATA(p). Bad datagrams
+none of it goes to another drone but that word, in swarmd's signed DATA(p). Which local
+process sent a datagram is the kernel's word (its socket's owner uid, swarmd.senderuid):
+with ``node_uids`` (``ros2.node_users``) only those users' datagrams are read. Bad datagrams
 are counted and dropped; ``receive_datagram`` raises nothing.
 
 Driving sources: datagrams from the relay socket (``receive_datagram``), the timer
@@ -179,12 +181,18 @@ class Ros2Relay:
         epoch: int = 0,
         loopback: str = LOOPBACK,
         graph_prefix: GuidPrefix | None = None,
+        node_uids: frozenset[int] | None = None,
     ) -> None:
         """``graph_prefix``: the GUID prefix of swarmd's graph participant (drawn at random
-        by the caller, swarmd.ros2.graph); None serves no node names."""
+        by the caller, swarmd.ros2.graph); None serves no node names. ``node_uids``: the
+        local users allowed to be this drone's ROS 2 nodes (``ros2.node_users``): a
+        datagram whose sender's uid (``receive_datagram``'s ``sender_uid``) is not one of
+        them is dropped before it is read; None: every local sender is taken (the nodes'
+        and any other local process's words look the same)."""
         if lease_s <= 0:
             raise ValueError("ros2 relay lease must be positive")
         self.drone = drone
+        self.node_uids = node_uids
         self.domain_id = domain_id
         self.lease_s = lease_s
         self.period_s = lease_s / RENEWALS_PER_LEASE
@@ -239,6 +247,7 @@ class Ros2Relay:
         self.counters: dict[str, int] = {
             "rx": 0,
             "rx_malformed": 0,
+            "rx_foreign_user": 0,
             "rx_not_spdp": 0,
             "rx_wlp": 0,
             "rx_dispose": 0,
@@ -258,9 +267,21 @@ class Ros2Relay:
 
     # ---- the driving protocol ----------------------------------------------------------------
 
-    def receive_datagram(self, data: bytes, source: Any, now: float) -> None:
-        """An SPDP datagram a local ROS 2 participant sent the relay. Never raises."""
+    def receive_datagram(
+        self, data: bytes, source: Any, now: float, sender_uid: int | None = None
+    ) -> None:
+        """An SPDP datagram a local ROS 2 participant sent the relay. Never raises.
+
+        ``sender_uid``: the local user whose socket sent it (the adapter reads it from the
+        kernel's socket table: swarmd.senderuid), None when unknown (the socket is gone,
+        or two users hold its port). With ``node_uids`` set, anything else than a node
+        user's datagram is counted (``rx_foreign_user``) and dropped unread: a local
+        process of another user cannot speak as a declared node (its prefix is no
+        secret), nor reach the graph writer (docs/security.md, "ROS 2 nodes")."""
         self.counters["rx"] += 1
+        if self.node_uids is not None and sender_uid not in self.node_uids:
+            self.counters["rx_foreign_user"] += 1
+            return
         try:
             header, samples = decode_spdp(data)
         except DecodeError:

@@ -29,6 +29,9 @@ as it must over a transport that loses datagrams), and silence tells a local pro
 nothing, not even that its try was checked. Each key compared spends the
 ``KeyCheckBudget`` (per source and per origin, ``keycheck.py``); a CREATE_CLIENT over it is
 dropped unchecked, so a flood tests at most a few keys a second (``refused["over_budget"]``).
+With ``vehicle_uid`` (PX4 SITL on loopback, ``px4.loopback_user``) a loopback datagram of any
+other local user is dropped before all of it (``dropped["foreign_user"]``): the kernel's
+socket table says who sent it, so the loopback's budget is that user's alone.
 Every refusal is counted in ``refused`` and reported as ``ClientRefused``. The key is a
 session identifier sent in the clear, not a credential (docs/px4.md, "One agent, one
 vehicle").
@@ -62,7 +65,7 @@ from swarmd.xrce.events import (
     SessionCreated,
     SessionEnded,
 )
-from swarmd.xrce.keycheck import KeyCheckBudget
+from swarmd.xrce.keycheck import LOOPBACK_ORIGIN, KeyCheckBudget, origin_of
 from swarmd.xrce.message import (
     OBJECT_ID_CLIENT,
     XRCE_COOKIE,
@@ -173,11 +176,20 @@ class XrceAgent(Endpoint):
         clock_offset_s: float = 0.0,
         expected_key: bytes | None = None,
         agent: AgentRepresentation | None = None,
+        vehicle_uid: int | None = None,
     ) -> None:
+        """``vehicle_uid``: the local user PX4 runs as when it is on this computer's
+        loopback (SITL; ``px4.loopback_user``). Set, a loopback datagram from any other
+        user, or from a socket the kernel no longer lists, is dropped before it is read
+        (``dropped["foreign_user"]``): no other local user can ping the agent, try a key or
+        spend the loopback's key-check budget, so a flood from every loopback port cannot
+        keep a loopback PX4 out. Other origins (an FMU on Ethernet, the UART) are not
+        affected."""
         # agent time = now + clock_offset_s: the driver passes wall time - monotonic time so
         # PX4's synchronised timestamps are Unix time, as with eProsima's agent
         self.clock_offset_s = clock_offset_s
         self.expected_key = expected_key
+        self.vehicle_uid = vehicle_uid
         self.agent = agent or AgentRepresentation()
         super().__init__()
         self.sessions: dict[Address, Session] = {}
@@ -191,7 +203,19 @@ class XrceAgent(Endpoint):
 
     # ---- driving ----------------------------------------------------------------------------
 
-    def receive_datagram(self, data: bytes, source: Address, now: float) -> None:
+    def receive_datagram(
+        self, data: bytes, source: Address, now: float, sender_uid: int | None = None
+    ) -> None:
+        """``sender_uid``: the local user whose socket sent a loopback datagram (the
+        adapter's lookup: swarmd.senderuid), None when unknown or not on loopback."""
+        if (
+            self.vehicle_uid is not None
+            and sender_uid != self.vehicle_uid
+            and origin_of(source) == LOOPBACK_ORIGIN
+        ):
+            # the kernel's word: another user's socket (or one already gone) sent it
+            self._drop(source, "foreign_user")
+            return
         try:
             header, offset = decode_header(data)
             parts, _pad = split_submessages(data, offset)

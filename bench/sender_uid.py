@@ -1,0 +1,112 @@
+"""What telling local senders apart costs (swarmd.senderuid; docs/security.md, "Local
+users"): the socket-table lookup per datagram, per table read, and under a flood of fresh
+ports. Loopback only, bounded in count. Prints markdown.
+
+    .venv/bin/python bench/sender_uid.py [--sockets 0,200,2000] [--count 20000]
+
+For each extra socket count (opened here on 127.0.0.1 and ::1 before measuring, as other
+processes' sockets would be):
+
+1. a hit: ``uid_of`` for a source whose socket is in the table read (the steady case: a node
+   or PX4 sending several datagrams a second); mean over ``--count`` lookups;
+2. a table read: ``/proc/net/udp`` and ``udp6`` read and indexed (every ``TTL_S``, and on a
+   miss within the miss budget); mean over 200 reads;
+3. a flood of fresh ports: ``--count`` lookups of ports nobody holds, 64 per "batch" as
+   ``swarmd.udp`` reads them, each batch 1 ms apart on the lookup's own clock: the mean
+   cost per datagram with the miss budget spending its reads.
+
+2 shared cores: the times move with the box's load; the reads per flood do not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from swarmd.senderuid import SenderUids  # noqa: E402
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _open(n: int) -> list[socket.socket]:
+    out = []
+    for i in range(n):
+        family, host = (socket.AF_INET, "127.0.0.1") if i % 2 else (socket.AF_INET6, "::1")
+        s = socket.socket(family, socket.SOCK_DGRAM)
+        s.bind((host, 0))
+        out.append(s)
+    return out
+
+
+def measure(extra: int, count: int) -> dict[str, float]:
+    socks = _open(extra)
+    mine = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+    mine.bind(("::1", 0))
+    source = ("::1", mine.getsockname()[1], 0, 0)
+    try:
+        clock = _Clock()
+        uids = SenderUids(clock=clock)
+        assert uids.uid_of(source) is not None
+        start = time.perf_counter()
+        for _ in range(count):
+            uids.uid_of(source)
+        hit_us = (time.perf_counter() - start) / count * 1e6
+        reads = 200
+        start = time.perf_counter()
+        for _ in range(reads):
+            uids._read(clock.now)  # noqa: SLF001 - the read itself is what is measured
+        read_us = (time.perf_counter() - start) / reads * 1e6
+        lines = sum(len(v) for v in uids._index.values())  # noqa: SLF001
+        flood = SenderUids(clock=clock)
+        flood.uid_of(source)
+        before = flood.counters["reads"]
+        start = time.perf_counter()
+        for i in range(count):
+            if i % 64 == 0:
+                clock.now += 0.001
+            flood.uid_of(("127.0.0.1", 1 + (i * 7919) % 65000))
+        flood_us = (time.perf_counter() - start) / count * 1e6
+        flood_reads = flood.counters["reads"] - before
+        return {
+            "extra": extra,
+            "indexed": lines,
+            "hit_us": hit_us,
+            "read_us": read_us,
+            "flood_us": flood_us,
+            "flood_reads": flood_reads,
+            "flood_virtual_s": clock.now,
+        }
+    finally:
+        mine.close()
+        for s in socks:
+            s.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sockets", default="0,200,2000")
+    parser.add_argument("--count", type=int, default=20_000)
+    args = parser.parse_args()
+    print("| extra sockets | indexed (loopback+wildcard) | hit µs/lookup | table read µs |"
+          " flood µs/datagram | reads in flood (per virtual s) |")  # fmt: skip
+    print("|---:|---:|---:|---:|---:|---:|")
+    for extra in (int(x) for x in args.sockets.split(",")):
+        r = measure(extra, args.count)
+        per_s = r["flood_reads"] / r["flood_virtual_s"]
+        print(f"| {extra} | {r['indexed']:.0f} | {r['hit_us']:.2f} | {r['read_us']:.0f} |"
+              f" {r['flood_us']:.2f} | {r['flood_reads']:.0f} ({per_s:.0f}/s) |")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""Which local user sent a loopback datagram: its source port's owner in ``/proc/net/udp{,6}``.
+
+Daemon tier (an adapter's helper; the sans-IO cores get the answer, never this module).
+
+Why it holds. A UDP datagram from a loopback source ``(A, P)`` was sent by a socket bound
+to ``P`` on ``A`` or on the wildcard (an unbound socket is bound to the wildcard and a free
+port on its first send). ``/proc/net/udp`` and ``/proc/net/udp6`` list every socket of this
+network namespace with its local address, port and owner uid, to every user (the unit's
+``ProtectProc=invisible`` hides other users' ``/proc/PID``, not ``/proc/self/net``:
+systemd/swarmd.service). An unprivileged user cannot bind a port another uid holds (Linux
+refuses it unless both sockets set ``SO_REUSEADDR``, or ``SO_REUSEPORT`` under the same
+uid), so the table names the sender's uid. Where it cannot:
+
+- the sender closed its socket before the lookup: the port is free, nothing is found, the
+  answer is None (the caller drops it: a real node or PX4 keeps its socket);
+- two sockets of different uids hold the port (both ``SO_REUSEADDR``): ambiguous, None;
+- the table was read before the sender bound its port: a miss re-reads it, within a budget
+  of ``MISS_READS_PER_S`` (burst ``MISS_READ_BURST``): a flood from fresh ports costs that
+  many reads a second, not one per datagram, and while it spends the budget a new sender's
+  first datagram can find nothing (it is dropped; nodes and PX4 resend);
+- a port held by a node when the table was read, then closed and bound by another user
+  within ``TTL_S``: that user's datagrams pass as the node's for what is left of ``TTL_S``.
+  The window is short and needs the exact port freed by the node (docs/security.md).
+
+Every read is capped (``MAX_TABLE_BYTES``, ``MAX_INDEXED_SOCKETS``): a user opening sockets
+by the hundred thousand makes lookups miss (its own and others': a denial, counted), never
+grows memory. The cost is measured by ``bench/sender_uid.py``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+import sys
+import time
+from collections.abc import Callable, Hashable
+from pathlib import Path
+from typing import Final
+
+# A read of the table is reused this long: how long a freed port may keep its old owner's
+# uid (module docstring). A node or PX4 sends several datagrams a second: one read each
+# quarter second under steady traffic.
+TTL_S: Final = 0.25
+# A miss (a port not in the table read) re-reads it, within this budget: a flood from fresh
+# ports costs at most this many reads a second (each read's cost grows with the sockets on
+# the computer: bench/sender_uid.py), and a quiet table re-reads at once for a new sender.
+MISS_READS_PER_S: Final = 10.0
+MISS_READ_BURST: Final = 5.0
+# Bytes read from each table (~150 bytes a socket: ~40,000 sockets), and loopback or
+# wildcard sockets indexed: a local user can open sockets until its file limit, and must not
+# grow this process's memory with them.
+MAX_TABLE_BYTES: Final = 6 << 20
+MAX_INDEXED_SOCKETS: Final = 32_768
+_LINE: Final = re.compile(
+    r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
+)
+_WILDCARDS: Final = frozenset({"0.0.0.0", "::"})  # noqa: S104 - addresses we read, not bind
+
+
+def _decode_address(text: str) -> str:
+    """/proc/net/udp prints each 32-bit word of the address in host byte order."""
+    raw = bytes.fromhex(text)
+    if sys.byteorder == "little":
+        raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
+    return str(ipaddress.ip_address(raw))
+
+
+def _local_sender(address: str) -> str | None:
+    """The loopback address a socket bound to ``address`` sends from (a v4-mapped one as
+    its IPv4 form, as ``loopback_host`` gives sources), the wildcard, or None."""
+    if address in _WILDCARDS:
+        return address
+    return loopback_host((address, 0))
+
+
+def loopback_host(source: Hashable) -> str | None:
+    """The loopback address of a datagram's source (``"127.0.0.1"``, ``"::1"``; a v4-mapped
+    address as its IPv4 form), or None when it is not a loopback ``(host, port, ...)``."""
+    if not isinstance(source, tuple) or len(source) < 2 or not isinstance(source[0], str):
+        return None
+    try:
+        ip = ipaddress.ip_address(source[0].partition("%")[0])
+    except ValueError:
+        return None
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        ip = ip.ipv4_mapped
+    return str(ip) if ip.is_loopback else None
+
+
+class SenderUids:
+    """``uid_of((host, port))``: the uid owning a loopback source's socket, or None.
+
+    ``proc`` and ``clock`` are injected for tests (a recorded table, a hand-set clock)."""
+
+    def __init__(
+        self, proc: Path = Path("/proc/self"), clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.proc = proc
+        self.clock = clock
+        # port -> [(bound address, uid)] for loopback and wildcard sockets
+        self._index: dict[int, list[tuple[str, int]]] = {}
+        self._read_at: float | None = None
+        self._miss_reads = MISS_READ_BURST  # tokens of the miss budget
+        self._miss_reads_at: float | None = None
+        # hex -> text when loopback or wildcard, else None: the few addresses there are
+        self._addresses: dict[str, str | None] = {}
+        self.counters: dict[str, int] = {
+            "lookups": 0,
+            "reads": 0,
+            "not_found": 0,
+            "ambiguous": 0,
+            "unreadable": 0,
+            "truncated": 0,
+            "miss_reads_over_budget": 0,
+        }
+
+    def uid_of(self, source: Hashable) -> int | None:
+        """None for a non-loopback source, a port nobody holds, or a port two uids hold."""
+        host = loopback_host(source)
+        if host is None or not isinstance(source, tuple) or not isinstance(source[1], int):
+            return None
+        port: int = source[1]
+        self.counters["lookups"] += 1
+        now = self.clock()
+        if self._read_at is None or now - self._read_at >= TTL_S:
+            self._read(now)
+        uids = self._uids(host, port)
+        if not uids and self._read_at != now and self._miss_read(now):
+            self._read(now)  # it may have bound its port after our last read
+            uids = self._uids(host, port)
+        if len(uids) == 1:
+            return next(iter(uids))
+        self.counters["ambiguous" if uids else "not_found"] += 1
+        return None
+
+    def _miss_read(self, now: float) -> bool:
+        """A token of the miss budget, if one is left (a bucket refilled by ``now``)."""
+        if self._miss_reads_at is not None:
+            elapsed = max(0.0, now - self._miss_reads_at)
+            self._miss_reads = min(MISS_READ_BURST, self._miss_reads + elapsed * MISS_READS_PER_S)
+        self._miss_reads_at = now
+        if self._miss_reads < 1.0:
+            self.counters["miss_reads_over_budget"] += 1
+            return False
+        self._miss_reads -= 1.0
+        return True
+
+    def _uids(self, host: str, port: int) -> set[int]:
+        return {
+            uid for bound, uid in self._index.get(port, ()) if bound == host or bound in _WILDCARDS
+        }
+
+    def _read(self, now: float) -> None:
+        self.counters["reads"] += 1
+        self._read_at = now
+        index: dict[int, list[tuple[str, int]]] = {}
+        indexed = 0
+        for table in ("udp", "udp6"):
+            try:
+                with (self.proc / "net" / table).open("rb") as f:
+                    raw = f.read(MAX_TABLE_BYTES + 1)
+            except OSError:
+                self.counters["unreadable"] += 1  # no IPv6 in this kernel, or no /proc
+                continue
+            if len(raw) > MAX_TABLE_BYTES:
+                self.counters["truncated"] += 1
+                raw = raw[:MAX_TABLE_BYTES]
+            # "sl: local_address rem_address st tx:rx tr:when retrnsmt uid ...": one C scan
+            for hex_address, hex_port, text_uid in _LINE.findall(raw.decode("ascii", "replace")):
+                try:
+                    if hex_address in self._addresses:
+                        address = self._addresses[hex_address]
+                    else:
+                        address = _local_sender(_decode_address(hex_address))
+                        if len(self._addresses) < MAX_INDEXED_SOCKETS:
+                            self._addresses[hex_address] = address
+                    if address is None:
+                        continue  # bound elsewhere: it cannot send from a loopback address
+                    port, uid = int(hex_port, 16), int(text_uid)
+                except ValueError:
+                    continue  # a line we cannot parse names nobody
+                if indexed >= MAX_INDEXED_SOCKETS:
+                    self.counters["truncated"] += 1
+                    break
+                index.setdefault(port, []).append((address, uid))
+                indexed += 1
+        self._index = index
