@@ -31,6 +31,8 @@ from collections.abc import Iterator, Mapping
 from typing import Any
 
 import pytest
+import structlog
+from structlog.testing import capture_logs
 from swarmd_lab.netns import BRIDGE, Lan, Namespace, add_veth
 
 from swarmd.cli.status_cmd import render_px4_backend
@@ -498,3 +500,33 @@ def test_a_spoofer_on_the_wifi_does_not_keep_the_fmu_out(
     assert result["vehicle"] == "established" and stats["session"] == "established", stats
     assert stats["interface"] == "eth0"
     assert stats["refused"] == {}  # no spoofed try reached the agent, none spent a token
+
+
+@pytest.mark.netns
+def test_an_agent_on_every_interface_says_it_hears_the_wifi(lan2: Lan) -> None:
+    """A wildcard address has no one interface to hear on: the agent starts, and says once,
+    with the fix, that a host on another interface can spend the vehicle's budget."""
+    drone = lan2[0]
+    listen = drone.socket()
+    listen.bind(("0.0.0.0", 0))  # noqa: S104 - the wildcard is the case under test
+    port = listen.getsockname()[1]
+
+    async def main() -> dict[str, Any]:
+        backend = XrceBackend(
+            "xrce-agent",
+            f"udp:0.0.0.0:{port}",
+            expected_key=KEY,
+            log=structlog.get_logger(),
+            inherited=listen,
+        )
+        await backend.start(lambda _obs, _now: None)
+        try:
+            return backend.stats()
+        finally:
+            await backend.close()
+
+    with capture_logs() as logs:
+        stats = asyncio.run(main())
+    assert stats["interface"] is None
+    warned = [e for e in logs if e["event"] == "xrce_agent_any_interface"]
+    assert len(warned) == 1 and "BindToDevice=" in warned[0]["fix"], logs
