@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import os
 import random
 import subprocess
 import sys
@@ -235,6 +236,46 @@ def test_a_tampered_floor_file_stops_start_up(workdir: Path, files: BundleFiles)
         assert "\n" not in line
         assert str(_floor(workdir)) in line and "; fix: " in line and "delete" in line
         assert _floor(workdir).read_bytes() == garbage
+
+
+def test_a_symlinked_floor_is_refused_not_followed(
+    workdir: Path, files: BundleFiles, tmp_path: Path
+) -> None:
+    """Review (session 11): the floor is read under the state file's rules, as the XRCE
+    key is (``O_NOFOLLOW``, a regular file): a symlink in its place, to a file that holds a
+    lower floor (a folder another user may write, a restored backup), must not lower it.
+    Followed, the serial-1 bundle started again after serial 5 (the rollback)."""
+    older = _resealed(files, {"serial": 1})
+    _put(files, older)
+    _start(workdir, files)
+    low = tmp_path / "elsewhere-floor"
+    low.write_bytes(_floor(workdir).read_bytes())  # the serial-1 floor, kept aside
+    _put(files, _resealed(files, {"serial": 5}))
+    _start(workdir, files)  # the floor is now 5
+    _floor(workdir).unlink()
+    _floor(workdir).symlink_to(low)
+    _put(files, older)
+    refused = _refusal(workdir, files)
+    line = str(refused)
+    assert refused.exit_code == EX_CONFIG
+    assert "\n" not in line and str(_floor(workdir)) in line and "; fix: " in line
+    assert _floor(workdir).is_symlink()  # nothing written through it
+
+
+def test_a_fifo_in_place_of_the_floor_stops_start_up_at_once(
+    workdir: Path, files: BundleFiles
+) -> None:
+    """A FIFO where the floor should be must not hang start-up (a blocking open or read
+    waits for a writer that never comes; systemd would kill the start after its timeout,
+    with no line saying why): one line, exit 78, as for a corrupt floor. The process runs
+    under ``_run``'s cap, so the hang fails the test instead of hanging the suite."""
+    _put(files, _resealed(files, {"serial": 3}))
+    _start(workdir, files)
+    _floor(workdir).unlink()
+    os.mkfifo(_floor(workdir), 0o600)
+    proc = _run("check-config", "--config", str(loopback_config(workdir, files)))
+    assert proc.returncode == EX_CONFIG, proc.stderr
+    assert proc.stderr.count("\n") == 1 and str(_floor(workdir)) in proc.stderr, proc.stderr
 
 
 def test_a_removed_floor_resets_it_and_is_logged(workdir: Path, files: BundleFiles) -> None:

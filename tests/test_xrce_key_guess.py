@@ -24,13 +24,16 @@ from __future__ import annotations
 
 import asyncio
 import socket
+import subprocess
 import threading
 import time
 from collections.abc import Iterator, Mapping
 from typing import Any
 
 import pytest
-from swarmd_lab.netns import Lan
+import structlog
+from structlog.testing import capture_logs
+from swarmd_lab.netns import BRIDGE, Lan, Namespace, add_veth
 
 from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.px4.xrce_backend import XrceBackend
@@ -40,6 +43,7 @@ from swarmd.xrce.client import CONNECT_PERIOD_S, XrceClient
 from swarmd.xrce.events import Address, ClientRefused
 from swarmd.xrce.message import CreateClient, Header, encode_message
 from swarmd.xrce.px4 import dds_topic
+from tests.conftest import LanFactory
 from tests.xrce_vehicle import XrceVehicle
 
 KEY = 0x0BAD_CAFE
@@ -423,3 +427,143 @@ def test_a_flooder_on_the_drone_does_not_keep_the_fmu_out_over_real_sockets(lan2
     line = render_px4_backend(stats)
     assert f"refused {sum(refused.values())} clients" in line
     assert f"{refused['over_budget']} of them over the key-check budget (unchecked)" in line
+
+
+# ---- review (session 11): the FMU's budget spent from the air ---------------------------
+
+IP_TRANSPARENT = 19  # linux/in.h: send from an address no interface has (CAP_NET_ADMIN)
+
+
+def _ip(*args: str) -> None:
+    subprocess.run(["ip", *args], check=True, capture_output=True, timeout=10)  # noqa: S603,S607
+
+
+def _air_beside(lan_factory: LanFactory, drone: Namespace) -> Namespace:
+    """A second segment, the drone's Wi-Fi: one host ("air") on its own bridge, joined to
+    the drone by a veth named ``wlan0``; the air reaches the drone's Ethernet address through
+    it (Linux answers for every local address on every interface, the weak host model)."""
+    wifi = lan_factory(1, subnet="10.78.0.0/24")
+    air = wifi[0]
+    add_veth(wifi.hub, "vdrone", drone.name, "wlan0")
+    _ip("-n", wifi.hub, "link", "set", "vdrone", "master", BRIDGE)
+    _ip("-n", wifi.hub, "link", "set", "vdrone", "up")
+    _ip("-n", drone.name, "addr", "add", "10.78.0.200/24", "dev", "wlan0")
+    _ip("-n", drone.name, "link", "set", "wlan0", "up")
+    _ip("-n", air.name, "route", "add", f"{drone.address}/32", "via", "10.78.0.200")
+    return air
+
+
+def _spoofer(socks: list[socket.socket], agent: tuple[str, int], stop: threading.Event) -> int:
+    """Wrong keys from the FMU's address (``socks``: one port each, bound to it
+    transparently) in turn, 20 then a 1 ms pause (~10,000 a second here: the lock-out holds
+    from about 1,000 a second, when a refilled token rarely outlives the next spoofed try).
+    Bounded like ``_flooder``."""
+    deadline = time.monotonic() + FLOOD_MAX_S
+    keys = _wrong_keys()
+    sent = 0
+    while sent < FLOOD_MAX and not stop.is_set() and time.monotonic() < deadline:
+        for _ in range(20):
+            try:
+                socks[sent % len(socks)].sendto(_create_client(next(keys)), agent)
+            except (BlockingIOError, ConnectionRefusedError):
+                pass
+            sent += 1
+        stop.wait(0.001)
+    return sent
+
+
+@pytest.mark.netns
+def test_a_spoofer_on_the_wifi_does_not_keep_the_fmu_out(
+    lan2: Lan, lan_factory: LanFactory
+) -> None:
+    """An outsider on the Wi-Fi sends wrong keys with the FMU's address as their source (the
+    FMU is on Ethernet; nothing on the Wi-Fi checks a source address). Budgeted by address,
+    every try spends the FMU origin's tokens, so the real FMU's CREATE_CLIENTs meet an empty
+    bucket and are dropped unchecked for as long as the spoofer sends: a lock-out the budget
+    created (before it, the FMU's key was always checked). On main the FMU stayed out for
+    the whole 20 s flood. The agent must hear its Ethernet address from the Ethernet only
+    (``transport.bind_to_its_interface``): the spoofed tries never reach it."""
+    drone, fmu = lan2[0], lan2[1]
+    air = _air_beside(lan_factory, drone)
+
+    async def main() -> dict[str, Any]:
+        listen = drone.socket()
+        listen.bind((drone.address, 0))
+        port = listen.getsockname()[1]
+        agent_addr = (drone.address, port)
+        backend = XrceBackend(
+            "xrce-agent", f"udp:{drone.address}:{port}", expected_key=KEY, inherited=listen
+        )
+        await backend.start(lambda _obs, _now: None)
+        spoof = []
+        for _ in range(64):  # as many ports as it likes: each a source of its own
+            s = air.socket()
+            s.setsockopt(socket.SOL_IP, IP_TRANSPARENT, 1)
+            s.bind((fmu.address, 0))  # the FMU's address, from the air
+            s.setblocking(False)
+            spoof.append(s)
+        stop = threading.Event()
+        flood = asyncio.create_task(asyncio.to_thread(_spoofer, spoof, agent_addr, stop))
+        vehicle_sock = fmu.socket()
+        vehicle_sock.bind((fmu.address, 0))
+        vehicle = XrceVehicle(KEY, 1, agent_addr)
+        loop = asyncio.get_running_loop()
+        try:
+            await asyncio.sleep(1.0)  # the spoofer has spent the FMU origin's burst
+            await vehicle.start(sock=vehicle_sock)
+            started = loop.time()
+            while backend.session != "established":
+                if loop.time() - started > WAIT_S:
+                    break  # asserted below, with the counters
+                await asyncio.sleep(0.05)
+            flooding = not flood.done()
+            stop.set()
+            return {
+                "stats": backend.stats(),
+                "flooding": flooding,
+                "vehicle": vehicle.engine.state,
+                "sent": await flood,
+            }
+        finally:
+            stop.set()
+            vehicle.kill()
+            for s in spoof:
+                s.close()
+            await backend.close()
+
+    result = asyncio.run(main())
+    stats = result["stats"]
+    assert result["sent"] > 1000 and result["flooding"]  # still sending when the FMU got in
+    assert result["vehicle"] == "established" and stats["session"] == "established", stats
+    assert stats["interface"] == "eth0"
+    assert stats["refused"] == {}  # no spoofed try reached the agent, none spent a token
+
+
+@pytest.mark.netns
+def test_an_agent_on_every_interface_says_it_hears_the_wifi(lan2: Lan) -> None:
+    """A wildcard address has no one interface to hear on: the agent starts, and says once,
+    with the fix, that a host on another interface can spend the vehicle's budget."""
+    drone = lan2[0]
+    listen = drone.socket()
+    listen.bind(("0.0.0.0", 0))  # noqa: S104 - the wildcard is the case under test
+    port = listen.getsockname()[1]
+
+    async def main() -> dict[str, Any]:
+        backend = XrceBackend(
+            "xrce-agent",
+            f"udp:0.0.0.0:{port}",
+            expected_key=KEY,
+            log=structlog.get_logger(),
+            inherited=listen,
+        )
+        await backend.start(lambda _obs, _now: None)
+        try:
+            return backend.stats()
+        finally:
+            await backend.close()
+
+    with capture_logs() as logs:
+        stats = asyncio.run(main())
+    assert stats["interface"] is None
+    warned = [e for e in logs if e["event"] == "xrce_agent_any_interface"]
+    assert len(warned) == 1 and "BindToDevice=" in warned[0]["fix"], logs

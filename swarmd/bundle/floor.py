@@ -11,8 +11,9 @@ highest one it accepted, with that bundle's content hash, in one small file per 
 
 in the folder of node.key (``bundle.node_key``; ``/var/lib/swarmd`` on a drone, the state
 directory), beside the boot epoch (``swarmd.auth.epoch``), under the state file's rules:
-the folder must be writable by this daemon's user alone (checked before reading), writes
-are atomic with a random ``O_EXCL | O_NOFOLLOW`` temp name (``keys.write_file_atomic``).
+the folder must be writable by this daemon's user alone (checked before reading), the file
+is read ``O_NOFOLLOW | O_NONBLOCK`` and only as a regular file, writes are atomic with a
+random ``O_EXCL | O_NOFOLLOW`` temp name (``keys.write_file_atomic``).
 
 At start-up, before anything is sent (``check``):
 
@@ -37,8 +38,11 @@ deleted by the operator (docs/operations.md).
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -83,12 +87,12 @@ def read_floor(path: Path, bundle_source: str) -> Floor | None:
     """The floor at ``path``; None when there is none. ``FloorError`` when it does not parse
     (``bundle_source`` names the bundle in the fix)."""
     try:
-        with open(path, "rb") as f:
-            raw = f.read(MAX_FLOOR_BYTES + 1)
+        raw = _read_regular(path)
     except FileNotFoundError:
         return None
     except OSError as exc:
-        raise _corrupt(path, bundle_source, f"unreadable ({exc.strerror})") from None
+        why = "a symlink, not a file" if exc.errno == errno.ELOOP else exc.strerror
+        raise _corrupt(path, bundle_source, f"unreadable ({why})") from None
     return parse_floor(raw, path, bundle_source)
 
 
@@ -109,6 +113,21 @@ def parse_floor(raw: bytes, path: Path, bundle_source: str) -> Floor:
     except (ValueError, KeyError, TypeError) as exc:  # json's errors are ValueErrors
         raise _corrupt(path, bundle_source, f"corrupt ({type(exc).__name__}: {exc})") from None
     return Floor(serial, bytes.fromhex(sha))
+
+
+def _read_regular(path: Path) -> bytes:
+    """At most ``MAX_FLOOR_BYTES + 1`` bytes of the regular file at ``path``, under the
+    state file's rules (as ``swarmd.px4.xrce_key``): never through a symlink (``O_NOFOLLOW``:
+    a link to a lower floor elsewhere would lower it) and never blocking (``O_NONBLOCK``: a
+    FIFO would hang start-up with no line saying why); anything but a regular file is an
+    ``OSError``."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(errno.EINVAL, "not a regular file")
+        return os.read(fd, MAX_FLOOR_BYTES + 1)
+    finally:
+        os.close(fd)
 
 
 def _corrupt(path: Path, bundle_source: str, why: str) -> FloorError:

@@ -30,11 +30,14 @@ heartbeat going stale (readiness) is what reports a dead link.
 
 from __future__ import annotations
 
+import array
 import asyncio
 import errno
+import fcntl
 import ipaddress
 import os
 import socket
+import struct
 import termios
 import tty
 from collections.abc import Callable
@@ -216,6 +219,76 @@ def bind_udpin(
         raise
     sock.setblocking(False)
     return sock
+
+
+# SIOCGIFCONF (linux/sockios.h): the IPv4 address of every interface, as struct ifreq
+# (name[16], then a struct sockaddr_in in a 24-byte union: 40 bytes on 64-bit Linux)
+SIOCGIFCONF: Final = 0x8912
+_IFREQ_SIZE: Final = 40
+_MAX_INTERFACES: Final = 256
+IF_INET6_FILE: Final = Path("/proc/net/if_inet6")
+
+
+def interface_of(
+    sock: socket.socket, address: ipaddress.IPv4Address | ipaddress.IPv6Address
+) -> str | None:
+    """The interface that holds ``address``, or None (no interface has it as its primary or
+    a labelled address). IPv4 is asked through ``sock`` (its network namespace, which may
+    not be the calling thread's); IPv6 from ``/proc/net/if_inet6`` (the caller's)."""
+    if isinstance(address, ipaddress.IPv6Address):
+        try:
+            lines = IF_INET6_FILE.read_text().splitlines()
+        except OSError:
+            return None
+        for line in lines:  # hex address, index, prefix length, scope, flags, name
+            fields = line.split()
+            if len(fields) == 6 and fields[0] == address.exploded.replace(":", ""):
+                return fields[5]
+        return None
+    buf = array.array("B", bytes(_IFREQ_SIZE * _MAX_INTERFACES))
+    pointer, size = buf.buffer_info()
+    try:
+        answer = fcntl.ioctl(sock.fileno(), SIOCGIFCONF, struct.pack("iP", size, pointer))
+    except OSError:
+        return None
+    length = struct.unpack("iP", answer)[0]
+    raw = buf.tobytes()[:length]
+    for at in range(0, length - _IFREQ_SIZE + 1, _IFREQ_SIZE):
+        if raw[at + 20 : at + 24] == address.packed:  # sin_addr, after family and port
+            return raw[at : at + 16].split(b"\0", 1)[0].decode("ascii", "replace")
+    return None
+
+
+def bind_to_its_interface(sock: socket.socket) -> str | None:
+    """Bind ``sock`` (UDP, bound to one address) to the interface that holds that address
+    (``SO_BINDTODEVICE``), so it hears only datagrams that arrive there; the interface's
+    name, or None when it stays as it was (loopback or wildcard address, an address no
+    interface holds as its own, a kernel that refuses: before Linux 5.7 this takes
+    ``CAP_NET_RAW``, which systemd's ``BindToDevice=`` has).
+
+    Why (docs/security.md, "This morning's defences reviewed"): Linux accepts a datagram
+    for any of its addresses on any interface, and nothing checks the source address of
+    one from the Wi-Fi. An agent on the Ethernet address, bound to no interface, hears an
+    outsider on the Wi-Fi who writes the FMU's address as the source, and the XRCE key-check
+    budget, kept per source address, then spends the FMU's share on the outsider's tries."""
+    host = str(sock.getsockname()[0]).removeprefix("::ffff:").partition("%")[0]
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        return None
+    if address.is_loopback or address.is_unspecified:
+        return None  # nothing arrives for 127/8 from outside; a wildcard has no one interface
+    bound = sock.getsockopt(socket.SOL_SOCKET, socket.SO_BINDTODEVICE, 16).split(b"\0", 1)[0]
+    if bound:  # systemd's BindToDevice= (a second bind would take CAP_NET_RAW)
+        return bound.decode("ascii", "replace")
+    name = interface_of(sock, address)
+    if name is None:
+        return None
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_BINDTODEVICE, name.encode())
+    except OSError:
+        return None
+    return name
 
 
 def adopt_udpin(

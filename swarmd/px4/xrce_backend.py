@@ -33,7 +33,15 @@ from typing import Any, Final, Literal
 from swarmd.driver import Driver
 from swarmd.px4.backend import ObservationSink
 from swarmd.px4.messages import VehicleCommand
-from swarmd.px4.transport import XRCE_SOCKET, ByteLink, Endpoint, bind_udpin, open_link
+from swarmd.px4.transport import (
+    XRCE_SOCKET,
+    ByteLink,
+    Endpoint,
+    bind_to_its_interface,
+    bind_udpin,
+    is_network_endpoint,
+    open_link,
+)
 from swarmd.px4.xrce_translate import Px4Translator
 from swarmd.senderuid import SenderUids
 from swarmd.xrce.agent import XrceAgent
@@ -140,6 +148,8 @@ class XrceBackend:
         self.client: str | None = None
         self.last_refused: str | None = None  # "ADDR key KEY (reason)" of the last refusal
         self._log = log
+        # the interface the agent's socket hears on alone (``bind_to_its_interface``)
+        self.interface: str | None = None
         self._sink: ObservationSink | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: asyncio.DatagramTransport | None = None
@@ -179,6 +189,19 @@ class XrceBackend:
             # never SO_REUSEADDR, a squatter named: issue 18's defence for the agent's port
             sock = bind_udpin(ep, self._inherited, XRCE_SOCKET)
             self._inherited = None  # adopted (or refused): ours to close from now on
+            # the Ethernet address heard from the Ethernet only: a Wi-Fi host writing the
+            # FMU's address would spend the FMU's key-check budget (transport.py)
+            self.interface = bind_to_its_interface(sock)
+            if self.interface is None and is_network_endpoint(ep) and self._log is not None:
+                self._log.warning(
+                    "xrce_agent_any_interface",
+                    connection=_show(ep),
+                    why="datagrams for this address are heard from every interface: a host "
+                    "on another one (the Wi-Fi) can write the vehicle's address as its source "
+                    "and spend its key-check budget",
+                    fix="connection: a single address (not a wildcard), or BindToDevice= in "
+                    "swarmd-xrce.socket (docs/px4.md)",
+                )
             try:
                 self._transport, _ = await loop.create_datagram_endpoint(
                     lambda: _Datagrams(self), sock=sock
@@ -239,6 +262,7 @@ class XrceBackend:
             "key_checks": (
                 self.engine.key_checks.checks if isinstance(self.engine, XrceAgent) else 0
             ),
+            "interface": self.interface,
             "last_refused": self.last_refused,
             "foreign_samples": self.translator.foreign_samples,
             "foreign_system_id": self.translator.foreign_system_id,

@@ -16,9 +16,13 @@ Two buckets must each hold a token for a key to be checked:
   origin. Another host's address (an FMU on Ethernet) is its own origin: a process here
   cannot send from it (the kernel refuses a source address no interface has unless the
   socket is ``IP_TRANSPARENT``, which takes ``CAP_NET_ADMIN``), and neither can it write to
-  the UART (``serial``). A flood on the loopback spends the loopback's budget and never
-  that of the vehicle's wire. The companion's own other addresses are origins a local user
-  can send from; the table is capped, so they add a bounded share;
+  the UART (``serial``). A host on another interface (the Wi-Fi) can write any source
+  address, that one included: the agent's socket hears its address only on the interface
+  that holds it (``px4.transport.bind_to_its_interface``), or the budget would hand that host
+  the FMU's share (docs/security.md, "This morning's defences reviewed (session 11)"). A
+  flood on the loopback spends the loopback's budget and never that of the vehicle's wire.
+  The companion's own other addresses are origins a local user can send from; the table is
+  capped, so they add a bounded share;
 - the *source*'s (address and port): one port gets less than its origin, so one flooding
   process (or a misconfigured second client retrying fast) leaves a vehicle on the same
   origin its share.
