@@ -71,8 +71,8 @@ def test_slewed_clocks_run_a_command_late() -> None:
     command = _dated(commander, member, 10.0, 10.0 + age_s, valid_s)
     true_deadline = 10.0 + age_s + valid_s
     last = _last_run(command, member, 10.0 + age_s)
-    # the member's elapsed time reads 8 % short, the commander's age 8 % long:
-    # late by (0.16 age + 0.08 valid) / 0.92 = 0.957 s, less the 200 ppm allowance
+    # the member's elapsed time reads 8 % short, the commander's age 8 % long: late by
+    # (1.08 age + valid) (1 - 200 ppm) / 0.92 - age - valid = 0.954 s (0.952 s found, ms stamps)
     expected_late = (SLEWED_FAST * age_s + valid_s) * (1 - 200e-6) / SLEWED_SLOW - age_s - valid_s
     assert last - true_deadline == pytest.approx(expected_late, abs=0.003)
     assert last - true_deadline > 0.9  # a run 0.9 s after the command's end: late
@@ -81,7 +81,7 @@ def test_slewed_clocks_run_a_command_late() -> None:
 def test_slewed_clocks_take_an_earlier_lifes_command_as_this_lifes() -> None:
     """The commander's age reads long, so the lower bound on the issue moves later than the
     issue: a command issued 0.5 s before the member's daemon started (which the lost life
-    may have run) passes ``issued_in_life``."""
+    may have run) passes ``issued_in_life`` (echo age 5 s: up to 0.87 s before does)."""
     commander, member = _clock(1000.0, SLEWED_FAST), _clock(5000.0, SLEWED_SLOW)
     command = _dated(commander, member, 10.0, 15.0, 30.0)
     life_start = 15.5  # true seconds: after the issue
