@@ -30,6 +30,7 @@ from typing import Any
 
 import pytest
 
+from swarmd.dataplane import ForeignCommandId
 from swarmd.dataplane.types import Command, CommandKind, CommandResult, TimeEcho
 from swarmd.dataplane.validity import (
     MEMORY_LOST,
@@ -266,10 +267,12 @@ def test_a_commander_restarted_without_its_state_never_reuses_a_command_id() -> 
 
 
 def test_an_old_command_resent_by_a_restarted_commander_is_refused() -> None:
-    """The commander restarts and sends again an old ``Command`` its caller kept, with
-    the echo of its first issue (a restarted plane has no record of it to re-date): m01,
-    which restarted without its state dir meanwhile, refuses it (``memory_lost``) by its
-    own clock, whatever the commander does."""
+    """The commander restarts and sends again an old ``Command`` its caller kept: its plane
+    refuses to send an id of an earlier life (``ForeignCommandId``, nothing on the air,
+    tests/test_cmd_id_of_life.py). Were it sent anyway (a commander without that check:
+    here its ledger is handed the first issue's dating by hand), with the echo of its first
+    issue, m01, which restarted without its state dir meanwhile, refuses it
+    (``memory_lost``) by its own clock, whatever the commander does."""
     flight = Flight(1, seed=45)
     swarm = flight.swarm
     swarm.run(3.0)
@@ -290,6 +293,10 @@ def test_an_old_command_resent_by_a_restarted_commander_is_refused() -> None:
     swarm.run(1.0)
     new_plane = lead.plane
     assert new_plane is not None
+    with pytest.raises(ForeignCommandId):
+        new_plane.send_command(old, swarm.net.now)
+    assert new_plane.datagrams_to_send() == []
+    new_plane._ledger.dated(old, made_here=False)  # the check bypassed: the member's rule
     swarm.call("lead", lambda now: new_plane.send_command(old, now))
     swarm.run(3.0)
     assert len(flight.ran("m01", old.command_id)) == 1

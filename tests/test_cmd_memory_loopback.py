@@ -21,7 +21,6 @@ Waits have caps; nothing asserts how fast anything happened.
 
 from __future__ import annotations
 
-import asyncio
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +28,7 @@ from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.dataplane.types import Command, CommandKind
 from swarmd.px4.transport import parse_connection
+from swarmd.rawclock import run_on_raw_clock
 from swarmd.swarm.statefile import state_path
 from tests.daemon_support import run_domain, write_bundle
 from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until
@@ -110,4 +110,4 @@ def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(workdir: 
         finally:
             await swarm.stop()
 
-    asyncio.run(main())
+    run_on_raw_clock(main())

@@ -27,6 +27,7 @@ from swarmd.daemon import Daemon
 from swarmd.dataplane.types import Readiness
 from swarmd.discovery import engine as engine_module
 from swarmd.link.static import StaticSource
+from swarmd.rawclock import run_on_raw_clock
 from swarmd.sdnotify import Notifier
 from tests.attacker import forge
 from tests.daemon_support import (
@@ -77,7 +78,7 @@ def _start_error(daemon: Daemon) -> str:
             await daemon.stop("test")
 
     with pytest.raises(ConfigError) as info:
-        asyncio.run(main())
+        run_on_raw_clock(main())
     return str(info.value)
 
 
@@ -183,7 +184,7 @@ def test_two_daemons_discover_each_other_survive_garbage_and_see_a_clean_leave(
         assert lost[0]["peer"] == "uav2"
         assert lost[0]["reason"] == "disposed"
 
-    asyncio.run(main())
+    run_on_raw_clock(main())
     assert not os.path.exists(workdir / "uav1.sock")
 
 
@@ -210,7 +211,7 @@ def test_a_large_swarms_leave_is_heard_from_the_group_copies_alone(
         lost = [e for e in logs if e["event"] == "peer_lost"]
         assert [(e["peer"], e["reason"]) for e in lost][:1] == [("uav2", "disposed")]
 
-    asyncio.run(main())
+    run_on_raw_clock(main())
 
 
 def test_unknown_node_is_a_config_error_naming_the_node_line(
@@ -225,7 +226,7 @@ def test_unknown_node_is_a_config_error_naming_the_node_line(
             await daemon.stop("test")
 
     with pytest.raises(ConfigError, match=r"uav9.yaml:1: field node: .*uav9"):
-        asyncio.run(main())
+        run_on_raw_clock(main())
 
 
 def test_an_address_other_than_the_bundles_pin_stops_start_up_naming_the_fix(
@@ -251,7 +252,7 @@ def test_an_address_other_than_the_bundles_pin_stops_start_up_naming_the_fix(
         finally:
             await uav1.stop("test")
 
-    asyncio.run(control())
+    run_on_raw_clock(control())
 
 
 def test_missing_interface_is_a_config_error(workdir: Path, files: BundleFiles) -> None:
@@ -302,7 +303,7 @@ def test_a_datagram_flood_rebuilds_no_status(workdir: Path, files: BundleFiles) 
         finally:
             await a.stop("test")
 
-    asyncio.run(main())
+    run_on_raw_clock(main())
 
 
 def test_a_forged_user_data_flood_is_read_in_batches_and_moves_nothing(
@@ -390,7 +391,7 @@ def test_a_forged_user_data_flood_is_read_in_batches_and_moves_nothing(
             await a.stop("test")
             await b.stop("test")
 
-    asyncio.run(main())
+    run_on_raw_clock(main())
 
 
 def test_ros2_relay_without_a_ros2_graph_is_a_config_error(
@@ -447,4 +448,4 @@ def test_replay_windows_are_saved_at_stop_and_restored_at_start(
                 await again.stop("test")
         assert any(e["event"] == "auth_windows_restored" for e in logs)
 
-    asyncio.run(main())
+    run_on_raw_clock(main())

@@ -1,7 +1,8 @@
 """The full loop in one process: three daemons on the host loopback, each with a vehicle
 SIMULATOR (not PX4) on its own MAVLink port; readiness to the commander, take-off to IN_AIR.
 
-Real sockets, real RTPS and MAVLink bytes. Exactly-once under 30 % user-data loss is tested
+Real sockets, real RTPS and MAVLink bytes, on the daemon's own loop clock
+(CLOCK_MONOTONIC_RAW, ``swarmd.rawclock``). Exactly-once under 30 % user-data loss is tested
 on the swarm core in virtual time (tests/test_swarm_core.py), with no patched method.
 Waiting for a state with a generous cap is not a timing assertion; nothing here asserts
 how fast anything happened.
@@ -26,6 +27,7 @@ from swarmd.daemon import Daemon
 from swarmd.link.static import StaticSource
 from swarmd.px4.constants import LandedState
 from swarmd.px4.transport import parse_connection
+from swarmd.rawclock import run_on_raw_clock
 from swarmd.sdnotify import Notifier
 from tests.daemon_support import BundleFiles, run_domain, swarm_sections, write_bundle, write_config
 
@@ -209,7 +211,7 @@ def test_readiness_takeoff_and_refusal(workdir: Path) -> None:
         finally:
             await swarm.stop()
 
-    asyncio.run(main())
+    run_on_raw_clock(main())
 
 
 def _dp(d: Daemon) -> dict[str, Any]:

@@ -34,6 +34,7 @@ from swarmd.px4.bridge import Px4Bridge
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, Reason
 from swarmd.px4.xrce_backend import XrceBackend
+from swarmd.rawclock import run_on_raw_clock
 from swarmd.sdnotify import Notifier
 from tests.daemon_support import run_domain, write_bundle, write_config
 from tests.xrce_vehicle import XrceVehicle
@@ -128,7 +129,7 @@ def test_a_second_client_is_refused_and_nothing_crosses(scenario: str) -> None:
                 v.kill()
             await bridge.close()
 
-    asyncio.run(main())
+    run_on_raw_clock(main())
 
 
 def _daemon(workdir: Path, port: int) -> Daemon:
@@ -223,8 +224,8 @@ def test_the_daemon_generates_keeps_and_enforces_its_vehicle_key(workdir: Path) 
         finally:
             await daemon.stop("test")
 
-    key = asyncio.run(first_start())
-    asyncio.run(second_start())
+    key = run_on_raw_clock(first_start())
+    run_on_raw_clock(second_start())
     assert int(key_file.read_text()) == key and stat.S_IMODE(key_file.stat().st_mode) == 0o600
 
 
@@ -252,4 +253,4 @@ def test_a_bound_session_of_another_vehicle_never_makes_it_ready() -> None:
             vehicle.kill()
             await bridge.close()
 
-    asyncio.run(main())
+    run_on_raw_clock(main())

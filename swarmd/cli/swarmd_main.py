@@ -17,7 +17,6 @@ point.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import fields
@@ -59,6 +58,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     from swarmd.daemon import Daemon, run
     from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
     from swarmd.discovery.config import EngineConfig
+    from swarmd.rawclock import run_on_raw_clock
 
     engine_fields = frozenset(f.name for f in fields(EngineConfig)) - {"mode"}
     try:
@@ -119,7 +119,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         except StartupError as exc:
             return _fail(str(exc), exc.exit_code)
     try:
-        return asyncio.run(run(config, bundle, log=log, node_secrets=secrets))
+        # the loop's clock is the crystal's, never NTP's slew: every validity rests on it
+        return run_on_raw_clock(run(config, bundle, log=log, node_secrets=secrets))
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
     except StartupError as exc:

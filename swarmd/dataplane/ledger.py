@@ -136,6 +136,10 @@ class CommandLedger:
         """The command id written as ``sn``, while the writer may still hold it."""
         return self._command_ids.get(sn)
 
+    def has_dating(self, command_id: int) -> bool:
+        """Whether this life sent ``command_id`` and still keeps its first dating."""
+        return command_id in self._datings
+
     def dated(self, command: Command, made_here: bool) -> Command:
         """``command`` as it is sent: the first time its id is sent, as given (and its
         dating is kept); later, with the first send's validity and echoes (those of its

@@ -161,6 +161,10 @@ class ReadinessStats:
     epoch: int = 0  # the member's boot epoch when ``last`` arrived: its clock's life
 
 
+class ForeignCommandId(ValueError):
+    """``send_command`` was given an id this life neither made nor sent (nothing sent)."""
+
+
 class DataPlane:
     """RTPS user data for one node of a bundle. Sans-IO; see the module docstring."""
 
@@ -388,10 +392,24 @@ class DataPlane:
         Resending a command with the same id is safe: members execute an id once, and
         the resend carries the first send's dating (``dated``), so a member whose daemon
         restarted meanwhile refuses it (``memory_lost``) rather than run it again.
+
+        Raises ``ForeignCommandId`` (nothing sent, no SN spent) for an id this life did
+        not make (``make_command``) and has no dating of: an earlier life's id, which a
+        fresh echo would re-date past both member rules (docs/security.md, "A re-dated
+        id"), or one ahead of the counter.
         """
         writer = self._endpoints.by_topic.get(TOPIC_COMMAND)
         if writer is None:
             raise ValueError(f"{self.local.name!r} has no writer on {TOPIC_COMMAND!r}")
+        if not self._made_here(command.command_id) and not self._ledger.has_dating(
+            command.command_id
+        ):
+            self.counters["command_id_not_ours"] += 1
+            raise ForeignCommandId(
+                f"command id {command.command_id} is not of this life (epoch "
+                f"{self._id_life}, ids up to {self._id_life << 32 | self._next_command}) "
+                "and was never sent by it: issue a new command (make_command)"
+            )
         command = self.dated(command)
         sn, out = writer.write(self._command_copies(command), now)
         self._queue(out)
@@ -402,11 +420,13 @@ class DataPlane:
         """``command`` with the dating it is sent with: its own the first time its id is
         sent, the first send's after (docs/dataplane.md, "A life runs only its own
         commands")."""
-        made_here = (
-            command.command_id >> 32 == self._id_life
-            and (command.command_id & 0xFFFF_FFFF) <= self._next_command
+        return self._ledger.dated(command, self._made_here(command.command_id))
+
+    def _made_here(self, command_id: int) -> bool:
+        """Whether ``make_command`` of this life gave out ``command_id``."""
+        return command_id >> 32 == self._id_life and 0 < command_id & 0xFFFF_FFFF <= (
+            self._next_command
         )
-        return self._ledger.dated(command, made_here)
 
     def _command_copies(self, command: Command) -> dict[GuidPrefix, bytes]:
         """One encoded copy of ``command`` per target (``ledger.command_copies``)."""

@@ -22,7 +22,9 @@ Stamps are u32 milliseconds: elapsed times are taken modulo 2^32, so a stamp "fr
 future" (another boot of the member's clock, or garbage) reads as a huge elapsed time and
 the command is refused. Clock rates differ (crystals within +-100 ppm each): the commander's
 measured ``age + valid`` is shortened by both tolerances before the member compares it with
-its own elapsed time, so drift also errs towards refusing.
+its own elapsed time, so drift also errs towards refusing. That holds for a clock that counts
+its crystal: the daemon's is CLOCK_MONOTONIC_RAW (``swarmd.rawclock``), never NTP's slewed
+CLOCK_MONOTONIC (up to 83,333 ppm under chrony, docs/dataplane.md "Validity").
 
 A life runs only its own commands (docs/dataplane.md, "A life runs only its own
 commands"). The same echo bounds the issue from below: it happened no earlier than
