@@ -77,6 +77,7 @@ from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, EX_UNAVAILABLE, 
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.source import LinkSource
 from swarmd.peerlog import PeerChangeKind, PeerHistory
+from swarmd.rawclock import RawClockEventLoop
 from swarmd.ros2app import Ros2App
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdlisten import ListenFdsError, listen_fds
@@ -154,6 +155,15 @@ class Daemon:
         loop = asyncio.get_running_loop()
         self._loop = loop
         self._started = loop.time()
+        if not isinstance(loop, RawClockEventLoop):
+            # a command's validity is proved for clocks NTP cannot slew (docs/dataplane.md,
+            # "Validity"): an embedder that drives the daemon on asyncio's default loop
+            # (CLOCK_MONOTONIC) is told, once, what it gives up
+            self.log.warning(
+                "loop_clock_slewable",
+                clock="CLOCK_MONOTONIC",
+                fix="drive the daemon with swarmd.rawclock.run_on_raw_clock, as `swarmd run` does",
+            )
         me = self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
         if me.ipv4 is not None and me.ipv4 != self.local_ipv4:
             # every peer refuses a DATA(p) whose locators name another address than the

@@ -84,6 +84,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {
+        "rawclock",
         "config",
         "control",
         "daemon_setup",

@@ -10,7 +10,7 @@ import asyncio
 import contextlib
 import os
 import socket
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, MutableMapping
 from pathlib import Path
 from typing import Any
 
@@ -449,3 +449,26 @@ def test_replay_windows_are_saved_at_stop_and_restored_at_start(
         assert any(e["event"] == "auth_windows_restored" for e in logs)
 
     run_on_raw_clock(main())
+
+
+@pytest.mark.parametrize("raw", [True, False])
+def test_a_daemon_on_a_slewable_loop_clock_says_so(
+    workdir: Path, files: BundleFiles, raw: bool
+) -> None:
+    """The validity proof rests on CLOCK_MONOTONIC_RAW (docs/dataplane.md, "Validity"):
+    ``swarmd run`` drives the daemon on it; an embedder that drives it with
+    ``asyncio.run`` (CLOCK_MONOTONIC, slewed by NTP) gets one ``loop_clock_slewable``
+    warning, and the raw loop none."""
+    daemon = _daemon(workdir, files, "uav1")
+
+    async def main() -> list[MutableMapping[str, Any]]:
+        with capture_logs() as logs:
+            try:
+                await daemon.start()
+            finally:
+                await daemon.stop("test")
+        return logs
+
+    logs = run_on_raw_clock(main()) if raw else asyncio.run(main())
+    warned = [e for e in logs if e["event"] == "loop_clock_slewable"]
+    assert len(warned) == (0 if raw else 1), warned
