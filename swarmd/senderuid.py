@@ -1,4 +1,5 @@
-"""Which local user sent a loopback datagram: its source port's owner in ``/proc/net/udp{,6}``.
+"""Which local user sent a loopback datagram: its source port's owner in the kernel's UDP
+socket table (netlink ``sock_diag``, or ``/proc/net/udp{,6}`` when netlink is refused).
 
 Daemon tier (an adapter's helper; the sans-IO cores get the answer, never this module).
 
@@ -58,10 +59,10 @@ TTL_S: Final = 0.25
 MISS_READS_PER_S: Final = 10.0
 MISS_READ_BURST: Final = 5.0
 # The same budget when a miss is one port's netlink query (both families, filtered in the
-# kernel): at 2,000 other sockets a query costs ~1/80 of a /proc read
-# (bench/results/security/sender_uid.txt), so a budget 20x wider costs a flood less CPU
-# than the /proc budget did, and a flood must send 20x the fresh ports to starve a new
-# sender's first datagram.
+# kernel): at 2,000 other sockets a query costs ~1/50 of a /proc read (0.17 ms against
+# 9.3 ms: bench/results/security/sender_uid.txt), so a budget 20x wider costs a flood
+# ~35 ms a second there against the /proc budget's ~90, and a flood must send 20x the
+# fresh ports to starve a new sender's first datagram.
 MISS_QUERIES_PER_S: Final = 200.0
 MISS_QUERY_BURST: Final = 40.0
 # Bytes read from each table (~150 bytes a socket: ~40,000 sockets), and loopback or
