@@ -99,7 +99,7 @@ def measure(extra: int, count: int, netlink: bool) -> dict[str, float]:
         if netlink:
             start = time.perf_counter()
             for _ in range(reads):
-                uids._query_port(1)  # noqa: SLF001 - a port nobody holds (needs root)
+                uids._query_port(1)  # noqa: SLF001 - a port nobody holds (below 1024, unused)
             query_us = (time.perf_counter() - start) / reads * 1e6
         flood = SenderUids(clock=clock, netlink=netlink)
         flood.uid_of(source)

@@ -139,7 +139,10 @@ class UdpDiag:
 
     def __del__(self) -> None:
         # the lookup lives as long as its owner, who never closes it: no ResourceWarning
-        self._sock.close()
+        # (and no socket at all when the constructor was refused)
+        sock = getattr(self, "_sock", None)
+        if sock is not None:
+            sock.close()
 
     def rows(self, family: int, port: int, max_rows: int) -> tuple[list[UdpRow], bool]:
         """``family``'s UDP sockets bound to ``port`` (every one when 0), at most

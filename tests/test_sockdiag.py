@@ -25,6 +25,7 @@ from swarmd.senderuid import MISS_QUERIES_PER_S, MISS_QUERY_BURST, TTL_S, Sender
 from swarmd.sockdiag import (
     SockDiagError,
     SockDiagRefused,
+    UdpDiag,
     UdpRow,
     encode_request,
     parse_reply,
@@ -267,7 +268,7 @@ def test_a_flood_of_misses_spends_the_query_budget_not_a_query_a_datagram() -> N
         now[0] += 0.001
         uids.uid_of(("127.0.0.1", 1 + (i * 7919) % 65000))  # mostly free ports
     queries = uids.counters["port_queries"]
-    assert queries <= MISS_QUERY_BURST + MISS_QUERIES_PER_S * 2.0 + 1, queries
+    assert MISS_QUERY_BURST < queries <= MISS_QUERY_BURST + MISS_QUERIES_PER_S * 2.0 + 1, queries
     assert uids.counters["miss_reads_over_budget"] > 0
     assert uids.counters["reads"] <= 2.0 / TTL_S + 1
     assert uids.counters["netlink_refused"] == 0
@@ -300,3 +301,30 @@ def test_a_garbled_netlink_reply_falls_back_to_proc_for_good(
         assert uids.uid_of(("127.0.0.1", sock.getsockname()[1])) == ME
     assert uids.counters["netlink_refused"] == 1
     assert uids._diag is None  # noqa: SLF001 - the fallback is for good
+
+
+def test_a_dump_past_its_cap_is_cut_and_the_next_request_is_answered() -> None:
+    """The kernel runs one dump per netlink socket: a dump left unread must not answer, or
+    block, the next request (the socket is replaced)."""
+    socks = [_bind("::1", 0) for _ in range(3)]
+    diag = UdpDiag()
+    try:
+        rows, more = diag.rows(socket.AF_INET6, 0, 1)
+        assert (len(rows), more) == (1, True)
+        port = socks[2].getsockname()[1]
+        rows, more = diag.rows(socket.AF_INET6, port, 10)
+        assert ([(r.address, r.port, r.uid) for r in rows], more) == ([("::1", port, ME)], False)
+    finally:
+        diag.close()
+        for s in socks:
+            s.close()
+
+
+def test_a_refused_constructor_leaves_nothing_to_close(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refused(*_args: object) -> socket.socket:
+        raise PermissionError(errno.EAFNOSUPPORT, "AF_NETLINK not allowed")
+
+    monkeypatch.setattr(UdpDiag, "_open", staticmethod(refused))
+    uids = SenderUids()
+    assert uids.counters["netlink_refused"] == 1
+    del uids  # UdpDiag.__del__ of the half-built object must not raise
