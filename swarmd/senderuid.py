@@ -1,4 +1,5 @@
-"""Which local user sent a loopback datagram: its source port's owner in ``/proc/net/udp{,6}``.
+"""Which local user sent a loopback datagram: its source port's owner in the kernel's UDP
+socket table (netlink ``sock_diag``, or ``/proc/net/udp{,6}`` when netlink is refused).
 
 Daemon tier (an adapter's helper; the sans-IO cores get the answer, never this module).
 
@@ -25,17 +26,28 @@ uid), so the table names the sender's uid. Where it cannot:
 Every read is capped (``MAX_TABLE_BYTES``, ``MAX_INDEXED_SOCKETS``): a user opening sockets
 by the hundred thousand makes lookups miss (its own and others': a denial, counted), never
 grows memory. The cost is measured by ``bench/sender_uid.py``.
+
+Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
+same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for the
+one port, filtered in the kernel, so a miss costs a fraction of a table read and its
+budget (``MISS_QUERIES_PER_S``) is wider. When netlink is refused (the unit's
+``RestrictAddressFamilies=``, seccomp, no ``udp_diag`` in the kernel) or answers what we
+cannot parse, the lookup reads ``/proc/self/net/udp{,6}`` from then on (counted:
+``netlink_refused``), with the /proc budget.
 """
 
 from __future__ import annotations
 
 import ipaddress
 import re
+import socket
 import sys
 import time
 from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Final
+
+from swarmd.sockdiag import SockDiagError, UdpDiag, UdpRow
 
 # A read of the table is reused this long: how long a freed port may keep its old owner's
 # uid (module docstring). A node or PX4 sends several datagrams a second: one read each
@@ -46,11 +58,23 @@ TTL_S: Final = 0.25
 # the computer: bench/sender_uid.py), and a quiet table re-reads at once for a new sender.
 MISS_READS_PER_S: Final = 10.0
 MISS_READ_BURST: Final = 5.0
+# The same budget when a miss is one port's netlink query (both families, filtered in the
+# kernel): at 2,000 other sockets a query costs ~1/50 of a /proc read (0.17 ms against
+# 9.3 ms: bench/results/security/sender_uid.txt), so a budget 20x wider costs a flood
+# ~35 ms a second there against the /proc budget's ~90, and a flood must send 20x the
+# fresh ports to starve a new sender's first datagram.
+MISS_QUERIES_PER_S: Final = 200.0
+MISS_QUERY_BURST: Final = 40.0
 # Bytes read from each table (~150 bytes a socket: ~40,000 sockets), and loopback or
 # wildcard sockets indexed: a local user can open sockets until its file limit, and must not
 # grow this process's memory with them.
 MAX_TABLE_BYTES: Final = 6 << 20
 MAX_INDEXED_SOCKETS: Final = 32_768
+# Rows taken from one netlink dump of a family (what MAX_TABLE_BYTES is to the text), and
+# from one port's query: distinct (address, uid) pairs are what a port needs, and a user
+# can bind one port on every address of 127/8.
+MAX_DUMP_ROWS: Final = MAX_TABLE_BYTES // 150
+MAX_PORT_ROWS: Final = 64
 _LINE: Final = re.compile(
     r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
 )
@@ -90,10 +114,15 @@ def loopback_host(source: Hashable) -> str | None:
 class SenderUids:
     """``uid_of((host, port))``: the uid owning a loopback source's socket, or None.
 
-    ``proc`` and ``clock`` are injected for tests (a recorded table, a hand-set clock)."""
+    ``proc`` and ``clock`` are injected for tests (a recorded table, a hand-set clock).
+    ``netlink``: ask the kernel by sock_diag first; by default when ``proc`` is the live
+    ``/proc/self`` (a recorded table is read as given)."""
 
     def __init__(
-        self, proc: Path = Path("/proc/self"), clock: Callable[[], float] = time.monotonic
+        self,
+        proc: Path = Path("/proc/self"),
+        clock: Callable[[], float] = time.monotonic,
+        netlink: bool | None = None,
     ) -> None:
         self.proc = proc
         self.clock = clock
@@ -104,6 +133,8 @@ class SenderUids:
         self._miss_reads_at: float | None = None
         # hex -> text when loopback or wildcard, else None: the few addresses there are
         self._addresses: dict[str, str | None] = {}
+        # the same from a netlink row's octets (4 or 16: the families cannot collide)
+        self._raw_addresses: dict[bytes, str | None] = {}
         self.counters: dict[str, int] = {
             "lookups": 0,
             "reads": 0,
@@ -112,7 +143,15 @@ class SenderUids:
             "unreadable": 0,
             "truncated": 0,
             "miss_reads_over_budget": 0,
+            "port_queries": 0,
+            "netlink_refused": 0,
         }
+        self._diag: UdpDiag | None = None
+        if netlink if netlink is not None else proc == Path("/proc/self"):
+            try:
+                self._diag = UdpDiag()
+            except OSError:
+                self.counters["netlink_refused"] += 1
 
     def uid_of(self, source: Hashable) -> int | None:
         """None for a non-loopback source, a port nobody holds, or a port two uids hold."""
@@ -126,7 +165,9 @@ class SenderUids:
             self._read(now)
         uids = self._uids(host, port)
         if not uids and self._read_at != now and self._miss_read(now):
-            self._read(now)  # it may have bound its port after our last read
+            # it may have bound its port after our last read
+            if not self._query_port(port):
+                self._read(now)
             uids = self._uids(host, port)
         if len(uids) == 1:
             return next(iter(uids))
@@ -135,9 +176,14 @@ class SenderUids:
 
     def _miss_read(self, now: float) -> bool:
         """A token of the miss budget, if one is left (a bucket refilled by ``now``)."""
+        rate, burst = (
+            (MISS_READS_PER_S, MISS_READ_BURST)
+            if self._diag is None
+            else (MISS_QUERIES_PER_S, MISS_QUERY_BURST)
+        )
         if self._miss_reads_at is not None:
             elapsed = max(0.0, now - self._miss_reads_at)
-            self._miss_reads = min(MISS_READ_BURST, self._miss_reads + elapsed * MISS_READS_PER_S)
+            self._miss_reads = min(burst, self._miss_reads + elapsed * rate)
         self._miss_reads_at = now
         if self._miss_reads < 1.0:
             self.counters["miss_reads_over_budget"] += 1
@@ -150,9 +196,88 @@ class SenderUids:
             uid for bound, uid in self._index.get(port, ()) if bound == host or bound in _WILDCARDS
         }
 
+    def _address(self, row: UdpRow) -> str | None:
+        """``_local_sender`` of a row's address, remembered (the few addresses there are)."""
+        raw = row.raw_address
+        if raw in self._raw_addresses:
+            return self._raw_addresses[raw]
+        address = _local_sender(row.address)
+        if len(self._raw_addresses) < MAX_INDEXED_SOCKETS:
+            self._raw_addresses[raw] = address
+        return address
+
+    def _netlink_failed(self) -> None:
+        """Netlink refused or garbled: /proc from now on (module docstring)."""
+        self.counters["netlink_refused"] += 1
+        if self._diag is not None:
+            self._diag.close()
+            self._diag = None
+
+    def _query_port(self, port: int) -> bool:
+        """Re-index one port from the kernel; False when netlink failed (read /proc)."""
+        if self._diag is None:
+            return False
+        self.counters["port_queries"] += 1
+        pairs: list[tuple[str, int]] = []
+        try:
+            for family in (socket.AF_INET, socket.AF_INET6):
+                rows, more = self._diag.rows(family, port, MAX_PORT_ROWS)
+                if more:
+                    self.counters["truncated"] += 1
+                for row in rows:
+                    address = self._address(row)
+                    if address is not None and (address, row.uid) not in pairs:
+                        pairs.append((address, row.uid))
+        except (OSError, SockDiagError):
+            self._netlink_failed()
+            return False
+        if pairs:
+            self._index[port] = pairs
+        else:
+            self._index.pop(port, None)
+        return True
+
+    def _dump(self) -> list[UdpRow] | None:
+        """Every UDP socket by netlink, or None when it failed (read /proc)."""
+        if self._diag is None:
+            return None
+        out: list[UdpRow] = []
+        try:
+            for family in (socket.AF_INET, socket.AF_INET6):
+                rows, more = self._diag.rows(family, 0, MAX_DUMP_ROWS)
+                if more:
+                    self.counters["truncated"] += 1
+                out.extend(rows)
+        except (OSError, SockDiagError):
+            self._netlink_failed()
+            return None
+        return out
+
     def _read(self, now: float) -> None:
         self.counters["reads"] += 1
         self._read_at = now
+        if self._diag is not None:
+            rows = self._dump()
+            if rows is not None:
+                self._index_rows(rows)
+                return
+        self._read_proc()
+
+    def _index_rows(self, rows: list[UdpRow]) -> None:
+        index: dict[int, list[tuple[str, int]]] = {}
+        indexed = 0
+        for row in rows:
+            address = self._address(row)
+            if address is None:
+                continue  # bound elsewhere: it cannot send from a loopback address
+            if indexed >= MAX_INDEXED_SOCKETS:
+                self.counters["truncated"] += 1
+                break
+            index.setdefault(row.port, []).append((address, row.uid))
+            indexed += 1
+        self._index = index
+
+    def _read_proc(self) -> None:
         index: dict[int, list[tuple[str, int]]] = {}
         indexed = 0
         for table in ("udp", "udp6"):

@@ -1,0 +1,162 @@
+"""The kernel's UDP socket table by netlink ``sock_diag``: each socket's address, port, uid.
+
+Daemon tier (swarmd.senderuid's source; the sans-IO cores never see it). The same rows
+``/proc/net/udp{,6}`` prints as text, in binary, and filtered by local port in the kernel
+(``udp_dump`` skips a socket whose port differs from the request's ``idiag_sport``): a miss
+asks for one port instead of reading every socket on the computer (bench/sender_uid.py).
+
+Wire format (linux/netlink.h, linux/sock_diag.h, linux/inet_diag.h): a ``nlmsghdr`` (16
+octets, host order) and an ``inet_diag_req_v2`` (56 octets: family, protocol, ext, pad,
+states, then ``inet_diag_sockid``: ports and addresses big-endian, interface, cookie); each
+reply row a ``nlmsghdr`` and an ``inet_diag_msg`` (72 octets: the same sockid at offset 4,
+then expires, rqueue, wqueue, uid, inode) and attributes we skip. A dump ends with
+``NLMSG_DONE``; a refusal is ``NLMSG_ERROR`` with a negative errno.
+
+A reply that does not parse raises ``SockDiagError``: the caller falls back to ``/proc``.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+from typing import Final, NamedTuple
+
+NETLINK_SOCK_DIAG: Final = 4
+SOCK_DIAG_BY_FAMILY: Final = 20
+NLMSG_ERROR: Final = 2
+NLMSG_DONE: Final = 3
+NLM_F_REQUEST: Final = 0x01
+NLM_F_DUMP: Final = 0x300  # NLM_F_ROOT | NLM_F_MATCH
+# every TCP_* state: a UDP socket is TCP_CLOSE (7) unbound-peer or TCP_ESTABLISHED connected
+ALL_STATES: Final = 0xFFFF_FFFF
+NO_COOKIE: Final = 0xFFFF_FFFF_FFFF_FFFF  # INET_DIAG_NOCOOKIE: any socket
+_HEADER: Final = struct.Struct("=IHHII")  # nlmsghdr: len, type, flags, seq, pid
+_REQUEST: Final = struct.Struct("=BBBBI2s2s16s16sIQ")  # inet_diag_req_v2
+# inet_diag_msg: family, (state, timer, retrans), sport (network order), (dport), src,
+# (dst, interface, cookie, expires, rqueue, wqueue), uid, inode
+_ROW: Final = struct.Struct("=B3xH2x16s16x12x12xII")
+_ROW_BYTES: Final = 72
+# A dump's chunks are at most 32 KiB (the kernel's netlink_dump allocation); one buffer
+# this size never truncates one.
+RECV_BYTES: Final = 1 << 16
+
+
+class SockDiagError(ValueError):
+    """A reply that is not a well-formed sock_diag answer to our request."""
+
+
+class SockDiagRefused(OSError):
+    """The kernel answered NLMSG_ERROR (no udp_diag module, a filtered request refused)."""
+
+
+class UdpRow(NamedTuple):
+    """One socket: its family, local address (4 or 16 octets, network order), local port,
+    owner uid (as this process's user namespace maps it) and inode."""
+
+    family: int
+    raw_address: bytes
+    port: int
+    uid: int
+    inode: int
+
+    @property
+    def address(self) -> str:
+        """The local address as text (``"::ffff:127.0.0.1"`` as the kernel holds it)."""
+        return socket.inet_ntop(self.family, self.raw_address)
+
+
+def encode_request(family: int, port: int, seq: int) -> bytes:
+    """A dump of ``family``'s UDP sockets, only those bound to local ``port`` unless 0."""
+    body = _REQUEST.pack(
+        family,
+        socket.IPPROTO_UDP,
+        0,  # no extensions: the fixed row carries uid and inode
+        0,
+        ALL_STATES,
+        port.to_bytes(2, "big"),
+        b"\0\0",
+        bytes(16),
+        bytes(16),
+        0,
+        NO_COOKIE,
+    )
+    return _HEADER.pack(_HEADER.size + len(body), SOCK_DIAG_BY_FAMILY,
+                        NLM_F_REQUEST | NLM_F_DUMP, seq, 0) + body  # fmt: skip
+
+
+def parse_reply(data: bytes, seq: int) -> tuple[list[UdpRow], bool]:
+    """The rows in one received buffer and whether the dump ended in it. Messages of
+    another sequence number (a dump abandoned earlier) are skipped."""
+    rows: list[UdpRow] = []
+    offset = 0
+    while offset < len(data):
+        if len(data) - offset < _HEADER.size:
+            raise SockDiagError("short netlink header")
+        length, kind, _flags, msg_seq, _pid = _HEADER.unpack_from(data, offset)
+        if length < _HEADER.size or offset + length > len(data):
+            raise SockDiagError("netlink length out of the buffer")
+        body = offset + _HEADER.size
+        if msg_seq == seq:
+            if kind == NLMSG_DONE:
+                return rows, True
+            if kind == NLMSG_ERROR:
+                if length < _HEADER.size + 4:
+                    raise SockDiagError("short NLMSG_ERROR")
+                errno = -struct.unpack_from("=i", data, body)[0]
+                raise SockDiagRefused(errno, "sock_diag refused the request")
+            if kind != SOCK_DIAG_BY_FAMILY or length < _HEADER.size + _ROW_BYTES:
+                raise SockDiagError("not a sock_diag row")
+            family, port, raw, uid, inode = _ROW.unpack_from(data, body)
+            if family == socket.AF_INET:
+                raw = raw[:4]
+            elif family != socket.AF_INET6:
+                raise SockDiagError("a row of another family")
+            rows.append(UdpRow(family, raw, socket.ntohs(port), uid, inode))
+        offset += (length + 3) & ~3  # NLMSG_ALIGN
+    return rows, False
+
+
+class UdpDiag:
+    """One netlink socket asking the kernel for UDP sockets. Non-blocking: the kernel
+    fills a dump's chunks within send and recv, so a recv that would wait is an error,
+    never a stall of the event loop. ``OSError`` from the constructor: netlink refused
+    (``RestrictAddressFamilies=``, seccomp, no such protocol)."""
+
+    def __init__(self) -> None:
+        self._sock = self._open()
+        self._seq = 0
+
+    @staticmethod
+    def _open() -> socket.socket:
+        sock = socket.socket(
+            socket.AF_NETLINK, socket.SOCK_RAW | socket.SOCK_CLOEXEC, NETLINK_SOCK_DIAG
+        )
+        sock.setblocking(False)
+        return sock
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __del__(self) -> None:
+        # the lookup lives as long as its owner, who never closes it: no ResourceWarning
+        # (and no socket at all when the constructor was refused)
+        sock = getattr(self, "_sock", None)
+        if sock is not None:
+            sock.close()
+
+    def rows(self, family: int, port: int, max_rows: int) -> tuple[list[UdpRow], bool]:
+        """``family``'s UDP sockets bound to ``port`` (every one when 0), at most
+        ``max_rows`` and whether more were left unread. Raises OSError or SockDiagError."""
+        self._seq = (self._seq + 1) & 0xFFFF_FFFF
+        self._sock.send(encode_request(family, port, self._seq))
+        out: list[UdpRow] = []
+        while True:
+            rows, done = parse_reply(self._sock.recv(RECV_BYTES), self._seq)
+            out.extend(rows)
+            if done:
+                return out, False
+            if len(out) > max_rows:
+                # the kernel runs one dump per socket: drop this one with its socket
+                self._sock.close()
+                self._sock = self._open()
+                return out[:max_rows], True

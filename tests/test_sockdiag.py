@@ -1,0 +1,330 @@
+"""The sender-uid lookup by netlink sock_diag (swarmd.sockdiag, swarmd.senderuid): the codec
+on replies recorded from this kernel, and the lookup's answers by netlink against its
+answers by /proc on real sockets of two users (root and ``nobody``, run with ``setpriv``),
+both families, wildcard, dual-stack, v4-mapped, a port two users share, a closed socket.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import swarmd.senderuid
+import swarmd.sockdiag
+from swarmd.senderuid import MISS_QUERIES_PER_S, MISS_QUERY_BURST, TTL_S, SenderUids
+from swarmd.sockdiag import (
+    SockDiagError,
+    SockDiagRefused,
+    UdpDiag,
+    UdpRow,
+    encode_request,
+    parse_reply,
+)
+
+NOBODY = 65534
+ME = os.geteuid()
+
+# ---- golden replies -------------------------------------------------------------------------
+# Recorded on this box (Linux 6.18, as root) by ``python -m tests.golden_sockdiag``: sockets
+# on port 7400 at ::1 (inode 4157714), 127.0.0.1 (4157715) and ::ffff:127.0.0.1 (4157716);
+# replies to requests 101 (AF_INET6), 102 (AF_INET), 103 (family 99), 104 (AF_VSOCK).
+V6_ROWS = bytes.fromhex(
+    "840000001400020065000000b61b00000a0700001ce8000000000000000000000000ffff7f00000100000000"
+    "000000000000000000000000000000006c450000000000000000000000000000000000000000000014713f00"
+    "050008000000000005000b000000000008000f00000000000c00150001000000000000000600160010000000"
+    "840000001400020065000000b61b00000a0700001ce800000000000000000000000000000000000100000000"
+    "000000000000000000000000000000006d450000000000000000000000000000000000000000000012713f00"
+    "050008000000000005000b000100000008000f00000000000c00150001000000000000000600160010000000"
+)
+V6_DONE = bytes.fromhex("140000000300020065000000b61b000000000000")
+V4_ROWS = bytes.fromhex(
+    "7c0000001400020066000000b61b0000020700001ce800007f00000100000000000000000000000000000000"
+    "000000000000000000000000000000006e450000000000000000000000000000000000000000000013713f00"
+    "050008000000000008000f00000000000c00150001000000000000000600160050000000"
+)
+V4_DONE = bytes.fromhex("140000000300020066000000b61b000000000000")
+EINVAL_REPLY = bytes.fromhex(
+    "5c0000000200000067000000b61b0000eaffffff4800000014000103670000000000000063110000ffffffff"
+    "1ce80000000000000000000000000000000000000000000000000000000000000000000000000000ffffffff"
+    "ffffffff"
+)
+ENOENT_REPLY = bytes.fromhex(
+    "5c0000000200000068000000b61b0000feffffff4800000014000103680000000000000028110000ffffffff"
+    "1ce80000000000000000000000000000000000000000000000000000000000000000000000000000ffffffff"
+    "ffffffff"
+)
+
+
+def test_the_request_is_the_one_the_kernel_echoes() -> None:
+    """An NLMSG_ERROR carries the request it refuses: ours, octet for octet."""
+    assert encode_request(99, 7400, 103) == EINVAL_REPLY[20:]
+    assert encode_request(socket.AF_VSOCK, 7400, 104) == ENOENT_REPLY[20:]
+    assert len(encode_request(socket.AF_INET, 0, 1)) == 72
+
+
+def test_recorded_rows_parse_to_every_field() -> None:
+    rows, done = parse_reply(V6_ROWS, 101)
+    assert not done
+    mapped, loopback = (socket.inet_pton(socket.AF_INET6, a) for a in ("::ffff:127.0.0.1", "::1"))
+    assert rows == [
+        UdpRow(socket.AF_INET6, mapped, 7400, 0, 4157716),
+        UdpRow(socket.AF_INET6, loopback, 7400, 0, 4157714),
+    ]
+    assert [r.address for r in rows] == ["::ffff:127.0.0.1", "::1"]
+    assert parse_reply(V6_DONE, 101) == ([], True)
+    rows, done = parse_reply(V4_ROWS + V4_DONE, 102)
+    assert done
+    assert rows == [UdpRow(socket.AF_INET, b"\x7f\0\0\1", 7400, 0, 4157715)]
+    assert rows[0].address == "127.0.0.1"
+
+
+def test_another_sequence_is_skipped() -> None:
+    """A chunk of a dump abandoned earlier names nobody and does not end this one."""
+    assert parse_reply(V6_ROWS + V6_DONE, 102) == ([], False)
+
+
+@pytest.mark.parametrize(
+    ("reply", "seq", "code"), [(EINVAL_REPLY, 103, errno.EINVAL), (ENOENT_REPLY, 104, errno.ENOENT)]
+)
+def test_a_refusal_raises_with_its_errno(reply: bytes, seq: int, code: int) -> None:
+    with pytest.raises(SockDiagRefused) as refused:
+        parse_reply(reply, seq)
+    assert refused.value.errno == code
+
+
+def test_every_cut_inside_a_message_raises() -> None:
+    whole = V6_ROWS + V6_DONE
+    boundaries = {0, 0x84, 0x108}
+    for cut in range(1, len(whole)):
+        if cut in boundaries:
+            rows, done = parse_reply(whole[:cut], 101)
+            assert not done
+            assert len(rows) == cut // 0x84
+        else:
+            with pytest.raises(SockDiagError):
+                parse_reply(whole[:cut], 101)
+
+
+def test_a_row_of_another_family_or_type_raises() -> None:
+    other_family = bytearray(V4_ROWS)
+    other_family[16] = 1  # AF_UNIX
+    with pytest.raises(SockDiagError):
+        parse_reply(bytes(other_family), 102)
+    other_type = bytearray(V4_ROWS)
+    other_type[4] = 16  # RTM_NEWLINK
+    with pytest.raises(SockDiagError):
+        parse_reply(bytes(other_type), 102)
+
+
+@given(st.binary(max_size=400), st.integers(0, 0xFFFF_FFFF))
+def test_arbitrary_bytes_parse_or_raise_a_sockdiag_error(data: bytes, seq: int) -> None:
+    try:
+        parse_reply(data, seq)
+    except (SockDiagError, SockDiagRefused):
+        pass
+
+
+# ---- netlink against /proc on this computer's real sockets -------------------------------
+
+# Run as ``nobody``: binds each "family host port reuse" spec, prints "ready", holds them until
+# stdin closes (capped at 30 s).
+HOLDER = """
+import socket, sys, select
+socks = []
+for spec in sys.argv[1:]:
+    host, port, reuse = spec.rsplit(",", 2)
+    s = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+    if reuse == "1":
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind((host, int(port)))
+    socks.append(s)
+print("ready", flush=True)
+select.select([sys.stdin], [], [], 30.0)
+"""
+
+
+def _free_port() -> int:
+    """A port free on both families' loopback and wildcard."""
+    while True:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as s:
+            s.bind(("::", 0))
+            port = int(s.getsockname()[1])
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s4:
+                s4.bind(("0.0.0.0", port))  # noqa: S104 - a probe, closed at once
+        except OSError:
+            continue
+        return port
+
+
+def _bind(host: str, port: int, reuse: bool = False) -> socket.socket:
+    s = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+    if reuse:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.bind((host, port))
+    return s
+
+
+@pytest.fixture
+def two_users() -> Iterator[tuple[dict[str, tuple[tuple[Any, ...], int | None]], list[Any]]]:
+    """Sockets of root and of nobody; source -> (source tuple, its expected uid)."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    p = {
+        name: _free_port() for name in ("r6", "n4", "n6", "r4", "nw", "rw", "nm", "shared", "gone")
+    }
+    mine = [
+        _bind("::1", p["r6"]), _bind("127.0.0.1", p["r4"]), _bind("::", p["rw"]),
+        _bind("127.0.0.1", p["shared"], reuse=True),
+    ]  # fmt: skip
+    gone = _bind("::1", p["gone"])
+    gone.close()
+    holder = subprocess.Popen(  # noqa: S603 - fixed argv
+        [
+            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
+            sys.executable, "-I", "-c", HOLDER,
+            f"127.0.0.1,{p['n4']},0", f"::1,{p['n6']},0", f"0.0.0.0,{p['nw']},0",
+            f"::ffff:127.0.0.1,{p['nm']},0", f"127.0.0.1,{p['shared']},1",
+        ],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None
+        assert holder.stdout.readline().strip() == "ready"
+        cases: dict[str, tuple[tuple[Any, ...], int | None]] = {
+            "root ::1": (("::1", p["r6"], 0, 0), ME),
+            "root 127.0.0.1": (("127.0.0.1", p["r4"]), ME),
+            "nobody 127.0.0.1": (("127.0.0.1", p["n4"]), NOBODY),
+            "nobody ::1": (("::1", p["n6"], 0, 0), NOBODY),
+            "nobody 0.0.0.0 from 127.0.0.7": (("127.0.0.7", p["nw"]), NOBODY),
+            "root :: (dual-stack) from ::1": (("::1", p["rw"], 0, 0), ME),
+            "root :: (dual-stack) from 127.0.0.1": (("127.0.0.1", p["rw"]), ME),
+            "nobody v4-mapped, IPv4 source": (("127.0.0.1", p["nm"]), NOBODY),
+            "nobody v4-mapped, mapped source": (("::ffff:127.0.0.1", p["nm"], 0, 0), NOBODY),
+            "SO_REUSEADDR root+nobody": (("127.0.0.1", p["shared"]), None),
+            "closed socket": (("::1", p["gone"], 0, 0), None),
+            "root ::1 port from 127.0.0.1": (("127.0.0.1", p["r6"]), None),
+        }
+        yield cases, mine
+    finally:
+        holder.communicate(timeout=10)  # closes its stdin: it lets go
+        for s in mine:
+            s.close()
+
+
+def test_netlink_and_proc_give_the_same_answers_on_real_sockets(
+    two_users: tuple[dict[str, tuple[tuple[Any, ...], int | None]], list[Any]],
+) -> None:
+    cases, _ = two_users
+    by_netlink = SenderUids(netlink=True)
+    by_proc = SenderUids(netlink=False)
+    answers = {
+        name: (by_netlink.uid_of(source), by_proc.uid_of(source), expected)
+        for name, (source, expected) in cases.items()
+    }
+    assert answers == {name: (e, e, e) for name, (_, _, e) in answers.items()}
+    assert by_netlink.counters["netlink_refused"] == 0
+    assert by_proc.counters["port_queries"] == 0
+
+
+def test_a_miss_is_one_ports_query_on_real_sockets(
+    two_users: tuple[dict[str, tuple[tuple[Any, ...], int | None]], list[Any]],
+) -> None:
+    """The table is dumped first; sockets bound after it are found by their port's query
+    (netlink) or a re-read (/proc), on the same hand-set time."""
+    now = [100.0]
+    by_netlink = SenderUids(clock=lambda: now[0], netlink=True)
+    by_proc = SenderUids(clock=lambda: now[0], netlink=False)
+    for uids in (by_netlink, by_proc):
+        assert uids.uid_of(("127.0.0.1", 9)) is None  # first read
+    port = _free_port()
+    late = [_bind("::1", port), _bind("127.0.0.1", port)]
+    try:
+        now[0] += TTL_S / 2
+        for uids in (by_netlink, by_proc):
+            assert uids.uid_of(("::1", port, 0, 0)) == ME
+            assert uids.uid_of(("127.0.0.1", port)) == ME
+    finally:
+        for s in late:
+            s.close()
+    assert (by_netlink.counters["reads"], by_netlink.counters["port_queries"]) == (1, 1)
+    assert (by_proc.counters["reads"], by_proc.counters["port_queries"]) == (2, 0)
+
+
+def test_a_flood_of_misses_spends_the_query_budget_not_a_query_a_datagram() -> None:
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=True)
+    for i in range(2000):
+        now[0] += 0.001
+        uids.uid_of(("127.0.0.1", 1 + (i * 7919) % 65000))  # mostly free ports
+    queries = uids.counters["port_queries"]
+    assert MISS_QUERY_BURST < queries <= MISS_QUERY_BURST + MISS_QUERIES_PER_S * 2.0 + 1, queries
+    assert uids.counters["miss_reads_over_budget"] > 0
+    assert uids.counters["reads"] <= 2.0 / TTL_S + 1
+    assert uids.counters["netlink_refused"] == 0
+
+
+class _Refused:
+    def __init__(self) -> None:
+        raise PermissionError(errno.EAFNOSUPPORT, "AF_NETLINK not allowed")
+
+
+def test_netlink_refused_at_start_reads_proc(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The unit's RestrictAddressFamilies= without AF_NETLINK: the /proc path, counted."""
+    monkeypatch.setattr(swarmd.senderuid, "UdpDiag", _Refused)
+    with _bind("::1", 0) as sock:
+        uids = SenderUids()
+        assert uids.uid_of(("::1", sock.getsockname()[1], 0, 0)) == ME
+    assert uids.counters["netlink_refused"] == 1
+    assert uids.counters["port_queries"] == 0
+
+
+def test_a_garbled_netlink_reply_falls_back_to_proc_for_good(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def garbled(*_args: object) -> tuple[list[UdpRow], bool]:
+        raise SockDiagError("not a sock_diag row")
+
+    uids = SenderUids()
+    monkeypatch.setattr(swarmd.sockdiag.UdpDiag, "rows", garbled)
+    with _bind("127.0.0.1", 0) as sock:
+        assert uids.uid_of(("127.0.0.1", sock.getsockname()[1])) == ME
+    assert uids.counters["netlink_refused"] == 1
+    assert uids._diag is None  # noqa: SLF001 - the fallback is for good
+
+
+def test_a_dump_past_its_cap_is_cut_and_the_next_request_is_answered() -> None:
+    """The kernel runs one dump per netlink socket: a dump left unread must not answer, or
+    block, the next request (the socket is replaced)."""
+    socks = [_bind("::1", 0) for _ in range(3)]
+    diag = UdpDiag()
+    try:
+        rows, more = diag.rows(socket.AF_INET6, 0, 1)
+        assert (len(rows), more) == (1, True)
+        port = socks[2].getsockname()[1]
+        rows, more = diag.rows(socket.AF_INET6, port, 10)
+        assert ([(r.address, r.port, r.uid) for r in rows], more) == ([("::1", port, ME)], False)
+    finally:
+        diag.close()
+        for s in socks:
+            s.close()
+
+
+def test_a_refused_constructor_leaves_nothing_to_close(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refused(*_args: object) -> socket.socket:
+        raise PermissionError(errno.EAFNOSUPPORT, "AF_NETLINK not allowed")
+
+    monkeypatch.setattr(UdpDiag, "_open", staticmethod(refused))
+    uids = SenderUids()
+    assert uids.counters["netlink_refused"] == 1
+    del uids  # UdpDiag.__del__ of the half-built object must not raise
