@@ -31,12 +31,8 @@ from swarmd.dataplane.types import Command, CommandKind
 from swarmd.discovery import EngineConfig
 from swarmd.px4.vehicle import TaskKind, VehicleRequest
 from swarmd.swarm.commander import NOT_REACHED, RESTARTED_RUNNING, UNREACHABLE
-from swarmd.swarm.core import (
-    DEFAULT_VALID_FOR_S,
-    PersistExecuted,
-    SwarmCore,
-    SwarmSettings,
-)
+from swarmd.swarm.core import DEFAULT_VALID_FOR_S, SwarmCore, SwarmSettings
+from swarmd.swarm.events import PersistExecuted
 from swarmd.swarm.roles import Roles
 from tests.test_dataplane_swarm import address_of, make_plane
 from tests.test_swarm_core import Swarm

@@ -39,11 +39,8 @@ from swarmd.dataplane.validity import (
     stamp_ms,
 )
 from swarmd.swarm.commander import RESTARTED, RESTARTED_RUNNING, CommandTracker
-from swarmd.swarm.core import (
-    OutcomeReported,
-    SwarmCore,
-    SwarmSettings,
-)
+from swarmd.swarm.core import SwarmCore, SwarmSettings
+from swarmd.swarm.events import OutcomeReported
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight, _issue, _reboot
 from tests.test_cmd_validity import _follow_output

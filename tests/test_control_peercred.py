@@ -29,7 +29,7 @@ from swarmd.control import ControlClient, ControlServer, PeerCredentials
 from swarmd.daemon import Daemon
 from swarmd.link.static import StaticSource
 from swarmd.sdnotify import Notifier
-from swarmd.swarm.core import SentBy
+from swarmd.swarm.events import SentBy
 from tests.daemon_support import run_domain, swarm_sections, write_bundle, write_config
 
 OTHER_UID = 65534  # nobody
