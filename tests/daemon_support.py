@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pytest
 from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.build import build_dev_bundle
@@ -22,6 +23,16 @@ from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.control import DaemonUnreachable, request
 
 BIN = Path(sys.executable).parent  # the venv's console scripts (swarmd, swarmd-vehicle-sim)
+SWARMD = str(BIN / "swarmd")
+REPO = Path(__file__).resolve().parent.parent
+SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"  # the 3-node dev mission
+
+
+def bundle_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    """``swarmctl bundle *argv`` in this process: (exit code, stdout, stderr)."""
+    code = swarmctl(["bundle", *argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
 
 
 def run_domain() -> int:

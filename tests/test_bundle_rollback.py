@@ -21,7 +21,6 @@ import json
 import os
 import random
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +48,8 @@ from swarmd.exitcodes import EX_CONFIG, StartupError
 from swarmd.link.static import StaticSource
 from swarmd.sdnotify import Notifier
 from tests.daemon_support import (
+    SWARM3,
+    SWARMD,
     BundleFiles,
     clean_env,
     loopback_config,
@@ -56,9 +57,6 @@ from tests.daemon_support import (
     write_bundle,
 )
 
-REPO = Path(__file__).resolve().parent.parent
-SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
-SWARMD = str(Path(sys.executable).parent / "swarmd")
 WAIT_S = 20.0
 SWARM = "testswarm"  # write_bundle's default swarm: its dev key signs every bundle here
 
