@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import structlog
 from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.build import build_dev_bundle
@@ -20,7 +21,11 @@ from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.config import DaemonConfig
 from swarmd.control import DaemonUnreachable, request
+from swarmd.daemon import Daemon
+from swarmd.link.static import StaticSource
+from swarmd.sdnotify import Notifier
 
 BIN = Path(sys.executable).parent  # the venv's console scripts (swarmd, swarmd-vehicle-sim)
 SWARMD = str(BIN / "swarmd")
@@ -193,6 +198,20 @@ def loopback_config(workdir: Path, files: BundleFiles, node: str = "uav1") -> Pa
         interface="lo",
         ipv4="127.0.0.1",
         socket_path=str(workdir / "ctl.sock"),
+    )
+
+
+def in_process_daemon(config: DaemonConfig, bundle: Bundle, node: str | None = None) -> Daemon:
+    """A daemon in this process, not started: logs through structlog (bound to ``node``),
+    no systemd (no notify socket; an empty environment, so no socket unit either: it binds
+    its ports itself) and a static link quality of 0.8."""
+    return Daemon(
+        config,
+        bundle,
+        log=structlog.get_logger() if node is None else structlog.get_logger(node=node),
+        notifier=Notifier({}),
+        sources=[StaticSource(0.8)],
+        env={},
     )
 
 

@@ -21,16 +21,18 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import structlog
 from structlog.testing import capture_logs
 
 from swarmd.config import load_config
 from swarmd.control import ControlClient, ControlServer, PeerCredentials
-from swarmd.daemon import Daemon
-from swarmd.link.static import StaticSource
-from swarmd.sdnotify import Notifier
 from swarmd.swarm.events import SentBy
-from tests.daemon_support import run_domain, swarm_sections, write_bundle, write_config
+from tests.daemon_support import (
+    in_process_daemon,
+    run_domain,
+    swarm_sections,
+    write_bundle,
+    write_config,
+)
 
 OTHER_UID = 65534  # nobody
 SYSTEM_PYTHON = "/usr/bin/python3"  # readable by every user (the venv may not be)
@@ -176,14 +178,7 @@ def test_daemon_logs_and_keeps_who_sent_each_command(workdir: Path) -> None:
         socket_path=sock,
         extra=swarm_sections(workdir / "state", None),
     )
-    daemon = Daemon(
-        load_config(cfg),
-        files.bundle,
-        log=structlog.get_logger(node="uav1"),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    daemon = in_process_daemon(load_config(cfg), files.bundle, "uav1")
 
     async def main() -> tuple[list[Any], dict[str, Any], Any, dict[str, Any]]:
         await daemon.start()

@@ -29,14 +29,12 @@ import structlog
 from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.config import load_config
 from swarmd.daemon import Daemon
-from swarmd.link.static import StaticSource
 from swarmd.px4.bridge import Px4Bridge
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, Reason
 from swarmd.px4.xrce_backend import XrceBackend
 from swarmd.rawclock import run_on_raw_clock
-from swarmd.sdnotify import Notifier
-from tests.daemon_support import run_domain, write_bundle, write_config
+from tests.daemon_support import in_process_daemon, run_domain, write_bundle, write_config
 from tests.xrce_vehicle import XrceVehicle
 
 KEY = 0x0BAD_CAFE
@@ -147,14 +145,7 @@ def _daemon(workdir: Path, port: int) -> Daemon:
         socket_path=str(workdir / "uav1.sock"),
         extra=px4,
     )
-    return Daemon(
-        load_config(cfg),
-        files.bundle,
-        log=structlog.get_logger(node="uav1"),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    return in_process_daemon(load_config(cfg), files.bundle, "uav1")
 
 
 def _px4(daemon: Daemon) -> dict[str, Any]:
