@@ -189,8 +189,11 @@ logging:
     return path
 
 
-def loopback_config(workdir: Path, files: BundleFiles, node: str = "uav1") -> Path:
-    """A daemon config for ``node`` on loopback, its control socket in ``workdir``."""
+def loopback_config(
+    workdir: Path, files: BundleFiles, node: str = "uav1", *, extra: str = ""
+) -> Path:
+    """A daemon config for ``node`` on loopback, its control socket ``workdir/ctl.sock``;
+    ``extra`` as in ``write_config``."""
     return write_config(
         workdir / "swarmd.yaml",
         files,
@@ -198,6 +201,7 @@ def loopback_config(workdir: Path, files: BundleFiles, node: str = "uav1") -> Pa
         interface="lo",
         ipv4="127.0.0.1",
         socket_path=str(workdir / "ctl.sock"),
+        extra=extra,
     )
 
 
