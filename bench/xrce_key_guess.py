@@ -27,6 +27,7 @@ import asyncio
 import socket
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -48,7 +49,7 @@ def wrong_keys(count: int) -> list[bytes]:
     return [create_client(k) for k in range(1, count + 1) if k != VEHICLE_KEY][:count]
 
 
-def checked(refused: dict[str, int]) -> int:
+def checked(refused: Mapping[str, int]) -> int:
     return sum(n for why, n in refused.items() if why in ("wrong_key", "vehicle_alive"))
 
 
@@ -61,6 +62,33 @@ def expected_time(rate_per_s: float) -> str:
     return f"{seconds / 3600:.1f} hours"
 
 
+def table_row(
+    path: str,
+    sent: int,
+    seconds: str,
+    refused: Mapping[str, int],
+    answers: str,
+    elapsed_s: float,
+    rate_digits: int = 0,
+) -> str:
+    """One row of the table ``main`` prints: the keys the agent checked in ``elapsed_s``
+    give the rate, and the rate the expected time to guess."""
+    n = checked(refused)
+    rate = n / elapsed_s
+    return (
+        f"| {path} | {sent} | {seconds} | {n} | {refused.get('over_budget', 0)} "
+        f"| {answers} | {rate:,.{rate_digits}f} | {expected_time(rate)} |"
+    )
+
+
+def answered(agent: XrceAgent) -> int:
+    """What the sans-IO agent sent back since the last call; its events dropped."""
+    answers = len(agent.datagrams_to_send())
+    while agent.next_event() is not None:
+        pass
+    return answers
+
+
 def sans_io(count: int, ports: int) -> str:
     agent = XrceAgent(expected_key=VEHICLE_KEY.to_bytes(4, "big"))
     datagrams = wrong_keys(count)
@@ -69,16 +97,11 @@ def sans_io(count: int, ports: int) -> str:
     for i, data in enumerate(datagrams):
         now = time.perf_counter() - t0
         agent.receive_datagram(data, ("127.0.0.1", 40000 + i % ports), now)
-        answers += len(agent.datagrams_to_send())
-        while agent.next_event() is not None:
-            pass
+        answers += answered(agent)
     elapsed = time.perf_counter() - t0
-    n = checked(dict(agent.refused))
-    rate = n / elapsed
-    return (
-        f"| sans-IO core | {len(datagrams)} | {elapsed:.2f} | {n} "
-        f"| {agent.refused.get('over_budget', 0)} | {answers} | {rate:,.0f} "
-        f"| {expected_time(rate)} |"
+    refused = dict(agent.refused)
+    return table_row(
+        "sans-IO core", len(datagrams), f"{elapsed:.2f}", refused, str(answers), elapsed
     )
 
 
@@ -93,15 +116,11 @@ def virtual_minutes(minutes: int, per_s: int, ports: int) -> str:
         for _ in range(per_s // 100):
             key += 1
             agent.receive_datagram(create_client(key), ("127.0.0.1", 40000 + key % ports), now)
-        answers += len(agent.datagrams_to_send())
-        while agent.next_event() is not None:
-            pass
-    n = checked(dict(agent.refused))
-    rate = n / duration_s
-    return (
-        f"| sans-IO core, {minutes} virtual minutes at {per_s}/s | {key} | {duration_s} (virtual) "
-        f"| {n} | {agent.refused.get('over_budget', 0)} | {answers} | {rate:,.2f} "
-        f"| {expected_time(rate)} |"
+        answers += answered(agent)
+    path = f"sans-IO core, {minutes} virtual minutes at {per_s}/s"
+    refused = dict(agent.refused)
+    return table_row(
+        path, key, f"{duration_s} (virtual)", refused, str(answers), duration_s, rate_digits=2
     )
 
 
@@ -165,14 +184,14 @@ async def real_sockets(count: int, seconds: float, ports: int) -> str:
     elapsed = time.perf_counter() - t0 - 0.5  # the attacker's final wait is not attack time
     stats = backend.stats()
     await backend.close()
-    refused = stats["refused"]
-    n = checked(refused)
-    rate = n / elapsed
     detail = ", ".join(f"{k} {v}" for k, v in sorted(out.items()) if k.startswith("status"))
-    return (
-        f"| real sockets ({stats['datagrams_in']} of {out['sent']} sent reached the agent) "
-        f"| {out['sent']} | {elapsed:.2f} | {n} | {refused.get('over_budget', 0)} "
-        f"| {out['answers']} ({detail or 'none'}) | {rate:,.0f} | {expected_time(rate)} |"
+    return table_row(
+        f"real sockets ({stats['datagrams_in']} of {out['sent']} sent reached the agent)",
+        out["sent"],
+        f"{elapsed:.2f}",
+        stats["refused"],
+        f"{out['answers']} ({detail or 'none'})",
+        elapsed,
     )
 
 

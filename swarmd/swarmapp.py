@@ -47,7 +47,8 @@ from swarmd.px4.xrce_key import XrceKeyError
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import core
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
-from swarmd.swarm.core import (
+from swarmd.swarm.core import SwarmCore, SwarmSettings
+from swarmd.swarm.events import (
     CommandBeforeLife,
     CommandExecuting,
     CommandExpired,
@@ -61,9 +62,7 @@ from swarmd.swarm.core import (
     PeerTrafficVerified,
     PersistExecuted,
     SentBy,
-    SwarmCore,
     SwarmEvent,
-    SwarmSettings,
     UserDataDropped,
 )
 from swarmd.swarm.roles import Roles
@@ -414,18 +413,13 @@ class SwarmApp:
                     kind=event.kind.name,
                     altitude_m=event.altitude_m,
                 )
-            case CommandExpired():
+            case CommandExpired() | CommandBeforeLife():
+                # a member's refusal of a command it may not run (docs/operations.md,
+                # "Validity" and "memory_lost": either way a new command runs it now)
                 self.log.warning(
-                    "command_expired",
-                    commander=event.commander,
-                    command_id=event.command_id,
-                    kind=event.kind.name,
-                    detail=event.detail,
-                )
-            case CommandBeforeLife():
-                # docs/operations.md, "memory_lost": issue a new command to run it now
-                self.log.warning(
-                    "command_refused_memory_lost",
+                    "command_expired"
+                    if isinstance(event, CommandExpired)
+                    else "command_refused_memory_lost",
                     commander=event.commander,
                     command_id=event.command_id,
                     kind=event.kind.name,

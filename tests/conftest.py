@@ -4,6 +4,8 @@ netns: ``lan_factory`` builds isolated LANs of network namespaces (``swarmd_lab.
 and removes them after the test, failing the test if any namespace leaked; tests that
 use it carry ``@pytest.mark.netns`` and are skipped, with the reason, when not root or
 without iproute2. ``cyclone_factory`` starts stock Cyclone DDS participants in them.
+
+bundles: ``keys`` is a swarm3 keys directory made by ``swarmctl bundle keygen``.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from pathlib import Path
 import pytest
 from swarmd_lab.netns import Lan, Namespace, cleanup_dead_runs, list_namespaces, unavailable_reason
 
+from tests.daemon_support import SWARM3, bundle_cli
 from tests.peers.cyclone import CyclonePeer
 
 LanFactory = Callable[..., Lan]
@@ -87,6 +90,16 @@ def workdir(tmp_path: Path) -> Iterator[Path]:
         yield short
     finally:
         shutil.rmtree(short, ignore_errors=True)
+
+
+@pytest.fixture
+def keys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:
+    """A keys directory for the swarm3 mission (``swarmctl bundle keygen``): the swarm's
+    signing key and each node's keys (tests/test_bundle_cli.py, test_bundle_serial_guard.py)."""
+    k = tmp_path / "keys"
+    code, _, err = bundle_cli(capsys, "keygen", "--out", str(k), "--mission", str(SWARM3))
+    assert code == 0, err
+    return k
 
 
 @pytest.hookimpl(hookwrapper=True)

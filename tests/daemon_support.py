@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pytest
+import structlog
 from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.build import build_dev_bundle
@@ -19,9 +21,23 @@ from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle
 from swarmd.cli.swarmctl import main as swarmctl
+from swarmd.config import DaemonConfig
 from swarmd.control import DaemonUnreachable, request
+from swarmd.daemon import Daemon
+from swarmd.link.static import StaticSource
+from swarmd.sdnotify import Notifier
 
 BIN = Path(sys.executable).parent  # the venv's console scripts (swarmd, swarmd-vehicle-sim)
+SWARMD = str(BIN / "swarmd")
+REPO = Path(__file__).resolve().parent.parent
+SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"  # the 3-node dev mission
+
+
+def bundle_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    """``swarmctl bundle *argv`` in this process: (exit code, stdout, stderr)."""
+    code = swarmctl(["bundle", *argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
 
 
 def run_domain() -> int:
@@ -173,8 +189,11 @@ logging:
     return path
 
 
-def loopback_config(workdir: Path, files: BundleFiles, node: str = "uav1") -> Path:
-    """A daemon config for ``node`` on loopback, its control socket in ``workdir``."""
+def loopback_config(
+    workdir: Path, files: BundleFiles, node: str = "uav1", *, extra: str = ""
+) -> Path:
+    """A daemon config for ``node`` on loopback, its control socket ``workdir/ctl.sock``;
+    ``extra`` as in ``write_config``."""
     return write_config(
         workdir / "swarmd.yaml",
         files,
@@ -182,6 +201,21 @@ def loopback_config(workdir: Path, files: BundleFiles, node: str = "uav1") -> Pa
         interface="lo",
         ipv4="127.0.0.1",
         socket_path=str(workdir / "ctl.sock"),
+        extra=extra,
+    )
+
+
+def in_process_daemon(config: DaemonConfig, bundle: Bundle, node: str | None = None) -> Daemon:
+    """A daemon in this process, not started: logs through structlog (bound to ``node``),
+    no systemd (no notify socket; an empty environment, so no socket unit either: it binds
+    its ports itself) and a static link quality of 0.8."""
+    return Daemon(
+        config,
+        bundle,
+        log=structlog.get_logger() if node is None else structlog.get_logger(node=node),
+        notifier=Notifier({}),
+        sources=[StaticSource(0.8)],
+        env={},
     )
 
 

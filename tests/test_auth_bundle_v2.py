@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import struct
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -26,11 +25,7 @@ from swarmd.bundle.keys import (
 from swarmd.bundle.loader import load_bundle, read_bundle
 from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.exitcodes import EX_CONFIG
-from tests.daemon_support import clean_env, run_domain, write_bundle, write_config
-
-REPO = Path(__file__).resolve().parent.parent
-SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
-SWARMD = str(Path(sys.executable).parent / "swarmd")
+from tests.daemon_support import SWARM3, SWARMD, clean_env, run_domain, write_bundle, write_config
 
 
 def _as_format_1(data: bytes, key: Ed25519PrivateKey) -> bytes:

@@ -13,30 +13,16 @@ import pytest
 from swarmd.bundle.loader import load_bundle
 from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_CONFIG, EX_DATAERR
+from tests.daemon_support import SWARM3, bundle_cli
 
 REPO = Path(__file__).resolve().parent.parent
-SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
 SWARM10 = REPO / "firmware_bundle" / "missions" / "swarm10.yaml"
-
-
-def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    code = swarmctl(["bundle", *argv])
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
-@pytest.fixture
-def keys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:
-    k = tmp_path / "keys"
-    code, _, _ = run(capsys, "keygen", "--out", str(k), "--mission", str(SWARM3))
-    assert code == 0
-    return k
 
 
 @pytest.fixture
 def bundle(tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]) -> Path:
     out = tmp_path / "swarm3.swb"
-    code, stdout, _ = run(
+    code, stdout, _ = bundle_cli(
         capsys, "build", str(SWARM3), "-o", str(out), "--sign-key", str(keys / "swarm-signing.key")
     )
     assert code == 0 and stdout.startswith(f"wrote {out}: swarm field-test-3, 3 participants")
@@ -52,7 +38,7 @@ def test_keygen_writes_private_keys_0600_and_keeps_existing(
         "drone-1.key", "drone-1.pub", "drone-2.key", "drone-2.pub", "lead.key", "lead.pub",
     ]  # fmt: skip
     before = (keys / "nodes" / "lead.key").read_bytes()
-    code, out, _ = run(capsys, "keygen", "--out", str(keys), "--mission", str(SWARM3))
+    code, out, _ = bundle_cli(capsys, "keygen", "--out", str(keys), "--mission", str(SWARM3))
     assert code == 0 and "kept" in out and "created" not in out
     assert (keys / "nodes" / "lead.key").read_bytes() == before
 
@@ -61,7 +47,7 @@ def test_build_is_deterministic_and_verifies(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     again = tmp_path / "again.swb"
-    run(
+    bundle_cli(
         capsys,
         "build",
         str(SWARM3),
@@ -71,7 +57,7 @@ def test_build_is_deterministic_and_verifies(
         str(keys / "swarm-signing.key"),
     )
     assert again.read_bytes() == bundle.read_bytes()
-    code, out, _ = run(
+    code, out, _ = bundle_cli(
         capsys, "verify", str(bundle), "--trusted-key", str(keys / "swarm-signing.pub"), "--json"
     )
     assert code == 0
@@ -86,7 +72,7 @@ def test_build_is_deterministic_and_verifies(
 def test_show_json_has_swarm_hash_participants_topics_and_matches(
     bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    code, out, _ = run(capsys, "show", str(bundle), "--json")
+    code, out, _ = bundle_cli(capsys, "show", str(bundle), "--json")
     assert code == 0
     s = json.loads(out)
     assert s["swarm"] == "field-test-3" and len(s["content_sha256"]) == 64
@@ -98,7 +84,7 @@ def test_show_json_has_swarm_hash_participants_topics_and_matches(
     assert ready["writers"] == ["drone-1", "drone-2"] and ready["readers"] == ["lead"]
     lead_ready = next(r for r in s["matches"]["lead"] if r["topic"] == "swarm/ready")
     assert lead_ready["kind"] == "reader" and lead_ready["peers"] == ["drone-1", "drone-2"]
-    code, out, _ = run(capsys, "show", str(bundle))
+    code, out, _ = bundle_cli(capsys, "show", str(bundle))
     assert code == 0 and "swarm/command" in out and "field-test-3" in out
 
 
@@ -106,10 +92,10 @@ def test_build_usage_and_key_errors(
     tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "x.swb"
-    code, _, err = run(capsys, "build", str(SWARM3), "-o", str(out))
+    code, _, err = bundle_cli(capsys, "build", str(SWARM3), "-o", str(out))
     assert code == EX_BAD_ARGS and "--sign-key" in err
     (keys / "nodes" / "drone-2.pub").unlink()
-    code, _, err = run(
+    code, _, err = bundle_cli(
         capsys, "build", str(SWARM3), "-o", str(out), "--sign-key", str(keys / "swarm-signing.key")
     )
     assert code == EX_DATAERR
@@ -121,7 +107,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     drone = tmp_path / "drone-1"
-    code, out, err = run(
+    code, out, err = bundle_cli(
         capsys,
         "flash",
         str(bundle),
@@ -146,7 +132,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
     first = load_bundle(drone / "bundle.swb", drone / "swarm.pub")
 
     # same bundle again: nothing to roll back to is invented
-    run(
+    bundle_cli(
         capsys,
         "flash",
         str(bundle),
@@ -178,7 +164,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
         )
         == 0
     )
-    code, out, _ = run(
+    code, out, _ = bundle_cli(
         capsys, "flash", str(b2), "--node", "drone-1", "--target", str(drone), "--keys", str(keys)
     )
     assert code == 0 and "previous kept" in out
@@ -186,7 +172,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
     assert (drone / "bundle.swb").read_bytes() == b2.read_bytes()
     assert not [p for p in drone.iterdir() if ".tmp" in p.name]
 
-    code, _, _ = run(capsys, "rollback", "--target", str(drone))
+    code, _, _ = bundle_cli(capsys, "rollback", "--target", str(drone))
     assert code == 0
     assert load_bundle(drone / "bundle.swb", drone / "swarm.pub") == first
 
@@ -196,7 +182,7 @@ def test_flash_refuses_wrong_node_key_before_writing(
 ) -> None:
     (keys / "nodes" / "drone-1.key").write_bytes((keys / "nodes" / "lead.key").read_bytes())
     drone = tmp_path / "d"
-    code, _, err = run(
+    code, _, err = bundle_cli(
         capsys,
         "flash",
         str(bundle),
@@ -215,18 +201,22 @@ def test_flash_refuses_bundle_from_another_swarm_key_unless_rotating(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     drone = tmp_path / "d"
-    run(capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys))
+    bundle_cli(
+        capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys)
+    )
     other = tmp_path / "other-keys"
-    run(capsys, "keygen", "--out", str(other), "--mission", str(SWARM3))
+    bundle_cli(capsys, "keygen", "--out", str(other), "--mission", str(SWARM3))
     b2 = tmp_path / "b2.swb"
-    run(capsys, "build", str(SWARM3), "-o", str(b2), "--sign-key", str(other / "swarm-signing.key"))
+    bundle_cli(
+        capsys, "build", str(SWARM3), "-o", str(b2), "--sign-key", str(other / "swarm-signing.key")
+    )
     before = (drone / "bundle.swb").read_bytes()
-    code, _, err = run(
+    code, _, err = bundle_cli(
         capsys, "flash", str(b2), "--node", "lead", "--target", str(drone), "--keys", str(other)
     )
     assert code == EX_CANTCREAT and "--replace-trust-key" in err and err.count("\n") == 1
     assert (drone / "bundle.swb").read_bytes() == before
-    code, _, _ = run(
+    code, _, _ = bundle_cli(
         capsys, "flash", str(b2), "--node", "lead", "--target", str(drone), "--keys", str(other),
         "--replace-trust-key",
     )  # fmt: skip
@@ -238,24 +228,24 @@ def test_flash_all_uses_the_template_and_skips_nodes_without_address(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     template = str(tmp_path / "fleet" / "{name}-{index}")
-    code, out, err = run(
+    code, out, err = bundle_cli(
         capsys, "flash", str(bundle), "--all", "--target", template, "--keys", str(keys)
     )
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "fleet").iterdir()) == ["drone-1-1", "lead-0"]
-    code, out, _ = run(capsys, "check", str(bundle), "--all", "--target", template, "--json")
+    code, out, _ = bundle_cli(capsys, "check", str(bundle), "--all", "--target", template, "--json")
     assert code == 0 and json.loads(out)["ok"]
 
     # one drone carrying another bundle is caught by the fleet check
     mission2 = tmp_path / "m2.yaml"
     mission2.write_text(SWARM3.read_text().replace("lease_s: 20", "lease_s: 21"))
     b2 = tmp_path / "b2.swb"
-    run(
+    bundle_cli(
         capsys, "build", str(mission2), "-o", str(b2), "--sign-key", str(keys / "swarm-signing.key")
     )
     lead = str(tmp_path / "fleet" / "lead-0")
-    run(capsys, "flash", str(b2), "--node", "lead", "--target", lead, "--keys", str(keys))
-    code, out, _ = run(capsys, "check", str(bundle), "--all", "--target", template)
+    bundle_cli(capsys, "flash", str(b2), "--node", "lead", "--target", lead, "--keys", str(keys))
+    code, out, _ = bundle_cli(capsys, "check", str(bundle), "--all", "--target", template)
     assert code == 1
     assert "FAIL lead" in out and "OK   drone-1" in out and "1/2 drones" in out
 
@@ -264,9 +254,13 @@ def test_check_reports_a_key_left_readable(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     drone = tmp_path / "d"
-    run(capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys))
+    bundle_cli(
+        capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys)
+    )
     os.chmod(drone / "node.key", 0o644)
-    code, out, _ = run(capsys, "check", str(bundle), "--node", "lead", "--target", str(drone))
+    code, out, _ = bundle_cli(
+        capsys, "check", str(bundle), "--node", "lead", "--target", str(drone)
+    )
     assert code == 1 and "mode 644, expected 600" in out
 
 
@@ -274,15 +268,17 @@ def test_dev_bundle_flashes_with_derived_keys_and_shows_as_dev(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     dev = tmp_path / "dev.swb"
-    code, _, err = run(capsys, "build", str(SWARM10), "-o", str(dev), "--unsigned-dev")
+    code, _, err = bundle_cli(capsys, "build", str(SWARM10), "-o", str(dev), "--unsigned-dev")
     assert code == 0 and "warning" in err
-    code, _, err = run(capsys, "verify", str(dev))
+    code, _, err = bundle_cli(capsys, "verify", str(dev))
     assert code == EX_CONFIG and "unsigned-dev" in err
-    assert run(capsys, "verify", str(dev), "--allow-dev")[0] == 0
+    assert bundle_cli(capsys, "verify", str(dev), "--allow-dev")[0] == 0
     drone = tmp_path / "d"
-    code, _, err = run(capsys, "flash", str(dev), "--node", "drone-03", "--target", str(drone))
+    code, _, err = bundle_cli(
+        capsys, "flash", str(dev), "--node", "drone-03", "--target", str(drone)
+    )
     assert code == 0, err
-    code, out, _ = run(capsys, "show", str(dev), "--json", "--node", "drone-03")
+    code, out, _ = bundle_cli(capsys, "show", str(dev), "--json", "--node", "drone-03")
     s = json.loads(out)
     assert s["dev"] and list(s["matches"]) == ["drone-03"]
 
@@ -295,28 +291,28 @@ def test_build_serial_is_one_more_than_the_bundle_it_replaces_or_given(
     key, pub = str(keys / "swarm-signing.key"), keys / "swarm-signing.pub"
     assert load_bundle(bundle, pub).serial == 1  # a first build: no bundle at -o yet
     # rebuilt in place: one more than the bundle at -o
-    code, out, _ = run(capsys, "build", str(SWARM3), "-o", str(bundle), "--sign-key", key)
+    code, out, _ = bundle_cli(capsys, "build", str(SWARM3), "-o", str(bundle), "--sign-key", key)
     assert code == 0 and "serial 2 (replaces serial 1" in out
     assert load_bundle(bundle, pub).serial == 2
     following = tmp_path / "following.swb"
-    code, out, _ = run(
+    code, out, _ = bundle_cli(
         capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key,
         "--replaces", str(bundle), "--json",
     )  # fmt: skip
     assert code == 0 and json.loads(out)["serial"] == 3
-    code, _, _ = run(
+    code, _, _ = bundle_cli(
         capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key, "--serial", "40"
     )
     assert code == 0 and load_bundle(following, pub).serial == 40
-    code, out, _ = run(capsys, "show", str(following), "--json")
+    code, out, _ = bundle_cli(capsys, "show", str(following), "--json")
     assert code == 0 and json.loads(out)["serial"] == 40
     for bad in ("0", "-3", "4294967296", "x"):
-        code, _, err = run(
+        code, _, err = bundle_cli(
             capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key, "--serial", bad
         )
         assert code == EX_BAD_ARGS and err.count("\n") == 1, (bad, err)
     assert load_bundle(following, pub).serial == 40  # nothing written
-    code, _, err = run(
+    code, _, err = bundle_cli(
         capsys, "build", str(SWARM3), "-o", str(following), "--sign-key", key,
         "--replaces", str(tmp_path / "missing.swb"),
     )  # fmt: skip

@@ -17,9 +17,8 @@ import pytest
 from swarmd_lab.netns import Lan, Namespace
 
 from swarmd.bundle.loader import load_bundle
+from tests.daemon_support import SWARM3
 
-REPO = Path(__file__).resolve().parent.parent
-SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
 SSH_PORT = 2222
 SSHD = "/usr/sbin/sshd"
 

@@ -21,12 +21,10 @@ import json
 import os
 import random
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
-import structlog
 from structlog.testing import capture_logs
 from swarmd_lab.testing import drain, peer_datagram
 
@@ -37,7 +35,6 @@ from swarmd.bundle.keys import dev_signing_key
 from swarmd.bundle.loader import load_bundle
 from swarmd.bundle.mission import load_mission
 from swarmd.config import load_config
-from swarmd.daemon import Daemon
 from swarmd.discovery import (
     DiscoveryEngine,
     EngineConfig,
@@ -46,19 +43,17 @@ from swarmd.discovery import (
 )
 from swarmd.discovery.inputs import LinkSample
 from swarmd.exitcodes import EX_CONFIG, StartupError
-from swarmd.link.static import StaticSource
-from swarmd.sdnotify import Notifier
 from tests.daemon_support import (
+    SWARM3,
+    SWARMD,
     BundleFiles,
     clean_env,
+    in_process_daemon,
     loopback_config,
     run_domain,
     write_bundle,
 )
 
-REPO = Path(__file__).resolve().parent.parent
-SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
-SWARMD = str(Path(sys.executable).parent / "swarmd")
 WAIT_S = 20.0
 SWARM = "testswarm"  # write_bundle's default swarm: its dev key signs every bundle here
 
@@ -94,14 +89,7 @@ def _start(workdir: Path, files: BundleFiles, node: str = "uav1") -> None:
     it; raises whatever start-up raises (``BundleError`` from the loader, ``StartupError``)."""
     config = load_config(loopback_config(workdir, files, node))
     bundle = load_bundle(files.path, files.trusted_key, allow_dev=True)
-    daemon = Daemon(
-        config,
-        bundle,
-        log=structlog.get_logger(node=node),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    daemon = in_process_daemon(config, bundle, node)
 
     async def main() -> None:
         try:

@@ -26,23 +26,9 @@ from swarmd.bundle.keys import load_node_keys, node_key_path
 from swarmd.bundle.loader import load_bundle, read_bundle
 from swarmd.cli.swarmctl import main as swarmctl
 from swarmd.exitcodes import EX_CONFIG
+from tests.daemon_support import SWARM3, bundle_cli
 
-REPO = Path(__file__).resolve().parent.parent
-SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"
 NODE = "drone-1"
-
-
-def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    code = swarmctl(["bundle", *argv])
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
-@pytest.fixture
-def keys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:
-    k = tmp_path / "keys"
-    assert run(capsys, "keygen", "--out", str(k), "--mission", str(SWARM3))[0] == 0
-    return k
 
 
 def build(
@@ -52,7 +38,7 @@ def build(
     mission = tmp_path / f"m{depth}.yaml"
     mission.write_text(SWARM3.read_text().replace("history_depth: 8", f"history_depth: {depth}"))
     out = tmp_path / f"s{serial}-d{depth}.swb"
-    code, _, err = run(
+    code, _, err = bundle_cli(
         capsys, "build", str(mission), "-o", str(out),
         "--sign-key", str(keys / "swarm-signing.key"), "--serial", str(serial),
     )  # fmt: skip
@@ -73,10 +59,23 @@ def put_floor(drone: Path, serial: int, sha256: str) -> None:
 
 def flash_cli(capsys: pytest.CaptureFixture[str], bundle: Path, drone: Path, keys: Path,
               *extra: str) -> tuple[int, str, str]:  # fmt: skip
-    return run(
+    return bundle_cli(
         capsys, "flash", str(bundle), "--node", NODE, "--target", str(drone),
         "--keys", str(keys), *extra,
     )  # fmt: skip
+
+
+def flashed_twice(
+    tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str], old_serial: int, new_serial: int
+) -> tuple[Path, Path, Path]:
+    """A drone directory flashed with ``old_serial`` then ``new_serial`` (another content):
+    ``(drone, old, new)``, the old one kept as bundle.swb.prev."""
+    drone = tmp_path / "drone"
+    old = build(tmp_path, keys, capsys, old_serial)
+    new = build(tmp_path, keys, capsys, new_serial, depth=9)
+    assert flash_cli(capsys, old, drone, keys)[0] == 0
+    assert flash_cli(capsys, new, drone, keys)[0] == 0
+    return drone, old, new
 
 
 # -- rollback -----------------------------------------------------------------------------------
@@ -85,12 +84,9 @@ def flash_cli(capsys: pytest.CaptureFixture[str], bundle: Path, drone: Path, key
 def test_rollback_below_the_floor_is_refused_and_moves_nothing(
     tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    drone = tmp_path / "drone"
-    old, new = build(tmp_path, keys, capsys, 1), build(tmp_path, keys, capsys, 2, depth=9)
-    assert flash_cli(capsys, old, drone, keys)[0] == 0
-    assert flash_cli(capsys, new, drone, keys)[0] == 0
+    drone, old, new = flashed_twice(tmp_path, keys, capsys, 1, 2)
     put_floor(drone, 2, sha(new))  # swarmd started on the new bundle
-    code, out, err = run(capsys, "rollback", "--target", str(drone))
+    code, out, err = bundle_cli(capsys, "rollback", "--target", str(drone))
     assert code == EX_CONFIG
     assert err.count("\n") == 1 and "below" in err and "--serial 3" in err
     assert out == ""
@@ -101,13 +97,10 @@ def test_rollback_below_the_floor_is_refused_and_moves_nothing(
 def test_rollback_to_the_floors_serial_with_another_hash_is_refused(
     tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    drone = tmp_path / "drone"
-    twin, new = build(tmp_path, keys, capsys, 2), build(tmp_path, keys, capsys, 3, depth=9)
-    assert flash_cli(capsys, twin, drone, keys)[0] == 0
-    assert flash_cli(capsys, new, drone, keys)[0] == 0
+    drone, twin, new = flashed_twice(tmp_path, keys, capsys, 2, 3)
     other = build(tmp_path, keys, capsys, 2, depth=5)
     put_floor(drone, 2, sha(other))  # serial 2 accepted, but it was another bundle
-    code, _, err = run(capsys, "rollback", "--target", str(drone))
+    code, _, err = bundle_cli(capsys, "rollback", "--target", str(drone))
     assert code == EX_CONFIG and err.count("\n") == 1
     assert "share a serial" in err and "--serial 3" in err
     assert (drone / "bundle.swb").read_bytes() == new.read_bytes()
@@ -116,12 +109,9 @@ def test_rollback_to_the_floors_serial_with_another_hash_is_refused(
 def test_rollback_the_daemon_would_accept_still_works(
     tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    drone = tmp_path / "drone"
-    old, new = build(tmp_path, keys, capsys, 4), build(tmp_path, keys, capsys, 5, depth=9)
-    assert flash_cli(capsys, old, drone, keys)[0] == 0
-    assert flash_cli(capsys, new, drone, keys)[0] == 0
+    drone, old, new = flashed_twice(tmp_path, keys, capsys, 4, 5)
     put_floor(drone, 4, sha(old))  # swarmd never started on the new one
-    code, out, err = run(capsys, "rollback", "--target", str(drone))
+    code, out, err = bundle_cli(capsys, "rollback", "--target", str(drone))
     assert code == 0, err
     assert "rolled back" in out and err == ""
     assert load_bundle(drone / "bundle.swb", drone / "swarm.pub").serial == 4
@@ -130,12 +120,9 @@ def test_rollback_the_daemon_would_accept_still_works(
 def test_rollback_with_a_corrupt_floor_is_refused(
     tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    drone = tmp_path / "drone"
-    old, new = build(tmp_path, keys, capsys, 1), build(tmp_path, keys, capsys, 2, depth=9)
-    assert flash_cli(capsys, old, drone, keys)[0] == 0
-    assert flash_cli(capsys, new, drone, keys)[0] == 0
+    drone, old, new = flashed_twice(tmp_path, keys, capsys, 1, 2)
     (drone / f"bundle-floor-{NODE}").write_bytes(b"{not json")
-    code, _, err = run(capsys, "rollback", "--target", str(drone))
+    code, _, err = bundle_cli(capsys, "rollback", "--target", str(drone))
     assert code == EX_CONFIG and err.count("\n") == 1 and "corrupt" in err
     assert (drone / "bundle.swb").read_bytes() == new.read_bytes()
 

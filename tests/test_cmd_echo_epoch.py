@@ -30,7 +30,8 @@ import pytest
 from swarmd.dataplane.types import Command, CommandKind, CommandResult, TimeEcho
 from swarmd.dataplane.validity import EXPIRED, MEMORY_LOST, another_life, stamp_ms
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
-from swarmd.swarm.core import CommandBeforeLife, OutcomeReported, SwarmCore, SwarmSettings
+from swarmd.swarm.core import SwarmCore, SwarmSettings
+from swarmd.swarm.events import CommandBeforeLife, OutcomeReported
 from swarmd.swarm.roles import Roles
 from tests.test_cmd_in_flight import Flight
 from tests.test_dataplane_swarm import address_of, make_plane

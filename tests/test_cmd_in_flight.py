@@ -31,12 +31,8 @@ from swarmd.dataplane.types import Command, CommandKind
 from swarmd.discovery import EngineConfig
 from swarmd.px4.vehicle import TaskKind, VehicleRequest
 from swarmd.swarm.commander import NOT_REACHED, RESTARTED_RUNNING, UNREACHABLE
-from swarmd.swarm.core import (
-    DEFAULT_VALID_FOR_S,
-    PersistExecuted,
-    SwarmCore,
-    SwarmSettings,
-)
+from swarmd.swarm.core import DEFAULT_VALID_FOR_S, SwarmCore, SwarmSettings
+from swarmd.swarm.events import PersistExecuted
 from swarmd.swarm.roles import Roles
 from tests.test_dataplane_swarm import address_of, make_plane
 from tests.test_swarm_core import Swarm
@@ -268,25 +264,8 @@ def test_a_member_rebooting_mid_command_never_runs_it_twice(answer_lost: bool) -
     ), row
 
 
-def test_a_rebooted_member_without_its_state_dir_never_runs_a_resent_id_again() -> None:
-    """The attack test for the test above: without the state dir, the same command id
-    resent while valid (the commander's own history is not replayed to a restarted
-    member: only a resend through ``DataPlane.send_command`` can) used to run a second time.
-    The member's new life cannot prove the copy was issued after it began (its dating is
-    the first issue's, docs/dataplane.md "A life runs only its own commands"): REJECTED
-    ``memory_lost``, and the vehicle is told once."""
-    flight = Flight(1, seed=41)
-    swarm = flight.swarm
-    swarm.run(3.0)
-    sent = _issue(swarm, CommandKind.TAKEOFF)
-    cid = int(sent["command_id"])
-    swarm.run(0.3)
-    reborn = _reboot(flight, "m01", state_kept=False)
-    swarm.run(0.5)
-    _resend(swarm, cid)
-    swarm.run(5.0)
-    assert len(flight.ran("m01", cid)) == 1
-    assert reborn.executor_counters.get("refused_memory_lost") == 1
+# Its attack test, without the state dir (the same id resent while valid runs again):
+# tests/test_cmd_memory.py::test_a_resent_id_never_runs_again_on_a_member_that_lost_its_memory
 
 
 @pytest.mark.parametrize("seed", [1, 2])

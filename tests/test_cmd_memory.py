@@ -39,15 +39,13 @@ from swarmd.dataplane.validity import (
     stamp_ms,
 )
 from swarmd.swarm.commander import RESTARTED, RESTARTED_RUNNING, CommandTracker
-from swarmd.swarm.core import (
-    OutcomeReported,
-    SwarmCore,
-    SwarmSettings,
-)
+from swarmd.swarm.core import SwarmCore, SwarmSettings
+from swarmd.swarm.events import OutcomeReported
 from swarmd.swarm.roles import Roles
-from tests.test_cmd_in_flight import Flight, _issue, _reboot
+from tests.test_cmd_in_flight import Flight, _issue, _reboot, _resend
 from tests.test_cmd_validity import _follow_output
 from tests.test_dataplane_swarm import address_of, make_plane
+from tests.test_swarm_core import Swarm
 
 # ---- the member's rule, pure ---------------------------------------------------------------
 
@@ -122,15 +120,19 @@ def test_the_wrap_of_the_stamps_is_handled() -> None:
 # ---- on the swarm ----------------------------------------------------------------------------
 
 
-def _resend_fresh(flight: Flight, cid: int) -> None:
-    """The same TAKEOFF id sent again by the commander's plane, with a *fresh* echo (the
-    caller re-dates it; ``tests.test_cmd_in_flight._resend``)."""
-    swarm = flight.swarm
+def _send_new(swarm: Swarm, kind: CommandKind, valid_ms: int, altitude_m: float = 0.0) -> Command:
+    """A new command to m01, dated by its last report's echo, sent by the commander's plane."""
     plane = swarm.lead.plane
     assert plane is not None
-    echoes = plane.time_echoes(["m01"], swarm.net.now)
-    retry = Command(cid, CommandKind.TAKEOFF, 5.0, ["m01"], 3000, echoes)
-    swarm.call("lead", lambda now: plane.send_command(retry, now))
+    command = plane.make_command(
+        kind,
+        altitude_m=altitude_m,
+        targets=["m01"],
+        valid_ms=valid_ms,
+        echoes=plane.time_echoes(["m01"], swarm.net.now),
+    )
+    swarm.call("lead", lambda now: plane.send_command(command, now))
+    return command
 
 
 def _outcomes(flight: Flight, name: str, cid: int) -> list[tuple[CommandResult, str]]:
@@ -158,7 +160,7 @@ def test_a_resent_id_never_runs_again_on_a_member_that_lost_its_memory() -> None
     swarm.run(0.3)
     core = _reboot(flight, "m01", state_kept=False)
     swarm.run(0.5)
-    _resend_fresh(flight, cid)
+    _resend(swarm, cid)
     swarm.run(5.0)
     assert len(flight.ran("m01", cid)) == 1
     assert core.executor_counters.get("refused_memory_lost") == 1
@@ -180,7 +182,7 @@ def test_a_member_that_lost_its_memory_and_its_answer_tells_the_operator() -> No
     _reboot(flight, "m01", state_kept=False)
     flight.cut = lambda a, b: False
     swarm.run(0.5)
-    _resend_fresh(flight, cid)
+    _resend(swarm, cid)
     swarm.run(5.0)
     assert len(flight.ran("m01", cid)) == 1
     row = _row(flight, cid)
@@ -194,15 +196,9 @@ def test_a_resend_carries_the_dating_of_the_first_issue() -> None:
     flight = Flight(1, seed=43)
     swarm = flight.swarm
     swarm.run(3.0)
+    first = _send_new(swarm, CommandKind.HOLD, 2000)
     plane = swarm.lead.plane
     assert plane is not None
-    first = plane.make_command(
-        CommandKind.HOLD,
-        targets=["m01"],
-        valid_ms=2000,
-        echoes=plane.time_echoes(["m01"], swarm.net.now),
-    )
-    swarm.call("lead", lambda now: plane.send_command(first, now))
     swarm.run(1.0)
     redated = Command(
         first.command_id,
@@ -276,16 +272,7 @@ def test_an_old_command_resent_by_a_restarted_commander_is_refused() -> None:
     flight = Flight(1, seed=45)
     swarm = flight.swarm
     swarm.run(3.0)
-    plane = swarm.lead.plane
-    assert plane is not None
-    old = plane.make_command(
-        CommandKind.TAKEOFF,
-        altitude_m=5.0,
-        targets=["m01"],
-        valid_ms=30_000,
-        echoes=plane.time_echoes(["m01"], swarm.net.now),
-    )
-    swarm.call("lead", lambda now: plane.send_command(old, now))
+    old = _send_new(swarm, CommandKind.TAKEOFF, 30_000, altitude_m=5.0)
     swarm.run(0.5)
     assert len(flight.ran("m01", old.command_id)) == 1
     core = _reboot(flight, "m01", state_kept=False)

@@ -38,7 +38,8 @@ from swarmd.swarm.commander import (
     UNREACHABLE_GRACE_S,
     CommandTracker,
 )
-from swarmd.swarm.core import PersistExecuted, SwarmCore
+from swarmd.swarm.core import SwarmCore
+from swarmd.swarm.events import PersistExecuted
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _command_datagrams, _inject, _Outcomes
 from tests.test_dataplane_swarm import address_of

@@ -41,15 +41,8 @@ from swarmd.swarm.commander import (
     UNREACHABLE_GRACE_S,
     CommandTracker,
 )
-from swarmd.swarm.core import (
-    DEFAULT_VALID_FOR_S,
-    MAX_REREPORTED,
-    REREPORT_WINDOW_S,
-    OutcomeRecorded,
-    OutcomesReReported,
-    PersistExecuted,
-    SwarmCore,
-)
+from swarmd.swarm.core import DEFAULT_VALID_FOR_S, MAX_REREPORTED, REREPORT_WINDOW_S, SwarmCore
+from swarmd.swarm.events import OutcomeRecorded, OutcomesReReported, PersistExecuted
 from swarmd.swarm.statefile import boot, load, state_path
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _Outcomes

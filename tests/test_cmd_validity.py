@@ -33,12 +33,8 @@ from swarmd.dataplane.validity import (
 )
 from swarmd.px4.vehicle import TaskKind
 from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE, UNREACHABLE_GRACE_S, CommandTracker
-from swarmd.swarm.core import (
-    DEFAULT_VALID_FOR_S,
-    MAX_PENDING_WITHDRAWALS,
-    CommandExpired,
-    RequestInvalid,
-)
+from swarmd.swarm.core import DEFAULT_VALID_FOR_S, MAX_PENDING_WITHDRAWALS, RequestInvalid
+from swarmd.swarm.events import CommandExpired
 from tests.test_dataplane_swarm import address_of
 from tests.test_swarm_core import Swarm
 

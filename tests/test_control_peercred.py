@@ -21,16 +21,18 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import structlog
 from structlog.testing import capture_logs
 
 from swarmd.config import load_config
 from swarmd.control import ControlClient, ControlServer, PeerCredentials
-from swarmd.daemon import Daemon
-from swarmd.link.static import StaticSource
-from swarmd.sdnotify import Notifier
-from swarmd.swarm.core import SentBy
-from tests.daemon_support import run_domain, swarm_sections, write_bundle, write_config
+from swarmd.swarm.events import SentBy
+from tests.daemon_support import (
+    in_process_daemon,
+    loopback_config,
+    run_domain,
+    swarm_sections,
+    write_bundle,
+)
 
 OTHER_UID = 65534  # nobody
 SYSTEM_PYTHON = "/usr/bin/python3"  # readable by every user (the venv may not be)
@@ -166,24 +168,9 @@ def test_daemon_logs_and_keeps_who_sent_each_command(workdir: Path) -> None:
     ``status``; a refused request is logged with its sender too."""
     os.chmod(workdir, 0o755)  # noqa: S103 - the other user must traverse it, not write
     files = write_bundle(workdir, 2, domain_id=run_domain() + 13)
-    sock = str(workdir / "ctl.sock")
-    cfg = write_config(
-        workdir / "uav1.yaml",
-        files,
-        node="uav1",
-        interface="lo",
-        ipv4="127.0.0.1",
-        socket_path=sock,
-        extra=swarm_sections(workdir / "state", None),
-    )
-    daemon = Daemon(
-        load_config(cfg),
-        files.bundle,
-        log=structlog.get_logger(node="uav1"),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    sock = str(workdir / "ctl.sock")  # loopback_config's
+    cfg = loopback_config(workdir, files, extra=swarm_sections(workdir / "state", None))
+    daemon = in_process_daemon(load_config(cfg), files.bundle, "uav1")
 
     async def main() -> tuple[list[Any], dict[str, Any], Any, dict[str, Any]]:
         await daemon.start()

@@ -26,12 +26,11 @@ from swarmd.control import request
 from swarmd.daemon import Daemon
 from swarmd.dataplane.types import Readiness
 from swarmd.discovery import engine as engine_module
-from swarmd.link.static import StaticSource
 from swarmd.rawclock import run_on_raw_clock
-from swarmd.sdnotify import Notifier
 from tests.attacker import forge
 from tests.daemon_support import (
     BundleFiles,
+    in_process_daemon,
     run_domain,
     swarm_sections,
     write_bundle,
@@ -58,14 +57,7 @@ def _daemon(workdir: Path, files: BundleFiles, node: str, *, dataplane: bool = F
         extra=swarm_sections(workdir / f"state-{node}", None, period_s=0.5) if dataplane else "",
     )
     config = load_config(cfg)
-    return Daemon(
-        config,
-        files.bundle,
-        log=structlog.get_logger(node=node),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    return in_process_daemon(config, files.bundle, node)
 
 
 def _start_error(daemon: Daemon) -> str:
@@ -406,14 +398,8 @@ def test_ros2_relay_without_a_ros2_graph_is_a_config_error(
         socket_path=str(workdir / "r.sock"),
         extra="ros2:\n  relay: true\n",
     )
-    daemon = Daemon(
-        load_config(cfg),
-        files.bundle,  # a bundle whose mission has no ros2: section
-        log=structlog.get_logger(),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    # a bundle whose mission has no ros2: section
+    daemon = in_process_daemon(load_config(cfg), files.bundle)
 
     text = _start_error(daemon)
     assert "\n" not in text and "field ros2.relay: " in text

@@ -7,12 +7,12 @@ import json
 import signal
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from tests.daemon_support import (
+    SWARMD,
     BundleFiles,
     clean_env,
     loopback_config,
@@ -20,7 +20,6 @@ from tests.daemon_support import (
     write_bundle,
 )
 
-SWARMD = str(Path(sys.executable).parent / "swarmd")
 WAIT_S = 20.0
 
 

@@ -9,7 +9,6 @@ import hashlib
 import stat
 import struct
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -35,7 +34,7 @@ from swarmd.px4.signing import (
     px4_key_file,
     timestamp_from_unix,
 )
-from tests.daemon_support import clean_env, loopback_config, run_domain, write_bundle
+from tests.daemon_support import SWARMD, clean_env, loopback_config, run_domain, write_bundle
 
 KEY = derive_key(bytes(range(32)), "alpha", "uav1")
 OTHER_KEY = derive_key(bytes(range(32)), "alpha", "uav2")
@@ -319,8 +318,6 @@ def test_swarmctl_status_line_shows_the_pin_signing_and_refusals() -> None:
 
 
 # ---- the daemon refuses, with one line and exit 78 ----------------------------------------
-
-SWARMD = str(Path(sys.executable).parent / "swarmd")
 
 
 def _swarmd_run(workdir: Path, px4: str) -> subprocess.CompletedProcess[str]:

@@ -25,17 +25,13 @@ from swarmd.dataplane.validity import stamp_ms
 from swarmd.px4 import takeoff
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
-from swarmd.swarm.core import (
-    PX4_DISABLED,
-    UNKNOWN_KIND,
+from swarmd.swarm.core import PX4_DISABLED, UNKNOWN_KIND, RequestInvalid, SwarmCore, SwarmSettings
+from swarmd.swarm.events import (
     CommandExecuting,
     OutcomeReported,
     PeerTrafficVerified,
     PersistExecuted,
-    RequestInvalid,
-    SwarmCore,
     SwarmEvent,
-    SwarmSettings,
 )
 from swarmd.swarm.roles import Roles
 from tests.test_dataplane_swarm import address_of, make_bundle, make_plane

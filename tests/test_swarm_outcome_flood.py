@@ -16,11 +16,8 @@ from __future__ import annotations
 from functools import partial
 
 from swarmd.dataplane import CommandResult, DataPlane
-from swarmd.swarm.core import (
-    UNKNOWN_OUTCOME_REPORT_BURST,
-    UNKNOWN_OUTCOME_REPORTS_PER_S,
-    OutcomeRecorded,
-)
+from swarmd.swarm.core import UNKNOWN_OUTCOME_REPORT_BURST, UNKNOWN_OUTCOME_REPORTS_PER_S
+from swarmd.swarm.events import OutcomeRecorded
 from tests.test_swarm_core import Swarm
 
 

@@ -17,19 +17,23 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import structlog
 from swarmd_lab.px4.sim_model import SimConfig
 from swarmd_lab.px4.vehicle_sim import SimProtocol, start_sim
 
 from swarmd.config import load_config
 from swarmd.control import RequestInvalid
 from swarmd.daemon import Daemon
-from swarmd.link.static import StaticSource
 from swarmd.px4.constants import LandedState
 from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
-from swarmd.sdnotify import Notifier
-from tests.daemon_support import BundleFiles, run_domain, swarm_sections, write_bundle, write_config
+from tests.daemon_support import (
+    BundleFiles,
+    in_process_daemon,
+    run_domain,
+    swarm_sections,
+    write_bundle,
+    write_config,
+)
 
 N = 3
 WAIT_S = 30.0
@@ -59,14 +63,7 @@ class Swarm:
                 self.workdir / "state", f"udpin:127.0.0.1:{_mavlink_port(i)}", period_s=0.5
             ),
         )
-        return Daemon(
-            load_config(cfg),
-            self.files.bundle,
-            log=structlog.get_logger(node=node),
-            notifier=Notifier({}),
-            sources=[StaticSource(0.8)],
-            env={},
-        )
+        return in_process_daemon(load_config(cfg), self.files.bundle, node)
 
     async def start(self, sim_configs: list[SimConfig]) -> None:
         for i in range(N):

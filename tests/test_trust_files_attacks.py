@@ -21,9 +21,8 @@ from pathlib import Path
 import pytest
 
 from swarmd.exitcodes import EX_CONFIG
-from tests.daemon_support import BundleFiles, clean_env, loopback_config, write_bundle
+from tests.daemon_support import SWARMD, BundleFiles, clean_env, loopback_config, write_bundle
 
-SWARMD = str(Path(sys.executable).parent / "swarmd")
 SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
 NOBODY = 65534
 

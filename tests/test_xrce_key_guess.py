@@ -27,7 +27,7 @@ import socket
 import subprocess
 import threading
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -42,20 +42,17 @@ from swarmd.xrce.agent import XrceAgent
 from swarmd.xrce.client import CONNECT_PERIOD_S, XrceClient
 from swarmd.xrce.events import Address, ClientRefused
 from swarmd.xrce.message import CreateClient, Header, encode_message
-from swarmd.xrce.px4 import dds_topic
 from tests.conftest import LanFactory
+from tests.test_xrce_one_vehicle import AGENT, _client, _deliver
 from tests.xrce_vehicle import XrceVehicle
 
 KEY = 0x0BAD_CAFE
 KEY_BYTES = KEY.to_bytes(4, "big")
-AGENT = ("127.0.0.1", 888)
 YEAR_S = 365.25 * 86400
 # half the generated key space (swarmd.px4.xrce_key: 1..2^31-1): the expected number of tries
 EXPECTED_TRIES = GENERATED_MAX / 2
 FLOOD_PER_S = 2000  # datagrams per virtual second, far above any budget, far below loopback's
 STEP_S = 0.01
-STATUS = dds_topic("vehicle_status", "out", 1)
-CMD = dds_topic("vehicle_command", "in")
 # every loopback source a local user can send from: any port, any 127/8 address, ::1, and
 # the v4-mapped form an IPv6 socket reports
 LOOPBACK_HOSTS = ("127.0.0.1", "127.0.0.2", "127.255.255.254", "::1", "::ffff:127.0.0.1")
@@ -101,32 +98,13 @@ def _checked(agent: XrceAgent) -> int:
     return agent.refused["wrong_key"] + agent.refused["vehicle_alive"]
 
 
-def _client(key: bytes = KEY_BYTES) -> XrceClient:
-    return XrceClient(key, subscriptions={CMD: "cmd"}, publications={STATUS: "st"})
-
-
-def _exchange(agent: XrceAgent, clients: Mapping[Address, XrceClient], now: float) -> None:
-    for _ in range(100):
-        moved = False
-        for addr, c in clients.items():
-            for data, _dest in c.datagrams_to_send():
-                moved = True
-                agent.receive_datagram(data, addr, now)
-        for data, dest in agent.datagrams_to_send():
-            if dest in clients:
-                moved = True
-                clients[dest].receive_datagram(data, AGENT, now)
-        if not moved:
-            return
-
-
 def _flood_while_vehicle_connects(
     vehicle_at: Address, flood_sources: Iterator[Address], flood_s: float, run_s: float
 ) -> tuple[XrceAgent, XrceClient, float | None]:
     """A flooder from ``flood_sources`` for ``flood_s`` virtual seconds; the vehicle starts
     connecting from ``vehicle_at`` at 2 s, mid-flood. When it got its session, or None."""
     agent = XrceAgent(expected_key=KEY_BYTES)
-    vehicle = _client()
+    vehicle = _client(KEY_BYTES)
     keys = _wrong_keys()
     per_step = round(FLOOD_PER_S * STEP_S)
     established_at = None
@@ -139,7 +117,7 @@ def _flood_while_vehicle_connects(
             vehicle.connect(AGENT, now)
         vehicle.handle_timer(now)
         agent.handle_timer(now)
-        _exchange(agent, {vehicle_at: vehicle}, now)
+        _deliver(agent, {vehicle_at: vehicle}, now)
         while agent.next_event() is not None:
             pass
         if established_at is None and vehicle.state == "established":
@@ -207,9 +185,9 @@ def test_a_wrong_key_and_the_right_key_while_the_vehicle_lives_look_the_same() -
     outcomes = []
     for probe in (2, KEY):
         agent = XrceAgent(expected_key=KEY_BYTES)
-        vehicle = _client()
+        vehicle = _client(KEY_BYTES)
         vehicle.connect(AGENT, 0.0)
-        _exchange(agent, {("127.0.0.1", 40000): vehicle}, 0.0)
+        _deliver(agent, {("127.0.0.1", 40000): vehicle}, 0.0)
         assert vehicle.state == "established"
         answers = []
         for t in range(40):
@@ -273,7 +251,7 @@ def test_with_px4s_loopback_user_a_flood_of_another_user_cannot_delay_a_loopback
     gets its session at its first try, mid-flood. Real processes: tests/test_local_uid.py."""
     px4_uid, flooder_uid = 1000, 65534
     agent = XrceAgent(expected_key=KEY_BYTES, vehicle_uid=px4_uid)
-    vehicle, vehicle_at = _client(), ("127.0.0.1", 40000)
+    vehicle, vehicle_at = _client(KEY_BYTES), ("127.0.0.1", 40000)
     sources, keys = _loopback_sources(60_000), _wrong_keys()
     established_at = None
     now = 0.0
@@ -308,10 +286,10 @@ def test_the_dead_session_window_and_restarts_still_work_under_the_budget() -> N
     and again at once behind the same port, with no answer to its refused tries."""
     agent = XrceAgent(expected_key=KEY_BYTES)
     old, new = ("127.0.0.1", 40000), ("127.0.0.1", 40002)
-    first = _client()
+    first = _client(KEY_BYTES)
     first.connect(AGENT, 0.0)
-    _exchange(agent, {old: first}, 0.0)
-    restarted = _client()
+    _deliver(agent, {old: first}, 0.0)
+    restarted = _client(KEY_BYTES)
     restarted.connect(AGENT, 1.0)
     now = 1.0
     refused = []
@@ -319,15 +297,15 @@ def test_the_dead_session_window_and_restarts_still_work_under_the_budget() -> N
         now = round(now + 0.1, 6)
         restarted.handle_timer(now)
         agent.handle_timer(now)
-        _exchange(agent, {new: restarted}, now)
+        _deliver(agent, {new: restarted}, now)
         while (e := agent.next_event()) is not None:
             refused += [e.reason] if isinstance(e, ClientRefused) else []
     assert restarted.state == "established" and list(agent.sessions) == [new]
     assert refused and set(refused) == {"vehicle_alive"} and restarted.refused == 0
     assert now <= 3.0 + CONNECT_PERIOD_S + 0.1
-    again = _client()
+    again = _client(KEY_BYTES)
     again.connect(AGENT, now)
-    _exchange(agent, {new: again}, now)
+    _deliver(agent, {new: again}, now)
     assert again.state == "established"
 
 
@@ -339,24 +317,60 @@ FLOOD_BURST = 200
 WAIT_S = 30.0
 
 
-def _flooder(
-    targets: list[socket.socket], agent: tuple[str, int], stop: threading.Event, out: dict[str, int]
+async def _agent_on(drone: Namespace) -> tuple[XrceBackend, tuple[str, int]]:
+    """The drone's agent on its Ethernet address (``px4.allow_network``), started: the
+    backend and the address it hears on."""
+    listen = drone.socket()
+    listen.bind((drone.address, 0))
+    port = listen.getsockname()[1]
+    backend = XrceBackend(
+        "xrce-agent", f"udp:{drone.address}:{port}", expected_key=KEY, inherited=listen
+    )
+    await backend.start(lambda _obs, _now: None)
+    return backend, (drone.address, port)
+
+
+def _fmu_vehicle(fmu: Namespace, agent_addr: tuple[str, int]) -> tuple[XrceVehicle, socket.socket]:
+    """The FMU's PX4 stand-in and the socket it will send from, not started yet."""
+    vehicle_sock = fmu.socket()
+    vehicle_sock.bind((fmu.address, 0))
+    return XrceVehicle(KEY, 1, agent_addr), vehicle_sock
+
+
+async def _until_established(
+    backend: XrceBackend, vehicle: XrceVehicle, vehicle_sock: socket.socket
 ) -> None:
-    """Wrong keys from every socket in turn, ``FLOOD_BURST`` every 10 ms (~20,000 a second:
-    far over the budget, and it leaves the agent's loop the CPU to run), until ``stop``,
-    ``FLOOD_MAX`` or ``FLOOD_MAX_S``."""
+    """Start the vehicle and wait, at most ``WAIT_S``, for its session (the caller asserts)."""
+    await vehicle.start(sock=vehicle_sock)
+    loop = asyncio.get_running_loop()
+    started = loop.time()
+    while backend.session != "established":
+        if loop.time() - started > WAIT_S:
+            return
+        await asyncio.sleep(0.05)
+
+
+def _send_wrong_keys(
+    socks: list[socket.socket],
+    agent: tuple[str, int],
+    stop: threading.Event,
+    burst: int,
+    pause_s: float,
+) -> int:
+    """Wrong keys from every socket in turn, ``burst`` then a ``pause_s`` pause, until
+    ``stop``, ``FLOOD_MAX`` or ``FLOOD_MAX_S``: how many were sent."""
     deadline = time.monotonic() + FLOOD_MAX_S
     keys = _wrong_keys()
     sent = 0
     while sent < FLOOD_MAX and not stop.is_set() and time.monotonic() < deadline:
-        for i in range(FLOOD_BURST):
+        for _ in range(burst):
             try:
-                targets[(sent + i) % len(targets)].sendto(_create_client(next(keys)), agent)
+                socks[sent % len(socks)].sendto(_create_client(next(keys)), agent)
             except (BlockingIOError, ConnectionRefusedError):
                 pass
-        sent += FLOOD_BURST
-        stop.wait(0.01)
-    out["sent"] = sent
+            sent += 1
+        stop.wait(pause_s)
+    return sent
 
 
 @pytest.mark.netns
@@ -368,14 +382,7 @@ def test_a_flooder_on_the_drone_does_not_keep_the_fmu_out_over_real_sockets(lan2
     drone, fmu = lan2[0], lan2[1]
 
     async def main() -> dict[str, Any]:
-        listen = drone.socket()
-        listen.bind((drone.address, 0))
-        port = listen.getsockname()[1]
-        agent_addr = (drone.address, port)
-        backend = XrceBackend(
-            "xrce-agent", f"udp:{drone.address}:{port}", expected_key=KEY, inherited=listen
-        )
-        await backend.start(lambda _obs, _now: None)
+        backend, agent_addr = await _agent_on(drone)
         flood_socks = []
         for host in ("127.0.0.1", drone.address):
             for _ in range(64):
@@ -383,23 +390,19 @@ def test_a_flooder_on_the_drone_does_not_keep_the_fmu_out_over_real_sockets(lan2
                 s.bind((host, 0))
                 s.setblocking(False)
                 flood_socks.append(s)
-        stop, out = threading.Event(), {"sent": 0}
-        flooder = threading.Thread(target=_flooder, args=(flood_socks, agent_addr, stop, out))
-        vehicle_sock = fmu.socket()
-        vehicle_sock.bind((fmu.address, 0))
-        vehicle = XrceVehicle(KEY, 1, agent_addr)
-        loop = asyncio.get_running_loop()
+        # FLOOD_BURST every 10 ms (~20,000 a second): far over the budget, and it leaves
+        # the agent's loop the CPU to run
+        stop = threading.Event()
+        flooder = threading.Thread(
+            target=_send_wrong_keys, args=(flood_socks, agent_addr, stop, FLOOD_BURST, 0.01)
+        )
+        vehicle, vehicle_sock = _fmu_vehicle(fmu, agent_addr)
         try:
             flooder.start()
             while backend.stats()["refused"].get("over_budget", 0) < 1000:
                 await asyncio.sleep(0.05)
                 assert flooder.is_alive(), backend.stats()
-            await vehicle.start(sock=vehicle_sock)
-            started = loop.time()
-            while backend.session != "established":
-                if loop.time() - started > WAIT_S:
-                    break  # asserted below, with the counters
-                await asyncio.sleep(0.05)
+            await _until_established(backend, vehicle, vehicle_sock)  # asserted below
             flooding = flooder.is_alive()
             return {
                 "stats": backend.stats(),
@@ -453,25 +456,6 @@ def _air_beside(lan_factory: LanFactory, drone: Namespace) -> Namespace:
     return air
 
 
-def _spoofer(socks: list[socket.socket], agent: tuple[str, int], stop: threading.Event) -> int:
-    """Wrong keys from the FMU's address (``socks``: one port each, bound to it
-    transparently) in turn, 20 then a 1 ms pause (~10,000 a second here: the lock-out holds
-    from about 1,000 a second, when a refilled token rarely outlives the next spoofed try).
-    Bounded like ``_flooder``."""
-    deadline = time.monotonic() + FLOOD_MAX_S
-    keys = _wrong_keys()
-    sent = 0
-    while sent < FLOOD_MAX and not stop.is_set() and time.monotonic() < deadline:
-        for _ in range(20):
-            try:
-                socks[sent % len(socks)].sendto(_create_client(next(keys)), agent)
-            except (BlockingIOError, ConnectionRefusedError):
-                pass
-            sent += 1
-        stop.wait(0.001)
-    return sent
-
-
 @pytest.mark.netns
 def test_a_spoofer_on_the_wifi_does_not_keep_the_fmu_out(
     lan2: Lan, lan_factory: LanFactory
@@ -487,14 +471,7 @@ def test_a_spoofer_on_the_wifi_does_not_keep_the_fmu_out(
     air = _air_beside(lan_factory, drone)
 
     async def main() -> dict[str, Any]:
-        listen = drone.socket()
-        listen.bind((drone.address, 0))
-        port = listen.getsockname()[1]
-        agent_addr = (drone.address, port)
-        backend = XrceBackend(
-            "xrce-agent", f"udp:{drone.address}:{port}", expected_key=KEY, inherited=listen
-        )
-        await backend.start(lambda _obs, _now: None)
+        backend, agent_addr = await _agent_on(drone)
         spoof = []
         for _ in range(64):  # as many ports as it likes: each a source of its own
             s = air.socket()
@@ -503,19 +480,15 @@ def test_a_spoofer_on_the_wifi_does_not_keep_the_fmu_out(
             s.setblocking(False)
             spoof.append(s)
         stop = threading.Event()
-        flood = asyncio.create_task(asyncio.to_thread(_spoofer, spoof, agent_addr, stop))
-        vehicle_sock = fmu.socket()
-        vehicle_sock.bind((fmu.address, 0))
-        vehicle = XrceVehicle(KEY, 1, agent_addr)
-        loop = asyncio.get_running_loop()
+        # 20 then a 1 ms pause (~10,000 a second here: the lock-out holds from about 1,000
+        # a second, when a refilled token rarely outlives the next spoofed try)
+        flood = asyncio.create_task(
+            asyncio.to_thread(_send_wrong_keys, spoof, agent_addr, stop, 20, 0.001)
+        )
+        vehicle, vehicle_sock = _fmu_vehicle(fmu, agent_addr)
         try:
             await asyncio.sleep(1.0)  # the spoofer has spent the FMU origin's burst
-            await vehicle.start(sock=vehicle_sock)
-            started = loop.time()
-            while backend.session != "established":
-                if loop.time() - started > WAIT_S:
-                    break  # asserted below, with the counters
-                await asyncio.sleep(0.05)
+            await _until_established(backend, vehicle, vehicle_sock)  # asserted below
             flooding = not flood.done()
             stop.set()
             return {

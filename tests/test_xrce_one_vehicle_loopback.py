@@ -29,14 +29,12 @@ import structlog
 from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.config import load_config
 from swarmd.daemon import Daemon
-from swarmd.link.static import StaticSource
 from swarmd.px4.bridge import Px4Bridge
 from swarmd.px4.messages import VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, Reason
 from swarmd.px4.xrce_backend import XrceBackend
 from swarmd.rawclock import run_on_raw_clock
-from swarmd.sdnotify import Notifier
-from tests.daemon_support import run_domain, write_bundle, write_config
+from tests.daemon_support import in_process_daemon, loopback_config, run_domain, write_bundle
 from tests.xrce_vehicle import XrceVehicle
 
 KEY = 0x0BAD_CAFE
@@ -138,23 +136,8 @@ def _daemon(workdir: Path, port: int) -> Daemon:
         "px4:\n  enabled: true\n  backend: xrce-agent\n"
         f"  connection: udp:127.0.0.1:{port}\n  require_home: false\n"
     )
-    cfg = write_config(
-        workdir / "uav1.yaml",
-        files,
-        node="uav1",
-        interface="lo",
-        ipv4="127.0.0.1",
-        socket_path=str(workdir / "uav1.sock"),
-        extra=px4,
-    )
-    return Daemon(
-        load_config(cfg),
-        files.bundle,
-        log=structlog.get_logger(node="uav1"),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},
-    )
+    cfg = loopback_config(workdir, files, extra=px4)
+    return in_process_daemon(load_config(cfg), files.bundle, "uav1")
 
 
 def _px4(daemon: Daemon) -> dict[str, Any]:

@@ -28,10 +28,8 @@ from swarmd.config import load_config, parse_config
 from swarmd.daemon import Daemon
 from swarmd.daemon_setup import listen_socket_name
 from swarmd.exitcodes import EX_OSERR, StartupError
-from swarmd.link.static import StaticSource
 from swarmd.px4.xrce_backend import XrceBackend
-from swarmd.sdnotify import Notifier
-from tests.daemon_support import run_domain, write_bundle, write_config
+from tests.daemon_support import in_process_daemon, run_domain, write_bundle, write_config
 from tests.xrce_vehicle import XrceVehicle
 
 KEY = 0x0BAD_CAFE
@@ -196,14 +194,8 @@ def _daemon(workdir: Path, port: int, backend: str = "xrce-agent") -> Daemon:
         workdir / "uav1.yaml", files, node="uav1", interface="lo", ipv4="127.0.0.1",
         socket_path=str(workdir / "uav1.sock"), extra=px4,
     )  # fmt: skip
-    return Daemon(
-        load_config(cfg),
-        files.bundle,
-        log=structlog.get_logger(node="uav1"),
-        notifier=Notifier({}),
-        sources=[StaticSource(0.8)],
-        env={},  # no socket unit: swarmd binds the agent's port itself
-    )
+    # no socket unit (an empty environment): swarmd binds the agent's port itself
+    return in_process_daemon(load_config(cfg), files.bundle, "uav1")
 
 
 @ROOT_AND_SETPRIV

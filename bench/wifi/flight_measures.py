@@ -49,8 +49,8 @@ Definitions (docs/benchmarks.md, "Flight"):
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from typing import Any, Final
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any, Final, NamedTuple
 
 BASELINE_S: Final = 10.0
 READINESS_HZ: Final = 1.0
@@ -256,7 +256,18 @@ def measure(
     }
 
 
-def readiness_delivery(
+class CountedSpan(NamedTuple):
+    """A member's span in the commander's range as readiness counts it (module doc):
+    ``start_s``..``end_s`` (the end at its last poll), the member's count at each end."""
+
+    member: int
+    start_s: float
+    end_s: float
+    count_start: int
+    count_end: int
+
+
+def counted_spans(
     truth: Truth,
     down: Mapping[int, Sequence[Interval]],
     changes: Mapping[int, Sequence[Change]],
@@ -264,12 +275,11 @@ def readiness_delivery(
     n: int,
     end: float,
     started: Sequence[float] = (),
-) -> dict[str, Any]:
-    """Samples received by the commander (node 0) from members in its range (module doc);
-    ``started``: each drone's release after go (empty: all at go)."""
+) -> Iterator[CountedSpan]:
+    """The spans ``readiness_delivery`` counts, member by member in order, each member's in
+    time order; ``started``: each drone's release after go (empty: all at go)."""
     if not readiness:
-        return {"expected": 0, "delivered": 0, "ratio": None}
-    expected = delivered = 0.0
+        return
     first_poll = readiness[0][0]
     for m in range(1, n):
         first = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
@@ -295,11 +305,30 @@ def readiness_delivery(
             ca, cb = count_at(readiness, m, a), count_at(readiness, m, b)
             if ca is None or cb is None or b <= a:
                 continue
-            expected += (b - a) * READINESS_HZ
-            # capped per span: a member also reports at once when the commander finds it
-            # again (swarm core), so a span can hold a sample more than its seconds; that
-            # extra sample must not hide samples missing in another span
-            delivered += min(max(0, cb - ca), (b - a) * READINESS_HZ)
+            yield CountedSpan(m, a, b, ca, cb)
+
+
+def readiness_delivery(
+    truth: Truth,
+    down: Mapping[int, Sequence[Interval]],
+    changes: Mapping[int, Sequence[Change]],
+    readiness: Sequence[tuple[float, Mapping[int, int]]],
+    n: int,
+    end: float,
+    started: Sequence[float] = (),
+) -> dict[str, Any]:
+    """Samples received by the commander (node 0) from members in its range (module doc);
+    ``started``: each drone's release after go (empty: all at go)."""
+    if not readiness:
+        return {"expected": 0, "delivered": 0, "ratio": None}
+    expected = delivered = 0.0
+    for span in counted_spans(truth, down, changes, readiness, n, end, started):
+        seconds = span.end_s - span.start_s
+        expected += seconds * READINESS_HZ
+        # capped per span: a member also reports at once when the commander finds it
+        # again (swarm core), so a span can hold a sample more than its seconds; that
+        # extra sample must not hide samples missing in another span
+        delivered += min(max(0, span.count_end - span.count_start), seconds * READINESS_HZ)
     ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 

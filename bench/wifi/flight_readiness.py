@@ -26,14 +26,11 @@ from typing import Any
 
 from bench.wifi.flight_measures import (
     READINESS_HZ,
-    UP_KINDS,
     Change,
     Interval,
     Truth,
     count_at,
-    last_poll,
-    reachable,
-    spans,
+    counted_spans,
 )
 
 Polls = Sequence[tuple[float, Mapping[int, int]]]
@@ -62,55 +59,35 @@ def readiness_spans(
     """One row per member and counted span (module doc); the rows' ``expected`` and
     ``delivered`` sum to ``readiness_delivery``'s."""
     rows: list[dict[str, Any]] = []
-    if not readiness:
-        return rows
-    first_poll = readiness[0][0]
-    for m in range(1, n):
-        found = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
-        if not found:
-            continue
-        released = started[m] if m < len(started) else 0.0
-        start = max(min(found), first_poll, released)
-        samples = reachable(truth, down, 0, m)
-        first = True
-        for a, b, up in spans(samples):
-            if up and b < samples[-1][0]:
-                b = max(t for t, v in samples if t < b)
-            a, b = max(a, start), min(b, end, readiness[-1][0])
-            if not up or b - a < 2.0:
-                continue
-            b = last_poll(readiness, b)
-            ca, cb = count_at(readiness, m, a), count_at(readiness, m, b)
-            if ca is None or cb is None or b <= a:
-                continue
-            expected = (b - a) * READINESS_HZ
-            delivered = min(max(0, cb - ca), expected)
-            moved = next(
-                (t for t, table in readiness if a < t <= b and table.get(m, 0) != ca), None
-            )
-            if moved is None:
-                onset_s, onset_missing = b - a, expected
-            else:
-                got = (count_at(readiness, m, moved) or 0) - ca
-                onset_s = moved - a
-                onset_missing = max(0.0, min(onset_s * READINESS_HZ, expected) - got)
-            missing = expected - delivered
-            onset_missing = min(onset_missing, missing)
-            rows.append(
-                {
-                    "member": m,
-                    "phase": _phase_of(a, first, phases),
-                    "from_s": round(a, 3),
-                    "to_s": round(b, 3),
-                    "expected": round(expected, 3),
-                    "delivered": round(delivered, 3),
-                    "missing": round(missing, 3),
-                    "onset_s": round(onset_s, 3),
-                    "onset_missing": round(onset_missing, 3),
-                    "steady_missing": round(missing - onset_missing, 3),
-                }
-            )
-            first = False
+    previous_member = 0
+    for span in counted_spans(truth, down, changes, readiness, n, end, started):
+        m, a, b, ca = span.member, span.start_s, span.end_s, span.count_start
+        first, previous_member = m != previous_member, m
+        expected = (b - a) * READINESS_HZ
+        delivered = min(max(0, span.count_end - ca), expected)
+        moved = next((t for t, table in readiness if a < t <= b and table.get(m, 0) != ca), None)
+        if moved is None:
+            onset_s, onset_missing = b - a, expected
+        else:
+            got = (count_at(readiness, m, moved) or 0) - ca
+            onset_s = moved - a
+            onset_missing = max(0.0, min(onset_s * READINESS_HZ, expected) - got)
+        missing = expected - delivered
+        onset_missing = min(onset_missing, missing)
+        rows.append(
+            {
+                "member": m,
+                "phase": _phase_of(a, first, phases),
+                "from_s": round(a, 3),
+                "to_s": round(b, 3),
+                "expected": round(expected, 3),
+                "delivered": round(delivered, 3),
+                "missing": round(missing, 3),
+                "onset_s": round(onset_s, 3),
+                "onset_missing": round(onset_missing, 3),
+                "steady_missing": round(missing - onset_missing, 3),
+            }
+        )
     return rows
 
 

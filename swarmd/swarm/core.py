@@ -125,7 +125,6 @@ from swarmd.swarm.events import (
 )
 from swarmd.swarm.roles import Roles, reads
 
-# the events moved to events.py are still importable from here
 __all__ = [
     "SwarmCore",
     "SwarmSettings",
@@ -143,21 +142,6 @@ __all__ = [
     "REREPORT_WINDOW_S",
     "UNKNOWN_OUTCOME_REPORTS_PER_S",
     "UNKNOWN_OUTCOME_REPORT_BURST",
-    "CommandBeforeLife",
-    "CommandExecuting",
-    "CommandExpired",
-    "CommandIssued",
-    "SentBy",
-    "CommandNotDelivered",
-    "CommandWithdrawn",
-    "MemberReadinessChanged",
-    "OutcomeRecorded",
-    "OutcomeReported",
-    "OutcomesReReported",
-    "PeerTrafficVerified",
-    "PersistExecuted",
-    "SwarmEvent",
-    "UserDataDropped",
 ]
 
 PX4_DISABLED: Final = "px4_disabled"
