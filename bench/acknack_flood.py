@@ -5,7 +5,7 @@
 The scenario of ``tests/test_dataplane_acknack_flood.py`` (virtual time, in-memory network:
 no timing in it): m01, captured, sends fresh, genuinely sealed ACKNACKs asking for 64 SNs of
 the command writer; the commander answers them to the locator m01 signed, which may be any
-victim's unicast address (docs/security.md, "Network paths end to end").
+victim's unicast address (docs/security-history.md, "Network paths end to end").
 """
 
 from __future__ import annotations

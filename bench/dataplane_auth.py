@@ -17,7 +17,7 @@ CPU: median of ``--repeat`` timeit runs of ``--number`` calls, microseconds per 
 data plane's whole ``receive_datagram`` on a forged datagram refused by a cheap check, on
 one refused by its tag, and on an authentic one; and on a forgery under the prefix of a
 member the receiver has not up (the early hold's case: refused by its tag before it may
-take a slot, docs/security.md "Network paths end to end").
+take a slot, docs/security-history.md "Network paths end to end").
 """
 
 from __future__ import annotations

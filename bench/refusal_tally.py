@@ -1,5 +1,5 @@
 """A pytest plugin that counts what members decided for the commands of other nodes during a
-test run: run, or refused (``expired``, ``memory_lost``), per test (docs/security.md, "This
+test run: run, or refused (``expired``, ``memory_lost``), per test (docs/security-history.md, "This
 morning's defences reviewed (session 11)": does the rule that a life runs only its own
 commands refuse an honest command in the virtual-time flight tests?).
 

@@ -1,5 +1,5 @@
 """What a peer that comes back once a minute costs the others per hour (docs/security.md,
-"Seek and rejoin paths (issue 20)").
+"Seek and rejoin paths").
 
     .venv/bin/python -m bench.seek_return_cost [--seeds 3] [--n 10] [--hours 1]
 

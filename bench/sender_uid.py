@@ -1,6 +1,6 @@
-"""What telling local senders apart costs (swarmd.senderuid; docs/security.md, "Local
-users"): the socket-table lookup per datagram, per table read, and under a flood of fresh
-ports. Loopback only, bounded in count. Prints markdown.
+"""What telling local senders apart costs (swarmd.senderuid; docs/security.md,
+"Telling local users apart"): the socket-table lookup per datagram, per table read, and
+under a flood of fresh ports. Loopback only, bounded in count. Prints markdown.
 
     .venv/bin/python bench/sender_uid.py [--sockets 0,200,2000] [--count 20000]
 

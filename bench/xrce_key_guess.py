@@ -1,5 +1,5 @@
-"""How fast a local user can guess the XRCE client key (docs/security.md, "XRCE's 32-bit
-key"): wrong-key CREATE_CLIENTs against swarmd's bound agent, bounded in count and time,
+"""How fast a local user can guess the XRCE client key (docs/security.md, "XRCE's
+key, guessed"): wrong-key CREATE_CLIENTs against swarmd's bound agent, bounded in count and time,
 loopback only. Prints markdown.
 
     .venv/bin/python bench/xrce_key_guess.py [--count 200000] [--seconds 5] [--ports 64]

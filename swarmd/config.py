@@ -158,8 +158,8 @@ class DaemonConfig:
     def check_trusted_files(self) -> None:
         """Raise ``ConfigError`` (one line) when another local user could rewrite the config,
         the bundle or its trust key, or swap one in its folder: whoever replaces the swarm
-        key and the bundle flies their own mission on this node (docs/security.md, "Local
-        boundaries (session 10 review)"). Checked before any of them is trusted."""
+        key and the bundle flies their own mission on this node (docs/security-history.md,
+        "Local boundaries (session 10 review)"). Checked before any of them is trusted."""
         problem = trust_problem(self.file)
         if problem is not None:
             raise ConfigError(

@@ -8,7 +8,7 @@ adapter, as ``swarmapp.py`` is the swarm core's. The daemon makes one ``Ros2App`
 
 The socket is bound on ``[::1]`` only: the kernel drops a datagram for ``::1`` arriving on
 the Wi-Fi interface, so nothing from the air reaches the relay (docs/security.md, "ROS 2
-nodes").
+nodes and the relay").
 """
 
 from __future__ import annotations
@@ -148,7 +148,8 @@ class Ros2App:
         )
         relay = self.relay
         if relay.node_uids is None:
-            # docs/security.md, "ROS 2 nodes": any local process can speak as a declared node
+            # docs/security.md, "ROS 2 nodes and the relay": any local process can speak as
+            # a declared node
             self.log.info(
                 "ros2_local_users_not_told_apart",
                 fix="set ros2.node_users to the users the ROS 2 nodes run as (docs/ros2.md)",

@@ -1,5 +1,5 @@
 """A command's time echo names the life it dates (docs/dataplane.md, "A life runs only its
-own commands"; docs/security.md, "An OS reboot's clock coincidence").
+own commands"; docs/security.md, "An epoch used twice on a rebooted clock").
 
 ``validity.issued_in_life`` proves, on the member's own monotonic clock, that a command was
 issued after its daemon started. Where the clocks can line up so that a command of an

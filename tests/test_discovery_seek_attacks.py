@@ -1,5 +1,5 @@
 """Attacks on this session's seek and rejoin paths (issue 20; docs/security.md, "Seek and
-rejoin paths (issue 20)").
+rejoin paths").
 
 Two inputs were added or changed: a lost peer heard again now freshens the seek's put-off
 bound (``Seek.returned``), and the multicast such a return pulls in also goes directed, a

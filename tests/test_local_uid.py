@@ -1,6 +1,6 @@
-"""Telling local senders apart on loopback (docs/security.md, "Local users"): the socket-table
-lookup (swarmd.senderuid), the cores' decisions by it, and the attacks by real processes of
-another user.
+"""Telling local senders apart on loopback (docs/security.md, "Telling local users apart"):
+the socket-table lookup (swarmd.senderuid), the cores' decisions by it, and the attacks by
+real processes of another user.
 
 The attacker is the ``nobody`` user (uid 65534), run with ``setpriv``; the "node" and the
 "PX4" are this test's own process (root): the configured user. No timing assertion: the

@@ -1,6 +1,7 @@
 """The PX4 link's defences without sockets: signing, the autopilot pin, the config checks.
 
-Issue 10, attack 6 (docs/px4.md "Trust on the PX4 link", docs/security.md "PX4 link").
+Issue 10, attack 6 (docs/px4.md "Trust on the PX4 link", docs/security.md "The PX4 link:
+MAVLink and XRCE").
 """
 
 from __future__ import annotations

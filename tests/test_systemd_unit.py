@@ -191,8 +191,8 @@ def test_unit_exposure_score(tmp_path: Path) -> None:
 
 
 def test_unit_hardening_found_missing_by_the_session_10_review() -> None:
-    """What the local-boundary review (docs/security.md, "Local boundaries (session 10
-    review)") found missing and swarmd runs with: no syscall of ``@privileged`` or
+    """What the local-boundary review (docs/security-history.md, "Local boundaries
+    (session 10 review)") found missing and swarmd runs with: no syscall of ``@privileged`` or
     ``@resources`` (strace of the daemon tests: none used), other users' processes hidden
     from /proc, no SysV IPC left behind, no mounts of its own. ``ProcSubset=pid`` stays off:
     it hides /proc/net (wext, the port-squatter's name) and /proc/sys (the port check)."""

@@ -1,4 +1,4 @@
-"""Guessing the XRCE client key (docs/security.md, "XRCE's 32-bit key"), and the lock-out a
+"""Guessing the XRCE client key (docs/security.md, "XRCE's key, guessed"), and the lock-out a
 defence against it must not hand the same local user.
 
 The attack: a local unprivileged user sends CREATE_CLIENTs of fresh keys to the agent's

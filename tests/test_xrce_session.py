@@ -201,7 +201,7 @@ def test_expected_key_refuses_other_clients() -> None:
     agent = XrceAgent(expected_key=b"\x00\x00\x00\x01")
     cc = CreateClient(b"EVIL", 0x81)
     agent.receive_datagram(encode_message(Header(0x80, 0, 0), [cc]), PX4, 0.0)
-    # refused and counted, unanswered (no key oracle: docs/security.md "XRCE's 32-bit key")
+    # refused and counted, unanswered (no key oracle: docs/security.md "XRCE's key, guessed")
     assert agent.datagrams_to_send() == [] and not agent.sessions
     assert agent.refused == {"wrong_key": 1}
 

@@ -282,8 +282,8 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
     by others, not even for the instant between create and chmod. Its name is random and
     it is created ``O_EXCL | O_NOFOLLOW``: with a predictable name (it was
     ``.<name>.tmp-<pid>``) a symlink planted there by anyone who can write the folder made
-    us truncate and overwrite what it pointed at (docs/security.md, "Local boundaries
-    (session 10 review)"); now a planted name is never opened, only missed.
+    us truncate and overwrite what it pointed at (docs/security-history.md,
+    "Local boundaries (session 10 review)"); now a planted name is never opened, only missed.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
@@ -317,8 +317,8 @@ def others_can_write(directory: Path) -> str | None:
     swarmd's state (boot counter, executed command ids, epoch, replay windows, node.key)
     and its trust anchors (config, bundle, swarm key) are only as trustworthy as where
     they are read from: writable by a group or by everyone, or owned by another user, lets
-    that user plant a state file or a key the daemon believes (docs/security.md, "Local
-    boundaries (session 10 review)"). Root owning it is fine (root is out of scope). A
+    that user plant a state file or a key the daemon believes (docs/security-history.md,
+    "Local boundaries (session 10 review)"). Root owning it is fine (root is out of scope). A
     missing or unreachable path is not refused here: the caller creates it, as its own,
     or fails to with its own one line.
     """

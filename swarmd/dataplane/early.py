@@ -15,8 +15,8 @@ the blackout lost (docs/flight-history.md, "Where the blackout's missing readine
 every check on them as on any datagram (verify, then change state: style rule 16), so a
 held datagram moves nothing until its authenticator checks again at release.
 
-Who may take a slot (session 10 network review, docs/security.md "Network paths end to
-end"): the plane holds a datagram only once its tag verified for this life of ours and
+Who may take a slot (session 10 network review, docs/security-history.md "Network paths end
+to end"): the plane holds a datagram only once its tag verified for this life of ours and
 its freshness is not one the sender's replay window already has (``DataPlane._may_hold``),
 so an outsider's forgery, or a captured member's under another member's prefix, is
 refused on arrival and never displaces a genuine held datagram. What is left is a

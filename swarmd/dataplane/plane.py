@@ -543,7 +543,7 @@ class DataPlane:
         the tag for this life of ours (one HMAC). The sender's epoch cannot be checked yet
         (its SPDP has not been taken), and nothing moves here: the window moves at release,
         where every check runs again. Without this a forger cycled the hold's slots and
-        pushed a genuine report out (docs/security.md, "Network paths end to end")."""
+        pushed a genuine report out (docs/security-history.md, "Network paths end to end")."""
         channel = self._channels.get(prefix)
         if channel is not None and fresh.epoch <= channel.peer_epoch:
             if fresh.epoch < channel.peer_epoch:

@@ -76,7 +76,7 @@ MAX_LOST_READERS: Final = 4096
 # Answers (repairs, GAPs) to one reader's ACKNACKs, a second, and how many may come at once.
 # A reader ACKNACKs each HEARTBEAT (at most every HEARTBEAT_PERIOD_S, 5/s, plus the ones
 # piggy-backed on writes and repairs), so an honest one never waits on it. It stops a
-# captured member (docs/security.md, "Network paths end to end"): every one of its fresh
+# captured member (docs/security-history.md, "Network paths end to end"): every one of its fresh
 # ACKNACKs was answered at once, to the locator it signed (any unicast address: a victim),
 # 2.5x its own bytes at any rate (tests/test_dataplane_acknack_flood.py).
 ACKNACK_REPLY_RATE: Final = 20.0

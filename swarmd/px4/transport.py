@@ -266,7 +266,7 @@ def bind_to_its_interface(sock: socket.socket) -> str | None:
     interface holds as its own, a kernel that refuses: before Linux 5.7 this takes
     ``CAP_NET_RAW``, which systemd's ``BindToDevice=`` has).
 
-    Why (docs/security.md, "This morning's defences reviewed"): Linux accepts a datagram
+    Why (docs/security-history.md, "This morning's defences reviewed"): Linux accepts a datagram
     for any of its addresses on any interface, and nothing checks the source address of
     one from the Wi-Fi. An agent on the Ethernet address, bound to no interface, hears an
     outsider on the Wi-Fi who writes the FMU's address as the source, and the XRCE key-check

@@ -176,7 +176,7 @@ class XrceBackend:
                 and self._log is not None
                 and self.endpoint.kind != "serial"
             ):
-                # docs/security.md, "XRCE's 32-bit key": a many-port loopback flood delays a
+                # docs/security.md, "XRCE's key, guessed": a many-port loopback flood delays a
                 # loopback PX4 while it lasts; px4.loopback_user closes it for SITL
                 self._log.info(
                     "xrce_local_users_not_told_apart",

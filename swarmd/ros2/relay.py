@@ -277,7 +277,7 @@ class Ros2Relay:
         or two users hold its port). With ``node_uids`` set, anything else than a node
         user's datagram is counted (``rx_foreign_user``) and dropped unread: a local
         process of another user cannot speak as a declared node (its prefix is no
-        secret), nor reach the graph writer (docs/security.md, "ROS 2 nodes")."""
+        secret), nor reach the graph writer (docs/security.md, "ROS 2 nodes and the relay")."""
         self.counters["rx"] += 1
         if self.node_uids is not None and sender_uid not in self.node_uids:
             self.counters["rx_foreign_user"] += 1

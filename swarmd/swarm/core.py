@@ -176,7 +176,7 @@ MAX_REREPORTED: Final = MAX_TRACKED_COMMANDS
 # Outcomes for commands this commander never sent (to that member), reported (and so logged)
 # at most this often; the rest are counted. Honest ones are rare (a member re-reporting what
 # an earlier life decided for an earlier commander life); a captured member can invent them
-# as fast as it writes (docs/security.md, "Network paths end to end").
+# as fast as it writes (docs/security-history.md, "Network paths end to end").
 UNKNOWN_OUTCOME_REPORTS_PER_S: Final = 1.0
 UNKNOWN_OUTCOME_REPORT_BURST: Final = 10.0
 DEFAULT_VALID_FOR_S: Final = {

@@ -23,7 +23,7 @@ which exactly-once depends on, are kept.
 Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
 file, never half of one. The directory must be writable by this daemon's user alone (or
 root): start-up refuses one others can write, whose files another user could have planted
-(docs/security.md, "Local boundaries (session 10 review)"). An unreadable or corrupt file
+(docs/security-history.md, "Local boundaries (session 10 review)"). An unreadable or corrupt file
 is reported and replaced (refusing to start would ground the drone): the dedup set is lost,
 and exactly once then rests on the member's own rule that a life runs only commands issued
 after it began (docs/dataplane.md, "A life runs only its own commands"), which holds with or

@@ -1,5 +1,5 @@
 """How many client keys the bound agent may compare, per second: the budget that makes
-guessing the XRCE key hopeless (docs/security.md, "XRCE's 32-bit key").
+guessing the XRCE key hopeless (docs/security.md, "The PX4 link: MAVLink and XRCE").
 
 The key (DDS-XRCE 1.0 §8.3.5.1 ``ClientKey``) is a 32-bit identifier in the clear, and the
 only thing that keeps another local process from taking the vehicle's session when none is
@@ -19,7 +19,7 @@ Two buckets must each hold a token for a key to be checked:
   the UART (``serial``). A host on another interface (the Wi-Fi) can write any source
   address, that one included: the agent's socket hears its address only on the interface
   that holds it (``px4.transport.bind_to_its_interface``), or the budget would hand that host
-  the FMU's share (docs/security.md, "This morning's defences reviewed (session 11)"). A
+  the FMU's share (docs/security-history.md, "This morning's defences reviewed (session 11)"). A
   flood on the loopback spends the loopback's budget and never that of the vehicle's wire.
   The companion's own other addresses are origins a local user can send from; the table is
   capped, so they add a bounded share;
