@@ -78,7 +78,7 @@ def test_recorded_rows_parse_to_every_field() -> None:
     mapped, loopback = (socket.inet_pton(socket.AF_INET6, a) for a in ("::ffff:127.0.0.1", "::1"))
     assert rows == [
         UdpRow(socket.AF_INET6, mapped, 7400, 0, 4157716),
-        UdpRow(socket.AF_INET6, loopback, 7400, 0, 4157714),
+        UdpRow(socket.AF_INET6, loopback, 7400, 0, 4157714, v6only=True),
     ]
     assert [r.address for r in rows] == ["::ffff:127.0.0.1", "::1"]
     assert parse_reply(V6_DONE, 101) == ([], True)
