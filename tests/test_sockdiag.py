@@ -312,6 +312,40 @@ def test_a_flood_of_misses_spends_the_query_budget_not_a_query_a_datagram() -> N
     assert uids.counters["netlink_refused"] == 0
 
 
+@pytest.mark.parametrize("netlink", [True, False])
+def test_a_flood_of_misses_keeps_a_new_sender_unknown_at_most_until_the_next_full_read(
+    netlink: bool,
+) -> None:
+    """Attack (a local user against a node starting): fresh ports at 20 lookups a virtual
+    millisecond spend the miss budget, then a node binds and sends every 10 ms. Its
+    datagrams are dropped (the attack works) until the next full read, which no flood
+    delays: ``TTL_S`` on the netlink path, a budget token (a whole re-read) by /proc
+    (bench/sender_uid_starve.py measures both on the real clock)."""
+    bound = TTL_S if netlink else 1 / swarmd.senderuid.MISS_READS_PER_S
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=netlink)
+    flood = iter(range(20_000, 60_000))
+
+    def one_ms() -> None:
+        now[0] += 0.001
+        for _ in range(20):
+            uids.uid_of(("127.0.0.1", next(flood)))
+
+    for _ in range(300):
+        one_ms()
+    node = _bind("127.0.0.1", _free_port())
+    try:
+        bound_at, dropped = now[0], 0
+        while uids.uid_of(node.getsockname()) != ME and now[0] - bound_at < 1.0:
+            dropped += 1
+            for _ in range(10):
+                one_ms()
+        assert dropped > 0  # the budget was spent: the attack bites
+        assert now[0] - bound_at <= bound + 0.011, now[0] - bound_at
+    finally:
+        node.close()
+
+
 class _Refused:
     def __init__(self) -> None:
         raise PermissionError(errno.EAFNOSUPPORT, "AF_NETLINK not allowed")
