@@ -4,17 +4,20 @@ socket table (netlink ``sock_diag``, or ``/proc/net/udp{,6}`` when netlink is re
 Daemon tier (an adapter's helper; the sans-IO cores get the answer, never this module).
 
 Why it holds. A UDP datagram from a loopback source ``(A, P)`` was sent by a socket bound
-to ``P`` on ``A`` or on the wildcard (an unbound socket is bound to the wildcard and a free
-port on its first send). ``/proc/net/udp`` and ``/proc/net/udp6`` list every socket of this
-network namespace with its local address, port and owner uid, to every user (the unit's
-``ProtectProc=invisible`` hides other users' ``/proc/PID``, not ``/proc/self/net``:
-systemd/swarmd.service). An unprivileged user cannot bind a port another uid holds (Linux
-refuses it unless both sockets set ``SO_REUSEADDR``, or ``SO_REUSEPORT`` under the same
-uid), so the table names the sender's uid. Where it cannot:
+to ``P`` on ``A``, on the wildcard of ``A``'s family, or on a dual-stack ``::`` (an unbound
+socket is bound to the wildcard and a free port on its first send; ``may_send_from``).
+``/proc/net/udp`` and ``/proc/net/udp6`` list every socket of this network namespace with
+its local address, port and owner uid, to every user (the unit's ``ProtectProc=invisible``
+hides other users' ``/proc/PID``, not ``/proc/self/net``: systemd/swarmd.service). An
+unprivileged user cannot bind a port another uid holds on an address it could send from
+(Linux refuses it unless both sockets set ``SO_REUSEADDR``, or ``SO_REUSEPORT`` under the
+same uid), so the table names the sender's uid. Where it cannot:
 
 - the sender closed its socket before the lookup: the port is free, nothing is found, the
   answer is None (the caller drops it: a real node or PX4 keeps its socket);
 - two sockets of different uids hold the port (both ``SO_REUSEADDR``): ambiguous, None;
+- by /proc, a v6-only socket bound to ``::`` is not told from a dual-stack one (netlink
+  tells it): another user's on a node's port makes the node's IPv4 datagrams ambiguous;
 - the table was read before the sender bound its port: a miss re-reads it, within a budget
   of ``MISS_READS_PER_S`` (burst ``MISS_READ_BURST``): a flood from fresh ports costs that
   many reads a second, not one per datagram, and while it spends the budget a new sender's
@@ -79,6 +82,22 @@ _LINE: Final = re.compile(
     r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
 )
 _WILDCARDS: Final = frozenset({"0.0.0.0", "::"})  # noqa: S104 - addresses we read, not bind
+# An IPv6 socket bound to ``::`` with IPV6_V6ONLY (netlink tells it; /proc does not): it
+# sends from IPv6 addresses only. ``"::"`` itself is a dual-stack one (or one /proc read).
+V6ONLY_WILDCARD: Final = "::/v6only"
+
+
+def may_send_from(bound: str, host: str) -> bool:
+    """Whether a socket bound to ``bound`` (``_local_sender``'s text, or ``V6ONLY_WILDCARD``)
+    can send a datagram from loopback ``host``: its own address; the IPv4 wildcard IPv4
+    sources only; a dual-stack ``::`` both families (ipv6(7)); a v6-only ``::`` IPv6 only.
+    Linux lets another user bind the other family's wildcard on a node's port beside the
+    node: counting it made the port two uids' and dropped the node (tests/test_sockdiag.py)."""
+    if bound in (host, "::"):
+        return True
+    if bound == "0.0.0.0":  # noqa: S104 - an address we read, not bind
+        return ":" not in host
+    return bound == V6ONLY_WILDCARD and ":" in host
 
 
 def _decode_address(text: str) -> str:
@@ -192,19 +211,19 @@ class SenderUids:
         return True
 
     def _uids(self, host: str, port: int) -> set[int]:
-        return {
-            uid for bound, uid in self._index.get(port, ()) if bound == host or bound in _WILDCARDS
-        }
+        return {uid for bound, uid in self._index.get(port, ()) if may_send_from(bound, host)}
 
     def _address(self, row: UdpRow) -> str | None:
-        """``_local_sender`` of a row's address, remembered (the few addresses there are)."""
+        """``_local_sender`` of a row's address, remembered (the few addresses there are);
+        ``V6ONLY_WILDCARD`` for a v6-only socket bound to ``::``."""
         raw = row.raw_address
         if raw in self._raw_addresses:
-            return self._raw_addresses[raw]
-        address = _local_sender(row.address)
-        if len(self._raw_addresses) < MAX_INDEXED_SOCKETS:
-            self._raw_addresses[raw] = address
-        return address
+            address = self._raw_addresses[raw]
+        else:
+            address = _local_sender(row.address)
+            if len(self._raw_addresses) < MAX_INDEXED_SOCKETS:
+                self._raw_addresses[raw] = address
+        return V6ONLY_WILDCARD if address == "::" and row.v6only else address
 
     def _netlink_failed(self) -> None:
         """Netlink refused or garbled: /proc from now on (module docstring)."""

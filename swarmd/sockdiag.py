@@ -9,7 +9,10 @@ Wire format (linux/netlink.h, linux/sock_diag.h, linux/inet_diag.h): a ``nlmsghd
 octets, host order) and an ``inet_diag_req_v2`` (56 octets: family, protocol, ext, pad,
 states, then ``inet_diag_sockid``: ports and addresses big-endian, interface, cookie); each
 reply row a ``nlmsghdr`` and an ``inet_diag_msg`` (72 octets: the same sockid at offset 4,
-then expires, rqueue, wqueue, uid, inode) and attributes we skip. A dump ends with
+then expires, rqueue, wqueue, uid, inode) and ``nlattr`` attributes, of which we read one:
+``INET_DIAG_SKV6ONLY`` (an IPv6 socket's IPV6_V6ONLY, sent for every AF_INET6 row whatever
+the request's ``ext``: ``inet_diag_msg_attrs_fill``), because a v6-only socket bound to
+``::`` cannot send from an IPv4 address and a dual-stack one can (ipv6(7)). A dump ends with
 ``NLMSG_DONE``; a refusal is ``NLMSG_ERROR`` with a negative errno.
 
 A reply that does not parse raises ``SockDiagError``: the caller falls back to ``/proc``.
@@ -36,6 +39,8 @@ _REQUEST: Final = struct.Struct("=BBBBI2s2s16s16sIQ")  # inet_diag_req_v2
 # (dst, interface, cookie, expires, rqueue, wqueue), uid, inode
 _ROW: Final = struct.Struct("=B3xH2x16s16x12x12xII")
 _ROW_BYTES: Final = 72
+_ATTR: Final = struct.Struct("=HH")  # nlattr: len (header included), type
+INET_DIAG_SKV6ONLY: Final = 11  # enum inet_diag_attr: a u8, 1 when IPV6_V6ONLY
 # A dump's chunks are at most 32 KiB (the kernel's netlink_dump allocation); one buffer
 # this size never truncates one.
 RECV_BYTES: Final = 1 << 16
@@ -51,13 +56,15 @@ class SockDiagRefused(OSError):
 
 class UdpRow(NamedTuple):
     """One socket: its family, local address (4 or 16 octets, network order), local port,
-    owner uid (as this process's user namespace maps it) and inode."""
+    owner uid (as this process's user namespace maps it), inode, and whether an IPv6 socket
+    is v6-only (False for IPv4 rows, and for an IPv6 row without the attribute)."""
 
     family: int
     raw_address: bytes
     port: int
     uid: int
     inode: int
+    v6only: bool = False
 
     @property
     def address(self) -> str:
@@ -111,9 +118,24 @@ def parse_reply(data: bytes, seq: int) -> tuple[list[UdpRow], bool]:
                 raw = raw[:4]
             elif family != socket.AF_INET6:
                 raise SockDiagError("a row of another family")
-            rows.append(UdpRow(family, raw, socket.ntohs(port), uid, inode))
+            v6only = family == socket.AF_INET6 and _v6only(data, body + _ROW_BYTES, offset + length)
+            rows.append(UdpRow(family, raw, socket.ntohs(port), uid, inode, v6only))
         offset += (length + 3) & ~3  # NLMSG_ALIGN
     return rows, False
+
+
+def _v6only(data: bytes, start: int, end: int) -> bool:
+    """The ``INET_DIAG_SKV6ONLY`` attribute between ``start`` and ``end``; False when it is
+    absent or the attributes do not parse (dual-stack: the caller's safe reading, where a
+    ``::`` socket counts for IPv4 sources too and can only add an owner, never hide one)."""
+    while end - start >= _ATTR.size:
+        length, kind = _ATTR.unpack_from(data, start)
+        if length < _ATTR.size or start + length > end:
+            return False
+        if kind & 0x3FFF == INET_DIAG_SKV6ONLY and length > _ATTR.size:
+            return data[start + _ATTR.size] != 0
+        start += (length + 3) & ~3  # NLA_ALIGN
+    return False
 
 
 class UdpDiag:

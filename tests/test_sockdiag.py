@@ -78,7 +78,7 @@ def test_recorded_rows_parse_to_every_field() -> None:
     mapped, loopback = (socket.inet_pton(socket.AF_INET6, a) for a in ("::ffff:127.0.0.1", "::1"))
     assert rows == [
         UdpRow(socket.AF_INET6, mapped, 7400, 0, 4157716),
-        UdpRow(socket.AF_INET6, loopback, 7400, 0, 4157714),
+        UdpRow(socket.AF_INET6, loopback, 7400, 0, 4157714, v6only=True),
     ]
     assert [r.address for r in rows] == ["::ffff:127.0.0.1", "::1"]
     assert parse_reply(V6_DONE, 101) == ([], True)
@@ -136,7 +136,8 @@ def test_arbitrary_bytes_parse_or_raise_a_sockdiag_error(data: bytes, seq: int) 
 
 # ---- netlink against /proc on this computer's real sockets -------------------------------
 
-# Run as ``nobody``: binds each "family host port reuse" spec, prints "ready", holds them until
+# Run as ``nobody``: binds each "host,port,reuse" spec (reuse "1": SO_REUSEADDR, "v6only":
+# IPV6_V6ONLY), prints "ready", holds them until
 # stdin closes (capped at 30 s).
 HOLDER = """
 import socket, sys, select
@@ -146,6 +147,8 @@ for spec in sys.argv[1:]:
     s = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
     if reuse == "1":
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    if reuse == "v6only":
+        s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
     s.bind((host, int(port)))
     socks.append(s)
 print("ready", flush=True)
@@ -261,6 +264,41 @@ def test_a_miss_is_one_ports_query_on_real_sockets(
     assert (by_proc.counters["reads"], by_proc.counters["port_queries"]) == (2, 0)
 
 
+def test_the_other_familys_wildcard_does_not_make_a_port_ambiguous() -> None:
+    """Attack (a local user against a node's or PX4's loopback link): ``nobody`` binds the
+    other family's wildcard on the node's port, which Linux allows beside it: ``[::]``
+    IPV6_V6ONLY next to ``0.0.0.0`` or ``127.0.0.1``, ``0.0.0.0`` next to ``[::1]``. Neither
+    can send from the node's source, so the node is still the one sender. On main each made
+    the port "two uids", and every datagram of the node was dropped. By /proc the v6-only
+    flag is not shown, so a ``[::]`` socket still counts for an IPv4 source there (a denial,
+    never the attacker's uid: docs/security.md, "The local user")."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    p = {name: _free_port() for name in ("any4", "lo4", "lo6")}
+    nodes = [_bind("0.0.0.0", p["any4"]), _bind("127.0.0.1", p["lo4"]), _bind("::1", p["lo6"])]  # noqa: S104
+    attacker = subprocess.Popen(  # noqa: S603 - fixed argv
+        [
+            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
+            sys.executable, "-I", "-c", HOLDER,
+            f"::,{p['any4']},v6only", f"::,{p['lo4']},v6only", f"0.0.0.0,{p['lo6']},0",
+        ],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert attacker.stdout is not None
+        assert attacker.stdout.readline().strip() == "ready"
+        sources = [("127.0.0.1", p["any4"]), ("127.0.0.1", p["lo4"]), ("::1", p["lo6"], 0, 0)]
+        by_netlink = SenderUids(netlink=True)
+        by_proc = SenderUids(netlink=False)
+        assert [by_netlink.uid_of(s) for s in sources] == [ME, ME, ME]
+        assert [by_proc.uid_of(s) for s in sources] == [None, None, ME]
+        assert by_netlink.counters["netlink_refused"] == 0
+    finally:
+        attacker.communicate(timeout=10)
+        for s in nodes:
+            s.close()
+
+
 def test_a_flood_of_misses_spends_the_query_budget_not_a_query_a_datagram() -> None:
     now = [100.0]
     uids = SenderUids(clock=lambda: now[0], netlink=True)
@@ -272,6 +310,40 @@ def test_a_flood_of_misses_spends_the_query_budget_not_a_query_a_datagram() -> N
     assert uids.counters["miss_reads_over_budget"] > 0
     assert uids.counters["reads"] <= 2.0 / TTL_S + 1
     assert uids.counters["netlink_refused"] == 0
+
+
+@pytest.mark.parametrize("netlink", [True, False])
+def test_a_flood_of_misses_keeps_a_new_sender_unknown_at_most_until_the_next_full_read(
+    netlink: bool,
+) -> None:
+    """Attack (a local user against a node starting): fresh ports at 20 lookups a virtual
+    millisecond spend the miss budget, then a node binds and sends every 10 ms. Its
+    datagrams are dropped (the attack works) until the next full read, which no flood
+    delays: ``TTL_S`` on the netlink path, a budget token (a whole re-read) by /proc
+    (bench/sender_uid_starve.py measures both on the real clock)."""
+    bound = TTL_S if netlink else 1 / swarmd.senderuid.MISS_READS_PER_S
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=netlink)
+    flood = iter(range(20_000, 60_000))
+
+    def one_ms() -> None:
+        now[0] += 0.001
+        for _ in range(20):
+            uids.uid_of(("127.0.0.1", next(flood)))
+
+    for _ in range(300):
+        one_ms()
+    node = _bind("127.0.0.1", _free_port())
+    try:
+        bound_at, dropped = now[0], 0
+        while uids.uid_of(node.getsockname()) != ME and now[0] - bound_at < 1.0:
+            dropped += 1
+            for _ in range(10):
+                one_ms()
+        assert dropped > 0  # the budget was spent: the attack bites
+        assert now[0] - bound_at <= bound + 0.011, now[0] - bound_at
+    finally:
+        node.close()
 
 
 class _Refused:
