@@ -51,7 +51,8 @@ from swarmd.bundle.errors import BundleError, FileProblem
 from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
 from swarmd.bundle.model import SERIAL_MAX, Bundle
 
-FILE_PATTERN: Final = "bundle-floor-{node}"
+FILE_PREFIX: Final = "bundle-floor-"
+FILE_PATTERN: Final = FILE_PREFIX + "{node}"
 FLOOR_FILE_MODE: Final = 0o640  # like the state file: the group reads it
 _SHA256_HEX: Final = re.compile(r"[0-9a-f]{64}")
 LEGACY_SERIAL: Final = 0  # what a bundle built before serials counts as
