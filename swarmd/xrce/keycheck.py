@@ -102,13 +102,14 @@ class KeyCheckBudget:
         return (MAX_ORIGINS + 1) * ORIGIN_CHECKS_PER_S
 
     def allow(self, source: Hashable, now: float) -> bool:
-        origin = self._origin_bucket(origin_of(source), now)
-        mine = self._source_bucket(source, now)
-        if not (mine.has_token(now) and origin.has_token(now)):
+        origin_bucket = self._origin_bucket(origin_of(source), now)
+        source_bucket = self._source_bucket(source, now)
+        # both must hold a token before either is spent: a refused try costs neither
+        if not (source_bucket.has_token(now) and origin_bucket.has_token(now)):
             self.over_budget += 1
             return False
-        mine.spend()
-        origin.spend()
+        source_bucket.spend()
+        origin_bucket.spend()
         self.checks += 1
         return True
 
