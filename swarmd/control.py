@@ -99,6 +99,10 @@ def peer_credentials(sock: Any) -> PeerCredentials | None:
     return PeerCredentials(pid, uid, gid)
 
 
+def _ignoring_sender(handler: Handler) -> SenderHandler:
+    return lambda request, _peer: handler(request)
+
+
 class ControlSocketBusy(RuntimeError):
     """Another live process already answers on the control socket path."""
 
@@ -137,9 +141,12 @@ class ControlServer:
     ) -> None:
         self.path = path
         self.mode = mode
-        self.handlers = dict(handlers)
-        # the state-changing requests: these also get the sender's credentials
-        self.sender_handlers = dict(sender_handlers or {})
+        # one table: a read-only request's handler ignores who sent it; the state-changing
+        # requests (``sender_handlers``) also get the sender's credentials
+        self._handlers: dict[str, SenderHandler] = {
+            name: _ignoring_sender(handler) for name, handler in handlers.items()
+        }
+        self._handlers.update(sender_handlers or {})
         self.request_deadline_s = request_deadline_s
         self.requests = 0
         self.rejected_clients = 0  # refused at the cap
@@ -250,16 +257,12 @@ class ControlServer:
         if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
             return {"ok": False, "error": 'request must be an object like {"cmd": "status"}'}
         cmd = request["cmd"]
-        sender_handler = self.sender_handlers.get(cmd)
-        handler = self.handlers.get(cmd)
-        if handler is None and sender_handler is None:
-            known = ", ".join(sorted({*self.handlers, *self.sender_handlers}))
+        handler = self._handlers.get(cmd)
+        if handler is None:
+            known = ", ".join(sorted(self._handlers))
             return {"ok": False, "error": f"unknown command {cmd!r}; known: {known}"}
         try:
-            if sender_handler is not None:
-                return {"ok": True, "result": sender_handler(request, peer)}
-            assert handler is not None  # noqa: S101 - one of the two is set (checked above)
-            return {"ok": True, "result": handler(request)}
+            return {"ok": True, "result": handler(request, peer)}
         except RequestInvalid as exc:
             return {"ok": False, "error": str(exc)}
         except Exception as exc:  # a handler bug must not take the daemon down

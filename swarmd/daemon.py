@@ -42,15 +42,14 @@ from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
-from swarmd.bundle.errors import BundleError
-from swarmd.bundle.floor import FloorError, FloorWriteError, serial_of
-from swarmd.bundle.floor import enforce as enforce_floor
+from swarmd.bundle.floor import serial_of
 from swarmd.bundle.model import Bundle
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
 from swarmd.daemon_setup import (
     KNOWN_LISTEN_NAMES,
     NodeSecretsError,
+    enforce_bundle_floor,
     engine_config,
     link_sources,
     listen_socket_name,
@@ -113,11 +112,11 @@ class Daemon:
         # raised and made durable in start(), before the first send (swarmd.auth.epoch),
         # in the folder of node.key (/var/lib/swarmd on a drone: the state directory)
         self.epoch: EpochResult | None = None
-        self._epoch_dir = config.bundle.node_state_dir
+        self._state_dir = config.bundle.node_state_dir  # epoch, windows, bundle floor
         # SPDP replay windows persisted beside the epoch (swarmd.auth.windows): a restart
         # does not make a dead member's captured DATA(p) fresh again
         self._spdp_auth: SpdpAuth | None = None
-        self._windows_path = windows_path(self._epoch_dir, config.node)
+        self._windows_path = windows_path(self._state_dir, config.node)
         self._windows_timer: asyncio.TimerHandle | None = None
         self.log = log
         self.notifier = notifier if notifier is not None else Notifier(env)
@@ -182,7 +181,7 @@ class Daemon:
             raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
         self._enforce_bundle_floor()
         try:
-            self.epoch = next_epoch(self._epoch_dir, self.config.node, time.time())
+            self.epoch = next_epoch(self._state_dir, self.config.node, time.time())
         except EpochError as exc:
             raise StartupError(str(exc), EX_CANTCREAT) from None
         if self.epoch.recovered_from is not None:
@@ -356,22 +355,8 @@ class Daemon:
         (swarmd.bundle.floor, docs/security.md "Bundle rollback"). Its file lives beside
         the boot epoch, so an epoch without a floor means the floor was deleted (or this is
         the first start of a swarmd that keeps one): logged, not refused."""
-        source = self.config.bundle.path
-        try:
-            result = enforce_floor(
-                self.bundle,
-                source=source,
-                state_dir=self._epoch_dir,
-                node=self.config.node,
-                commit=True,
-            )
-        except BundleError as exc:
-            raise StartupError(f"bundle rejected: {exc}", EX_CONFIG) from None
-        except FloorError as exc:
-            raise StartupError(f"bundle floor rejected: {exc}", EX_CONFIG) from None
-        except FloorWriteError as exc:
-            raise StartupError(str(exc), EX_CANTCREAT) from None
-        if result.previous is None and epoch_path(self._epoch_dir, self.config.node).exists():
+        result = enforce_bundle_floor(self.config, self.bundle, commit=True)
+        if result.previous is None and epoch_path(self._state_dir, self.config.node).exists():
             self.log.warning(
                 "bundle_floor_missing",
                 path=str(result.path),

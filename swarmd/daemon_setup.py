@@ -16,10 +16,13 @@ from dataclasses import fields
 from typing import Any, Final
 
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
-from swarmd.bundle.errors import KeyFileError
+from swarmd.bundle.errors import BundleError, KeyFileError
+from swarmd.bundle.floor import FloorError, FloorResult, FloorWriteError
+from swarmd.bundle.floor import enforce as enforce_floor
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig, Px4Section
 from swarmd.discovery.config import EngineConfig
+from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, StartupError
 from swarmd.link import SourceName
 from swarmd.link.file import FileSource
 from swarmd.link.nl80211 import Nl80211Source
@@ -68,6 +71,28 @@ def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
     except KeyError:
         pass  # a node outside the bundle is reported by the node check, naming its line
     return secrets
+
+
+def enforce_bundle_floor(config: DaemonConfig, bundle: Bundle, *, commit: bool) -> FloorResult:
+    """This node's anti-rollback floor (``swarmd.bundle.floor.enforce``, docs/security.md
+    "Bundle rollback") in the folder of node.key, its refusals as the one-line
+    ``StartupError``: 78 for a rolled-back bundle or a corrupt floor, 73 for a folder that is
+    unsafe or cannot be written. ``swarmd`` checks it before anything runs
+    (``commit=False``), ``Daemon.start`` again before the first send, raising the floor."""
+    try:
+        return enforce_floor(
+            bundle,
+            source=config.bundle.path,
+            state_dir=config.bundle.node_state_dir,
+            node=config.node,
+            commit=commit,
+        )
+    except BundleError as exc:
+        raise StartupError(f"bundle rejected: {exc}", EX_CONFIG) from None
+    except FloorError as exc:
+        raise StartupError(f"bundle floor rejected: {exc}", EX_CONFIG) from None
+    except FloorWriteError as exc:
+        raise StartupError(str(exc), EX_CANTCREAT) from None
 
 
 def refuse_shared_secret(path: str) -> None:

@@ -31,7 +31,7 @@ CORE = frozenset({"rtps", "bundle", "yamldoc", "exitcodes"})
 ALLOWED: dict[str, frozenset[str]] = {
     # the wire codecs and shared facts: import nothing of swarmd
     "rtps": frozenset(),
-    "xrce": frozenset({"rtps"}),
+    "xrce": frozenset({"rtps", "tokenbucket"}),
     "yamldoc": frozenset(),
     "exitcodes": frozenset(),
     "bundle": frozenset({"rtps", "yamldoc", "exitcodes"}),
@@ -39,18 +39,20 @@ ALLOWED: dict[str, frozenset[str]] = {
     # sans-IO SPDP relay the daemon runs for them on loopback
     "ros2": CORE,
     # authentication lives beside the codec, used by discovery and the data plane
-    "auth": CORE,
+    "auth": CORE | {"tokenbucket"},
     # the sans-IO cores
-    "discovery": CORE | {"auth"},
+    "discovery": CORE | {"auth", "tokenbucket"},
     "dataplane": CORE | {"auth"},
     # the driving protocol, declared once (swarmd/sansio.py): a leaf
     "sansio": frozenset(),
+    # the token bucket every budget is made of (auth, discovery, swarm, XRCE key checks): a leaf
+    "tokenbucket": frozenset(),
     # the one asyncio driver: it knows the driving protocol and no core
     "driver": frozenset({"sansio"}),
     # px4's asyncio adapter (bridge) runs its core through the driver; its sans-IO modules
     # cannot (the driver imports asyncio: test_sans_io_rooms)
     "px4": CORE | {"xrce", "driver", "senderuid"},
-    "swarm": CORE | {"auth", "dataplane", "discovery", "px4"},
+    "swarm": CORE | {"auth", "dataplane", "discovery", "px4", "tokenbucket"},
     # adapters and the daemon tier
     "link": frozenset({"discovery", "exitcodes"}),  # produces discovery's LinkSample
     # remote strings made safe for a terminal: swarmctl's views and the daemon's console log

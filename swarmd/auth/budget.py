@@ -13,28 +13,9 @@ from collections import OrderedDict
 from collections.abc import Hashable
 from typing import Final, Generic, TypeVar
 
+from swarmd.tokenbucket import TokenBucket
+
 K = TypeVar("K", bound=Hashable)
-
-
-class TokenBucket:
-    """``rate`` tokens a second, at most ``burst`` saved; ``take(now)`` spends one."""
-
-    __slots__ = ("_at", "_tokens", "burst", "rate")
-
-    def __init__(self, rate: float, burst: float, now: float) -> None:
-        self.rate = rate
-        self.burst = burst
-        self._tokens = burst
-        self._at = now
-
-    def take(self, now: float) -> bool:
-        if now > self._at:
-            self._tokens = min(self.burst, self._tokens + (now - self._at) * self.rate)
-            self._at = now
-        if self._tokens >= 1.0:
-            self._tokens -= 1.0
-            return True
-        return False
 
 
 class BucketTable(Generic[K]):

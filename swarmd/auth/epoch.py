@@ -24,16 +24,14 @@ is passed in, so the module imports no clock.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
 from swarmd.auth.freshness import U32_MAX
-from swarmd.bundle.keys import refuse_shared_dir, write_file_atomic
+from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
 
 FILE_PATTERN: Final = "auth-epoch-{node}"
-_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
 
 
 class EpochError(OSError):
@@ -49,7 +47,7 @@ class EpochResult:
 
 
 def epoch_path(state_dir: str | Path, node: str) -> Path:
-    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+    return node_state_path(state_dir, FILE_PATTERN, node)
 
 
 def read_epoch(path: Path) -> tuple[int | None, str | None]:

@@ -82,7 +82,6 @@ from swarmd.auth.budget import (
     SENDER_BURST,
     SENDER_RATE,
     BucketTable,
-    TokenBucket,
 )
 from swarmd.auth.freshness import Freshness, ReplayWindow, SendCounter
 from swarmd.auth.keys import SIGNATURE_BYTES, KeyRing
@@ -95,6 +94,7 @@ from swarmd.auth.tags import (
 )
 from swarmd.rtps.spdp import PID_SWARMD_AUTHENTICATOR
 from swarmd.rtps.types import GuidPrefix
+from swarmd.tokenbucket import TokenBucket
 
 FRESHNESS_BYTES: Final = 8
 SIGNED_TAIL_BYTES: Final = FRESHNESS_BYTES + SIGNATURE_BYTES  # 72, a multiple of 4

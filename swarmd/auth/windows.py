@@ -32,14 +32,13 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.auth.freshness import U32_MAX, Freshness
-from swarmd.bundle.keys import write_file_atomic
+from swarmd.bundle.keys import node_state_path, write_file_atomic
 
 FILE_PATTERN: Final = "auth-windows-{node}"
 # how often a moved window is written: an fsync every few seconds at most on an SD card
 SAVE_PERIOD_S: Final = 2.0
 # a file larger than this is not a window file (1000 senders x ~45 octets = 45 KB)
 MAX_FILE_BYTES: Final = 1 << 20
-_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
 _LINE: Final = re.compile(r"([0-9a-f]{24}) ([0-9]{1,10}) ([0-9]{1,10})")
 
 
@@ -50,7 +49,7 @@ class LoadedWindows:
 
 
 def windows_path(state_dir: str | Path, node: str) -> Path:
-    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+    return node_state_path(state_dir, FILE_PATTERN, node)
 
 
 def encode_windows(highs: dict[bytes, Freshness]) -> bytes:

@@ -37,6 +37,7 @@ from swarmd.bundle.model import (
     Topic,
     derive_guid_prefix,
     endpoint_entity_id,
+    is_serial,
 )
 from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 
@@ -122,7 +123,7 @@ def build_bundle(
 def check_serial(serial: int) -> None:
     """Raise ``ValueError`` (one line) for a serial outside 1..``SERIAL_MAX`` (0 is what a
     bundle without a serial counts as, so a built one starts at 1)."""
-    if isinstance(serial, bool) or not 1 <= serial <= SERIAL_MAX:
+    if not is_serial(serial):
         raise ValueError(f"serial {serial!r} is not in 1..{SERIAL_MAX}")
 
 

@@ -50,6 +50,7 @@ from typing import Final
 
 from swarmd.bundle.errors import BundleError, FlashError, KeyFileError, SerialRefused
 from swarmd.bundle.floor import FILE_PATTERN as FLOOR_FILE_PATTERN
+from swarmd.bundle.floor import FILE_PREFIX as FLOOR_FILE_PREFIX
 from swarmd.bundle.floor import Floor, FloorError, floor_path, parse_floor, serial_of
 from swarmd.bundle.floor import check as check_floor
 from swarmd.bundle.keys import (
@@ -534,7 +535,7 @@ def _serial_files(target: Target, ssh: Ssh | None, *, strict: bool) -> _Files:
             except FileNotFoundError:
                 continue
             except OSError as exc:
-                if path.name.startswith(_FLOOR_GLOB[:-1]):
+                if path.name.startswith(FLOOR_FILE_PREFIX):
                     if strict:
                         out[path.name] = _UNREADABLE
                     continue
@@ -608,8 +609,9 @@ def _check_rollback(files: _Files, target: Target) -> bytes:
     if isinstance(name, bytes):
         nodes = [name.decode(errors="replace").strip()]
     else:  # no node name: every floor present counts (the strictest)
-        prefix = _FLOOR_GLOB[:-1]
-        nodes = [n[len(prefix) :] for n in files if n.startswith(prefix)]
+        nodes = [
+            n.removeprefix(FLOOR_FILE_PREFIX) for n in files if n.startswith(FLOOR_FILE_PREFIX)
+        ]
     source = f"{target}/{_PREV_FILE}"
     for node in nodes:
         found = _floor_on(files, target, node)

@@ -48,12 +48,12 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.bundle.errors import BundleError, FileProblem
-from swarmd.bundle.keys import refuse_shared_dir, write_file_atomic
+from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
 from swarmd.bundle.model import SERIAL_MAX, Bundle
 
-FILE_PATTERN: Final = "bundle-floor-{node}"
+FILE_PREFIX: Final = "bundle-floor-"
+FILE_PATTERN: Final = FILE_PREFIX + "{node}"
 FLOOR_FILE_MODE: Final = 0o640  # like the state file: the group reads it
-_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
 _SHA256_HEX: Final = re.compile(r"[0-9a-f]{64}")
 LEGACY_SERIAL: Final = 0  # what a bundle built before serials counts as
 MAX_FLOOR_BYTES: Final = 4096  # the file is ~90 bytes; a bigger one is not ours
@@ -76,7 +76,7 @@ class FloorWriteError(OSError):
 
 
 def floor_path(state_dir: str | Path, node: str) -> Path:
-    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+    return node_state_path(state_dir, FILE_PATTERN, node)
 
 
 def serial_of(bundle: Bundle) -> int:
@@ -117,7 +117,8 @@ def parse_floor(raw: bytes, path: Path, bundle_source: str) -> Floor:
 
 def _read_regular(path: Path) -> bytes:
     """At most ``MAX_FLOOR_BYTES + 1`` bytes of the regular file at ``path``, under the
-    state file's rules (as ``swarmd.px4.xrce_key``): never through a symlink (``O_NOFOLLOW``:
+    state file's rules (``swarmd.px4.xrce_key`` reads its key so, less ``O_NONBLOCK``):
+    never through a symlink (``O_NOFOLLOW``:
     a link to a lower floor elsewhere would lower it) and never blocking (``O_NONBLOCK``: a
     FIFO would hang start-up with no line saying why); anything but a regular file is an
     ``OSError``."""

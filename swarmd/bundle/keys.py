@@ -343,6 +343,18 @@ def _trusted_owners() -> set[int]:
     return owners
 
 
+# what may stay of a node name in a state file's name (the rest becomes "_"): a name is the
+# operator's text, and "/" would put the file in another folder
+_STATE_NAME_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
+
+
+def node_state_path(state_dir: str | Path, pattern: str, node: str) -> Path:
+    """A node's state file in ``state_dir``: ``pattern`` (``"auth-epoch-{node}"``) with
+    ``node`` made safe for a file name. The boot epoch, the replay windows, the bundle floor
+    and the data plane's state file are all named so."""
+    return Path(state_dir) / pattern.format(node=_STATE_NAME_UNSAFE.sub("_", node))
+
+
 def refuse_shared_dir(directory: Path, field: str, error: type[OSError]) -> None:
     """Raise ``error`` (one line naming the folder, the config field and the fix) when
     another local user could write ``directory`` (``others_can_write``)."""

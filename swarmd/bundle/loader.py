@@ -55,6 +55,7 @@ from swarmd.bundle.model import (
     Topic,
     derive_guid_prefix,
     endpoint_entity_id,
+    is_serial,
 )
 from swarmd.bundle.ros2 import graph_from_value
 from swarmd.exitcodes import EX_CONFIG
@@ -344,7 +345,7 @@ def _bundle_from_value(value: Any, env: Envelope) -> Bundle:
     serial = None
     if "serial" in value:  # absent: built before serials (the floor treats it as 0)
         serial = _field(value, "serial", int, "body")
-        if not 1 <= serial <= SERIAL_MAX:
+        if not is_serial(serial):
             raise _BodyError(f"body.serial: {serial} is not in 1..{SERIAL_MAX}")
     return Bundle(
         swarm=swarm,

@@ -196,6 +196,12 @@ SWARM_TAG_BYTES: Final = 6
 SERIAL_MAX: Final = 0xFFFF_FFFF
 
 
+def is_serial(value: object) -> bool:
+    """Whether ``value`` is a serial a bundle may carry: a whole number 1..``SERIAL_MAX``
+    (0 is what a bundle without one counts as, so none is built or accepted with 0)."""
+    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= SERIAL_MAX
+
+
 def derive_guid_prefix(swarm: str, domain_id: int, index: int) -> GuidPrefix:
     """``"SW" | sha256(swarm/domain)[:6] | index (u32 BE)``.
 

@@ -122,6 +122,11 @@ def _table(headers: list[str], rows: list[list[str]]) -> list[str]:
     return [fmt.format(*headers).rstrip(), *(fmt.format(*r).rstrip() for r in rows)]
 
 
+def serial_text(serial: int | None) -> str:
+    """A bundle's serial for a person: the number, or what its absence means."""
+    return "none (built before serials)" if serial is None else str(serial)
+
+
 def human(s: dict[str, Any]) -> str:
     """The short human view of ``summary(...)``."""
     d = s["discovery"]
@@ -135,8 +140,7 @@ def human(s: dict[str, Any]) -> str:
         f"swarm      {s['swarm']}  domain {s['domain_id']}  "
         f"{len(s['participants'])} participants, {len(s['topics'])} topics",
         f"sha256     {s['content_sha256']}",
-        "serial     "
-        + ("none (built before serials)" if s["serial"] is None else str(s["serial"])),
+        f"serial     {serial_text(s['serial'])}",
         f"signer     {s['signer']}  {trust}" + ("  [DEV: insecure lab key]" if s["dev"] else ""),
         f"discovery  Tmin {d['t_min_s']:g} s, Tmax {d['t_max_s']:g} s, lease {d['lease_s']:g} s",
         "",

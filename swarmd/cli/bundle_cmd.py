@@ -45,7 +45,7 @@ from swarmd.bundle.keys import (
 from swarmd.bundle.loader import read_bundle
 from swarmd.bundle.mission import load_mission
 from swarmd.bundle.model import SERIAL_MAX, Bundle, Participant
-from swarmd.bundle.summary import human, summary
+from swarmd.bundle.summary import human, serial_text, summary
 from swarmd.exitcodes import EX_BAD_ARGS, EX_CANTCREAT, EX_CONFIG, EX_DATAERR, EX_FAILED, EX_OK
 
 PROG = "swarmctl"
@@ -240,10 +240,6 @@ def _load(args: argparse.Namespace, *, inspect: bool) -> _Loaded:
     return _Loaded(bundle, data, dev, trust)
 
 
-def _serial_text(bundle: Bundle) -> str:
-    return "none (built before serials)" if bundle.serial is None else str(bundle.serial)
-
-
 def _guard(func: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
     """Map the bundle errors to one stderr line and their exit codes."""
 
@@ -415,7 +411,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
         print(
             f"OK {args.bundle}: swarm {b.swarm}, {b.size} participants, "
             f"sha256 {b.content_sha256.hex()}, signer {fingerprint(b.signing_public_key)} "
-            f"({loaded.trust}{', DEV' if loaded.dev else ''}), serial {_serial_text(b)}"
+            f"({loaded.trust}{', DEV' if loaded.dev else ''}), serial {serial_text(b.serial)}"
         )
     return EX_OK
 

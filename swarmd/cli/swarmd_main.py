@@ -23,7 +23,7 @@ from dataclasses import fields
 
 from swarmd import __version__
 from swarmd.config import ConfigError, load_config
-from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_USAGE, StartupError
+from swarmd.exitcodes import EX_CONFIG, EX_USAGE, StartupError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,11 +52,9 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     # imported here so `swarmd --help` stays fast and works without the engine's deps
     from swarmd import logs
     from swarmd.bundle.errors import BundleError
-    from swarmd.bundle.floor import FloorError, FloorWriteError
-    from swarmd.bundle.floor import enforce as enforce_floor
     from swarmd.bundle.loader import load_bundle
     from swarmd.daemon import Daemon, run
-    from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
+    from swarmd.daemon_setup import NodeSecretsError, enforce_bundle_floor, load_node_secrets
     from swarmd.discovery.config import EngineConfig
     from swarmd.rawclock import run_on_raw_clock
 
@@ -93,19 +91,9 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     # (`check-config` never does: a bundle checked but not run must not lock out the
     # bundle the drone runs now)
     try:
-        enforce_floor(
-            bundle,
-            source=config.bundle.path,
-            state_dir=config.bundle.node_state_dir,
-            node=config.node,
-            commit=False,
-        )
-    except BundleError as exc:
-        return _fail(f"bundle rejected: {exc}", EX_CONFIG)
-    except FloorError as exc:
-        return _fail(f"bundle floor rejected: {exc}", EX_CONFIG)
-    except FloorWriteError as exc:
-        return _fail(str(exc), EX_CANTCREAT)
+        enforce_bundle_floor(config, bundle, commit=False)
+    except StartupError as exc:
+        return _fail(str(exc), exc.exit_code)
     if args.command == "check-config":
         try:
             Daemon(config, bundle, log=log, node_secrets=secrets)

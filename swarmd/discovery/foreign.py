@@ -11,12 +11,12 @@ from __future__ import annotations
 from collections import Counter
 from typing import Final
 
-from swarmd.auth.budget import TokenBucket
 from swarmd.discovery.events import DropReason, ForeignParticipantSeen
 from swarmd.discovery.peers import MAX_FOREIGN, ForeignTable, clamp_lease
 from swarmd.discovery.views import ForeignView
 from swarmd.rtps.spdp import SpdpParticipant
 from swarmd.rtps.types import GuidPrefix
+from swarmd.tokenbucket import TokenBucket
 
 # A flood of DATA(p) under invented GUID prefixes (issue 10, attack 9) makes every datagram a
 # "new foreign participant"; report about one a second (burst 10), each report carrying how

@@ -70,7 +70,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, assert_never
 
-from swarmd.auth.budget import TokenBucket
 from swarmd.dataplane import (
     TOPIC_READY,
     CommandCopyVoided,
@@ -124,6 +123,7 @@ from swarmd.swarm.events import (
     UserDataDropped,
 )
 from swarmd.swarm.roles import Roles, reads
+from swarmd.tokenbucket import TokenBucket
 
 __all__ = [
     "SwarmCore",

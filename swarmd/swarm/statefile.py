@@ -33,18 +33,16 @@ without this file.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
-from swarmd.bundle.keys import refuse_shared_dir, write_file_atomic
+from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
 from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.types import MAX_REASON_CHARS, CommandResult
 from swarmd.dataplane.writer import MAX_INCARNATION
 
 FILE_PATTERN: Final = "dataplane-{node}.json"
-_UNSAFE: Final = re.compile(r"[^A-Za-z0-9._-]")
 STATE_FILE_MODE: Final = 0o640  # what UMask=0027 made of open(..., "w"): the group reads
 
 
@@ -80,7 +78,7 @@ class NodeState:
 
 
 def state_path(state_dir: str | Path, node: str) -> Path:
-    return Path(state_dir) / FILE_PATTERN.format(node=_UNSAFE.sub("_", node))
+    return node_state_path(state_dir, FILE_PATTERN, node)
 
 
 def boot(state_dir: str | Path, node: str) -> NodeState:

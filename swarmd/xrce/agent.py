@@ -124,7 +124,10 @@ REQUESTER_GUID: Final = b"swarmd\0\0\0\0\0\0" + bytes((0, 0, 4, 3))
 STREAM_BEST_EFFORT: Final = 0x01
 # Refusals that depend on the key, left unanswered (bound agent): an answer would tell a
 # prober its try was checked, and a different one for the right key would tell it the key.
-# The refusals that do not look at the key (cookie, version, session id) are answered.
+# DDS-XRCE 1.0 §8.3.5.4 makes STATUS_AGENT the answer to every CREATE_CLIENT; leaving these
+# out departs from it on purpose, and costs a real client nothing (it resends, as over any
+# lossy transport). The refusals that do not look at the key (cookie, version, session id)
+# are answered.
 UNANSWERED: Final = frozenset({"wrong_key", "vehicle_alive", "over_budget"})
 
 

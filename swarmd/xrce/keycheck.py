@@ -43,8 +43,9 @@ from __future__ import annotations
 
 import ipaddress
 from collections.abc import Hashable
-from dataclasses import dataclass
 from typing import Final, TypeVar
+
+from swarmd.tokenbucket import TokenBucket
 
 # per origin: 3 keys a second, 6 at once (a PX4 and a restarted PX4 within a second)
 ORIGIN_CHECKS_PER_S: Final = 3.0
@@ -65,36 +66,6 @@ MAX_SOURCES: Final = 256
 SHARED_ORIGIN: Final = "(other origins)"
 LOOPBACK_ORIGIN: Final = "loopback"
 _K = TypeVar("_K")
-
-
-@dataclass(slots=True)
-class TokenBucket:
-    """``rate_per_s`` tokens a second up to ``burst``; a pure function of ``now``."""
-
-    rate_per_s: float
-    burst: float
-    tokens: float
-    at: float
-
-    @classmethod
-    def full(cls, rate_per_s: float, burst: float, now: float) -> TokenBucket:
-        return cls(rate_per_s, burst, burst, now)
-
-    def refill(self, now: float) -> None:
-        if now > self.at:
-            self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate_per_s)
-            self.at = now
-
-    def has_token(self, now: float) -> bool:
-        self.refill(now)
-        return self.tokens >= 1.0
-
-    def is_full(self, now: float) -> bool:
-        self.refill(now)
-        return self.tokens >= self.burst
-
-    def take(self) -> None:
-        self.tokens -= 1.0
 
 
 def origin_of(source: Hashable) -> str:
@@ -131,13 +102,14 @@ class KeyCheckBudget:
         return (MAX_ORIGINS + 1) * ORIGIN_CHECKS_PER_S
 
     def allow(self, source: Hashable, now: float) -> bool:
-        origin = self._origin_bucket(origin_of(source), now)
-        mine = self._source_bucket(source, now)
-        if not (mine.has_token(now) and origin.has_token(now)):
+        origin_bucket = self._origin_bucket(origin_of(source), now)
+        source_bucket = self._source_bucket(source, now)
+        # both must hold a token before either is spent: a refused try costs neither
+        if not (source_bucket.has_token(now) and origin_bucket.has_token(now)):
             self.over_budget += 1
             return False
-        mine.take()
-        origin.take()
+        source_bucket.spend()
+        origin_bucket.spend()
         self.checks += 1
         return True
 
@@ -151,7 +123,7 @@ class KeyCheckBudget:
             origin = SHARED_ORIGIN
             if origin in self._origins:
                 return self._origins[origin]
-        bucket = TokenBucket.full(ORIGIN_CHECKS_PER_S, ORIGIN_BURST, now)
+        bucket = TokenBucket(ORIGIN_CHECKS_PER_S, ORIGIN_BURST, now)
         self._origins[origin] = bucket
         return bucket
 
@@ -163,7 +135,7 @@ class KeyCheckBudget:
             _forget_full(self._sources, now)
         while len(self._sources) >= MAX_SOURCES:
             del self._sources[next(iter(self._sources))]  # the oldest
-        bucket = TokenBucket.full(SOURCE_CHECKS_PER_S, SOURCE_BURST, now)
+        bucket = TokenBucket(SOURCE_CHECKS_PER_S, SOURCE_BURST, now)
         self._sources[source] = bucket
         return bucket
 
