@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import stat
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -298,3 +299,32 @@ def test_a_symlinked_key_file_is_refused(tmp_path: Path) -> None:
     (tmp_path / "px4-xrce-key").symlink_to(target)
     with pytest.raises(XrceKeyError, match="px4-xrce-key"):
         load_or_create(tmp_path)
+
+
+def test_a_fifo_in_place_of_the_key_file_stops_start_up_at_once(tmp_path: Path) -> None:
+    """A FIFO planted at the key's path must not hang start-up with no line saying why
+    (the floor's reader's rule, ``swarmd/bundle/floor.py``): opened non-blocking, refused
+    as not a regular file. Run in a thread so that a hang fails the test instead of the
+    suite: then a writer is opened to release the blocked open."""
+    path = tmp_path / "px4-xrce-key"
+    os.mkfifo(path, 0o600)
+    outcome: list[BaseException | None] = []
+
+    def load() -> None:
+        try:
+            load_or_create(tmp_path)
+            outcome.append(None)
+        except BaseException as exc:  # noqa: BLE001 - handed to the test thread
+            outcome.append(exc)
+
+    worker = threading.Thread(target=load, daemon=True)
+    worker.start()
+    worker.join(5.0)
+    hung = worker.is_alive()
+    if hung:  # release the open that blocks on a FIFO without a writer
+        os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+        worker.join(5.0)
+    assert not hung, "load_or_create blocked on a FIFO"
+    assert len(outcome) == 1 and isinstance(outcome[0], XrceKeyError), outcome
+    text = str(outcome[0])
+    assert "\n" not in text and str(path) in text and "fix:" in text
