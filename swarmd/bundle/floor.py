@@ -117,7 +117,7 @@ def parse_floor(raw: bytes, path: Path, bundle_source: str) -> Floor:
 
 def _read_regular(path: Path) -> bytes:
     """At most ``MAX_FLOOR_BYTES + 1`` bytes of the regular file at ``path``, under the
-    state file's rules (``swarmd.px4.xrce_key`` reads its key so, less ``O_NONBLOCK``):
+    state file's rules (``swarmd.px4.xrce_key`` reads its key so):
     never through a symlink (``O_NOFOLLOW``:
     a link to a lower floor elsewhere would lower it) and never blocking (``O_NONBLOCK``: a
     FIFO would hang start-up with no line saying why); anything but a regular file is an

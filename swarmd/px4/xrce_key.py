@@ -63,7 +63,8 @@ def load_or_create(secrets_dir: str | Path) -> XrceKey:
     fix = f"delete {path} to generate a new key, then set UXRCE_DDS_KEY on PX4 to it"
     unreadable = f"{path}: cannot read the XRCE key"
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        # O_NONBLOCK: a FIFO planted here must be refused at fstat, not hang the open
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
         value = generate_key()
         try:
