@@ -27,13 +27,18 @@ same uid), so the table names the sender's uid. Where it cannot:
   The window is short and needs the exact port freed by the node (docs/security.md).
 
 Every read is capped (``MAX_TABLE_BYTES``, ``MAX_INDEXED_SOCKETS``): a user opening sockets
-by the hundred thousand makes lookups miss (its own and others': a denial, counted), never
-grows memory. The cost is measured by ``bench/sender_uid.py``.
+by the ten thousand cuts the table read (counted ``truncated``), never grows memory. So
+by netlink a miss after a cut read asks for its source, and a source answered as one of
+``keep_uids`` (the users the caller takes) is kept and answered from its own query every
+``TTL_S``, outside the table and the miss budget: such a user cannot hide a node or PX4
+once found (tests/test_sockdiag.py). The cost is measured by ``bench/sender_uid.py``.
 
 Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
-same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for the
-one port, filtered in the kernel, so a miss costs a fraction of a table read and its
-budget (``MISS_QUERIES_PER_S``) is wider. When netlink is refused (the unit's
+same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for its
+source, filtered in the kernel by port and by address (the source's and the wildcards
+that can send from it: another user's sockets on the port at other addresses never fill
+``MAX_PORT_ROWS``), so a miss costs a fraction of a table read and its budget
+(``MISS_QUERIES_PER_S``) is wider. When netlink is refused (the unit's
 ``RestrictAddressFamilies=``, seccomp, no ``udp_diag`` in the kernel) or answers what we
 cannot parse, the lookup reads ``/proc/self/net/udp{,6}`` from then on (counted:
 ``netlink_refused``), with the /proc budget.

@@ -559,3 +559,43 @@ def test_a_user_holding_more_sockets_than_the_index_cannot_hide_a_kept_node(
     assert out["later"] == [[0, None]] * 3
     assert out["flood_found"] == 0
     assert out["over_budget"] > 0
+
+
+def test_only_the_callers_users_are_kept_and_the_least_recent_leaves_first(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The same mechanism with the caps lowered (every table read cut: nothing indexed; two
+    kept sources): after a flood spends the miss budget, root's kept sources are answered
+    from their own query; ``nobody``'s source was answered but never kept, so it is starved
+    like any unkept one; a third root source evicts the least recently looked up."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    monkeypatch.setattr(swarmd.senderuid, "MAX_INDEXED_SOCKETS", 0)
+    monkeypatch.setattr(swarmd.senderuid, "MAX_KEPT_SOURCES", 2)
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={ME})
+    mine = [_bind("127.0.0.1", _free_port()) for _ in range(3)]
+    a, b, c = (("127.0.0.1", s.getsockname()[1]) for s in mine)
+    port = _free_port()
+    attacker = _nobody_holds(port, 1, 1)
+    theirs = ("127.1.0.1", port)
+
+    def next_ttl_after_a_flood() -> None:
+        now[0] += TTL_S
+        for fresh in range(1, int(MISS_QUERY_BURST) + 20):  # ports below 1024 nobody holds
+            assert uids.uid_of(("127.0.0.1", fresh)) is None
+
+    try:
+        now[0] += 0.001
+        assert [uids.uid_of(s) for s in (a, b, theirs)] == [ME, ME, NOBODY]  # miss queries
+        next_ttl_after_a_flood()
+        assert [uids.uid_of(s) for s in (a, b, theirs, c)] == [ME, ME, None, None]
+        now[0] += 1.0  # the budget refills
+        assert uids.uid_of(c) == ME  # kept: ``a`` (looked up before ``b``) leaves
+        assert uids.counters["kept_evicted"] == 1
+        next_ttl_after_a_flood()
+        assert [uids.uid_of(s) for s in (a, b, c)] == [None, ME, ME]
+    finally:
+        attacker.communicate(timeout=10)
+        for s in mine:
+            s.close()
