@@ -12,8 +12,9 @@ processes' sockets would be):
 2. a table read: ``/proc/net/udp`` and ``udp6`` read and indexed, or the netlink sock_diag
    dump of both families (every ``TTL_S``; on the /proc path also on a miss within the miss
    budget); mean over 200 reads;
-3. a miss (netlink path): one port's query, both families, filtered in the kernel; mean
-   over 200 queries of a port nobody holds;
+3. a miss (netlink path): one source's query, both families, filtered in the kernel by
+   port (and, since branch h-uidaddr, by the source's address and its wildcards); mean over
+   200 queries of a port nobody holds;
 4. a flood of fresh ports: ``--count`` lookups of ports nobody holds, 64 per "batch" as
    ``swarmd.udp`` reads them, each batch 1 ms apart on the lookup's own clock: the mean
    cost per datagram with the miss budget spending its reads or queries.
@@ -98,8 +99,10 @@ def measure(extra: int, count: int, netlink: bool) -> dict[str, float]:
         query_us = float("nan")
         if netlink:
             start = time.perf_counter()
+            query = getattr(uids, "_query_source", None)  # before h-uidaddr: by port only
             for _ in range(reads):
-                uids._query_port(1)  # noqa: SLF001 - a port nobody holds (below 1024, unused)
+                # a port nobody holds (below 1024, unused)
+                query("127.0.0.1", 1) if query else uids._query_port(1)  # type: ignore[attr-defined]  # noqa: SLF001
             query_us = (time.perf_counter() - start) / reads * 1e6
         flood = SenderUids(clock=clock, netlink=netlink)
         flood.uid_of(source)

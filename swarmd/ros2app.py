@@ -83,9 +83,11 @@ class Ros2App:
             node_uids=config.ros2.node_users,
         )
         # who sent a datagram (its socket's uid): looked up only when the relay tells users
-        # apart (``ros2.node_users``); ``sender_uids`` is injected by tests
+        # apart (``ros2.node_users``, whose sources are kept: swarmd.senderuid); ``sender_uids``
+        # is injected by tests
+        node_users = config.ros2.node_users
         self.sender_uids = (
-            (sender_uids or SenderUids()) if config.ros2.node_users is not None else None
+            (sender_uids or SenderUids(keep_uids=node_users)) if node_users is not None else None
         )
         self.transport: BatchedSocket | None = None
         self.transport4: BatchedSocket | None = None

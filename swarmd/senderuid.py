@@ -27,13 +27,18 @@ same uid), so the table names the sender's uid. Where it cannot:
   The window is short and needs the exact port freed by the node (docs/security.md).
 
 Every read is capped (``MAX_TABLE_BYTES``, ``MAX_INDEXED_SOCKETS``): a user opening sockets
-by the hundred thousand makes lookups miss (its own and others': a denial, counted), never
-grows memory. The cost is measured by ``bench/sender_uid.py``.
+by the ten thousand cuts the table read (counted ``truncated``), never grows memory. So
+by netlink a miss after a cut read asks for its source, and a source answered as one of
+``keep_uids`` (the users the caller takes) is kept and answered from its own query every
+``TTL_S``, outside the table and the miss budget: such a user cannot hide a node or PX4
+once found (tests/test_sockdiag.py). The cost is measured by ``bench/sender_uid.py``.
 
 Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
-same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for the
-one port, filtered in the kernel, so a miss costs a fraction of a table read and its
-budget (``MISS_QUERIES_PER_S``) is wider. When netlink is refused (the unit's
+same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for its
+source, filtered in the kernel by port and by address (the source's and the wildcards
+that can send from it: another user's sockets on the port at other addresses never fill
+``MAX_PORT_ROWS``), so a miss costs a fraction of a table read and its budget
+(``MISS_QUERIES_PER_S``) is wider. When netlink is refused (the unit's
 ``RestrictAddressFamilies=``, seccomp, no ``udp_diag`` in the kernel) or answers what we
 cannot parse, the lookup reads ``/proc/self/net/udp{,6}`` from then on (counted:
 ``netlink_refused``), with the /proc budget.
@@ -46,7 +51,7 @@ import re
 import socket
 import sys
 import time
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Collection, Hashable
 from pathlib import Path
 from typing import Final
 
@@ -78,6 +83,14 @@ MAX_INDEXED_SOCKETS: Final = 32_768
 # can bind one port on every address of 127/8.
 MAX_DUMP_ROWS: Final = MAX_TABLE_BYTES // 150
 MAX_PORT_ROWS: Final = 64
+# The owner of the rows a capped query left unread: a second uid, so the answer is None.
+UNREAD_UID: Final = -1
+# Sources answered as one of ``keep_uids`` (the users the caller takes: a declared node's,
+# PX4's) are answered from their own filtered query every TTL_S, not from the table read
+# (which a user holding more than MAX_INDEXED_SOCKETS sockets cuts before them) nor from the
+# miss budget (which a flood of fresh ports spends). This many, least recently looked up
+# first out; another user's source is never kept, so it cannot fill them.
+MAX_KEPT_SOURCES: Final = 64
 _LINE: Final = re.compile(
     r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
 )
@@ -135,19 +148,27 @@ class SenderUids:
 
     ``proc`` and ``clock`` are injected for tests (a recorded table, a hand-set clock).
     ``netlink``: ask the kernel by sock_diag first; by default when ``proc`` is the live
-    ``/proc/self`` (a recorded table is read as given)."""
+    ``/proc/self`` (a recorded table is read as given). ``keep_uids``: the users the caller
+    takes; their sources are kept (``MAX_KEPT_SOURCES``) and, by netlink, answered from
+    their own query, whatever another user does to the table read or the miss budget."""
 
     def __init__(
         self,
         proc: Path = Path("/proc/self"),
         clock: Callable[[], float] = time.monotonic,
         netlink: bool | None = None,
+        keep_uids: Collection[int] = (),
     ) -> None:
         self.proc = proc
         self.clock = clock
+        self.keep_uids = frozenset(keep_uids)
+        # (host, port) -> (when its uids were read, the uids): sources of keep_uids, in
+        # order of their last lookup (the first is the first out)
+        self._kept: dict[tuple[str, int], tuple[float, set[int]]] = {}
         # port -> [(bound address, uid)] for loopback and wildcard sockets
         self._index: dict[int, list[tuple[str, int]]] = {}
         self._read_at: float | None = None
+        self._table_cut = False  # the last read left sockets unread (a cap)
         self._miss_reads = MISS_READ_BURST  # tokens of the miss budget
         self._miss_reads_at: float | None = None
         # hex -> text when loopback or wildcard, else None: the few addresses there are
@@ -164,6 +185,7 @@ class SenderUids:
             "miss_reads_over_budget": 0,
             "port_queries": 0,
             "netlink_refused": 0,
+            "kept_evicted": 0,
         }
         self._diag: UdpDiag | None = None
         if netlink if netlink is not None else proc == Path("/proc/self"):
@@ -180,18 +202,49 @@ class SenderUids:
         port: int = source[1]
         self.counters["lookups"] += 1
         now = self.clock()
-        if self._read_at is None or now - self._read_at >= TTL_S:
-            self._read(now)
-        uids = self._uids(host, port)
-        if not uids and self._read_at != now and self._miss_read(now):
-            # it may have bound its port after our last read
-            if not self._query_port(port):
+        uids = self._kept_uids(host, port, now)
+        if uids is None:
+            if self._read_at is None or now - self._read_at >= TTL_S:
                 self._read(now)
+            read_at = self._read_at
             uids = self._uids(host, port)
+            # it may have bound its port after our last read, or the read was cut before it
+            # (then its own query finds it: a re-read of /proc would be cut the same way)
+            retry = self._read_at != now or (self._table_cut and self._diag is not None)
+            if not uids and retry and self._miss_read(now):
+                if self._query_source(host, port) is None:
+                    self._read(now)
+                read_at, uids = now, self._uids(host, port)
+            if len(uids) == 1 and uids <= self.keep_uids and self._diag is not None:
+                self._keep((host, port), read_at if read_at is not None else now, uids)
         if len(uids) == 1:
             return next(iter(uids))
         self.counters["ambiguous" if uids else "not_found"] += 1
         return None
+
+    def _kept_uids(self, host: str, port: int, now: float) -> set[int] | None:
+        """A kept source's uids, re-read by its own query once ``TTL_S`` old (not charged to
+        the miss budget: at most MAX_KEPT_SOURCES queries a TTL_S); None when the source is
+        not kept or netlink failed. A source no longer one ``keep_uids`` owner's leaves."""
+        key = (host, port)
+        kept = self._kept.pop(key, None)
+        if kept is None or self._diag is None:
+            return None
+        read_at, uids = kept
+        if not 0.0 <= now - read_at < TTL_S:
+            fresh = self._query_source(host, port)
+            if fresh is None:
+                return None
+            read_at, uids = now, fresh
+        if len(uids) == 1 and uids <= self.keep_uids:
+            self._kept[key] = (read_at, uids)  # to the end: the last looked up
+        return uids
+
+    def _keep(self, key: tuple[str, int], read_at: float, uids: set[int]) -> None:
+        if len(self._kept) >= MAX_KEPT_SOURCES:
+            del self._kept[next(iter(self._kept))]
+            self.counters["kept_evicted"] += 1
+        self._kept[key] = (read_at, uids)
 
     def _miss_read(self, now: float) -> bool:
         """A token of the miss budget, if one is left (a bucket refilled by ``now``)."""
@@ -232,29 +285,41 @@ class SenderUids:
             self._diag.close()
             self._diag = None
 
-    def _query_port(self, port: int) -> bool:
-        """Re-index one port from the kernel; False when netlink failed (read /proc)."""
+    def _query_source(self, host: str, port: int) -> set[int] | None:
+        """Re-index the sockets that can send from ``(host, port)`` from the kernel (the
+        port's query, filtered to ``host`` and its wildcards in the kernel: other addresses'
+        rows on the port never reach ``MAX_PORT_ROWS``); their uids, or None when netlink
+        failed (read /proc). Past the cap the answer has an owner we did not read: ambiguous."""
         if self._diag is None:
-            return False
+            return None
         self.counters["port_queries"] += 1
+        ipv4 = ":" not in host
+        own = socket.AF_INET if ipv4 else socket.AF_INET6
+        filters = [(own, socket.inet_pton(own, host)), (socket.AF_INET6, bytes(16))]
+        if ipv4:
+            filters.append((socket.AF_INET, bytes(4)))
         pairs: list[tuple[str, int]] = []
         try:
-            for family in (socket.AF_INET, socket.AF_INET6):
-                rows, more = self._diag.rows(family, port, MAX_PORT_ROWS)
+            for family in (socket.AF_INET, socket.AF_INET6) if ipv4 else (socket.AF_INET6,):
+                rows, more = self._diag.rows(family, port, MAX_PORT_ROWS, filters)
                 if more:
                     self.counters["truncated"] += 1
+                    pairs.append((host, UNREAD_UID))
                 for row in rows:
                     address = self._address(row)
                     if address is not None and (address, row.uid) not in pairs:
                         pairs.append((address, row.uid))
         except (OSError, SockDiagError):
             self._netlink_failed()
-            return False
-        if pairs:
-            self._index[port] = pairs
+            return None
+        # the port's other rows (other addresses) stay as the last read gave them
+        covered = {host, "::", V6ONLY_WILDCARD, "0.0.0.0" if ipv4 else "::"}  # noqa: S104
+        kept = [pair for pair in self._index.get(port, ()) if pair[0] not in covered]
+        if kept or pairs:
+            self._index[port] = kept + pairs
         else:
             self._index.pop(port, None)
-        return True
+        return {uid for bound, uid in pairs if may_send_from(bound, host)}
 
     def _dump(self) -> list[UdpRow] | None:
         """Every UDP socket by netlink, or None when it failed (read /proc)."""
@@ -275,12 +340,13 @@ class SenderUids:
     def _read(self, now: float) -> None:
         self.counters["reads"] += 1
         self._read_at = now
-        if self._diag is not None:
-            rows = self._dump()
-            if rows is not None:
-                self._index_rows(rows)
-                return
-        self._read_proc()
+        cut_before = self.counters["truncated"]
+        rows = self._dump()
+        if rows is not None:
+            self._index_rows(rows)
+        else:
+            self._read_proc()
+        self._table_cut = self.counters["truncated"] != cut_before
 
     def _index_rows(self, rows: list[UdpRow]) -> None:
         index: dict[int, list[tuple[str, int]]] = {}

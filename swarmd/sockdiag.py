@@ -15,6 +15,14 @@ the request's ``ext``: ``inet_diag_msg_attrs_fill``), because a v6-only socket b
 ``::`` cannot send from an IPv4 address and a dual-stack one can (ipv6(7)). A dump ends with
 ``NLMSG_DONE``; a refusal is ``NLMSG_ERROR`` with a negative errno.
 
+A one-port query may also carry an ``INET_DIAG_REQ_BYTECODE`` attribute: the kernel runs it
+on each socket of the port (``inet_diag_bc_run``, open to every user) and sends only those
+it accepts. We send an OR of ``INET_DIAG_BC_S_COND`` host conditions (a local address with
+its full prefix): the source's own address and the wildcards that can send from it, so the
+rows a local user binds on the node's port at other loopback addresses never reach the row
+cap (docs/security.md, "The local user"). An ``AF_INET`` condition also matches an IPv6
+socket bound to that address v4-mapped (the kernel compares the mapped form).
+
 A reply that does not parse raises ``SockDiagError``: the caller falls back to ``/proc``.
 """
 
@@ -22,6 +30,7 @@ from __future__ import annotations
 
 import socket
 import struct
+from collections.abc import Sequence
 from typing import Final, NamedTuple
 
 NETLINK_SOCK_DIAG: Final = 4
@@ -41,6 +50,11 @@ _ROW: Final = struct.Struct("=B3xH2x16s16x12x12xII")
 _ROW_BYTES: Final = 72
 _ATTR: Final = struct.Struct("=HH")  # nlattr: len (header included), type
 INET_DIAG_SKV6ONLY: Final = 11  # enum inet_diag_attr: a u8, 1 when IPV6_V6ONLY
+INET_DIAG_REQ_BYTECODE: Final = 1  # the request's attribute: a filter program
+INET_DIAG_BC_JMP: Final = 1  # enum of linux/inet_diag.h: always "no"
+INET_DIAG_BC_S_COND: Final = 7  # the local address matches a prefix (and port, -1: any)
+_OP: Final = struct.Struct("=BBH")  # inet_diag_bc_op: code, yes, no (jumps in octets)
+_HOSTCOND: Final = struct.Struct("=BBxxi")  # inet_diag_hostcond: family, prefix_len, port
 # A dump's chunks are at most 32 KiB (the kernel's netlink_dump allocation); one buffer
 # this size never truncates one.
 RECV_BYTES: Final = 1 << 16
@@ -72,8 +86,33 @@ class UdpRow(NamedTuple):
         return socket.inet_ntop(self.family, self.raw_address)
 
 
-def encode_request(family: int, port: int, seq: int) -> bytes:
-    """A dump of ``family``'s UDP sockets, only those bound to local ``port`` unless 0."""
+def encode_local_filter(addresses: Sequence[tuple[int, bytes]]) -> bytes:
+    """A filter program accepting a socket whose local address is one of ``addresses``
+    (family, 4 or 16 octets). An OR as ``ss`` compiles one (iproute2 misc/ss.c): each
+    condition's "yes" lands on a JMP whose "no" skips to the end (accept), its "no" on the
+    next condition; the last one's "no" lands 4 octets past the end (reject). The kernel
+    audits that every jump lands on an operation of the "yes" chain (``inet_diag_bc_audit``)."""
+    if not addresses:
+        raise ValueError("an empty filter accepts nothing")
+    conds = [
+        _HOSTCOND.pack(family, len(raw) * 8, -1) + raw for family, raw in addresses
+    ]  # fmt: skip
+    out = b""
+    for cond in reversed(conds):
+        size = _OP.size + len(cond)
+        if not out:
+            out = _OP.pack(INET_DIAG_BC_S_COND, size, size + 4) + cond
+        else:
+            jump = _OP.pack(INET_DIAG_BC_JMP, _OP.size, len(out) + 4)
+            out = _OP.pack(INET_DIAG_BC_S_COND, size, size + 4) + cond + jump + out
+    return out
+
+
+def encode_request(
+    family: int, port: int, seq: int, addresses: Sequence[tuple[int, bytes]] | None = None
+) -> bytes:
+    """A dump of ``family``'s UDP sockets, only those bound to local ``port`` unless 0, and
+    to one of ``addresses`` when given (``encode_local_filter``)."""
     body = _REQUEST.pack(
         family,
         socket.IPPROTO_UDP,
@@ -87,6 +126,9 @@ def encode_request(family: int, port: int, seq: int) -> bytes:
         0,
         NO_COOKIE,
     )
+    if addresses is not None:
+        program = encode_local_filter(addresses)
+        body += _ATTR.pack(_ATTR.size + len(program), INET_DIAG_REQ_BYTECODE) + program
     return _HEADER.pack(_HEADER.size + len(body), SOCK_DIAG_BY_FAMILY,
                         NLM_F_REQUEST | NLM_F_DUMP, seq, 0) + body  # fmt: skip
 
@@ -166,11 +208,18 @@ class UdpDiag:
         if sock is not None:
             sock.close()
 
-    def rows(self, family: int, port: int, max_rows: int) -> tuple[list[UdpRow], bool]:
-        """``family``'s UDP sockets bound to ``port`` (every one when 0), at most
-        ``max_rows`` and whether more were left unread. Raises OSError or SockDiagError."""
+    def rows(
+        self,
+        family: int,
+        port: int,
+        max_rows: int,
+        addresses: Sequence[tuple[int, bytes]] | None = None,
+    ) -> tuple[list[UdpRow], bool]:
+        """``family``'s UDP sockets bound to ``port`` (every one when 0) and to one of
+        ``addresses`` when given, at most ``max_rows`` and whether more were left unread.
+        Raises OSError or SockDiagError."""
         self._seq = (self._seq + 1) & 0xFFFF_FFFF
-        self._sock.send(encode_request(family, port, self._seq))
+        self._sock.send(encode_request(family, port, self._seq, addresses))
         out: list[UdpRow] = []
         while True:
             rows, done = parse_reply(self._sock.recv(RECV_BYTES), self._seq)

@@ -7,6 +7,7 @@ both families, wildcard, dual-stack, v4-mapped, a port two users share, a closed
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 import socket
@@ -243,8 +244,9 @@ def test_netlink_and_proc_give_the_same_answers_on_real_sockets(
 def test_a_miss_is_one_ports_query_on_real_sockets(
     two_users: tuple[dict[str, tuple[tuple[Any, ...], int | None]], list[Any]],
 ) -> None:
-    """The table is dumped first; sockets bound after it are found by their port's query
-    (netlink) or a re-read (/proc), on the same hand-set time."""
+    """The table is dumped first; sockets bound after it are found by their source's query
+    (netlink: the port's sockets at that address or a wildcard, one query a source) or a
+    re-read (/proc), on the same hand-set time."""
     now = [100.0]
     by_netlink = SenderUids(clock=lambda: now[0], netlink=True)
     by_proc = SenderUids(clock=lambda: now[0], netlink=False)
@@ -260,7 +262,7 @@ def test_a_miss_is_one_ports_query_on_real_sockets(
     finally:
         for s in late:
             s.close()
-    assert (by_netlink.counters["reads"], by_netlink.counters["port_queries"]) == (1, 1)
+    assert (by_netlink.counters["reads"], by_netlink.counters["port_queries"]) == (1, 2)
     assert (by_proc.counters["reads"], by_proc.counters["port_queries"]) == (2, 0)
 
 
@@ -400,3 +402,200 @@ def test_a_refused_constructor_leaves_nothing_to_close(monkeypatch: pytest.Monke
     uids = SenderUids()
     assert uids.counters["netlink_refused"] == 1
     del uids  # UdpDiag.__del__ of the half-built object must not raise
+
+
+# ---- a local user's sockets around a node's source (docs/security.md, "The local user") ---
+
+# Run as ``nobody``: binds ``count`` sockets on ``port`` at 127.1.X.Y from index ``first``
+# (every address of 127/8 is the loopback's), prints "ready", holds them until stdin closes
+# (capped at 60 s).
+HOLDER_MANY = """
+import socket, sys, select
+port, first, count = map(int, sys.argv[1:4])
+socks = []
+for i in range(first, first + count):
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
+    socks.append(s)
+print("ready", flush=True)
+select.select([sys.stdin], [], [], 60.0)
+"""
+
+
+def _nobody_holds(port: int, first: int, count: int) -> subprocess.Popen[str]:
+    holder = subprocess.Popen(  # noqa: S603 - fixed argv
+        [
+            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
+            sys.executable, "-I", "-c", HOLDER_MANY, str(port), str(first), str(count),
+        ],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert holder.stdout is not None
+    assert holder.stdout.readline().strip() == "ready"
+    return holder
+
+
+def test_other_addresses_on_a_nodes_port_do_not_push_it_out_of_its_query() -> None:
+    """Attack: a node holds 127.0.0.1:P; ``nobody`` binds P on ``MAX_PORT_ROWS`` other
+    loopback addresses (Linux allows it: no wildcard, other addresses). The kernel lists
+    the newest socket of a port first, so the node's row was past the per-port query's cap,
+    and every datagram of a node bound after the last table read was dropped (on main:
+    None). The query now asks the kernel for the source's address and its wildcards only."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=True)
+    assert uids.uid_of(("127.0.0.1", 9)) is None  # the table read, before the node binds
+    port = _free_port()
+    node = _bind("127.0.0.1", port)
+    attacker = _nobody_holds(port, 1, swarmd.senderuid.MAX_PORT_ROWS)
+    try:
+        now[0] += TTL_S / 2
+        assert uids.uid_of(("127.0.0.1", port)) == ME  # the source's query
+        assert uids.uid_of(("127.1.0.7", port)) == NOBODY  # the attacker's own sources
+        assert SenderUids(netlink=True).uid_of(("127.0.0.1", port)) == ME  # the table read
+        assert SenderUids(netlink=False).uid_of(("127.0.0.1", port)) == ME
+        assert uids.counters["truncated"] == 0
+    finally:
+        attacker.communicate(timeout=10)
+        node.close()
+
+
+def test_a_source_query_past_its_cap_is_nobodys(monkeypatch: pytest.MonkeyPatch) -> None:
+    """More sockets that can send from one source than a query reads (a port shared with
+    SO_REUSEADDR): one of them may be another user's, so the answer is None."""
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=True)
+    assert uids.uid_of(("127.0.0.1", 9)) is None
+    port = _free_port()
+    shared = [_bind("127.0.0.1", port, reuse=True), _bind("0.0.0.0", port, reuse=True)]  # noqa: S104
+    monkeypatch.setattr(swarmd.senderuid, "MAX_PORT_ROWS", 1)
+    try:
+        now[0] += TTL_S / 2
+        assert uids.uid_of(("127.0.0.1", port)) is None
+        assert uids.counters["truncated"] == 1
+        monkeypatch.setattr(swarmd.senderuid, "MAX_PORT_ROWS", 2)
+        now[0] += TTL_S / 4
+        assert uids.uid_of(("127.0.0.2", port)) == ME  # the wildcard alone: not cut
+    finally:
+        for s in shared:
+            s.close()
+
+
+# Run inside a fresh network namespace (its own socket table; the host's ports are never
+# touched): a node on 127.0.0.1:P, ``nobody`` holding ``holders`` x ``per_holder`` sockets on
+# P at other addresses (more than MAX_INDEXED_SOCKETS: nobody's RLIMIT_NOFILE is 20,000 on
+# this box, so across two processes, as an attacker would), then the lookups on a hand-set
+# clock: a table read cut before the node, the node's first datagram, a flood of fresh ports
+# spending the miss budget, the node's datagrams in each of the next TTL_S. Prints JSON.
+TABLE_CUT_SCENARIO = """
+import json, socket, subprocess, sys
+from swarmd.senderuid import MAX_INDEXED_SOCKETS, MISS_QUERY_BURST, TTL_S, SenderUids
+holder_code, holders, per_holder = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+node.bind(("127.0.0.1", 0))
+port = node.getsockname()[1]
+procs = []
+for h in range(holders):
+    procs.append(subprocess.Popen(
+        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-I",
+         "-c", holder_code, str(port), str(1 + h * per_holder), str(per_holder)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))
+try:
+    assert all(p.stdout.readline().strip() == "ready" for p in procs)
+    now = [100.0]
+    try:
+        kept = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={0})
+    except TypeError:  # main had no keep_uids: the attack is then shown by its answers
+        kept = SenderUids(clock=lambda: now[0], netlink=True)
+    plain = SenderUids(clock=lambda: now[0], netlink=True)
+    source = ("127.0.0.1", port)
+    out = {"first": [], "later": [], "flood_found": 0}
+    for uids in (kept, plain):
+        uids.uid_of(("127.0.0.1", 9))  # the table read
+    now[0] += TTL_S / 2
+    out["first"] = [kept.uid_of(source), plain.uid_of(source)]
+    for step in range(3):
+        now[0] += TTL_S  # a table read at the node's next datagram, cut before it
+        for uids in (kept, plain):
+            for i in range(int(MISS_QUERY_BURST) + 8):  # fresh ports: the budget is spent
+                out["flood_found"] += uids.uid_of(("127.0.0.1", 20000 + i)) is not None
+        now[0] += 0.001
+        out["later"].append([kept.uid_of(source), plain.uid_of(source)])
+    out["truncated"] = kept.counters["truncated"]
+    out["over_budget"] = plain.counters["miss_reads_over_budget"]
+    print(json.dumps(out), flush=True)
+finally:
+    for p in procs:
+        p.communicate(timeout=20)
+    node.close()
+"""
+
+
+@pytest.mark.netns
+def test_a_user_holding_more_sockets_than_the_index_cannot_hide_a_kept_node(
+    lan_factory: Any,
+) -> None:
+    """Attack at full scale: ``nobody`` holds 34,000 sockets (two processes under its
+    20,000-file limit) on the node's port at other loopback addresses, bound after the node:
+    the kernel lists them first, so every table read is cut (MAX_INDEXED_SOCKETS) before the
+    node, and the port's query was cut (MAX_PORT_ROWS) too: on main the node was None. Now
+    the node's first datagram is found by its source's filtered query, and a source of a
+    ``keep_uids`` user is then answered from its own query every TTL_S, whatever the table
+    read and a flood spending the miss budget do; a lookup without ``keep_uids`` is starved
+    by that flood (the residual: docs/security.md)."""
+    ns = lan_factory(1)[0]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    done = ns.run(
+        [sys.executable, "-c", TABLE_CUT_SCENARIO, HOLDER_MANY, "2", "17000"],
+        timeout=120.0,
+        env=env,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["truncated"] > 0  # the precondition: the table reads were cut
+    assert out["first"] == [0, 0]  # root: the node's user in the test namespace
+    assert out["later"] == [[0, None]] * 3
+    assert out["flood_found"] == 0
+    assert out["over_budget"] > 0
+
+
+def test_only_the_callers_users_are_kept_and_the_least_recent_leaves_first(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The same mechanism with the caps lowered (every table read cut: nothing indexed; two
+    kept sources): after a flood spends the miss budget, root's kept sources are answered
+    from their own query; ``nobody``'s source was answered but never kept, so it is starved
+    like any unkept one; a third root source evicts the least recently looked up."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    monkeypatch.setattr(swarmd.senderuid, "MAX_INDEXED_SOCKETS", 0)
+    monkeypatch.setattr(swarmd.senderuid, "MAX_KEPT_SOURCES", 2)
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={ME})
+    mine = [_bind("127.0.0.1", _free_port()) for _ in range(3)]
+    a, b, c = (("127.0.0.1", s.getsockname()[1]) for s in mine)
+    port = _free_port()
+    attacker = _nobody_holds(port, 1, 1)
+    theirs = ("127.1.0.1", port)
+
+    def next_ttl_after_a_flood() -> None:
+        now[0] += TTL_S
+        for fresh in range(1, int(MISS_QUERY_BURST) + 20):  # ports below 1024 nobody holds
+            assert uids.uid_of(("127.0.0.1", fresh)) is None
+
+    try:
+        now[0] += 0.001
+        assert [uids.uid_of(s) for s in (a, b, theirs)] == [ME, ME, NOBODY]  # miss queries
+        next_ttl_after_a_flood()
+        assert [uids.uid_of(s) for s in (a, b, theirs, c)] == [ME, ME, None, None]
+        now[0] += 1.0  # the budget refills
+        assert uids.uid_of(c) == ME  # kept: ``a`` (looked up before ``b``) leaves
+        assert uids.counters["kept_evicted"] == 1
+        next_ttl_after_a_flood()
+        assert [uids.uid_of(s) for s in (a, b, c)] == [None, ME, ME]
+    finally:
+        attacker.communicate(timeout=10)
+        for s in mine:
+            s.close()

@@ -141,8 +141,12 @@ class XrceBackend:
         self.counters: Counter[str] = Counter()
         self.loopback_user = loopback_user if mode == "xrce-agent" else None
         # who sent a loopback datagram: looked up only when the agent tells users apart
+        # (PX4's sources are kept: another user's sockets cannot push them out of the
+        # table read: swarmd.senderuid, MAX_KEPT_SOURCES)
         self._sender_uids = (
-            (sender_uids or SenderUids()) if self.loopback_user is not None else None
+            (sender_uids or SenderUids(keep_uids={self.loopback_user}))
+            if self.loopback_user is not None
+            else None
         )
         self.session: str = "none"
         self.client: str | None = None

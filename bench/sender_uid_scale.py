@@ -1,0 +1,108 @@
+"""What a local user holding more sockets than the lookup indexes costs it (swarmd.senderuid;
+docs/security.md, "The local user", residual (5)): in a throw-away network namespace
+(swarmd_lab.netns: the host's ports are never touched), a node on 127.0.0.1:P and user
+``nobody`` holding ``--sockets`` sockets on P at other loopback addresses (two processes:
+its file limit is 20,000 here), bound after the node so the kernel lists them first. Times,
+on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the node's
+source query (filtered to its address and wildcards) and a query of a port nobody holds;
+mean over ``--reps``. Prints markdown. Needs root and setpriv.
+
+    .venv/bin/python bench/sender_uid_scale.py [--sockets 34000] [--reps 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT), str(ROOT / "lab")]
+
+from swarmd_lab.netns import Lan  # noqa: E402
+
+HOLDER = """
+import socket, sys, select
+port, first, count = map(int, sys.argv[1:4])
+socks = []
+for i in range(first, first + count):
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
+    socks.append(s)
+print("ready", flush=True)
+select.select([sys.stdin], [], [], 120.0)
+"""
+
+# Runs inside the namespace: argv = holder code, sockets, reps. Prints one JSON line.
+SCENARIO = """
+import json, socket, subprocess, sys, time
+from swarmd.senderuid import SenderUids
+holder, total, reps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+node.bind(("127.0.0.1", 0))
+port = node.getsockname()[1]
+per = -(-total // 2)
+procs = [subprocess.Popen(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
+         sys.executable, "-I", "-c", holder, str(port), str(1 + h * per), str(per)],
+         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for h in range(2)]
+try:
+    assert all(p.stdout.readline().strip() == "ready" for p in procs)
+    uids = SenderUids(clock=lambda: 0.0, netlink=True)
+    query = getattr(uids, "_query_source", None)
+    if query is None:  # before branch h-uidaddr: by port only
+        node_query = lambda: uids._query_port(port)
+        empty_query = lambda: uids._query_port(1)
+    else:
+        node_query = lambda: query("127.0.0.1", port)
+        empty_query = lambda: query("127.0.0.1", 1)
+    out = {}
+    for name, fn in (("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
+                     ("empty_query_ms", empty_query)):
+        start = time.perf_counter()
+        for _ in range(reps):
+            fn()
+        out[name] = (time.perf_counter() - start) / reps * 1000
+    uids._read(0.0)
+    out["node_in_index"] = any(a == "127.0.0.1" for a, _ in uids._index.get(port, ()))
+    out["truncated"] = uids.counters["truncated"]
+    out["node_found_by_query"] = (query("127.0.0.1", port) if query else
+                                  (uids._query_port(port), uids._uids("127.0.0.1", port))[1]) == {0}
+    print(json.dumps(out), flush=True)
+finally:
+    for p in procs:
+        p.communicate(timeout=30)
+    node.close()
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sockets", type=int, default=34_000)
+    parser.add_argument("--reps", type=int, default=20)
+    args = parser.parse_args()
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    with Lan(1) as lan:
+        done = lan[0].run(
+            [sys.executable, "-c", SCENARIO, HOLDER, str(args.sockets), str(args.reps)],
+            timeout=600.0,
+            env=env,
+            check=False,
+        )
+    if done.returncode != 0:
+        sys.exit(done.stderr[-2000:])
+    r = json.loads(done.stdout.strip().splitlines()[-1])
+    print(f"# {' '.join(sys.argv)}  ({stamp}; tree {ROOT})")
+    print("| other user's sockets | table read ms | node's query ms | empty port's query ms |"
+          " node in the (cut) index | node found by its query |")  # fmt: skip
+    print("|---:|---:|---:|---:|---|---|")
+    print(f"| {args.sockets:,} | {r['read_ms']:.1f} | {r['node_query_ms']:.2f} |"
+          f" {r['empty_query_ms']:.2f} | {r['node_in_index']} |"
+          f" {r['node_found_by_query']} |")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
