@@ -599,3 +599,107 @@ def test_only_the_callers_users_are_kept_and_the_least_recent_leaves_first(
         attacker.communicate(timeout=10)
         for s in mine:
             s.close()
+
+
+# The lookup's cost against a local user holding a huge table (docs/security.md, "The local
+# user", residual (5)): counted in work, not time. A fake netlink whose every call advances
+# a fake cost clock by what bench/sender_uid_scale.py measured at 34,000 sockets (a dump
+# ~0.2 s, and cut; a one-port query ~5 ms), so the test is exact and untimed.
+COST_SHARE = 0.10  # of one core: the bound docs/security.md gives (swarmd.senderuid)
+DUMP_COST_S = 0.2
+QUERY_COST_S = 0.005
+
+
+class _HugeTable:
+    """A ``UdpDiag`` over a table another user filled: every dump comes back cut; a query
+    names ``owners`` (port -> uid) on 127.0.0.1. ``spent`` is the cost clock."""
+
+    spent = [0.0]
+    owners: dict[int, int] = {}
+    calls = {"dumps": 0, "queries": 0}
+
+    def rows(
+        self, family: int, port: int, max_rows: int, addresses: Any = None
+    ) -> tuple[list[swarmd.sockdiag.UdpRow], bool]:
+        if port == 0:
+            _HugeTable.calls["dumps"] += family == socket.AF_INET
+            _HugeTable.spent[0] += DUMP_COST_S / 2  # each family's half
+            return [], True
+        _HugeTable.calls["queries"] += family == socket.AF_INET
+        _HugeTable.spent[0] += QUERY_COST_S / 2
+        uid = _HugeTable.owners.get(port)
+        if uid is None or family != socket.AF_INET:
+            return [], False
+        raw = socket.inet_aton("127.0.0.1")
+        return [swarmd.sockdiag.UdpRow(socket.AF_INET, raw, port, uid, 1)], False
+
+    def close(self) -> None:
+        pass
+
+
+def _huge_table_lookup(
+    monkeypatch: pytest.MonkeyPatch, now: list[float], keep_uids: frozenset[int] = frozenset()
+) -> SenderUids:
+    monkeypatch.setattr(swarmd.senderuid, "UdpDiag", _HugeTable)
+    _HugeTable.spent[0] = 0.0
+    _HugeTable.owners = {}
+    _HugeTable.calls = {"dumps": 0, "queries": 0}
+    try:
+        return SenderUids(
+            clock=lambda: now[0],
+            netlink=True,
+            keep_uids=keep_uids,
+            cost_clock=lambda: _HugeTable.spent[0],  # type: ignore[call-arg]
+        )
+    except TypeError:  # main had no cost clock: the fake still counts what it spent
+        return SenderUids(clock=lambda: now[0], netlink=True, keep_uids=keep_uids)
+
+
+def test_a_flood_of_misses_against_a_huge_table_costs_a_bounded_share_of_a_core(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack: a local user holding ~34,000 sockets (every dump cut, each costing 0.2 s) and
+    flooding fresh ports at 20 lookups a virtual millisecond for 10 virtual seconds. On main
+    a dump every TTL_S and 200 queries a second cost ~18 s of lookup in 10 s (most of a
+    core: 1.8 cores here). Now the lookup's cost is at most COST_SHARE of the time, plus a
+    bounded burst and debt and one call in flight."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now)
+    flood = 20_000
+    for _ in range(10_000):
+        now[0] += 0.001
+        for _ in range(20):
+            flood = 20_000 + (flood + 1) % 40_000
+            assert uids.uid_of(("127.0.0.1", flood)) is None
+    slack = 0.05 + 0.5 + DUMP_COST_S  # burst, the kept sources' debt, one call
+    assert _HugeTable.spent[0] <= COST_SHARE * 10.0 + slack, _HugeTable.spent[0]
+    assert _HugeTable.calls["queries"] > 0  # the flood is still queried, within the share
+    assert uids.counters["netlink_refused"] == 0
+
+
+def test_a_kept_source_is_rechecked_first_under_a_flood_against_a_huge_table(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The bound must not cost the configured users: a node found once is re-checked by its
+    own query every TTL_S (each one a real query, charged), whatever the flood spends; an
+    unkept source (another user's) is starved by the same flood; the total stays bounded."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
+    node, theirs = ("127.0.0.1", 5000), ("127.0.0.1", 5001)
+    _HugeTable.owners = {5000: ME, 5001: NOBODY}
+    assert uids.uid_of(node) == ME  # first contact: the read is cut, its query finds it
+    answered = {"node": 0, "theirs": 0}
+    queries_before = _HugeTable.calls["queries"]
+    flood = 20_000
+    for ms in range(10_000):
+        now[0] += 0.001
+        for _ in range(20):
+            flood = 20_000 + (flood + 1) % 40_000
+            uids.uid_of(("127.0.0.1", flood))
+        if ms % 10 == 0:
+            answered["node"] += uids.uid_of(node) == ME
+            answered["theirs"] += uids.uid_of(theirs) == NOBODY
+    assert answered["node"] == 1000  # every one of its datagrams
+    assert answered["theirs"] < 100
+    assert _HugeTable.calls["queries"] - queries_before >= 10.0 / TTL_S  # re-checked
+    assert _HugeTable.spent[0] <= COST_SHARE * 10.0 + 0.05 + 0.5 + DUMP_COST_S
