@@ -615,6 +615,7 @@ class _HugeTable:
 
     spent = [0.0]
     owners: dict[int, int] = {}
+    dumped: dict[int, int] | None = None  # a whole (uncut) dump of these, when set
     calls = {"dumps": 0, "queries": 0}
 
     def rows(
@@ -623,7 +624,14 @@ class _HugeTable:
         if port == 0:
             _HugeTable.calls["dumps"] += family == socket.AF_INET
             _HugeTable.spent[0] += DUMP_COST_S / 2  # each family's half
-            return [], True
+            if _HugeTable.dumped is None:
+                return [], True
+            raw = socket.inet_aton("127.0.0.1")
+            return [
+                swarmd.sockdiag.UdpRow(socket.AF_INET, raw, held, uid, 1)
+                for held, uid in _HugeTable.dumped.items()
+                if family == socket.AF_INET
+            ], False
         _HugeTable.calls["queries"] += family == socket.AF_INET
         _HugeTable.spent[0] += QUERY_COST_S / 2
         uid = _HugeTable.owners.get(port)
@@ -642,6 +650,7 @@ def _huge_table_lookup(
     monkeypatch.setattr(swarmd.senderuid, "UdpDiag", _HugeTable)
     _HugeTable.spent[0] = 0.0
     _HugeTable.owners = {}
+    _HugeTable.dumped = None
     _HugeTable.calls = {"dumps": 0, "queries": 0}
     return SenderUids(
         clock=lambda: now[0],
@@ -706,3 +715,29 @@ def test_a_kept_source_is_rechecked_first_under_a_flood_against_a_huge_table(
     assert answered["theirs"] < 100
     assert _HugeTable.calls["queries"] - queries_before >= 10.0 / TTL_S  # re-checked
     assert _HugeTable.spent[0] <= COST_SHARE * 10.0 + 0.05 + 0.5 + DUMP_COST_S
+
+
+def test_a_read_the_cost_budget_holds_back_is_not_answered_from_the_old_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack: the budget must not stretch ``TTL_S`` (a port that changed hands passes the new
+    owner's datagrams as the old one's for as long as the old read is used). A node's port
+    passes to ``nobody`` after a 0.2 s dump; while the budget holds the next dump and the
+    miss query back, the port is nobody's (None), never the old read's node; once the debt
+    is paid, the next dump names the new owner (for its TTL_S, then its own debt)."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now)
+    _HugeTable.dumped = {5000: 1001}
+    _HugeTable.owners = {5000: NOBODY}
+    assert uids.uid_of(("127.0.0.1", 5000)) == 1001  # the dump ran into debt
+    _HugeTable.dumped = {5000: NOBODY}  # the node closed, nobody bound the port
+    answers = []
+    for _ in range(20):
+        now[0] += TTL_S / 2
+        answers.append(uids.uid_of(("127.0.0.1", 5000)))
+    assert answers[0] == 1001  # within TTL_S of the read, as before (residual (1))
+    assert 1001 not in answers[1:]
+    assert None in answers[1:]  # held back: nobody's
+    assert answers[-1] in (None, NOBODY)
+    assert NOBODY in answers
+    assert uids.counters["cost_over_budget"] > 0
