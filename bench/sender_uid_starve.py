@@ -4,6 +4,14 @@ port mid-flood and sending every ``--node-period-ms``; measured on the lookup's 
 (time.monotonic), real sockets, loopback only, bounded in time. Prints markdown.
 
     .venv/bin/python bench/sender_uid_starve.py [--trials 10] [--node-period-ms 10]
+        [--sockets 34000 --cap-s 10]
+
+``--sockets N``: the trials run in a throw-away network namespace (swarmd_lab.netns) where
+user ``nobody`` holds N sockets on one port at other loopback addresses (two processes past
+17,000: its file limit), as bench/sender_uid_scale.py: every table read costs what such a
+table costs, and past MAX_INDEXED_SOCKETS it is cut. The "lookup CPU" column is this
+thread's CPU time inside the lookup's reads and queries per second of trial (the cost the
+bound of swarmd.senderuid caps at COST_SHARE); needs root and setpriv.
 
 Each trial: a fresh ``SenderUids``; lookups of ports nobody holds, 64 per batch as
 ``swarmd.udp`` reads them, as fast as this process makes them, for ``--warmup-s`` plus a
@@ -22,16 +30,35 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
+import os
 import random
 import socket
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT), str(ROOT / "lab")]
+
+from swarmd_lab.netns import Lan  # noqa: E402
 
 from swarmd.senderuid import TTL_S, SenderUids  # noqa: E402
+
+HOLDER = """
+import socket, sys, select
+port, first, count = map(int, sys.argv[1:4])
+socks = []
+for i in range(first, first + count):
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
+    socks.append(s)
+print("ready", flush=True)
+select.select([sys.stdin], [], [], 900.0)
+"""
+HELD_PORT = 40_000  # nobody's sockets' port, outside FLOOD_PORTS
 
 FLOOD_PORTS = range(20_000, 30_000)  # mostly free on a test box; a held one is just a hit
 
@@ -39,6 +66,18 @@ FLOOD_PORTS = range(20_000, 30_000)  # mostly free on a test box; a held one is 
 def trial(netlink: bool, warmup_s: float, period_s: float, cap_s: float) -> dict[str, float]:
     """One node binding after ``warmup_s`` of flood (module docstring)."""
     uids = SenderUids(netlink=netlink)
+    cpu = [0.0]
+    for name in ("_read", "_query_source"):  # the lookup's calls into the kernel, timed
+        method = getattr(uids, name)
+
+        def timed(*args: Any, _method: Any = method) -> Any:
+            started = time.thread_time()
+            try:
+                return _method(*args)
+            finally:
+                cpu[0] += time.thread_time() - started
+
+        setattr(uids, name, timed)
     flood = 0
     start = time.monotonic()
 
@@ -73,6 +112,7 @@ def trial(netlink: bool, warmup_s: float, period_s: float, cap_s: float) -> dict
         "dropped": dropped,
         "flood_per_s": flood / elapsed,
         "over_budget": uids.counters["miss_reads_over_budget"],
+        "cpu_per_s": cpu[0] / elapsed,
     }
 
 
@@ -83,13 +123,44 @@ def main() -> None:
     parser.add_argument("--warmup-s", type=float, default=0.3)
     parser.add_argument("--cap-s", type=float, default=1.0)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--sockets", type=int, default=0)
+    parser.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.sockets and not args.inner:
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+        with Lan(1) as lan:
+            argv = [sys.executable, str(Path(__file__).resolve()), *sys.argv[1:], "--inner"]
+            done = lan[0].run(argv, timeout=1800.0, env=env,
+                              check=False)  # fmt: skip
+        sys.stdout.write(done.stdout)
+        if done.returncode != 0:
+            sys.exit(done.stderr[-2000:])
+        return
+    holders = []
+    per = -(-args.sockets // 2)
+    for first in (1, 1 + per) if args.sockets else ():
+        count = min(per, args.sockets - first + 1)
+        holders.append(subprocess.Popen(
+            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable,
+             "-I", "-c", HOLDER, str(HELD_PORT), str(first), str(count)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))  # fmt: skip
+    try:
+        if not all(h.stdout and h.stdout.readline().strip() == "ready" for h in holders):
+            sys.exit("nobody's sockets were not bound")
+        run_trials(args)
+    finally:
+        for h in holders:
+            h.communicate(timeout=30)
+
+
+def run_trials(args: argparse.Namespace) -> None:
     rng = random.Random(args.seed)
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-    print(f"# {' '.join(sys.argv)}  ({stamp}; TTL_S = {TTL_S})")
-    print("| path | trials | flood lookups/s | node found after: median / max ms |"
-          " node datagrams dropped: median / max | not found within cap |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|---:|")
+    print(f"# {' '.join(sys.argv)}  ({stamp}; TTL_S = {TTL_S}; tree {ROOT})")
+    print("| other user's sockets | path | trials | flood lookups/s |"
+          " node found after: median / max ms | node datagrams dropped: median / max |"
+          " not found within cap | lookup CPU s/s: median / max |")  # fmt: skip
+    print("|---:|---|---:|---:|---:|---:|---:|---:|")
     for netlink in (False, True):
         runs = [
             trial(netlink, args.warmup_s + rng.random(), args.node_period_ms / 1000, args.cap_s)
@@ -99,9 +170,12 @@ def main() -> None:
         dropped = [r["dropped"] for r in runs]
         rate = statistics.median(r["flood_per_s"] for r in runs)
         delays = f"{statistics.median(found):.0f} / {max(found):.0f}" if found else "- / -"
-        print(f"| {'netlink' if netlink else 'proc'} | {len(runs)} | {rate:,.0f} | {delays} |"
+        cpu = [r["cpu_per_s"] for r in runs]
+        print(f"| {args.sockets:,} | {'netlink' if netlink else 'proc'} | {len(runs)} |"
+              f" {rate:,.0f} | {delays} |"
               f" {statistics.median(dropped):.0f} / {max(dropped):.0f} |"
-              f" {len(runs) - len(found)} |")  # fmt: skip
+              f" {len(runs) - len(found)} | {statistics.median(cpu):.3f} / {max(cpu):.3f} |",
+              flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -33,6 +33,19 @@ by netlink a miss after a cut read asks for its source, and a source answered as
 ``TTL_S``, outside the table and the miss budget: such a user cannot hide a node or PX4
 once found (tests/test_sockdiag.py). The cost is measured by ``bench/sender_uid.py``.
 
+What it costs. A user holding ~34,000 sockets makes one dump cost 0.12-0.26 s and one query
+2-8 ms (``bench/sender_uid_scale.py``): counted in calls, a dump each ``TTL_S`` and the miss
+budget were most of a core. So every dump, /proc read and query is charged its measured cost
+(``cost_clock``, this thread's CPU time) to one bucket of seconds refilled at ``COST_SHARE``
+of a core: over any ``T`` seconds the lookup works at most ``COST_SHARE * T`` plus
+``COST_BURST_S``, ``KEPT_DEBT_S`` and one call. Who spends when it is short: a kept source's
+re-check first (down to a debt of ``KEPT_DEBT_S``), then a due table read (down to
+``READ_DEBT_S``), a miss only from what is saved; a read that came back cut is not repeated
+before its cost is ``CUT_READ_SHARE`` of the share's worth (a cut read cannot answer what it
+left; the sources' queries can). A table read older than ``TTL_S`` names nobody: while the
+bucket or the back-off holds the next read, sources are answered by their queries or not at
+all (dropped: nodes and PX4 resend), never from an old read.
+
 Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
 same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for its
 source, filtered in the kernel by port and by address (the source's and the wildcards
@@ -56,6 +69,7 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.sockdiag import SockDiagError, UdpDiag, UdpRow
+from swarmd.tokenbucket import TokenBucket
 
 # A read of the table is reused this long: how long a freed port may keep its old owner's
 # uid (module docstring). A node or PX4 sends several datagrams a second: one read each
@@ -73,6 +87,22 @@ MISS_READ_BURST: Final = 5.0
 # fresh ports to starve a new sender's first datagram.
 MISS_QUERIES_PER_S: Final = 200.0
 MISS_QUERY_BURST: Final = 40.0
+# The lookup's work, in seconds a second (module docstring, "What it costs"): 10 % of one
+# core. At 2,000 sockets the budgeted work (a dump each TTL_S, ~14 ms a second, and
+# MISS_QUERIES_PER_S queries, ~30: bench/results/security/sender_uid.txt) fits under it, so
+# it binds only on a table another user grew; whatever that user does, the daemon keeps 90 %
+# of a core for RTPS and XRCE on a two-core companion computer.
+COST_SHARE: Final = 0.10
+COST_BURST_S: Final = 0.05  # saved while quiet: a dump and a new sender's query at once
+# The floors of the one bucket (who spends first when it is short): a kept source's
+# re-check may run it into this debt (a configured user's source is answered whatever a
+# flood spends; at most MAX_KEPT_SOURCES queries a TTL_S, sources only they open), a due
+# table read into this one; a miss (a flood's) only spends what is saved.
+KEPT_DEBT_S: Final = 0.5
+READ_DEBT_S: Final = 0.05
+# After a read that came back cut, the next waits until its cost is this part of the
+# share's worth: at 34,000 sockets a 0.2 s dump every 4 s, half the share left to queries.
+CUT_READ_SHARE: Final = 0.5
 # Bytes read from each table (~150 bytes a socket: ~40,000 sockets), and loopback or
 # wildcard sockets indexed: a local user can open sockets until its file limit, and must not
 # grow this process's memory with them.
@@ -146,7 +176,8 @@ def loopback_host(source: Hashable) -> str | None:
 class SenderUids:
     """``uid_of((host, port))``: the uid owning a loopback source's socket, or None.
 
-    ``proc`` and ``clock`` are injected for tests (a recorded table, a hand-set clock).
+    ``proc`` and ``clock`` are injected for tests (a recorded table, a hand-set clock);
+    ``cost_clock`` too (what a table read or query cost: a fake's counter in tests).
     ``netlink``: ask the kernel by sock_diag first; by default when ``proc`` is the live
     ``/proc/self`` (a recorded table is read as given). ``keep_uids``: the users the caller
     takes; their sources are kept (``MAX_KEPT_SOURCES``) and, by netlink, answered from
@@ -158,9 +189,15 @@ class SenderUids:
         clock: Callable[[], float] = time.monotonic,
         netlink: bool | None = None,
         keep_uids: Collection[int] = (),
+        cost_clock: Callable[[], float] = time.thread_time,
     ) -> None:
         self.proc = proc
         self.clock = clock
+        # this thread's CPU time (the kernel's work for our netlink dump is charged to it):
+        # the share is of a core, so another process preempting us is not our cost
+        self.cost_clock = cost_clock
+        self._cost = TokenBucket(COST_SHARE, COST_BURST_S, clock())
+        self._read_interval = TTL_S  # longer after a cut read (CUT_READ_SHARE)
         self.keep_uids = frozenset(keep_uids)
         # (host, port) -> (when its uids were read, the uids): sources of keep_uids, in
         # order of their last lookup (the first is the first out)
@@ -186,6 +223,8 @@ class SenderUids:
             "port_queries": 0,
             "netlink_refused": 0,
             "kept_evicted": 0,
+            "cost_over_budget": 0,  # a read or query the cost bucket held back
+            "cost_us": 0,  # what the reads and queries cost, in microseconds
         }
         self._diag: UdpDiag | None = None
         if netlink if netlink is not None else proc == Path("/proc/self"):
@@ -204,8 +243,10 @@ class SenderUids:
         now = self.clock()
         uids = self._kept_uids(host, port, now)
         if uids is None:
-            if self._read_at is None or now - self._read_at >= TTL_S:
-                self._read(now)
+            if self._read_at is None or not 0.0 <= now - self._read_at < TTL_S:
+                self._index = {}  # too old to name a port's owner (module docstring)
+                if self._read_due(now):
+                    self._read(now)
             read_at = self._read_at
             uids = self._uids(host, port)
             # it may have bound its port after our last read, or the read was cut before it
@@ -232,6 +273,10 @@ class SenderUids:
             return None
         read_at, uids = kept
         if not 0.0 <= now - read_at < TTL_S:
+            if self._cost.balance(now) <= -KEPT_DEBT_S:
+                self.counters["cost_over_budget"] += 1
+                self._kept[key] = kept  # still kept; this datagram is not answered by it
+                return None
             fresh = self._query_source(host, port)
             if fresh is None:
                 return None
@@ -241,13 +286,17 @@ class SenderUids:
         return uids
 
     def _keep(self, key: tuple[str, int], read_at: float, uids: set[int]) -> None:
-        if len(self._kept) >= MAX_KEPT_SOURCES:
+        if self._kept.pop(key, None) is None and len(self._kept) >= MAX_KEPT_SOURCES:
             del self._kept[next(iter(self._kept))]
             self.counters["kept_evicted"] += 1
         self._kept[key] = (read_at, uids)
 
     def _miss_read(self, now: float) -> bool:
-        """A token of the miss budget, if one is left (a bucket refilled by ``now``)."""
+        """A token of the miss budget, if one is left (a bucket refilled by ``now``) and
+        the cost bucket has something saved (a miss spends last: module docstring)."""
+        if self._cost.balance(now) <= 0.0:
+            self.counters["cost_over_budget"] += 1
+            return False
         rate, burst = (
             (MISS_READS_PER_S, MISS_READ_BURST)
             if self._diag is None
@@ -293,6 +342,30 @@ class SenderUids:
         if self._diag is None:
             return None
         self.counters["port_queries"] += 1
+        started = self.cost_clock()
+        try:
+            return self._query_rows(self._diag, host, port)
+        finally:
+            self._charge(self.cost_clock() - started)
+
+    def _charge(self, cost: float) -> float:
+        """Spend what a read or query cost (on ``cost_clock``); the cost."""
+        cost = max(0.0, cost)
+        self._cost.spend(cost)
+        self.counters["cost_us"] += round(cost * 1e6)
+        return cost
+
+    def _read_due(self, now: float) -> bool:
+        """Whether a table read may run at ``now``: past the back-off after a cut read and
+        within ``READ_DEBT_S`` of the cost bucket."""
+        if self._read_at is not None and 0.0 <= now - self._read_at < self._read_interval:
+            return False
+        if self._cost.balance(now) <= -READ_DEBT_S:
+            self.counters["cost_over_budget"] += 1
+            return False
+        return True
+
+    def _query_rows(self, diag: UdpDiag, host: str, port: int) -> set[int] | None:
         ipv4 = ":" not in host
         own = socket.AF_INET if ipv4 else socket.AF_INET6
         filters = [(own, socket.inet_pton(own, host)), (socket.AF_INET6, bytes(16))]
@@ -301,7 +374,7 @@ class SenderUids:
         pairs: list[tuple[str, int]] = []
         try:
             for family in (socket.AF_INET, socket.AF_INET6) if ipv4 else (socket.AF_INET6,):
-                rows, more = self._diag.rows(family, port, MAX_PORT_ROWS, filters)
+                rows, more = diag.rows(family, port, MAX_PORT_ROWS, filters)
                 if more:
                     self.counters["truncated"] += 1
                     pairs.append((host, UNREAD_UID))
@@ -341,12 +414,17 @@ class SenderUids:
         self.counters["reads"] += 1
         self._read_at = now
         cut_before = self.counters["truncated"]
+        started = self.cost_clock()
         rows = self._dump()
         if rows is not None:
             self._index_rows(rows)
         else:
             self._read_proc()
+        cost = self._charge(self.cost_clock() - started)
         self._table_cut = self.counters["truncated"] != cut_before
+        # a cut read is not repeated before its cost is CUT_READ_SHARE of the share's worth
+        cut_wait = cost / (COST_SHARE * CUT_READ_SHARE) if self._table_cut else 0.0
+        self._read_interval = max(TTL_S, cut_wait)
 
     def _index_rows(self, rows: list[UdpRow]) -> None:
         index: dict[int, list[tuple[str, int]]] = {}

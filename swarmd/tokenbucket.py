@@ -3,8 +3,8 @@
 ``rate`` tokens a second accrue up to ``burst``; a bucket is a pure function of the ``now``
 it is asked at (style.md rule 6: it schedules nothing, it refills when asked). The
 signature-check budgets (``swarmd.auth.budget``), the foreign-participant and
-unknown-outcome report budgets and the XRCE key-check budget (``swarmd.xrce.keycheck``) are
-all this one class.
+unknown-outcome report budgets, the XRCE key-check budget (``swarmd.xrce.keycheck``) and the
+sender-uid lookup's budget of seconds of work (``swarmd.senderuid``) are all this one class.
 """
 
 from __future__ import annotations
@@ -43,9 +43,16 @@ class TokenBucket:
         self._refill(now)
         return self._tokens >= self.burst
 
-    def spend(self) -> None:
-        """Spend the token ``has_token`` just found."""
-        self._tokens -= 1.0
+    def spend(self, amount: float = 1.0) -> None:
+        """Spend the token ``has_token`` just found, or ``amount`` of what ``balance`` gave:
+        a bucket of seconds of work spent by each call's measured cost
+        (``swarmd.senderuid``) may go below zero, a debt the refill pays first."""
+        self._tokens -= amount
+
+    def balance(self, now: float) -> float:
+        """What is saved at ``now`` (below zero while a debt is being paid)."""
+        self._refill(now)
+        return self._tokens
 
     def _refill(self, now: float) -> None:
         if now > self._at:

@@ -69,7 +69,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "udp": frozenset(),
     # who sent a loopback datagram: its socket's uid by sock_diag or /proc/net/udp{,6} (daemon
     # tier, used by the ROS 2 relay's and the XRCE agent's adapters; the cores get the uid)
-    "senderuid": frozenset({"sockdiag"}),
+    "senderuid": frozenset({"sockdiag", "tokenbucket"}),
     # the kernel's UDP socket table by netlink sock_diag: senderuid's first source (a leaf)
     "sockdiag": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)

@@ -504,11 +504,10 @@ for h in range(holders):
 try:
     assert all(p.stdout.readline().strip() == "ready" for p in procs)
     now = [100.0]
-    try:
-        kept = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={0})
-    except TypeError:  # main had no keep_uids: the attack is then shown by its answers
-        kept = SenderUids(clock=lambda: now[0], netlink=True)
-    plain = SenderUids(clock=lambda: now[0], netlink=True)
+    # the cost bound is tested on its own (a fake netlink's cost clock); here the hand-set
+    # clock does not refill it, so the reads and queries are charged nothing
+    kept = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={0}, cost_clock=float)
+    plain = SenderUids(clock=lambda: now[0], netlink=True, cost_clock=float)
     source = ("127.0.0.1", port)
     out = {"first": [], "later": [], "flood_found": 0}
     for uids in (kept, plain):
@@ -599,3 +598,146 @@ def test_only_the_callers_users_are_kept_and_the_least_recent_leaves_first(
         attacker.communicate(timeout=10)
         for s in mine:
             s.close()
+
+
+# The lookup's cost against a local user holding a huge table (docs/security.md, "The local
+# user", residual (5)): counted in work, not time. A fake netlink whose every call advances
+# a fake cost clock by what bench/sender_uid_scale.py measured at 34,000 sockets (a dump
+# ~0.2 s, and cut; a one-port query ~5 ms), so the test is exact and untimed.
+COST_SHARE = 0.10  # of one core: the bound docs/security.md gives (swarmd.senderuid)
+DUMP_COST_S = 0.2
+QUERY_COST_S = 0.005
+
+
+class _HugeTable:
+    """A ``UdpDiag`` over a table another user filled: every dump comes back cut; a query
+    names ``owners`` (port -> uid) on 127.0.0.1. ``spent`` is the cost clock."""
+
+    spent = [0.0]
+    owners: dict[int, int] = {}
+    dumped: dict[int, int] | None = None  # a whole (uncut) dump of these, when set
+    calls = {"dumps": 0, "queries": 0}
+
+    def rows(
+        self, family: int, port: int, max_rows: int, addresses: Any = None
+    ) -> tuple[list[swarmd.sockdiag.UdpRow], bool]:
+        if port == 0:
+            _HugeTable.calls["dumps"] += family == socket.AF_INET
+            _HugeTable.spent[0] += DUMP_COST_S / 2  # each family's half
+            if _HugeTable.dumped is None:
+                return [], True
+            raw = socket.inet_aton("127.0.0.1")
+            return [
+                swarmd.sockdiag.UdpRow(socket.AF_INET, raw, held, uid, 1)
+                for held, uid in _HugeTable.dumped.items()
+                if family == socket.AF_INET
+            ], False
+        _HugeTable.calls["queries"] += family == socket.AF_INET
+        _HugeTable.spent[0] += QUERY_COST_S / 2
+        uid = _HugeTable.owners.get(port)
+        if uid is None or family != socket.AF_INET:
+            return [], False
+        raw = socket.inet_aton("127.0.0.1")
+        return [swarmd.sockdiag.UdpRow(socket.AF_INET, raw, port, uid, 1)], False
+
+    def close(self) -> None:
+        pass
+
+
+def _huge_table_lookup(
+    monkeypatch: pytest.MonkeyPatch, now: list[float], keep_uids: frozenset[int] = frozenset()
+) -> SenderUids:
+    monkeypatch.setattr(swarmd.senderuid, "UdpDiag", _HugeTable)
+    _HugeTable.spent[0] = 0.0
+    _HugeTable.owners = {}
+    _HugeTable.dumped = None
+    _HugeTable.calls = {"dumps": 0, "queries": 0}
+    return SenderUids(
+        clock=lambda: now[0],
+        netlink=True,
+        keep_uids=keep_uids,
+        cost_clock=lambda: _HugeTable.spent[0],
+    )
+
+
+def test_a_flood_of_misses_against_a_huge_table_costs_a_bounded_share_of_a_core(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack: a local user holding ~34,000 sockets (every dump cut, each costing 0.2 s) and
+    flooding fresh ports at 20 lookups a virtual millisecond for 10 virtual seconds. On main
+    a dump every TTL_S and 200 queries a second cost ~18 s of lookup in 10 s (most of a
+    core: 1.8 cores here). Now the lookup's cost is at most COST_SHARE of the time, plus a
+    bounded burst and debt and one call in flight."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now)
+    flood = 20_000
+    for _ in range(10_000):
+        now[0] += 0.001
+        for _ in range(20):
+            flood = 20_000 + (flood + 1) % 40_000
+            assert uids.uid_of(("127.0.0.1", flood)) is None
+    slack = 0.05 + 0.5 + DUMP_COST_S  # burst, the kept sources' debt, one call
+    assert _HugeTable.spent[0] <= COST_SHARE * 10.0 + slack, _HugeTable.spent[0]
+    assert _HugeTable.calls["queries"] > 0  # the flood is still queried, within the share
+    # a cut dump is backed off: repeated when its cost is half the share's worth (4 s here)
+    assert _HugeTable.calls["dumps"] <= 1 + 10.0 * COST_SHARE / 2 / DUMP_COST_S
+    assert uids.counters["netlink_refused"] == 0
+
+
+def test_a_kept_source_is_rechecked_first_under_a_flood_against_a_huge_table(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The bound must not cost the configured users: a node found once is re-checked by its
+    own query every TTL_S (each one a real query, charged), whatever the flood spends; an
+    unkept source (another user's) is starved by the same flood; the total stays bounded."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
+    node, theirs = ("127.0.0.1", 5000), ("127.0.0.1", 5001)
+    _HugeTable.owners = {5000: ME, 5001: NOBODY}
+    # first contact, no flood yet: the first read is cut and its cost a debt; the node's
+    # query runs once it is paid, (DUMP_COST_S - the burst) / COST_SHARE later at most
+    first_at = now[0]
+    while uids.uid_of(node) != ME and now[0] - first_at < 5.0:
+        now[0] += 0.01
+    assert now[0] - first_at <= (DUMP_COST_S - 0.05) / COST_SHARE + 0.011, now[0] - first_at
+    answered = {"node": 0, "theirs": 0}
+    queries_before = _HugeTable.calls["queries"]
+    flood = 20_000
+    for ms in range(10_000):
+        now[0] += 0.001
+        for _ in range(20):
+            flood = 20_000 + (flood + 1) % 40_000
+            uids.uid_of(("127.0.0.1", flood))
+        if ms % 10 == 0:
+            answered["node"] += uids.uid_of(node) == ME
+            answered["theirs"] += uids.uid_of(theirs) == NOBODY
+    assert answered["node"] == 1000  # every one of its datagrams
+    assert answered["theirs"] < 100
+    assert _HugeTable.calls["queries"] - queries_before >= 10.0 / TTL_S  # re-checked
+    assert _HugeTable.spent[0] <= COST_SHARE * 10.0 + 0.05 + 0.5 + DUMP_COST_S
+
+
+def test_a_read_the_cost_budget_holds_back_is_not_answered_from_the_old_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack: the budget must not stretch ``TTL_S`` (a port that changed hands passes the new
+    owner's datagrams as the old one's for as long as the old read is used). A node's port
+    passes to ``nobody`` after a 0.2 s dump; while the budget holds the next dump and the
+    miss query back, the port is nobody's (None), never the old read's node; once the debt
+    is paid, the next dump names the new owner (for its TTL_S, then its own debt)."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now)
+    _HugeTable.dumped = {5000: 1001}
+    _HugeTable.owners = {5000: NOBODY}
+    assert uids.uid_of(("127.0.0.1", 5000)) == 1001  # the dump ran into debt
+    _HugeTable.dumped = {5000: NOBODY}  # the node closed, nobody bound the port
+    answers = []
+    for _ in range(20):
+        now[0] += TTL_S / 2
+        answers.append(uids.uid_of(("127.0.0.1", 5000)))
+    assert answers[0] == 1001  # within TTL_S of the read, as before (residual (1))
+    assert 1001 not in answers[1:]
+    assert None in answers[1:]  # held back: nobody's
+    assert answers[-1] in (None, NOBODY)
+    assert NOBODY in answers
+    assert uids.counters["cost_over_budget"] > 0

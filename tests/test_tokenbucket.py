@@ -37,3 +37,14 @@ def test_is_full_once_the_burst_is_back() -> None:
     bucket.take(0.0)
     assert not bucket.is_full(0.5)
     assert bucket.is_full(1.0)
+
+
+def test_a_bucket_of_seconds_spent_by_cost_runs_into_a_debt_the_refill_pays_first() -> None:
+    """swarmd.senderuid's use: 0.1 s of work a second, each call spending what it cost."""
+    bucket = TokenBucket(0.1, 0.05, now=0.0)
+    assert bucket.balance(0.0) == 0.05
+    bucket.spend(0.2)  # a dump that cost 0.2 s
+    assert bucket.balance(0.0) < 0.0
+    assert bucket.balance(1.0) < 0.0  # 1 s repays 0.1 of the 0.15 owed
+    assert 0.0 < bucket.balance(2.0) <= 0.05
+    assert bucket.balance(100.0) == 0.05  # never past the burst
