@@ -9,8 +9,10 @@ at N = 20").
         --edge-db 1.5 --edge-loss 0.5
 
 The scenario is the run file's (``--scenario`` only checks it): in the fade the observer is
-the fading drone (the last), whose re-discoveries are the slow ones; in every other scenario
-(fly-out, split) every drone observes every peer.
+the fading drone (the last), whose re-discoveries are the slow ones, or with
+``--every-observer`` every drone's re-discoveries of it (the fader's peers: the slow pair of
+the N = 20 fade's run 2, docs/flight-history.md, "The fade's slow return at N = 20 (session
+11)"); in every other scenario (fly-out, split) every drone observes every peer.
 
 The run file gives the scenario (its seed rebuilds the waypoints, ``bench/wifi/flight.py``)
 and each drone's link quality Q (the median of its status polls). Every seed builds the swarm
@@ -27,8 +29,10 @@ stand-in for the retries that fit in a frame's time, not a measured figure).
 seek's put-off bound kept by every drone, as before branch h-seek-scale).
 
 For every peer an observer lost and found again: the time from the pair's return (both
-ways in range) to the re-discovery. Each one slower than 2 s is classed by what happened in
-the pair's first window (``_classify``; "the fader" is the observer):
+ways in range) to the re-discovery, by the clock, and (a line of its own) by the time in
+range only (``Replay.in_range_s``, the flight measure since session 11). Each one slower
+than 2 s by the clock is classed by what happened in the pair's first window (``_classify``;
+"the fader" is the observer):
 
 - ``lease-in-window``: the fader's lease of the peer ended inside the window (the peer, a
   vouched member, sends nothing unasked, and the fader's frames listed it until then), and
