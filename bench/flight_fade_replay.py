@@ -9,8 +9,10 @@ at N = 20").
         --edge-db 1.5 --edge-loss 0.5
 
 The scenario is the run file's (``--scenario`` only checks it): in the fade the observer is
-the fading drone (the last), whose re-discoveries are the slow ones; in every other scenario
-(fly-out, split) every drone observes every peer.
+the fading drone (the last), whose re-discoveries are the slow ones, or with
+``--every-observer`` every drone's re-discoveries of it (the fader's peers: the slow pair of
+the N = 20 fade's run 2, docs/flight-history.md, "The fade's slow return at N = 20 (session
+11)"); in every other scenario (fly-out, split) every drone observes every peer.
 
 The run file gives the scenario (its seed rebuilds the waypoints, ``bench/wifi/flight.py``)
 and each drone's link quality Q (the median of its status polls). Every seed builds the swarm
@@ -27,8 +29,10 @@ stand-in for the retries that fit in a frame's time, not a measured figure).
 seek's put-off bound kept by every drone, as before branch h-seek-scale).
 
 For every peer an observer lost and found again: the time from the pair's return (both
-ways in range) to the re-discovery. Each one slower than 2 s is classed by what happened in
-the pair's first window (``_classify``; "the fader" is the observer):
+ways in range) to the re-discovery, by the clock, and (a line of its own) by the time in
+range only (``Replay.in_range_s``, the flight measure since session 11). Each one slower
+than 2 s by the clock is classed by what happened in the pair's first window (``_classify``;
+"the fader" is the observer):
 
 - ``lease-in-window``: the fader's lease of the peer ended inside the window (the peer, a
   vouched member, sends nothing unasked, and the fader's frames listed it until then), and
@@ -76,12 +80,20 @@ SLOW_S = 2.0  # issue 20's target
 class Replay:
     """One run file's geometry and link qualities, replayed per seed."""
 
-    def __init__(self, run: dict[str, Any], edge_db: float = 0.0, edge_loss: float = 0.0) -> None:
+    def __init__(
+        self,
+        run: dict[str, Any],
+        edge_db: float = 0.0,
+        edge_loss: float = 0.0,
+        every_observer: bool = False,
+    ) -> None:
         self.scenario = flight.of_run(run)
         self.n: int = run["n"]
         self.fader = self.n - 1
-        # who re-discovers: the fading drone in the fade, every drone otherwise
-        self.observers = [self.fader] if run["scenario"] == "fade" else list(range(self.n))
+        # who re-discovers: the fading drone in the fade (or, ``every_observer``, every
+        # drone: the fader's peers re-discovering it), every drone otherwise
+        fader_only = run["scenario"] == "fade" and not every_observer
+        self.observers = [self.fader] if fader_only else list(range(self.n))
         self.edge_db, self.edge_loss = edge_db, edge_loss
         polls: dict[int, list[float]] = {}
         for poll in run["renewals"]:  # (t, node, renewals, Q, ...)
@@ -129,6 +141,21 @@ class Replay:
         )
         swarm.run_until(until)
         return swarm
+
+    def in_range_s(self, i: int, j: int, start: float, t: float) -> float:
+        """Seconds the pair (``i``, ``j``) was both ways in range from ``start`` to ``t``
+        (the flight measure's re-discovery latency since session 11: a window that closed
+        first adds its length, the seconds out of range after it do not)."""
+        if t <= start:
+            return 0.0
+        first, last = int(start / STEP_S), int(t / STEP_S)
+        whole = sum(
+            1
+            for step in range(first, last)
+            if self.crosses(i, j, step * STEP_S) and self.crosses(j, i, step * STEP_S)
+        )
+        tail = t - last * STEP_S if self.crosses(i, j, t) and self.crosses(j, i, t) else 0.0
+        return whole * STEP_S + tail
 
     def window(self, j: int, after: float, observer: int | None = None) -> tuple[float, float]:
         """The pair's (``observer``, default the fader, and ``j``) first time both ways in
@@ -263,9 +290,28 @@ def run_losses_line(run: dict[str, Any], observers: Sequence[int]) -> str:
     return f"  the run itself: PeerLost by the observers {len(lost)}; bursts of {BURST}+: {said}"
 
 
-def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0) -> str:
+def in_range_line(replay: Replay, rows: Sequence[tuple[Any, ...]]) -> str:
+    """The re-discoveries (``rows``: (seed, latency, observer, peer, back, length, lost))
+    by the time in range from the return (``Replay.in_range_s``), and how many came after
+    the return's first window had closed."""
+    in_range = sorted(replay.in_range_s(i, j, back, back + lat) for _, lat, i, j, back, *_ in rows)
+    closed = sum(1 for _, lat, _, _, _, length, _ in rows if lat > length + STEP_S)
+    top = f"{in_range[-1]:.2f} s" if in_range else "-"
+    return (
+        f"  by the time in range from the return: {sum(1 for x in in_range if x > SLOW_S)} "
+        f"over {SLOW_S:g} s, max {top}; found after the first window closed: {closed}"
+    )
+
+
+def report(
+    path: Path,
+    seeds: int,
+    edge_db: float = 0.0,
+    edge_loss: float = 0.0,
+    every_observer: bool = False,
+) -> str:
     run = json.loads(path.read_text())
-    replay = Replay(run, edge_db, edge_loss)
+    replay = Replay(run, edge_db, edge_loss, every_observer)
     frames: Counter[str] = Counter()
     losses: dict[int, list[Lost]] = {seed: [] for seed in range(1, seeds + 1)}
     rows = [
@@ -273,19 +319,31 @@ def report(path: Path, seeds: int, edge_db: float = 0.0, edge_loss: float = 0.0)
         for seed in range(1, seeds + 1)
         for r in rediscoveries(replay, seed, frames, losses[seed])
     ]
+    fade = run["scenario"] == "fade"
+    if fade and replay.observers != [replay.fader]:  # the fader's peers re-discovering it
+        rows = [r for r in rows if r[3] == replay.fader]
+        losses = {seed: [x for x in v if x[2] == replay.fader] for seed, v in losses.items()}
     slow = sorted((r for r in rows if r[1] > SLOW_S), key=lambda r: -r[1])
     latencies = sorted(r[1] for r in rows)
     kinds = Counter(
         _classify(replay, s, i, j, back, length) for s, _, i, j, back, length, _ in slow
     )
-    who = f"uav{replay.n}" if replay.observers == [replay.fader] else "every drone"
+    if replay.observers == [replay.fader]:
+        who = f"uav{replay.n}"
+    else:
+        who = f"every drone of uav{replay.n}" if fade else "every drone"
+    spread = (
+        f"p50 {latencies[len(latencies) // 2]:.2f} s, max {latencies[-1]:.2f} s"
+        if latencies
+        else "p50 -, max -"
+    )
     edge = f" (edge loss {edge_loss:g} within {edge_db:g} dB)" if edge_loss else ""
     out = [
         f"{path.name}, {seeds} seeds on MemNet{edge}: {len(rows)} re-discoveries by {who}, "
-        f"{len(slow)} over {SLOW_S:g} s; p50 {latencies[len(latencies) // 2]:.2f} s, "
-        f"max {latencies[-1]:.2f} s",
+        f"{len(slow)} over {SLOW_S:g} s; " + spread,
         "  slow, by what happened in the pair's first window: "
         + ", ".join(f"{k} {v}" for k, v in kinds.most_common()),
+        in_range_line(replay, rows),
         losses_line(losses, rows),
         run_losses_line(run, replay.observers),
     ]
@@ -323,6 +381,12 @@ def main(argv: Sequence[str]) -> int:
         "--edge-loss", type=float, default=0.0, help="a multicast's loss at the edge (0-1)"
     )
     parser.add_argument(
+        "--every-observer",
+        action="store_true",
+        help="in a fade, every drone observes (the fader's peers re-discovering it too), "
+        "not the fader alone",
+    )
+    parser.add_argument(
         "--seekers-max",
         type=int,
         help="override seek.SEEK_PUT_OFF_SEEKERS_MAX (1000: the put-off bound kept by every "
@@ -342,7 +406,7 @@ def main(argv: Sequence[str]) -> int:
     if not 0.0 <= args.edge_loss <= 1.0 or args.edge_db < 0.0:
         print("--edge-loss: use 0..1; --edge-db: use >= 0", file=sys.stderr)
         return 64  # EX_USAGE
-    print(report(args.run, args.seeds, args.edge_db, args.edge_loss))
+    print(report(args.run, args.seeds, args.edge_db, args.edge_loss, args.every_observer))
     return 0
 
 

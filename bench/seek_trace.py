@@ -7,9 +7,10 @@ other side? (issue 20; docs/discovery.md, "A seek put off by a frame that cannot
 
 Replays the run's geometry on MemNet as ``bench.flight_fade_replay`` does (clean channel) and
 prints, for the two drones (uavN names, 1-based), in the time span: each multicast either
-sent, and whether it reached the other; each time a peer's multicast put one's seek off
-(``Seek.heard`` moved its deadline): the sender, and whether that sender was in range of the
-other drone (a frame out of its range sought nothing for us). And each one's re-discovery of
+sent, and whether it reached the other (``--directed``: each directed frame too, to whom);
+each time a peer's multicast put one's seek off (``Seek.heard`` moved its deadline): the
+sender, and whether that sender was in range of the other drone (a frame out of its range
+sought nothing for us). And each one's re-discovery of
 the other. Instrumentation only: ``Seek.heard`` and ``ReceivePath._heard`` are wrapped for
 the run and restored after; nothing asserted.
 """
@@ -23,6 +24,8 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+from swarmd_lab.testing import node_ipv4
 
 from bench.flight_fade_replay import Replay, _changes
 from swarmd.discovery import receive, seek
@@ -54,8 +57,17 @@ def _suppressions(log: list[tuple[float, int, int, float, float]]) -> Iterator[N
         receive.ReceivePath._heard = receive_heard  # type: ignore[method-assign]
 
 
-def trace(run: dict[str, Any], seed: int, a: int, b: int, since: float, until: float) -> str:
-    """The text above for bundle indices ``a`` and ``b``."""
+def trace(
+    run: dict[str, Any],
+    seed: int,
+    a: int,
+    b: int,
+    since: float,
+    until: float,
+    directed: bool = False,
+) -> str:
+    """The text above for bundle indices ``a`` and ``b``; ``directed``: also each directed
+    frame either sends, to whom (an answer to one seeker reaches no other)."""
     replay = Replay(run)
     log: list[tuple[float, int, int, float, float]] = []
     with _suppressions(log):
@@ -73,11 +85,15 @@ def trace(run: dict[str, Any], seed: int, a: int, b: int, since: float, until: f
                     f"{back:.2f} s; found at {found:.2f} s (+{found - back:.2f} s)"
                 )
     events: list[tuple[float, str]] = []
+    index_of = {node_ipv4(i): i for i in range(replay.n)}
     for t in swarm.net.transmissions:
         if t.multicast and t.node in (a, b) and since <= t.time <= until:
             other = b if t.node == a else a
             reach = "reaches" if replay.crosses(t.node, other, t.time) else "does not reach"
             events.append((t.time, f"uav{t.node + 1} multicasts ({reach} uav{other + 1})"))
+        elif directed and t.node in (a, b) and since <= t.time <= until:
+            to = index_of.get(t.target[0])
+            events.append((t.time, f"uav{t.node + 1} sends directed to uav{(to or 0) + 1}"))
     for now, sid, sender, before, after in log:
         me = seek_of.get(sid)
         if me in (a, b) and since <= now <= until:
@@ -104,6 +120,9 @@ def main(argv: Sequence[str]) -> int:
     parser.add_argument("--pair", type=int, nargs=2, required=True, help="uavN numbers (1-based)")
     parser.add_argument("--since", type=float, default=0.0, help="span start (s)")
     parser.add_argument("--until", type=float, default=float("inf"), help="span end (s)")
+    parser.add_argument(
+        "--directed", action="store_true", help="also each directed frame either drone sends"
+    )
     args = parser.parse_args(argv)
     if not args.run.is_file():
         print(f"{args.run}: no such run file", file=sys.stderr)
@@ -113,7 +132,7 @@ def main(argv: Sequence[str]) -> int:
         print(f"--pair: two different drones in 1..{run['n']}", file=sys.stderr)
         return 64  # EX_USAGE
     a, b = (u - 1 for u in args.pair)
-    print(trace(run, args.seed, a, b, args.since, args.until))
+    print(trace(run, args.seed, a, b, args.since, args.until, args.directed))
     return 0
 
 

@@ -100,3 +100,21 @@ def test_the_run_s_own_losses_are_set_beside_the_replay_s() -> None:
     line = run_losses_line(run, [19])
     assert line == "  the run itself: PeerLost by the observers 11; bursts of 5+: 5 at 62.904 s"
     assert run_losses_line(run, [0]).endswith("bursts of 5+: none")
+
+
+def test_the_time_in_range_skips_the_seconds_between_windows() -> None:
+    """uav6 and uav20 (the traced pair above): in range 64.25-65.5 s and 71.25-72.5 s, so
+    from 64.25 s to 72.0 s the pair was in range 1.25 + 0.75 s, not 7.75 s."""
+    replay = Replay(json.loads(RUN.read_text()))
+    assert replay.in_range_s(5, 19, 64.25, 72.0) == 2.0
+    assert replay.in_range_s(19, 5, 64.25, 65.0) == 0.75
+    assert replay.in_range_s(5, 19, 66.0, 70.0) == 0.0
+    assert replay.in_range_s(5, 19, 72.0, 64.25) == 0.0
+
+
+def test_every_observer_of_a_fade_counts_the_fader_s_peers_finding_it() -> None:
+    replay = Replay(json.loads(RUN.read_text()), every_observer=True)
+    assert replay.observers == list(range(20))
+    text = report(RUN, 1, every_observer=True)
+    assert "re-discoveries by every drone of uav20" in text.splitlines()[0]
+    assert "by the time in range from the return:" in text

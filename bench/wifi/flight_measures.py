@@ -22,7 +22,11 @@ Definitions (docs/benchmarks.md, "Flight"):
   during the whole lease before the report: it "stayed in range");
 - *re-discovery latency*: from j's return into i's range (or its stack's restart) to i's
   next ``discovered``/``regained``/``restarted`` of j, for pairs i had reported lost (and,
-  for restarts, for every pair);
+  for restarts, for every pair), counting only the time j was in i's range: when the
+  return's window closed before the re-discovery (the fade's windows of about a second at
+  the group's far end) its length counts, the seconds out of range after it do not (before
+  session 11 they did: ``rediscovery_wall_s`` keeps that clock time, and
+  ``rediscovery_windows_closed`` counts such returns);
 - *frames per rejoining pair*: the channel's discovery frames from the first return to
   the last re-discovery (+1 s), over the pairs that rejoined; also above the steady rate
   measured in the ``BASELINE_S`` before the first move;
@@ -88,6 +92,12 @@ def spans(samples: Sequence[tuple[float, bool]]) -> list[tuple[float, float, boo
                 out[-1] = (out[-1][0], t, out[-1][2])
             out.append((t, t, v))
     return out
+
+
+def in_range_time(runs: Sequence[tuple[float, float, bool]], start: float, t: float) -> float:
+    """Seconds in range (``runs``: ``spans`` of one pair) between ``start`` and ``t``; a
+    span in range lasts from its first sample to the next span's first (its ``end``)."""
+    return sum(max(0.0, min(b, t) - max(a, start)) for a, b, up in runs if up)
 
 
 def _value_at(samples: Sequence[tuple[float, bool]], t: float) -> bool:
@@ -159,6 +169,8 @@ def measure(
     classes = {"real": 0, "intermittent": 0, "dropout": 0, "false": 0}
     false_pairs: list[list[Any]] = []
     rediscovery: list[float] = []
+    rediscovery_wall: list[float] = []
+    windows_closed = 0
     not_rediscovered = 0
     rejoined: set[tuple[int, int]] = set()
     rejoin_times: list[float] = []
@@ -196,7 +208,12 @@ def measure(
                     rejoined.add((min(i, j), max(i, j)))
                     rejoin_times.append(back)
                     if found:
-                        rediscovery.append(max(0.0, found[0] - back))
+                        # the time in range from the return to the re-discovery: a window
+                        # that closed first (the fade's 1 s returns) adds its length, not
+                        # the seconds out of range after it (module doc)
+                        rediscovery.append(round(in_range_time(runs, back, found[0]), 6))
+                        rediscovery_wall.append(max(0.0, found[0] - back))
+                        windows_closed += found[0] > runs[k + 1][1] and k + 2 < len(runs)
                         last = found[0]
                         last_rediscovery = (
                             last if last_rediscovery is None else max(last_rediscovery, last)
@@ -248,6 +265,8 @@ def measure(
         "false_losses": classes["false"],
         "false_loss_examples": false_pairs[:10],
         "rediscovery_s": _summary(rediscovery),
+        "rediscovery_wall_s": _summary(rediscovery_wall),
+        "rediscovery_windows_closed": windows_closed,
         "not_rediscovered": not_rediscovered,
         "reboot_seen_by_peers_s": _summary(reboot_seen),
         "reboot_finds_peers_s": _summary(reboot_finds),
