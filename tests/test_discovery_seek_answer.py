@@ -79,7 +79,7 @@ def test_a_drone_that_held_its_seek_back_hears_the_answer_within_its_window() ->
 def test_the_seekers_in_range_find_the_fader_within_2_s() -> None:
     """The answer still reaches the seekers themselves (each one's link is back for good).
     On main this failed too: in seed 1 a seeker whose seek the others had put off found the
-    fader 6.50 s after the return (it never sought within the answers' span)."""
+    fader 6.50 s after the return."""
     for seed in SEEDS[:4]:
         swarm = _fade_swarm(seed)
         swarm.run_until(T_BACK + 10.0)

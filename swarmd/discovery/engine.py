@@ -333,6 +333,7 @@ class DiscoveryEngine:
             settle=self._settle_if_done,
             on_vouch=self._on_vouch,
             rejoined=self._rejoined,
+            answer_seek=self._answer_seek,
         )
         # what get_timer() (after every input) reads, one attribute away: the concerns' own
         # objects (never replaced), not copies; and the receive path's prefix lookup
@@ -713,6 +714,15 @@ class DiscoveryEngine:
         self._seek.returned(now)
         phase = self.phase
         return self._pull.rejoined(now, announcing=phase is _ANNOUNCE or phase is _STEADY)
+
+    def _answer_seek(self, now: float, delay: float) -> float | None:
+        """When our multicast answer to a peer that lost us and seeks us is due
+        (``pullin.PullIn.answer_seek``), or None: answer it alone, directed (paper mode, or
+        a phase that never multicasts)."""
+        phase = self.phase
+        if self._config.mode != "adaptive" or not (phase is _ANNOUNCE or phase is _STEADY):
+            return None
+        return self._pull.answer_seek(now, delay)
 
     def _probe(self, peer: Peer, now: float) -> None:
         """The last-chance probe (``leases.PROBE_AT``): our DATA(p) directed to ``peer`` with

@@ -103,6 +103,20 @@ class PullIn:
         if renewal.due != before:
             self.resume_renewal = before
 
+    def answer_seek(self, now: float, delay: float) -> float:
+        """A peer that lost us seeks us (the receive path's lost_us rule): our answer goes as
+        a multicast at ``now + delay`` (or ``retransmit_min_gap_s`` after our last one), so
+        every drone that held its own seek back for that seeker's (``seek.Seek.heard``, the
+        suppression's assumption: mDNS answers by multicast, RFC 6762 section 6) hears it
+        too. A directed answer reached the seeker alone, and a drone that held back found us
+        seconds later, after its window had closed (docs/flight-history.md, "The fade's slow
+        return at N = 20 (session 11)"). Returns when the multicast is due. Adaptive mode,
+        ANNOUNCE or STEADY (the caller checks)."""
+        self.pull_in(now, delay)
+        due = self._renewals.timer.due
+        assert due is not None  # noqa: S101 - pull_in set it, or one sooner stands
+        return due
+
     def pull_in(self, now: float, delay: float) -> None:
         """Our next multicast at now + ``delay``, never sooner than ``retransmit_min_gap_s``
         after our last one (a renewal already sooner stays)."""

@@ -84,6 +84,7 @@ class ReceivePath:
         "_on_vouch",
         "_probe_at",
         "_rejoined",
+        "_answer_seek",
         "_peer_at",
         "_pin_at",
         "_reack_gap_s",
@@ -119,6 +120,7 @@ class ReceivePath:
         settle: Callable[[], None],
         on_vouch: Callable[[Vouch, float, bool], None],
         rejoined: Callable[[float], bool],
+        answer_seek: Callable[[float, float], float | None],
     ) -> None:
         # the engine's phase, as the receive path sees it: set by DiscoveryEngine._transition
         # (a slot of our own: read twice per datagram)
@@ -167,6 +169,7 @@ class ReceivePath:
         self._settle = settle
         self._on_vouch = on_vouch
         self._rejoined = rejoined
+        self._answer_seek = answer_seek  # engine._answer_seek: the lost_us answer, multicast
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         """Handle one UDP payload from ``source``. Never raises for any ``data``."""
@@ -467,7 +470,11 @@ class ReceivePath:
             peer.told = False
             retry.leave_one_attempt()  # this answer only
             debts = self._debts
-            debts.arm(peer, now + debts.cue_delay(self.sought_by.omitted(peer.index)))
+            delay = debts.cue_delay(self.sought_by.omitted(peer.index))
+            # as a multicast (engine._answer_seek): the drones that held their seek back for
+            # this one's hear it too (seek.Seek.heard assumes so); the debt falls due with it
+            at = self._answer_seek(now, delay)
+            debts.arm(peer, now + delay if at is None else at)
             return
         elif (
             not lists_me
