@@ -2,7 +2,7 @@
 docs/flight-history.md, "The fade's slow return at N = 20 (session 11)").
 
     .venv/bin/python -m bench.flight_slow_pair \
-        bench/results/flight-stagger/runs/flight-fade-swarmd-n20-r2.json
+        bench/results/flight-stagger-c294800/runs/flight-fade-swarmd-n20-r2.json
 
 For every re-discovery that came more than ``--over`` seconds (default 2) after the return
 by the clock (``flight_measures.measure``'s return: the first truth sample in range after a

@@ -9,7 +9,7 @@ from pathlib import Path
 from bench.flight_slow_pair import co_losses, fine_crossings, main, report, slow_returns
 
 RUN = Path(__file__).resolve().parent.parent / (
-    "bench/results/flight-stagger/runs/flight-fade-swarmd-n20-r2.json"
+    "bench/results/flight-stagger-c294800/runs/flight-fade-swarmd-n20-r2.json"
 )
 
 

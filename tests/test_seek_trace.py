@@ -33,7 +33,7 @@ def test_a_bad_pair_stops_with_a_usage_error() -> None:
 
 
 FADE_N20_R2 = Path(__file__).resolve().parent.parent / (
-    "bench/results/flight-stagger/runs/flight-fade-swarmd-n20-r2.json"
+    "bench/results/flight-stagger-c294800/runs/flight-fade-swarmd-n20-r2.json"
 )
 
 
