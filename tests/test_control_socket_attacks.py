@@ -313,7 +313,7 @@ HOSTILE_ERROR = "uav2 \x1b]0;owned\x07 \x1b[2J \x9b31m \u202e"
 
 @pytest.mark.parametrize(
     "argv",
-    [["status"], ["peers"], ["takeoff"], ["hold"]],
+    [["status"], ["peers"], ["takeoff"], ["hold"], ["outcomes"]],
 )
 def test_swarmctl_prints_a_daemon_error_as_data(sock_path: str, argv: list[str]) -> None:
     """Session 10 review: swarmctl made the daemon's *results* safe for a terminal but
@@ -324,7 +324,7 @@ def test_swarmctl_prints_a_daemon_error_as_data(sock_path: str, argv: list[str])
     def refuse(_req: Any) -> Any:
         raise RequestInvalid(HOSTILE_ERROR)
 
-    handlers = {name: refuse for name in ("status", "peers", "takeoff", "command")}
+    handlers = {name: refuse for name in ("status", "peers", "takeoff", "command", "outcomes")}
 
     def run_swarmctl(_server: ControlServer) -> subprocess.CompletedProcess[str]:
         return subprocess.run(

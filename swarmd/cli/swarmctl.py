@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from swarmd import __version__
-from swarmd.cli import bundle_cmd, px4_cmd, ros2_cmd, status_cmd, takeoff_cmd
+from swarmd.cli import bundle_cmd, outcomes_cmd, px4_cmd, ros2_cmd, status_cmd, takeoff_cmd
 from swarmd.cli.pipes import reader_may_close_stdout
 
 
@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"swarmctl {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in (bundle_cmd, status_cmd, takeoff_cmd, px4_cmd, ros2_cmd):
+    for module in (bundle_cmd, status_cmd, takeoff_cmd, outcomes_cmd, px4_cmd, ros2_cmd):
         module.register(sub)
     return parser
 

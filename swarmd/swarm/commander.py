@@ -30,6 +30,10 @@ from swarmd.swarm.events import SentBy
 # Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
 # flight, the cap only stops a runaway script from growing the daemon.
 MAX_TRACKED_COMMANDS: Final = 64
+# Commands a member keeps its own decision for, for ``swarmctl outcomes`` on the drone. The
+# same handful per flight; the cap stops a captured commander's flood of fresh ids from
+# growing the list (the data plane's executed set, the durable record, has its own cap).
+MAX_DECIDED_COMMANDS: Final = MAX_TRACKED_COMMANDS
 LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 
 # After a command's validity ends, how long the commander still waits for a target's first
@@ -348,3 +352,67 @@ class CommandTracker:
     def recent(self, now: float, limit: int = 8) -> list[dict[str, Any]]:
         ids = list(self._commands)[-limit:]
         return [s for i in ids if (s := self.snapshot(i, now)) is not None]
+
+
+@dataclass(slots=True)
+class _Decided:
+    command_id: int
+    kind: str
+    commander: str
+    state: str
+    reason: str
+    received_at: float
+    final_at: float | None = None
+
+
+class DecisionLog:
+    """What this member decided for each command it received in this life (member side):
+    ``swarmctl outcomes`` on the drone. Bounded (``MAX_DECIDED_COMMANDS``, oldest out,
+    ``evicted`` counts them) and in memory: the restart-proof record is the data plane's
+    executed set with its outcomes (``swarmd.swarm.statefile``), and the commander's
+    ``CommandTracker`` is the one to ask whether every drone ran a command."""
+
+    def __init__(self) -> None:
+        self._decided: OrderedDict[tuple[str, int], _Decided] = OrderedDict()
+        self.evicted = 0
+
+    def decided(
+        self,
+        commander: str,
+        command_id: int,
+        kind: str,
+        result: CommandResult,
+        reason: str,
+        now: float,
+    ) -> None:
+        """One decision, as reported up: ACCEPTED first, then the final one replaces it."""
+        entry = self._decided.get((commander, command_id))
+        state = str(result.name).lower()
+        if entry is None:
+            self._decided[commander, command_id] = _Decided(
+                command_id, kind.lower(), commander, state, reason, now
+            )
+            while len(self._decided) > MAX_DECIDED_COMMANDS:
+                self._decided.popitem(last=False)
+                self.evicted += 1
+            if result != CommandResult.ACCEPTED:
+                self._decided[commander, command_id].final_at = now
+        elif entry.final_at is None:  # a decision, once final, stays as it was reported
+            entry.state, entry.reason = state, reason
+            if result != CommandResult.ACCEPTED:
+                entry.final_at = now
+
+    def recent(self, now: float) -> list[dict[str, Any]]:
+        """The JSON view, newest first (``outcomes`` without a command id, ``ran``)."""
+        return [
+            {
+                "command_id": d.command_id,
+                "kind": d.kind,
+                "commander": d.commander,
+                "state": d.state,
+                "reason": d.reason,
+                "age_s": round(now - d.received_at, 3),
+                "done_s": None if d.final_at is None else round(d.final_at - d.received_at, 4),
+            }
+            for d in reversed(self._decided.values())
+        ]

@@ -103,6 +103,7 @@ from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     RESTARTED,
     CommandTracker,
+    DecisionLog,
     ReadinessTable,
 )
 from swarmd.swarm.events import (
@@ -237,6 +238,7 @@ class SwarmCore:
         if roles.is_commander and self.has_vehicle:
             self.table.add_local(roles.me)  # the commander's own drone flies with the swarm
         self.tracker = CommandTracker()
+        self.decisions = DecisionLog()  # what this member decided (swarmctl outcomes)
         self.counters: dict[str, int] = {
             "readiness_published": 0,
             "outcomes_rereported": 0,
@@ -402,6 +404,18 @@ class SwarmCore:
         }
 
     def request_outcomes(self, request: Mapping[str, Any], now: float) -> dict[str, Any]:
+        """One command's snapshot by ``command_id``; without one, every command this daemon
+        keeps: ``issued`` (the commander's, newest first) and ``ran`` (what this drone
+        decided for the commands it received, newest first): ``swarmctl outcomes``
+        (docs/operations.md, "What became of each command")."""
+        if "command_id" not in request:
+            return {
+                "role": self.roles.role,
+                "issued": self.tracker.recent(now, limit=MAX_TRACKED_COMMANDS)[::-1],
+                "issued_evicted": self.tracker.evicted,
+                "ran": self.decisions.recent(now),
+                "ran_evicted": self.decisions.evicted,
+            }
         command_id = request.get("command_id")
         if not isinstance(command_id, int) or isinstance(command_id, bool):
             raise RequestInvalid('"command_id" must be an integer')
@@ -598,7 +612,9 @@ class SwarmCore:
         self._events.append(OutcomeReported(command_id, kind, result, reason))
         if command_id in self._local_commands:
             self.tracker.record(command_id, self.roles.me, result, reason, now)
-        elif self.plane is not None:
+            return
+        self.decisions.decided(commander, command_id, kind, result, reason, now)
+        if self.plane is not None:
             self.plane.report_outcome(command_id, result, now, reason, commander=commander)
             # the second write: the outcome next to its id, for a re-report after a restart
             self._persist()
