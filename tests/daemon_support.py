@@ -21,7 +21,7 @@ from swarmd.bundle.keys import dev_signing_key, public_pem, raw_public
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle
 from swarmd.cli.swarmctl import main as swarmctl
-from swarmd.config import DaemonConfig
+from swarmd.config import DaemonConfig, load_config
 from swarmd.control import DaemonUnreachable, request
 from swarmd.daemon import Daemon
 from swarmd.link.static import StaticSource
@@ -217,6 +217,22 @@ def in_process_daemon(config: DaemonConfig, bundle: Bundle, node: str | None = N
         sources=[StaticSource(0.8)],
         env={},
     )
+
+
+def loopback_daemon(workdir: Path, files: BundleFiles, node: str, *, extra: str = "") -> Daemon:
+    """``node``'s daemon on the host loopback, in this process, not started: its config
+    ``workdir/<node>.yaml``, its control socket ``workdir/<node>.sock``; ``extra`` as in
+    ``write_config``."""
+    cfg = write_config(
+        workdir / f"{node}.yaml",
+        files,
+        node=node,
+        interface="lo",
+        ipv4="127.0.0.1",
+        socket_path=str(workdir / f"{node}.sock"),
+        extra=extra,
+    )
+    return in_process_daemon(load_config(cfg), files.bundle, node)
 
 
 def clean_env(**extra: str) -> dict[str, str]:

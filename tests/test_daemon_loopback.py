@@ -31,6 +31,7 @@ from tests.attacker import forge
 from tests.daemon_support import (
     BundleFiles,
     in_process_daemon,
+    loopback_daemon,
     run_domain,
     swarm_sections,
     write_bundle,
@@ -46,18 +47,9 @@ def files(workdir: Path) -> BundleFiles:
 
 
 def _daemon(workdir: Path, files: BundleFiles, node: str, *, dataplane: bool = False) -> Daemon:
-    cfg = write_config(
-        workdir / f"{node}.yaml",
-        files,
-        node=node,
-        interface="lo",
-        ipv4="127.0.0.1",
-        socket_path=str(workdir / f"{node}.sock"),
-        # the swarm's data plane on the user port, no vehicle (its readiness says so)
-        extra=swarm_sections(workdir / f"state-{node}", None, period_s=0.5) if dataplane else "",
-    )
-    config = load_config(cfg)
-    return in_process_daemon(config, files.bundle, node)
+    # the swarm's data plane on the user port, no vehicle (its readiness says so)
+    extra = swarm_sections(workdir / f"state-{node}", None, period_s=0.5) if dataplane else ""
+    return loopback_daemon(workdir, files, node, extra=extra)
 
 
 def _start_error(daemon: Daemon) -> str:

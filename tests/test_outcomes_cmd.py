@@ -22,20 +22,17 @@ import pytest
 
 from swarmd.cli.outcomes_cmd import exit_code, render_kept, select, to_json
 from swarmd.cli.swarmctl import build_parser
-from swarmd.config import load_config
 from swarmd.control import ControlClient, ControlServer
-from swarmd.daemon import Daemon
 from swarmd.dataplane.types import CommandResult
 from swarmd.exitcodes import EX_FAILED, EX_OK, EX_UNREACHABLE
 from swarmd.rawclock import run_on_raw_clock
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, DecisionLog
 from swarmd.terminal import UNSAFE_CATEGORIES
 from tests.daemon_support import (
-    in_process_daemon,
+    loopback_daemon,
     run_domain,
     swarm_sections,
     write_bundle,
-    write_config,
 )
 
 SWARMCTL = str(Path(sys.executable).parent / "swarmctl")
@@ -259,19 +256,8 @@ def test_a_real_daemon_shows_what_became_of_a_command(workdir: Path) -> None:
     documented keys; an unknown id is exit 2; on uav2 it shows what uav2 decided."""
     files = write_bundle(workdir, 3, domain_id=run_domain() + 17)
     socks = [workdir / f"uav{i}.sock" for i in (1, 2)]
-    daemons: list[Daemon] = []
-    for i, sock in enumerate(socks):
-        node = f"uav{i + 1}"
-        cfg = write_config(
-            workdir / f"{node}.yaml",
-            files,
-            node=node,
-            interface="lo",
-            ipv4="127.0.0.1",
-            socket_path=str(sock),
-            extra=swarm_sections(workdir / "state", None, period_s=0.5),
-        )
-        daemons.append(in_process_daemon(load_config(cfg), files.bundle, node))
+    state = swarm_sections(workdir / "state", None, period_s=0.5)
+    daemons = [loopback_daemon(workdir, files, node, extra=state) for node in ("uav1", "uav2")]
 
     async def until(cond: Any, what: Any) -> None:
         loop = asyncio.get_running_loop()

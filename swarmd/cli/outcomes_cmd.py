@@ -29,14 +29,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from typing import Any, Final
 
-from swarmd.cli.status_cmd import socket_argument, table
+from swarmd.cli.status_cmd import fail_unreachable, socket_argument, table
 from swarmd.cli.takeoff_cmd import render_outcomes, sent_by_text
-from swarmd.control import ControlClient, DaemonUnreachable, RequestError
-from swarmd.exitcodes import EX_FAILED, EX_OK, EX_UNREACHABLE
+from swarmd.control import DaemonUnreachable, RequestError, request
+from swarmd.exitcodes import EX_FAILED, EX_OK
 from swarmd.terminal import safe_text, safe_tree
 
 EXECUTED: Final = "completed"  # the one state that means "it did what it was told"
@@ -75,15 +74,16 @@ def _command_id(text: str) -> int:
 
 def _outcomes(args: argparse.Namespace) -> int:
     try:
-        with ControlClient(args.socket) as client:
-            answer = client.request("outcomes")
+        answer = request(args.socket, "outcomes")
     except (DaemonUnreachable, RequestError) as exc:
-        return _fail(str(exc))
+        return fail_unreachable(str(exc))
     if not isinstance(answer, dict):
-        return _fail("the daemon's answer to 'outcomes' is not an object")
+        return fail_unreachable("the daemon's answer to 'outcomes' is not an object")
     shown = select(answer, args.command_id)
     if shown is None:
-        return _fail(f"unknown command id {args.command_id:#x}: not among the commands kept here")
+        return fail_unreachable(
+            f"unknown command id {args.command_id:#x}: not among the commands kept here"
+        )
     wall_now = time.time()
     code = exit_code(shown)
     if args.json:
@@ -91,11 +91,6 @@ def _outcomes(args: argparse.Namespace) -> int:
     else:
         print("\n".join(render_kept(shown, wall_now)))
     return code
-
-
-def _fail(message: str) -> int:
-    print(f"swarmctl: {safe_text(message)}", file=sys.stderr)
-    return EX_UNREACHABLE
 
 
 def select(answer: dict[str, Any], command_id: int | None) -> dict[str, Any] | None:

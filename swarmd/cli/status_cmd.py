@@ -66,7 +66,8 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-def _fail(message: str) -> int:
+def fail_unreachable(message: str) -> int:
+    """One line on stderr (the daemon's words made safe, issue 10 attack 8) and exit 2."""
     print(f"swarmctl: {safe_text(message)}", file=sys.stderr)
     return EX_UNREACHABLE
 
@@ -76,7 +77,7 @@ def _status(args: argparse.Namespace) -> int:
         with ControlClient(args.socket) as client:
             status = client.request("status")
     except (DaemonUnreachable, RequestError) as exc:
-        return _fail(str(exc))
+        return fail_unreachable(str(exc))
     _print_status(status, args.json, sys.stdout)
     return EX_OK
 
@@ -86,7 +87,7 @@ def _peers(args: argparse.Namespace) -> int:
         with ControlClient(args.socket) as client:
             status = client.request("status")
     except (DaemonUnreachable, RequestError) as exc:
-        return _fail(str(exc))
+        return fail_unreachable(str(exc))
     peers = status.get("peers", []) if isinstance(status, dict) else []
     if args.json:
         print(json.dumps(peers, indent=2))
@@ -125,7 +126,7 @@ def _watch(args: argparse.Namespace) -> int:
                     client.close()
                 time.sleep(max(0.1, args.interval))
     except (DaemonUnreachable, RequestError) as exc:
-        return _fail(str(exc))
+        return fail_unreachable(str(exc))
     except KeyboardInterrupt:
         return EX_OK
 
