@@ -214,6 +214,35 @@ def test_land_hold_abort_reach_the_vehicle_and_complete(kind: str, task: TaskKin
         ]
 
 
+def test_outcomes_without_an_id_list_what_was_issued_and_what_each_member_decided() -> None:
+    """``swarmctl outcomes``'s request: the commander's commands newest first, and on a
+    member its own final answer to each (a command it ran, then one it refused)."""
+    swarm = Swarm(2)
+    swarm.run(2.0)
+    land = swarm.call(
+        "lead", lambda now: swarm.lead.request_command({"kind": "land", "only": ["m01"]}, now)
+    )["command_id"]
+    swarm.run_until_done(land)
+    swarm.vehicles["m01"].answer = lambda r: TaskFinished(r.token, False, "not_confirmed", None)
+    hold = swarm.call("lead", lambda now: swarm.lead.request_command({"kind": "hold"}, now))
+    swarm.run_until_done(hold["command_id"])
+    kept = swarm.lead.request_outcomes({}, swarm.net.now)
+    assert kept["role"] == "commander" and kept["ran"] == [] and kept["issued_evicted"] == 0
+    assert [c["command_id"] for c in kept["issued"]] == [hold["command_id"], land]
+    assert kept["issued"][1] == swarm.lead.request_outcomes({"command_id": land}, swarm.net.now)
+    ran = swarm.cores["m01"].request_outcomes({}, swarm.net.now)
+    assert ran["role"] == "member" and ran["issued"] == []
+    assert [
+        (r["command_id"], r["kind"], r["commander"], r["state"], r["reason"]) for r in ran["ran"]
+    ] == [
+        (hold["command_id"], "hold", "lead", "failed", "not_confirmed"),
+        (land, "land", "lead", "completed", ""),
+    ]
+    assert [
+        r["command_id"] for r in swarm.cores["m02"].request_outcomes({}, swarm.net.now)["ran"]
+    ] == [hold["command_id"]]
+
+
 def test_a_vehicle_failure_is_reported_failed_with_its_reason() -> None:
     swarm = Swarm(1)
     swarm.vehicles["m01"].answer = lambda r: TaskFinished(r.token, False, "not_confirmed", None)

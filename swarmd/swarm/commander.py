@@ -1,4 +1,5 @@
-"""The commander's bookkeeping: who is ready for take-off, and what became of each command.
+"""The commander's bookkeeping: who is ready for take-off, and what became of each command;
+and a member's own: what it decided for each command it received (``DecisionLog``).
 
 Sans-IO like the engines: time is a ``now: float`` argument (the daemon's ``loop.time()``),
 nothing here sends or sleeps. The daemon feeds it from the data plane's events
