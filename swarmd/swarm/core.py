@@ -90,6 +90,7 @@ from swarmd.dataplane.types import (
 from swarmd.dataplane.validity import (
     EXPIRED,
     MEMORY_LOST,
+    ReportLog,
     another_life,
     issued_in_life,
     judge,
@@ -260,6 +261,8 @@ class SwarmCore:
         self._events: deque[SwarmEvent] = deque()
         # when this life began (``start``): it runs only commands issued after it
         self._life_start: float | None = None
+        # the stamps of our own recent reports: an echo must be one (validity.ReportLog)
+        self._reports = ReportLog()
         # re-reporting an earlier life's outcomes: until when, and to which commanders done
         self._rereport_until: float | None = None
         self._rereported: set[str] = set()  # bounded: bundle names only
@@ -477,6 +480,7 @@ class SwarmCore:
         )
         if self.roles.reports_readiness and self.plane is not None:
             self.plane.publish_readiness(sample, now)
+            self._reports.sent(sample.stamp_ms, now)
             self.counters["readiness_published"] += 1
         if self.roles.me in self.table.names:
             self.table.on_report(self.roles.me, sample, None, now)
@@ -576,7 +580,17 @@ class SwarmCore:
             start = self._life_start
             life = None if start is None else issued_in_life(command, self.roles.me, start, now)
             if life is not None and life.valid:
-                return True
+                # read modulo 2^32 as valid and of this life: is the echo a report we sent
+                # within the span any runnable command's can be (validity.ReportLog)?
+                unknown = self._reports.unknown(command, self.roles.me, now)
+                if unknown is None:
+                    return True
+                self._count("refused_expired")
+                self._events.append(CommandExpired(commander, command.command_id, kind, unknown))
+                self._report(
+                    command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now, commander
+                )
+                return False
             self._count("refused_memory_lost")
             detail = "not started" if life is None else life.detail
             event = CommandBeforeLife(commander, command.command_id, kind, detail)
