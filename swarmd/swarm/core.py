@@ -134,6 +134,7 @@ __all__ = [
     "NO_VEHICLE",
     "PX4_DISABLED",
     "UNKNOWN_KIND",
+    "ID_IN_USE",
     "COMMAND_KINDS",
     "DEFAULT_VALID_FOR_S",
     "MAX_REREPORTED",
@@ -147,6 +148,10 @@ __all__ = [
 
 PX4_DISABLED: Final = "px4_disabled"
 UNKNOWN_KIND: Final = "unknown_kind"
+# Another commander's command with the same id still runs here (two commanders in the same
+# boot epoch make the same ids: docs/dataplane.md, "Exactly once" 4); the vehicle's tasks
+# are tagged with the id, so this one is refused and its commander told at once.
+ID_IN_USE: Final = "id_in_use"
 COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
 # command ids a member remembers running: the data plane's executed list is the durable
 # record; this only guards the commander's own drone, whose commands bypass it
@@ -257,7 +262,8 @@ class SwarmCore:
         self._expiries: list[tuple[float, int, int]] = []
         # id -> (kind, commander), on the vehicle
         self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
-        self._seen: OrderedDict[int, None] = OrderedDict()  # ids started (bounded)
+        # (commander, id) started (bounded): ids are unique per commander only
+        self._seen: OrderedDict[tuple[str, int], None] = OrderedDict()
         self._events: deque[SwarmEvent] = deque()
         # when this life began (``start``): it runs only commands issued after it
         self._life_start: float | None = None
@@ -502,9 +508,10 @@ class SwarmCore:
                 commander,
             )
             return
-        if command.command_id in self._seen:
+        key = (commander, command.command_id)
+        if key in self._seen:
             return  # exactly once: this id runs already, or ran
-        self._seen[command.command_id] = None
+        self._seen[key] = None
         while len(self._seen) > MAX_RUNNING_IDS:
             self._seen.popitem(last=False)
         self._count(f"received_{kind.name.lower()}")
@@ -544,6 +551,11 @@ class SwarmCore:
                 task = TaskKind.ABORT
             case _:
                 assert_never(kind)
+        if command.command_id in self._running:  # another commander's, same id: its tag
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, ID_IN_USE, now, commander
+            )
+            return
         self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now, commander)
         self._running[command.command_id] = (kind, commander)
         alt = float(command.altitude_m) if takeoff else None
@@ -610,7 +622,7 @@ class SwarmCore:
     ) -> None:
         self._count(f"outcome_{result.name.lower()}")
         self._events.append(OutcomeReported(command_id, kind, result, reason))
-        if command_id in self._local_commands:
+        if commander == self.roles.me and command_id in self._local_commands:
             self.tracker.record(command_id, self.roles.me, result, reason, now)
         elif self.plane is not None:
             self.plane.report_outcome(command_id, result, now, reason, commander=commander)
@@ -644,7 +656,9 @@ class SwarmCore:
         ids: list[int] = []
         for _, command_id, result, reason in earlier:
             try:
-                self.plane.report_outcome(command_id, CommandResult(result), now, reason)
+                self.plane.report_outcome(
+                    command_id, CommandResult(result), now, reason, commander=commander
+                )
             except (ValueError, PayloadError):  # a state file edited by hand: skip it
                 self._count("rereport_invalid")
                 continue
