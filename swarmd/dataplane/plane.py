@@ -165,6 +165,10 @@ class ForeignCommandId(ValueError):
     """``send_command`` was given an id this life neither made nor sent (nothing sent)."""
 
 
+class CommandIdsExhausted(ValueError):
+    """``make_command`` gave out every counter of this life (2^32 - 1): restart for more."""
+
+
 class DataPlane:
     """RTPS user data for one node of a bundle. Sans-IO; see the module docstring."""
 
@@ -344,6 +348,8 @@ class DataPlane:
 
         ``valid_ms`` and ``echoes`` date it for the members (``validity.py``); without them
         a member refuses it as expired. ``time_echoes`` gives the echoes."""
+        if self._next_command >= U32_MAX:  # more would carry into the epoch's bits
+            raise CommandIdsExhausted(f"all {U32_MAX} command ids of this life are used")
         self._next_command += 1
         command_id = (self._id_life << 32) | self._next_command
         return Command(command_id, kind, float(altitude_m), list(targets), valid_ms, list(echoes))

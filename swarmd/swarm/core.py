@@ -73,6 +73,7 @@ from typing import Any, Final, assert_never
 from swarmd.dataplane import (
     TOPIC_READY,
     CommandCopyVoided,
+    CommandIdsExhausted,
     CommandReceived,
     DataPlane,
     OutcomeReceived,
@@ -734,13 +735,16 @@ class SwarmCore:
     ) -> int:
         remote = [n for n in targets if n != self.roles.me]
         valid_ms = valid_ms_of(valid_for_s)
-        command = plane.make_command(
-            kind,
-            altitude_m=alt,
-            targets=remote,
-            valid_ms=valid_ms,
-            echoes=plane.time_echoes(remote, now),
-        )
+        try:
+            command = plane.make_command(
+                kind,
+                altitude_m=alt,
+                targets=remote,
+                valid_ms=valid_ms,
+                echoes=plane.time_echoes(remote, now),
+            )
+        except CommandIdsExhausted as exc:  # 2^32 - 1 commands in one life
+            raise RequestInvalid(str(exc)) from None
         takeoff_alt = alt if kind == CommandKind.TAKEOFF else None
         epochs = {name: e for name in remote if (e := plane.peer_epoch(name)) is not None}
         self.tracker.sent(
