@@ -17,29 +17,11 @@ from __future__ import annotations
 import pytest
 
 from swarmd.px4.vehicle import TaskKind
-from swarmd.swarm.core import SwarmCore, SwarmSettings
-from swarmd.swarm.roles import Roles
+from tests.test_cmd_in_flight import Flight
+from tests.test_cmd_memory import _restart_commander
 from tests.test_cmd_validity import _command_datagrams, _cut_takeoff
-from tests.test_dataplane_swarm import address_of, make_plane
+from tests.test_dataplane_swarm import address_of
 from tests.test_swarm_core import Swarm
-
-
-def _restart_lead(swarm: Swarm) -> SwarmCore:
-    """The commander restarts in epoch 2; it finds m01 at once, m01 has not heard it yet."""
-    bundle = swarm.bundle
-    core = SwarmCore(
-        Roles.of(bundle, bundle.participant("lead")),
-        make_plane(bundle, "lead", epoch=2, incarnation=2),
-        verdict=None,
-        link_q=lambda: 0.8,
-        settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
-    )
-    swarm.cores["lead"] = core
-    core.start(swarm.net.now)
-    swarm.net.replace(swarm.ids["lead"], core)
-    core.peer_up("m01", address_of(bundle, "m01"), 1, swarm.net.now)
-    swarm.net.poke(swarm.ids["lead"])
-    return core
 
 
 def _release(swarm: Swarm, datagram: bytes) -> None:
@@ -52,12 +34,14 @@ def _release(swarm: Swarm, datagram: bytes) -> None:
 def test_an_earlier_commander_lifes_copy_runs_once_in_its_validity_and_never_after(
     late: bool,
 ) -> None:
-    swarm = Swarm(1, seed=61)
+    flight = Flight(1, seed=61)
+    swarm = flight.swarm
     cid, sent_at = _cut_takeoff(swarm)  # valid 3 s
     swarm.run(1.0)  # the commander's repairs towards m01, held too
     held = _command_datagrams(swarm, cid, "m01", sent_at)
     assert len(held) >= 2
-    lead = _restart_lead(swarm)
+    # the commander restarts in epoch 2 and finds m01 at once; m01 has not heard it yet
+    lead = _restart_commander(flight, epoch=2, incarnation=2, members_hear_it=False)
     swarm.net.isolate(swarm.ids["m01"], False)
     swarm.run(3.0 if late else 0.3)
     _release(swarm, held[0])  # m01 still knows the commander in epoch 1
