@@ -228,6 +228,7 @@ def _verdict(life_s: float, command: Command, now: float) -> tuple[bool, str, st
     commander at ``now``: (ran, reason of its answer, detail of a memory_lost refusal)."""
     member = Swarm(1).cores["m01"]
     member.start(life_s)
+    member.handle_timer(life_s + 0.5)  # its report stamped life + 0.5 s (its report log)
     member._execute("lead", command, now)
     events = list(iter(member.next_event, None))
     ran = any(isinstance(e, VehicleRequest) for e in events)

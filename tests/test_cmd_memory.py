@@ -214,11 +214,17 @@ def test_a_resend_carries_the_dating_of_the_first_issue() -> None:
 
 
 def _restart_commander(
-    flight: Flight, *, epoch: int, incarnation: int, m01_epoch: int = 1
+    flight: Flight,
+    *,
+    epoch: int,
+    incarnation: int,
+    m01_epoch: int = 1,
+    members_hear_it: bool = True,
 ) -> SwarmCore:
     """The commander's daemon restarts in boot ``epoch`` with boot counter ``incarnation``
     (the state file's: the first life's again when it was lost) and discovery on both sides
-    reports it (m01 in its boot ``m01_epoch``)."""
+    reports it (m01 in its boot ``m01_epoch``); with ``members_hear_it`` False only the
+    commander's side does (the members still know its earlier epoch)."""
     swarm = flight.swarm
     bundle = swarm.bundle
     core = SwarmCore(
@@ -235,7 +241,8 @@ def _restart_commander(
     for other in swarm.cores:
         if other != "lead":
             core.peer_up(other, address_of(bundle, other), m01_epoch, now)
-            swarm.cores[other].peer_up("lead", address_of(bundle, "lead"), epoch, now)
+            if members_hear_it:
+                swarm.cores[other].peer_up("lead", address_of(bundle, "lead"), epoch, now)
             swarm.net.poke(swarm.ids[other])
     swarm.net.poke(swarm.ids["lead"])
     return core

@@ -366,6 +366,7 @@ def test_every_command_kind_is_dispatched_to_one_vehicle_task() -> None:
     reaches the vehicle exactly once, as its own task."""
     swarm = Swarm(1)
     member = swarm.cores["m01"]
+    member.handle_timer(0.0)  # m01's first report, stamped 0.0
     echo = [TimeEcho("m01", stamp_ms(0.0), 0, 1)]  # dated: "issued as m01 sent its report"
     for i, kind in enumerate(CommandKind):
         member._execute("lead", Command(100 + i, kind, 5.0, [], 3000, echo), 0.0)

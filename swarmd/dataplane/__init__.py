@@ -15,7 +15,7 @@ from swarmd.dataplane.events import (
     ReadinessReceived,
 )
 from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS
-from swarmd.dataplane.plane import DataPlane, ForeignCommandId, PairKeys
+from swarmd.dataplane.plane import CommandIdsExhausted, DataPlane, ForeignCommandId, PairKeys
 from swarmd.dataplane.types import (
     Command,
     CommandKind,
@@ -40,6 +40,7 @@ __all__ = [
     "CommandResult",
     "DataPlane",
     "DataPlaneEvent",
+    "CommandIdsExhausted",
     "ForeignCommandId",
     "Event",
     "OutcomeReceived",

@@ -165,6 +165,10 @@ class ForeignCommandId(ValueError):
     """``send_command`` was given an id this life neither made nor sent (nothing sent)."""
 
 
+class CommandIdsExhausted(ValueError):
+    """``make_command`` gave out every counter of this life (2^32 - 1): restart for more."""
+
+
 class DataPlane:
     """RTPS user data for one node of a bundle. Sans-IO; see the module docstring."""
 
@@ -344,6 +348,8 @@ class DataPlane:
 
         ``valid_ms`` and ``echoes`` date it for the members (``validity.py``); without them
         a member refuses it as expired. ``time_echoes`` gives the echoes."""
+        if self._next_command >= U32_MAX:  # more would carry into the epoch's bits
+            raise CommandIdsExhausted(f"all {U32_MAX} command ids of this life are used")
         self._next_command += 1
         command_id = (self._id_life << 32) | self._next_command
         return Command(command_id, kind, float(altitude_m), list(targets), valid_ms, list(echoes))
@@ -453,14 +459,19 @@ class DataPlane:
         *,
         commander: str | None = None,
     ) -> int:
-        """Tell the commander(s) what this member did with ``command_id`` (reliable).
-        With ``commander`` (whose command it is), the outcome is also kept next to the
-        executed id, for ``executed_outcomes``."""
+        """Tell the commander what this member did with ``command_id`` (reliable). With
+        ``commander`` (whose command it is), the outcome goes to that commander only (its
+        own copy; other readers are sent a GAP) and is kept next to the executed id, for
+        ``executed_outcomes``: ids are unique per commander only, and an outcome names
+        none, so another commander with the same id would take it as its own answer
+        (docs/dataplane.md, "Exactly once" 4). Without, it goes to every reader."""
         reason = reason.encode("utf-8")[:MAX_REASON_CHARS].decode("utf-8", "ignore")
-        if commander is not None:
-            self._ledger.decided(commander, command_id, int(result.value), reason)
         outcome = CommandOutcome(command_id, self.local.name, result, reason)
-        return self._publish(TOPIC_OUTCOME, outcome, now)
+        target = None if commander is None else self._participants.get(commander)
+        if target is None:
+            return self._publish(TOPIC_OUTCOME, outcome, now)
+        self._ledger.decided(target.name, command_id, int(result.value), reason)
+        return self._publish(TOPIC_OUTCOME, outcome, now, to=target.guid_prefix)
 
     @property
     def executed_command_ids(self) -> list[tuple[str, int]]:
@@ -686,11 +697,14 @@ class DataPlane:
             key = self._keys_prepared[prefix] = user_data_key(pair_key)
         return key
 
-    def _publish(self, topic: str, sample: Sample, now: float) -> int:
+    def _publish(self, topic: str, sample: Sample, now: float, to: GuidPrefix | None = None) -> int:
+        """Write ``sample`` to every matched reader, or with ``to`` to that participant's
+        only (the others are sent a GAP, as for a command's copies)."""
         writer = self._endpoints.by_topic.get(topic)
         if writer is None:
             raise ValueError(f"{self.local.name!r} has no writer on {topic!r} in the bundle")
-        sn, out = writer.write(encode_sample(sample), now)
+        payload = encode_sample(sample)
+        sn, out = writer.write(payload if to is None else {to: payload}, now)
         self._queue(out)
         return sn
 

@@ -45,6 +45,7 @@ Pure functions; no clock, no I/O.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
@@ -58,6 +59,12 @@ DRIFT_PPM: Final = 200
 # Reports older than this are not echoed: the bound they give stays sound, but a drone the
 # commander has not heard for ten minutes is better refused than dated through drift.
 MAX_ECHO_AGE_MS: Final = 600_000
+# A report older than this can date no command that may still run: the echo is at most
+# MAX_ECHO_AGE_MS old at the issue, and the validity at most MAX_VALID_MS after it.
+REPORT_LOG_MS: Final = MAX_ECHO_AGE_MS + MAX_VALID_MS
+# A backstop on the log's length: 1,200 reports at the shipped 1 Hz, plus one per
+# (re)discovery of a commander; past it the oldest go first (their commands are refused).
+MAX_LOGGED_REPORTS: Final = 8192
 
 EXPIRED: Final = "expired"  # the reason a member reports (REJECTED) for a late command
 # ... and for one it cannot prove was issued after its daemon started (its executed-id
@@ -144,6 +151,41 @@ def another_life(command: Command, me: str, epoch: int) -> str | None:
     if echo is None or echo.epoch == epoch:
         return None
     return f"dated by a report of boot epoch {echo.epoch}, this life is epoch {epoch}"
+
+
+class ReportLog:
+    """The stamps of this member's own readiness reports of the last ``REPORT_LOG_MS``,
+    with when it sent each (its clock). Stamps are u32 milliseconds, so ``judge`` reads a
+    copy released 2^32 ms (49.7 days) after its echoed report plus one second as one
+    second old; a member whose daemon has been up that long, and whose commander's later
+    datagrams an attacker jammed, ran such a copy 49.7 days late. A copy may run only if
+    its echo is a stamp this member sent within the log's span (``unknown``).
+    What is left: an old stamp equal, to the millisecond, to one sent within the span
+    (docs/security.md, "Residual risks: the data plane and commands")."""
+
+    def __init__(self) -> None:
+        self._sent: OrderedDict[int, float] = OrderedDict()  # stamp -> sent at, oldest first
+
+    def sent(self, stamp: int, now: float) -> None:
+        """This member sent a report stamped ``stamp`` at ``now``."""
+        self._sent[stamp] = now
+        self._sent.move_to_end(stamp)
+        horizon = now - REPORT_LOG_MS / 1000.0
+        while self._sent and (
+            next(iter(self._sent.values())) < horizon or len(self._sent) > MAX_LOGGED_REPORTS
+        ):
+            self._sent.popitem(last=False)
+
+    def unknown(self, command: Command, me: str, now: float) -> str | None:
+        """Why ``command``'s echo for ``me`` is not a report this member sent within
+        ``REPORT_LOG_MS`` of ``now``, or None when it is (no echo: ``judge`` refuses)."""
+        echo = _echo_for(command.echoes, me)
+        if echo is None:
+            return None
+        sent = self._sent.get(echo.stamp_ms)
+        if sent is not None and now - sent <= REPORT_LOG_MS / 1000.0:
+            return None
+        return f"stamp {echo.stamp_ms} is not one of our reports of the last {REPORT_LOG_MS} ms"
 
 
 def _echo_for(echoes: Iterable[TimeEcho], me: str) -> TimeEcho | None:

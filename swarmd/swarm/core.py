@@ -73,6 +73,7 @@ from typing import Any, Final, assert_never
 from swarmd.dataplane import (
     TOPIC_READY,
     CommandCopyVoided,
+    CommandIdsExhausted,
     CommandReceived,
     DataPlane,
     OutcomeReceived,
@@ -90,6 +91,7 @@ from swarmd.dataplane.types import (
 from swarmd.dataplane.validity import (
     EXPIRED,
     MEMORY_LOST,
+    ReportLog,
     another_life,
     issued_in_life,
     judge,
@@ -134,6 +136,7 @@ __all__ = [
     "NO_VEHICLE",
     "PX4_DISABLED",
     "UNKNOWN_KIND",
+    "ID_IN_USE",
     "COMMAND_KINDS",
     "DEFAULT_VALID_FOR_S",
     "MAX_REREPORTED",
@@ -147,6 +150,10 @@ __all__ = [
 
 PX4_DISABLED: Final = "px4_disabled"
 UNKNOWN_KIND: Final = "unknown_kind"
+# Another commander's command with the same id still runs here (two commanders in the same
+# boot epoch make the same ids: docs/dataplane.md, "Exactly once" 4); the vehicle's tasks
+# are tagged with the id, so this one is refused and its commander told at once.
+ID_IN_USE: Final = "id_in_use"
 COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}
 # command ids a member remembers running: the data plane's executed list is the durable
 # record; this only guards the commander's own drone, whose commands bypass it
@@ -258,10 +265,13 @@ class SwarmCore:
         self._expiries: list[tuple[float, int, int]] = []
         # id -> (kind, commander), on the vehicle
         self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
-        self._seen: OrderedDict[int, None] = OrderedDict()  # ids started (bounded)
+        # (commander, id) started (bounded): ids are unique per commander only
+        self._seen: OrderedDict[tuple[str, int], None] = OrderedDict()
         self._events: deque[SwarmEvent] = deque()
         # when this life began (``start``): it runs only commands issued after it
         self._life_start: float | None = None
+        # the stamps of our own recent reports: an echo must be one (validity.ReportLog)
+        self._reports = ReportLog()
         # re-reporting an earlier life's outcomes: until when, and to which commanders done
         self._rereport_until: float | None = None
         self._rereported: set[str] = set()  # bounded: bundle names only
@@ -491,6 +501,7 @@ class SwarmCore:
         )
         if self.roles.reports_readiness and self.plane is not None:
             self.plane.publish_readiness(sample, now)
+            self._reports.sent(sample.stamp_ms, now)
             self.counters["readiness_published"] += 1
         if self.roles.me in self.table.names:
             self.table.on_report(self.roles.me, sample, None, now)
@@ -512,9 +523,10 @@ class SwarmCore:
                 commander,
             )
             return
-        if command.command_id in self._seen:
+        key = (commander, command.command_id)
+        if key in self._seen:
             return  # exactly once: this id runs already, or ran
-        self._seen[command.command_id] = None
+        self._seen[key] = None
         while len(self._seen) > MAX_RUNNING_IDS:
             self._seen.popitem(last=False)
         self._count(f"received_{kind.name.lower()}")
@@ -554,6 +566,11 @@ class SwarmCore:
                 task = TaskKind.ABORT
             case _:
                 assert_never(kind)
+        if command.command_id in self._running:  # another commander's, same id: its tag
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, ID_IN_USE, now, commander
+            )
+            return
         self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now, commander)
         self._running[command.command_id] = (kind, commander)
         alt = float(command.altitude_m) if takeoff else None
@@ -590,7 +607,17 @@ class SwarmCore:
             start = self._life_start
             life = None if start is None else issued_in_life(command, self.roles.me, start, now)
             if life is not None and life.valid:
-                return True
+                # read modulo 2^32 as valid and of this life: is the echo a report we sent
+                # within the span any runnable command's can be (validity.ReportLog)?
+                unknown = self._reports.unknown(command, self.roles.me, now)
+                if unknown is None:
+                    return True
+                self._count("refused_expired")
+                self._events.append(CommandExpired(commander, command.command_id, kind, unknown))
+                self._report(
+                    command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now, commander
+                )
+                return False
             self._count("refused_memory_lost")
             detail = "not started" if life is None else life.detail
             event = CommandBeforeLife(commander, command.command_id, kind, detail)
@@ -610,7 +637,7 @@ class SwarmCore:
     ) -> None:
         self._count(f"outcome_{result.name.lower()}")
         self._events.append(OutcomeReported(command_id, kind, result, reason))
-        if command_id in self._local_commands:
+        if commander == self.roles.me and command_id in self._local_commands:
             self.tracker.record(command_id, self.roles.me, result, reason, now)
             return
         self.decisions.decided(commander, command_id, kind, result, reason, now)
@@ -646,7 +673,9 @@ class SwarmCore:
         ids: list[int] = []
         for _, command_id, result, reason in earlier:
             try:
-                self.plane.report_outcome(command_id, CommandResult(result), now, reason)
+                self.plane.report_outcome(
+                    command_id, CommandResult(result), now, reason, commander=commander
+                )
             except (ValueError, PayloadError):  # a state file edited by hand: skip it
                 self._count("rereport_invalid")
                 continue
@@ -722,13 +751,16 @@ class SwarmCore:
     ) -> int:
         remote = [n for n in targets if n != self.roles.me]
         valid_ms = valid_ms_of(valid_for_s)
-        command = plane.make_command(
-            kind,
-            altitude_m=alt,
-            targets=remote,
-            valid_ms=valid_ms,
-            echoes=plane.time_echoes(remote, now),
-        )
+        try:
+            command = plane.make_command(
+                kind,
+                altitude_m=alt,
+                targets=remote,
+                valid_ms=valid_ms,
+                echoes=plane.time_echoes(remote, now),
+            )
+        except CommandIdsExhausted as exc:  # 2^32 - 1 commands in one life
+            raise RequestInvalid(str(exc)) from None
         takeoff_alt = alt if kind == CommandKind.TAKEOFF else None
         epochs = {name: e for name in remote if (e := plane.peer_epoch(name)) is not None}
         self.tracker.sent(

@@ -1,0 +1,94 @@
+"""Two commanders whose command ids coincide (docs/dataplane.md, "Exactly once" 4;
+docs/security.md, "The air: the data plane and commands").
+
+A command id is ``epoch << 32 | counter`` and the epoch is the commander's boot epoch,
+wall-clock seconds when its epoch file has nothing higher (``swarmd.auth.epoch``). Two
+commanders of one bundle started in the same second (a ground station starting two
+commander daemons at boot, clocks from GPS or NTP) have the same epoch, so their first
+commands have the same id. The plane keys what a member ran by ``(commander, id)``, but:
+
+- a member's outcome named only the id, and went to every commander: commander B's row
+  for its LAND took the member's answer to A's HOLD, and said ``completed`` for a LAND
+  that never ran (the operator told a drone landed that did not);
+- the member's core dropped B's command, silently, as an id it had already run.
+
+Now an outcome goes only to the commander whose command it answers (one copy, like a
+command's: the other commanders are sent a GAP), and the core keys what it runs by
+``(commander, id)``; a command whose id still runs here for another commander is refused
+(``id_in_use``), so that commander is told at once.
+
+Virtual time on the swarm cores (``tests.test_swarm_core.Swarm``) over a bundle with a
+second commander, ``lead2``; every node starts in epoch 1.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.px4.vehicle import TaskKind
+from swarmd.swarm.core import ID_IN_USE
+from tests import test_swarm_core
+from tests.test_dataplane_swarm import mission_text
+from tests.test_swarm_core import Swarm
+
+
+def _two_commanders(monkeypatch: pytest.MonkeyPatch) -> Swarm:
+    text = mission_text(2).replace(
+        "  - {name: m01,",
+        "  - {name: lead2, index: 3, role: commander, mavlink_sysid: 9}\n  - {name: m01,",
+    )
+    bundle = build_dev_bundle(parse_mission(text)).bundle
+    monkeypatch.setattr(test_swarm_core, "make_bundle", lambda _members: bundle)
+    swarm = Swarm(2, seed=31)
+    swarm.run(2.0)
+    return swarm
+
+
+def _issue(swarm: Swarm, commander: str, kind: str) -> int:
+    core = swarm.cores[commander]
+    sent = swarm.call(
+        commander, lambda now: core.request_command({"kind": kind, "only": ["m01"]}, now)
+    )
+    return int(sent["command_id"])
+
+
+def _row(swarm: Swarm, commander: str, cid: int) -> dict[str, Any]:
+    snap = swarm.cores[commander].request_outcomes({"command_id": cid}, swarm.net.now)
+    row: dict[str, Any] = snap["nodes"]["m01"]
+    return row
+
+
+def test_a_commander_is_never_told_another_commanders_command_ran(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    swarm = _two_commanders(monkeypatch)
+    hold = _issue(swarm, "lead", "hold")
+    land = _issue(swarm, "lead2", "land")
+    assert hold == land  # the same epoch, the same counter: the same id
+    swarm.run(10.0)
+    kinds = [r.kind for r in swarm.requests("m01")]
+    assert kinds == [TaskKind.HOLD]  # the LAND came while the HOLD ran under its id
+    assert _row(swarm, "lead", hold)["state"] == "completed"
+    row = _row(swarm, "lead2", land)
+    assert (row["state"], row["reason"]) == ("rejected", ID_IN_USE)  # not "completed"
+
+
+def test_the_same_id_from_another_commander_runs_once_the_first_is_done(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    swarm = _two_commanders(monkeypatch)
+    hold = _issue(swarm, "lead", "hold")
+    swarm.run(3.0)  # the HOLD completed
+    land = _issue(swarm, "lead2", "land")
+    assert hold == land
+    swarm.run(10.0)
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.HOLD, TaskKind.LAND]
+    assert _row(swarm, "lead", hold)["state"] == "completed"
+    assert _row(swarm, "lead2", land)["state"] == "completed"
+    # and each id still runs once per commander: the copies resent change nothing
+    swarm.run(10.0)
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.HOLD, TaskKind.LAND]
