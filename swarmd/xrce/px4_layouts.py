@@ -3,464 +3,189 @@
 Made by scripts/gen_px4_layouts.py from px4_msgs at v1.14.0, v1.15.4, v1.16.0, v1.17.0
 (PX4's msg/ definitions, BSD-3-Clause). Per release and message: the CDR payload size,
 MESSAGE_VERSION, and (offset, struct code, count) of the fields swarmd uses.
+
+One table per message, a column per release: its (size, MESSAGE_VERSION), then a row
+per field with its struct code and offset (None: not in that release; a renamed or
+retyped field has a row per name and code). Reading along a row shows how a field
+moved between releases; ``LAYOUTS`` is the same data by release.
 """
 
 from typing import Final
 
 Field = tuple[int, str, int]
 Layout = tuple[int, int, dict[str, Field]]  # size, MESSAGE_VERSION, fields
+Row = tuple[str, str, int | None, int | None, int | None, int | None]
 
-VEHICLESTATUS_1_14: Final[Layout] = (
-    71,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "arming_state": (24, "B", 1),
-        "nav_state": (41, "B", 1),
-        "vehicle_type": (45, "B", 1),
-        "failsafe": (46, "?", 1),
-        "system_id": (56, "B", 1),
-        "component_id": (57, "B", 1),
-        "pre_flight_checks_pass": (70, "?", 1),
-    },
-)
-VEHICLELANDDETECTED_1_14: Final[Layout] = (
-    20,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "ground_contact": (9, "?", 1),
-        "maybe_landed": (10, "?", 1),
-        "landed": (11, "?", 1),
-    },
-)
-FAILSAFEFLAGS_1_14: Final[Layout] = (
-    85,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "mode_req_angular_velocity": (8, "I", 1),
-        "mode_req_attitude": (12, "I", 1),
-        "mode_req_local_alt": (16, "I", 1),
-        "mode_req_local_position": (20, "I", 1),
-        "mode_req_local_position_relaxed": (24, "I", 1),
-        "mode_req_global_position": (28, "I", 1),
-        "mode_req_mission": (32, "I", 1),
-        "mode_req_offboard_signal": (36, "I", 1),
-        "mode_req_home_position": (40, "I", 1),
-        "mode_req_wind_and_flight_time_compliance": (44, "I", 1),
-        "mode_req_prevent_arming": (48, "I", 1),
-        "mode_req_manual_control": (52, "I", 1),
-        "mode_req_other": (56, "I", 1),
-        "angular_velocity_invalid": (60, "?", 1),
-        "attitude_invalid": (61, "?", 1),
-        "local_altitude_invalid": (62, "?", 1),
-        "local_position_invalid": (63, "?", 1),
-        "local_position_invalid_relaxed": (64, "?", 1),
-        "local_velocity_invalid": (65, "?", 1),
-        "global_position_invalid": (66, "?", 1),
-        "auto_mission_missing": (67, "?", 1),
-        "offboard_control_signal_lost": (68, "?", 1),
-        "home_position_invalid": (69, "?", 1),
-        "manual_control_signal_lost": (70, "?", 1),
-        "gcs_connection_lost": (71, "?", 1),
-        "battery_warning": (72, "B", 1),
-        "battery_low_remaining_time": (73, "?", 1),
-        "battery_unhealthy": (74, "?", 1),
-        "primary_geofence_breached": (75, "?", 1),
-        "mission_failure": (76, "?", 1),
-        "vtol_fixed_wing_system_failure": (77, "?", 1),
-        "wind_limit_exceeded": (78, "?", 1),
-        "flight_time_limit_exceeded": (79, "?", 1),
-        "local_position_accuracy_low": (80, "?", 1),
-        "fd_critical_failure": (81, "?", 1),
-        "fd_esc_arming_failure": (82, "?", 1),
-        "fd_imbalanced_prop": (83, "?", 1),
-        "fd_motor_failure": (84, "?", 1),
-    },
-)
-BATTERYSTATUS_1_14: Final[Layout] = (
-    176,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "connected": (8, "?", 1),
-        "voltage_v": (12, "f", 1),
-        "remaining": (36, "f", 1),
-    },
-)
-SENSORGPS_1_14: Final[Layout] = (
-    141,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "lat": (20, "i", 1),
-        "lon": (24, "i", 1),
-        "alt": (28, "i", 1),
-        "fix_type": (44, "B", 1),
-        "eph": (48, "f", 1),
-        "satellites_used": (120, "B", 1),
-    },
-)
-HOMEPOSITION_1_14: Final[Layout] = (
-    48,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "lat": (8, "d", 1),
-        "lon": (16, "d", 1),
-        "alt": (24, "f", 1),
-        "valid_alt": (44, "?", 1),
-        "valid_hpos": (45, "?", 1),
-    },
-)
-VEHICLECOMMANDACK_1_14: Final[Layout] = (
-    23,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "command": (8, "I", 1),
-        "result": (12, "B", 1),
-        "result_param1": (13, "B", 1),
-        "result_param2": (16, "i", 1),
-        "target_system": (20, "B", 1),
-        "target_component": (21, "B", 1),
-        "from_external": (22, "?", 1),
-    },
-)
-VEHICLECOMMAND_1_14: Final[Layout] = (
-    54,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "param1": (8, "f", 1),
-        "param2": (12, "f", 1),
-        "param3": (16, "f", 1),
-        "param4": (20, "f", 1),
-        "param5": (24, "d", 1),
-        "param6": (32, "d", 1),
-        "param7": (40, "f", 1),
-        "command": (44, "I", 1),
-        "target_system": (48, "B", 1),
-        "target_component": (49, "B", 1),
-        "source_system": (50, "B", 1),
-        "source_component": (51, "B", 1),
-        "confirmation": (52, "B", 1),
-        "from_external": (53, "?", 1),
-    },
-)
-VEHICLESTATUS_1_15: Final[Layout] = (
-    82,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "arming_state": (24, "B", 1),
-        "nav_state": (41, "B", 1),
-        "vehicle_type": (55, "B", 1),
-        "failsafe": (56, "?", 1),
-        "system_id": (67, "B", 1),
-        "component_id": (68, "B", 1),
-        "pre_flight_checks_pass": (81, "?", 1),
-    },
-)
-FAILSAFEFLAGS_1_15: Final[Layout] = (
-    85,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "mode_req_angular_velocity": (8, "I", 1),
-        "mode_req_attitude": (12, "I", 1),
-        "mode_req_local_alt": (16, "I", 1),
-        "mode_req_local_position": (20, "I", 1),
-        "mode_req_local_position_relaxed": (24, "I", 1),
-        "mode_req_global_position": (28, "I", 1),
-        "mode_req_mission": (32, "I", 1),
-        "mode_req_offboard_signal": (36, "I", 1),
-        "mode_req_home_position": (40, "I", 1),
-        "mode_req_wind_and_flight_time_compliance": (44, "I", 1),
-        "mode_req_prevent_arming": (48, "I", 1),
-        "mode_req_manual_control": (52, "I", 1),
-        "mode_req_other": (56, "I", 1),
-        "angular_velocity_invalid": (60, "?", 1),
-        "attitude_invalid": (61, "?", 1),
-        "local_altitude_invalid": (62, "?", 1),
-        "local_position_invalid": (63, "?", 1),
-        "local_position_invalid_relaxed": (64, "?", 1),
-        "local_velocity_invalid": (65, "?", 1),
-        "global_position_invalid": (66, "?", 1),
-        "auto_mission_missing": (67, "?", 1),
-        "offboard_control_signal_lost": (68, "?", 1),
-        "home_position_invalid": (69, "?", 1),
-        "manual_control_signal_lost": (70, "?", 1),
-        "gcs_connection_lost": (71, "?", 1),
-        "battery_warning": (72, "B", 1),
-        "battery_low_remaining_time": (73, "?", 1),
-        "battery_unhealthy": (74, "?", 1),
-        "geofence_breached": (75, "?", 1),
-        "mission_failure": (76, "?", 1),
-        "vtol_fixed_wing_system_failure": (77, "?", 1),
-        "wind_limit_exceeded": (78, "?", 1),
-        "flight_time_limit_exceeded": (79, "?", 1),
-        "local_position_accuracy_low": (80, "?", 1),
-        "fd_critical_failure": (81, "?", 1),
-        "fd_esc_arming_failure": (82, "?", 1),
-        "fd_imbalanced_prop": (83, "?", 1),
-        "fd_motor_failure": (84, "?", 1),
-    },
-)
-SENSORGPS_1_15: Final[Layout] = (
-    159,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "latitude_deg": (24, "d", 1),
-        "longitude_deg": (32, "d", 1),
-        "altitude_msl_m": (40, "d", 1),
-        "fix_type": (64, "B", 1),
-        "eph": (68, "f", 1),
-        "satellites_used": (136, "B", 1),
-    },
-)
-HOMEPOSITION_1_15: Final[Layout] = (
-    52,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "lat": (8, "d", 1),
-        "lon": (16, "d", 1),
-        "alt": (24, "f", 1),
-        "valid_alt": (44, "?", 1),
-        "valid_hpos": (45, "?", 1),
-    },
-)
-VEHICLECOMMANDACK_1_15: Final[Layout] = (
-    25,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "command": (8, "I", 1),
-        "result": (12, "B", 1),
-        "result_param1": (13, "B", 1),
-        "result_param2": (16, "i", 1),
-        "target_system": (20, "B", 1),
-        "target_component": (22, "H", 1),
-        "from_external": (24, "?", 1),
-    },
-)
-VEHICLECOMMAND_1_15: Final[Layout] = (
-    56,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "param1": (8, "f", 1),
-        "param2": (12, "f", 1),
-        "param3": (16, "f", 1),
-        "param4": (20, "f", 1),
-        "param5": (24, "d", 1),
-        "param6": (32, "d", 1),
-        "param7": (40, "f", 1),
-        "command": (44, "I", 1),
-        "target_system": (48, "B", 1),
-        "target_component": (49, "B", 1),
-        "source_system": (50, "B", 1),
-        "source_component": (52, "H", 1),
-        "confirmation": (54, "B", 1),
-        "from_external": (55, "?", 1),
-    },
-)
-VEHICLESTATUS_1_16: Final[Layout] = (
-    80,
-    1,
-    {
-        "timestamp": (0, "Q", 1),
-        "arming_state": (24, "B", 1),
-        "nav_state": (41, "B", 1),
-        "vehicle_type": (55, "B", 1),
-        "failsafe": (56, "?", 1),
-        "system_id": (67, "B", 1),
-        "component_id": (68, "B", 1),
-        "pre_flight_checks_pass": (79, "?", 1),
-    },
-)
-FAILSAFEFLAGS_1_16: Final[Layout] = (
-    86,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "mode_req_angular_velocity": (8, "I", 1),
-        "mode_req_attitude": (12, "I", 1),
-        "mode_req_local_alt": (16, "I", 1),
-        "mode_req_local_position": (20, "I", 1),
-        "mode_req_local_position_relaxed": (24, "I", 1),
-        "mode_req_global_position": (28, "I", 1),
-        "mode_req_mission": (32, "I", 1),
-        "mode_req_offboard_signal": (36, "I", 1),
-        "mode_req_home_position": (40, "I", 1),
-        "mode_req_wind_and_flight_time_compliance": (44, "I", 1),
-        "mode_req_prevent_arming": (48, "I", 1),
-        "mode_req_manual_control": (52, "I", 1),
-        "mode_req_other": (56, "I", 1),
-        "angular_velocity_invalid": (60, "?", 1),
-        "attitude_invalid": (61, "?", 1),
-        "local_altitude_invalid": (62, "?", 1),
-        "local_position_invalid": (63, "?", 1),
-        "local_position_invalid_relaxed": (64, "?", 1),
-        "local_velocity_invalid": (65, "?", 1),
-        "global_position_invalid": (66, "?", 1),
-        "auto_mission_missing": (67, "?", 1),
-        "offboard_control_signal_lost": (68, "?", 1),
-        "home_position_invalid": (69, "?", 1),
-        "manual_control_signal_lost": (70, "?", 1),
-        "gcs_connection_lost": (71, "?", 1),
-        "battery_warning": (72, "B", 1),
-        "battery_low_remaining_time": (73, "?", 1),
-        "battery_unhealthy": (74, "?", 1),
-        "geofence_breached": (75, "?", 1),
-        "mission_failure": (76, "?", 1),
-        "vtol_fixed_wing_system_failure": (77, "?", 1),
-        "wind_limit_exceeded": (78, "?", 1),
-        "flight_time_limit_exceeded": (79, "?", 1),
-        "local_position_accuracy_low": (80, "?", 1),
-        "navigator_failure": (81, "?", 1),
-        "fd_critical_failure": (82, "?", 1),
-        "fd_esc_arming_failure": (83, "?", 1),
-        "fd_imbalanced_prop": (84, "?", 1),
-        "fd_motor_failure": (85, "?", 1),
-    },
-)
-BATTERYSTATUS_1_16: Final[Layout] = (
-    180,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "connected": (8, "?", 1),
-        "voltage_v": (12, "f", 1),
-        "remaining": (28, "f", 1),
-    },
-)
-FAILSAFEFLAGS_1_17: Final[Layout] = (
-    91,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "mode_req_angular_velocity": (8, "I", 1),
-        "mode_req_attitude": (12, "I", 1),
-        "mode_req_local_alt": (16, "I", 1),
-        "mode_req_local_position": (20, "I", 1),
-        "mode_req_local_position_relaxed": (24, "I", 1),
-        "mode_req_global_position": (28, "I", 1),
-        "mode_req_global_position_relaxed": (32, "I", 1),
-        "mode_req_mission": (36, "I", 1),
-        "mode_req_offboard_signal": (40, "I", 1),
-        "mode_req_home_position": (44, "I", 1),
-        "mode_req_wind_and_flight_time_compliance": (48, "I", 1),
-        "mode_req_prevent_arming": (52, "I", 1),
-        "mode_req_manual_control": (56, "I", 1),
-        "mode_req_other": (60, "I", 1),
-        "angular_velocity_invalid": (64, "?", 1),
-        "attitude_invalid": (65, "?", 1),
-        "local_altitude_invalid": (66, "?", 1),
-        "local_position_invalid": (67, "?", 1),
-        "local_position_invalid_relaxed": (68, "?", 1),
-        "local_velocity_invalid": (69, "?", 1),
-        "global_position_invalid": (70, "?", 1),
-        "global_position_invalid_relaxed": (71, "?", 1),
-        "auto_mission_missing": (72, "?", 1),
-        "offboard_control_signal_lost": (73, "?", 1),
-        "home_position_invalid": (74, "?", 1),
-        "manual_control_signal_lost": (75, "?", 1),
-        "gcs_connection_lost": (76, "?", 1),
-        "battery_warning": (77, "B", 1),
-        "battery_low_remaining_time": (78, "?", 1),
-        "battery_unhealthy": (79, "?", 1),
-        "geofence_breached": (80, "?", 1),
-        "mission_failure": (81, "?", 1),
-        "vtol_fixed_wing_system_failure": (82, "?", 1),
-        "wind_limit_exceeded": (83, "?", 1),
-        "flight_time_limit_exceeded": (84, "?", 1),
-        "position_accuracy_low": (85, "?", 1),
-        "navigator_failure": (86, "?", 1),
-        "fd_critical_failure": (87, "?", 1),
-        "fd_esc_arming_failure": (88, "?", 1),
-        "fd_imbalanced_prop": (89, "?", 1),
-        "fd_motor_failure": (90, "?", 1),
-    },
-)
-BATTERYSTATUS_1_17: Final[Layout] = (
-    176,
-    1,
-    {
-        "timestamp": (0, "Q", 1),
-        "connected": (8, "?", 1),
-        "voltage_v": (12, "f", 1),
-        "remaining": (28, "f", 1),
-    },
-)
-SENSORGPS_1_17: Final[Layout] = (
-    163,
-    0,
-    {
-        "timestamp": (0, "Q", 1),
-        "latitude_deg": (24, "d", 1),
-        "longitude_deg": (32, "d", 1),
-        "altitude_msl_m": (40, "d", 1),
-        "fix_type": (64, "B", 1),
-        "eph": (68, "f", 1),
-        "satellites_used": (136, "B", 1),
-    },
-)
-HOMEPOSITION_1_17: Final[Layout] = (
-    60,
-    1,
-    {
-        "timestamp": (0, "Q", 1),
-        "lat": (8, "d", 1),
-        "lon": (16, "d", 1),
-        "alt": (24, "f", 1),
-        "valid_alt": (52, "?", 1),
-        "valid_hpos": (53, "?", 1),
-    },
-)
+RELEASES: Final = ("1.14", "1.15", "1.16", "1.17")
+
+
+def _per_release(heads: tuple[tuple[int, int], ...], rows: tuple[Row, ...]) -> dict[str, Layout]:
+    """Each release's layout from a message's table (count 1: swarmd reads no arrays)."""
+    out: dict[str, Layout] = {}
+    for i, (release, (size, version)) in enumerate(zip(RELEASES, heads, strict=True)):
+        fields: dict[str, Field] = {}
+        for name, code, *offsets in rows:
+            if (offset := offsets[i]) is not None:
+                fields[name] = (offset, code, 1)
+        out[release] = (size, version, fields)
+    return out
+
+
+# fmt: off
+_MESSAGES: Final[dict[str, dict[str, Layout]]] = {
+    "VehicleStatus": _per_release(
+        ((71, 0), (82, 0), (80, 1), (80, 1)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field                     code  1.14  1.15  1.16  1.17
+            ("timestamp",               "Q",    0,    0,    0,    0),
+            ("arming_state",            "B",   24,   24,   24,   24),
+            ("nav_state",               "B",   41,   41,   41,   41),
+            ("vehicle_type",            "B",   45,   55,   55,   55),
+            ("failsafe",                "?",   46,   56,   56,   56),
+            ("system_id",               "B",   56,   67,   67,   67),
+            ("component_id",            "B",   57,   68,   68,   68),
+            ("pre_flight_checks_pass",  "?",   70,   81,   79,   79),
+        ),
+    ),
+    "VehicleLandDetected": _per_release(
+        ((20, 0), (20, 0), (20, 0), (20, 0)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field             code  1.14  1.15  1.16  1.17
+            ("timestamp",       "Q",    0,    0,    0,    0),
+            ("ground_contact",  "?",    9,    9,    9,    9),
+            ("maybe_landed",    "?",   10,   10,   10,   10),
+            ("landed",          "?",   11,   11,   11,   11),
+        ),
+    ),
+    "FailsafeFlags": _per_release(
+        ((85, 0), (85, 0), (86, 0), (91, 0)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field                                       code  1.14  1.15  1.16  1.17
+            ("timestamp",                                 "Q",    0,    0,    0,    0),
+            ("mode_req_angular_velocity",                 "I",    8,    8,    8,    8),
+            ("mode_req_attitude",                         "I",   12,   12,   12,   12),
+            ("mode_req_local_alt",                        "I",   16,   16,   16,   16),
+            ("mode_req_local_position",                   "I",   20,   20,   20,   20),
+            ("mode_req_local_position_relaxed",           "I",   24,   24,   24,   24),
+            ("mode_req_global_position",                  "I",   28,   28,   28,   28),
+            ("mode_req_global_position_relaxed",          "I", None, None, None,   32),
+            ("mode_req_mission",                          "I",   32,   32,   32,   36),
+            ("mode_req_offboard_signal",                  "I",   36,   36,   36,   40),
+            ("mode_req_home_position",                    "I",   40,   40,   40,   44),
+            ("mode_req_wind_and_flight_time_compliance",  "I",   44,   44,   44,   48),
+            ("mode_req_prevent_arming",                   "I",   48,   48,   48,   52),
+            ("mode_req_manual_control",                   "I",   52,   52,   52,   56),
+            ("mode_req_other",                            "I",   56,   56,   56,   60),
+            ("angular_velocity_invalid",                  "?",   60,   60,   60,   64),
+            ("attitude_invalid",                          "?",   61,   61,   61,   65),
+            ("local_altitude_invalid",                    "?",   62,   62,   62,   66),
+            ("local_position_invalid",                    "?",   63,   63,   63,   67),
+            ("local_position_invalid_relaxed",            "?",   64,   64,   64,   68),
+            ("local_velocity_invalid",                    "?",   65,   65,   65,   69),
+            ("global_position_invalid",                   "?",   66,   66,   66,   70),
+            ("global_position_invalid_relaxed",           "?", None, None, None,   71),
+            ("auto_mission_missing",                      "?",   67,   67,   67,   72),
+            ("offboard_control_signal_lost",              "?",   68,   68,   68,   73),
+            ("home_position_invalid",                     "?",   69,   69,   69,   74),
+            ("manual_control_signal_lost",                "?",   70,   70,   70,   75),
+            ("gcs_connection_lost",                       "?",   71,   71,   71,   76),
+            ("battery_warning",                           "B",   72,   72,   72,   77),
+            ("battery_low_remaining_time",                "?",   73,   73,   73,   78),
+            ("battery_unhealthy",                         "?",   74,   74,   74,   79),
+            ("primary_geofence_breached",                 "?",   75, None, None, None),
+            ("geofence_breached",                         "?", None,   75,   75,   80),
+            ("mission_failure",                           "?",   76,   76,   76,   81),
+            ("vtol_fixed_wing_system_failure",            "?",   77,   77,   77,   82),
+            ("wind_limit_exceeded",                       "?",   78,   78,   78,   83),
+            ("flight_time_limit_exceeded",                "?",   79,   79,   79,   84),
+            ("local_position_accuracy_low",               "?",   80,   80,   80, None),
+            ("position_accuracy_low",                     "?", None, None, None,   85),
+            ("navigator_failure",                         "?", None, None,   81,   86),
+            ("fd_critical_failure",                       "?",   81,   81,   82,   87),
+            ("fd_esc_arming_failure",                     "?",   82,   82,   83,   88),
+            ("fd_imbalanced_prop",                        "?",   83,   83,   84,   89),
+            ("fd_motor_failure",                          "?",   84,   84,   85,   90),
+        ),
+    ),
+    "BatteryStatus": _per_release(
+        ((176, 0), (176, 0), (180, 0), (176, 1)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field        code  1.14  1.15  1.16  1.17
+            ("timestamp",  "Q",    0,    0,    0,    0),
+            ("connected",  "?",    8,    8,    8,    8),
+            ("voltage_v",  "f",   12,   12,   12,   12),
+            ("remaining",  "f",   36,   36,   28,   28),
+        ),
+    ),
+    "SensorGps": _per_release(
+        ((141, 0), (159, 0), (159, 0), (163, 0)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field              code  1.14  1.15  1.16  1.17
+            ("timestamp",        "Q",    0,    0,    0,    0),
+            ("lat",              "i",   20, None, None, None),
+            ("lon",              "i",   24, None, None, None),
+            ("alt",              "i",   28, None, None, None),
+            ("latitude_deg",     "d", None,   24,   24,   24),
+            ("longitude_deg",    "d", None,   32,   32,   32),
+            ("altitude_msl_m",   "d", None,   40,   40,   40),
+            ("fix_type",         "B",   44,   64,   64,   64),
+            ("eph",              "f",   48,   68,   68,   68),
+            ("satellites_used",  "B",  120,  136,  136,  136),
+        ),
+    ),
+    "HomePosition": _per_release(
+        ((48, 0), (52, 0), (52, 0), (60, 1)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field         code  1.14  1.15  1.16  1.17
+            ("timestamp",   "Q",    0,    0,    0,    0),
+            ("lat",         "d",    8,    8,    8,    8),
+            ("lon",         "d",   16,   16,   16,   16),
+            ("alt",         "f",   24,   24,   24,   24),
+            ("valid_alt",   "?",   44,   44,   44,   52),
+            ("valid_hpos",  "?",   45,   45,   45,   53),
+        ),
+    ),
+    "VehicleCommandAck": _per_release(
+        ((23, 0), (25, 0), (25, 0), (25, 0)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field               code  1.14  1.15  1.16  1.17
+            ("timestamp",         "Q",    0,    0,    0,    0),
+            ("command",           "I",    8,    8,    8,    8),
+            ("result",            "B",   12,   12,   12,   12),
+            ("result_param1",     "B",   13,   13,   13,   13),
+            ("result_param2",     "i",   16,   16,   16,   16),
+            ("target_system",     "B",   20,   20,   20,   20),
+            ("target_component",  "B",   21, None, None, None),
+            ("target_component",  "H", None,   22,   22,   22),
+            ("from_external",     "?",   22,   24,   24,   24),
+        ),
+    ),
+    "VehicleCommand": _per_release(
+        ((54, 0), (56, 0), (56, 0), (56, 0)),  # (size, MESSAGE_VERSION) per release
+        (
+            # field               code  1.14  1.15  1.16  1.17
+            ("timestamp",         "Q",    0,    0,    0,    0),
+            ("param1",            "f",    8,    8,    8,    8),
+            ("param2",            "f",   12,   12,   12,   12),
+            ("param3",            "f",   16,   16,   16,   16),
+            ("param4",            "f",   20,   20,   20,   20),
+            ("param5",            "d",   24,   24,   24,   24),
+            ("param6",            "d",   32,   32,   32,   32),
+            ("param7",            "f",   40,   40,   40,   40),
+            ("command",           "I",   44,   44,   44,   44),
+            ("target_system",     "B",   48,   48,   48,   48),
+            ("target_component",  "B",   49,   49,   49,   49),
+            ("source_system",     "B",   50,   50,   50,   50),
+            ("source_component",  "B",   51, None, None, None),
+            ("source_component",  "H", None,   52,   52,   52),
+            ("confirmation",      "B",   52,   54,   54,   54),
+            ("from_external",     "?",   53,   55,   55,   55),
+        ),
+    ),
+}
+# fmt: on
 
 LAYOUTS: Final[dict[str, dict[str, Layout]]] = {
-    "1.14": {
-        "VehicleStatus": VEHICLESTATUS_1_14,
-        "VehicleLandDetected": VEHICLELANDDETECTED_1_14,
-        "FailsafeFlags": FAILSAFEFLAGS_1_14,
-        "BatteryStatus": BATTERYSTATUS_1_14,
-        "SensorGps": SENSORGPS_1_14,
-        "HomePosition": HOMEPOSITION_1_14,
-        "VehicleCommandAck": VEHICLECOMMANDACK_1_14,
-        "VehicleCommand": VEHICLECOMMAND_1_14,
-    },
-    "1.15": {
-        "VehicleStatus": VEHICLESTATUS_1_15,
-        "VehicleLandDetected": VEHICLELANDDETECTED_1_14,
-        "FailsafeFlags": FAILSAFEFLAGS_1_15,
-        "BatteryStatus": BATTERYSTATUS_1_14,
-        "SensorGps": SENSORGPS_1_15,
-        "HomePosition": HOMEPOSITION_1_15,
-        "VehicleCommandAck": VEHICLECOMMANDACK_1_15,
-        "VehicleCommand": VEHICLECOMMAND_1_15,
-    },
-    "1.16": {
-        "VehicleStatus": VEHICLESTATUS_1_16,
-        "VehicleLandDetected": VEHICLELANDDETECTED_1_14,
-        "FailsafeFlags": FAILSAFEFLAGS_1_16,
-        "BatteryStatus": BATTERYSTATUS_1_16,
-        "SensorGps": SENSORGPS_1_15,
-        "HomePosition": HOMEPOSITION_1_15,
-        "VehicleCommandAck": VEHICLECOMMANDACK_1_15,
-        "VehicleCommand": VEHICLECOMMAND_1_15,
-    },
-    "1.17": {
-        "VehicleStatus": VEHICLESTATUS_1_16,
-        "VehicleLandDetected": VEHICLELANDDETECTED_1_14,
-        "FailsafeFlags": FAILSAFEFLAGS_1_17,
-        "BatteryStatus": BATTERYSTATUS_1_17,
-        "SensorGps": SENSORGPS_1_17,
-        "HomePosition": HOMEPOSITION_1_17,
-        "VehicleCommandAck": VEHICLECOMMANDACK_1_15,
-        "VehicleCommand": VEHICLECOMMAND_1_15,
-    },
+    release: {message: layouts[release] for message, layouts in _MESSAGES.items()}
+    for release in RELEASES
 }
