@@ -31,7 +31,7 @@ import random
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Final
 
@@ -309,45 +309,39 @@ def test_captured_member_cannot_impersonate_commander_or_member(lab: Lab) -> Non
 # -- 2. reliable-protocol state: HEARTBEAT jump, GAP, ACKNACK -------------------------------
 
 
-def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
-    sw, atk = lab.swarm, lab.attacker
+def _command_reader_forgery_refused(
+    lab: Lab, member: int, forger: Callable[..., bytes], rounds: Sequence[Mapping[str, int]]
+) -> None:
+    """One forged submessage per round, ``forger(commander, member, writer=, reader=,
+    **round)`` on the command topic, sent to ``member``: each is dropped unauthenticated and
+    the reader has not moved (the real commander's commands still arrive)."""
+    sw = lab.swarm
+    writer = sw.endpoint(COMMAND, EndpointKind.WRITER)
+    reader = sw.endpoint(COMMAND, EndpointKind.READER)
     before = lab.refusals()
-    for count in range(3):
-        atk.send(
-            forge.forged_heartbeat(
-                lab.prefix(LEAD),
-                lab.prefix(M1),
-                writer=sw.endpoint(COMMAND, EndpointKind.WRITER),
-                reader=sw.endpoint(COMMAND, EndpointKind.READER),
-                first=forge.JUMP_SN,
-                last=forge.JUMP_SN,
-                count=1_000_000 + count,
-            ),
-            sw.user_addr(M1),
+    for fields in rounds:
+        datagram = forger(
+            lab.prefix(LEAD), lab.prefix(member), writer=writer, reader=reader, **fields
         )
-    settle(lambda: lab.moved(before, M1, DP + "dropped_auth_missing") >= 3)
-    lab.assert_commander_commands_all()  # the reader was not moved: real commands arrive
-    assert lab.moved(before, M1, DP + "dropped_auth_missing") >= 3, lab.refused_since(before, M1)
+        lab.attacker.send(datagram, sw.user_addr(member))
+    n = len(rounds)
+    settle(lambda: lab.moved(before, member, DP + "dropped_auth_missing") >= n)
+    lab.assert_commander_commands_all()
+    moved = lab.moved(before, member, DP + "dropped_auth_missing")
+    assert moved >= n, lab.refused_since(before, member)
+
+
+def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
+    """A HEARTBEAT moving the reader's position far ahead: refused, nothing skipped."""
+    jump = {"first": forge.JUMP_SN, "last": forge.JUMP_SN}
+    rounds = [{**jump, "count": 1_000_000 + k} for k in range(3)]
+    _command_reader_forgery_refused(lab, M1, forge.forged_heartbeat, rounds)
 
 
 def test_forged_gap_refused(lab: Lab) -> None:
-    sw, atk = lab.swarm, lab.attacker
-    before = lab.refusals()
-    for _ in range(3):
-        atk.send(
-            forge.forged_gap(
-                lab.prefix(LEAD),
-                lab.prefix(M2),
-                writer=sw.endpoint(COMMAND, EndpointKind.WRITER),
-                reader=sw.endpoint(COMMAND, EndpointKind.READER),
-                start=1,
-                end=forge.JUMP_SN,
-            ),
-            sw.user_addr(M2),
-        )
-    settle(lambda: lab.moved(before, M2, DP + "dropped_auth_missing") >= 3)
-    lab.assert_commander_commands_all()  # nothing was marked irrelevant: real commands arrive
-    assert lab.moved(before, M2, DP + "dropped_auth_missing") >= 3, lab.refused_since(before, M2)
+    """A GAP marking every SN below the jump irrelevant: refused, nothing marked."""
+    rounds = [{"start": 1, "end": forge.JUMP_SN}] * 3
+    _command_reader_forgery_refused(lab, M2, forge.forged_gap, rounds)
 
 
 def _block_user_data(sw: FlashedSwarm, i: int, source: str) -> None:
