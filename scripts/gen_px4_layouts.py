@@ -70,19 +70,6 @@ def layout(msg_dir: Path, name: str, prefix: str = "", offset: int = 0):
     return out, offset
 
 
-PER_RELEASE = '''def _per_release(heads: tuple[tuple[int, int], ...], rows: tuple[Row, ...]) -> dict[str, Layout]:
-    """Each release's layout from a message's table (count 1: swarmd reads no arrays)."""
-    out: dict[str, Layout] = {}
-    for i, (release, (size, version)) in enumerate(zip(RELEASES, heads, strict=True)):
-        fields: dict[str, Field] = {}
-        for name, code, *offsets in rows:
-            if (offset := offsets[i]) is not None:
-                fields[name] = (offset, code, 1)
-        out[release] = (size, version, fields)
-    return out
-'''  # noqa: E501 (the generated line is 97 characters)
-
-
 def quoted(text: str) -> str:
     return f'"{text}"'  # the house style's quotes (the tables are under fmt: off)
 
@@ -119,23 +106,17 @@ def main(root: Path) -> None:
     print("(PX4's msg/ definitions, BSD-3-Clause). Per release and message: the CDR payload size,")
     print("MESSAGE_VERSION, and (offset, struct code, count) of the fields swarmd uses.")
     print()
-    print("One table per message, a column per release: its (size, MESSAGE_VERSION), then a row")
-    print("per field with its struct code and offset (None: not in that release; a renamed or")
-    print("retyped field has a row per name and code). Reading along a row shows how a field")
-    print("moved between releases; ``LAYOUTS`` is the same data by release.")
+    print("One table per message, a column per release (``px4_table``): its (size,")
+    print("MESSAGE_VERSION), then a row per field with its struct code and offset (None: not in")
+    print("that release). Reading along a row shows how a field moved between releases;")
+    print("``LAYOUTS`` is the same data by release.")
     print('"""')
     print()
     print("from typing import Final")
     print()
-    print("Field = tuple[int, str, int]")
-    print("Layout = tuple[int, int, dict[str, Field]]  # size, MESSAGE_VERSION, fields")
-    print("Row = tuple[str, str, int | None, int | None, int | None, int | None]")
+    print("from swarmd.xrce.px4_table import Layout, per_release")
     print()
     print("RELEASES: Final = (" + ", ".join(quoted(r) for r in RELEASES) + ")")
-    print()
-    print()
-    print(PER_RELEASE, end="")
-    print()
     print()
     print("# fmt: off")
     print("_MESSAGES: Final[dict[str, dict[str, Layout]]] = {")
@@ -153,7 +134,8 @@ def main(root: Path) -> None:
         rows = merge(per_release)
         width = max(len(n) for n, _, _ in rows) + 3
         cols = "".join(f"{r:>6}" for r in RELEASES)
-        print(f'    "{name}": _per_release(')
+        print(f'    "{name}": per_release(')
+        print("        RELEASES,")
         print(f"        {tuple(heads)!r},  # (size, MESSAGE_VERSION) per release")
         print("        (")
         print(f"            # {'field':<{width}} code{cols}")

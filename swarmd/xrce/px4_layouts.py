@@ -4,36 +4,22 @@ Made by scripts/gen_px4_layouts.py from px4_msgs at v1.14.0, v1.15.4, v1.16.0, v
 (PX4's msg/ definitions, BSD-3-Clause). Per release and message: the CDR payload size,
 MESSAGE_VERSION, and (offset, struct code, count) of the fields swarmd uses.
 
-One table per message, a column per release: its (size, MESSAGE_VERSION), then a row
-per field with its struct code and offset (None: not in that release; a renamed or
-retyped field has a row per name and code). Reading along a row shows how a field
-moved between releases; ``LAYOUTS`` is the same data by release.
+One table per message, a column per release (``px4_table``): its (size,
+MESSAGE_VERSION), then a row per field with its struct code and offset (None: not in
+that release). Reading along a row shows how a field moved between releases;
+``LAYOUTS`` is the same data by release.
 """
 
 from typing import Final
 
-Field = tuple[int, str, int]
-Layout = tuple[int, int, dict[str, Field]]  # size, MESSAGE_VERSION, fields
-Row = tuple[str, str, int | None, int | None, int | None, int | None]
+from swarmd.xrce.px4_table import Layout, per_release
 
 RELEASES: Final = ("1.14", "1.15", "1.16", "1.17")
 
-
-def _per_release(heads: tuple[tuple[int, int], ...], rows: tuple[Row, ...]) -> dict[str, Layout]:
-    """Each release's layout from a message's table (count 1: swarmd reads no arrays)."""
-    out: dict[str, Layout] = {}
-    for i, (release, (size, version)) in enumerate(zip(RELEASES, heads, strict=True)):
-        fields: dict[str, Field] = {}
-        for name, code, *offsets in rows:
-            if (offset := offsets[i]) is not None:
-                fields[name] = (offset, code, 1)
-        out[release] = (size, version, fields)
-    return out
-
-
 # fmt: off
 _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
-    "VehicleStatus": _per_release(
+    "VehicleStatus": per_release(
+        RELEASES,
         ((71, 0), (82, 0), (80, 1), (80, 1)),  # (size, MESSAGE_VERSION) per release
         (
             # field                     code  1.14  1.15  1.16  1.17
@@ -47,7 +33,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("pre_flight_checks_pass",  "?",   70,   81,   79,   79),
         ),
     ),
-    "VehicleLandDetected": _per_release(
+    "VehicleLandDetected": per_release(
+        RELEASES,
         ((20, 0), (20, 0), (20, 0), (20, 0)),  # (size, MESSAGE_VERSION) per release
         (
             # field             code  1.14  1.15  1.16  1.17
@@ -57,7 +44,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("landed",          "?",   11,   11,   11,   11),
         ),
     ),
-    "FailsafeFlags": _per_release(
+    "FailsafeFlags": per_release(
+        RELEASES,
         ((85, 0), (85, 0), (86, 0), (91, 0)),  # (size, MESSAGE_VERSION) per release
         (
             # field                                       code  1.14  1.15  1.16  1.17
@@ -107,7 +95,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("fd_motor_failure",                          "?",   84,   84,   85,   90),
         ),
     ),
-    "BatteryStatus": _per_release(
+    "BatteryStatus": per_release(
+        RELEASES,
         ((176, 0), (176, 0), (180, 0), (176, 1)),  # (size, MESSAGE_VERSION) per release
         (
             # field        code  1.14  1.15  1.16  1.17
@@ -117,7 +106,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("remaining",  "f",   36,   36,   28,   28),
         ),
     ),
-    "SensorGps": _per_release(
+    "SensorGps": per_release(
+        RELEASES,
         ((141, 0), (159, 0), (159, 0), (163, 0)),  # (size, MESSAGE_VERSION) per release
         (
             # field              code  1.14  1.15  1.16  1.17
@@ -133,7 +123,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("satellites_used",  "B",  120,  136,  136,  136),
         ),
     ),
-    "HomePosition": _per_release(
+    "HomePosition": per_release(
+        RELEASES,
         ((48, 0), (52, 0), (52, 0), (60, 1)),  # (size, MESSAGE_VERSION) per release
         (
             # field         code  1.14  1.15  1.16  1.17
@@ -145,7 +136,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("valid_hpos",  "?",   45,   45,   45,   53),
         ),
     ),
-    "VehicleCommandAck": _per_release(
+    "VehicleCommandAck": per_release(
+        RELEASES,
         ((23, 0), (25, 0), (25, 0), (25, 0)),  # (size, MESSAGE_VERSION) per release
         (
             # field               code  1.14  1.15  1.16  1.17
@@ -160,7 +152,8 @@ _MESSAGES: Final[dict[str, dict[str, Layout]]] = {
             ("from_external",     "?",   22,   24,   24,   24),
         ),
     ),
-    "VehicleCommand": _per_release(
+    "VehicleCommand": per_release(
+        RELEASES,
         ((54, 0), (56, 0), (56, 0), (56, 0)),  # (size, MESSAGE_VERSION) per release
         (
             # field               code  1.14  1.15  1.16  1.17
