@@ -137,6 +137,21 @@ class Lab:
         self._sn += 1
         return Freshness(self.epoch(i), 1_000_000 + self._sn)
 
+    def forged_alive_rounds(
+        self, i: int, learned: Learned, unicast: tuple[str, int], metatraffic: tuple[str, int]
+    ) -> None:
+        """Three rounds, 0.3 s apart, of drone i's DATA(p) as ``learned`` naming these
+        locators on the multicast group: replayed under its own authenticator, then
+        re-signed with a fresh counter and the attacker's key."""
+        for _ in range(3):
+            for resign in (None, (self.fresh(i), ATTACKER_KEY)):
+                forged = forge.forged_alive(
+                    learned.participant, self.sn(), unicast=unicast, metatraffic=metatraffic,
+                    resign=resign,
+                )  # fmt: skip
+                self.attacker.multicast(forged)
+            time.sleep(0.3)
+
     def vehicle_commands(self) -> list[int]:
         """MAVLink commands each vehicle simulator has received so far."""
         return [len(self.swarm.sim_events(i, "command")) for i in range(self.swarm.n)]
@@ -535,18 +550,7 @@ def test_forged_alive_redirect_refused(lab: Lab) -> None:
     before = lab.refusals()
 
     def replayed_then_resigned(unicast: tuple[str, int], metatraffic: tuple[str, int]) -> None:
-        for _ in range(3):
-            for resign in (None, (lab.fresh(M1), ATTACKER_KEY)):  # replayed, then re-signed
-                atk.multicast(
-                    forge.forged_alive(
-                        learned.participant,
-                        lab.sn(),
-                        unicast=unicast,
-                        metatraffic=metatraffic,
-                        resign=resign,
-                    )
-                )
-            time.sleep(0.3)
+        lab.forged_alive_rounds(M1, learned, unicast, metatraffic)
 
     _redirect(lab, replayed_then_resigned, 0.5)
     lab.assert_replays_and_resigns_refused(before, LEAD, 3)
@@ -716,18 +720,7 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
     before = lab.refusals()
     try:
         loopback = ("127.0.0.1", PX4_PORT)
-        for _ in range(3):
-            for resign in (None, (lab.fresh(M2), ATTACKER_KEY)):  # replayed, then re-signed
-                atk.multicast(
-                    forge.forged_alive(
-                        learned.participant,
-                        lab.sn(),
-                        unicast=loopback,
-                        metatraffic=loopback,
-                        resign=resign,
-                    )  # fmt: skip
-                )
-            time.sleep(0.3)
+        lab.forged_alive_rounds(M2, learned, loopback, loopback)
         # a captured drone-1 announcing loopback for itself: authentic, and still refused
         # for the locator (it moves drone-1's replay window a little: the swarm restarts)
         lab.dirty = True
