@@ -70,39 +70,86 @@ def layout(msg_dir: Path, name: str, prefix: str = "", offset: int = 0):
     return out, offset
 
 
+def quoted(text: str) -> str:
+    return f'"{text}"'  # the house style's quotes (the tables are under fmt: off)
+
+
+Row = tuple[str, str, list[int | None]]  # name, struct code, offset per release (None: absent)
+
+
+def merge(per_release: list[list[tuple[str, str, int]]]) -> list[Row]:
+    """One row per field across releases, in .msg order: a field keeps its row while its name
+    and struct code stay; a renamed or retyped field gets a new row next to where it stands."""
+    rows: list[Row] = []
+    for i, fields in enumerate(per_release):
+        at = 0  # rows before this one are behind this release's previous field
+        for k, (name, code, offset) in enumerate(fields):
+            j = next((j for j, r in enumerate(rows) if j >= at and r[:2] == (name, code)), None)
+            if j is None:  # new in this release: after the rows it replaces, before its next
+                ahead = {(n, c) for n, c, _ in fields[k:]}
+                while at < len(rows) and rows[at][:2] not in ahead:
+                    at += 1
+                rows.insert(at, (name, code, [None] * len(per_release)))
+                j = at
+            rows[j][2][i] = offset
+            at = j + 1
+    for i, fields in enumerate(per_release):  # each release reads back its own order
+        if [(n, c, o[i]) for n, c, o in rows if o[i] is not None] != fields:
+            raise SystemExit(f"release {i}: its fields do not merge in .msg order")
+    return rows
+
+
 def main(root: Path) -> None:
     print('"""PX4 uORB message layouts for uXRCE-DDS, per release (generated: do not edit).')
     print()
     print("Made by scripts/gen_px4_layouts.py from px4_msgs at", ", ".join(RELEASES.values()))
     print("(PX4's msg/ definitions, BSD-3-Clause). Per release and message: the CDR payload size,")
     print("MESSAGE_VERSION, and (offset, struct code, count) of the fields swarmd uses.")
+    print()
+    print("One table per message, a column per release (``px4_table``): its (size,")
+    print("MESSAGE_VERSION), then a row per field with its struct code and offset (None: not in")
+    print("that release). Reading along a row shows how a field moved between releases;")
+    print("``LAYOUTS`` is the same data by release.")
     print('"""')
     print()
     print("from typing import Final")
     print()
-    print("Field = tuple[int, str, int]")
-    print("Layout = tuple[int, int, dict[str, Field]]  # size, MESSAGE_VERSION, fields")
+    print("from swarmd.xrce.px4_table import Layout, per_release")
     print()
-    # each distinct layout once (most messages do not change between releases)
-    names: dict[str, str] = {}
-    table: dict[str, dict[str, str]] = {}
-    for release, tag in RELEASES.items():
-        msg_dir = root / f"px4_msgs-{tag}" / "msg"
-        table[release] = {}
-        for name, want in WANT.items():
+    print("RELEASES: Final = (" + ", ".join(quoted(r) for r in RELEASES) + ")")
+    print()
+    print("# fmt: off")
+    print("_MESSAGES: Final[dict[str, dict[str, Layout]]] = {")
+    for name, want in WANT.items():
+        heads: list[tuple[int, int]] = []
+        per_release: list[list[tuple[str, str, int]]] = []
+        for tag in RELEASES.values():
+            msg_dir = root / f"px4_msgs-{tag}" / "msg"
             lay, size = layout(msg_dir, name)
-            version = constant(msg_dir, name, "MESSAGE_VERSION")
-            keep = {k: v for k, v in lay.items() if want is None or k in want}
-            text = repr((size, version, keep))
-            if text not in names:
-                names[text] = f"{name.upper()}_{release.replace('.', '_')}"
-                print(f"{names[text]}: Final[Layout] = {text}")
-            table[release][name] = names[text]
+            heads.append((size, constant(msg_dir, name, "MESSAGE_VERSION")))
+            keep = [(k, c, o) for k, (o, c, n) in lay.items() if want is None or k in want]
+            if any(lay[k][2] != 1 for k, _, _ in keep):
+                raise SystemExit(f"{name}: an array field (the tables assume count 1)")
+            per_release.append(keep)
+        rows = merge(per_release)
+        width = max(len(n) for n, _, _ in rows) + 3
+        cols = "".join(f"{r:>6}" for r in RELEASES)
+        print(f'    "{name}": per_release(')
+        print("        RELEASES,")
+        print(f"        {tuple(heads)!r},  # (size, MESSAGE_VERSION) per release")
+        print("        (")
+        print(f"            # {'field':<{width}} code{cols}")
+        for n, c, offsets in rows:
+            cells = "".join(f"{repr(o) + ',':>6}" for o in offsets)
+            print(f"            ({quoted(n) + ',':<{width + 1}} {quoted(c)},{cells[:-1]}),")
+        print("        ),")
+        print("    ),")
+    print("}")
+    print("# fmt: on")
     print()
     print("LAYOUTS: Final[dict[str, dict[str, Layout]]] = {")
-    for release, msgs in table.items():
-        inner = ", ".join(f'"{m}": {c}' for m, c in msgs.items())
-        print(f'    "{release}": {{{inner}}},')
+    print("    release: {message: layouts[release] for message, layouts in _MESSAGES.items()}")
+    print("    for release in RELEASES")
     print("}")
 
 

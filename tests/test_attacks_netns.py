@@ -31,7 +31,7 @@ import random
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Final
 
@@ -136,6 +136,21 @@ class Lab:
         """A freshness claiming drone i's current epoch, far ahead of its real sequence."""
         self._sn += 1
         return Freshness(self.epoch(i), 1_000_000 + self._sn)
+
+    def forged_alive_rounds(
+        self, i: int, learned: Learned, unicast: tuple[str, int], metatraffic: tuple[str, int]
+    ) -> None:
+        """Three rounds, 0.3 s apart, of drone i's DATA(p) as ``learned`` naming these
+        locators on the multicast group: replayed under its own authenticator, then
+        re-signed with a fresh counter and the attacker's key."""
+        for _ in range(3):
+            for resign in (None, (self.fresh(i), ATTACKER_KEY)):
+                forged = forge.forged_alive(
+                    learned.participant, self.sn(), unicast=unicast, metatraffic=metatraffic,
+                    resign=resign,
+                )  # fmt: skip
+                self.attacker.multicast(forged)
+            time.sleep(0.3)
 
     def vehicle_commands(self) -> list[int]:
         """MAVLink commands each vehicle simulator has received so far."""
@@ -309,45 +324,39 @@ def test_captured_member_cannot_impersonate_commander_or_member(lab: Lab) -> Non
 # -- 2. reliable-protocol state: HEARTBEAT jump, GAP, ACKNACK -------------------------------
 
 
-def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
-    sw, atk = lab.swarm, lab.attacker
+def _command_reader_forgery_refused(
+    lab: Lab, member: int, forger: Callable[..., bytes], rounds: Sequence[Mapping[str, int]]
+) -> None:
+    """One forged submessage per round, ``forger(commander, member, writer=, reader=,
+    **round)`` on the command topic, sent to ``member``: each is dropped unauthenticated and
+    the reader has not moved (the real commander's commands still arrive)."""
+    sw = lab.swarm
+    writer = sw.endpoint(COMMAND, EndpointKind.WRITER)
+    reader = sw.endpoint(COMMAND, EndpointKind.READER)
     before = lab.refusals()
-    for count in range(3):
-        atk.send(
-            forge.forged_heartbeat(
-                lab.prefix(LEAD),
-                lab.prefix(M1),
-                writer=sw.endpoint(COMMAND, EndpointKind.WRITER),
-                reader=sw.endpoint(COMMAND, EndpointKind.READER),
-                first=forge.JUMP_SN,
-                last=forge.JUMP_SN,
-                count=1_000_000 + count,
-            ),
-            sw.user_addr(M1),
+    for fields in rounds:
+        datagram = forger(
+            lab.prefix(LEAD), lab.prefix(member), writer=writer, reader=reader, **fields
         )
-    settle(lambda: lab.moved(before, M1, DP + "dropped_auth_missing") >= 3)
-    lab.assert_commander_commands_all()  # the reader was not moved: real commands arrive
-    assert lab.moved(before, M1, DP + "dropped_auth_missing") >= 3, lab.refused_since(before, M1)
+        lab.attacker.send(datagram, sw.user_addr(member))
+    n = len(rounds)
+    settle(lambda: lab.moved(before, member, DP + "dropped_auth_missing") >= n)
+    lab.assert_commander_commands_all()
+    moved = lab.moved(before, member, DP + "dropped_auth_missing")
+    assert moved >= n, lab.refused_since(before, member)
+
+
+def test_forged_heartbeat_jump_refused(lab: Lab) -> None:
+    """A HEARTBEAT moving the reader's position far ahead: refused, nothing skipped."""
+    jump = {"first": forge.JUMP_SN, "last": forge.JUMP_SN}
+    rounds = [{**jump, "count": 1_000_000 + k} for k in range(3)]
+    _command_reader_forgery_refused(lab, M1, forge.forged_heartbeat, rounds)
 
 
 def test_forged_gap_refused(lab: Lab) -> None:
-    sw, atk = lab.swarm, lab.attacker
-    before = lab.refusals()
-    for _ in range(3):
-        atk.send(
-            forge.forged_gap(
-                lab.prefix(LEAD),
-                lab.prefix(M2),
-                writer=sw.endpoint(COMMAND, EndpointKind.WRITER),
-                reader=sw.endpoint(COMMAND, EndpointKind.READER),
-                start=1,
-                end=forge.JUMP_SN,
-            ),
-            sw.user_addr(M2),
-        )
-    settle(lambda: lab.moved(before, M2, DP + "dropped_auth_missing") >= 3)
-    lab.assert_commander_commands_all()  # nothing was marked irrelevant: real commands arrive
-    assert lab.moved(before, M2, DP + "dropped_auth_missing") >= 3, lab.refused_since(before, M2)
+    """A GAP marking every SN below the jump irrelevant: refused, nothing marked."""
+    rounds = [{"start": 1, "end": forge.JUMP_SN}] * 3
+    _command_reader_forgery_refused(lab, M2, forge.forged_gap, rounds)
 
 
 def _block_user_data(sw: FlashedSwarm, i: int, source: str) -> None:
@@ -541,18 +550,7 @@ def test_forged_alive_redirect_refused(lab: Lab) -> None:
     before = lab.refusals()
 
     def replayed_then_resigned(unicast: tuple[str, int], metatraffic: tuple[str, int]) -> None:
-        for _ in range(3):
-            for resign in (None, (lab.fresh(M1), ATTACKER_KEY)):  # replayed, then re-signed
-                atk.multicast(
-                    forge.forged_alive(
-                        learned.participant,
-                        lab.sn(),
-                        unicast=unicast,
-                        metatraffic=metatraffic,
-                        resign=resign,
-                    )
-                )
-            time.sleep(0.3)
+        lab.forged_alive_rounds(M1, learned, unicast, metatraffic)
 
     _redirect(lab, replayed_then_resigned, 0.5)
     lab.assert_replays_and_resigns_refused(before, LEAD, 3)
@@ -722,18 +720,7 @@ def test_forged_loopback_locator_refused(lab: Lab) -> None:
     before = lab.refusals()
     try:
         loopback = ("127.0.0.1", PX4_PORT)
-        for _ in range(3):
-            for resign in (None, (lab.fresh(M2), ATTACKER_KEY)):  # replayed, then re-signed
-                atk.multicast(
-                    forge.forged_alive(
-                        learned.participant,
-                        lab.sn(),
-                        unicast=loopback,
-                        metatraffic=loopback,
-                        resign=resign,
-                    )  # fmt: skip
-                )
-            time.sleep(0.3)
+        lab.forged_alive_rounds(M2, learned, loopback, loopback)
         # a captured drone-1 announcing loopback for itself: authentic, and still refused
         # for the locator (it moves drone-1's replay window a little: the swarm restarts)
         lab.dirty = True

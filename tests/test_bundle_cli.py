@@ -29,6 +29,20 @@ def bundle(tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]) -> Pa
     return out
 
 
+def _flash(
+    capsys: pytest.CaptureFixture[str],
+    bundle: Path,
+    node: str,
+    target: Path | str,
+    keys: Path,
+    *extra: str,
+) -> tuple[int, str, str]:
+    """``swarmctl bundle flash`` of ``bundle`` for ``node`` into ``target`` with its keys
+    from ``keys``; (exit code, stdout, stderr)."""
+    argv = ["flash", str(bundle), "--node", node, "--target", str(target), "--keys", str(keys)]
+    return bundle_cli(capsys, *argv, *extra)
+
+
 def test_keygen_writes_private_keys_0600_and_keeps_existing(
     keys: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -107,17 +121,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     drone = tmp_path / "drone-1"
-    code, out, err = bundle_cli(
-        capsys,
-        "flash",
-        str(bundle),
-        "--node",
-        "drone-1",
-        "--target",
-        str(drone),
-        "--keys",
-        str(keys),
-    )
+    code, out, err = _flash(capsys, bundle, "drone-1", drone, keys)
     assert code == 0, err
     assert "verified" in out
     assert sorted(p.name for p in drone.iterdir()) == [
@@ -132,17 +136,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
     first = load_bundle(drone / "bundle.swb", drone / "swarm.pub")
 
     # same bundle again: nothing to roll back to is invented
-    bundle_cli(
-        capsys,
-        "flash",
-        str(bundle),
-        "--node",
-        "drone-1",
-        "--target",
-        str(drone),
-        "--keys",
-        str(keys),
-    )
+    _flash(capsys, bundle, "drone-1", drone, keys)
     assert not (drone / "bundle.swb.prev").exists()
     first_inode = (drone / "bundle.swb").stat().st_ino
 
@@ -164,9 +158,7 @@ def test_flash_local_writes_files_atomically_and_keeps_previous(
         )
         == 0
     )
-    code, out, _ = bundle_cli(
-        capsys, "flash", str(b2), "--node", "drone-1", "--target", str(drone), "--keys", str(keys)
-    )
+    code, out, _ = _flash(capsys, b2, "drone-1", drone, keys)
     assert code == 0 and "previous kept" in out
     assert (drone / "bundle.swb.prev").stat().st_ino == first_inode
     assert (drone / "bundle.swb").read_bytes() == b2.read_bytes()
@@ -182,17 +174,7 @@ def test_flash_refuses_wrong_node_key_before_writing(
 ) -> None:
     (keys / "nodes" / "drone-1.key").write_bytes((keys / "nodes" / "lead.key").read_bytes())
     drone = tmp_path / "d"
-    code, _, err = bundle_cli(
-        capsys,
-        "flash",
-        str(bundle),
-        "--node",
-        "drone-1",
-        "--target",
-        str(drone),
-        "--keys",
-        str(keys),
-    )
+    code, _, err = _flash(capsys, bundle, "drone-1", drone, keys)
     assert code == EX_DATAERR and "not 'drone-1''s keys in the bundle" in err
     assert not drone.exists()
 
@@ -201,9 +183,7 @@ def test_flash_refuses_bundle_from_another_swarm_key_unless_rotating(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     drone = tmp_path / "d"
-    bundle_cli(
-        capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys)
-    )
+    _flash(capsys, bundle, "lead", drone, keys)
     other = tmp_path / "other-keys"
     bundle_cli(capsys, "keygen", "--out", str(other), "--mission", str(SWARM3))
     b2 = tmp_path / "b2.swb"
@@ -211,15 +191,10 @@ def test_flash_refuses_bundle_from_another_swarm_key_unless_rotating(
         capsys, "build", str(SWARM3), "-o", str(b2), "--sign-key", str(other / "swarm-signing.key")
     )
     before = (drone / "bundle.swb").read_bytes()
-    code, _, err = bundle_cli(
-        capsys, "flash", str(b2), "--node", "lead", "--target", str(drone), "--keys", str(other)
-    )
+    code, _, err = _flash(capsys, b2, "lead", drone, other)
     assert code == EX_CANTCREAT and "--replace-trust-key" in err and err.count("\n") == 1
     assert (drone / "bundle.swb").read_bytes() == before
-    code, _, _ = bundle_cli(
-        capsys, "flash", str(b2), "--node", "lead", "--target", str(drone), "--keys", str(other),
-        "--replace-trust-key",
-    )  # fmt: skip
+    code, _, _ = _flash(capsys, b2, "lead", drone, other, "--replace-trust-key")
     assert code == 0
     assert load_bundle(drone / "bundle.swb", other / "swarm-signing.pub").swarm == "field-test-3"
 
@@ -244,7 +219,7 @@ def test_flash_all_uses_the_template_and_skips_nodes_without_address(
         capsys, "build", str(mission2), "-o", str(b2), "--sign-key", str(keys / "swarm-signing.key")
     )
     lead = str(tmp_path / "fleet" / "lead-0")
-    bundle_cli(capsys, "flash", str(b2), "--node", "lead", "--target", lead, "--keys", str(keys))
+    _flash(capsys, b2, "lead", lead, keys)
     code, out, _ = bundle_cli(capsys, "check", str(bundle), "--all", "--target", template)
     assert code == 1
     assert "FAIL lead" in out and "OK   drone-1" in out and "1/2 drones" in out
@@ -254,9 +229,7 @@ def test_check_reports_a_key_left_readable(
     tmp_path: Path, keys: Path, bundle: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     drone = tmp_path / "d"
-    bundle_cli(
-        capsys, "flash", str(bundle), "--node", "lead", "--target", str(drone), "--keys", str(keys)
-    )
+    _flash(capsys, bundle, "lead", drone, keys)
     os.chmod(drone / "node.key", 0o644)
     code, out, _ = bundle_cli(
         capsys, "check", str(bundle), "--node", "lead", "--target", str(drone)

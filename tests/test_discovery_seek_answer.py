@@ -17,9 +17,9 @@ seek is put off by theirs. Times asserted are virtual, never the host's.
 
 from __future__ import annotations
 
-from swarmd_lab.testing import Swarm, build_swarm
+from swarmd_lab.testing import Swarm
 
-from swarmd.discovery.events import PeerDiscovered, PeerLost
+from tests.seek_scenarios import formed_swarm, found_again_s
 
 SEEDS = tuple(range(1, 13))
 N = 12
@@ -32,10 +32,7 @@ REDISCOVERY_TARGET_S = 2.0  # issue 20
 
 
 def _fade_swarm(seed: int) -> Swarm:
-    swarm = build_swarm(N, seed=seed)
-
-    def loss(a: int, b: int) -> float:
-        now = swarm.net.now
+    def loss(now: float, a: int, b: int) -> float:
         if now < T_CUT or FADER not in (a, b):
             return 0.0
         if OBSERVER in (a, b):  # the observer's window, both ways
@@ -44,23 +41,11 @@ def _fade_swarm(seed: int) -> Swarm:
             return 0.0 if now >= T_BACK else 1.0
         return 0.0  # it hears them throughout: it keeps them
 
-    swarm.net.link_loss = loss
-    swarm.run_until(T_CUT)
-    assert swarm.all_discovered(), "the swarm did not form before the scenario"
-    return swarm
+    return formed_swarm(N, seed, loss, T_CUT)
 
 
 def _found_again_s(swarm: Swarm, observer: int, peer: int) -> float:
-    """From ``T_BACK`` to ``observer``'s re-discovery of ``peer`` (inf: not by the run's end);
-    the peer must have been lost first."""
-    name = swarm.bundle.participants[peer].name
-    changes = [
-        (t, isinstance(e, PeerDiscovered))
-        for t, e in swarm.events[observer]
-        if t >= T_CUT and isinstance(e, PeerDiscovered | PeerLost) and e.name == name
-    ]
-    assert changes and not changes[0][1] and changes[0][0] < T_BACK, "the fader was not lost"
-    return next((t - T_BACK for t, found in changes if found), float("inf"))
+    return found_again_s(swarm, observer, peer, T_CUT, T_BACK)
 
 
 def test_a_drone_that_held_its_seek_back_hears_the_answer_within_its_window() -> None:

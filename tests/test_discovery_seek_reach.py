@@ -24,7 +24,6 @@ import pytest
 from swarmd_lab.testing import Swarm, build_swarm, make_bundle
 
 from swarmd.bundle.model import Bundle
-from swarmd.discovery.events import PeerDiscovered, PeerLost
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.seek import (
     SEEK_MAX_S,
@@ -38,6 +37,7 @@ from swarmd.discovery.seek import (
     _pair_rank,
 )
 from swarmd.discovery.timers import MinInterval, RetrySchedule
+from tests.seek_scenarios import formed_swarm, found_again_s
 
 SEEDS = (1, 2, 3, 4, 5, 6, 7, 8)
 # On the engine before seek.SEEK_PUT_OFF_MAX_S (42902ec: the suppression had no bound) the
@@ -54,32 +54,19 @@ REDISCOVERY_TARGET_S = 2.0  # issue 20
 
 def _strung_out_swarm(seed: int, side: int = SIDE) -> Swarm:
     """Two sides of ``side`` drones; only the edge pair (``side - 1``, ``side``) comes back."""
-    swarm = build_swarm(2 * side, seed=seed)
     edge_pair = {side - 1, side}
 
-    def loss(a: int, b: int) -> float:
-        if (a < side) == (b < side) or swarm.net.now < T_CUT:
+    def loss(now: float, a: int, b: int) -> float:
+        if (a < side) == (b < side) or now < T_CUT:
             return 0.0
-        back = swarm.net.now >= T_BACK and {a, b} == edge_pair
+        back = now >= T_BACK and {a, b} == edge_pair
         return 0.0 if back else 1.0
 
-    swarm.net.link_loss = loss
-    swarm.run_until(T_CUT)
-    assert swarm.all_discovered(), "the swarm did not form before the scenario"
-    return swarm
+    return formed_swarm(2 * side, seed, loss, T_CUT)
 
 
 def _found_again_s(swarm: Swarm, observer: int, peer: int) -> float:
-    """From ``T_BACK`` to ``observer``'s re-discovery of ``peer`` (inf: never); the peer must
-    have been lost in the cut first."""
-    name = swarm.bundle.participants[peer].name
-    changes = [
-        (t, isinstance(e, PeerDiscovered))
-        for t, e in swarm.events[observer]
-        if t >= T_CUT and isinstance(e, PeerDiscovered | PeerLost) and e.name == name
-    ]
-    assert changes and not changes[0][1] and changes[0][0] < T_BACK, "the pair was not lost"
-    return next((t - T_BACK for t, found in changes if found), float("inf"))
+    return found_again_s(swarm, observer, peer, T_CUT, T_BACK)
 
 
 def test_an_edge_pair_whose_sides_seek_out_of_its_range_is_found_within_2_s() -> None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import secrets
-import shutil
 import signal
 import subprocess
 import time
@@ -40,37 +39,24 @@ from swarmd.ros2.graph import (
 from swarmd.rtps.message import Data, Header, Heartbeat, InfoDst, encode_message
 from swarmd.rtps.types import ENTITYID_UNKNOWN, EntityId, GuidPrefix, ProtocolVersion, VendorId
 from tests.conftest import LanFactory
-from tests.daemon_support import (
-    BundleFiles,
-    Daemons,
-    daemon_status,
-    relay_config,
-    ros2_profiles,
-    run_domain,
-    write_mission_bundle,
+from tests.daemon_support import daemon_status
+from tests.ros2_relay_support import (
+    NETNS_MARKS,
+    WAIT_S,
+    start_relay_swarm,
+    write_chatter_bundle,
 )
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
-pytestmark = [
-    pytest.mark.netns,
-    pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark not installed"),
-    pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
-]
+pytestmark = NETNS_MARKS
 
-WAIT_S = 30.0
 RUN_S = 22.0  # both nodes
 STOP_DRONE1_AFTER_S = 11.0  # then drone-1's swarmd stops: its talker must leave the graph
 CAPTURE_START_S = 10.0
 FORGERY_ROUNDS = 5
-ROS2_DOMAIN = 7
 
 DRONES = ("lead", "drone-1")
-
-
-def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
-    text = ros2_lab.chatter_mission("ros2-graph", run_domain(), addresses, ros2_domain=ROS2_DOMAIN)
-    return write_mission_bundle(workdir, text, "ros2-graph", "ros2-graph.yaml")
 
 
 def _forged_graph_sample(
@@ -98,16 +84,12 @@ def test_a_node_lists_the_other_drones_nodes_with_no_graph_traffic_on_the_air(
 ) -> None:
     lan = lan_factory(3)  # hosts 0-1: the drones; host 2: an outsider on the same link
     outsider = lan[2]
-    files = _write_bundle(workdir, [lan[i].address for i in range(2)])
+    files = write_chatter_bundle(workdir, "ros2-graph", [lan[i].address for i in range(2)])
     participants = bundle_ros2_participants(files.bundle)
     lead_p = next(p for p in participants if p.drone == "lead")
     talker_p = next(p for p in participants if p.drone == "drone-1")
-    profiles = workdir / "profiles"
-    code = ros2_profiles(files, profiles, "--via-swarmd")
-    assert code == 0
-    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config(lease_s=6))
-    daemons, socks = swarm.start_all(WAIT_S), swarm.socks
-    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    relay = start_relay_swarm(lan, workdir, files, DRONES)
+    daemons, socks, nodes = relay.daemons, relay.socks, relay.nodes
 
     def start_node(i: int, node: str, *extra: str) -> subprocess.Popen[bytes]:
         return nodes.start(i, node, ros2_lab.node_argv(node, RUN_S, *extra))

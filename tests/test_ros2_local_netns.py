@@ -22,7 +22,6 @@ elapsed time.
 from __future__ import annotations
 
 import json
-import shutil
 import signal
 from collections.abc import Callable
 from pathlib import Path
@@ -34,31 +33,21 @@ from swarmd_lab.ros2_lab import discovery_counts
 
 from swarmd.bundle.ros2 import bundle_ros2_participants
 from tests.conftest import LanFactory
-from tests.daemon_support import (
-    BundleFiles,
-    Daemons,
-    daemon_status,
-    matched_counts,
-    relay_config,
-    ros2_profiles,
-    run_domain,
-    until,
-    write_mission_bundle,
+from tests.daemon_support import daemon_status, matched_counts, until
+from tests.ros2_relay_support import (
+    NETNS_MARKS,
+    WAIT_S,
+    start_relay_swarm,
+    write_chatter_bundle,
 )
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
-pytestmark = [
-    pytest.mark.netns,
-    pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark not installed"),
-    pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
-]
+pytestmark = NETNS_MARKS
 
-WAIT_S = 30.0
 RUN_S = 30.0  # the lead's listener and drone-1's monitor
 TALKER_S = 12.0  # drone-1's talker, then it stops (DATA(p[UD])) while the others run
 CAPTURE_START_S = 10.0
-ROS2_DOMAIN = 7
 
 DRONES = ("lead", "drone-1")
 # the lead's listener also publishes on the topic it listens to
@@ -66,14 +55,6 @@ LEAD_LISTENER = (
     "{name: listener, drones: commander, publishes: [/chatter], subscribes: [/chatter],"
     " calls: [/trigger]}"
 )
-
-
-def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
-    nodes = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, LEAD_LISTENER)
-    text = ros2_lab.chatter_mission(
-        "ros2-local", run_domain(), addresses, nodes, ros2_domain=ROS2_DOMAIN
-    )
-    return write_mission_bundle(workdir, text, "ros2-local", "ros2-local.yaml")
 
 
 def _until(cond: Callable[[], bool], what: Callable[[], str]) -> None:
@@ -84,14 +65,13 @@ def test_two_nodes_on_one_drone_find_each_other_and_the_other_drone(
     lan_factory: LanFactory, workdir: Path
 ) -> None:
     lan = lan_factory(2)
-    files = _write_bundle(workdir, [lan[i].address for i in range(2)])
+    ros2_nodes = (ros2_lab.TALKER_NODE, ros2_lab.MONITOR_NODE, LEAD_LISTENER)
+    files = write_chatter_bundle(
+        workdir, "ros2-local", [lan[i].address for i in range(2)], ros2_nodes
+    )
     participants = bundle_ros2_participants(files.bundle)
-    profiles = workdir / "profiles"
-    code = ros2_profiles(files, profiles, "--via-swarmd")
-    assert code == 0
-    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config(lease_s=6))
-    daemons, socks = swarm.start_all(WAIT_S), swarm.socks
-    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    relay = start_relay_swarm(lan, workdir, files, DRONES)
+    daemons, socks, nodes = relay.daemons, relay.socks, relay.nodes
 
     def start_node(i: int, node: str, role: str, seconds: float, *extra: str) -> Any:
         argv = ros2_lab.node_argv(role, seconds, "--graph-every", "1", *extra, name=node)

@@ -20,7 +20,6 @@ Assertions are on what arrived and on the daemons' status, never on elapsed time
 from __future__ import annotations
 
 import json
-import shutil
 import signal
 import subprocess
 import time
@@ -37,33 +36,24 @@ from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpParticipant, encode_spdp
 from swarmd.rtps.types import Duration, GuidPrefix, ProtocolVersion, VendorId
 from tests.conftest import LanFactory
-from tests.daemon_support import (
-    BundleFiles,
-    Daemons,
-    daemon_status,
-    matched_counts,
-    relay_config,
-    ros2_profiles,
-    run_domain,
-    until,
-    write_mission_bundle,
+from tests.daemon_support import daemon_status, matched_counts, ros2_profiles, until
+from tests.ros2_relay_support import (
+    NETNS_MARKS,
+    ROS2_DOMAIN,
+    WAIT_S,
+    start_relay_swarm,
+    write_chatter_bundle,
 )
 
 pytest.importorskip("rclpy", reason="ROS 2 wheels not installed (scripts/setup.sh)")
 
-pytestmark = [
-    pytest.mark.netns,
-    pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark not installed"),
-    pytest.mark.skipif(shutil.which("unshare") is None, reason="unshare not installed"),
-]
+pytestmark = NETNS_MARKS
 
-WAIT_S = 30.0
 LISTEN_S = 40.0  # the listener and drone-2's talker run through every step below
 FIRST_LIFE_S = 8.0  # drone-1's talker, before its restart
 SECOND_LIFE_S = 16.0
 CAPTURE_START_S = 10.0
 FORGERY_ROUNDS = 5
-ROS2_DOMAIN = 7
 # a talker's messages that may still be in flight (or lost to the restart) at the end
 TAIL_MESSAGES = 15
 
@@ -104,23 +94,15 @@ def _forged_spdp(attacker: str) -> bytes:
     )
 
 
-def _write_bundle(workdir: Path, addresses: list[str]) -> BundleFiles:
-    text = ros2_lab.chatter_mission("ros2-relay", run_domain(), addresses, ros2_domain=ROS2_DOMAIN)
-    return write_mission_bundle(workdir, text, "ros2-relay", "ros2-relay.yaml")
-
-
 def test_ros2_nodes_discover_through_swarmd_with_no_ros2_discovery_on_the_air(
     lan_factory: LanFactory, workdir: Path
 ) -> None:
     lan = lan_factory(4)  # hosts 0-2: the drones; host 3: an outsider on the same link
     outsider = lan[3]
-    files = _write_bundle(workdir, [lan[i].address for i in range(3)])
-    profiles = workdir / "profiles"
-    code = ros2_profiles(files, profiles, "--via-swarmd")
-    assert code == 0
-    swarm = Daemons(lan, workdir, files, DRONES, extra=relay_config(lease_s=6))
-    daemons, socks, logs = swarm.start_all(WAIT_S), swarm.socks, swarm.logs
-    nodes = ros2_lab.NodeLauncher(lan, DRONES, profiles, workdir)
+    files = write_chatter_bundle(workdir, "ros2-relay", [lan[i].address for i in range(3)])
+    relay = start_relay_swarm(lan, workdir, files, DRONES)
+    swarm, daemons, socks, nodes = relay.swarm, relay.daemons, relay.socks, relay.nodes
+    logs = swarm.logs
 
     def start_node(i: int, node: str, seconds: float, *extra: str) -> subprocess.Popen[bytes]:
         return nodes.start(i, node, ros2_lab.node_argv(node, seconds, *extra))
@@ -294,7 +276,9 @@ def test_the_same_forgery_reaches_a_node_on_the_plain_route(
     lan = lan_factory(2)  # host 0: the lead's listener; host 1: the outsider
     outsider = lan[1]
     base = lan[0].address.rsplit(".", 1)[0]
-    files = _write_bundle(workdir, [lan[0].address, f"{base}.201", f"{base}.202"])
+    files = write_chatter_bundle(
+        workdir, "ros2-relay", [lan[0].address, f"{base}.201", f"{base}.202"]
+    )
     profiles = workdir / "profiles"
     code = ros2_profiles(files, profiles, "--drone", "lead")
     assert code == 0

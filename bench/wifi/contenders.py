@@ -180,7 +180,9 @@ class Contender:
     """Start a contender on every drone, then ``poll`` during the run and ``finish``.
 
     ``start(barrier)`` launches every process; each blocks on the UNIX socket ``barrier``
-    after its start-up (bench/wifi/barrier.py) until the harness releases them all.
+    after its start-up (bench/wifi/barrier.py) until the harness releases them all. Every
+    contender is built with this one signature (``make``); a subclass sets its own fields
+    in ``_own_state``.
     """
 
     def __init__(
@@ -192,6 +194,7 @@ class Contender:
         window_s: float,
         messages: int,
         env: Mapping[str, str] | None = None,
+        link_dir: Path | None = None,
     ) -> None:
         self.name = name
         self.extra_env = dict(env or {})  # e.g. the run's time dilation (bench/wifi/dilation.py)
@@ -199,10 +202,21 @@ class Contender:
         self.work = work
         self.window_s = window_s
         self.messages = messages
+        # the ns-3 link files (link-<i>.json): swarmd's daemons (the swarmd and ros2-swarmd
+        # contenders) read their link quality there; None: a static quality
+        self.link_dir = link_dir
         self.n = len(drones)
         self.obs = Observation()
         self.procs: list[subprocess.Popen[bytes]] = []
         self._logs: list[Any] = []
+        self._own_state()
+
+    def _own_state(self) -> None:
+        """A subclass's own fields, set at the end of ``__init__``."""
+
+    def link_file(self, i: int) -> Path | None:
+        """Drone ``i``'s ns-3 link file (None: the contender has none)."""
+        return None if self.link_dir is None else self.link_dir / f"link-{i}.json"
 
     def start(self, barrier: Path) -> None:
         raise NotImplementedError
@@ -357,21 +371,9 @@ class FastddsContender(PeerContender):
 class SwarmdContender(Contender):
     """Real ``swarmd run`` daemons; discovery and readiness from their control sockets."""
 
-    def __init__(
-        self,
-        name: str,
-        drones: list[Namespace],
-        work: Path,
-        *,
-        window_s: float,
-        messages: int,
-        link_dir: Path,
-        env: Mapping[str, str] | None = None,
-    ) -> None:
-        super().__init__(name, drones, work, window_s=window_s, messages=messages, env=env)
-        self.variant = SWARMD_VARIANTS[name]
-        self.link_dir = link_dir
-        self.socks = [work / f"uav{i + 1}.sock" for i in range(self.n)]
+    def _own_state(self) -> None:
+        self.variant = SWARMD_VARIANTS[self.name]
+        self.socks = [self.work / f"uav{i + 1}.sock" for i in range(self.n)]
         self._nth: dict[str, float] = {}
         self._first: dict[str, float] = {}
         self._counts: dict[str, int] = {}
@@ -383,7 +385,7 @@ class SwarmdContender(Contender):
         v = self.variant
         text = daemon_config(
             i, bundle, key, self.socks[i],
-            aware=v.aware, link_file=self.link_dir / f"link-{i}.json", mode=v.mode,
+            aware=v.aware, link_file=self.link_file(i), mode=v.mode,
             overrides=v.overrides, state_dir=self.work / f"state-uav{i + 1}",
         ) + self.extra_config  # fmt: skip
         path = self.work / f"uav{i + 1}.yaml"
@@ -507,18 +509,19 @@ def make(
     env: Mapping[str, str] | None = None,
 ) -> Contender:
     """The contender called ``name`` (one of ``CONTENDERS``); ``env`` added to its processes."""
+    kind: type[Contender]
     if name in SWARMD_VARIANTS:
-        return SwarmdContender(
-            name, drones, work, window_s=window_s, messages=messages, link_dir=link_dir, env=env
-        )
-    if name in PEER_SCRIPTS:
-        return PeerContender(name, drones, work, window_s=window_s, messages=messages, env=env)
-    if name in FASTDDS:
-        return FastddsContender(name, drones, work, window_s=window_s, messages=messages, env=env)
-    if name in ROS2:
+        kind = SwarmdContender
+    elif name in PEER_SCRIPTS:
+        kind = PeerContender
+    elif name in FASTDDS:
+        kind = FastddsContender
+    elif name in ROS2:
         from bench.wifi.ros2_contenders import Ros2Contender  # imports this module
 
-        return Ros2Contender(
-            name, drones, work, window_s=window_s, messages=messages, env=env, link_dir=link_dir
-        )
-    raise ValueError(f"unknown contender {name!r}; use one of: {', '.join(CONTENDERS)}")
+        kind = Ros2Contender
+    else:
+        raise ValueError(f"unknown contender {name!r}; use one of: {', '.join(CONTENDERS)}")
+    return kind(
+        name, drones, work, window_s=window_s, messages=messages, env=env, link_dir=link_dir
+    )

@@ -285,6 +285,44 @@ class CountedSpan(NamedTuple):
     count_start: int
     count_end: int
 
+    @property
+    def expected(self) -> float:
+        """Samples expected in the span: one a period."""
+        return (self.end_s - self.start_s) * READINESS_HZ
+
+    @property
+    def delivered(self) -> float:
+        """Samples counted in the span, capped at ``expected``: a member also reports at once
+        when the commander finds it again (swarm core), so a span can hold a sample more than
+        its seconds; that extra sample must not hide samples missing in another span."""
+        return min(max(0, self.count_end - self.count_start), self.expected)
+
+
+def _last_in_range(samples: Sequence[tuple[float, bool]], b: float) -> float:
+    """The end of an in-range span ending at ``b`` (``spans``' end, the first sample out of
+    range unless the run ended in range): the pair parted somewhere in the step before
+    ``b``, so the span ends at its last sample in range (time unreachable is never counted)."""
+    return max(t for t, _ in samples if t < b) if b < samples[-1][0] else b
+
+
+class RunRecords(NamedTuple):
+    """A run file's records as the measures take them (module doc), keys made ints."""
+
+    changes: dict[int, list[Change]]
+    down: dict[int, list[Interval]]
+    readiness: list[tuple[float, dict[int, int]]]
+    started: list[float]  # each drone's release after go (empty: all at go)
+
+
+def run_records(run: Mapping[str, Any]) -> RunRecords:
+    """The records of a run file (``bench/wifi/flight_run.py`` writes them) for the measures."""
+    return RunRecords(
+        changes={int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()},
+        down={int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()},
+        readiness=[(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]],
+        started=[float(s) for s in (run.get("setup") or {}).get("started_s") or ()],
+    )
+
 
 def counted_spans(
     truth: Truth,
@@ -308,10 +346,8 @@ def counted_spans(
         start = max(min(first), first_poll, released)
         samples = reachable(truth, down, 0, m)
         for a, b, up in spans(samples):
-            if up and b < samples[-1][0]:
-                # b is the first sample out of range: the pair parted somewhere in the step
-                # before it, so count to the last sample in range (never time unreachable)
-                b = max(t for t, v in samples if t < b)
+            if up:
+                b = _last_in_range(samples, b)
             a, b = max(a, start), min(b, end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
@@ -342,12 +378,8 @@ def readiness_delivery(
         return {"expected": 0, "delivered": 0, "ratio": None}
     expected = delivered = 0.0
     for span in counted_spans(truth, down, changes, readiness, n, end, started):
-        seconds = span.end_s - span.start_s
-        expected += seconds * READINESS_HZ
-        # capped per span: a member also reports at once when the commander finds it
-        # again (swarm core), so a span can hold a sample more than its seconds; that
-        # extra sample must not hide samples missing in another span
-        delivered += min(max(0, span.count_end - span.count_start), seconds * READINESS_HZ)
+        expected += span.expected
+        delivered += span.delivered  # capped per span (CountedSpan.delivered)
     ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
     return {"expected": round(expected), "delivered": round(delivered), "ratio": ratio}
 
@@ -409,8 +441,7 @@ def readiness_after_returns(
         for k, (a, b, up) in enumerate(runs):
             if not up or k == 0:
                 continue
-            if b < samples[-1][0]:
-                b = max(t for t, v in samples if t < b)
+            b = _last_in_range(samples, b)
             b = last_poll(readiness, min(b, last))  # as readiness_delivery bounds it
             member_up = [t for t, p, c in changes.get(m, ()) if p == 0 and c in UP_KINDS]
             lead_up = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
@@ -420,8 +451,8 @@ def readiness_after_returns(
             if t_member is None or t_lead is None or ca is None or cb is None or b - a < 2.0:
                 continue
             moved = [t for t, table in readiness if a < t <= b and table.get(m, 0) != ca]
-            expected = (b - a) * READINESS_HZ
-            delivered = min(max(0, cb - ca), expected)
+            span = CountedSpan(m, a, b, ca, cb)
+            expected, delivered = span.expected, span.delivered
             # the member's stream restarts at its re-discovery (its tick is pulled in there,
             # swarm core) and runs one a period: what it could send in the span
             sendable = min(expected, math.floor((b - max(a, t_member)) * READINESS_HZ) + 1)
@@ -582,14 +613,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for path in args.runs:
         run = json.loads(path.read_text())
         truth = flight.of_run(run).truth()
-        changes = {int(i): [(t, p_, c) for t, p_, c in v] for i, v in run["changes"].items()}
-        down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
-        polls = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
+        changes, down, polls, started = run_records(run)
         rows = readiness_after_returns(truth, down, changes, polls, run["n"], truth[-1][0])
-        started = (run.get("setup") or {}).get("started_s") or ()
-        whole = readiness_delivery(
-            truth, down, changes, polls, run["n"], truth[-1][0], [float(s) for s in started]
-        )
+        whole = readiness_delivery(truth, down, changes, polls, run["n"], truth[-1][0], started)
         missing = sum(r["missing"] for r in rows)
         wait = sum(r["expected"] - r["sendable"] for r in rows)
         unsent = sum(r["sendable"] - r["delivered"] for r in rows)

@@ -31,6 +31,7 @@ from bench.wifi.flight_measures import (
     Truth,
     count_at,
     counted_spans,
+    run_records,
 )
 
 Polls = Sequence[tuple[float, Mapping[int, int]]]
@@ -63,8 +64,7 @@ def readiness_spans(
     for span in counted_spans(truth, down, changes, readiness, n, end, started):
         m, a, b, ca = span.member, span.start_s, span.end_s, span.count_start
         first, previous_member = m != previous_member, m
-        expected = (b - a) * READINESS_HZ
-        delivered = min(max(0, span.count_end - ca), expected)
+        expected, delivered = span.expected, span.delivered
         moved = next((t for t, table in readiness if a < t <= b and table.get(m, 0) != ca), None)
         if moved is None:
             onset_s, onset_missing = b - a, expected
@@ -183,10 +183,7 @@ def _load(path: Any) -> dict[str, Any]:
 
     run: dict[str, Any] = json.loads(path.read_text())
     truth = flight.of_run(run).truth()
-    changes = {int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()}
-    down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
-    polls = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
-    started = [float(s) for s in (run.get("setup") or {}).get("started_s") or ()]
+    changes, down, polls, started = run_records(run)
     phases = [(str(p), float(a), float(b)) for p, a, b in run.get("phases", ())]
     rows = readiness_spans(truth, down, changes, polls, run["n"], truth[-1][0], started, phases)
     return {"run": run, "rows": rows, "polls": polls, "phases": phases}

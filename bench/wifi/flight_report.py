@@ -293,9 +293,7 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
     from bench.wifi import flight
 
     scenario = flight.of_run(run)
-    changes = {int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()}
-    down = {int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()}
-    readiness = [(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]]
+    changes, down, readiness, started = flight_measures.run_records(run)
     first_move = min((w[0] for w in run["waypoints"] if w[0] > 0), default=None)
     if first_move is None and run.get("events"):
         first_move = min(e[0] for e in run["events"])
@@ -303,7 +301,7 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
         scenario.truth(), changes, down, n=run["n"], lease_s=run["lease_s"],
         restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
         discovery_fps=run["discovery_fps"], first_move_s=first_move,
-        started=[float(s) for s in (run.get("setup") or {}).get("started_s") or ()],
+        started=started,
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
         run.get("renewals", []), first_move or 0.0

@@ -51,7 +51,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Final
 
-from swarmd_lab.netns import Namespace
 from swarmd_lab.ros2_lab import own_host_argv
 
 from bench.wifi.bundle import SWARM, mission_text
@@ -230,10 +229,9 @@ def swarmd_config(c: Ros2Contender, i: int, bundle: Path, key: Path) -> Path:
     1 Hz readiness to the commander is also what the commander vouches on: without it every
     member renews on its own, docs/discovery.md "Vouching"), and the relay on
     (docs/ros2.md). The rclpy nodes carry the benchmark's workload."""
-    link_file = None if c.link_dir is None else c.link_dir / f"link-{i}.json"
     text = daemon_config(
         i, bundle, key, swarmd_socket(c, i),
-        aware=True, link_file=link_file, mode="adaptive",
+        aware=True, link_file=c.link_file(i), mode="adaptive",
         state_dir=c.work / f"state-uav{i + 1}", sections="ros2:\n  relay: true\n",
     )  # fmt: skip
     path = c.work / f"swarmd-uav{i + 1}.yaml"
@@ -307,24 +305,10 @@ def unavailable(name: str) -> str | None:
 class Ros2Contender(PeerContender):
     """rclpy workload nodes, one per drone in its own emulated host; the route sets discovery."""
 
-    def __init__(
-        self,
-        name: str,
-        drones: list[Namespace],
-        work: Path,
-        *,
-        window_s: float,
-        messages: int,
-        env: Mapping[str, str] | None = None,
-        link_dir: Path | None = None,
-    ) -> None:
-        super().__init__(name, drones, work, window_s=window_s, messages=messages, env=env)
-        # the ns-3 link files (link-<i>.json): ros2-swarmd's daemons read their link quality
-        # there, as the swarmd contender's do
-        self.link_dir = link_dir
-        route = ROUTES.get(name)
+    def _own_state(self) -> None:
+        route = ROUTES.get(self.name)
         if route is None:
-            raise ValueError(unavailable(name) or f"unknown ROS 2 contender {name!r}")
+            raise ValueError(unavailable(self.name) or f"unknown ROS 2 contender {self.name!r}")
         self.route: Route = route
         self.infrastructure: list[subprocess.Popen[bytes]] = []
         self.daemons: dict[int, subprocess.Popen[bytes]] = {}  # ros2-swarmd: drone -> swarmd

@@ -44,7 +44,7 @@ from swarmd.px4.messages import (
     VehicleCommand,
 )
 from swarmd.xrce import px4 as topics
-from swarmd.xrce.px4_layouts import Layout
+from swarmd.xrce.px4_table import Layout
 
 MAV_TYPE_QUADROTOR: Final = 2
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED: Final = 1

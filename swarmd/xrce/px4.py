@@ -16,7 +16,8 @@ import struct
 from dataclasses import dataclass
 from typing import Final
 
-from swarmd.xrce.px4_layouts import LAYOUTS, Field, Layout
+from swarmd.xrce.px4_layouts import LAYOUTS
+from swarmd.xrce.px4_table import Field, Layout
 
 RELEASES: Final = tuple(LAYOUTS)  # "1.14" .. "1.17"
 # uORB topic -> message (the topics swarmd reads and writes)
