@@ -59,15 +59,13 @@ cannot parse, the lookup reads ``/proc/self/net/udp{,6}`` from then on (counted:
 
 from __future__ import annotations
 
-import ipaddress
-import re
 import socket
-import sys
 import time
 from collections.abc import Callable, Collection, Hashable
 from pathlib import Path
 from typing import Final
 
+from swarmd.loopback import loopback_host, proc_address, udp_table_rows
 from swarmd.sockdiag import SockDiagError, UdpDiag, UdpRow
 from swarmd.tokenbucket import TokenBucket
 
@@ -121,9 +119,6 @@ UNREAD_UID: Final = -1
 # miss budget (which a flood of fresh ports spends). This many, least recently looked up
 # first out; another user's source is never kept, so it cannot fill them.
 MAX_KEPT_SOURCES: Final = 64
-_LINE: Final = re.compile(
-    r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
-)
 _WILDCARDS: Final = frozenset({"0.0.0.0", "::"})  # noqa: S104 - addresses we read, not bind
 # An IPv6 socket bound to ``::`` with IPV6_V6ONLY (netlink tells it; /proc does not): it
 # sends from IPv6 addresses only. ``"::"`` itself is a dual-stack one (or one /proc read).
@@ -143,34 +138,12 @@ def may_send_from(bound: str, host: str) -> bool:
     return bound == V6ONLY_WILDCARD and ":" in host
 
 
-def _decode_address(text: str) -> str:
-    """/proc/net/udp prints each 32-bit word of the address in host byte order."""
-    raw = bytes.fromhex(text)
-    if sys.byteorder == "little":
-        raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
-    return str(ipaddress.ip_address(raw))
-
-
 def _local_sender(address: str) -> str | None:
     """The loopback address a socket bound to ``address`` sends from (a v4-mapped one as
     its IPv4 form, as ``loopback_host`` gives sources), the wildcard, or None."""
     if address in _WILDCARDS:
         return address
     return loopback_host((address, 0))
-
-
-def loopback_host(source: Hashable) -> str | None:
-    """The loopback address of a datagram's source (``"127.0.0.1"``, ``"::1"``; a v4-mapped
-    address as its IPv4 form), or None when it is not a loopback ``(host, port, ...)``."""
-    if not isinstance(source, tuple) or len(source) < 2 or not isinstance(source[0], str):
-        return None
-    try:
-        ip = ipaddress.ip_address(source[0].partition("%")[0])
-    except ValueError:
-        return None
-    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-        ip = ip.ipv4_mapped
-    return str(ip) if ip.is_loopback else None
 
 
 class SenderUids:
@@ -453,20 +426,18 @@ class SenderUids:
             if len(raw) > MAX_TABLE_BYTES:
                 self.counters["truncated"] += 1
                 raw = raw[:MAX_TABLE_BYTES]
-            # "sl: local_address rem_address st tx:rx tr:when retrnsmt uid ...": one C scan
-            for hex_address, hex_port, text_uid in _LINE.findall(raw.decode("ascii", "replace")):
+            for hex_address, port, uid, _inode in udp_table_rows(raw.decode("ascii", "replace")):
                 try:
                     if hex_address in self._addresses:
                         address = self._addresses[hex_address]
                     else:
-                        address = _local_sender(_decode_address(hex_address))
+                        address = _local_sender(proc_address(hex_address))
                         if len(self._addresses) < MAX_INDEXED_SOCKETS:
                             self._addresses[hex_address] = address
-                    if address is None:
-                        continue  # bound elsewhere: it cannot send from a loopback address
-                    port, uid = int(hex_port, 16), int(text_uid)
                 except ValueError:
                     continue  # a line we cannot parse names nobody
+                if address is None:
+                    continue  # bound elsewhere: it cannot send from a loopback address
                 if indexed >= MAX_INDEXED_SOCKETS:
                     self.counters["truncated"] += 1
                     break
