@@ -2,7 +2,8 @@
 docs/security.md, "The local user", residual (5)): in a throw-away network namespace
 (swarmd_lab.netns: the host's ports are never touched), a node on 127.0.0.1:P and user
 ``nobody`` holding ``--sockets`` sockets on P at other loopback addresses (two processes:
-its file limit is 20,000 here), bound after the node so the kernel lists them first. Times,
+its file limit is 20,000 here: swarmd_lab.sockholder), bound after the node so the kernel
+lists them first. Times,
 on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the node's
 source query (filtered to its address and wildcards) and a query of a port nobody holds;
 mean over ``--reps``. Prints markdown. Needs root and setpriv.
@@ -24,32 +25,16 @@ sys.path[:0] = [str(ROOT), str(ROOT / "lab")]
 
 from swarmd_lab.netns import Lan  # noqa: E402
 
-HOLDER = """
-import socket, sys, select
-port, first, count = map(int, sys.argv[1:4])
-socks = []
-for i in range(first, first + count):
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
-    socks.append(s)
-print("ready", flush=True)
-select.select([sys.stdin], [], [], 120.0)
-"""
-
-# Runs inside the namespace: argv = holder code, sockets, reps. Prints one JSON line.
+# Runs inside the namespace: argv = sockets, reps. Prints one JSON line.
 SCENARIO = """
-import json, socket, subprocess, sys, time
+import json, socket, sys, time
 from swarmd.senderuid import SenderUids
-holder, total, reps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+from swarmd_lab.sockholder import nobody_holds
+total, reps = int(sys.argv[1]), int(sys.argv[2])
 node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 node.bind(("127.0.0.1", 0))
 port = node.getsockname()[1]
-per = -(-total // 2)
-procs = [subprocess.Popen(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
-         sys.executable, "-I", "-c", holder, str(port), str(1 + h * per), str(per)],
-         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for h in range(2)]
-try:
-    assert all(p.stdout.readline().strip() == "ready" for p in procs)
+with node, nobody_holds(port, total, hold_s=120.0):
     uids = SenderUids(clock=lambda: 0.0, netlink=True)
     query = getattr(uids, "_query_source", None)
     if query is None:  # before branch h-uidaddr: by port only
@@ -71,10 +56,6 @@ try:
     out["node_found_by_query"] = (query("127.0.0.1", port) if query else
                                   (uids._query_port(port), uids._uids("127.0.0.1", port))[1]) == {0}
     print(json.dumps(out), flush=True)
-finally:
-    for p in procs:
-        p.communicate(timeout=30)
-    node.close()
 """
 
 
@@ -87,7 +68,7 @@ def main() -> None:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     with Lan(1) as lan:
         done = lan[0].run(
-            [sys.executable, "-c", SCENARIO, HOLDER, str(args.sockets), str(args.reps)],
+            [sys.executable, "-c", SCENARIO, str(args.sockets), str(args.reps)],
             timeout=600.0,
             env=env,
             check=False,

@@ -34,7 +34,6 @@ import os
 import random
 import socket
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -44,20 +43,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "lab")]
 
 from swarmd_lab.netns import Lan  # noqa: E402
+from swarmd_lab.sockholder import nobody_holds  # noqa: E402
 
 from swarmd.senderuid import TTL_S, SenderUids  # noqa: E402
 
-HOLDER = """
-import socket, sys, select
-port, first, count = map(int, sys.argv[1:4])
-socks = []
-for i in range(first, first + count):
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
-    socks.append(s)
-print("ready", flush=True)
-select.select([sys.stdin], [], [], 900.0)
-"""
 HELD_PORT = 40_000  # nobody's sockets' port, outside FLOOD_PORTS
 
 FLOOD_PORTS = range(20_000, 30_000)  # mostly free on a test box; a held one is just a hit
@@ -136,21 +125,11 @@ def main() -> None:
         if done.returncode != 0:
             sys.exit(done.stderr[-2000:])
         return
-    holders = []
-    per = -(-args.sockets // 2)
-    for first in (1, 1 + per) if args.sockets else ():
-        count = min(per, args.sockets - first + 1)
-        holders.append(subprocess.Popen(
-            ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable,
-             "-I", "-c", HOLDER, str(HELD_PORT), str(first), str(count)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))  # fmt: skip
-    try:
-        if not all(h.stdout and h.stdout.readline().strip() == "ready" for h in holders):
-            sys.exit("nobody's sockets were not bound")
+    if not args.sockets:
         run_trials(args)
-    finally:
-        for h in holders:
-            h.communicate(timeout=30)
+        return
+    with nobody_holds(HELD_PORT, args.sockets):
+        run_trials(args)
 
 
 def run_trials(args: argparse.Namespace) -> None:

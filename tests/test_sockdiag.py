@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from swarmd_lab.sockholder import nobody_holds
 
 import swarmd.senderuid
 import swarmd.sockdiag
@@ -406,34 +407,6 @@ def test_a_refused_constructor_leaves_nothing_to_close(monkeypatch: pytest.Monke
 
 # ---- a local user's sockets around a node's source (docs/security.md, "The local user") ---
 
-# Run as ``nobody``: binds ``count`` sockets on ``port`` at 127.1.X.Y from index ``first``
-# (every address of 127/8 is the loopback's), prints "ready", holds them until stdin closes
-# (capped at 60 s).
-HOLDER_MANY = """
-import socket, sys, select
-port, first, count = map(int, sys.argv[1:4])
-socks = []
-for i in range(first, first + count):
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
-    socks.append(s)
-print("ready", flush=True)
-select.select([sys.stdin], [], [], 60.0)
-"""
-
-
-def _nobody_holds(port: int, first: int, count: int) -> subprocess.Popen[str]:
-    holder = subprocess.Popen(  # noqa: S603 - fixed argv
-        [
-            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
-            sys.executable, "-I", "-c", HOLDER_MANY, str(port), str(first), str(count),
-        ],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    assert holder.stdout is not None
-    assert holder.stdout.readline().strip() == "ready"
-    return holder
-
 
 def test_other_addresses_on_a_nodes_port_do_not_push_it_out_of_its_query() -> None:
     """Attack: a node holds 127.0.0.1:P; ``nobody`` binds P on ``MAX_PORT_ROWS`` other
@@ -448,17 +421,13 @@ def test_other_addresses_on_a_nodes_port_do_not_push_it_out_of_its_query() -> No
     assert uids.uid_of(("127.0.0.1", 9)) is None  # the table read, before the node binds
     port = _free_port()
     node = _bind("127.0.0.1", port)
-    attacker = _nobody_holds(port, 1, swarmd.senderuid.MAX_PORT_ROWS)
-    try:
+    with node, nobody_holds(port, swarmd.senderuid.MAX_PORT_ROWS, hold_s=60.0):
         now[0] += TTL_S / 2
         assert uids.uid_of(("127.0.0.1", port)) == ME  # the source's query
         assert uids.uid_of(("127.1.0.7", port)) == NOBODY  # the attacker's own sources
         assert SenderUids(netlink=True).uid_of(("127.0.0.1", port)) == ME  # the table read
         assert SenderUids(netlink=False).uid_of(("127.0.0.1", port)) == ME
         assert uids.counters["truncated"] == 0
-    finally:
-        attacker.communicate(timeout=10)
-        node.close()
 
 
 def test_a_source_query_past_its_cap_is_nobodys(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -483,26 +452,20 @@ def test_a_source_query_past_its_cap_is_nobodys(monkeypatch: pytest.MonkeyPatch)
 
 
 # Run inside a fresh network namespace (its own socket table; the host's ports are never
-# touched): a node on 127.0.0.1:P, ``nobody`` holding ``holders`` x ``per_holder`` sockets on
-# P at other addresses (more than MAX_INDEXED_SOCKETS: nobody's RLIMIT_NOFILE is 20,000 on
-# this box, so across two processes, as an attacker would), then the lookups on a hand-set
+# touched): a node on 127.0.0.1:P, ``nobody`` holding ``count`` sockets on P at other
+# addresses (more than MAX_INDEXED_SOCKETS: nobody's RLIMIT_NOFILE is 20,000 on this box, so
+# across two processes, as an attacker would: swarmd_lab.sockholder), then the lookups on a hand-set
 # clock: a table read cut before the node, the node's first datagram, a flood of fresh ports
 # spending the miss budget, the node's datagrams in each of the next TTL_S. Prints JSON.
 TABLE_CUT_SCENARIO = """
-import json, socket, subprocess, sys
+import json, socket, sys
 from swarmd.senderuid import MAX_INDEXED_SOCKETS, MISS_QUERY_BURST, TTL_S, SenderUids
-holder_code, holders, per_holder = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+from swarmd_lab.sockholder import nobody_holds
+count = int(sys.argv[1])
 node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 node.bind(("127.0.0.1", 0))
 port = node.getsockname()[1]
-procs = []
-for h in range(holders):
-    procs.append(subprocess.Popen(
-        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-I",
-         "-c", holder_code, str(port), str(1 + h * per_holder), str(per_holder)],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))
-try:
-    assert all(p.stdout.readline().strip() == "ready" for p in procs)
+with node, nobody_holds(port, count, hold_s=60.0):
     now = [100.0]
     # the cost bound is tested on its own (a fake netlink's cost clock); here the hand-set
     # clock does not refill it, so the reads and queries are charged nothing
@@ -524,10 +487,6 @@ try:
     out["truncated"] = kept.counters["truncated"]
     out["over_budget"] = plain.counters["miss_reads_over_budget"]
     print(json.dumps(out), flush=True)
-finally:
-    for p in procs:
-        p.communicate(timeout=20)
-    node.close()
 """
 
 
@@ -546,7 +505,7 @@ def test_a_user_holding_more_sockets_than_the_index_cannot_hide_a_kept_node(
     ns = lan_factory(1)[0]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     done = ns.run(
-        [sys.executable, "-c", TABLE_CUT_SCENARIO, HOLDER_MANY, "2", "17000"],
+        [sys.executable, "-c", TABLE_CUT_SCENARIO, "34000"],
         timeout=120.0,
         env=env,
         check=False,
@@ -576,7 +535,6 @@ def test_only_the_callers_users_are_kept_and_the_least_recent_leaves_first(
     mine = [_bind("127.0.0.1", _free_port()) for _ in range(3)]
     a, b, c = (("127.0.0.1", s.getsockname()[1]) for s in mine)
     port = _free_port()
-    attacker = _nobody_holds(port, 1, 1)
     theirs = ("127.1.0.1", port)
 
     def next_ttl_after_a_flood() -> None:
@@ -585,17 +543,17 @@ def test_only_the_callers_users_are_kept_and_the_least_recent_leaves_first(
             assert uids.uid_of(("127.0.0.1", fresh)) is None
 
     try:
-        now[0] += 0.001
-        assert [uids.uid_of(s) for s in (a, b, theirs)] == [ME, ME, NOBODY]  # miss queries
-        next_ttl_after_a_flood()
-        assert [uids.uid_of(s) for s in (a, b, theirs, c)] == [ME, ME, None, None]
-        now[0] += 1.0  # the budget refills
-        assert uids.uid_of(c) == ME  # kept: ``a`` (looked up before ``b``) leaves
-        assert uids.counters["kept_evicted"] == 1
-        next_ttl_after_a_flood()
-        assert [uids.uid_of(s) for s in (a, b, c)] == [None, ME, ME]
+        with nobody_holds(port, 1, hold_s=60.0):
+            now[0] += 0.001
+            assert [uids.uid_of(s) for s in (a, b, theirs)] == [ME, ME, NOBODY]  # miss queries
+            next_ttl_after_a_flood()
+            assert [uids.uid_of(s) for s in (a, b, theirs, c)] == [ME, ME, None, None]
+            now[0] += 1.0  # the budget refills
+            assert uids.uid_of(c) == ME  # kept: ``a`` (looked up before ``b``) leaves
+            assert uids.counters["kept_evicted"] == 1
+            next_ttl_after_a_flood()
+            assert [uids.uid_of(s) for s in (a, b, c)] == [None, ME, ME]
     finally:
-        attacker.communicate(timeout=10)
         for s in mine:
             s.close()
 
