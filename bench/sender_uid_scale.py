@@ -5,8 +5,9 @@ docs/security.md, "The local user", residual (5)): in a throw-away network names
 its file limit is 20,000 here: swarmd_lab.sockholder), bound after the node so the kernel
 lists them first. Times,
 on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the node's
-source query (filtered to its address and wildcards) and a query of a port nobody holds;
-mean over ``--reps``. Prints markdown. Needs root and setpriv.
+source query (filtered to its address and wildcards) and a query of a port nobody holds,
+and the kernel's one-socket answer for the node's source and that port (``UdpDiag.receiver``,
+branch h-uidlookup12 on); mean over ``--reps``. Prints markdown. Needs root and setpriv.
 
     .venv/bin/python bench/sender_uid_scale.py [--sockets 34000] [--reps 20]
 """
@@ -44,8 +45,15 @@ with node, nobody_holds(port, total, hold_s=120.0):
         node_query = lambda: query("127.0.0.1", port)
         empty_query = lambda: query("127.0.0.1", 1)
     out = {}
-    for name, fn in (("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
-                     ("empty_query_ms", empty_query)):
+    fns = [("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
+           ("empty_query_ms", empty_query)]
+    diag = uids._diag
+    if hasattr(diag, "receiver"):  # the one-socket lookup (branch h-uidlookup12 on)
+        lo = socket.inet_aton("127.0.0.1")
+        fns += [("node_receiver_ms", lambda: diag.receiver(socket.AF_INET, lo, port)),
+                ("empty_receiver_ms", lambda: diag.receiver(socket.AF_INET, lo, 1))]
+        out["node_receiver_uid"] = diag.receiver(socket.AF_INET, lo, port).uid
+    for name, fn in fns:
         start = time.perf_counter()
         for _ in range(reps):
             fn()
@@ -78,11 +86,20 @@ def main() -> None:
     r = json.loads(done.stdout.strip().splitlines()[-1])
     print(f"# {' '.join(sys.argv)}  ({stamp}; tree {ROOT})")
     print("| other user's sockets | table read ms | node's query ms | empty port's query ms |"
-          " node in the (cut) index | node found by its query |")  # fmt: skip
-    print("|---:|---:|---:|---:|---|---|")
+          " node in the (cut) index | node found by its query |"
+          " node's one-socket lookup ms | empty port's one-socket lookup ms |")  # fmt: skip
+    print("|---:|---:|---:|---:|---|---|---:|---:|")
+    receivers = (
+        (
+            f" {r['node_receiver_ms']:.3f} (uid {r['node_receiver_uid']}) |"
+            f" {r['empty_receiver_ms']:.3f} |"
+        )
+        if "node_receiver_ms" in r
+        else " - | - |"
+    )
     print(f"| {args.sockets:,} | {r['read_ms']:.1f} | {r['node_query_ms']:.2f} |"
           f" {r['empty_query_ms']:.2f} | {r['node_in_index']} |"
-          f" {r['node_found_by_query']} |")  # fmt: skip
+          f" {r['node_found_by_query']} |{receivers}")  # fmt: skip
 
 
 if __name__ == "__main__":
