@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from swarmd.senderuid import MISS_QUERY_BURST, TTL_S, SenderUids
-from tests.test_sockdiag import HOLDER, ME, NOBODY, _bind, _free_port
+from tests.test_sockdiag import ME, NOBODY, _bind, _free_port, _nobody_binds
 
 
 def test_a_kept_users_new_source_is_found_past_a_spent_miss_budget_and_shares_stay_nobodys() -> (
@@ -41,18 +41,11 @@ def test_a_kept_users_new_source_is_found_past_a_spent_miss_budget_and_shares_st
         _bind("127.0.0.1", p["node"]), _bind("::1", p["node6"]), _bind("127.0.0.1", p["v6only"]),
         _bind("127.0.0.1", p["first"], reuse=True), _bind("127.0.0.1", p["wild"], reuse=True),
     ]  # fmt: skip
-    holder = subprocess.Popen(  # noqa: S603 - fixed argv
-        [
-            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
-            sys.executable, "-I", "-c", HOLDER,
-            f"::,{p['v6only']},v6only", f"127.0.0.1,{p['first']},1", f"127.0.0.1,{p['last']},1",
-            f"0.0.0.0,{p['wild']},1", f"127.0.0.1,{theirs},0",
-        ],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    holder = _nobody_binds(
+        f"::,{p['v6only']},v6only", f"127.0.0.1,{p['first']},1", f"127.0.0.1,{p['last']},1",
+        f"0.0.0.0,{p['wild']},1", f"127.0.0.1,{theirs},0",
     )  # fmt: skip
     try:
-        assert holder.stdout is not None
-        assert holder.stdout.readline().strip() == "ready"
         mine.append(_bind("127.0.0.1", p["last"], reuse=True))  # the newest: root's
         now[0] += TTL_S / 2
         for fresh in range(1, int(MISS_QUERY_BURST) + 20):  # ports below 1024 nobody holds

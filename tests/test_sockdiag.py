@@ -158,6 +158,21 @@ select.select([sys.stdin], [], [], 30.0)
 """
 
 
+def _nobody_binds(*specs: str) -> subprocess.Popen[str]:
+    """``HOLDER`` as user ``nobody`` with these "host,port,reuse" specs, its sockets bound;
+    the caller closes its stdin (``communicate``) to let them go."""
+    holder = subprocess.Popen(  # noqa: S603 - fixed argv
+        [
+            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
+            sys.executable, "-I", "-c", HOLDER, *specs,
+        ],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert holder.stdout is not None
+    assert holder.stdout.readline().strip() == "ready"
+    return holder
+
+
 def _free_port() -> int:
     """A port free on both families' loopback and wildcard."""
     while True:
@@ -194,18 +209,11 @@ def two_users() -> Iterator[tuple[dict[str, tuple[tuple[Any, ...], int | None]],
     ]  # fmt: skip
     gone = _bind("::1", p["gone"])
     gone.close()
-    holder = subprocess.Popen(  # noqa: S603 - fixed argv
-        [
-            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
-            sys.executable, "-I", "-c", HOLDER,
-            f"127.0.0.1,{p['n4']},0", f"::1,{p['n6']},0", f"0.0.0.0,{p['nw']},0",
-            f"::ffff:127.0.0.1,{p['nm']},0", f"127.0.0.1,{p['shared']},1",
-        ],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    holder = _nobody_binds(
+        f"127.0.0.1,{p['n4']},0", f"::1,{p['n6']},0", f"0.0.0.0,{p['nw']},0",
+        f"::ffff:127.0.0.1,{p['nm']},0", f"127.0.0.1,{p['shared']},1",
     )  # fmt: skip
     try:
-        assert holder.stdout is not None
-        assert holder.stdout.readline().strip() == "ready"
         cases: dict[str, tuple[tuple[Any, ...], int | None]] = {
             "root ::1": (("::1", p["r6"], 0, 0), ME),
             "root 127.0.0.1": (("127.0.0.1", p["r4"]), ME),
@@ -279,17 +287,10 @@ def test_the_other_familys_wildcard_does_not_make_a_port_ambiguous() -> None:
         pytest.skip("needs root and setpriv")
     p = {name: _free_port() for name in ("any4", "lo4", "lo6")}
     nodes = [_bind("0.0.0.0", p["any4"]), _bind("127.0.0.1", p["lo4"]), _bind("::1", p["lo6"])]  # noqa: S104
-    attacker = subprocess.Popen(  # noqa: S603 - fixed argv
-        [
-            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
-            sys.executable, "-I", "-c", HOLDER,
-            f"::,{p['any4']},v6only", f"::,{p['lo4']},v6only", f"0.0.0.0,{p['lo6']},0",
-        ],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    attacker = _nobody_binds(
+        f"::,{p['any4']},v6only", f"::,{p['lo4']},v6only", f"0.0.0.0,{p['lo6']},0",
     )  # fmt: skip
     try:
-        assert attacker.stdout is not None
-        assert attacker.stdout.readline().strip() == "ready"
         sources = [("127.0.0.1", p["any4"]), ("127.0.0.1", p["lo4"]), ("::1", p["lo6"], 0, 0)]
         by_netlink = SenderUids(netlink=True)
         by_proc = SenderUids(netlink=False)
