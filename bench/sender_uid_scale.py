@@ -2,10 +2,12 @@
 docs/security.md, "The local user", residual (5)): in a throw-away network namespace
 (swarmd_lab.netns: the host's ports are never touched), a node on 127.0.0.1:P and user
 ``nobody`` holding ``--sockets`` sockets on P at other loopback addresses (two processes:
-its file limit is 20,000 here), bound after the node so the kernel lists them first. Times,
+its file limit is 20,000 here: swarmd_lab.sockholder), bound after the node so the kernel
+lists them first. Times,
 on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the node's
-source query (filtered to its address and wildcards) and a query of a port nobody holds;
-mean over ``--reps``. Prints markdown. Needs root and setpriv.
+source query (filtered to its address and wildcards) and a query of a port nobody holds,
+and the kernel's one-socket answer for the node's source and that port (``UdpDiag.receiver``,
+branch h-uidlookup12 on); mean over ``--reps``. Prints markdown. Needs root and setpriv.
 
     .venv/bin/python bench/sender_uid_scale.py [--sockets 34000] [--reps 20]
 """
@@ -24,32 +26,16 @@ sys.path[:0] = [str(ROOT), str(ROOT / "lab")]
 
 from swarmd_lab.netns import Lan  # noqa: E402
 
-HOLDER = """
-import socket, sys, select
-port, first, count = map(int, sys.argv[1:4])
-socks = []
-for i in range(first, first + count):
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
-    socks.append(s)
-print("ready", flush=True)
-select.select([sys.stdin], [], [], 120.0)
-"""
-
-# Runs inside the namespace: argv = holder code, sockets, reps. Prints one JSON line.
+# Runs inside the namespace: argv = sockets, reps. Prints one JSON line.
 SCENARIO = """
-import json, socket, subprocess, sys, time
+import json, socket, sys, time
 from swarmd.senderuid import SenderUids
-holder, total, reps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+from swarmd_lab.sockholder import nobody_holds
+total, reps = int(sys.argv[1]), int(sys.argv[2])
 node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 node.bind(("127.0.0.1", 0))
 port = node.getsockname()[1]
-per = -(-total // 2)
-procs = [subprocess.Popen(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
-         sys.executable, "-I", "-c", holder, str(port), str(1 + h * per), str(per)],
-         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for h in range(2)]
-try:
-    assert all(p.stdout.readline().strip() == "ready" for p in procs)
+with node, nobody_holds(port, total, hold_s=120.0):
     uids = SenderUids(clock=lambda: 0.0, netlink=True)
     query = getattr(uids, "_query_source", None)
     if query is None:  # before branch h-uidaddr: by port only
@@ -59,8 +45,15 @@ try:
         node_query = lambda: query("127.0.0.1", port)
         empty_query = lambda: query("127.0.0.1", 1)
     out = {}
-    for name, fn in (("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
-                     ("empty_query_ms", empty_query)):
+    fns = [("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
+           ("empty_query_ms", empty_query)]
+    diag = uids._diag
+    if hasattr(diag, "receiver"):  # the one-socket lookup (branch h-uidlookup12 on)
+        lo = socket.inet_aton("127.0.0.1")
+        fns += [("node_receiver_ms", lambda: diag.receiver(socket.AF_INET, lo, port)),
+                ("empty_receiver_ms", lambda: diag.receiver(socket.AF_INET, lo, 1))]
+        out["node_receiver_uid"] = diag.receiver(socket.AF_INET, lo, port).uid
+    for name, fn in fns:
         start = time.perf_counter()
         for _ in range(reps):
             fn()
@@ -71,10 +64,6 @@ try:
     out["node_found_by_query"] = (query("127.0.0.1", port) if query else
                                   (uids._query_port(port), uids._uids("127.0.0.1", port))[1]) == {0}
     print(json.dumps(out), flush=True)
-finally:
-    for p in procs:
-        p.communicate(timeout=30)
-    node.close()
 """
 
 
@@ -87,7 +76,7 @@ def main() -> None:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     with Lan(1) as lan:
         done = lan[0].run(
-            [sys.executable, "-c", SCENARIO, HOLDER, str(args.sockets), str(args.reps)],
+            [sys.executable, "-c", SCENARIO, str(args.sockets), str(args.reps)],
             timeout=600.0,
             env=env,
             check=False,
@@ -97,11 +86,20 @@ def main() -> None:
     r = json.loads(done.stdout.strip().splitlines()[-1])
     print(f"# {' '.join(sys.argv)}  ({stamp}; tree {ROOT})")
     print("| other user's sockets | table read ms | node's query ms | empty port's query ms |"
-          " node in the (cut) index | node found by its query |")  # fmt: skip
-    print("|---:|---:|---:|---:|---|---|")
+          " node in the (cut) index | node found by its query |"
+          " node's one-socket lookup ms | empty port's one-socket lookup ms |")  # fmt: skip
+    print("|---:|---:|---:|---:|---|---|---:|---:|")
+    receivers = (
+        (
+            f" {r['node_receiver_ms']:.3f} (uid {r['node_receiver_uid']}) |"
+            f" {r['empty_receiver_ms']:.3f} |"
+        )
+        if "node_receiver_ms" in r
+        else " - | - |"
+    )
     print(f"| {args.sockets:,} | {r['read_ms']:.1f} | {r['node_query_ms']:.2f} |"
           f" {r['empty_query_ms']:.2f} | {r['node_in_index']} |"
-          f" {r['node_found_by_query']} |")  # fmt: skip
+          f" {r['node_found_by_query']} |{receivers}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -21,7 +21,9 @@ same uid), so the table names the sender's uid. Where it cannot:
 - the table was read before the sender bound its port: a miss re-reads it, within a budget
   of ``MISS_READS_PER_S`` (burst ``MISS_READ_BURST``): a flood from fresh ports costs that
   many reads a second, not one per datagram, and while it spends the budget a new sender's
-  first datagram can find nothing (it is dropped; nodes and PX4 resend);
+  first datagram can find nothing (it is dropped; nodes and PX4 resend), unless it is one
+  of ``keep_uids`` and found by netlink ("First contact" below; a sender whose socket is
+  connected to another peer than the wildcard is not: the miss path);
 - a port held by a node when the table was read, then closed and bound by another user
   within ``TTL_S``: that user's datagrams pass as the node's for what is left of ``TTL_S``.
   The window is short and needs the exact port freed by the node (docs/security.md).
@@ -35,7 +37,8 @@ once found (tests/test_sockdiag.py). The cost is measured by ``bench/sender_uid.
 
 What it costs. A user holding ~34,000 sockets makes one dump cost 0.12-0.26 s and one query
 2-8 ms (``bench/sender_uid_scale.py``): counted in calls, a dump each ``TTL_S`` and the miss
-budget were most of a core. So every dump, /proc read and query is charged its measured cost
+budget were most of a core. So every dump, /proc read and query (not the one-socket lookups
+of "First contact", whose cost does not grow with the table) is charged its measured cost
 (``cost_clock``, this thread's CPU time) to one bucket of seconds refilled at ``COST_SHARE``
 of a core: over any ``T`` seconds the lookup works at most ``COST_SHARE * T`` plus
 ``COST_BURST_S``, ``KEPT_DEBT_S`` and one call. Who spends when it is short: a kept source's
@@ -45,6 +48,20 @@ before its cost is ``CUT_READ_SHARE`` of the share's worth (a cut read cannot an
 left; the sources' queries can). A table read older than ``TTL_S`` names nobody: while the
 bucket or the back-off holds the next read, sources are answered by their queries or not at
 all (dropped: nodes and PX4 resend), never from an old read.
+
+First contact. A miss of a new sender of one of ``keep_uids`` must not wait for the miss
+budget a flood spends, nor for a cut read to index it. So by netlink a miss first asks the
+kernel which socket would receive a reply to its source (``UdpDiag.receiver``: the
+delivery's own hashed lookup, ~8 us whatever the table holds, so outside the cost bucket;
+at most ``RECEIVER_LOOKUPS_PER_S``). That answer is one socket, never taken alone: Linux
+gives a port two uids share with ``SO_REUSEADDR`` to the newest socket, or to the one bound
+to the address before a wildcard, so it can name either of them. When it names one of
+``keep_uids``, the source's filtered query runs at the kept sources' priority (down to
+``KEPT_DEBT_S``), outside the miss budget, and its answer (a port two uids hold: nobody's)
+is the lookup's, as a miss query's always was. When it names another user or nobody (a
+free port, the flood's fresh ports, a socket connected to a peer other than ``to``), the
+miss path answers as before. A flood triggers only the cheap lookup; only the users the
+caller takes trigger the query.
 
 Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
 same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for its
@@ -59,15 +76,13 @@ cannot parse, the lookup reads ``/proc/self/net/udp{,6}`` from then on (counted:
 
 from __future__ import annotations
 
-import ipaddress
-import re
 import socket
-import sys
 import time
 from collections.abc import Callable, Collection, Hashable
 from pathlib import Path
 from typing import Final
 
+from swarmd.loopback import loopback_host, proc_address, udp_table_rows
 from swarmd.sockdiag import SockDiagError, UdpDiag, UdpRow
 from swarmd.tokenbucket import TokenBucket
 
@@ -115,15 +130,19 @@ MAX_DUMP_ROWS: Final = MAX_TABLE_BYTES // 150
 MAX_PORT_ROWS: Final = 64
 # The owner of the rows a capped query left unread: a second uid, so the answer is None.
 UNREAD_UID: Final = -1
+# The kernel's one-socket answers a second ("First contact"): ~8 us each whatever the table
+# holds (bench/sender_uid_scale.py), a flood's datagram's own order of cost, so outside the
+# cost bucket and capped only here, past what the daemon reads from the loopback anyway (at
+# most ~0.4 s a second). Past it, a new node's datagram gets one with the chance
+# RECEIVER_LOOKUPS_PER_S / the flood's misses a second (the miss path otherwise, as before).
+RECEIVER_LOOKUPS_PER_S: Final = 50_000.0
+RECEIVER_BURST: Final = 5_000.0
 # Sources answered as one of ``keep_uids`` (the users the caller takes: a declared node's,
 # PX4's) are answered from their own filtered query every TTL_S, not from the table read
 # (which a user holding more than MAX_INDEXED_SOCKETS sockets cuts before them) nor from the
 # miss budget (which a flood of fresh ports spends). This many, least recently looked up
 # first out; another user's source is never kept, so it cannot fill them.
 MAX_KEPT_SOURCES: Final = 64
-_LINE: Final = re.compile(
-    r"^ *\d+: ([0-9A-Fa-f]{8}|[0-9A-Fa-f]{32}):([0-9A-Fa-f]{4}) \S+ \S+ \S+ \S+ \S+ +(\d+) ", re.M
-)
 _WILDCARDS: Final = frozenset({"0.0.0.0", "::"})  # noqa: S104 - addresses we read, not bind
 # An IPv6 socket bound to ``::`` with IPV6_V6ONLY (netlink tells it; /proc does not): it
 # sends from IPv6 addresses only. ``"::"`` itself is a dual-stack one (or one /proc read).
@@ -143,14 +162,6 @@ def may_send_from(bound: str, host: str) -> bool:
     return bound == V6ONLY_WILDCARD and ":" in host
 
 
-def _decode_address(text: str) -> str:
-    """/proc/net/udp prints each 32-bit word of the address in host byte order."""
-    raw = bytes.fromhex(text)
-    if sys.byteorder == "little":
-        raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
-    return str(ipaddress.ip_address(raw))
-
-
 def _local_sender(address: str) -> str | None:
     """The loopback address a socket bound to ``address`` sends from (a v4-mapped one as
     its IPv4 form, as ``loopback_host`` gives sources), the wildcard, or None."""
@@ -159,18 +170,18 @@ def _local_sender(address: str) -> str | None:
     return loopback_host((address, 0))
 
 
-def loopback_host(source: Hashable) -> str | None:
-    """The loopback address of a datagram's source (``"127.0.0.1"``, ``"::1"``; a v4-mapped
-    address as its IPv4 form), or None when it is not a loopback ``(host, port, ...)``."""
-    if not isinstance(source, tuple) or len(source) < 2 or not isinstance(source[0], str):
-        return None
-    try:
-        ip = ipaddress.ip_address(source[0].partition("%")[0])
-    except ValueError:
-        return None
-    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-        ip = ip.ipv4_mapped
-    return str(ip) if ip.is_loopback else None
+def _peer(family: int, host: str, to: tuple[str, int] | None) -> tuple[bytes, int]:
+    """The peer of a one-socket lookup: the caller's socket, a wildcard as the source's own
+    address (a loopback client connected to 127.0.0.1 or ::1 sends from it); the zero peer
+    when unknown or of the other family (then only unconnected sockets match)."""
+    if to is None:
+        return b"", 0
+    address = _local_sender(to[0])
+    if address in _WILDCARDS:
+        address = host
+    if address is None or (":" in address) != (family == socket.AF_INET6):
+        return b"", 0
+    return socket.inet_pton(family, address), to[1]
 
 
 class SenderUids:
@@ -225,7 +236,14 @@ class SenderUids:
             "kept_evicted": 0,
             "cost_over_budget": 0,  # a read or query the cost bucket held back
             "cost_us": 0,  # what the reads and queries cost, in microseconds
+            "receiver_lookups": 0,  # a miss's one-socket lookup ("First contact")
+            "receiver_confirmed": 0,  # ... that named a keep_uids user: its source's query
+            "receiver_refused": 0,  # the kernel refused it: not asked again
+            "receiver_over_budget": 0,  # a miss past RECEIVER_LOOKUPS_PER_S: the miss path
+            "receiver_us": 0,  # what those lookups cost (outside the cost bucket)
         }
+        self._receiver_works = True
+        self._receivers = TokenBucket(RECEIVER_LOOKUPS_PER_S, RECEIVER_BURST, clock())
         self._diag: UdpDiag | None = None
         if netlink if netlink is not None else proc == Path("/proc/self"):
             try:
@@ -233,8 +251,10 @@ class SenderUids:
             except OSError:
                 self.counters["netlink_refused"] += 1
 
-    def uid_of(self, source: Hashable) -> int | None:
-        """None for a non-loopback source, a port nobody holds, or a port two uids hold."""
+    def uid_of(self, source: Hashable, to: tuple[str, int] | None = None) -> int | None:
+        """None for a non-loopback source, a port nobody holds, or a port two uids hold.
+        ``to``: the caller's socket (address as bound, port), the peer a sender's connected
+        socket may be connected to ("First contact"; a wildcard: the source's address)."""
         host = loopback_host(source)
         if host is None or not isinstance(source, tuple) or not isinstance(source[1], int):
             return None
@@ -252,16 +272,58 @@ class SenderUids:
             # it may have bound its port after our last read, or the read was cut before it
             # (then its own query finds it: a re-read of /proc would be cut the same way)
             retry = self._read_at != now or (self._table_cut and self._diag is not None)
-            if not uids and retry and self._miss_read(now):
-                if self._query_source(host, port) is None:
-                    self._read(now)
-                read_at, uids = now, self._uids(host, port)
+            if not uids and retry:
+                confirmed = self._receiver_query(host, port, now, to)
+                if confirmed is not None:
+                    read_at, uids = now, confirmed
+                elif self._miss_read(now):
+                    if self._query_source(host, port) is None:
+                        self._read(now)
+                    read_at, uids = now, self._uids(host, port)
             if len(uids) == 1 and uids <= self.keep_uids and self._diag is not None:
                 self._keep((host, port), read_at if read_at is not None else now, uids)
         if len(uids) == 1:
             return next(iter(uids))
         self.counters["ambiguous" if uids else "not_found"] += 1
         return None
+
+    def _receiver_query(
+        self, host: str, port: int, now: float, to: tuple[str, int] | None
+    ) -> set[int] | None:
+        """A miss answered outside the miss budget when it is a ``keep_uids`` user's source
+        (module docstring, "First contact"): the kernel's receiver of a reply to the source
+        (one hashed lookup, not charged to the cost bucket: it does not grow with the
+        table), and when that socket is one of ``keep_uids``', the source's filtered query at
+        the kept sources' priority, whose answer this is (a port two uids hold: both).
+        None when it is not such a source, netlink failed or the bucket is past
+        ``KEPT_DEBT_S``: the miss path answers, as before."""
+        diag = self._diag
+        if diag is None or not self.keep_uids or not self._receiver_works:
+            return None
+        if not self._receivers.take(now):
+            self.counters["receiver_over_budget"] += 1
+            return None
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self.counters["receiver_lookups"] += 1
+        started = self.cost_clock()
+        try:
+            row = diag.receiver(
+                family, socket.inet_pton(family, host), port, _peer(family, host, to)
+            )
+        except (OSError, SockDiagError):
+            # a kernel that does not answer a non-dump request: the dumps and queries do
+            self._receiver_works = False
+            self.counters["receiver_refused"] += 1
+            return None
+        finally:
+            self.counters["receiver_us"] += round(max(0.0, self.cost_clock() - started) * 1e6)
+        if row is None or row.uid not in self.keep_uids:
+            return None  # nobody's now, or another user's: the miss path, as before
+        if self._cost.balance(now) <= -KEPT_DEBT_S:
+            self.counters["cost_over_budget"] += 1
+            return None
+        self.counters["receiver_confirmed"] += 1
+        return self._query_source(host, port)
 
     def _kept_uids(self, host: str, port: int, now: float) -> set[int] | None:
         """A kept source's uids, re-read by its own query once ``TTL_S`` old (not charged to
@@ -453,20 +515,18 @@ class SenderUids:
             if len(raw) > MAX_TABLE_BYTES:
                 self.counters["truncated"] += 1
                 raw = raw[:MAX_TABLE_BYTES]
-            # "sl: local_address rem_address st tx:rx tr:when retrnsmt uid ...": one C scan
-            for hex_address, hex_port, text_uid in _LINE.findall(raw.decode("ascii", "replace")):
+            for hex_address, port, uid, _inode in udp_table_rows(raw.decode("ascii", "replace")):
                 try:
                     if hex_address in self._addresses:
                         address = self._addresses[hex_address]
                     else:
-                        address = _local_sender(_decode_address(hex_address))
+                        address = _local_sender(proc_address(hex_address))
                         if len(self._addresses) < MAX_INDEXED_SOCKETS:
                             self._addresses[hex_address] = address
-                    if address is None:
-                        continue  # bound elsewhere: it cannot send from a loopback address
-                    port, uid = int(hex_port, 16), int(text_uid)
                 except ValueError:
                     continue  # a line we cannot parse names nobody
+                if address is None:
+                    continue  # bound elsewhere: it cannot send from a loopback address
                 if indexed >= MAX_INDEXED_SOCKETS:
                     self.counters["truncated"] += 1
                     break

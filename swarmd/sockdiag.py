@@ -23,11 +23,16 @@ rows a local user binds on the node's port at other loopback addresses never rea
 cap (docs/security.md, "The local user"). An ``AF_INET`` condition also matches an IPv6
 socket bound to that address v4-mapped (the kernel compares the mapped form).
 
+A request without ``NLM_F_DUMP`` (``encode_receiver_request``) asks for one socket: the one
+the kernel's delivery would pick for a datagram to an address and port (``udp_dump_one``), or
+``ENOENT``; one hashed lookup, whatever the table holds (swarmd.senderuid, "First contact").
+
 A reply that does not parse raises ``SockDiagError``: the caller falls back to ``/proc``.
 """
 
 from __future__ import annotations
 
+import errno
 import socket
 import struct
 from collections.abc import Sequence
@@ -133,6 +138,36 @@ def encode_request(
                         NLM_F_REQUEST | NLM_F_DUMP, seq, 0) + body  # fmt: skip
 
 
+def encode_receiver_request(
+    family: int,
+    address: bytes,
+    port: int,
+    ifindex: int,
+    seq: int,
+    peer: tuple[bytes, int] = (b"", 0),
+) -> bytes:
+    """A non-dump request: the one socket that would receive a datagram sent from ``peer``
+    (address octets, port) to ``address``:``port`` on interface ``ifindex`` (``udp_dump_one``,
+    net/ipv4/udp_diag.c: the delivery's own ``__udp4_lib_lookup``/``__udp6_lib_lookup``,
+    hashed by address and port). The request's "destination" is the socket's local end and
+    its "source" the peer: swapped "for historical reasons" there. An unconnected socket
+    matches any peer; a connected one only its own (the zero peer: none)."""
+    body = _REQUEST.pack(
+        family,
+        socket.IPPROTO_UDP,
+        0,
+        0,
+        ALL_STATES,
+        peer[1].to_bytes(2, "big"),
+        port.to_bytes(2, "big"),
+        peer[0].ljust(16, b"\0"),
+        address.ljust(16, b"\0"),
+        ifindex,
+        NO_COOKIE,
+    )
+    return _HEADER.pack(_HEADER.size + len(body), SOCK_DIAG_BY_FAMILY, NLM_F_REQUEST, seq, 0) + body
+
+
 def parse_reply(data: bytes, seq: int) -> tuple[list[UdpRow], bool]:
     """The rows in one received buffer and whether the dump ended in it. Messages of
     another sequence number (a dump abandoned earlier) are skipped."""
@@ -189,6 +224,9 @@ class UdpDiag:
     def __init__(self) -> None:
         self._sock = self._open()
         self._seq = 0
+        # a socket bound to the loopback device matches a lookup on it alone (the
+        # kernel's udp_sk_bound_dev_eq); an unbound one matches any
+        self._lo = socket.if_nametoindex("lo")
 
     @staticmethod
     def _open() -> socket.socket:
@@ -207,6 +245,26 @@ class UdpDiag:
         sock = getattr(self, "_sock", None)
         if sock is not None:
             sock.close()
+
+    def receiver(
+        self, family: int, address: bytes, port: int, peer: tuple[bytes, int] = (b"", 0)
+    ) -> UdpRow | None:
+        """The socket a datagram from ``peer`` to ``address``:``port`` on the loopback would
+        reach (``encode_receiver_request``), or None when none would (``ENOENT``). One hashed
+        lookup in the kernel: its cost does not grow with the sockets on the computer.
+        Raises OSError (another refusal) or SockDiagError."""
+        self._seq = (self._seq + 1) & 0xFFFF_FFFF
+        request = encode_receiver_request(family, address, port, self._lo, self._seq, peer)
+        self._sock.send(request)
+        try:
+            rows, _done = parse_reply(self._sock.recv(RECV_BYTES), self._seq)
+        except SockDiagRefused as refused:
+            if refused.errno == errno.ENOENT:
+                return None
+            raise
+        if len(rows) != 1:
+            raise SockDiagError("a non-dump answer of other than one socket")
+        return rows[0]
 
     def rows(
         self,

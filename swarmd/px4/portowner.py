@@ -15,13 +15,13 @@ and refused the same way.
 
 from __future__ import annotations
 
-import ipaddress
 import os
 import pwd
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
+
+from swarmd.loopback import proc_address, udp_table_rows
 
 MAX_CMDLINE_CHARS: Final = 80  # one start-up line, not a process listing
 MAX_PROCS_SCANNED: Final = 65536  # bounds the /proc walk (pid_max's default is 4 Mi)
@@ -49,31 +49,17 @@ class PortHolder:
         return f"pid {self.pid} {who}: {self.command or '?'}"
 
 
-def _hex_address(text: str) -> str:
-    """/proc/net/udp prints each 32-bit word of the address in host byte order."""
-    raw = bytes.fromhex(text)
-    if sys.byteorder == "little":
-        raw = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))
-    return str(ipaddress.ip_address(raw))
-
-
 def bound_sockets(proc: Path = Path("/proc")) -> list[PortHolder]:
     """Every bound UDP socket of this network namespace (IPv4 and IPv6)."""
     out: list[PortHolder] = []
     for table in ("udp", "udp6"):
         try:
-            lines = (proc / "net" / table).read_text().splitlines()[1:]
+            text = (proc / "net" / table).read_text()
         except OSError:
             continue  # no IPv6 in this kernel
-        for line in lines:
-            parts = line.split()
-            if len(parts) < 10:
-                continue
-            address, _, port = parts[1].partition(":")
+        for address, port, uid, inode in udp_table_rows(text):
             try:
-                out.append(
-                    PortHolder(_hex_address(address), int(port, 16), int(parts[7]), int(parts[9]))
-                )
+                out.append(PortHolder(proc_address(address), port, uid, inode))
             except ValueError:
                 continue
     return out

@@ -308,7 +308,11 @@ class XrceBackend:
         if uids is None or not isinstance(engine, XrceAgent):
             self._driver.datagram_received(data, source)
             return
-        uid = uids.uid_of(source)  # the kernel's word; the agent decides (XrceAgent)
+        # the kernel's word; the agent decides (XrceAgent). The agent's own address: PX4's
+        # XRCE-DDS client connects its UDP socket to it (swarmd.senderuid, "First contact")
+        ep = self.endpoint
+        to = (ep.host, ep.port) if ep.kind == "udpin" and ep.host and ep.port else None
+        uid = uids.uid_of(source, to)
         self._driver.datagram_received(
             data, source, lambda d, s, now: engine.receive_datagram(d, s, now, uid)
         )

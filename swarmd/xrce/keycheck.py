@@ -41,10 +41,10 @@ source's share (a build with a shorter interval gets its first 3 tries checked a
 
 from __future__ import annotations
 
-import ipaddress
 from collections.abc import Hashable
 from typing import Final, TypeVar
 
+from swarmd.loopback import plain_address
 from swarmd.tokenbucket import TokenBucket
 
 # per origin: 3 keys a second, 6 at once (a PX4 and a restarted PX4 within a second)
@@ -73,13 +73,9 @@ def origin_of(source: Hashable) -> str:
     address for another host, ``str(source)`` for a link with no address (``serial``)."""
     if not isinstance(source, tuple) or not source or not isinstance(source[0], str):
         return str(source)
-    host = source[0].partition("%")[0]  # an IPv6 scope is not part of the address
-    try:
-        ip = ipaddress.ip_address(host)
-    except ValueError:
-        return host
-    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-        ip = ip.ipv4_mapped
+    ip = plain_address(source[0])  # an IPv6 scope is not part of the address
+    if ip is None:
+        return source[0].partition("%")[0]
     return LOOPBACK_ORIGIN if ip.is_loopback else str(ip)
 
 
