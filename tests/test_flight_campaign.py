@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from bench.wifi import flight_campaign as fc
+from bench.wifi import flight_schedule
 from bench.wifi.flight_run import run_file_name
 
 # a stand-in for `python -m bench.wifi.flight_run`: writes the run file the real one would
@@ -31,6 +32,12 @@ name = run_file_name(opt["--scenarios"], opt["--contenders"], int(opt["--n"]),
                      int(opt["--first-run"]), float(opt["--dilation"]))
 (runs / name).write_text("{{}}")
 """
+
+
+@pytest.fixture(autouse=True)
+def _quick_polls(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the stand-in ends in well under a second: look at it often, not every POLL_S
+    monkeypatch.setattr(flight_schedule, "POLL_S", 0.05)
 
 
 def _cells(tmp_path: Path, **kw: object) -> list[fc.Cell]:

@@ -335,3 +335,40 @@ def test_every_run_in_the_staggered_matrix_was_flown_staggered() -> None:
         run.name for run in runs if not json.loads(run.read_text())["setup"].get("stagger_s")
     ]
     assert lockstep == []
+
+
+def test_the_runs_table_counts_the_runs_that_flew_beside_another() -> None:
+    shared = {**record(run=2), "concurrent_runs": 1}
+    older = record(run=3)  # a file from before the field: alone
+    assert fm.beside(older) == 0 and fm.beside(shared) == 1
+    assert fm.runs_cell(files(record(run=1), shared, older)) == "3/3 (k 1; 1 beside another)"
+    assert fm.runs_cell(files(record(run=1))) == "1/1 (k 1)"
+
+
+def test_the_runs_table_of_flight_report_shows_beside_per_run() -> None:
+    from bench.wifi import flight, flight_measures
+
+    m = flight_measures.measure(flight.make("split", 3).truth(), {}, {}, n=3, lease_s=10.0)
+    base = {"scenario": "split", "contender": "cyclonedds", "n": 3, "valid": True,
+            "rt_lag_p99_ms": 0.5, "measures": m}  # fmt: skip
+    runs = [{**base, "run": 1}, {**base, "run": 2, "concurrent_runs": 1}]
+    head, _, alone, shared = flight_report.table(runs)
+    col = head.split(" | ").index("beside")
+    assert alone.split(" | ")[col] == "0" and shared.split(" | ")[col] == "1"
+
+
+def test_lag_table_sets_runs_flown_beside_another_apart(tmp_path: Path) -> None:
+    def dilated(run: int, p99: float, **extra: Any) -> dict[str, Any]:
+        r = record(contender="cyclonedds", n=20, run=run, **extra)
+        r["setup"] = {**r["setup"], "dilation": 6.0}
+        return {**r, "rt_lag_p99_ms": p99, "rt_lag_max_ms": 10 * p99,
+                "load_avg_at_start": [0.5 + run, 0.0, 0.0]}  # fmt: skip
+
+    solo = files(dilated(1, 0.05), dilated(2, 0.07), dilated(3, 0.09))
+    by_field = fm.RunFile(tmp_path / "a.json", {**dilated(4, 0.5), "concurrent_runs": 1})
+    by_hand = fm.RunFile(tmp_path / "b.json", dilated(5, 0.7))  # started by hand, no field
+    undilated = files(record(run=6))  # k = 1: never flown beside, not in the table
+    lines = flight_report.lag_table([*solo, by_field, by_hand, *undilated], [by_hand.path])
+    alone = "| 6 | 20 | alone | 3 (3) | 0.07 (0.05-0.09) | 0.70 (0.50-0.90) | 2.50 |"
+    beside = "| 6 | 20 | beside another | 2 (2) | 0.60 (0.50-0.70) | 6.00 (5.00-7.00) | 5.00 |"
+    assert lines[2:] == [alone, beside]

@@ -1,10 +1,11 @@
 """The flight matrix as a campaign (issue 20): which cells still lack a run, what they cost,
-and running them one at a time until a deadline.
+and running them, one at a time or two dilated ones at once, until a deadline.
 
     .venv/bin/python -m bench.wifi.flight_campaign                     # the plan: what is missing
     .venv/bin/python -m bench.wifi.flight_campaign --json              # the same, for scripts
     sudo .venv/bin/python -m bench.wifi.flight_campaign --run --until 02:30 \\
         --repeats 1 --n 20 --contenders cyclonedds,fastdds,zenoh,ros2   # run what fits
+    sudo .venv/bin/python -m bench.wifi.flight_campaign --run --until 08:00 --parallel 2
 
 A cell is (repeat, N, scenario, contender); its run file is the name ``flight_run`` writes
 (``flight-<scenario>-<contender>-n<N>[-k<K>]-r<repeat>.json``) in the contender's directory:
@@ -16,8 +17,12 @@ such; a rerun is a new repeat). Cells are taken repeat by repeat (every cell's f
 before any second one), then by N, scenario and contender in the order given, so a campaign
 cut short leaves whole columns, not scattered cells.
 
-Each run is ``python -m bench.wifi.flight_run`` for one cell, one at a time (the testbed's
-runs never overlap: they share the two cores), bounded by ``timeout``. The estimate of a
+Each run is ``python -m bench.wifi.flight_run`` for one cell, bounded by a timeout. By
+default one at a time (the runs share the two cores); ``--parallel 2`` flies two dilated
+cells side by side, never an undilated one beside anything (``bench/wifi/flight_schedule.py``
+has the rules; docs/testbed.md, "Two runs at a time", the lag they cost). Each run gets
+``--beside B`` (runs already in flight at its start) and its file keeps it as
+``concurrent_runs``, raised when another started during it. The estimate of a
 run's real time is ``(scenario + the stock peers' tail) x k + OVERHEAD_S``: the dilated
 window is nearly all of it (a Cyclone DDS split at N = 20, k = 6: 930 s estimated, 951 s
 taken). A cell whose estimate would end after ``--until`` is skipped and the next, shorter
@@ -31,17 +36,13 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import signal
-import subprocess
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from types import FrameType
 from typing import Final
 
-from bench.wifi import flight
+from bench.wifi import flight, flight_schedule
 from bench.wifi.flight_run import (
     FLIGHT_CONTENDERS,
     PEER_OBSERVED,
@@ -49,6 +50,7 @@ from bench.wifi.flight_run import (
     REPO,
     run_file_name,
 )
+from bench.wifi.flight_schedule import minutes
 from bench.wifi.run import parse_dilation
 from swarmd.cli.pipes import reader_may_close_stdout
 
@@ -60,7 +62,6 @@ CONTENDERS: Final = (
 SIZES: Final = (10, 20)
 DILATED_K: Final = "10:3,20:6"  # every contender but swarmd (module doc)
 OVERHEAD_S: Final = 60.0  # namespaces, start-up, the barrier, assembling the run file
-SLACK_S: Final = 600.0  # timeout past a run's estimate before it is stopped
 SWARMD_OUT: Final = REPO / "bench" / "results" / "flight-stagger"
 STOCK_OUT: Final = SWARMD_OUT
 
@@ -81,11 +82,17 @@ class Cell:
     def done(self) -> bool:
         return self.path.exists()
 
-    def argv(self, python: str) -> list[str]:
+    @property
+    def dilated(self) -> bool:
+        """Whether it may fly beside another run (flight_schedule)."""
+        return self.k > 1.0
+
+    def argv(self, python: str, beside: int = 0) -> list[str]:
         return [
             python, "-m", "bench.wifi.flight_run", "--scenarios", self.scenario,
             "--n", str(self.n), "--first-run", str(self.repeat), "--contenders",
             self.contender, "--dilation", f"{self.k:g}", "--out", str(self.path.parents[1]),
+            "--beside", str(beside),
         ]  # fmt: skip
 
     def label(self) -> str:
@@ -120,24 +127,33 @@ def plan(
     return out
 
 
-def _minutes(seconds: float) -> str:
-    return f"{seconds / 60:.0f} min"
+def hours_at_once(cells: Sequence[Cell], parallel: int) -> float:
+    """The cells' hours at up to ``parallel`` at once: the dilated ones' sum divided by it,
+    the undilated ones' added whole (they fly alone)."""
+    alone = sum(c.estimate_s for c in cells if not c.dilated)
+    beside = sum(c.estimate_s for c in cells if c.dilated)
+    return (alone + beside / max(1, parallel)) / 3600
 
 
-def plan_lines(cells: Sequence[Cell]) -> list[str]:
+def plan_lines(cells: Sequence[Cell], parallel: int = 1) -> list[str]:
     todo = [c for c in cells if not c.done]
+    at_once = (
+        "one at a time"
+        if parallel <= 1
+        else f"about {hours_at_once(todo, parallel):.1f} h at up to {parallel} dilated at once"
+    )
     lines = [
         f"flight campaign: {len(cells) - len(todo)} of {len(cells)} cells have a run file; "
         f"{len(todo)} missing, about {sum(c.estimate_s for c in todo) / 3600:.1f} h of runs "
-        "(one at a time)"
+        f"({at_once})"
     ]
     for repeat in sorted({c.repeat for c in todo}):
         mine = [c for c in todo if c.repeat == repeat]
         lines.append(
-            f"  repeat {repeat}: {len(mine)} missing, {_minutes(sum(c.estimate_s for c in mine))}"
+            f"  repeat {repeat}: {len(mine)} missing, {minutes(sum(c.estimate_s for c in mine))}"
         )
         for c in mine:
-            lines.append(f"    {c.label():40} ~{_minutes(c.estimate_s):>7}  {c.path.name}")
+            lines.append(f"    {c.label():40} ~{minutes(c.estimate_s):>7}  {c.path.name}")
     return lines
 
 
@@ -151,44 +167,11 @@ def parse_until(text: str, now: dt.datetime) -> float:
     return at.timestamp()
 
 
-class _Stop(Exception):
-    pass
-
-
-def _raise_stop(signum: int, frame: FrameType | None) -> None:
-    raise _Stop
-
-
-def run_cells(cells: Sequence[Cell], until: float, python: str) -> int:
-    """Run the missing cells that fit before ``until``; 0 if every run started wrote its
-    file, 1 if one failed, 130 if stopped."""
-    todo = [c for c in cells if not c.done]
-    failed = 0
-    signal.signal(signal.SIGTERM, _raise_stop)
-    for i, c in enumerate(todo, 1):
-        now = time.time()
-        if now + c.estimate_s > until:
-            print(f"[{i}/{len(todo)}] skip {c.label()}: ~{_minutes(c.estimate_s)} would end "
-                  "after --until", flush=True)  # fmt: skip
-            continue
-        start = time.strftime("%H:%M:%S")
-        print(f"[{i}/{len(todo)}] {start} {c.label()} (~{_minutes(c.estimate_s)})", flush=True)
-        proc = subprocess.Popen(c.argv(python), cwd=REPO)
-        try:
-            proc.wait(timeout=c.estimate_s + SLACK_S)
-        except subprocess.TimeoutExpired:
-            print(f"  {c.label()}: past its estimate by {SLACK_S:.0f} s, stopped", flush=True)
-            proc.terminate()  # flight_run removes its testbed on SIGTERM
-            proc.wait(timeout=120)
-        except (KeyboardInterrupt, _Stop):
-            proc.terminate()
-            proc.wait(timeout=120)
-            print("flight campaign: stopped; the run under way was removed", file=sys.stderr)
-            return 130
-        if proc.returncode != 0 or not c.done:
-            failed += 1
-            print(f"  {c.label()}: no run file (exit {proc.returncode})", flush=True)
-    return 1 if failed else 0
+def run_cells(cells: Sequence[Cell], until: float, python: str, parallel: int = 1) -> int:
+    """Run the missing cells that fit before ``until`` (``flight_schedule.run_cells``), each
+    as ``python -m bench.wifi.flight_run``; 0, 1 if a run wrote no file, 130 if stopped."""
+    launch = flight_schedule.popen_launch(python, REPO)
+    return flight_schedule.run_cells(cells, until, launch, parallel)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -206,6 +189,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--run", action="store_true", help="run the missing cells (root)")
     p.add_argument("--until", help="with --run: start no run that would end after HH:MM")
+    p.add_argument(
+        "--parallel", type=int, default=1, metavar="K",
+        help="with --run: up to K dilated runs at once; an undilated one always alone",
+    )  # fmt: skip
     args = p.parse_args(argv)
     scenarios = [s for s in args.scenarios.split(",") if s]
     contenders = [c for c in args.contenders.split(",") if c]
@@ -223,13 +210,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     dilation = dict(spec) if isinstance(spec, tuple) else dict.fromkeys(sizes, spec)
     if args.repeats < 1:
         p.error("--repeats: at least 1")
+    if args.parallel < 1:
+        p.error("--parallel: at least 1")
     cells = plan(
         args.repeats, sizes, scenarios, contenders, dilation, args.swarmd_out, args.stock_out
     )
     if args.json:
         print(json.dumps([{**asdict(c), "path": str(c.path), "done": c.done} for c in cells]))
     else:
-        print("\n".join(plan_lines(cells)))
+        print("\n".join(plan_lines(cells, args.parallel)))
     if not args.run:
         return 0
     if args.until is None:
@@ -238,7 +227,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         until = parse_until(args.until, dt.datetime.now())
     except ValueError:
         p.error(f"--until: {args.until!r} is not HH:MM")
-    return run_cells(cells, until, sys.executable)
+    return run_cells(cells, until, sys.executable, args.parallel)
 
 
 if __name__ == "__main__":

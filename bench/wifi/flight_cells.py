@@ -248,6 +248,13 @@ def dilation(run: Run) -> float:
     return 1.0 if k is None else k
 
 
+def beside(run: Run) -> int:
+    """How many other testbed runs flew beside this one (``concurrent_runs``: flight_campaign
+    --parallel); files from before the field, and solo runs, 0."""
+    n = _num(run.get("concurrent_runs"))
+    return 0 if n is None else int(n)
+
+
 def started(run: Run) -> float | None:
     go = run.get("go") or {}
     return _num(go.get("harness_launch")) or _num(go.get("wall"))
@@ -307,7 +314,9 @@ def runs_cell(files: Sequence[RunFile]) -> str:
     if not files:
         return "not run"
     ks = sorted({dilation(f.run) for f in files})
-    return f"{len(valid(files))}/{len(files)} (k {'/'.join(f'{k:g}' for k in ks)})"
+    shared = sum(1 for f in files if beside(f.run) > 0)
+    also = f"; {shared} beside another" if shared else ""
+    return f"{len(valid(files))}/{len(files)} (k {'/'.join(f'{k:g}' for k in ks)}{also})"
 
 
 def _table(rows: Sequence[Sequence[str]]) -> list[str]:

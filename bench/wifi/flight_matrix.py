@@ -48,6 +48,7 @@ from bench.wifi.flight_cells import (
     Measure,
     Run,
     RunFile,
+    beside,
     cell,
     cell_runs,
     commit,
@@ -64,7 +65,7 @@ from bench.wifi.flight_verdicts import RULES, Verdict, verdict_lines, verdicts
 
 __all__ = [
     "BEGIN", "COLUMNS", "END", "MEASURES", "RULES", "SCENARIOS", "SECTION", "SIZES", "SWARMD",
-    "Measure", "Run", "RunFile", "Selection", "Verdict", "block", "cell", "cell_runs",
+    "Measure", "Run", "RunFile", "Selection", "Verdict", "beside", "block", "cell", "cell_runs",
     "commit", "commit_lines", "dilation", "figure_lines", "figure_run", "git_descends", "load",
     "rediscovery_max", "rediscovery_p50", "runs_cell", "select", "started", "summary",
     "tables", "valid", "verdict_lines", "verdicts", "write_docs",

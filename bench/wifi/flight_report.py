@@ -3,6 +3,8 @@
     .venv/bin/python -m bench.wifi.flight_report bench/results/flight/runs/*.json
     .venv/bin/python -m bench.wifi.flight_report --matrix RUNS... [--since-commit C] \
         [--write-docs docs/benchmarks.md]      # the matrix: bench/wifi/flight_matrix.py
+    .venv/bin/python -m bench.wifi.flight_report --lag RUNS... [--flew-beside FILE...]
+        # ns-3 lag of the dilated runs flown alone against those flown beside another
 
 Top: who sees whom. One row per ordered pair (observer i, peer j), one column per 0.5 s:
 green where i lists j as discovered and j is in i's range (ground truth), light grey where
@@ -19,8 +21,9 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
+import statistics
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -142,7 +145,7 @@ def _scenario_rank(run: Mapping[str, Any]) -> int:
 def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
     """One markdown row per run: validity and every measure (docs/benchmarks.md "Flight")."""
     head = (
-        "| scenario | contender | N | run | valid (lag p99) | k, loss timer | "
+        "| scenario | contender | N | run | valid (lag p99) | k, loss timer | beside | "
         "loss latency p50 / max | "
         "missed | lost: real / intermittent / dropout / false | re-discovery p50 / max | "
         "not re-discovered | reboot seen by peers / finds peers (max) | "
@@ -168,6 +171,7 @@ def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
             f"| {r['scenario']} | {r['contender']} | {r['n']} | {r['run']} | "
             f"{'yes' if r['valid'] else 'NO'} ({r['rt_lag_p99_ms']:.2f} ms) | "
             f"{_v((r.get('setup') or {}).get('dilation'))}, {_v(r.get('lease_s'), ' s')} | "
+            f"{flight_matrix.beside(r)} | "
             f"{_v(m['loss_latency_s']['p50'], ' s')} / {_v(m['loss_latency_s']['max'], ' s')} | "
             f"{m['missed_losses']} | {lr['real']} / {lr.get('intermittent', 0)} / "
             f"{lr['dropout']} / {lr['false']} | "
@@ -176,6 +180,40 @@ def table(runs: Sequence[Mapping[str, Any]]) -> list[str]:
             f"{_v(m['reboot_finds_peers_s']['max'], ' s')} | {frames} | "
             f"{_v(None if rd['ratio'] is None else round(100 * rd['ratio'], 1), ' %')} "
             f"({rd['delivered']}/{rd['expected']}) |"
+        )
+    return lines
+
+
+def _spread(values: Sequence[float]) -> str:
+    if not values:
+        return "-"
+    mid = statistics.median(values)
+    return f"{mid:.2f} ({min(values):.2f}-{max(values):.2f})" if len(values) > 1 else f"{mid:.2f}"
+
+
+def lag_table(files: Sequence[flight_matrix.RunFile], flew_beside: Collection[Path]) -> list[str]:
+    """The ns-3 lag of the dilated runs, per k and N, flown alone against beside another run
+    (``concurrent_runs`` > 0, or a file in ``flew_beside``: runs started by hand before the
+    field existed): the evidence for ``flight_campaign --parallel`` (docs/testbed.md)."""
+    marked = {p.resolve() for p in flew_beside}
+    groups: dict[tuple[float, int, bool], list[Mapping[str, Any]]] = {}
+    for f in files:
+        k = flight_matrix.dilation(f.run)
+        if k > 1.0:
+            shared = flight_matrix.beside(f.run) > 0 or f.path.resolve() in marked
+            groups.setdefault((k, int(f.run["n"]), shared), []).append(f.run)
+    lines = _head(
+        "| k | N | flown | runs (valid) | lag p99 ms, median (range) | lag max ms, median "
+        "(range) | load avg (1 min) at start, median |"
+    )
+    for (k, n, shared), runs in sorted(groups.items()):
+        load = [float(r["load_avg_at_start"][0]) for r in runs if r.get("load_avg_at_start")]
+        lines.append(
+            f"| {k:g} | {n} | {'beside another' if shared else 'alone'} | {len(runs)} "
+            f"({sum(1 for r in runs if r.get('valid') is True)}) | "
+            f"{_spread([float(r['rt_lag_p99_ms']) for r in runs])} | "
+            f"{_spread([float(r['rt_lag_max_ms']) for r in runs])} | "
+            f"{f'{statistics.median(load):.2f}' if load else '-'} |"
         )
     return lines
 
@@ -223,6 +261,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         "files or directories named, with swarmd's targets judged; draw nothing",
     )
     p.add_argument(
+        "--lag",
+        action="store_true",
+        help="print the ns-3 lag of the dilated runs (files or directories), alone against "
+        "beside another run; draw nothing",
+    )
+    p.add_argument(
+        "--flew-beside",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="with --lag (repeatable): a run file that flew beside another but lacks "
+        "concurrent_runs",
+    )
+    p.add_argument(
         "--since-commit",
         default=None,
         metavar="C",
@@ -239,6 +292,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(raw)
     if args.matrix:
         return matrix(args.runs, args.since_commit, args.write_docs, raw)
+    if args.lag:
+        print("\n".join(lag_table(flight_matrix.load(args.runs), args.flew_beside)))
+        return 0
     if args.since_commit is not None or args.write_docs is not None:
         p.error("--since-commit and --write-docs go with --matrix")
     if args.table:

@@ -263,10 +263,12 @@ def run_flight(
     keep: Path | None,
     commands: bool = True,
     stagger_s: float = flight.STAGGER_S,
+    beside: int = 0,
 ) -> dict[str, Any]:
     """One flight run; the run file's dict (``commands``: the scenario's operator commands,
     with a vehicle simulator per drone, swarmd variants only: ``bench/wifi/flight_commands.py``;
-    ``stagger_s``: each drone's stack starts U(0, ``stagger_s``) after the release)."""
+    ``stagger_s``: each drone's stack starts U(0, ``stagger_s``) after the release;
+    ``beside``: other runs in flight at its start, ``--beside``)."""
     if contender not in FLIGHT_CONTENDERS:
         raise ValueError(f"{contender}: no flight observer for this stack; use one of "
                          f"{', '.join(FLIGHT_CONTENDERS)}")  # fmt: skip
@@ -385,7 +387,7 @@ def run_flight(
     record = assemble(
         contender, scenario, run, stats, go_info, launch, obs, down, restarts, heard,
         max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
-        stagger=(stagger_s, offsets, started),
+        stagger=(stagger_s, offsets, started), concurrent_runs=beside,
     )  # fmt: skip
     if issued is not None:
         flight_commands.attach(record, issued[0], scenario, issued[1])
@@ -409,9 +411,12 @@ def assemble(
     dilation: float,
     tx_counters: Mapping[str, int],
     stagger: tuple[float, Sequence[float], Sequence[float]] = (0.0, (), ()),
+    concurrent_runs: int = 0,
 ) -> dict[str, Any]:
     """The run file's dict. ``stagger``: ``--stagger-s``, each drone's planned start after
     the release and its start as released (experiment seconds; empty: all at the release).
+    ``concurrent_runs``: other testbed runs in flight beside this one (``--beside``; the
+    campaign raises it if one starts later; older files lack it: 0, ``flight_cells.beside``).
     Every measure starts at a scenario phase or command cue after ``flight.MAX_STAGGER_S``,
     so none counts a stack that had not started yet as lost or late."""
     stagger_s, offsets, started = stagger
@@ -472,6 +477,7 @@ def assemble(
         "observer": obs.summary(),
         "go": {"sim_s": go_sim, "wall": go_exp, "harness_launch": launch},
         "load_avg_at_start": list(os.getloadavg()),
+        "concurrent_runs": concurrent_runs,
         "setup": {
             "standard": "802.11g",
             "ns3_scheduling": scheduling,
@@ -538,6 +544,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     p.add_argument("--keep-logs", action="store_true")
     p.add_argument(
+        "--beside", type=int, default=0, metavar="B",
+        help="other testbed runs in flight at this one's start (flight_campaign --parallel), "
+        "kept in the run file as concurrent_runs",
+    )  # fmt: skip
+    p.add_argument(
         "--no-commands", action="store_true",
         help="no vehicles, no operator commands (discovery measures only, as before)",
     )  # fmt: skip
@@ -583,6 +594,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     rt_priority=args.ns3_rt_priority,
                     keep=args.out / "logs" if args.keep_logs else None,
                     commands=not args.no_commands, stagger_s=args.stagger_s,
+                    beside=args.beside,
                 )  # fmt: skip
             except (RuntimeError, OSError, ValueError, subprocess.SubprocessError) as exc:
                 print(f"\nflight bench: {s} {c} n={n} run {k} failed: {exc}", file=sys.stderr)
