@@ -5,7 +5,10 @@ docs/security.md, "The local user", residual (5)): in a throw-away network names
 its file limit is 20,000 here: swarmd_lab.sockholder), bound after the node so the kernel
 lists them first. Times,
 on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the node's
-source query (filtered to its address and wildcards) and a query of a port nobody holds,
+source query (every socket on the port that can send IPv4, at any address, read until a
+second owner shows: since branch h-pktinfo12 the node's port is nobody's here, the other
+user's rows being on it, and the query stops at the first chunk) and a query of a port
+nobody holds,
 and the kernel's one-socket answer for the node's source and that port (``UdpDiag.receiver``,
 branch h-uidlookup12 on); mean over ``--reps``. Prints markdown. Needs root and setpriv.
 
@@ -59,7 +62,7 @@ with node, nobody_holds(port, total, hold_s=120.0):
             fn()
         out[name] = (time.perf_counter() - start) / reps * 1000
     uids._read(0.0)
-    out["node_in_index"] = any(a == "127.0.0.1" for a, _ in uids._index.get(port, ()))
+    out["node_in_index"] = any(uid == 0 for _, uid in uids._index.get(port, ()))
     out["truncated"] = uids.counters["truncated"]
     out["node_found_by_query"] = (query("127.0.0.1", port) if query else
                                   (uids._query_port(port), uids._uids("127.0.0.1", port))[1]) == {0}
