@@ -8,7 +8,8 @@ on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the 
 source query (every socket on the port that can send IPv4, at any address, read until a
 second owner shows: since branch h-pktinfo12 the node's port is nobody's here, the other
 user's rows being on it, and the query stops at the first chunk) and a query of a port
-nobody holds,
+nobody holds, the same node's query by a lookup that takes the node's user (``keep_uids``,
+as the daemon's: it stops past ``FOREIGN_ROWS`` of another user's rows),
 and the kernel's one-socket answer for the node's source and that port (``UdpDiag.receiver``,
 branch h-uidlookup12 on); mean over ``--reps``. Prints markdown. Needs root and setpriv.
 
@@ -50,6 +51,9 @@ with node, nobody_holds(port, total, hold_s=120.0):
     out = {}
     fns = [("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
            ("empty_query_ms", empty_query)]
+    if hasattr(uids, "keep_uids"):  # the daemon's lookup: it takes the node's user
+        kept = SenderUids(clock=lambda: 0.0, netlink=True, keep_uids={0})
+        fns.append(("kept_query_ms", lambda: kept._query_source("127.0.0.1", port)))
     diag = uids._diag
     if hasattr(diag, "receiver"):  # the one-socket lookup (branch h-uidlookup12 on)
         lo = socket.inet_aton("127.0.0.1")
@@ -100,6 +104,8 @@ def main() -> None:
         if "node_receiver_ms" in r
         else " - | - |"
     )
+    if "kept_query_ms" in r:
+        print(f"node's query with keep_uids (the daemon's): {r['kept_query_ms']:.2f} ms")
     print(f"| {args.sockets:,} | {r['read_ms']:.1f} | {r['node_query_ms']:.2f} |"
           f" {r['empty_query_ms']:.2f} | {r['node_in_index']} |"
           f" {r['node_found_by_query']} |{receivers}")  # fmt: skip
