@@ -20,7 +20,10 @@ port and owner uid, to every user (the unit's ``ProtectProc=invisible`` hides ot
 ``/proc/PID``, not ``/proc/self/net``: systemd/swarmd.service). Where it cannot:
 
 - the sender closed its socket before the lookup: the port is free, nothing is found, the
-  answer is None (the caller drops it: a real node or PX4 keeps its socket);
+  answer is None (the caller drops it: a real node or PX4 keeps its socket); but when a
+  node holds the port, a user who bound it at another address, sent by ``IP_PKTINFO`` and
+  closed its socket at once is gone from the table and the node is named (open:
+  docs/security.md, "The local user", residual (6); bench/sender_uid_pktinfo_race.py);
 - two sockets of different uids hold the port (both ``SO_REUSEADDR``, or at two
   addresses): ambiguous, None;
 - by /proc, a v6-only socket bound to ``::`` is not told from a dual-stack one (netlink

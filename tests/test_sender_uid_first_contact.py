@@ -10,9 +10,9 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import sys
 
 import pytest
+from swarmd_lab.pktinfo import nobody_spoofs
 
 from swarmd.senderuid import MISS_QUERY_BURST, TTL_S, SenderUids
 from tests.test_sockdiag import ME, NOBODY, _bind, _free_port, _nobody_binds
@@ -77,44 +77,12 @@ def test_a_kept_users_new_source_is_found_past_a_spent_miss_budget_and_shares_st
             s.close()
 
 
-# Run as ``nobody``: binds BIND:PORT (IP_FREEBIND/IPV6_FREEBIND, open to every user: any
-# address, local or not) and sends one datagram to DEST:DEST_PORT from SPOOF by IP_PKTINFO's
-# ipi_spec_dst (ip(7)) or IPV6_PKTINFO's ipi6_addr (ipv6(7)); prints "sent", then holds the
-# socket until stdin closes (at most 30 s) when HOLD is "1", else exits at once.
-PKTINFO_SENDER = """
-import select, socket, struct, sys
-bind, port, dest, dest_port, spoof, hold = sys.argv[1:7]
-v6 = ":" in bind
-s = socket.socket(socket.AF_INET6 if v6 else socket.AF_INET, socket.SOCK_DGRAM)
-if v6:
-    s.setsockopt(socket.IPPROTO_IPV6, 78, 1)  # IPV6_FREEBIND
-    info = (socket.IPPROTO_IPV6, 50, socket.inet_pton(socket.AF_INET6, spoof) + bytes(4))
-else:
-    s.setsockopt(socket.IPPROTO_IP, 15, 1)  # IP_FREEBIND
-    info = (socket.IPPROTO_IP, 8, struct.pack("=i4s4s", 0, socket.inet_aton(spoof), bytes(4)))
-s.bind((bind, int(port)))
-if v6 and ":" not in dest:
-    dest = "::ffff:" + dest  # an IPv4 destination from an IPv6 socket
-s.sendmsg([b"as the node"], [info], 0, (dest, int(dest_port)))
-print("sent", flush=True)
-if hold == "1":
-    select.select([sys.stdin], [], [], 30.0)
-"""
-
-
 def _nobody_spoofs(
     bind: str, port: int, dest: tuple[str, int], spoof: str, hold: bool
 ) -> subprocess.Popen[str]:
-    """``PKTINFO_SENDER`` as user ``nobody``, its datagram sent; the caller closes its stdin
-    (``communicate``)."""
-    sender = subprocess.Popen(  # noqa: S603 - fixed argv
-        [
-            "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
-            sys.executable, "-I", "-c", PKTINFO_SENDER, bind, str(port), dest[0], str(dest[1]),
-            spoof, "1" if hold else "0",
-        ],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    """One datagram from ``nobody``'s socket at ``bind:port`` naming ``spoof`` as its
+    source (swarmd_lab.pktinfo), sent; the caller closes its stdin (``communicate``)."""
+    sender = nobody_spoofs(bind, port, dest, spoof, hold=hold)
     assert sender.stdout is not None
     line = sender.stdout.readline().strip()
     if line != "sent":
