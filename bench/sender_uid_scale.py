@@ -5,7 +5,11 @@ docs/security.md, "The local user", residual (5)): in a throw-away network names
 its file limit is 20,000 here: swarmd_lab.sockholder), bound after the node so the kernel
 lists them first. Times,
 on the wall clock, a table read (netlink dump, cut at MAX_INDEXED_SOCKETS), the node's
-source query (filtered to its address and wildcards) and a query of a port nobody holds,
+source query (every socket on the port that can send IPv4, at any address, read until a
+second owner shows: since branch h-pktinfo12 the node's port is nobody's here, the other
+user's rows being on it, and the query stops at the first chunk) and a query of a port
+nobody holds, the same node's query by a lookup that takes the node's user (``keep_uids``,
+as the daemon's: it stops past ``FOREIGN_ROWS`` of another user's rows),
 and the kernel's one-socket answer for the node's source and that port (``UdpDiag.receiver``,
 branch h-uidlookup12 on); mean over ``--reps``. Prints markdown. Needs root and setpriv.
 
@@ -47,6 +51,9 @@ with node, nobody_holds(port, total, hold_s=120.0):
     out = {}
     fns = [("read_ms", lambda: uids._read(0.0)), ("node_query_ms", node_query),
            ("empty_query_ms", empty_query)]
+    if hasattr(uids, "keep_uids"):  # the daemon's lookup: it takes the node's user
+        kept = SenderUids(clock=lambda: 0.0, netlink=True, keep_uids={0})
+        fns.append(("kept_query_ms", lambda: kept._query_source("127.0.0.1", port)))
     diag = uids._diag
     if hasattr(diag, "receiver"):  # the one-socket lookup (branch h-uidlookup12 on)
         lo = socket.inet_aton("127.0.0.1")
@@ -59,7 +66,7 @@ with node, nobody_holds(port, total, hold_s=120.0):
             fn()
         out[name] = (time.perf_counter() - start) / reps * 1000
     uids._read(0.0)
-    out["node_in_index"] = any(a == "127.0.0.1" for a, _ in uids._index.get(port, ()))
+    out["node_in_index"] = any(uid == 0 for _, uid in uids._index.get(port, ()))
     out["truncated"] = uids.counters["truncated"]
     out["node_found_by_query"] = (query("127.0.0.1", port) if query else
                                   (uids._query_port(port), uids._uids("127.0.0.1", port))[1]) == {0}
@@ -97,6 +104,8 @@ def main() -> None:
         if "node_receiver_ms" in r
         else " - | - |"
     )
+    if "kept_query_ms" in r:
+        print(f"node's query with keep_uids (the daemon's): {r['kept_query_ms']:.2f} ms")
     print(f"| {args.sockets:,} | {r['read_ms']:.1f} | {r['node_query_ms']:.2f} |"
           f" {r['empty_query_ms']:.2f} | {r['node_in_index']} |"
           f" {r['node_found_by_query']} |{receivers}")  # fmt: skip

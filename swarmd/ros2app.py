@@ -87,7 +87,9 @@ class Ros2App:
         # is injected by tests
         node_users = config.ros2.node_users
         self.sender_uids = (
-            (sender_uids or SenderUids(keep_uids=node_users)) if node_users is not None else None
+            (sender_uids or SenderUids(keep_uids=node_users, log=log))
+            if node_users is not None
+            else None
         )
         self.transport: BatchedSocket | None = None
         self.transport4: BatchedSocket | None = None

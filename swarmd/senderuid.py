@@ -4,20 +4,32 @@ socket table (netlink ``sock_diag``, or ``/proc/net/udp{,6}`` when netlink is re
 Daemon tier (an adapter's helper; the sans-IO cores get the answer, never this module).
 
 Why it holds. A UDP datagram from a loopback source ``(A, P)`` was sent by a socket bound
-to ``P`` on ``A``, on the wildcard of ``A``'s family, or on a dual-stack ``::`` (an unbound
-socket is bound to the wildcard and a free port on its first send; ``may_send_from``).
-``/proc/net/udp`` and ``/proc/net/udp6`` list every socket of this network namespace with
-its local address, port and owner uid, to every user (the unit's ``ProtectProc=invisible``
-hides other users' ``/proc/PID``, not ``/proc/self/net``: systemd/swarmd.service). An
-unprivileged user cannot bind a port another uid holds on an address it could send from
-(Linux refuses it unless both sockets set ``SO_REUSEADDR``, or ``SO_REUSEPORT`` under the
-same uid), so the table names the sender's uid. Where it cannot:
+to port ``P`` (an unbound socket is bound to the wildcard and a free port on its first
+send), at *any* local address: ``IP_PKTINFO``'s ``ipi_spec_dst`` (ip(7)) and
+``IPV6_PKTINFO`` (ipv6(7)) name any local source address, without privilege, whatever the
+socket is bound to (tests/test_sender_uid_first_contact.py: ``127.0.0.2:P``, a non-loopback
+address, ``fd00::2:P`` all sent as ``127.0.0.1:P`` or ``[::1]:P``). Only the family limits
+it (``sends_from``): an IPv4 socket sends IPv4; an IPv6 socket bound to ``::`` (not
+v6-only) or to a v4-mapped address sends both; one bound to another IPv6 address, or a
+v6-only ``::``, IPv6 only (Linux: ``ENETUNREACH``). So a source is a uid's only when
+*every* socket on ``P`` that can send from its family is that uid's: a port another user
+binds anywhere is nobody's (a denial, counted ``port_shared`` and logged
+``sender_port_shared``; never the other user passed as the node). ``/proc/net/udp`` and
+``/proc/net/udp6`` list every socket of this network namespace with its local address,
+port and owner uid, to every user (the unit's ``ProtectProc=invisible`` hides other users'
+``/proc/PID``, not ``/proc/self/net``: systemd/swarmd.service). Where it cannot:
 
 - the sender closed its socket before the lookup: the port is free, nothing is found, the
-  answer is None (the caller drops it: a real node or PX4 keeps its socket);
-- two sockets of different uids hold the port (both ``SO_REUSEADDR``): ambiguous, None;
+  answer is None (the caller drops it: a real node or PX4 keeps its socket); but when a
+  node holds the port, a user who bound it at another address, sent by ``IP_PKTINFO`` and
+  closed its socket at once is gone from the table and the node is named (open:
+  docs/security.md, "The local user", residual (6); bench/sender_uid_pktinfo_race.py);
+- two sockets of different uids hold the port (both ``SO_REUSEADDR``, or at two
+  addresses): ambiguous, None;
 - by /proc, a v6-only socket bound to ``::`` is not told from a dual-stack one (netlink
   tells it): another user's on a node's port makes the node's IPv4 datagrams ambiguous;
+- a table read cut by a cap (below) may have left a second owner of a port unread: a
+  source it names one owner for is asked by its own query (by /proc: nobody's);
 - the table was read before the sender bound its port: a miss re-reads it, within a budget
   of ``MISS_READS_PER_S`` (burst ``MISS_READ_BURST``): a flood from fresh ports costs that
   many reads a second, not one per datagram, and while it spends the budget a new sender's
@@ -65,8 +77,10 @@ caller takes trigger the query.
 
 Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
 same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for its
-source, filtered in the kernel by port and by address (the source's and the wildcards
-that can send from it: another user's sockets on the port at other addresses never fill
+source, filtered in the kernel by port (and, for an IPv4 source's IPv6 sockets, to ``::``
+and the v4-mapped addresses, the only ones that send IPv4), read until a second owner
+shows (then more rows cannot change the answer: a flood of another user's rows on the
+port stops the read at its first, and a node's own many sockets are read whole, up to
 ``MAX_PORT_ROWS``), so a miss costs a fraction of a table read and its budget
 (``MISS_QUERIES_PER_S``) is wider. When netlink is refused (the unit's
 ``RestrictAddressFamilies=``, seccomp, no ``udp_diag`` in the kernel) or answers what we
@@ -80,7 +94,7 @@ import socket
 import time
 from collections.abc import Callable, Collection, Hashable
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 from swarmd.loopback import loopback_host, proc_address, udp_table_rows
 from swarmd.sockdiag import SockDiagError, UdpDiag, UdpRow
@@ -124,10 +138,17 @@ CUT_READ_SHARE: Final = 0.5
 MAX_TABLE_BYTES: Final = 6 << 20
 MAX_INDEXED_SOCKETS: Final = 32_768
 # Rows taken from one netlink dump of a family (what MAX_TABLE_BYTES is to the text), and
-# from one port's query: distinct (address, uid) pairs are what a port needs, and a user
-# can bind one port on every address of 127/8.
+# from one port's query. A query stops at a second owner (its answer is then nobody's
+# whatever follows), so this cap binds only on a port one uid holds by the tens of
+# thousands (or on v6-only rows, which an IPv4 source's query reads and does not count):
+# a node's own sockets on its port, however many, stay under it.
 MAX_DUMP_ROWS: Final = MAX_TABLE_BYTES // 150
-MAX_PORT_ROWS: Final = 64
+MAX_PORT_ROWS: Final = MAX_DUMP_ROWS
+# ... except that, when the caller takes only some users (``keep_uids``), a query whose
+# rows so far are all another user's stops past this many (its answer can no longer be
+# one of the caller's users: the port is that user's, or nobody's): a user holding a
+# node's port by the ten thousand costs each query about one chunk, not all its rows.
+FOREIGN_ROWS: Final = 64
 # The owner of the rows a capped query left unread: a second uid, so the answer is None.
 UNREAD_UID: Final = -1
 # The kernel's one-socket answers a second ("First contact"): ~8 us each whatever the table
@@ -143,23 +164,38 @@ RECEIVER_BURST: Final = 5_000.0
 # miss budget (which a flood of fresh ports spends). This many, least recently looked up
 # first out; another user's source is never kept, so it cannot fill them.
 MAX_KEPT_SOURCES: Final = 64
+# A port shared by a user the caller takes and another uid is logged once per this long
+# (per port and owners; at most MAX_KEPT_SOURCES remembered): the node's every datagram
+# is dropped while it lasts, and one line says why.
+PORT_SHARED_LOG_S: Final = 60.0
 _WILDCARDS: Final = frozenset({"0.0.0.0", "::"})  # noqa: S104 - addresses we read, not bind
-# An IPv6 socket bound to ``::`` with IPV6_V6ONLY (netlink tells it; /proc does not): it
-# sends from IPv6 addresses only. ``"::"`` itself is a dual-stack one (or one /proc read).
-V6ONLY_WILDCARD: Final = "::/v6only"
+# What a socket can send from, at any local address (IP_PKTINFO, IPV6_PKTINFO: module
+# docstring): IPv4 sources, IPv6 sources, or both.
+SENDS_V4: Final = "v4"
+SENDS_V6: Final = "v6"
+SENDS_BOTH: Final = "both"
+_V4_MAPPED: Final = bytes(10) + b"\xff\xff"  # ::ffff:0:0/96
+# The IPv6 sockets that can send IPv4 (an IPv4 source's query of AF_INET6, in the kernel)
+_V4_SENDING_V6: Final = ((socket.AF_INET6, bytes(16)), (socket.AF_INET6, _V4_MAPPED))
 
 
-def may_send_from(bound: str, host: str) -> bool:
-    """Whether a socket bound to ``bound`` (``_local_sender``'s text, or ``V6ONLY_WILDCARD``)
-    can send a datagram from loopback ``host``: its own address; the IPv4 wildcard IPv4
-    sources only; a dual-stack ``::`` both families (ipv6(7)); a v6-only ``::`` IPv6 only.
-    Linux lets another user bind the other family's wildcard on a node's port beside the
-    node: counting it made the port two uids' and dropped the node (tests/test_sockdiag.py)."""
-    if bound in (host, "::"):
-        return True
-    if bound == "0.0.0.0":  # noqa: S104 - an address we read, not bind
-        return ":" not in host
-    return bound == V6ONLY_WILDCARD and ":" in host
+def sends_from(family: int, raw: bytes, v6only: bool) -> str:
+    """Which sources a socket of ``family`` bound to ``raw`` (octets) can send from, at any
+    local address (``IP_PKTINFO``/``IPV6_PKTINFO``; tried on Linux 6.18 with real sockets):
+    an IPv4 socket IPv4 ones; an IPv6 socket bound to ``::`` or a v4-mapped address both
+    (a v6-only ``::``: IPv6); bound to another IPv6 address IPv6 only (an IPv4 destination
+    is ``ENETUNREACH``). /proc does not show v6-only: a ``::`` row there is both (residual
+    (4): a denial, never a spoof)."""
+    if family == socket.AF_INET:
+        return SENDS_V4
+    if raw == bytes(16):
+        return SENDS_V6 if v6only else SENDS_BOTH
+    return SENDS_BOTH if raw.startswith(_V4_MAPPED) else SENDS_V6
+
+
+def can_send(kind: str, host: str) -> bool:
+    """Whether a socket ``sends_from`` ``kind`` can send from ``host``'s family."""
+    return kind == SENDS_BOTH or kind == (SENDS_V6 if ":" in host else SENDS_V4)
 
 
 def _local_sender(address: str) -> str | None:
@@ -192,7 +228,9 @@ class SenderUids:
     ``netlink``: ask the kernel by sock_diag first; by default when ``proc`` is the live
     ``/proc/self`` (a recorded table is read as given). ``keep_uids``: the users the caller
     takes; their sources are kept (``MAX_KEPT_SOURCES``) and, by netlink, answered from
-    their own query, whatever another user does to the table read or the miss budget."""
+    their own query, whatever another user does to the table read or the miss budget.
+    ``log``: a structlog-style logger (``warning(event, **fields)``) for
+    ``sender_port_shared``, a port of one of ``keep_uids`` that another uid holds too."""
 
     def __init__(
         self,
@@ -201,8 +239,12 @@ class SenderUids:
         netlink: bool | None = None,
         keep_uids: Collection[int] = (),
         cost_clock: Callable[[], float] = time.thread_time,
+        log: Any = None,
     ) -> None:
         self.proc = proc
+        self.log = log
+        # (port, owners) -> when it was last logged (PORT_SHARED_LOG_S)
+        self._shared_logged: dict[tuple[int, frozenset[int]], float] = {}
         self.clock = clock
         # this thread's CPU time (the kernel's work for our netlink dump is charged to it):
         # the share is of a core, so another process preempting us is not our cost
@@ -213,21 +255,20 @@ class SenderUids:
         # (host, port) -> (when its uids were read, the uids): sources of keep_uids, in
         # order of their last lookup (the first is the first out)
         self._kept: dict[tuple[str, int], tuple[float, set[int]]] = {}
-        # port -> [(bound address, uid)] for loopback and wildcard sockets
-        self._index: dict[int, list[tuple[str, int]]] = {}
+        # port -> {(sends_from, uid)} for every socket on the port (any address)
+        self._index: dict[int, set[tuple[str, int]]] = {}
         self._read_at: float | None = None
         self._table_cut = False  # the last read left sockets unread (a cap)
         self._miss_reads = MISS_READ_BURST  # tokens of the miss budget
         self._miss_reads_at: float | None = None
-        # hex -> text when loopback or wildcard, else None: the few addresses there are
+        # a /proc row's hex address -> its sends_from (None: unparsable), remembered
         self._addresses: dict[str, str | None] = {}
-        # the same from a netlink row's octets (4 or 16: the families cannot collide)
-        self._raw_addresses: dict[bytes, str | None] = {}
         self.counters: dict[str, int] = {
             "lookups": 0,
             "reads": 0,
             "not_found": 0,
             "ambiguous": 0,
+            "port_shared": 0,  # ... of them, a keep_uids user's port another uid holds too
             "unreadable": 0,
             "truncated": 0,
             "miss_reads_over_budget": 0,
@@ -242,6 +283,7 @@ class SenderUids:
             "receiver_over_budget": 0,  # a miss past RECEIVER_LOOKUPS_PER_S: the miss path
             "receiver_us": 0,  # what those lookups cost (outside the cost bucket)
         }
+        self._taken = False  # this lookup's source was a keep_uids user's (uid_of)
         self._receiver_works = True
         self._receivers = TokenBucket(RECEIVER_LOOKUPS_PER_S, RECEIVER_BURST, clock())
         self._diag: UdpDiag | None = None
@@ -261,6 +303,7 @@ class SenderUids:
         port: int = source[1]
         self.counters["lookups"] += 1
         now = self.clock()
+        self._taken = False  # a keep_uids user was seen holding the source (kept, confirmed)
         uids = self._kept_uids(host, port, now)
         if uids is None:
             if self._read_at is None or not 0.0 <= now - self._read_at < TTL_S:
@@ -269,6 +312,8 @@ class SenderUids:
                     self._read(now)
             read_at = self._read_at
             uids = self._uids(host, port)
+            if self._table_cut and len(uids) == 1:
+                uids = set()  # a second owner may be past the cut: asked as a miss
             # it may have bound its port after our last read, or the read was cut before it
             # (then its own query finds it: a re-read of /proc would be cut the same way)
             retry = self._read_at != now or (self._table_cut and self._diag is not None)
@@ -285,7 +330,32 @@ class SenderUids:
         if len(uids) == 1:
             return next(iter(uids))
         self.counters["ambiguous" if uids else "not_found"] += 1
+        if len(uids) > 1 and (self._taken or uids & self.keep_uids):
+            self._port_shared(host, port, uids, now)
         return None
+
+    def _port_shared(self, host: str, port: int, uids: set[int], now: float) -> None:
+        """Count, and log once per ``PORT_SHARED_LOG_S``, a source of a user the caller
+        takes dropped because another uid can send from it too (module docstring: a
+        denial by binding the port elsewhere, or a spoof by ``IP_PKTINFO`` refused)."""
+        self.counters["port_shared"] += 1
+        key = (port, frozenset(uids))
+        logged = self._shared_logged.pop(key, None)
+        if logged is not None and 0.0 <= now - logged < PORT_SHARED_LOG_S:
+            self._shared_logged[key] = logged
+            return
+        if len(self._shared_logged) >= MAX_KEPT_SOURCES:
+            del self._shared_logged[next(iter(self._shared_logged))]
+        self._shared_logged[key] = now
+        if self.log is not None:
+            self.log.warning(
+                "sender_port_shared",
+                host=host,
+                port=port,
+                taken_uids=sorted(uids & self.keep_uids),
+                other_uids=sorted(uids - self.keep_uids),  # -1: rows past a cap, unread
+                fix="find who holds the port (ss -uanp sport = :PORT) and stop it",
+            )
 
     def _receiver_query(
         self, host: str, port: int, now: float, to: tuple[str, int] | None
@@ -323,6 +393,7 @@ class SenderUids:
             self.counters["cost_over_budget"] += 1
             return None
         self.counters["receiver_confirmed"] += 1
+        self._taken = True
         return self._query_source(host, port)
 
     def _kept_uids(self, host: str, port: int, now: float) -> set[int] | None:
@@ -343,6 +414,7 @@ class SenderUids:
             if fresh is None:
                 return None
             read_at, uids = now, fresh
+            self._taken = True
         if len(uids) == 1 and uids <= self.keep_uids:
             self._kept[key] = (read_at, uids)  # to the end: the last looked up
         return uids
@@ -375,19 +447,7 @@ class SenderUids:
         return True
 
     def _uids(self, host: str, port: int) -> set[int]:
-        return {uid for bound, uid in self._index.get(port, ()) if may_send_from(bound, host)}
-
-    def _address(self, row: UdpRow) -> str | None:
-        """``_local_sender`` of a row's address, remembered (the few addresses there are);
-        ``V6ONLY_WILDCARD`` for a v6-only socket bound to ``::``."""
-        raw = row.raw_address
-        if raw in self._raw_addresses:
-            address = self._raw_addresses[raw]
-        else:
-            address = _local_sender(row.address)
-            if len(self._raw_addresses) < MAX_INDEXED_SOCKETS:
-                self._raw_addresses[raw] = address
-        return V6ONLY_WILDCARD if address == "::" and row.v6only else address
+        return {uid for kind, uid in self._index.get(port, ()) if can_send(kind, host)}
 
     def _netlink_failed(self) -> None:
         """Netlink refused or garbled: /proc from now on (module docstring)."""
@@ -397,10 +457,11 @@ class SenderUids:
             self._diag = None
 
     def _query_source(self, host: str, port: int) -> set[int] | None:
-        """Re-index the sockets that can send from ``(host, port)`` from the kernel (the
-        port's query, filtered to ``host`` and its wildcards in the kernel: other addresses'
-        rows on the port never reach ``MAX_PORT_ROWS``); their uids, or None when netlink
-        failed (read /proc). Past the cap the answer has an owner we did not read: ambiguous."""
+        """Re-index the sockets that can send from ``(host, port)`` from the kernel (every
+        socket on the port of a family that can send from ``host``, at any address: module
+        docstring); their uids, or None when netlink failed (read /proc). The read stops at
+        a second owner; past ``MAX_PORT_ROWS`` of one owner the answer has an owner we did
+        not read: ambiguous."""
         if self._diag is None:
             return None
         self.counters["port_queries"] += 1
@@ -429,32 +490,52 @@ class SenderUids:
 
     def _query_rows(self, diag: UdpDiag, host: str, port: int) -> set[int] | None:
         ipv4 = ":" not in host
-        own = socket.AF_INET if ipv4 else socket.AF_INET6
-        filters = [(own, socket.inet_pton(own, host)), (socket.AF_INET6, bytes(16))]
-        if ipv4:
-            filters.append((socket.AF_INET, bytes(4)))
-        pairs: list[tuple[str, int]] = []
+        entries: set[tuple[str, int]] = set()
+        owners: set[int] = set()  # uids of the rows that can send from host, so far
+        seen = [0]  # rows read so far
+
+        def enough(rows: list[UdpRow]) -> bool:
+            owners.update(
+                row.uid for row in rows
+                if can_send(sends_from(row.family, row.raw_address, row.v6only), host)
+            )  # fmt: skip
+            seen[0] += len(rows)
+            # nobody's, whatever the rows left say; or, past FOREIGN_ROWS, not one of the
+            # users the caller takes (a user holding the node's port by the ten thousand,
+            # listed first, would otherwise make each query read them all: ~140 ms at
+            # 34,000, bench/sender_uid_scale.py)
+            foreign = bool(self.keep_uids and owners - self.keep_uids)
+            return len(owners) > 1 or (foreign and seen[0] >= FOREIGN_ROWS)
+
+        # an IPv4 source: every IPv4 socket, and the IPv6 ones that send IPv4
+        plan = (
+            ((socket.AF_INET, None), (socket.AF_INET6, _V4_SENDING_V6))
+            if ipv4
+            else ((socket.AF_INET6, None),)
+        )
         try:
-            for family in (socket.AF_INET, socket.AF_INET6) if ipv4 else (socket.AF_INET6,):
-                rows, more = diag.rows(family, port, MAX_PORT_ROWS, filters)
-                if more:
-                    self.counters["truncated"] += 1
-                    pairs.append((host, UNREAD_UID))
+            for family, addresses in plan:
+                rows, more = diag.rows(family, port, MAX_PORT_ROWS, addresses, enough)
                 for row in rows:
-                    address = self._address(row)
-                    if address is not None and (address, row.uid) not in pairs:
-                        pairs.append((address, row.uid))
+                    entries.add((sends_from(row.family, row.raw_address, row.v6only), row.uid))
+                answer = {uid for kind, uid in entries if can_send(kind, host)}
+                if len(answer) > 1:
+                    break  # stopped at a second owner, or read whole: nobody's either way
+                if more:  # a cap or another user's rows first: an owner we did not read
+                    self.counters["truncated"] += 1
+                    entries.add((SENDS_V4 if ipv4 else SENDS_V6, UNREAD_UID))
         except (OSError, SockDiagError):
             self._netlink_failed()
             return None
-        # the port's other rows (other addresses) stay as the last read gave them
-        covered = {host, "::", V6ONLY_WILDCARD, "0.0.0.0" if ipv4 else "::"}  # noqa: S104
-        kept = [pair for pair in self._index.get(port, ()) if pair[0] not in covered]
-        if kept or pairs:
-            self._index[port] = kept + pairs
+        # the port's rows of the kinds this query did not read whole stay as the last read
+        # gave them (an IPv4 source's query leaves IPv6 sockets at IPv6 addresses)
+        read = {SENDS_V4, SENDS_BOTH} if ipv4 else {SENDS_V6, SENDS_BOTH}
+        index = {pair for pair in self._index.get(port, ()) if pair[0] not in read} | entries
+        if index:
+            self._index[port] = index
         else:
             self._index.pop(port, None)
-        return {uid for bound, uid in pairs if may_send_from(bound, host)}
+        return {uid for kind, uid in entries if can_send(kind, host)}
 
     def _dump(self) -> list[UdpRow] | None:
         """Every UDP socket by netlink, or None when it failed (read /proc)."""
@@ -489,21 +570,18 @@ class SenderUids:
         self._read_interval = max(TTL_S, cut_wait)
 
     def _index_rows(self, rows: list[UdpRow]) -> None:
-        index: dict[int, list[tuple[str, int]]] = {}
-        indexed = 0
-        for row in rows:
-            address = self._address(row)
-            if address is None:
-                continue  # bound elsewhere: it cannot send from a loopback address
+        # every socket, at any address: each can send from a loopback source of its family
+        index: dict[int, set[tuple[str, int]]] = {}
+        for indexed, row in enumerate(rows):
             if indexed >= MAX_INDEXED_SOCKETS:
                 self.counters["truncated"] += 1
                 break
-            index.setdefault(row.port, []).append((address, row.uid))
-            indexed += 1
+            kind = sends_from(row.family, row.raw_address, row.v6only)
+            index.setdefault(row.port, set()).add((kind, row.uid))
         self._index = index
 
     def _read_proc(self) -> None:
-        index: dict[int, list[tuple[str, int]]] = {}
+        index: dict[int, set[tuple[str, int]]] = {}
         indexed = 0
         for table in ("udp", "udp6"):
             try:
@@ -516,20 +594,28 @@ class SenderUids:
                 self.counters["truncated"] += 1
                 raw = raw[:MAX_TABLE_BYTES]
             for hex_address, port, uid, _inode in udp_table_rows(raw.decode("ascii", "replace")):
-                try:
-                    if hex_address in self._addresses:
-                        address = self._addresses[hex_address]
-                    else:
-                        address = _local_sender(proc_address(hex_address))
-                        if len(self._addresses) < MAX_INDEXED_SOCKETS:
-                            self._addresses[hex_address] = address
-                except ValueError:
+                kind = self._proc_kind(hex_address)
+                if kind is None:
                     continue  # a line we cannot parse names nobody
-                if address is None:
-                    continue  # bound elsewhere: it cannot send from a loopback address
                 if indexed >= MAX_INDEXED_SOCKETS:
                     self.counters["truncated"] += 1
                     break
-                index.setdefault(port, []).append((address, uid))
+                index.setdefault(port, set()).add((kind, uid))
                 indexed += 1
         self._index = index
+
+    def _proc_kind(self, hex_address: str) -> str | None:
+        """``sends_from`` of a /proc row's address (no v6-only flag there: a ``::`` row
+        sends both), remembered (the few addresses there are); None when unparsable."""
+        if hex_address in self._addresses:
+            return self._addresses[hex_address]
+        kind: str | None = None
+        try:
+            text = proc_address(hex_address)
+            family = socket.AF_INET6 if ":" in text else socket.AF_INET
+            kind = sends_from(family, socket.inet_pton(family, text), False)
+        except (ValueError, OSError):
+            pass
+        if len(self._addresses) < MAX_INDEXED_SOCKETS:
+            self._addresses[hex_address] = kind
+        return kind

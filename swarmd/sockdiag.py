@@ -17,11 +17,11 @@ the request's ``ext``: ``inet_diag_msg_attrs_fill``), because a v6-only socket b
 
 A one-port query may also carry an ``INET_DIAG_REQ_BYTECODE`` attribute: the kernel runs it
 on each socket of the port (``inet_diag_bc_run``, open to every user) and sends only those
-it accepts. We send an OR of ``INET_DIAG_BC_S_COND`` host conditions (a local address with
-its full prefix): the source's own address and the wildcards that can send from it, so the
-rows a local user binds on the node's port at other loopback addresses never reach the row
-cap (docs/security.md, "The local user"). An ``AF_INET`` condition also matches an IPv6
-socket bound to that address v4-mapped (the kernel compares the mapped form).
+it accepts. We send an OR of ``INET_DIAG_BC_S_COND`` host conditions (a local address and
+a prefix): for an IPv4 source's query of the IPv6 sockets, ``::`` and ``::ffff:0:0/96``,
+the only IPv6 sockets that can send IPv4 (swarmd.senderuid.sends_from). An ``AF_INET``
+condition also matches an IPv6 socket bound to that address v4-mapped (the kernel
+compares the mapped form).
 
 A request without ``NLM_F_DUMP`` (``encode_receiver_request``) asks for one socket: the one
 the kernel's delivery would pick for a datagram to an address and port (``udp_dump_one``), or
@@ -35,7 +35,7 @@ from __future__ import annotations
 import errno
 import socket
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Final, NamedTuple
 
 NETLINK_SOCK_DIAG: Final = 4
@@ -93,15 +93,19 @@ class UdpRow(NamedTuple):
 
 def encode_local_filter(addresses: Sequence[tuple[int, bytes]]) -> bytes:
     """A filter program accepting a socket whose local address is one of ``addresses``
-    (family, 4 or 16 octets). An OR as ``ss`` compiles one (iproute2 misc/ss.c): each
-    condition's "yes" lands on a JMP whose "no" skips to the end (accept), its "no" on the
-    next condition; the last one's "no" lands 4 octets past the end (reject). The kernel
+    (family, octets: 4 or 16 for the whole address, fewer for a prefix of that many
+    octets, ``::ffff:0:0/96`` being every v4-mapped address). An OR as ``ss`` compiles
+    one (iproute2 misc/ss.c): each condition's "yes" lands on a JMP whose "no" skips to the
+    end (accept), its "no" on the next condition; the last one's "no" lands 4 octets past
+    the end (reject). The kernel
     audits that every jump lands on an operation of the "yes" chain (``inet_diag_bc_audit``)."""
     if not addresses:
         raise ValueError("an empty filter accepts nothing")
     conds = [
-        _HOSTCOND.pack(family, len(raw) * 8, -1) + raw for family, raw in addresses
-    ]  # fmt: skip
+        _HOSTCOND.pack(family, len(raw) * 8, -1)
+        + raw.ljust(16 if family == socket.AF_INET6 else 4, b"\0")
+        for family, raw in addresses
+    ]
     out = b""
     for cond in reversed(conds):
         size = _OP.size + len(cond)
@@ -272,10 +276,13 @@ class UdpDiag:
         port: int,
         max_rows: int,
         addresses: Sequence[tuple[int, bytes]] | None = None,
+        enough: Callable[[list[UdpRow]], bool] | None = None,
     ) -> tuple[list[UdpRow], bool]:
         """``family``'s UDP sockets bound to ``port`` (every one when 0) and to one of
         ``addresses`` when given, at most ``max_rows`` and whether more were left unread.
-        Raises OSError or SockDiagError."""
+        ``enough``: called with each received chunk's rows; True ends the dump there (the
+        caller has its answer: more rows cannot change it), as if cut. Raises OSError or
+        SockDiagError."""
         self._seq = (self._seq + 1) & 0xFFFF_FFFF
         self._sock.send(encode_request(family, port, self._seq, addresses))
         out: list[UdpRow] = []
@@ -284,7 +291,7 @@ class UdpDiag:
             out.extend(rows)
             if done:
                 return out, False
-            if len(out) > max_rows:
+            if len(out) > max_rows or (enough is not None and enough(rows)):
                 # the kernel runs one dump per socket: drop this one with its socket
                 self._sock.close()
                 self._sock = self._open()

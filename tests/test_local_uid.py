@@ -89,8 +89,9 @@ def test_the_lookup_names_the_owner_of_a_loopback_sources_socket(tmp_path: Path)
     uids = SenderUids(proc, _Clock())
     assert uids.uid_of(("127.0.0.1", 540)) == 1001
     assert uids.uid_of(("127.0.0.9", 541)) == 1002  # a wildcard socket sends from any address
-    assert uids.uid_of(("127.0.0.1", 542)) is None  # bound to 10.0.0.5: not this sender
-    assert uids.uid_of(("127.0.0.1", 543)) is None  # bound to another loopback address
+    # bound to 10.0.0.5, it sends as 127.0.0.1:542 by IP_PKTINFO (swarmd.senderuid): its own
+    assert uids.uid_of(("127.0.0.1", 542)) == 1003
+    assert uids.uid_of(("127.0.0.1", 543)) == 1004  # bound to 127.0.0.2: IP_PKTINFO too
     assert uids.uid_of(("127.0.0.2", 543)) == 1004
     assert uids.uid_of(("::1", 7400, 0, 0)) == 1005  # an IPv6 socket's 4-tuple source
     assert uids.uid_of(("::1", 544)) == 1006

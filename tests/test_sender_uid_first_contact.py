@@ -1,7 +1,8 @@
 """First contact of a node under a local user's flood, on real sockets (swarmd.senderuid,
 "First contact"; docs/security.md, "The local user"): the kernel's one-socket answer and the
 source's query, what Linux answers for a port two uids share, and a spoof by ``IP_PKTINFO``
-that no reading of the table can tell (open). Split from tests/test_sockdiag.py (its helpers).
+from the node's port at another address (refused while the spoofer's socket lives; open
+when it closes the socket before the lookup). Split from tests/test_sockdiag.py (its helpers).
 """
 
 from __future__ import annotations
@@ -9,9 +10,9 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import sys
 
 import pytest
+from swarmd_lab.pktinfo import nobody_spoofs
 
 from swarmd.senderuid import MISS_QUERY_BURST, TTL_S, SenderUids
 from tests.test_sockdiag import ME, NOBODY, _bind, _free_port, _nobody_binds
@@ -76,41 +77,122 @@ def test_a_kept_users_new_source_is_found_past_a_spent_miss_budget_and_shares_st
             s.close()
 
 
-# Run as ``nobody``: binds 127.0.0.2:P (beside a node's 127.0.0.1:P: other addresses,
-# Linux allows it) and sends one datagram to 127.0.0.1:DEST from 127.0.0.1 by IP_PKTINFO's
-# ipi_spec_dst (ip(7)); prints "sent".
-PKTINFO_SENDER = """
-import socket, struct, sys
-port, dest = int(sys.argv[1]), int(sys.argv[2])
-s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-s.bind(("127.0.0.2", port))
-info = struct.pack("=i4s4s", 0, socket.inet_aton("127.0.0.1"), bytes(4))
-s.sendmsg([b"as the node"], [(socket.IPPROTO_IP, 8, info)], 0, ("127.0.0.1", dest))
-print("sent", flush=True)
-"""
+def _nobody_spoofs(
+    bind: str, port: int, dest: tuple[str, int], spoof: str, hold: bool
+) -> subprocess.Popen[str]:
+    """One datagram from ``nobody``'s socket at ``bind:port`` naming ``spoof`` as its
+    source (swarmd_lab.pktinfo), sent; the caller closes its stdin (``communicate``)."""
+    sender = nobody_spoofs(bind, port, dest, spoof, hold=hold)
+    assert sender.stdout is not None
+    line = sender.stdout.readline().strip()
+    if line != "sent":
+        sender.kill()
+        sender.communicate(timeout=10)
+    assert line == "sent"
+    return sender
+
+
+class _Log:
+    """A structlog-style logger that keeps its warnings."""
+
+    def __init__(self) -> None:
+        self.warnings: list[tuple[str, dict[str, object]]] = []
+
+    def warning(self, event: str, **fields: object) -> None:
+        self.warnings.append((event, fields))
+
+
+# (the node's address, the attacker's bound address, and the address its datagram names)
+SPOOFS = {
+    "v4-other-loopback": ("127.0.0.1", "127.0.0.2", "127.0.0.1"),
+    "v4-not-loopback": ("127.0.0.1", "198.51.100.7", "127.0.0.1"),
+    "v6-other-address": ("::1", "2001:db8::7", "::1"),
+    "v4-by-a-v4-mapped-v6-socket": ("127.0.0.1", "::ffff:127.0.0.2", "::ffff:127.0.0.1"),
+}
+
+
+@pytest.mark.parametrize("netlink", [True, False], ids=["netlink", "proc"])
+@pytest.mark.parametrize("case", list(SPOOFS))
+def test_a_socket_at_another_address_on_a_nodes_port_cannot_send_as_the_node(
+    case: str, netlink: bool
+) -> None:
+    """Attack (found this session; docs/security.md, "The local user", residual (6)):
+    ``nobody`` binds the node's port at another address (another of 127/8, one not on this
+    computer by IP_FREEBIND, an IPv6 one, a v4-mapped one on a dual-stack IPv6 socket; Linux
+    allows each beside the node's) and sends with ``IP_PKTINFO``/``IPV6_PKTINFO`` naming
+    the node's address: the kernel sends it from the node's address and port (no
+    privilege: the address is local). On main every reading of the table (dump, query,
+    one-socket answer, /proc) named the node: the datagram passed as the node's. Now every
+    socket on the port that can send from the source's family counts, at any address: the
+    port is two uids', the answer None, counted ``port_shared`` and logged once."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    node_host, bind, spoof = SPOOFS[case]
+    port = _free_port()
+    with _bind(node_host, port) as node, _bind(node_host, 0) as daemon:
+        daemon.settimeout(5.0)
+        sender = _nobody_spoofs(bind, port, daemon.getsockname()[:2], spoof, hold=True)
+        try:
+            _data, source = daemon.recvfrom(64)
+            assert source[:2] == (node_host, node.getsockname()[1])  # the precondition
+            log = _Log()
+            uids = SenderUids(netlink=netlink, keep_uids={ME}, log=log)
+            assert uids.uid_of(source) is None  # on main: ME, the node's
+            assert uids.uid_of(source) is None
+            assert uids.counters["port_shared"] == 2
+            assert log.warnings == [
+                (
+                    "sender_port_shared",
+                    {
+                        "host": node_host, "port": port, "taken_uids": [ME],
+                        "other_uids": [NOBODY], "fix": log.warnings[0][1]["fix"],
+                    },
+                )
+            ]  # fmt: skip
+        finally:
+            sender.communicate(timeout=10)
+
+
+def test_a_kept_node_is_rechecked_within_ttl_when_its_port_gains_another_owner() -> None:
+    """A node found and kept (``keep_uids``) is answered from its own query every
+    ``TTL_S``: once ``nobody`` binds the node's port at another address, the node's next
+    datagram after the kept answer's ``TTL_S`` is nobody's (on main: the node's for as long
+    as both sockets live, the query reading the node's address and wildcards only). Within
+    ``TTL_S`` the kept answer stands: the window this leaves (docs/security.md)."""
+    if os.geteuid() != 0 or shutil.which("setpriv") is None:
+        pytest.skip("needs root and setpriv")
+    now = [100.0]
+    uids = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={ME})
+    port = _free_port()
+    with _bind("127.0.0.1", port):
+        source = ("127.0.0.1", port)
+        assert uids.uid_of(source) == ME  # found, kept
+        holder = _nobody_binds(f"127.0.0.2,{port},0")
+        try:
+            now[0] += TTL_S / 2
+            assert uids.uid_of(source) == ME  # the kept answer, still fresh
+            now[0] += TTL_S / 2
+            assert uids.uid_of(source) is None  # its re-check: two uids
+            assert uids.counters["port_shared"] == 1
+        finally:
+            holder.communicate(timeout=10)
+        now[0] += TTL_S
+        assert uids.uid_of(source) == ME  # the port the node's alone again
 
 
 @pytest.mark.xfail(strict=True, reason="open: docs/security.md, The local user, residual (6)")
-def test_a_socket_at_another_address_on_a_nodes_port_cannot_send_as_the_node() -> None:
-    """Attack found this session, not defended: ``nobody`` binds the node's port at another
-    loopback address and sends with ``IP_PKTINFO`` (8) naming the node's address as the
-    source; the kernel sends it from the node's address and port (no privilege: the
-    address is local). Every reading of the table names the node for that source, so the
-    datagram passes as the node's. It should be nobody's (two uids can send from it)."""
+def test_a_sender_that_closes_its_socket_at_once_is_not_seen() -> None:
+    """Still open: ``nobody`` binds the node's port at 127.0.0.2, sends as 127.0.0.1 by
+    ``IP_PKTINFO`` and closes the socket before the lookup runs. The table no longer holds
+    it, so the lookup names the node: the datagram passes as the node's. A table read only
+    sees sockets alive when it runs (module docstring of swarmd.senderuid)."""
     if os.geteuid() != 0 or shutil.which("setpriv") is None:
         pytest.skip("needs root and setpriv")
     port = _free_port()
     with _bind("127.0.0.1", port) as node, _bind("127.0.0.1", 0) as daemon:
         daemon.settimeout(5.0)
-        sent = subprocess.run(  # noqa: S603 - fixed argv
-            [
-                "setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups",  # noqa: S607
-                sys.executable, "-I", "-c", PKTINFO_SENDER, str(port),
-                str(daemon.getsockname()[1]),
-            ],
-            capture_output=True, text=True, timeout=30, check=True,
-        )  # fmt: skip
-        assert sent.stdout.strip() == "sent"
+        sender = _nobody_spoofs("127.0.0.2", port, daemon.getsockname(), "127.0.0.1", False)
+        sender.communicate(timeout=10)  # exited: its socket closed
         _data, source = daemon.recvfrom(64)
         assert source == ("127.0.0.1", node.getsockname()[1])  # the precondition: spoofed
         uids = SenderUids(netlink=True, keep_uids={ME})

@@ -409,26 +409,28 @@ def test_a_refused_constructor_leaves_nothing_to_close(monkeypatch: pytest.Monke
 # ---- a local user's sockets around a node's source (docs/security.md, "The local user") ---
 
 
-def test_other_addresses_on_a_nodes_port_do_not_push_it_out_of_its_query() -> None:
-    """Attack: a node holds 127.0.0.1:P; ``nobody`` binds P on ``MAX_PORT_ROWS`` other
-    loopback addresses (Linux allows it: no wildcard, other addresses). The kernel lists
-    the newest socket of a port first, so the node's row was past the per-port query's cap,
-    and every datagram of a node bound after the last table read was dropped (on main:
-    None). The query now asks the kernel for the source's address and its wildcards only."""
+def test_other_addresses_on_a_nodes_port_make_it_nobodys() -> None:
+    """Attack: a node holds 127.0.0.1:P; ``nobody`` binds P on 64 other loopback addresses
+    (Linux allows it: no wildcard, other addresses). Each of those sockets can send as
+    127.0.0.1:P by ``IP_PKTINFO`` (tests/test_sender_uid_first_contact.py), so the port is
+    two uids' for every IPv4 source: nobody's, by the table read, the query (which stops
+    at the second owner, never cut by the other user's rows) and /proc. Before session 12's
+    fix the node was found (its address and the wildcards were all that counted)."""
     if os.geteuid() != 0 or shutil.which("setpriv") is None:
         pytest.skip("needs root and setpriv")
     now = [100.0]
-    uids = SenderUids(clock=lambda: now[0], netlink=True)
+    uids = SenderUids(clock=lambda: now[0], netlink=True, keep_uids={ME})
     assert uids.uid_of(("127.0.0.1", 9)) is None  # the table read, before the node binds
     port = _free_port()
     node = _bind("127.0.0.1", port)
-    with node, nobody_holds(port, swarmd.senderuid.MAX_PORT_ROWS, hold_s=60.0):
+    with node, nobody_holds(port, 64, hold_s=60.0):
         now[0] += TTL_S / 2
-        assert uids.uid_of(("127.0.0.1", port)) == ME  # the source's query
-        assert uids.uid_of(("127.1.0.7", port)) == NOBODY  # the attacker's own sources
-        assert SenderUids(netlink=True).uid_of(("127.0.0.1", port)) == ME  # the table read
-        assert SenderUids(netlink=False).uid_of(("127.0.0.1", port)) == ME
+        assert uids.uid_of(("127.0.0.1", port)) is None  # the source's query
+        assert uids.uid_of(("127.1.0.7", port)) is None  # the attacker's: the same port
+        assert SenderUids(netlink=True).uid_of(("127.0.0.1", port)) is None  # the table read
+        assert SenderUids(netlink=False).uid_of(("127.0.0.1", port)) is None
         assert uids.counters["truncated"] == 0
+        assert uids.counters["port_shared"] == 2  # both sources: a port the caller's user holds
 
 
 def test_a_source_query_past_its_cap_is_nobodys(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -445,18 +447,18 @@ def test_a_source_query_past_its_cap_is_nobodys(monkeypatch: pytest.MonkeyPatch)
         assert uids.uid_of(("127.0.0.1", port)) is None
         assert uids.counters["truncated"] == 1
         monkeypatch.setattr(swarmd.senderuid, "MAX_PORT_ROWS", 2)
-        now[0] += TTL_S / 4
-        assert uids.uid_of(("127.0.0.2", port)) == ME  # the wildcard alone: not cut
+        assert uids._query_source("127.0.0.2", port) == {ME}  # room for both: not cut
     finally:
         for s in shared:
             s.close()
 
 
 # Run inside a fresh network namespace (its own socket table; the host's ports are never
-# touched): a node on 127.0.0.1:P, ``nobody`` holding ``count`` sockets on P at other
-# addresses (more than MAX_INDEXED_SOCKETS: nobody's RLIMIT_NOFILE is 20,000 on this box, so
-# across two processes, as an attacker would: swarmd_lab.sockholder), then the lookups on a hand-set
-# clock: a table read cut before the node, the node's first datagram, a flood of fresh ports
+# touched): a node on 127.0.0.1:P, ``nobody`` holding ``count`` sockets on P + 1 (on P
+# itself they would make P nobody's: test_other_addresses_on_a_nodes_port_make_it_nobodys)
+# at other addresses (more than MAX_INDEXED_SOCKETS: nobody's RLIMIT_NOFILE is 20,000 on this
+# box, so across two processes, as an attacker would: swarmd_lab.sockholder), then the
+# lookups on a hand-set clock: a table read cut, the node's first datagram, a flood of fresh ports
 # spending the miss budget, the node's datagrams in each of the next TTL_S. Prints JSON.
 TABLE_CUT_SCENARIO = """
 import json, socket, sys
@@ -466,7 +468,7 @@ count = int(sys.argv[1])
 node = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 node.bind(("127.0.0.1", 0))
 port = node.getsockname()[1]
-with node, nobody_holds(port, count, hold_s=60.0):
+with node, nobody_holds(port + 1 if port < 65535 else port - 1, count, hold_s=60.0):
     now = [100.0]
     # the cost bound is tested on its own (a fake netlink's cost clock); here the hand-set
     # clock does not refill it, so the reads and queries are charged nothing
@@ -501,10 +503,12 @@ def test_a_user_holding_more_sockets_than_the_index_cannot_hide_a_kept_node(
     lan_factory: Any,
 ) -> None:
     """Attack at full scale: ``nobody`` holds 34,000 sockets (two processes under its
-    20,000-file limit) on the node's port at other loopback addresses, bound after the node:
-    the kernel lists them first, so every table read is cut (MAX_INDEXED_SOCKETS) before the
-    node, and the port's query was cut (MAX_PORT_ROWS) too: on main the node was None. Now
-    the node's first datagram is found by its source's filtered query, and a source of a
+    20,000-file limit) at other loopback addresses, bound after the node, so every table
+    read is cut (MAX_INDEXED_SOCKETS) and may leave the node, or a second owner of its port,
+    unread: a cut read's answer is never final (swarmd.senderuid). On its port they would
+    make the node nobody's (a denial: test_other_addresses_on_a_nodes_port_make_it_nobodys),
+    so they are on the next port. The node's first datagram is found by its source's
+    query, and a source of a
     ``keep_uids`` user is then answered from its own query every TTL_S, whatever the table
     read and a flood spending the miss budget do; a lookup without ``keep_uids`` is starved
     by that flood (the residual: docs/security.md)."""
@@ -592,7 +596,7 @@ class _HugeTable:
     calls = {"dumps": 0, "queries": 0, "receivers": 0}
 
     def rows(
-        self, family: int, port: int, max_rows: int, addresses: Any = None
+        self, family: int, port: int, max_rows: int, addresses: Any = None, enough: Any = None
     ) -> tuple[list[swarmd.sockdiag.UdpRow], bool]:
         if port == 0:
             _HugeTable.calls["dumps"] += family == socket.AF_INET

@@ -144,7 +144,7 @@ class XrceBackend:
         # (PX4's sources are kept: another user's sockets cannot push them out of the
         # table read: swarmd.senderuid, MAX_KEPT_SOURCES)
         self._sender_uids = (
-            (sender_uids or SenderUids(keep_uids={self.loopback_user}))
+            (sender_uids or SenderUids(keep_uids={self.loopback_user}, log=log))
             if self.loopback_user is not None
             else None
         )
@@ -278,6 +278,9 @@ class XrceBackend:
         # must not meet a missing key in the window between the session and its first sample)
         out.update({"datagrams_in": 0, "samples": 0})
         out.update(self.counters)
+        if self._sender_uids is not None:
+            # PX4's port another user holds too: its datagrams dropped (swarmd.senderuid)
+            out["sender_port_shared"] = self._sender_uids.counters["port_shared"]
         return out
 
     async def close(self) -> None:
