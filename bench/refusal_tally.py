@@ -18,15 +18,15 @@ from collections import Counter
 from typing import Any
 
 from swarmd.dataplane.types import Command, CommandKind
-from swarmd.swarm import core
+from swarmd.swarm import member
 from swarmd.swarm.events import CommandBeforeLife, CommandExpired
 
 TALLY: Counter[str] = Counter()
-_may_run = core.SwarmCore._may_run
+_may_run = member.Member._may_run
 
 
 def _counted(
-    self: core.SwarmCore, commander: str, command: Command, kind: CommandKind, now: float
+    self: member.Member, commander: str, command: Command, kind: CommandKind, now: float
 ) -> bool:
     ran = _may_run(self, commander, command, kind, now)
     TALLY["judged"] += 1
@@ -41,7 +41,7 @@ def _counted(
     return ran
 
 
-core.SwarmCore._may_run = _counted  # type: ignore[method-assign]
+member.Member._may_run = _counted  # type: ignore[method-assign]
 
 
 def pytest_terminal_summary(terminalreporter: Any) -> None:
