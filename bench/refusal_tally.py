@@ -6,9 +6,10 @@ commands refuse an honest command in the virtual-time flight tests?).
     PYTHONPATH=.:lab:bench nice -n 19 .venv/bin/pytest -q -p refusal_tally \\
         tests/test_cmd_in_flight.py tests/test_swarm_core.py ...
 
-It wraps ``SwarmCore._may_run`` (the one place a member judges a command from another node)
-and prints, after the run, how many commands were judged, how many ran, and each refusal with
-its reason, detail and test. Review tooling: it changes no decision.
+It wraps ``Member._may_run`` (``swarmd/swarm/member.py``: the one place a member judges a
+command from another node) and prints, after the run, how many commands were judged, how
+many ran, and each refusal with its reason, detail and test. Review tooling: it changes no
+decision.
 """
 
 from __future__ import annotations

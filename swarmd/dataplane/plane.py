@@ -68,7 +68,6 @@ from swarmd.dataplane.events import (
     PacketDropped,
 )
 from swarmd.dataplane.ledger import CommandLedger, KeptOutcome
-from swarmd.dataplane.outgoing import Outgoing
 from swarmd.dataplane.pairs import PairChannels, PairKeys
 from swarmd.dataplane.received import ReadinessStats, Received
 from swarmd.dataplane.seal import TRAILER_BYTES, protected_part
@@ -172,6 +171,8 @@ class DataPlane:
             self.counters,
             self._events,
         )
+        # what we queue for a peer (a bound method: one call less on the receive path)
+        self._queue = self._sessions.queue
         # what verified peers delivered: readiness per member, new commands and outcomes
         self._received = Received(
             self.local.name,
@@ -505,9 +506,6 @@ class DataPlane:
         sn, out = writer.write(payload if to is None else {to: payload}, now)
         self._queue(out)
         return sn
-
-    def _queue(self, out: list[Outgoing]) -> None:
-        self._sessions.queue(out)
 
     def _drop(self, reason: str, source: tuple[str, int] | None, detail: str = "") -> None:
         self.counters[f"dropped_{reason}"] += 1

@@ -123,9 +123,6 @@ class Received:
                 out.append(echo)
         return out
 
-    def _peer_epoch(self, peer_name: str) -> int:
-        return self._pairs.channels[self._participants[peer_name].guid_prefix].peer_epoch
-
     def _readiness(self, peer_name: str, sample: Readiness, now: float) -> tuple[str, str] | None:
         if sample.node != peer_name:
             return "node_mismatch", f"{peer_name} sent readiness of {sample.node}"
@@ -133,7 +130,7 @@ class Received:
         stats.count += 1
         stats.last = sample
         stats.last_rx = now
-        stats.epoch = self._peer_epoch(peer_name)
+        stats.epoch = self._pairs.channels[self._participants[peer_name].guid_prefix].peer_epoch
         self._events.append(ReadinessReceived(peer_name, sample, stats.count))
         return None
 
@@ -150,7 +147,7 @@ class Received:
     def _outcome(self, peer_name: str, outcome: CommandOutcome) -> tuple[str, str] | None:
         if outcome.node != peer_name:
             return "node_mismatch", f"{peer_name} sent outcome of {outcome.node}"
-        epoch = self._peer_epoch(peer_name)
+        epoch = self._pairs.channels[self._participants[peer_name].guid_prefix].peer_epoch
         if not self._ledger.new_outcome(
             peer_name, epoch, outcome.command_id, int(outcome.result.value)
         ):
