@@ -6,9 +6,10 @@ commands refuse an honest command in the virtual-time flight tests?).
     PYTHONPATH=.:lab:bench nice -n 19 .venv/bin/pytest -q -p refusal_tally \\
         tests/test_cmd_in_flight.py tests/test_swarm_core.py ...
 
-It wraps ``SwarmCore._may_run`` (the one place a member judges a command from another node)
-and prints, after the run, how many commands were judged, how many ran, and each refusal with
-its reason, detail and test. Review tooling: it changes no decision.
+It wraps ``Member._may_run`` (``swarmd/swarm/member.py``: the one place a member judges a
+command from another node) and prints, after the run, how many commands were judged, how
+many ran, and each refusal with its reason, detail and test. Review tooling: it changes no
+decision.
 """
 
 from __future__ import annotations
@@ -18,15 +19,15 @@ from collections import Counter
 from typing import Any
 
 from swarmd.dataplane.types import Command, CommandKind
-from swarmd.swarm import core
+from swarmd.swarm import member
 from swarmd.swarm.events import CommandBeforeLife, CommandExpired
 
 TALLY: Counter[str] = Counter()
-_may_run = core.SwarmCore._may_run
+_may_run = member.Member._may_run
 
 
 def _counted(
-    self: core.SwarmCore, commander: str, command: Command, kind: CommandKind, now: float
+    self: member.Member, commander: str, command: Command, kind: CommandKind, now: float
 ) -> bool:
     ran = _may_run(self, commander, command, kind, now)
     TALLY["judged"] += 1
@@ -41,7 +42,7 @@ def _counted(
     return ran
 
 
-core.SwarmCore._may_run = _counted  # type: ignore[method-assign]
+member.Member._may_run = _counted  # type: ignore[method-assign]
 
 
 def pytest_terminal_summary(terminalreporter: Any) -> None:

@@ -45,7 +45,7 @@ from swarmd.px4.transport import (
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
 from swarmd.px4.xrce_key import XrceKeyError
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
-from swarmd.swarm import core
+from swarmd.swarm import issuer
 from swarmd.swarm.commander import CommandTracker, ReadinessTable
 from swarmd.swarm.core import SwarmCore, SwarmSettings
 from swarmd.swarm.events import (
@@ -65,6 +65,7 @@ from swarmd.swarm.events import (
     SwarmEvent,
     UserDataDropped,
 )
+from swarmd.swarm.member import NO_VEHICLE
 from swarmd.swarm.roles import Roles
 from swarmd.swarm.statefile import NodeState, StateDirError, boot
 from swarmd.userdata import UserDataSocket
@@ -366,7 +367,7 @@ class SwarmApp:
 
     def verdict(self) -> ReadinessVerdict:
         if self.bridge is None:
-            return core.NO_VEHICLE
+            return NO_VEHICLE
         return self.bridge.readiness()
 
     def _on_px4_change(self, verdict: Readiness) -> None:
@@ -538,7 +539,7 @@ class SwarmApp:
     ) -> dict[str, Any]:
         try:
             answer = self._driver().call(lambda now: handler(request, now))
-        except core.RequestInvalid as exc:
+        except issuer.RequestInvalid as exc:
             raise RequestInvalid(str(exc)) from None
         if answer is None:  # the driver closed: the swarm core no longer runs
             raise RequestInvalid("the daemon is stopping")

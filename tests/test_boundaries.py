@@ -125,6 +125,7 @@ class SansIO:
 SANS_IO = [
     SansIO("rtps"),
     SansIO("discovery"),
+    # plane.py and what was split out of it by concern (sessions, pairs, received, commands)
     SansIO("dataplane"),
     SansIO("auth"),
     SansIO("xrce"),
@@ -138,8 +139,8 @@ SANS_IO = [
             {"transport", "mavlink_backend", "bridge", "xrce_backend", "provision", "portowner"}
         ),
     ),
-    # the swarm's I/O: the state file (core.py is sans-IO; the user-data socket is the
-    # daemon tier's swarmd/userdata.py)
+    # the swarm's I/O: the state file (core.py and its two sides, issuer.py and member.py,
+    # are sans-IO; the user-data socket is the daemon tier's swarmd/userdata.py)
     SansIO("swarm", frozenset({"statefile"})),
 ]
 NO_LOOP = ("asyncio", "socket", "selectors")
@@ -278,3 +279,20 @@ def test_the_table_catches_outward_imports_and_the_lab() -> None:
     assert {line for line, _, _ in flagged} == {1, 2, 3, 4}  # not line 5
     names = {m.split(".")[0] for _, m in _imports("import time\nfrom asyncio import sleep", "x")}
     assert names & NO_IO == {"time", "asyncio"}
+
+
+def test_the_split_cores_stay_sans_io() -> None:
+    # swarm/core.py and dataplane/plane.py were split by concern (docs/architecture.md): every
+    # part is a module of a sans-IO room, so the checks above read and import it
+    covered = {f"{spec.room}/{path.name}" for spec in SANS_IO for path in _sans_io_modules(spec)}
+    parts = {
+        "swarm/core.py",
+        "swarm/issuer.py",
+        "swarm/member.py",
+        "dataplane/plane.py",
+        "dataplane/sessions.py",
+        "dataplane/pairs.py",
+        "dataplane/received.py",
+        "dataplane/commands.py",
+    }
+    assert parts - covered == set()

@@ -18,7 +18,7 @@ What is read afterwards, per command (the member's own records, docs/dataplane.m
 - the commander's journal line ``command_sent`` dates the issue (its ``timestamp``: the
   daemon's wall clock, which the harness and every daemon of the run share);
 - each member's journal line ``command_received`` is the member deciding to run it (after
-  the exactly-once check and the validity check, ``SwarmCore._execute``); ``command_expired``
+  the exactly-once check and the validity check, ``Member.execute``); ``command_expired``
   a copy refused as too late; ``command_outcome`` what it answered. A member's journal is
   one file over all its daemon lives (the harness appends on restart), so a command run
   again by a new life shows as a second ``command_received``.

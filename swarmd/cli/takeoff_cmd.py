@@ -7,7 +7,7 @@ until every targeted drone is ready (nothing is sent if that does not happen wit
 ``--timeout``). Then it sends the command and follows each drone's outcome to the end.
 
 Every command has a validity (``--valid-for``; defaults per kind in
-``swarmd.swarm.core.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
+``swarmd.swarm.issuer.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
 it for good. A drone that did not answer while the command was valid is reported
 ``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity"). A
 drone whose daemon restarted before its answer arrived tells the commander afterwards what
@@ -43,7 +43,7 @@ from swarmd.exitcodes import (
     EX_USAGE,
 )
 from swarmd.swarm.commander import RESTARTED, UNREACHABLE
-from swarmd.swarm.core import DEFAULT_VALID_FOR_S
+from swarmd.swarm.issuer import DEFAULT_VALID_FOR_S
 from swarmd.terminal import safe_text, safe_tree
 
 COMMAND_KINDS: Final = {k.name.lower(): k for k in CommandKind}

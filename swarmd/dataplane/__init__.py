@@ -4,6 +4,7 @@ Sans-IO (no asyncio, socket or time); ``DataPlane`` is the one class an owner dr
 See docs/dataplane.md.
 """
 
+from swarmd.dataplane.commands import CommandIdsExhausted, ForeignCommandId
 from swarmd.dataplane.endpoints import TOPIC_COMMAND, TOPIC_OUTCOME, TOPIC_READY
 from swarmd.dataplane.events import (
     CommandCopyVoided,
@@ -15,7 +16,8 @@ from swarmd.dataplane.events import (
     ReadinessReceived,
 )
 from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS
-from swarmd.dataplane.plane import CommandIdsExhausted, DataPlane, ForeignCommandId, PairKeys
+from swarmd.dataplane.pairs import PairKeys
+from swarmd.dataplane.plane import DataPlane
 from swarmd.dataplane.types import (
     Command,
     CommandKind,

@@ -17,7 +17,7 @@ held datagram moves nothing until its authenticator checks again at release.
 
 Who may take a slot (session 10 network review, docs/security-history.md "Network paths end
 to end"): the plane holds a datagram only once its tag verified for this life of ours and
-its freshness is not one the sender's replay window already has (``DataPlane._may_hold``),
+its freshness is not one the sender's replay window already has (``PairChannels.may_hold``),
 so an outsider's forgery, or a captured member's under another member's prefix, is
 refused on arrival and never displaces a genuine held datagram. What is left is a
 replayer holding genuine datagrams of the sender's current life that we never took; past

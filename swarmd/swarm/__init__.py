@@ -1,4 +1,6 @@
 """The swarm layer, sans-IO: roles (``roles``), the commander's readiness table and command
-tracker (``commander``), and ``SwarmCore`` (``core``: readiness reports, requests, a member's
-execution decisions). Its I/O: the state file (``statefile``) and the user-data socket
-(``userdata``); ``swarmd.swarmapp`` wires them. See docs/architecture.md."""
+tracker (``commander``), and ``SwarmCore`` (``core``: readiness reports, the driving
+protocol) around the commander's side (``issuer``: requests, issuing, withdrawal) and the
+member's (``member``: execution decisions, answers, re-reports). Its I/O: the state file
+(``statefile``) and the user-data socket (``userdata``); ``swarmd.swarmapp`` wires them.
+See docs/architecture.md."""

@@ -1,0 +1,370 @@
+"""A member's side of the swarm core: accept a command, prove it valid, run it, answer it,
+and re-report after a restart.
+
+Each command id runs once (the data plane hands each id once per life, persisted across
+restarts; ``execute`` also refuses an id it already runs, for the commander's own drone,
+which bypasses the data plane). A command from the commander that reaches it after its
+validity (``swarmd.dataplane.validity.judge``: dated on this node's own clock from the
+readiness report the commander echoes in it) is REJECTED ``expired`` and never runs
+(docs/dataplane.md, "Validity"). One whose echo dates another life of this node (a report
+of another boot epoch, ``validity.another_life``: checked first, its stamp is on a clock
+that may have started again), or that it cannot prove, by the same echo on its own clock,
+was issued after this life began (``start``), is REJECTED ``memory_lost``: an earlier life
+may have run it, and its record of executed ids (the state file) may be lost
+(``validity.issued_in_life``; docs/dataplane.md, "A life runs only its own commands").
+Without a vehicle every command is REJECTED ``px4_disabled``. TAKEOFF is refused at once
+(REJECTED, reason = the readiness code) when the vehicle is not ready *now* (the
+commander's view is up to one report old), else ACCEPTED at once (the commander's latency
+measure) and sent to the vehicle; LAND, HOLD and ABORT are ACCEPTED and sent. The
+vehicle's ``TaskFinished`` becomes COMPLETED (reason: the landed state after a take-off,
+the command's label after an ABORT) or FAILED (REJECTED for a take-off refused as not
+ready). Dispatch is an exhaustive ``match`` on ``CommandKind`` with ``assert_never``: a
+new kind fails the type check rather than running another's action, and a kind number
+this build does not know is REJECTED ``unknown_kind``.
+
+Every command received is persisted before anything moves (``PersistExecuted``, the
+write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decided.
+After a restart the outcomes an earlier life persisted are re-reported, once, to each
+commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
+"Outcomes across a restart"); they only answer, nothing is executed.
+
+Split out of ``core.py`` by concern; ``SwarmCore`` drives it. Sans-IO; no clock.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Final, assert_never
+
+from swarmd.dataplane import DataPlane
+from swarmd.dataplane.convert import ReadinessVerdict
+from swarmd.dataplane.types import Command, CommandKind, CommandResult, PayloadError
+from swarmd.dataplane.validity import (
+    EXPIRED,
+    MEMORY_LOST,
+    ReportLog,
+    another_life,
+    issued_in_life,
+    judge,
+)
+from swarmd.px4.takeoff import FailReason, TakeoffFailed
+from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
+from swarmd.swarm.commander import MAX_TRACKED_COMMANDS, CommandTracker, DecisionLog
+from swarmd.swarm.events import (
+    CommandBeforeLife,
+    CommandExecuting,
+    CommandExpired,
+    OutcomeReported,
+    OutcomesReReported,
+    PersistExecuted,
+    SwarmEvent,
+)
+from swarmd.swarm.roles import Roles
+
+__all__ = [
+    "ID_IN_USE",
+    "MAX_REREPORTED",
+    "MAX_RUNNING_IDS",
+    "NO_VEHICLE",
+    "PX4_DISABLED",
+    "REREPORT_WINDOW_S",
+    "UNKNOWN_KIND",
+    "Member",
+    "NoVehicle",
+]
+
+PX4_DISABLED: Final = "px4_disabled"
+UNKNOWN_KIND: Final = "unknown_kind"
+# Another commander's command with the same id still runs here (two commanders in the same
+# boot epoch make the same ids: docs/dataplane.md, "Exactly once" 4); the vehicle's tasks
+# are tagged with the id, so this one is refused and its commander told at once.
+ID_IN_USE: Final = "id_in_use"
+# command ids a member remembers running: the data plane's executed list is the durable
+# record; this only guards the commander's own drone, whose commands bypass it
+MAX_RUNNING_IDS: Final = 256
+# A restarted member re-reports what its earlier life decided (docs/dataplane.md, "Outcomes
+# across a restart") to each commander it finds within this long of its start, once per
+# commander per life (the reliable writer repairs it from there), at most this many: the
+# commander tracks no more commands than that (and the plane bounds it by the outcome
+# writer's history depth too). Five minutes covers a daemon restart and a 30 s blackout
+# many times over; past it the operator has long acted on what swarmctl said.
+REREPORT_WINDOW_S: Final = 300.0
+MAX_REREPORTED: Final = MAX_TRACKED_COMMANDS
+
+
+@dataclass(frozen=True, slots=True)
+class NoVehicle:
+    """The verdict of a node without a vehicle link: never ready, and says why."""
+
+    ready: bool = False
+    reason: str = PX4_DISABLED
+    armed: bool | None = None
+    landed_state: str | None = None
+    gps_fix: int | None = None
+    satellites: int | None = None
+    battery_pct: int | None = None
+
+
+NO_VEHICLE: Final = NoVehicle()
+
+
+class Member:
+    """What this node decides for the commands it receives (see the module docstring).
+
+    ``events`` and ``counters`` are the swarm core's; ``tracker`` is the commander's, which
+    takes the outcomes of the commands it gave its own drone (``run_own``)."""
+
+    def __init__(
+        self,
+        roles: Roles,
+        plane: DataPlane | None,
+        *,
+        verdict: Callable[[float], ReadinessVerdict] | None,
+        tracker: CommandTracker,
+        events: deque[SwarmEvent],
+        counters: dict[str, int],
+    ) -> None:
+        self.roles = roles
+        self.plane = plane
+        self.has_vehicle = verdict is not None
+        self._vehicle = verdict
+        self._tracker = tracker
+        self._events = events
+        self._counters = counters  # the core's: outcomes_rereported
+        self.decisions = DecisionLog()  # what this member decided (swarmctl outcomes)
+        self.counters: dict[str, int] = {}  # the executor's (``status``)
+        # ids of the commands this node's commander gave its own drone: their outcomes go
+        # to its tracker, not on the wire
+        self._own: set[int] = set()
+        # id -> (kind, commander), on the vehicle
+        self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
+        # (commander, id) started (bounded): ids are unique per commander only
+        self._seen: OrderedDict[tuple[str, int], None] = OrderedDict()
+        # when this life began (``start``): it runs only commands issued after it
+        self._life_start: float | None = None
+        # the stamps of our own recent reports: an echo must be one (validity.ReportLog)
+        self.reports = ReportLog()
+        # re-reporting an earlier life's outcomes: until when, and to which commanders done
+        self._rereport_until: float | None = None
+        self._rereported: set[str] = set()  # bounded: bundle names only
+
+    def start(self, now: float) -> None:
+        """This life began: it runs only commands issued from now, and re-reports."""
+        self._life_start = now
+        self._rereport_until = now + REREPORT_WINDOW_S
+
+    def verdict(self, now: float) -> ReadinessVerdict:
+        return NO_VEHICLE if self._vehicle is None else self._vehicle(now)
+
+    def received(self, commander: str, command: Command, now: float) -> None:
+        """The data plane handed over ``command`` (its first copy here)."""
+        # write-ahead: a crash loses the command, never repeats it
+        self._persist()
+        self.execute(commander, command, now)
+
+    def run_own(self, command: Command, now: float) -> None:
+        """The commander's own drone is a target of ``command``: run it here at issue."""
+        self._own.add(command.command_id)
+        self.execute(self.roles.me, command, now)
+
+    def task_finished(self, done: TaskFinished, now: float) -> None:
+        """The vehicle ended the task of command ``done.token``."""
+        running = self._running.pop(done.token, None)
+        if running is None:
+            return  # not ours (a direct take-off through the bridge), or reported already
+        kind, commander = running
+        if done.ok:
+            result = CommandResult.COMPLETED
+        elif isinstance(done.outcome, TakeoffFailed) and (
+            done.outcome.reason == FailReason.NOT_READY
+        ):
+            result = CommandResult.REJECTED
+        else:
+            result = CommandResult.FAILED
+        self._report(done.token, kind.name, result, done.reason, now, commander)
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "running": len(self._running),
+            "counters": dict(sorted(self.counters.items())),
+        }
+
+    def execute(self, commander: str, command: Command, now: float) -> None:
+        """Decide what the vehicle does with ``command`` (see the module docstring)."""
+        try:
+            kind = CommandKind(command.kind)
+        except ValueError:
+            self._count("received_unknown")
+            self._report(
+                command.command_id,
+                str(command.kind),
+                CommandResult.REJECTED,
+                UNKNOWN_KIND,
+                now,
+                commander,
+            )
+            return
+        key = (commander, command.command_id)
+        if key in self._seen:
+            return  # exactly once: this id runs already, or ran
+        self._seen[key] = None
+        while len(self._seen) > MAX_RUNNING_IDS:
+            self._seen.popitem(last=False)
+        self._count(f"received_{kind.name.lower()}")
+        if commander != self.roles.me and not self._may_run(commander, command, kind, now):
+            return  # our own drone runs its commands at issue
+        takeoff = kind == CommandKind.TAKEOFF
+        self._events.append(
+            CommandExecuting(
+                commander, command.command_id, kind, command.altitude_m if takeoff else None
+            )
+        )
+        if not self.has_vehicle:
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, PX4_DISABLED, now, commander
+            )
+            return
+        match kind:
+            case CommandKind.TAKEOFF:
+                verdict = self.verdict(now)
+                if not verdict.ready:
+                    reason = str(verdict.reason)
+                    self._report(
+                        command.command_id,
+                        kind.name,
+                        CommandResult.REJECTED,
+                        reason,
+                        now,
+                        commander,
+                    )
+                    return
+                task = TaskKind.TAKEOFF
+            case CommandKind.LAND:
+                task = TaskKind.LAND
+            case CommandKind.HOLD:
+                task = TaskKind.HOLD
+            case CommandKind.ABORT:
+                task = TaskKind.ABORT
+            case _:
+                assert_never(kind)
+        if command.command_id in self._running:  # another commander's, same id: its tag
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, ID_IN_USE, now, commander
+            )
+            return
+        self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now, commander)
+        self._running[command.command_id] = (kind, commander)
+        alt = float(command.altitude_m) if takeoff else None
+        self._events.append(VehicleRequest(command.command_id, task, alt))
+
+    def _may_run(self, commander: str, command: Command, kind: CommandKind, now: float) -> bool:
+        """Whether a command from another node may run now, else refuse it (REJECTED) for
+        good: its id is already persisted as executed, so no later copy can run it either
+        (docs/dataplane.md, "Validity" and "A life runs only its own commands")."""
+        # First the life the echo dates: a report of another boot epoch of ours is on a
+        # clock that may have started again (an OS reboot), so neither its lateness nor its
+        # issue can be read on ours; it was issued to that life, which may have run it.
+        plane = self.plane
+        other = (
+            "no data plane" if plane is None else another_life(command, self.roles.me, plane.epoch)
+        )
+        if other is not None:
+            self._count("refused_memory_lost")
+            self._events.append(CommandBeforeLife(commander, command.command_id, kind, other))
+            self._report(
+                command.command_id, kind.name, CommandResult.REJECTED, MEMORY_LOST, now, commander
+            )
+            return False
+        judgement = judge(command, self.roles.me, now)
+        if not judgement.valid:  # too late, or undatable
+            self._count("refused_expired")
+            event: CommandExpired | CommandBeforeLife = CommandExpired(
+                commander, command.command_id, kind, judgement.detail
+            )
+            reason = EXPIRED
+        else:
+            # issued before this life began (or not started: nothing proves it): this life
+            # cannot know whether an earlier one ran it, its record may be lost
+            start = self._life_start
+            life = None if start is None else issued_in_life(command, self.roles.me, start, now)
+            if life is not None and life.valid:
+                # read modulo 2^32 as valid and of this life: is the echo a report we sent
+                # within the span any runnable command's can be (validity.ReportLog)?
+                unknown = self.reports.unknown(command, self.roles.me, now)
+                if unknown is None:
+                    return True
+                self._count("refused_expired")
+                self._events.append(CommandExpired(commander, command.command_id, kind, unknown))
+                self._report(
+                    command.command_id, kind.name, CommandResult.REJECTED, EXPIRED, now, commander
+                )
+                return False
+            self._count("refused_memory_lost")
+            detail = "not started" if life is None else life.detail
+            event = CommandBeforeLife(commander, command.command_id, kind, detail)
+            reason = MEMORY_LOST
+        self._events.append(event)
+        self._report(command.command_id, kind.name, CommandResult.REJECTED, reason, now, commander)
+        return False
+
+    def _report(
+        self,
+        command_id: int,
+        kind: str,
+        result: CommandResult,
+        reason: str,
+        now: float,
+        commander: str,
+    ) -> None:
+        self._count(f"outcome_{result.name.lower()}")
+        self._events.append(OutcomeReported(command_id, kind, result, reason))
+        if commander == self.roles.me and command_id in self._own:
+            self._tracker.record(command_id, self.roles.me, result, reason, now)
+            return
+        self.decisions.decided(commander, command_id, kind, result, reason, now)
+        if self.plane is not None:
+            self.plane.report_outcome(command_id, result, now, reason, commander=commander)
+            # the second write: the outcome next to its id, for a re-report after a restart
+            self._persist()
+
+    def _persist(self) -> None:
+        assert self.plane is not None  # noqa: S101 - callers checked it
+        plane = self.plane
+        self._events.append(
+            PersistExecuted(tuple(plane.executed_command_ids), tuple(plane.executed_outcomes))
+        )
+
+    def rereport(self, commander: str, now: float) -> None:
+        """``commander`` was found: if this is a new life (restarted with its state file)
+        within ``REREPORT_WINDOW_S`` of its start, send it, once, the outcomes its earlier
+        lives decided for its commands, on the outcome writer it already authenticates.
+        Only an answer: nothing is executed (docs/dataplane.md, "Outcomes across a
+        restart")."""
+        if (
+            self.plane is None
+            or self._rereport_until is None
+            or now > self._rereport_until
+            or commander in self._rereported
+        ):
+            return
+        earlier = self.plane.earlier_outcomes(commander, MAX_REREPORTED)
+        if not earlier:
+            return
+        self._rereported.add(commander)
+        ids: list[int] = []
+        for _, command_id, result, reason in earlier:
+            try:
+                self.plane.report_outcome(
+                    command_id, CommandResult(result), now, reason, commander=commander
+                )
+            except (ValueError, PayloadError):  # a state file edited by hand: skip it
+                self._count("rereport_invalid")
+                continue
+            ids.append(command_id)
+        self._counters["outcomes_rereported"] += len(ids)
+        self._events.append(OutcomesReReported(commander, tuple(ids)))
+
+    def _count(self, name: str) -> None:
+        self.counters[name] = self.counters.get(name, 0) + 1
