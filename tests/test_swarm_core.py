@@ -25,7 +25,14 @@ from swarmd.dataplane.validity import stamp_ms
 from swarmd.px4 import takeoff
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
-from swarmd.swarm.core import PX4_DISABLED, UNKNOWN_KIND, RequestInvalid, SwarmCore, SwarmSettings
+from swarmd.swarm.core import (
+    MAX_RUNNING_IDS,
+    PX4_DISABLED,
+    UNKNOWN_KIND,
+    RequestInvalid,
+    SwarmCore,
+    SwarmSettings,
+)
 from swarmd.swarm.events import (
     CommandExecuting,
     OutcomeReported,
@@ -420,3 +427,19 @@ def test_a_member_reports_at_once_to_a_commander_it_finds_again() -> None:
     assert swarm.lead.table.rows(swarm.net.now)["m01"]["count"] == received + 1
     swarm.run(2.0)  # then one a second again, from the re-discovery
     assert swarm.cores["m01"].counters["readiness_published"] == before + 3
+
+
+def test_the_commanders_own_ids_are_bounded_and_its_last_outcome_still_lands_locally() -> None:
+    """The commander's own drone runs its commands at issue; the ids it keeps to route their
+    outcomes to its tracker (not the wire) stay bounded over a long day of commands."""
+    swarm = Swarm(1, lead_vehicle=True)
+    swarm.run(2.0)
+    member = swarm.lead.member
+    last = 0
+    for _ in range(MAX_RUNNING_IDS + 40):
+        sent = swarm.call("lead", lambda now: swarm.lead.request_command({"kind": "hold"}, now))
+        last = sent["command_id"]
+        swarm.run(0.05)
+    assert len(member._own) <= MAX_RUNNING_IDS + len(member._running)
+    nodes = swarm.run_until_done(last)["nodes"]
+    assert nodes["lead"]["state"] == "completed"

@@ -136,8 +136,9 @@ class Member:
         self.decisions = DecisionLog()  # what this member decided (swarmctl outcomes)
         self.counters: dict[str, int] = {}  # the executor's (``status``)
         # ids of the commands this node's commander gave its own drone: their outcomes go
-        # to its tracker, not on the wire
-        self._own: set[int] = set()
+        # to its tracker, not on the wire; bounded like ``_seen`` (never dropping one still
+        # running, whose outcome must not go on the wire)
+        self._own: OrderedDict[int, None] = OrderedDict()
         # id -> (kind, commander), on the vehicle
         self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
         # (commander, id) started (bounded): ids are unique per commander only
@@ -166,7 +167,9 @@ class Member:
 
     def run_own(self, command: Command, now: float) -> None:
         """The commander's own drone is a target of ``command``: run it here at issue."""
-        self._own.add(command.command_id)
+        self._own[command.command_id] = None
+        for old in [i for i in self._own if i not in self._running][:-MAX_RUNNING_IDS]:
+            del self._own[old]
         self.execute(self.roles.me, command, now)
 
     def task_finished(self, done: TaskFinished, now: float) -> None:
