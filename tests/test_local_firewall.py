@@ -11,15 +11,8 @@ import pytest
 from swarmd.cli.swarmd_main import main
 from swarmd.config import ConfigError, parse_config
 from swarmd.localfirewall import differences, dropped, local_firewall, normalized
+from tests.test_daemon_config import MINIMAL
 
-MINIMAL = """\
-node: uav1
-bundle:
-  path: bundle.swb
-  trusted_key: keys/swarm-signing.pub
-network:
-  interface: eth0
-"""
 RELAY = "ros2:\n  relay_port: 7411\n  node_users: [1000, 0, 1001]\n"
 XRCE = "px4:\n  backend: xrce-agent\n  loopback_user: 1002\n"
 

@@ -29,7 +29,7 @@ from swarmd_lab.netns import Namespace
 from swarmd_lab.pktinfo import nobody_spoofs
 
 from tests.conftest import LanFactory
-from tests.test_local_firewall import MINIMAL
+from tests.test_daemon_config import MINIMAL
 
 pytestmark = pytest.mark.netns
 
