@@ -88,12 +88,15 @@ class LocalFirewall:
     notes: tuple[str, ...]
 
     def table(self) -> str:
-        """The table as ``nft list table inet swarmd_local`` prints it (counters bare)."""
+        """The table as ``nft list table inet swarmd_local`` prints it (counters bare, the
+        chain's priority as a number)."""
         rules = "".join(f"\t\t{port.rule()}\n" for port in self.ports)
         return (
             f"table {FAMILY} {TABLE} {{\n"
             f"\tchain {CHAIN} {{\n"
-            "\t\ttype filter hook output priority filter; policy accept;\n"
+            # "priority 0", not its name "filter": nft 0.8 (Ubuntu 18.04, docs/deploy.md)
+            # has no priority names; nft 1.0 lists 0 as "filter" (``normalized``)
+            "\t\ttype filter hook output priority 0; policy accept;\n"
             f"{rules}"
             "\t}\n"
             "}\n"
@@ -175,8 +178,11 @@ def _unguarded(config: DaemonConfig, users_field: str, where: str) -> str:
 
 def normalized(listing: str) -> list[str]:
     """``nft list table`` output (or ``LocalFirewall.table()``) as comparable lines: each
-    stripped, blank lines dropped, counters without their values."""
-    lines = (_COUNTER_VALUES.sub("counter", line).strip() for line in listing.splitlines())
+    stripped, blank lines dropped, counters without their values, the priority a number."""
+    lines = (
+        _COUNTER_VALUES.sub("counter", line).replace("priority filter;", "priority 0;").strip()
+        for line in listing.splitlines()
+    )
     return [line for line in lines if line]
 
 
