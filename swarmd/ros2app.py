@@ -38,7 +38,7 @@ from swarmd.ros2.relay_events import (
     UndeclaredEndpoint,
     UnknownParticipantHeard,
 )
-from swarmd.senderuid import SenderUids
+from swarmd.senderuid import SenderUids, log_firewall_expected
 from swarmd.udp import BatchedSocket, Datagram
 
 
@@ -158,6 +158,8 @@ class Ros2App:
                 "ros2_local_users_not_told_apart",
                 fix="set ros2.node_users to the users the ROS 2 nodes run as (docs/ros2.md)",
             )
+        else:
+            log_firewall_expected(self.log, "ros2.relay_port")
         self.driver.call(relay.started)
 
     def close(self) -> None:

@@ -78,6 +78,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
     "userdata": CORE | {"udp"},
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
+    # the nftables table of swarmd's loopback ports, generated from the config (text only;
+    # swarmd local-firewall runs nft: cli)
+    "localfirewall": CORE | {"config", "px4", "ros2"},
     "control": CORE,
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
     "swarmapp": CORE
@@ -107,7 +110,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {"config", "control", "daemon", "driver", "logs", "sdnotify", "swarmapp", "terminal"}
-    | {"daemon_setup", "ros2", "rawclock"},
+    | {"daemon_setup", "ros2", "rawclock", "localfirewall"},
 }
 # Imports that break the table today, each with the work that removes it. An entry that no
 # longer occurs fails the test too, so the list only shrinks.

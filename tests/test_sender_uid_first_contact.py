@@ -180,12 +180,18 @@ def test_a_kept_node_is_rechecked_within_ttl_when_its_port_gains_another_owner()
         assert uids.uid_of(source) == ME  # the port the node's alone again
 
 
-@pytest.mark.xfail(strict=True, reason="open: docs/security.md, The local user, residual (6)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="the lookup alone cannot see it; the nftables rule closes it: "
+    "tests/test_local_firewall_netns.py (docs/security.md, The local user, residual (6))",
+)
 def test_a_sender_that_closes_its_socket_at_once_is_not_seen() -> None:
     """Still open: ``nobody`` binds the node's port at 127.0.0.2, sends as 127.0.0.1 by
     ``IP_PKTINFO`` and closes the socket before the lookup runs. The table no longer holds
     it, so the lookup names the node: the datagram passes as the node's. A table read only
-    sees sockets alive when it runs (module docstring of swarmd.senderuid)."""
+    sees sockets alive when it runs (module docstring of swarmd.senderuid). Where the unit
+    loads ``swarmd local-firewall``'s table, the kernel drops it at send time instead
+    (tests/test_local_firewall_netns.py); this stays the lookup's own limit."""
     if os.geteuid() != 0 or shutil.which("setpriv") is None:
         pytest.skip("needs root and setpriv")
     port = _free_port()

@@ -176,6 +176,16 @@ def test_unit_settings() -> None:
     assert s["ExecStart"] == [f"{INSTALLED_EXEC} run --config /etc/swarmd/swarmd.yaml"]
 
 
+def test_the_local_firewall_is_loaded_as_root_before_start_and_removed_after_stop() -> None:
+    """docs/security.md, residual (6): ``+`` runs these two as root, outside the sandbox;
+    the daemon itself keeps no capability (test_unit_settings)."""
+    s = _settings()
+    assert s["ExecStartPre"] == [
+        f"+{INSTALLED_EXEC} local-firewall --config /etc/swarmd/swarmd.yaml --apply"
+    ]
+    assert s["ExecStopPost"] == [f"+{INSTALLED_EXEC} local-firewall --remove"]
+
+
 def test_unit_exposure_score(tmp_path: Path) -> None:
     proc = subprocess.run(
         ["systemd-analyze", "security", "--offline=yes", str(_local_copy(tmp_path))],

@@ -6,6 +6,7 @@ held by another live swarmd, 71 a UDP socket cannot be bound or joined, 73 a sta
 rejected bundle, a rolled-back one included (systemd's ``RestartPreventExitStatus=78``
 stops a restart loop on those).
 Every failure before the loop runs is one line on stderr, never a traceback.
+``swarmd local-firewall`` (swarmd.cli.firewall_cmd) has its own codes.
 
 ``main(argv, before_run=...)`` takes an optional hook called after the config and bundle
 are loaded and before any socket is opened; a ``StartupError`` it raises ends the run with
@@ -22,6 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import fields
 
 from swarmd import __version__
+from swarmd.cli import firewall_cmd
 from swarmd.config import ConfigError, load_config
 from swarmd.exitcodes import EX_CONFIG, EX_USAGE, StartupError
 
@@ -34,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--config", required=True, help="daemon config file (YAML)")
     check = sub.add_parser("check-config", help="check a config file (and its bundle), then exit")
     check.add_argument("--config", required=True, help="daemon config file (YAML)")
+    firewall_cmd.register(sub)
     return parser
 
 
@@ -46,6 +49,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     """``swarmd`` itself; ``before_run`` runs between loading and binding (see above)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command == "local-firewall":
+        return firewall_cmd.run(args)
     if args.command not in ("run", "check-config"):
         parser.print_help(sys.stderr)
         return EX_USAGE

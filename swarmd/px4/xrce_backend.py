@@ -43,7 +43,7 @@ from swarmd.px4.transport import (
     open_link,
 )
 from swarmd.px4.xrce_translate import Px4Translator
-from swarmd.senderuid import SenderUids
+from swarmd.senderuid import SenderUids, log_firewall_expected
 from swarmd.xrce.agent import XrceAgent
 from swarmd.xrce.client import XrceClient
 from swarmd.xrce.events import (
@@ -186,6 +186,8 @@ class XrceBackend:
                     "xrce_local_users_not_told_apart",
                     fix="set px4.loopback_user to PX4 SITL's user (docs/px4.md)",
                 )
+            elif self._log is not None and self.endpoint.kind != "serial":
+                log_firewall_expected(self._log, "px4.connection")
         ep = self.endpoint
         if ep.kind == "serial":
             self._link = await open_link(ep, self._on_serial)

@@ -1,0 +1,207 @@
+"""The nftables table that lets only the configured users send to swarmd's loopback ports,
+generated from the daemon's config (``swarmd local-firewall``; docs/security.md, "The local
+user", residual (6)).
+
+Why a firewall. swarmd tells local users apart by reading the owner of the sender's socket
+out of the kernel's socket table after the datagram arrived (swarmd.senderuid). A user who
+binds a node's port at another address, sends with ``IP_PKTINFO``/``IPV6_PKTINFO`` naming the
+node's address as source, and closes the socket at once is gone from the table by then: the
+datagram is credited to the node (bench/sender_uid_pktinfo_race.py: 199/200 by IPv4, 200/200
+by IPv6). Only the kernel at send time still knows the sending socket: nftables' output hook
+reads its owner as ``meta skuid`` (nft(8), "META EXPRESSIONS"). So a rule on that hook drops,
+and counts, every UDP datagram to a guarded port whose socket is not one of the port's users;
+a forged datagram then never reaches swarmd, whatever the socket does afterwards.
+
+Which ports (read from the code that binds them):
+
+- the ROS 2 relay's ``[::1]:ros2.relay_port`` (swarmd.ros2app; the relay's other socket, on
+  127.0.0.1 at a port the kernel picks, only sends: what it receives is counted and dropped
+  unread), users ``ros2.node_users``;
+- the XRCE agent's ``px4.connection`` (``px4.backend: xrce-agent``, ``udp:HOST:PORT``), users
+  ``px4.loopback_user``. The agent tells users apart for loopback senders only, so its rule
+  matches what leaves on ``lo``: with the default 127.0.0.1 that is every datagram to it.
+
+Who may send: exactly the users the daemon itself takes on that port, so the two layers
+agree (a datagram the firewall passes is one the lookup would also take). Root is not added:
+swarmd drops root's datagrams there too unless root is listed, and a root process can delete
+this table anyway, so allowing it would guard nothing.
+
+A port whose users are not configured gets no rule (the daemon takes every local user there
+too, and logs ``*_local_users_not_told_apart``): ``notes`` says so, one line each, and the
+table is still written (empty), so the same systemd unit serves every drone.
+
+This module is pure (config in, text out); ``swarmd.cli.firewall_cmd`` runs ``nft``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+from dataclasses import dataclass
+from typing import Final
+
+from swarmd.config import DaemonConfig
+from swarmd.ros2.relay import LOOPBACK
+
+FAMILY: Final = "inet"
+TABLE: Final = "swarmd_local"
+CHAIN: Final = "output"
+# nft prints a rule's counter with its values; the generated text has a bare "counter"
+_COUNTER_VALUES: Final = re.compile(r"\bcounter packets (\d+) bytes \d+")
+_COMMENT: Final = re.compile(r'comment "([^"]*)"')
+
+
+@dataclass(frozen=True, slots=True)
+class GuardedPort:
+    """One loopback port of swarmd that only ``uids`` may send to."""
+
+    field: str  # the config field that names the port (the rule's comment)
+    users_field: str  # the config field that names its users
+    address: str | None  # the port's local address; None: any address (a wildcard bind)
+    port: int
+    uids: frozenset[int]
+
+    def rule(self) -> str:
+        """The rule as ``nft list`` prints it (but the counter's values)."""
+        match = 'oifname "lo"'
+        if self.address is not None:
+            ip = ipaddress.ip_address(self.address)
+            match += f" {'ip6' if ip.version == 6 else 'ip'} daddr {ip.compressed}"
+        users = sorted(self.uids)
+        uids = str(users[0]) if len(users) == 1 else "{ " + ", ".join(map(str, users)) + " }"
+        return (
+            f"{match} udp dport {self.port} meta skuid != {uids} counter drop "
+            f'comment "{self.comment}"'
+        )
+
+    @property
+    def comment(self) -> str:
+        return f"{self.field}: {self.users_field} only"
+
+
+@dataclass(frozen=True, slots=True)
+class LocalFirewall:
+    """The table for one config: its rules, and a note for each port left to every user."""
+
+    file: str
+    ports: tuple[GuardedPort, ...]
+    notes: tuple[str, ...]
+
+    def table(self) -> str:
+        """The table as ``nft list table inet swarmd_local`` prints it (counters bare, the
+        chain's priority as a number)."""
+        rules = "".join(f"\t\t{port.rule()}\n" for port in self.ports)
+        return (
+            f"table {FAMILY} {TABLE} {{\n"
+            f"\tchain {CHAIN} {{\n"
+            # "priority 0", not its name "filter": nft 0.8 (Ubuntu 18.04, docs/deploy.md)
+            # has no priority names; nft 1.0 lists 0 as "filter" (``normalized``)
+            "\t\ttype filter hook output priority 0; policy accept;\n"
+            f"{rules}"
+            "\t}\n"
+            "}\n"
+        )
+
+    def script(self) -> str:
+        """Input for ``nft -f``: replaces any older table in one transaction (declaring it
+        first makes the delete succeed when there is none)."""
+        return (
+            f"# swarmd local-firewall --config {self.file} (docs/security.md, residual (6))\n"
+            f"table {FAMILY} {TABLE}\n"
+            f"delete table {FAMILY} {TABLE}\n"
+            f"{self.table()}"
+        )
+
+
+def local_firewall(config: DaemonConfig) -> LocalFirewall:
+    """The table ``config`` needs; ``ConfigError`` (one line) when a port cannot be written
+    as a rule."""
+    ports: list[GuardedPort] = []
+    notes: list[str] = []
+    ros2 = config.ros2
+    if ros2.relay:
+        if ros2.node_users is None:
+            notes.append(_unguarded(config, "ros2.node_users", f"[{LOOPBACK}]:{ros2.relay_port}"))
+        else:
+            ports.append(
+                GuardedPort(
+                    "ros2.relay_port", "ros2.node_users", LOOPBACK, ros2.relay_port, ros2.node_users
+                )
+            )
+    px4 = config.px4
+    if px4.enabled and px4.backend == "xrce-agent":
+        # only XRCE configs pay for the backend's import (asyncio), as in swarmd.config
+        from swarmd.px4.xrce_backend import parse_xrce_connection
+
+        endpoint = parse_xrce_connection(px4.connection)
+        if endpoint.kind == "udpin":
+            address = _address(config, endpoint.host)
+            if px4.loopback_user is None:
+                if address is None or ipaddress.ip_address(address).is_loopback:
+                    notes.append(_unguarded(config, "px4.loopback_user", px4.connection))
+            else:
+                ports.append(
+                    GuardedPort(
+                        "px4.connection",
+                        "px4.loopback_user",
+                        address,
+                        endpoint.port,
+                        frozenset({px4.loopback_user}),
+                    )
+                )
+    return LocalFirewall(config.file, tuple(ports), tuple(notes))
+
+
+def _address(config: DaemonConfig, host: str) -> str | None:
+    """``host`` as an address for a rule; None for a wildcard (every local address)."""
+    try:
+        ip = ipaddress.ip_address(host.strip("[]"))
+    except ValueError:
+        raise config.error(
+            "px4.connection",
+            f"{host!r} is no IP address: the firewall rule needs the agent's address",
+            "write it as an address, e.g. udp:127.0.0.1:888",
+        ) from None
+    return None if ip.is_unspecified else ip.compressed
+
+
+def _unguarded(config: DaemonConfig, users_field: str, where: str) -> str:
+    """A note (one line, as a config error reads) for a port every local user may send to."""
+    return str(
+        config.error(
+            users_field,
+            f"not set: {where} takes every local user, the firewall guards nothing there",
+            f"set {users_field} (docs/operations.md) to guard it",
+        )
+    )
+
+
+def normalized(listing: str) -> list[str]:
+    """``nft list table`` output (or ``LocalFirewall.table()``) as comparable lines: each
+    stripped, blank lines dropped, counters without their values, the priority a number."""
+    lines = (
+        _COUNTER_VALUES.sub("counter", line).replace("priority filter;", "priority 0;").strip()
+        for line in listing.splitlines()
+    )
+    return [line for line in lines if line]
+
+
+def differences(live: str, wanted: LocalFirewall) -> list[str]:
+    """What the live table lacks or has more than ``wanted`` ("-" wanted, "+" live), in
+    order; [] when they match."""
+    have, want = normalized(live), normalized(wanted.table())
+    if have == want:
+        return []
+    return [f"- {line}" for line in want if line not in have] + [
+        f"+ {line}" for line in have if line not in want
+    ] or ["the same lines in another order"]
+
+
+def dropped(listing: str) -> dict[str, int]:
+    """Each rule's comment -> the datagrams it dropped, from ``nft list table`` output."""
+    out: dict[str, int] = {}
+    for line in listing.splitlines():
+        count, comment = _COUNTER_VALUES.search(line), _COMMENT.search(line)
+        if count is not None and comment is not None:
+            out[comment.group(1)] = int(count.group(1))
+    return out
