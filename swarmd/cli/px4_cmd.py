@@ -8,6 +8,10 @@ the SD card, or the simulator's ``--signing-key``; without ``--out`` the 64 hex 
 stdout. ``setup-signing --connection udpout:...|serial:...`` sends it to the autopilot as
 ``SETUP_SIGNING`` and waits for a HEARTBEAT signed with it (exit 0), or says why not (exit 1).
 docs/px4.md, "Message signing".
+
+Exit codes: 0 ok; 1 the autopilot did not confirm the key; 65 a key, keygen directory or
+``--connection`` that is not valid input; 71 the connection could not be opened; 73
+``--out`` cannot be written; 78 a bad config (swarmd.exitcodes; docs/operations.md).
 """
 
 from __future__ import annotations

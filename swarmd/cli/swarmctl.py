@@ -2,8 +2,10 @@
 
 Each command group lives in its own module with a ``register(subparsers)`` function that adds
 its parser and sets ``func`` (returning the exit code). Exit codes follow sysexits where one
-fits: 0 ok, 1 a check failed, 2 usage or daemon not reachable, 65 bad input data, 78 bad
-configuration.
+fits: 0 ok, 1 a check failed, 2 a bad command line (argparse) or daemon not reachable, 3
+``takeoff --require-all`` with a drone not ready, 64 a command's targets used incorrectly,
+65 bad input data, 69/71/73 a service, a system call or an output file refused, 78 bad
+configuration, 130 interrupted (swarmd.exitcodes; docs/operations.md, "Exit codes").
 """
 
 from __future__ import annotations
