@@ -195,7 +195,14 @@ class Ros2App:
             driver.call(lambda now: relay.peer_lost(name, now))
 
     def status(self, now: float) -> dict[str, Any]:
-        return self.relay.status(now)
+        """The core's rows, and beside its ``rx_foreign_user`` the lookup's
+        ``sender_port_shared``: a node user's port another uid holds too, its datagrams
+        dropped (swarmd.senderuid; as ``px4.backend.sender_port_shared``). 0 without
+        ``ros2.node_users``: the key is there for a JSON reader either way."""
+        out = self.relay.status(now)
+        shared = self.sender_uids.counters["port_shared"] if self.sender_uids is not None else 0
+        out["counters"]["sender_port_shared"] = shared
+        return out
 
     # ---- internals -----------------------------------------------------------------------
 

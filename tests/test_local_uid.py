@@ -19,11 +19,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from swarmd_lab.pktinfo import nobody_spoofs
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.model import Bundle
 from swarmd.bundle.ros2 import Ros2Participant, bundle_ros2_participants
+from swarmd.cli.status_cmd import render_ros2
 from swarmd.config import DaemonConfig, Ros2Section
 from swarmd.px4.xrce_backend import XrceBackend
 from swarmd.ros2.relay import LOOPBACK, Ros2Relay
@@ -380,6 +382,56 @@ def test_another_user_announcing_a_declared_node_is_dropped_and_nothing_moves(cl
     assert attacked["local"][0]["state"] == "not heard" and alive == []
     assert after["local"][0]["state"] == "heard" and after["counters"]["tx_start_answers"] >= 1
     assert not any(event == "ros2_local_users_not_told_apart" for event, _ in lines)
+
+
+@needs_setpriv
+def test_a_nodes_port_another_user_holds_too_is_counted_in_the_relays_status() -> None:
+    """``nobody`` binds the node's port at another address (``[2001:db8::7]:P``, IPV6_FREEBIND)
+    and keeps it, after one datagram sent as the node by ``IPV6_PKTINFO``: the spoof and the
+    node's own DATA(p) are both dropped (the port is two uids'), and the status says why
+    beside ``rx_foreign_user``: ``sender_port_shared`` (as PX4's backend does), the
+    ``sender_port_shared`` warning logged. On main the relay's status had no such count."""
+
+    async def main() -> tuple[dict[str, Any], list[Any], int]:
+        log = _Log()
+        app = _ros2_app(frozenset({ME}), log, [])
+        app.start(asyncio.get_running_loop())
+        relay_at = ("::1", app.config.ros2.relay_port)
+        try:
+            with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as node:
+                node.bind(("::1", 0))
+                port = node.getsockname()[1]
+                holder = nobody_spoofs("2001:db8::7", port, relay_at, "::1", hold=True)
+                try:
+                    assert holder.stdout is not None
+                    sent = await asyncio.to_thread(holder.stdout.readline)
+                    assert sent == "sent\n"  # its socket open until stdin closes
+                    node.sendto(_node_spdp(_lead_node()), relay_at)
+                    await _until(lambda: app.relay.counters["rx"] >= 2)
+                    return app.status(0.0), log.lines, port
+                finally:
+                    await asyncio.to_thread(holder.communicate, None, 10)
+        finally:
+            app.close()
+
+    status, lines, port = asyncio.run(main())
+    counters = status["counters"]
+    assert counters["rx"] == 2 and counters["rx_foreign_user"] == 2, counters
+    assert counters["sender_port_shared"] == 2  # the spoof and the node's own
+    assert status["local"][0]["state"] == "not heard"
+    shared = [fields for event, fields in lines if event == "sender_port_shared"]
+    assert [(f["port"], f["taken_uids"], f["other_uids"]) for f in shared] == [
+        (port, [ME], [NOBODY])
+    ]
+
+
+def test_the_status_view_names_the_relays_refusals_of_other_users() -> None:
+    """The human ``swarmctl status`` line of the relay carries both counts when any."""
+    counters = {"rx_foreign_user": 3, "sender_port_shared": 2}
+    view = "\n".join(render_ros2({"relay": "::1:7399", "counters": counters}))
+    assert "dropped 3 datagrams of other local users (2 from a node's port" in view
+    quiet = "\n".join(render_ros2({"relay": "::1:7399", "counters": {"rx_foreign_user": 0}}))
+    assert "dropped" not in quiet
 
 
 @needs_setpriv

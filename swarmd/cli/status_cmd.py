@@ -313,6 +313,15 @@ def render_ros2(ros2: Any) -> list[str]:
     if ros2.get("alive_bitmap") is not None:
         # what swarmd's signed DATA(p) tells the other drones (PID 0x8A06, docs/ros2.md)
         lines[0] += f"  alive bitmap {ros2['alive_bitmap']}"
+    counters = ros2.get("counters")
+    foreign = counters.get("rx_foreign_user") if isinstance(counters, dict) else None
+    if isinstance(counters, dict) and isinstance(foreign, int) and foreign:
+        # ros2.node_users (docs/security.md, "The local user"): other users' datagrams, and
+        # how often a node user's port was another user's too (a denial, or a spoof refused)
+        lines[0] += f"  dropped {foreign} datagrams of other local users"
+        shared = counters.get("sender_port_shared")
+        if isinstance(shared, int) and shared:
+            lines[0] += f" ({shared} from a node's port another user holds too)"
     graph = ros2.get("graph")
     if isinstance(graph, dict):
         # graph preloading (docs/ros2.md): the other drones' node names, served on loopback
