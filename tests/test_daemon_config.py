@@ -5,19 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from swarmd_lab.configs import MINIMAL_CONFIG
 
 from swarmd.config import ConfigError, load_config, parse_config
 
 REPO = Path(__file__).resolve().parent.parent
 
-MINIMAL = """\
-node: uav1
-bundle:
-  path: bundle.swb
-  trusted_key: keys/swarm-signing.pub
-network:
-  interface: eth0
-"""
+MINIMAL = MINIMAL_CONFIG
 
 
 def test_documented_default_config_loads() -> None:

@@ -19,17 +19,14 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-import subprocess
-import sys
 from pathlib import Path
 from typing import Final
 
 import pytest
 from swarmd_lab.netns import Namespace
-from swarmd_lab.pktinfo import nobody_spoofs
+from swarmd_lab.pktinfo import GUARDED, local_firewall, nobody_spoofs
 
 from tests.conftest import LanFactory
-from tests.test_daemon_config import MINIMAL
 
 pytestmark = pytest.mark.netns
 
@@ -37,25 +34,6 @@ SPOOFS: Final = 40
 RECV_TIMEOUT_S: Final = 5.0
 SPOOF_TIMEOUT_S: Final = 30.0
 NODE_PORT: Final = 17400  # the node's own port, which the spoofer binds elsewhere
-RELAY_PORT: Final = 7399
-AGENT_PORT: Final = 888
-
-# family -> (config, the receiver's address and port, the spoofer's bind address, the rule)
-CASES: Final = {
-    "ros2_relay_v6": (
-        f"ros2:\n  relay_port: {RELAY_PORT}\n  node_users: [root]\n",
-        ("::1", RELAY_PORT),
-        "2001:db8::7",
-        "ros2.relay_port: ros2.node_users only",
-    ),
-    "xrce_agent_v4": (
-        f"px4:\n  backend: xrce-agent\n  connection: udp:127.0.0.1:{AGENT_PORT}\n"
-        "  loopback_user: root\n",
-        ("127.0.0.1", AGENT_PORT),
-        "127.0.0.2",
-        "px4.connection: px4.loopback_user only",
-    ),
-}
 
 
 @pytest.fixture
@@ -67,11 +45,6 @@ def ns(lan_factory: LanFactory) -> Namespace:
         pytest.skip("needs root (setpriv to nobody, nft in a namespace)")
     host: Namespace = lan_factory(1).hosts[0]
     return host
-
-
-def _firewall(ns: Namespace, config: Path, *flags: str) -> subprocess.CompletedProcess[str]:
-    argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "local-firewall"]
-    return ns.run([*argv, "--config", str(config), *flags], check=False, timeout=60.0)
 
 
 def _spoofs_received(ns: Namespace, receiver: socket.socket, node: socket.socket, bind: str) -> int:
@@ -103,32 +76,33 @@ def _spoofs_received(ns: Namespace, receiver: socket.socket, node: socket.socket
     raise AssertionError("the node's datagram never arrived")
 
 
-@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("case", sorted(GUARDED))
 def test_the_rule_drops_a_spoofer_that_closes_its_socket_at_once(
     ns: Namespace, tmp_path: Path, case: str
 ) -> None:
-    text, (address, port), bind, comment = CASES[case]
+    guarded = GUARDED[case]
+    (address, port), bind, comment = guarded.receiver, guarded.bind, guarded.comment
     family = socket.AF_INET6 if ":" in address else socket.AF_INET
     config = tmp_path / "swarmd.yaml"
-    config.write_text(MINIMAL + text)
+    config.write_text(guarded.config)
     with ns.socket(family) as receiver, ns.socket(family) as node:
         receiver.bind((address, port))
         receiver.settimeout(RECV_TIMEOUT_S)
         node.bind((address, NODE_PORT))
         # without the rules: residual (6) as the xfail pins it, every spoof arrives as the node
         assert _spoofs_received(ns, receiver, node, bind) == SPOOFS
-        assert _firewall(ns, config, "--check").returncode == 1  # not loaded yet
-        applied = _firewall(ns, config, "--apply")
+        assert local_firewall(ns, config, "--check").returncode == 1  # not loaded yet
+        applied = local_firewall(ns, config, "--apply")
         assert applied.returncode == 0, applied.stderr
         assert _spoofs_received(ns, receiver, node, bind) == 0  # the node's own still arrives
     listed = ns.run(["nft", "list", "table", "inet", "swarmd_local"]).stdout
     rule = next(line for line in listed.splitlines() if comment in line)
     assert f"counter packets {SPOOFS} " in rule
-    check = _firewall(ns, config, "--check")
+    check = local_firewall(ns, config, "--check")
     assert check.returncode == 0, check.stderr
     assert f"{comment}: dropped {SPOOFS} datagrams" in check.stdout
     # applied twice: still one table, one rule (the script replaces, never appends)
-    assert _firewall(ns, config, "--apply").returncode == 0
+    assert local_firewall(ns, config, "--apply").returncode == 0
     assert ns.run(["nft", "list", "ruleset"]).stdout.count(comment) == 1
-    assert _firewall(ns, config, "--remove").returncode == 0
-    assert _firewall(ns, config, "--check").returncode == 1
+    assert local_firewall(ns, config, "--remove").returncode == 0
+    assert local_firewall(ns, config, "--check").returncode == 1

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import pytest
+from swarmd_lab.configs import MINIMAL_CONFIG
 
 from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.config import ConfigError, parse_config
@@ -19,14 +20,7 @@ from swarmd.xrce.message import (
     encode_message,
 )
 
-MINIMAL = """\
-node: uav1
-bundle:
-  path: bundle.swb
-  trusted_key: keys/swarm-signing.pub
-network:
-  interface: eth0
-"""
+MINIMAL = MINIMAL_CONFIG
 
 
 def test_xrce_backend_defaults_to_a_privileged_loopback_port() -> None:

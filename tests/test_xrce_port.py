@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 import structlog
 import structlog.testing
+from swarmd_lab.configs import MINIMAL_CONFIG
 
 from swarmd.config import load_config, parse_config
 from swarmd.daemon import Daemon
@@ -39,14 +40,7 @@ WAIT_S = 30.0
 ROOT_AND_SETPRIV = pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("setpriv") is None, reason="needs root and setpriv"
 )
-MINIMAL = """\
-node: uav1
-bundle:
-  path: bundle.swb
-  trusted_key: keys/swarm-signing.pub
-network:
-  interface: eth0
-"""
+MINIMAL = MINIMAL_CONFIG
 
 # A squatter of another user: binds HOST:PORT (SO_REUSEADDR if asked), says so, holds it
 # until its stdin closes.

@@ -9,6 +9,11 @@ and waits ``period_ms``. With ``hold`` the last round's socket stays open after 
 "sent", until stdin closes (at most 30 s). A send that an nftables rule drops on the output
 hook fails with ``EPERM``; the spoofer goes on and, after "sent", prints "refused N"
 (swarmd local-firewall: tests/test_local_firewall_netns.py).
+
+``GUARDED`` and ``local_firewall`` are the other half of that test and of
+``bench/sender_uid_pktinfo_race.py --firewall``: a config whose port the table guards, and
+``swarmd local-firewall`` run in a namespace (its own nftables tables; the host's ruleset
+untouched).
 """
 
 from __future__ import annotations
@@ -16,9 +21,53 @@ from __future__ import annotations
 import subprocess
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Final
 
+from swarmd_lab.configs import MINIMAL_CONFIG
+from swarmd_lab.netns import Namespace
+
 NOBODY: Final = 65534
+RELAY_PORT: Final = 7399
+AGENT_PORT: Final = 888
+
+
+@dataclass(frozen=True, slots=True)
+class Guarded:
+    """A receiving port of swarmd that ``swarmd local-firewall`` guards, root its user."""
+
+    config: str  # the whole config file
+    receiver: tuple[str, int]  # the port's address and number
+    bind: str  # the spoofer's other address on the node's port (same family)
+    comment: str  # the rule's comment (``nft list``, ``--check``)
+
+
+# family case -> the port: the ROS 2 relay on IPv6, the XRCE agent on IPv4
+GUARDED: Final = {
+    "ros2_relay_v6": Guarded(
+        MINIMAL_CONFIG + f"ros2:\n  relay_port: {RELAY_PORT}\n  node_users: [root]\n",
+        ("::1", RELAY_PORT),
+        "2001:db8::7",
+        "ros2.relay_port: ros2.node_users only",
+    ),
+    "xrce_agent_v4": Guarded(
+        MINIMAL_CONFIG + "px4:\n  backend: xrce-agent\n"
+        f"  connection: udp:127.0.0.1:{AGENT_PORT}\n  loopback_user: root\n",
+        ("127.0.0.1", AGENT_PORT),
+        "127.0.0.2",
+        "px4.connection: px4.loopback_user only",
+    ),
+}
+
+
+def local_firewall(ns: Namespace, config: Path, *flags: str) -> subprocess.CompletedProcess[str]:
+    """``swarmd local-firewall --config CONFIG FLAGS`` in ``ns`` (``--apply``: the unit's
+    ``ExecStartPre``), run to completion (at most 60 s), output captured, not checked."""
+    argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "local-firewall"]
+    return ns.run([*argv, "--config", str(config), *flags], check=False, timeout=60.0)
+
+
 SPOOFER: Final = """
 import select, socket, struct, sys, time
 bind, port, dest, dest_port, spoof = sys.argv[1:6]
