@@ -346,3 +346,22 @@ def test_daemon_refuses_a_signing_key_others_can_read(workdir: Path) -> None:
     proc = _swarmd_run(workdir, f"  signing: true\n  signing_key: {key}\n")
     assert proc.returncode == EX_CONFIG, proc.stderr
     assert proc.stderr.strip().splitlines()[-1].endswith(f"fix: chmod 600 {key}")
+
+
+def test_swarmctl_status_line_names_other_local_users_refused_by_the_xrce_agent() -> None:
+    """px4.loopback_user: the agent's drops of other users' datagrams reach the operator."""
+    agent = {
+        "backend": "xrce-agent",
+        "connection": "udp:127.0.0.1:888",
+        "session": "established",
+        "px4_version": "1.16",
+        "refused": {},
+        "dropped": {"foreign_user": 12},
+        "sender_port_shared": 2,
+    }
+    assert render_px4_backend(agent) == (
+        "px4 link: xrce-agent udp:127.0.0.1:888, session established, PX4 1.16, "
+        "dropped 12 datagrams of other local users (2 from PX4's port another user holds too)"
+    )
+    agent["dropped"] = {}
+    assert "other local users" not in render_px4_backend(agent)

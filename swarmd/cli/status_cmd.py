@@ -402,6 +402,14 @@ def render_px4_backend(b: dict[str, Any]) -> str:
                 f", dropped {b['foreign_samples']} samples of system id "
                 f"{b.get('foreign_system_id')} (not {b.get('sysid')})"
             )
+        # px4.loopback_user (docs/security.md, "The local user"): other users' datagrams,
+        # and how often PX4's port was another user's too (a denial, or a spoof refused)
+        foreign = (b.get("dropped") or {}).get("foreign_user")
+        if isinstance(foreign, int) and foreign:
+            line += f", dropped {foreign} datagrams of other local users"
+            shared = b.get("sender_port_shared")
+            if isinstance(shared, int) and shared:
+                line += f" ({shared} from PX4's port another user holds too)"
     pin, signing = b.get("autopilot"), b.get("signing")
     if isinstance(pin, dict):  # MAVLink over UDP: who is heard as the autopilot
         line += f", autopilot {pin.get('pinned') or 'not pinned yet'} ({pin.get('pin', '?')})"
