@@ -14,6 +14,7 @@ REPO = Path(__file__).resolve().parent.parent
 UNIT = REPO / "systemd" / "swarmd.service"
 SOCKET_UNIT = REPO / "systemd" / "swarmd-px4.socket"
 XRCE_SOCKET_UNIT = REPO / "systemd" / "swarmd-xrce.socket"
+FIREWALL_UNIT = REPO / "systemd" / "swarmd-firewall.service"
 INSTALLED_EXEC = "/opt/swarmd/venv/bin/swarmd"
 # systemd-analyze security (252): 1.5 since session 10 (2.1 before); a dropped line raises it
 MAX_EXPOSURE = 1.5
@@ -34,9 +35,11 @@ def _local_copy(tmp_path: Path, text: str | None = None) -> Path:
     exe = Path(sys.executable).parent / "swarmd"
     unit = tmp_path / "swarmd.service"
     unit.write_text(text.replace(INSTALLED_EXEC, str(exe)))
-    # the socket units it names (Sockets=), beside it as on a drone
-    for socket_unit in (SOCKET_UNIT, XRCE_SOCKET_UNIT):
-        (tmp_path / socket_unit.name).write_text(socket_unit.read_text())
+    # the socket units it names (Sockets=) and the firewall unit the XRCE socket requires,
+    # beside it as on a drone
+    for socket_unit in (SOCKET_UNIT, XRCE_SOCKET_UNIT, FIREWALL_UNIT):
+        text = socket_unit.read_text().replace(INSTALLED_EXEC, str(exe))
+        (tmp_path / socket_unit.name).write_text(text)
     return unit
 
 
@@ -215,3 +218,27 @@ def test_unit_hardening_found_missing_by_the_session_10_review() -> None:
     assert s["RemoveIPC"] == ["yes"]
     assert s["PrivateMounts"] == ["yes"]
     assert "ProcSubset" not in s
+
+
+def test_the_firewall_unit_loads_the_table_before_the_px4_sockets_open_at_boot(
+    tmp_path: Path,
+) -> None:
+    """docs/security.md, residual (6): swarmd-xrce.socket queues datagrams from boot, so the
+    table is loaded before it opens (and the socket does not open without it)."""
+    unit = _local_copy(tmp_path)
+    units = [tmp_path / n for n in (SOCKET_UNIT.name, XRCE_SOCKET_UNIT.name, FIREWALL_UNIT.name)]
+    proc = _verify(unit, *units)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.strip() == ""
+    broken = tmp_path / FIREWALL_UNIT.name
+    broken.write_text(broken.read_text().replace("RemainAfterExit=", "RemainAfterExt="))
+    assert "RemainAfterExt" in _verify(unit, *units).stderr  # the check can fail
+    fw = _unit_settings(FIREWALL_UNIT)
+    assert fw["Type"] == ["oneshot"] and fw["RemainAfterExit"] == ["yes"]
+    assert fw["ExecStart"] == [
+        f"{INSTALLED_EXEC} local-firewall --config /etc/swarmd/swarmd.yaml --apply"
+    ]
+    assert {"swarmd-xrce.socket", "swarmd-px4.socket"} <= set(fw["Before"][0].split())
+    xrce = _unit_settings(XRCE_SOCKET_UNIT)
+    assert xrce["Requires"] == ["swarmd-firewall.service"]
+    assert xrce["After"] == ["swarmd-firewall.service"]
