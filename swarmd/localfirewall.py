@@ -19,7 +19,9 @@ Which ports (read from the code that binds them):
   unread), users ``ros2.node_users``;
 - the XRCE agent's ``px4.connection`` (``px4.backend: xrce-agent``, ``udp:HOST:PORT``), users
   ``px4.loopback_user``. The agent tells users apart for loopback senders only, so its rule
-  matches what leaves on ``lo``: with the default 127.0.0.1 that is every datagram to it.
+  matches what leaves on ``lo``: with the default 127.0.0.1 that is every datagram to it. On a
+  wildcard (``px4.allow_network``) it matches every datagram this host sends to one of its
+  own addresses, a broadcast or a multicast group: those reach the agent too.
 
 Who may send: exactly the users the daemon itself takes on that port, so the two layers
 agree (a datagram the firewall passes is one the lookup would also take). Root is not added:
@@ -63,10 +65,16 @@ class GuardedPort:
 
     def rule(self) -> str:
         """The rule as ``nft list`` prints it (but the counter's values)."""
-        match = 'oifname "lo"'
         if self.address is not None:
             ip = ipaddress.ip_address(self.address)
-            match += f" {'ip6' if ip.version == 6 else 'ip'} daddr {ip.compressed}"
+            match = f'oifname "lo" {"ip6" if ip.version == 6 else "ip"} daddr {ip.compressed}'
+        else:
+            # a wildcard also takes this host's broadcasts and its own multicast copies, which
+            # leave by the Wi-Fi, not ``lo`` (a local user's ``SO_BROADCAST`` to the subnet, or
+            # 224.0.0.1 with ``IP_MULTICAST_LOOP``: tests/test_local_firewall_netns.py); the
+            # route's type names all three, unicast to any local address included (nft 0.7+,
+            # the kernel's nft_fib_inet; only wildcard configs need it)
+            match = "fib daddr type { local, broadcast, multicast }"
         users = sorted(self.uids)
         uids = str(users[0]) if len(users) == 1 else "{ " + ", ".join(map(str, users)) + " }"
         return (

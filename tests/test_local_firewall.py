@@ -89,7 +89,10 @@ def test_an_agent_on_a_wildcard_is_guarded_on_every_local_address() -> None:
     )
     (port,) = local_firewall(cfg).ports
     assert port.address is None
-    assert port.rule().startswith('oifname "lo" udp dport 888 meta skuid != 1002 ')
+    # not only ``oifname "lo"``: broadcasts and multicast copies leave by another interface
+    assert port.rule().startswith(
+        "fib daddr type { local, broadcast, multicast } udp dport 888 meta skuid != 1002 "
+    )
 
 
 def test_an_agent_named_by_host_name_is_one_line_naming_the_field() -> None:

@@ -16,15 +16,20 @@ live table. Loops are bounded: ``SPOOFS`` datagrams, every wait ``RECV_TIMEOUT_S
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import shutil
 import socket
+import struct
+import subprocess
+import sys
 from pathlib import Path
 from typing import Final
 
 import pytest
+from swarmd_lab.configs import MINIMAL_CONFIG
 from swarmd_lab.netns import Namespace
-from swarmd_lab.pktinfo import GUARDED, local_firewall, nobody_spoofs
+from swarmd_lab.pktinfo import AGENT_PORT, GUARDED, NOBODY, local_firewall, nobody_spoofs
 
 from tests.conftest import LanFactory
 
@@ -106,3 +111,85 @@ def test_the_rule_drops_a_spoofer_that_closes_its_socket_at_once(
     assert ns.run(["nft", "list", "ruleset"]).stdout.count(comment) == 1
     assert local_firewall(ns, config, "--remove").returncode == 0
     assert local_firewall(ns, config, "--check").returncode == 1
+
+
+# user ``nobody`` sends COUNT datagrams to DEST:PORT out of interface IFNAME, looped back to
+# this host's own sockets (SO_BROADCAST; IP_MULTICAST_IF and IP_MULTICAST_LOOP, ip(7))
+LOOPED_SENDER: Final = """
+import socket, struct, sys
+dest, port, ifname, count = sys.argv[1], int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+mreqn = struct.pack("=4s4si", bytes(4), bytes(4), socket.if_nametoindex(ifname))
+s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, mreqn)
+s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+refused = 0
+for _ in range(count):
+    try:
+        s.sendto(b"looped", (dest, port))
+    except PermissionError:  # the output hook's drop
+        refused += 1
+print("refused", refused, flush=True)
+"""
+
+
+def _looped_received(ns: Namespace, agent: socket.socket, dest: str) -> int:
+    """``SPOOFS`` datagrams from ``nobody`` to ``dest`` (a broadcast or a multicast group)
+    out of eth0, then one from root the same way. Returns how many of nobody's arrived; each
+    one not refused at ``sendto`` is waited for, so none can arrive after."""
+    argv = ns.command(["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"])
+    argv += [sys.executable, "-I", "-c", LOOPED_SENDER, dest, str(AGENT_PORT), ns.ifname]
+    done = subprocess.run(  # noqa: S603 - fixed argv
+        [*argv, str(SPOOFS)], capture_output=True, text=True, timeout=SPOOF_TIMEOUT_S, check=True
+    )
+    refused = int(done.stdout.split()[1])
+    with ns.socket(socket.AF_INET) as root:
+        root.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        mreqn = struct.pack("=4s4si", bytes(4), bytes(4), _ifindex(ns))
+        root.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, mreqn)
+        root.sendto(b"root", (dest, AGENT_PORT))
+    looped, marked = 0, False
+    for _ in range(SPOOFS + 1):  # any order: a looped copy may wait in another CPU's backlog
+        if marked and looped + refused == SPOOFS:
+            break
+        data, source = agent.recvfrom(64)
+        if data == b"root":
+            marked = True
+            continue
+        assert source[0] == ns.address  # from this host's own Wi-Fi address, not loopback
+        looped += 1
+    assert marked and looped + refused == SPOOFS
+    return looped
+
+
+def _ifindex(ns: Namespace) -> int:
+    """eth0's index in ``ns`` (this process is not in it: ``if_nametoindex`` would ask ours)."""
+    out = ns.run(["cat", f"/sys/class/net/{ns.ifname}/ifindex"]).stdout
+    return int(out)
+
+
+@pytest.mark.parametrize("to", ["broadcast", "multicast"])
+def test_an_agent_on_a_wildcard_drops_another_users_broadcast_and_multicast(
+    ns: Namespace, tmp_path: Path, to: str
+) -> None:
+    """A wildcard agent (``px4.allow_network``) also takes this host's broadcasts and its
+    own multicast copies. They leave by eth0, not ``lo``: the first table's ``oifname "lo"``
+    let every one of them through (40 of 40, both forms: seen failing without the fix)."""
+    net = ipaddress.IPv4Network(f"{ns.address}/{ns.prefixlen}", strict=False)
+    dest = str(net.broadcast_address) if to == "broadcast" else "224.0.0.1"
+    config = tmp_path / "swarmd.yaml"
+    config.write_text(
+        MINIMAL_CONFIG + "px4:\n  backend: xrce-agent\n"
+        f"  connection: udp:0.0.0.0:{AGENT_PORT}\n  allow_network: true\n  loopback_user: root\n"
+    )
+    with ns.socket(socket.AF_INET) as agent:
+        agent.bind(("0.0.0.0", AGENT_PORT))  # noqa: S104 - the wildcard under test
+        agent.settimeout(RECV_TIMEOUT_S)
+        assert _looped_received(ns, agent, dest) == SPOOFS  # without the table: all arrive
+        applied = local_firewall(ns, config, "--apply")
+        assert applied.returncode == 0, applied.stderr
+        assert _looped_received(ns, agent, dest) == 0  # root's (the vehicle's user) still does
+    check = local_firewall(ns, config, "--check")
+    assert check.returncode == 0, check.stderr
+    assert f"dropped {SPOOFS} datagrams" in check.stdout
+    assert local_firewall(ns, config, "--remove").returncode == 0
