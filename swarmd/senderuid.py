@@ -65,15 +65,18 @@ First contact. A miss of a new sender of one of ``keep_uids`` must not wait for 
 budget a flood spends, nor for a cut read to index it. So by netlink a miss first asks the
 kernel which socket would receive a reply to its source (``UdpDiag.receiver``: the
 delivery's own hashed lookup, ~8 us whatever the table holds, so outside the cost bucket;
-at most ``RECEIVER_LOOKUPS_PER_S``). That answer is one socket, never taken alone: Linux
-gives a port two uids share with ``SO_REUSEADDR`` to the newest socket, or to the one bound
-to the address before a wildcard, so it can name either of them. When it names one of
-``keep_uids``, the source's filtered query runs at the kept sources' priority (down to
-``KEPT_DEBT_S``), outside the miss budget, and its answer (a port two uids hold: nobody's)
-is the lookup's, as a miss query's always was. When it names another user or nobody (a
-free port, the flood's fresh ports, a socket connected to a peer other than ``to``), the
-miss path answers as before. A flood triggers only the cheap lookup; only the users the
-caller takes trigger the query.
+at most ``RECEIVER_LOOKUPS_PER_S``, and at most ``RECEIVER_COST_SHARE`` of a core by their
+measured cost: the lookup walks every socket bound to the source's address and port, and a
+user binding 17,000 there with SO_REUSEADDR made each 0.34 ms and a flood from that port
+spend the daemon's core, bench/sender_uid_receiver_walk.py). That answer is one socket,
+never taken alone: Linux gives a port two uids share with ``SO_REUSEADDR`` to the newest
+socket, or to the one bound to the address before a wildcard, so it can name either of
+them. When it names one of ``keep_uids``, the source's filtered query runs at the kept
+sources' priority (down to ``KEPT_DEBT_S``), outside the miss budget, and its answer (a
+port two uids hold: nobody's) is the lookup's, as a miss query's always was. When it
+names another user or nobody (a free port, the flood's fresh ports, a socket connected to
+a peer other than ``to``), the miss path answers as before. A flood triggers only the
+lookup (bounded in count and in cost); only the users the caller takes trigger the query.
 
 Where the table comes from. The kernel's netlink ``sock_diag`` (swarmd.sockdiag) gives the
 same rows in binary: the table every ``TTL_S`` as one dump, and a miss as a query for its
@@ -158,6 +161,14 @@ UNREAD_UID: Final = -1
 # RECEIVER_LOOKUPS_PER_S / the flood's misses a second (the miss path otherwise, as before).
 RECEIVER_LOOKUPS_PER_S: Final = 50_000.0
 RECEIVER_BURST: Final = 5_000.0
+# ... and in seconds of work: the hashed lookup walks the sockets bound to the source's
+# address and port (and then to the wildcard and port), and a user holding them by the
+# thousand with SO_REUSEADDR makes each walk long (~0.12 ms at 5,000 sockets, linear:
+# bench/sender_uid_receiver_walk.py), so a count alone let a flood from that port spend a
+# whole core. This is the count cap's cost at ~8 us: cheap lookups are capped by the
+# count as before, long walks by their measured cost (a bucket of seconds, as COST_SHARE).
+RECEIVER_COST_SHARE: Final = 0.40
+RECEIVER_COST_BURST_S: Final = 0.04
 # Sources answered as one of ``keep_uids`` (the users the caller takes: a declared node's,
 # PX4's) are answered from their own filtered query every TTL_S, not from the table read
 # (which a user holding more than MAX_INDEXED_SOCKETS sockets cuts before them) nor from the
@@ -294,12 +305,14 @@ class SenderUids:
             "receiver_lookups": 0,  # a miss's one-socket lookup ("First contact")
             "receiver_confirmed": 0,  # ... that named a keep_uids user: its source's query
             "receiver_refused": 0,  # the kernel refused it: not asked again
-            "receiver_over_budget": 0,  # a miss past RECEIVER_LOOKUPS_PER_S: the miss path
+            # a miss past RECEIVER_LOOKUPS_PER_S or RECEIVER_COST_SHARE: the miss path
+            "receiver_over_budget": 0,
             "receiver_us": 0,  # what those lookups cost (outside the cost bucket)
         }
         self._taken = False  # this lookup's source was a keep_uids user's (uid_of)
         self._receiver_works = True
         self._receivers = TokenBucket(RECEIVER_LOOKUPS_PER_S, RECEIVER_BURST, clock())
+        self._receiver_cost = TokenBucket(RECEIVER_COST_SHARE, RECEIVER_COST_BURST_S, clock())
         self._diag: UdpDiag | None = None
         if netlink if netlink is not None else proc == Path("/proc/self"):
             try:
@@ -384,7 +397,7 @@ class SenderUids:
         diag = self._diag
         if diag is None or not self.keep_uids or not self._receiver_works:
             return None
-        if not self._receivers.take(now):
+        if self._receiver_cost.balance(now) <= 0.0 or not self._receivers.take(now):
             self.counters["receiver_over_budget"] += 1
             return None
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -400,7 +413,9 @@ class SenderUids:
             self.counters["receiver_refused"] += 1
             return None
         finally:
-            self.counters["receiver_us"] += round(max(0.0, self.cost_clock() - started) * 1e6)
+            spent = max(0.0, self.cost_clock() - started)
+            self._receiver_cost.spend(spent)
+            self.counters["receiver_us"] += round(spent * 1e6)
         if row is None or row.uid not in self.keep_uids:
             return None  # nobody's now, or another user's: the miss path, as before
         if self._cost.balance(now) <= -KEPT_DEBT_S:

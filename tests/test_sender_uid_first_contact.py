@@ -10,12 +10,29 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+from typing import Any
 
 import pytest
 from swarmd_lab.pktinfo import nobody_spoofs
 
-from swarmd.senderuid import MISS_QUERY_BURST, TTL_S, SenderUids
-from tests.test_sockdiag import ME, NOBODY, _bind, _free_port, _nobody_binds
+import swarmd.sockdiag
+from swarmd.senderuid import (
+    COST_SHARE,
+    MISS_QUERY_BURST,
+    RECEIVER_COST_BURST_S,
+    RECEIVER_COST_SHARE,
+    TTL_S,
+    SenderUids,
+)
+from tests.test_sockdiag import (
+    ME,
+    NOBODY,
+    _bind,
+    _free_port,
+    _huge_table_lookup,
+    _HugeTable,
+    _nobody_binds,
+)
 
 
 def test_a_kept_users_new_source_is_found_past_a_spent_miss_budget_and_shares_stay_nobodys() -> (
@@ -203,3 +220,53 @@ def test_a_sender_that_closes_its_socket_at_once_is_not_seen() -> None:
         assert source == ("127.0.0.1", node.getsockname()[1])  # the precondition: spoofed
         uids = SenderUids(netlink=True, keep_uids={ME})
         assert uids.uid_of(source) is None  # today: ME, the node's
+
+
+# A one-socket lookup's walk past ~19,000 of another user's SO_REUSEADDR sockets on the
+# flood's address and port (bench/sender_uid_receiver_walk.py: linear in them)
+LONG_WALK_S = 0.0005
+
+
+class _LongChain(_HugeTable):
+    """``_HugeTable`` whose one-socket lookup walks a long hash chain: on the cost clock."""
+
+    def receiver(
+        self, family: int, address: bytes, port: int, peer: Any = None
+    ) -> swarmd.sockdiag.UdpRow | None:
+        _HugeTable.spent[0] += LONG_WALK_S
+        return super().receiver(family, address, port, peer)
+
+
+def test_a_flood_from_a_port_with_a_long_hash_chain_costs_a_bounded_share_of_a_core(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack (a local user against the one-socket lookup's cap): ``nobody`` binds ~19,000
+    sockets with SO_REUSEADDR to 127.0.0.1:P (and holds enough elsewhere to cut every
+    dump), then floods from P. Each datagram misses the cut table, so each asks the kernel's
+    one-socket answer, which walks all of them (not the ~8 us of sockets spread over
+    addresses). On main that lookup was capped by count only (50,000 a second): 20 lookups
+    a virtual millisecond for 10 virtual seconds cost 100 s of walks, ten cores. Now its
+    measured cost is capped too, at RECEIVER_COST_SHARE of the time; the table's reads and
+    queries keep their own share; a kept node is still answered at every datagram."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
+    uids._diag = _LongChain()  # type: ignore[assignment]
+    _HugeTable.owners = {5000: ME, 40_000: NOBODY}
+    while uids.uid_of(("127.0.0.1", 5000)) != ME and now[0] < 105.0:  # the node, kept
+        now[0] += 0.01
+    assert uids.uid_of(("127.0.0.1", 5000)) == ME
+    start, spent_before = now[0], _HugeTable.spent[0]
+    answered = 0
+    for ms in range(10_000):
+        now[0] += 0.001
+        for _ in range(20):
+            assert uids.uid_of(("127.0.0.1", 40_000)) in (None, NOBODY)  # never the node
+        if ms % 10 == 0:
+            answered += uids.uid_of(("127.0.0.1", 5000)) == ME
+    elapsed = now[0] - start
+    walks = uids.counters["receiver_us"] / 1e6
+    assert walks <= RECEIVER_COST_SHARE * elapsed + RECEIVER_COST_BURST_S + LONG_WALK_S, walks
+    share = COST_SHARE + RECEIVER_COST_SHARE
+    assert _HugeTable.spent[0] - spent_before <= share * elapsed + 0.04 + 0.05 + 0.5 + 0.2
+    assert uids.counters["receiver_over_budget"] > 0
+    assert answered == 1000  # the kept node: every one of its datagrams

@@ -20,16 +20,18 @@ from typing import Final
 NOBODY: Final = 65534
 # Under nobody's RLIMIT_NOFILE (20,000 here), with room for the interpreter's own files.
 PER_PROCESS: Final = 17_000
-# Binds sockets first .. first + count - 1 on the port at 127.1.(i >> 8).(i & 255), prints
-# "ready", holds them until its stdin closes, at most hold_s seconds.
+# Binds sockets first .. first + count - 1 on the port at 127.1.(i >> 8).(i & 255) (or, with
+# "same", all at 127.0.0.1 with SO_REUSEADDR: one hash chain in the kernel), prints "ready",
+# holds them until its stdin closes, at most hold_s seconds.
 HOLDER: Final = """
 import socket, sys, select
 port, first, count = map(int, sys.argv[1:4])
-hold_s = float(sys.argv[4])
+hold_s, same = float(sys.argv[4]), sys.argv[5] == "same"
 socks = []
 for i in range(first, first + count):
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind((f"127.1.{i >> 8}.{i & 255}", port))
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, same)
+    s.bind(("127.0.0.1" if same else f"127.1.{i >> 8}.{i & 255}", port))
     socks.append(s)
 print("ready", flush=True)
 select.select([sys.stdin], [], [], hold_s)
@@ -49,9 +51,11 @@ def nobody_holds(
     first: int = 1,
     per_process: int = PER_PROCESS,
     hold_s: float = 900.0,
+    same_address: bool = False,
 ) -> Iterator[list[subprocess.Popen[str]]]:
     """``nobody`` holds ``count`` sockets on ``port`` (socket ``first`` onwards) while the
-    block runs; the processes are stopped on every way out of it, a failed start included.
+    block runs (``same_address``: all at 127.0.0.1, SO_REUSEADDR); the processes are stopped
+    on every way out of it, a failed start included.
     Raises ``HolderNotReady`` when a holder did not bind all its sockets."""
     procs: list[subprocess.Popen[str]] = []
     try:
@@ -61,7 +65,10 @@ def nobody_holds(
             argv += [sys.executable, "-I", "-c", HOLDER, str(port), str(start), str(n)]
             procs.append(
                 subprocess.Popen(  # noqa: S603 - fixed argv
-                    [*argv, str(hold_s)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+                    [*argv, str(hold_s), "same" if same_address else "spread"],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    text=True,
                 )
             )
         for proc in procs:
