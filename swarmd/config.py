@@ -22,6 +22,7 @@ import yaml
 
 from swarmd.bundle.keys import others_can_write
 from swarmd.bundle.model import Bundle, NotAParticipant, Participant
+from swarmd.dataplane.validity import MIN_REPORT_PERIOD_MS
 from swarmd.discovery.config import MODES
 from swarmd.link import SourceName
 from swarmd.yamldoc import FieldError, composed, read_text
@@ -695,7 +696,13 @@ class _Checker:
     def dataplane(self, f: Nodes) -> DataplaneSection:
         d = DataplaneSection()
         period = (
-            self.number(f["readiness_period_s"], "dataplane.readiness_period_s", 0.05, 60.0, " s")
+            self.number(
+                f["readiness_period_s"],
+                "dataplane.readiness_period_s",
+                MIN_REPORT_PERIOD_MS / 1000.0,  # the report log's cap assumes it
+                60.0,
+                " s",
+            )
             if "readiness_period_s" in f
             else d.readiness_period_s
         )

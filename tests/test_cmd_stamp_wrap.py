@@ -21,9 +21,12 @@ from swarmd.dataplane.types import Command, CommandKind, TimeEcho
 from swarmd.dataplane.validity import (
     EXPIRED,
     MAX_LOGGED_REPORTS,
+    MIN_REPORT_PERIOD_MS,
     REPORT_LOG_MS,
     STAMP_MODULUS,
     ReportLog,
+    judge,
+    stamp_ms,
 )
 from swarmd.px4.vehicle import VehicleRequest
 from swarmd.swarm.events import CommandExpired, OutcomeReported
@@ -78,3 +81,23 @@ def test_the_report_log_keeps_exactly_the_span_a_runnable_command_can_echo() -> 
     for i in range(MAX_LOGGED_REPORTS):  # bounded: the oldest leaves first
         log.sent(2_000 + i, 2.0)
     assert log.unknown(cmd, "m01", 2.0) is not None
+
+
+def test_the_report_log_keeps_the_whole_span_at_the_fastest_report_period() -> None:
+    """Review 13 (the log's cap): ``dataplane.readiness_period_s`` may be as short as 0.05 s
+    (the config's floor), 24,000 reports in ``REPORT_LOG_MS``. With 8,192 kept, a report
+    409.6 s old was gone: a command echoing a report 500 s old (its commander heard nothing
+    newer from us, our reports lost on the way and its commands not) was refused as not one
+    of ours, though ``judge`` leaves it time to run. The cap now covers the span at the
+    config's floor."""
+    log = ReportLog()
+    period = MIN_REPORT_PERIOD_MS / 1000.0
+    reports = REPORT_LOG_MS // MIN_REPORT_PERIOD_MS
+    for i in range(reports):
+        log.sent(stamp_ms(i * period), i * period)
+    now = reports * period
+    echoed = (reports - round(500.0 / period)) * period  # a report 500 s old
+    echo = TimeEcho("m01", stamp_ms(echoed), 499_000, 1)
+    cmd = Command(7, CommandKind.HOLD, 0.0, ["m01"], 600_000, [echo])
+    assert judge(cmd, "m01", now).valid  # guard: the command has time left
+    assert log.unknown(cmd, "m01", now) is None

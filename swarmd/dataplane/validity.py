@@ -62,9 +62,13 @@ MAX_ECHO_AGE_MS: Final = 600_000
 # A report older than this can date no command that may still run: the echo is at most
 # MAX_ECHO_AGE_MS old at the issue, and the validity at most MAX_VALID_MS after it.
 REPORT_LOG_MS: Final = MAX_ECHO_AGE_MS + MAX_VALID_MS
-# A backstop on the log's length: 1,200 reports at the shipped 1 Hz, plus one per
-# (re)discovery of a commander; past it the oldest go first (their commands are refused).
-MAX_LOGGED_REPORTS: Final = 8192
+# The shortest readiness period the config accepts (dataplane.readiness_period_s): one
+# report a tick (swarm core's _tick), so at most this many in the log's span.
+MIN_REPORT_PERIOD_MS: Final = 50
+# A backstop on the log's length: the span at the fastest period (24,001; 1,200 at the
+# shipped 1 Hz); past it the oldest go first (their commands are refused). It was 8,192,
+# 409.6 s at 0.05 s: a command echoing an older report of the span was refused.
+MAX_LOGGED_REPORTS: Final = REPORT_LOG_MS // MIN_REPORT_PERIOD_MS + 1
 
 EXPIRED: Final = "expired"  # the reason a member reports (REJECTED) for a late command
 # ... and for one it cannot prove was issued after its daemon started (its executed-id
