@@ -280,6 +280,9 @@ class SenderUids:
         # (host, port) -> (when its uids were read, the uids): sources of keep_uids, in
         # order of their last lookup (the first is the first out)
         self._kept: dict[tuple[str, int], tuple[float, set[int]]] = {}
+        # sources a kept-priority confirmation found shared (two uids): answered so for
+        # TTL_S without another query (at most MAX_KEPT_SOURCES, the oldest out)
+        self._shared: dict[tuple[str, int], tuple[float, set[int]]] = {}
         # port -> {(sends_from, uid)} for every socket on the port (any address)
         self._index: dict[int, set[tuple[str, int]]] = {}
         self._read_at: float | None = None
@@ -397,6 +400,10 @@ class SenderUids:
         diag = self._diag
         if diag is None or not self.keep_uids or not self._receiver_works:
             return None
+        shared = self._shared.get((host, port))
+        if shared is not None and 0.0 <= now - shared[0] < TTL_S:
+            self._taken = True
+            return shared[1]  # confirmed shared within TTL_S: nobody's, without a query
         if self._receiver_cost.balance(now) <= 0.0 or not self._receivers.take(now):
             self.counters["receiver_over_budget"] += 1
             return None
@@ -423,7 +430,16 @@ class SenderUids:
             return None
         self.counters["receiver_confirmed"] += 1
         self._taken = True
-        return self._query_source(host, port)
+        answer = self._query_source(host, port)
+        if answer is not None and len(answer) > 1:
+            # another user on the node's port, sending from its source (IP_PKTINFO): its
+            # flood would repeat this kept-priority query at each datagram and hold the
+            # bucket at KEPT_DEBT_S, starving every kept source's re-check; once per TTL_S
+            self._shared.pop((host, port), None)
+            if len(self._shared) >= MAX_KEPT_SOURCES:
+                del self._shared[next(iter(self._shared))]
+            self._shared[host, port] = (now, answer)
+        return answer
 
     def _kept_uids(self, host: str, port: int, now: float) -> set[int] | None:
         """A kept source's uids, re-read by its own query once ``TTL_S`` old (not charged to

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import socket
 import subprocess
 from typing import Any
 
@@ -270,3 +271,52 @@ def test_a_flood_from_a_port_with_a_long_hash_chain_costs_a_bounded_share_of_a_c
     assert _HugeTable.spent[0] - spent_before <= share * elapsed + 0.04 + 0.05 + 0.5 + 0.2
     assert uids.counters["receiver_over_budget"] > 0
     assert answered == 1000  # the kept node: every one of its datagrams
+
+
+SHARED_PORT = 6000  # a node's port that ``nobody`` binds too, at another address
+
+
+class _SharedPort(_HugeTable):
+    """``_HugeTable`` where ``nobody`` also holds SHARED_PORT at another address (it sends
+    from the node's source there by ``IP_PKTINFO``): the kernel's one-socket answer names
+    the node (the socket bound to the source's address), the port's query both users."""
+
+    def rows(
+        self, family: int, port: int, max_rows: int, addresses: Any = None, enough: Any = None
+    ) -> tuple[list[swarmd.sockdiag.UdpRow], bool]:
+        rows, more = super().rows(family, port, max_rows, addresses, enough)
+        if port == SHARED_PORT and family == socket.AF_INET:
+            raw = socket.inet_aton("127.0.0.2")
+            rows = [*rows, swarmd.sockdiag.UdpRow(socket.AF_INET, raw, port, NOBODY, 2)]
+        return rows, more
+
+
+def test_a_user_sharing_one_nodes_port_cannot_starve_the_other_kept_sources(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack (a local user against the kept priority): ``nobody`` binds node B's port at
+    127.0.0.2 (a denial of B, counted ``port_shared``) and floods from B's own source
+    127.0.0.1:P by ``IP_PKTINFO``, beside a table large enough to hold the reads back. Each
+    datagram missed the stale table, the one-socket answer named B's socket, and B's port
+    was queried at the kept sources' priority: the flood held the cost bucket at the kept
+    debt, so node A's re-checks (a kept source, another port) found no budget and A's
+    datagrams were dropped (on main: 0 of 1,000 answered after the first). Now a kept-
+    priority confirmation that found the port shared is remembered for TTL_S: the flood
+    spends one query per TTL_S on it, and A is answered at every datagram."""
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
+    uids._diag = _SharedPort()  # type: ignore[assignment]
+    _HugeTable.owners = {5000: ME, SHARED_PORT: ME}
+    node_a, node_b = ("127.0.0.1", 5000), ("127.0.0.1", SHARED_PORT)
+    while uids.uid_of(node_a) != ME and now[0] < 105.0:  # A found and kept
+        now[0] += 0.01
+    assert uids.uid_of(node_a) == ME
+    answered = 0
+    for ms in range(10_000):
+        now[0] += 0.001
+        for _ in range(20):
+            assert uids.uid_of(node_b) is None  # B's port is shared: nobody's, never B
+        if ms % 10 == 0:
+            answered += uids.uid_of(node_a) == ME
+    assert answered == 1000  # A: every one of its datagrams
+    assert uids.counters["port_shared"] >= 200_000  # the denial of B, counted each time
