@@ -73,7 +73,10 @@ never taken alone: Linux gives a port two uids share with ``SO_REUSEADDR`` to th
 socket, or to the one bound to the address before a wildcard, so it can name either of
 them. When it names one of ``keep_uids``, the source's filtered query runs at the kept
 sources' priority (down to ``KEPT_DEBT_S``), outside the miss budget, and its answer (a
-port two uids hold: nobody's) is the lookup's, as a miss query's always was. When it
+port two uids hold: nobody's) is the lookup's, as a miss query's always was; a source it
+found shared is answered so for ``TTL_S`` without another (another user on a node's port,
+flooding from the node's source by ``IP_PKTINFO``, held the bucket at ``KEPT_DEBT_S`` and
+starved every other kept source's re-check: tests/test_sender_uid_first_contact.py). When it
 names another user or nobody (a free port, the flood's fresh ports, a socket connected to
 a peer other than ``to``), the miss path answers as before. A flood triggers only the
 lookup (bounded in count and in cost); only the users the caller takes trigger the query.
