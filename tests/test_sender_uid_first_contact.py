@@ -279,13 +279,16 @@ SHARED_PORT = 6000  # a node's port that ``nobody`` binds too, at another addres
 class _SharedPort(_HugeTable):
     """``_HugeTable`` where ``nobody`` also holds SHARED_PORT at another address (it sends
     from the node's source there by ``IP_PKTINFO``): the kernel's one-socket answer names
-    the node (the socket bound to the source's address), the port's query both users."""
+    the node (the socket bound to the source's address), the port's query both users
+    while ``held``."""
+
+    held = True
 
     def rows(
         self, family: int, port: int, max_rows: int, addresses: Any = None, enough: Any = None
     ) -> tuple[list[swarmd.sockdiag.UdpRow], bool]:
         rows, more = super().rows(family, port, max_rows, addresses, enough)
-        if port == SHARED_PORT and family == socket.AF_INET:
+        if port == SHARED_PORT and family == socket.AF_INET and _SharedPort.held:
             raw = socket.inet_aton("127.0.0.2")
             rows = [*rows, swarmd.sockdiag.UdpRow(socket.AF_INET, raw, port, NOBODY, 2)]
         return rows, more
@@ -306,6 +309,7 @@ def test_a_user_sharing_one_nodes_port_cannot_starve_the_other_kept_sources(
     now = [100.0]
     uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
     uids._diag = _SharedPort()  # type: ignore[assignment]
+    _SharedPort.held = True
     _HugeTable.owners = {5000: ME, SHARED_PORT: ME}
     node_a, node_b = ("127.0.0.1", 5000), ("127.0.0.1", SHARED_PORT)
     while uids.uid_of(node_a) != ME and now[0] < 105.0:  # A found and kept
@@ -320,3 +324,6 @@ def test_a_user_sharing_one_nodes_port_cannot_starve_the_other_kept_sources(
             answered += uids.uid_of(node_a) == ME
     assert answered == 1000  # A: every one of its datagrams
     assert uids.counters["port_shared"] >= 200_000  # the denial of B, counted each time
+    _SharedPort.held = False  # nobody closes its socket: B is B's again within TTL_S
+    now[0] += TTL_S
+    assert uids.uid_of(node_b) == ME
