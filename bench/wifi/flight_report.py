@@ -349,21 +349,21 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
     from bench.wifi import flight
 
     scenario = flight.of_run(run)
-    changes, down, readiness, started = flight_measures.run_records(run)
+    tl = flight_measures.timeline(run, scenario.truth())
     first_move = min((w[0] for w in run["waypoints"] if w[0] > 0), default=None)
     if first_move is None and run.get("events"):
         first_move = min(e[0] for e in run["events"])
     measures = flight_measures.measure(
-        scenario.truth(), changes, down, n=run["n"], lease_s=run["lease_s"],
-        restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
+        tl.truth, tl.changes, tl.down, n=run["n"], lease_s=run["lease_s"],
+        restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=tl.readiness,
         discovery_fps=run["discovery_fps"], first_move_s=first_move,
-        started=started,
+        started=tl.started,
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
         run.get("renewals", []), first_move or 0.0
     )
     if "commands" in run:
-        measures["commands"] = flight_commands.measure(run["commands"], scenario.truth(), down)
+        measures["commands"] = flight_commands.measure(run["commands"], tl.truth, tl.down)
     return measures
 
 
