@@ -4,7 +4,12 @@ member sends after coming back into the commander's range goes (docs/flight-hist
 
 from __future__ import annotations
 
-from bench.wifi.flight_measures import first_report_lost, poll_gap, readiness_after_returns
+from bench.wifi.flight_measures import (
+    Timeline,
+    first_report_lost,
+    poll_gap,
+    readiness_after_returns,
+)
 
 STEP_S = 0.5
 END_S = 40.0
@@ -42,7 +47,7 @@ def test_a_first_report_that_reached_a_commander_without_the_member_is_lost() ->
     before = [0.1 + k for k in range(10)]
     after = [20.5 + k for k in range(1, 20)]  # 20.5 itself never counted
     rows = readiness_after_returns(
-        _truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S
+        Timeline(_truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S)
     )
     assert len(rows) == 1
     row = rows[0]
@@ -57,7 +62,7 @@ def test_a_first_report_counted_at_once_is_not_lost() -> None:
     before = [0.1 + k for k in range(10)]
     after = [20.71 + k for k in range(20)]  # taken as the commander finds the member
     rows = readiness_after_returns(
-        _truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S
+        Timeline(_truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S)
     )
     assert not first_report_lost(rows[0])
     assert rows[0]["delivered"] == 20.0
@@ -69,7 +74,7 @@ def test_polls_a_period_apart_cannot_tell_a_lost_first_report() -> None:
     before = [0.1 + k for k in range(10)]
     after = [20.5 + k for k in range(1, 20)]
     rows = readiness_after_returns(
-        _truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S
+        Timeline(_truth(), {}, _changes(20.5, 20.7), _polls(before + after), 2, END_S)
     )
     assert first_report_lost(rows[0], poll_gap_s=0.25) is True
     assert first_report_lost(rows[0], poll_gap_s=1.0) is None

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 
 from bench.wifi import flight_measures
-from bench.wifi.flight_measures import Change
+from bench.wifi.flight_measures import Change, Timeline
 
 END = 100.0
 
@@ -49,9 +49,7 @@ def _delivery(
 ) -> dict[str, object]:
     truth = _all_in_range()
     changes, end = _found(found), truth[-1][0]
-    if started:  # the argument is new in session 9: without it the calls read as before
-        return flight_measures.readiness_delivery(truth, {}, changes, polls, 3, end, started)
-    return flight_measures.readiness_delivery(truth, {}, changes, polls, 3, end)
+    return flight_measures.readiness_delivery(Timeline(truth, {}, changes, polls, 3, end, started))
 
 
 def test_a_member_listed_only_from_its_first_sample_is_counted_from_its_discovery() -> None:
@@ -150,7 +148,7 @@ def test_a_span_ending_between_two_polls_is_not_charged_for_the_samples_after_th
                     return sum(1 for s in sent if s <= min(t, 30.0))
 
                 polls = _polls(count, every_s=every, first_s=poll_phase)
-                r = flight_measures.readiness_delivery(truth, {}, changes, polls, 3, END)
+                r = flight_measures.readiness_delivery(Timeline(truth, {}, changes, polls, 3, END))
                 assert isinstance(r["expected"], int) and isinstance(r["delivered"], int)
                 expected += r["expected"]
                 delivered += r["delivered"]
@@ -172,6 +170,6 @@ def test_the_poll_bound_does_not_hide_a_lost_sample() -> None:
 
     for every in (1.0, 0.25):
         polls = _polls(count, every_s=every, first_s=0.0)
-        r = flight_measures.readiness_delivery(truth, {}, changes, polls, 3, END)
+        r = flight_measures.readiness_delivery(Timeline(truth, {}, changes, polls, 3, END))
         # the span 4.0-30.0 s, its last poll at 30.0 s: 26 s, 24 samples each
         assert r["expected"] == 2 * 26 and r["delivered"] == 2 * 24, (every, r)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from bench.wifi import flight_measures, flight_readiness
-from bench.wifi.flight_measures import Change
+from bench.wifi.flight_measures import Change, Timeline
 
 END_S = 100.0
 PHASES = [("blackout", 30.0, 60.0)]
@@ -53,7 +53,7 @@ def _polls(every_s: float = 1.0, phase_s: float = 0.5) -> list[tuple[float, dict
 
 def _rows(every_s: float = 1.0) -> list[dict[str, Any]]:
     return flight_readiness.readiness_spans(
-        _truth(), {}, _changes(), _polls(every_s), 3, END_S, (), PHASES
+        Timeline(_truth(), {}, _changes(), _polls(every_s), 3, END_S), PHASES
     )
 
 
@@ -76,7 +76,7 @@ def test_the_spans_add_up_to_the_run_measure() -> None:
     for every in (1.0, 0.25):
         rows = _rows(every)
         whole = flight_measures.readiness_delivery(
-            _truth(), {}, _changes(), _polls(every), 3, END_S
+            Timeline(_truth(), {}, _changes(), _polls(every), 3, END_S)
         )
         assert round(sum(float(r["expected"]) for r in rows)) == whole["expected"]
         assert round(sum(float(r["delivered"]) for r in rows)) == whole["delivered"]
@@ -89,7 +89,9 @@ def test_nothing_counted_in_a_span_is_all_onset() -> None:
     """A member found but never heard: its whole span is the onset, nothing steady."""
     changes = _changes()
     polls = [(t, {2: c}) for t, table in _polls() if (c := table.get(2, 0))]
-    rows = flight_readiness.readiness_spans(_truth(), {}, changes, polls, 3, END_S, (), PHASES)
+    rows = flight_readiness.readiness_spans(
+        Timeline(_truth(), {}, changes, polls, 3, END_S), PHASES
+    )
     silent = [r for r in rows if r["member"] == 1]
     assert silent and all(r["onset_missing"] == r["expected"] for r in silent)
     assert all(r["steady_missing"] == 0.0 and r["delivered"] == 0 for r in silent)

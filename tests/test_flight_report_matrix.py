@@ -174,17 +174,41 @@ def test_verdicts_are_for_swarmd_only_and_not_known_without_a_valid_run() -> Non
     assert not [v for v in vs if v.target == "frames" and v.scenario in ("fade", "reboot")]
 
 
-def test_since_commit_drops_older_swarmd_runs_only() -> None:
+def test_since_commit_drops_older_runs_on_swarmd_only() -> None:
+    """ROS 2 on swarmd's daemon is swarmd: its runs at an older engine are left out like
+    swarmd's own (before, they mixed into its medians); a stock stack's never are."""
     runs = files(
         record(commit="old0000000"),
         record(run=2, commit="new0000000+dirty"),
+        record(contender="ros2-swarmd", commit="old1111111"),
+        record(contender="ros2-swarmd", run=2, commit="new0000000"),
         record(contender="zenoh", commit="old0000000"),
         record(n=5),  # outside the matrix
     )
     sel = fm.select(runs, lambda c: c.startswith("new"))
-    assert [(f.run["contender"], f.run["run"]) for f in sel.runs] == [("swarmd", 2), ("zenoh", 1)]
-    assert len(sel.older_swarmd) == 1
+    assert [(f.run["contender"], f.run["run"]) for f in sel.runs] == [
+        ("swarmd", 2), ("ros2-swarmd", 2), ("zenoh", 1),
+    ]  # fmt: skip
+    assert [(f.run["contender"], fm.commit(f.run)) for f in sel.older] == [
+        ("swarmd", "old0000000"), ("ros2-swarmd", "old1111111"),
+    ]  # fmt: skip
     assert len(sel.outside) == 1
+    text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"),
+                    counts=lambda c: c.startswith("new"), since="new0000")  # fmt: skip
+    assert "(swarmd, ROS 2 on swarmd): only runs at `new0000` or after count" in text
+    assert (
+        "- `old1111111`: 1 run file(s), 2026-11-26 18:11 UTC (ros2-swarmd N=10: split r1)" in text
+    )
+
+
+def test_a_run_file_cut_short_is_named_and_judges_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "flight-split-swarmd-n10-r1.json").write_text('{"scenario": "spl')
+    with pytest.raises(ValueError, match="flight-split-swarmd-n10-r1.json: cannot be read"):
+        fm.load([tmp_path])
+    assert flight_report.main(["--matrix", str(tmp_path)]) == 2
+    assert "flight-split-swarmd-n10-r1.json" in capsys.readouterr().err
 
 
 def test_a_run_read_twice_counts_once() -> None:
@@ -209,6 +233,9 @@ def test_git_descends_follows_the_history(tmp_path: Path) -> None:
     assert not since_second(first)
     assert fm.git_descends(first, tmp_path)(second)
     assert not since_second("0123456789")  # unknown to the repository: does not count
+    # a --since-commit the repository does not know would leave every run on swarmd out
+    with pytest.raises(ValueError, match="not a commit"):
+        fm.git_descends("0123456789", tmp_path)
 
 
 def test_the_figure_is_the_median_run_of_three_and_links_from_docs(tmp_path: Path) -> None:

@@ -95,6 +95,10 @@ class Runner:
 
 
 def cells(tmp_path: Path, **kw: Any) -> list[fc.Cell]:
+    return plan_of(tmp_path, **kw).cells
+
+
+def plan_of(tmp_path: Path, **kw: Any) -> fc.Plan:
     args: dict[str, Any] = {
         "repeats": 1,
         "sizes": (10, 20),
@@ -156,6 +160,31 @@ def test_every_first_run_starts_before_any_second(tmp_path: Path) -> None:
     assert [r.cell.repeat for r in runner.runs] == [1] * 4 + [2] * 4
 
 
+def test_a_replacement_for_an_invalid_first_run_flies_before_any_second_run(
+    tmp_path: Path,
+) -> None:
+    """A cell whose r1 is invalid needs its first valid run: its r2 belongs to round 1 and
+    flies before any cell's second run, though its number is 2."""
+    kw: dict[str, Any] = {"repeats": 2, "sizes": (20,), "scenarios": ("split",),
+                          "contenders": ("cyclonedds", "fastdds")}  # fmt: skip
+    invalid = cells(tmp_path, **kw)[0]
+    invalid.path.parent.mkdir(parents=True)
+    invalid.path.write_text(json.dumps({"scenario": "split", "contender": "cyclonedds", "n": 20,
+                                        "run": 1, "valid": False}))  # fmt: skip
+    plan = cells(tmp_path, **kw)
+    for parallel in (1, 2):
+        for c in plan:
+            c.path.unlink(missing_ok=True)
+        code, runner = run(plan, parallel)
+        assert code == 0
+        flown = [(r.cell.contender, r.cell.repeat) for r in runner.runs]
+        assert flown[:2] in (
+            [("cyclonedds", 2), ("fastdds", 1)],
+            [("fastdds", 1), ("cyclonedds", 2)],
+        ), (parallel, flown)
+        assert sorted(flown[2:]) == [("cyclonedds", 3), ("fastdds", 2)]
+
+
 def test_until_holds_per_start(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     plan = cells(tmp_path, sizes=(10,), scenarios=("blackout",))
     swarmd = next(c for c in plan if c.contender == "swarmd")
@@ -212,7 +241,7 @@ def test_the_plan_divides_only_the_dilated_hours_by_k(tmp_path: Path) -> None:
     beside = sum(c.estimate_s for c in plan if c.dilated) / 3600
     assert fc.hours_at_once(plan, 1) == pytest.approx(alone + beside)
     assert fc.hours_at_once(plan, 2) == pytest.approx(alone + beside / 2)
-    assert "at up to 2 dilated at once" in fc.plan_lines(plan, 2)[0]
-    assert "(one at a time)" in fc.plan_lines(plan)[0]
+    assert "at up to 2 dilated at once" in fc.plan_lines(plan_of(tmp_path), 2)[0]
+    assert "(one at a time)" in fc.plan_lines(plan_of(tmp_path))[0]
     argv = plan[1].argv("py", 1)
     assert argv[argv.index("--beside") + 1] == "1"

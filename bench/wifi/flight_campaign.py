@@ -7,15 +7,22 @@ and running them, one at a time or two dilated ones at once, until a deadline.
         --repeats 1 --n 20 --contenders cyclonedds,fastdds,zenoh,ros2   # run what fits
     sudo .venv/bin/python -m bench.wifi.flight_campaign --run --until 08:00 --parallel 2
 
-A cell is (repeat, N, scenario, contender); its run file is the name ``flight_run`` writes
-(``flight-<scenario>-<contender>-n<N>[-k<K>]-r<repeat>.json``) in the contender's directory:
-swarmd's in ``--swarmd-out``, every other contender's in ``--stock-out``; both are
-``bench/results/flight-stagger`` by default, the runs under the staggered start that the
-matrix in docs/benchmarks.md reads (the lockstep runs before it: docs/flight-lockstep.md).
-A cell whose file exists is done, whatever its validity (the matrix counts invalid runs as
-such; a rerun is a new repeat). Cells are taken repeat by repeat (every cell's first run
-before any second one), then by N, scenario and contender in the order given, so a campaign
-cut short leaves whole columns, not scattered cells.
+A cell is (N, scenario, contender), and ``--repeats R`` asks R **valid** runs of it, counted
+as the matrix in docs/benchmarks.md counts them. Its run files are the names ``flight_run``
+writes (``flight-<scenario>-<contender>-n<N>[-k<K>]-r<repeat>.json``, any k) in the
+contender's directory: swarmd's in ``--swarmd-out``, every other contender's in
+``--stock-out``; both are ``bench/results/flight-stagger`` by default, the runs under the
+staggered start that the matrix reads (the lockstep runs before it: docs/flight-lockstep.md).
+A file counts when the matrix would use it: valid by its own fields (``flight_cells.is_valid``,
+the matrix's judge) and, for a contender whose daemon is swarmd (swarmd, ROS 2 on swarmd),
+made at ``--since-commit`` or after (``flight_cells.current``, the matrix's rule; by default
+the commit that docs/benchmarks.md's generated block names). Every other file is kept and
+listed in the plan, not counted: invalid (the file's ``invalid_reason`` and lag p99), older
+(its commit) or unreadable (why); the cell's next free repeat number is planned in its place.
+A cell's missing runs are taken round by round (round r: a cell's r-th valid run, whatever
+its file's number, so every cell's first valid run comes before any second one), then by N,
+scenario and contender in the order given, so a campaign cut short leaves whole columns,
+not scattered cells.
 
 Each run is ``python -m bench.wifi.flight_run`` for one cell, bounded by a timeout. By
 default one at a time (the runs share the two cores); ``--parallel 2`` flies two dilated
@@ -35,14 +42,17 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import itertools
 import json
+import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
-from bench.wifi import flight, flight_schedule
+from bench.wifi import flight, flight_matrix, flight_schedule
+from bench.wifi.flight_cells import commit, current, is_valid, read_run, validity
 from bench.wifi.flight_run import (
     FLIGHT_CONTENDERS,
     PEER_OBSERVED,
@@ -64,19 +74,23 @@ DILATED_K: Final = "10:3,20:6"  # every contender but swarmd (module doc)
 OVERHEAD_S: Final = 60.0  # namespaces, start-up, the barrier, assembling the run file
 SWARMD_OUT: Final = REPO / "bench" / "results" / "flight-stagger"
 STOCK_OUT: Final = SWARMD_OUT
+DOCS: Final = REPO / "docs" / "benchmarks.md"  # its matrix block names --since-commit
+# what a run file in a cell's place is to the plan; only VALID counts
+VALID, INVALID, OLDER, UNREADABLE = "valid", "invalid", "older", "unreadable"
 
 
 @dataclass(frozen=True)
 class Cell:
-    """One run of the matrix: what it is, where its file goes, what it costs."""
+    """One run of the matrix to fly: what it is, where its file goes, what it costs."""
 
-    repeat: int
+    repeat: int  # the run file's number (flight_run --first-run): the cell's next free one
     n: int
     scenario: str
     contender: str
     k: float
     path: Path
     estimate_s: float
+    round: int = 1  # which valid run of its cell it would be (1: its first; module doc)
 
     @property
     def done(self) -> bool:
@@ -99,6 +113,86 @@ class Cell:
         return f"n={self.n} {self.scenario} {self.contender} r{self.repeat} k={self.k:g}"
 
 
+@dataclass(frozen=True)
+class Held:
+    """A run file already in a cell's place, and how the matrix takes it."""
+
+    repeat: int
+    n: int
+    scenario: str
+    contender: str
+    path: Path
+    status: str  # VALID (counted), INVALID, OLDER (on swarmd, before --since-commit), UNREADABLE
+    why: str  # its status and why: the file's validity fields, its commit, what is wrong
+
+    @property
+    def counted(self) -> bool:
+        return self.status == VALID
+
+    def label(self) -> str:
+        return f"n={self.n} {self.scenario} {self.contender} r{self.repeat}"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the campaign found and what it would fly."""
+
+    repeats: int  # valid runs wanted per cell
+    size: int  # cells planned: sizes x scenarios x contenders
+    cells: list[Cell]  # to fly, in campaign order (module doc)
+    held: list[Held]  # every run file in a planned cell's place, counted or not
+    since: str | None  # --since-commit for the contenders on swarmd (None: every commit)
+
+    def counted(self) -> int:
+        """Valid runs the matrix would use, up to ``repeats`` per cell."""
+        per_cell: dict[tuple[int, str, str], int] = {}
+        for h in self.held:
+            key = (h.n, h.scenario, h.contender)
+            per_cell[key] = per_cell.get(key, 0) + h.counted
+        return sum(min(self.repeats, k) for k in per_cell.values())
+
+
+def judge(
+    path: Path,
+    repeat: int,
+    n: int,
+    scenario: str,
+    contender: str,
+    counts: Callable[[str], bool] | None,
+) -> Held:
+    """A run file as the matrix would take it (module doc): the matrix's own rule and judge
+    (``flight_cells.current``, ``is_valid``), not a second one."""
+
+    def held(status: str, why: str) -> Held:
+        return Held(repeat, n, scenario, contender, path, status, why)
+
+    try:
+        run = read_run(path)
+    except ValueError as exc:
+        return held(UNREADABLE, f"unreadable: {exc}")
+    placed = (run.get("scenario"), run.get("contender"), run.get("n"), run.get("run"))
+    if placed != (scenario, contender, n, repeat):
+        return held(UNREADABLE, f"unreadable: holds {placed}, not the cell its name says")
+    if not current(run, counts):
+        return held(OLDER, f"older: made at {commit(run)}, before --since-commit")
+    return held(VALID if is_valid(run) else INVALID, validity(run))
+
+
+def held_files(
+    names: Sequence[Path],
+    n: int,
+    scenario: str,
+    contender: str,
+    counts: Callable[[str], bool] | None,
+) -> list[Held]:
+    """The run files among ``names`` in the cell's place (any k), by repeat, judged."""
+    pattern = re.compile(
+        rf"flight-{re.escape(scenario)}-{re.escape(contender)}-n{n}(?:-k[0-9.]+)?-r([0-9]+)\.json"
+    )
+    found = [(int(m[1]), p) for p in names if (m := pattern.fullmatch(p.name))]
+    return [judge(p, r, n, scenario, contender, counts) for r, p in sorted(found)]
+
+
 def estimate_s(scenario: str, n: int, contender: str, k: float) -> float:
     """Real seconds one run takes (module doc)."""
     tail = PEER_TAIL_S if contender in PEER_OBSERVED else 0.0
@@ -113,18 +207,33 @@ def plan(
     dilation: dict[int, float],
     swarmd_out: Path,
     stock_out: Path,
-) -> list[Cell]:
-    """Every cell, in campaign order (module doc)."""
-    out = []
-    for repeat in range(1, repeats + 1):
-        for n in sizes:
-            for s in scenarios:
-                for c in contenders:
-                    k = 1.0 if c == SWARMD else dilation.get(n, 1.0)
-                    where = swarmd_out if c == SWARMD else stock_out
-                    path = where / "runs" / run_file_name(s, c, n, repeat, k)
-                    out.append(Cell(repeat, n, s, c, k, path, estimate_s(s, n, c, k)))
-    return out
+    counts: Callable[[str], bool] | None = None,
+    since: str | None = None,
+) -> Plan:
+    """The run files in every cell's place, and the runs that would bring each cell to
+    ``repeats`` valid ones, in campaign order (module doc); ``counts``: whether a run on
+    swarmd's commit counts (``flight_matrix.git_descends(since)``; None: every commit)."""
+    listing: dict[Path, list[Path]] = {}
+    held: list[Held] = []
+    cells: list[Cell] = []
+    for n in sizes:
+        for s in scenarios:
+            for c in contenders:
+                k = 1.0 if c == SWARMD else dilation.get(n, 1.0)
+                runs = (swarmd_out if c == SWARMD else stock_out) / "runs"
+                if runs not in listing:
+                    listing[runs] = sorted(runs.glob("flight-*.json"))
+                mine = held_files(listing[runs], n, s, c, counts)
+                held += mine
+                taken = {h.repeat for h in mine}
+                free = (r for r in itertools.count(1) if r not in taken)
+                for wanted in range(sum(h.counted for h in mine) + 1, repeats + 1):
+                    r = next(free)
+                    path = runs / run_file_name(s, c, n, r, k)
+                    cells.append(Cell(r, n, s, c, k, path, estimate_s(s, n, c, k), wanted))
+    cells.sort(key=lambda c: c.round)  # stable: N, scenario, contender within a round
+    size = len(sizes) * len(scenarios) * len(contenders)
+    return Plan(repeats, size, cells, held, since)
 
 
 def hours_at_once(cells: Sequence[Cell], parallel: int) -> float:
@@ -135,26 +244,48 @@ def hours_at_once(cells: Sequence[Cell], parallel: int) -> float:
     return (alone + beside / max(1, parallel)) / 3600
 
 
-def plan_lines(cells: Sequence[Cell], parallel: int = 1) -> list[str]:
-    todo = [c for c in cells if not c.done]
+def plan_lines(p: Plan, parallel: int = 1) -> list[str]:
+    todo = [c for c in p.cells if not c.done]
     at_once = (
         "one at a time"
         if parallel <= 1
         else f"about {hours_at_once(todo, parallel):.1f} h at up to {parallel} dilated at once"
     )
+    since = f"runs on swarmd from {p.since} on" if p.since else "runs of every commit"
     lines = [
-        f"flight campaign: {len(cells) - len(todo)} of {len(cells)} cells have a run file; "
-        f"{len(todo)} missing, about {sum(c.estimate_s for c in todo) / 3600:.1f} h of runs "
-        f"({at_once})"
+        f"flight campaign: {p.counted()} of {p.repeats * p.size} valid runs counted "
+        f"({p.repeats} in each of {p.size} cells; {since}); {len(todo)} to run, about "
+        f"{sum(c.estimate_s for c in todo) / 3600:.1f} h of runs ({at_once})"
     ]
-    for repeat in sorted({c.repeat for c in todo}):
-        mine = [c for c in todo if c.repeat == repeat]
+    kept = [h for h in p.held if not h.counted]
+    if kept:
         lines.append(
-            f"  repeat {repeat}: {len(mine)} missing, {minutes(sum(c.estimate_s for c in mine))}"
+            f"  kept, not counted: {len(kept)} run file(s) (the matrix leaves them out; a cell "
+            "short of valid runs gets its next free repeat)"
+        )
+        for h in kept:
+            lines.append(f"    {h.label():34} {h.why}  {h.path.name}")
+    for wave in sorted({c.round for c in todo}):
+        mine = [c for c in todo if c.round == wave]
+        lines.append(
+            f"  round {wave}: {len(mine)} to run, {minutes(sum(c.estimate_s for c in mine))}"
         )
         for c in mine:
             lines.append(f"    {c.label():40} ~{minutes(c.estimate_s):>7}  {c.path.name}")
     return lines
+
+
+def plan_rows(p: Plan) -> list[dict[str, Any]]:
+    """The plan as JSON rows: each run file found (``status`` valid, invalid, older or
+    unreadable; ``done`` true), then each run to fly (``status`` "to run")."""
+    rows: list[dict[str, Any]] = [
+        {**asdict(h), "path": str(h.path), "done": True, "counted": h.counted} for h in p.held
+    ]
+    rows += [
+        {**asdict(c), "path": str(c.path), "status": "to run", "done": c.done, "counted": False}
+        for c in p.cells
+    ]
+    return rows
 
 
 def parse_until(text: str, now: dt.datetime) -> float:
@@ -186,6 +317,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--dilation", default=DILATED_K, help="N:K for every contender but swarmd")
     p.add_argument("--swarmd-out", type=Path, default=SWARMD_OUT)
     p.add_argument("--stock-out", type=Path, default=STOCK_OUT)
+    p.add_argument(
+        "--since-commit", metavar="C",
+        help="count the runs on swarmd (swarmd, ROS 2 on swarmd) made at C or after it, as "
+        "flight_report --matrix does; default: the commit docs/benchmarks.md's matrix block "
+        "names; 'any': every commit",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--run", action="store_true", help="run the missing cells (root)")
     p.add_argument("--until", help="with --run: start no run that would end after HH:MM")
@@ -212,13 +349,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error("--repeats: at least 1")
     if args.parallel < 1:
         p.error("--parallel: at least 1")
-    cells = plan(
-        args.repeats, sizes, scenarios, contenders, dilation, args.swarmd_out, args.stock_out
-    )
+    since = args.since_commit or flight_matrix.documented_since(DOCS)
+    since = None if since == "any" else since
+    try:
+        counts = None if since is None else flight_matrix.git_descends(since, REPO)
+    except ValueError as exc:
+        p.error(str(exc))
+    found = plan(
+        args.repeats, sizes, scenarios, contenders, dilation, args.swarmd_out, args.stock_out,
+        counts, since,
+    )  # fmt: skip
     if args.json:
-        print(json.dumps([{**asdict(c), "path": str(c.path), "done": c.done} for c in cells]))
+        print(json.dumps(plan_rows(found)))
     else:
-        print("\n".join(plan_lines(cells, args.parallel)))
+        print("\n".join(plan_lines(found, args.parallel)))
     if not args.run:
         return 0
     if args.until is None:
@@ -227,7 +371,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         until = parse_until(args.until, dt.datetime.now())
     except ValueError:
         p.error(f"--until: {args.until!r} is not HH:MM")
-    return run_cells(cells, until, sys.executable, args.parallel)
+    return run_cells(found.cells, until, sys.executable, args.parallel)
 
 
 if __name__ == "__main__":

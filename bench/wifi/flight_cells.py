@@ -7,6 +7,7 @@ when no valid run carries the measure (a stack without swarmd's commands or rene
 
 from __future__ import annotations
 
+import json
 import math
 import statistics
 from collections.abc import Callable, Mapping, Sequence
@@ -239,8 +240,49 @@ MEASURES: Final = (
 # --- run files ------------------------------------------------------------------------
 
 
+def read_run(path: Path) -> dict[str, Any]:
+    """A run file's record; ``ValueError`` saying why when the file cannot be read or does
+    not hold a JSON object (a file cut short, as a run being written is)."""
+    try:
+        run: object = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
+        raise ValueError(f"cannot be read: {exc}") from exc
+    if not isinstance(run, dict):
+        raise ValueError(f"holds a JSON {type(run).__name__}, not a run record")
+    return run
+
+
 def commit(run: Run) -> str:
     return str((run.get("setup") or {}).get("commit") or "unknown")
+
+
+# The contenders whose daemon is swarmd: its variants (bench/wifi/contenders.py,
+# SWARMD_VARIANTS) and ROS 2 on swarmd (bench/wifi/flight_run.py, ROS2_ON_SWARMD: the rclpy
+# node's discovery comes from swarmd's relay). Their runs measure swarmd's engine, so
+# ``--since-commit`` applies to every one of them (tests/test_flight_campaign.py keeps this
+# list equal to those two).
+ON_SWARMD: Final = ("swarmd", "swarmd-paper", "swarmd-noaware", "swarmd-stock", "ros2-swarmd")
+
+
+def current(run: Run, counts: Callable[[str], bool] | None) -> bool:
+    """Whether the matrix reads ``run`` under ``--since-commit`` (``counts``: whether a
+    commit is the one named or after it; None: every run counts). A contender on swarmd
+    counts only at such a commit; a stock stack always (its stack is the third-party
+    package, the harness the same). The matrix and the campaign's plan share this rule."""
+    return counts is None or run.get("contender") not in ON_SWARMD or counts(commit(run))
+
+
+def is_valid(run: Run) -> bool:
+    """The run's own verdict (``valid``: flight_run's lag rule, ns-3's lag p99 within
+    ``--max-lag-ms``): the one judge of validity, for the matrix and the campaign."""
+    return run.get("valid") is True
+
+
+def validity(run: Run) -> str:
+    """``valid`` or ``INVALID (why)`` (the file's ``invalid_reason``), with its lag p99."""
+    verdict = "valid" if is_valid(run) else f"INVALID ({run.get('invalid_reason')})"
+    lag = _num(run.get("rt_lag_p99_ms"))
+    return verdict if lag is None else f"{verdict}, lag p99 {lag:.2f} ms"
 
 
 def dilation(run: Run) -> float:
@@ -269,7 +311,7 @@ def cell_runs(runs: Sequence[RunFile], scenario: str, contender: str, n: int) ->
 
 
 def valid(files: Sequence[RunFile]) -> list[RunFile]:
-    return [f for f in files if f.run.get("valid") is True]
+    return [f for f in files if is_valid(f.run)]
 
 
 # --- cells -----------------------------------------------------------------------------

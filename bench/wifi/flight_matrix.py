@@ -12,12 +12,15 @@ range when there are more than one (false losses, commands: their sum), "not run
 run file, and invalid runs are counted in the "runs" table but enter no median, sum or
 verdict. Then swarmd's targets, judged (``flight_verdicts.py``), and the figures.
 
-Which swarmd runs count: ``--since-commit C`` keeps the swarmd runs whose ``setup.commit``
-is C or a descendant of it (the engine as shipped: name the last commit that changed
-``swarmd/``, ``git log -1 --format=%h -- swarmd/``); older swarmd runs are left out and
-listed by commit. Without it, every swarmd run passed counts (name the directories of the
-engine as shipped). The stock stacks' runs are never filtered by commit: their stacks are
-the third-party packages, the harness the same.
+Which runs on swarmd count: ``--since-commit C`` keeps the runs of every contender whose
+daemon is swarmd (swarmd, ROS 2 on swarmd: ``flight_cells.ON_SWARMD``) whose
+``setup.commit`` is C or a descendant of it (the engine as shipped: name the last commit
+that changed the engine, ``git log -1 --format=%h -- swarmd/discovery/``); older ones are
+left out and listed with their commit and cells. Without it, every run passed counts (name
+the directories of the engine as shipped). The stock stacks' runs are never filtered by
+commit: their stacks are the third-party packages, the harness the same. The rule is
+``flight_cells.current``, which ``flight_campaign`` shares, so the campaign plans runs for
+the cells the matrix would leave empty.
 
 ``--write-docs FILE`` rewrites the lines between ``BEGIN`` and ``END`` in FILE (the
 "Flight" section of docs/benchmarks.md), naming the command that generated them, and the
@@ -42,6 +45,7 @@ from bench.docblock import write_block
 from bench.wifi.flight_cells import (
     COLUMNS,
     MEASURES,
+    ON_SWARMD,
     SCENARIOS,
     SIZES,
     SWARMD,
@@ -52,7 +56,10 @@ from bench.wifi.flight_cells import (
     cell,
     cell_runs,
     commit,
+    current,
     dilation,
+    is_valid,
+    read_run,
     rediscovery_max,
     rediscovery_p50,
     runs_cell,
@@ -60,15 +67,17 @@ from bench.wifi.flight_cells import (
     summary,
     tables,
     valid,
+    validity,
 )
 from bench.wifi.flight_verdicts import RULES, Verdict, verdict_lines, verdicts
 
 __all__ = [
     "BEGIN", "COLUMNS", "END", "MEASURES", "RULES", "SCENARIOS", "SECTION", "SIZES", "SWARMD",
-    "Measure", "Run", "RunFile", "Selection", "Verdict", "beside", "block", "cell", "cell_runs",
-    "commit", "commit_lines", "dilation", "figure_lines", "figure_run", "git_descends", "load",
+    "ON_SWARMD", "Measure", "Run", "RunFile", "Selection", "Verdict", "beside", "block",
+    "cell", "cell_runs", "commit", "commit_lines", "current", "dilation", "documented_since",
+    "figure_lines", "figure_run", "git_descends", "is_valid", "load", "read_run",
     "rediscovery_max", "rediscovery_p50", "runs_cell", "select", "started", "summary",
-    "tables", "valid", "verdict_lines", "verdicts", "write_docs",
+    "tables", "valid", "validity", "verdict_lines", "verdicts", "write_docs",
 ]  # fmt: skip
 
 BEGIN: Final = "<!-- flight-matrix:begin (python -m bench.wifi.flight_report --matrix) -->"
@@ -80,9 +89,8 @@ SECTION: Final = "## Flight (issue 20)"
 
 
 def load(paths: Iterable[Path]) -> list[RunFile]:
-    """Every run file named, or held in a named directory (its ``runs/`` if it has one)."""
-    import json
-
+    """Every run file named, or held in a named directory (its ``runs/`` if it has one);
+    ``ValueError`` naming the file when one cannot be read (``read_run``)."""
     out: list[RunFile] = []
     for path in paths:
         if path.is_dir():
@@ -90,13 +98,26 @@ def load(paths: Iterable[Path]) -> list[RunFile]:
             files = sorted(folder.glob("*.json"))
         else:
             files = [path]
-        out.extend(RunFile(f, json.loads(f.read_text())) for f in files)
+        for f in files:
+            try:
+                out.append(RunFile(f, read_run(f)))
+            except ValueError as exc:
+                raise ValueError(f"{f}: {exc}") from exc
     return out
 
 
 def git_descends(since: str, repo: Path) -> Callable[[str], bool]:
     """Whether a run file's commit (``+dirty`` dropped) is ``since`` or a descendant of it,
-    by the repository's history; a commit the repository does not know does not count."""
+    by the repository's history; a commit the repository does not know does not count.
+    ``ValueError`` when ``since`` itself is not a commit there: every run on swarmd would
+    then read as older, and the campaign would plan all of them again."""
+    known = subprocess.run(
+        ["git", "-C", str(repo), "rev-parse", "--verify", "--quiet", f"{since}^{{commit}}"],
+        capture_output=True,
+        check=False,
+    )
+    if known.returncode != 0:
+        raise ValueError(f"--since-commit {since}: not a commit of {repo}")
     cache: dict[str, bool] = {}
 
     def check(made_by: str) -> bool:
@@ -118,15 +139,15 @@ class Selection:
     """The runs the matrix reads, and those it leaves out (with why)."""
 
     runs: list[RunFile]
-    older_swarmd: list[RunFile]  # swarmd runs before ``--since-commit``
+    older: list[RunFile]  # runs on swarmd before ``--since-commit`` (``current``)
     outside: list[RunFile]  # N or contender not in the matrix
     duplicates: int
 
 
 def select(files: Sequence[RunFile], counts: Callable[[str], bool] | None) -> Selection:
-    """The matrix's runs: N in ``SIZES``, a contender of ``COLUMNS``, swarmd's only if
-    ``counts(commit)`` (when given); the same run read twice (same scenario, contender, N,
-    k, repeat, commit and start) once."""
+    """The matrix's runs: N in ``SIZES``, a contender of ``COLUMNS``, a contender on swarmd's
+    only at a commit ``counts`` (``current``, when given); the same run read twice (same
+    scenario, contender, N, k, repeat, commit and start) once."""
     names = {c for c, _ in COLUMNS}
     seen: set[tuple[Any, ...]] = set()
     runs, older, outside, dup = [], [], [], 0
@@ -139,7 +160,7 @@ def select(files: Sequence[RunFile], counts: Callable[[str], bool] | None) -> Se
         seen.add(key)
         if int(r["n"]) not in SIZES or r["contender"] not in names:
             outside.append(f)
-        elif r["contender"] == SWARMD and counts is not None and not counts(commit(r)):
+        elif not current(r, counts):
             older.append(f)
         else:
             runs.append(f)
@@ -260,17 +281,15 @@ def block(
         *commit_lines(runs),
     ]
     if since is not None:
+        on_swarmd = ", ".join(title for c, title in COLUMNS if c in ON_SWARMD)
         lines += [
             "",
-            f"swarmd: only runs at `{since}` or after count (the engine as shipped)"
-            + (
-                f"; left out, older: {len(sel.older_swarmd)} run file(s) at "
-                + ", ".join(f"`{c}`" for c in sorted({commit(f.run) for f in sel.older_swarmd}))
-                if sel.older_swarmd
-                else ""
-            )
-            + ".",
+            f"The contenders on swarmd ({on_swarmd}): only runs at `{since}` or after count "
+            "(the engine as shipped)"
+            + (f"; left out, older: {len(sel.older)} run file(s):" if sel.older else "."),
         ]
+        if sel.older:
+            lines += ["", *commit_lines(sel.older)]
     if sel.outside:
         what = sorted({f"{f.run['contender']} N={f.run['n']}" for f in sel.outside})
         lines += ["", f"Not in the matrix (N or contender): {len(sel.outside)} run file(s): "
@@ -296,6 +315,24 @@ def block(
         END,
     ]
     return "\n".join(lines)
+
+
+def documented_since(docs: Path) -> str | None:
+    """The ``--since-commit`` that the block in ``docs`` names in its "Generated by"
+    command: which runs on swarmd the documented matrix counts (None: no block, no file, or
+    a block made without it)."""
+    import re
+    import shlex
+
+    try:
+        text = docs.read_text()
+    except OSError:
+        return None
+    start, end = text.find(BEGIN), text.find(END)
+    found = re.search(r"Generated by `([^`]*)`", text[start:end]) if 0 <= start < end else None
+    raw = shlex.split(found.group(1)) if found else []
+    at = raw.index("--since-commit") + 1 if "--since-commit" in raw else len(raw)
+    return raw[at] if at < len(raw) else None
 
 
 def write_docs(docs: Path, text: str) -> None:

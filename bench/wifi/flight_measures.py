@@ -11,6 +11,11 @@ Inputs (all times in seconds since the go signal, which is the stacks' start rel
 - ``readiness``: the commander's polled table, ``(t, {member index: samples received})``;
 - ``discovery_fps``: discovery-class frames on the channel per second since go.
 
+The readiness measures (``counted_spans``, ``readiness_delivery``,
+``readiness_after_returns``) take these, with the swarm's size, the run's end and each
+drone's release, as one frozen ``Timeline``; ``timeline(run, truth)`` builds it from a run
+file.
+
 Definitions (docs/benchmarks.md, "Flight"):
 
 - a *real loss* of j at i starts when j leaves i's range (or j's stack dies) and lasts at
@@ -54,6 +59,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Final, NamedTuple
 
 BASELINE_S: Final = 10.0
@@ -271,7 +277,9 @@ def measure(
         "reboot_seen_by_peers_s": _summary(reboot_seen),
         "reboot_finds_peers_s": _summary(reboot_finds),
         "frames_per_rejoining_pair": frames,
-        "readiness_delivery": readiness_delivery(truth, down, changes, readiness, n, end, started),
+        "readiness_delivery": readiness_delivery(
+            Timeline(truth, down, changes, readiness, n, end, started)
+        ),
     }
 
 
@@ -305,40 +313,50 @@ def _last_in_range(samples: Sequence[tuple[float, bool]], b: float) -> float:
     return max(t for t, _ in samples if t < b) if b < samples[-1][0] else b
 
 
-class RunRecords(NamedTuple):
-    """A run file's records as the measures take them (module doc), keys made ints."""
+@dataclass(frozen=True, slots=True)
+class Timeline:
+    """One run's timeline as the readiness measures read it (module doc, "Inputs"): the
+    ground truth, each stack's down intervals and reported changes, the commander's polls,
+    the swarm's size, the run's end and each drone's release (seconds since go)."""
 
-    changes: dict[int, list[Change]]
-    down: dict[int, list[Interval]]
-    readiness: list[tuple[float, dict[int, int]]]
-    started: list[float]  # each drone's release after go (empty: all at go)
+    truth: Truth
+    down: Mapping[int, Sequence[Interval]]
+    changes: Mapping[int, Sequence[Change]]
+    readiness: Sequence[tuple[float, Mapping[int, int]]]
+    n: int
+    end: float
+    started: Sequence[float] = ()  # each drone's release after go (empty: all at go)
 
 
-def run_records(run: Mapping[str, Any]) -> RunRecords:
-    """The records of a run file (``bench/wifi/flight_run.py`` writes them) for the measures."""
-    return RunRecords(
-        changes={int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()},
+def timeline(run: Mapping[str, Any], truth: Truth) -> Timeline:
+    """A run file's records (``bench/wifi/flight_run.py`` writes them), keys made ints, on
+    the scenario's ``truth`` (``flight.of_run(run).truth()``); the run ends at its last
+    sample."""
+    return Timeline(
+        truth=truth,
         down={int(i): [(a, b) for a, b in v] for i, v in run.get("down", {}).items()},
+        changes={int(i): [(t, p, c) for t, p, c in v] for i, v in run["changes"].items()},
         readiness=[(t, {int(k): v for k, v in table.items()}) for t, table in run["readiness"]],
+        n=int(run["n"]),
+        end=truth[-1][0] if truth else 0.0,
         started=[float(s) for s in (run.get("setup") or {}).get("started_s") or ()],
     )
 
 
-def counted_spans(
-    truth: Truth,
-    down: Mapping[int, Sequence[Interval]],
-    changes: Mapping[int, Sequence[Change]],
-    readiness: Sequence[tuple[float, Mapping[int, int]]],
-    n: int,
-    end: float,
-    started: Sequence[float] = (),
-) -> Iterator[CountedSpan]:
+def counted_spans(tl: Timeline) -> Iterator[CountedSpan]:
     """The spans ``readiness_delivery`` counts, member by member in order, each member's in
-    time order; ``started``: each drone's release after go (empty: all at go)."""
+    time order."""
+    truth, down, changes, readiness, started = (
+        tl.truth,
+        tl.down,
+        tl.changes,
+        tl.readiness,
+        tl.started,
+    )
     if not readiness:
         return
     first_poll = readiness[0][0]
-    for m in range(1, n):
+    for m in range(1, tl.n):
         first = [t for t, p, c in changes.get(0, ()) if p == m and c in UP_KINDS]
         if not first:
             continue
@@ -348,7 +366,7 @@ def counted_spans(
         for a, b, up in spans(samples):
             if up:
                 b = _last_in_range(samples, b)
-            a, b = max(a, start), min(b, end, readiness[-1][0])
+            a, b = max(a, start), min(b, tl.end, readiness[-1][0])
             if not up or b - a < 2.0:
                 continue
             # the span's time ends where its count does, at the last poll at or before b:
@@ -363,21 +381,12 @@ def counted_spans(
             yield CountedSpan(m, a, b, ca, cb)
 
 
-def readiness_delivery(
-    truth: Truth,
-    down: Mapping[int, Sequence[Interval]],
-    changes: Mapping[int, Sequence[Change]],
-    readiness: Sequence[tuple[float, Mapping[int, int]]],
-    n: int,
-    end: float,
-    started: Sequence[float] = (),
-) -> dict[str, Any]:
-    """Samples received by the commander (node 0) from members in its range (module doc);
-    ``started``: each drone's release after go (empty: all at go)."""
-    if not readiness:
+def readiness_delivery(tl: Timeline) -> dict[str, Any]:
+    """Samples received by the commander (node 0) from members in its range (module doc)."""
+    if not tl.readiness:
         return {"expected": 0, "delivered": 0, "ratio": None}
     expected = delivered = 0.0
-    for span in counted_spans(truth, down, changes, readiness, n, end, started):
+    for span in counted_spans(tl):
         expected += span.expected
         delivered += span.delivered  # capped per span (CountedSpan.delivered)
     ratio = None if expected == 0 else round(min(delivered / expected, 1.0), 4)
@@ -405,14 +414,7 @@ def count_at(readiness: Sequence[tuple[float, Mapping[int, int]]], m: int, t: fl
     return best
 
 
-def readiness_after_returns(
-    truth: Truth,
-    down: Mapping[int, Sequence[Interval]],
-    changes: Mapping[int, Sequence[Change]],
-    readiness: Sequence[tuple[float, Mapping[int, int]]],
-    n: int,
-    end: float,
-) -> list[dict[str, Any]]:
+def readiness_after_returns(tl: Timeline) -> list[dict[str, Any]]:
     """Where the readiness missing after a member's return into the commander's range goes:
     one row per member and return (an in-range span after a gap, as ``readiness_delivery``
     bounds it), with
@@ -430,12 +432,14 @@ def readiness_after_returns(
 
     A report sent at the member's re-discovery and taken is counted by the next poll (0.25
     s apart in swarmd's runs, 1 s in the stock tallies); one counted only a period later was
-    lost, where the polls are close enough to tell (``first_report_lost``)."""
+    lost, where the polls are close enough to tell (``first_report_lost``); the members'
+    release (``started``) plays no part: a return comes after it."""
+    truth, down, changes, readiness = tl.truth, tl.down, tl.changes, tl.readiness
     rows: list[dict[str, Any]] = []
     if not readiness:
         return rows
-    last = min(end, readiness[-1][0])
-    for m in range(1, n):
+    last = min(tl.end, readiness[-1][0])
+    for m in range(1, tl.n):
         samples = reachable(truth, down, 0, m)
         runs = spans(samples)
         for k, (a, b, up) in enumerate(runs):
@@ -612,10 +616,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     for path in args.runs:
         run = json.loads(path.read_text())
-        truth = flight.of_run(run).truth()
-        changes, down, polls, started = run_records(run)
-        rows = readiness_after_returns(truth, down, changes, polls, run["n"], truth[-1][0])
-        whole = readiness_delivery(truth, down, changes, polls, run["n"], truth[-1][0], started)
+        tl = timeline(run, flight.of_run(run).truth())
+        polls = tl.readiness
+        rows = readiness_after_returns(tl)
+        whole = readiness_delivery(tl)
         missing = sum(r["missing"] for r in rows)
         wait = sum(r["expected"] - r["sendable"] for r in rows)
         unsent = sum(r["sendable"] - r["delivered"] for r in rows)

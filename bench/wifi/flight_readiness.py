@@ -26,12 +26,10 @@ from typing import Any
 
 from bench.wifi.flight_measures import (
     READINESS_HZ,
-    Change,
-    Interval,
-    Truth,
+    Timeline,
     count_at,
     counted_spans,
-    run_records,
+    timeline,
 )
 
 Polls = Sequence[tuple[float, Mapping[int, int]]]
@@ -48,20 +46,14 @@ def _phase_of(t: float, first: bool, phases: Sequence[tuple[str, float, float]])
 
 
 def readiness_spans(
-    truth: Truth,
-    down: Mapping[int, Sequence[Interval]],
-    changes: Mapping[int, Sequence[Change]],
-    readiness: Polls,
-    n: int,
-    end: float,
-    started: Sequence[float] = (),
-    phases: Sequence[tuple[str, float, float]] = (),
+    tl: Timeline, phases: Sequence[tuple[str, float, float]] = ()
 ) -> list[dict[str, Any]]:
     """One row per member and counted span (module doc); the rows' ``expected`` and
     ``delivered`` sum to ``readiness_delivery``'s."""
+    readiness = tl.readiness
     rows: list[dict[str, Any]] = []
     previous_member = 0
-    for span in counted_spans(truth, down, changes, readiness, n, end, started):
+    for span in counted_spans(tl):
         m, a, b, ca = span.member, span.start_s, span.end_s, span.count_start
         first, previous_member = m != previous_member, m
         expected, delivered = span.expected, span.delivered
@@ -182,11 +174,10 @@ def _load(path: Any) -> dict[str, Any]:
     from bench.wifi import flight
 
     run: dict[str, Any] = json.loads(path.read_text())
-    truth = flight.of_run(run).truth()
-    changes, down, polls, started = run_records(run)
+    tl = timeline(run, flight.of_run(run).truth())
     phases = [(str(p), float(a), float(b)) for p, a, b in run.get("phases", ())]
-    rows = readiness_spans(truth, down, changes, polls, run["n"], truth[-1][0], started, phases)
-    return {"run": run, "rows": rows, "polls": polls, "phases": phases}
+    rows = readiness_spans(tl, phases)
+    return {"run": run, "rows": rows, "polls": tl.readiness, "phases": phases}
 
 
 def _figure(loaded: Sequence[tuple[str, dict[str, Any]]], out: Any) -> None:

@@ -210,7 +210,7 @@ def lag_table(files: Sequence[flight_matrix.RunFile], flew_beside: Collection[Pa
         load = [float(r["load_avg_at_start"][0]) for r in runs if r.get("load_avg_at_start")]
         lines.append(
             f"| {k:g} | {n} | {'beside another' if shared else 'alone'} | {len(runs)} "
-            f"({sum(1 for r in runs if r.get('valid') is True)}) | "
+            f"({sum(1 for r in runs if flight_matrix.is_valid(r))}) | "
             f"{_spread([float(r['rt_lag_p99_ms']) for r in runs])} | "
             f"{_spread([float(r['rt_lag_max_ms']) for r in runs])} | "
             f"{f'{statistics.median(load):.2f}' if load else '-'} |"
@@ -279,7 +279,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--since-commit",
         default=None,
         metavar="C",
-        help="with --matrix: count only the swarmd runs made at C or a descendant of it",
+        help="with --matrix: count only the runs on swarmd (swarmd, ROS 2 on swarmd) made at "
+        "C or a descendant of it",
     )
     p.add_argument(
         "--write-docs",
@@ -317,13 +318,17 @@ def main(argv: Sequence[str] | None = None) -> int:
 def matrix(paths: Sequence[Path], since: str | None, docs: Path | None, raw: list[str]) -> int:
     """``--matrix``: the block of ``bench/wifi/flight_matrix.py``, printed or written."""
     repo = Path(__file__).resolve().parents[2]
-    counts = None if since is None else flight_matrix.git_descends(since, repo)
     command = ".venv/bin/python -m bench.wifi.flight_report " + shlex.join(raw)
     docs_dir = (docs if docs is not None else repo / "docs" / "x.md").resolve().parent
+    try:
+        counts = None if since is None else flight_matrix.git_descends(since, repo)
+        files = flight_matrix.load(paths)
+    except ValueError as exc:  # an unknown commit, or a run file cut short: judge nothing
+        print(f"flight_report: {exc}", file=sys.stderr)
+        return 2
     text = flight_matrix.block(
-        flight_matrix.load(paths), command=command, docs_dir=docs_dir, counts=counts,
-        since=since,
-    )  # fmt: skip
+        files, command=command, docs_dir=docs_dir, counts=counts, since=since
+    )
     if docs is None:
         print(text)
         return 0
@@ -349,21 +354,21 @@ def remeasure(run: Mapping[str, Any]) -> dict[str, Any]:
     from bench.wifi import flight
 
     scenario = flight.of_run(run)
-    changes, down, readiness, started = flight_measures.run_records(run)
+    tl = flight_measures.timeline(run, scenario.truth())
     first_move = min((w[0] for w in run["waypoints"] if w[0] > 0), default=None)
     if first_move is None and run.get("events"):
         first_move = min(e[0] for e in run["events"])
     measures = flight_measures.measure(
-        scenario.truth(), changes, down, n=run["n"], lease_s=run["lease_s"],
-        restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=readiness,
+        tl.truth, tl.changes, tl.down, n=run["n"], lease_s=run["lease_s"],
+        restarts=[(t, node) for t, node in run.get("restarts", [])], readiness=tl.readiness,
         discovery_fps=run["discovery_fps"], first_move_s=first_move,
-        started=started,
+        started=tl.started,
     )  # fmt: skip
     measures["renewal_follows_q"] = flight_measures.renewal_follows_q(
         run.get("renewals", []), first_move or 0.0
     )
     if "commands" in run:
-        measures["commands"] = flight_commands.measure(run["commands"], scenario.truth(), down)
+        measures["commands"] = flight_commands.measure(run["commands"], tl.truth, tl.down)
     return measures
 
 

@@ -2,15 +2,17 @@
 
 The rules, in order (docs/testbed.md, "Two runs at a time"):
 
-- Repeat by repeat: no cell of repeat r + 1 starts while a cell of repeat r waits, so every
-  cell's first run comes before any second one.
+- Round by round: no cell of round r + 1 starts while a cell of round r waits, so every
+  cell's first valid run comes before any second one. A cell's round is which of its valid
+  runs it would be (``Cell.round``), not its file's repeat number: a cell whose first run
+  was invalid flies its replacement (repeat 2) in round 1.
 - At most ``parallel`` runs at once, and only **dilated** ones side by side: a dilated run
   (k > 1) spends most of its real time waiting on its slowed clock, so two leave ns-3 room
   to keep up; an undilated run (swarmd, k = 1) needs both cores (session 11: anything
   CPU-heavy beside it made it invalid), so it starts only when nothing runs, and nothing
   starts beside it.
 - Never two runs of the same (N, scenario, contender) at once.
-- With ``parallel`` > 1 the longest cells of a repeat go first (they pack better; the short
+- With ``parallel`` > 1 the longest cells of a round go first (they pack better; the short
   undilated ones, last, run alone); with 1 the plan's order is kept.
 - ``until`` holds per start: a cell whose estimate would end after it is skipped.
 
@@ -30,6 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Final, Protocol
+
+from bench.wifi.flight_cells import read_run, validity
 
 if TYPE_CHECKING:
     from bench.wifi.flight_campaign import Cell
@@ -90,25 +94,24 @@ def may_start(c: Cell, flying: Sequence[Cell], parallel: int) -> bool:
 
 
 def _outcome(c: Cell, code: int | None) -> str:
-    """The end line's verdict: validity and lag p99 from the run file, else why none."""
+    """The end line's verdict: validity and lag p99 from the run file (the matrix's judge,
+    ``flight_cells.validity``), else why none."""
     if code != 0 or not c.done:
         return f"no run file (exit {code})"
     try:
-        r = json.loads(c.path.read_text())
-        verdict = "valid" if r.get("valid") else f"INVALID ({r.get('invalid_reason')})"
-        return f"{verdict}, lag p99 {float(r['rt_lag_p99_ms']):.2f} ms"
-    except (OSError, ValueError, KeyError, TypeError):
-        return "run file unreadable"
+        return validity(read_run(c.path))
+    except ValueError as exc:
+        return f"run file unreadable: {exc}"
 
 
 def note_concurrency(path: Path, most: int) -> None:
     """Raise the run file's ``concurrent_runs`` to ``most`` when another run started after
     it (flight_run only knew the runs in flight at its own start)."""
     try:
-        r = json.loads(path.read_text())
-    except (OSError, ValueError):
+        r = read_run(path)
+    except ValueError:
         return
-    if not isinstance(r, dict) or int(r.get("concurrent_runs") or 0) >= most:
+    if int(r.get("concurrent_runs") or 0) >= most:
         return
     r["concurrent_runs"] = most
     tmp = path.with_suffix(".tmp")
@@ -136,8 +139,8 @@ def run_cells(
     doc); 0 if every run started wrote its file, 1 if one did not, 130 if stopped (SIGTERM
     or ^C: every run in flight is terminated, which removes its testbed)."""
     todo = [c for c in cells if not c.done]
-    if parallel > 1:  # longest first within a repeat (stable: the plan's order on ties)
-        todo.sort(key=lambda c: (c.repeat, -c.estimate_s))
+    if parallel > 1:  # longest first within a round (stable: the plan's order on ties)
+        todo.sort(key=lambda c: (c.round, -c.estimate_s))
     number = {id(c): i for i, c in enumerate(todo, 1)}
     flying: list[_Flying] = []
     failed = 0
@@ -160,8 +163,8 @@ def run_cells(
                     say(f"stop  {f.cell.label()}: past its estimate by {SLACK_S:.0f} s")
                     f.child.terminate()
                     f.child.wait(timeout=STOP_WAIT_S)
-            repeat = todo[0].repeat if todo else 0
-            for c in [c for c in todo if c.repeat == repeat]:
+            wave = todo[0].round if todo else 0
+            for c in [c for c in todo if c.round == wave]:
                 now = clock()
                 if now + c.estimate_s > until:
                     todo.remove(c)
