@@ -1,18 +1,20 @@
 #!/usr/bin/env bash
 # Sets up everything `make test` and `make demo` need on a fresh Debian machine:
-# the Debian tools the tests drive (tshark, iproute2, nftables, ...) and a Python 3.11 venv
+# the Debian tools the tests drive (tshark, iproute2, nftables, iptables, ...) and a Python 3.11 venv
 # with swarmd installed editable plus its dev extra, and the lab tools (lab/) editable.
 # Idempotent; quiet when nothing is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 VENV=${VENV:-.venv}
-APT_PACKAGES=(tshark iproute2 nftables procps openssh-server openssh-client systemd
+APT_PACKAGES=(tshark iproute2 nftables iptables procps openssh-server openssh-client systemd
   gcc g++ libfastrtps-dev libfastcdr-dev fastdds-tools)
 # what proves each package is present (same order as APT_PACKAGES): a command, or a file
 # for a library; gcc (the time-dilation library), g++, libfastrtps-dev/libfastcdr-dev and
-# fastdds-tools: the Wi-Fi testbed's Fast DDS contenders (bench/wifi/native.py, our own code)
-APT_PROBES=(tshark ip nft pgrep sshd ssh systemd-analyze
+# fastdds-tools: the Wi-Fi testbed's Fast DDS contenders (bench/wifi/native.py, our own code);
+# iptables-legacy-restore: swarmd local-firewall's iptables backend as on the Jetson Nano
+# (tests/test_local_firewall_netns.py)
+APT_PROBES=(tshark ip nft iptables-legacy-restore pgrep sshd ssh systemd-analyze
   gcc g++ /usr/include/fastdds/rtps/RTPSDomain.h /usr/include/fastcdr/Cdr.h fastdds)
 
 missing=()

@@ -32,7 +32,18 @@ A port whose users are not configured gets no rule (the daemon takes every local
 too, and logs ``*_local_users_not_told_apart``): ``notes`` says so, one line each, and the
 table is still written (empty), so the same systemd unit serves every drone.
 
-This module is pure (config in, text out); ``swarmd.cli.firewall_cmd`` runs ``nft``.
+Two forms of the same rules. The nftables table is the first choice. The drone's kernel may
+not have it: L4T R32.x's ``tegra_defconfig`` (Linux 4.9, the Jetson Nano) builds no
+``CONFIG_NF_TABLES`` at all, and the wildcard rule's ``fib`` needs nft_fib, merged in Linux
+4.10 (docs/deploy.md, "The local firewall on the Nano"). What that kernel has is iptables:
+``xt_owner`` (``-m owner --uid-owner``), ``xt_addrtype`` and ``xt_comment``. So the same
+rules are also written as a chain ``swarmd_local`` of the filter table for
+``iptables-restore``/``ip6tables-restore``, jumped to first from ``OUTPUT``: per port one
+``RETURN`` for each user (a uid set is not one match there), then a counted ``DROP``.
+``RETURN``, not ``ACCEPT``: the rest of ``OUTPUT`` still applies to what this chain passes.
+
+This module is pure (config in, text out); ``swarmd.cli.firewall_cmd`` runs ``nft`` or
+``iptables-restore`` and picks the one the kernel takes.
 """
 
 from __future__ import annotations
@@ -51,6 +62,17 @@ CHAIN: Final = "output"
 # nft prints a rule's counter with its values; the generated text has a bare "counter"
 _COUNTER_VALUES: Final = re.compile(r"\bcounter packets (\d+) bytes \d+")
 _COMMENT: Final = re.compile(r'comment "([^"]*)"')
+
+# the iptables form: a chain of the filter table, in each IP version's own tables
+XT_CHAIN: Final = "swarmd_local"
+XT_VERSIONS: Final = (4, 6)
+XT_JUMP: Final = f"-A OUTPUT -j {XT_CHAIN}"  # the hook, as iptables-save prints it
+# route types a wildcard agent also receives (xt_addrtype; IPv6 has no broadcast, and
+# ip6tables refuses BROADCAST)
+_XT_WILDCARD: Final = {4: "LOCAL,BROADCAST,MULTICAST", 6: "LOCAL,MULTICAST"}
+# one rule of ``iptables-save -c``: "[packets:bytes] -A chain ..." (the counters optional)
+_XT_RULE: Final = re.compile(r"^(?:\[(\d+):\d+\] )?(-A (\S+) .*?)\s*$")
+_XT_COMMENT: Final = re.compile(r'--comment "?([^"]*?)"? -j DROP$')
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +103,25 @@ class GuardedPort:
             f"{match} udp dport {self.port} meta skuid != {uids} counter drop "
             f'comment "{self.comment}"'
         )
+
+    def xt_rules(self, version: int) -> list[str]:
+        """The rules for IP ``version``'s iptables, as ``iptables-save`` prints them (but
+        the counters); none when the port is of the other version. Each user returns to
+        ``OUTPUT``, then the rest are dropped and counted under the comment."""
+        if self.address is not None:
+            ip = ipaddress.ip_address(self.address)
+            if ip.version != version:
+                return []
+            match = f"-d {ip.compressed}/{ip.max_prefixlen} -o lo -p udp -m udp --dport {self.port}"
+        else:
+            # the fib rule's route types, by xt_addrtype (a wildcard agent: both versions)
+            types = _XT_WILDCARD[version]
+            match = f"-p udp -m udp --dport {self.port} -m addrtype --dst-type {types}"
+        users = [
+            f"-A {XT_CHAIN} {match} -m owner --uid-owner {uid} -j RETURN"
+            for uid in sorted(self.uids)
+        ]
+        return [*users, f'-A {XT_CHAIN} {match} -m comment --comment "{self.comment}" -j DROP']
 
     @property
     def comment(self) -> str:
@@ -119,6 +160,105 @@ class LocalFirewall:
             f"delete table {FAMILY} {TABLE}\n"
             f"{self.table()}"
         )
+
+    def xt_rules(self, version: int) -> list[str]:
+        """The chain's rules for IP ``version``, in order."""
+        return [rule for port in self.ports for rule in port.xt_rules(version)]
+
+    def xt_script(self, version: int, live: XtLive) -> str:
+        """Input for ``iptables-restore --noflush`` (``ip6tables-restore`` for 6): declaring
+        the chain creates it or empties an older one, the rules follow, and the jump from
+        ``OUTPUT`` is made the first rule, once; one commit, so no moment without the
+        rules. ``live`` is the table as it is now (``xt_live``)."""
+        hook: list[str] = []
+        if not live.hooked_once_first:
+            hook = [f"-D OUTPUT -j {XT_CHAIN}"] * live.jumps + [f"-I OUTPUT 1 -j {XT_CHAIN}"]
+        lines = [f":{XT_CHAIN} - [0:0]", *self.xt_rules(version), *hook]
+        return _xt_commit(f"--config {self.file}", lines)
+
+    def xt_differences(self, version: int, live: XtLive) -> list[str]:
+        """What IP ``version``'s live chain and hook lack or have more than wanted, as
+        ``differences``; [] when they match."""
+        want = self.xt_rules(version)
+        have = list(live.rules or ())
+        diff = [f"- {line}" for line in want if line not in have]
+        diff += [f"+ {line}" for line in have if line not in want]
+        if not diff and have != want:
+            diff = ["the same rules in another order"]
+        if live.rules is None:
+            diff.insert(0, f"- :{XT_CHAIN} (no such chain)")
+        elif not live.hooked_once_first:
+            diff.append(
+                f"- {XT_JUMP} as OUTPUT's only jump to it, first "
+                f"(live: {live.jumps} jumps, first: {live.first_is_jump})"
+            )
+        return diff
+
+
+@dataclass(frozen=True, slots=True)
+class XtLive:
+    """One IP version's filter table as ``iptables-save -c -t filter`` printed it: swarmd's
+    chain (None: there is none) and how ``OUTPUT`` jumps to it."""
+
+    rules: tuple[str, ...] | None  # the chain's rules without their counters
+    dropped: dict[str, int]  # a DROP rule's comment -> the datagrams it dropped
+    jumps: int  # OUTPUT's rules that jump to the chain
+    first_is_jump: bool  # OUTPUT's first rule is one of them
+
+    @property
+    def hooked_once_first(self) -> bool:
+        return self.jumps == 1 and self.first_is_jump
+
+    @property
+    def loaded(self) -> bool:
+        return self.rules is not None or self.jumps > 0
+
+
+def xt_live(saved: str) -> XtLive:
+    """``iptables-save -c -t filter`` output (with or without counters) as an ``XtLive``."""
+    rules: list[str] = []
+    dropped: dict[str, int] = {}
+    output: list[str] = []
+    declared = False
+    for line in saved.splitlines():
+        if line.startswith(f":{XT_CHAIN} "):
+            declared = True
+        found = _XT_RULE.match(line)
+        if found is None:
+            continue
+        count, rule, chain = found.groups()
+        if chain == "OUTPUT":
+            output.append(rule)
+        elif chain == XT_CHAIN:
+            rules.append(rule)
+            comment = _XT_COMMENT.search(rule)
+            if comment is not None and count is not None:
+                dropped[comment.group(1)] = int(count)
+    jumps = output.count(XT_JUMP)
+    return XtLive(
+        tuple(rules) if declared or rules else None,
+        dropped,
+        jumps,
+        bool(output) and output[0] == XT_JUMP,
+    )
+
+
+def xt_removal(live: XtLive) -> str | None:
+    """Input for ``iptables-restore --noflush`` that deletes the chain and every jump to
+    it; None when there is neither."""
+    if not live.loaded:
+        return None
+    lines = [f"-D OUTPUT -j {XT_CHAIN}"] * live.jumps
+    if live.rules is not None:
+        lines += [f"-F {XT_CHAIN}", f"-X {XT_CHAIN}"]
+    return _xt_commit("--remove", lines)
+
+
+def _xt_commit(how: str, lines: list[str]) -> str:
+    body = "".join(f"{line}\n" for line in lines)
+    return (
+        f"# swarmd local-firewall {how} (docs/security.md, residual (6))\n*filter\n{body}COMMIT\n"
+    )
 
 
 def local_firewall(config: DaemonConfig) -> LocalFirewall:

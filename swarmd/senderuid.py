@@ -236,10 +236,11 @@ def _peer(family: int, host: str, to: tuple[str, int] | None) -> tuple[bytes, in
 
 def log_firewall_expected(log: Any, port_field: str) -> None:
     """Say, once at start, that the send-and-close race on ``port_field`` is closed only by
-    the nftables table the unit's ``ExecStartPre=+`` loads (``swarmd local-firewall``,
-    docs/security.md residual (6)). The daemon cannot see it: reading nftables needs
-    ``CAP_NET_ADMIN``, and its capability set is empty (systemd/swarmd.service); a missing
-    table already failed the start there, so this is a pointer for the operator, not an alarm.
+    the firewall rules the unit's ``ExecStartPre=+`` loads (``swarmd local-firewall``: the
+    nftables table, or the iptables chain on a kernel without nf_tables; docs/security.md
+    residual (6)). The daemon cannot see them: reading either needs ``CAP_NET_ADMIN``, and
+    its capability set is empty (systemd/swarmd.service); rules that did not load already
+    failed the start there, so this is a pointer for the operator, not an alarm.
     """
     log.info(
         "sender_uid_race_closed_by_firewall",

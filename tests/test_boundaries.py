@@ -78,8 +78,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
     "userdata": CORE | {"udp"},
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
-    # the nftables table of swarmd's loopback ports, generated from the config (text only;
-    # swarmd local-firewall runs nft: cli)
+    # the nftables table (and iptables chain) of swarmd's loopback ports, generated from the
+    # config (text only; swarmd local-firewall runs nft or iptables-restore: cli)
     "localfirewall": CORE | {"config", "px4", "ros2"},
     "control": CORE,
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)

@@ -6,12 +6,17 @@ socket table afterwards can name it (the strict xfail
 ``test_a_sender_that_closes_its_socket_at_once_is_not_seen``); the output hook's ``meta
 skuid`` can.
 
-Each test runs in a network namespace of its own (its own nftables tables: the host's
-ruleset is untouched) and first shows the attack without the rules: every spoof arrives,
+Each test runs in a network namespace of its own (its own nftables and iptables tables: the
+host's are untouched) and first shows the attack without the rules: every spoof arrives,
 from the node's address and port. Then ``swarmd local-firewall --apply`` (the unit's
-``ExecStartPre``) loads the table generated from the config: none arrives, the rule's counter
+``ExecStartPre``) loads the rules generated from the config: none arrives, the rule's counter
 shows each, the permitted user's datagrams still arrive, and ``--check`` agrees with the
-live table. Loops are bounded: ``SPOOFS`` datagrams, every wait ``RECV_TIMEOUT_S``.
+live rules. Each test runs once per backend (``backend``): ``nft``; ``iptables``, forced, by
+the legacy x_tables tools (``iptables-legacy-*``: the path of the Jetson Nano, whose L4T
+4.9 kernel has no nf_tables and whose Ubuntu 18.04 ships iptables 1.6, docs/deploy.md); and
+``auto`` where ``nft`` is refused as on a kernel without nf_tables (a stand-in ``nft`` that
+fails as that kernel's does), so it falls back to the same legacy iptables. Loops are
+bounded: ``SPOOFS`` datagrams, every wait ``RECV_TIMEOUT_S``.
 """
 
 from __future__ import annotations
@@ -23,14 +28,17 @@ import socket
 import struct
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
 import pytest
 from swarmd_lab.configs import MINIMAL_CONFIG
 from swarmd_lab.netns import Namespace
-from swarmd_lab.pktinfo import AGENT_PORT, GUARDED, NOBODY, local_firewall, nobody_spoofs
+from swarmd_lab.pktinfo import AGENT_PORT, GUARDED, NOBODY, nobody_spoofs
+from swarmd_lab.pktinfo import local_firewall as run_local_firewall
 
+from swarmd.localfirewall import XT_VERSIONS, XtLive, dropped, xt_live
 from tests.conftest import LanFactory
 
 pytestmark = pytest.mark.netns
@@ -41,13 +49,86 @@ SPOOF_TIMEOUT_S: Final = 30.0
 NODE_PORT: Final = 17400  # the node's own port, which the spoofer binds elsewhere
 
 
+# what `nft -f` says on a kernel without nf_tables (EOPNOTSUPP from nfnetlink)
+REFUSING_NFT: Final = """#!/bin/sh
+echo "Error: Could not process rule: Operation not supported" >&2
+exit 1
+"""
+LEGACY_TOOLS: Final = [
+    f"{t}-legacy-{v}" for t in ("iptables", "ip6tables") for v in ("save", "restore")
+]
+
+
+@dataclass(frozen=True, slots=True)
+class Backend:
+    """How a test runs ``swarmd local-firewall`` and reads back the loaded rules."""
+
+    name: str  # the parameter: nft, iptables, auto (nft refused)
+    flags: tuple[str, ...]  # ``--backend ...``
+    env: dict[str, str]  # its PATH picks the tools
+
+    def run(self, ns: Namespace, config: Path, *flags: str) -> subprocess.CompletedProcess[str]:
+        return run_local_firewall(ns, config, *self.flags, *flags, env=self.env)
+
+    @property
+    def loads(self) -> str:
+        return "nft" if self.name == "nft" else "iptables"
+
+    def dropped(self, ns: Namespace) -> dict[str, int]:
+        """Each rule's comment -> its drops, as the backend's own listing shows them."""
+        if self.loads == "nft":
+            return dropped(ns.run(["nft", "list", "table", "inet", "swarmd_local"]).stdout)
+        counts: dict[str, int] = {}
+        for live in self._xt(ns):
+            for comment, count in live.dropped.items():
+                counts[comment] = counts.get(comment, 0) + count
+        return counts
+
+    def copies(self, ns: Namespace, comment: str) -> int:
+        """How often the rule with ``comment`` and the hook are loaded (1 each: applied twice
+        replaces, never appends)."""
+        if self.loads == "nft":
+            ruleset = ns.run(["nft", "list", "ruleset"]).stdout
+            return ruleset.count(comment) * ruleset.count("table inet swarmd_local")
+        lives = self._xt(ns)
+        rules = sum(rule.count(comment) for live in lives for rule in live.rules or ())
+        return rules * min(live.jumps for live in lives)
+
+    def _xt(self, ns: Namespace) -> list[XtLive]:
+        saves = [f"{'ip' if v == 4 else 'ip6'}tables-save" for v in XT_VERSIONS]
+        return [
+            xt_live(ns.run([save, "-c", "-t", "filter"], env=self.env).stdout) for save in saves
+        ]
+
+
+@pytest.fixture(params=["nft", "iptables", "auto"])
+def backend(request: pytest.FixtureRequest, tmp_path: Path) -> Backend:
+    name: str = request.param
+    if name == "nft":
+        if shutil.which("nft") is None:
+            pytest.skip("needs nft (Debian: nftables)")
+        return Backend(name, ("--backend", "nft"), dict(os.environ))
+    missing = [tool for tool in LEGACY_TOOLS if shutil.which(tool) is None]
+    if missing:
+        pytest.skip(f"needs {', '.join(missing)} (Debian: iptables)")
+    tools = tmp_path / "tools"
+    tools.mkdir()
+    for tool in LEGACY_TOOLS:  # iptables-save -> iptables-legacy-save, ...
+        (tools / tool.replace("-legacy", "")).symlink_to(str(shutil.which(tool)))
+    if name == "auto":
+        (tools / "nft").write_text(REFUSING_NFT)
+        (tools / "nft").chmod(0o755)
+    path = f"{tools}{os.pathsep}{os.environ.get('PATH', '')}"
+    flags = ("--backend", "iptables") if name == "iptables" else ()
+    return Backend(name, flags, {**os.environ, "PATH": path})
+
+
 @pytest.fixture
 def ns(lan_factory: LanFactory) -> Namespace:
-    missing = [tool for tool in ("nft", "setpriv") if shutil.which(tool) is None]
-    if missing:
-        pytest.skip(f"needs {' and '.join(missing)} (Debian: nftables, util-linux)")
+    if shutil.which("setpriv") is None:
+        pytest.skip("needs setpriv (Debian: util-linux)")
     if os.geteuid() != 0:
-        pytest.skip("needs root (setpriv to nobody, nft in a namespace)")
+        pytest.skip("needs root (setpriv to nobody, firewall rules in a namespace)")
     host: Namespace = lan_factory(1).hosts[0]
     return host
 
@@ -83,7 +164,7 @@ def _spoofs_received(ns: Namespace, receiver: socket.socket, node: socket.socket
 
 @pytest.mark.parametrize("case", sorted(GUARDED))
 def test_the_rule_drops_a_spoofer_that_closes_its_socket_at_once(
-    ns: Namespace, tmp_path: Path, case: str
+    ns: Namespace, tmp_path: Path, case: str, backend: Backend
 ) -> None:
     guarded = GUARDED[case]
     (address, port), bind, comment = guarded.receiver, guarded.bind, guarded.comment
@@ -96,21 +177,22 @@ def test_the_rule_drops_a_spoofer_that_closes_its_socket_at_once(
         node.bind((address, NODE_PORT))
         # without the rules: residual (6) as the xfail pins it, every spoof arrives as the node
         assert _spoofs_received(ns, receiver, node, bind) == SPOOFS
-        assert local_firewall(ns, config, "--check").returncode == 1  # not loaded yet
-        applied = local_firewall(ns, config, "--apply")
+        assert backend.run(ns, config, "--check").returncode == 1  # not loaded yet
+        applied = backend.run(ns, config, "--apply")
         assert applied.returncode == 0, applied.stderr
+        assert f"loaded by {backend.loads}" in applied.stdout
         assert _spoofs_received(ns, receiver, node, bind) == 0  # the node's own still arrives
-    listed = ns.run(["nft", "list", "table", "inet", "swarmd_local"]).stdout
-    rule = next(line for line in listed.splitlines() if comment in line)
-    assert f"counter packets {SPOOFS} " in rule
-    check = local_firewall(ns, config, "--check")
+    assert backend.dropped(ns)[comment] == SPOOFS
+    check = backend.run(ns, config, "--check")
     assert check.returncode == 0, check.stderr
+    assert f"{backend.loads}:" in check.stdout
     assert f"{comment}: dropped {SPOOFS} datagrams" in check.stdout
-    # applied twice: still one table, one rule (the script replaces, never appends)
-    assert local_firewall(ns, config, "--apply").returncode == 0
-    assert ns.run(["nft", "list", "ruleset"]).stdout.count(comment) == 1
-    assert local_firewall(ns, config, "--remove").returncode == 0
-    assert local_firewall(ns, config, "--check").returncode == 1
+    # applied twice: still one table or hook, one rule (the script replaces, never appends)
+    assert backend.run(ns, config, "--apply").returncode == 0
+    assert backend.copies(ns, comment) == 1
+    assert backend.run(ns, config, "--remove").returncode == 0
+    assert backend.run(ns, config, "--check").returncode == 1
+    assert backend.copies(ns, comment) == 0
 
 
 # user ``nobody`` sends COUNT datagrams to DEST:PORT out of interface IFNAME, looped back to
@@ -170,7 +252,7 @@ def _ifindex(ns: Namespace) -> int:
 
 @pytest.mark.parametrize("to", ["broadcast", "multicast"])
 def test_an_agent_on_a_wildcard_drops_another_users_broadcast_and_multicast(
-    ns: Namespace, tmp_path: Path, to: str
+    ns: Namespace, tmp_path: Path, to: str, backend: Backend
 ) -> None:
     """A wildcard agent (``px4.allow_network``) also takes this host's broadcasts and its
     own multicast copies. They leave by eth0, not ``lo``: the first table's ``oifname "lo"``
@@ -186,10 +268,11 @@ def test_an_agent_on_a_wildcard_drops_another_users_broadcast_and_multicast(
         agent.bind(("0.0.0.0", AGENT_PORT))  # noqa: S104 - the wildcard under test
         agent.settimeout(RECV_TIMEOUT_S)
         assert _looped_received(ns, agent, dest) == SPOOFS  # without the table: all arrive
-        applied = local_firewall(ns, config, "--apply")
+        applied = backend.run(ns, config, "--apply")
         assert applied.returncode == 0, applied.stderr
+        assert f"loaded by {backend.loads}" in applied.stdout
         assert _looped_received(ns, agent, dest) == 0  # root's (the vehicle's user) still does
-    check = local_firewall(ns, config, "--check")
+    check = backend.run(ns, config, "--check")
     assert check.returncode == 0, check.stderr
     assert f"dropped {SPOOFS} datagrams" in check.stdout
-    assert local_firewall(ns, config, "--remove").returncode == 0
+    assert backend.run(ns, config, "--remove").returncode == 0

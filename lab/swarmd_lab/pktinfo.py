@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -61,11 +61,14 @@ GUARDED: Final = {
 }
 
 
-def local_firewall(ns: Namespace, config: Path, *flags: str) -> subprocess.CompletedProcess[str]:
+def local_firewall(
+    ns: Namespace, config: Path, *flags: str, env: Mapping[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
     """``swarmd local-firewall --config CONFIG FLAGS`` in ``ns`` (``--apply``: the unit's
-    ``ExecStartPre``), run to completion (at most 60 s), output captured, not checked."""
+    ``ExecStartPre``), run to completion (at most 60 s), output captured, not checked;
+    ``env`` replaces the environment (a ``PATH`` that picks the firewall tools)."""
     argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "local-firewall"]
-    return ns.run([*argv, "--config", str(config), *flags], check=False, timeout=60.0)
+    return ns.run([*argv, "--config", str(config), *flags], check=False, timeout=60.0, env=env)
 
 
 SPOOFER: Final = """

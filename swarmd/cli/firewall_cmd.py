@@ -1,16 +1,26 @@
-"""``swarmd local-firewall``: the nftables table that lets only the configured users send to
-swarmd's loopback ports (swarmd.localfirewall; docs/security.md, "The local user",
-residual (6); docs/operations.md, "The local firewall").
+"""``swarmd local-firewall``: the rules that let only the configured users send to swarmd's
+loopback ports (swarmd.localfirewall; docs/security.md, "The local user", residual (6);
+docs/operations.md, "The local firewall"). Two backends load the same rules: ``nft`` (the
+table ``inet swarmd_local``) and ``iptables`` (the chain ``swarmd_local`` of iptables' and
+ip6tables' filter table, jumped to first from ``OUTPUT``), for kernels without nf_tables such
+as the Jetson Nano's (docs/deploy.md, "The local firewall on the Nano").
 
-- ``--config FILE``: print it, as ``nft -f`` input that replaces an older table at once;
-- ``--config FILE --apply``: load it (the unit's ``ExecStartPre=+``, as root);
-- ``--config FILE --check``: compare it with the live table and print each rule's drops;
-- ``--remove``: delete the table, if there is one (the unit's ``ExecStopPost=+``).
+- ``--config FILE``: print it, as ``nft -f`` input (``--backend iptables``: the
+  ``iptables-restore`` and ``ip6tables-restore`` input);
+- ``--config FILE --apply``: load it (the unit's ``ExecStartPre=+``, as root). With
+  ``--backend auto`` (the default) nft first; when nft is missing or refused (a kernel
+  without nf_tables, or without a feature the table needs) iptables. Probed, not guessed:
+  what loads is what the kernel took. The other backend's old rules are then removed, and
+  one line on stdout names the backend;
+- ``--config FILE --check``: compare it with what is loaded (``auto``: whichever backend
+  holds rules) and print each rule's drops;
+- ``--remove``: delete the table and the chain, if there are any (``auto``: both).
 
-Exit codes: 0 ok; 1 ``--check`` found the table missing or different; 69 ``nft`` is missing
-or refused (``--apply``: systemd then fails the start); 78 the config is rejected. A port
-whose users are not configured is a note on stderr, not a failure. This is the thin tier:
-every ``nft`` call is here, the text comes from swarmd.localfirewall.
+Exit codes: 0 ok; 1 ``--check`` found the rules missing or different; 69 no backend could
+load them (``--apply``: systemd then fails the start) or answer: one line with each
+backend's reason and the fix; 78 the config is rejected. A port whose users are not
+configured is a note on stderr, not a failure. This is the thin tier: every process is
+started here, the text comes from swarmd.localfirewall.
 """
 
 from __future__ import annotations
@@ -19,95 +29,271 @@ import argparse
 import shutil
 import subprocess
 import sys
+from dataclasses import dataclass
+from typing import Final
 
 from swarmd.config import ConfigError, load_config
 from swarmd.exitcodes import EX_CONFIG, EX_FAILED, EX_OK, EX_UNAVAILABLE
-from swarmd.localfirewall import FAMILY, TABLE, LocalFirewall, differences, dropped, local_firewall
+from swarmd.localfirewall import (
+    FAMILY,
+    TABLE,
+    XT_CHAIN,
+    XT_VERSIONS,
+    LocalFirewall,
+    XtLive,
+    differences,
+    dropped,
+    local_firewall,
+    xt_live,
+    xt_removal,
+)
 
-NFT_TIMEOUT_S = 10.0
+TOOL_TIMEOUT_S: Final = 10.0
+BACKENDS: Final = ("auto", "nft", "iptables")
+# the one-line fix when no backend loads (docs/deploy.md, "The local firewall on the Nano")
+FIX: Final = (
+    "fix: run as root, with nft and a kernel with nf_tables (CONFIG_NF_TABLES_INET, "
+    "CONFIG_NFT_META; CONFIG_NFT_FIB_INET for an agent on a wildcard), or iptables and a "
+    "kernel with CONFIG_IP_NF_FILTER, CONFIG_IP6_NF_FILTER and CONFIG_NETFILTER_XT_MATCH_"
+    "OWNER, _ADDRTYPE, _COMMENT (Debian: apt-get install nftables, or iptables)"
+)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "local-firewall",
-        help="the nftables table that lets only the configured users send to swarmd's "
-        "loopback ports (print, --apply, --check, --remove)",
+        help="the nftables table (or iptables chain) that lets only the configured users "
+        "send to swarmd's loopback ports (print, --apply, --check, --remove)",
     )
     p.add_argument("--config", help="daemon config file (YAML); all but --remove need it")
+    p.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="auto",
+        help="auto (default): nft, and iptables when nft is missing or the kernel refuses "
+        "the table; nft or iptables: that one only",
+    )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--apply", action="store_true", help="load it now (root)")
     mode.add_argument(
-        "--check", action="store_true", help="exit 1 when the live table is missing or differs"
+        "--check", action="store_true", help="exit 1 when the live rules are missing or differ"
     )
-    mode.add_argument("--remove", action="store_true", help="delete the table (root)")
+    mode.add_argument("--remove", action="store_true", help="delete the rules (root)")
 
 
-class NftError(Exception):
-    """``nft`` is missing or failed: one line."""
+class ToolError(Exception):
+    """A firewall tool is missing, hung or refused: one line."""
 
 
-def _nft(args: list[str], script: str | None = None) -> subprocess.CompletedProcess[str]:
-    nft = shutil.which("nft")
-    if nft is None:
-        raise NftError("nft not found; fix: install nftables (Debian: apt-get install nftables)")
+def _tool(argv: list[str], script: str | None = None) -> subprocess.CompletedProcess[str]:
+    """Runs ``argv`` (``nft``, ``iptables-save``, ...; found on PATH) with ``script`` on
+    stdin. The only place a process starts (the tests give a fake one)."""
+    path = shutil.which(argv[0])
+    if path is None:
+        raise ToolError(f"{argv[0]} not found")
     try:
         return subprocess.run(  # noqa: S603 - fixed argv, no shell
-            [nft, *args],
+            [path, *argv[1:]],
             input=script,
             capture_output=True,
             text=True,
-            timeout=NFT_TIMEOUT_S,
+            timeout=TOOL_TIMEOUT_S,
             check=False,
         )
     except subprocess.TimeoutExpired:
-        raise NftError(f"nft {' '.join(args)}: no answer in {NFT_TIMEOUT_S:g} s") from None
+        raise ToolError(f"{' '.join(argv)}: no answer in {TOOL_TIMEOUT_S:g} s") from None
 
 
-def _failed(what: str, done: subprocess.CompletedProcess[str]) -> NftError:
+def _refused(what: str, done: subprocess.CompletedProcess[str]) -> ToolError:
     reason = " ".join(done.stderr.split())[:300] or f"exit {done.returncode}"
-    return NftError(f"{what}: {reason}; fix: run as root, with nf_tables in the kernel")
+    return ToolError(f"{what}: {reason}")
 
 
-def _live() -> str | None:
-    """The live table as ``nft list`` prints it; None when there is none."""
-    done = _nft(["list", "table", FAMILY, TABLE])
-    if done.returncode == 0:
-        return done.stdout
-    if "No such file or directory" in done.stderr:
-        return None
-    raise _failed(f"nft list table {FAMILY} {TABLE}", done)
+@dataclass(frozen=True, slots=True)
+class _Live:
+    """What ``--check`` found loaded by one backend."""
+
+    diff: list[str]  # ``differences``: [] when it matches
+    dropped: dict[str, int]  # a port's comment -> the datagrams its rule dropped
 
 
-def _check(wanted: LocalFirewall) -> int:
-    live = _live()
-    if live is None:
-        print(f"swarmd: local-firewall: table {FAMILY} {TABLE} is not loaded", file=sys.stderr)
+class _Nft:
+    name: Final = "nft"
+    where: Final = f"table {FAMILY} {TABLE}"
+
+    def apply(self, wanted: LocalFirewall) -> None:
+        done = _tool(["nft", "-f", "-"], wanted.script())
+        if done.returncode != 0:
+            raise _refused("nft -f", done)
+
+    def inspect(self, wanted: LocalFirewall) -> _Live | None:
+        done = _tool(["nft", "list", "table", FAMILY, TABLE])
+        if done.returncode == 0:
+            return _Live(differences(done.stdout, wanted), dropped(done.stdout))
+        if _no_table(done):
+            return None
+        raise _refused(f"nft list table {FAMILY} {TABLE}", done)
+
+    def remove(self) -> None:
+        done = _tool(["nft", "delete", "table", FAMILY, TABLE])
+        if done.returncode != 0 and not _no_table(done):
+            raise _refused(f"nft delete table {FAMILY} {TABLE}", done)
+
+
+def _no_table(done: subprocess.CompletedProcess[str]) -> bool:
+    return "No such file or directory" in done.stderr  # ENOENT: the table is not there
+
+
+class _Xtables:
+    name: Final = "iptables"
+    where: Final = f"chain {XT_CHAIN} of iptables and ip6tables"
+
+    def apply(self, wanted: LocalFirewall) -> None:
+        for version in XT_VERSIONS:
+            self._restore(version, wanted.xt_script(version, self._live(version)))
+
+    def inspect(self, wanted: LocalFirewall) -> _Live | None:
+        lives = {version: self._live(version) for version in XT_VERSIONS}
+        if not any(live.loaded for live in lives.values()):
+            return None
+        diff: list[str] = []
+        counts: dict[str, int] = {}
+        for version, live in lives.items():
+            diff += [f"IPv{version}: {line}" for line in wanted.xt_differences(version, live)]
+            for comment, count in live.dropped.items():
+                counts[comment] = counts.get(comment, 0) + count
+        return _Live(diff, counts)
+
+    def remove(self) -> None:
+        for version in XT_VERSIONS:
+            script = xt_removal(self._live(version))
+            if script is not None:
+                self._restore(version, script)
+
+    @staticmethod
+    def _live(version: int) -> XtLive:
+        save = [_xt_tool(version, "save"), "-c", "-t", "filter"]
+        done = _tool(save)
+        if done.returncode != 0:
+            raise _refused(" ".join(save), done)
+        return xt_live(done.stdout)
+
+    @staticmethod
+    def _restore(version: int, script: str) -> None:
+        # --noflush: only swarmd's chain and its jump change, every other rule stays
+        restore = [_xt_tool(version, "restore"), "--noflush"]
+        done = _tool(restore, script)
+        if done.returncode != 0:
+            raise _refused(" ".join(restore), done)
+
+
+def _xt_tool(version: int, verb: str) -> str:
+    return f"{'iptables' if version == 4 else 'ip6tables'}-{verb}"
+
+
+_Backend = _Nft | _Xtables
+ALL: Final[tuple[_Backend, ...]] = (_Nft(), _Xtables())
+
+
+def _chosen(backend: str) -> tuple[_Backend, ...]:
+    """The backends to try, in order: ``auto`` is nft, then iptables."""
+    return tuple(b for b in ALL if backend in ("auto", b.name))
+
+
+def _none_answered(reasons: list[str]) -> ToolError:
+    return ToolError(f"{'; '.join(reasons)}; {FIX}")
+
+
+def _apply(wanted: LocalFirewall, backends: tuple[_Backend, ...]) -> int:
+    reasons: list[str] = []
+    for backend in backends:
+        try:
+            backend.apply(wanted)
+        except ToolError as exc:
+            reasons.append(f"{backend.name}: {exc}")
+            continue
+        # the other backend's rules of an older start (another config, another kernel):
+        # removed where its tool answers; where it is missing or refused, nothing is loaded
+        for other in ALL:
+            if other is not backend:
+                try:
+                    other.remove()
+                except ToolError:
+                    pass
+        for reason in reasons:
+            print(f"swarmd: local-firewall: note: not loaded by {reason}", file=sys.stderr)
+        print(f"swarmd: local-firewall: loaded by {backend.name}: {backend.where}")
+        return EX_OK
+    raise _none_answered(reasons)
+
+
+def _check(wanted: LocalFirewall, backends: tuple[_Backend, ...]) -> int:
+    found: list[tuple[_Backend, _Live]] = []
+    reasons: list[str] = []
+    for backend in backends:
+        try:
+            live = backend.inspect(wanted)
+        except ToolError as exc:
+            reasons.append(f"{backend.name}: {exc}")
+            continue
+        if live is not None:
+            found.append((backend, live))
+    if not found:
+        if len(reasons) == len(backends):
+            raise _none_answered(reasons)
+        where = ", ".join(f"no {b.where}" for b in backends)
+        print(f"swarmd: local-firewall: not loaded ({where})", file=sys.stderr)
         return EX_FAILED
-    diff = differences(live, wanted)
-    if diff:
-        print(
-            f"swarmd: local-firewall: table {FAMILY} {TABLE} differs from {wanted.file} "
-            "(- wanted, + live); fix: swarmd local-firewall --apply, or restart swarmd",
-            file=sys.stderr,
-        )
-        for line in diff:
-            print(f"  {line}", file=sys.stderr)
-        return EX_FAILED
-    counts = dropped(live)
-    print(f"swarmd: local-firewall: table {FAMILY} {TABLE} matches {wanted.file}")
-    for port in wanted.ports:
-        print(f"  {port.comment}: dropped {counts.get(port.comment, 0)} datagrams of other users")
+    status = EX_OK
+    for backend, live in found:
+        if live.diff:
+            print(
+                f"swarmd: local-firewall: {backend.name}: {backend.where} differs from "
+                f"{wanted.file} (- wanted, + live); fix: swarmd local-firewall --apply, or "
+                "restart swarmd",
+                file=sys.stderr,
+            )
+            for line in live.diff:
+                print(f"  {line}", file=sys.stderr)
+            status = EX_FAILED
+            continue
+        print(f"swarmd: local-firewall: {backend.name}: {backend.where} matches {wanted.file}")
+        for port in wanted.ports:
+            count = live.dropped.get(port.comment, 0)
+            print(f"  {port.comment}: dropped {count} datagrams of other users")
+    return status
+
+
+def _remove(backends: tuple[_Backend, ...]) -> int:
+    reasons: list[str] = []
+    for backend in backends:
+        try:
+            backend.remove()
+        except ToolError as exc:
+            reasons.append(f"{backend.name}: {exc}")
+    if len(reasons) == len(backends):
+        raise _none_answered(reasons)
     return EX_OK
+
+
+def _printed(wanted: LocalFirewall, backend: str) -> str:
+    """What ``--apply`` would load on a host without swarmd's rules: the nft script, or
+    (``iptables``) each IP version's ``-restore --noflush`` input."""
+    if backend != "iptables":
+        return wanted.script()
+    empty = XtLive(None, {}, 0, False)
+    return "".join(
+        f"# {_xt_tool(version, 'restore')} --noflush\n{wanted.xt_script(version, empty)}"
+        for version in XT_VERSIONS
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """``swarmd local-firewall``; one line on stderr for every failure."""
+    backends = _chosen(args.backend)
     try:
         if args.remove:
-            done = _nft(["delete", "table", FAMILY, TABLE])
-            if done.returncode != 0 and "No such file or directory" not in done.stderr:
-                raise _failed(f"nft delete table {FAMILY} {TABLE}", done)
-            return EX_OK
+            return _remove(backends)
         if args.config is None:
             print("swarmd: local-firewall: --config FILE is needed", file=sys.stderr)
             return EX_CONFIG
@@ -119,14 +305,11 @@ def run(args: argparse.Namespace) -> int:
         for note in wanted.notes:
             print(f"swarmd: local-firewall: note: {note}", file=sys.stderr)
         if args.check:
-            return _check(wanted)
+            return _check(wanted, backends)
         if args.apply:
-            done = _nft(["-f", "-"], wanted.script())
-            if done.returncode != 0:
-                raise _failed("nft -f", done)
-            return EX_OK
-        print(wanted.script(), end="")
+            return _apply(wanted, backends)
+        print(_printed(wanted, args.backend), end="")
         return EX_OK
-    except NftError as exc:
+    except ToolError as exc:
         print(f"swarmd: local-firewall: {exc}", file=sys.stderr)
         return EX_UNAVAILABLE
