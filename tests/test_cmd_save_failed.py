@@ -10,7 +10,9 @@ runs only its own commands"): the commander's resend carries the first dating (a
 the earlier life: ``memory_lost``), its repairs and hand-overs are voided at the new epoch,
 and captured datagrams are sealed to the earlier epoch. These tests drive each kind through
 that sequence on virtual time, with the answer delivered or lost, and a second restart on
-what the new life wrote: the vehicle is told once.
+what the new life wrote: the vehicle is told once. What the record protects is shown by
+taking those rules away: then the resend runs a second time exactly when the save failed
+(each of the four kinds), and once when it succeeded.
 
 What the failed save does lose is the answer across a restart (no re-report), so the
 operator is told: the decision is marked unsaved (``swarmctl outcomes``, ``saved: false``)
@@ -23,7 +25,9 @@ from __future__ import annotations
 import pytest
 
 from swarmd.dataplane.types import Command, CommandKind, CommandResult
-from swarmd.dataplane.validity import MEMORY_LOST
+from swarmd.dataplane.validity import MEMORY_LOST, Judgement, ReportLog
+from swarmd.swarm import member
+from swarmd.swarm.core import SwarmCore
 from swarmd.swarm.events import OutcomeReported
 from tests.test_cmd_in_flight import Flight, _issue, _reboot
 from tests.test_swarm_core import Swarm
@@ -40,14 +44,13 @@ def _resend(swarm: Swarm, cid: int, kind: CommandKind) -> None:
     swarm.call("lead", lambda now: plane.send_command(retry, now))
 
 
-@pytest.mark.parametrize("answer_lost", [False, True])
-@pytest.mark.parametrize(
-    "kind", [CommandKind.TAKEOFF, CommandKind.LAND, CommandKind.HOLD, CommandKind.ABORT]
-)
-def test_a_command_whose_saves_failed_never_runs_again_after_a_restart(
-    kind: CommandKind, answer_lost: bool
-) -> None:
-    flight = Flight(1, seed=60)
+def _run_saves_failed_and_restart(
+    kind: CommandKind, answer_lost: bool, *, saved: bool, seed: int = 60
+) -> tuple[Flight, int, int, SwarmCore]:
+    """m01 takes a HOLD (written), then ``kind``, whose writes fail unless ``saved``; its
+    daemon restarts on what the state dir holds and the commander's code resends the id,
+    then once more after a second restart on what the new life wrote."""
+    flight = Flight(1, seed=seed)
     swarm = flight.swarm
     swarm.run(3.0)
     earlier = int(_issue(swarm, CommandKind.HOLD)["command_id"])
@@ -58,10 +61,9 @@ def test_a_command_whose_saves_failed_never_runs_again_after_a_restart(
         flight.cut = lambda a, b: a == "m01"
     cid = int(_issue(swarm, kind)["command_id"])
     swarm.run(0.3)
-    assert len(flight.ran("m01", cid)) == 1  # it ran, its saves failed
-    assert ("lead", cid) in flight.kept("m01").executed  # what the failed writes held
-
-    reborn = _reboot(flight, "m01", state_kept=True, kept=on_disk)
+    assert len(flight.ran("m01", cid)) == 1  # it ran
+    assert ("lead", cid) in flight.kept("m01").executed  # what the writes held
+    reborn = _reboot(flight, "m01", state_kept=True, kept=None if saved else on_disk)
     flight.cut = lambda a, b: False
     swarm.run(0.5)
     _resend(swarm, cid, kind)
@@ -71,16 +73,43 @@ def test_a_command_whose_saves_failed_never_runs_again_after_a_restart(
     swarm.run(0.5)
     _resend(swarm, cid, kind)
     swarm.run(10.0)
+    return flight, earlier, cid, reborn
 
+
+KINDS = [CommandKind.TAKEOFF, CommandKind.LAND, CommandKind.HOLD, CommandKind.ABORT]
+
+
+@pytest.mark.parametrize("answer_lost", [False, True])
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_command_whose_saves_failed_never_runs_again_after_a_restart(
+    kind: CommandKind, answer_lost: bool
+) -> None:
+    flight, earlier, cid, reborn = _run_saves_failed_and_restart(kind, answer_lost, saved=False)
     assert len(flight.ran("m01", cid)) == 1
-    assert [r.token for r in swarm.requests("m01")] == [earlier, cid]
+    assert [r.token for r in flight.swarm.requests("m01")] == [earlier, cid]
     assert reborn.executor_counters.get("refused_memory_lost") == 1
     refusals = [
         e
-        for e in swarm.events["m01"]
+        for e in flight.swarm.events["m01"]
         if isinstance(e, OutcomeReported) and e.command_id == cid and e.reason == MEMORY_LOST
     ]
     assert refusals and all(e.result == CommandResult.REJECTED for e in refusals)
+
+
+@pytest.mark.parametrize("saved", [True, False])
+@pytest.mark.parametrize("kind", KINDS)
+def test_without_the_life_rules_the_record_is_what_stops_a_second_run(
+    kind: CommandKind, saved: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the saved record protects, shown by taking away the rules that stand in front
+    of it (the echo's epoch, the clock rule and the report log: ``Member._may_run``): then
+    the resend after the restart runs a second time exactly when the save failed. With the
+    rules (the test above) it never does, saved or not: the record is the second line."""
+    monkeypatch.setattr(member, "another_life", lambda *args: None)
+    monkeypatch.setattr(member, "issued_in_life", lambda *args: Judgement(True, 1, ""))
+    monkeypatch.setattr(ReportLog, "unknown", lambda *args: None)
+    flight, _, cid, _ = _run_saves_failed_and_restart(kind, False, saved=saved)
+    assert len(flight.ran("m01", cid)) == (1 if saved else 2)
 
 
 def test_a_failed_save_marks_the_decision_unsaved_until_a_write_succeeds() -> None:
@@ -93,15 +122,15 @@ def test_a_failed_save_marks_the_decision_unsaved_until_a_write_succeeds() -> No
     swarm.run(3.0)
     cid = int(_issue(swarm, CommandKind.HOLD)["command_id"])
     swarm.run(0.5)
-    member = swarm.cores["m01"]
+    core = swarm.cores["m01"]
 
     def saved() -> dict[int, bool]:
-        ran = member.request_outcomes({}, swarm.net.now)["ran"]
+        ran = core.request_outcomes({}, swarm.net.now)["ran"]
         return {r["command_id"]: r["saved"] for r in ran}
 
     assert saved() == {cid: True}
-    member.state_saved(("lead", cid), "cannot write: No space left on device")
+    core.state_saved(("lead", cid), "cannot write: No space left on device")
     assert saved() == {cid: False}
-    assert member.executor_counters["state_save_failed"] == 1
-    member.state_saved(("lead", cid), None)
+    assert core.executor_counters["state_save_failed"] == 1
+    core.state_saved(("lead", cid), None)
     assert saved() == {cid: True}
