@@ -20,19 +20,18 @@ from pathlib import Path
 from typing import Any
 
 from structlog.testing import capture_logs
-from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.cli.outcomes_cmd import render_kept, to_json
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.exitcodes import EX_FAILED
-from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
 from swarmd.swarm import statefile
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, DecisionLog, KeptDecision
 from tests.daemon_support import run_domain, write_bundle
 from tests.test_cmd_in_flight import Flight, _issue, _reboot
+from tests.test_cmd_memory_loopback import start_pair
 from tests.test_outcomes_cmd import HOSTILE, WALL_NOW, _swarmctl, _unsafe
-from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until
+from tests.test_takeoff_loopback import Swarm, until
 
 # ---- on virtual time ----------------------------------------------------------------------
 
@@ -165,13 +164,7 @@ def test_a_real_member_shows_its_earlier_lifes_decision_after_a_restart(workdir:
     sock = str(workdir / "uav2.sock")
 
     async def main() -> tuple[int, float, Any, Any]:
-        for i in range(2):
-            d = swarm.daemon(i)
-            await d.start()
-            swarm.daemons.append(d)
-        for i in range(2):
-            endpoint = parse_connection(f"udpout:127.0.0.1:{_mavlink_port(i)}")
-            swarm.sims.append(await start_sim(_sim(i + 1), endpoint, seed=i))
+        await start_pair(swarm)
         try:
             app = swarm.commander.app
             assert app is not None

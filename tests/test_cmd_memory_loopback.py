@@ -48,6 +48,17 @@ from tests.daemon_support import run_domain, write_bundle
 from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until
 
 
+async def start_pair(swarm: Swarm) -> None:
+    """uav1 (the commander) and uav2, each with its vehicle simulator."""
+    for i in range(2):
+        d = swarm.daemon(i)
+        await d.start()
+        swarm.daemons.append(d)
+    for i in range(2):
+        endpoint = parse_connection(f"udpout:127.0.0.1:{_mavlink_port(i)}")
+        swarm.sims.append(await start_sim(_sim(i + 1), endpoint, seed=i))
+
+
 def _executor(swarm: Swarm, i: int) -> dict[str, int]:
     app = swarm.daemons[i].app
     assert app is not None
@@ -92,13 +103,7 @@ def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(
     unwritable = _immutable(state_dir) if memory == "save_failed" else contextlib.nullcontext()
 
     async def main() -> None:
-        daemons = [swarm.daemon(0), swarm.daemon(1)]
-        for d in daemons:
-            await d.start()
-            swarm.daemons.append(d)
-        for i in range(2):
-            endpoint = parse_connection(f"udpout:127.0.0.1:{_mavlink_port(i)}")
-            swarm.sims.append(await start_sim(_sim(i + 1), endpoint, seed=i))
+        await start_pair(swarm)
         try:
             app = swarm.commander.app
             assert app is not None
