@@ -21,6 +21,7 @@ from typing import Any
 
 from structlog.testing import capture_logs
 
+from swarmd.auth.epoch import epoch_path
 from swarmd.cli.outcomes_cmd import render_kept, to_json
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.exitcodes import EX_FAILED
@@ -158,7 +159,8 @@ def test_a_real_member_shows_its_earlier_lifes_decision_after_a_restart(workdir:
     """uav2 takes a HOLD, its daemon restarts (state file kept), and ``swarmctl outcomes``
     on uav2 lists the HOLD, as the earlier life decided it, with its kind, the wall-clock
     time it was received and its life. A temporary file left beside the state file is
-    removed at the restart, counted in a log line."""
+    removed at the restart, counted in a log line, and so is one beside the boot epoch's
+    file."""
     files = write_bundle(workdir, 2, domain_id=run_domain(), lease_s=20.0)
     swarm = Swarm(workdir, files)
     sock = str(workdir / "uav2.sock")
@@ -183,6 +185,8 @@ def test_a_real_member_shows_its_earlier_lifes_decision_after_a_restart(workdir:
             # as a kill -9 inside the atomic write leaves it (tests/test_cmd_state_kill.py)
             path = statefile.state_path(workdir / "state", "uav2")
             path.with_name(f".{path.name}.tmp-{'ab' * 8}").write_bytes(b'{"boot"')
+            epoch = epoch_path(swarm.daemons[1].config.bundle.node_state_dir, "uav2")
+            epoch.with_name(f".{epoch.name}.tmp-{'cd' * 8}").write_bytes(b"17")
             reborn = swarm.daemon(1)
             await reborn.start()
             swarm.daemons[1] = reborn
@@ -195,8 +199,9 @@ def test_a_real_member_shows_its_earlier_lifes_decision_after_a_restart(workdir:
     with capture_logs() as logs:
         cid, issued_at, as_json, human = run_on_raw_clock(main())
     removed = [e for e in logs if e["event"] == "state_temp_files_removed"]
-    assert [(e["node"], e["count"]) for e in removed] == [("uav2", 1)]
-    assert list((workdir / "state").glob(".*.tmp-*")) == []
+    # one line for the data plane's state file, one for the epoch's folder
+    assert [(e["node"], e["count"]) for e in removed] == [("uav2", 1), ("uav2", 1)]
+    assert list(workdir.rglob(".*.tmp-*")) == []
     body = json.loads(as_json.stdout)
     (ran,) = body["ran"]
     assert (ran["command_id"], ran["kind"], ran["state"], ran["commander"]) == (
