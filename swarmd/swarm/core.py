@@ -16,7 +16,8 @@ disabled). Driving sources, the driver's protocol (``swarmd.driver``):
 - the commander's validity timers: when a command's validity ends, ``handle_timer``
   withdraws it (``issuer.py``);
 - calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
-  ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
+  ``task_finished`` (the vehicle core), ``state_saved`` (the daemon wrote, or failed to
+  write, a ``PersistExecuted``), and the commander's requests (``request_takeoff``,
   ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
 
 Outputs: ``datagrams_to_send()``, ``get_timer()``, ``next_event()``. Two events are orders

@@ -23,7 +23,11 @@ new kind fails the type check rather than running another's action, and a kind n
 this build does not know is REJECTED ``unknown_kind``.
 
 Every command received is persisted before anything moves (``PersistExecuted``, the
-write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decided.
+write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decided, with
+the member's ``DecisionLog`` (``swarmctl outcomes`` in a later life). The daemon answers
+each write (``state_saved``): a failed one marks the decision unsaved and does not stop
+the command, which the life rules keep from running twice (docs/dataplane.md, "A failed
+save").
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
 "Outcomes across a restart"); they only answer, nothing is executed.
