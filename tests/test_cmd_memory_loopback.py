@@ -21,8 +21,9 @@ The same with a state dir made unwritable (``chattr +i``: root writes through a 
 through the immutable flag) once uav2 has booted, so every write of the HOLD's record
 fails, and writable again for the restart (docs/dataplane.md, "A failed save"): the HOLD
 runs, and the operator is told: ``state_save_failed`` names the command, the status counts
-it, ``swarmctl outcomes`` on uav2 marks its decision unsaved. The restart boots on a file
-without it, and the resend is refused as above.
+it, ``swarmctl outcomes`` on uav2 marks its decision unsaved. While the dir stays
+unwritable uav2 does not start again (exit 73); once writable, the restart boots on a file
+without the HOLD, and the resend is refused as above.
 Waits have caps; nothing asserts how fast anything happened.
 """
 
@@ -40,6 +41,7 @@ from structlog.testing import capture_logs
 from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.dataplane.types import Command, CommandKind
+from swarmd.exitcodes import EX_CANTCREAT, StartupError
 from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
 from swarmd.swarm import statefile
@@ -127,6 +129,10 @@ def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(
 
                 # uav2's daemon restarts without its record; its vehicle keeps flying
                 await swarm.daemons[1].stop("test")
+                if memory == "save_failed":  # while it cannot write, it does not start
+                    with pytest.raises(StartupError) as refused:
+                        await swarm.daemon(1).start()
+                    assert refused.value.exit_code == EX_CANTCREAT
             if memory == "deleted":
                 state_path(state_dir, "uav2").unlink()
             else:  # what the failed writes would have kept is not there
