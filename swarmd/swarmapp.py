@@ -486,7 +486,8 @@ class SwarmApp:
             return
         self.state.executed = list(event.executed)
         self.state.outcomes = list(event.outcomes)
-        self.state.decisions = [_on_clock(d, self._wall_offset()) for d in event.decisions]
+        offset = self._wall_offset()
+        self.state.decisions = [_on_clock(d, offset) for d in event.decisions]
         error: str | None = None
         try:
             self.state.save()
