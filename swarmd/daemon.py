@@ -42,7 +42,8 @@ from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
-from swarmd.bundle.floor import serial_of
+from swarmd.bundle.floor import floor_path, serial_of
+from swarmd.bundle.keys import remove_left_temps
 from swarmd.bundle.model import Bundle
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
@@ -184,6 +185,14 @@ class Daemon:
             self.epoch = next_epoch(self._state_dir, self.config.node, time.time())
         except EpochError as exc:
             raise StartupError(str(exc), EX_CANTCREAT) from None
+        # a crash inside an atomic write leaves its temporary file: remove this node's
+        # (keys.remove_left_temps; the folder was checked as ours by next_epoch)
+        left = sum(
+            remove_left_temps(path(self._state_dir, self.config.node))
+            for path in (epoch_path, windows_path, floor_path)
+        )
+        if left:
+            self.log.warning("state_temp_files_removed", path=self._state_dir, count=left)
         if self.epoch.recovered_from is not None:
             self.log.warning(
                 "auth_epoch_recovered",

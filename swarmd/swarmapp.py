@@ -19,8 +19,10 @@ only does their I/O:
 
 from __future__ import annotations
 
+import asyncio
 import os
 import socket
+import time
 from collections.abc import Callable, Mapping
 from typing import Any, Final, assert_never
 
@@ -30,7 +32,6 @@ from swarmd.config import DaemonConfig
 from swarmd.control import PeerCredentials, RequestInvalid
 from swarmd.dataplane import DataPlane, PairKeys
 from swarmd.dataplane.convert import ReadinessVerdict
-from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
 from swarmd.px4.bridge import Px4Bridge, Px4Config
@@ -46,7 +47,7 @@ from swarmd.px4.vehicle import TaskFinished, VehicleRequest
 from swarmd.px4.xrce_key import XrceKeyError
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import issuer
-from swarmd.swarm.commander import CommandTracker, ReadinessTable
+from swarmd.swarm.commander import CommandTracker, KeptDecision, ReadinessTable
 from swarmd.swarm.core import SwarmCore, SwarmSettings
 from swarmd.swarm.events import (
     CommandBeforeLife,
@@ -199,6 +200,8 @@ class SwarmApp:
             if self.config.dataplane.enabled:
                 self._boot_dataplane()
             bridge = self.bridge
+            earlier = () if self.state is None else self.state.decisions
+            offset = time.time() - asyncio.get_running_loop().time()
             self.core = SwarmCore(
                 self.roles,
                 self.plane,
@@ -209,6 +212,8 @@ class SwarmApp:
                     stale_after_s=self.config.dataplane.stale_after_s,
                     takeoff_alt_m=self.config.px4.takeoff_alt_m,
                 ),
+                # the earlier lives' decisions, dated on this life's clock
+                earlier_decisions=[_on_clock(d, -offset) for d in earlier],
             )
             self.driver = Driver(
                 self.core,
@@ -293,6 +298,12 @@ class SwarmApp:
             self.log.warning(
                 "state_file_replaced", path=str(self.state.path), why=self.state.recovered_from
             )
+        if self.state.temps_removed:  # a crash mid-write (statefile.boot)
+            self.log.warning(
+                "state_temp_files_removed",
+                path=str(self.state.path),
+                count=self.state.temps_removed,
+            )
         try:
             self.plane = DataPlane(
                 self.bundle,
@@ -323,6 +334,7 @@ class SwarmApp:
             user_port=port,
             incarnation=self.state.boot,
             executed_restored=len(self.state.executed),
+            decisions_restored=len(self.state.decisions),
             commander=self.is_commander,
             reports_readiness=self.reports_readiness,
         )
@@ -389,8 +401,8 @@ class SwarmApp:
 
     def _on_event(self, event: SwarmEvent) -> None:
         match event:
-            case PersistExecuted(executed=executed, outcomes=outcomes):
-                self._persist(executed, outcomes)
+            case PersistExecuted():
+                self._persist(event)
             case VehicleRequest():
                 if self.bridge is not None:
                     self.bridge.submit(event)
@@ -466,18 +478,37 @@ class SwarmApp:
             case _:
                 assert_never(event)
 
-    def _persist(
-        self, executed: tuple[tuple[str, int], ...], outcomes: tuple[KeptOutcome, ...]
-    ) -> None:
+    def _persist(self, event: PersistExecuted) -> None:
+        """Write the state file. A failed write is told (logged ``state_save_failed`` with
+        the command it would have kept, counted, the decision marked unsaved for ``swarmctl
+        outcomes``) and does not stop the command: docs/dataplane.md, "A failed save"."""
         if self.state is None:
             return
-        self.state.executed = list(executed)
-        self.state.outcomes = list(outcomes)
+        self.state.executed = list(event.executed)
+        self.state.outcomes = list(event.outcomes)
+        offset = self._wall_offset()
+        self.state.decisions = [_on_clock(d, offset) for d in event.decisions]
+        error: str | None = None
         try:
             self.state.save()
         except StateDirError as exc:
+            error = str(exc)
             self.counters["state_save_errors"] += 1
-            self.log.error("state_save_failed", error=str(exc))
+            commander, command_id = event.command or (None, None)
+            self.log.error(
+                "state_save_failed",
+                error=error,
+                commander=commander,
+                command_id=command_id,
+                effect="the command still runs; after a restart its answer is not re-reported "
+                "and no copy of it runs again (docs/dataplane.md, 'A failed save')",
+            )
+        self._core().state_saved(event.command, error)
+
+    def _wall_offset(self) -> float:
+        """Unix time minus the core's clock (``loop.time()``, CLOCK_MONOTONIC_RAW): the
+        state file dates decisions on the wall clock, the only one two lives share."""
+        return time.time() - self._driver().now()
 
     # ---- commander requests (control socket) ----------------------------------------------
 
@@ -588,3 +619,9 @@ class SwarmApp:
         if self.driver is None:
             raise RuntimeError("the swarm layer is not started")
         return self.driver
+
+
+def _on_clock(kept: KeptDecision, offset: float) -> KeptDecision:
+    """``kept`` with ``received_at`` moved by ``offset``: from the core's clock to Unix time
+    (``offset`` = Unix time - loop time) or back (its negative)."""
+    return kept._replace(received_at=kept.received_at + offset)

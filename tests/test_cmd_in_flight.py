@@ -96,6 +96,7 @@ class Flight:
             verdict=swarm.vehicles[name].verdict_at,
             link_q=lambda: 0.8,
             settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
+            earlier_decisions=kept.decisions,  # one clock here: nothing to convert
         )
         swarm.cores[name] = core
         core.start(swarm.net.now)
@@ -194,15 +195,18 @@ def test_a_command_issued_during_a_split_runs_only_on_the_commanders_side(
     assert {row["state"] for row in done.values()} == {"completed"}, done
 
 
-def _reboot(flight: Flight, name: str, *, state_kept: bool) -> SwarmCore:
+def _reboot(
+    flight: Flight, name: str, *, state_kept: bool, kept: PersistExecuted | None = None
+) -> SwarmCore:
     """``name``'s daemon restarts: its vehicle (the test's) keeps flying, the daemon
-    keeps only what the state dir holds (the executed ids of its last PersistExecuted),
-    and comes back in the next boot epoch and incarnation; discovery on both sides
-    reports the restart (its new SPDP)."""
+    keeps only what the state dir holds (the executed ids of its last PersistExecuted, or
+    ``kept``: what an earlier write left when the later ones failed), and comes back in the
+    next boot epoch and incarnation; discovery on both sides reports the restart (its new
+    SPDP)."""
     swarm = flight.swarm
-    core = flight.restart(
-        name, epoch=2, kept=flight.kept(name) if state_kept else PersistExecuted(())
-    )
+    if kept is None:
+        kept = flight.kept(name) if state_kept else PersistExecuted(())
+    core = flight.restart(name, epoch=2, kept=kept)
     bundle = swarm.bundle
     now = swarm.net.now
     for other in swarm.cores:

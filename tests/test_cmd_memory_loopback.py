@@ -16,22 +16,49 @@ the plane sends it with the first send's dating.
 Asserted: uav2's new life refuses it (REJECTED ``memory_lost``, its executor counter
 ``refused_memory_lost``), never accepts it (its vehicle is not told again), and the
 commander's row keeps what the first life said.
+
+The same with a state dir made unwritable (``chattr +i``: root writes through a mode, not
+through the immutable flag) once uav2 has booted, so every write of the HOLD's record
+fails, and writable again for the restart (docs/dataplane.md, "A failed save"): the HOLD
+runs, and the operator is told: ``state_save_failed`` names the command, the status counts
+it, ``swarmctl outcomes`` on uav2 marks its decision unsaved. While the dir stays
+unwritable uav2 does not start again (exit 73); once writable, the restart boots on a file
+without the HOLD, and the resend is refused as above.
 Waits have caps; nothing asserts how fast anything happened.
 """
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+import subprocess
+from collections.abc import Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
 
+import pytest
+from structlog.testing import capture_logs
 from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.dataplane.types import Command, CommandKind
+from swarmd.exitcodes import EX_CANTCREAT, StartupError
 from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
+from swarmd.swarm import statefile
 from swarmd.swarm.statefile import state_path
 from tests.daemon_support import run_domain, write_bundle
 from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until
+
+
+async def start_pair(swarm: Swarm) -> None:
+    """uav1 (the commander) and uav2, each with its vehicle simulator."""
+    for i in range(2):
+        d = swarm.daemon(i)
+        await d.start()
+        swarm.daemons.append(d)
+    for i in range(2):
+        endpoint = parse_connection(f"udpout:127.0.0.1:{_mavlink_port(i)}")
+        swarm.sims.append(await start_sim(_sim(i + 1), endpoint, seed=i))
 
 
 def _executor(swarm: Swarm, i: int) -> dict[str, int]:
@@ -41,39 +68,75 @@ def _executor(swarm: Swarm, i: int) -> dict[str, int]:
     return counters
 
 
-def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(workdir: Path) -> None:
+def _chattr(flag: str, path: Path) -> bool:
+    done = subprocess.run(["chattr", flag, str(path)], capture_output=True, check=False)
+    return done.returncode == 0
+
+
+@contextlib.contextmanager
+def _immutable(directory: Path) -> Iterator[None]:
+    """``directory`` refuses every new file and rename while inside, for root too."""
+    assert _chattr("+i", directory)
+    try:
+        yield
+    finally:
+        _chattr("-i", directory)
+
+
+def _can_make_immutable(workdir: Path) -> bool:
+    probe = workdir / "probe"
+    probe.mkdir()
+    try:
+        return shutil.which("chattr") is not None and _chattr("+i", probe)
+    finally:
+        _chattr("-i", probe)
+        probe.rmdir()
+
+
+@pytest.mark.parametrize("memory", ["deleted", "save_failed"])
+def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(
+    workdir: Path, memory: str
+) -> None:
+    if memory == "save_failed" and not _can_make_immutable(workdir):
+        pytest.skip("needs chattr +i (root, a file system with the immutable flag)")
     files = write_bundle(workdir, 2, domain_id=run_domain(), lease_s=20.0)
     swarm = Swarm(workdir, files)
+    state_dir = workdir / "state"
+    unwritable = _immutable(state_dir) if memory == "save_failed" else contextlib.nullcontext()
 
     async def main() -> None:
-        daemons = [swarm.daemon(0), swarm.daemon(1)]
-        for d in daemons:
-            await d.start()
-            swarm.daemons.append(d)
-        for i in range(2):
-            endpoint = parse_connection(f"udpout:127.0.0.1:{_mavlink_port(i)}")
-            swarm.sims.append(await start_sim(_sim(i + 1), endpoint, seed=i))
+        await start_pair(swarm)
         try:
             app = swarm.commander.app
             assert app is not None
             await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
-            sent = app.request_command({"kind": "hold", "only": ["uav2"], "valid_for_s": 60.0})
-            cid = int(sent["command_id"])
-            await until(
-                lambda: (
-                    app.request_outcomes({"command_id": cid})["nodes"]["uav2"]["state"]
-                    in ("accepted", "completed")
-                ),
-                lambda: app.request_outcomes({"command_id": cid}),
-            )
-            assert _executor(swarm, 1).get("outcome_accepted") == 1
-            plane = app.plane
-            assert plane is not None
-            epoch_before = plane.peer_epoch("uav2")
+            with unwritable:
+                sent = app.request_command({"kind": "hold", "only": ["uav2"], "valid_for_s": 60.0})
+                cid = int(sent["command_id"])
+                await until(
+                    lambda: (
+                        app.request_outcomes({"command_id": cid})["nodes"]["uav2"]["state"]
+                        in ("accepted", "completed")
+                    ),
+                    lambda: app.request_outcomes({"command_id": cid}),
+                )
+                assert _executor(swarm, 1).get("outcome_accepted") == 1
+                if memory == "save_failed":
+                    _told_the_save_failed(swarm, cid, logs)
+                plane = app.plane
+                assert plane is not None
+                epoch_before = plane.peer_epoch("uav2")
 
-            # uav2's daemon restarts without its state file; its vehicle keeps flying
-            await swarm.daemons[1].stop("test")
-            state_path(workdir / "state", "uav2").unlink()
+                # uav2's daemon restarts without its record; its vehicle keeps flying
+                await swarm.daemons[1].stop("test")
+                if memory == "save_failed":  # while it cannot write, it does not start
+                    with pytest.raises(StartupError) as refused:
+                        await swarm.daemon(1).start()
+                    assert refused.value.exit_code == EX_CANTCREAT
+            if memory == "deleted":
+                state_path(state_dir, "uav2").unlink()
+            else:  # what the failed writes would have kept is not there
+                assert statefile.load(state_path(state_dir, "uav2")).executed == []
             reborn = swarm.daemon(1)
             await reborn.start()
             swarm.daemons[1] = reborn
@@ -110,4 +173,17 @@ def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(workdir: 
         finally:
             await swarm.stop()
 
-    run_on_raw_clock(main())
+    with capture_logs() as logs:
+        run_on_raw_clock(main())
+
+
+def _told_the_save_failed(swarm: Swarm, cid: int, logs: list[MutableMapping[str, Any]]) -> None:
+    """The operator learns of the failed save: the log line names the command, the status
+    counts it, ``swarmctl outcomes`` on the drone marks the decision."""
+    failed = [e for e in logs if e["event"] == "state_save_failed" and e.get("node") == "uav2"]
+    assert any(e["command_id"] == cid and e["commander"] == "uav1" for e in failed), failed
+    app = swarm.daemons[1].app
+    assert app is not None
+    assert app.status()["dataplane"]["state_save_errors"] >= 1
+    (ran,) = app.request_outcomes({})["ran"]
+    assert (ran["command_id"], ran["saved"]) == (cid, False), ran

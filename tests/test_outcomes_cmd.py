@@ -322,7 +322,7 @@ def test_a_real_daemon_shows_what_became_of_a_command(workdir: Path) -> None:
     assert as_json.returncode == EX_FAILED, as_json.stderr
     body = json.loads(as_json.stdout)
     assert set(body) == {
-        "role", "issued", "issued_evicted", "ran", "ran_evicted", "exit_code",
+        "role", "issued", "issued_evicted", "ran", "ran_evicted", "life", "exit_code",
     }  # fmt: skip
     assert body["role"] == "commander" and body["exit_code"] == EX_FAILED and body["ran"] == []
     (entry,) = body["issued"]

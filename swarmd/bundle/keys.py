@@ -31,6 +31,7 @@ import os
 import pwd
 import re
 import secrets
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -49,6 +50,8 @@ PRIVATE_MODE: Final = 0o600
 SERVICE_USER: Final = "swarmd"  # systemd/swarmd.service's User=
 PUBLIC_MODE: Final = 0o644
 PUBLIC_KEY_BYTES: Final = 32
+# write_file_atomic's temporary name: ".<name>.tmp-" and this many random octets in hex
+TEMP_TOKEN_BYTES: Final = 8
 _DEV_DOMAIN: Final = b"swarmd insecure dev key v1|"
 _PEM_BLOCK: Final = re.compile(
     rb"-----BEGIN ([A-Z ]+)-----\r?\n.*?-----END \1-----\r?\n?", re.DOTALL
@@ -288,7 +291,7 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
     for _attempt in range(16):  # 2^64 names: a collision is a planted file, try another
-        tmp = path.with_name(f".{path.name}.tmp-{secrets.token_hex(8)}")
+        tmp = temp_name(path)
         try:
             fd = os.open(tmp, flags, mode)
             break
@@ -308,6 +311,41 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
             tmp.unlink()
         raise
     fsync_dir(path.parent)
+
+
+def temp_name(path: Path) -> Path:
+    """A fresh temporary name beside ``path`` (``TEMP_NAME``): random, so never planted."""
+    return path.with_name(f".{path.name}.tmp-{secrets.token_hex(TEMP_TOKEN_BYTES)}")
+
+
+def remove_left_temps(path: Path) -> int:
+    """Remove the temporary files ``write_file_atomic`` left beside ``path`` when its
+    process died mid-write (``kill -9``, a power cut: tests/test_cmd_state_kill.py), and
+    return how many. Call it at start-up, before anything of this daemon writes ``path``.
+
+    Only this file's own temp names (``.<name>.tmp-<16 hex>``: another node's file and its
+    writer, in a shared folder, are never touched), only regular files (``lstat``: a
+    symlink or a folder of that name is left, never followed) owned by this process's
+    uid. The folder is writable by this daemon's user alone (``refuse_shared_dir``), so
+    nothing else can swap a name between the check and the unlink."""
+    pattern = re.compile(re.escape(f".{path.name}.tmp-") + f"[0-9a-f]{{{2 * TEMP_TOKEN_BYTES}}}")
+    removed = 0
+    try:
+        entries = list(os.scandir(path.parent))
+    except FileNotFoundError:
+        return 0
+    for entry in entries:
+        if not pattern.fullmatch(entry.name):
+            continue
+        try:
+            info = entry.stat(follow_symlinks=False)
+            if not stat.S_ISREG(info.st_mode) or info.st_uid != os.geteuid():
+                continue
+            os.unlink(entry.path)
+        except FileNotFoundError:
+            continue
+        removed += 1
+    return removed
 
 
 def others_can_write(directory: Path) -> str | None:

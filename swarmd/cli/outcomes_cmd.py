@@ -9,8 +9,11 @@ operator can answer after a flight: did every drone do what I said, and which di
   ``age_s``), who sent it (``sent_by``), its validity, and per drone its outcome and reason
   (``render_outcomes``, the table ``takeoff`` ends with), drones never reached while the
   command was valid included (``unreachable``).
-- On any drone that ran commands: what it decided for each one it received in this life of
-  its daemon (``ran``).
+- On any drone that ran commands: what it decided for each one it received, in this life of
+  its daemon and, as its state file kept them, in earlier ones (``ran``, each with its
+  ``life``, the state file's boot counter; the answer's ``life`` is the current one); a
+  decision whose record the daemon failed to write is marked ``[not saved]``
+  (``saved: false``).
 
 A member runs a command id at most once (docs/dataplane.md, "Exactly once"), so one row per
 drone is the whole answer: ``completed`` is "it did it, once"; any other state is "it did
@@ -177,22 +180,31 @@ def render_kept(shown: dict[str, Any], wall_now: float) -> list[str]:
         lines.append("")
     ran = [safe_tree(r) for r in shown["ran"]]
     if ran:
-        lines.append(f"commands this drone received ({len(ran)}, this life of its daemon):")
+        life = shown.get("life")
+        lines.append(f"commands this drone received ({len(ran)}, this life and earlier ones):")
         rows = [
             [
                 _cid(r.get("command_id")),
                 str(r.get("kind", "?")).upper(),
                 str(r.get("commander", "?")),
                 str(r.get("state", "?")).upper(),
-                str(r.get("reason") or "-"),
+                str(r.get("reason") or "-") + ("" if r.get("saved", True) else " [not saved]"),
                 _clock(r.get("age_s"), wall_now),
+                _life(r.get("life"), life),
             ]
             for r in ran
         ]
-        lines += table(["ID", "KIND", "FROM", "RESULT", "REASON", "RECEIVED"], rows)
+        lines += table(["ID", "KIND", "FROM", "RESULT", "REASON", "RECEIVED", "LIFE"], rows)
     if not lines:
         lines.append(f"no commands kept here (role {safe_text(str(shown.get('role', '?')))})")
     return lines
+
+
+def _life(life: Any, current: Any) -> str:
+    """Which life of the drone's daemon decided it: the state file's boot counter."""
+    if isinstance(life, bool) or not isinstance(life, int):
+        return "?"
+    return f"{life} (this)" if life == current else f"{life} (earlier)"
 
 
 def _summary(c: dict[str, Any]) -> str:

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 from swarmd.dataplane.convert import LANDED_STATES
 from swarmd.dataplane.types import CommandResult, Readiness
@@ -355,6 +355,23 @@ class CommandTracker:
         return [s for i in ids if (s := self.snapshot(i, now)) is not None]
 
 
+# One decision as the state file keeps it (``swarm.statefile``, key ``decisions``): the life
+# (the state file's boot counter, ``DataPlane.incarnation``) that decided it, the command,
+# what was decided and when. ``received_at`` is on the clock of whoever holds it: the
+# core's ``now`` in memory, Unix seconds in the file (the daemon converts both ways,
+# ``SwarmApp``: a later life's monotonic clock cannot read an earlier one's);
+# ``done_s`` is how long the final answer took, on the deciding life's clock.
+class KeptDecision(NamedTuple):
+    life: int
+    commander: str
+    command_id: int
+    kind: str
+    state: str
+    reason: str
+    received_at: float
+    done_s: float | None
+
+
 @dataclass(slots=True)
 class _Decided:
     command_id: int
@@ -364,18 +381,39 @@ class _Decided:
     reason: str
     received_at: float
     final_at: float | None = None
+    life: int = 0
+    done_s: float | None = None  # an earlier life's, as kept (its final_at is not on our clock)
 
 
 class DecisionLog:
-    """What this member decided for each command it received in this life (member side):
-    ``swarmctl outcomes`` on the drone. Bounded (``MAX_DECIDED_COMMANDS``, oldest out,
-    ``evicted`` counts them) and in memory: the restart-proof record is the data plane's
-    executed set with its outcomes (``swarmd.swarm.statefile``), and the commander's
-    ``CommandTracker`` is the one to ask whether every drone ran a command."""
+    """What this member decided for each command it received (member side): ``swarmctl
+    outcomes`` on the drone. This life's decisions and, restored from the state file, its
+    earlier lives' (``earlier``, each marked with its ``life``). Bounded
+    (``MAX_DECIDED_COMMANDS`` over all lives, oldest out, ``evicted`` counts them); the
+    commander's ``CommandTracker`` is the one to ask whether every drone ran a command.
 
-    def __init__(self) -> None:
+    ``unsaved``: the decisions whose record the daemon failed to write to the state file
+    (``save_failed``), until a later write succeeds (``saved``): each write holds the
+    whole list, so one success saves them all (docs/dataplane.md, "A failed save")."""
+
+    def __init__(self, life: int = 0, earlier: Iterable[KeptDecision] = ()) -> None:
+        self.life = life
         self._decided: OrderedDict[tuple[str, int], _Decided] = OrderedDict()
         self.evicted = 0
+        self.unsaved: set[tuple[str, int]] = set()  # bounded: keys of ``_decided`` only
+        for kept in earlier:
+            self._decided[kept.commander, kept.command_id] = _Decided(
+                kept.command_id,
+                kept.kind,
+                kept.commander,
+                kept.state,
+                kept.reason,
+                kept.received_at,
+                life=kept.life,
+                done_s=kept.done_s,
+            )
+            self._decided.move_to_end((kept.commander, kept.command_id))
+        self._evict()
 
     def decided(
         self,
@@ -387,21 +425,51 @@ class DecisionLog:
         now: float,
     ) -> None:
         """One decision, as reported up: ACCEPTED first, then the final one replaces it."""
-        entry = self._decided.get((commander, command_id))
+        key = (commander, command_id)
+        entry = self._decided.get(key)
         state = str(result.name).lower()
+        if entry is not None and entry.life != self.life:
+            # an earlier life's id decided again (its record restored, the plane's dedup
+            # evicted it): this life's decision is a new row
+            del self._decided[key]
+            self.unsaved.discard(key)
+            entry = None
         if entry is None:
-            self._decided[commander, command_id] = _Decided(
-                command_id, kind.lower(), commander, state, reason, now
+            self._decided[key] = _Decided(
+                command_id, kind.lower(), commander, state, reason, now, life=self.life
             )
-            while len(self._decided) > MAX_DECIDED_COMMANDS:
-                self._decided.popitem(last=False)
-                self.evicted += 1
+            self._evict()
             if result != CommandResult.ACCEPTED:
-                self._decided[commander, command_id].final_at = now
+                self._decided[key].final_at = now
         elif entry.final_at is None:  # a decision, once final, stays as it was reported
             entry.state, entry.reason = state, reason
             if result != CommandResult.ACCEPTED:
                 entry.final_at = now
+
+    def save_failed(self, commander: str, command_id: int) -> None:
+        """The state-file write that would have kept ``commander``'s ``command_id`` failed."""
+        if (commander, command_id) in self._decided:
+            self.unsaved.add((commander, command_id))
+
+    def saved(self) -> None:
+        """A state-file write succeeded: it held every decision kept here."""
+        self.unsaved.clear()
+
+    def kept(self) -> tuple[KeptDecision, ...]:
+        """What the state file keeps, oldest first (``received_at`` on the core's clock)."""
+        return tuple(
+            KeptDecision(
+                d.life,
+                d.commander,
+                d.command_id,
+                d.kind,
+                d.state,
+                d.reason,
+                d.received_at,
+                _done_s(d),
+            )
+            for d in self._decided.values()
+        )
 
     def recent(self, now: float) -> list[dict[str, Any]]:
         """The JSON view, newest first (``outcomes`` without a command id, ``ran``)."""
@@ -413,7 +481,21 @@ class DecisionLog:
                 "state": d.state,
                 "reason": d.reason,
                 "age_s": round(now - d.received_at, 3),
-                "done_s": None if d.final_at is None else round(d.final_at - d.received_at, 4),
+                "done_s": _done_s(d),
+                "life": d.life,
+                "saved": (d.commander, d.command_id) not in self.unsaved,
             }
             for d in reversed(self._decided.values())
         ]
+
+    def _evict(self) -> None:
+        while len(self._decided) > MAX_DECIDED_COMMANDS:
+            key, _ = self._decided.popitem(last=False)
+            self.unsaved.discard(key)
+            self.evicted += 1
+
+
+def _done_s(d: _Decided) -> float | None:
+    if d.final_at is None:
+        return d.done_s
+    return round(d.final_at - d.received_at, 4)

@@ -16,7 +16,8 @@ disabled). Driving sources, the driver's protocol (``swarmd.driver``):
 - the commander's validity timers: when a command's validity ends, ``handle_timer``
   withdraws it (``issuer.py``);
 - calls: ``start``, ``peer_up``/``peer_down`` (discovery), ``vehicle_changed`` and
-  ``task_finished`` (the vehicle core), and the commander's requests (``request_takeoff``,
+  ``task_finished`` (the vehicle core), ``state_saved`` (the daemon wrote, or failed to
+  write, a ``PersistExecuted``), and the commander's requests (``request_takeoff``,
   ``request_command``, ``request_outcomes``; ``RequestInvalid`` on a bad one).
 
 Outputs: ``datagrams_to_send()``, ``get_timer()``, ``next_event()``. Two events are orders
@@ -41,7 +42,7 @@ I/O, no clock, no asyncio.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, assert_never
 
@@ -58,7 +59,12 @@ from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import Command
 from swarmd.dataplane.validity import stamp_ms
 from swarmd.px4.vehicle import TaskFinished
-from swarmd.swarm.commander import MAX_TRACKED_COMMANDS, CommandTracker, ReadinessTable
+from swarmd.swarm.commander import (
+    MAX_TRACKED_COMMANDS,
+    CommandTracker,
+    KeptDecision,
+    ReadinessTable,
+)
 from swarmd.swarm.events import (
     MemberReadinessChanged,
     PeerTrafficVerified,
@@ -129,7 +135,10 @@ class SwarmCore:
         verdict: Callable[[float], ReadinessVerdict] | None,
         link_q: Callable[[], float],
         settings: SwarmSettings | None = None,
+        earlier_decisions: Iterable[KeptDecision] = (),
     ) -> None:
+        """``earlier_decisions``: what the member's earlier lives decided, from the state
+        file, on this life's clock (``swarmctl outcomes``)."""
         self.roles = roles
         self.plane = plane
         self.has_vehicle = verdict is not None
@@ -154,6 +163,7 @@ class SwarmCore:
             tracker=self.tracker,
             events=self._events,
             counters=self.counters,
+            earlier=earlier_decisions,
         )
         self.decisions = self.member.decisions  # what this member decided (swarmctl outcomes)
         self.executor_counters = self.member.counters
@@ -180,6 +190,11 @@ class SwarmCore:
         """Publish the first readiness report now, then every period."""
         self._tick_at = now
         self.member.start(now)
+
+    def state_saved(self, command: tuple[str, int] | None, error: str | None) -> None:
+        """The daemon's answer to a ``PersistExecuted``: written (``error`` None) or not
+        (``Member.state_saved``)."""
+        self.member.state_saved(command, error)
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         if self.plane is None:
@@ -278,6 +293,7 @@ class SwarmCore:
                 "issued_evicted": self.tracker.evicted,
                 "ran": self.decisions.recent(now),
                 "ran_evicted": self.decisions.evicted,
+                "life": self.decisions.life,  # each "ran" entry names the life that decided it
             }
         command_id = request.get("command_id")
         if not isinstance(command_id, int) or isinstance(command_id, bool):

@@ -9,20 +9,29 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.px4.vehicle import VehicleRequest
+
+if TYPE_CHECKING:  # commander.py imports this module (SentBy)
+    from swarmd.swarm.commander import KeptDecision
 
 
 @dataclass(frozen=True, slots=True)
 class PersistExecuted:
     """Write the executed command ids to the state file now: before executing (write-ahead),
     and again with each outcome decided (``outcomes``: (commander, id, CommandResult value,
-    reason) next to the ids, for re-reporting after a restart)."""
+    reason) next to the ids, for re-reporting after a restart; ``decisions``: the member's
+    ``DecisionLog`` with kind, time and life, for ``swarmctl outcomes`` in a later life).
+    ``command``: the (commander, id) whose receipt or decision asked for this write, so the
+    daemon can name it if the write fails (``SwarmCore.state_saved``)."""
 
     executed: tuple[tuple[str, int], ...]
     outcomes: tuple[KeptOutcome, ...] = ()
+    decisions: tuple[KeptDecision, ...] = ()
+    command: tuple[str, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)

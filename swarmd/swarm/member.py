@@ -23,7 +23,11 @@ new kind fails the type check rather than running another's action, and a kind n
 this build does not know is REJECTED ``unknown_kind``.
 
 Every command received is persisted before anything moves (``PersistExecuted``, the
-write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decided.
+write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decided, with
+the member's ``DecisionLog`` (``swarmctl outcomes`` in a later life). The daemon answers
+each write (``state_saved``): a failed one marks the decision unsaved and does not stop
+the command, which the life rules keep from running twice (docs/dataplane.md, "A failed
+save").
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
 "Outcomes across a restart"); they only answer, nothing is executed.
@@ -34,7 +38,7 @@ Split out of ``core.py`` by concern; ``SwarmCore`` drives it. Sans-IO; no clock.
 from __future__ import annotations
 
 from collections import OrderedDict, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Final, assert_never
 
@@ -51,7 +55,12 @@ from swarmd.dataplane.validity import (
 )
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
-from swarmd.swarm.commander import MAX_TRACKED_COMMANDS, CommandTracker, DecisionLog
+from swarmd.swarm.commander import (
+    MAX_TRACKED_COMMANDS,
+    CommandTracker,
+    DecisionLog,
+    KeptDecision,
+)
 from swarmd.swarm.events import (
     CommandBeforeLife,
     CommandExecuting,
@@ -125,7 +134,10 @@ class Member:
         tracker: CommandTracker,
         events: deque[SwarmEvent],
         counters: dict[str, int],
+        earlier: Iterable[KeptDecision] = (),
     ) -> None:
+        """``earlier``: what this node's earlier lives decided, from the state file
+        (``received_at`` already on this life's clock)."""
         self.roles = roles
         self.plane = plane
         self.has_vehicle = verdict is not None
@@ -133,7 +145,10 @@ class Member:
         self._tracker = tracker
         self._events = events
         self._counters = counters  # the core's: outcomes_rereported
-        self.decisions = DecisionLog()  # what this member decided (swarmctl outcomes)
+        # what this member decided, in this life and, as kept, its earlier ones (swarmctl
+        # outcomes); a life is the state file's boot counter, the plane's incarnation
+        life = 0 if plane is None else plane.incarnation
+        self.decisions = DecisionLog(life, earlier)
         self.counters: dict[str, int] = {}  # the executor's (``status``)
         # ids of the commands this node's commander gave its own drone: their outcomes go
         # to its tracker, not on the wire; bounded like ``_seen`` (never dropping one still
@@ -162,7 +177,7 @@ class Member:
     def received(self, commander: str, command: Command, now: float) -> None:
         """The data plane handed over ``command`` (its first copy here)."""
         # write-ahead: a crash loses the command, never repeats it
-        self._persist()
+        self._persist(commander, command.command_id)
         self.execute(commander, command, now)
 
     def run_own(self, command: Command, now: float) -> None:
@@ -330,14 +345,33 @@ class Member:
         if self.plane is not None:
             self.plane.report_outcome(command_id, result, now, reason, commander=commander)
             # the second write: the outcome next to its id, for a re-report after a restart
-            self._persist()
+            self._persist(commander, command_id)
 
-    def _persist(self) -> None:
+    def _persist(self, commander: str, command_id: int) -> None:
         assert self.plane is not None  # noqa: S101 - callers checked it
         plane = self.plane
         self._events.append(
-            PersistExecuted(tuple(plane.executed_command_ids), tuple(plane.executed_outcomes))
+            PersistExecuted(
+                tuple(plane.executed_command_ids),
+                tuple(plane.executed_outcomes),
+                self.decisions.kept(),
+                (commander, command_id),
+            )
         )
+
+    def state_saved(self, command: tuple[str, int] | None, error: str | None) -> None:
+        """The daemon wrote a ``PersistExecuted`` (``error`` None) or failed to. A failed
+        write does not stop the command: no sequence of restarts, resends or replays can
+        run it a second time without the record, and refusing a LAND or an ABORT on a full
+        disk would leave a drone in the air (docs/dataplane.md, "A failed save"). What it
+        loses is the answer across a restart, so the decision is marked unsaved for
+        ``swarmctl outcomes`` (``saved: false``) until a later write holds it."""
+        if error is None:
+            self.decisions.saved()
+            return
+        self._count("state_save_failed")
+        if command is not None:
+            self.decisions.save_failed(*command)
 
     def rereport(self, commander: str, now: float) -> None:
         """``commander`` was found: if this is a new life (restarted with its state file)

@@ -5,7 +5,9 @@ One small JSON file per node in the state directory (``dataplane.state_dir``, sy
 (tests, a ground station running several participants) never share one::
 
     {"boot": 7, "executed": [["lead", 30064771073], ...],
-     "outcomes": [["lead", 30064771073, 1, "IN_AIR"], ...]}
+     "outcomes": [["lead", 30064771073, 1, "IN_AIR"], ...],
+     "decisions": [[6, "lead", 30064771073, "takeoff", "completed", "IN_AIR",
+                    1795797000.25, 4.1], ...]}
 
 Why: the data plane's exactly-once argument (docs/dataplane.md, "Exactly once") needs an
 ``incarnation`` that grows with every restart (sequence numbers and command ids of a
@@ -18,29 +20,45 @@ decision, in ``outcomes`` (a second write; the write-ahead of the id is unchange
 restarted member can re-report it (docs/dataplane.md, "Outcomes across a restart"). A file
 without ``outcomes`` (written before they were kept) loads with none; a daemon that does
 not know the key ignores it. An unreadable ``outcomes`` list is dropped alone: the ids,
-which exactly-once depends on, are kept.
+which exactly-once depends on, are kept. ``decisions`` is the member's ``DecisionLog``
+(``swarm.commander.KeptDecision``: life, commander, id, kind, state, reason, when received
+in Unix seconds, how long the final answer took), so ``swarmctl outcomes`` in a later life
+lists what the earlier ones decided, with kind and time; at most ``MAX_DECIDED_COMMANDS``
+(64) entries over all lives, the newest. Same compatibility: a file without it loads with
+none, an unreadable list is dropped alone.
 
 Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
-file, never half of one. The directory must be writable by this daemon's user alone (or
-root): start-up refuses one others can write, whose files another user could have planted
-(docs/security-history.md, "Local boundaries (session 10 review)"). An unreadable or corrupt file
-is reported and replaced (refusing to start would ground the drone): the dedup set is lost,
-and exactly once then rests on the member's own rule that a life runs only commands issued
-after it began (docs/dataplane.md, "A life runs only its own commands"), which holds with or
-without this file.
+file, never half of one. A crash mid-write leaves the temporary file (``.<file>.tmp-<16
+hex>``); ``boot`` removes this node's before it loads (``remove_left_temps``: regular
+files of this daemon's uid, symlinks never followed), counted in ``temps_removed``.
+
+The directory must be writable by this daemon's user alone (or root): start-up refuses one
+others can write, whose files another user could have planted (docs/security-history.md,
+"Local boundaries (session 10 review)"). An unreadable or corrupt file is reported and
+replaced (refusing to start would ground the drone): the dedup set is lost, and exactly once
+then rests on the member's own rule that a life runs only commands issued after it began
+(docs/dataplane.md, "A life runs only its own commands"), which holds with or without this
+file.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final
+from typing import Final, TypeGuard
 
-from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
+from swarmd.bundle.keys import (
+    node_state_path,
+    refuse_shared_dir,
+    remove_left_temps,
+    write_file_atomic,
+)
 from swarmd.dataplane.ledger import KeptOutcome
-from swarmd.dataplane.types import MAX_REASON_CHARS, CommandResult
+from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResult
 from swarmd.dataplane.writer import MAX_INCARNATION
+from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
 
 FILE_PATTERN: Final = "dataplane-{node}.json"
 STATE_FILE_MODE: Final = 0o640  # what UMask=0027 made of open(..., "w"): the group reads
@@ -58,7 +76,10 @@ class NodeState:
     boot: int = 0
     executed: list[tuple[str, int]] = field(default_factory=list)
     outcomes: list[KeptOutcome] = field(default_factory=list)
+    # received_at in Unix seconds (wall clock: the only one two lives share)
+    decisions: list[KeptDecision] = field(default_factory=list)
     recovered_from: str | None = None  # why an unreadable file was replaced, for the log
+    temps_removed: int = 0  # left-over temporary files removed at boot, for the log
 
     def save(self) -> None:
         """Write atomically; raises ``StateDirError`` (one line) on failure."""
@@ -68,6 +89,8 @@ class NodeState:
         }
         if self.outcomes:  # without any, the file stays as it was before they were kept
             body["outcomes"] = [list(kept) for kept in self.outcomes]
+        if self.decisions:  # the same: without any, as before they were kept
+            body["decisions"] = [list(kept) for kept in self.decisions[-MAX_DECIDED_COMMANDS:]]
         data = json.dumps(body, separators=(",", ":")).encode("utf-8")
         try:
             # a random O_EXCL|O_NOFOLLOW temp name: a symlink planted at the old fixed
@@ -92,7 +115,11 @@ def boot(state_dir: str | Path, node: str) -> NodeState:
         directory.mkdir(parents=True, exist_ok=True, mode=0o750)
     except OSError as exc:
         raise StateDirError(f"cannot create state directory {directory}: {exc.strerror}") from None
-    state = load(state_path(directory, node))
+    path = state_path(directory, node)
+    # a crash inside write_file_atomic leaves its temporary file (tests/test_cmd_state_kill.py)
+    removed = remove_left_temps(path)
+    state = load(path)
+    state.temps_removed = removed
     # wraps long after any drone's life (2^31 boots); 0 stays "never persisted"
     state.boot = state.boot + 1 if state.boot < MAX_INCARNATION else 1
     state.save()
@@ -120,7 +147,15 @@ def load(path: Path) -> NodeState:
     except (ValueError, TypeError) as exc:  # the ids stand; only the answers are lost
         why = f"outcomes dropped ({type(exc).__name__}: {exc})"
         return NodeState(path, boot_count, executed, recovered_from=why)
-    return NodeState(path, boot_count, executed, outcomes)
+    try:
+        raw_decisions = body.get("decisions", [])
+        if not isinstance(raw_decisions, list):
+            raise TypeError("decisions is not a list")
+        decisions = [_decision(kept) for kept in raw_decisions[-MAX_DECIDED_COMMANDS:]]
+    except (ValueError, TypeError) as exc:  # the ids and answers stand; only the view is lost
+        why = f"decisions dropped ({type(exc).__name__}: {exc})"
+        return NodeState(path, boot_count, executed, outcomes, recovered_from=why)
+    return NodeState(path, boot_count, executed, outcomes, decisions)
 
 
 def _outcome(kept: object) -> KeptOutcome:
@@ -136,3 +171,34 @@ def _outcome(kept: object) -> KeptOutcome:
     if "\x00" in reason or len(reason.encode("utf-8")) > MAX_REASON_CHARS:
         raise ValueError(f"outcome {kept!r}: reason too long or holding NUL")
     return (commander, command_id, int(result), reason)
+
+
+DECIDED_STATES: Final = frozenset(r.name.lower() for r in CommandResult)
+
+
+def _decision(kept: object) -> KeptDecision:
+    """One persisted decision, checked: it is shown to an operator (``swarmctl outcomes``,
+    which also escapes its strings) and its strings are as bounded as the wire's."""
+    if not isinstance(kept, list) or len(kept) != len(KeptDecision._fields):
+        raise ValueError(f"decision {kept!r} is not [{', '.join(KeptDecision._fields)}]")
+    life, commander, command_id, kind, state, reason, received_at, done_s = kept
+    for value in (life, command_id):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f"decision {kept!r}: bad life or command id")
+    if life > MAX_INCARNATION:
+        raise ValueError(f"decision {kept!r}: life out of range")
+    if not all(isinstance(v, str) for v in (commander, kind, state, reason)):
+        raise TypeError(f"decision {kept!r}: commander, kind, state, reason must be strings")
+    if state not in DECIDED_STATES:
+        raise ValueError(f"decision {kept!r}: unknown state")
+    if len(commander) > MAX_NAME_CHARS or len(kind) > MAX_NAME_CHARS:
+        raise ValueError(f"decision {kept!r}: commander or kind too long")
+    if len(reason.encode("utf-8")) > MAX_REASON_CHARS:
+        raise ValueError(f"decision {kept!r}: reason too long")
+    if not _finite(received_at) or not (done_s is None or (_finite(done_s) and done_s >= 0)):
+        raise ValueError(f"decision {kept!r}: bad time")
+    return KeptDecision(life, commander, command_id, kind, state, reason, received_at, done_s)
+
+
+def _finite(value: object) -> TypeGuard[int | float]:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
