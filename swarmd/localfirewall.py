@@ -8,8 +8,8 @@ binds a node's port at another address, sends with ``IP_PKTINFO``/``IPV6_PKTINFO
 node's address as source, and closes the socket at once is gone from the table by then: the
 datagram is credited to the node (bench/sender_uid_pktinfo_race.py: 199/200 by IPv4, 200/200
 by IPv6). Only the kernel at send time still knows the sending socket: nftables' output hook
-reads its owner as ``meta skuid`` (nft(8), "META EXPRESSIONS"). So a rule on that hook drops,
-and counts, every UDP datagram to a guarded port whose socket is not one of the port's users;
+reads its owner as ``meta skuid`` (nft(8), "META EXPRESSIONS"). So rules on that hook let each
+of a guarded port's users return, then drop and count every other UDP datagram to that port;
 a forged datagram then never reaches swarmd, whatever the socket does afterwards.
 
 Which ports (read from the code that binds them):
@@ -42,6 +42,13 @@ rules are also written as a chain ``swarmd_local`` of the filter table for
 ``RETURN`` for each user (a uid set is not one match there), then a counted ``DROP``.
 ``RETURN``, not ``ACCEPT``: the rest of ``OUTPUT`` still applies to what this chain passes.
 
+Both forms have that one shape: one rule per user that returns, then the counted drop. For
+nft it is also the oldest syntax: rule comments, ``meta skuid``, ``return`` and ``counter``
+are in every nft since 0.2 (2014), where a negated set (``meta skuid != { 0, 1000 }``) needs
+nft 0.7 and the kernel's inverted set lookup (docs/deploy.md, "The local firewall on the
+Nano", has what was read for nft 0.8.2, Ubuntu 18.04's). ``return`` in a base chain ends
+this chain with its policy, ``accept``: other tables' output chains still apply.
+
 This module is pure (config in, text out); ``swarmd.cli.firewall_cmd`` runs ``nft`` or
 ``iptables-restore`` and picks the one the kernel takes.
 """
@@ -62,6 +69,16 @@ CHAIN: Final = "output"
 # nft prints a rule's counter with its values; the generated text has a bare "counter"
 _COUNTER_VALUES: Final = re.compile(r"\bcounter packets (\d+) bytes \d+")
 _COMMENT: Final = re.compile(r'comment "([^"]*)"')
+# nft before 0.9.1 prints ``meta skuid`` as a bare ``skuid`` (nftables 6dd84833, "src: meta:
+# always prefix 'meta' for almost all tokens"; Ubuntu 18.04 has 0.8.2)
+_BARE_SKUID: Final = re.compile(r"(?<!meta )\bskuid\b")
+# ``nft -nnn`` (numeric uids, which 0.8 needs) makes nft 0.9.1+ print route types as numbers:
+# the kernel's RTN_* values (include/uapi/linux/rtnetlink.h), named as nft names them
+_FIB_TYPE: Final = re.compile(r"(fib daddr type )(\{[^}]*\}|\d+)")
+_RTN_NAMES: Final = {
+    "0": "unspec", "1": "unicast", "2": "local", "3": "broadcast", "4": "anycast",
+    "5": "multicast", "6": "blackhole", "7": "unreachable", "8": "prohibit",
+}  # fmt: skip
 
 # the iptables form: a chain of the filter table, in each IP version's own tables
 XT_CHAIN: Final = "swarmd_local"
@@ -85,8 +102,9 @@ class GuardedPort:
     port: int
     uids: frozenset[int]
 
-    def rule(self) -> str:
-        """The rule as ``nft list`` prints it (but the counter's values)."""
+    def rules(self) -> list[str]:
+        """The rules as ``nft list`` prints them (but the counter's values): each user
+        returns, then the rest are counted and dropped under the comment."""
         if self.address is not None:
             ip = ipaddress.ip_address(self.address)
             match = f'oifname "lo" {"ip6" if ip.version == 6 else "ip"} daddr {ip.compressed}'
@@ -97,12 +115,9 @@ class GuardedPort:
             # route's type names all three, unicast to any local address included (nft 0.7+,
             # the kernel's nft_fib_inet; only wildcard configs need it)
             match = "fib daddr type { local, broadcast, multicast }"
-        users = sorted(self.uids)
-        uids = str(users[0]) if len(users) == 1 else "{ " + ", ".join(map(str, users)) + " }"
-        return (
-            f"{match} udp dport {self.port} meta skuid != {uids} counter drop "
-            f'comment "{self.comment}"'
-        )
+        match += f" udp dport {self.port}"
+        users = [f"{match} meta skuid {uid} return" for uid in sorted(self.uids)]
+        return [*users, f'{match} counter drop comment "{self.comment}"']
 
     def xt_rules(self, version: int) -> list[str]:
         """The rules for IP ``version``'s iptables, as ``iptables-save`` prints them (but
@@ -139,7 +154,7 @@ class LocalFirewall:
     def table(self) -> str:
         """The table as ``nft list table inet swarmd_local`` prints it (counters bare, the
         chain's priority as a number)."""
-        rules = "".join(f"\t\t{port.rule()}\n" for port in self.ports)
+        rules = "".join(f"\t\t{rule}\n" for port in self.ports for rule in port.rules())
         return (
             f"table {FAMILY} {TABLE} {{\n"
             f"\tchain {CHAIN} {{\n"
@@ -325,13 +340,22 @@ def _unguarded(config: DaemonConfig, users_field: str, where: str) -> str:
 
 
 def normalized(listing: str) -> list[str]:
-    """``nft list table`` output (or ``LocalFirewall.table()``) as comparable lines: each
-    stripped, blank lines dropped, counters without their values, the priority a number."""
-    lines = (
-        _COUNTER_VALUES.sub("counter", line).replace("priority filter;", "priority 0;").strip()
-        for line in listing.splitlines()
-    )
+    """``nft -nnn list table`` output (or ``LocalFirewall.table()``) as comparable lines: each
+    stripped, blank lines dropped, counters without their values, the priority a number,
+    ``skuid`` as ``meta skuid`` and route types by name, as every nft from 0.8 prints them."""
+    lines = (_one_form(line).strip() for line in listing.splitlines())
     return [line for line in lines if line]
+
+
+def _one_form(line: str) -> str:
+    line = _COUNTER_VALUES.sub("counter", line).replace("priority filter;", "priority 0;")
+    line = _BARE_SKUID.sub("meta skuid", line)
+    return _FIB_TYPE.sub(_route_types_named, line)
+
+
+def _route_types_named(found: re.Match[str]) -> str:
+    clause, types = found.groups()
+    return clause + re.sub(r"\d+", lambda n: _RTN_NAMES.get(n.group(0), n.group(0)), types)
 
 
 def differences(live: str, wanted: LocalFirewall) -> list[str]:

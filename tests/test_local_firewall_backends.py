@@ -121,13 +121,25 @@ def test_removal_deletes_every_jump_and_the_chain() -> None:
     ]
 
 
+# iptables-restore --help's option lines: 1.8.9's (legacy, run here) has --wait, as 1.6.2's
+# has since iptables 999eaa24; 1.6.1's (Ubuntu 18.04, the Nano) has none (its man page)
+HELP_WAIT = "\t   [ --noflush ]\n\t   [ --wait=<seconds>\n\t   [ --table=<TABLE> ]\n"
+HELP_1_6_1 = "\t   [ --noflush ]\n\t   [ --table=<TABLE> ]\n"
+# what iptables-restore 1.6.2+ says, exit 4, when another program holds the lock and no
+# --wait was given (iptables/xshared.c)
+LOCKED = "Another app is currently holding the xtables lock. Perhaps you want to use the -w option?"
+
+
 @dataclass
 class FakeTools:
-    """The tools a host has: ``nft`` refusing or not, iptables saving ``saved``."""
+    """The tools a host has: ``nft`` refusing or not, iptables saving ``saved``; ``help``:
+    the restore's --help, ``locked``: another program (Docker) holds the xtables lock."""
 
     nft: str | None = "refused"  # None: not installed; "ok"; "refused": no nf_tables
     iptables: bool = True
     saved: dict[int, str] = field(default_factory=lambda: {4: EMPTY, 6: EMPTY})
+    help: str = HELP_WAIT
+    locked: bool = False
     calls: list[tuple[list[str], str | None]] = field(default_factory=list)
 
     def __call__(
@@ -141,7 +153,7 @@ class FakeTools:
             if self.nft == "refused":
                 err = "Error: Could not process rule: Operation not supported\n"
                 return subprocess.CompletedProcess(argv, 1, "", err)
-            if argv[1] == "list":
+            if "list" in argv:
                 err = "Error: No such file or directory\n"
                 return subprocess.CompletedProcess(argv, 1, "", err)
             return subprocess.CompletedProcess(argv, 0, "", "")
@@ -150,7 +162,15 @@ class FakeTools:
         version = 6 if tool.startswith("ip6") else 4
         if tool.endswith("-save"):
             return subprocess.CompletedProcess(argv, 0, self.saved[version], "")
-        return subprocess.CompletedProcess(argv, 0, "", "")
+        if "--help" in argv:
+            return subprocess.CompletedProcess(argv, 0, f"Usage: {tool} ...\n{self.help}", "")
+        wait = [arg for arg in argv if arg.startswith("--wait")]
+        if wait and "--wait" not in self.help:
+            err = f"{tool}: unrecognized option '{wait[0]}'\n"
+            return subprocess.CompletedProcess(argv, 2, "", err)
+        if self.locked and not wait and "--wait" in self.help:
+            return subprocess.CompletedProcess(argv, 4, "", f"{LOCKED}\n")
+        return subprocess.CompletedProcess(argv, 0, "", "")  # with --wait: the lock came free
 
     def restored(self) -> dict[str, str]:
         return {argv[0]: script or "" for argv, script in self.calls if "--noflush" in argv}
@@ -179,6 +199,34 @@ def test_auto_falls_back_to_iptables_when_the_kernel_refuses_nfts_table(
     assert restored["iptables-restore"] == wall.xt_script(4, xt_live(EMPTY))
     assert restored["ip6tables-restore"] == wall.xt_script(6, xt_live(EMPTY))
     assert tools.calls[0][0][:2] == ["nft", "-f"]  # nft was tried first
+
+
+def test_restore_waits_for_the_xtables_lock_another_program_holds(
+    monkeypatch: pytest.MonkeyPatch, config: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Docker holds the lock while swarmd starts: iptables-restore 1.6.2+ without --wait
+    fails at once (exit 4) and the start with it; its --help offers --wait, so it is asked
+    to wait (XT_LOCK_WAIT_S) instead."""
+    tools = FakeTools(nft="refused", locked=True)
+    monkeypatch.setattr(firewall_cmd, "_tool", tools)
+    assert main(["local-firewall", "--config", str(config), "--apply"]) == 0
+    assert "loaded by iptables" in capsys.readouterr().out
+    restores = [argv for argv, _ in tools.calls if "--noflush" in argv]
+    assert len(restores) == 2
+    assert all(f"--wait={firewall_cmd.XT_LOCK_WAIT_S}" in argv for argv in restores)
+
+
+def test_an_old_restore_without_wait_is_not_given_it(
+    monkeypatch: pytest.MonkeyPatch, config: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """iptables-restore 1.6.1 (the Nano's) has no --wait and would refuse it; it takes no
+    lock either. Its --help says so, and the rules load without the option."""
+    tools = FakeTools(nft="refused", help=HELP_1_6_1)
+    monkeypatch.setattr(firewall_cmd, "_tool", tools)
+    assert main(["local-firewall", "--config", str(config), "--apply"]) == 0
+    assert "loaded by iptables" in capsys.readouterr().out
+    restores = [argv for argv, _ in tools.calls if "--noflush" in argv]
+    assert len(restores) == 2 and not any("--wait" in " ".join(argv) for argv in restores)
 
 
 def test_auto_without_nft_installed_uses_iptables(

@@ -35,7 +35,14 @@ from typing import Final
 import pytest
 from swarmd_lab.configs import MINIMAL_CONFIG
 from swarmd_lab.netns import Namespace
-from swarmd_lab.pktinfo import AGENT_PORT, GUARDED, NOBODY, nobody_spoofs
+from swarmd_lab.pktinfo import (
+    AGENT_PORT,
+    BACKENDS,
+    GUARDED,
+    NOBODY,
+    backend_tools,
+    nobody_spoofs,
+)
 from swarmd_lab.pktinfo import local_firewall as run_local_firewall
 
 from swarmd.localfirewall import XT_VERSIONS, XtLive, dropped, xt_live
@@ -47,16 +54,6 @@ SPOOFS: Final = 40
 RECV_TIMEOUT_S: Final = 5.0
 SPOOF_TIMEOUT_S: Final = 30.0
 NODE_PORT: Final = 17400  # the node's own port, which the spoofer binds elsewhere
-
-
-# what `nft -f` says on a kernel without nf_tables (EOPNOTSUPP from nfnetlink)
-REFUSING_NFT: Final = """#!/bin/sh
-echo "Error: Could not process rule: Operation not supported" >&2
-exit 1
-"""
-LEGACY_TOOLS: Final = [
-    f"{t}-legacy-{v}" for t in ("iptables", "ip6tables") for v in ("save", "restore")
-]
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,26 +98,16 @@ class Backend:
         ]
 
 
-@pytest.fixture(params=["nft", "iptables", "auto"])
+@pytest.fixture(params=BACKENDS)
 def backend(request: pytest.FixtureRequest, tmp_path: Path) -> Backend:
     name: str = request.param
-    if name == "nft":
-        if shutil.which("nft") is None:
-            pytest.skip("needs nft (Debian: nftables)")
-        return Backend(name, ("--backend", "nft"), dict(os.environ))
-    missing = [tool for tool in LEGACY_TOOLS if shutil.which(tool) is None]
-    if missing:
-        pytest.skip(f"needs {', '.join(missing)} (Debian: iptables)")
     tools = tmp_path / "tools"
     tools.mkdir()
-    for tool in LEGACY_TOOLS:  # iptables-save -> iptables-legacy-save, ...
-        (tools / tool.replace("-legacy", "")).symlink_to(str(shutil.which(tool)))
-    if name == "auto":
-        (tools / "nft").write_text(REFUSING_NFT)
-        (tools / "nft").chmod(0o755)
-    path = f"{tools}{os.pathsep}{os.environ.get('PATH', '')}"
-    flags = ("--backend", "iptables") if name == "iptables" else ()
-    return Backend(name, flags, {**os.environ, "PATH": path})
+    how = backend_tools(name, tools)
+    if isinstance(how, str):
+        pytest.skip(how)
+    flags, env = how
+    return Backend(name, flags, env)
 
 
 @pytest.fixture

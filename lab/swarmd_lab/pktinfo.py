@@ -13,11 +13,14 @@ hook fails with ``EPERM``; the spoofer goes on and, after "sent", prints "refuse
 ``GUARDED`` and ``local_firewall`` are the other half of that test and of
 ``bench/sender_uid_pktinfo_race.py --firewall``: a config whose port the table guards, and
 ``swarmd local-firewall`` run in a namespace (its own nftables tables; the host's ruleset
-untouched).
+untouched); ``backend_tools`` makes it use the backend a drone would: nft, the legacy x_tables
+iptables tools (the Jetson Nano's path), or those behind an ``nft`` that its kernel refuses.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
 from collections.abc import Mapping, Sequence
@@ -69,6 +72,40 @@ def local_firewall(
     ``env`` replaces the environment (a ``PATH`` that picks the firewall tools)."""
     argv = [sys.executable, "-m", "swarmd.cli.swarmd_main", "local-firewall"]
     return ns.run([*argv, "--config", str(config), *flags], check=False, timeout=60.0, env=env)
+
+
+# what `nft -f` says on a kernel without nf_tables (EOPNOTSUPP from nfnetlink)
+REFUSING_NFT: Final = """#!/bin/sh
+echo "Error: Could not process rule: Operation not supported" >&2
+exit 1
+"""
+LEGACY_TOOLS: Final = [
+    f"{t}-legacy-{v}" for t in ("iptables", "ip6tables") for v in ("save", "restore")
+]
+BACKENDS: Final = ("nft", "iptables", "auto")
+
+
+def backend_tools(name: str, tools: Path) -> tuple[tuple[str, ...], dict[str, str]] | str:
+    """How to run ``swarmd local-firewall`` with backend ``name`` (``BACKENDS``): its flags
+    and environment, or why it cannot run here (a missing tool). ``nft``: forced; ``iptables``:
+    forced, the legacy tools under the plain names (``iptables-save`` -> ``iptables-legacy-
+    save``, linked in the empty folder ``tools``); ``auto``: those, behind an ``nft`` that
+    fails as a kernel without nf_tables makes it fail (``REFUSING_NFT``)."""
+    if name == "nft":
+        if shutil.which("nft") is None:
+            return "needs nft (Debian: nftables)"
+        return ("--backend", "nft"), dict(os.environ)
+    missing = [tool for tool in LEGACY_TOOLS if shutil.which(tool) is None]
+    if missing:
+        return f"needs {', '.join(missing)} (Debian: iptables)"
+    for tool in LEGACY_TOOLS:
+        (tools / tool.replace("-legacy", "")).symlink_to(str(shutil.which(tool)))
+    if name == "auto":
+        (tools / "nft").write_text(REFUSING_NFT)
+        (tools / "nft").chmod(0o755)
+    path = f"{tools}{os.pathsep}{os.environ.get('PATH', '')}"
+    flags = ("--backend", "iptables") if name == "iptables" else ()
+    return flags, {**os.environ, "PATH": path}
 
 
 SPOOFER: Final = """

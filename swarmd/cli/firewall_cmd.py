@@ -49,6 +49,9 @@ from swarmd.localfirewall import (
 )
 
 TOOL_TIMEOUT_S: Final = 10.0
+# how long iptables-restore waits for the xtables lock (``--wait``) that another program
+# (Docker, firewalld) may hold; below TOOL_TIMEOUT_S, so the tool's own error is what is shown
+XT_LOCK_WAIT_S: Final = 5
 BACKENDS: Final = ("auto", "nft", "iptables")
 # the one-line fix when no backend loads (docs/deploy.md, "The local firewall on the Nano")
 FIX: Final = (
@@ -127,7 +130,9 @@ class _Nft:
             raise _refused("nft -f", done)
 
     def inspect(self, wanted: LocalFirewall) -> _Live | None:
-        done = _tool(["nft", "list", "table", FAMILY, TABLE])
+        # -nnn: uids and ports as numbers; nft 0.8 (Ubuntu 18.04) prints user and service
+        # names at fewer -n ("Specify three times ...", its --help), 0.9.1+ takes any count
+        done = _tool(["nft", "-nnn", "list", "table", FAMILY, TABLE])
         if done.returncode == 0:
             return _Live(differences(done.stdout, wanted), dropped(done.stdout))
         if _no_table(done):
@@ -181,10 +186,21 @@ class _Xtables:
     @staticmethod
     def _restore(version: int, script: str) -> None:
         # --noflush: only swarmd's chain and its jump change, every other rule stays
-        restore = [_xt_tool(version, "restore"), "--noflush"]
+        tool = _xt_tool(version, "restore")
+        restore = [tool, *_lock_wait(tool), "--noflush"]
         done = _tool(restore, script)
         if done.returncode != 0:
             raise _refused(" ".join(restore), done)
+
+
+def _lock_wait(tool: str) -> list[str]:
+    """``--wait=N`` when ``tool`` takes it, else nothing. iptables-restore 1.6.2+ takes the
+    xtables lock and, without ``--wait``, fails at once while another program holds it
+    (iptables 999eaa24, "iptables-restore: support acquiring the lock"); 1.6.1 (Ubuntu
+    18.04, the Nano) takes no lock and refuses the option. So its ``--help`` is asked (stdin
+    empty: an old one that goes on to read rules finds none), not its version guessed."""
+    done = _tool([tool, "--help"], "")
+    return [f"--wait={XT_LOCK_WAIT_S}"] if "--wait" in done.stdout + done.stderr else []
 
 
 def _xt_tool(version: int, verb: str) -> str:
