@@ -14,9 +14,13 @@ loopback only.
 every exit path: swarmd_lab.netns.Lan), on the port ``swarmd local-firewall`` guards for
 the family (IPv4: the XRCE agent's, IPv6: the ROS 2 relay's; swarmd_lab.pktinfo.GUARDED):
 first the lookup alone, then with the table ``swarmd local-firewall --apply`` loads there.
-Prints both rows and what ``--check`` reads from the rule's counter.
+Prints both rows and what ``--check`` reads from the rule's counter. ``--backend`` picks
+how the table loads (swarmd_lab.pktinfo.backend_tools): ``nft`` (the default), ``iptables``
+by the legacy x_tables tools (the Jetson Nano's path), or ``auto`` behind an ``nft`` that is
+refused as on a kernel without nf_tables.
 
-    .venv/bin/python bench/sender_uid_pktinfo_race.py [--family 4] [--count 200] [--firewall]
+    .venv/bin/python bench/sender_uid_pktinfo_race.py [--family 4] [--count 200] \
+        [--firewall [--backend nft|iptables|auto]]
 """
 
 from __future__ import annotations
@@ -36,7 +40,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "lab")]
 
 from swarmd_lab.netns import Lan  # noqa: E402
-from swarmd_lab.pktinfo import GUARDED, local_firewall, nobody_spoofs  # noqa: E402
+from swarmd_lab.pktinfo import (  # noqa: E402
+    BACKENDS,
+    GUARDED,
+    backend_tools,
+    local_firewall,
+    nobody_spoofs,
+)
 
 from swarmd.senderuid import TTL_S, SenderUids  # noqa: E402
 
@@ -105,17 +115,22 @@ def with_firewall(args: argparse.Namespace, count: int) -> None:
     signal.signal(signal.SIGTERM, _terminate)
     started = time.monotonic()
     with Lan(1) as lan, tempfile.TemporaryDirectory() as tmp:
+        how = backend_tools(args.backend, Path(tmp))
+        if isinstance(how, str):
+            sys.exit(f"--backend {args.backend} {how}")
+        flags, env = how
         ns = lan.hosts[0]
         config = Path(tmp) / "swarmd.yaml"
         config.write_text(guarded.config)
         alone = ns.run(argv, timeout=timeout).stdout.splitlines()[-1]
-        applied = local_firewall(ns, config, "--apply")
+        applied = local_firewall(ns, config, *flags, "--apply", env=env)
         if applied.returncode != 0:
             sys.exit(f"swarmd local-firewall --apply failed: {applied.stderr.strip()}")
         fenced = ns.run(argv, timeout=timeout).stdout.splitlines()[-1]
-        check = local_firewall(ns, config, "--check").stdout
+        check = local_firewall(ns, config, *flags, "--check", env=env).stdout
     elapsed = time.monotonic() - started
     print(f"# {' '.join(sys.argv)}  (TTL_S = {TTL_S}; one namespace; {elapsed:.1f} s)")
+    print(f"swarmd local-firewall --apply: {applied.stdout.strip()}")
     print(f"lookup alone:      {alone}")
     print(f"with the firewall: {fenced}")
     dropped = [line.strip() for line in check.splitlines() if guarded.comment in line]
@@ -131,6 +146,13 @@ def main() -> None:
     parser.add_argument("--port", type=int, default=0, help="the receiving port (0: any)")
     parser.add_argument(
         "--firewall", action="store_true", help="also with swarmd local-firewall, in a namespace"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="nft",
+        help="with --firewall: nft, iptables (the legacy tools, as on the Nano), or auto with "
+        "nft refused (default: nft)",
     )
     args = parser.parse_args()
     if os.geteuid() != 0:
