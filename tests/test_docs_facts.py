@@ -1,0 +1,125 @@
+"""The numbers and names the operator docs state, read from the code that sets them.
+
+A newcomer trusts a default the docs give ("``--timeout`` (default 60 s)", "the last 64
+peer changes"); each was true when written, and the code moved on since in other places.
+These checks read the value from the code (a parser's default, a named constant, the
+config loader's field list) and look for the doc's sentence with that value in it, so a
+change on either side fails here and names the doc and the fact.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+from typing import Final
+
+import pytest
+
+from swarmd import config, control, peerlog
+from swarmd.cli import swarmctl, swarmd_main
+from swarmd.dataplane.types import CommandKind
+from swarmd.swarm import commander, issuer
+
+ROOT: Final = Path(__file__).resolve().parent.parent
+OPERATIONS: Final = "docs/operations.md"
+
+
+def _doc(name: str) -> str:
+    """The doc as one line of text: a sentence may wrap anywhere."""
+    return " ".join((ROOT / name).read_text(encoding="utf-8").split())
+
+
+def _subparser(parser: argparse.ArgumentParser, *path: str) -> argparse.ArgumentParser:
+    for name in path:
+        (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[name]
+    return parser
+
+
+def _default(parser: argparse.ArgumentParser, option: str) -> object:
+    (action,) = (a for a in parser._actions if option in a.option_strings)
+    return action.default
+
+
+def _seconds(value: object) -> str:
+    assert isinstance(value, float | int)
+    return f"{value:g}"
+
+
+def test_takeoff_and_land_wait_as_long_as_the_doc_says() -> None:
+    text = _doc(OPERATIONS)
+    ctl = swarmctl.build_parser()
+    takeoff = _seconds(_default(_subparser(ctl, "takeoff"), "--timeout"))
+    assert f"within `--timeout` (default {takeoff} s)" in text
+    for kind in ("land", "hold", "abort"):
+        wait = _seconds(_default(_subparser(ctl, kind), "--timeout"))
+        assert f"swarmctl's {wait} s wait" in text, kind
+
+
+def test_the_validity_table_is_the_issuers_defaults() -> None:
+    text = _doc(OPERATIONS)
+    rows = {
+        "TAKEOFF": CommandKind.TAKEOFF,
+        "HOLD": CommandKind.HOLD,
+        "LAND, ABORT": CommandKind.LAND,
+    }
+    for label, kind in rows.items():
+        valid = _seconds(issuer.DEFAULT_VALID_FOR_S[kind])
+        assert f"| {label} | {valid} s |" in text, label
+    land, abort = CommandKind.LAND, CommandKind.ABORT
+    assert issuer.DEFAULT_VALID_FOR_S[land] == issuer.DEFAULT_VALID_FOR_S[abort]
+    # the commander reports `unreachable` this long after a command's validity ended
+    assert f"and, {_seconds(commander.UNREACHABLE_GRACE_S)} s later" in text
+
+
+def test_watch_refreshes_as_often_as_the_doc_says() -> None:
+    interval = _seconds(_default(_subparser(swarmctl.build_parser(), "watch"), "--interval"))
+    assert f"every S seconds (default {interval})" in _doc(OPERATIONS)
+
+
+@pytest.mark.parametrize(
+    ("value", "sentence"),
+    [
+        (peerlog.MAX_PEER_CHANGES, "keeps the last {} peer changes"),
+        (commander.MAX_TRACKED_COMMANDS, "(the last {}, `MAX_TRACKED_COMMANDS`"),
+        (commander.MAX_DECIDED_COMMANDS, "the last {} over all lives, `MAX_DECIDED_COMMANDS`"),
+        (control.MAX_LINE_BYTES // 1024, "capped at {} KiB per line"),
+        (control.MAX_CLIENTS, "and {} concurrent clients"),
+        (_seconds(control.REQUEST_DEADLINE_S), "each request line within {} s"),
+    ],
+)
+def test_the_caps_the_doc_names_are_the_codes(value: object, sentence: str) -> None:
+    assert sentence.format(value) in _doc(OPERATIONS)
+
+
+def test_the_local_firewall_row_names_every_backend() -> None:
+    """The command table's row of ``swarmd local-firewall`` lists the ``--backend`` choices
+    its parser takes and the default, so a backend added to the code is added there too."""
+    firewall = _subparser(swarmd_main.build_parser(), "local-firewall")
+    (backend,) = (a for a in firewall._actions if "--backend" in a.option_strings)
+    assert backend.choices is not None
+    (row,) = (
+        line
+        for line in (ROOT / OPERATIONS).read_text(encoding="utf-8").splitlines()
+        if line.startswith("| `swarmd local-firewall --config FILE")
+    )
+    assert f"`--backend` `{backend.default}` (the default" in row
+    for choice in backend.choices:
+        assert f"`{choice}`" in row, choice
+
+
+def test_the_shipped_config_names_every_field_the_loader_takes() -> None:
+    """config/swarmd.yaml is the operator's reference (docs/deploy.md installs it): every
+    field the loader accepts is in it, set or as a commented example, so a newcomer who
+    reads "set px4.loopback_user" finds where it goes."""
+    shipped = (ROOT / "config" / "swarmd.yaml").read_text(encoding="utf-8")
+    missing = []
+    for section, fields in config._FIELDS.items():
+        if section == "<top>":
+            continue
+        for field in fields:
+            # `  field:` under its section, or `# field:` in a commented example
+            if not re.search(rf"^[ \t]*#?[ \t]*{re.escape(field)}:", shipped, re.MULTILINE):
+                missing.append(f"{section}.{field}")
+    assert missing == []
