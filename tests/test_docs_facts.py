@@ -17,9 +17,12 @@ from typing import Final
 import pytest
 
 from swarmd import config, control, peerlog
-from swarmd.cli import swarmctl, swarmd_main
+from swarmd.auth import epoch, windows
+from swarmd.bundle import floor
+from swarmd.cli import status_cmd, swarmctl, swarmd_main
 from swarmd.dataplane.types import CommandKind
-from swarmd.swarm import commander, issuer
+from swarmd.px4 import xrce_key
+from swarmd.swarm import commander, issuer, statefile
 
 ROOT: Final = Path(__file__).resolve().parent.parent
 OPERATIONS: Final = "docs/operations.md"
@@ -82,6 +85,7 @@ def test_watch_refreshes_as_often_as_the_doc_says() -> None:
     ("value", "sentence"),
     [
         (peerlog.MAX_PEER_CHANGES, "keeps the last {} peer changes"),
+        (status_cmd.WATCH_LOG_LINES, "(the last {} on a terminal)"),
         (commander.MAX_TRACKED_COMMANDS, "(the last {}, `MAX_TRACKED_COMMANDS`"),
         (commander.MAX_DECIDED_COMMANDS, "the last {} over all lives, `MAX_DECIDED_COMMANDS`"),
         (control.MAX_LINE_BYTES // 1024, "capped at {} KiB per line"),
@@ -123,3 +127,33 @@ def test_the_shipped_config_names_every_field_the_loader_takes() -> None:
             if not re.search(rf"^[ \t]*#?[ \t]*{re.escape(field)}:", shipped, re.MULTILINE):
                 missing.append(f"{section}.{field}")
     assert missing == []
+
+
+def test_every_event_the_log_table_names_is_one_the_daemon_logs() -> None:
+    """A renamed log event leaves a grep of the journal empty; each event the table of
+    docs/operations.md ("Logs") names must be a string in the daemon's code."""
+    table = re.findall(
+        r"^\| `([a-z0-9_]+)`(?:, `([a-z0-9_]+)`)? \| (?:debug|info|warning|error) \|",
+        (ROOT / OPERATIONS).read_text(encoding="utf-8"),
+        re.MULTILINE,
+    )
+    events = {name for row in table for name in row if name}
+    assert {"state_save_failed", "command_refused_memory_lost", "started"} <= events
+    code = "\n".join(p.read_text(encoding="utf-8") for p in (ROOT / "swarmd").rglob("*.py"))
+    assert sorted(e for e in events if f'"{e}"' not in code) == []
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        epoch.FILE_PATTERN,
+        windows.FILE_PATTERN,
+        floor.FILE_PREFIX + "{node}",
+        statefile.FILE_PATTERN,
+        xrce_key.XRCE_KEY_FILE,
+    ],
+)
+def test_the_deploy_table_names_each_state_file_as_the_code_does(name: str) -> None:
+    """docs/deploy.md's table of where things live: the files swarmd writes beside its
+    node key and in its state dir, under the names the code gives them."""
+    assert f"`/var/lib/swarmd/{name.format(node='<node>')}`" in _doc("docs/deploy.md")
