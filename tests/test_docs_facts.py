@@ -22,6 +22,7 @@ from swarmd.bundle import floor
 from swarmd.cli import status_cmd, swarmctl, swarmd_main
 from swarmd.dataplane.types import CommandKind
 from swarmd.px4 import xrce_key
+from swarmd.px4.readiness import Reason
 from swarmd.swarm import commander, issuer, statefile
 
 ROOT: Final = Path(__file__).resolve().parent.parent
@@ -157,3 +158,51 @@ def test_the_deploy_table_names_each_state_file_as_the_code_does(name: str) -> N
     """docs/deploy.md's table of where things live: the files swarmd writes beside its
     node key and in its state dir, under the names the code gives them."""
     assert f"`/var/lib/swarmd/{name.format(node='<node>')}`" in _doc("docs/deploy.md")
+
+
+def test_the_readiness_reasons_are_px4s_in_their_order() -> None:
+    """operations.md's "Readiness reasons" lists a member's own reasons in the order they
+    are checked (the first failing one is reported), as ``Reason`` does."""
+    text = _doc(OPERATIONS)
+    start = text.index("### Readiness reasons")
+    section = text[start : text.index("or `px4_disabled`", start)]
+    listed = re.findall(r"`([a-z0-9_]+)`(?: \(XRCE\))?[,)]", section)
+    assert listed == [r.value for r in Reason]
+
+
+def _leaves(parser: argparse.ArgumentParser, path: str = "") -> dict[str, set[str]]:
+    """Each runnable subcommand ("bundle keygen") and its options."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        return {path: {o for a in parser._actions for o in a.option_strings}}
+    found: dict[str, set[str]] = {}
+    for name, sub in subs[0].choices.items():
+        found |= _leaves(sub, f"{path} {name}".strip())
+    return found
+
+
+def test_the_readme_names_the_commands_without_json() -> None:
+    text = _doc("README.md")
+    start = text.index("machine-readable output with `--json` (every swarmctl command but")
+    named = set(re.findall(r"`([a-z0-9 -]+)`", text[start : text.index(")", start)]))
+    named.discard("--json")
+    leaves = _leaves(swarmctl.build_parser())
+    assert named == {cmd for cmd, options in leaves.items() if "--json" not in options}
+
+
+def test_the_drone_wheels_deploy_names_are_the_runtime_lock() -> None:
+    """docs/deploy.md, step 2, names what the locked download saved: the same packages
+    and versions as requirements/runtime-aarch64.lock (``make lock`` moves both)."""
+    lock = dict(
+        re.findall(
+            r"^([A-Za-z0-9._-]+)==(\S+)",
+            (ROOT / "requirements" / "runtime-aarch64.lock").read_text(encoding="utf-8"),
+            re.MULTILINE,
+        )
+    )
+    text = _doc("docs/deploy.md")
+    start = text.index("Run here (session 13) it saved")
+    said = re.findall(
+        r"([A-Za-z][\w-]*) (\d+\.\d+(?:\.\d+)?)", text[start : text.index("as pure Python.", start)]
+    )
+    assert {name.lower(): version for name, version in said} == lock
