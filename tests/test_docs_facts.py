@@ -16,10 +16,10 @@ from typing import Final
 
 import pytest
 
-from swarmd import config, control, peerlog
+from swarmd import config, control, peerlog, udp
 from swarmd.auth import epoch, windows
 from swarmd.bundle import floor
-from swarmd.cli import status_cmd, swarmctl, swarmd_main
+from swarmd.cli import firewall_cmd, status_cmd, swarmctl, swarmd_main
 from swarmd.dataplane.types import CommandKind
 from swarmd.px4 import xrce_key
 from swarmd.px4.readiness import Reason
@@ -206,3 +206,16 @@ def test_the_drone_wheels_deploy_names_are_the_runtime_lock() -> None:
         r"([A-Za-z][\w-]*) (\d+\.\d+(?:\.\d+)?)", text[start : text.index("as pure Python.", start)]
     )
     assert {name.lower(): version for name, version in said} == lock
+
+
+def test_deploys_buffer_and_lock_wait_are_the_codes() -> None:
+    """The sysctl docs/deploy.md has the operator set is the SPDP socket's own request, and
+    the xtables lock wait both docs state is the one ``swarmd local-firewall`` passes."""
+    mib = udp.RECV_BUFFER_BYTES >> 20
+    assert mib << 20 == udp.RECV_BUFFER_BYTES
+    deploy = _doc("docs/deploy.md")
+    assert f"the {mib} MiB receive buffer they ask for" in deploy
+    assert f"net.core.rmem_max = {udp.RECV_BUFFER_BYTES}" in deploy
+    wait = firewall_cmd.XT_LOCK_WAIT_S
+    assert f"`--apply` waits up to {wait} s for the xtables lock" in _doc(OPERATIONS)
+    assert f"passes `--wait={wait}`" in deploy
