@@ -71,6 +71,9 @@ def test_the_validity_table_is_the_issuers_defaults() -> None:
     for label, kind in rows.items():
         valid = _seconds(issuer.DEFAULT_VALID_FOR_S[kind])
         assert f"| {label} | {valid} s |" in text, label
+    most = _seconds(issuer.MAX_VALID_FOR_S)
+    assert f"Up to {most} s may be given" in text
+    assert f"a validity outside [0.001, {most}] s" in text
     land, abort = CommandKind.LAND, CommandKind.ABORT
     assert issuer.DEFAULT_VALID_FOR_S[land] == issuer.DEFAULT_VALID_FOR_S[abort]
     # the commander reports `unreachable` this long after a command's validity ended
@@ -92,6 +95,7 @@ def test_watch_refreshes_as_often_as_the_doc_says() -> None:
         (control.MAX_LINE_BYTES // 1024, "capped at {} KiB per line"),
         (control.MAX_CLIENTS, "and {} concurrent clients"),
         (_seconds(control.REQUEST_DEADLINE_S), "each request line within {} s"),
+        (_seconds(control.REQUEST_DEADLINE_S / 2), "`--interval` of {} s or more reconnects"),
     ],
 )
 def test_the_caps_the_doc_names_are_the_codes(value: object, sentence: str) -> None:
