@@ -30,6 +30,7 @@ import os
 import random
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Final
 
@@ -172,13 +173,17 @@ def settle(cond: Callable[[], bool], seconds: float = SETTLE_S) -> bool:
     return False
 
 
-@pytest.fixture(scope="module", name="lab_module")
-def lab_module_fixture() -> Iterator[Lab]:
+@contextmanager
+def attacked_swarm(prefix: str) -> Iterator[tuple[FlashedSwarm, Attacker]]:
+    """A flashed swarm on a LAN of namespaces named ``prefix``-..., with an attacker host on
+    it that listened from the swarm's start; the swarm, the attacker, the namespaces and the
+    work folder are torn down on every exit path, and a leaked namespace fails the test.
+    Shared by these attack modules and ``tests/test_attacks_spoof_netns.py``."""
     from tests.attacker.swarm import flashed_swarm
 
-    root = Path(f"/tmp/atk-{os.getpid()}")
+    root = Path(f"/tmp/{prefix}-{os.getpid()}")
     root.mkdir(parents=True, exist_ok=True)
-    lan = Lan(4, prefix=run_prefix("atk")).__enter__()
+    lan = Lan(4, prefix=run_prefix(prefix)).__enter__()
     try:
         with flashed_swarm(lan, root) as swarm:
             attacker = Attacker(swarm.attacker_ns, swarm.spdp_group).start()
@@ -187,7 +192,7 @@ def lab_module_fixture() -> Iterator[Lab]:
             # started listening later would learn a member only when it restarts
             swarm.reset()
             try:
-                yield Lab(swarm, attacker)
+                yield swarm, attacker
             finally:
                 attacker.close()
     finally:
@@ -197,6 +202,12 @@ def lab_module_fixture() -> Iterator[Lab]:
         shutil.rmtree(root, ignore_errors=True)
         leaked = [n for n in list_namespaces() if n.startswith(lan.prefix + "-")]
         assert not leaked, f"network namespaces leaked: {leaked}"
+
+
+@pytest.fixture(scope="module", name="lab_module")
+def lab_module_fixture() -> Iterator[Lab]:
+    with attacked_swarm("atk") as (swarm, attacker):
+        yield Lab(swarm, attacker)
 
 
 @pytest.fixture(name="lab")
