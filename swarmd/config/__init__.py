@@ -5,7 +5,7 @@ The documented default is ``config/swarmd.yaml``. Checking walks PyYAML's compos
 ``FILE:LINE: field PATH: problem; fix: ...`` and the daemon stops with exit 78 (EX_CONFIG)
 before it opens a socket. Relative paths are taken relative to the config file's folder.
 
-This module is the entry every caller imports from; the rooms behind it, by concern:
+This module is the entry every caller imports from; the modules behind it, by concern:
 ``model`` (the checked values, ``DaemonConfig`` and its sections, the trust checks on the
 files it names), ``reader`` (the field readers and each section's known fields),
 ``checker`` (the whole file, section by section), ``px4`` (the ``px4:`` section) and

@@ -15,6 +15,7 @@ from typing import Final, NoReturn
 import yaml
 
 from swarmd.config.model import ConfigError
+from swarmd.yamldoc import unknown_field
 
 FIELDS: Final[dict[str, tuple[str, ...]]] = {
     "<top>": (
@@ -96,12 +97,7 @@ class FieldReader:
             key = self.loader.construct_object(key_node, deep=True)
             path = str(key) if section == "<top>" else f"{section}.{key}"
             if not isinstance(key, str) or key not in allowed:
-                self.fail(
-                    key_node,
-                    path,
-                    f"unknown field {key!r}",
-                    f"remove it or correct the spelling; known fields: {', '.join(allowed)}",
-                )
+                self.fail(key_node, path, *unknown_field(key, allowed))
             if key in out:
                 self.fail(key_node, path, "duplicate key", "keep one of them")
             out[key] = value_node
