@@ -3,8 +3,9 @@
     sudo .venv/bin/python bench/flood.py [--rate 5000] [--seconds 10] [--repeats 3]
         [--out bench/results/security/flood.json] [--write-docs]
 
-The pieces of ``tests/test_attacks_netns.py::test_spdp_flood_loses_no_real_peer`` (issue
-10, attack 9): three real ``swarmd`` daemons in namespaces with a bundle flashed by
+The pieces of
+``tests/test_attacks_discovery_netns.py::test_spdp_flood_loses_no_real_peer`` (issue 10,
+attack 9): three real ``swarmd`` daemons in namespaces with a bundle flashed by
 ``swarmctl bundle flash``, the shipped config, a MAVLink vehicle simulator per drone, and
 an attacker host that sniffs the members' SPDP and floods the SPDP multicast group with
 forged announcements (half with the members' own prefixes: replayed authenticators, and

@@ -28,6 +28,15 @@ _OPEN = (yaml.SequenceStartEvent, yaml.MappingStartEvent)
 _CLOSE = (yaml.SequenceEndEvent, yaml.MappingEndEvent)
 
 
+def unknown_field(key: object, allowed: tuple[str, ...]) -> tuple[str, str]:
+    """The problem and the fix for a key its section does not know, worded once for the
+    mission and the config."""
+    return (
+        f"unknown field {key!r}",
+        f"remove it or correct the spelling; known fields: {', '.join(allowed)}",
+    )
+
+
 class FieldError(ValueError):
     """Bad input; ``str()`` is one line naming file, line, field, problem and fix."""
 

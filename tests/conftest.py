@@ -105,7 +105,7 @@ def keys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Path:
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
     """Keep each phase's report on the item (``item.rep_call``), so a fixture can tell after
-    the test whether it passed (tests/test_attacks_netns.py restarts a damaged swarm)."""
+    the test whether it passed (tests/attacker/lab.py restarts a damaged swarm)."""
     outcome = yield
     report = outcome.get_result()  # type: ignore[attr-defined]
     setattr(item, f"rep_{report.when}", report)

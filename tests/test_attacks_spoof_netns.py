@@ -29,49 +29,30 @@ import os
 import threading
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Final
 
 import pytest
-from swarmd_lab.netns import Lan, list_namespaces, run_prefix
 
 from tests.attacker.flood import FloodResult, run_flood
 from tests.attacker.host import Attacker
+from tests.attacker.lab import LEAD, SPDP, attacked_swarm
 from tests.attacker.spoof import Spoofer, spoof_pool
 from tests.attacker.swarm import FlashedSwarm, delta, refusals
 
 pytestmark = [pytest.mark.netns]
 
-LEAD: Final = 0
-SPDP: Final = "counters.dropped."
 FULL: Final = os.environ.get("SWARMD_SPOOF_FULL") == "1"
 TAKEOFF_AFTER_S: Final = 0.5  # the take-off starts this long into the flood; sent twice
 
 
 @pytest.fixture(scope="module")
 def spoof_lab() -> Iterator[tuple[FlashedSwarm, Attacker, Spoofer]]:
-    from tests.attacker.swarm import flashed_swarm
-
-    root = Path(f"/tmp/spoof-{os.getpid()}")
-    root.mkdir(parents=True, exist_ok=True)
-    lan = Lan(4, prefix=run_prefix("spf")).__enter__()
-    try:
-        with flashed_swarm(lan, root) as swarm:
-            attacker = Attacker(swarm.attacker_ns, swarm.spdp_group).start()
-            spoofer = Spoofer(swarm.attacker_ns)
-            swarm.reset()  # the attacker hears every drone's first SPDP (vouched: no renewals)
-            try:
-                yield swarm, attacker, spoofer
-            finally:
-                spoofer.close()
-                attacker.close()
-    finally:
-        lan.close()
-        import shutil
-
-        shutil.rmtree(root, ignore_errors=True)
-        leaked = [n for n in list_namespaces() if n.startswith(lan.prefix + "-")]
-        assert not leaked, f"network namespaces leaked: {leaked}"
+    with attacked_swarm("spf") as (swarm, attacker):
+        spoofer = Spoofer(swarm.attacker_ns)
+        try:
+            yield swarm, attacker, spoofer
+        finally:
+            spoofer.close()
 
 
 @pytest.mark.parametrize(

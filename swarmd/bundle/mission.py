@@ -45,7 +45,7 @@ from swarmd.rtps.ports import (
     PORT_BASE,
     max_participant_index,
 )
-from swarmd.yamldoc import composed, read_text
+from swarmd.yamldoc import composed, read_text, unknown_field
 
 # Names that become file names (keys/nodes/<name>.key) and DDS entity names: keep them to a
 # portable, shell-safe alphabet.
@@ -170,12 +170,7 @@ class _Checker:
             if not isinstance(key, str):
                 self.fail(key_node, path, "keys must be strings", f"use one of {allowed}")
             if key not in allowed:
-                self.fail(
-                    key_node,
-                    path,
-                    f"unknown field {key!r}",
-                    f"remove it or correct the spelling; known fields: {', '.join(allowed)}",
-                )
+                self.fail(key_node, path, *unknown_field(key, allowed))
             if key in out:
                 self.fail(
                     key_node,

@@ -1,8 +1,8 @@
 """Issue 10 attack 9: a bounded multicast flood of forged SPDP, and what it cost the swarm.
 
-Shared by ``tests/test_attacks_netns.py`` and ``bench/flood.py``: the flood runs in a thread
-(bounded by count and by time) while the main thread watches every daemon's peer table;
-daemon CPU comes from ``/proc/<pid>/stat`` (utime + stime) before and after.
+Shared by ``tests/test_attacks_discovery_netns.py`` and ``bench/flood.py``: the flood runs
+in a thread (bounded by count and by time) while the main thread watches every daemon's peer
+table; daemon CPU comes from ``/proc/<pid>/stat`` (utime + stime) before and after.
 """
 
 from __future__ import annotations
