@@ -92,9 +92,12 @@ class SwarmApp:
         epoch: int,
         node_secrets: NodeSecrets | None = None,
         px4_socket: socket.socket | None = None,
+        booted_before: bool = False,
     ) -> None:
         """``keys`` (the daemon's ``KeyRing``) and ``epoch`` (this boot's, the one its SPDP
-        announces) authenticate the data plane's datagrams (docs/security.md)."""
+        announces) authenticate the data plane's datagrams (docs/security.md).
+        ``booted_before``: this node's boot epoch file held an earlier epoch, so a missing
+        state file was deleted, not never written (``state_file_missing``)."""
         self.config = config
         self.bundle = bundle
         self.log = log
@@ -105,6 +108,7 @@ class SwarmApp:
         # the link's port as systemd bound it: swarmd-px4.socket (MAVLink udpin:) or
         # swarmd-xrce.socket (the XRCE agent's udp:), docs/px4.md
         self.px4_socket = px4_socket
+        self.booted_before = booted_before
         self.me = config.member_of(bundle)
         self.roles = Roles.of(bundle, self.me)
         self.bridge: Px4Bridge | None = None
@@ -115,7 +119,7 @@ class SwarmApp:
         self.driver: Driver[bytes, Datagram, SwarmEvent] | None = None
         # discovered peers -> (address, boot epoch), replayed on start
         self._up: dict[str, tuple[str | None, int]] = {}
-        self.counters: dict[str, int] = {"state_save_errors": 0}
+        self.counters: dict[str, int] = {"state_save_errors": 0, "state_file_missing": 0}
         # verified user data from a peer, by name: the daemon feeds it to discovery
         self.on_peer_traffic: Callable[[str], None] | None = None
 
@@ -297,6 +301,16 @@ class SwarmApp:
         if self.state.recovered_from:
             self.log.warning(
                 "state_file_replaced", path=str(self.state.path), why=self.state.recovered_from
+            )
+        if self.state.missing and self.booted_before:
+            # the record of the commands an earlier life ran is gone: exactly once now rests
+            # on refusing them (docs/operations.md, "memory_lost"); a true first boot is silent
+            self.counters["state_file_missing"] += 1
+            self.log.warning(
+                "state_file_missing",
+                path=str(self.state.path),
+                why="this node booted before (its boot epoch file held one) but its state "
+                "file is gone: commands of an earlier life are refused memory_lost",
             )
         if self.state.temps_removed:  # a crash mid-write (statefile.boot)
             self.log.warning(
@@ -597,6 +611,7 @@ class SwarmApp:
             # what this life re-reported of its earlier lives' outcomes (docs/dataplane.md)
             dataplane["outcomes_rereported"] = swarm.counters["outcomes_rereported"]
             dataplane["state_save_errors"] = self.counters["state_save_errors"]
+            dataplane["state_file_missing"] = self.counters["state_file_missing"]
         px4: dict[str, Any] = {"enabled": self.bridge is not None}
         if self.bridge is not None:
             px4.update(self.bridge.status())

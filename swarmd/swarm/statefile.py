@@ -80,6 +80,9 @@ class NodeState:
     decisions: list[KeptDecision] = field(default_factory=list)
     recovered_from: str | None = None  # why an unreadable file was replaced, for the log
     temps_removed: int = 0  # left-over temporary files removed at boot, for the log
+    # no file was there: a first boot, or a deleted file (the caller knows which: the boot
+    # epoch says whether this node started before, swarmapp.SwarmApp._boot_dataplane)
+    missing: bool = False
 
     def save(self) -> None:
         """Write atomically; raises ``StateDirError`` (one line) on failure."""
@@ -127,11 +130,12 @@ def boot(state_dir: str | Path, node: str) -> NodeState:
 
 
 def load(path: Path) -> NodeState:
-    """The state at ``path``; a missing file is a first boot, a corrupt one is replaced."""
+    """The state at ``path``; a missing file starts afresh (``missing``), a corrupt one is
+    replaced."""
     try:
         raw = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        return NodeState(path)
+        return NodeState(path, missing=True)
     except (OSError, UnicodeDecodeError) as exc:
         return NodeState(path, recovered_from=f"unreadable ({exc})")
     try:
