@@ -78,7 +78,7 @@ from swarmd.link.monitor import LinkMonitor
 from swarmd.link.source import LinkSource
 from swarmd.peerlog import PeerChangeKind, PeerHistory
 from swarmd.rawclock import RawClockEventLoop
-from swarmd.ros2app import Ros2App
+from swarmd.ros2app import Ros2App, require_ros2_graph
 from swarmd.rtps.types import GuidPrefix
 from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.sdnotify import Notifier, watchdog_interval_s
@@ -164,22 +164,7 @@ class Daemon:
                 clock="CLOCK_MONOTONIC",
                 fix="drive the daemon with swarmd.rawclock.run_on_raw_clock, as `swarmd run` does",
             )
-        me = self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
-        if me.ipv4 is not None and me.ipv4 != self.local_ipv4:
-            # every peer refuses a DATA(p) whose locators name another address than the
-            # bundle's pin (docs/security.md, "Pinned addresses"): we would never be found
-            field = "network.ipv4" if self.config.ipv4 is not None else "network.interface"
-            raise self.config.error(
-                field,
-                f"this node announces {self.local_ipv4}, but the bundle "
-                f"{self.config.bundle.path} pins {me.name} at ipv4 {me.ipv4}",
-                f"give {self.config.interface} the address {me.ipv4} (network.ipv4), or "
-                f"rebuild the bundle with ipv4: {self.local_ipv4} for {me.name}",
-            )
-        try:
-            self.keyring = KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
-        except NodeKeyMismatch as exc:
-            raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
+        self.keyring = self.check_start()
         self._enforce_bundle_floor()
         try:
             self.epoch = next_epoch(self._state_dir, self.config.node, time.time())
@@ -247,6 +232,8 @@ class Daemon:
             epoch=self.epoch.epoch,
             node_secrets=self._secrets,
             px4_socket=self._px4_listen_socket(),
+            # the epoch file held one: a missing state file was deleted (state_file_missing)
+            booted_before=self.epoch.stored is not None,
         )
         self.app = app
         app.on_peer_traffic = self._peer_traffic
@@ -358,6 +345,31 @@ class Daemon:
         mode_problem = config_mode_problem(self.config.file)
         if mode_problem is not None:  # docs/deploy.md: 0640 root:swarmd
             self.log.warning("config_mode", path=self.config.file, problem=mode_problem)
+
+    def check_start(self) -> KeyRing:
+        """The start-up checks that neither bind, send nor write: the node is a member, its
+        address is the bundle's pin, its key is the bundle's, and a relay has a ROS 2 graph
+        to serve. ``start`` runs them first; ``swarmd check-config`` runs them alone
+        (docs/operations.md, "Check a config"), so it refuses what ``run`` refuses, with
+        the same one line. Raises ``ConfigError``; returns this node's key ring."""
+        me = self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
+        if me.ipv4 is not None and me.ipv4 != self.local_ipv4:
+            # every peer refuses a DATA(p) whose locators name another address than the
+            # bundle's pin (docs/security.md, "Pinned addresses"): we would never be found
+            field = "network.ipv4" if self.config.ipv4 is not None else "network.interface"
+            raise self.config.error(
+                field,
+                f"this node announces {self.local_ipv4}, but the bundle "
+                f"{self.config.bundle.path} pins {me.name} at ipv4 {me.ipv4}",
+                f"give {self.config.interface} the address {me.ipv4} (network.ipv4), or "
+                f"rebuild the bundle with ipv4: {self.local_ipv4} for {me.name}",
+            )
+        if self.config.ros2.relay:
+            require_ros2_graph(self.config, self.bundle)
+        try:
+            return KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
+        except NodeKeyMismatch as exc:
+            raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
 
     def _enforce_bundle_floor(self) -> None:
         """Refuse a rolled-back bundle, else raise the floor to it, before the first send

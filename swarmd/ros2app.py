@@ -20,7 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from swarmd.bundle.model import Bundle
-from swarmd.bundle.ros2 import bundle_ros2_participants
+from swarmd.bundle.ros2 import Ros2Graph, Ros2Participant, bundle_ros2_participants
 from swarmd.config import DaemonConfig
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_OSERR, StartupError
@@ -42,6 +42,22 @@ from swarmd.senderuid import SenderUids, log_firewall_expected
 from swarmd.udp import BatchedSocket, Datagram
 
 
+def require_ros2_graph(
+    config: DaemonConfig, bundle: Bundle
+) -> tuple[Ros2Graph, tuple[Ros2Participant, ...]]:
+    """The bundle's ROS 2 graph and participants; ``ConfigError`` (one line, at
+    ``ros2.relay``) when it declares none to serve. ``swarmd check-config`` runs it too
+    (Daemon.check_start)."""
+    participants = bundle_ros2_participants(bundle)
+    if not participants or bundle.ros2 is None:
+        raise config.error(
+            "ros2.relay",
+            "the bundle declares no ROS 2 graph to serve",
+            "add a 'ros2:' section to the mission (docs/ros2.md) or set ros2.relay: false",
+        )
+    return bundle.ros2, participants
+
+
 class Ros2App:
     """The relay core, its socket and its driver, for one daemon."""
 
@@ -60,13 +76,7 @@ class Ros2App:
         drone's nodes comes or goes (the daemon puts it in its signed DATA(p))."""
         """Raises ``ConfigError`` (one line, at ``ros2.relay``) for a bundle with no ROS 2
         graph."""
-        participants = bundle_ros2_participants(bundle)
-        if not participants or bundle.ros2 is None:
-            raise config.error(
-                "ros2.relay",
-                "the bundle declares no ROS 2 graph to serve",
-                "add a 'ros2:' section to the mission (docs/ros2.md) or set ros2.relay: false",
-            )
+        graph, participants = require_ros2_graph(config, bundle)
         self.config = config
         self.log = log
         self.count = count
@@ -74,7 +84,7 @@ class Ros2App:
         self.relay = Ros2Relay(
             participants,
             config.node,
-            domain_id=bundle.ros2.domain_id,
+            domain_id=graph.domain_id,
             lease_s=config.ros2.lease_s,
             relay_port=config.ros2.relay_port,
             epoch=epoch,

@@ -244,6 +244,18 @@ def clean_env(**extra: str) -> dict[str, str]:
     return env
 
 
+def run_swarmd(*args: str, timeout_s: float = 20.0) -> subprocess.CompletedProcess[str]:
+    """``swarmd *args`` as a process (``clean_env``), to its end: text out and err, its code."""
+    return subprocess.run(
+        [SWARMD, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=clean_env(),
+        check=False,
+    )
+
+
 def until(
     cond: Callable[[], bool],
     what: Callable[[], object],

@@ -45,12 +45,11 @@ from swarmd.discovery.inputs import LinkSample
 from swarmd.exitcodes import EX_CONFIG, StartupError
 from tests.daemon_support import (
     SWARM3,
-    SWARMD,
     BundleFiles,
-    clean_env,
     in_process_daemon,
     loopback_config,
     run_domain,
+    run_swarmd,
     write_bundle,
 )
 
@@ -112,14 +111,7 @@ def _floor(workdir: Path, node: str = "uav1") -> Path:
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [SWARMD, *args],
-        capture_output=True,
-        text=True,
-        timeout=WAIT_S,
-        env=clean_env(),
-        check=False,
-    )
+    return run_swarmd(*args, timeout_s=WAIT_S)
 
 
 def test_an_older_signed_bundle_is_refused_after_a_newer_one_was_accepted(

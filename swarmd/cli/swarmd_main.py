@@ -101,7 +101,9 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         return _fail(str(exc), exc.exit_code)
     if args.command == "check-config":
         try:
-            Daemon(config, bundle, log=log, node_secrets=secrets)
+            # every check of `run`'s start that neither binds, sends nor writes, so this
+            # refuses what `run` refuses, with its line (docs/operations.md, "Check a config")
+            Daemon(config, bundle, log=log, node_secrets=secrets).check_start()
         except ConfigError as exc:
             return _fail(f"config rejected: {exc}", EX_CONFIG)
         print(f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm})")
