@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from swarmd.bundle.errors import SerialRefused
+from swarmd.bundle.errors import FlashError, SerialRefused
 from swarmd.bundle.flash import FlashPayload, Ssh, Target, flash, rollback
 from swarmd.bundle.keys import load_node_keys, node_key_path
 from swarmd.bundle.loader import load_bundle, read_bundle
@@ -246,3 +246,50 @@ def test_over_ssh_rollback_restores_only_the_checked_previous(
     assert (drone / "bundle.swb").read_bytes() == new.read_bytes()
     digest = hashlib.sha256((drone / "bundle.swb.prev").read_bytes()).hexdigest()
     assert digest == hashlib.sha256(swapped.read_bytes()).hexdigest()
+
+
+# -- the trust anchor before the serial ---------------------------------------------------------
+
+
+def other_swarm(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], serial: int
+) -> tuple[Path, Path]:
+    """Another swarm's keys and a bundle of the same mission they sign: ``(keys, bundle)``."""
+    other = tmp_path / "other-keys"
+    code, _, err = bundle_cli(capsys, "keygen", "--out", str(other), "--mission", str(SWARM3))
+    assert code == 0, err
+    return other, build(tmp_path, other, capsys, serial, depth=6)
+
+
+def test_flash_of_another_swarms_bundle_is_refused_for_its_key_before_its_serial(
+    tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A lower serial signed by keys the drone does not trust: the operator is told the key
+    (``--replace-trust-key`` when rotating), not ``--serial``, which would not help."""
+    drone = tmp_path / "drone"
+    assert flash_cli(capsys, build(tmp_path, keys, capsys, 5), drone, keys)[0] == 0
+    before = (drone / "bundle.swb").read_bytes()
+    other, foreign = other_swarm(tmp_path, capsys, 1)
+    code, out, err = flash_cli(capsys, foreign, drone, other)
+    assert code != 0 and out == "" and err.count("\n") == 1
+    assert "trusts swarm key" in err and "--replace-trust-key" in err
+    assert "--serial" not in err
+    assert (drone / "bundle.swb").read_bytes() == before
+    # rotating the key on purpose: the serial guard still holds
+    code, _, err = flash_cli(capsys, foreign, drone, other, "--replace-trust-key")
+    assert code == EX_CONFIG and "--serial 6" in err
+    assert (drone / "bundle.swb").read_bytes() == before
+
+
+def test_over_ssh_the_key_is_checked_before_the_serial(
+    tmp_path: Path, keys: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    drone = tmp_path / "drone"
+    target, ssh = Target(str(drone), "drone-1.local"), LocalShell()
+    flash(payload(build(tmp_path, keys, capsys, 5), keys), target, ssh=ssh)
+    other, foreign = other_swarm(tmp_path, capsys, 1)
+    with pytest.raises(FlashError, match="trusts swarm key") as info:
+        flash(payload(foreign, other), target, ssh=ssh)
+    assert not isinstance(info.value, SerialRefused)
+    with pytest.raises(SerialRefused, match="below"):
+        flash(payload(foreign, other), target, ssh=ssh, replace_trust=True)

@@ -496,9 +496,10 @@ def flash(
     allow_lower_serial: bool = False,
 ) -> FlashResult:
     """Flash ``payload`` to ``target`` (local directory or ssh). ``SerialRefused`` before
-    anything is written when its serial is below the target's (``check_flash_serial``)."""
+    anything is written when its serial is below the target's (``check_flash_serial``),
+    after the trust anchor check."""
     if not allow_lower_serial:
-        check_flash_serial(payload, target, ssh=ssh)
+        check_flash_serial(payload, target, ssh=ssh, replace_trust=replace_trust)
     if target.host is None:
         return flash_local(payload, target, replace_trust=replace_trust)
     return flash_ssh(payload, target, ssh or Ssh(), replace_trust=replace_trust)
@@ -522,14 +523,15 @@ _Files = dict[str, bytes | str]
 
 
 def _serial_files(target: Target, ssh: Ssh | None, *, strict: bool) -> _Files:
-    """name -> bytes of the target's bundle, previous bundle, node name and floor files
-    (absent ones left out). A floor file this user cannot read is ``_UNREADABLE`` when
+    """name -> bytes of the target's bundle, previous bundle, node name, trust anchor and
+    floor files (absent ones left out). A floor file this user cannot read is ``_UNREADABLE`` when
     ``strict`` (a rollback must not pass for want of it), else left out (a flash checks
     the floor where readable, and the current bundle's serial in any case)."""
     if target.host is None:
         d = Path(target.directory)
         out: _Files = {}
-        for path in [d / BUNDLE_FILE, d / _PREV_FILE, d / NODE_NAME_FILE, *d.glob(_FLOOR_GLOB)]:
+        names = (BUNDLE_FILE, _PREV_FILE, NODE_NAME_FILE, TRUST_FILE)
+        for path in [*(d / name for name in names), *d.glob(_FLOOR_GLOB)]:
             try:
                 out[path.name] = path.read_bytes()
             except FileNotFoundError:
@@ -554,7 +556,7 @@ def _serial_files(target: Target, ssh: Ssh | None, *, strict: bool) -> _Files:
     raw = (ssh or Ssh()).run(
         target.host,
         f"cd {_q(target.directory)} 2>/dev/null || exit 0; set -- && "
-        f"for f in {BUNDLE_FILE} {_PREV_FILE} {NODE_NAME_FILE} {_FLOOR_GLOB}; do "
+        f"for f in {BUNDLE_FILE} {_PREV_FILE} {NODE_NAME_FILE} {TRUST_FILE} {_FLOOR_GLOB}; do "
         f'[ -f "$f" ] || continue; {unreadable}; set -- "$@" "$f"; done; '
         '[ "$#" -eq 0 ] || tar -cf - "$@"\n',
         "read the serials" if strict else "prepare",  # a flash's first contact: its prepare
@@ -633,11 +635,19 @@ def _check_rollback(files: _Files, target: Target) -> bytes:
     return prev
 
 
-def check_flash_serial(payload: FlashPayload, target: Target, *, ssh: Ssh | None) -> None:
+def check_flash_serial(
+    payload: FlashPayload, target: Target, *, ssh: Ssh | None, replace_trust: bool = False
+) -> None:
     """``SerialRefused`` when ``payload``'s serial is below the serial of the bundle the
     target carries, or fails the target's floor for ``payload.node`` where readable (below
-    it, or its serial with another hash: what swarmd there would refuse at start)."""
+    it, or its serial with another hash: what swarmd there would refuse at start).
+
+    The signer is checked against the drone's trust anchor first (``_check_trust``'s
+    ``FlashError``): a bundle of another swarm's keys is refused for its key, not for a
+    serial whose fix (``--serial``) would not help (docs/preflight.md)."""
     files = _serial_files(target, ssh, strict=False)
+    trust = files.get(TRUST_FILE)
+    _check_trust(trust if isinstance(trust, bytes) else None, payload, str(target), replace_trust)
     new = payload.bundle
     current_data = files.get(BUNDLE_FILE)
     current = _decoded(current_data, BUNDLE_FILE) if isinstance(current_data, bytes) else None
