@@ -17,6 +17,7 @@ from swarmd.cli import firewall_cmd
 from swarmd.cli.swarmd_main import main
 from swarmd.config import parse_config
 from swarmd.localfirewall import LocalFirewall, XtLive, local_firewall, xt_live, xt_removal
+from tests.daemon_support import REPO
 from tests.test_daemon_config import MINIMAL
 from tests.test_local_firewall import RELAY, XRCE
 
@@ -295,3 +296,41 @@ def test_the_command_prints_what_iptables_restore_loads(
     out = capsys.readouterr().out
     wall = local_firewall(parse_config(config.read_text(), str(config)))
     assert wall.xt_script(4, xt_live(EMPTY)) in out and wall.xt_script(6, xt_live(EMPTY)) in out
+
+
+UNGUARDED = MINIMAL + "ros2:\n  relay: true\n"  # the relay's port left to every user: a note
+SHIPPED = (REPO / "config" / "swarmd.yaml").read_text()  # what deploy.md installs
+
+
+@pytest.mark.parametrize("text", [SHIPPED, UNGUARDED], ids=["shipped", "relay_without_users"])
+def test_a_config_that_guards_no_port_needs_no_firewall_tool(
+    monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    text: str,
+) -> None:
+    """No rule to load: a drone with neither nft nor iptables still starts (the unit's
+    ``ExecStartPre``), and ``--check`` finds nothing missing; both say nothing is loaded and
+    why, after the notes on the ports left to every user."""
+    config = tmp_path / "swarmd.yaml"
+    config.write_text(text)
+    wall = local_firewall(parse_config(text, str(config)))
+    assert wall.ports == ()
+    monkeypatch.setattr(firewall_cmd, "_tool", FakeTools(nft=None, iptables=False))
+    for mode in ("--apply", "--check"):
+        assert main(["local-firewall", "--config", str(config), mode]) == 0, mode
+        out, err = capsys.readouterr()
+        assert out.count("\n") == 1 and "nothing loaded" in out and "guards no port" in out
+        assert err.count("note: ") == len(wall.notes) + 2  # the notes, then nft's and iptables'
+        for note in wall.notes:
+            assert note in err
+
+
+def test_a_config_that_guards_a_port_still_fails_closed_without_a_tool(
+    monkeypatch: pytest.MonkeyPatch, config: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The control: with a port to guard, no tool is still exit 69 (the start fails)."""
+    monkeypatch.setattr(firewall_cmd, "_tool", FakeTools(nft=None, iptables=False))
+    for mode in ("--apply", "--check"):
+        assert main(["local-firewall", "--config", str(config), mode]) == 69, mode
+        assert "nothing loaded" not in capsys.readouterr().out

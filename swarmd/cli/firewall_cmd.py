@@ -18,7 +18,9 @@ as the Jetson Nano's (docs/deploy.md, "The local firewall on the Nano").
 
 Exit codes: 0 ok; 1 ``--check`` found the rules missing or different; 69 no backend could
 load them (``--apply``: systemd then fails the start) or answer: one line with each
-backend's reason and the fix; 78 the config is rejected. A port whose users are not
+backend's reason and the fix; 78 the config is rejected. A config that guards no port
+needs no backend: ``--apply`` and ``--check`` where none answers (or, for ``--check``,
+none holds rules) exit 0 with a line that nothing is loaded and why. A port whose users are not
 configured is a note on stderr, not a failure. This is the thin tier: every process is
 started here, the text comes from swarmd.localfirewall.
 """
@@ -240,7 +242,24 @@ def _apply(wanted: LocalFirewall, backends: tuple[_Backend, ...]) -> int:
             print(f"swarmd: local-firewall: note: not loaded by {reason}", file=sys.stderr)
         print(f"swarmd: local-firewall: loaded by {backend.name}: {backend.where}")
         return EX_OK
+    if not wanted.ports:
+        return _nothing_to_guard(wanted, reasons)
     raise _none_answered(reasons)
+
+
+def _nothing_to_guard(wanted: LocalFirewall, reasons: list[str]) -> int:
+    """A config that guards no port has no rule to lose: a drone without nft or iptables
+    still starts (the unit's ``ExecStartPre``), and says why nothing is loaded. Residual (6)
+    is unchanged: it is about ports left to every user, which these notes name
+    (docs/security.md; docs/deploy.md, "The local firewall")."""
+    for reason in reasons:
+        print(f"swarmd: local-firewall: note: not loaded by {reason}", file=sys.stderr)
+    print(
+        f"swarmd: local-firewall: nothing loaded: {wanted.file} guards no port (no "
+        "ros2.node_users with ros2.relay, no px4.loopback_user with a loopback xrce-agent), "
+        "so there is no rule to load"
+    )
+    return EX_OK
 
 
 def _check(wanted: LocalFirewall, backends: tuple[_Backend, ...]) -> int:
@@ -255,6 +274,8 @@ def _check(wanted: LocalFirewall, backends: tuple[_Backend, ...]) -> int:
         if live is not None:
             found.append((backend, live))
     if not found:
+        if not wanted.ports:  # no rule is wanted, so none is missing
+            return _nothing_to_guard(wanted, reasons)
         if len(reasons) == len(backends):
             raise _none_answered(reasons)
         where = ", ".join(f"no {b.where}" for b in backends)
