@@ -40,7 +40,7 @@ def _life(workdir: Path, files: BundleFiles, state_dir: Path) -> tuple[list[Any]
     async def main() -> int:
         try:
             await daemon.start()
-            counter: int = daemon.status()["dataplane"]["state_file_missing"]
+            counter: int = daemon.status()["dataplane"].get("state_file_missing", 0)
             return counter
         finally:
             await daemon.stop("test")
