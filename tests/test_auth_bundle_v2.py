@@ -74,10 +74,13 @@ def flashed(tmp_path: Path) -> tuple[Path, Path]:
 
 
 def _drone_config(tmp_path: Path, drone: Path) -> Path:
+    """lead's config on ``lo``, announcing the address SWARM3 pins for it (check-config
+    compares them, as run does; nothing here binds it)."""
+    pinned = load_bundle(drone / "bundle.swb", drone / "swarm.pub").participant("lead").ipv4
     cfg = tmp_path / "drone.yaml"
     cfg.write_text(
         f"node: lead\nbundle:\n  path: {drone / 'bundle.swb'}\n"
-        f"  trusted_key: {drone / 'swarm.pub'}\nnetwork:\n  interface: lo\n  ipv4: 127.0.0.1\n"
+        f"  trusted_key: {drone / 'swarm.pub'}\nnetwork:\n  interface: lo\n  ipv4: {pinned}\n"
         f"control:\n  socket: {tmp_path / 'ctl.sock'}\nlink:\n  sources: [static]\n"
     )
     return cfg
