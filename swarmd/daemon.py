@@ -350,7 +350,7 @@ class Daemon:
         """The start-up checks that neither bind, send nor write: the node is a member, its
         address is the bundle's pin, its key is the bundle's, and a relay has a ROS 2 graph
         to serve. ``start`` runs them first; ``swarmd check-config`` runs them alone
-        (docs/operations.md, "Check a config"), so it refuses what ``run`` refuses, with
+        (docs/operations.md, "Exit codes"), so it refuses what ``run`` refuses, with
         the same one line. Raises ``ConfigError``; returns this node's key ring."""
         me = self.config.member_of(self.bundle)  # ConfigError at `node` if it is not
         if me.ipv4 is not None and me.ipv4 != self.local_ipv4:

@@ -3,7 +3,7 @@
 ``run``'s start (``Daemon.start``) checks, before it binds anything, that the node's
 address is the bundle's pinned ``ipv4`` and that a ROS 2 relay has a graph to serve. An
 operator who runs ``check-config`` on the bench must not read ``ok`` for a config the
-drone then stops with exit 78 (docs/operations.md, "Check a config"). Neither config here
+drone then stops with exit 78 (docs/operations.md, "Exit codes"). Neither config here
 gets as far as a socket: both processes stop at the check.
 """
 

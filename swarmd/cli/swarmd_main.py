@@ -102,7 +102,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     if args.command == "check-config":
         try:
             # every check of `run`'s start that neither binds, sends nor writes, so this
-            # refuses what `run` refuses, with its line (docs/operations.md, "Check a config")
+            # refuses what `run` refuses, with its line (docs/operations.md, "Exit codes")
             Daemon(config, bundle, log=log, node_secrets=secrets).check_start()
         except ConfigError as exc:
             return _fail(f"config rejected: {exc}", EX_CONFIG)
