@@ -61,3 +61,31 @@ def test_a_rediscovery_dated_just_before_the_sample_is_zero() -> None:
     sample counts as 0, as before."""
     m = _measure([(28.0, 60.0)], lost=27.0, found=27.8)
     assert m["rediscovery_s"]["max"] == 0.0 and m["rediscovery_windows_closed"] == 0
+
+
+def test_a_pair_listed_again_just_before_the_truths_return_took_no_time() -> None:
+    """Lost at 27.5 s, listed again at 33.8 s, the truth's return at 35.5 s: a frame got
+    through at the range's edge first. The pair is listed at the return: 0 s, counted
+    apart, not "never re-discovered" (session 13's split at N = 20, run 2: 9 such pairs)."""
+    m = _measure([(35.5, 60.0)], lost=27.5, found=33.8)
+    assert m["not_rediscovered"] == 0
+    assert m["rediscovered_before_return"] == 1
+    assert m["rediscovery_s"]["count"] == 1 and m["rediscovery_s"]["max"] == 0.0
+
+
+def test_a_pair_listed_early_but_lost_again_before_the_return_counts_from_its_next_find() -> None:
+    changes = {
+        0: [
+            (1.0, 1, "discovered"), (27.5, 1, "lost"), (31.0, 1, "regained"),
+            (33.0, 1, "lost"), (37.0, 1, "regained"),
+        ]
+    }  # fmt: skip
+    m = flight_measures.measure(_truth([(35.5, 60.0)]), changes, {}, n=2, lease_s=LEASE_S)
+    assert m["rediscovered_before_return"] == 0
+    assert m["rediscovery_s"]["max"] == 1.5 and m["not_rediscovered"] == 0
+
+
+def test_a_pair_never_listed_again_is_still_never_rediscovered() -> None:
+    changes = {0: [(1.0, 1, "discovered"), (27.5, 1, "lost")]}
+    m = flight_measures.measure(_truth([(35.5, 60.0)]), changes, {}, n=2, lease_s=LEASE_S)
+    assert m["not_rediscovered"] == 1 and m["rediscovered_before_return"] == 0

@@ -87,6 +87,21 @@ def reachable(
     ]
 
 
+def listed_before_return(
+    mine: Sequence[tuple[float, str]], lost_at: Sequence[float], gap_start: float, back: float
+) -> bool:
+    """Whether a pair lost in the gap that began at ``gap_start`` was listed again before
+    the truth's return at ``back`` (outside the poll's ``TOLERANCE_S``) and still listed
+    then: its last change after the gap's last loss and before ``back - TOLERANCE_S`` is an
+    up kind."""
+    losses = [t for t in lost_at if gap_start <= t <= back]
+    if not losses:
+        return False
+    last_loss = max(losses)
+    between = [c for t, c in mine if last_loss < t < back - TOLERANCE_S]
+    return bool(between) and between[-1] in UP_KINDS
+
+
 def spans(samples: Sequence[tuple[float, bool]]) -> list[tuple[float, float, bool]]:
     """Runs of equal value: ``(start, end, value)``; the last ends at the last sample."""
     out: list[tuple[float, float, bool]] = []
@@ -178,6 +193,7 @@ def measure(
     rediscovery_wall: list[float] = []
     windows_closed = 0
     not_rediscovered = 0
+    early_relists = 0
     rejoined: set[tuple[int, int]] = set()
     rejoin_times: list[float] = []
     last_rediscovery: float | None = None
@@ -213,7 +229,18 @@ def measure(
                     found = [t for t, c in mine if c in UP_KINDS and t >= back - TOLERANCE_S]
                     rejoined.add((min(i, j), max(i, j)))
                     rejoin_times.append(back)
-                    if found:
+                    if listed_before_return(mine, lost_at, a, back):
+                        # re-listed after its loss but before the truth's return: a frame
+                        # got through at the range's edge before the truth's threshold. The
+                        # pair is listed at the return, so it took 0 s; counted apart
+                        # (session 13: 9 such pairs read "never re-discovered" before)
+                        rediscovery.append(0.0)
+                        rediscovery_wall.append(0.0)
+                        early_relists += 1
+                        last_rediscovery = (
+                            back if last_rediscovery is None else max(last_rediscovery, back)
+                        )
+                    elif found:
                         # the time in range from the return to the re-discovery: a window
                         # that closed first (the fade's 1 s returns) adds its length, not
                         # the seconds out of range after it (module doc)
@@ -274,6 +301,7 @@ def measure(
         "rediscovery_wall_s": _summary(rediscovery_wall),
         "rediscovery_windows_closed": windows_closed,
         "not_rediscovered": not_rediscovered,
+        "rediscovered_before_return": early_relists,
         "reboot_seen_by_peers_s": _summary(reboot_seen),
         "reboot_finds_peers_s": _summary(reboot_finds),
         "frames_per_rejoining_pair": frames,
