@@ -76,10 +76,13 @@ class Flight:
         persisted = [e for e in self.swarm.events[name] if isinstance(e, PersistExecuted)]
         return persisted[-1] if persisted else PersistExecuted(())
 
-    def restart(self, name: str, *, epoch: int, kept: PersistExecuted) -> SwarmCore:
+    def restart(
+        self, name: str, *, epoch: int, kept: PersistExecuted, start: bool = True
+    ) -> SwarmCore:
         """``name``'s daemon restarts in boot ``epoch`` (incarnation ``epoch - 1``) with
         ``kept`` from its state dir; the vehicle (the test's) keeps flying. Discovery of the
-        new life is the caller's."""
+        new life is the caller's; ``start`` False leaves ``core.start`` to the caller too
+        (the daemon replays what discovery found while it was starting)."""
         swarm = self.swarm
         bundle = swarm.bundle
         plane = make_plane(
@@ -99,7 +102,8 @@ class Flight:
             earlier_decisions=kept.decisions,  # one clock here: nothing to convert
         )
         swarm.cores[name] = core
-        core.start(swarm.net.now)
+        if start:
+            core.start(swarm.net.now)
         swarm.net.replace(swarm.ids[name], core)
         return core
 

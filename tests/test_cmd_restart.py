@@ -256,6 +256,27 @@ def test_the_re_report_goes_out_once_and_not_long_after_the_restart() -> None:
         assert state == ("completed" if expected else UNREACHABLE), state
 
 
+def test_a_commander_found_before_the_new_life_started_still_gets_the_re_report() -> None:
+    """The daemon replays the peers discovery found while it was starting: under load the
+    commander's ``peer_up`` came before ``core.start``, the re-report found no life yet and
+    was never sent (a fresh-clone CI run of tests/test_flight_netns.py: re-reported 0). Now
+    it waits for the start."""
+    flight = Flight(2, seed=3)
+    swarm = flight.swarm
+    swarm.run(3.0)
+    flight.cut = lambda a, b: a == "m01"
+    cid, _ = _takeoff(flight)
+    swarm.run(VEHICLE_TASK_S + 0.5)
+    flight.cut = lambda a, b: False
+    core = flight.restart("m01", epoch=2, kept=_kept(flight, "m01"), start=False)
+    _found(flight, "m01", 2)  # discovery first ...
+    core.start(swarm.net.now)  # ... then the life's start
+    swarm.net.poke(swarm.ids["m01"])
+    swarm.run(2.0)
+    assert core.counters.get("outcomes_rereported", 0) == 1
+    assert _row(flight, cid)["state"] == "completed"
+
+
 def test_a_re_report_for_an_id_never_issued_or_not_to_it_makes_no_row() -> None:
     """m01's state file names outcomes the commander never asked it for: an id the
     commander never issued, and a command that targeted only m02. Both re-reports are

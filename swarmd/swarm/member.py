@@ -165,11 +165,18 @@ class Member:
         # re-reporting an earlier life's outcomes: until when, and to which commanders done
         self._rereport_until: float | None = None
         self._rereported: set[str] = set()  # bounded: bundle names only
+        # commanders found before this life's start (the daemon replays what discovery
+        # found while it was starting): re-reported at the start; bounded: bundle names
+        self._rereport_pending: set[str] = set()
 
     def start(self, now: float) -> None:
-        """This life began: it runs only commands issued from now, and re-reports."""
+        """This life began: it runs only commands issued from now, and re-reports (to the
+        commanders already found, now)."""
         self._life_start = now
         self._rereport_until = now + REREPORT_WINDOW_S
+        pending, self._rereport_pending = sorted(self._rereport_pending), set()
+        for commander in pending:
+            self.rereport(commander, now)
 
     def verdict(self, now: float) -> ReadinessVerdict:
         return NO_VEHICLE if self._vehicle is None else self._vehicle(now)
@@ -379,12 +386,14 @@ class Member:
         lives decided for its commands, on the outcome writer it already authenticates.
         Only an answer: nothing is executed (docs/dataplane.md, "Outcomes across a
         restart")."""
-        if (
-            self.plane is None
-            or self._rereport_until is None
-            or now > self._rereport_until
-            or commander in self._rereported
-        ):
+        if self.plane is None or commander in self._rereported:
+            return
+        if self._rereport_until is None:
+            # found before this life started: under load the daemon's replay of discovery
+            # came first and the re-report was lost (a CI run); sent at ``start``
+            self._rereport_pending.add(commander)
+            return
+        if now > self._rereport_until:
             return
         earlier = self.plane.earlier_outcomes(commander, MAX_REREPORTED)
         if not earlier:

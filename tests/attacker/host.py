@@ -122,9 +122,9 @@ class Attacker:
             with self._lock:
                 self.captured.append(Captured(time.monotonic(), src, dst, payload))
             if dst == self.spdp_group or payload[:4] == b"RTPS":
-                self._learn(payload, src[0])
+                self._learn(payload, src[0], to_group=dst == self.spdp_group)
 
-    def _learn(self, payload: bytes, source: str) -> None:
+    def _learn(self, payload: bytes, source: str, *, to_group: bool) -> None:
         try:
             _, samples = decode_spdp(payload)
         except DecodeError:
@@ -133,9 +133,18 @@ class Attacker:
         freshness = tail[0] if tail is not None else None
         for s in samples:
             if isinstance(s, SpdpAlive):
-                learned = Learned(s.participant, s.sequence_number, source, freshness, payload)
                 with self._lock:
-                    self.learned[s.participant.guid_prefix] = learned
+                    known = self.learned.get(s.participant.guid_prefix)
+                    # what a replay resends is the last DATA(p) to the group: it carries a
+                    # receiver tag for every drone, where a directed one (the paper's staged
+                    # announcements, a seek's answer) tags only its destination, so its
+                    # replay elsewhere is refused as a bad tag, never as a replay: a capture
+                    # that ended on a directed frame made the spoof test's replays vanish
+                    # under load (a CI run: the lead counted 0 replays)
+                    raw = payload if to_group or known is None else known.raw
+                    self.learned[s.participant.guid_prefix] = Learned(
+                        s.participant, s.sequence_number, source, freshness, raw
+                    )
 
     def member(self, name: str) -> Learned | None:
         """What SPDP told about the participant whose ENTITY_NAME ends in ``/name``."""
