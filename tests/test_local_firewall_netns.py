@@ -263,3 +263,52 @@ def test_an_agent_on_a_wildcard_drops_another_users_broadcast_and_multicast(
     assert check.returncode == 0, check.stderr
     assert f"dropped {SPOOFS} datagrams" in check.stdout
     assert backend.run(ns, config, "--remove").returncode == 0
+
+
+def test_an_agent_on_a_v4_mapped_address_drops_another_users_ipv4_datagrams(
+    ns: Namespace, tmp_path: Path, backend: Backend
+) -> None:
+    """Review 14: an agent on ``udp:::ffff:127.0.0.1:888`` (an IPv6 socket, v4-mapped)
+    receives IPv4 datagrams to 127.0.0.1. The table had only an ``ip6`` rule for it, which
+    no IPv4 datagram meets: ``nobody``'s plain datagrams to 127.0.0.1:888 all arrived past
+    the loaded table, and ``--check`` said ok (40 of 40, each backend: seen failing
+    without the fix). Now the rule is 127.0.0.1's."""
+    config = tmp_path / "swarmd.yaml"
+    config.write_text(
+        MINIMAL_CONFIG + "px4:\n  backend: xrce-agent\n"
+        f"  connection: udp:::ffff:127.0.0.1:{AGENT_PORT}\n  allow_network: true\n"
+        "  loopback_user: root\n"
+    )
+    with ns.socket(socket.AF_INET6) as agent:
+        agent.bind(("::ffff:127.0.0.1", AGENT_PORT))
+        agent.settimeout(RECV_TIMEOUT_S)
+        assert _plain_received(ns, agent) == SPOOFS  # without the table: all arrive
+        applied = backend.run(ns, config, "--apply")
+        assert applied.returncode == 0, applied.stderr
+        assert _plain_received(ns, agent) == 0  # root's (the vehicle's user) still arrives
+    check = backend.run(ns, config, "--check")
+    assert check.returncode == 0, check.stderr
+    assert f"dropped {SPOOFS} datagrams" in check.stdout
+    assert backend.run(ns, config, "--remove").returncode == 0
+
+
+def _plain_received(ns: Namespace, agent: socket.socket) -> int:
+    """``SPOOFS`` plain IPv4 datagrams from ``nobody`` to 127.0.0.1:``AGENT_PORT``, then one
+    from root. Returns how many of nobody's arrived: loopback delivery happens inside
+    sendto, so every one that got through is queued before root's."""
+    argv = ns.command(["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"])
+    argv += [sys.executable, "-I", "-c", LOOPED_SENDER, "127.0.0.1", str(AGENT_PORT), "lo"]
+    done = subprocess.run(  # noqa: S603 - fixed argv
+        [*argv, str(SPOOFS)], capture_output=True, text=True, timeout=SPOOF_TIMEOUT_S, check=True
+    )
+    refused = int(done.stdout.split()[1])
+    with ns.socket(socket.AF_INET) as root:
+        root.sendto(b"root", ("127.0.0.1", AGENT_PORT))
+    received = 0
+    for _ in range(SPOOFS + 1):
+        data, _source = agent.recvfrom(64)
+        if data == b"root":
+            break
+        received += 1
+    assert received + refused == SPOOFS
+    return received
