@@ -327,3 +327,36 @@ def test_a_user_sharing_one_nodes_port_cannot_starve_the_other_kept_sources(
     _SharedPort.held = False  # nobody closes its socket: B is B's again within TTL_S
     now[0] += TTL_S
     assert uids.uid_of(node_b) == ME
+
+
+def test_a_user_sharing_a_nodes_wildcard_port_cannot_evict_the_shared_memory(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack (a local user against the shared-source memory's cap, review 14): node B
+    holds its port on the wildcard (with SO_REUSEADDR, so ``nobody`` binds it too, at
+    127.0.0.2). Every 127.0.0.N is then a source whose one-socket answer names B, and the
+    memory was keyed by address and port: ``nobody`` flooding from SOURCES addresses, more
+    than the memory's 64, evicted each entry before its turn came again, so each datagram
+    was a kept-priority query again, as before the memory, and node A's re-checks starved
+    (on main: A answered 50 of 1,000). The port's query does not depend on the source's
+    address within a family (swarmd.senderuid, ``_V4_SENDING_V6``), so the memory keys by
+    family and port: one entry for the flood, A answered at every datagram."""
+    sources = 65  # one past the memory's cap (MAX_KEPT_SOURCES)
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
+    uids._diag = _SharedPort()  # type: ignore[assignment]
+    _SharedPort.held = True
+    _HugeTable.owners = {5000: ME, SHARED_PORT: ME}
+    node_a = ("127.0.0.1", 5000)
+    while uids.uid_of(node_a) != ME and now[0] < 105.0:  # A found and kept
+        now[0] += 0.01
+    assert uids.uid_of(node_a) == ME
+    answered = 0
+    for ms in range(10_000):
+        now[0] += 0.001
+        for i in range(20):
+            spoofed = (f"127.0.0.{3 + (ms * 20 + i) % sources}", SHARED_PORT)
+            assert uids.uid_of(spoofed) is None  # B's port is shared: nobody's, never B
+        if ms % 10 == 0:
+            answered += uids.uid_of(node_a) == ME
+    assert answered == 1000  # A: every one of its datagrams
