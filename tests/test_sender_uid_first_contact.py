@@ -307,6 +307,9 @@ def test_a_new_node_is_found_within_seconds_under_a_long_hash_chain_flood(
         if found_after is not None:
             break
     assert found_after is not None  # within FOUND_WITHIN_S
+    # the seed's wait, cited in docs/security.md: a change of the lookup's budgets moves it
+    # (re-measure here and update the docs)
+    assert found_after == pytest.approx(0.42)
     assert uids.counters["receiver_confirmed"] == 1
 
 
