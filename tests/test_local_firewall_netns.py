@@ -182,9 +182,20 @@ def test_the_rule_drops_a_spoofer_that_closes_its_socket_at_once(
     assert backend.copies(ns, comment) == 0
 
 
+# the senders' common end: COUNT datagrams to DEST:PORT on socket s, the refused ones counted
+SEND_COUNTED: Final = """
+refused = 0
+for _ in range(count):
+    try:
+        s.sendto(b"nobody", (dest, port))
+    except PermissionError:  # the output hook's drop
+        refused += 1
+print("refused", refused, flush=True)
+"""
 # user ``nobody`` sends COUNT datagrams to DEST:PORT out of interface IFNAME, looped back to
 # this host's own sockets (SO_BROADCAST; IP_MULTICAST_IF and IP_MULTICAST_LOOP, ip(7))
-LOOPED_SENDER: Final = """
+LOOPED_SENDER: Final = (
+    """
 import socket, struct, sys
 dest, port, ifname, count = sys.argv[1], int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -192,14 +203,9 @@ s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
 mreqn = struct.pack("=4s4si", bytes(4), bytes(4), socket.if_nametoindex(ifname))
 s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, mreqn)
 s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
-refused = 0
-for _ in range(count):
-    try:
-        s.sendto(b"looped", (dest, port))
-    except PermissionError:  # the output hook's drop
-        refused += 1
-print("refused", refused, flush=True)
 """
+    + SEND_COUNTED
+)
 
 
 def _looped_received(ns: Namespace, agent: socket.socket, dest: str) -> int:
@@ -266,18 +272,14 @@ def test_an_agent_on_a_wildcard_drops_another_users_broadcast_and_multicast(
 
 
 # user ``nobody`` sends COUNT plain datagrams to DEST:PORT (an IPv6 socket for a v4-mapped DEST)
-PLAIN_SENDER: Final = """
+PLAIN_SENDER: Final = (
+    """
 import socket, sys
 dest, port, count = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 s = socket.socket(socket.AF_INET6 if ":" in dest else socket.AF_INET, socket.SOCK_DGRAM)
-refused = 0
-for _ in range(count):
-    try:
-        s.sendto(b"plain", (dest, port))
-    except PermissionError:  # the output hook's drop
-        refused += 1
-print("refused", refused, flush=True)
 """
+    + SEND_COUNTED
+)
 
 
 @pytest.mark.parametrize(

@@ -12,6 +12,7 @@ import random
 import shutil
 import socket
 import subprocess
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -348,22 +349,8 @@ def test_a_user_sharing_one_nodes_port_cannot_starve_the_other_kept_sources(
     datagrams were dropped (on main: 0 of 1,000 answered after the first). Now a kept-
     priority confirmation that found the port shared is remembered for TTL_S: the flood
     spends one query per TTL_S on it, and A is answered at every datagram."""
-    now = [100.0]
-    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
-    uids._diag = _SharedPort()  # type: ignore[assignment]
-    _SharedPort.held = True
-    _HugeTable.owners = {5000: ME, SHARED_PORT: ME}
-    node_a, node_b = ("127.0.0.1", 5000), ("127.0.0.1", SHARED_PORT)
-    while uids.uid_of(node_a) != ME and now[0] < 105.0:  # A found and kept
-        now[0] += 0.01
-    assert uids.uid_of(node_a) == ME
-    answered = 0
-    for ms in range(10_000):
-        now[0] += 0.001
-        for _ in range(20):
-            assert uids.uid_of(node_b) is None  # B's port is shared: nobody's, never B
-        if ms % 10 == 0:
-            answered += uids.uid_of(node_a) == ME
+    node_b = ("127.0.0.1", SHARED_PORT)
+    now, uids, answered = _node_a_beside_a_flood(monkeypatch, lambda _: node_b)
     assert answered == 1000  # A: every one of its datagrams
     assert uids.counters["port_shared"] >= 200_000  # the denial of B, counted each time
     _SharedPort.held = False  # nobody closes its socket: B is B's again within TTL_S
@@ -384,6 +371,19 @@ def test_a_user_sharing_a_nodes_wildcard_port_cannot_evict_the_shared_memory(
     address within a family (swarmd.senderuid, ``_V4_SENDING_V6``), so the memory keys by
     family and port: one entry for the flood, A answered at every datagram."""
     sources = 65  # one past the memory's cap (MAX_KEPT_SOURCES)
+    _, _, answered = _node_a_beside_a_flood(
+        monkeypatch, lambda n: (f"127.0.0.{3 + n % sources}", SHARED_PORT)
+    )
+    assert answered == 1000  # A: every one of its datagrams
+
+
+def _node_a_beside_a_flood(
+    monkeypatch: pytest.MonkeyPatch, flood: Callable[[int], tuple[str, int]]
+) -> tuple[list[float], SenderUids, int]:
+    """Node A found and kept, then ``nobody``'s flood from B's shared port (``_SharedPort``,
+    held): 20 datagrams a virtual millisecond for 10 s, the nth from ``flood(n)``, each
+    nobody's (never B), and one of A's every 10 ms. Returns the clock, the lookup and how
+    many of A's 1,000 were answered as A's."""
     now = [100.0]
     uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
     uids._diag = _SharedPort()  # type: ignore[assignment]
@@ -397,8 +397,7 @@ def test_a_user_sharing_a_nodes_wildcard_port_cannot_evict_the_shared_memory(
     for ms in range(10_000):
         now[0] += 0.001
         for i in range(20):
-            spoofed = (f"127.0.0.{3 + (ms * 20 + i) % sources}", SHARED_PORT)
-            assert uids.uid_of(spoofed) is None  # B's port is shared: nobody's, never B
+            assert uids.uid_of(flood(ms * 20 + i)) is None  # B's port is shared: never B
         if ms % 10 == 0:
             answered += uids.uid_of(node_a) == ME
-    assert answered == 1000  # A: every one of its datagrams
+    return now, uids, answered
