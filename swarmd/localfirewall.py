@@ -61,6 +61,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from swarmd.config import DaemonConfig
+from swarmd.loopback import plain_address
 from swarmd.ros2.relay import LOOPBACK
 
 FAMILY: Final = "inet"
@@ -316,15 +317,17 @@ def local_firewall(config: DaemonConfig) -> LocalFirewall:
 
 
 def _address(config: DaemonConfig, host: str) -> str | None:
-    """``host`` as an address for a rule; None for a wildcard (every local address)."""
-    try:
-        ip = ipaddress.ip_address(host.strip("[]"))
-    except ValueError:
+    """``host`` as an address for a rule; None for a wildcard (every local address). A
+    v4-mapped address is its IPv4 form (swarmd.loopback): an IPv6 socket bound to
+    ``::ffff:127.0.0.1`` receives IPv4 datagrams to 127.0.0.1, which an ``ip6`` rule never
+    sees (review 14: ``nobody``'s datagrams reached such an agent past the loaded table)."""
+    ip = plain_address(host.strip("[]"))
+    if ip is None:
         raise config.error(
             "px4.connection",
             f"{host!r} is no IP address: the firewall rule needs the agent's address",
             "write it as an address, e.g. udp:127.0.0.1:888",
-        ) from None
+        )
     return None if ip.is_unspecified else ip.compressed
 
 

@@ -284,9 +284,12 @@ class SenderUids:
         # (host, port) -> (when its uids were read, the uids): sources of keep_uids, in
         # order of their last lookup (the first is the first out)
         self._kept: dict[tuple[str, int], tuple[float, set[int]]] = {}
-        # sources a kept-priority confirmation found shared (two uids): answered so for
-        # TTL_S without another query (at most MAX_KEPT_SOURCES, the oldest out)
-        self._shared: dict[tuple[str, int], tuple[float, set[int]]] = {}
+        # (family, port) a kept-priority confirmation found shared (two uids): answered so
+        # for TTL_S without another query (at most MAX_KEPT_SOURCES, the oldest out). By
+        # family, not address: the port's query reads the same sockets for every address of
+        # a family, and keyed by address a flood from 65 addresses of 127/8 evicted each
+        # entry before its turn came again (review 14, docs/security-history.md)
+        self._shared: dict[tuple[int, int], tuple[float, set[int]]] = {}
         # port -> {(sends_from, uid)} for every socket on the port (any address)
         self._index: dict[int, set[tuple[str, int]]] = {}
         self._read_at: float | None = None
@@ -404,14 +407,14 @@ class SenderUids:
         diag = self._diag
         if diag is None or not self.keep_uids or not self._receiver_works:
             return None
-        shared = self._shared.get((host, port))
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        shared = self._shared.get((family, port))
         if shared is not None and 0.0 <= now - shared[0] < TTL_S:
             self._taken = True
             return shared[1]  # confirmed shared within TTL_S: nobody's, without a query
         if self._receiver_cost.balance(now) <= 0.0 or not self._receivers.take(now):
             self.counters["receiver_over_budget"] += 1
             return None
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self.counters["receiver_lookups"] += 1
         started = self.cost_clock()
         try:
@@ -439,10 +442,10 @@ class SenderUids:
             # another user on the node's port, sending from its source (IP_PKTINFO): its
             # flood would repeat this kept-priority query at each datagram and hold the
             # bucket at KEPT_DEBT_S, starving every kept source's re-check; once per TTL_S
-            self._shared.pop((host, port), None)
+            self._shared.pop((family, port), None)
             if len(self._shared) >= MAX_KEPT_SOURCES:
                 del self._shared[next(iter(self._shared))]
-            self._shared[host, port] = (now, answer)
+            self._shared[family, port] = (now, answer)
         return answer
 
     def _kept_uids(self, host: str, port: int, now: float) -> set[int] | None:

@@ -79,8 +79,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     "userdata": CORE | {"udp"},
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
     # the nftables table (and iptables chain) of swarmd's loopback ports, generated from the
-    # config (text only; swarmd local-firewall runs nft or iptables-restore: cli)
-    "localfirewall": CORE | {"config", "px4", "ros2"},
+    # config (text only; swarmd local-firewall runs nft or iptables-restore: cli); a
+    # v4-mapped address read as loopback reads it
+    "localfirewall": CORE | {"config", "px4", "ros2", "loopback"},
     "control": CORE,
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
     "swarmapp": CORE

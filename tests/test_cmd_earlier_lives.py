@@ -108,6 +108,26 @@ def test_earlier_lives_strings_stay_data() -> None:
     assert to_json(shown, WALL_NOW, EX_FAILED)["ran"][0]["reason"] == HOSTILE
 
 
+def test_an_earlier_decision_time_past_the_calendar_leaves_the_view_whole(
+    tmp_path: Path,
+) -> None:
+    """Review 14: a hand-edited state file's decision time is any finite number, and the
+    view turned one past the C library's calendar into a wall-clock time: ``gmtime`` and
+    ``localtime`` raised (OverflowError, EOVERFLOW) and ``swarmctl outcomes`` ended in a
+    traceback, plain and ``--json``. Now that time is shown as unknown; the rest stays."""
+    path = statefile.state_path(tmp_path, "m01")
+    far = [1, "lead", 7, "hold", "completed", "", 1e300, None]
+    path.write_text(json.dumps({"boot": 2, "executed": [], "decisions": [far]}), "utf-8")
+    (kept,) = statefile.load(path).decisions  # the file's check takes it: finite
+    age_s = WALL_NOW - kept.received_at
+    ran = [{"command_id": 7, "kind": "hold", "commander": "lead", "state": "completed",
+            "reason": "", "age_s": age_s, "life": 1, "saved": True}]  # fmt: skip
+    shown = {"issued": [], "ran": ran, "life": 2}
+    text = "\n".join(render_kept(shown, WALL_NOW))
+    assert "0x7" in text and "--:--:--" in text
+    assert to_json(shown, WALL_NOW, EX_FAILED)["ran"][0]["received_at"] is None
+
+
 # ---- the state file ----------------------------------------------------------------------
 
 

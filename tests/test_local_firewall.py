@@ -171,3 +171,18 @@ def test_the_command_prints_what_nft_loads(
     out, err = capsys.readouterr()
     assert out == local_firewall(parse_config(config.read_text(), str(config))).script()
     assert "ros2.node_users" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("host", "address"), [("::ffff:127.0.0.1", "127.0.0.1"), ("::ffff:0.0.0.0", None)]
+)
+def test_a_v4_mapped_agent_address_gets_the_ipv4_rule(host: str, address: str | None) -> None:
+    """An agent bound to ``::ffff:127.0.0.1`` (an IPv6 socket) receives IPv4 datagrams to
+    127.0.0.1; one bound to ``::ffff:0.0.0.0`` every IPv4 one. The table had an ``ip6``
+    rule for them, which no IPv4 datagram meets (review 14; the kernel's side:
+    tests/test_local_firewall_netns.py). Now the rule is the IPv4 address's, or the
+    wildcard's."""
+    config = MINIMAL + XRCE + f"  connection: udp:{host}:888\n  allow_network: true\n"
+    wall = local_firewall(parse_config(config, "c.yaml"))
+    assert [(p.address, p.port) for p in wall.ports] == [(address, 888)]
+    assert wall.xt_rules(4) != []

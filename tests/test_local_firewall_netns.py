@@ -182,9 +182,20 @@ def test_the_rule_drops_a_spoofer_that_closes_its_socket_at_once(
     assert backend.copies(ns, comment) == 0
 
 
+# the senders' common end: COUNT datagrams to DEST:PORT on socket s, the refused ones counted
+SEND_COUNTED: Final = """
+refused = 0
+for _ in range(count):
+    try:
+        s.sendto(b"nobody", (dest, port))
+    except PermissionError:  # the output hook's drop
+        refused += 1
+print("refused", refused, flush=True)
+"""
 # user ``nobody`` sends COUNT datagrams to DEST:PORT out of interface IFNAME, looped back to
 # this host's own sockets (SO_BROADCAST; IP_MULTICAST_IF and IP_MULTICAST_LOOP, ip(7))
-LOOPED_SENDER: Final = """
+LOOPED_SENDER: Final = (
+    """
 import socket, struct, sys
 dest, port, ifname, count = sys.argv[1], int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -192,14 +203,9 @@ s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
 mreqn = struct.pack("=4s4si", bytes(4), bytes(4), socket.if_nametoindex(ifname))
 s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, mreqn)
 s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
-refused = 0
-for _ in range(count):
-    try:
-        s.sendto(b"looped", (dest, port))
-    except PermissionError:  # the output hook's drop
-        refused += 1
-print("refused", refused, flush=True)
 """
+    + SEND_COUNTED
+)
 
 
 def _looped_received(ns: Namespace, agent: socket.socket, dest: str) -> int:
@@ -263,3 +269,71 @@ def test_an_agent_on_a_wildcard_drops_another_users_broadcast_and_multicast(
     assert check.returncode == 0, check.stderr
     assert f"dropped {SPOOFS} datagrams" in check.stdout
     assert backend.run(ns, config, "--remove").returncode == 0
+
+
+# user ``nobody`` sends COUNT plain datagrams to DEST:PORT (an IPv6 socket for a v4-mapped DEST)
+PLAIN_SENDER: Final = (
+    """
+import socket, sys
+dest, port, count = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+s = socket.socket(socket.AF_INET6 if ":" in dest else socket.AF_INET, socket.SOCK_DGRAM)
+"""
+    + SEND_COUNTED
+)
+
+
+@pytest.mark.parametrize(
+    ("agent_at", "sent_to"),
+    [("::ffff:127.0.0.1", "127.0.0.1"), ("127.0.0.1", "::ffff:127.0.0.1")],
+    ids=["agent_v4_mapped", "sender_v4_mapped"],
+)
+def test_a_v4_mapped_agent_or_sender_meets_the_ipv4_rule(
+    ns: Namespace, tmp_path: Path, backend: Backend, agent_at: str, sent_to: str
+) -> None:
+    """Review 14. An agent on ``udp:::ffff:127.0.0.1:888`` (an IPv6 socket, v4-mapped)
+    receives IPv4 datagrams to 127.0.0.1. The table had only an ``ip6`` rule for it, which
+    no IPv4 datagram meets: ``nobody``'s plain datagrams to 127.0.0.1:888 all arrived past
+    the loaded table, and ``--check`` said ok (40 of 40, each backend: seen failing
+    without the fix); now the rule is 127.0.0.1's. And the other way round (this held
+    before): ``nobody`` sending from an IPv6 socket to ``::ffff:127.0.0.1`` sends IPv4,
+    which the agent's IPv4 rule drops."""
+    config = tmp_path / "swarmd.yaml"
+    config.write_text(
+        MINIMAL_CONFIG + "px4:\n  backend: xrce-agent\n"
+        f"  connection: udp:{agent_at}:{AGENT_PORT}\n  allow_network: true\n"
+        "  loopback_user: root\n"
+    )
+    family = socket.AF_INET6 if ":" in agent_at else socket.AF_INET
+    with ns.socket(family) as agent:
+        agent.bind((agent_at, AGENT_PORT))
+        agent.settimeout(RECV_TIMEOUT_S)
+        assert _plain_received(ns, agent, sent_to) == SPOOFS  # without the table: all arrive
+        applied = backend.run(ns, config, "--apply")
+        assert applied.returncode == 0, applied.stderr
+        assert _plain_received(ns, agent, sent_to) == 0  # root's (the vehicle's user) arrives
+    check = backend.run(ns, config, "--check")
+    assert check.returncode == 0, check.stderr
+    assert f"dropped {SPOOFS} datagrams" in check.stdout
+    assert backend.run(ns, config, "--remove").returncode == 0
+
+
+def _plain_received(ns: Namespace, agent: socket.socket, dest: str) -> int:
+    """``SPOOFS`` plain datagrams from ``nobody`` to ``dest``:``AGENT_PORT``, then one from
+    root to 127.0.0.1. Returns how many of nobody's arrived: loopback delivery happens
+    inside sendto, so every one that got through is queued before root's."""
+    argv = ns.command(["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"])
+    argv += [sys.executable, "-I", "-c", PLAIN_SENDER, dest, str(AGENT_PORT)]
+    done = subprocess.run(  # noqa: S603 - fixed argv
+        [*argv, str(SPOOFS)], capture_output=True, text=True, timeout=SPOOF_TIMEOUT_S, check=True
+    )
+    refused = int(done.stdout.split()[1])
+    with ns.socket(socket.AF_INET) as root:
+        root.sendto(b"root", ("127.0.0.1", AGENT_PORT))
+    received = 0
+    for _ in range(SPOOFS + 1):
+        data, _source = agent.recvfrom(64)
+        if data == b"root":
+            break
+        received += 1
+    assert received + refused == SPOOFS
+    return received

@@ -8,9 +8,11 @@ when it closes the socket before the lookup). Split from tests/test_sockdiag.py 
 from __future__ import annotations
 
 import os
+import random
 import shutil
 import socket
 import subprocess
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -273,6 +275,47 @@ def test_a_flood_from_a_port_with_a_long_hash_chain_costs_a_bounded_share_of_a_c
     assert answered == 1000  # the kept node: every one of its datagrams
 
 
+def test_a_new_node_is_found_within_seconds_under_a_long_hash_chain_flood(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Review 14, the cost cap's residual: under the flood above (20 lookups a virtual
+    millisecond, each walk LONG_WALK_S), a node that appears later and sends every 10 ms
+    (its datagrams at a seeded place among the flood's) is found only when its datagram is
+    the first to find the one-socket lookup's bucket refilled (the miss path is the
+    flood's): a chance of about RECEIVER_COST_SHARE / LONG_WALK_S over the flood's rate a
+    datagram (here ~800 walks a second against 20,000 lookups: about 1 in 25), so it
+    waits, a geometric time, not a hard bound (seed 0: found after 0.42 s, 42 datagrams
+    dropped; docs/security.md, "Residual risks: the local user"). Pinned: found within
+    FOUND_WITHIN_S, by the one-socket lookup (the miss path stays the flood's)."""
+    rng = random.Random(0)
+    now = [100.0]
+    uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
+    uids._diag = _LongChain()  # type: ignore[assignment]
+    _HugeTable.owners = {40_000: NOBODY, 7000: ME}
+    for _ in range(2000):  # the flood's first 2 s: the buckets spent
+        now[0] += 0.001
+        for _ in range(20):
+            uids.uid_of(("127.0.0.1", 40_000))
+    found_after = None
+    for ms in range(round(FOUND_WITHIN_S * 1000)):
+        now[0] += 0.001
+        node_at = rng.randrange(21) if ms % 10 == 0 else -1
+        for i in range(21):
+            if i == node_at and uids.uid_of(("127.0.0.1", 7000)) == ME:
+                found_after = ms / 1000.0
+            elif i != node_at and i < 20:
+                assert uids.uid_of(("127.0.0.1", 40_000)) in (None, NOBODY)
+        if found_after is not None:
+            break
+    assert found_after is not None  # within FOUND_WITHIN_S
+    # the seed's wait, cited in docs/security.md: a change of the lookup's budgets moves it
+    # (re-measure here and update the docs)
+    assert found_after == pytest.approx(0.42)
+    assert uids.counters["receiver_confirmed"] == 1
+
+
+FOUND_WITHIN_S = 5.0
+
 SHARED_PORT = 6000  # a node's port that ``nobody`` binds too, at another address
 
 
@@ -306,24 +349,55 @@ def test_a_user_sharing_one_nodes_port_cannot_starve_the_other_kept_sources(
     datagrams were dropped (on main: 0 of 1,000 answered after the first). Now a kept-
     priority confirmation that found the port shared is remembered for TTL_S: the flood
     spends one query per TTL_S on it, and A is answered at every datagram."""
+    node_b = ("127.0.0.1", SHARED_PORT)
+    now, uids, answered = _node_a_beside_a_flood(monkeypatch, lambda _: node_b)
+    assert answered == 1000  # A: every one of its datagrams
+    assert uids.counters["port_shared"] >= 200_000  # the denial of B, counted each time
+    _SharedPort.held = False  # nobody closes its socket: B is B's again within TTL_S
+    now[0] += TTL_S
+    assert uids.uid_of(node_b) == ME
+
+
+def test_a_user_sharing_a_nodes_wildcard_port_cannot_evict_the_shared_memory(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Attack (a local user against the shared-source memory's cap, review 14): node B
+    holds its port on the wildcard (with SO_REUSEADDR, so ``nobody`` binds it too, at
+    127.0.0.2). Every 127.0.0.N is then a source whose one-socket answer names B, and the
+    memory was keyed by address and port: ``nobody`` flooding from SOURCES addresses, more
+    than the memory's 64, evicted each entry before its turn came again, so each datagram
+    was a kept-priority query again, as before the memory, and node A's re-checks starved
+    (on main: A answered 50 of 1,000). The port's query does not depend on the source's
+    address within a family (swarmd.senderuid, ``_V4_SENDING_V6``), so the memory keys by
+    family and port: one entry for the flood, A answered at every datagram."""
+    sources = 65  # one past the memory's cap (MAX_KEPT_SOURCES)
+    _, _, answered = _node_a_beside_a_flood(
+        monkeypatch, lambda n: (f"127.0.0.{3 + n % sources}", SHARED_PORT)
+    )
+    assert answered == 1000  # A: every one of its datagrams
+
+
+def _node_a_beside_a_flood(
+    monkeypatch: pytest.MonkeyPatch, flood: Callable[[int], tuple[str, int]]
+) -> tuple[list[float], SenderUids, int]:
+    """Node A found and kept, then ``nobody``'s flood from B's shared port (``_SharedPort``,
+    held): 20 datagrams a virtual millisecond for 10 s, the nth from ``flood(n)``, each
+    nobody's (never B), and one of A's every 10 ms. Returns the clock, the lookup and how
+    many of A's 1,000 were answered as A's."""
     now = [100.0]
     uids = _huge_table_lookup(monkeypatch, now, keep_uids=frozenset({ME}))
     uids._diag = _SharedPort()  # type: ignore[assignment]
     _SharedPort.held = True
     _HugeTable.owners = {5000: ME, SHARED_PORT: ME}
-    node_a, node_b = ("127.0.0.1", 5000), ("127.0.0.1", SHARED_PORT)
+    node_a = ("127.0.0.1", 5000)
     while uids.uid_of(node_a) != ME and now[0] < 105.0:  # A found and kept
         now[0] += 0.01
     assert uids.uid_of(node_a) == ME
     answered = 0
     for ms in range(10_000):
         now[0] += 0.001
-        for _ in range(20):
-            assert uids.uid_of(node_b) is None  # B's port is shared: nobody's, never B
+        for i in range(20):
+            assert uids.uid_of(flood(ms * 20 + i)) is None  # B's port is shared: never B
         if ms % 10 == 0:
             answered += uids.uid_of(node_a) == ME
-    assert answered == 1000  # A: every one of its datagrams
-    assert uids.counters["port_shared"] >= 200_000  # the denial of B, counted each time
-    _SharedPort.held = False  # nobody closes its socket: B is B's again within TTL_S
-    now[0] += TTL_S
-    assert uids.uid_of(node_b) == ME
+    return now, uids, answered

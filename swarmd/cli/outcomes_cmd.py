@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from typing import Any, Final
 
 from swarmd.cli.status_cmd import fail_unreachable, socket_argument, table
@@ -129,10 +130,23 @@ def _issued_at(age_s: Any, wall_now: float) -> float | None:
     return wall_now - age_s
 
 
-def _iso(at: float | None) -> str | None:
+def _wall(
+    at: float | None, convert: Callable[[float], time.struct_time]
+) -> time.struct_time | None:
+    """``at`` as a calendar time, or None when it is none: a hand-edited state file's
+    decision time is any finite number (``statefile._decision``), and one past the C
+    library's range made ``gmtime``/``localtime`` raise, ending the view (review 14)."""
     if at is None:
         return None
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(at))
+    try:
+        return convert(at)
+    except (OverflowError, OSError, ValueError):
+        return None
+
+
+def _iso(at: float | None) -> str | None:
+    wall = _wall(at, time.gmtime)
+    return None if wall is None else time.strftime("%Y-%m-%dT%H:%M:%SZ", wall)
 
 
 def to_json(shown: dict[str, Any], wall_now: float, code: int) -> dict[str, Any]:
@@ -146,10 +160,10 @@ def to_json(shown: dict[str, Any], wall_now: float, code: int) -> dict[str, Any]
 
 
 def _clock(age_s: Any, wall_now: float) -> str:
-    at = _issued_at(age_s, wall_now)
-    if at is None:
+    wall = _wall(_issued_at(age_s, wall_now), time.localtime)
+    if wall is None:
         return "--:--:--"
-    return time.strftime("%H:%M:%S", time.localtime(at)) + f" ({float(age_s):.0f} s ago)"
+    return time.strftime("%H:%M:%S", wall) + f" ({float(age_s):.0f} s ago)"
 
 
 def _cid(value: Any) -> str:
