@@ -86,7 +86,10 @@ def test_a_command_whose_saves_failed_never_runs_again_after_a_restart(
 ) -> None:
     flight, earlier, cid, reborn = _run_saves_failed_and_restart(kind, answer_lost, saved=False)
     assert len(flight.ran("m01", cid)) == 1
-    assert [r.token for r in flight.swarm.requests("m01")] == [earlier, cid]
+    assert [r.origin for r in flight.swarm.requests("m01")] == [
+        ("lead", earlier),
+        ("lead", cid),
+    ]
     assert reborn.executor_counters.get("refused_memory_lost") == 1
     refusals = [
         e

@@ -14,8 +14,9 @@ commands have the same id. The plane keys what a member ran by ``(commander, id)
 
 Now an outcome goes only to the commander whose command it answers (one copy, like a
 command's: the other commanders are sent a GAP), and the core keys what it runs by
-``(commander, id)``; a command whose id still runs here for another commander is refused
-(``id_in_use``), so that commander is told at once.
+``(commander, id)``. Until session 14 the vehicle's tasks were still tagged with the bare
+id, so a command whose id still ran here for another commander was refused (``id_in_use``),
+an ABORT too; now each task has the member's own tag and both run.
 
 Virtual time on the swarm cores (``tests.test_swarm_core.Swarm``) over a bundle with a
 second commander, ``lead2``; every node starts in epoch 1.
@@ -29,8 +30,7 @@ import pytest
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
-from swarmd.px4.vehicle import TaskKind
-from swarmd.swarm.core import ID_IN_USE
+from swarmd.px4.vehicle import TaskFinished, TaskKind
 from tests import test_swarm_core
 from tests.test_dataplane_swarm import mission_text
 from tests.test_swarm_core import Swarm
@@ -66,15 +66,25 @@ def test_a_commander_is_never_told_another_commanders_command_ran(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     swarm = _two_commanders(monkeypatch)
+    # each task ends with its kind for a reason, so an answer shows which command it is
+    swarm.vehicles["m01"].answer = lambda r: TaskFinished(r.token, True, r.kind.value, None)
     hold = _issue(swarm, "lead", "hold")
     land = _issue(swarm, "lead2", "land")
     assert hold == land  # the same epoch, the same counter: the same id
     swarm.run(10.0)
-    kinds = [r.kind for r in swarm.requests("m01")]
-    assert kinds == [TaskKind.HOLD]  # the LAND came while the HOLD ran under its id
-    assert _row(swarm, "lead", hold)["state"] == "completed"
-    row = _row(swarm, "lead2", land)
-    assert (row["state"], row["reason"]) == ("rejected", ID_IN_USE)  # not "completed"
+    # the LAND came while the HOLD ran: both run, each under the member's own tag
+    assert [r.origin for r in swarm.requests("m01")] == [("lead", hold), ("lead2", land)]
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.HOLD, TaskKind.LAND]
+    assert len({r.token for r in swarm.requests("m01")}) == 2
+    # each commander was answered about its own command only
+    assert (_row(swarm, "lead", hold)["state"], _row(swarm, "lead", hold)["reason"]) == (
+        "completed",
+        "hold",
+    )
+    assert (_row(swarm, "lead2", land)["state"], _row(swarm, "lead2", land)["reason"]) == (
+        "completed",
+        "land",
+    )
 
 
 def test_the_same_id_from_another_commander_runs_once_the_first_is_done(
@@ -92,3 +102,37 @@ def test_the_same_id_from_another_commander_runs_once_the_first_is_done(
     # and each id still runs once per commander: the copies resent change nothing
     swarm.run(10.0)
     assert [r.kind for r in swarm.requests("m01")] == [TaskKind.HOLD, TaskKind.LAND]
+
+
+def test_an_abort_is_never_refused_because_another_commander_runs_its_id(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The attack (session 14): commander B's ABORT carries the id of commander A's
+    TAKEOFF, still running on m01. Before, the vehicle's tasks were tagged with the bare
+    id, so the ABORT was refused (REJECTED ``id_in_use``) and the drone kept climbing. Now
+    each task has the member's own tag: the ABORT runs at once, beside the take-off, and
+    each commander is answered about its own command only."""
+    swarm = _two_commanders(monkeypatch)
+    lead = swarm.cores["lead"]
+    sent = swarm.call(
+        "lead", lambda now: lead.request_takeoff({"alt_m": 5.0, "only": ["m01"]}, now)
+    )
+    takeoff = int(sent["command_id"])
+    swarm.run(0.3)  # the take-off runs on m01 (the played vehicle takes 1 s)
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.TAKEOFF]
+    abort = _issue(swarm, "lead2", "abort")
+    assert abort == takeoff  # the same epoch, the same counter: the same id
+    swarm.run(0.3)
+    kinds = [r.kind for r in swarm.requests("m01")]
+    assert kinds == [TaskKind.TAKEOFF, TaskKind.ABORT]  # refused id_in_use before
+    assert _row(swarm, "lead2", abort)["state"] in ("accepted", "completed")
+    swarm.run(10.0)
+    assert _row(swarm, "lead2", abort)["state"] == "completed"
+    assert (_row(swarm, "lead", takeoff)["state"], _row(swarm, "lead", takeoff)["reason"]) == (
+        "completed",
+        "IN_AIR",  # the take-off's own answer, not the ABORT's
+    )
+    assert _row(swarm, "lead2", abort)["reason"] == ""  # the ABORT's, not the take-off's
+    # each (commander, id) still runs once: the copies resent change nothing
+    swarm.run(10.0)
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.TAKEOFF, TaskKind.ABORT]
