@@ -153,6 +153,20 @@ def test_the_view_names_every_drone_that_did_not_execute_and_why() -> None:
     )
 
 
+def test_a_drone_whose_save_failed_is_marked_in_the_commanders_view() -> None:
+    """The member flagged its outcome ``OUTCOME_NOT_SAVED`` (docs/dataplane.md, "A failed
+    save"): the commander's row says so; ``--json`` keeps ``save_failed``."""
+    marked = {**_node("completed", "IN_AIR", 0.01), "save_failed": True}
+    cmd = _issued(0x15, {"uav2": marked, "uav3": _node("completed", "IN_AIR", 0.01)})
+    lines = render_kept({"issued": [cmd], "ran": []}, WALL_NOW)
+    uav2 = next(ln for ln in lines if ln.split()[:1] == ["uav2"])
+    uav3 = next(ln for ln in lines if ln.split()[:1] == ["uav3"])
+    assert "IN_AIR [not saved on drone]" in uav2 and "not saved" not in uav3
+    assert lines[-1].strip() == "2/2 executed"  # it ran: the mark is not a failure
+    body = to_json({"issued": [cmd], "ran": []}, WALL_NOW, EX_OK)
+    assert body["issued"][0]["nodes"]["uav2"]["save_failed"] is True
+
+
 def test_an_open_command_says_so_and_a_member_shows_what_it_ran() -> None:
     open_cmd = _issued(0x13, {"uav2": _node("pending")}, done=False, sent_by=None)
     open_cmd["valid_left_s"] = 4.5

@@ -191,10 +191,10 @@ class SwarmCore:
         self._tick_at = now
         self.member.start(now)
 
-    def state_saved(self, command: tuple[str, int] | None, error: str | None) -> None:
+    def state_saved(self, command: tuple[str, int] | None, error: str | None, now: float) -> None:
         """The daemon's answer to a ``PersistExecuted``: written (``error`` None) or not
-        (``Member.state_saved``)."""
-        self.member.state_saved(command, error)
+        (``Member.state_saved``: the commander is told)."""
+        self.member.state_saved(command, error, now)
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         if self.plane is None:

@@ -31,7 +31,8 @@ write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decide
 the member's ``DecisionLog`` (``swarmctl outcomes`` in a later life). The daemon answers
 each write (``state_saved``): a failed one marks the decision unsaved and does not stop
 the command, which the life rules keep from running twice (docs/dataplane.md, "A failed
-save").
+save"); its commander is told: the decision's outcome goes again, flagged
+``OUTCOME_NOT_SAVED``, and so do its later outcomes while it stays unsaved.
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
 "Outcomes across a restart"); they only answer, nothing is executed.
@@ -48,7 +49,13 @@ from typing import Any, Final, assert_never
 
 from swarmd.dataplane import DataPlane
 from swarmd.dataplane.convert import ReadinessVerdict
-from swarmd.dataplane.types import Command, CommandKind, CommandResult, PayloadError
+from swarmd.dataplane.types import (
+    OUTCOME_NOT_SAVED,
+    Command,
+    CommandKind,
+    CommandResult,
+    PayloadError,
+)
 from swarmd.dataplane.validity import (
     EXPIRED,
     MEMORY_LOST,
@@ -363,13 +370,19 @@ class Member:
         commander: str,
     ) -> None:
         self._count(f"outcome_{result.name.lower()}")
-        self._events.append(OutcomeReported(command_id, kind, result, reason))
         if commander == self.roles.me and command_id in self._own:
+            self._events.append(OutcomeReported(command_id, kind, result, reason))
             self._tracker.record(command_id, self.roles.me, result, reason, now)
             return
         self.decisions.decided(commander, command_id, kind, result, reason, now)
+        # a decision whose record a write already failed to keep says so in each outcome
+        saved = (commander, command_id) not in self.decisions.unsaved
+        self._events.append(OutcomeReported(command_id, kind, result, reason, saved))
         if self.plane is not None:
-            self.plane.report_outcome(command_id, result, now, reason, commander=commander)
+            flags = 0 if saved else OUTCOME_NOT_SAVED
+            self.plane.report_outcome(
+                command_id, result, now, reason, commander=commander, flags=flags
+            )
             # the second write: the outcome next to its id, for a re-report after a restart
             self._persist(commander, command_id)
 
@@ -385,19 +398,40 @@ class Member:
             )
         )
 
-    def state_saved(self, command: tuple[str, int] | None, error: str | None) -> None:
+    def state_saved(self, command: tuple[str, int] | None, error: str | None, now: float) -> None:
         """The daemon wrote a ``PersistExecuted`` (``error`` None) or failed to. A failed
         write does not stop the command: no sequence of restarts, resends or replays can
         run it a second time without the record, and refusing a LAND or an ABORT on a full
         disk would leave a drone in the air (docs/dataplane.md, "A failed save"). What it
         loses is the answer across a restart, so the decision is marked unsaved for
-        ``swarmctl outcomes`` (``saved: false``) until a later write holds it."""
+        ``swarmctl outcomes`` (``saved: false``) until a later write holds it, and its
+        commander is told (``_tell_not_saved``)."""
         if error is None:
             self.decisions.saved()
             return
         self._count("state_save_failed")
-        if command is not None:
-            self.decisions.save_failed(*command)
+        if command is not None and self.decisions.save_failed(*command):
+            self._tell_not_saved(*command, now)
+
+    def _tell_not_saved(self, commander: str, command_id: int, now: float) -> None:
+        """Send ``commander`` the decision's outcome again, flagged ``OUTCOME_NOT_SAVED``.
+
+        The outcome went before the write's result was known (ACCEPTED at once is the
+        commander's latency measure), so the flag comes after it, on the same result: the
+        commander's dedup keys it by its flags too, and its row keeps what it had and adds
+        the mark (``save_failed``). Once per decision that turns unsaved: a write that
+        fails again finds it unsaved already; after a successful write, a new failure is
+        told again. Nothing is decided, persisted or run."""
+        current = self.decisions.current(commander, command_id)
+        if current is None or self.plane is None or commander == self.roles.me:
+            return  # evicted, no plane, or our own drone's (never written)
+        kind, state, reason = current
+        result = CommandResult[state.upper()]
+        self._count("told_not_saved")
+        self._events.append(OutcomeReported(command_id, kind.upper(), result, reason, False))
+        self.plane.report_outcome(
+            command_id, result, now, reason, commander=commander, flags=OUTCOME_NOT_SAVED
+        )
 
     def rereport(self, commander: str, now: float) -> None:
         """``commander`` was found: if this is a new life (restarted with its state file)
