@@ -24,14 +24,18 @@ second commander, ``lead2``; every node starts in epoch 1.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import pytest
 
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
+from swarmd.dataplane import DataPlane
+from swarmd.dataplane.types import Command, CommandKind
 from swarmd.px4.vehicle import TaskFinished, TaskKind
 from tests import test_swarm_core
+from tests.test_cmd_in_flight import Flight, _reboot
 from tests.test_dataplane_swarm import mission_text
 from tests.test_swarm_core import Swarm
 
@@ -54,6 +58,10 @@ def _issue(swarm: Swarm, commander: str, kind: str) -> int:
         commander, lambda now: core.request_command({"kind": kind, "only": ["m01"]}, now)
     )
     return int(sent["command_id"])
+
+
+def _send(plane: DataPlane, command: Command, now: float) -> int:
+    return plane.send_command(command, now)
 
 
 def _row(swarm: Swarm, commander: str, cid: int) -> dict[str, Any]:
@@ -136,3 +144,40 @@ def test_an_abort_is_never_refused_because_another_commander_runs_its_id(
     # each (commander, id) still runs once: the copies resent change nothing
     swarm.run(10.0)
     assert [r.kind for r in swarm.requests("m01")] == [TaskKind.TAKEOFF, TaskKind.ABORT]
+
+
+@pytest.mark.parametrize("state_kept", [True, False])
+def test_both_commanders_ids_run_once_across_a_member_restart(
+    monkeypatch: pytest.MonkeyPatch, state_kept: bool
+) -> None:
+    """Exactly once is still per (commander, id), also across a restart of the member
+    (its state file kept, or lost): both commanders' same id ran once each, and each
+    commander's code resending it to the new life runs nothing (the executed pairs, or
+    the life rules: docs/dataplane.md, "A life runs only its own commands")."""
+    _two_commanders(monkeypatch)  # the bundle with lead2, for the flight below
+    flight = Flight(2, seed=32)
+    swarm = flight.swarm
+    swarm.run(2.0)
+    hold = _issue(swarm, "lead", "hold")
+    land = _issue(swarm, "lead2", "land")
+    assert hold == land
+    swarm.run(3.0)
+    ran = [("lead", hold), ("lead2", land)]
+    assert sorted(r.origin or ("", 0) for r in swarm.requests("m01")) == ran
+    _reboot(flight, "m01", state_kept=state_kept)
+    swarm.run(1.0)
+    for commander, kind in (("lead", CommandKind.HOLD), ("lead2", CommandKind.LAND)):
+        plane = swarm.cores[commander].plane
+        assert plane is not None
+        echoes = plane.time_echoes(["m01"], swarm.net.now)
+        again = Command(hold, kind, 0.0, ["m01"], 3000, echoes)
+        swarm.call(commander, functools.partial(_send, plane, again))
+    swarm.run(10.0)
+    assert sorted(r.origin or ("", 0) for r in swarm.requests("m01")) == ran
+    refused = swarm.cores["m01"].executor_counters
+    plane = swarm.cores["m01"].plane
+    assert plane is not None
+    if state_kept:  # the executed pairs came back with the file: both copies duplicates
+        assert plane.counters["command_duplicate"] >= 2
+    else:  # the new life cannot date them into itself
+        assert refused.get("refused_memory_lost") == 2
