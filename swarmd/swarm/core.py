@@ -24,8 +24,9 @@ Outputs: ``datagrams_to_send()``, ``get_timer()``, ``next_event()``. Two events 
 for the driver, in this order for each command: ``PersistExecuted`` (write the state file
 before anything moves: a crash then loses a command, never repeats it; docs/dataplane.md,
 "Exactly once") and ``px4.vehicle.VehicleRequest`` (what the vehicle should do, tagged with
-the command id). Each outcome a member decides is followed by another ``PersistExecuted``
-carrying it next to its id. The others are for the log.
+the member's own task number, never the command id: ``member.py``). Each outcome a member
+decides is followed by another ``PersistExecuted`` carrying it next to its id. The others
+are for the log.
 
 Each side's state lives with it: ``issuer.py`` (``Issuer``: request validation, issuing,
 the tracker's records, withdrawal at the end of a validity), ``member.py`` (``Member``:
