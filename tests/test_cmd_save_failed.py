@@ -172,19 +172,25 @@ def _row(flight: Flight, cid: int) -> dict[str, Any]:
     return row
 
 
+def _issued_onto_a_full_disk(seed: int, kind: CommandKind) -> tuple[Flight, dict[str, bool], int]:
+    """m01's writes succeed for 3 s, then fail (``disk["full"]``, the caller may empty it)
+    from the command of ``kind`` the commander issues then; its id."""
+    flight = Flight(1, seed=seed)
+    disk = {"full": False}
+    _saves(flight, "m01", lambda: disk["full"])
+    flight.swarm.run(3.0)
+    disk["full"] = True
+    return flight, disk, int(_issue(flight.swarm, kind)["command_id"])
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_the_commanders_row_says_the_members_save_failed(kind: CommandKind) -> None:
     """The member's writes fail from the command on: its ACCEPTED left before the first
     write's result was known, so the mark follows at once on the same result, and the
     final outcome carries it too; the commander's row keeps it (``save_failed``, shown by
     ``swarmctl outcomes`` there). Before, only the drone's own view said so."""
-    flight = Flight(1, seed=62)
+    flight, _, cid = _issued_onto_a_full_disk(62, kind)
     swarm = flight.swarm
-    failing = False
-    _saves(flight, "m01", lambda: failing)
-    swarm.run(3.0)
-    failing = True
-    cid = int(_issue(swarm, kind)["command_id"])
     swarm.run(0.3)  # answered, the task still running (the played vehicle takes 1 s)
     assert (_row(flight, cid)["state"], _row(flight, cid)["save_failed"]) == ("accepted", True)
     swarm.run(5.0)
@@ -221,20 +227,15 @@ def test_a_refusal_whose_save_failed_is_marked_and_a_later_write_keeps_the_mark(
     """A REJECTED decision (a TAKEOFF to a drone that is not ready when it arrives) is
     marked as well; once a later write succeeds the drone's own view says saved again,
     the commander's row keeps what it was told (the write failed then)."""
-    flight = Flight(1, seed=63)
+    flight, disk, cid = _issued_onto_a_full_disk(63, CommandKind.TAKEOFF)
     swarm = flight.swarm
-    failing = False
-    _saves(flight, "m01", lambda: failing)
-    swarm.run(3.0)
-    failing = True
-    cid = int(_issue(swarm, CommandKind.TAKEOFF)["command_id"])
     swarm.vehicles["m01"].verdict.ready = False  # after the commander's check, before m01's
     swarm.vehicles["m01"].verdict.reason = "gps_no_fix"
     swarm.run(3.0)
     row = _row(flight, cid)
     assert (row["state"], row["reason"], row["save_failed"]) == ("rejected", "gps_no_fix", True)
     assert flight.ran("m01", cid) == []
-    failing = False
+    disk["full"] = False
     swarm.vehicles["m01"].verdict.ready, swarm.vehicles["m01"].verdict.reason = True, None
     swarm.run(1.0)
     hold = int(_issue(swarm, CommandKind.HOLD)["command_id"])
