@@ -468,6 +468,7 @@ class SwarmApp:
                     kind=event.kind,
                     result=event.result.name,
                     reason=event.reason,
+                    saved=event.saved,
                 )
             case OutcomesReReported():
                 self.log.info(
@@ -483,6 +484,7 @@ class SwarmApp:
                     result=event.result.name,
                     reason=event.reason,
                     known=event.known,
+                    saved=event.saved,
                 )
             case PeerTrafficVerified(node=node):
                 if self.on_peer_traffic is not None:
@@ -517,7 +519,7 @@ class SwarmApp:
                 effect="the command still runs; after a restart its answer is not re-reported "
                 "and no copy of it runs again (docs/dataplane.md, 'A failed save')",
             )
-        self._core().state_saved(event.command, error)
+        self._core().state_saved(event.command, error, self._driver().now())
 
     def _wall_offset(self) -> float:
         """Unix time minus the core's clock (``loop.time()``, CLOCK_MONOTONIC_RAW): the

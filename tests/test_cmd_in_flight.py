@@ -69,7 +69,7 @@ class Flight:
 
     def ran(self, name: str, command_id: int) -> list[float]:
         """When ``name``'s vehicle was told to carry out ``command_id``."""
-        return [t for n, r, t in self.moved if n == name and r.token == command_id]
+        return [t for n, r, t in self.moved if n == name and r.origin == ("lead", command_id)]
 
     def kept(self, name: str) -> PersistExecuted:
         """What ``name``'s state dir holds: its last ``PersistExecuted`` (none: empty)."""

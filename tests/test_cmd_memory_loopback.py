@@ -21,7 +21,9 @@ The same with a state dir made unwritable (``chattr +i``: root writes through a 
 through the immutable flag) once uav2 has booted, so every write of the HOLD's record
 fails, and writable again for the restart (docs/dataplane.md, "A failed save"): the HOLD
 runs, and the operator is told: ``state_save_failed`` names the command, the status counts
-it, ``swarmctl outcomes`` on uav2 marks its decision unsaved. While the dir stays
+it, ``swarmctl outcomes`` on uav2 marks its decision unsaved, and uav1's row for it says
+``save_failed`` (uav2 flagged its outcome ``OUTCOME_NOT_SAVED``; with the file deleted
+instead, the row is not marked). While the dir stays
 unwritable uav2 does not start again (exit 73); once writable, the restart boots on a file
 without the HOLD, and the resend is refused as above.
 Waits have caps; nothing asserts how fast anything happened.
@@ -122,7 +124,11 @@ def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(
                 )
                 assert _executor(swarm, 1).get("outcome_accepted") == 1
                 if memory == "save_failed":
+                    # the commander's operator is told too: uav2 flags its outcome
+                    await until(lambda: _row(app, cid)["save_failed"], lambda: _row(app, cid))
                     _told_the_save_failed(swarm, cid, logs)
+                else:
+                    assert _row(app, cid)["save_failed"] is False
                 plane = app.plane
                 assert plane is not None
                 epoch_before = plane.peer_epoch("uav2")
@@ -177,9 +183,22 @@ def test_a_member_restarted_without_its_state_file_refuses_a_resent_id(
         run_on_raw_clock(main())
 
 
+def _row(app: Any, cid: int) -> dict[str, Any]:
+    row: dict[str, Any] = app.request_outcomes({"command_id": cid})["nodes"]["uav2"]
+    return row
+
+
 def _told_the_save_failed(swarm: Swarm, cid: int, logs: list[MutableMapping[str, Any]]) -> None:
     """The operator learns of the failed save: the log line names the command, the status
-    counts it, ``swarmctl outcomes`` on the drone marks the decision."""
+    counts it, ``swarmctl outcomes`` on the drone marks the decision, and the commander
+    logged the flagged outcome (``saved: false``)."""
+    flagged = [
+        e
+        for e in logs
+        if e["event"] == "command_outcome_received" and e.get("node") == "uav1"
+        if e.get("command_id") == cid and e.get("saved") is False
+    ]
+    assert flagged, [e for e in logs if e["event"] == "command_outcome_received"]
     failed = [e for e in logs if e["event"] == "state_save_failed" and e.get("node") == "uav2"]
     assert any(e["command_id"] == cid and e["commander"] == "uav1" for e in failed), failed
     app = swarm.daemons[1].app

@@ -142,7 +142,7 @@ def test_back_while_valid_the_row_says_what_the_member_did(
     snap = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)
     assert snap["done"], snap
     # never twice: one vehicle request in both lives, none from the re-report
-    assert [r.token for r in _vehicle_requests(flight, "m01")] == [cid]
+    assert [r.origin for r in _vehicle_requests(flight, "m01")] == [("lead", cid)]
     assert [r.kind for r in swarm.requests("m01")] == [TaskKind.TAKEOFF]
     plane = swarm.cores["m01"].plane
     assert plane is not None and plane.counters.get("commands_received", 0) == 0
@@ -190,7 +190,7 @@ def test_seen_restarted_before_its_re_report_arrives_the_row_is_not_settled_yet(
             False,
         )
     assert swarm.net.now < seen + UNREACHABLE_GRACE_S + 1.0 < issued + 30.0
-    assert [r.token for r in _vehicle_requests(flight, "m01")] == [cid]
+    assert [r.origin for r in _vehicle_requests(flight, "m01")] == [("lead", cid)]
 
 
 def _unreachable_after_a_restart(seed: int) -> tuple[Flight, int]:
@@ -227,7 +227,7 @@ def test_back_after_the_validity_an_answer_replaces_unreachable(seed: int) -> No
     swarm.run(2.0)
     row = _row(flight, cid)
     assert (row["state"], row["reason"], row["after_restart"]) == ("completed", "IN_AIR", True)
-    assert [r.token for r in _vehicle_requests(flight, "m01")] == [cid]
+    assert [r.origin for r in _vehicle_requests(flight, "m01")] == [("lead", cid)]
 
 
 def test_the_re_report_goes_out_once_and_not_long_after_the_restart() -> None:
@@ -370,7 +370,10 @@ def test_a_replayed_old_outcome_cannot_change_a_newer_row() -> None:
     swarm.run(3.0)
     assert swarm.cores["m01"].counters["outcomes_rereported"] == 2
     assert _row(flight, cid_a) == row_a and _row(flight, cid_b) == row_b
-    assert [r.token for r in _vehicle_requests(flight, "m01")] == [cid_a, cid_b]
+    assert [r.origin for r in _vehicle_requests(flight, "m01")] == [
+        ("lead", cid_a),
+        ("lead", cid_b),
+    ]
 
 
 def test_the_tracker_takes_a_later_lifes_answer_only_where_it_adds_the_truth() -> None:

@@ -17,10 +17,17 @@ taking those rules away: then the resend runs a second time exactly when the sav
 What the failed save does lose is the answer across a restart (no re-report), so the
 operator is told: the decision is marked unsaved (``swarmctl outcomes``, ``saved: false``)
 until a later write holds it; the daemon's log line and counter are
-``tests/test_cmd_memory_loopback.py``'s (a real daemon on a read-only state dir).
+``tests/test_cmd_memory_loopback.py``'s (a real daemon on a read-only state dir). And
+since session 14 the commander's operator is told too: the member sends the decision's
+outcome again flagged ``OUTCOME_NOT_SAVED`` (its ACCEPTED went before the write's result
+was known), and each later outcome while it stays unsaved; the commander's row keeps the
+mark (``save_failed``, ``swarmctl outcomes`` on the commander).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 
@@ -28,7 +35,7 @@ from swarmd.dataplane.types import Command, CommandKind, CommandResult
 from swarmd.dataplane.validity import MEMORY_LOST, Judgement, ReportLog
 from swarmd.swarm import member
 from swarmd.swarm.core import SwarmCore
-from swarmd.swarm.events import OutcomeReported
+from swarmd.swarm.events import OutcomeRecorded, OutcomeReported, PersistExecuted
 from tests.test_cmd_in_flight import Flight, _issue, _reboot
 from tests.test_swarm_core import Swarm
 
@@ -86,7 +93,10 @@ def test_a_command_whose_saves_failed_never_runs_again_after_a_restart(
 ) -> None:
     flight, earlier, cid, reborn = _run_saves_failed_and_restart(kind, answer_lost, saved=False)
     assert len(flight.ran("m01", cid)) == 1
-    assert [r.token for r in flight.swarm.requests("m01")] == [earlier, cid]
+    assert [r.origin for r in flight.swarm.requests("m01")] == [
+        ("lead", earlier),
+        ("lead", cid),
+    ]
     assert reborn.executor_counters.get("refused_memory_lost") == 1
     refusals = [
         e
@@ -129,8 +139,111 @@ def test_a_failed_save_marks_the_decision_unsaved_until_a_write_succeeds() -> No
         return {r["command_id"]: r["saved"] for r in ran}
 
     assert saved() == {cid: True}
-    core.state_saved(("lead", cid), "cannot write: No space left on device")
+    core.state_saved(("lead", cid), "cannot write: No space left on device", swarm.net.now)
     assert saved() == {cid: False}
     assert core.executor_counters["state_save_failed"] == 1
-    core.state_saved(("lead", cid), None)
+    core.state_saved(("lead", cid), None, swarm.net.now)
     assert saved() == {cid: True}
+
+
+NO_SPACE = "cannot write: No space left on device"
+
+
+def _saves(flight: Flight, name: str, fails: Callable[[], bool]) -> None:
+    """``name``'s daemon answers each ``PersistExecuted`` at once, as ``SwarmApp._persist``
+    does: failed (a full disk) while ``fails()``, else written."""
+    swarm = flight.swarm
+    on_event = swarm.net.on_event
+    assert on_event is not None
+
+    def answer(node_id: int, event: Any, now: float) -> None:
+        on_event(node_id, event, now)
+        if isinstance(event, PersistExecuted) and node_id == swarm.ids[name]:
+            swarm.cores[name].state_saved(event.command, NO_SPACE if fails() else None, now)
+
+    swarm.net.on_event = answer
+
+
+def _row(flight: Flight, cid: int) -> dict[str, Any]:
+    swarm = flight.swarm
+    row: dict[str, Any] = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)["nodes"][
+        "m01"
+    ]
+    return row
+
+
+def _issued_onto_a_full_disk(seed: int, kind: CommandKind) -> tuple[Flight, dict[str, bool], int]:
+    """m01's writes succeed for 3 s, then fail (``disk["full"]``, the caller may empty it)
+    from the command of ``kind`` the commander issues then; its id."""
+    flight = Flight(1, seed=seed)
+    disk = {"full": False}
+    _saves(flight, "m01", lambda: disk["full"])
+    flight.swarm.run(3.0)
+    disk["full"] = True
+    return flight, disk, int(_issue(flight.swarm, kind)["command_id"])
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_commanders_row_says_the_members_save_failed(kind: CommandKind) -> None:
+    """The member's writes fail from the command on: its ACCEPTED left before the first
+    write's result was known, so the mark follows at once on the same result, and the
+    final outcome carries it too; the commander's row keeps it (``save_failed``, shown by
+    ``swarmctl outcomes`` there). Before, only the drone's own view said so."""
+    flight, _, cid = _issued_onto_a_full_disk(62, kind)
+    swarm = flight.swarm
+    swarm.run(0.3)  # answered, the task still running (the played vehicle takes 1 s)
+    assert (_row(flight, cid)["state"], _row(flight, cid)["save_failed"]) == ("accepted", True)
+    swarm.run(5.0)
+    assert (_row(flight, cid)["state"], _row(flight, cid)["save_failed"]) == ("completed", True)
+    issued = swarm.lead.request_outcomes({}, swarm.net.now)["issued"]
+    assert issued[0]["nodes"]["m01"]["save_failed"] is True
+    # the mark changed nothing else: run once, answered once per result, flagged after
+    assert len(flight.ran("m01", cid)) == 1
+    told = [e for e in swarm.events["m01"] if isinstance(e, OutcomeReported)]
+    assert [(e.result, e.saved) for e in told if e.command_id == cid] == [
+        (CommandResult.ACCEPTED, True),
+        (CommandResult.ACCEPTED, False),
+        (CommandResult.COMPLETED, False),
+    ]
+    recorded = [e for e in swarm.events["lead"] if isinstance(e, OutcomeRecorded)]
+    assert [e.saved for e in recorded if e.command_id == cid] == [True, False, False]
+    assert swarm.cores["m01"].executor_counters["told_not_saved"] == 1
+
+
+def test_a_saved_decision_leaves_the_row_unmarked() -> None:
+    """The control: every write succeeds, no outcome is flagged, no row is marked."""
+    flight = Flight(1, seed=62)
+    swarm = flight.swarm
+    _saves(flight, "m01", lambda: False)
+    swarm.run(3.0)
+    cid = int(_issue(swarm, CommandKind.HOLD)["command_id"])
+    swarm.run(5.0)
+    assert (_row(flight, cid)["state"], _row(flight, cid)["save_failed"]) == ("completed", False)
+    told = [e for e in swarm.events["m01"] if isinstance(e, OutcomeReported)]
+    assert all(e.saved for e in told)
+
+
+def test_a_refusal_whose_save_failed_is_marked_and_a_later_write_keeps_the_mark() -> None:
+    """A REJECTED decision (a TAKEOFF to a drone that is not ready when it arrives) is
+    marked as well; once a later write succeeds the drone's own view says saved again,
+    the commander's row keeps what it was told (the write failed then)."""
+    flight, disk, cid = _issued_onto_a_full_disk(63, CommandKind.TAKEOFF)
+    swarm = flight.swarm
+    swarm.vehicles["m01"].verdict.ready = False  # after the commander's check, before m01's
+    swarm.vehicles["m01"].verdict.reason = "gps_no_fix"
+    swarm.run(3.0)
+    row = _row(flight, cid)
+    assert (row["state"], row["reason"], row["save_failed"]) == ("rejected", "gps_no_fix", True)
+    assert flight.ran("m01", cid) == []
+    disk["full"] = False
+    swarm.vehicles["m01"].verdict.ready, swarm.vehicles["m01"].verdict.reason = True, None
+    swarm.run(1.0)
+    hold = int(_issue(swarm, CommandKind.HOLD)["command_id"])
+    swarm.run(5.0)
+    ran = {
+        r["command_id"]: r["saved"]
+        for r in swarm.cores["m01"].request_outcomes({}, swarm.net.now)["ran"]
+    }
+    assert ran == {cid: True, hold: True}
+    assert _row(flight, cid)["save_failed"] is True
+    assert _row(flight, hold)["save_failed"] is False

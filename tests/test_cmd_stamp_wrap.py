@@ -67,7 +67,7 @@ def test_the_same_copy_released_in_time_runs() -> None:
     cid, sent_at = _cut_takeoff(swarm)
     held = _command_datagrams(swarm, cid, "m01", sent_at)
     events = _release(swarm, held[0], sent_at + 1.0)
-    assert [e.token for e in events if isinstance(e, VehicleRequest)] == [cid]
+    assert [e.origin for e in events if isinstance(e, VehicleRequest)] == [("lead", cid)]
 
 
 def test_the_report_log_keeps_exactly_the_span_a_runnable_command_can_echo() -> None:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import math
 import struct
+from dataclasses import dataclass, replace
 from typing import Any
 
 import pytest
+from cyclonedds_idl import IdlStruct
 from cyclonedds_idl._support import Endianness
+from cyclonedds_idl.types import uint64
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -18,13 +21,16 @@ from swarmd.dataplane.types import (
     MAX_REASON_CHARS,
     MAX_TARGETS,
     MAX_VALID_MS,
+    OUTCOME_NOT_SAVED,
     TYPES_BY_NAME,
     Command,
     CommandKind,
     CommandOutcome,
     CommandResult,
+    NodeName,
     PayloadError,
     Readiness,
+    Reason,
     Sample,
     TimeEcho,
     decode_sample,
@@ -197,6 +203,7 @@ outcome_st = st.builds(
     node=names,
     result=st.sampled_from(list(CommandResult)),
     reason=names,
+    flags=st.one_of(st.just(0), st.integers(0, 255)),
 )
 
 
@@ -204,7 +211,10 @@ outcome_st = st.builds(
 def test_round_trip(sample: Sample) -> None:
     payload = encode_sample(sample)
     assert payload[:2] == b"\x00\x01" and len(payload) % 4 == 0
-    assert payload[3] & 0x03 == -len(sample.serialize()) % 4
+    # an outcome without flags is written without the flags octet (the earlier layout)
+    unflagged = isinstance(sample, CommandOutcome) and not sample.flags
+    body = len(sample.serialize()) - 4 - (1 if unflagged else 0)
+    assert len(payload) - 4 - (payload[3] & 0x03) == body
     assert decode_sample(payload, type(sample)) == sample
 
 
@@ -233,3 +243,42 @@ def test_corrupted_payload_decodes_valid_or_raises_payload_error(
     except PayloadError:
         return
     encode_sample(decoded)  # whatever got through is a valid sample again
+
+
+@dataclass
+class EarlierOutcome(IdlStruct, typename="swarmd::CommandOutcome"):
+    """``swarmd::CommandOutcome`` as builds before session 14 declare it: no ``flags``."""
+
+    command_id: uint64
+    node: NodeName
+    result: CommandResult
+    reason: Reason
+
+
+def _earlier_payload(outcome: EarlierOutcome) -> bytes:
+    raw = outcome.serialize(endianness=Endianness.Little, use_version_2=False)
+    padding = -len(raw) % 4
+    return raw[:2] + bytes((0, padding)) + raw[4:] + bytes(padding)
+
+
+@given(outcome_st)
+def test_outcomes_cross_builds_both_ways(outcome: CommandOutcome) -> None:
+    """The flags octet is written only when a flag is set: an unflagged outcome is the
+    earlier builds' bytes exactly; an earlier build reads a flagged one and ignores the
+    flag (the IDL layer leaves the tail unread); this build reads an earlier build's
+    outcome as flags 0 (docs/wire.md, "The outcome's flags")."""
+    earlier = EarlierOutcome(outcome.command_id, outcome.node, outcome.result, outcome.reason)
+    payload = encode_sample(outcome)
+    if not outcome.flags:
+        assert payload == _earlier_payload(earlier)
+    body_end = len(payload) - (payload[3] & 0x03)
+    assert EarlierOutcome.deserialize(payload[:body_end], has_header=True) == earlier
+    back = decode_sample(_earlier_payload(earlier), CommandOutcome)
+    assert (back, back.flags) == (replace(outcome, flags=0), 0)
+
+
+def test_a_flagged_outcome_is_one_octet_more_than_the_earlier_layout() -> None:
+    out = CommandOutcome(7, "uav1", CommandResult.ACCEPTED, "x", OUTCOME_NOT_SAVED)
+    body = struct.pack("<QI5s3xII2sB", 7, 5, b"uav1\0", 0, 2, b"x\0", OUTCOME_NOT_SAVED)
+    assert encode_sample(out) == b"\x00\x01\x00\x01" + body + b"\x00"
+    assert decode_sample(encode_sample(out), CommandOutcome).flags == OUTCOME_NOT_SAVED

@@ -10,6 +10,7 @@ real ``swarmctl``. Waiting for a state with a generous cap is not a timing asser
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import subprocess
@@ -20,6 +21,7 @@ from typing import Any
 
 import pytest
 
+from swarmd.cli import takeoff_cmd
 from swarmd.cli.outcomes_cmd import exit_code, render_kept, select, to_json
 from swarmd.cli.swarmctl import build_parser
 from swarmd.control import ControlClient, ControlServer
@@ -34,6 +36,7 @@ from tests.daemon_support import (
     swarm_sections,
     write_bundle,
 )
+from tests.test_cmd_validity import _Outcomes
 
 SWARMCTL = str(Path(sys.executable).parent / "swarmctl")
 HOSTILE = "uav9\x1b[2J\x1b]0;owned\x07\x9b31m\u202eydaer"
@@ -151,6 +154,36 @@ def test_the_view_names_every_drone_that_did_not_execute_and_why() -> None:
         "1/3 executed; did not: uav3 (unreachable: not_reached_while_valid), "
         "uav4 (rejected: expired)"
     )
+
+
+def test_a_drone_whose_save_failed_is_marked_in_the_commanders_view() -> None:
+    """The member flagged its outcome ``OUTCOME_NOT_SAVED`` (docs/dataplane.md, "A failed
+    save"): the commander's row says so; ``--json`` keeps ``save_failed``."""
+    marked = {**_node("completed", "IN_AIR", 0.01), "save_failed": True}
+    cmd = _issued(0x15, {"uav2": marked, "uav3": _node("completed", "IN_AIR", 0.01)})
+    lines = render_kept({"issued": [cmd], "ran": []}, WALL_NOW)
+    uav2 = next(ln for ln in lines if ln.split()[:1] == ["uav2"])
+    uav3 = next(ln for ln in lines if ln.split()[:1] == ["uav3"])
+    assert "IN_AIR [not saved on drone]" in uav2 and "not saved" not in uav3
+    assert lines[-1].strip() == "2/2 executed"  # it ran: the mark is not a failure
+    body = to_json({"issued": [cmd], "ran": []}, WALL_NOW, EX_OK)
+    assert body["issued"][0]["nodes"]["uav2"]["save_failed"] is True
+
+
+def test_swarmctl_following_a_command_says_when_a_drone_could_not_save(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``swarmctl hold`` (any command it follows) prints one line when a drone's row gets
+    the mark, and its closing table shows it; the command still counts as confirmed."""
+    marked = {**_node("completed", "", 0.01), "save_failed": True}
+    snap = {**_issued(0x16, {"uav2": marked}, kind="hold"), "valid_left_s": 0.0}
+    run = takeoff_cmd._Run(argparse.Namespace(json=False, timeout=30.0))
+    reply = {"command_id": 0x16, "ready": ["uav2"], "valid_for_s": 10.0}
+    code = takeoff_cmd._follow(_Outcomes(snap), run, reply, "hold")  # type: ignore[arg-type]
+    out = capsys.readouterr().out
+    assert code == EX_OK
+    assert out.count("uav2: its daemon could not write its record of this command") == 1
+    assert "- [not saved on drone]" in out and "hold: 1/1 confirmed" in out
 
 
 def test_an_open_command_says_so_and_a_member_shows_what_it_ran() -> None:

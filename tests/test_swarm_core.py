@@ -216,8 +216,8 @@ def test_land_hold_abort_reach_the_vehicle_and_complete(kind: str, task: TaskKin
     nodes = swarm.run_until_done(sent["command_id"])["nodes"]
     assert {n: s["state"] for n, s in nodes.items()} == {"m01": "completed", "m02": "completed"}
     for m in swarm.members:
-        assert [(r.kind, r.token, r.alt_m) for r in swarm.requests(m)] == [
-            (task, sent["command_id"], None)
+        assert [(r.kind, r.origin, r.alt_m) for r in swarm.requests(m)] == [
+            (task, ("lead", sent["command_id"]), None)
         ]
 
 

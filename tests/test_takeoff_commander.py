@@ -80,6 +80,7 @@ def test_tracker_outcomes_accepted_then_final_once() -> None:
         "latency_s": 0.01,
         "done_s": 1.0,
         "after_restart": False,
+        "save_failed": False,
     }
     assert snap["nodes"]["b"]["state"] == "pending"
     assert snap["nodes"]["c"] == {
@@ -88,6 +89,7 @@ def test_tracker_outcomes_accepted_then_final_once() -> None:
         "latency_s": None,
         "done_s": None,
         "after_restart": False,
+        "save_failed": False,
     }
     tracker.record(7, "b", CommandResult.REJECTED, "armed", 100.5)
     done = tracker.snapshot(7, 103.0)

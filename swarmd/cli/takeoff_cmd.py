@@ -12,7 +12,9 @@ it for good. A drone that did not answer while the command was valid is reported
 ``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity"). A
 drone whose daemon restarted before its answer arrived tells the commander afterwards what
 it did; such a row is marked as told after a restart (``after_restart`` in ``--json``;
-docs/dataplane.md, "Outcomes across a restart").
+docs/dataplane.md, "Outcomes across a restart"). A drone that could not write its record of
+the command to its state file says so, and its row is marked ``[not saved on drone]``
+(``save_failed``; docs/dataplane.md, "A failed save").
 
 Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
 1 some drone refused, failed, was unreachable while the command was valid, or did not
@@ -257,10 +259,18 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
         + (f"; refused: {_reasons(refused)}" if refused else "")
     )
     seen: dict[str, str] = {}
+    told_not_saved: set[str] = set()
     snap: dict[str, Any] = {}
     while True:
         snap = client.request("outcomes", command_id=cid)
         for name, node in snap["nodes"].items():
+            if node.get("save_failed") and name not in told_not_saved:
+                told_not_saved.add(name)  # docs/operations.md, "state_save_failed"
+                run.say(
+                    f"  {name}: its daemon could not write its record of this command to "
+                    "its state file (the command still runs there; after a restart it "
+                    "will not re-report this answer)"
+                )
             state = node["state"]
             if seen.get(name) != state and state != "pending":
                 seen[name] = state
@@ -361,6 +371,8 @@ def render_outcomes(snap: dict[str, Any]) -> list[str]:
         reason = str(n.get("reason") or "-")
         if n.get("after_restart"):
             reason += " [after restart]"
+        if n.get("save_failed"):
+            reason += " [not saved on drone]"
         rows.append(
             [
                 name,

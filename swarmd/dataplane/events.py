@@ -36,8 +36,8 @@ class CommandReceived(Event):
 
 @dataclass(frozen=True, slots=True)
 class OutcomeReceived(Event):
-    """A member's report on a command; once per (node, boot epoch, command id, result).
-    ``epoch``: the boot epoch of the member's life that sent it (its authenticated
+    """A member's report on a command; once per (node, boot epoch, command id, result,
+    flags). ``epoch``: the boot epoch of the member's life that sent it (its authenticated
     datagram's), so the commander can tell a later life's re-report of an earlier life's
     outcome (docs/dataplane.md, "Outcomes across a restart")."""
 

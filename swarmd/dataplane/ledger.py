@@ -13,8 +13,8 @@ plane keeps the wire: matching, authentication, readers and writers).
   the ids, so a restarted member can tell its commander what it did before the restart
   (docs/dataplane.md, "Outcomes across a restart"); the ids restored at start-up, with
   their outcomes, are the earlier lives' (``earlier_outcomes``).
-- Commander side: the ``(node, boot epoch, command id, result)`` outcomes already reported
-  up (the epoch: a member's later life may re-report what its earlier one said), and the
+- Commander side: the ``(node, boot epoch, command id, result, flags)`` outcomes already
+  reported up (the epoch: a member's later life may re-report what its earlier one said), and the
   command SNs still in the writer's history (so a member's copies that will not be handed
   over can be named by command id, ``CommandCopyVoided``), and the first dating of each
   command it sent (validity and per-target echoes), which every later send of the same id
@@ -36,7 +36,8 @@ from swarmd.rtps.types import GuidPrefix
 # MAX_HISTORY_DEPTH samples, so an id older than this many commands can no longer be resent by
 # an honest commander; the cap stops a flood of fresh ids from growing memory without bound.
 MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
-# (node, command id, result) outcomes already reported up, same reasoning on the commander.
+# (node, epoch, command id, result, flags) outcomes already reported up, same reasoning on
+# the commander.
 MAX_SEEN_OUTCOMES: Final = 4096
 
 # Commands whose first dating (validity, echoes) the commander keeps for a resend of the
@@ -72,7 +73,7 @@ class CommandLedger:
             if (commander, command_id) in self._executed:
                 self._executed[commander, command_id] = (result, reason)
         self._earlier: tuple[KeptOutcome, ...] = tuple(self.outcomes)
-        self._outcomes: OrderedDict[tuple[str, int, int, int], None] = OrderedDict()
+        self._outcomes: OrderedDict[tuple[str, int, int, int, int], None] = OrderedDict()
         # The commander's command SNs still in its writer's history -> command id.
         self._command_ids: OrderedDict[int, int] = OrderedDict()
         # command id -> (valid_ms, echoes) as first sent (the commander's)
@@ -118,10 +119,14 @@ class CommandLedger:
 
     # --- commander side ---------------------------------------------------------------------
 
-    def new_outcome(self, node: str, epoch: int, command_id: int, result: int) -> bool:
+    def new_outcome(
+        self, node: str, epoch: int, command_id: int, result: int, flags: int = 0
+    ) -> bool:
         """True the first time ``node`` in boot ``epoch`` reports ``result`` for
-        ``command_id``."""
-        key = (node, epoch, command_id, result)
+        ``command_id`` with ``flags``: the same result flagged ``OUTCOME_NOT_SAVED`` after
+        it is the member's word that its record of it could not be written (docs/dataplane.md,
+        "A failed save")."""
+        key = (node, epoch, command_id, result, flags)
         if key in self._outcomes:
             return False
         self._remember(self._outcomes, key, MAX_SEEN_OUTCOMES)

@@ -335,15 +335,18 @@ class DataPlane:
         reason: str = "",
         *,
         commander: str | None = None,
+        flags: int = 0,
     ) -> int:
         """Tell the commander what this member did with ``command_id`` (reliable). With
         ``commander`` (whose command it is), the outcome goes to that commander only (its
         own copy; other readers are sent a GAP) and is kept next to the executed id, for
         ``executed_outcomes``: ids are unique per commander only, and an outcome names
         none, so another commander with the same id would take it as its own answer
-        (docs/dataplane.md, "Exactly once" 4). Without, it goes to every reader."""
+        (docs/dataplane.md, "Exactly once" 4). Without, it goes to every reader.
+        ``flags``: ``OUTCOME_NOT_SAVED`` when this node could not write its record of the
+        decision (docs/dataplane.md, "A failed save")."""
         reason = reason.encode("utf-8")[:MAX_REASON_CHARS].decode("utf-8", "ignore")
-        outcome = CommandOutcome(command_id, self.local.name, result, reason)
+        outcome = CommandOutcome(command_id, self.local.name, result, reason, flags)
         target = None if commander is None else self._participants.get(commander)
         if target is None:
             return self._publish(TOPIC_OUTCOME, outcome, now)

@@ -4,7 +4,8 @@ A sample reaches here only after its datagram passed authentication (``pairs.py`
 its reader delivered it (``reader.py``). Readiness is kept per member (how many, the
 latest, when, in which of the member's lives): the commander dates a command with it
 (``time_echoes``; docs/dataplane.md, "Validity"). A command is handed on once per
-``(commander, id)`` and an outcome once per ``(node, epoch, id, result)`` (``ledger.py``).
+``(commander, id)`` and an outcome once per ``(node, epoch, id, result, flags)``
+(``ledger.py``).
 A sample naming another node than its sender is refused (``node_mismatch``).
 
 Split out of ``plane.py`` by concern: the plane keeps the peers' sessions and the wire.
@@ -149,7 +150,7 @@ class Received:
             return "node_mismatch", f"{peer_name} sent outcome of {outcome.node}"
         epoch = self._pairs.channels[self._participants[peer_name].guid_prefix].peer_epoch
         if not self._ledger.new_outcome(
-            peer_name, epoch, outcome.command_id, int(outcome.result.value)
+            peer_name, epoch, outcome.command_id, int(outcome.result.value), outcome.flags
         ):
             self._counters["outcome_duplicate"] += 1
             return None

@@ -22,12 +22,19 @@ IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
     };
     struct CommandOutcome {            // swarm/outcome, member -> commander
       uint64 command_id; string<64> node; CommandResult result; string<128> reason;
+      uint8 flags;                     // OUTCOME_NOT_SAVED; on the wire only when not 0
     };
 
 The payload is a SerializedPayload (DDSI-RTPS 2.5 section 10.2): a 4-byte encapsulation
 header (CDR_LE ``00 01``, options) followed by the XCDR1 body; the body is padded to a
 multiple of 4 and the two low bits of the options' second byte say how many padding octets
 were added (section 10.2, "representation options", RTPS 2.3 and later).
+
+``CommandOutcome.flags`` is appended to a ``@final`` struct, and written only when it is
+not 0: an outcome without a flag has the layout of earlier builds, byte for byte, and a
+receiver reads a body that ends before ``flags`` as flags 0 (``_OutcomeWithoutFlags``). So a
+commander of an earlier build reads a flagged outcome (the IDL layer ignores the unread
+tail) and this build reads an earlier member's (docs/wire.md, "The outcome's flags").
 
 Invariant: ``decode_sample`` raises ``PayloadError`` and nothing else for any input, and
 every value it returns has passed ``validate``.
@@ -51,6 +58,10 @@ MAX_REASON_CHARS: Final = 128
 MAX_TARGETS: Final = 255
 MAX_ALTITUDE_M: Final = 500.0  # above any legal small-UAS ceiling; rejects garbage altitudes
 MAX_LINK_Q_PERMILLE: Final = 1000
+# ``CommandOutcome.flags``: the member's record of this decision could not be written to its
+# state file (docs/dataplane.md, "A failed save"). The other bits are reserved: sent 0,
+# ignored on receipt, so a later build's flag does not make this one drop the outcome.
+OUTCOME_NOT_SAVED: Final = 0x01
 # A command's validity (docs/dataplane.md, "Validity"): longer than any operator means, short
 # of the wrap of the u32 millisecond stamps; a value above is garbage, not a long validity.
 MAX_VALID_MS: Final = 600_000
@@ -137,7 +148,21 @@ class Command(IdlStruct, typename="swarmd::Command"):
 
 @dataclass
 class CommandOutcome(IdlStruct, typename="swarmd::CommandOutcome"):
-    """What a member did with one command, sent back on ``swarm/outcome``."""
+    """What a member did with one command, sent back on ``swarm/outcome``. ``flags``:
+    ``OUTCOME_NOT_SAVED`` (its record could not be written), else 0 (see the module
+    docstring for the layout)."""
+
+    command_id: uint64
+    node: NodeName
+    result: CommandResult
+    reason: Reason
+    flags: uint8 = 0
+
+
+@dataclass
+class _OutcomeWithoutFlags(IdlStruct, typename="swarmd::_OutcomeWithoutFlags"):
+    """``CommandOutcome`` as earlier builds write it, and as this one writes it when
+    ``flags`` is 0: the same fields without the last. Never a bundle type."""
 
     command_id: uint64
     node: NodeName
@@ -222,6 +247,7 @@ def validate(sample: Sample) -> None:
         if not isinstance(result, CommandResult):
             raise PayloadError(f"result={result!r} is not a CommandResult")
         _check_str(sample.reason, "reason", MAX_REASON_CHARS)
+        _check_int(sample.flags, "flags", _U8)
 
 
 def encode_sample(sample: Sample) -> bytes:
@@ -230,8 +256,12 @@ def encode_sample(sample: Sample) -> bytes:
     Raises ``PayloadError`` if the sample breaks a bound (a caller's bug, never network input).
     """
     validate(sample)
+    written: IdlStruct = sample
+    if isinstance(sample, CommandOutcome) and not sample.flags:
+        # the earlier builds' layout, byte for byte: no flag, no new octet
+        written = _OutcomeWithoutFlags(sample.command_id, sample.node, sample.result, sample.reason)
     try:
-        raw = sample.serialize(endianness=Endianness.Little, use_version_2=False)
+        raw = written.serialize(endianness=Endianness.Little, use_version_2=False)
     except Exception as exc:  # the IDL layer raises bare Exception for out-of-range values
         raise PayloadError(f"cannot serialize {type(sample).__name__}: {exc}") from None
     if raw[:2] != ENCAPSULATION_CDR_LE:
@@ -239,6 +269,16 @@ def encode_sample(sample: Sample) -> bytes:
     padding = -len(raw) % 4
     options = bytes((0, padding))
     return ENCAPSULATION_CDR_LE + options + raw[ENCAPSULATION_HEADER_SIZE:] + bytes(padding)
+
+
+def _outcome_without_flags(body: bytes) -> CommandOutcome:
+    """An outcome whose body ends before ``flags`` (an earlier build's, or this build's
+    without a flag): flags 0. Raises ``PayloadError`` when it is not that either."""
+    try:
+        old = _OutcomeWithoutFlags.deserialize(body, has_header=True)
+    except Exception as exc:  # as in decode_sample
+        raise PayloadError(f"malformed CommandOutcome payload: {exc}") from None
+    return CommandOutcome(old.command_id, old.node, old.result, old.reason)
 
 
 def decode_sample(payload: bytes, cls: type[SampleT]) -> SampleT:
@@ -255,7 +295,9 @@ def decode_sample(payload: bytes, cls: type[SampleT]) -> SampleT:
     try:
         sample = cls.deserialize(payload[:body_end], has_header=True)
     except Exception as exc:  # struct.error, UnicodeDecodeError, enum ValueError, bare Exception
-        raise PayloadError(f"malformed {cls.__name__} payload: {exc}") from None
+        if cls is not CommandOutcome:
+            raise PayloadError(f"malformed {cls.__name__} payload: {exc}") from None
+        sample = _outcome_without_flags(payload[:body_end])
     if not isinstance(sample, cls):  # pragma: no cover - the IDL layer builds cls or raises
         raise PayloadError(f"IDL layer returned {type(sample).__name__}, not {cls.__name__}")
     validate(sample)

@@ -5,7 +5,8 @@ Theory of operation
 Driving sources (the driver's protocol, ``swarmd.driver``): ``receive_datagram(obs, source,
 now)`` with each autopilot observation a backend decoded (MAVLink or XRCE-DDS, any
 ``messages.Observation``), ``handle_timer(now)``, and the requests ``takeoff``, ``land``,
-``hold``, ``abort``, each tagged with the caller's ``token`` (the swarm's command id).
+``hold``, ``abort``, each tagged with the caller's ``token`` (the swarm member's own task
+number, never a command id: docs/dataplane.md, "Exactly once" 4).
 Outputs: ``datagrams_to_send()`` (``VehicleCommand``s for the backend), ``get_timer()`` (the
 earliest of the heartbeat-stale deadline and the running tasks' timers) and
 ``next_event()``: ``ReadinessChanged`` whenever ready/reason changes (including "the link
@@ -59,11 +60,15 @@ class TaskKind(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class VehicleRequest:
-    """One task for the vehicle, tagged with the caller's ``token`` (a command id)."""
+    """One task for the vehicle, tagged with the caller's ``token``: the tag its
+    ``TaskFinished`` carries back, unique among the caller's tasks."""
 
     token: int
     kind: TaskKind
     alt_m: float | None = None  # TAKEOFF only: metres above home; None: MIS_TAKEOFF_ALT
+    # what the token stands for, for logs and tests (the swarm: the commander and its
+    # command id); the vehicle never reads it
+    origin: tuple[str, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -176,6 +176,10 @@ class _NodeOutcome:
     # what it says came from a later life than the one the command was sent to: a
     # re-report of what its earlier life decided (nothing more will come for this command)
     after_restart: bool = False
+    # it said its record of this decision could not be written (``OUTCOME_NOT_SAVED``): it
+    # ran as said, but after a restart it would neither re-report it nor, with the life
+    # rules, need it (docs/dataplane.md, "A failed save"); kept once said
+    save_failed: bool = False
 
 
 @dataclass(slots=True)
@@ -243,8 +247,10 @@ class CommandTracker:
         now: float,
         *,
         epoch: int | None = None,
+        not_saved: bool = False,
     ) -> bool:
         """A member's outcome; False when it answers no command we track (or not to it).
+        ``not_saved``: flagged ``OUTCOME_NOT_SAVED`` (the row's ``save_failed``, kept).
 
         ``epoch``: the boot epoch of the member's life that sent it. Higher than the one
         the command was sent to: a later life re-reporting what the earlier one decided
@@ -267,6 +273,8 @@ class CommandTracker:
             return True
         if later and entry.result is None:
             entry.after_restart = True
+        if not_saved:
+            entry.save_failed = True
         if result == CommandResult.ACCEPTED:
             if entry.accepted_at is None:
                 entry.accepted_at = now
@@ -318,6 +326,7 @@ class CommandTracker:
                 "latency_s": None if o.accepted_at is None else round(o.accepted_at - t.sent_at, 4),
                 "done_s": None if o.final_at is None else round(o.final_at - t.sent_at, 4),
                 "after_restart": o.after_restart,
+                "save_failed": o.save_failed,
             }
         for name, reason in t.refused.items():
             nodes[name] = {
@@ -326,6 +335,7 @@ class CommandTracker:
                 "latency_s": None,
                 "done_s": None,
                 "after_restart": False,
+                "save_failed": False,
             }
         return {
             "command_id": t.command_id,
@@ -446,10 +456,22 @@ class DecisionLog:
             if result != CommandResult.ACCEPTED:
                 entry.final_at = now
 
-    def save_failed(self, commander: str, command_id: int) -> None:
-        """The state-file write that would have kept ``commander``'s ``command_id`` failed."""
-        if (commander, command_id) in self._decided:
-            self.unsaved.add((commander, command_id))
+    def save_failed(self, commander: str, command_id: int) -> bool:
+        """The state-file write that would have kept ``commander``'s ``command_id`` failed;
+        True when that decision was saved until now (its commander is not told yet)."""
+        key = (commander, command_id)
+        if key not in self._decided or key in self.unsaved:
+            return False
+        self.unsaved.add(key)
+        return True
+
+    def current(self, commander: str, command_id: int) -> tuple[str, str, str] | None:
+        """This life's decision on ``commander``'s ``command_id`` as last reported: (kind,
+        state, reason); None if none is kept."""
+        d = self._decided.get((commander, command_id))
+        if d is None or d.life != self.life:
+            return None
+        return d.kind, d.state, d.reason
 
     def saved(self) -> None:
         """A state-file write succeeded: it held every decision kept here."""

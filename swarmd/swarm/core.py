@@ -24,8 +24,9 @@ Outputs: ``datagrams_to_send()``, ``get_timer()``, ``next_event()``. Two events 
 for the driver, in this order for each command: ``PersistExecuted`` (write the state file
 before anything moves: a crash then loses a command, never repeats it; docs/dataplane.md,
 "Exactly once") and ``px4.vehicle.VehicleRequest`` (what the vehicle should do, tagged with
-the command id). Each outcome a member decides is followed by another ``PersistExecuted``
-carrying it next to its id. The others are for the log.
+the member's own task number, never the command id: ``member.py``). Each outcome a member
+decides is followed by another ``PersistExecuted`` carrying it next to its id. The others
+are for the log.
 
 Each side's state lives with it: ``issuer.py`` (``Issuer``: request validation, issuing,
 the tracker's records, withdrawal at the end of a validity), ``member.py`` (``Member``:
@@ -191,10 +192,10 @@ class SwarmCore:
         self._tick_at = now
         self.member.start(now)
 
-    def state_saved(self, command: tuple[str, int] | None, error: str | None) -> None:
+    def state_saved(self, command: tuple[str, int] | None, error: str | None, now: float) -> None:
         """The daemon's answer to a ``PersistExecuted``: written (``error`` None) or not
-        (``Member.state_saved``)."""
-        self.member.state_saved(command, error)
+        (``Member.state_saved``: the commander is told)."""
+        self.member.state_saved(command, error, now)
 
     def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
         if self.plane is None:

@@ -133,6 +133,9 @@ class OutcomeReported:
     kind: str
     result: CommandResult
     reason: str
+    # False: sent flagged ``OUTCOME_NOT_SAVED``, its record could not be written (a
+    # decision's later outcome, or the same one again when the failure is learnt after it)
+    saved: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -153,6 +156,7 @@ class OutcomeRecorded:
     result: CommandResult
     reason: str
     known: bool
+    saved: bool = True  # False: the member flagged it OUTCOME_NOT_SAVED
 
 
 @dataclass(frozen=True, slots=True)

@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
 from swarmd.dataplane import CommandIdsExhausted, DataPlane
-from swarmd.dataplane.types import MAX_VALID_MS, CommandKind, CommandOutcome
+from swarmd.dataplane.types import MAX_VALID_MS, OUTCOME_NOT_SAVED, CommandKind, CommandOutcome
 from swarmd.dataplane.validity import valid_ms_of
 from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M
@@ -181,8 +181,15 @@ class Issuer:
                 self._events.append(CommandWithdrawn(command_id))
 
     def outcome_received(self, node: str, outcome: CommandOutcome, epoch: int, now: float) -> None:
+        not_saved = bool(outcome.flags & OUTCOME_NOT_SAVED)  # the other bits: reserved
         known = self.tracker.record(
-            outcome.command_id, node, outcome.result, outcome.reason, now, epoch=epoch
+            outcome.command_id,
+            node,
+            outcome.result,
+            outcome.reason,
+            now,
+            epoch=epoch,
+            not_saved=not_saved,
         )
         if not known and not self._unknown_outcome_reports.take(now):
             # an answer to no command we sent: counted by the tracker, reported at a
@@ -190,7 +197,9 @@ class Issuer:
             self._counters["unknown_outcomes_suppressed"] += 1
             return
         self._events.append(
-            OutcomeRecorded(node, outcome.command_id, outcome.result, outcome.reason, known)
+            OutcomeRecorded(
+                node, outcome.command_id, outcome.result, outcome.reason, known, not not_saved
+            )
         )
 
     def copy_voided(self, member: str, command_id: int, now: float) -> None:

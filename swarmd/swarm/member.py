@@ -1,9 +1,13 @@
 """A member's side of the swarm core: accept a command, prove it valid, run it, answer it,
 and re-report after a restart.
 
-Each command id runs once (the data plane hands each id once per life, persisted across
-restarts; ``execute`` also refuses an id it already runs, for the commander's own drone,
-which bypasses the data plane). A command from the commander that reaches it after its
+Each (commander, command id) runs once (the data plane hands each pair once per life,
+persisted across restarts; ``execute`` also refuses a pair it already runs, for the
+commander's own drone, which bypasses the data plane). The vehicle's tasks are tagged with
+the member's own task number (``VehicleRequest.token``), never with a command id: ids are
+unique per commander only, and two commanders of one epoch make the same ones
+(docs/dataplane.md, "Exactly once" 4), so no command is ever refused because of another's
+id. A command from the commander that reaches it after its
 validity (``swarmd.dataplane.validity.judge``: dated on this node's own clock from the
 readiness report the commander echoes in it) is REJECTED ``expired`` and never runs
 (docs/dataplane.md, "Validity"). One whose echo dates another life of this node (a report
@@ -15,7 +19,7 @@ may have run it, and its record of executed ids (the state file) may be lost
 Without a vehicle every command is REJECTED ``px4_disabled``. TAKEOFF is refused at once
 (REJECTED, reason = the readiness code) when the vehicle is not ready *now* (the
 commander's view is up to one report old), else ACCEPTED at once (the commander's latency
-measure) and sent to the vehicle; LAND, HOLD and ABORT are ACCEPTED and sent. The
+measure) and sent to the vehicle; LAND, HOLD and ABORT are ACCEPTED and sent, always. The
 vehicle's ``TaskFinished`` becomes COMPLETED (reason: the landed state after a take-off,
 the command's label after an ABORT) or FAILED (REJECTED for a take-off refused as not
 ready). Dispatch is an exhaustive ``match`` on ``CommandKind`` with ``assert_never``: a
@@ -27,7 +31,8 @@ write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decide
 the member's ``DecisionLog`` (``swarmctl outcomes`` in a later life). The daemon answers
 each write (``state_saved``): a failed one marks the decision unsaved and does not stop
 the command, which the life rules keep from running twice (docs/dataplane.md, "A failed
-save").
+save"); its commander is told: the decision's outcome goes again, flagged
+``OUTCOME_NOT_SAVED``, and so do its later outcomes while it stays unsaved.
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
 "Outcomes across a restart"); they only answer, nothing is executed.
@@ -44,7 +49,13 @@ from typing import Any, Final, assert_never
 
 from swarmd.dataplane import DataPlane
 from swarmd.dataplane.convert import ReadinessVerdict
-from swarmd.dataplane.types import Command, CommandKind, CommandResult, PayloadError
+from swarmd.dataplane.types import (
+    OUTCOME_NOT_SAVED,
+    Command,
+    CommandKind,
+    CommandResult,
+    PayloadError,
+)
 from swarmd.dataplane.validity import (
     EXPIRED,
     MEMORY_LOST,
@@ -86,9 +97,11 @@ __all__ = [
 
 PX4_DISABLED: Final = "px4_disabled"
 UNKNOWN_KIND: Final = "unknown_kind"
-# Another commander's command with the same id still runs here (two commanders in the same
-# boot epoch make the same ids: docs/dataplane.md, "Exactly once" 4); the vehicle's tasks
-# are tagged with the id, so this one is refused and its commander told at once.
+# A reason this build never sends. Until session 14 the vehicle's tasks were tagged with the
+# bare command id, so a member refused another commander's command whose id still ran there
+# (two commanders in one boot epoch make the same ids: docs/dataplane.md, "Exactly once" 4),
+# an ABORT included. Members of that build still send it; a commander shows it as any
+# REJECTED reason (docs/operations.md, "id_in_use"), so the name stays.
 ID_IN_USE: Final = "id_in_use"
 # command ids a member remembers running: the data plane's executed list is the durable
 # record; this only guards the commander's own drone, whose commands bypass it
@@ -154,8 +167,14 @@ class Member:
         # to its tracker, not on the wire; bounded like ``_seen`` (never dropping one still
         # running, whose outcome must not go on the wire)
         self._own: OrderedDict[int, None] = OrderedDict()
-        # id -> (kind, commander), on the vehicle
-        self._running: OrderedDict[int, tuple[CommandKind, str]] = OrderedDict()
+        # task token -> (kind, commander, command id), on the vehicle. The token is ours
+        # (``_new_token``): ids are unique per commander only
+        self._running: OrderedDict[int, tuple[CommandKind, str, int]] = OrderedDict()
+        # task tokens: this life's boot epoch in the high 32 bits, a counter in the low, so
+        # a task of an earlier life (a vehicle that outlived the daemon) never answers for
+        # one of this life's; positive, apart from the bridge's own take-offs (negative)
+        self._token_base = (0 if plane is None else plane.epoch) << 32
+        self._tasks_started = 0
         # (commander, id) started (bounded): ids are unique per commander only
         self._seen: OrderedDict[tuple[str, int], None] = OrderedDict()
         # when this life began (``start``): it runs only commands issued after it
@@ -190,16 +209,18 @@ class Member:
     def run_own(self, command: Command, now: float) -> None:
         """The commander's own drone is a target of ``command``: run it here at issue."""
         self._own[command.command_id] = None
-        for old in [i for i in self._own if i not in self._running][:-MAX_RUNNING_IDS]:
+        me = self.roles.me
+        running = {cid for _, commander, cid in self._running.values() if commander == me}
+        for old in [i for i in self._own if i not in running][:-MAX_RUNNING_IDS]:
             del self._own[old]
         self.execute(self.roles.me, command, now)
 
     def task_finished(self, done: TaskFinished, now: float) -> None:
-        """The vehicle ended the task of command ``done.token``."""
+        """The vehicle ended our task ``done.token``."""
         running = self._running.pop(done.token, None)
         if running is None:
             return  # not ours (a direct take-off through the bridge), or reported already
-        kind, commander = running
+        kind, commander, command_id = running
         if done.ok:
             result = CommandResult.COMPLETED
         elif isinstance(done.outcome, TakeoffFailed) and (
@@ -208,7 +229,7 @@ class Member:
             result = CommandResult.REJECTED
         else:
             result = CommandResult.FAILED
-        self._report(done.token, kind.name, result, done.reason, now, commander)
+        self._report(command_id, kind.name, result, done.reason, now, commander)
 
     def status(self) -> dict[str, Any]:
         return {
@@ -274,15 +295,20 @@ class Member:
                 task = TaskKind.ABORT
             case _:
                 assert_never(kind)
-        if command.command_id in self._running:  # another commander's, same id: its tag
-            self._report(
-                command.command_id, kind.name, CommandResult.REJECTED, ID_IN_USE, now, commander
-            )
-            return
         self._report(command.command_id, kind.name, CommandResult.ACCEPTED, "", now, commander)
-        self._running[command.command_id] = (kind, commander)
+        # our own tag, not the id: another commander's command with the same id may run
+        # here too, and an ABORT or a LAND must never wait for, or be refused by, it
+        token = self._new_token()
+        self._running[token] = (kind, commander, command.command_id)
         alt = float(command.altitude_m) if takeoff else None
-        self._events.append(VehicleRequest(command.command_id, task, alt))
+        origin = (commander, command.command_id)
+        self._events.append(VehicleRequest(token, task, alt, origin))
+
+    def _new_token(self) -> int:
+        """A tag for a vehicle task, unique in this life (``_token_base``); 2^32 − 1 tasks
+        before the counter comes round, none of them still running by then."""
+        self._tasks_started = self._tasks_started % 0xFFFF_FFFF + 1
+        return self._token_base | self._tasks_started
 
     def _may_run(self, commander: str, command: Command, kind: CommandKind, now: float) -> bool:
         """Whether a command from another node may run now, else refuse it (REJECTED) for
@@ -344,13 +370,19 @@ class Member:
         commander: str,
     ) -> None:
         self._count(f"outcome_{result.name.lower()}")
-        self._events.append(OutcomeReported(command_id, kind, result, reason))
         if commander == self.roles.me and command_id in self._own:
+            self._events.append(OutcomeReported(command_id, kind, result, reason))
             self._tracker.record(command_id, self.roles.me, result, reason, now)
             return
         self.decisions.decided(commander, command_id, kind, result, reason, now)
+        # a decision whose record a write already failed to keep says so in each outcome
+        saved = (commander, command_id) not in self.decisions.unsaved
+        self._events.append(OutcomeReported(command_id, kind, result, reason, saved))
         if self.plane is not None:
-            self.plane.report_outcome(command_id, result, now, reason, commander=commander)
+            flags = 0 if saved else OUTCOME_NOT_SAVED
+            self.plane.report_outcome(
+                command_id, result, now, reason, commander=commander, flags=flags
+            )
             # the second write: the outcome next to its id, for a re-report after a restart
             self._persist(commander, command_id)
 
@@ -366,19 +398,40 @@ class Member:
             )
         )
 
-    def state_saved(self, command: tuple[str, int] | None, error: str | None) -> None:
+    def state_saved(self, command: tuple[str, int] | None, error: str | None, now: float) -> None:
         """The daemon wrote a ``PersistExecuted`` (``error`` None) or failed to. A failed
         write does not stop the command: no sequence of restarts, resends or replays can
         run it a second time without the record, and refusing a LAND or an ABORT on a full
         disk would leave a drone in the air (docs/dataplane.md, "A failed save"). What it
         loses is the answer across a restart, so the decision is marked unsaved for
-        ``swarmctl outcomes`` (``saved: false``) until a later write holds it."""
+        ``swarmctl outcomes`` (``saved: false``) until a later write holds it, and its
+        commander is told (``_tell_not_saved``)."""
         if error is None:
             self.decisions.saved()
             return
         self._count("state_save_failed")
-        if command is not None:
-            self.decisions.save_failed(*command)
+        if command is not None and self.decisions.save_failed(*command):
+            self._tell_not_saved(*command, now)
+
+    def _tell_not_saved(self, commander: str, command_id: int, now: float) -> None:
+        """Send ``commander`` the decision's outcome again, flagged ``OUTCOME_NOT_SAVED``.
+
+        The outcome went before the write's result was known (ACCEPTED at once is the
+        commander's latency measure), so the flag comes after it, on the same result: the
+        commander's dedup keys it by its flags too, and its row keeps what it had and adds
+        the mark (``save_failed``). Once per decision that turns unsaved: a write that
+        fails again finds it unsaved already; after a successful write, a new failure is
+        told again. Nothing is decided, persisted or run."""
+        current = self.decisions.current(commander, command_id)
+        if current is None or self.plane is None or commander == self.roles.me:
+            return  # evicted, no plane, or our own drone's (never written)
+        kind, state, reason = current
+        result = CommandResult[state.upper()]
+        self._count("told_not_saved")
+        self._events.append(OutcomeReported(command_id, kind.upper(), result, reason, False))
+        self.plane.report_outcome(
+            command_id, result, now, reason, commander=commander, flags=OUTCOME_NOT_SAVED
+        )
 
     def rereport(self, commander: str, now: float) -> None:
         """``commander`` was found: if this is a new life (restarted with its state file)
