@@ -4,8 +4,8 @@ A sample reaches here only after its datagram passed authentication (``pairs.py`
 its reader delivered it (``reader.py``). Readiness is kept per member (how many, the
 latest, when, in which of the member's lives): the commander dates a command with it
 (``time_echoes``; docs/dataplane.md, "Validity"). A command is handed on once per
-``(commander, id)`` and an outcome once per ``(node, epoch, id, result, flags)``
-(``ledger.py``).
+``(commander, id)`` and an outcome once per ``(node, epoch, id, result, flags)``, of its
+flags only those this build reads (``OUTCOME_KNOWN_FLAGS``; ``ledger.py``).
 A sample naming another node than its sender is refused (``node_mismatch``).
 
 Split out of ``plane.py`` by concern: the plane keeps the peers' sessions and the wire.
@@ -29,6 +29,7 @@ from swarmd.dataplane.ledger import CommandLedger
 from swarmd.dataplane.pairs import PairChannels
 from swarmd.dataplane.reader import Delivered
 from swarmd.dataplane.types import (
+    OUTCOME_KNOWN_FLAGS,
     TYPES_BY_NAME,
     Command,
     CommandOutcome,
@@ -149,8 +150,10 @@ class Received:
         if outcome.node != peer_name:
             return "node_mismatch", f"{peer_name} sent outcome of {outcome.node}"
         epoch = self._pairs.channels[self._participants[peer_name].guid_prefix].peer_epoch
+        # only the flags this build reads: reserved bits are ignored on receipt, here too
+        flags = outcome.flags & OUTCOME_KNOWN_FLAGS
         if not self._ledger.new_outcome(
-            peer_name, epoch, outcome.command_id, int(outcome.result.value), outcome.flags
+            peer_name, epoch, outcome.command_id, int(outcome.result.value), flags
         ):
             self._counters["outcome_duplicate"] += 1
             return None

@@ -62,6 +62,9 @@ MAX_LINK_Q_PERMILLE: Final = 1000
 # state file (docs/dataplane.md, "A failed save"). The other bits are reserved: sent 0,
 # ignored on receipt, so a later build's flag does not make this one drop the outcome.
 OUTCOME_NOT_SAVED: Final = 0x01
+# The flags this build reads; what an outcome's dedup keys (``received.py``): a reserved bit
+# set on an answer already taken must not make it new (docs/wire.md, "The outcome's flags").
+OUTCOME_KNOWN_FLAGS: Final = OUTCOME_NOT_SAVED
 # A command's validity (docs/dataplane.md, "Validity"): longer than any operator means, short
 # of the wrap of the u32 millisecond stamps; a value above is garbage, not a long validity.
 MAX_VALID_MS: Final = 600_000

@@ -171,8 +171,11 @@ class Member:
         # (``_new_token``): ids are unique per commander only
         self._running: OrderedDict[int, tuple[CommandKind, str, int]] = OrderedDict()
         # task tokens: this life's boot epoch in the high 32 bits, a counter in the low, so
-        # a task of an earlier life (a vehicle that outlived the daemon) never answers for
-        # one of this life's; positive, apart from the bridge's own take-offs (negative)
+        # a task of an earlier life never answers for one of this life's. The daemon's
+        # vehicle core ends with its process (PX4 never sees a token), so only a vehicle
+        # core that outlives the swarm core, the tests' played one, can send an earlier
+        # life's; ``tests/test_cmd_review14.py`` pins it. Positive, apart from the bridge's
+        # own take-offs (negative)
         self._token_base = (0 if plane is None else plane.epoch) << 32
         self._tasks_started = 0
         # (commander, id) started (bounded): ids are unique per commander only
