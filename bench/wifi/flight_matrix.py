@@ -5,12 +5,14 @@ and 20, summarised from the run files alone, swarmd's targets judged, a figure p
         [--write-docs docs/benchmarks.md]
 
 ``RUNS`` are run files (``flight_run``'s ``runs/*.json``) or directories holding them (a
-directory's ``runs/`` when it has one). Per N, one table per measure: rows the scenarios,
-columns the contenders (``flight_cells.py``: the discovery measures, the commands, the
-renewal period following Q); a cell is the median over that cell's **valid** runs with the
-range when there are more than one (false losses, commands: their sum), "not run" without a
-run file, and invalid runs are counted in the "runs" table but enter no median, sum or
-verdict. Then swarmd's targets, judged (``flight_verdicts.py``), and the figures.
+directory's ``runs/`` when it has one). First every contender side by side against
+swarmd's targets (``flight_verdicts.standings``: cells met / not met / not known, the
+costs' medians over cells and their ratio to swarmd's). Then per N, one table per measure:
+rows the scenarios, columns the contenders (``flight_cells.py``: the discovery measures, the
+commands, the renewal period following Q); a cell is the median over that cell's **valid**
+runs with the range when there are more than one (false losses, commands: their sum), "not
+run" without a run file, and invalid runs are counted in the "runs" table but enter no
+median, sum or verdict. Then swarmd's targets, judged (``flight_verdicts.py``), and the figures.
 
 Which runs on swarmd count: ``--since-commit C`` keeps the runs of every contender whose
 daemon is swarmd (swarmd, ROS 2 on swarmd: ``flight_cells.ON_SWARMD``) whose
