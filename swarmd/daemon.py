@@ -21,6 +21,13 @@ Around it: the control socket (``swarmctl``), sd_notify (``READY=1`` once the bu
 verified and the sockets are bound, ``STATUS=`` on phase/peer changes, ``WATCHDOG=1`` at half
 ``WATCHDOG_USEC`` only while the loop is healthy) and SIGTERM/SIGINT for a clean shutdown
 that tells every peer we leave (DATA(p[UD])).
+
+This module keeps the life cycle (start, stop, the sockets, link polling, the replay
+windows' saves). Split out by concern at 757 lines (style.md rule 19): ``Daemon``'s base
+classes hold its state and status (``daemon_status.py``: ``status``, ``healthy``, the
+watchdog, ``STATUS=``) and its routing of discovery's events (``daemon_events.py``); what it
+works out before it starts, the bundle floor and the PX4 listen socket included, is in
+``daemon_setup.py``.
 """
 
 from __future__ import annotations
@@ -42,51 +49,38 @@ from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
-from swarmd.bundle.floor import floor_path, serial_of
+from swarmd.bundle.floor import floor_path
 from swarmd.bundle.keys import remove_left_temps
 from swarmd.bundle.model import Bundle
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
+from swarmd.daemon_events import DaemonEvents
 from swarmd.daemon_setup import (
-    KNOWN_LISTEN_NAMES,
     NodeSecretsError,
-    enforce_bundle_floor,
     engine_config,
     link_sources,
-    listen_socket_name,
     load_node_secrets,
     open_spdp_socket,
     open_unicast_socket,
+    px4_listen_socket,
+    raise_bundle_floor,
     resolve_ipv4,
 )
 from swarmd.discovery.engine import DiscoveryEngine
-from swarmd.discovery.events import (
-    Event,
-    ForeignParticipantSeen,
-    PacketDropped,
-    PeerDiscovered,
-    PeerLocatorsChanged,
-    PeerLost,
-    PeerRestarted,
-    PeerRos2Liveness,
-    PhaseChanged,
-)
-from swarmd.discovery.inputs import LinkSample
+from swarmd.discovery.events import Event
 from swarmd.driver import Driver
-from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, EX_UNAVAILABLE, StartupError
+from swarmd.exitcodes import EX_CANTCREAT, EX_OSERR, EX_UNAVAILABLE, StartupError
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.source import LinkSource
-from swarmd.peerlog import PeerChangeKind, PeerHistory
+from swarmd.peerlog import PeerHistory
 from swarmd.rawclock import RawClockEventLoop
 from swarmd.ros2app import Ros2App, require_ros2_graph
-from swarmd.rtps.types import GuidPrefix
-from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.sdnotify import Notifier, watchdog_interval_s
 from swarmd.swarmapp import SwarmApp
 from swarmd.udp import RECV_BUFFER_BYTES, BatchedSocket, Datagram, rcvbuf_capped
 
 
-class Daemon:
+class Daemon(DaemonEvents):
     """One swarmd process: the engine, its sockets, link polling, control and sd_notify."""
 
     def __init__(
@@ -165,7 +159,7 @@ class Daemon:
                 fix="drive the daemon with swarmd.rawclock.run_on_raw_clock, as `swarmd run` does",
             )
         self.keyring = self.check_start()
-        self._enforce_bundle_floor()
+        raise_bundle_floor(self.config, self.bundle, self.log)
         try:
             self.epoch = next_epoch(self._state_dir, self.config.node, time.time())
         except EpochError as exc:
@@ -231,7 +225,11 @@ class Daemon:
             keys=self.keyring,  # user data is MAC'd per pair and bound to epochs
             epoch=self.epoch.epoch,
             node_secrets=self._secrets,
-            px4_socket=self._px4_listen_socket(),
+            px4_socket=px4_listen_socket(
+                self.config.px4,
+                os.environ if self._listen_env is None else self._listen_env,
+                self.log,
+            ),
             # the epoch file held one: a missing state file was deleted (state_file_missing)
             booted_before=self.epoch.stored is not None,
         )
@@ -371,59 +369,6 @@ class Daemon:
         except NodeKeyMismatch as exc:
             raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
 
-    def _enforce_bundle_floor(self) -> None:
-        """Refuse a rolled-back bundle, else raise the floor to it, before the first send
-        (swarmd.bundle.floor, docs/security.md "Bundle rollback"). Its file lives beside
-        the boot epoch, so an epoch without a floor means the floor was deleted (or this is
-        the first start of a swarmd that keeps one): logged, not refused."""
-        result = enforce_bundle_floor(self.config, self.bundle, commit=True)
-        if result.previous is None and epoch_path(self._state_dir, self.config.node).exists():
-            self.log.warning(
-                "bundle_floor_missing",
-                path=str(result.path),
-                serial=self.bundle.serial,
-                why="this node booted before (its epoch file exists) but holds no bundle "
-                "floor: deleted, or the first start of a swarmd that keeps one",
-            )
-        if result.raised:
-            self.log.info(
-                "bundle_floor_raised",
-                path=str(result.path),
-                serial=serial_of(self.bundle),
-                previous=None if result.previous is None else result.previous.serial,
-                sha256=self.bundle.content_sha256.hex(),
-            )
-
-    def _px4_listen_socket(self) -> socket.socket | None:
-        """The socket systemd bound for the vehicle link: ``swarmd-px4.socket`` (named
-        ``px4``) for a MAVLink ``udpin:``, ``swarmd-xrce.socket`` (``xrce``) for the XRCE
-        agent's ``udp:``.
-
-        systemd holds it from boot and across restarts, so no local user can take the port
-        (issue 18, docs/px4.md). Descriptors we have no use for are closed (systemd keeps its
-        own copy) and logged: at info for the other backend's unit (the service lists both),
-        as a warning for any other name."""
-        try:
-            fds = listen_fds(os.environ if self._listen_env is None else self._listen_env)
-        except ListenFdsError as exc:
-            raise StartupError(str(exc), EX_CONFIG) from None
-        name = listen_socket_name(self.config.px4)
-        wanted = fds.pop(name, []) if name is not None else []
-        for other, numbers in fds.items():
-            for fd in numbers:
-                os.close(fd)
-            log = self.log.info if other in KNOWN_LISTEN_NAMES else self.log.warning
-            log(
-                "listen_fd_unused",
-                name=other,
-                count=len(numbers),
-                why=f"px4.connection takes {name or 'no socket'} "
-                "(px4: a MAVLink udpin:, xrce: the XRCE agent's udp:)",
-            )
-        for extra in wanted[1:]:
-            os.close(extra)
-        return socket.socket(fileno=wanted[0]) if wanted else None
-
     async def stop(self, reason: str = "stop") -> None:
         """Tell every peer we leave (DATA(p[UD])), then release everything."""
         if self.stopped.is_set():
@@ -478,163 +423,12 @@ class Daemon:
             if sample is not None and not self.stopped.is_set():
                 driver.call(partial(engine.update_link_quality, sample))
 
-    def _core(self) -> DiscoveryEngine:
-        if self.engine is None:
-            raise RuntimeError("the daemon is not started")
-        return self.engine
-
-    def _drive(self) -> Driver[bytes, Datagram, Event]:
-        if self.driver is None:
-            raise RuntimeError("the daemon is not started")
-        return self.driver
-
     def _send(self, datagram: Datagram) -> None:
         out = self._transports.get("unicast")
         if out is None:
             self.count("tx_dropped_closed")
             return
         out.sendto(*datagram)
-
-    def _on_event(self, event: Event) -> None:
-        self._log_event(event)
-        # the sd_notify line moves only with discovery's events: nothing per datagram is
-        # rebuilt (a flood of datagrams must not become a flood of status snapshots)
-        if self._ready and isinstance(event, PeerDiscovered | PeerLost | PhaseChanged):
-            text = self._status_text()
-            if text != self._status_line:
-                self._status_line = text
-                self.notifier.status(text)
-
-    def _log_event(self, event: Event) -> None:
-        match event:
-            case PeerDiscovered(name=name, matches=matches, via=via, epoch=epoch):
-                self.log.info(
-                    "peer_discovered", peer=name, via=via, matched=len(matches), epoch=epoch
-                )
-                self._record_change(event.guid_prefix, name, PeerChangeKind.DISCOVERED, via)
-                if self.app is not None and epoch is not None:  # None only without auth
-                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
-                self._ros2_peer(name, event.guid_prefix)
-            case PeerLocatorsChanged(name=name, default_unicast_locators=user):
-                # authenticated: the peer itself moved its address
-                self.log.info("peer_locators_changed", peer=name, user=[str(x) for x in user])
-                if self.app is not None:
-                    self.app.peer_moved(name, self._peer_ipv4(event.guid_prefix))
-                self._ros2_peer(name, event.guid_prefix)
-            case PeerRestarted(name=name, epoch=epoch, previous_epoch=previous):
-                self.log.info("peer_restarted", peer=name, epoch=epoch, previous_epoch=previous)
-                self._record_change(event.guid_prefix, name, PeerChangeKind.RESTARTED, None)
-                # its data-plane state belongs to its earlier life: the plane resets it
-                if self.app is not None:
-                    self.app.peer_up(name, self._peer_ipv4(event.guid_prefix), epoch)
-                # its ROS 2 nodes' writers number from 1 again under the same GUIDs: the
-                # relay disposes them at our nodes and announces them again (docs/ros2.md)
-                self._ros2_peer(name, event.guid_prefix, restarted=True)
-            case PeerRos2Liveness(name=name, alive=alive):
-                # authenticated (the engine takes PID 0x8A06 only from a DATA(p) it accepted)
-                self.log.info("peer_ros2_liveness", peer=name, alive=alive.hex())
-                if self.ros2 is not None:
-                    self.ros2.peer_liveness(name, alive)
-            case PeerLost(name=name, reason=reason):
-                self.log.info("peer_lost", peer=name, reason=reason)
-                self._record_change(event.guid_prefix, name, PeerChangeKind.LOST, reason)
-                if self.app is not None:
-                    self.app.peer_down(name)
-                if self.ros2 is not None and name is not None:
-                    self.ros2.peer_down(name)
-            case ForeignParticipantSeen(guid_prefix=prefix, vendor=vendor, name=name):
-                # rate-limited in the engine: ``suppressed`` more were not reported one by one
-                self.log.info(
-                    "foreign_participant",
-                    guid_prefix=str(prefix),
-                    vendor=vendor,
-                    name=name,
-                    reason=str(event.reason),
-                    suppressed=event.suppressed,
-                )
-            case PhaseChanged(old=old, new=new, reason=reason):
-                self.log.info("phase_changed", old=str(old), new=str(new), reason=reason)
-            case PacketDropped(reason=reason, source=source):
-                self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
-            case _:  # Event is concrete, so match cannot be exhaustive; log what is new
-                self.log.info("engine_event", event_type=type(event).__name__)
-
-    def _ros2_liveness(self, alive: bytes) -> None:
-        """Our relay's nodes changed liveness: into our signed DATA(p) (docs/ros2.md)."""
-        engine = self.engine
-        if engine is not None:
-            self._drive().call(lambda now: engine.set_ros2_alive(alive, now))
-
-    def _ros2_peer(self, name: str, prefix: GuidPrefix, *, restarted: bool = False) -> None:
-        """An authenticated peer is up, moved or ``restarted`` (a higher signed epoch): the
-        relay serves its drone's ROS 2 nodes at the address discovery has for it."""
-        if self.ros2 is not None:
-            self.ros2.peer_up(name, self._peer_ipv4(prefix), restarted=restarted)
-
-    def _record_change(
-        self, prefix: GuidPrefix, name: str, kind: PeerChangeKind, reason: str | None
-    ) -> None:
-        """Keep the change for ``swarmctl watch`` with the peer's advertised link quality and
-        how long it had been silent (its view at the event: one O(1) lookup per change)."""
-        view = self._core().peer(prefix)
-        self.peer_history.record(
-            self._drive().now(),
-            name,
-            kind,
-            reason=reason,
-            link_quality_permille=None if view is None else view.link_quality_permille,
-            last_heard=None if view is None else view.last_heard,
-        )
-
-    def _peer_traffic(self, name: str) -> None:
-        """A peer's user data passed its MAC: discovery takes it as the peer's liveliness
-        (the commander's leases on members ride on their readiness; docs/discovery.md)."""
-        engine = self.engine
-        if engine is not None:
-            self._drive().call(lambda now: engine.peer_traffic(name, now))
-
-    def _peer_ipv4(self, prefix: GuidPrefix) -> str | None:
-        """The host discovery reaches the peer at (a typed engine query, O(1) by prefix):
-        its first usable unicast metatraffic locator, else the UDP source it was heard from,
-        else its bundle address. The data plane's port comes from the bundle."""
-        view = self._core().peer(prefix)
-        if view is None or view.locator is None:
-            return None
-        return view.locator[0]
-
-    def _link_q(self) -> float:
-        latest = self.monitor.latest
-        if latest is not None:
-            return latest.q
-        return self.config.link.static_q
-
-    # -- health and status ---------------------------------------------------------------
-
-    def count(self, name: str) -> None:
-        self.counters[name] = self.counters.get(name, 0) + 1
-
-    def healthy(self) -> bool:
-        """The loop runs, the link poller lives and the engine timer is not overdue."""
-        if self._loop is None or self.stopped.is_set():
-            return False
-        if self._link_task is None or self._link_task.done():
-            return False
-        deadline = None if self.driver is None else self.driver.deadline
-        if deadline is not None and self.watchdog_s is not None:
-            # a timer more than one ping interval late means the loop is starved
-            return self._loop.time() - deadline < self.watchdog_s
-        return True
-
-    def _watchdog_tick(self) -> None:
-        if self._loop is None or self.watchdog_s is None:
-            return
-        if self.healthy():
-            self.notifier.watchdog()
-        else:
-            self.count("watchdog_withheld")
-            self.log.warning("watchdog_withheld", reason="loop unhealthy")
-        if not self.stopped.is_set():
-            self._watchdog = self._loop.call_later(self.watchdog_s, self._watchdog_tick)
 
     def _save_windows(self) -> None:
         """Persist the SPDP replay windows if one moved (swarmd.auth.windows)."""
@@ -655,71 +449,6 @@ class Daemon:
         self._save_windows()
         if self._loop is not None and not self.stopped.is_set():
             self._windows_timer = self._loop.call_later(SAVE_PERIOD_S, self._windows_tick)
-
-    def _status_text(self) -> str:
-        if self.engine is None:
-            return "starting"
-        discovered, total = self.engine.peer_counts()
-        return f"phase {self.engine.phase}, peers {discovered}/{total} discovered"
-
-    def status(self) -> dict[str, Any]:
-        """The engine's status plus what only the daemon knows (schema: docs/operations.md)."""
-        engine, now = self._core(), self._drive().now()
-        st = dict(engine.status(now))
-        st["node"] = self.config.node
-        # per peer: the link quality it advertises (its own Q, from its latest DATA(p)) and how
-        # often it was (re)discovered; the last changes for the operator in flight
-        views = {v.name: v for v in engine.peers()}
-        peers = []
-        for row in st.get("peers") or []:
-            view = views.get(row.get("name"))
-            q = None if view is None else view.link_quality_permille
-            peers.append(
-                {
-                    **row,
-                    "link_q": None if q is None else q / 1000,
-                    "times_discovered": 0 if view is None else view.times_discovered,
-                }
-            )
-        st["peers"] = peers
-        st["peer_changes"] = self.peer_history.status(now)
-        latest: LinkSample | None = self.monitor.latest
-        link = dict(st.get("link") or {})
-        if latest is not None:
-            for key, value in (
-                ("q", latest.q),
-                ("snr_db", latest.snr_db),
-                ("source", latest.source),
-            ):
-                if link.get(key) is None:
-                    link[key] = value
-        link["active_source"] = self.monitor.active_source
-        link["retired_sources"] = self.monitor.retired
-        st["link"] = link
-        counters = dict(st.get("counters") or {})
-        counters["daemon"] = dict(self.counters)
-        if self._control is not None:  # hostile or stuck local clients (docs/security.md)
-            counters["daemon"]["control_clients_refused"] = self._control.rejected_clients
-            counters["daemon"]["control_clients_idle_closed"] = self._control.idle_clients_closed
-            counters["daemon"]["control_clients_slow_closed"] = self._control.slow_clients_closed
-        st["counters"] = counters
-        if self.app is not None:
-            st.update(self.app.status())
-        if self.ros2 is not None:
-            st["ros2"] = self.ros2.status(now)
-        st["daemon"] = {
-            "version": __version__,
-            "pid": os.getpid(),
-            "uptime_s": round(now - self._started, 3),
-            "started_at": self._started_wall,
-            "interface": self.config.interface,
-            "ipv4": self.local_ipv4,
-            "spdp": "{}:{}".format(*engine.spdp_multicast),
-            "metatraffic_port": engine.metatraffic_port,
-            "watchdog_s": self.watchdog_s,
-            "healthy": self.healthy(),
-        }
-        return st
 
 
 async def run(

@@ -11,13 +11,14 @@ import os
 import socket
 import stat
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, MutableMapping
 from dataclasses import fields
 from typing import Any, Final
 
+from swarmd.auth.epoch import epoch_path
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.bundle.errors import BundleError, KeyFileError
-from swarmd.bundle.floor import FloorError, FloorResult, FloorWriteError
+from swarmd.bundle.floor import FloorError, FloorResult, FloorWriteError, serial_of
 from swarmd.bundle.floor import enforce as enforce_floor
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig, Px4Section
@@ -30,6 +31,7 @@ from swarmd.link.source import LinkSource
 from swarmd.link.static import StaticSource
 from swarmd.link.wext import WextSource
 from swarmd.px4.transport import PX4_SOCKET, XRCE_SOCKET, parse_connection
+from swarmd.sdlisten import ListenFdsError, listen_fds
 from swarmd.udp import RECV_BUFFER_BYTES
 
 SIOCGIFADDR: Final = 0x8915  # linux/sockios.h: get an interface's IPv4 address
@@ -93,6 +95,30 @@ def enforce_bundle_floor(config: DaemonConfig, bundle: Bundle, *, commit: bool) 
         raise StartupError(f"bundle floor rejected: {exc}", EX_CONFIG) from None
     except FloorWriteError as exc:
         raise StartupError(str(exc), EX_CANTCREAT) from None
+
+
+def raise_bundle_floor(config: DaemonConfig, bundle: Bundle, log: Any) -> None:
+    """Refuse a rolled-back bundle, else raise the floor to it, before the first send
+    (swarmd.bundle.floor, docs/security.md "Bundle rollback"); ``Daemon.start`` runs it. Its
+    file lives beside the boot epoch, so an epoch without a floor means the floor was deleted
+    (or this is the first start of a swarmd that keeps one): logged, not refused."""
+    result = enforce_bundle_floor(config, bundle, commit=True)
+    if result.previous is None and epoch_path(config.bundle.node_state_dir, config.node).exists():
+        log.warning(
+            "bundle_floor_missing",
+            path=str(result.path),
+            serial=bundle.serial,
+            why="this node booted before (its epoch file exists) but holds no bundle "
+            "floor: deleted, or the first start of a swarmd that keeps one",
+        )
+    if result.raised:
+        log.info(
+            "bundle_floor_raised",
+            path=str(result.path),
+            serial=serial_of(bundle),
+            previous=None if result.previous is None else result.previous.serial,
+            sha256=bundle.content_sha256.hex(),
+        )
 
 
 def refuse_shared_secret(path: str) -> None:
@@ -241,3 +267,36 @@ def listen_socket_name(px4: Px4Section) -> str | None:
     if px4.backend == "xrce-agent" and px4.connection.startswith("udp:"):
         return XRCE_SOCKET.fd_name
     return None
+
+
+def px4_listen_socket(
+    px4: Px4Section, env: MutableMapping[str, str], log: Any
+) -> socket.socket | None:
+    """The socket systemd bound for the vehicle link: ``swarmd-px4.socket`` (named
+    ``px4``) for a MAVLink ``udpin:``, ``swarmd-xrce.socket`` (``xrce``) for the XRCE
+    agent's ``udp:``; ``env`` is where sd_listen_fds(3) reads (and unsets) its variables.
+
+    systemd holds it from boot and across restarts, so no local user can take the port
+    (issue 18, docs/px4.md). Descriptors we have no use for are closed (systemd keeps its
+    own copy) and logged: at info for the other backend's unit (the service lists both),
+    as a warning for any other name."""
+    try:
+        fds = listen_fds(env)
+    except ListenFdsError as exc:
+        raise StartupError(str(exc), EX_CONFIG) from None
+    name = listen_socket_name(px4)
+    wanted = fds.pop(name, []) if name is not None else []
+    for other, numbers in fds.items():
+        for fd in numbers:
+            os.close(fd)
+        emit = log.info if other in KNOWN_LISTEN_NAMES else log.warning
+        emit(
+            "listen_fd_unused",
+            name=other,
+            count=len(numbers),
+            why=f"px4.connection takes {name or 'no socket'} "
+            "(px4: a MAVLink udpin:, xrce: the XRCE agent's udp:)",
+        )
+    for extra in wanted[1:]:
+        os.close(extra)
+    return socket.socket(fileno=wanted[0]) if wanted else None

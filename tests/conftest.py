@@ -6,6 +6,8 @@ use it carry ``@pytest.mark.netns`` and are skipped, with the reason, when not r
 without iproute2. ``cyclone_factory`` starts stock Cyclone DDS participants in them.
 
 bundles: ``keys`` is a swarm3 keys directory made by ``swarmctl bundle keygen``.
+
+attacks: ``lab_module`` and ``lab`` come from ``tests/attacker/lab.py`` (``pytest_plugins``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,11 @@ from swarmd_lab.netns import Lan, Namespace, cleanup_dead_runs, list_namespaces,
 
 from tests.daemon_support import SWARM3, bundle_cli
 from tests.peers.cyclone import CyclonePeer
+
+# the attack tests' fixtures (``lab_module``: one attacked swarm per module; ``lab``: it,
+# restarted after a test that damaged it), found by pytest for every module that asks for
+# them instead of imported into each (tests/attacker/lab.py)
+pytest_plugins = ["tests.attacker.lab"]
 
 LanFactory = Callable[..., Lan]
 CycloneFactory = Callable[[Namespace], CyclonePeer]

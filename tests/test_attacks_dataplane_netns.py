@@ -29,8 +29,6 @@ from tests.attacker.lab import (
     M2,
     READY,
     Lab,
-    lab_fixture,  # noqa: F401 - the fixture ``lab``
-    lab_module_fixture,  # noqa: F401 - the fixture ``lab_module``
     settle,
 )
 from tests.attacker.swarm import BIN, FlashedSwarm, until

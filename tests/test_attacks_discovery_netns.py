@@ -32,8 +32,6 @@ from tests.attacker.lab import (
     SETTLE_S,
     SPDP,
     Lab,
-    lab_fixture,  # noqa: F401 - the fixture ``lab``
-    lab_module_fixture,  # noqa: F401 - the fixture ``lab_module``
     settle,
 )
 from tests.attacker.swarm import FlashedSwarm

@@ -22,7 +22,7 @@ from swarmd.px4.messages import Heartbeat as MavHeartbeat
 from swarmd.rtps.types import GuidPrefix
 from tests.attacker import forge
 from tests.attacker.host import drain
-from tests.attacker.lab import LEAD, M1, PX4_PORT, Lab, lab_fixture, lab_module_fixture  # noqa: F401 - fixtures
+from tests.attacker.lab import LEAD, M1, PX4_PORT, Lab
 from tests.attacker.swarm import FlashedSwarm, until
 
 pytestmark = [pytest.mark.netns]

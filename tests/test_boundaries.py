@@ -89,7 +89,14 @@ ALLOWED: dict[str, frozenset[str]] = {
     | {"config", "control", "driver", "logs", "userdata"},
     # what the daemon derives before it starts: secrets, address, engine settings, link
     # sources, SPDP sockets, the systemd socket name (daemon tier, split from daemon.py)
-    "daemon_setup": CORE | {"auth", "discovery", "link", "px4", "config", "udp"},
+    "daemon_setup": CORE | {"auth", "discovery", "link", "px4", "config", "udp", "sdlisten"},
+    # the daemon's shared state and status (healthy, the watchdog, STATUS=), and its routing
+    # of discovery's events to the log, the peer history, SwarmApp and the ROS 2 relay:
+    # Daemon's base classes, split from daemon.py by concern (daemon tier)
+    "daemon_status": CORE
+    | {"auth", "discovery", "link", "config", "control", "driver", "peerlog", "sdnotify"}
+    | {"swarmapp", "ros2app", "udp"},
+    "daemon_events": CORE | {"discovery", "peerlog", "daemon_status"},
     # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
     "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid"},
     "daemon": CORE
@@ -98,11 +105,12 @@ ALLOWED: dict[str, frozenset[str]] = {
         "rawclock",
         "config",
         "control",
+        "daemon_events",
         "daemon_setup",
+        "daemon_status",
         "driver",
         "logs",
         "peerlog",
-        "sdlisten",
         "sdnotify",
         "swarmapp",
         "ros2app",

@@ -201,6 +201,35 @@ def test_since_commit_drops_older_runs_on_swarmd_only() -> None:
     )
 
 
+def test_a_cell_with_only_older_runs_says_so_not_not_run() -> None:
+    # flown, but every run of the cell is older than --since-commit: "not run" would read as
+    # never flown (a reader takes it literally); the count says how many were left out
+    runs = files(
+        record("fade", commit="old0000000"),
+        record("fade", run=2, commit="old0000000"),
+        record("split", commit="new0000000"),
+        record("split", contender="ros2-swarmd", commit="old1111111"),
+    )
+    text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"),
+                    counts=lambda c: c.startswith("new"), since="new0000")  # fmt: skip
+    runs_table = text.split("**runs, valid/total (time dilation k)**, N = 10:")[1]
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in runs_table.split("\n")]
+    rows = {row[0]: row for row in cells[3:8]}
+    assert rows["fade"][1] == "older runs only (2)"  # swarmd's column
+    assert rows["split"][1] == "1/1 (k 1)"
+    assert rows["split"][7] == "older runs only (1)"  # ROS 2 on swarmd's column
+    assert rows["reboot"][1] == "not run"  # never flown at all
+    sel = fm.select(runs, lambda c: c.startswith("new"))
+    readiness = fm.tables(sel.runs, 10, sel.older)
+    start = readiness.index("**readiness delivery**, N = 10:")
+    assert "| fade | older runs only (2) | not run |" in readiness[start + 4 + 1]
+    assert 'left out, older: 3 run file(s) (a cell that has only these says "older' in text
+    # without --since-commit every run counts: the cell is measured, not "older"
+    assert "older runs only" not in fm.block(
+        runs, command="cmd", docs_dir=Path("/nowhere"), counts=None, since=None
+    )
+
+
 def test_a_run_file_cut_short_is_named_and_judges_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -1,8 +1,10 @@
 """What a cell of the flight matrix says (``bench/wifi/flight_matrix.py``): the run files'
 fields each measure reads, and the per-N tables (rows the scenarios, columns the
 contenders). A cell is the median over that cell's **valid** runs with the range when there
-are more than one (false losses, commands: their sum), "not run" without a run file, "-"
-when no valid run carries the measure (a stack without swarmd's commands or renewals).
+are more than one (false losses, commands: their sum), "not run" without a run file,
+"older runs only (n)" when its only run files are from before ``--since-commit`` (n of
+them, which the matrix does not count: "not run" would read as never flown), "-" when no
+valid run carries the measure (a stack without swarmd's commands or renewals).
 """
 
 from __future__ import annotations
@@ -331,10 +333,17 @@ def summary(values: Sequence[float], spec: str, unit: str) -> str:
     return f"{med} ({low}-{high})"
 
 
-def cell(files: Sequence[RunFile], measure: Measure) -> str:
-    """One measure over one cell's valid runs (module doc)."""
+def empty_cell(older: int) -> str:
+    """A cell the matrix counts no run in: ``older`` run files of it left out as older than
+    ``--since-commit`` (``current``), or none at all (module doc)."""
+    return f"older runs only ({older})" if older else "not run"
+
+
+def cell(files: Sequence[RunFile], measure: Measure, older: int = 0) -> str:
+    """One measure over one cell's valid runs; ``older``: its run files left out as older
+    (module doc)."""
     if not files:
-        return "not run"
+        return empty_cell(older)
     ok = valid(files)
     if not ok:
         return f"no valid run (0/{len(files)})"
@@ -352,9 +361,9 @@ def cell(files: Sequence[RunFile], measure: Measure) -> str:
     return text if len(values) == len(ok) else f"{text} [{len(values)}/{len(ok)}]"
 
 
-def runs_cell(files: Sequence[RunFile]) -> str:
+def runs_cell(files: Sequence[RunFile], older: int = 0) -> str:
     if not files:
-        return "not run"
+        return empty_cell(older)
     ks = sorted({dilation(f.run) for f in files})
     shared = sum(1 for f in files if beside(f.run) > 0)
     also = f"; {shared} beside another" if shared else ""
@@ -370,13 +379,15 @@ def _table(rows: Sequence[Sequence[str]]) -> list[str]:
     ]
 
 
-def tables(runs: Sequence[RunFile], n: int) -> list[str]:
+def tables(runs: Sequence[RunFile], n: int, older: Sequence[RunFile] = ()) -> list[str]:
     """Markdown: the "runs" table and one table per measure at N (rows scenario, columns
-    contender)."""
+    contender); ``older``: the run files left out as older than ``--since-commit``, which
+    only name the cells they would fill (``empty_cell``)."""
+    left = {(s, c): len(cell_runs(older, s, c, n)) for s in SCENARIOS for c, _ in COLUMNS}
     out = [f"**runs, valid/total (time dilation k)**, N = {n}:", ""]
     out += _table(
         [
-            [s, *(runs_cell(cell_runs(runs, s, c, n)) for c, _ in COLUMNS)]
+            [s, *(runs_cell(cell_runs(runs, s, c, n), left[s, c]) for c, _ in COLUMNS)]
             for s in SCENARIOS
         ]
     )  # fmt: skip
@@ -384,6 +395,9 @@ def tables(runs: Sequence[RunFile], n: int) -> list[str]:
         legend = f" {measure.legend}" if measure.legend else ""
         out += ["", f"**{measure.title}**, N = {n}:{legend}", ""]
         out += _table(
-            [[s, *(cell(cell_runs(runs, s, c, n), measure) for c, _ in COLUMNS)] for s in SCENARIOS]
+            [
+                [s, *(cell(cell_runs(runs, s, c, n), measure, left[s, c]) for c, _ in COLUMNS)]
+                for s in SCENARIOS
+            ]
         )
     return out

@@ -11,8 +11,9 @@ costs' medians over cells and their ratio to swarmd's). Then per N, one table pe
 rows the scenarios, columns the contenders (``flight_cells.py``: the discovery measures, the
 commands, the renewal period following Q); a cell is the median over that cell's **valid**
 runs with the range when there are more than one (false losses, commands: their sum), "not
-run" without a run file, and invalid runs are counted in the "runs" table but enter no
-median, sum or verdict. Then swarmd's targets, judged (``flight_verdicts.py``), and the figures.
+run" without a run file, "older runs only (n)" with only run files older than
+``--since-commit``, and invalid runs are counted in the "runs" table but enter no median,
+sum or verdict. Then swarmd's targets, judged (``flight_verdicts.py``), and the figures.
 
 Which runs on swarmd count: ``--since-commit C`` keeps the runs of every contender whose
 daemon is swarmd (swarmd, ROS 2 on swarmd: ``flight_cells.ON_SWARMD``) whose
@@ -299,7 +300,12 @@ def block(
             "",
             f"The contenders on swarmd ({on_swarmd}): only runs at `{since}` or after count "
             "(the engine as shipped)"
-            + (f"; left out, older: {len(sel.older)} run file(s):" if sel.older else "."),
+            + (
+                f"; left out, older: {len(sel.older)} run file(s) (a cell that has only "
+                'these says "older runs only (n)", not "not run"):'
+                if sel.older
+                else "."
+            ),
         ]
         if sel.older:
             lines += ["", *commit_lines(sel.older)]
@@ -309,7 +315,7 @@ def block(
                   + ", ".join(what) + "."]  # fmt: skip
     lines += ["", "### The matrix, from the run files", ""]
     for n in SIZES:
-        lines += [f"#### N = {n}", "", *tables(runs, n), ""]
+        lines += [f"#### N = {n}", "", *tables(runs, n, sel.older), ""]
     lines += [
         "### Targets (issue 20), swarmd, judged from the runs",
         "",

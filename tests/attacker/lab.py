@@ -15,12 +15,12 @@ Every attack test asserts the same three things:
 
 Each test was written first as ``xfail(strict=True)`` naming the defence it waited for, and
 seen failing against main before the defences (f0f3378) for the attack's own reason (each
-module's docstring names them); the markers went when the defences landed. Each attack
-module imports the two fixtures below (as ``lab_module_fixture`` and ``lab_fixture``, so
-that a test's ``lab`` argument does not shadow an import): ``lab_module``, one swarm per
-module, and ``lab``, which restarts the swarm from the flashed files with no state after a
-test that left it damaged (any test that did not pass, and the ones that fly). Every send
-loop and every wait is bounded.
+module's docstring names them); the markers went when the defences landed. The two
+fixtures below reach every attack module through ``pytest_plugins`` in tests/conftest.py
+(named ``lab_module_fixture`` and ``lab_fixture``, so that a test's ``lab`` argument does
+not shadow a function): ``lab_module``, one swarm per module, and ``lab``, which restarts
+the swarm from the flashed files with no state after a test that left it damaged (any test
+that did not pass, and the ones that fly). Every send loop and every wait is bounded.
 """
 
 from __future__ import annotations
