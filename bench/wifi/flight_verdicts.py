@@ -1,10 +1,14 @@
 """issue 20's targets judged from the flight runs (``bench/wifi/flight_matrix.py``'s
 "Targets" list): one table of rules (``RULES``), each read per run, every verdict met / not
-met / not known with the numbers.
+met / not known with the numbers. Then every contender side by side (``standings``): the
+same rules as a yardstick for each, per N, with the two costs that matter most as medians
+over the cells and their ratio to swarmd's.
 """
 
 from __future__ import annotations
 
+import math
+import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Final
@@ -257,3 +261,158 @@ def verdict_lines(vs: Sequence[Verdict]) -> list[str]:
         if unrun:
             out.append(f"  - {_word(None)}, no run: {', '.join(unrun)}")
     return out
+
+
+# --- every contender, side by side -----------------------------------------------------
+
+# the targets every contender is judged against, as a yardstick (issue 20 asks for "the
+# targets judged from the runs"; commands and the renewal period are swarmd's own features,
+# a stock stack has neither)
+YARDSTICK: Final = ("false", "rediscovery", "frames", "readiness")
+# the two costs compared as medians over the cells, each with its ratio to swarmd's
+COSTS: Final = (
+    ("rediscovery", "re-discovery max"),
+    ("frames", "frames per rejoining pair"),
+)
+_SHORT: Final = {
+    "false": "no false losses",
+    "rediscovery": "re-discovery ≤ 2 s",
+    "frames": "≤ 4 frames per rejoining pair",
+    "readiness": "readiness ≥ 99 %",
+}
+
+
+def _rule(target: str) -> Rule:
+    return next(rule for rule in RULES if rule.target == target)
+
+
+@dataclass(frozen=True, slots=True)
+class Tally:
+    """How many cells (scenarios) of one target one contender met, did not, or could not be
+    judged in (no run, no valid run, the measure in none)."""
+
+    met: int
+    not_met: int
+    not_known: int
+
+
+@dataclass(frozen=True, slots=True)
+class Cost:
+    """One cost of one contender at one N: each cell's median over its valid runs that have
+    the figure (``inf``: a pair never found again), and how many such runs there were."""
+
+    cells: dict[str, float]  # scenario -> the cell's median
+    runs: int
+
+    def median(self, scenarios: Sequence[str] | None = None) -> float | None:
+        """The median over the cells (those in ``scenarios`` only, when given)."""
+        picked = [v for s, v in self.cells.items() if scenarios is None or s in scenarios]
+        return statistics.median(picked) if picked else None
+
+
+@dataclass(frozen=True, slots=True)
+class Standing:
+    """One contender at one N against the yardstick: a ``Tally`` per ``YARDSTICK`` target
+    and a ``Cost`` per ``COSTS`` target."""
+
+    contender: str
+    n: int
+    tallies: tuple[Tally, ...]
+    costs: tuple[Cost, ...]
+
+
+def _cost(rule: Rule, runs: Sequence[RunFile], contender: str, n: int) -> Cost:
+    cells: dict[str, float] = {}
+    count = 0
+    for s in SCENARIOS:
+        if rule.scenarios is not None and s not in rule.scenarios:
+            continue
+        values = [
+            v for v in (rule.read(f.run) for f in valid(cell_runs(runs, s, contender, n)))
+            if v is not None
+        ]  # fmt: skip
+        if values:
+            cells[s] = statistics.median(values)
+            count += len(values)
+    return Cost(cells, count)
+
+
+def standings(runs: Sequence[RunFile]) -> list[Standing]:
+    """Every contender of ``COLUMNS`` at every N, judged by the ``YARDSTICK`` rules as
+    swarmd is (``_judge``: met only when every valid run of the cell is) and costed."""
+    out = []
+    for n in SIZES:
+        for c, _ in COLUMNS:
+            tallies = []
+            for target in YARDSTICK:
+                rule = _rule(target)
+                mets = [
+                    _judge(rule, s, n, cell_runs(runs, s, c, n), c).met
+                    for s in SCENARIOS
+                    if rule.scenarios is None or s in rule.scenarios
+                ]
+                tallies.append(
+                    Tally(mets.count(True), mets.count(False), sum(m is None for m in mets))
+                )
+            costs = tuple(_cost(_rule(t), runs, c, n) for t, _ in COSTS)
+            out.append(Standing(c, n, tuple(tallies), costs))
+    return out
+
+
+def ratio(mine: Cost, swarmd: Cost) -> float | None:
+    """The median of ``mine`` over the cells both have, over swarmd's median over the same
+    cells (so a cell only one has moves neither side); None without a shared cell or when
+    swarmd's median is 0."""
+    shared = [s for s in mine.cells if s in swarmd.cells]
+    a, b = mine.median(shared), swarmd.median(shared)
+    if a is None or b is None or b == 0:
+        return None
+    return a / b
+
+
+def _cost_text(cost: Cost, rule: Rule) -> str:
+    mid = cost.median()
+    if mid is None:
+        return "-"
+    value = "never" if math.isinf(mid) else f"{mid:{rule.spec}}{rule.unit}"
+    never = sum(1 for v in cost.cells.values() if math.isinf(v))
+    also = f"; {never} never" if never else ""
+    cells = len(cost.cells)
+    return (
+        f"{value} ({cells} cell{'' if cells == 1 else 's'}, "
+        f"{cost.runs} run{'' if cost.runs == 1 else 's'}{also})"
+    )
+
+
+def _ratio_text(x: float | None) -> str:
+    if x is None:
+        return "-"
+    if math.isinf(x):
+        return "never"
+    return f"{x:.1f}×" if x < 10 else f"{x:.0f}×"
+
+
+def standing_lines(table: Sequence[Standing]) -> list[str]:
+    """Per N, a row per contender: cells met / not met / not known per target, then each
+    cost's median over the cells with its cells and valid runs, and its ratio to swarmd's."""
+    out: list[str] = []
+    for n in SIZES:
+        rows = [st for st in table if st.n == n]
+        ours = next((st for st in rows if st.contender == SWARMD), None)
+        head = ["contender", *(_SHORT[t] for t in YARDSTICK), "all targets"]
+        for _, title in COSTS:
+            head += [f"{title}, median (cells, runs)", "× swarmd"]
+        out += [f"**N = {n}**:", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for st in rows:
+            total = Tally(*(sum(getattr(t, f) for t in st.tallies)
+                            for f in ("met", "not_met", "not_known")))  # fmt: skip
+            cells = [_title(st.contender)]
+            cells += [f"{t.met} / {t.not_met} / {t.not_known}" for t in st.tallies]
+            cells.append(f"{total.met} / {total.not_met} / {total.not_known}")
+            for k, (t, _) in enumerate(COSTS):
+                cost = st.costs[k]
+                cells.append(_cost_text(cost, _rule(t)))
+                cells.append(_ratio_text(None if ours is None else ratio(cost, ours.costs[k])))
+            out.append("| " + " | ".join(cells) + " |")
+        out.append("")
+    return out[:-1]
