@@ -45,13 +45,14 @@ from functools import partial
 from typing import Any
 
 from swarmd import __version__
-from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch
+from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch, plan_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
 from swarmd.bundle.floor import floor_path
 from swarmd.bundle.keys import remove_left_temps
 from swarmd.bundle.model import Bundle
+from swarmd.bundle.statedir import DaemonUser
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
 from swarmd.control import ControlServer
 from swarmd.daemon_events import DaemonEvents
@@ -159,6 +160,8 @@ class Daemon(DaemonEvents):
                 fix="drive the daemon with swarmd.rawclock.run_on_raw_clock, as `swarmd run` does",
             )
         self.keyring = self.check_start()
+        # node.key's folder judged before the floor's write into it, as check-config judges it
+        self._plan_epoch(DaemonUser.this_process())
         raise_bundle_floor(self.config, self.bundle, self.log)
         try:
             self.epoch = next_epoch(self._state_dir, self.config.node, time.time())
@@ -368,6 +371,33 @@ class Daemon(DaemonEvents):
             return KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
         except NodeKeyMismatch as exc:
             raise self.config.error("bundle.node_key", str(exc), "re-flash this node") from None
+
+    def _plan_epoch(self, user: DaemonUser) -> EpochResult:
+        """``plan_epoch`` (read only) with ``start``'s one line and exit code (73)."""
+        try:
+            return plan_epoch(self._state_dir, self.config.node, time.time(), user)
+        except EpochError as exc:
+            raise StartupError(str(exc), EX_CANTCREAT) from None
+
+    def check_state(self, keyring: KeyRing, user: DaemonUser) -> list[str]:
+        """What ``start`` writes and builds after ``check_start``, judged by reading only
+        (``swarmd check-config``, docs/operations.md): the boot epoch's folder (node.key's)
+        safe and writable by ``user`` and its epoch not exhausted (``plan_epoch``, which
+        ``next_epoch`` runs first); the swarm layer's PX4 link and data plane
+        (``SwarmApp.check``). Each refusal is ``start``'s own one-line ``StartupError``, from
+        the same function. Sockets stay out: binding one is its only test. Returns what
+        ``start`` would warn about and go on."""
+        planned = self._plan_epoch(user)
+        app = SwarmApp(
+            self.config,
+            self.bundle,
+            log=self.log,
+            link_q=self._link_q,
+            keys=keyring,
+            epoch=planned.epoch,
+            node_secrets=self._secrets,
+        )
+        return app.check(user)
 
     async def stop(self, reason: str = "stop") -> None:
         """Tell every peer we leave (DATA(p[UD])), then release everything."""

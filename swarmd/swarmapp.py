@@ -28,6 +28,7 @@ from typing import Any, Final, assert_never
 
 from swarmd.auth.keys import NodeSecrets
 from swarmd.bundle.model import Bundle
+from swarmd.bundle.statedir import DaemonUser
 from swarmd.config import DaemonConfig
 from swarmd.control import PeerCredentials, RequestInvalid
 from swarmd.dataplane import DataPlane, PairKeys
@@ -45,6 +46,7 @@ from swarmd.px4.transport import (
 )
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
 from swarmd.px4.xrce_key import XrceKeyError
+from swarmd.px4.xrce_key import check as check_xrce_key
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import issuer
 from swarmd.swarm.commander import CommandTracker, KeptDecision, ReadinessTable
@@ -68,7 +70,7 @@ from swarmd.swarm.events import (
 )
 from swarmd.swarm.member import NO_VEHICLE
 from swarmd.swarm.roles import Roles
-from swarmd.swarm.statefile import NodeState, StateDirError, boot
+from swarmd.swarm.statefile import NodeState, StateDirError, boot, preview
 from swarmd.userdata import UserDataSocket
 
 Datagram = tuple[bytes, tuple[str, int]]
@@ -149,56 +151,13 @@ class SwarmApp:
         """PX4 link, state directory, data plane socket; ``StartupError`` on failure."""
         px4 = self.config.px4
         if px4.enabled:
-            sysid = px4.sysid if px4.sysid is not None else self.me.mavlink_sysid
-            signing_key: bytes | None = None
-            # the per-drone MAVLink key (docs/px4.md, "Message signing"); MAVLink only: PX4's
-            # uXRCE-DDS client has no message authentication to key
-            if px4.signing and px4.backend == "mavlink":
-                secrets = self.node_secrets
-                if secrets is None and px4.signing_key is None:
-                    raise StartupError(
-                        "px4.signing: no node secrets to derive the MAVLink key from; fix: "
-                        "flash node.key, set px4.signing_key, or px4.signing: false",
-                        EX_CONFIG,
-                    )
-                seed = b"" if secrets is None else ed25519_seed(secrets.ed25519)
-                try:
-                    signing_key = signing_key_for(
-                        swarm=self.bundle.swarm,
-                        node=self.me.name,
-                        key_file=px4.signing_key,
-                        seed=seed,
-                    )
-                except SigningKeyError as exc:
-                    raise StartupError(str(exc), EX_CONFIG) from None
-            xrce_key = self._xrce_key() if px4.backend == "xrce-agent" else px4.xrce_key
+            built = self._px4_bridge(write=True)
             try:
-                self.bridge = Px4Bridge.from_config(
-                    Px4Config(
-                        connection=px4.connection,
-                        sysid=sysid,
-                        autopilot=px4.autopilot,
-                        signing_key=signing_key,
-                        backend=px4.backend,
-                        xrce_key=xrce_key,
-                        namespace=px4.namespace,
-                        xrce_domain_id=px4.xrce_domain_id,
-                        loopback_user=px4.loopback_user,
-                        listen_socket=self.px4_socket,
-                        readiness=ReadinessConfig(
-                            heartbeat_timeout_s=px4.heartbeat_timeout_s,
-                            min_battery_pct=px4.min_battery_pct,
-                            require_home=px4.require_home,
-                            allow_unknown_battery=px4.allow_unknown_battery,
-                        ),
-                    ),
-                    log=self.log,
-                )
-                await self.bridge.start()
+                await built.start()
             except (OSError, ValueError) as exc:
-                self.bridge = None
                 reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
                 raise StartupError(f"px4.connection {px4.connection}: {reason}", EX_OSERR) from None
+            self.bridge = built
             self._warn_unprivileged_port()
         try:
             if self.config.dataplane.enabled:
@@ -238,19 +197,91 @@ class SwarmApp:
             bridge.on_task_finished(self._on_task_finished)
         self.driver.call(self.core.start)
 
-    def _xrce_key(self) -> int:
+    def check(self, user: DaemonUser) -> list[str]:
+        """``start``'s checks that neither bind, send nor write (``swarmd check-config``):
+        the PX4 link built (its signing key read, an XRCE agent's key file read) and never
+        started; the state file read and the data plane built on it, as ``start`` builds
+        them, with the same one-line ``StartupError``. ``user``: whose writes the state
+        folder is judged for (``swarmd.bundle.statedir``). Writes nothing; returns what
+        ``start`` would log as a warning and go on (a state file it would replace)."""
+        notes: list[str] = []
+        if self.config.px4.enabled:
+            self._px4_bridge(write=False)
+        if self.config.dataplane.enabled:
+            state = self._state(lambda d, n: preview(d, n, user))
+            if state.recovered_from:
+                notes.append(f"{state.path}: {state.recovered_from}; run replaces it")
+            self._make_plane(state)
+        return notes
+
+    def _px4_bridge(self, *, write: bool) -> Px4Bridge:
+        """The PX4 bridge of the config, built and not started; ``write``: an XRCE agent's
+        key file is generated (or its mode fixed) when it must be, else only read."""
+        px4 = self.config.px4
+        sysid = px4.sysid if px4.sysid is not None else self.me.mavlink_sysid
+        signing_key: bytes | None = None
+        # the per-drone MAVLink key (docs/px4.md, "Message signing"); MAVLink only: PX4's
+        # uXRCE-DDS client has no message authentication to key
+        if px4.signing and px4.backend == "mavlink":
+            secrets = self.node_secrets
+            if secrets is None and px4.signing_key is None:
+                raise StartupError(
+                    "px4.signing: no node secrets to derive the MAVLink key from; fix: "
+                    "flash node.key, set px4.signing_key, or px4.signing: false",
+                    EX_CONFIG,
+                )
+            seed = b"" if secrets is None else ed25519_seed(secrets.ed25519)
+            try:
+                signing_key = signing_key_for(
+                    swarm=self.bundle.swarm,
+                    node=self.me.name,
+                    key_file=px4.signing_key,
+                    seed=seed,
+                )
+            except SigningKeyError as exc:
+                raise StartupError(str(exc), EX_CONFIG) from None
+        xrce_key = self._xrce_key(write=write) if px4.backend == "xrce-agent" else px4.xrce_key
+        try:
+            return Px4Bridge.from_config(
+                Px4Config(
+                    connection=px4.connection,
+                    sysid=sysid,
+                    autopilot=px4.autopilot,
+                    signing_key=signing_key,
+                    backend=px4.backend,
+                    xrce_key=xrce_key,
+                    namespace=px4.namespace,
+                    xrce_domain_id=px4.xrce_domain_id,
+                    loopback_user=px4.loopback_user,
+                    listen_socket=self.px4_socket,
+                    readiness=ReadinessConfig(
+                        heartbeat_timeout_s=px4.heartbeat_timeout_s,
+                        min_battery_pct=px4.min_battery_pct,
+                        require_home=px4.require_home,
+                        allow_unknown_battery=px4.allow_unknown_battery,
+                    ),
+                ),
+                log=self.log,
+            )
+        except ValueError as exc:
+            raise StartupError(f"px4.connection {px4.connection}: {exc}", EX_OSERR) from None
+
+    def _xrce_key(self, *, write: bool) -> int | None:
         """The vehicle key the XRCE agent is bound to: ``px4.xrce_key``, else the one kept
         with the node's secrets, generated at the first start (docs/px4.md, "One agent, one
-        vehicle")."""
+        vehicle"). ``write=False``: the file read only, None when there is none yet."""
         configured = self.config.px4.xrce_key
         if configured is not None:
-            self.log.info("xrce_key", source="px4.xrce_key")
+            if write:
+                self.log.info("xrce_key", source="px4.xrce_key")
             return configured
         folder = os.path.dirname(os.path.abspath(self.config.bundle.node_key_path))
         try:
-            key = load_or_create_xrce_key(folder)
+            key = load_or_create_xrce_key(folder) if write else check_xrce_key(folder)
         except XrceKeyError as exc:
             raise StartupError(f"px4.xrce_key: {exc}", EX_CANTCREAT) from None
+        if key is None or not write:
+            return None if key is None else key.value
         if key.created:
             # the operator's one step: PX4 must send this key or its sessions are refused
             self.log.warning(
@@ -293,11 +324,31 @@ class SwarmApp:
                 fix=fix,
             )
 
-    def _boot_dataplane(self) -> None:
+    def _state(self, read: Callable[[str, str], NodeState]) -> NodeState:
+        """The state file by ``read`` (``boot``, or ``preview`` for a check), its refusal as
+        ``start``'s one line (exit 73)."""
         try:
-            self.state = boot(self.config.dataplane.state_dir, self.me.name)
+            return read(self.config.dataplane.state_dir, self.me.name)
         except StateDirError as exc:
             raise StartupError(f"dataplane.state_dir: {exc}", EX_CANTCREAT) from None
+
+    def _make_plane(self, state: NodeState) -> DataPlane:
+        """The data plane on ``state``; its refusal of the bundle as one line (exit 78)."""
+        try:
+            return DataPlane(
+                self.bundle,
+                self.me.name,
+                keys=self.keys,
+                epoch=self.epoch,
+                incarnation=state.boot,
+                executed_command_ids=state.executed,
+                executed_outcomes=state.outcomes,
+            )
+        except ValueError as exc:
+            raise StartupError(f"bundle rejected by the data plane: {exc}", EX_CONFIG) from None
+
+    def _boot_dataplane(self) -> None:
+        self.state = self._state(boot)
         if self.state.recovered_from:
             self.log.warning(
                 "state_file_replaced", path=str(self.state.path), why=self.state.recovered_from
@@ -318,18 +369,7 @@ class SwarmApp:
                 path=str(self.state.path),
                 count=self.state.temps_removed,
             )
-        try:
-            self.plane = DataPlane(
-                self.bundle,
-                self.me.name,
-                keys=self.keys,
-                epoch=self.epoch,
-                incarnation=self.state.boot,
-                executed_command_ids=self.state.executed,
-                executed_outcomes=self.state.outcomes,
-            )
-        except ValueError as exc:
-            raise StartupError(f"bundle rejected by the data plane: {exc}", EX_CONFIG) from None
+        self.plane = self._make_plane(self.state)
 
     async def _open_socket(self) -> None:
         assert self.driver is not None  # noqa: S101 - start() made it

@@ -111,5 +111,5 @@ def test_epoch_exhausted_or_unwritable_is_one_line(tmp_path: Path) -> None:
         next_epoch(tmp_path, "uav1", 0.0)
     blocker = tmp_path / "file"
     blocker.write_text("")
-    with pytest.raises(EpochError, match="cannot persist"):
+    with pytest.raises(EpochError, match="cannot be written"):
         next_epoch(blocker / "sub", "uav1", 0.0)

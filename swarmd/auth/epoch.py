@@ -30,6 +30,7 @@ from typing import Final
 
 from swarmd.auth.freshness import U32_MAX
 from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
+from swarmd.bundle.statedir import DaemonUser, refuse_unwritable_dir
 
 FILE_PATTERN: Final = "auth-epoch-{node}"
 
@@ -67,13 +68,19 @@ def read_epoch(path: Path) -> tuple[int | None, str | None]:
     return value, None
 
 
-def next_epoch(state_dir: str | Path, node: str, wallclock_s: float) -> EpochResult:
-    """Raise this node's epoch and make it durable before returning it.
+def plan_epoch(
+    state_dir: str | Path, node: str, wallclock_s: float, user: DaemonUser
+) -> EpochResult:
+    """The epoch ``next_epoch`` would make durable, found by reading only: the folder is
+    safe (``refuse_shared_dir``) and ``user`` (the daemon's) can create and write it, the
+    stored epoch is not exhausted. ``swarmd check-config`` calls it alone; ``next_epoch``
+    calls it first, so both refuse with the same line (docs/operations.md, "Exit codes").
 
-    Raises ``EpochError`` when the directory cannot be written or the epoch is exhausted."""
+    Raises ``EpochError``; writes nothing."""
     directory = Path(state_dir)
     # the epoch lives beside node.key: a folder others can write could hold a planted one
     refuse_shared_dir(directory, "bundle.node_key", EpochError)
+    refuse_unwritable_dir(directory, "bundle.node_key", EpochError, user)
     path = epoch_path(directory, node)
     stored, problem = read_epoch(path)
     if stored is not None and stored >= U32_MAX:
@@ -85,9 +92,24 @@ def next_epoch(state_dir: str | Path, node: str, wallclock_s: float) -> EpochRes
     epoch = max((stored or 0) + 1, clock, 1)
     if stored is None and problem is None and clock == 0:
         problem = "missing and no wall clock"
-    try:
-        directory.mkdir(parents=True, exist_ok=True, mode=0o750)
-        write_file_atomic(path, f"{epoch}\n".encode("ascii"), 0o644)  # fsync file and folder
-    except OSError as exc:
-        raise EpochError(f"cannot persist the boot epoch in {path}: {exc.strerror}") from None
     return EpochResult(epoch, path, stored, problem)
+
+
+def next_epoch(
+    state_dir: str | Path, node: str, wallclock_s: float, user: DaemonUser | None = None
+) -> EpochResult:
+    """Raise this node's epoch and make it durable before returning it; ``user``: whose
+    writes are judged (None: this process's).
+
+    Raises ``EpochError`` when the directory cannot be written or the epoch is exhausted."""
+    judged = user if user is not None else DaemonUser.this_process()
+    planned = plan_epoch(state_dir, node, wallclock_s, judged)
+    try:
+        planned.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
+        # fsync file and folder
+        write_file_atomic(planned.path, f"{planned.epoch}\n".encode("ascii"), 0o644)
+    except OSError as exc:
+        raise EpochError(
+            f"cannot persist the boot epoch in {planned.path}: {exc.strerror}"
+        ) from None
+    return planned

@@ -36,6 +36,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--config", required=True, help="daemon config file (YAML)")
     check = sub.add_parser("check-config", help="check a config file (and its bundle), then exit")
     check.add_argument("--config", required=True, help="daemon config file (YAML)")
+    check.add_argument(
+        "--user",
+        help="judge the state folders for this user (default: as root, the unit's User= "
+        "swarmd when it exists; else the user running the check)",
+    )
     firewall_cmd.register(sub)
     return parser
 
@@ -100,13 +105,28 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     except StartupError as exc:
         return _fail(str(exc), exc.exit_code)
     if args.command == "check-config":
+        from swarmd.bundle.statedir import DaemonUser
+
+        try:
+            named = args.user is not None
+            user = DaemonUser.named(args.user) if named else DaemonUser.service_or_this_process()
+        except KeyError:
+            return _fail(f"check-config: no user {args.user!r} on this host", EX_USAGE)
         try:
             # every check of `run`'s start that neither binds, sends nor writes, so this
             # refuses what `run` refuses, with its line (docs/operations.md, "Exit codes")
-            Daemon(config, bundle, log=log, node_secrets=secrets).check_start()
+            daemon = Daemon(config, bundle, log=log, node_secrets=secrets)
+            notes = daemon.check_state(daemon.check_start(), user)
         except ConfigError as exc:
             return _fail(f"config rejected: {exc}", EX_CONFIG)
-        print(f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm})")
+        except StartupError as exc:
+            return _fail(str(exc), exc.exit_code)
+        for note in notes:  # `run` logs these as warnings and starts
+            print(f"swarmd: warning: {note}", file=sys.stderr)
+        print(
+            f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm}), "
+            f"state folders judged for user {user.name}"
+        )
         return 0
     if before_run is not None:
         try:

@@ -60,21 +60,38 @@ def generate_key(draw: int | None = None) -> int:
 def load_or_create(secrets_dir: str | Path) -> XrceKey:
     """The key in ``secrets_dir/px4-xrce-key``, generated and written (0600) when absent."""
     path = xrce_key_path(secrets_dir)
+    existing = _read_key(path, fix_mode=True)
+    if existing is not None:
+        return existing
+    value = generate_key()
+    try:
+        write_file_atomic(path, f"{value}\n".encode(), PRIVATE_MODE)
+    except OSError as exc:
+        raise XrceKeyError(
+            f"{path}: cannot write the XRCE key: {exc.strerror}; fix: make "
+            f"{path.parent} writable by swarmd, or set px4.xrce_key"
+        ) from None
+    return XrceKey(value, path, created=True, mode_fixed=False)
+
+
+def check(secrets_dir: str | Path) -> XrceKey | None:
+    """``load_or_create`` by reading only (``swarmd check-config``): an existing file is read
+    and refused as the daemon would refuse it, its mode reported (``mode_fixed``) and never
+    changed; a missing one gives None (its folder is the boot epoch's, which
+    ``swarmd.auth.epoch.plan_epoch`` judges). Raises ``XrceKeyError``."""
+    return _read_key(xrce_key_path(secrets_dir), fix_mode=False)
+
+
+def _read_key(path: Path, *, fix_mode: bool) -> XrceKey | None:
+    """The key file at ``path``, None when there is none; ``fix_mode``: make a file others
+    may read 0600 (the daemon does; a check does not write)."""
     fix = f"delete {path} to generate a new key, then set UXRCE_DDS_KEY on PX4 to it"
     unreadable = f"{path}: cannot read the XRCE key"
     try:
         # O_NONBLOCK: a FIFO planted here must be refused at fstat, not hang the open
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
-        value = generate_key()
-        try:
-            write_file_atomic(path, f"{value}\n".encode(), PRIVATE_MODE)
-        except OSError as exc:
-            raise XrceKeyError(
-                f"{path}: cannot write the XRCE key: {exc.strerror}; fix: make "
-                f"{path.parent} writable by swarmd, or set px4.xrce_key"
-            ) from None
-        return XrceKey(value, path, created=True, mode_fixed=False)
+        return None
     except OSError as exc:
         raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
     try:
@@ -82,7 +99,7 @@ def load_or_create(secrets_dir: str | Path) -> XrceKey:
         if not stat.S_ISREG(info.st_mode):
             raise XrceKeyError(f"{path}: not a regular file; fix: {fix}")
         mode_fixed = bool(info.st_mode & 0o077)
-        if mode_fixed:  # readable by others: the key's privacy is what bounds a local user
+        if mode_fixed and fix_mode:  # readable by others: its privacy bounds a local user
             os.fchmod(fd, PRIVATE_MODE)
         raw = os.read(fd, MAX_FILE_BYTES + 1)
     except OSError as exc:

@@ -55,6 +55,7 @@ from swarmd.bundle.keys import (
     remove_left_temps,
     write_file_atomic,
 )
+from swarmd.bundle.statedir import DaemonUser, refuse_unwritable_dir
 from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResult
 from swarmd.dataplane.writer import MAX_INCARNATION
@@ -107,24 +108,52 @@ def state_path(state_dir: str | Path, node: str) -> Path:
     return node_state_path(state_dir, FILE_PATTERN, node)
 
 
-def boot(state_dir: str | Path, node: str) -> NodeState:
-    """Load the node's state, count this boot and save it before anything is sent.
+def check_dir(state_dir: str | Path, user: DaemonUser) -> Path:
+    """The state directory, refused (``StateDirError``, one line) when another user could
+    write it or ``user`` (the daemon's) could not create or write it. Reads only."""
+    directory = Path(state_dir)
+    refuse_shared_dir(directory, "dataplane.state_dir", StateDirError)
+    refuse_unwritable_dir(directory, "dataplane.state_dir", StateDirError, user)
+    return directory
+
+
+def preview(state_dir: str | Path, node: str, user: DaemonUser) -> NodeState:
+    """What ``boot`` would load and count, by reading only: the folder checked
+    (``check_dir``), the file loaded as ``boot`` loads it, the boot counted in memory. It
+    never creates the folder, removes a temporary file or writes the state file
+    (``swarmd check-config``, docs/operations.md). Raises ``StateDirError``."""
+    directory = check_dir(state_dir, user)
+    path = state_path(directory, node)
+    if path.is_dir() and not path.is_symlink():
+        # the atomic write renames over it, and a rename cannot replace a folder
+        raise StateDirError(f"cannot write {path}: it is a folder; fix: remove it")
+    state = load(path)
+    state.boot = _next_boot(state.boot)
+    return state
+
+
+def _next_boot(count: int) -> int:
+    # wraps long after any drone's life (2^31 boots); 0 stays "never persisted"
+    return count + 1 if count < MAX_INCARNATION else 1
+
+
+def boot(state_dir: str | Path, node: str, user: DaemonUser | None = None) -> NodeState:
+    """Load the node's state, count this boot and save it before anything is sent;
+    ``user``: whose writes are judged (None: this process's).
 
     Raises ``StateDirError`` when the directory cannot be created or written.
     """
-    directory = Path(state_dir)
-    refuse_shared_dir(directory, "dataplane.state_dir", StateDirError)
+    planned = preview(state_dir, node, user if user is not None else DaemonUser.this_process())
+    directory = planned.path.parent
     try:
         directory.mkdir(parents=True, exist_ok=True, mode=0o750)
     except OSError as exc:
         raise StateDirError(f"cannot create state directory {directory}: {exc.strerror}") from None
-    path = state_path(directory, node)
     # a crash inside write_file_atomic leaves its temporary file (tests/test_cmd_state_kill.py)
-    removed = remove_left_temps(path)
-    state = load(path)
+    removed = remove_left_temps(planned.path)
+    state = load(planned.path)
     state.temps_removed = removed
-    # wraps long after any drone's life (2^31 boots); 0 stays "never persisted"
-    state.boot = state.boot + 1 if state.boot < MAX_INCARNATION else 1
+    state.boot = _next_boot(state.boot)
     state.save()
     return state
 
