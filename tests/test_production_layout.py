@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Final
 
 import pytest
+import yaml
 
 from tests.layout.install import ProductionLayout, shipped_config, unavailable_reason
 
@@ -239,6 +240,40 @@ def test_node_key_readable_by_others_stops_start_up_and_a_readable_config_warns(
     wait_for(lambda: any('"config_mode"' in x for x in layout.log_lines()), "config_mode")
     warnings = [json.loads(x) for x in layout.log_lines() if '"config_mode"' in x]
     assert len(warnings) == 1 and "chmod 640" in warnings[0]["problem"]
+
+
+def test_check_config_as_root_judges_the_state_folder_for_the_units_user(tmp_path: Path) -> None:
+    """An operator points ``dataplane.state_dir`` at a folder root made (0755 root): root
+    could write it, the daemon's user ``swarmd`` cannot. ``swarmd check-config`` run as root
+    judges for ``swarmd`` (the unit's ``User=``) and refuses with the line and exit code the
+    daemon's start gives (73); judged for root (``--user root``) it says ok."""
+    state = "/var/lib/swarmd-state"  # /var/lib is the namespace's overlay: never the host's
+    config = yaml.safe_load(shipped_config())
+    config["dataplane"]["state_dir"] = state
+    installed = ProductionLayout(tmp_path, config=yaml.safe_dump(config, sort_keys=False))
+    try:
+        assert installed.run(["install", "-d", "-m", "0755", state]).returncode == 0
+        assert installed.socket_unit(PX4_PORT)["ok"]
+        check = installed.run(["/opt/swarmd/venv/bin/swarmd", "check-config", "--config", CONFIG])
+        assert check.returncode == 73, check
+        assert check.stderr.count("\n") == 1, check.stderr
+        assert "user swarmd" in check.stderr and state in check.stderr
+        assert installed.start() == {"ready": False, "exit": 73}
+        assert last_error(installed) == [check.stderr.rstrip("\n")]
+        judged_as_root = installed.run(
+            ["/opt/swarmd/venv/bin/swarmd", "check-config", "--config", CONFIG, "--user", "root"]
+        )
+        assert judged_as_root.returncode == 0, judged_as_root.stderr
+        # the residual (docs/operations.md, check-config's "out"): a folder swarmd owns
+        # passes the check, made outside the unit's sandbox; inside, ProtectSystem=strict
+        # leaves /var/lib/swarmd-state read-only and the start stops, naming the mount
+        assert installed.run(["chown", "swarmd:swarmd", state]).returncode == 0
+        again = installed.run(["/opt/swarmd/venv/bin/swarmd", "check-config", "--config", CONFIG])
+        assert again.returncode == 0, again.stderr
+        assert installed.start() == {"ready": False, "exit": 73}
+        assert "read-only mount for user swarmd" in last_error(installed)[-1]
+    finally:
+        installed.close()
 
 
 # ---- the PX4 link's port ------------------------------------------------------------------

@@ -7,12 +7,12 @@ there; ``swarmd check-config`` must tell, without writing, whether that will wor
 both must say it in the same line (docs/operations.md, "Exit codes": 73). So both call
 ``refuse_unwritable_dir`` before anything is written.
 
-Whose writing counts: the daemon's user. ``swarmd run`` judges for itself (``os.access`` with
-its effective ids, so ACLs and capabilities count as the kernel counts them).
-``swarmd check-config`` run as root on a drone judges, by default, for the user the unit
-runs the daemon as (``User=swarmd`` in systemd/swarmd.service, ``SERVICE_USER``) when that
-user exists: from the folder's owner, group and mode bits (ACLs are not read) and a
-read-only mount.
+Whose writing counts: the daemon's user. ``swarmd run`` judges for itself; ``swarmd
+check-config`` run as root on a drone judges, by default, for the user the unit runs the
+daemon as (``User=swarmd`` in systemd/swarmd.service, ``SERVICE_USER``) when that user
+exists. Both judge the folder's owner, group and mode bits and a read-only mount; the daemon
+then asks the kernel too (``os.access`` with its effective ids: ACLs, capabilities), which
+a check made for another user cannot.
 """
 
 from __future__ import annotations
@@ -75,13 +75,9 @@ def _read_only_mount(path: Path) -> bool:
         return False
 
 
-def _may_write_in(folder: Path, info: os.stat_result, user: DaemonUser) -> bool:
-    """Whether ``user`` may create and rename files in the folder ``folder`` (w and x)."""
-    if user.current:
-        effective = os.access in os.supports_effective_ids
-        return os.access(folder, os.W_OK | os.X_OK, effective_ids=effective)
-    if _read_only_mount(folder):
-        return False
+def _bits_allow(info: os.stat_result, user: DaemonUser) -> bool:
+    """Whether the folder's owner, group and mode bits let ``user`` create and rename files
+    in it (w and x): root always."""
     if user.uid == 0:
         return True
     if info.st_uid == user.uid:
@@ -95,7 +91,11 @@ def _may_write_in(folder: Path, info: os.stat_result, user: DaemonUser) -> bool:
 
 def unwritable_why(directory: Path, user: DaemonUser) -> str | None:
     """Why ``user`` could not create ``directory`` (with its missing parents) or write files
-    in it, or None. Reads only: it stats the folder, or its nearest existing parent."""
+    in it, or None. Reads only: it stats the folder, or its nearest existing parent.
+
+    The owner, group and mode bits are judged first, alike for every user, so the daemon
+    and a check made for it by root say the same line; then the mount, and for this
+    process the kernel's own answer (``os.access``: ACLs, capabilities)."""
     existing = directory
     while not os.path.lexists(existing) and existing.parent != existing:
         existing = existing.parent
@@ -105,10 +105,18 @@ def unwritable_why(directory: Path, user: DaemonUser) -> str | None:
         return f"{existing}: {exc.strerror}"
     if not stat.S_ISDIR(info.st_mode):
         return f"{existing} is not a folder"
-    if not _may_write_in(existing, info, user):
+    if not _bits_allow(info, user):
         what = "write in" if existing == directory else "create folders in"
         mode = stat.S_IMODE(info.st_mode)
         return f"user {user.name} cannot {what} {existing} (uid {info.st_uid}, mode {mode:04o})"
+    if _read_only_mount(existing):
+        # for the daemon under systemd: ProtectSystem=strict leaves it only /var/lib/swarmd
+        # and /run/swarmd to write (systemd/swarmd.service)
+        return f"{existing} is on a read-only mount for user {user.name}"
+    if user.current:
+        effective = os.access in os.supports_effective_ids
+        if not os.access(existing, os.W_OK | os.X_OK, effective_ids=effective):
+            return f"user {user.name} may not write in {existing} (an ACL or a mount option)"
     return None
 
 
