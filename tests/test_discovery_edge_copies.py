@@ -1,20 +1,24 @@
-"""The peer found again last gets a directed copy when our first answer to it went out in a
-multicast (``Debts.covered_all``, ``Debts.defer_found_again``; issue 20, docs/benchmarks.md,
-"Where it stands (session 13)": the split at N = 20, run 3, 2.12 s).
+"""A directed copy follows each answer we send as a multicast to a peer that needs it, when
+that peer still does not list us a re-ack gap later (``Debts.defer_found_again``; issue 20,
+docs/benchmarks.md, "Where it stands (session 13)": the two runs over 2 s, both returns at
+the edge of range).
 
-A peer found again while others are still missing is answered by our next multicast, pulled
-in for it, and gets a directed copy a re-ack gap later if it still does not list us: at the
-edge of range the group frame (sent once, unacknowledged) is the one lost. The peer found
-*last* (nobody else missing) had no multicast pulled in for it: its answer was armed
-directed, within the rejoin delay. But a multicast already pulled in for the peers found
-before it, due first, covered that answer; it was lost at the edge, no copy followed, and
-the next chance was the peer's next frame a re-ack gap after ours or our retry a backoff
-later (1 s or more). In the split replay at N = 20 with edge loss, all 8 of the 40,000
-re-discoveries over 2 s were this shape (``python -m bench.edge_trace``).
+At the edge of range the group frame (sent once, unacknowledged) is the one lost; a directed
+one is acknowledged and retried by the MAC. The peers our multicast was pulled in for (found
+again while others were missing) already got that copy; two answers did not:
 
-The shape, hand-driven on virtual time: uav0 keeps uav1 and uav2, loses both to their
-leases, seeks them; uav1 comes back (our multicast is pulled in for it), and uav2 comes back
-a millisecond before that multicast is due; neither hears the multicast.
+* **The peer found again last** (``Debts.covered_all``). Nobody else missing, no multicast
+  was pulled in for it: its answer was armed directed, within the rejoin delay. But a
+  multicast already pulled in for the peers found before it, due first, covered that answer;
+  lost at the edge, no copy followed, and the next chance was the peer's next frame a re-ack
+  gap after ours or our retry a backoff later (1 s or more). The split replay at N = 20 with
+  edge loss: all 8 of 40,000 re-discoveries over 2 s (``python -m bench.edge_trace``).
+* **The answer to a peer that lost us while we kept it** (the lost_us rule, receive.py): a
+  multicast since h-seek-answer; lost at the edge, and the rule's spacing held our next
+  answer 1 s, past windows of 1-1.5 s. The fade replay at N = 10 with edge loss: all 3 of
+  its re-discoveries over 2 s.
+
+Both shapes hand-driven on virtual time, nothing heard of our multicast.
 """
 
 from __future__ import annotations
@@ -27,6 +31,10 @@ from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.rtps.ports import spdp_multicast_port
 
 SEEDS = (1, 2, 3, 4, 5)
+
+# --------------------------------------------------------------- the peer found again last
+# uav0 keeps uav1 and uav2, loses both to their leases, seeks them; uav1 comes back (our
+# multicast is pulled in for it), and uav2 a millisecond before that multicast is due
 N = 3
 T_BACK = 30.0  # after both leases ended (20 s from their last frame at 0.1 s)
 REACK_GAP_S = EngineConfig().retransmit_min_gap_s  # 0.5 s: the copy's wait
@@ -102,3 +110,44 @@ def test_no_copy_to_the_peer_found_last_when_it_heard_the_multicast(seed: int) -
     s.frame(2, due + 0.05, (0, 1, 2))
     s.run(due + 2.0)
     assert s.directed_to(2, due, due + 2.0) == []
+
+
+# -------------------------------------------------------- the answer to a peer that lost us
+
+FADER = N - 1  # uav2: its frames listed us, then stop
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_the_answer_to_a_peer_that_lost_us_goes_directed_too_when_it_still_omits_us(
+    seed: int,
+) -> None:
+    """uav2 lost us while we kept it; our answer to its cue goes as a multicast (the drones
+    that held their seek back hear it too) and, it still omitting us a re-ack gap on (the
+    multicast was lost), directed. Before: nothing more to it until its next cue, answered
+    1 s after the first answer at the earliest (``seek.LOST_US_GAP_S``)."""
+    s = _Shape(seed)
+    s.frame(1, 1.0, (0, 1, 2))
+    s.frame(FADER, 1.0, (0, 1, 2))
+    s.run(5.0)  # we announced, listing both: nothing owed
+    s.frame(FADER, 5.5, (1, 2))  # the cue: it lost us
+    s.run(6.0)
+    answers = s.multicasts(5.5)
+    assert answers and answers[0] - 5.5 <= 2 / EngineConfig().announce_budget_fps  # its share
+    s.run(answers[0] + REACK_GAP_S + 0.05)
+    assert s.directed_to(FADER, 5.5, answers[0] + REACK_GAP_S + 0.05) == [answers[0] + REACK_GAP_S]
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_no_copy_to_a_peer_that_lost_us_once_it_lists_us_again(seed: int) -> None:
+    """The clean case: our multicast answer crossed, its next frame lists us: nothing
+    directed to it."""
+    s = _Shape(seed)
+    s.frame(1, 1.0, (0, 1, 2))
+    s.frame(FADER, 1.0, (0, 1, 2))
+    s.run(5.0)
+    s.frame(FADER, 5.5, (1, 2))
+    s.run(5.7)
+    assert s.multicasts(5.5)
+    s.frame(FADER, 5.8, (0, 1, 2))
+    s.run(8.0)
+    assert s.directed_to(FADER, 5.5, 8.0) == []
