@@ -62,8 +62,8 @@ def trace_seed(
     with _sends(log):
         swarm = replay.swarm(seed, max(back + lat for lat, _, _, back in slow) + 0.5)
     sender_of = {id(e._sender): i for i, e in enumerate(swarm.engines)}  # noqa: SLF001
-    # which datagrams reached whom: MemNet appends a transmission, then pushes one delivery
-    # per receiver it did not lose; the deliveries' payloads name the transmission
+    # which datagrams reached whom: ``_deliveries`` logs each delivery MemNet queues, at its
+    # send time (two frames of one drone at one instant to the same peer are not told apart)
     net = swarm.net
     out = []
     for lat, i, j, back in slow:
