@@ -82,9 +82,10 @@ class Debts:
         # live, without a lookup in the peer table (the counter keeps heapq from comparing
         # schedules when a retry is re-armed at the same instant)
         self.armed: set[int] = set()
-        # peers found again whose answer is our next pulled-in multicast: each may also get a
-        # directed copy a re-ack gap later (defer_found_again). Bundle indices: at most the
-        # bundle's peers
+        # peers found again whose answer is our next pulled-in multicast (or went in one:
+        # covered_all; and a peer that lost us, answered by multicast: receive.py): each may
+        # also get a directed copy a re-ack gap later (defer_found_again). Bundle indices: at
+        # most the bundle's peers
         self.found_again: set[int] = set()
         # those copies' deadlines, by bundle index (at most the bundle's peers), and the
         # earliest of them, read by the engine's get_timer() (None: none owed)
