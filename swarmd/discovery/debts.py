@@ -208,7 +208,7 @@ class Debts:
             elif silent:
                 pass  # the paper: one directed reply per frame heard (see covered)
             else:
-                if retry.attempts == 1 and state is _DISCOVERED and p.times_discovered > 1:
+                if state is _DISCOVERED and retry.attempts == 1 and p.times_discovered > 1:
                     # our first answer to a peer found again went out in this multicast,
                     # not directed: the peer found last (no multicast was pulled in for
                     # it, receive.py) was owed a directed answer, and a multicast that
