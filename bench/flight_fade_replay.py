@@ -361,14 +361,20 @@ def report(
     return "\n".join(out)
 
 
+def add_replay_args(parser: argparse.ArgumentParser) -> None:
+    """The arguments every replay tool takes: the run file and the seeds (bench.edge_trace
+    too)."""
+    parser.add_argument("run", type=Path, help="a flight run file (*.json)")
+    parser.add_argument("--seeds", type=int, default=20, help="MemNet seeds 1..S (default 20)")
+
+
 def main(argv: Sequence[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m bench.flight_fade_replay",
         description="Replay a flight run's geometry on MemNet and class the re-discoveries "
         "slower than 2 s (the fading drone's in a fade, every drone's otherwise).",
     )
-    parser.add_argument("run", type=Path, help="a flight run file (*.json)")
-    parser.add_argument("--seeds", type=int, default=20, help="MemNet seeds 1..S (default 20)")
+    add_replay_args(parser)
     parser.add_argument(
         "--scenario",
         choices=sorted(flight.SCENARIOS),

@@ -82,9 +82,10 @@ class Debts:
         # live, without a lookup in the peer table (the counter keeps heapq from comparing
         # schedules when a retry is re-armed at the same instant)
         self.armed: set[int] = set()
-        # peers found again whose answer is our next pulled-in multicast: each may also get a
-        # directed copy a re-ack gap later (defer_found_again). Bundle indices: at most the
-        # bundle's peers
+        # peers found again whose answer is our next pulled-in multicast (or went in one:
+        # covered_all; and a peer that lost us, answered by multicast: receive.py): each may
+        # also get a directed copy a re-ack gap later (defer_found_again). Bundle indices: at
+        # most the bundle's peers
         self.found_again: set[int] = set()
         # those copies' deadlines, by bundle index (at most the bundle's peers), and the
         # earliest of them, read by the engine's get_timer() (None: none owed)
@@ -206,10 +207,21 @@ class Debts:
                 self.disarm(p)
             elif silent:
                 pass  # the paper: one directed reply per frame heard (see covered)
-            elif not retry.exhausted:
-                if backoff is None:
-                    backoff = self.backoff()
-                self.arm(p, now + backoff.delay_s(retry.attempts, self._rng))
+            else:
+                if state is _DISCOVERED and retry.attempts == 1 and p.times_discovered > 1:
+                    # our first answer to a peer found again went out in this multicast,
+                    # not directed: the peer found last (no multicast was pulled in for
+                    # it, receive.py) was owed a directed answer, and a multicast that
+                    # covers it first is sent once, unacknowledged, and at the edge of
+                    # range lost. It gets the directed copy a re-ack gap on if still
+                    # unlisted, as the peers the multicast was pulled in for do
+                    # (docs/benchmarks.md, "Where it stands (session 13)": the split at
+                    # N = 20, 2.12 s)
+                    self.found_again.add(p.index)
+                if not retry.exhausted:
+                    if backoff is None:
+                        backoff = self.backoff()
+                    self.arm(p, now + backoff.delay_s(retry.attempts, self._rng))
 
     def defer_found_again(self, now: float) -> None:
         """Our multicast just sent answers the peers found again since the last one: each

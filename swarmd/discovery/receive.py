@@ -475,6 +475,13 @@ class ReceivePath:
             # this one's hear it too (seek.Seek.heard assumes so); the debt falls due with it
             at = self._answer_seek(now, delay)
             debts.arm(peer, now + delay if at is None else at)
+            if at is not None:
+                # and directed a re-ack gap on if it still does not list us
+                # (Debts.defer_found_again): at the edge of range the group frame, sent
+                # once and unacknowledged, is the one lost, and the spacing holds our next
+                # answer 1 s, past a window of 1-1.5 s (the fade at N = 10, run 3: 2.25 s;
+                # docs/benchmarks.md, "Where it stands (session 13)")
+                debts.found_again.add(peer.index)
             return
         elif (
             not lists_me
