@@ -265,13 +265,6 @@ def test_accepted_but_never_shown_is_not_confirmed() -> None:
     assert (action.outcome.ok, action.outcome.reason) == (False, NOT_CONFIRMED)
 
 
-def test_without_any_heartbeat_the_ack_must_do() -> None:
-    action = VehicleAction(VehicleState(), ActionKind.LAND)
-    action.start(0.0)
-    action.observe(CommandAck(MavCmd.NAV_LAND, MavResult.ACCEPTED), 0.1)
-    assert action.outcome is not None and action.outcome.ok
-
-
 @pytest.mark.parametrize("result", [MavResult.DENIED, MavResult.UNSUPPORTED, MavResult.FAILED])
 def test_a_final_refusal_fails_with_its_name(result: MavResult) -> None:
     action = VehicleAction(_vehicle(MODE_LOITER.custom_mode), ActionKind.LAND)

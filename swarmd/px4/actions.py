@@ -20,10 +20,11 @@ DISARM   COMPONENT_ARM_DISARM param1 = 0 (never forced:   the armed bit clear in
 Success is declared from state, not from an ack alone: the state confirming ends the
 command at once (a lost ack costs nothing); an ACK ACCEPTED starts ``confirm_timeout_s``
 (3 s: PX4 streams HEARTBEAT at 1 Hz, so one lost heartbeat plus jitter) within which the
-state must show the effect, else the action fails ``not_confirmed``. Only a vehicle whose
-state cannot show it (no HEARTBEAT ever received, so mode and armed bit are unknown) is
-believed on its ACK alone. A refusal (DENIED, ...) or no ack at all fails the action with
-the MAV_RESULT name or ``no_ack``, exactly as the sender reports it.
+state must show the effect, else the action fails ``not_confirmed``. No ack is believed
+alone, not even before the first HEARTBEAT: a COMMAND_ACK names only the command number, so
+the one that arrives first after a restart may answer the last life's command. A refusal
+(DENIED, ...) or no ack at all fails the action with the MAV_RESULT name or ``no_ack``,
+exactly as the sender reports it.
 
 Driving: ``start(now)``, ``observe(obs, now)`` (after the driver fed the same observation
 to ``VehicleState``), ``handle_timer(now)``; outputs ``commands_to_send()``,
@@ -176,9 +177,10 @@ class VehicleAction(SenderTask[ActionFinished]):
             return
         match done.finish:
             case Finish.ACCEPTED:
-                if self.vehicle.heartbeat is None:  # the state cannot show it: the ack must do
-                    self._finish(True, "", f"{done.command.label} ACCEPTED (no state to confirm)")
-                elif shows(self.kind, self.vehicle):
+                # no HEARTBEAT yet (a new life's first second) is no reason to believe the ack
+                # alone: an ACK names only the command number, so it may answer the last
+                # life's command (docs/security.md, "A stale COMMAND_ACK"); wait for the state
+                if shows(self.kind, self.vehicle):
                     self._finish(True, "", f"{done.command.label} ACCEPTED, state shows it")
                 else:
                     self._confirm_deadline = now + self.confirm_timeout_s

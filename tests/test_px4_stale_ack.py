@@ -1,0 +1,159 @@
+"""A COMMAND_ACK names only its command number and target (mavlink.io, "Command Protocol":
+no request id), so an answer meant for an earlier command can reach a later one of the same
+number: the last life's, a retransmission's late answer, another system's. What it may and
+may not make the operator be told (docs/security.md, "A stale COMMAND_ACK").
+
+The sans-IO vehicle core on virtual time, and the MAVLink backend's filter on a real
+loopback socket. What other tests pin already is named in docs/security.md's table.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from collections.abc import Callable
+
+from swarmd.px4.actions import NOT_CONFIRMED, ActionKind, VehicleAction
+from swarmd.px4.constants import (
+    COMP_ID_AUTOPILOT1,
+    SENSOR_PREARM_CHECK,
+    LandedState,
+    MavCmd,
+    MavResult,
+    MavState,
+)
+from swarmd.px4.mavlink_backend import MavlinkBackend
+from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.messages import (
+    MODE_LAND,
+    MODE_LOITER,
+    CommandAck,
+    ExtendedSysState,
+    Heartbeat,
+    Observation,
+    Px4Mode,
+    SysStatus,
+)
+from swarmd.px4.readiness import VehicleState
+from swarmd.px4.transport import UdpLink
+from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleCore, VehicleRequest
+
+BOUND_S = 10.0
+GCS = 255  # QGroundControl's system id (component 190): PX4 answers its commands to it
+
+
+def _heartbeat(mode: Px4Mode) -> Heartbeat:
+    return Heartbeat(12, 2, 1 | 128, mode.custom_mode, MavState.ACTIVE)  # armed, custom mode
+
+
+def _finished(core: VehicleCore) -> list[TaskFinished]:
+    return [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
+
+
+def _run_until_timer_settles(core: VehicleCore, feed: list[tuple[float, Observation]]) -> None:
+    """Feed ``feed`` in time order, firing the core's timer between (bounded)."""
+    for _ in range(100):
+        timer = core.get_timer()
+        nxt = feed[0][0] if feed else None
+        if nxt is not None and (timer is None or nxt <= timer):
+            t, obs = feed.pop(0)
+            core.receive_datagram(obs, None, t)
+        elif timer is not None and core.busy():
+            core.handle_timer(timer)
+        else:
+            return
+
+
+def test_a_last_lifes_land_accepted_before_the_first_heartbeat_is_not_completed() -> None:
+    """Case 1. A new life gets LAND and sends NAV_LAND; before any HEARTBEAT the first
+    answer on the link is the last life's NAV_LAND ACCEPTED (queued while swarmd restarted).
+    PX4 never took this one: the heartbeats say AUTO.LOITER in the air. The operator must not
+    be told COMPLETED. [main: believed on the ack alone, COMPLETED at once]"""
+    core = VehicleCore()
+    core.request(VehicleRequest(1, TaskKind.LAND), 0.0)
+    assert [c.command for c in core.datagrams_to_send()] == [MavCmd.NAV_LAND]
+    core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.ACCEPTED), None, 0.01)
+    assert _finished(core) == []  # not on the ack alone
+    feed: list[tuple[float, Observation]] = [
+        (0.5 + i, _heartbeat(MODE_LOITER)) for i in range(5)
+    ] + [(0.6, ExtendedSysState(LandedState.IN_AIR))]
+    feed.sort(key=lambda item: item[0])
+    _run_until_timer_settles(core, feed)
+    (done,) = _finished(core)
+    assert (done.ok, done.reason) == (False, NOT_CONFIRMED)
+
+
+def test_before_the_first_heartbeat_an_accepted_land_completes_once_the_state_shows_it() -> None:
+    """The fix's other side: the real answer, then the first heartbeats in AUTO.LAND."""
+    core = VehicleCore()
+    core.request(VehicleRequest(1, TaskKind.LAND), 0.0)
+    core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.ACCEPTED), None, 0.01)
+    core.receive_datagram(_heartbeat(MODE_LAND), None, 0.5)
+    (done,) = _finished(core)
+    assert done.ok
+
+
+def test_a_late_refusal_of_an_earlier_land_fails_a_later_one() -> None:
+    """Case 2, the residual: PX4 answers each of an earlier NAV_LAND's retransmissions; one
+    DENIED arriving while a later NAV_LAND waits is taken as the later one's answer, which
+    then fails DENIED even when the vehicle goes on to land. Never a false success (the
+    state decides that); a false failure, pinned so that a fix flips it."""
+    v = VehicleState()
+    v.observe(_heartbeat(MODE_LOITER), 0.0)
+    v.observe(SysStatus(SENSOR_PREARM_CHECK, 90, 16000), 0.0)
+    v.observe(ExtendedSysState(LandedState.IN_AIR), 0.0)
+    later = VehicleAction(v, ActionKind.LAND)
+    later.start(1.0)
+    later.observe(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), 1.01)  # the earlier one's
+    v.observe(_heartbeat(MODE_LAND), 1.5)
+    later.observe(_heartbeat(MODE_LAND), 1.5)
+    assert later.outcome is not None
+    assert (later.outcome.ok, later.outcome.reason) == (False, "DENIED")
+
+
+def test_acks_for_another_system_or_from_another_sender_never_reach_the_core() -> None:
+    """Case 4 on a real loopback socket (signing off, so only the pin and the filters act):
+    PX4's answer to the GCS, an ack from another component or system of the link, and one
+    from another port (a local user) are dropped and counted; PX4's answer to us passes."""
+    asyncio.run(_acks_filtered())
+
+
+async def _acks_filtered() -> None:
+    seen: list[Observation] = []
+    be = MavlinkBackend("udpin:127.0.0.1:0", sysid=1)
+    await be.start(lambda obs, now: seen.append(obs))
+    px4 = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        link = be.link
+        assert isinstance(link, UdpLink) and link.local_port is not None
+        to = ("127.0.0.1", link.local_port)
+        autopilot = MavlinkCodec(1, COMP_ID_AUTOPILOT1)
+        px4.sendto(autopilot.encode(_heartbeat(MODE_LOITER)), to)  # pins px4's port
+        await _until(lambda: len(seen) == 1)
+        land = MavCmd.NAV_LAND
+        px4.sendto(autopilot.encode(CommandAck(land, MavResult.DENIED, 0, GCS, 190)), to)
+        camera = MavlinkCodec(1, 100)
+        px4.sendto(camera.encode(CommandAck(land, MavResult.ACCEPTED, 0, 1, 191)), to)
+        drone2 = MavlinkCodec(2, COMP_ID_AUTOPILOT1)
+        px4.sendto(drone2.encode(CommandAck(land, MavResult.ACCEPTED, 0, 1, 191)), to)
+        other.sendto(autopilot.encode(CommandAck(land, MavResult.ACCEPTED, 0, 1, 191)), to)
+        ours = CommandAck(land, MavResult.IN_PROGRESS, 0, 1, 191)
+        px4.sendto(autopilot.encode(ours), to)  # the last, so all others were read before it
+        await _until(lambda: len(seen) == 2)
+        assert seen[1] == ours
+        assert be.foreign == 3
+        pin = be.stats()["autopilot"]
+        assert isinstance(pin, dict) and pin["dropped_address"] == 1
+    finally:
+        px4.close()
+        other.close()
+        await be.close()
+
+
+async def _until(check: Callable[[], bool]) -> None:
+    async def poll() -> None:
+        while not check():  # noqa: ASYNC110 - a test probe, bounded by BOUND_S
+            await asyncio.sleep(0.01)
+
+    await asyncio.wait_for(poll(), BOUND_S)
