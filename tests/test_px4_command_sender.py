@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+from collections import deque
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmd.px4.command_sender import (
+    MAX_OWED_COMMANDS,
+    MAX_OWED_PER_COMMAND,
     AckReceived,
     CommandFinished,
     CommandSender,
     CommandSent,
     Finish,
+    OwedAcks,
     SenderConfig,
     SenderEvent,
 )
@@ -203,3 +208,146 @@ def test_any_ack_sequence_ends_in_one_finish_within_the_budget(
     events += drain(s)
     assert len(s.commands_to_send()) <= 4
     assert len(finished(events)) == 1
+
+
+# ---- answers still owed (command_sender docstring; docs/security.md, case 2) ----------------
+
+
+def test_a_retransmissions_late_answer_pays_its_debt_and_not_the_next_command() -> None:
+    """The first send's DENIED ends the command; the retransmission's DENIED, late, is owed
+    and dropped; the next command's own answer is credited to it."""
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    s.handle_timer(0.5)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.DENIED), 0.6)
+    later = s.send(LAND, 0.7)
+    drain(s)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.DENIED), 0.71)  # the retransmission's
+    assert drain(s) == [] and s.pending(later) and s.owed.paid == 1
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.ACCEPTED), 0.72)  # the later one's own
+    assert [(d.handle, d.finish) for d in finished(drain(s))] == [(later, Finish.ACCEPTED)]
+
+
+def test_a_lost_debt_costs_at_most_one_retransmission() -> None:
+    """The earlier command's answer never comes: its debt swallows the later command's first
+    answer, but the retransmission forgets it, so the answer to that is credited."""
+    s = CommandSender()
+    s.send(LAND, 0.0)
+    later = s.send(LAND, 0.1)  # supersedes: the first send is owed an answer
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.ACCEPTED), 0.2)  # the later one's, swallowed
+    assert s.pending(later)
+    s.handle_timer(0.6)  # retransmission, confirmation 1
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.ACCEPTED), 0.7)
+    assert [(d.handle, d.finish) for d in finished(drain(s))][-1] == (later, Finish.ACCEPTED)
+
+
+def test_in_progress_pays_no_debt_and_is_not_credited_while_one_is_owed() -> None:
+    s = CommandSender()
+    first = s.send(LAND, 0.0)
+    s.cancel(first, 0.1)
+    later = s.send(LAND, 0.2)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.IN_PROGRESS), 0.21)  # the first one's progress
+    assert s.owed.owes(MavCmd.NAV_LAND, 0.21) == 1 and s.get_timer() == pytest.approx(0.7)
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.DENIED), 0.22)  # its final answer
+    s.observe(ack(MavCmd.NAV_LAND, MavResult.IN_PROGRESS), 0.23)  # the later one's
+    assert s.get_timer() == pytest.approx(3.23) and s.pending(later)
+
+
+def test_owed_answers_are_forgotten_after_the_window_and_capped() -> None:
+    owed = OwedAcks(1.0)
+    owed.owe(MavCmd.NAV_LAND, 10, 0.0)  # more than a command's 1 + 3 sends
+    assert owed.owes(MavCmd.NAV_LAND, 0.5) == MAX_OWED_PER_COMMAND
+    assert owed.evicted == 10 - MAX_OWED_PER_COMMAND
+    assert owed.owes(MavCmd.NAV_LAND, 1.0) == 0  # the window is over
+    for command in range(MAX_OWED_COMMANDS + 3):
+        owed.owe(command, 1, 2.0 + command / 100)
+    assert sum(owed.owes(c, 2.2) for c in range(MAX_OWED_COMMANDS + 3)) == MAX_OWED_COMMANDS
+    assert owed.owes(0, 2.2) == 0  # the oldest number went first
+
+
+_RESULTS = [
+    MavResult.ACCEPTED,
+    MavResult.IN_PROGRESS,
+    MavResult.TEMPORARILY_REJECTED,
+    MavResult.DENIED,
+    MavResult.FAILED,
+]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.sampled_from(["send", "timer", "tick", "deliver", "lose"]),
+            st.sampled_from(_RESULTS),
+            st.floats(0.0, 0.4),
+        ),
+        max_size=40,
+    )
+)
+def test_stale_answers_are_never_credited_and_real_ones_lost_at_most_once(
+    steps: list[tuple[str, MavResult, float]],
+) -> None:
+    """Random interleavings of sends (superseding), retransmissions (the timer), answers and
+    losses on one command number over a FIFO link (MAVLink over UDP loopback or a UART keeps
+    order; each transmission draws at most one answer). (1) An answer to an ended command's
+    transmission is never credited to the pending command, as long as it comes within
+    ``owed_window_s`` of that command's end, and no debt was let go (a retransmission, a
+    cap) while such answers were still on the way: MAVLink cannot tell answers apart, so
+    after that the count is off until they are through. (2) An answer to the pending
+    command's retransmission is always credited to it: a lost answer costs at most one
+    retransmission."""
+    s = CommandSender()
+    window = s.config.owed_window_s
+    now = 0.0
+    link: deque[tuple[int, int]] = deque()  # (handle, confirmation) in flight, FIFO
+    pending: int | None = None
+    ended: dict[int, float] = {}  # handle -> end time
+    off = False  # a debt was let go while an ended command's answer was on the way
+    evicted = 0
+
+    def stale_in_flight() -> bool:
+        return any(h in ended for h, _ in link)
+
+    def collect() -> list[SenderEvent]:
+        nonlocal pending, off, evicted
+        events = drain(s)
+        s.commands_to_send()
+        for e in events:
+            if isinstance(e, CommandSent):
+                if e.confirmation > 0 and stale_in_flight():
+                    off = True  # the retransmission forgot the debts
+                link.append((e.handle, e.confirmation))
+                pending = e.handle
+            elif isinstance(e, CommandFinished):
+                ended[e.handle] = now
+                if pending == e.handle:
+                    pending = None
+        if s.owed.evicted > evicted:
+            evicted, off = s.owed.evicted, True
+        return events
+
+    for what, result, dt in steps:
+        if not stale_in_flight():
+            off = False  # every ended command's answer is through: the count is right again
+        if what == "send":
+            s.send(LAND, now)
+        elif what == "timer":
+            now = max(now, s.get_timer() or now)
+            s.handle_timer(now)
+        elif what == "tick":
+            now += dt
+        elif link:
+            handle, confirmation = link.popleft()
+            if what == "lose":
+                continue
+            waiting = pending
+            s.observe(ack(MavCmd.NAV_LAND, result), now)
+            credited = [e for e in collect() if isinstance(e, AckReceived)]
+            if handle != waiting and waiting is not None:
+                if now < ended[handle] + window and not off:
+                    assert credited == [], (handle, waiting)
+            elif handle == waiting and confirmation > 0:
+                assert [e.handle for e in credited] == [handle]
+            continue
+        collect()

@@ -13,10 +13,11 @@ import asyncio
 import socket
 from collections.abc import Callable
 
-from swarmd.px4.actions import NOT_CONFIRMED, ActionKind, VehicleAction
+from swarmd.px4.actions import NOT_CONFIRMED
 from swarmd.px4.constants import (
     COMP_ID_AUTOPILOT1,
     SENSOR_PREARM_CHECK,
+    GpsFixType,
     LandedState,
     MavCmd,
     MavResult,
@@ -29,12 +30,13 @@ from swarmd.px4.messages import (
     MODE_LOITER,
     CommandAck,
     ExtendedSysState,
+    GpsRawInt,
     Heartbeat,
+    HomePosition,
     Observation,
     Px4Mode,
     SysStatus,
 )
-from swarmd.px4.readiness import VehicleState
 from swarmd.px4.transport import UdpLink
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleCore, VehicleRequest
 
@@ -93,22 +95,80 @@ def test_before_the_first_heartbeat_an_accepted_land_completes_once_the_state_sh
     assert done.ok
 
 
-def test_a_late_refusal_of_an_earlier_land_fails_a_later_one() -> None:
-    """Case 2, the residual: PX4 answers each of an earlier NAV_LAND's retransmissions; one
-    DENIED arriving while a later NAV_LAND waits is taken as the later one's answer, which
-    then fails DENIED even when the vehicle goes on to land. Never a false success (the
-    state decides that); a false failure, pinned so that a fix flips it."""
-    v = VehicleState()
-    v.observe(_heartbeat(MODE_LOITER), 0.0)
-    v.observe(SysStatus(SENSOR_PREARM_CHECK, 90, 16000), 0.0)
-    v.observe(ExtendedSysState(LandedState.IN_AIR), 0.0)
-    later = VehicleAction(v, ActionKind.LAND)
-    later.start(1.0)
-    later.observe(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), 1.01)  # the earlier one's
-    v.observe(_heartbeat(MODE_LAND), 1.5)
-    later.observe(_heartbeat(MODE_LAND), 1.5)
-    assert later.outcome is not None
-    assert (later.outcome.ok, later.outcome.reason) == (False, "DENIED")
+def test_a_late_refusal_of_an_earlier_land_does_not_fail_a_later_one() -> None:
+    """Case 2, the refusal: PX4 answers each of an earlier NAV_LAND's transmissions. The first
+    DENIED ends it (FAILED DENIED); the operator sends LAND again, and the DENIED for the
+    earlier retransmission arrives while the later NAV_LAND waits. That answer is owed to
+    the earlier command, so it pays its debt and the later LAND completes once the state
+    shows AUTO.LAND. [main: the later LAND FAILED DENIED while the vehicle lands]"""
+    core = VehicleCore()
+    for obs in (_heartbeat(MODE_LOITER), SysStatus(SENSOR_PREARM_CHECK, 90, 16000)):
+        core.receive_datagram(obs, None, 0.0)
+    core.receive_datagram(ExtendedSysState(LandedState.IN_AIR), None, 0.0)
+    core.request(VehicleRequest(1, TaskKind.LAND), 0.0)
+    core.handle_timer(0.5)  # no answer yet: the retransmission, confirmation 1
+    sent = core.datagrams_to_send()
+    assert [(c.command, c.confirmation) for c in sent] == [
+        (MavCmd.NAV_LAND, 0),
+        (MavCmd.NAV_LAND, 1),
+    ]
+    core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), None, 0.6)
+    (first,) = _finished(core)
+    assert (first.token, first.ok, first.reason) == (1, False, "DENIED")
+    core.request(VehicleRequest(2, TaskKind.LAND), 0.7)
+    core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), None, 0.71)  # conf 1's
+    assert _finished(core) == []
+    core.receive_datagram(_heartbeat(MODE_LAND), None, 1.0)
+    (later,) = _finished(core)
+    assert (later.token, later.ok) == (2, True)
+    assert core.owed.stats() == {"paid": 1, "forgotten": 0, "evicted": 0}
+
+
+def test_a_failed_takeoffs_disarm_answer_does_not_arm_the_next_takeoff() -> None:
+    """Case 2, the DISARM: a take-off fails after arming (NAV_TAKEOFF DENIED) and sends one
+    DISARM, which has ARM's command number. The operator takes off again at once; the
+    DISARM's ACCEPTED arrives while the new ARM waits. Taken as the ARM's answer, NAV_TAKEOFF
+    would go to a vehicle that is not armed (and PX4 would refuse it). The answer is owed to
+    the DISARM: the ARM waits for its own. [main: NAV_TAKEOFF sent on the DISARM's answer]"""
+    core = VehicleCore()
+    clock = [0.0]
+
+    def feed(*obs: Observation) -> None:
+        for o in obs:
+            core.receive_datagram(o, None, clock[0])
+
+    def telemetry(armed: bool) -> tuple[Observation, ...]:
+        base = 1 | (128 if armed else 0)
+        state = MavState.ACTIVE if armed else MavState.STANDBY
+        return (
+            Heartbeat(12, 2, base, MODE_LOITER.custom_mode, state),
+            SysStatus(SENSOR_PREARM_CHECK, 90, 16000),
+            ExtendedSysState(LandedState.ON_GROUND),
+            GpsRawInt(GpsFixType.FIX_3D, 12),
+            HomePosition(0, 0, 488_000),
+        )
+
+    feed(*telemetry(False))
+    core.request(VehicleRequest(1, TaskKind.TAKEOFF, alt_m=5.0), clock[0])
+    clock[0] = 0.05
+    feed(CommandAck(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED), *telemetry(True))
+    clock[0] = 0.1
+    feed(CommandAck(MavCmd.NAV_TAKEOFF, MavResult.DENIED))
+    (first,) = _finished(core)
+    assert (first.ok, first.reason) == (False, "takeoff_rejected: DENIED")
+    sent = core.datagrams_to_send()
+    assert [(c.command, c.params[0]) for c in sent][-1] == (MavCmd.COMPONENT_ARM_DISARM, 0.0)
+    clock[0] = 0.2
+    feed(*telemetry(False))  # PX4 disarmed; its COMMAND_ACK is still on the way
+    core.request(VehicleRequest(2, TaskKind.TAKEOFF, alt_m=5.0), clock[0])
+    assert [c.params[0] for c in core.datagrams_to_send()] == [1.0]  # the new ARM
+    clock[0] = 0.21
+    feed(CommandAck(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED))  # the DISARM's answer
+    assert core.datagrams_to_send() == []  # no NAV_TAKEOFF to a disarmed vehicle
+    clock[0] = 0.25
+    feed(CommandAck(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED), *telemetry(True))
+    assert [c.command for c in core.datagrams_to_send()] == [MavCmd.NAV_TAKEOFF]
+    assert _finished(core) == []
 
 
 def test_acks_for_another_system_or_from_another_sender_never_reach_the_core() -> None:

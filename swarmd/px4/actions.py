@@ -43,6 +43,7 @@ from swarmd.px4.command_sender import (
     CommandFinished,
     CommandSent,
     Finish,
+    OwedAcks,
     SenderConfig,
     SenderTask,
 )
@@ -118,12 +119,13 @@ class VehicleAction(SenderTask[ActionFinished]):
         *,
         sender: SenderConfig | None = None,
         confirm_timeout_s: float = CONFIRM_TIMEOUT_S,
+        owed: OwedAcks | None = None,
     ) -> None:
         self.vehicle = vehicle
         self.kind = kind
         self.confirm_timeout_s = confirm_timeout_s
         self.outcome: ActionFinished | None = None
-        super().__init__(sender)
+        super().__init__(sender, owed)  # owed: the vehicle's, shared by all its tasks
         self._handle: int | None = None
         self._confirm_deadline: float | None = None
 
@@ -152,6 +154,7 @@ class VehicleAction(SenderTask[ActionFinished]):
         deadline = self._confirm_deadline
         if not self._finished() and deadline is not None and now >= deadline:
             self._finish(
+                now,
                 False,
                 NOT_CONFIRMED,
                 f"{self.kind} ACCEPTED but the vehicle state did not show it within "
@@ -160,7 +163,7 @@ class VehicleAction(SenderTask[ActionFinished]):
 
     def cancel(self, now: float, why: str = "cancelled") -> None:
         if self.outcome is None:
-            self._finish(False, "cancelled", why)
+            self._finish(now, False, "cancelled", why)
 
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 
@@ -181,13 +184,13 @@ class VehicleAction(SenderTask[ActionFinished]):
                 # alone: an ACK names only the command number, so it may answer the last
                 # life's command (docs/security.md, "A stale COMMAND_ACK"); wait for the state
                 if shows(self.kind, self.vehicle):
-                    self._finish(True, "", f"{done.command.label} ACCEPTED, state shows it")
+                    self._finish(now, True, "", f"{done.command.label} ACCEPTED, state shows it")
                 else:
                     self._confirm_deadline = now + self.confirm_timeout_s
             case Finish.CONFIRMED:
                 pass  # _check_state finished the action already
             case Finish.REFUSED | Finish.NO_ACK | Finish.CANCELLED:
-                self._finish(False, done.cause, f"{done.command.label}: {done.why}")
+                self._finish(now, False, done.cause, f"{done.command.label}: {done.why}")
             case _:
                 assert_never(done.finish)
 
@@ -196,11 +199,12 @@ class VehicleAction(SenderTask[ActionFinished]):
             return
         if shows(self.kind, self.vehicle):
             self._sender.confirm(self._handle, now, "state shows it")
-            self._finish(True, "", f"{self.kind}: the vehicle state shows it")
+            self._finish(now, True, "", f"{self.kind}: the vehicle state shows it")
 
-    def _finish(self, ok: bool, reason: str, detail: str) -> None:
+    def _finish(self, now: float, ok: bool, reason: str, detail: str) -> None:
         if self._handle is not None and self._sender.pending(self._handle):
-            self._sender.cancel(self._handle, 0.0, detail)
+            # now, not 0.0: the cancelled command's unanswered sends are owed from now on
+            self._sender.cancel(self._handle, now, detail)
         self._confirm_deadline = None
         self.outcome = ActionFinished(self.kind, ok, reason, detail)
         self._events.append(self.outcome)

@@ -211,6 +211,8 @@ class Px4Bridge:
                 "outcome": None if out is None else _outcome_dict(out),
             },
             "backend": self.backend.stats(),
+            # late answers to ended commands dropped, not credited (docs/security.md case 2)
+            "owed_acks": self.core.owed.stats(),
         }
 
     # ---- driving --------------------------------------------------------------------------

@@ -29,6 +29,21 @@ One outstanding command per command number (as MAVSDK: an ack names only the num
 in flight could not be told apart); sending a number again while it is pending cancels the
 old one (finished ``CANCELLED``) and starts afresh with confirmation 0.
 
+Answers still owed (``OwedAcks``): a COMMAND_ACK carries no request id and does not echo
+``confirmation`` (mavlink.io, "Command Protocol": the ack names the command and its target
+only), so a late answer to an earlier command of the same number (a retransmission's, or a
+failed take-off's DISARM, which has ARM's number) would be taken as a later command's. Each
+COMMAND_LONG transmission may draw one final answer, so when a command ends (any finish)
+with fewer final answers than sends, the difference is *owed*, per command number. An ack
+first pays such a debt (dropped, counted ``paid``) before it is matched to the pending
+command. Bounded: at most ``MAX_OWED_PER_COMMAND`` per number and ``MAX_OWED_COMMANDS``
+numbers (oldest evicted), each debt forgotten ``owed_window_s`` after its command ended,
+and a retransmission forgets its number's debts: a debt whose answer was lost swallows at
+most the answer to the later command's first transmission, never one to a retransmission.
+IN_PROGRESS never pays (the final answer is still owed) and is not credited while a debt
+is owed. Senders of one vehicle share one ``OwedAcks`` (``swarmd.px4.vehicle``), so a
+debt survives the task that made it.
+
 How a backend / driver uses it (sans-IO: no clock, no I/O, never raises on autopilot input)::
 
     sender = CommandSender(SenderConfig())
@@ -50,7 +65,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Generic, TypeVar
+from typing import Final, Generic, TypeVar
 
 from swarmd.px4.constants import MavResult
 from swarmd.px4.messages import CommandAck, Observation, VehicleCommand
@@ -64,11 +79,17 @@ class SenderConfig:
     retries: int = 3  # retransmissions after the first send
     in_progress_timeout_s: float = 3.0
     retry_backoff_s: float = 0.5  # wait after TEMPORARILY_REJECTED
+    # how long an ended command's unanswered transmissions are owed an answer (OwedAcks):
+    # PX4 answers within milliseconds on loopback or a UART, so two ack timeouts cover an
+    # answer the sender gave up on; longer only delays a later command's first answer
+    owed_window_s: float = 1.0
 
     def check(self) -> None:
         """Raise ValueError (one line) on a budget that is no budget."""
         if self.retries < 0 or self.ack_timeout_s <= 0:
             raise ValueError("command sender: retries must be >= 0 and ack_timeout_s > 0")
+        if self.owed_window_s < 0:
+            raise ValueError("command sender: owed_window_s must be >= 0")
 
     def budget_s(self) -> float:
         """Worst case from the first send to a final answer without IN_PROGRESS."""
@@ -124,6 +145,85 @@ SenderEvent = CommandSent | AckReceived | CommandFinished
 """Everything ``CommandSender.next_event`` returns."""
 
 
+MAX_OWED_PER_COMMAND: Final = 4
+"""Answers owed per command number: one command's 1 + 3 sends. A vehicle that never answers
+(or a flood of superseding sends) cannot make the table swallow more than this many acks."""
+MAX_OWED_COMMANDS: Final = 8
+"""Command numbers with debts (the sender carries four kinds); only our own sends create rows, the
+cap keeps that true of any future caller. The number with the oldest debt is evicted."""
+
+
+class OwedAcks:
+    """Per command number, the answers ended commands still owe (module docstring, "Answers
+    still owed"): a deque of expiry times, oldest first. Pure, keyed by ``now``; expired
+    debts are dropped when touched, so it needs no timer."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._owed: dict[int, deque[float]] = {}
+        self._last: tuple[CommandAck, bool] | None = None
+        self.paid = 0  # acks dropped as an earlier command's answer
+        self.forgotten = 0  # debts expired or cleared by a retransmission
+        self.evicted = 0  # debts dropped by a cap (MAX_OWED_*): their answers may be credited
+
+    def owe(self, command: int, count: int, now: float) -> None:
+        """An ended command of number ``command`` left ``count`` transmissions unanswered."""
+        if count <= 0:
+            return
+        self._prune(now)
+        debts = self._owed.get(command)
+        if debts is None:
+            if len(self._owed) >= MAX_OWED_COMMANDS:
+                oldest = min(self._owed, key=lambda c: self._owed[c][0])
+                self.evicted += len(self._owed.pop(oldest))
+            debts = self._owed[command] = deque()
+        for _ in range(count):
+            if len(debts) >= MAX_OWED_PER_COMMAND:
+                debts.popleft()
+                self.evicted += 1
+            debts.append(now + self.window_s)
+
+    def forget(self, command: int) -> None:
+        """A retransmission of ``command``: its answer is what we wait for now, so nothing
+        owed before it may swallow it (a lost debt costs at most one retransmission)."""
+        debts = self._owed.pop(command, None)
+        if debts:
+            self.forgotten += len(debts)
+
+    def owes(self, command: int, now: float) -> int:
+        self._prune(now)
+        return len(self._owed.get(command, ()))
+
+    def pay(self, ack: CommandAck, now: float) -> bool:
+        """Is ``ack`` an earlier command's answer (True: drop it)? A final result pays one
+        debt; IN_PROGRESS pays none but is dropped while one is owed. Several senders of one
+        vehicle share this table and see the same observation: its first verdict stands."""
+        if self._last is not None and self._last[0] is ack:
+            return self._last[1]
+        verdict = self.owes(ack.command, now) > 0
+        if verdict and ack.result != MavResult.IN_PROGRESS:
+            debts = self._owed[ack.command]
+            debts.popleft()
+            if not debts:
+                del self._owed[ack.command]
+            self.paid += 1
+        self._last = (ack, verdict)
+        return verdict
+
+    def stats(self) -> dict[str, int]:
+        """Counters for ``swarmctl status`` (px4 ``owed_acks``)."""
+        return {"paid": self.paid, "forgotten": self.forgotten, "evicted": self.evicted}
+
+    def _prune(self, now: float) -> None:
+        for command in list(self._owed):
+            debts = self._owed[command]
+            while debts and debts[0] <= now:
+                debts.popleft()
+                self.forgotten += 1
+            if not debts:
+                del self._owed[command]
+
+
 @dataclass(slots=True)
 class _Pending:
     handle: int
@@ -131,6 +231,7 @@ class _Pending:
     sent: int
     deadline: float
     last_result: MavResult | None = None
+    answers: int = 0  # final answers taken (not IN_PROGRESS): sent - answers are owed at the end
 
 
 class CommandSender:
@@ -138,9 +239,10 @@ class CommandSender:
     (and ``confirm``/``cancel``); outputs ``commands_to_send``, ``get_timer``,
     ``next_event``. See the module docstring."""
 
-    def __init__(self, config: SenderConfig | None = None) -> None:
+    def __init__(self, config: SenderConfig | None = None, owed: OwedAcks | None = None) -> None:
         self.config = config or SenderConfig()
         self.config.check()
+        self.owed = owed if owed is not None else OwedAcks(self.config.owed_window_s)
         self._pending: dict[int, _Pending] = {}  # command number -> its one pending send
         self._next_handle = 1
         self._out: list[VehicleCommand] = []
@@ -152,7 +254,7 @@ class CommandSender:
         """Send ``command`` (confirmation 0) and start waiting for its ack; its handle."""
         old = self._pending.get(command.command)
         if old is not None:
-            self._finish(old, Finish.CANCELLED, "superseded by a new send of the same command")
+            self._finish(old, Finish.CANCELLED, "superseded by a new send of the same command", now)
         handle = self._next_handle
         self._next_handle += 1
         pending = _Pending(handle, command, sent=0, deadline=now)
@@ -164,6 +266,8 @@ class CommandSender:
         """Any autopilot observation; only ``CommandAck`` matters here."""
         if not isinstance(obs, CommandAck):
             return
+        if self.owed.pay(obs, now):
+            return  # an ended command's answer (module docstring, "Answers still owed")
         pending = self._pending.get(obs.command)
         if pending is None:
             return  # an answer to someone else's command, or to one we finished with
@@ -173,18 +277,20 @@ class CommandSender:
             result = MavResult.FAILED  # a number MAV_RESULT does not define: final
         self._events.append(AckReceived(pending.command.label, result.name, pending.handle))
         pending.last_result = result
+        if result is not MavResult.IN_PROGRESS:
+            pending.answers += 1
         match result:
             case MavResult.ACCEPTED:
-                self._finish(pending, Finish.ACCEPTED, "ack ACCEPTED")
+                self._finish(pending, Finish.ACCEPTED, "ack ACCEPTED", now)
             case MavResult.IN_PROGRESS:
                 pending.deadline = now + self.config.in_progress_timeout_s
             case MavResult.TEMPORARILY_REJECTED:
                 if pending.sent <= self.config.retries:
                     pending.deadline = now + self.config.retry_backoff_s
                 else:
-                    self._give_up(pending)
+                    self._give_up(pending, now)
             case _:
-                self._finish(pending, Finish.REFUSED, f"ack {result.name}")
+                self._finish(pending, Finish.REFUSED, f"ack {result.name}", now)
 
     def handle_timer(self, now: float) -> None:
         """Call at (or after) ``get_timer()``; early calls are harmless."""
@@ -194,18 +300,18 @@ class CommandSender:
             if pending.sent <= self.config.retries:
                 self._transmit(pending, now)
             else:
-                self._give_up(pending)
+                self._give_up(pending, now)
 
     def confirm(self, handle: int, now: float, why: str) -> None:
         """The caller saw the command's effect in the vehicle state: finished, no retries."""
         pending = self._by_handle(handle)
         if pending is not None:
-            self._finish(pending, Finish.CONFIRMED, why)
+            self._finish(pending, Finish.CONFIRMED, why, now)
 
     def cancel(self, handle: int, now: float, why: str = "cancelled by caller") -> None:
         pending = self._by_handle(handle)
         if pending is not None:
-            self._finish(pending, Finish.CANCELLED, why)
+            self._finish(pending, Finish.CANCELLED, why, now)
 
     # ---- outputs ------------------------------------------------------------------------
 
@@ -229,20 +335,23 @@ class CommandSender:
 
     def _transmit(self, pending: _Pending, now: float) -> None:
         cmd = pending.command.retransmission(pending.sent)
+        if pending.sent > 0:
+            self.owed.forget(cmd.command)
         pending.sent += 1
         pending.deadline = now + self.config.ack_timeout_s
         self._out.append(cmd)
         self._events.append(CommandSent(cmd.label, cmd.confirmation, pending.handle))
 
-    def _give_up(self, pending: _Pending) -> None:
+    def _give_up(self, pending: _Pending, now: float) -> None:
         if pending.last_result is None:
-            self._finish(pending, Finish.NO_ACK, f"no ack after {pending.sent} sends")
+            self._finish(pending, Finish.NO_ACK, f"no ack after {pending.sent} sends", now)
         else:
             why = f"answered {pending.last_result.name} after {pending.sent} sends"
-            self._finish(pending, Finish.REFUSED, why)
+            self._finish(pending, Finish.REFUSED, why, now)
 
-    def _finish(self, pending: _Pending, finish: Finish, why: str) -> None:
+    def _finish(self, pending: _Pending, finish: Finish, why: str, now: float) -> None:
         del self._pending[pending.command.command]
+        self.owed.owe(pending.command.command, pending.sent - pending.answers, now)
         self._events.append(
             CommandFinished(
                 pending.handle, pending.command, finish, pending.last_result, pending.sent, why
@@ -259,8 +368,8 @@ class SenderTask(Generic[E]):
     queue, in order. A subclass says when it is finished, what it waits for besides acks
     (``_own_deadline``) and what a finished command means to it (``_on_finished``)."""
 
-    def __init__(self, config: SenderConfig | None) -> None:
-        self._sender = CommandSender(config)
+    def __init__(self, config: SenderConfig | None, owed: OwedAcks | None = None) -> None:
+        self._sender = CommandSender(config, owed)
         self._out: list[VehicleCommand] = []
         self._events: deque[E | CommandSent | AckReceived] = deque()
 

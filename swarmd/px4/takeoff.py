@@ -61,6 +61,7 @@ from swarmd.px4.command_sender import (
     CommandFinished,
     CommandSent,
     Finish,
+    OwedAcks,
     SenderConfig,
     SenderTask,
 )
@@ -202,12 +203,13 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         *,
         config: TakeoffConfig | None = None,
         readiness_config: ReadinessConfig | None = None,
+        owed: OwedAcks | None = None,
     ) -> None:
         self.vehicle = vehicle
         self.alt_m = alt_m
         self.config = config or TakeoffConfig()
         self.config.check()
-        super().__init__(self.config.command)
+        super().__init__(self.config.command, owed)  # owed: the vehicle's, shared
         self.readiness_config = readiness_config or ReadinessConfig()
         self.phase = TakeoffPhase.IDLE
         self.target_amsl_m: float | None = None
@@ -396,9 +398,15 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             self._handle = None
         self._lift_deadline = None
         if self._arm_sent:
-            # leave nothing armed on the ground; PX4 refuses a non-forced disarm in the air
-            self._out.append(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0))
-            self._events.append(CommandSent(MavCmd.COMPONENT_ARM_DISARM.name, 0))
+            # leave nothing armed on the ground; PX4 refuses a non-forced disarm in the air.
+            # Sent once through the sender and abandoned at once: its answer has ARM's number
+            # and would answer the next take-off's ARM (mavlink.io, "Command Protocol": an ack
+            # has no request id), so the sender owes it (command_sender, "Answers still owed")
+            disarm = self._sender.send(
+                VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0), now
+            )
+            self._sender.cancel(disarm, now, "the failed take-off's one DISARM")
+            self._drain(now)
         self.outcome = TakeoffFailed(reason, cause, detail, now - self._t0)
         self._set_phase(TakeoffPhase.FAILED, now, f"{reason}: {detail}")
         self._events.append(self.outcome)

@@ -34,8 +34,9 @@ from swarmd.px4.actions import (
     VehicleAction,
     action_command,
 )
+from swarmd.px4.command_sender import OwedAcks
 from swarmd.px4.constants import LandedState
-from swarmd.px4.messages import Observation, VehicleCommand
+from swarmd.px4.messages import CommandAck, Observation, VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState, readiness
 from swarmd.px4.takeoff import (
     FailReason,
@@ -110,6 +111,9 @@ class VehicleCore:
         self.takeoff_config = takeoff_config or TakeoffConfig()
         self.takeoff_config.check()
         self.state = VehicleState()
+        # answers ended commands still owe, one table for all the vehicle's tasks: a debt
+        # outlives its task (the failed take-off's DISARM owes the next ARM's number)
+        self.owed = OwedAcks(self.takeoff_config.command.owed_window_s)
         self.last_takeoff: TakeoffSequence | None = None
         self._tasks: list[_Task] = []
         self._last_key: tuple[bool, str | None] | None = None
@@ -122,6 +126,10 @@ class VehicleCore:
     def receive_datagram(self, data: Observation, source: object, now: float) -> None:
         """One observation from the backend (``source`` is unused: one vehicle per core)."""
         self.state.observe(data, now)
+        if isinstance(data, CommandAck):
+            # paid here too, so an earlier command's answer arriving while no task runs
+            # settles its debt; the tasks' senders see this same verdict (OwedAcks.pay)
+            self.owed.pay(data, now)
         for task in list(self._tasks):
             task.runner.observe(data, now)
         self._settle(now)
@@ -156,6 +164,7 @@ class VehicleCore:
             alt_m,
             config=self.takeoff_config,
             readiness_config=self.readiness_config,
+            owed=self.owed,
         )
         self.last_takeoff = seq
         self._run(_Task(token, seq), now)
@@ -218,7 +227,7 @@ class VehicleCore:
     # ---- internals ----------------------------------------------------------------------
 
     def _action(self, token: int, kind: ActionKind, now: float, *, abort: bool = False) -> None:
-        action = VehicleAction(self.state, kind, sender=self.takeoff_config.command)
+        action = VehicleAction(self.state, kind, sender=self.takeoff_config.command, owed=self.owed)
         self._run(_Task(token, action, abort), now)
 
     def _run(self, task: _Task, now: float) -> None:
