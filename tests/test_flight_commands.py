@@ -303,3 +303,15 @@ def test_a_member_out_of_range_by_the_truth_that_ran_in_time_was_reached() -> No
     m = flight_commands.measure([hold], truth, {})
     assert m["unreached_not_reported"] == 0
     assert m["ran_while_truth_out_of_range"] == 1
+
+
+def test_a_copy_refused_as_too_late_and_reported_rejected_is_reported() -> None:
+    """The fade N = 10 r5 case: a HOLD reached the fading drone after its validity; the member
+    refused it (its journal: ``command_expired``) and swarmctl said ``rejected``. The operator
+    was told it did not run; a ``rejected`` with no late refusal on record is not that report."""
+    truth = _truth(3, {2}, (20.0, 60.0))
+    late = _command(30.0, 3.0, {2: "rejected"}, {})
+    late["expired"] = {"2": [34.0]}
+    assert flight_commands.measure([late], truth, {})["unreached_not_reported"] == 0
+    unexplained = _command(30.0, 3.0, {2: "rejected"}, {})
+    assert flight_commands.measure([unexplained], truth, {})["unreached_not_reported"] == 1

@@ -34,7 +34,10 @@ both daemons up, ``flight_measures.reachable``): ``reachable`` if that held for 
 - ``reported_unreachable_but_reachable``: swarmctl said ``unreachable`` for a member that
   was ``reachable`` (target 0);
 - ``unreached_not_reported``: a member ``unreachable`` throughout the validity that did not
-  run it in time and that swarmctl did not report ``unreachable`` or ``refused`` (target 0);
+  run it in time and that swarmctl did not report ``unreachable`` or ``refused``, nor
+  ``rejected`` by a member whose journal has the copy refused as too late
+  (``command_expired``: it reached the member after its validity, did not run, and the
+  operator was told) (target 0);
 - ``reported_ran_not_executed``: swarmctl said ``accepted``/``completed`` and the member's
   journal has no ``command_received`` (target 0);
 - ``reachable_not_executed``: reachable members that did not run it (the delivery gap);
@@ -77,6 +80,9 @@ JOURNAL_EVENTS: Final = frozenset(
 )
 VEHICLE_EVENTS: Final = frozenset({"armed", "disarmed", "mode"})
 REPORTED_UNREACHED: Final = frozenset({"unreachable", "refused"})
+# a member that got the copy after its validity refuses it (``command_expired``) and
+# answers; swarmctl shows that answer as ``rejected``: the operator is told it did not run
+REPORTED_LATE: Final = "rejected"
 REPORTED_RAN: Final = frozenset({"accepted", "completed"})
 
 
@@ -395,7 +401,10 @@ def measure(
             # a member the truth has out of range that ran the command in time was reached (in
             # a window shorter than the truth's step, or below its -82 dBm edge): the report
             # that it ran is right
-            if kind == "unreachable" and state not in REPORTED_UNREACHED and not in_time:
+            told = state in REPORTED_UNREACHED or (
+                state == REPORTED_LATE and bool(c.get("expired", {}).get(str(m)))
+            )
+            if kind == "unreachable" and not told and not in_time:
                 not_reported.append([cid, m, state])
             if kind == "unreachable" and in_time:
                 ran_out_of_range.append([cid, m])
