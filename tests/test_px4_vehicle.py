@@ -181,7 +181,7 @@ def test_abort_of_a_running_takeoff_disarms_on_the_ground() -> None:
     done = b.run_task(2, TaskKind.ABORT)
     assert (done.ok, done.reason) == (True, "COMPONENT_ARM_DISARM")
     takeoff = b.finished(1)
-    assert takeoff is not None and not takeoff.ok and takeoff.reason == "cancelled"
+    assert takeoff is not None and not takeoff.ok and takeoff.reason == "superseded: abort"
     b.run(1.0)
     assert not armed(b.sim)
     disarms = [c for c in b.sent if c.command == MavCmd.COMPONENT_ARM_DISARM and c.params[0] == 0]

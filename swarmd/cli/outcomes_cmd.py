@@ -37,7 +37,7 @@ from collections.abc import Callable
 from typing import Any, Final
 
 from swarmd.cli.status_cmd import fail_unreachable, socket_argument, table
-from swarmd.cli.takeoff_cmd import render_outcomes, sent_by_text
+from swarmd.cli.takeoff_cmd import reason_text, render_outcomes, sent_by_text
 from swarmd.control import DaemonUnreachable, RequestError, request
 from swarmd.exitcodes import EX_FAILED, EX_OK
 from swarmd.terminal import safe_text, safe_tree
@@ -202,7 +202,7 @@ def render_kept(shown: dict[str, Any], wall_now: float) -> list[str]:
                 str(r.get("kind", "?")).upper(),
                 str(r.get("commander", "?")),
                 str(r.get("state", "?")).upper(),
-                str(r.get("reason") or "-") + ("" if r.get("saved", True) else " [not saved]"),
+                reason_text(r.get("reason")) + ("" if r.get("saved", True) else " [not saved]"),
                 _clock(r.get("age_s"), wall_now),
                 _life(r.get("life"), life),
             ]
@@ -228,7 +228,9 @@ def _summary(c: dict[str, Any]) -> str:
     line = f"{len(nodes) - len(missing)}/{len(nodes)} executed"
     if missing:
         why = [
-            f"{name} ({v.get('state', '?')}" + (f": {v['reason']}" if v.get("reason") else "") + ")"
+            f"{name} ({v.get('state', '?')}"
+            + (f": {reason_text(v['reason'])}" if v.get("reason") else "")
+            + ")"
             if isinstance(v, dict)
             else name
             for name, v in missing.items()

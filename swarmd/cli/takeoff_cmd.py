@@ -44,6 +44,7 @@ from swarmd.exitcodes import (
     EX_UNREACHABLE,
     EX_USAGE,
 )
+from swarmd.px4.actions import SUPERSEDED
 from swarmd.swarm.commander import RESTARTED, UNREACHABLE
 from swarmd.swarm.issuer import DEFAULT_VALID_FOR_S
 from swarmd.terminal import safe_text, safe_tree
@@ -296,12 +297,20 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                         f"({_seconds(snap.get('valid_for_s'))}); it can no longer run there"
                     )
                     continue
-                extra = f" ({node['reason']})" if node.get("reason") else ""
+                extra = f" ({reason_text(node.get('reason'))})" if node.get("reason") else ""
                 at = node.get("done_s") if node.get("done_s") is not None else node["latency_s"]
                 when = f" after {at:.3f} s" if isinstance(at, int | float) else ""
                 if node.get("after_restart"):
                     # docs/dataplane.md, "Outcomes across a restart"
                     when += ", told by the drone after its daemon restarted"
+                later = superseded_by(node.get("reason"))
+                if later is not None:
+                    # docs/px4.md, "Two requests, one vehicle"
+                    run.say(
+                        f"  {name}: {state}: superseded on the drone by a later {later}; "
+                        f"this {kind.upper()} stopped there and sent nothing more{when}"
+                    )
+                    continue
                 run.say(f"  {name}: {state}{extra}{when}")
         if snap["done"] or run.expired():
             break
@@ -361,6 +370,24 @@ def sent_by_text(snap: dict[str, Any]) -> str | None:
     return f"sent by {name} (uid {who.get('uid')}, pid {who.get('pid')})"
 
 
+def superseded_by(reason: object) -> str | None:
+    """``LAND`` for the reason ``superseded: land``: a later LAND, HOLD or ABORT took the
+    vehicle over from this command's task (docs/px4.md, "Two requests, one vehicle")."""
+    if not isinstance(reason, str):
+        return None
+    code, sep, later = reason.partition(":")
+    if code != SUPERSEDED or not sep or not later.strip():
+        return None
+    return later.strip().upper()
+
+
+def reason_text(reason: object) -> str:
+    """A drone's reason code as a table cell: the code itself, but ``superseded by LAND``
+    for ``superseded: land``; JSON keeps the exact code."""
+    later = superseded_by(reason)
+    return str(reason or "-") if later is None else f"{SUPERSEDED} by {later}"
+
+
 def render_outcomes(snap: dict[str, Any]) -> list[str]:
     """The per-drone outcome table; the drones' reasons are made safe for a terminal."""
     snap = safe_tree(snap)
@@ -368,7 +395,7 @@ def render_outcomes(snap: dict[str, Any]) -> list[str]:
     for name, n in snap["nodes"].items():
         latency = n.get("latency_s")
         done = n.get("done_s")
-        reason = str(n.get("reason") or "-")
+        reason = reason_text(n.get("reason"))
         if n.get("after_restart"):
             reason += " [after restart]"
         if n.get("save_failed"):

@@ -54,6 +54,9 @@ from swarmd.px4.readiness import VehicleState
 CONFIRM_TIMEOUT_S: Final = 3.0  # ACK ACCEPTED -> the effect in state (1 Hz HEARTBEAT, x2 + jitter)
 MODE_FLAG_CUSTOM: Final = 1.0  # DO_SET_MODE param1: MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 NOT_CONFIRMED: Final = "not_confirmed"
+# a later request took the vehicle over (``VehicleCore``; docs/px4.md, "Two requests, one
+# vehicle"); the take-off's ``FailReason.SUPERSEDED`` is the same code
+SUPERSEDED: Final = "superseded"
 
 
 class ActionKind(StrEnum):
@@ -164,6 +167,12 @@ class VehicleAction(SenderTask[ActionFinished]):
     def cancel(self, now: float, why: str = "cancelled") -> None:
         if self.outcome is None:
             self._finish(now, False, "cancelled", why)
+
+    def supersede(self, now: float, why: str) -> None:
+        """A later request took the vehicle over: end now, send nothing more (the pending
+        command is cancelled, so its unanswered sends are owed: ``OwedAcks``)."""
+        if self.outcome is None:
+            self._finish(now, False, SUPERSEDED, why)
 
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 

@@ -118,7 +118,10 @@ class FailReason(StrEnum):
     DISARMED = "disarmed"  # the vehicle disarmed itself (auto-disarm, failsafe, RC)
     NO_LIFTOFF = "no_liftoff"
     CANCELLED = "cancelled"
-    BUSY = "busy"  # another take-off is running (the driver's answer; never from a sequence)
+    # a later LAND, HOLD or ABORT took the vehicle over (``VehicleCore``; docs/px4.md, "Two
+    # requests, one vehicle"): the sequence ended at once and sent nothing more, no DISARM
+    SUPERSEDED = "superseded"
+    BUSY = "busy"  # another task is running (the vehicle core's answer; never from a sequence)
 
 
 class GroundRef(StrEnum):
@@ -299,6 +302,17 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         if not self._finished():
             self._fail(now, FailReason.CANCELLED, None, why)
 
+    def supersede(self, now: float, why: str) -> None:
+        """A later request took the vehicle over: end now and send nothing more, not even the
+        DISARM a failure sends (PX4 obeys the last command: ours must be the later one's)."""
+        if not self._finished():
+            self._fail(now, FailReason.SUPERSEDED, None, why, disarm=False)
+
+    @property
+    def arm_sent(self) -> bool:
+        """ARM went out: the vehicle may arm whatever the state shows yet (ABORT's cue)."""
+        return self._arm_sent
+
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 
     def _finished(self) -> bool:
@@ -392,20 +406,28 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             self._sender.confirm(self._handle, now, why)
             self._handle = None
 
-    def _fail(self, now: float, reason: FailReason, cause: str | None, detail: str) -> None:
+    def _fail(
+        self,
+        now: float,
+        reason: FailReason,
+        cause: str | None,
+        detail: str,
+        *,
+        disarm: bool = True,
+    ) -> None:
         if self._handle is not None:
             self._sender.cancel(self._handle, now, f"{reason}")
             self._handle = None
         self._lift_deadline = None
-        if self._arm_sent:
+        if self._arm_sent and disarm:
             # leave nothing armed on the ground; PX4 refuses a non-forced disarm in the air.
             # Sent once through the sender and abandoned at once: its answer has ARM's number
             # and would answer the next take-off's ARM (mavlink.io, "Command Protocol": an ack
             # has no request id), so the sender owes it (command_sender, "Answers still owed")
-            disarm = self._sender.send(
+            handle = self._sender.send(
                 VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0), now
             )
-            self._sender.cancel(disarm, now, "the failed take-off's one DISARM")
+            self._sender.cancel(handle, now, "the failed take-off's one DISARM")
             self._drain(now)
         self.outcome = TakeoffFailed(reason, cause, detail, now - self._t0)
         self._set_phase(TakeoffPhase.FAILED, now, f"{reason}: {detail}")

@@ -13,10 +13,18 @@ earliest of the heartbeat-stale deadline and the running tasks' timers) and
 went quiet", by the timer), ``TaskFinished`` once per request, and the tasks' own events
 (phases, commands sent, acks) for the log.
 
-Tasks: at most one take-off runs (a second is refused ``busy``); LAND, HOLD and DISARM are
-``actions.VehicleAction``s, all commands through the ``CommandSender``. ABORT stops a running
-take-off (the sequence disarms if it armed), then lands a vehicle in the air or disarms one
-armed on the ground, never a forced disarm, which PX4 would obey in the air; a vehicle on
+Tasks: **at most one runs** (docs/px4.md, "Two requests, one vehicle"). A request that
+arrives while a task runs meets ``RULES``: a TAKEOFF is refused ``busy`` (a take-off only
+starts from quiet, so it never undoes a LAND, HOLD or ABORT implicitly); a LAND, HOLD or
+ABORT supersedes the running task, as PX4 itself lets the last mode command win: the old
+task ends at once with its own ``TaskFinished`` (reason ``superseded: <new kind>``, the
+detail naming the new request for the log) and sends nothing after that, not even a failed
+take-off's DISARM; its pending command is cancelled, so the answers it is still owed are
+paid from the shared ``OwedAcks`` and cannot settle the new task's command of the same
+number. Then the new task starts. LAND, HOLD and DISARM are ``actions.VehicleAction``s,
+all commands through the ``CommandSender``. ABORT lands a vehicle in the air, disarms one
+armed on the ground (or one whose superseded take-off had sent ARM, which PX4 may carry
+out before our DISARM), never a forced disarm, which PX4 would obey in the air; a vehicle on
 the ground and disarmed needs nothing (``on_ground_disarmed``).
 """
 
@@ -28,6 +36,7 @@ from enum import StrEnum
 from typing import Final, assert_never
 
 from swarmd.px4.actions import (
+    SUPERSEDED,
     ActionEvent,
     ActionFinished,
     ActionKind,
@@ -57,6 +66,38 @@ class TaskKind(StrEnum):
     LAND = "land"
     HOLD = "hold"
     ABORT = "abort"
+
+
+class Meet(StrEnum):
+    """What a new request does to the task running when it arrives (``RULES``)."""
+
+    BUSY = "busy"  # the new request is refused; the running task goes on
+    SUPERSEDE = "supersede"  # the running task ends ``superseded``; the new one starts
+
+
+# running task x new request -> what happens (docs/px4.md, "Two requests, one vehicle").
+# Every pair is written out so a reader sees the whole rule; a TaskKind without its row and
+# column fails test_every_pair_has_a_rule. The last stop command wins, as in PX4 (a mode
+# command replaces the mode, whatever set it); a take-off never interrupts anything: after a
+# LAND it would undo the operator's stop, after a take-off it is a duplicate.
+RULES: Final[dict[tuple[TaskKind, TaskKind], Meet]] = {
+    (TaskKind.TAKEOFF, TaskKind.TAKEOFF): Meet.BUSY,
+    (TaskKind.TAKEOFF, TaskKind.LAND): Meet.SUPERSEDE,  # stop climbing, land
+    (TaskKind.TAKEOFF, TaskKind.HOLD): Meet.SUPERSEDE,  # stop climbing, hold
+    (TaskKind.TAKEOFF, TaskKind.ABORT): Meet.SUPERSEDE,  # then land or disarm
+    (TaskKind.LAND, TaskKind.TAKEOFF): Meet.BUSY,  # never undo a LAND implicitly
+    (TaskKind.LAND, TaskKind.LAND): Meet.SUPERSEDE,  # the later LAND owns the vehicle
+    (TaskKind.LAND, TaskKind.HOLD): Meet.SUPERSEDE,  # explicit, as after the LAND confirms
+    (TaskKind.LAND, TaskKind.ABORT): Meet.SUPERSEDE,  # ABORT lands (or disarms) itself
+    (TaskKind.HOLD, TaskKind.TAKEOFF): Meet.BUSY,
+    (TaskKind.HOLD, TaskKind.LAND): Meet.SUPERSEDE,
+    (TaskKind.HOLD, TaskKind.HOLD): Meet.SUPERSEDE,
+    (TaskKind.HOLD, TaskKind.ABORT): Meet.SUPERSEDE,
+    (TaskKind.ABORT, TaskKind.TAKEOFF): Meet.BUSY,  # never undo an ABORT implicitly
+    (TaskKind.ABORT, TaskKind.LAND): Meet.SUPERSEDE,
+    (TaskKind.ABORT, TaskKind.HOLD): Meet.SUPERSEDE,  # explicit, as after the ABORT confirms
+    (TaskKind.ABORT, TaskKind.ABORT): Meet.SUPERSEDE,
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,8 +135,10 @@ VehicleEvent = ReadinessChanged | TaskFinished | SequenceEvent | ActionEvent
 @dataclass(slots=True)
 class _Task:
     token: int
+    kind: TaskKind
     runner: TakeoffSequence | VehicleAction
     abort: bool = False  # an ABORT's action: reason = the command's label on success
+    superseded_by: TaskKind | None = None  # the later request's kind, for the reason code
 
 
 class VehicleCore:
@@ -140,54 +183,50 @@ class VehicleCore:
         self._settle(now)
 
     def request(self, request: VehicleRequest, now: float) -> None:
-        """Start the task ``request`` names; its end is a ``TaskFinished`` event."""
+        """Start the task ``request`` names; its end is a ``TaskFinished`` event. A task
+        running meets it by ``RULES``: refused ``busy``, or superseded by it."""
+        running = self._tasks[0] if self._tasks else None  # at most one (module docstring)
+        armed_maybe = False
+        if running is not None:
+            if RULES[(running.kind, request.kind)] is Meet.BUSY:
+                self._refuse_busy(request, running)
+                return
+            runner = running.runner
+            armed_maybe = isinstance(runner, TakeoffSequence) and runner.arm_sent
+            self._supersede(running, request, now)
         match request.kind:
             case TaskKind.TAKEOFF:
-                self.takeoff(request.token, request.alt_m, now)
+                seq = TakeoffSequence(
+                    self.state,
+                    request.alt_m,
+                    config=self.takeoff_config,
+                    readiness_config=self.readiness_config,
+                    owed=self.owed,
+                )
+                self.last_takeoff = seq
+                self._run(_Task(request.token, TaskKind.TAKEOFF, seq), now)
             case TaskKind.LAND:
-                self.land(request.token, now)
+                self._action(request, ActionKind.LAND, now)
             case TaskKind.HOLD:
-                self.hold(request.token, now)
+                self._action(request, ActionKind.HOLD, now)
             case TaskKind.ABORT:
-                self.abort(request.token, now)
+                self._abort(request, armed_maybe, now)
             case _:
                 assert_never(request.kind)
 
     def takeoff(self, token: int, alt_m: float | None, now: float) -> None:
         """Arm and take off to ``alt_m`` above home (None: PX4's MIS_TAKEOFF_ALT)."""
-        if any(isinstance(t.runner, TakeoffSequence) for t in self._tasks):
-            busy = TakeoffFailed(FailReason.BUSY, None, "a take-off is already running", 0.0)
-            self._events.append(TaskFinished(token, False, str(FailReason.BUSY), busy))
-            return
-        seq = TakeoffSequence(
-            self.state,
-            alt_m,
-            config=self.takeoff_config,
-            readiness_config=self.readiness_config,
-            owed=self.owed,
-        )
-        self.last_takeoff = seq
-        self._run(_Task(token, seq), now)
+        self.request(VehicleRequest(token, TaskKind.TAKEOFF, alt_m), now)
 
     def land(self, token: int, now: float) -> None:
-        self._action(token, ActionKind.LAND, now)
+        self.request(VehicleRequest(token, TaskKind.LAND), now)
 
     def hold(self, token: int, now: float) -> None:
-        self._action(token, ActionKind.HOLD, now)
+        self.request(VehicleRequest(token, TaskKind.HOLD), now)
 
     def abort(self, token: int, now: float) -> None:
-        """Stop a take-off; then land in the air, disarm on the ground, or nothing."""
-        for task in list(self._tasks):
-            if isinstance(task.runner, TakeoffSequence):
-                task.runner.cancel(now, "aborted")
-        self._settle(now)
-        landed = self.state.landed_state
-        if landed not in (None, LandedState.ON_GROUND):
-            self._action(token, ActionKind.LAND, now, abort=True)
-        elif self.state.armed:
-            self._action(token, ActionKind.DISARM, now, abort=True)
-        else:
-            self._events.append(TaskFinished(token, True, ON_GROUND_DISARMED, None))
+        """Stop what runs; then land in the air, disarm on the ground, or nothing."""
+        self.request(VehicleRequest(token, TaskKind.ABORT), now)
 
     def cancel(self, token: int, now: float, why: str) -> None:
         """End the task of ``token`` (a take-off disarms if it armed); unknown: nothing."""
@@ -226,11 +265,40 @@ class VehicleCore:
 
     # ---- internals ----------------------------------------------------------------------
 
-    def _action(self, token: int, kind: ActionKind, now: float, *, abort: bool = False) -> None:
+    def _abort(self, request: VehicleRequest, armed_maybe: bool, now: float) -> None:
+        # ``armed_maybe``: the take-off it superseded sent ARM, which PX4 may carry out after
+        # the state we hold was sent; a DISARM sent after it arrives after it (one link, in
+        # order), where before the take-off's own DISARM covered this
+        landed = self.state.landed_state
+        if landed not in (None, LandedState.ON_GROUND):
+            self._action(request, ActionKind.LAND, now, abort=True)
+        elif self.state.armed or armed_maybe:
+            self._action(request, ActionKind.DISARM, now, abort=True)
+        else:
+            self._events.append(TaskFinished(request.token, True, ON_GROUND_DISARMED, None))
+
+    def _refuse_busy(self, request: VehicleRequest, running: _Task) -> None:
+        why = f"a {running.kind} is running (token {running.token:#x})"
+        outcome: TakeoffOutcome | ActionFinished | None = None
+        if request.kind is TaskKind.TAKEOFF:
+            outcome = TakeoffFailed(FailReason.BUSY, None, why, 0.0)
+        self._events.append(TaskFinished(request.token, False, str(FailReason.BUSY), outcome))
+
+    def _supersede(self, task: _Task, by: VehicleRequest, now: float) -> None:
+        """End ``task`` for ``by``: its TaskFinished first, and nothing of it on the wire."""
+        origin = "" if by.origin is None else f", {by.origin[0]} command {by.origin[1]:#x}"
+        task.superseded_by = by.kind
+        task.runner.supersede(now, f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})")
+        self._settle(now)
+
+    def _action(
+        self, request: VehicleRequest, kind: ActionKind, now: float, *, abort: bool = False
+    ) -> None:
         action = VehicleAction(self.state, kind, sender=self.takeoff_config.command, owed=self.owed)
-        self._run(_Task(token, action, abort), now)
+        self._run(_Task(request.token, request.kind, action, abort), now)
 
     def _run(self, task: _Task, now: float) -> None:
+        assert not self._tasks, "one task at a time (RULES)"  # noqa: S101 - an invariant
         self._tasks.append(task)
         task.runner.start(now)
         self._settle(now)
@@ -258,6 +326,11 @@ class VehicleCore:
 
 def _finished(task: _Task) -> TaskFinished:
     runner = task.runner
+    if task.superseded_by is not None:
+        # one code for both runners, the later request's kind after it (docs/px4.md)
+        return TaskFinished(
+            task.token, False, f"{SUPERSEDED}: {task.superseded_by}", runner.outcome
+        )
     if isinstance(runner, TakeoffSequence):
         out = runner.outcome
         assert out is not None  # noqa: S101 - done means an outcome

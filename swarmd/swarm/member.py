@@ -21,10 +21,12 @@ Without a vehicle every command is REJECTED ``px4_disabled``. TAKEOFF is refused
 commander's view is up to one report old), else ACCEPTED at once (the commander's latency
 measure) and sent to the vehicle; LAND, HOLD and ABORT are ACCEPTED and sent, always. The
 vehicle's ``TaskFinished`` becomes COMPLETED (reason: the landed state after a take-off,
-the command's label after an ABORT) or FAILED (REJECTED for a take-off refused as not
-ready). Dispatch is an exhaustive ``match`` on ``CommandKind`` with ``assert_never``: a
-new kind fails the type check rather than running another's action, and a kind number
-this build does not know is REJECTED ``unknown_kind``.
+the command's label after an ABORT) or FAILED (``superseded: land`` for a task a later LAND,
+HOLD or ABORT took over: docs/px4.md, "Two requests, one vehicle"; REJECTED for a take-off
+refused as not ready, or ``busy`` while another task runs). Dispatch is an exhaustive
+``match`` on ``CommandKind`` with ``assert_never``: a new kind fails the type check rather
+than running another's action, and a kind number this build does not know is REJECTED
+``unknown_kind``.
 
 Every command received is persisted before anything moves (``PersistExecuted``, the
 write-ahead: docs/dataplane.md, "Exactly once"), each outcome after it is decided, with
@@ -227,8 +229,10 @@ class Member:
         if done.ok:
             result = CommandResult.COMPLETED
         elif isinstance(done.outcome, TakeoffFailed) and (
-            done.outcome.reason == FailReason.NOT_READY
+            done.outcome.reason in (FailReason.NOT_READY, FailReason.BUSY)
         ):
+            # refused before anything was sent: not ready, or another task runs (the
+            # vehicle's RULES: a take-off never interrupts a LAND, HOLD or ABORT)
             result = CommandResult.REJECTED
         else:
             result = CommandResult.FAILED
