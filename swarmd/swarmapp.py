@@ -211,6 +211,8 @@ class SwarmApp:
             state = self._state(lambda d, n: preview(d, n, user))
             if state.recovered_from:
                 notes.append(f"{state.path}: {state.recovered_from}; run replaces it")
+            if state.decisions_dropped:
+                notes.append(f"{state.path}: {_dropped_text(state)}; run drops them too")
             self._make_plane(state)
         return notes
 
@@ -362,6 +364,14 @@ class SwarmApp:
                 path=str(self.state.path),
                 why="this node booted before (its boot epoch file held one) but its state "
                 "file is gone: commands of an earlier life are refused memory_lost",
+            )
+        if self.state.decisions_dropped:  # times that cannot be right (statefile.load)
+            self.log.warning(
+                "state_decisions_dropped",
+                path=str(self.state.path),
+                dropped=self.state.decisions_dropped,
+                ids_kept=self.state.decision_ids_kept,
+                why=_dropped_text(self.state),
             )
         if self.state.temps_removed:  # a crash mid-write (statefile.boot)
             self.log.warning(
@@ -682,3 +692,12 @@ def _on_clock(kept: KeptDecision, offset: float) -> KeptDecision:
     """``kept`` with ``received_at`` moved by ``offset``: from the core's clock to Unix time
     (``offset`` = Unix time - loop time) or back (its negative)."""
     return kept._replace(received_at=kept.received_at + offset)
+
+
+def _dropped_text(state: NodeState) -> str:
+    """The one line about the kept decisions ``statefile.load`` dropped for their time."""
+    return (
+        f"{state.decisions_dropped} earlier decision(s) dropped from swarmctl outcomes' view "
+        f"({state.decisions_problem}); their ids stay executed, {state.decision_ids_kept} of "
+        "them added there, so none of those commands runs again"
+    )

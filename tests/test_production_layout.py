@@ -246,7 +246,10 @@ def test_check_config_as_root_judges_the_state_folder_for_the_units_user(tmp_pat
     """An operator points ``dataplane.state_dir`` at a folder root made (0755 root): root
     could write it, the daemon's user ``swarmd`` cannot. ``swarmd check-config`` run as root
     judges for ``swarmd`` (the unit's ``User=``) and refuses with the line and exit code the
-    daemon's start gives (73); judged for root (``--user root``) it says ok."""
+    daemon's start gives (73). Judged for root (``--user root``) the folder passes, and
+    since session 15 the installed unit's sandbox refuses it: ``ProtectSystem=strict``
+    leaves /var/lib/swarmd-state read-only, as the start then finds (before, the check
+    said ok and only the start stopped)."""
     state = "/var/lib/swarmd-state"  # /var/lib is the namespace's overlay: never the host's
     config = yaml.safe_load(shipped_config())
     config["dataplane"]["state_dir"] = state
@@ -263,13 +266,17 @@ def test_check_config_as_root_judges_the_state_folder_for_the_units_user(tmp_pat
         judged_as_root = installed.run(
             ["/opt/swarmd/venv/bin/swarmd", "check-config", "--config", CONFIG, "--user", "root"]
         )
-        assert judged_as_root.returncode == 0, judged_as_root.stderr
-        # the residual (docs/operations.md, check-config's "out"): a folder swarmd owns
-        # passes the check, made outside the unit's sandbox; inside, ProtectSystem=strict
-        # leaves /var/lib/swarmd-state read-only and the start stops, naming the mount
+        assert judged_as_root.returncode == 73, judged_as_root
+        assert "ProtectSystem=strict" in judged_as_root.stderr
+        assert "/etc/systemd/system/swarmd.service" in judged_as_root.stderr
+        # a folder swarmd owns passes the folder check, made outside the unit's sandbox;
+        # the unit's reading refuses it, and inside, the start stops on the mount
         assert installed.run(["chown", "swarmd:swarmd", state]).returncode == 0
         again = installed.run(["/opt/swarmd/venv/bin/swarmd", "check-config", "--config", CONFIG])
-        assert again.returncode == 0, again.stderr
+        assert again.returncode == 73, again
+        assert (
+            "field dataplane.state_dir" in again.stderr and "ProtectSystem=strict" in again.stderr
+        )
         assert installed.start() == {"ready": False, "exit": 73}
         assert "read-only mount for user swarmd" in last_error(installed)[-1]
     finally:

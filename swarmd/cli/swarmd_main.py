@@ -41,6 +41,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="judge the state folders for this user (default: as root, the unit's User= "
         "swarmd when it exists; else the user running the check)",
     )
+    check.add_argument(
+        "--unit",
+        metavar="PATH",
+        help="judge the folders the daemon writes under this unit file's sandbox "
+        "(default: the installed unit, systemctl cat swarmd; none found: not judged)",
+    )
     firewall_cmd.register(sub)
     return parser
 
@@ -121,11 +127,19 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
             return _fail(f"config rejected: {exc}", EX_CONFIG)
         except StartupError as exc:
             return _fail(str(exc), exc.exit_code)
+        from swarmd.cli.sandbox_check import sandbox_note
+
+        try:
+            # run's writes under the unit's ProtectSystem= and friends (check-config runs
+            # outside that sandbox, so the folder checks above cannot see it)
+            sandbox = sandbox_note(config, args.unit)
+        except StartupError as exc:
+            return _fail(str(exc), exc.exit_code)
         for note in notes:  # `run` logs these as warnings and starts
             print(f"swarmd: warning: {note}", file=sys.stderr)
         print(
             f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm}), "
-            f"state folders judged for user {user.name}"
+            f"state folders judged for user {user.name}; {sandbox}"
         )
         return 0
     if before_run is not None:

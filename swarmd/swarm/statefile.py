@@ -25,7 +25,12 @@ which exactly-once depends on, are kept. ``decisions`` is the member's ``Decisio
 in Unix seconds, how long the final answer took), so ``swarmctl outcomes`` in a later life
 lists what the earlier ones decided, with kind and time; at most ``MAX_DECIDED_COMMANDS``
 (64) entries over all lives, the newest. Same compatibility: a file without it loads with
-none, an unreadable list is dropped alone.
+none, an unreadable list is dropped alone. A decision whose time cannot be right (NaN,
+infinite, negative, or later than the wall clock at load by more than
+``DECISION_CLOCK_SLACK_S``; its answer likewise) is dropped alone and counted
+(``decisions_dropped``), the rest kept; its (commander, id), when well formed, stays in
+``executed`` (added if missing, ``decision_ids_kept``): the time is wrong, the id is right,
+and exactly once rests on the id (docs/dataplane.md, "Exactly once" 3).
 
 Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
 file, never half of one. A crash mid-write leaves the temporary file (``.<file>.tmp-<16
@@ -45,6 +50,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final, TypeGuard
@@ -62,6 +68,12 @@ from swarmd.dataplane.writer import MAX_INCARNATION
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
 
 FILE_PATTERN: Final = "dataplane-{node}.json"
+# How far past this life's wall clock a kept decision's time (or its answer's) may lie and
+# still be believed. An earlier life wrote it by time.time(); a board without a real-time
+# clock boots with its clock behind (systemd-timesyncd restores the last saved time, and
+# NTP steps it forward again), by minutes to hours. A day covers that; beyond it the time
+# is not a clock's (a hand edit, a bad disk, 1e300) and the entry is dropped at load.
+DECISION_CLOCK_SLACK_S: Final = 86_400.0
 STATE_FILE_MODE: Final = 0o640  # what UMask=0027 made of open(..., "w"): the group reads
 
 
@@ -84,6 +96,11 @@ class NodeState:
     # no file was there: a first boot, or a deleted file (the caller knows which: the boot
     # epoch says whether this node started before, swarmapp.SwarmApp._boot_dataplane)
     missing: bool = False
+    # kept decisions dropped at load for a time that cannot be right (``load``), the first
+    # one's problem, and how many of their ids were missing from ``executed`` and added
+    decisions_dropped: int = 0
+    decisions_problem: str | None = None
+    decision_ids_kept: int = 0
 
     def save(self) -> None:
         """Write atomically; raises ``StateDirError`` (one line) on failure."""
@@ -117,17 +134,20 @@ def check_dir(state_dir: str | Path, user: DaemonUser) -> Path:
     return directory
 
 
-def preview(state_dir: str | Path, node: str, user: DaemonUser) -> NodeState:
+def preview(
+    state_dir: str | Path, node: str, user: DaemonUser, *, wall_now: float | None = None
+) -> NodeState:
     """What ``boot`` would load and count, by reading only: the folder checked
     (``check_dir``), the file loaded as ``boot`` loads it, the boot counted in memory. It
     never creates the folder, removes a temporary file or writes the state file
-    (``swarmd check-config``, docs/operations.md). Raises ``StateDirError``."""
+    (``swarmd check-config``, docs/operations.md). ``wall_now``: the wall clock decision
+    times are judged against (None: ``time.time()``). Raises ``StateDirError``."""
     directory = check_dir(state_dir, user)
     path = state_path(directory, node)
     if path.is_dir() and not path.is_symlink():
         # the atomic write renames over it, and a rename cannot replace a folder
         raise StateDirError(f"cannot write {path}: it is a folder; fix: remove it")
-    state = load(path)
+    state = load(path, wall_now)
     state.boot = _next_boot(state.boot)
     return state
 
@@ -137,13 +157,21 @@ def _next_boot(count: int) -> int:
     return count + 1 if count < MAX_INCARNATION else 1
 
 
-def boot(state_dir: str | Path, node: str, user: DaemonUser | None = None) -> NodeState:
+def boot(
+    state_dir: str | Path,
+    node: str,
+    user: DaemonUser | None = None,
+    *,
+    wall_now: float | None = None,
+) -> NodeState:
     """Load the node's state, count this boot and save it before anything is sent;
-    ``user``: whose writes are judged (None: this process's).
+    ``user``: whose writes are judged (None: this process's); ``wall_now``: as ``preview``.
 
     Raises ``StateDirError`` when the directory cannot be created or written.
     """
-    planned = preview(state_dir, node, user if user is not None else DaemonUser.this_process())
+    wall_now = time.time() if wall_now is None else wall_now
+    who = user if user is not None else DaemonUser.this_process()
+    planned = preview(state_dir, node, who, wall_now=wall_now)
     directory = planned.path.parent
     try:
         directory.mkdir(parents=True, exist_ok=True, mode=0o750)
@@ -151,16 +179,18 @@ def boot(state_dir: str | Path, node: str, user: DaemonUser | None = None) -> No
         raise StateDirError(f"cannot create state directory {directory}: {exc.strerror}") from None
     # a crash inside write_file_atomic leaves its temporary file (tests/test_cmd_state_kill.py)
     removed = remove_left_temps(planned.path)
-    state = load(planned.path)
+    state = load(planned.path, wall_now)
     state.temps_removed = removed
     state.boot = _next_boot(state.boot)
     state.save()
     return state
 
 
-def load(path: Path) -> NodeState:
+def load(path: Path, wall_now: float | None = None) -> NodeState:
     """The state at ``path``; a missing file starts afresh (``missing``), a corrupt one is
-    replaced."""
+    replaced. ``wall_now``: the wall clock (Unix seconds) the kept decisions' times are
+    judged against (``DECISION_CLOCK_SLACK_S``; None: ``time.time()``)."""
+    wall_now = time.time() if wall_now is None else wall_now
     try:
         raw = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -184,11 +214,48 @@ def load(path: Path) -> NodeState:
         raw_decisions = body.get("decisions", [])
         if not isinstance(raw_decisions, list):
             raise TypeError("decisions is not a list")
-        decisions = [_decision(kept) for kept in raw_decisions[-MAX_DECIDED_COMMANDS:]]
+        read = [_decision(kept) for kept in raw_decisions[-MAX_DECIDED_COMMANDS:]]
     except (ValueError, TypeError) as exc:  # the ids and answers stand; only the view is lost
         why = f"decisions dropped ({type(exc).__name__}: {exc})"
         return NodeState(path, boot_count, executed, outcomes, recovered_from=why)
-    return NodeState(path, boot_count, executed, outcomes, decisions)
+    state = NodeState(path, boot_count, executed, outcomes)
+    known = set(executed)
+    for decision in read:
+        problem = _time_problem(decision, wall_now)
+        if problem is None:
+            state.decisions.append(decision)
+            continue
+        state.decisions_dropped += 1
+        if state.decisions_problem is None:
+            state.decisions_problem = problem
+        key = (decision.commander, decision.command_id)
+        if key not in known:
+            # the entry's time is wrong, its id is not: a command this node decided (the
+            # id was written ahead of it) must never run again (docs/dataplane.md,
+            # "Exactly once" 3), so the id is kept where the plane's dedup reads it
+            known.add(key)
+            state.executed.append(key)
+            state.decision_ids_kept += 1
+    return state
+
+
+def _time_problem(decision: KeptDecision, wall_now: float) -> str | None:
+    """Why ``decision``'s time (or its answer's) cannot be right, or None: not finite,
+    before 1970, or later than ``wall_now`` by more than ``DECISION_CLOCK_SLACK_S``."""
+    received_at, done_s = decision.received_at, decision.done_s
+    latest = wall_now + DECISION_CLOCK_SLACK_S
+    what = f"decision {decision.commander!r} {decision.command_id:#x}"
+    if not math.isfinite(received_at) or received_at < 0:
+        return f"{what}: received_at {received_at!r} is not a time"
+    if received_at > latest:
+        return f"{what}: received_at {received_at!r} is {received_at - wall_now:.3g} s ahead"
+    if done_s is None:
+        return None
+    if not math.isfinite(done_s) or done_s < 0:
+        return f"{what}: done_s {done_s!r} is not a duration"
+    if received_at + done_s > latest:
+        return f"{what}: its answer (done_s {done_s!r}) is ahead of the clock"
+    return None
 
 
 def _outcome(kept: object) -> KeptOutcome:
@@ -228,10 +295,24 @@ def _decision(kept: object) -> KeptDecision:
         raise ValueError(f"decision {kept!r}: commander or kind too long")
     if len(reason.encode("utf-8")) > MAX_REASON_CHARS:
         raise ValueError(f"decision {kept!r}: reason too long")
-    if not _finite(received_at) or not (done_s is None or (_finite(done_s) and done_s >= 0)):
-        raise ValueError(f"decision {kept!r}: bad time")
-    return KeptDecision(life, commander, command_id, kind, state, reason, received_at, done_s)
+    if not _number(received_at) or not (done_s is None or _number(done_s)):
+        raise TypeError(f"decision {kept!r}: a time is not a number")
+    # the times' values are judged apart (``_time_problem``): a wrong one drops its entry
+    # alone, and keeps its id
+    done = None if done_s is None else _as_float(done_s)
+    return KeptDecision(
+        life, commander, command_id, kind, state, reason, _as_float(received_at), done
+    )
 
 
-def _finite(value: object) -> TypeGuard[int | float]:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+def _as_float(value: int | float) -> float:
+    """A JSON number as a float; an integer past a double's range is infinite (and then
+    judged by ``_time_problem``), not an ``OverflowError``."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
+
+
+def _number(value: object) -> TypeGuard[int | float]:
+    return isinstance(value, int | float) and not isinstance(value, bool)

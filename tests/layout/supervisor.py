@@ -124,6 +124,10 @@ def lay_out(spec: dict[str, Any]) -> None:
     sh("chown", "root:swarmd", str(config))
     config.chmod(0o640)
     sh("chown", "-R", "swarmd:swarmd", "/var/lib/swarmd")
+    # 5. the unit where docs/deploy.md installs it: check-config reads its sandbox
+    units = Path("/etc/systemd/system")
+    units.mkdir(parents=True, exist_ok=True)
+    shutil.copy(Path(spec["package"]).parent / "systemd" / "swarmd.service", units)
     NOTIFY_DIR.mkdir(mode=0o755)
 
 
