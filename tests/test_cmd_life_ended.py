@@ -17,8 +17,12 @@ Virtual time on the swarm cores; real daemons: ``tests/test_cmd_life_ended_loopb
 
 from __future__ import annotations
 
+import argparse
+from typing import Any
+
 import pytest
 
+from swarmd.cli import takeoff_cmd
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.swarm.commander import RESTARTED_RUNNING, UNREACHABLE_GRACE_S, CommandTracker
 from swarmd.swarm.events import CommandLifeEnded
@@ -128,3 +132,49 @@ def test_the_tracker_ends_only_accepted_rows_of_an_earlier_epoch() -> None:
     nodes = tracker.snapshot(1, 0.5)["nodes"]  # type: ignore[index]
     assert (nodes["m01"]["state"], nodes["m01"]["reason"]) == ("accepted", RESTARTED_RUNNING)
     assert (nodes["m02"]["state"], nodes["m03"]["state"]) == ("completed", "pending")
+
+
+class _Snaps:
+    """A control client that answers ``outcomes`` with each snapshot in turn, then the last."""
+
+    def __init__(self, snaps: list[dict[str, Any]]) -> None:
+        self.snaps = snaps
+
+    def request(self, cmd: str, **args: Any) -> dict[str, Any]:
+        assert cmd == "outcomes"
+        return self.snaps.pop(0) if len(self.snaps) > 1 else self.snaps[0]
+
+
+def test_swarmctl_says_the_life_ended_and_that_the_record_was_saved_after_all(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``swarmctl takeoff`` still following: uav2's answer is marked unsaved, then saved
+    after all; uav3 accepted and its life ended with nothing to re-report. Each is said
+    once, and the end is reached (uav3's row is settled)."""
+    monkeypatch.setattr(takeoff_cmd, "POLL_S", 0.0)
+    tracker = CommandTracker()
+    tracker.sent(2, "takeoff", ["uav2", "uav3"], 0.0, valid_for_s=3.0, epochs={"uav3": 1})
+    tracker.record(2, "uav2", CommandResult.ACCEPTED, "", 0.1, epoch=1, not_saved=True, save_gen=1)
+    tracker.record(2, "uav3", CommandResult.ACCEPTED, "", 0.1, epoch=1)
+    first = tracker.snapshot(2, 0.2)
+    tracker.record(2, "uav2", CommandResult.COMPLETED, "IN_AIR", 1.0, epoch=1)
+    tracker.record(
+        2, "uav2", CommandResult.COMPLETED, "IN_AIR", 1.1, epoch=1, now_saved=True, save_gen=2
+    )
+    tracker.member_restarted("uav3", 2, 1.2)
+    second = tracker.snapshot(2, 1.3)
+    third = tracker.snapshot(2, 1.2 + UNREACHABLE_GRACE_S)
+    assert first is not None and second is not None and third is not None
+    assert third["done"] is True
+    args = argparse.Namespace(json=False, timeout=30.0)
+    reply = {"command_id": 2, "ready": ["uav2", "uav3"], "valid_for_s": 3.0}
+    run = takeoff_cmd._Run(args)
+    client = _Snaps([first, second, third])
+    code = takeoff_cmd._follow(client, run, reply, "takeoff")  # type: ignore[arg-type]
+    out = capsys.readouterr().out
+    assert code == 1  # uav3 is not confirmed airborne
+    assert out.count("uav2: its daemon could not write its record") == 1
+    assert out.count("uav2: its daemon wrote its record of this command after all") == 1
+    assert out.count("uav3: its daemon restarted before the task ended") == 1
+    assert "[not saved on drone]" not in out
+    assert f"{RESTARTED_RUNNING}" in out
