@@ -36,6 +36,27 @@ def _snap(flight: Flight, cid: int) -> dict[str, object]:
     return snap
 
 
+def _said(flight: Flight, cid: int) -> tuple[str, str, bool]:
+    row = _row(flight, cid)
+    return row["state"], row["reason"], row["after_restart"]
+
+
+def _accepted_then_restarted(
+    seed: int, kind: CommandKind, *, state_kept: bool, then_s: float
+) -> tuple[Flight, int]:
+    """m01 accepts a command of ``kind``; its daemon restarts while the task runs (the
+    played vehicle takes 1 s), with its state dir or without; ``then_s`` later."""
+    flight = Flight(1, seed=seed)
+    swarm = flight.swarm
+    swarm.run(3.0)
+    cid = int(_issue(swarm, kind)["command_id"])
+    swarm.run(0.3)
+    assert (_row(flight, cid)["state"], _snap(flight, cid)["done"]) == ("accepted", False)
+    _reboot(flight, "m01", state_kept=state_kept)
+    swarm.run(then_s)
+    return flight, cid
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_an_accepted_row_whose_member_restarted_without_its_record_ends(
     kind: CommandKind,
@@ -44,20 +65,9 @@ def test_an_accepted_row_whose_member_restarted_without_its_record_ends(
     new life has nothing to re-report. The row says ``restarted_before_finishing`` as
     soon as the commander sees the new epoch, and is settled after the grace; nothing is
     re-reported, nothing runs again. Before, it stayed ``accepted`` and never settled."""
-    flight = Flight(1, seed=90)
+    flight, cid = _accepted_then_restarted(90, kind, state_kept=False, then_s=0.1)
     swarm = flight.swarm
-    swarm.run(3.0)
-    cid = int(_issue(swarm, kind)["command_id"])
-    swarm.run(0.3)  # accepted, the task running (the played vehicle takes 1 s)
-    assert (_row(flight, cid)["state"], _snap(flight, cid)["done"]) == ("accepted", False)
-    _reboot(flight, "m01", state_kept=False)
-    swarm.run(0.1)
-    row = _row(flight, cid)
-    assert (row["state"], row["reason"], row["after_restart"]) == (
-        "accepted",
-        RESTARTED_RUNNING,
-        False,
-    )
+    assert _said(flight, cid) == ("accepted", RESTARTED_RUNNING, False)
     assert _snap(flight, cid)["done"] is False  # a re-report may still be under repair
     swarm.run(UNREACHABLE_GRACE_S)
     assert _snap(flight, cid)["done"] is True
@@ -74,19 +84,9 @@ def test_a_rereport_still_fills_the_row_after_it_ended() -> None:
     """The state file kept: the new life re-reports the ACCEPTED it holds, and the row
     reads as before this change (``after_restart``, settled); the life's end adds nothing
     to it but its log line."""
-    flight = Flight(1, seed=91)
+    flight, cid = _accepted_then_restarted(91, CommandKind.TAKEOFF, state_kept=True, then_s=1.0)
     swarm = flight.swarm
-    swarm.run(3.0)
-    cid = int(_issue(swarm, CommandKind.TAKEOFF)["command_id"])
-    swarm.run(0.3)
-    _reboot(flight, "m01", state_kept=True)
-    swarm.run(1.0)
-    row = _row(flight, cid)
-    assert (row["state"], row["reason"], row["after_restart"]) == (
-        "accepted",
-        RESTARTED_RUNNING,
-        True,
-    )
+    assert _said(flight, cid) == ("accepted", RESTARTED_RUNNING, True)
     assert _snap(flight, cid)["done"] is True
     assert swarm.cores["m01"].counters["outcomes_rereported"] == 1
 

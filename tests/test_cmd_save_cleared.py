@@ -44,6 +44,7 @@ from swarmd.rtps.types import PROTOCOLVERSION_SWARMD, VENDORID_SWARMD, EntityId
 from swarmd.swarm.commander import CommandTracker
 from swarmd.swarm.events import OutcomeRecorded, OutcomeReported
 from tests.test_cmd_in_flight import Flight, _issue
+from tests.test_cmd_restart import replay_at_lead
 from tests.test_cmd_save_failed import KINDS, _issued_onto_a_full_disk, _row
 from tests.test_dataplane_swarm import address_of, keyring
 
@@ -132,16 +133,8 @@ def test_a_replay_of_the_flagged_outcome_after_the_clear_does_not_set_it_again()
     repairs): each is refused by the replay window or is a sample already delivered; no
     outcome is recorded and the row stays cleared."""
     flight, cid, captured, _ = _cleared(81)
-    swarm = flight.swarm
-    plane = swarm.lead.plane
-    assert plane is not None
-    before = plane.counters.copy()
     recorded = _recorded(flight, cid)
-    source = address_of(swarm.bundle, "m01")
-    for datagram in captured:
-        swarm.lead.receive_datagram(datagram, source, swarm.net.now)
-        swarm.net.poke(swarm.ids["lead"])
-    moved = plane.counters - before
+    moved = replay_at_lead(flight.swarm, captured)
     assert moved["dropped_auth_replayed"] >= 1, moved
     assert moved["dropped_auth_replayed"] + moved["rx_authenticated"] == len(captured), moved
     assert _recorded(flight, cid) == recorded
