@@ -182,7 +182,10 @@ class VehicleCore:
                 task.runner.cancel(now, "aborted")
         self._settle(now)
         landed = self.state.landed_state
-        if landed not in (None, LandedState.ON_GROUND):
+        # a state older than the heartbeat timeout says nothing of now (PX4 rebooted, the
+        # link fell silent): land, as in the air, rather than report "on the ground" unseen
+        fresh = self.state.heard_within(now, self.readiness_config.heartbeat_timeout_s)
+        if not fresh or landed not in (None, LandedState.ON_GROUND):
             self._action(token, ActionKind.LAND, now, abort=True)
         elif self.state.armed:
             self._action(token, ActionKind.DISARM, now, abort=True)
@@ -227,7 +230,13 @@ class VehicleCore:
     # ---- internals ----------------------------------------------------------------------
 
     def _action(self, token: int, kind: ActionKind, now: float, *, abort: bool = False) -> None:
-        action = VehicleAction(self.state, kind, sender=self.takeoff_config.command, owed=self.owed)
+        action = VehicleAction(
+            self.state,
+            kind,
+            sender=self.takeoff_config.command,
+            owed=self.owed,
+            state_max_age_s=self.readiness_config.heartbeat_timeout_s,
+        )
         self._run(_Task(token, action, abort), now)
 
     def _run(self, task: _Task, now: float) -> None:
