@@ -270,7 +270,10 @@ class VehicleCore:
         # the state we hold was sent; a DISARM sent after it arrives after it (one link, in
         # order), where before the take-off's own DISARM covered this
         landed = self.state.landed_state
-        if landed not in (None, LandedState.ON_GROUND):
+        # a state older than the heartbeat timeout says nothing of now (PX4 rebooted, the
+        # link fell silent): land, as in the air, rather than report "on the ground" unseen
+        fresh = self.state.heard_within(now, self.readiness_config.heartbeat_timeout_s)
+        if not fresh or landed not in (None, LandedState.ON_GROUND):
             self._action(request, ActionKind.LAND, now, abort=True)
         elif self.state.armed or armed_maybe:
             self._action(request, ActionKind.DISARM, now, abort=True)
@@ -294,7 +297,13 @@ class VehicleCore:
     def _action(
         self, request: VehicleRequest, kind: ActionKind, now: float, *, abort: bool = False
     ) -> None:
-        action = VehicleAction(self.state, kind, sender=self.takeoff_config.command, owed=self.owed)
+        action = VehicleAction(
+            self.state,
+            kind,
+            sender=self.takeoff_config.command,
+            owed=self.owed,
+            state_max_age_s=self.readiness_config.heartbeat_timeout_s,
+        )
         self._run(_Task(request.token, request.kind, action, abort), now)
 
     def _run(self, task: _Task, now: float) -> None:
