@@ -49,13 +49,14 @@ from swarmd.px4.xrce_key import XrceKeyError
 from swarmd.px4.xrce_key import check as check_xrce_key
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import issuer
-from swarmd.swarm.commander import CommandTracker, KeptDecision, ReadinessTable
+from swarmd.swarm.commander import RESTARTED_RUNNING, CommandTracker, KeptDecision, ReadinessTable
 from swarmd.swarm.core import SwarmCore, SwarmSettings
 from swarmd.swarm.events import (
     CommandBeforeLife,
     CommandExecuting,
     CommandExpired,
     CommandIssued,
+    CommandLifeEnded,
     CommandNotDelivered,
     CommandWithdrawn,
     MemberReadinessChanged,
@@ -510,6 +511,13 @@ class SwarmApp:
                     member=event.member,
                     command_id=event.command_id,
                     reason=event.reason,
+                )
+            case CommandLifeEnded():
+                self.log.warning(
+                    "command_member_restarted",
+                    member=event.member,
+                    command_id=event.command_id,
+                    reason=RESTARTED_RUNNING,
                 )
             case OutcomeReported():
                 self.log.info(

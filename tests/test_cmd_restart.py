@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,7 @@ from swarmd.swarm.statefile import boot, load, state_path
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _Outcomes
 from tests.test_dataplane_swarm import address_of
-from tests.test_swarm_core import VEHICLE_TASK_S
+from tests.test_swarm_core import VEHICLE_TASK_S, Swarm
 
 LEASE_S = EngineConfig().lease_s
 TAKEOFF_VALID_S = DEFAULT_VALID_FOR_S[CommandKind.TAKEOFF]
@@ -314,6 +315,20 @@ def test_a_re_report_for_an_id_never_issued_or_not_to_it_makes_no_row() -> None:
     assert _vehicle_requests(flight, "m01") == []
 
 
+def replay_at_lead(swarm: Swarm, captured: list[bytes], sender: str = "m01") -> Counter[str]:
+    """The attacker sends the commander ``captured``, as from ``sender``'s address: what
+    moved in the commander's plane counters."""
+    plane = swarm.lead.plane
+    assert plane is not None
+    before = plane.counters.copy()
+    source = address_of(swarm.bundle, sender)
+    for datagram in captured:
+        swarm.lead.receive_datagram(datagram, source, swarm.net.now)
+        swarm.net.poke(swarm.ids["lead"])
+    moved: Counter[str] = plane.counters - before
+    return moved
+
+
 def test_a_replayed_old_outcome_cannot_change_a_newer_row() -> None:
     """The attacker records what m01 sent: its earlier life's lost ACCEPTED of command A,
     and its new life's re-report of A. After a newer command B ran and completed on m01,
@@ -348,15 +363,8 @@ def test_a_replayed_old_outcome_cannot_change_a_newer_row() -> None:
         if marker in t.payload
     ]
     assert len(captured) >= 2  # the lost ACCEPTED (earlier life) and the re-report
-    plane = swarm.lead.plane
-    assert plane is not None
-    before = plane.counters.copy()
     recorded = sum(isinstance(e, OutcomeRecorded) for e in swarm.events["lead"])
-    source = address_of(swarm.bundle, "m01")
-    for datagram in captured:
-        swarm.lead.receive_datagram(datagram, source, swarm.net.now)
-        swarm.net.poke(swarm.ids["lead"])
-    moved = plane.counters - before
+    moved = replay_at_lead(swarm, captured)
     # the earlier life's are bound to an epoch that is over; the new life's were seen
     # (or, one lost on the link when first sent, carry a sample already delivered)
     assert moved["dropped_auth_stale_epoch"] >= 1, moved

@@ -21,7 +21,8 @@ until a later write holds it; the daemon's log line and counter are
 since session 14 the commander's operator is told too: the member sends the decision's
 outcome again flagged ``OUTCOME_NOT_SAVED`` (its ACCEPTED went before the write's result
 was known), and each later outcome while it stays unsaved; the commander's row keeps the
-mark (``save_failed``, ``swarmctl outcomes`` on the commander).
+mark (``save_failed``, ``swarmctl outcomes`` on the commander) until the member says a
+later write held it (session 15: ``tests/test_cmd_save_cleared.py``).
 """
 
 from __future__ import annotations
@@ -223,10 +224,12 @@ def test_a_saved_decision_leaves_the_row_unmarked() -> None:
     assert all(e.saved for e in told)
 
 
-def test_a_refusal_whose_save_failed_is_marked_and_a_later_write_keeps_the_mark() -> None:
+def test_a_refusal_whose_save_failed_is_marked_and_a_later_write_clears_the_mark() -> None:
     """A REJECTED decision (a TAKEOFF to a drone that is not ready when it arrives) is
     marked as well; once a later write succeeds the drone's own view says saved again,
-    the commander's row keeps what it was told (the write failed then)."""
+    and so does the commander's row: the member tells it (``OUTCOME_NOW_SAVED``, session
+    15). Until session 15 the row kept the mark, a false alarm for the rest of the
+    session (docs/dataplane.md, "A failed save")."""
     flight, disk, cid = _issued_onto_a_full_disk(63, CommandKind.TAKEOFF)
     swarm = flight.swarm
     swarm.vehicles["m01"].verdict.ready = False  # after the commander's check, before m01's
@@ -245,5 +248,7 @@ def test_a_refusal_whose_save_failed_is_marked_and_a_later_write_keeps_the_mark(
         for r in swarm.cores["m01"].request_outcomes({}, swarm.net.now)["ran"]
     }
     assert ran == {cid: True, hold: True}
-    assert _row(flight, cid)["save_failed"] is True
+    row = _row(flight, cid)
+    assert (row["state"], row["reason"], row["save_failed"]) == ("rejected", "gps_no_fix", False)
     assert _row(flight, hold)["save_failed"] is False
+    assert swarm.cores["m01"].executor_counters["told_saved"] == 1

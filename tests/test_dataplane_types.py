@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from cyclonedds_idl import IdlStruct
 from cyclonedds_idl._support import Endianness
-from cyclonedds_idl.types import uint64
+from cyclonedds_idl.types import uint8, uint64
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -204,6 +204,7 @@ outcome_st = st.builds(
     result=st.sampled_from(list(CommandResult)),
     reason=names,
     flags=st.one_of(st.just(0), st.integers(0, 255)),
+    save_gen=st.one_of(st.just(0), st.integers(0, 2**32 - 1)),
 )
 
 
@@ -211,9 +212,11 @@ outcome_st = st.builds(
 def test_round_trip(sample: Sample) -> None:
     payload = encode_sample(sample)
     assert payload[:2] == b"\x00\x01" and len(payload) % 4 == 0
-    # an outcome without flags is written without the flags octet (the earlier layout)
-    unflagged = isinstance(sample, CommandOutcome) and not sample.flags
-    body = len(sample.serialize()) - 4 - (1 if unflagged else 0)
+    # an outcome without flags or save_gen is written without them (the earlier layout)
+    if isinstance(sample, CommandOutcome) and not (sample.flags or sample.save_gen):
+        body = len(_earlier(sample).serialize()) - 4
+    else:
+        body = len(sample.serialize()) - 4
     assert len(payload) - 4 - (payload[3] & 0x03) == body
     assert decode_sample(payload, type(sample)) == sample
 
@@ -255,30 +258,77 @@ class EarlierOutcome(IdlStruct, typename="swarmd::CommandOutcome"):
     reason: Reason
 
 
-def _earlier_payload(outcome: EarlierOutcome) -> bytes:
+@dataclass
+class Session14Outcome(IdlStruct, typename="swarmd::CommandOutcome"):
+    """``swarmd::CommandOutcome`` as session 14 declares it: ``flags``, no ``save_gen``."""
+
+    command_id: uint64
+    node: NodeName
+    result: CommandResult
+    reason: Reason
+    flags: uint8 = 0
+
+
+def _earlier(outcome: CommandOutcome) -> EarlierOutcome:
+    return EarlierOutcome(outcome.command_id, outcome.node, outcome.result, outcome.reason)
+
+
+def _earlier_payload(outcome: EarlierOutcome | Session14Outcome) -> bytes:
     raw = outcome.serialize(endianness=Endianness.Little, use_version_2=False)
     padding = -len(raw) % 4
     return raw[:2] + bytes((0, padding)) + raw[4:] + bytes(padding)
 
 
+def _session14_payload(outcome: Session14Outcome) -> bytes:
+    """Session 14's encoder: the flags octet only when a flag is set."""
+    if not outcome.flags:
+        return _earlier_payload(
+            EarlierOutcome(outcome.command_id, outcome.node, outcome.result, outcome.reason)
+        )
+    return _earlier_payload(outcome)
+
+
+def _session14_decode(body: bytes) -> Session14Outcome:
+    """Session 14's decoder: its layout, else the earlier one as flags 0."""
+    try:
+        return Session14Outcome.deserialize(body, has_header=True)
+    except Exception:  # noqa: BLE001 - as session 14's decode_sample
+        old = EarlierOutcome.deserialize(body, has_header=True)
+        return Session14Outcome(old.command_id, old.node, old.result, old.reason)
+
+
 @given(outcome_st)
 def test_outcomes_cross_builds_both_ways(outcome: CommandOutcome) -> None:
-    """The flags octet is written only when a flag is set: an unflagged outcome is the
-    earlier builds' bytes exactly; an earlier build reads a flagged one and ignores the
-    flag (the IDL layer leaves the tail unread); this build reads an earlier build's
-    outcome as flags 0 (docs/wire.md, "The outcome's flags")."""
-    earlier = EarlierOutcome(outcome.command_id, outcome.node, outcome.result, outcome.reason)
+    """The flags octet and ``save_gen`` are written only when one of them is set: an
+    unflagged outcome is the earlier builds' bytes exactly; an earlier build (before
+    session 14, and session 14's) reads a flagged one and ignores what it does not know
+    (the IDL layer leaves the tail unread); this build reads each earlier build's outcome,
+    with flags 0 or session 14's flags, and ``save_gen`` 0 (docs/wire.md, "The outcome's
+    flags")."""
+    earlier = _earlier(outcome)
     payload = encode_sample(outcome)
-    if not outcome.flags:
+    if not (outcome.flags or outcome.save_gen):
         assert payload == _earlier_payload(earlier)
     body_end = len(payload) - (payload[3] & 0x03)
     assert EarlierOutcome.deserialize(payload[:body_end], has_header=True) == earlier
+    s14 = _session14_decode(payload[:body_end])
+    assert s14 == Session14Outcome(
+        outcome.command_id, outcome.node, outcome.result, outcome.reason, outcome.flags
+    )
     back = decode_sample(_earlier_payload(earlier), CommandOutcome)
-    assert (back, back.flags) == (replace(outcome, flags=0), 0)
+    assert (back, back.flags, back.save_gen) == (replace(outcome, flags=0, save_gen=0), 0, 0)
+    from14 = decode_sample(_session14_payload(s14), CommandOutcome)
+    assert from14 == replace(outcome, save_gen=0)
 
 
-def test_a_flagged_outcome_is_one_octet_more_than_the_earlier_layout() -> None:
-    out = CommandOutcome(7, "uav1", CommandResult.ACCEPTED, "x", OUTCOME_NOT_SAVED)
-    body = struct.pack("<QI5s3xII2sB", 7, 5, b"uav1\0", 0, 2, b"x\0", OUTCOME_NOT_SAVED)
-    assert encode_sample(out) == b"\x00\x01\x00\x01" + body + b"\x00"
-    assert decode_sample(encode_sample(out), CommandOutcome).flags == OUTCOME_NOT_SAVED
+def test_a_flagged_outcome_carries_its_save_gen_after_the_flags() -> None:
+    """``flags``, then ``save_gen`` aligned to 4 (XCDR1): with reason ``x`` the payload is
+    40 octets flagged, 36 unflagged (the earlier builds' bytes)."""
+    out = CommandOutcome(7, "uav1", CommandResult.ACCEPTED, "x", OUTCOME_NOT_SAVED, 5)
+    body = struct.pack("<QI5s3xII2sBxI", 7, 5, b"uav1\0", 0, 2, b"x\0", OUTCOME_NOT_SAVED, 5)
+    assert encode_sample(out) == b"\x00\x01\x00\x00" + body
+    back = decode_sample(encode_sample(out), CommandOutcome)
+    assert (back.flags, back.save_gen) == (OUTCOME_NOT_SAVED, 5)
+    plain = replace(out, flags=0, save_gen=0)
+    assert len(encode_sample(plain)) == 36
+    assert encode_sample(plain) == _earlier_payload(_earlier(plain))

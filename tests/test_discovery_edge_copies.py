@@ -27,6 +27,7 @@ import pytest
 from swarmd_lab.testing import engine_for, make_bundle, node_ipv4, peer_datagram, run_to
 
 from swarmd.discovery.config import EngineConfig
+from swarmd.discovery.debts import Debts
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.rtps.ports import spdp_multicast_port
 
@@ -151,3 +152,44 @@ def test_no_copy_to_a_peer_that_lost_us_once_it_lists_us_again(seed: int) -> Non
     s.frame(FADER, 5.8, (0, 1, 2))
     s.run(8.0)
     assert s.directed_to(FADER, 5.5, 8.0) == []
+
+
+# ------------------------------------------- what the copy costs against a captured member
+TOGGLE_FOR_S = 30.0
+TOGGLE_PERIOD_S = 0.05  # 20 frames a second: lists us, omits us, lists us...
+
+
+def _toggled(seed: int, *, copies: bool, monkeypatch: pytest.MonkeyPatch) -> int:
+    """Directed frames uav0 sends uav2, a captured member (its frames verify: it holds its
+    own key) whose multicasts list us and omit us in turn for ``TOGGLE_FOR_S``."""
+    if not copies:
+        monkeypatch.setattr(Debts, "defer_found_again", lambda self, now: self.found_again.clear())
+    s = _Shape(seed)
+    s.frame(1, 1.0, (0, 1, 2))
+    s.frame(FADER, 1.0, (0, 1, 2))
+    s.run(5.0)
+    for k in range(1, round(TOGGLE_FOR_S / TOGGLE_PERIOD_S) + 1):
+        s.frame(FADER, 5.0 + k * TOGGLE_PERIOD_S, (1, 2) if k % 2 else (0, 1, 2))
+    monkeypatch.undo()
+    return len(s.directed_to(FADER, 5.0, 5.0 + TOGGLE_FOR_S))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_captured_member_toggling_its_digest_draws_few_copies(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Session 15 review, the edge copy's cost (docs/security.md, "Seek and rejoin paths").
+    A replayer draws nothing (its frames are refused before the lost_us rule: the seek
+    attack tests); a captured member can toggle. Each copy takes the re-ack gap like every
+    cue-driven directed frame (``take_late_copies``), but the answer to a frame that omits
+    us after the answer window (receive.py) does not, so the per-gap ceiling was already
+    not strict: 30 s at 20 frames a second draw 59-60 directed frames without the copies,
+    60-62 with them (seeds 1-3), against 61 for one per re-ack gap. Pinned loosely (the
+    counts move with the frames' timing): the copies add at most 8, the total stays within
+    1.15 per gap."""
+    with_copies = _toggled(seed, copies=True, monkeypatch=monkeypatch)
+    without = _toggled(seed, copies=False, monkeypatch=monkeypatch)
+    print(f"seed {seed}: {with_copies} directed with the copies, {without} without")
+    per_gap = TOGGLE_FOR_S / REACK_GAP_S + 1
+    assert with_copies - without <= 8, (with_copies, without)
+    assert with_copies <= 1.15 * per_gap, (with_copies, without)

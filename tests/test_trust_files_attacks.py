@@ -27,12 +27,12 @@ SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
 NOBODY = 65534
 
 
-def _check_config(config: Path) -> subprocess.CompletedProcess[str]:
+def _check_config(config: Path, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [SWARMD, "check-config", "--config", str(config)],
         capture_output=True,
         text=True,
-        timeout=60,
+        timeout=timeout_s,
         env=clean_env(),
         check=False,
     )
@@ -107,3 +107,82 @@ def test_the_production_shape_is_accepted(workdir: Path, files: BundleFiles) -> 
     proc = _check_config(config)
     assert proc.returncode == 0, proc.stderr
     assert "ok (node uav1, swarm testswarm)" in proc.stdout
+
+
+def _with_node_key(config: Path, node_key: Path) -> Path:
+    text = config.read_text()
+    config.write_text(
+        text.replace("  allow_dev: true\n", f"  allow_dev: true\n  node_key: {node_key}\n")
+    )
+    return config
+
+
+def _nobodys_folder(workdir: Path) -> Path:
+    """A folder user nobody owns (0700): a home, a scratch folder an operator chose."""
+    folder = workdir / "nobodys"
+    folder.mkdir()
+    os.chown(folder, NOBODY, NOBODY)
+    folder.chmod(0o700)
+    return folder
+
+
+def _as_nobody(script: str, *args: str) -> None:
+    subprocess.run(
+        [SYSTEM_PYTHON, "-c", script, *args],
+        user=NOBODY,
+        group=NOBODY,
+        extra_groups=[],
+        timeout=60,
+        check=True,
+    )
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to act as another local user")
+@pytest.mark.parametrize("where", ["in-their-folder", "their-file-in-a-root-folder"])
+def test_a_px4_signing_key_another_user_wrote_is_refused(
+    workdir: Path, files: BundleFiles, where: str
+) -> None:
+    """The PX4 link's signing key is a credential like node.key: whoever knows it signs
+    frames swarmd takes as the autopilot's (armed heartbeats, a landed state, an ACK), so
+    a key file another user wrote, or can swap, hands that user the vehicle's side of the
+    link (session 15 review). Nobody writes a key of their choice, mode 0600 as asked.
+    Before the review ``check-config`` said ``ok``: only the file's mode was judged."""
+    folder = _nobodys_folder(workdir) if where == "in-their-folder" else workdir / "keys"
+    folder.mkdir(exist_ok=True)
+    key = folder / "px4-signing.key"
+    if where != "in-their-folder":
+        key.touch(mode=0o600)
+        os.chown(key, NOBODY, NOBODY)
+    _as_nobody(
+        "import os, sys\n"
+        "fd = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)\n"
+        "os.write(fd, b'ab' * 32 + b'\\n')\n",
+        str(key),
+    )
+    assert key.stat().st_uid == NOBODY
+    px4 = (
+        "px4:\n  enabled: true\n  connection: udpin:127.0.0.1:14541\n"
+        f"  signing: true\n  signing_key: {key}\n"
+    )
+    config = loopback_config(workdir, files, extra=px4)
+    named = folder if where == "in-their-folder" else key
+    _refused(_check_config(config), "px4.signing_key", str(named))
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to act as another local user")
+def test_a_node_key_fifo_in_another_users_folder_is_refused_not_waited_on(
+    workdir: Path, files: BundleFiles
+) -> None:
+    """``check-config`` run by root reads only, and must answer: a FIFO nobody planted as
+    node.key (mode 0600, so the mode check passed) made it wait forever for a writer (the
+    read came before the folder's check; session 15 review). Now the folder is judged
+    before anything in it is opened."""
+    folder = _nobodys_folder(workdir)
+    node_key = folder / "node.key"
+    _as_nobody("import os, sys\nos.mkfifo(sys.argv[1], 0o600)\n", str(node_key))
+    config = _with_node_key(loopback_config(workdir, files), node_key)
+    try:
+        proc = _check_config(config, timeout_s=15.0)
+    except subprocess.TimeoutExpired:
+        pytest.fail("check-config waited on the planted FIFO")
+    _refused(proc, "bundle.node_key", str(folder))

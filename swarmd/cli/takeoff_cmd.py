@@ -12,9 +12,11 @@ it for good. A drone that did not answer while the command was valid is reported
 ``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity"). A
 drone whose daemon restarted before its answer arrived tells the commander afterwards what
 it did; such a row is marked as told after a restart (``after_restart`` in ``--json``;
-docs/dataplane.md, "Outcomes across a restart"). A drone that could not write its record of
-the command to its state file says so, and its row is marked ``[not saved on drone]``
-(``save_failed``; docs/dataplane.md, "A failed save").
+docs/dataplane.md, "Outcomes across a restart"); one that accepted it and restarted with
+nothing to re-report is said so too (no completion will come). A drone that could not
+write its record of the command to its state file says so, and its row is marked
+``[not saved on drone]`` (``save_failed``; docs/dataplane.md, "A failed save") until it
+says a later write held it.
 
 Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
 1 some drone refused, failed, was unreachable while the command was valid, or did not
@@ -45,7 +47,7 @@ from swarmd.exitcodes import (
     EX_USAGE,
 )
 from swarmd.px4.actions import SUPERSEDED
-from swarmd.swarm.commander import RESTARTED, UNREACHABLE
+from swarmd.swarm.commander import RESTARTED, RESTARTED_RUNNING, UNREACHABLE
 from swarmd.swarm.issuer import DEFAULT_VALID_FOR_S
 from swarmd.terminal import safe_text, safe_tree
 
@@ -261,6 +263,7 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     )
     seen: dict[str, str] = {}
     told_not_saved: set[str] = set()
+    ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
     snap: dict[str, Any] = {}
     while True:
         snap = client.request("outcomes", command_id=cid)
@@ -272,7 +275,22 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                     "its state file (the command still runs there; after a restart it "
                     "will not re-report this answer)"
                 )
+            elif not node.get("save_failed") and name in told_not_saved:
+                told_not_saved.discard(name)  # a later write held it (session 15)
+                run.say(f"  {name}: its daemon wrote its record of this command after all")
             state = node["state"]
+            if (
+                state == "accepted"
+                and node.get("reason") == RESTARTED_RUNNING
+                and not node.get("after_restart")
+                and name not in ended
+            ):
+                ended.add(name)  # docs/dataplane.md, "Outcomes across a restart"
+                run.say(
+                    f"  {name}: its daemon restarted before the task ended, with no record "
+                    "of it to re-report: no completion will come (its readiness shows what "
+                    "the vehicle did)"
+                )
             if seen.get(name) != state and state != "pending":
                 seen[name] = state
                 if state == UNREACHABLE and node.get("reason") == RESTARTED:

@@ -147,9 +147,10 @@ class DaemonConfig:
 
     def check_trusted_files(self) -> None:
         """Raise ``ConfigError`` (one line) when another local user could rewrite the config,
-        the bundle or its trust key, or swap one in its folder: whoever replaces the swarm
-        key and the bundle flies their own mission on this node (docs/security-history.md,
-        "Local boundaries (session 10 review)"). Checked before any of them is trusted."""
+        the bundle or its trust key, node.key or the PX4 signing key file, or swap one in its
+        folder: whoever replaces the swarm key and the bundle flies their own mission on
+        this node (docs/security-history.md, "Local boundaries (session 10 review)"). Checked
+        before any of them is trusted, or opened."""
         problem = trust_problem(self.file)
         if problem is not None:
             raise ConfigError(
@@ -160,9 +161,16 @@ class DaemonConfig:
                 "chown root:swarmd and chmod 640 it, in a folder only root writes "
                 "(/etc/swarmd, 0750)",
             )
+        # node.key and the PX4 link's key file are credentials too: whoever plants one the
+        # daemon reads (a FIFO it waits on, a key they know) or reads one they own speaks for
+        # this drone, or for its autopilot (docs/security-history.md, session 15 review);
+        # judged here, before any of them is opened
+        signing_key = self.px4.signing_key if self.px4.enabled and self.px4.signing else None
         for key, path in (
             ("bundle.trusted_key", self.bundle.trusted_key),
             ("bundle.path", self.bundle.path),
+            ("bundle.node_key", self.bundle.node_key_path),
+            ("px4.signing_key", signing_key),
         ):
             problem = trust_problem(path) if path is not None else None
             if problem is not None:

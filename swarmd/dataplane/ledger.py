@@ -36,7 +36,7 @@ from swarmd.rtps.types import GuidPrefix
 # MAX_HISTORY_DEPTH samples, so an id older than this many commands can no longer be resent by
 # an honest commander; the cap stops a flood of fresh ids from growing memory without bound.
 MAX_EXECUTED_COMMANDS: Final = max(1024, MAX_HISTORY_DEPTH)
-# (node, epoch, command id, result, flags) outcomes already reported up, same reasoning on
+# (node, epoch, command id, result, flags, save gen) outcomes already reported up, same reasoning on
 # the commander.
 MAX_SEEN_OUTCOMES: Final = 4096
 
@@ -73,7 +73,7 @@ class CommandLedger:
             if (commander, command_id) in self._executed:
                 self._executed[commander, command_id] = (result, reason)
         self._earlier: tuple[KeptOutcome, ...] = tuple(self.outcomes)
-        self._outcomes: OrderedDict[tuple[str, int, int, int, int], None] = OrderedDict()
+        self._outcomes: OrderedDict[tuple[str, int, int, int, int, int], None] = OrderedDict()
         # The commander's command SNs still in its writer's history -> command id.
         self._command_ids: OrderedDict[int, int] = OrderedDict()
         # command id -> (valid_ms, echoes) as first sent (the commander's)
@@ -120,13 +120,20 @@ class CommandLedger:
     # --- commander side ---------------------------------------------------------------------
 
     def new_outcome(
-        self, node: str, epoch: int, command_id: int, result: int, flags: int = 0
+        self,
+        node: str,
+        epoch: int,
+        command_id: int,
+        result: int,
+        flags: int = 0,
+        save_gen: int = 0,
     ) -> bool:
         """True the first time ``node`` in boot ``epoch`` reports ``result`` for
-        ``command_id`` with ``flags``: the same result flagged ``OUTCOME_NOT_SAVED`` after
-        it is the member's word that its record of it could not be written (docs/dataplane.md,
-        "A failed save")."""
-        key = (node, epoch, command_id, result, flags)
+        ``command_id`` with ``flags`` and ``save_gen``: the same result flagged
+        ``OUTCOME_NOT_SAVED`` after it is the member's word that its record of it could not
+        be written, ``OUTCOME_NOW_SAVED`` that a later write held it, and each such word
+        at a later ``save_gen`` is news (docs/dataplane.md, "A failed save")."""
+        key = (node, epoch, command_id, result, flags, save_gen)
         if key in self._outcomes:
             return False
         self._remember(self._outcomes, key, MAX_SEEN_OUTCOMES)

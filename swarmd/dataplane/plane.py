@@ -336,6 +336,7 @@ class DataPlane:
         *,
         commander: str | None = None,
         flags: int = 0,
+        save_gen: int = 0,
     ) -> int:
         """Tell the commander what this member did with ``command_id`` (reliable). With
         ``commander`` (whose command it is), the outcome goes to that commander only (its
@@ -344,9 +345,11 @@ class DataPlane:
         none, so another commander with the same id would take it as its own answer
         (docs/dataplane.md, "Exactly once" 4). Without, it goes to every reader.
         ``flags``: ``OUTCOME_NOT_SAVED`` when this node could not write its record of the
-        decision (docs/dataplane.md, "A failed save")."""
+        decision, ``OUTCOME_NOW_SAVED`` when a later write held it; ``save_gen``: this
+        node's state-file writes answered so far, which orders the two at the commander
+        (docs/dataplane.md, "A failed save")."""
         reason = reason.encode("utf-8")[:MAX_REASON_CHARS].decode("utf-8", "ignore")
-        outcome = CommandOutcome(command_id, self.local.name, result, reason, flags)
+        outcome = CommandOutcome(command_id, self.local.name, result, reason, flags, save_gen)
         target = None if commander is None else self._participants.get(commander)
         if target is None:
             return self._publish(TOPIC_OUTCOME, outcome, now)

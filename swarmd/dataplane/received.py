@@ -4,8 +4,9 @@ A sample reaches here only after its datagram passed authentication (``pairs.py`
 its reader delivered it (``reader.py``). Readiness is kept per member (how many, the
 latest, when, in which of the member's lives): the commander dates a command with it
 (``time_echoes``; docs/dataplane.md, "Validity"). A command is handed on once per
-``(commander, id)`` and an outcome once per ``(node, epoch, id, result, flags)``, of its
-flags only those this build reads (``OUTCOME_KNOWN_FLAGS``; ``ledger.py``).
+``(commander, id)`` and an outcome once per ``(node, epoch, id, result, flags, save_gen)``,
+of its flags only those this build reads (``OUTCOME_KNOWN_FLAGS``; ``ledger.py``), its
+``save_gen`` only with one of them (a mark told again after a clear is news).
 A sample naming another node than its sender is refused (``node_mismatch``).
 
 Split out of ``plane.py`` by concern: the plane keeps the peers' sessions and the wire.
@@ -152,8 +153,9 @@ class Received:
         epoch = self._pairs.channels[self._participants[peer_name].guid_prefix].peer_epoch
         # only the flags this build reads: reserved bits are ignored on receipt, here too
         flags = outcome.flags & OUTCOME_KNOWN_FLAGS
+        gen = outcome.save_gen if flags else 0
         if not self._ledger.new_outcome(
-            peer_name, epoch, outcome.command_id, int(outcome.result.value), flags
+            peer_name, epoch, outcome.command_id, int(outcome.result.value), flags, gen
         ):
             self._counters["outcome_duplicate"] += 1
             return None

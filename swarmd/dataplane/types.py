@@ -22,8 +22,9 @@ IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
     };
     struct CommandOutcome {            // swarm/outcome, member -> commander
       uint64 command_id; string<64> node; CommandResult result; string<128> reason;
-      uint8 flags;                     // OUTCOME_NOT_SAVED; on the wire only when not 0
-    };
+      uint8 flags;                     // OUTCOME_NOT_SAVED, OUTCOME_NOW_SAVED
+      uint32 save_gen;                 // the member's state-file writes answered in its life
+    };                                 // flags and save_gen: on the wire only when not 0
 
 The payload is a SerializedPayload (DDSI-RTPS 2.5 section 10.2): a 4-byte encapsulation
 header (CDR_LE ``00 01``, options) followed by the XCDR1 body; the body is padded to a
@@ -35,6 +36,12 @@ not 0: an outcome without a flag has the layout of earlier builds, byte for byte
 receiver reads a body that ends before ``flags`` as flags 0 (``_OutcomeWithoutFlags``). So a
 commander of an earlier build reads a flagged outcome (the IDL layer ignores the unread
 tail) and this build reads an earlier member's (docs/wire.md, "The outcome's flags").
+``save_gen`` (session 15) follows ``flags`` the same way: both are written only when one of
+them is not 0, a session-14 receiver leaves it unread, and this build reads a body that ends
+after ``flags`` as ``save_gen`` 0 (``_OutcomeFlagsOnly``). It orders a member's word on its
+record: the commander applies a mark (``OUTCOME_NOT_SAVED``) or its clear
+(``OUTCOME_NOW_SAVED``) only if it is newer than the last one it applied
+(docs/dataplane.md, "A failed save").
 
 Invariant: ``decode_sample`` raises ``PayloadError`` and nothing else for any input, and
 every value it returns has passed ``validate``.
@@ -62,9 +69,13 @@ MAX_LINK_Q_PERMILLE: Final = 1000
 # state file (docs/dataplane.md, "A failed save"). The other bits are reserved: sent 0,
 # ignored on receipt, so a later build's flag does not make this one drop the outcome.
 OUTCOME_NOT_SAVED: Final = 0x01
+# ``CommandOutcome.flags`` (session 15): a decision its member told unsaved is on disk after
+# all (a later write held it), so the commander clears the row's mark; ``save_gen`` orders
+# the two (a replayed or reordered older mark cannot set it again).
+OUTCOME_NOW_SAVED: Final = 0x02
 # The flags this build reads; what an outcome's dedup keys (``received.py``): a reserved bit
 # set on an answer already taken must not make it new (docs/wire.md, "The outcome's flags").
-OUTCOME_KNOWN_FLAGS: Final = OUTCOME_NOT_SAVED
+OUTCOME_KNOWN_FLAGS: Final = OUTCOME_NOT_SAVED | OUTCOME_NOW_SAVED
 # A command's validity (docs/dataplane.md, "Validity"): longer than any operator means, short
 # of the wrap of the u32 millisecond stamps; a value above is garbage, not a long validity.
 MAX_VALID_MS: Final = 600_000
@@ -160,6 +171,21 @@ class CommandOutcome(IdlStruct, typename="swarmd::CommandOutcome"):
     result: CommandResult
     reason: Reason
     flags: uint8 = 0
+    # The member's count of state-file writes answered in its life when it sent this: orders
+    # its marks and clears (``OUTCOME_NOT_SAVED``/``OUTCOME_NOW_SAVED``); 0 with no flag
+    save_gen: uint32 = 0
+
+
+@dataclass
+class _OutcomeFlagsOnly(IdlStruct, typename="swarmd::_OutcomeFlagsOnly"):
+    """``CommandOutcome`` as session 14 writes a flagged one: no ``save_gen``. Never a
+    bundle type."""
+
+    command_id: uint64
+    node: NodeName
+    result: CommandResult
+    reason: Reason
+    flags: uint8
 
 
 @dataclass
@@ -251,6 +277,7 @@ def validate(sample: Sample) -> None:
             raise PayloadError(f"result={result!r} is not a CommandResult")
         _check_str(sample.reason, "reason", MAX_REASON_CHARS)
         _check_int(sample.flags, "flags", _U8)
+        _check_int(sample.save_gen, "save_gen", _U32)
 
 
 def encode_sample(sample: Sample) -> bytes:
@@ -260,7 +287,7 @@ def encode_sample(sample: Sample) -> bytes:
     """
     validate(sample)
     written: IdlStruct = sample
-    if isinstance(sample, CommandOutcome) and not sample.flags:
+    if isinstance(sample, CommandOutcome) and not (sample.flags or sample.save_gen):
         # the earlier builds' layout, byte for byte: no flag, no new octet
         written = _OutcomeWithoutFlags(sample.command_id, sample.node, sample.result, sample.reason)
     try:
@@ -275,8 +302,17 @@ def encode_sample(sample: Sample) -> bytes:
 
 
 def _outcome_without_flags(body: bytes) -> CommandOutcome:
-    """An outcome whose body ends before ``flags`` (an earlier build's, or this build's
-    without a flag): flags 0. Raises ``PayloadError`` when it is not that either."""
+    """An outcome whose body ends before ``save_gen`` (session 14's flagged layout: gen 0)
+    or before ``flags`` (an earlier build's, or this build's without a flag: flags 0).
+    Raises ``PayloadError`` when it is neither."""
+    try:
+        flagged = _OutcomeFlagsOnly.deserialize(body, has_header=True)
+    except Exception:  # noqa: S110 - not that layout: try the earliest one
+        pass
+    else:
+        return CommandOutcome(
+            flagged.command_id, flagged.node, flagged.result, flagged.reason, flagged.flags
+        )
     try:
         old = _OutcomeWithoutFlags.deserialize(body, has_header=True)
     except Exception as exc:  # as in decode_sample

@@ -30,7 +30,10 @@ ACK ACCEPTED starts ``confirm_timeout_s``
 (3 s: PX4 streams HEARTBEAT at 1 Hz, so one lost heartbeat plus jitter) within which the
 state must show the effect, else the action fails ``not_confirmed``. No ack is believed
 alone, not even before the first HEARTBEAT: a COMMAND_ACK names only the command number, so
-the one that arrives first after a restart may answer the last life's command. A refusal
+the one that arrives first after a restart may answer the last life's command. Nor is a
+state older than the heartbeat timeout (``state_max_age_s``, readiness' 2.5 s) believed:
+the last HEARTBEAT of a vehicle that rebooted or fell silent says nothing of now
+(docs/security.md, "A stale or foreign COMMAND_ACK", case 6). A refusal
 (DENIED, ...) or no ack at all fails the action with the MAV_RESULT name or ``no_ack``,
 exactly as the sender reports it.
 
@@ -57,7 +60,7 @@ from swarmd.px4.command_sender import (
 )
 from swarmd.px4.constants import LandedState, MavCmd, Px4AutoSubMode, Px4MainMode
 from swarmd.px4.messages import MODE_LAND, MODE_LOITER, Observation, VehicleCommand
-from swarmd.px4.readiness import VehicleState
+from swarmd.px4.readiness import DEFAULT_HEARTBEAT_TIMEOUT_S, VehicleState
 
 CONFIRM_TIMEOUT_S: Final = 3.0  # ACK ACCEPTED -> the effect in state (1 Hz HEARTBEAT, x2 + jitter)
 MODE_FLAG_CUSTOM: Final = 1.0  # DO_SET_MODE param1: MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
@@ -140,10 +143,12 @@ class VehicleAction(SenderTask[ActionFinished]):
         sender: SenderConfig | None = None,
         confirm_timeout_s: float = CONFIRM_TIMEOUT_S,
         owed: OwedAcks | None = None,
+        state_max_age_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S,
     ) -> None:
         self.vehicle = vehicle
         self.kind = kind
         self.confirm_timeout_s = confirm_timeout_s
+        self.state_max_age_s = state_max_age_s  # older state confirms nothing
         self.outcome: ActionFinished | None = None
         super().__init__(sender, owed)  # owed: the vehicle's, shared by all its tasks
         self._handle: int | None = None
@@ -213,7 +218,7 @@ class VehicleAction(SenderTask[ActionFinished]):
                 # alone: an ACK names only the command number, so it may answer the last
                 # life's command (docs/security.md, "A stale COMMAND_ACK"); wait for the
                 # state, a fresh one (a heartbeat in flight may predate an earlier command)
-                if self._shows():
+                if self._state_shows(now):
                     self._finish(now, True, "", f"{done.command.label} ACCEPTED, state shows it")
                 else:
                     self._confirm_deadline = now + self.confirm_timeout_s
@@ -227,12 +232,16 @@ class VehicleAction(SenderTask[ActionFinished]):
     def _check_state(self, now: float) -> None:
         if self.outcome is not None or self._handle is None:
             return
-        if self._shows():
+        if self._state_shows(now):
             self._sender.confirm(self._handle, now, "state shows it")
             self._finish(now, True, "", f"{self.kind}: the vehicle state shows it")
 
-    def _shows(self) -> bool:
-        return self.fresh_from is not None and shows(self.kind, self.vehicle, self.fresh_from)
+    def _state_shows(self, now: float) -> bool:
+        """The effect in a state received after ``fresh_from`` and recent enough to speak
+        of now (``state_max_age_s``): the module docstring."""
+        if self.fresh_from is None or not self.vehicle.heard_within(now, self.state_max_age_s):
+            return False
+        return shows(self.kind, self.vehicle, self.fresh_from)
 
     def _finish(self, now: float, ok: bool, reason: str, detail: str) -> None:
         if self._handle is not None and self._sender.pending(self._handle):

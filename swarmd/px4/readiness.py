@@ -141,6 +141,12 @@ class VehicleState:
         except ValueError:
             return LandedState.UNDEFINED
 
+    def heard_within(self, now: float, max_age_s: float) -> bool:
+        """Did a HEARTBEAT arrive less than ``max_age_s`` before ``now``? The rest of the
+        state is the last word of a vehicle that may since have rebooted or gone silent:
+        it vouches for nothing older (readiness' ``heartbeat_stale``, the same limit)."""
+        return self.heartbeat_at is not None and now - self.heartbeat_at < max_age_s
+
     def next_deadline(self, config: ReadinessConfig) -> float | None:
         """When readiness will change by time alone (the heartbeat going stale), or None."""
         if self.heartbeat_at is None:

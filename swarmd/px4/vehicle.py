@@ -282,7 +282,10 @@ class VehicleCore:
             # older than the ARM plus a round trip may predate the ARM taking effect
             since = self.last_arm_at + self.takeoff_config.command.ack_timeout_s
             armed_maybe = armed_maybe or not fresh(self.state.heartbeat_at, since)
-        if landed not in (None, LandedState.ON_GROUND):
+        # a state older than the heartbeat timeout says nothing of now (PX4 rebooted, the
+        # link fell silent): land, as in the air, rather than report "on the ground" unseen
+        recent = self.state.heard_within(now, self.readiness_config.heartbeat_timeout_s)
+        if not recent or landed not in (None, LandedState.ON_GROUND):
             self._action(request, ActionKind.LAND, now, abort=True)
         elif self.state.armed or armed_maybe:
             self._action(request, ActionKind.DISARM, now, abort=True)
@@ -306,7 +309,13 @@ class VehicleCore:
     def _action(
         self, request: VehicleRequest, kind: ActionKind, now: float, *, abort: bool = False
     ) -> None:
-        action = VehicleAction(self.state, kind, sender=self.takeoff_config.command, owed=self.owed)
+        action = VehicleAction(
+            self.state,
+            kind,
+            sender=self.takeoff_config.command,
+            owed=self.owed,
+            state_max_age_s=self.readiness_config.heartbeat_timeout_s,
+        )
         self._run(_Task(request.token, request.kind, action, abort), now)
 
     def _run(self, task: _Task, now: float) -> None:

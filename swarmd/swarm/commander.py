@@ -178,8 +178,16 @@ class _NodeOutcome:
     after_restart: bool = False
     # it said its record of this decision could not be written (``OUTCOME_NOT_SAVED``): it
     # ran as said, but after a restart it would neither re-report it nor, with the life
-    # rules, need it (docs/dataplane.md, "A failed save"); kept once said
+    # rules, need it (docs/dataplane.md, "A failed save"); cleared when it says a later
+    # write held it (``OUTCOME_NOW_SAVED``)
     save_failed: bool = False
+    # (epoch, save_gen) of the last such word applied: only a newer one moves the mark, so
+    # an older mark replayed, repeated or overtaken cannot set it again after a clear
+    save_mark: tuple[int, int] = (0, 0)
+    # when the commander saw the member in a later boot epoch than the one that accepted
+    # the command, with no final answer: that life ended, the new one never runs it
+    # (docs/dataplane.md, "Outcomes across a restart"); None while it has not
+    life_ended_at: float | None = None
 
 
 @dataclass(slots=True)
@@ -248,9 +256,13 @@ class CommandTracker:
         *,
         epoch: int | None = None,
         not_saved: bool = False,
+        now_saved: bool = False,
+        save_gen: int = 0,
     ) -> bool:
         """A member's outcome; False when it answers no command we track (or not to it).
-        ``not_saved``: flagged ``OUTCOME_NOT_SAVED`` (the row's ``save_failed``, kept).
+        ``not_saved``: flagged ``OUTCOME_NOT_SAVED`` (sets the row's ``save_failed``);
+        ``now_saved``: flagged ``OUTCOME_NOW_SAVED`` (clears it); either only when its
+        ``(epoch, save_gen)`` is newer than the last word applied (``_mark``).
 
         ``epoch``: the boot epoch of the member's life that sent it. Higher than the one
         the command was sent to: a later life re-reporting what the earlier one decided
@@ -273,8 +285,7 @@ class CommandTracker:
             return True
         if later and entry.result is None:
             entry.after_restart = True
-        if not_saved:
-            entry.save_failed = True
+        _mark(entry, epoch, not_saved, now_saved, save_gen)
         if result == CommandResult.ACCEPTED:
             if entry.accepted_at is None:
                 entry.accepted_at = now
@@ -283,6 +294,25 @@ class CommandTracker:
             if entry.accepted_at is None and result == CommandResult.COMPLETED:
                 entry.accepted_at = now  # the ACCEPTED report was overtaken or lost
         return True
+
+    def member_restarted(self, node: str, epoch: int, now: float) -> list[int]:
+        """Discovery authenticated ``node`` in boot ``epoch``. Every row of ``node`` that
+        was accepted by an earlier life and has no final answer will get none: that life
+        ended, and a later one never runs its commands ("Exactly once", "A life runs only
+        its own commands"). Such a row says ``restarted_before_finishing`` at once and is
+        settled ``UNREACHABLE_GRACE_S`` later (a re-report of what the earlier life kept
+        may still be under repair, and fills it). The ids of the rows so marked."""
+        marked: list[int] = []
+        for t in self._commands.values():
+            entry = t.outcomes.get(node)
+            if entry is None or entry.epoch_at_issue is None or epoch <= entry.epoch_at_issue:
+                continue
+            if entry.accepted_at is None or entry.result is not None:
+                continue  # not accepted (its copy is voided: ``not_delivered``) or answered
+            if entry.life_ended_at is None:
+                entry.life_ended_at = now
+                marked.append(t.command_id)
+        return marked
 
     def not_delivered(self, command_id: int, node: str, reason: str, now: float) -> bool:
         """The command can no longer reach ``node`` (``reason``); an answer it gave before,
@@ -309,6 +339,12 @@ class CommandTracker:
                 state = str(o.result.name).lower()
             elif o.accepted_at is not None and o.after_restart:
                 reason = RESTARTED_RUNNING  # accepted, then restarted: no final will come
+            elif o.accepted_at is not None and o.life_ended_at is not None:
+                # accepted, and its life ended with nothing re-reported yet: no final will
+                # come from it; settled once a re-report under repair had its grace
+                reason = RESTARTED_RUNNING
+                if now < o.life_ended_at + UNREACHABLE_GRACE_S:
+                    settled = False
             elif o.accepted_at is None and o.not_delivered is not None:
                 state, reason = UNREACHABLE, o.not_delivered
                 # Said at once, settled only after the grace an answer in flight gets: the
@@ -363,6 +399,23 @@ class CommandTracker:
     def recent(self, now: float, limit: int = 8) -> list[dict[str, Any]]:
         ids = list(self._commands)[-limit:]
         return [s for i in ids if (s := self.snapshot(i, now)) is not None]
+
+
+def _mark(
+    entry: _NodeOutcome, epoch: int | None, not_saved: bool, now_saved: bool, save_gen: int
+) -> None:
+    """The member's word on its record of this decision, applied only if newer than the
+    last (``save_mark``): a mark (``not_saved``) at or after it, a clear (``now_saved``)
+    strictly after it, with a generation (a session-14 member sends marks at 0 and never
+    clears). A member's generations grow within a life, and a later life has a higher
+    epoch, so an older mark delivered after a clear (a repeat, a replay the MAC let
+    through, a reordered copy) leaves the clear standing (docs/dataplane.md, "A failed
+    save"). A word with both bits set counts as a mark: the alarm side."""
+    at = (epoch or 0, save_gen)
+    if not_saved and at >= entry.save_mark:
+        entry.save_failed, entry.save_mark = True, at
+    elif now_saved and not not_saved and save_gen > 0 and at > entry.save_mark:
+        entry.save_failed, entry.save_mark = False, at
 
 
 # One decision as the state file keeps it (``swarm.statefile``, key ``decisions``): the life
@@ -473,9 +526,12 @@ class DecisionLog:
             return None
         return d.kind, d.state, d.reason
 
-    def saved(self) -> None:
-        """A state-file write succeeded: it held every decision kept here."""
+    def saved(self) -> list[tuple[str, int]]:
+        """A state-file write succeeded: it held every decision kept here. The decisions
+        that were unsaved until now, in order (their commanders are told)."""
+        held = sorted(self.unsaved)
         self.unsaved.clear()
+        return held
 
     def kept(self) -> tuple[KeptDecision, ...]:
         """What the state file keeps, oldest first (``received_at`` on the core's clock)."""

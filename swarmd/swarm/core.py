@@ -231,6 +231,10 @@ class SwarmCore:
         """Discovery heard ``name`` (authenticated SPDP) in boot ``epoch``; its user-data
         locator, or None when no address is known (the data plane then keeps it down)."""
         self.table.on_peer(name, True)
+        if self.roles.is_commander:
+            # a later life of a member ends the rows its earlier life accepted and never
+            # finished (the epoch is from its authenticated SPDP; rows only, no new table)
+            self.issuer.member_seen(name, epoch, now)
         if self.plane is not None and locator is not None:
             self.plane.peer_up(name, locator, now, epoch=epoch)
             self._drain_plane(now)

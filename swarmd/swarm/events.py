@@ -125,6 +125,17 @@ class CommandNotDelivered:
 
 
 @dataclass(frozen=True, slots=True)
+class CommandLifeEnded:
+    """``member`` accepted command ``command_id`` and the commander now sees it in a later
+    boot epoch with no final answer: no final will come (its new life never runs the
+    command); the tracker's row says ``restarted_before_finishing`` (docs/dataplane.md,
+    "Outcomes across a restart")."""
+
+    member: str
+    command_id: int
+
+
+@dataclass(frozen=True, slots=True)
 class OutcomeReported:
     """This node's own outcome for a command (sent on ``swarm/outcome``, or recorded in
     the commander's own tracker for its own drone)."""
@@ -179,6 +190,7 @@ SwarmEvent = (
     | CommandBeforeLife
     | CommandWithdrawn
     | CommandNotDelivered
+    | CommandLifeEnded
     | OutcomeReported
     | OutcomesReReported
     | OutcomeRecorded

@@ -25,13 +25,20 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
 from swarmd.dataplane import CommandIdsExhausted, DataPlane
-from swarmd.dataplane.types import MAX_VALID_MS, OUTCOME_NOT_SAVED, CommandKind, CommandOutcome
+from swarmd.dataplane.types import (
+    MAX_VALID_MS,
+    OUTCOME_NOT_SAVED,
+    OUTCOME_NOW_SAVED,
+    CommandKind,
+    CommandOutcome,
+)
 from swarmd.dataplane.validity import valid_ms_of
 from swarmd.dataplane.writer import MAX_HISTORY_DEPTH
 from swarmd.px4.takeoff import MAX_TAKEOFF_ALT_M
 from swarmd.swarm.commander import RESTARTED, CommandTracker, ReadinessTable
 from swarmd.swarm.events import (
     CommandIssued,
+    CommandLifeEnded,
     CommandNotDelivered,
     CommandWithdrawn,
     OutcomeRecorded,
@@ -190,6 +197,8 @@ class Issuer:
             now,
             epoch=epoch,
             not_saved=not_saved,
+            now_saved=bool(outcome.flags & OUTCOME_NOW_SAVED),
+            save_gen=outcome.save_gen,
         )
         if not known and not self._unknown_outcome_reports.take(now):
             # an answer to no command we sent: counted by the tracker, reported at a
@@ -201,6 +210,12 @@ class Issuer:
                 node, outcome.command_id, outcome.result, outcome.reason, known, not not_saved
             )
         )
+
+    def member_seen(self, member: str, epoch: int, now: float) -> None:
+        """Discovery authenticated ``member`` in boot ``epoch``: the rows an earlier life of
+        it accepted and never finished will not finish (``CommandTracker.member_restarted``)."""
+        for command_id in self.tracker.member_restarted(member, epoch, now):
+            self._events.append(CommandLifeEnded(member, command_id))
 
     def copy_voided(self, member: str, command_id: int, now: float) -> None:
         # its copy is dated on the earlier life's clock: never handed over

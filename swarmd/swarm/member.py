@@ -34,7 +34,10 @@ the member's ``DecisionLog`` (``swarmctl outcomes`` in a later life). The daemon
 each write (``state_saved``): a failed one marks the decision unsaved and does not stop
 the command, which the life rules keep from running twice (docs/dataplane.md, "A failed
 save"); its commander is told: the decision's outcome goes again, flagged
-``OUTCOME_NOT_SAVED``, and so do its later outcomes while it stays unsaved.
+``OUTCOME_NOT_SAVED``, and so do its later outcomes while it stays unsaved; when a later
+write holds it, it goes once more flagged ``OUTCOME_NOW_SAVED`` and the commander clears
+its mark. Each carries ``save_gen``, the writes answered so far in this life, so the
+commander applies only the newest word (``state_saved``).
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
 "Outcomes across a restart"); they only answer, nothing is executed.
@@ -53,6 +56,7 @@ from swarmd.dataplane import DataPlane
 from swarmd.dataplane.convert import ReadinessVerdict
 from swarmd.dataplane.types import (
     OUTCOME_NOT_SAVED,
+    OUTCOME_NOW_SAVED,
     Command,
     CommandKind,
     CommandResult,
@@ -89,6 +93,7 @@ __all__ = [
     "ID_IN_USE",
     "MAX_REREPORTED",
     "MAX_RUNNING_IDS",
+    "MAX_SAVE_GEN",
     "NO_VEHICLE",
     "PX4_DISABLED",
     "REREPORT_WINDOW_S",
@@ -116,6 +121,10 @@ MAX_RUNNING_IDS: Final = 256
 # many times over; past it the operator has long acted on what swarmctl said.
 REREPORT_WINDOW_S: Final = 300.0
 MAX_REREPORTED: Final = MAX_TRACKED_COMMANDS
+# ``save_gen`` is a u32 on the wire: the writes answered in one life stop counting there
+# (2^32 - 1 writes, 49 days at one a millisecond); marks and clears after it are not newer
+# than the last and are ignored by the commander (its row keeps what it was last told).
+MAX_SAVE_GEN: Final = 0xFFFF_FFFF
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,6 +201,9 @@ class Member:
         # commanders found before this life's start (the daemon replays what discovery
         # found while it was starting): re-reported at the start; bounded: bundle names
         self._rereport_pending: set[str] = set()
+        # state-file writes answered (``state_saved``) in this life: orders what the
+        # commander is told of a decision's record (``save_gen`` on the wire)
+        self._save_gen = 0
 
     def start(self, now: float) -> None:
         """This life began: it runs only commands issued from now, and re-reports (to the
@@ -386,9 +398,9 @@ class Member:
         saved = (commander, command_id) not in self.decisions.unsaved
         self._events.append(OutcomeReported(command_id, kind, result, reason, saved))
         if self.plane is not None:
-            flags = 0 if saved else OUTCOME_NOT_SAVED
+            flags, gen = (0, 0) if saved else (OUTCOME_NOT_SAVED, self._save_gen)
             self.plane.report_outcome(
-                command_id, result, now, reason, commander=commander, flags=flags
+                command_id, result, now, reason, commander=commander, flags=flags, save_gen=gen
             )
             # the second write: the outcome next to its id, for a re-report after a restart
             self._persist(commander, command_id)
@@ -412,32 +424,48 @@ class Member:
         disk would leave a drone in the air (docs/dataplane.md, "A failed save"). What it
         loses is the answer across a restart, so the decision is marked unsaved for
         ``swarmctl outcomes`` (``saved: false``) until a later write holds it, and its
-        commander is told (``_tell_not_saved``)."""
+        commander is told (``_tell``): unsaved at the failure, saved again at the next
+        write that succeeds (every write holds the whole record). Each word carries the
+        count of writes answered so far in this life (``save_gen``): the commander applies
+        one only if it is newer than the last it applied, so an older mark replayed,
+        repeated or overtaken never sets it again after the clear."""
+        self._save_gen = min(self._save_gen + 1, MAX_SAVE_GEN)
         if error is None:
-            self.decisions.saved()
+            for key in self.decisions.saved():
+                self._tell(*key, now, OUTCOME_NOW_SAVED)
             return
         self._count("state_save_failed")
         if command is not None and self.decisions.save_failed(*command):
-            self._tell_not_saved(*command, now)
+            self._tell(*command, now, OUTCOME_NOT_SAVED)
 
-    def _tell_not_saved(self, commander: str, command_id: int, now: float) -> None:
-        """Send ``commander`` the decision's outcome again, flagged ``OUTCOME_NOT_SAVED``.
+    def _tell(self, commander: str, command_id: int, now: float, flag: int) -> None:
+        """Send ``commander`` the decision's outcome again, flagged ``flag``:
+        ``OUTCOME_NOT_SAVED`` (a write that should have held it failed) or
+        ``OUTCOME_NOW_SAVED`` (a later write held it), with ``save_gen``.
 
         The outcome went before the write's result was known (ACCEPTED at once is the
-        commander's latency measure), so the flag comes after it, on the same result: the
-        commander's dedup keys it by its flags too, and its row keeps what it had and adds
-        the mark (``save_failed``). Once per decision that turns unsaved: a write that
-        fails again finds it unsaved already; after a successful write, a new failure is
-        told again. Nothing is decided, persisted or run."""
+        commander's latency measure), so the word comes after it, on the same result: the
+        commander's dedup keys it by its flags and generation too, and its row keeps what
+        it had and sets or clears the mark (``save_failed``). Once per decision that turns
+        unsaved, and once when it is saved again: a write that fails again finds it
+        unsaved already; after a successful write, a new failure is told again. Nothing
+        is decided, persisted or run."""
         current = self.decisions.current(commander, command_id)
         if current is None or self.plane is None or commander == self.roles.me:
             return  # evicted, no plane, or our own drone's (never written)
         kind, state, reason = current
         result = CommandResult[state.upper()]
-        self._count("told_not_saved")
-        self._events.append(OutcomeReported(command_id, kind.upper(), result, reason, False))
+        saved = flag == OUTCOME_NOW_SAVED
+        self._count("told_saved" if saved else "told_not_saved")
+        self._events.append(OutcomeReported(command_id, kind.upper(), result, reason, saved))
         self.plane.report_outcome(
-            command_id, result, now, reason, commander=commander, flags=OUTCOME_NOT_SAVED
+            command_id,
+            result,
+            now,
+            reason,
+            commander=commander,
+            flags=flag,
+            save_gen=self._save_gen,
         )
 
     def rereport(self, commander: str, now: float) -> None:
