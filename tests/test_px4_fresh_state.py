@@ -19,7 +19,6 @@ task reports), and scripted where the simulator never answers so.
 from __future__ import annotations
 
 import copy
-import heapq
 import random
 
 import pytest
@@ -51,6 +50,7 @@ from swarmd.px4.messages import (
 )
 from swarmd.px4.readiness import VehicleState
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleCore, VehicleRequest
+from tests.test_px4_stale_ack import _run_until_timer_settles
 from tests.test_px4_vehicle import Bench
 
 SLOW_SPOOL = SimConfig(gps_fix_after_s=0.5, spool_up_s=5.0)  # ARM accepted, long on the ground
@@ -65,14 +65,8 @@ class Witness(Bench):
     the moment each ``TaskFinished`` comes out of the core (``seen``)."""
 
     def __init__(self, config: SimConfig | None = None, latency_s: float = 0.005) -> None:
-        super().__init__(config)
-        self.latency_s = latency_s
+        super().__init__(config, latency_s=latency_s)
         self.seen: dict[int, Seen] = {}
-
-    def _enqueue(self, direction: str, msg: Observation | VehicleCommand) -> None:
-        if self.drop is not None and self.drop(msg, direction):
-            return
-        heapq.heappush(self._queue, (self.now + self.latency_s, next(self._seq), direction, msg))
 
     def _pump_core(self) -> None:
         mark = len(self.events)
@@ -207,6 +201,20 @@ def _flying() -> Witness:
     return b
 
 
+def _stop_then_stop(
+    b: Witness, token: int, first: TaskKind, then: TaskKind, *, lost: MavCmd
+) -> TaskFinished:
+    """``first`` (token ``token``) and at once ``then`` (``token + 1``), whose command
+    ``lost`` is lost once on the way down; ``then``'s end (bounded: 10 s)."""
+    b.drop = LoseFirst(lost)
+    b.request(token, first)
+    b.request(token + 1, then)
+    b.run(10.0, stop=lambda: b.finished(token + 1) is not None)
+    done = b.finished(token + 1)
+    assert done is not None
+    return done
+
+
 def test_a_land_right_after_a_hold_whose_nav_land_is_lost_is_not_done_hovering() -> None:
     """Landing (AUTO.LAND), then HOLD and at once LAND (the last stop wins). The HOLD's mode
     change gets through, the LAND's NAV_LAND is lost. The state in hand says AUTO.LAND,
@@ -215,12 +223,8 @@ def test_a_land_right_after_a_hold_whose_nav_land_is_lost_is_not_done_hovering()
     b = _flying()
     assert b.run_task(2, TaskKind.LAND).ok
     b.run(0.5)
-    b.drop = LoseFirst(MavCmd.NAV_LAND)
-    b.request(3, TaskKind.HOLD)
-    b.request(4, TaskKind.LAND)
-    b.run(10.0, stop=lambda: b.finished(4) is not None)
-    land = b.finished(4)
-    assert land is not None and (land.ok, land.reason) == (True, "")
+    land = _stop_then_stop(b, 3, TaskKind.HOLD, TaskKind.LAND, lost=MavCmd.NAV_LAND)
+    assert (land.ok, land.reason) == (True, "")
     assert b.seen[4][1] == MODE_LAND
     assert [c.confirmation for c in b.sent if c.command == MavCmd.NAV_LAND][-2:] == [0, 1]
 
@@ -233,12 +237,8 @@ def test_a_hold_right_after_a_land_whose_mode_change_is_lost_is_not_done_landing
     b.run(1.5)  # a heartbeat since the climb ended: the state in hand says AUTO.LOITER
     held = b.core.state.heartbeat
     assert b.sim.mode == MODE_LOITER and held is not None and held.mode == MODE_LOITER
-    b.drop = LoseFirst(MavCmd.DO_SET_MODE)
-    b.request(2, TaskKind.LAND)
-    b.request(3, TaskKind.HOLD)
-    b.run(10.0, stop=lambda: b.finished(3) is not None)
-    hold = b.finished(3)
-    assert hold is not None and (hold.ok, hold.reason) == (True, "")
+    hold = _stop_then_stop(b, 2, TaskKind.LAND, TaskKind.HOLD, lost=MavCmd.DO_SET_MODE)
+    assert (hold.ok, hold.reason) == (True, "")
     assert b.seen[3][1] == MODE_LOITER
     assert b.sim.landed == LandedState.IN_AIR
 
@@ -324,17 +324,8 @@ def test_a_disarm_in_flight_heartbeat_then_armed_ends_not_confirmed() -> None:
         (2.0 + i, _status(MODE_LOITER, armed=True, landed=LandedState.ON_GROUND)[0])
         for i in range(5)
     ]
-    ends: list[TaskFinished] = []
-    for _ in range(200):
-        timer = core.get_timer()
-        if feed and (timer is None or feed[0][0] <= timer):
-            t, obs = feed.pop(0)
-            core.receive_datagram(obs, None, t)
-        elif timer is not None and core.busy():
-            core.handle_timer(timer)
-        else:
-            break
-        ends += [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
+    _run_until_timer_settles(core, feed)
+    ends = [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
     abort = next(e for e in ends if e.token == 2)
     assert (abort.ok, abort.reason) == (False, NOT_CONFIRMED)
 
