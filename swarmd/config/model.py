@@ -145,12 +145,13 @@ class DaemonConfig:
         """A ``ConfigError`` pointing at ``path``'s line (for checks made after loading)."""
         return ConfigError(self.file, self.lines.get(path), path, problem, fix)
 
-    def check_trusted_files(self) -> None:
+    def check_trusted_files(self, also: frozenset[int] = frozenset()) -> None:
         """Raise ``ConfigError`` (one line) when another local user could rewrite the config,
         the bundle or its trust key, or swap one in its folder: whoever replaces the swarm
         key and the bundle flies their own mission on this node (docs/security-history.md,
-        "Local boundaries (session 10 review)"). Checked before any of them is trusted."""
-        problem = trust_problem(self.file)
+        "Local boundaries (session 10 review)"). Checked before any of them is trusted.
+        ``also``: the daemon's uid when ``check-config`` judges for the unit's user."""
+        problem = trust_problem(self.file, also)
         if problem is not None:
             raise ConfigError(
                 self.file,
@@ -164,7 +165,7 @@ class DaemonConfig:
             ("bundle.trusted_key", self.bundle.trusted_key),
             ("bundle.path", self.bundle.path),
         ):
-            problem = trust_problem(path) if path is not None else None
+            problem = trust_problem(path, also) if path is not None else None
             if problem is not None:
                 raise self.error(
                     key,
@@ -181,13 +182,13 @@ class DaemonConfig:
             raise self.error("node", exc.problem, exc.fix) from None
 
 
-def trust_problem(path: str | Path) -> str | None:
+def trust_problem(path: str | Path, also: frozenset[int] = frozenset()) -> str | None:
     """Why another local user could rewrite ``path`` or swap it in its folder, or None.
 
     A missing file is None here: reading it fails with its own one line."""
     file = Path(path)
     for kind, where in (("file", file), ("folder", file.parent)):
-        why = others_can_write(where)
+        why = others_can_write(where, also)
         if why is not None:
             return f"{kind} {where} is {why}"
     return None
