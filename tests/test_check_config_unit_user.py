@@ -266,14 +266,17 @@ def test_a_user_or_group_this_host_lacks_is_refused_with_the_units_line(
     for lines, field, name in (
         ("User=swt-nobody-here\n", "User=", "swt-nobody-here"),
         (f"User={drone.user}\nGroup=swt-no-group\n", "Group=", "swt-no-group"),
-        ("SupplementaryGroups=dialout swt-no-group\n", "SupplementaryGroups=", "swt-no-group"),
+        (
+            f"SupplementaryGroups={drone.group} swt-no-group\n",
+            "SupplementaryGroups=",
+            "swt-no-group",
+        ),
     ):
         proc = _check(cfg, _unit(workdir, lines))
         assert proc.returncode == EX_CONFIG, proc
         assert proc.stdout == "" and proc.stderr.count("\n") == 1, proc.stderr
-        number = dropin.read_text().splitlines().index(next(
-            line for line in dropin.read_text().splitlines() if name in line
-        )) + 1  # fmt: skip
+        dropin_lines = dropin.read_text().splitlines()
+        number = next(n for n, line in enumerate(dropin_lines, 1) if name in line)
         assert proc.stderr.startswith(f"swarmd: {dropin}:{number}: field {field}:"), proc.stderr
         assert repr(name) in proc.stderr and "fix: " in proc.stderr
 
