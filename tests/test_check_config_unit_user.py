@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 
 from swarmd.bundle.keys import dev_node_keys
-from swarmd.cli.sandbox_check import find_unit
+from swarmd.cli.sandbox_check import Unit, _cat_files, find_unit
 from swarmd.cli.unit_user import unit_user
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG
 from swarmd.unitsandbox import UnitIdentity, parse_unit
@@ -86,6 +86,28 @@ def test_a_line_is_named_in_the_file_that_holds_it(tmp_path: Path) -> None:
     identity = UnitIdentity.of(parse_unit(found.text))
     assert identity.user is not None
     assert found.where(identity.user.line) == f"{tmp_path}/swarmd.service.d/x.conf:3"
+
+
+def test_systemctl_cats_file_headers_name_the_files() -> None:
+    """``systemctl cat``: ``# PATH`` before each file, a blank line between files; a
+    comment inside a unit (the shipped one's ``# /dev/ttyTHS1 ...``) is not a header."""
+    shipped = SHIPPED.read_text("utf-8")
+    text = (
+        f"# /etc/systemd/system/swarmd.service\n{shipped}\n"
+        "# /etc/systemd/system/swarmd.service.d/override.conf\n[Service]\nUser=drone\n"
+    )
+    unit = Unit("systemctl cat swarmd.service", text, _cat_files(text))
+    identity = UnitIdentity.of(parse_unit(unit.text))
+    assert identity.user is not None
+    where = "/etc/systemd/system/swarmd.service.d/override.conf:2"
+    assert unit.where(identity.user.line) == where
+    assert [path for _, path in unit.files] == [
+        "/etc/systemd/system/swarmd.service",
+        "/etc/systemd/system/swarmd.service.d/override.conf",
+    ]
+    assert identity.group is not None
+    number = shipped.splitlines().index("Group=swarmd") + 1
+    assert unit.where(identity.group.line) == f"/etc/systemd/system/swarmd.service:{number}"
 
 
 # ---- a real user and group ----------------------------------------------------------------------

@@ -125,9 +125,10 @@ class DaemonUser:
 
     @classmethod
     def service_or_this_process(cls) -> DaemonUser:
-        """``check-config``'s default: as root, the unit's ``User=`` (``SERVICE_USER``) when
-        this host has that user (a drone installed as docs/deploy.md says); else this
-        process's user (a lab, a bench: the daemon runs as whoever runs ``check-config``)."""
+        """``check-config``'s default when no unit is found (``swarmd.cli.unit_user``): as
+        root, the shipped unit's ``User=`` (``SERVICE_USER``) when this host has that user;
+        else this process's user (a lab, a bench: the daemon runs as whoever runs
+        ``check-config``)."""
         if os.geteuid() == 0:
             try:
                 return cls.named(SERVICE_USER)
