@@ -29,6 +29,11 @@ finds and reads the unit):
   ``ProtectSystem=strict``, ``ProtectHome=read-only`` and ``PrivateTmp=``). A single-value
   setting's later assignment wins.
 
+- ``UnitIdentity.of`` reads whom the service runs as (systemd.exec(5), "Credentials"):
+  ``User=``, ``Group=``, ``SupplementaryGroups=``, ``DynamicUser=``, and the folders
+  systemd gives that user at each start (``swarmd.cli.unit_user`` resolves the names on
+  the host).
+
 Not read, and judged as if absent: ``BindPaths=``, ``TemporaryFileSystem=``,
 ``RootDirectory=``/``RootImage=``, mount units and a read-only superblock (the folder's
 own mount is ``swarmd.bundle.statedir``'s). Where systemd's outcome is not plain (one path
@@ -86,7 +91,13 @@ TRUE: Final = frozenset({"1", "yes", "y", "true", "t", "on"})  # systemd's parse
 
 
 class UnitSyntaxError(ValueError):
-    """A unit file line that is neither a section, an assignment nor a comment."""
+    """A unit file line that is neither a section, an assignment nor a comment; ``line``:
+    its number in the text parsed."""
+
+    def __init__(self, line: int, problem: str) -> None:
+        super().__init__(f"line {line}: {problem}")
+        self.line = line
+        self.problem = problem
 
 
 # (section, key, value, line number), in file order
@@ -117,7 +128,7 @@ def parse_unit(text: str) -> list[Assignment]:
             continue
         key, eq, value = line.partition("=")
         if not eq or not key.strip():
-            raise UnitSyntaxError(f"line {start}: not a [Section], Key=value or comment")
+            raise UnitSyntaxError(start, "not a [Section], Key=value or comment")
         out.append((section, key.strip(), value.strip(), start))
     if pending:
         key, _, value = pending.partition("=")
@@ -188,12 +199,7 @@ class Sandbox:
                     if path is not None:
                         target.append(path)
             elif key in DIRECTORY_ROOTS:
-                if not value:
-                    directories[key].clear()
-                for word in _words(value):
-                    # "name" or, since v257, "name:symlink": the folder is the name's
-                    name = _expand(word).split(":", 1)[0]
-                    directories[key].append(_norm(DIRECTORY_ROOTS[key] + "/" + name))
+                _directory_assignment(directories[key], DIRECTORY_ROOTS[key], value)
             elif key in ("ProtectSystem", "ProtectHome", "PrivateTmp", "DynamicUser"):
                 single[key] = value.lower()  # a later assignment wins
         dynamic = single.get("DynamicUser", "no") in TRUE
@@ -207,6 +213,8 @@ class Sandbox:
             home = home if home in ("yes", "tmpfs") else "read-only"
             private_tmp = True
         writable = [*lists["ReadWritePaths"], *(p for d in directories.values() for p in d)]
+        if dynamic:
+            writable += _private_twins(directories)
         return cls(
             system,
             home,
@@ -272,6 +280,79 @@ class Sandbox:
     def writable_text(self) -> str:
         """The writable trees, for a refusal's line ("/var/lib/swarmd /run/swarmd")."""
         return " ".join(self.read_write) or "none"
+
+
+def _directory_assignment(target: list[str], root: str, value: str) -> None:
+    """One ``StateDirectory=``-style assignment added to ``target`` (an empty one resets
+    it): each name becomes its folder below ``root``."""
+    if not value:
+        target.clear()
+    for word in _words(value):
+        # "name" or, since v257, "name:symlink": the folder is the name's
+        name = _expand(word).split(":", 1)[0]
+        target.append(_norm(root + "/" + name))
+
+
+def _private_twins(directories: dict[str, list[str]]) -> list[str]:
+    """Under ``DynamicUser=`` the state, cache and logs folders live below ``private/``
+    with a symlink at the plain name (systemd.exec(5), ``StateDirectory=``): the folders a
+    caller that resolved that symlink sees."""
+    return [
+        _norm(f"{DIRECTORY_ROOTS[key]}/private/{path[len(DIRECTORY_ROOTS[key]) + 1 :]}")
+        for key in ("StateDirectory", "CacheDirectory", "LogsDirectory")
+        for path in directories[key]
+    ]
+
+
+@dataclass(frozen=True, slots=True)
+class Setting:
+    """One name a unit's setting gave and the line (of the unit's text) that gave it."""
+
+    value: str
+    line: int
+
+
+@dataclass(frozen=True, slots=True)
+class UnitIdentity:
+    """Whom a unit runs its service as (systemd.exec(5), "Credentials"): ``User=`` and
+    ``Group=`` (a later assignment wins, an empty one resets it: root, or the user's own
+    group), ``SupplementaryGroups=`` (lists add up, an empty one resets), ``DynamicUser=``
+    (a user allocated at each start, unless a static user of that name exists), and the
+    folders systemd creates and gives that user at each start (``StateDirectory=``,
+    ``RuntimeDirectory=``, ``CacheDirectory=``, ``LogsDirectory=``: "the innermost
+    specified directories will be owned by the user and group specified in User= and
+    Group=", recursively when their owner differs; not ``ConfigurationDirectory=``)."""
+
+    user: Setting | None
+    group: Setting | None
+    supplementary: tuple[Setting, ...]
+    dynamic: Setting | None  # the DynamicUser= line that turned it on
+    chowned: tuple[str, ...]
+
+    @classmethod
+    def of(cls, assignments: Iterable[Assignment]) -> UnitIdentity:
+        """The identity of ``[Service]``'s assignments (see the class docstring)."""
+        single: dict[str, Setting | None] = {"User": None, "Group": None, "DynamicUser": None}
+        supplementary: list[Setting] = []
+        directories: dict[str, list[str]] = {name: [] for name in DIRECTORY_ROOTS}
+        for section, key, value, line in assignments:
+            if section != "Service":
+                continue
+            if key in single:
+                single[key] = Setting(_expand(value), line) if value else None
+            elif key == "SupplementaryGroups":
+                if not value:
+                    supplementary.clear()  # "the list of supplementary groups is reset"
+                supplementary += [Setting(_expand(word), line) for word in _words(value)]
+            elif key in DIRECTORY_ROOTS:
+                _directory_assignment(directories[key], DIRECTORY_ROOTS[key], value)
+        dynamic = single["DynamicUser"]
+        if dynamic is not None and dynamic.value.lower() not in TRUE:
+            dynamic = None
+        chowned = [path for paths in directories.values() for path in paths]
+        if dynamic is not None:
+            chowned += _private_twins(directories)
+        return cls(single["User"], single["Group"], tuple(supplementary), dynamic, tuple(chowned))
 
 
 def _path_word(word: str, exists: Callable[[str], bool]) -> str | None:

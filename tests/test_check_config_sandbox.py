@@ -175,11 +175,14 @@ def _check(cfg: Path, *unit: str) -> subprocess.CompletedProcess[str]:
 
 
 def _unit(workdir: Path, extra: str) -> Path:
-    """The shipped unit with a drop-in of ``extra`` (its ``[Service]`` lines)."""
+    """The shipped unit with a drop-in of ``extra`` (its ``[Service]`` lines), the daemon
+    run as root (this host may have no user swarmd; the identity's own tests are
+    tests/test_check_config_unit_user.py)."""
     unit = workdir / "unit" / "swarmd.service"
     (unit.parent / "swarmd.service.d").mkdir(parents=True)
     shutil.copy(SHIPPED, unit)
-    (unit.parent / "swarmd.service.d" / "override.conf").write_text(f"[Service]\n{extra}")
+    root = "User=\nGroup=\nSupplementaryGroups=\n"
+    (unit.parent / "swarmd.service.d" / "override.conf").write_text(f"[Service]\n{root}{extra}")
     return unit
 
 
@@ -193,7 +196,9 @@ def test_check_config_refuses_under_the_shipped_unit_what_run_cannot_write(workd
     """The workdir is below /tmp: the shipped unit's ``PrivateTmp=yes`` gives the daemon a
     /tmp of its own, so node.key's folder (the bundle's here) is not the one on disk."""
     cfg = _config(workdir, workdir / "state")
-    proc = _check(cfg, "--unit", str(SHIPPED))
+    # --user root: this host may lack the unit's User=swarmd, which the check would refuse
+    # first (tests/test_check_config_unit_user.py); the sandbox's judgement is the same
+    proc = _check(cfg, "--unit", str(SHIPPED), "--user", "root")
     assert proc.returncode == EX_CANTCREAT, proc
     assert proc.stdout == "" and proc.stderr.count("\n") == 1, proc.stderr
     line = proc.stderr

@@ -283,6 +283,15 @@ def test_check_config_as_root_judges_the_state_folder_for_the_units_user(tmp_pat
         installed.close()
 
 
+def test_check_config_says_it_judged_as_the_installed_units_user(layout: ProductionLayout) -> None:
+    """The install of docs/deploy.md: ``check-config`` reads ``User=swarmd``,
+    ``Group=swarmd`` and ``SupplementaryGroups=dialout`` from the installed unit and names
+    whose view it judged the state folders from, and where that came from (session 15)."""
+    check = layout.run(["/opt/swarmd/venv/bin/swarmd", "check-config", "--config", CONFIG])
+    assert check.returncode == 0, check
+    assert "judged as swarmd (User= of /etc/systemd/system/swarmd.service)" in check.stdout
+
+
 # ---- the PX4 link's port ------------------------------------------------------------------
 
 

@@ -79,7 +79,7 @@ def plan_epoch(
     Raises ``EpochError``; writes nothing."""
     directory = Path(state_dir)
     # the epoch lives beside node.key: a folder others can write could hold a planted one
-    refuse_shared_dir(directory, "bundle.node_key", EpochError)
+    refuse_shared_dir(directory, "bundle.node_key", EpochError, user.trusted_owners(directory))
     refuse_unwritable_dir(directory, "bundle.node_key", EpochError, user)
     path = epoch_path(directory, node)
     stored, problem = read_epoch(path)

@@ -348,9 +348,10 @@ def remove_left_temps(path: Path) -> int:
     return removed
 
 
-def others_can_write(directory: Path) -> str | None:
+def others_can_write(directory: Path, also: frozenset[int] = frozenset()) -> str | None:
     """Why another local user could write ``directory`` (a folder: plant or swap files in
-    it; a file: rewrite it), or None when nobody but root, swarmd and this daemon's user can.
+    it; a file: rewrite it), or None when nobody but root, swarmd and this daemon's user can
+    (``also``: the uids of the daemon's user as ``check-config`` judges it for a unit).
 
     swarmd's state (boot counter, executed command ids, epoch, replay windows, node.key)
     and its trust anchors (config, bundle, swarm key) are only as trustworthy as where
@@ -364,7 +365,7 @@ def others_can_write(directory: Path) -> str | None:
         st = os.stat(directory)
     except OSError:
         return None
-    if st.st_uid not in _trusted_owners():
+    if st.st_uid not in _trusted_owners() | also:
         return f"owned by uid {st.st_uid}, not by root, swarmd or this daemon's user"
     if st.st_mode & 0o022:
         who = "others" if st.st_mode & 0o002 else "its group"
@@ -393,10 +394,12 @@ def node_state_path(state_dir: str | Path, pattern: str, node: str) -> Path:
     return Path(state_dir) / pattern.format(node=_STATE_NAME_UNSAFE.sub("_", node))
 
 
-def refuse_shared_dir(directory: Path, field: str, error: type[OSError]) -> None:
+def refuse_shared_dir(
+    directory: Path, field: str, error: type[OSError], also: frozenset[int] = frozenset()
+) -> None:
     """Raise ``error`` (one line naming the folder, the config field and the fix) when
-    another local user could write ``directory`` (``others_can_write``)."""
-    why = others_can_write(directory)
+    another local user could write ``directory`` (``others_can_write``, ``also``)."""
+    why = others_can_write(directory, also)
     if why is not None:
         raise error(
             f"{directory} is {why}, so another user could plant swarmd's state there; "

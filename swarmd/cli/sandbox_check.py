@@ -18,6 +18,7 @@ drop-ins. None found (a lab, a bench): the ``ok`` line says the sandbox was not 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from dataclasses import dataclass
@@ -26,7 +27,7 @@ from typing import Final
 
 from swarmd.config import DaemonConfig
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_UNAVAILABLE, EX_USAGE, StartupError
-from swarmd.unitsandbox import Sandbox, UnitSyntaxError, parse_unit
+from swarmd.unitsandbox import Assignment, Sandbox, UnitSyntaxError, parse_unit
 
 UNIT_NAME: Final = "swarmd.service"
 # systemd.unit(5), "System Unit Search Path", highest priority first
@@ -42,24 +43,63 @@ SYSTEMCTL_TIMEOUT_S: Final = 10.0
 
 @dataclass(frozen=True, slots=True)
 class Unit:
-    """A unit's text (with its drop-ins appended, as ``systemctl cat`` shows them) and
-    where it came from, for the operator."""
+    """A unit's text (with its drop-ins appended, as ``systemctl cat`` shows them: each
+    file after a ``# PATH`` line) and where it came from, for the operator; ``files``: the
+    first line of each file's text in ``text``, and its path."""
 
     source: str
     text: str
+    files: tuple[tuple[int, str], ...] = ()
+
+    def file_of(self, line: int) -> tuple[str, int]:
+        """The file that holds ``line`` of ``text`` and its line number there."""
+        found = [(first, path) for first, path in self.files if first <= line]
+        if not found:
+            return self.source, line
+        first, path = found[-1]
+        return path, line - first + 1
+
+    def where(self, line: int) -> str:
+        """``line`` of ``text`` for the operator: ``FILE:LINE``."""
+        path, number = self.file_of(line)
+        return f"{path}:{number}"
 
 
-def _with_dropins(path: Path, dropin_dirs: list[Path]) -> str:
+# systemctl cat: "# PATH" before each file (the unit, then its drop-ins)
+_CAT_HEADER: Final = re.compile(r"# (/\S+\.(?:service|conf))")
+
+
+def _cat_files(text: str) -> tuple[tuple[int, str], ...]:
+    """The files of ``systemctl cat``'s output, by its ``# PATH`` lines (the first line, or
+    one after a blank line, naming a .service or .conf file)."""
+    lines = text.splitlines()
+    out: list[tuple[int, str]] = []
+    for number, line in enumerate(lines, 1):
+        header = _CAT_HEADER.fullmatch(line)
+        if header and (number == 1 or not lines[number - 2].strip()):
+            out.append((number + 1, header.group(1)))
+    return tuple(out)
+
+
+def _with_dropins(path: Path, dropin_dirs: list[Path]) -> tuple[str, tuple[tuple[int, str], ...]]:
     """The unit file's text, then its drop-ins' (``*.conf``, by file name; a name in an
-    earlier folder hides the same name in a later one: systemd.unit(5))."""
-    parts = [path.read_text("utf-8")]
+    earlier folder hides the same name in a later one: systemd.unit(5)), as ``systemctl
+    cat`` shows them, and where each file starts."""
     chosen: dict[str, Path] = {}
     for folder in dropin_dirs:
         if folder.is_dir():
             for conf in folder.glob("*.conf"):
                 chosen.setdefault(conf.name, conf)
-    parts += [chosen[name].read_text("utf-8") for name in sorted(chosen)]
-    return "\n".join(parts)
+    parts: list[str] = []
+    files: list[tuple[int, str]] = []
+    line = 1
+    for file in [path, *(chosen[name] for name in sorted(chosen))]:
+        text = file.read_text("utf-8")
+        text = text if text.endswith("\n") else text + "\n"
+        files.append((line + 1, str(file)))
+        parts.append(f"# {file}\n{text}")
+        line += 1 + len(text.splitlines())
+    return "".join(parts), tuple(files)
 
 
 def find_unit(
@@ -69,7 +109,7 @@ def find_unit(
     Raises ``OSError``/``UnicodeDecodeError`` for a ``--unit`` file that cannot be read."""
     if path is not None:
         unit = Path(path)
-        return Unit(str(unit), _with_dropins(unit, [Path(f"{unit}.d")]))
+        return Unit(str(unit), *_with_dropins(unit, [Path(f"{unit}.d")]))
     program = shutil.which("systemctl") if systemctl else None
     if program is not None:
         try:
@@ -83,12 +123,12 @@ def find_unit(
         except (OSError, subprocess.TimeoutExpired):
             done = None
         if done is not None and done.returncode == 0 and done.stdout.strip():
-            return Unit(f"systemctl cat {UNIT_NAME}", done.stdout)
+            return Unit(f"systemctl cat {UNIT_NAME}", done.stdout, _cat_files(done.stdout))
     for folder in unit_dirs:
         candidate = Path(folder) / UNIT_NAME
         if candidate.is_file():
             dropins = [Path(d) / f"{UNIT_NAME}.d" for d in unit_dirs]
-            return Unit(str(candidate), _with_dropins(candidate, dropins))
+            return Unit(str(candidate), *_with_dropins(candidate, dropins))
     return None
 
 
@@ -105,17 +145,25 @@ def written_folders(config: DaemonConfig) -> list[tuple[str, str, int]]:
     return out
 
 
+def assignments(unit: Unit) -> list[Assignment]:
+    """The unit's assignments (``parse_unit``); a unit that does not parse is refused
+    (``StartupError``, 78) as the config's problem."""
+    try:
+        return parse_unit(unit.text)
+    except UnitSyntaxError as exc:
+        path, line = unit.file_of(exc.line)
+        raise StartupError(
+            f"unit {path}: line {line}: {exc.problem}; fix: correct the unit, or name "
+            "another with --unit",
+            EX_CONFIG,
+        ) from None
+
+
 def refuse_outside(config: DaemonConfig, unit: Unit) -> None:
     """Raise ``StartupError`` (``run``'s exit code, one line naming the config file, the
     field, why and the fix) for the first written folder the unit's sandbox does not let
     the daemon write; a unit that does not parse is refused as the config's problem."""
-    try:
-        sandbox = Sandbox.of(parse_unit(unit.text), os.path.exists)
-    except UnitSyntaxError as exc:
-        raise StartupError(
-            f"unit {unit.source}: {exc}; fix: correct the unit, or name another with --unit",
-            EX_CONFIG,
-        ) from None
+    sandbox = Sandbox.of(assignments(unit), os.path.exists)
     for field, folder, code in written_folders(config):
         # systemd resolves symlinks in its paths; the folder is judged where it leads
         real = os.path.realpath(os.path.abspath(folder))
@@ -146,17 +194,21 @@ def refuse_outside(config: DaemonConfig, unit: Unit) -> None:
         raise StartupError(str(error), code)
 
 
-def sandbox_note(config: DaemonConfig, unit_path: str | None) -> str:
-    """``check-config``'s judgement: refuses (``StartupError``) or returns what the ``ok``
-    line says about the sandbox."""
+def load_unit(unit_path: str | None) -> Unit | None:
+    """``find_unit``, a ``--unit`` file that cannot be read refused (``StartupError``, 64)."""
     try:
-        unit = find_unit(unit_path)
+        return find_unit(unit_path)
     except (OSError, UnicodeDecodeError) as exc:
         raise StartupError(
             f"--unit {unit_path}: cannot read it ({exc}); fix: name the unit file swarmd "
             "runs under",
             EX_USAGE,
         ) from None
+
+
+def sandbox_note(config: DaemonConfig, unit: Unit | None) -> str:
+    """``check-config``'s judgement: refuses (``StartupError``) or returns what the ``ok``
+    line says about the sandbox."""
     if unit is None:
         return f"no {UNIT_NAME} found (systemctl cat, {UNIT_DIRS[0]}, ...): sandbox not judged"
     refuse_outside(config, unit)

@@ -38,8 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--config", required=True, help="daemon config file (YAML)")
     check.add_argument(
         "--user",
-        help="judge the state folders for this user (default: as root, the unit's User= "
-        "swarmd when it exists; else the user running the check)",
+        help="judge the state folders for this user (default: the unit's User=, Group=, "
+        "SupplementaryGroups= and DynamicUser=; no unit found: as root, swarmd when it "
+        "exists, else the user running the check)",
     )
     check.add_argument(
         "--unit",
@@ -69,6 +70,9 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     from swarmd import logs
     from swarmd.bundle.errors import BundleError
     from swarmd.bundle.loader import load_bundle
+    from swarmd.bundle.statedir import DaemonUser
+    from swarmd.cli.sandbox_check import Unit, load_unit, sandbox_note
+    from swarmd.cli.unit_user import judged_user
     from swarmd.daemon import Daemon, run
     from swarmd.daemon_setup import NodeSecretsError, enforce_bundle_floor, load_node_secrets
     from swarmd.discovery.config import EngineConfig
@@ -79,8 +83,18 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         config = load_config(args.config, engine_fields=engine_fields)
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
+    user: DaemonUser | None = None  # check-config's: whose view it judges from
+    unit: Unit | None = None
+    if args.command == "check-config":
+        try:
+            # the unit run will run under: its sandbox and whom it runs the daemon as
+            unit = load_unit(args.unit)
+            user = judged_user(args.user, unit)
+        except StartupError as exc:
+            return _fail(str(exc), exc.exit_code)
     try:
-        config.check_trusted_files()  # before the bundle or its key is believed
+        # before the bundle or its key is believed; files of the daemon's user are its own
+        config.check_trusted_files(user.own_uid if user else frozenset())
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
     logs.configure(config.log_level, config.log_format)
@@ -110,14 +124,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
         enforce_bundle_floor(config, bundle, commit=False)
     except StartupError as exc:
         return _fail(str(exc), exc.exit_code)
-    if args.command == "check-config":
-        from swarmd.bundle.statedir import DaemonUser
-
-        try:
-            named = args.user is not None
-            user = DaemonUser.named(args.user) if named else DaemonUser.service_or_this_process()
-        except KeyError:
-            return _fail(f"check-config: no user {args.user!r} on this host", EX_USAGE)
+    if user is not None:  # check-config
         try:
             # every check of `run`'s start that neither binds, sends nor writes, so this
             # refuses what `run` refuses, with its line (docs/operations.md, "Exit codes")
@@ -127,19 +134,17 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
             return _fail(f"config rejected: {exc}", EX_CONFIG)
         except StartupError as exc:
             return _fail(str(exc), exc.exit_code)
-        from swarmd.cli.sandbox_check import sandbox_note
-
         try:
             # run's writes under the unit's ProtectSystem= and friends (check-config runs
             # outside that sandbox, so the folder checks above cannot see it)
-            sandbox = sandbox_note(config, args.unit)
+            sandbox = sandbox_note(config, unit)
         except StartupError as exc:
             return _fail(str(exc), exc.exit_code)
         for note in notes:  # `run` logs these as warnings and starts
             print(f"swarmd: warning: {note}", file=sys.stderr)
         print(
             f"swarmd: {args.config}: ok (node {config.node}, swarm {bundle.swarm}), "
-            f"state folders judged for user {user.name}; {sandbox}"
+            f"state folders judged as {user.name} ({user.source}); {sandbox}"
         )
         return 0
     if before_run is not None:

@@ -284,6 +284,11 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                 and node.get("reason") == RESTARTED_RUNNING
                 and not node.get("after_restart")
                 and name not in ended
+                # only once the row is settled: until its grace is over the new life's
+                # re-report of what the earlier one decided (a COMPLETED among them) may
+                # still be under repair, and "no completion will come" would be false
+                # (docs/dataplane.md, "Outcomes across a restart"; review 15)
+                and (snap["done"] or run.expired())
             ):
                 ended.add(name)  # docs/dataplane.md, "Outcomes across a restart"
                 run.say(

@@ -145,13 +145,14 @@ class DaemonConfig:
         """A ``ConfigError`` pointing at ``path``'s line (for checks made after loading)."""
         return ConfigError(self.file, self.lines.get(path), path, problem, fix)
 
-    def check_trusted_files(self) -> None:
+    def check_trusted_files(self, also: frozenset[int] = frozenset()) -> None:
         """Raise ``ConfigError`` (one line) when another local user could rewrite the config,
         the bundle or its trust key, node.key or the PX4 signing key file, or swap one in its
         folder: whoever replaces the swarm key and the bundle flies their own mission on
         this node (docs/security-history.md, "Local boundaries (session 10 review)"). Checked
-        before any of them is trusted, or opened."""
-        problem = trust_problem(self.file)
+        before any of them is trusted, or opened. ``also``: the daemon's uid when
+        ``check-config`` judges for the unit's user."""
+        problem = trust_problem(self.file, also)
         if problem is not None:
             raise ConfigError(
                 self.file,
@@ -172,7 +173,7 @@ class DaemonConfig:
             ("bundle.node_key", self.bundle.node_key_path),
             ("px4.signing_key", signing_key),
         ):
-            problem = trust_problem(path) if path is not None else None
+            problem = trust_problem(path, also) if path is not None else None
             if problem is not None:
                 raise self.error(
                     key,
@@ -189,13 +190,13 @@ class DaemonConfig:
             raise self.error("node", exc.problem, exc.fix) from None
 
 
-def trust_problem(path: str | Path) -> str | None:
+def trust_problem(path: str | Path, also: frozenset[int] = frozenset()) -> str | None:
     """Why another local user could rewrite ``path`` or swap it in its folder, or None.
 
     A missing file is None here: reading it fails with its own one line."""
     file = Path(path)
     for kind, where in (("file", file), ("folder", file.parent)):
-        why = others_can_write(where)
+        why = others_can_write(where, also)
         if why is not None:
             return f"{kind} {where} is {why}"
     return None

@@ -25,10 +25,13 @@ number. Then the new task starts. LAND, HOLD and DISARM are ``actions.VehicleAct
 all commands through the ``CommandSender``; each confirms only from state received an ack
 timeout after its send (``actions``, "fresh"). ABORT lands a vehicle in the air, disarms one
 armed on the ground, or one that may be armed without our state showing it yet: its
-superseded take-off had sent ARM, or the last ARM on the wire (``last_arm_at``) is newer
-than the HEARTBEAT we hold, less an ack timeout (PX4 may carry that ARM out before our
-DISARM). Never a forced disarm, which PX4 would obey in the air. A vehicle on the ground
-and disarmed, by a HEARTBEAT newer than the last ARM, needs nothing (``on_ground_disarmed``).
+superseded take-off had sent ARM (also through a LAND, HOLD or ABORT that superseded it in
+turn), or the last ARM on the wire (``last_arm_at``) is newer than the HEARTBEAT we hold,
+less an ack timeout (PX4 may carry that ARM out before our DISARM). Never a forced disarm,
+which PX4 would obey in the air: a DISARM PX4 refuses (it is in the air after all, our
+landed state older than its lift-off) is followed by a LAND under the same request
+(``_disarm_refused``). A vehicle on the ground and disarmed, by a HEARTBEAT newer than the
+last ARM, needs nothing (``on_ground_disarmed``).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ from swarmd.px4.actions import (
     fresh,
 )
 from swarmd.px4.command_sender import OwedAcks
-from swarmd.px4.constants import LandedState, MavCmd
+from swarmd.px4.constants import LandedState, MavCmd, MavResult
 from swarmd.px4.messages import CommandAck, Observation, VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState, readiness
 from swarmd.px4.takeoff import (
@@ -143,6 +146,10 @@ class _Task:
     runner: TakeoffSequence | VehicleAction
     abort: bool = False  # an ABORT's action: reason = the command's label on success
     superseded_by: TaskKind | None = None  # the later request's kind, for the reason code
+    # a take-off this task superseded, directly or through the tasks between, sent ARM:
+    # PX4 may arm after the state we hold was sent, so an ABORT superseding this task
+    # disarms even when our state says disarmed (``_abort``)
+    armed_maybe: bool = False
 
 
 class VehicleCore:
@@ -199,7 +206,11 @@ class VehicleCore:
                 self._refuse_busy(request, running)
                 return
             runner = running.runner
-            armed_maybe = isinstance(runner, TakeoffSequence) and runner.arm_sent
+            # inherited along a chain of supersedes (TAKEOFF, then LAND, then ABORT): the
+            # take-off's ARM may still take effect after the LAND superseded it
+            armed_maybe = running.armed_maybe or (
+                isinstance(runner, TakeoffSequence) and runner.arm_sent
+            )
             self._supersede(running, request, now)
         match request.kind:
             case TaskKind.TAKEOFF:
@@ -213,9 +224,9 @@ class VehicleCore:
                 self.last_takeoff = seq
                 self._run(_Task(request.token, TaskKind.TAKEOFF, seq), now)
             case TaskKind.LAND:
-                self._action(request, ActionKind.LAND, now)
+                self._action(request, ActionKind.LAND, now, armed_maybe=armed_maybe)
             case TaskKind.HOLD:
-                self._action(request, ActionKind.HOLD, now)
+                self._action(request, ActionKind.HOLD, now, armed_maybe=armed_maybe)
             case TaskKind.ABORT:
                 self._abort(request, armed_maybe, now)
             case _:
@@ -275,7 +286,9 @@ class VehicleCore:
     def _abort(self, request: VehicleRequest, armed_maybe: bool, now: float) -> None:
         # ``armed_maybe``: the take-off it superseded sent ARM, which PX4 may carry out after
         # the state we hold was sent; a DISARM sent after it arrives after it (one link, in
-        # order), where before the take-off's own DISARM covered this
+        # order), where before the take-off's own DISARM covered this. Also through the tasks
+        # between (TAKEOFF, then LAND or HOLD or ABORT, then this ABORT: review 15, which found
+        # it ``on_ground_disarmed`` with nothing sent and the vehicle arming a moment later)
         landed = self.state.landed_state
         if self.last_arm_at is not None:
             # the same rule as an action's confirmation (actions, "fresh"): a HEARTBEAT
@@ -286,9 +299,9 @@ class VehicleCore:
         # link fell silent): land, as in the air, rather than report "on the ground" unseen
         recent = self.state.heard_within(now, self.readiness_config.heartbeat_timeout_s)
         if not recent or landed not in (None, LandedState.ON_GROUND):
-            self._action(request, ActionKind.LAND, now, abort=True)
+            self._action(request, ActionKind.LAND, now, abort=True, armed_maybe=armed_maybe)
         elif self.state.armed or armed_maybe:
-            self._action(request, ActionKind.DISARM, now, abort=True)
+            self._action(request, ActionKind.DISARM, now, abort=True, armed_maybe=armed_maybe)
         else:
             self._events.append(TaskFinished(request.token, True, ON_GROUND_DISARMED, None))
 
@@ -307,7 +320,13 @@ class VehicleCore:
         self._settle(now)
 
     def _action(
-        self, request: VehicleRequest, kind: ActionKind, now: float, *, abort: bool = False
+        self,
+        request: VehicleRequest,
+        kind: ActionKind,
+        now: float,
+        *,
+        abort: bool = False,
+        armed_maybe: bool = False,
     ) -> None:
         action = VehicleAction(
             self.state,
@@ -316,7 +335,7 @@ class VehicleCore:
             owed=self.owed,
             state_max_age_s=self.readiness_config.heartbeat_timeout_s,
         )
-        self._run(_Task(request.token, request.kind, action, abort), now)
+        self._run(_Task(request.token, request.kind, action, abort, armed_maybe=armed_maybe), now)
 
     def _run(self, task: _Task, now: float) -> None:
         assert not self._tasks, "one task at a time (RULES)"  # noqa: S101 - an invariant
@@ -336,6 +355,15 @@ class VehicleCore:
                 self._events.append(event)
             if runner.done:
                 self._tasks.remove(task)
+                if _disarm_refused(task):
+                    # PX4 refuses a plain DISARM in the air: our "on the ground" was older
+                    # than a lift-off (an ABORT at the moment a superseded take-off's motors
+                    # lifted it). Land instead, under the same token: the ABORT still stops
+                    # the vehicle, where before it FAILED and PX4 climbed on to the take-off
+                    # altitude (review 15). Never a forced disarm (module docstring).
+                    again = VehicleRequest(task.token, task.kind)
+                    self._action(again, ActionKind.LAND, now, abort=True)
+                    continue
                 self._events.append(_finished(task))
         verdict = readiness(self.state, now, self.readiness_config)
         key = (verdict.ready, None if verdict.reason is None else str(verdict.reason))
@@ -350,6 +378,21 @@ class VehicleCore:
 
 def _is_arm(command: VehicleCommand) -> bool:
     return command.command == MavCmd.COMPONENT_ARM_DISARM and command.params[0] == 1.0
+
+
+def _disarm_refused(task: _Task) -> bool:
+    """An ABORT's DISARM that PX4 answered with a refusal (a MAV_RESULT), not superseded,
+    cancelled, unanswered or unconfirmed: then the ABORT lands (``_settle``)."""
+    runner = task.runner
+    if not task.abort or task.superseded_by is not None or isinstance(runner, TakeoffSequence):
+        return False
+    out = runner.outcome
+    return (
+        runner.kind is ActionKind.DISARM
+        and out is not None
+        and not out.ok
+        and out.reason in MavResult.__members__
+    )
 
 
 def _finished(task: _Task) -> TaskFinished:

@@ -122,8 +122,9 @@ MAX_RUNNING_IDS: Final = 256
 REREPORT_WINDOW_S: Final = 300.0
 MAX_REREPORTED: Final = MAX_TRACKED_COMMANDS
 # ``save_gen`` is a u32 on the wire: the writes answered in one life stop counting there
-# (2^32 - 1 writes, 49 days at one a millisecond); marks and clears after it are not newer
-# than the last and are ignored by the commander (its row keeps what it was last told).
+# (2^32 - 1 writes, 49 days at one a millisecond). After it a mark still marks (the
+# commander applies one at or after the last word) and a clear is not newer and is ignored:
+# the row stays marked, the alarm side (tests/test_cmd_review15.py pins it).
 MAX_SAVE_GEN: Final = 0xFFFF_FFFF
 
 

@@ -129,7 +129,9 @@ def check_dir(state_dir: str | Path, user: DaemonUser) -> Path:
     """The state directory, refused (``StateDirError``, one line) when another user could
     write it or ``user`` (the daemon's) could not create or write it. Reads only."""
     directory = Path(state_dir)
-    refuse_shared_dir(directory, "dataplane.state_dir", StateDirError)
+    refuse_shared_dir(
+        directory, "dataplane.state_dir", StateDirError, user.trusted_owners(directory)
+    )
     refuse_unwritable_dir(directory, "dataplane.state_dir", StateDirError, user)
     return directory
 
