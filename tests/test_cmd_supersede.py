@@ -101,8 +101,9 @@ def test_a_land_from_another_commander_supersedes_the_takeoff_and_both_are_told(
         "failed",
         "superseded: land",
     )
-    # PX4 switches to AUTO.LAND: the LAND is confirmed by state
-    vehicle.observe(Heartbeat(12, 2, 1 | 128, MODE_LAND.custom_mode, MavState.ACTIVE), 0.1)
+    # PX4 switches to AUTO.LAND: the LAND is confirmed by state, by a heartbeat received an
+    # ack timeout (0.5 s) after NAV_LAND left at least (docs/px4.md, "Fresh state")
+    vehicle.observe(Heartbeat(12, 2, 1 | 128, MODE_LAND.custom_mode, MavState.ACTIVE), 0.6)
     swarm.run(3.0)
     assert _row(swarm, "lead2", land)["state"] == "completed"
     assert _row(swarm, "lead", takeoff)["state"] == "failed"  # once, not overwritten

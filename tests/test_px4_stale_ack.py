@@ -118,7 +118,8 @@ def test_a_late_refusal_of_an_earlier_land_does_not_fail_a_later_one() -> None:
     core.request(VehicleRequest(2, TaskKind.LAND), 0.7)
     core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), None, 0.71)  # conf 1's
     assert _finished(core) == []
-    core.receive_datagram(_heartbeat(MODE_LAND), None, 1.0)
+    # a heartbeat received an ack timeout after the send: state older may predate it
+    core.receive_datagram(_heartbeat(MODE_LAND), None, 1.2)
     (later,) = _finished(core)
     assert (later.token, later.ok) == (2, True)
     assert core.owed.stats() == {"paid": 1, "forgotten": 0, "evicted": 0}

@@ -413,7 +413,8 @@ def test_the_superseded_lands_late_refusal_does_not_fail_the_later_land() -> Non
     assert [c.command for c in core.datagrams_to_send()] == [MavCmd.NAV_LAND] * 2
     core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), None, 1.2)
     core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.ACCEPTED), None, 1.21)
-    core.receive_datagram(Heartbeat(12, 2, 1 | 128, MODE_LAND.custom_mode, 4), None, 1.5)
+    # fresh: received an ack timeout after the later LAND's send (docs/px4.md, "Fresh state")
+    core.receive_datagram(Heartbeat(12, 2, 1 | 128, MODE_LAND.custom_mode, 4), None, 1.6)
     ends = [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
     assert [(e.token, e.ok, e.reason) for e in ends] == [
         (1, False, "superseded: land"),
@@ -434,9 +435,12 @@ def test_the_superseded_takeoffs_late_arm_answer_does_not_settle_the_aborts_disa
     core.receive_datagram(CommandAck(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED), None, 1.2)
     assert core.owed.paid == paid + 1  # the ARM's answer, not the DISARM's
     ends = [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
+    assert [(e.token, e.reason) for e in ends] == [(1, "superseded: abort")]
+    # the disarmed HEARTBEAT held since 0.0 predates the ARM: only a fresh one confirms
+    core.receive_datagram(Heartbeat(12, 2, 1, MODE_LOITER.custom_mode, 3), None, 1.7)
+    ends = [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
     assert [(e.token, e.reason) for e in ends] == [
-        (1, "superseded: abort"),
-        (2, "COMPONENT_ARM_DISARM"),  # by the state (disarmed), never by the ARM's answer
+        (2, "COMPONENT_ARM_DISARM"),  # by a fresh state (disarmed), never by the ARM's answer
     ]
     assert core.last_takeoff is not None and core.last_takeoff.phase is TakeoffPhase.FAILED
     assert core.datagrams_to_send() == []  # nothing from the take-off, ever again

@@ -52,8 +52,14 @@ Drop = Callable[[Observation | VehicleCommand, str], bool]
 class Bench:
     """A ``SimVehicle`` and a ``VehicleCore`` joined on virtual time, no codec, no loop."""
 
-    def __init__(self, config: SimConfig | None = None, drop: Drop | None = None) -> None:
+    def __init__(
+        self,
+        config: SimConfig | None = None,
+        drop: Drop | None = None,
+        latency_s: float = LATENCY_S,  # one way, each direction
+    ) -> None:
         self.now = 0.0
+        self.latency_s = latency_s
         self.sim = SimVehicle(config or SimConfig(gps_fix_after_s=0.5), random.Random(1), 0.0)
         self.core = VehicleCore()
         self.drop = drop
@@ -116,7 +122,7 @@ class Bench:
     def _enqueue(self, direction: str, msg: Observation | VehicleCommand) -> None:
         if self.drop is not None and self.drop(msg, direction):
             return
-        heapq.heappush(self._queue, (self.now + LATENCY_S, next(self._seq), direction, msg))
+        heapq.heappush(self._queue, (self.now + self.latency_s, next(self._seq), direction, msg))
 
     def _pump_sim(self) -> None:
         for msg in self.sim.messages_to_send():

@@ -17,8 +17,16 @@ DISARM   COMPONENT_ARM_DISARM param1 = 0 (never forced:   the armed bit clear in
          PX4 refuses it in the air, which is the point)
 =======  ===============================================  ====================================
 
-Success is declared from state, not from an ack alone: the state confirming ends the
-command at once (a lost ack costs nothing); an ACK ACCEPTED starts ``confirm_timeout_s``
+Success is declared from state, not from an ack alone, and only from **fresh** state: a
+HEARTBEAT (for LAND also an EXTENDED_SYS_STATE) received at least one ack timeout after the
+command was first sent (``fresh_from``). The sender already assumes a round trip within
+that time (a later answer is treated as lost), so such a message was sent by PX4 after our
+command, and every command we sent before it, reached PX4. An older one, even one received
+just after the send (in flight when it left), may predate a command still on its way: the
+ARM of a take-off an ABORT supersedes, the LAND a HOLD supersedes; PX4 carries that out,
+and if our own command is lost the state we held was never true again (docs/px4.md,
+"Fresh state"). The state confirming ends the command at once (a lost ack costs nothing); an
+ACK ACCEPTED starts ``confirm_timeout_s``
 (3 s: PX4 streams HEARTBEAT at 1 Hz, so one lost heartbeat plus jitter) within which the
 state must show the effect, else the action fails ``not_confirmed``. No ack is believed
 alone, not even before the first HEARTBEAT: a COMMAND_ACK names only the command number, so
@@ -86,12 +94,21 @@ def action_command(kind: ActionKind) -> VehicleCommand:
             assert_never(kind)
 
 
-def shows(kind: ActionKind, vehicle: VehicleState) -> bool:
-    """Does the vehicle's state show the action's effect?"""
-    hb = vehicle.heartbeat
+def fresh(at: float | None, since: float) -> bool:
+    """Was a message received at ``at`` (None: never) at or after ``since``?"""
+    return at is not None and at >= since
+
+
+def shows(kind: ActionKind, vehicle: VehicleState, since: float) -> bool:
+    """Does the vehicle's state, counting only messages received at or after ``since``,
+    show the action's effect? (``since``: the send time plus the ack timeout, module
+    docstring.)"""
+    hb = vehicle.heartbeat if fresh(vehicle.heartbeat_at, since) else None
     match kind:
         case ActionKind.LAND:
-            landing = vehicle.landed_state == LandedState.LANDING
+            landing = fresh(vehicle.extended_at, since) and (
+                vehicle.landed_state == LandedState.LANDING
+            )
             return landing or (hb is not None and hb.mode == MODE_LAND)
         case ActionKind.HOLD:
             return hb is not None and hb.mode == MODE_LOITER
@@ -136,12 +153,15 @@ class VehicleAction(SenderTask[ActionFinished]):
         super().__init__(sender, owed)  # owed: the vehicle's, shared by all its tasks
         self._handle: int | None = None
         self._confirm_deadline: float | None = None
+        # state received from here on may confirm the action (module docstring, "fresh")
+        self.fresh_from: float | None = None
 
     # ---- inputs -------------------------------------------------------------------------
 
     def start(self, now: float) -> None:
         if self._handle is not None or self.outcome is not None:
             return
+        self.fresh_from = now + self._sender.config.ack_timeout_s
         self._handle = self._sender.send(action_command(self.kind), now)
         self._drain(now)
 
@@ -196,7 +216,8 @@ class VehicleAction(SenderTask[ActionFinished]):
             case Finish.ACCEPTED:
                 # no HEARTBEAT yet (a new life's first second) is no reason to believe the ack
                 # alone: an ACK names only the command number, so it may answer the last
-                # life's command (docs/security.md, "A stale COMMAND_ACK"); wait for the state
+                # life's command (docs/security.md, "A stale COMMAND_ACK"); wait for the
+                # state, a fresh one (a heartbeat in flight may predate an earlier command)
                 if self._state_shows(now):
                     self._finish(now, True, "", f"{done.command.label} ACCEPTED, state shows it")
                 else:
@@ -216,9 +237,11 @@ class VehicleAction(SenderTask[ActionFinished]):
             self._finish(now, True, "", f"{self.kind}: the vehicle state shows it")
 
     def _state_shows(self, now: float) -> bool:
-        """The effect in a state the vehicle sent recently (the module docstring)."""
-        fresh = self.vehicle.heard_within(now, self.state_max_age_s)
-        return fresh and shows(self.kind, self.vehicle)
+        """The effect in a state received after ``fresh_from`` and recent enough to speak
+        of now (``state_max_age_s``): the module docstring."""
+        if self.fresh_from is None or not self.vehicle.heard_within(now, self.state_max_age_s):
+            return False
+        return shows(self.kind, self.vehicle, self.fresh_from)
 
     def _finish(self, now: float, ok: bool, reason: str, detail: str) -> None:
         if self._handle is not None and self._sender.pending(self._handle):

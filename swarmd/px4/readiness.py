@@ -87,6 +87,7 @@ class VehicleState:
     sys_status: SysStatus | None = None
     sys_status_at: float | None = None
     extended: ExtendedSysState | None = None
+    extended_at: float | None = None
     gps: GpsRawInt | None = None
     home: HomePosition | None = None
     position: GlobalPositionInt | None = None
@@ -107,7 +108,7 @@ class VehicleState:
             case SysStatus():
                 self.sys_status, self.sys_status_at = obs, now
             case ExtendedSysState():
-                self.extended = obs
+                self.extended, self.extended_at = obs, now
             case GpsRawInt():
                 self.gps = obs
             case HomePosition():

@@ -22,13 +22,16 @@ detail naming the new request for the log) and sends nothing after that, not eve
 take-off's DISARM; its pending command is cancelled, so the answers it is still owed are
 paid from the shared ``OwedAcks`` and cannot settle the new task's command of the same
 number. Then the new task starts. LAND, HOLD and DISARM are ``actions.VehicleAction``s,
-all commands through the ``CommandSender``. ABORT lands a vehicle in the air, disarms one
-armed on the ground (or one whose superseded take-off had sent ARM, which PX4 may carry
-out before our DISARM, also through a LAND, HOLD or ABORT that superseded it in turn),
-never a forced disarm, which PX4 would obey in the air: a DISARM PX4 refuses (it is in the
-air after all, our landed state older than its lift-off) is followed by a LAND under the
-same request (``_disarm_refused``); a vehicle on
-the ground and disarmed needs nothing (``on_ground_disarmed``).
+all commands through the ``CommandSender``; each confirms only from state received an ack
+timeout after its send (``actions``, "fresh"). ABORT lands a vehicle in the air, disarms one
+armed on the ground, or one that may be armed without our state showing it yet: its
+superseded take-off had sent ARM (also through a LAND, HOLD or ABORT that superseded it in
+turn), or the last ARM on the wire (``last_arm_at``) is newer than the HEARTBEAT we hold,
+less an ack timeout (PX4 may carry that ARM out before our DISARM). Never a forced disarm,
+which PX4 would obey in the air: a DISARM PX4 refuses (it is in the air after all, our
+landed state older than its lift-off) is followed by a LAND under the same request
+(``_disarm_refused``). A vehicle on the ground and disarmed, by a HEARTBEAT newer than the
+last ARM, needs nothing (``on_ground_disarmed``).
 """
 
 from __future__ import annotations
@@ -45,9 +48,10 @@ from swarmd.px4.actions import (
     ActionKind,
     VehicleAction,
     action_command,
+    fresh,
 )
 from swarmd.px4.command_sender import OwedAcks
-from swarmd.px4.constants import LandedState, MavResult
+from swarmd.px4.constants import LandedState, MavCmd, MavResult
 from swarmd.px4.messages import CommandAck, Observation, VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState, readiness
 from swarmd.px4.takeoff import (
@@ -165,6 +169,9 @@ class VehicleCore:
         # outlives its task (the failed take-off's DISARM owes the next ARM's number)
         self.owed = OwedAcks(self.takeoff_config.command.owed_window_s)
         self.last_takeoff: TakeoffSequence | None = None
+        # when the last ARM (a take-off's, retransmissions too) went on the wire: until a
+        # HEARTBEAT received an ack timeout later, the vehicle may be armed whatever we hold
+        self.last_arm_at: float | None = None
         self._tasks: list[_Task] = []
         self._last_key: tuple[bool, str | None] | None = None
         self._stale_at: float | None = None
@@ -283,10 +290,15 @@ class VehicleCore:
         # between (TAKEOFF, then LAND or HOLD or ABORT, then this ABORT: review 15, which found
         # it ``on_ground_disarmed`` with nothing sent and the vehicle arming a moment later)
         landed = self.state.landed_state
+        if self.last_arm_at is not None:
+            # the same rule as an action's confirmation (actions, "fresh"): a HEARTBEAT
+            # older than the ARM plus a round trip may predate the ARM taking effect
+            since = self.last_arm_at + self.takeoff_config.command.ack_timeout_s
+            armed_maybe = armed_maybe or not fresh(self.state.heartbeat_at, since)
         # a state older than the heartbeat timeout says nothing of now (PX4 rebooted, the
         # link fell silent): land, as in the air, rather than report "on the ground" unseen
-        fresh = self.state.heard_within(now, self.readiness_config.heartbeat_timeout_s)
-        if not fresh or landed not in (None, LandedState.ON_GROUND):
+        recent = self.state.heard_within(now, self.readiness_config.heartbeat_timeout_s)
+        if not recent or landed not in (None, LandedState.ON_GROUND):
             self._action(request, ActionKind.LAND, now, abort=True, armed_maybe=armed_maybe)
         elif self.state.armed or armed_maybe:
             self._action(request, ActionKind.DISARM, now, abort=True, armed_maybe=armed_maybe)
@@ -335,7 +347,10 @@ class VehicleCore:
         """Collect the tasks' commands and events, retire finished tasks, re-judge readiness."""
         for task in list(self._tasks):
             runner = task.runner
-            self._out += runner.commands_to_send()
+            sent = runner.commands_to_send()
+            if any(_is_arm(c) for c in sent):
+                self.last_arm_at = now
+            self._out += sent
             while (event := runner.next_event()) is not None:
                 self._events.append(event)
             if runner.done:
@@ -359,6 +374,10 @@ class VehicleCore:
         # has already been judged, and would spin the timer
         deadline = self.state.next_deadline(self.readiness_config)
         self._stale_at = deadline if deadline is not None and deadline > now else None
+
+
+def _is_arm(command: VehicleCommand) -> bool:
+    return command.command == MavCmd.COMPONENT_ARM_DISARM and command.params[0] == 1.0
 
 
 def _disarm_refused(task: _Task) -> bool:

@@ -357,6 +357,11 @@ class SimVehicle:
             if not self.landed_detected and self.alt_m >= self.target_alt_m - 1e-6:
                 self.landed = LandedState.IN_AIR
                 self._set_mode_to(MODE_LOITER, t)  # navigator: takeoff done -> Hold
+        elif self.landed == LandedState.LANDING and self.mode != MODE_LAND:
+            # PX4 reports LANDING only while the setpoint is a land one (mavlink
+            # EXTENDED_SYS_STATE: position_setpoint_triplet type LAND); a HOLD in the
+            # descent is in the air again
+            self.landed = LandedState.IN_AIR
         elif self.armed and self.mode == MODE_LAND and self.landed != LandedState.ON_GROUND:
             self.landed = LandedState.LANDING
             if self.alt_m > 0.0:
