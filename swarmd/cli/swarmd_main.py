@@ -29,18 +29,32 @@ from swarmd.exitcodes import EX_CONFIG, EX_USAGE, StartupError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="swarmd", description="swarmd discovery daemon")
+    parser = argparse.ArgumentParser(
+        prog="swarmd",
+        description="swarmd: discovery and command daemon of a PX4 drone swarm "
+        "(docs/operations.md)",
+    )
     parser.add_argument("--version", action="version", version=f"swarmd {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     run = sub.add_parser("run", help="run the daemon in the foreground (systemd Type=notify)")
-    run.add_argument("--config", required=True, help="daemon config file (YAML)")
-    check = sub.add_parser("check-config", help="check a config file (and its bundle), then exit")
-    check.add_argument("--config", required=True, help="daemon config file (YAML)")
+    run.add_argument("--config", required=True, metavar="FILE", help="daemon config file (YAML)")
+    check = sub.add_parser(
+        "check-config",
+        help="check a config file, its bundle and the state folders, then exit",
+        # the same codes as run's: both call the same check functions (docs/operations.md)
+        description="Run every start-up check of 'swarmd run' that neither binds, sends nor "
+        "writes: the config, the bundle it names, the state folders (as the unit's user, "
+        "under the unit's sandbox), the PX4 link's endpoint. Exit 0 ok; else run's one "
+        "line and run's code: 78 config or bundle, 73 a state folder, 71 an endpoint, "
+        "69 the control socket's folder.",
+    )
+    check.add_argument("--config", required=True, metavar="FILE", help="daemon config file (YAML)")
     check.add_argument(
         "--user",
-        help="judge the state folders for this user (default: the unit's User=, Group=, "
-        "SupplementaryGroups= and DynamicUser=; no unit found: as root, swarmd when it "
-        "exists, else the user running the check)",
+        metavar="NAME",
+        help="judge the state folders for this user, overriding the unit's (default: the "
+        "unit's User=, Group=, SupplementaryGroups= and DynamicUser=; no unit found: as "
+        "root, swarmd when it exists, else the user running the check)",
     )
     check.add_argument(
         "--unit",

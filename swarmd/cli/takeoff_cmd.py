@@ -22,7 +22,10 @@ Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for
 1 some drone refused, failed, was unreachable while the command was valid, or did not
 answer in time; 2 the daemon is not reachable;
 3 ``--require-all`` and not every targeted drone became ready (nothing sent); 64 usage
-(not the commander, unknown node, bad altitude).
+(not the commander, unknown node, bad altitude, a validity out of range, data plane
+disabled); 130 interrupted
+(a command already sent keeps running on the drones). Each drone's RESULT and REASON:
+docs/operations.md, "What swarmctl tells you about a command".
 """
 
 from __future__ import annotations
@@ -58,8 +61,11 @@ UNHEARD: Final = ("no_report", "peer_lost", "report_stale")
 
 
 def register(sub: Any) -> None:
+    what = "take off the swarm's ready drones (run on the commander's drone)"
     takeoff = sub.add_parser(
-        "takeoff", help="take off the swarm's ready drones (run on the commander's drone)"
+        "takeoff",
+        help=what,
+        description=_description(what, takeoff=True),
     )
     takeoff.add_argument(
         "--alt", type=float, default=None, metavar="M",
@@ -76,13 +82,33 @@ def register(sub: Any) -> None:
     for kind, text in (
         ("land", "land the drones where they are (NAV_LAND)"),
         ("hold", "hold position (PX4 Hold mode)"),
-        ("abort", "stop a take-off in progress: disarm on the ground, land in the air"),
+        ("abort", "stop what a drone does: disarm on the ground, land in the air (never forced)"),
     ):
-        p = sub.add_parser(kind, help=text)
+        p = sub.add_parser(kind, help=text, description=_description(text))
         _targets(p)
         _validity(p, kind)
         _common(p, default_timeout=20.0)
         p.set_defaults(func=_simple, kind=kind)
+
+
+def _description(what: str, *, takeoff: bool = False) -> str:
+    """``--help``'s text: what the command does, then its exit codes (module docstring)."""
+    return (
+        f"{what[0].upper()}{what[1:]}, then follow each drone's answer to the end. Each "
+        "RESULT and REASON: docs/operations.md, 'What swarmctl tells you about a command'. "
+        + (
+            "Exit 0 every targeted drone airborne; "
+            if takeoff
+            else "Exit 0 every targeted drone confirmed; "
+        )
+        + "1 one refused, failed, was unreachable while the command was valid, or did not "
+        "answer within --timeout; 2 the daemon is not reachable; "
+        + ("3 --require-all and not every drone became ready: nothing sent; " if takeoff else "")
+        + "64 not the commander, an unknown --only drone, "
+        + ("a bad altitude, " if takeoff else "")
+        + "a --valid-for outside what the daemon takes, the data plane disabled; "
+        "130 interrupted (a command sent keeps running)."
+    )
 
 
 def _targets(p: argparse.ArgumentParser) -> None:
