@@ -184,7 +184,14 @@ class Px4Translator:
                 return [] if self._prearm is None else [self._sys_status()]
             case "vehicle_land_detected":
                 self._landed = bool(f["landed"])
-                return [ExtendedSysState(self._landed_state(self._landed))]
+                landed = self._landed_state(self._landed)
+                if landed == LANDED_LANDING:
+                    # LANDING is nav_state AUTO.LAND, which only vehicle_status carries; ours
+                    # may predate a command (a HOLD that took, its vehicle_status lost), and
+                    # this sample's arrival time would make it fresh enough to confirm a LAND
+                    # (docs/px4.md, "Fresh state"): the next vehicle_status says it instead
+                    return []
+                return [ExtendedSysState(landed)]
             case "vehicle_gps_position":
                 return [self._gps(f)]
             case "home_position":
