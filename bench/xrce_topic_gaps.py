@@ -18,25 +18,21 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from swarmd.xrce.agent import XrceAgent
-from swarmd.xrce.events import SampleReceived
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 
-TAP = Path(__file__).parent.parent / "tests" / "fixtures" / "xrce" / "px4-1.16-core.tap.jsonl"
+from swarmd.xrce.events import SampleReceived  # noqa: E402
+from tests.test_xrce_golden import replay_into_agent  # noqa: E402
+
+TAP = ROOT / "tests" / "fixtures" / "xrce" / "px4-1.16-core.tap.jsonl"
 
 
 def gaps(path: Path) -> dict[str, list[float]]:
     """topic name -> the arrival times (s from the first datagram) of its samples."""
     records = [json.loads(line) for line in path.read_text().splitlines()]
     px4 = records[0]["client"]  # the PX4-like client speaks first
-    agent = XrceAgent(clock_offset_s=0.0)
-    t0 = records[0]["t"]
     arrivals: dict[str, list[float]] = defaultdict(list)
-    for r in records:
-        if r["client"] != px4 or r["dir"] != "c2a":
-            continue
-        now = r["t"] - t0
-        agent.handle_timer(now)
-        agent.receive_datagram(bytes.fromhex(r["hex"]), px4, now)
+    for now, agent in replay_into_agent(records, px4):
         agent.datagrams_to_send()
         while (event := agent.next_event()) is not None:
             if isinstance(event, SampleReceived):
