@@ -406,3 +406,68 @@ def test_success_only_when_the_vehicle_is_in_the_claimed_state(
         if isinstance(event, TaskFinished) and event.ok:
             kind = kinds[event.token]
             assert _claim_holds(event, kind, b.seen[event.token]), (kind, event, b.seen)
+
+
+# ---- the take-off: its steps cannot be confirmed by a state from before its command -------
+# Readiness pins the state it starts from (a HEARTBEAT heard within 2.5 s: disarmed, STANDBY;
+# EXTENDED_SYS_STATE on the ground), and both links deliver in order (MAVLink: signed
+# timestamps per stream; XRCE: a stale best-effort sequence number is dropped). So the armed
+# bit or a lift-off that confirms ARM or NAV_TAKEOFF came in a message PX4 sent after the
+# one readiness read: never the last arming or the last flight. These pin that.
+
+
+def _takeoff_after(before: list[Observation], ready: list[Observation]) -> VehicleCore:
+    """A take-off requested while ``before`` is the state (refused), then again once
+    ``ready`` (the vehicle since disarmed, or landed) has been heard."""
+    core = VehicleCore()
+    for obs in before:
+        core.receive_datagram(obs, None, 0.0)
+    core.request(VehicleRequest(1, TaskKind.TAKEOFF, 4.0), 0.1)
+    assert core.datagrams_to_send() == []  # not ready: nothing sent
+    for obs in ready:
+        core.receive_datagram(obs, None, 0.9)
+    core.request(VehicleRequest(2, TaskKind.TAKEOFF, 4.0), 1.0)
+    return core
+
+
+def test_a_takeoff_after_a_disarm_is_never_armed_by_the_last_arming() -> None:
+    """PX4 was armed (the last arming) and has disarmed since; every ARM is lost. No armed
+    HEARTBEAT from before confirms the ARM: NAV_TAKEOFF is never sent, ``arm_no_ack``."""
+    core = _takeoff_after(
+        _status(MODE_LOITER, armed=True, landed=LandedState.ON_GROUND),
+        _status(MODE_LOITER, armed=False, landed=LandedState.ON_GROUND),
+    )
+    feed: list[tuple[float, Observation]] = [
+        (1.5 + i, _status(MODE_LOITER, armed=False, landed=LandedState.ON_GROUND)[0])
+        for i in range(6)
+    ]
+    _run_until_timer_settles(core, feed)
+    ends = [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
+    assert [(e.token, e.ok, e.reason) for e in ends] == [
+        (1, False, "not_ready: armed"),
+        (2, False, "arm_no_ack"),
+    ]
+    assert MavCmd.NAV_TAKEOFF not in [c.command for c in core.datagrams_to_send()]
+
+
+def test_a_takeoff_after_a_flight_is_never_airborne_by_the_last_flight() -> None:
+    """The last flight's IN_AIR is held (refused: not on the ground); once PX4 says ON_GROUND
+    the take-off arms, and every NAV_TAKEOFF is lost. Nothing from the last flight confirms
+    it: ``takeoff_no_ack``, never a success."""
+    core = _takeoff_after(
+        _status(MODE_LOITER, armed=False, landed=LandedState.IN_AIR),
+        _status(MODE_LOITER, armed=False, landed=LandedState.ON_GROUND),
+    )
+    assert [c.command for c in core.datagrams_to_send()] == [MavCmd.COMPONENT_ARM_DISARM]
+    feed: list[tuple[float, Observation]] = [
+        (1.05, CommandAck(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)),
+    ]
+    feed += [
+        (1.5 + 0.5 * i, _status(MODE_LOITER, armed=True, landed=LandedState.ON_GROUND)[j])
+        for i in range(8)
+        for j in (0, 2)
+    ]
+    _run_until_timer_settles(core, feed)
+    ends = [e for e in iter(core.next_event, None) if isinstance(e, TaskFinished)]
+    assert [(e.token, e.ok) for e in ends] == [(1, False), (2, False)]
+    assert ends[0].reason == "not_ready: not_on_ground" and ends[1].reason == "takeoff_no_ack"

@@ -115,6 +115,31 @@ def test_a_new_stream_more_than_a_minute_old_is_a_replay() -> None:
     assert Verifier(KEY, T0).check(recent, 1, 1) is Verdict.OK
 
 
+def test_px4s_frame_from_another_link_replayed_late_is_refused() -> None:
+    """PX4 signs every link with one key and one clock, each link with its own id. A frame
+    recorded on another of its links (the GCS radio, link id 1) and written onto ours 30 s
+    later was a new stream within the minute the spec allows, so it reached the state
+    stamped fresh (an old AUTO.LAND could confirm a LAND); and a stream started while PX4
+    was silent to us went on taking the recording once PX4 spoke again. Now every frame
+    must be newer than all its sender signed, on any link. [main: both replays OK]"""
+    tick = 100_000  # 1 s in 10 µs units
+    v = Verifier(KEY, T0)
+    live = autopilot(KEY, T0)
+    radio = MavlinkCodec(1, COMP_ID_AUTOPILOT1, signing_key=KEY, link_id=1)
+
+    def heard(codec: MavlinkCodec, stamp: int) -> Verdict:
+        codec.advance_clock(stamp)
+        return v.check(codec.encode(ARMED_HB), 1, 1)
+
+    assert heard(live, T0) is Verdict.OK
+    assert heard(radio, T0 - 30 * tick) is Verdict.REPLAYED  # recorded 30 s before
+    # PX4 silent to us (the residual): a frame recorded meanwhile is newer than all we heard
+    assert heard(radio, T0 + 5 * tick) is Verdict.OK
+    assert heard(live, T0 + 10 * tick) is Verdict.OK  # PX4 speaks again
+    assert heard(radio, T0 + 6 * tick) is Verdict.REPLAYED  # the recording goes on: refused
+    assert heard(live, T0 + 11 * tick) is Verdict.OK
+
+
 def test_a_forged_future_timestamp_does_not_lock_out_the_real_stream() -> None:
     # pymavlink's check_signature records the timestamp before comparing the signature;
     # ours must not: a wrong-key frame at 2^48-1 moves nothing

@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import random
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -82,17 +83,26 @@ def _answers(msgs: list[Message]) -> dict[str, list[tuple[Any, ...]]]:
     return out
 
 
-def _replay(client: str) -> tuple[dict[str, list[tuple[Any, ...]]], XrceAgent]:
-    """One client's recorded datagrams into a fresh swarmd agent, at their recorded times."""
+def replay_into_agent(
+    records: list[dict[str, Any]], client: str
+) -> Iterator[tuple[float, XrceAgent]]:
+    """One client's recorded datagrams into a fresh swarmd agent, at their recorded times
+    (seconds from the first record): yields the time and the agent after each one."""
     agent = XrceAgent(clock_offset_s=0.0)
-    t0 = RECORDS[0]["t"]
-    ours: list[Message] = []
-    for r in RECORDS:
+    t0 = records[0]["t"]
+    for r in records:
         if r["client"] != client or r["dir"] != "c2a":
             continue
         now = r["t"] - t0
         agent.handle_timer(now)
         agent.receive_datagram(bytes.fromhex(r["hex"]), client, now)
+        yield now, agent
+
+
+def _replay(client: str) -> tuple[dict[str, list[tuple[Any, ...]]], XrceAgent]:
+    ours: list[Message] = []
+    agent = XrceAgent(clock_offset_s=0.0)
+    for _now, agent in replay_into_agent(RECORDS, client):
         ours += [decode_message(d) for d, _a in agent.datagrams_to_send()]
     return _answers(ours), agent
 

@@ -6,6 +6,12 @@ sets incompatibility flag 0x01 and carries 13 more bytes, ``link_id`` (1), ``tim
 bits of SHA-256(secret_key + header + payload + CRC + link_id + timestamp). A receiver
 refuses a timestamp not newer than the last one accepted on the same stream
 ``(link_id, system, component)``, and a new stream more than one minute behind its own clock.
+We add one rule: a frame must be newer than everything its sender (system, component)
+signed so far, on any link id. PX4 signs all its links with one key and one clock, so
+without it a frame recorded on another of its links (a telemetry radio) and written onto
+ours up to a minute late would start a stream and arrive fresh, and that stream would go
+on taking the recording (docs/px4.md, "Fresh state"; docs/security.md, the PX4 link's
+residuals). swarmd hears PX4 on one link, so its frames come in their signing order.
 
 Why our own verifier and not pymavlink's ``check_signature``: pymavlink records a stream's
 timestamp *before* it compares the signature, so one forged frame with a wrong signature
@@ -113,6 +119,8 @@ class Verifier:
     key: bytes
     timestamp: int = 0
     streams: dict[tuple[int, int, int], int] = field(default_factory=dict)
+    # (system, component) -> the newest timestamp it signed on any link (module docstring)
+    newest: dict[tuple[int, int], int] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=lambda: {v.value: 0 for v in Verdict})
 
     def advance(self, timestamp: int) -> None:
@@ -139,6 +147,10 @@ class Verifier:
             return Verdict.REPLAYED
         if last is None and stamp + NEW_STREAM_WINDOW < self.timestamp:
             return Verdict.REPLAYED
+        sender = (src_system, src_component)
+        if stamp <= self.newest.get(sender, -1):
+            return Verdict.REPLAYED  # another link's frame, older than what we heard
         self.streams[stream] = stamp
+        self.newest[sender] = stamp
         self.timestamp = max(self.timestamp, stamp)
         return Verdict.OK

@@ -4,8 +4,9 @@ Pure (no I/O). The mapping is docs/px4.md's table: ``vehicle_status`` gives the
 ``Heartbeat`` (armed = ``arming_state`` 2, mode from ``nav_state``, STANDBY/ACTIVE/CRITICAL
 from arming and ``failsafe``, autopilot PX4) and, with ``battery_status``, the ``SysStatus``
 (PREARM health bit = ``pre_flight_checks_pass``); ``vehicle_land_detected`` the
-``ExtendedSysState``; ``vehicle_gps_position`` the ``GpsRawInt``; ``home_position`` (valid
-only) the ``HomePosition``; ``vehicle_command_ack`` addressed to us the ``CommandAck``.
+``ExtendedSysState`` (never LANDING, which needs ``vehicle_status``'s nav_state);
+``vehicle_gps_position`` the ``GpsRawInt``; ``home_position`` (valid only) the
+``HomePosition``; ``vehicle_command_ack`` addressed to us the ``CommandAck``.
 
 One vehicle: ``vehicle_status.system_id`` (PX4's ``MAV_SYS_ID``) must be this vehicle's
 MAVLink system id. A ``vehicle_status`` of any other vehicle is dropped and counted
@@ -184,7 +185,14 @@ class Px4Translator:
                 return [] if self._prearm is None else [self._sys_status()]
             case "vehicle_land_detected":
                 self._landed = bool(f["landed"])
-                return [ExtendedSysState(self._landed_state(self._landed))]
+                landed = self._landed_state(self._landed)
+                if landed == LANDED_LANDING:
+                    # LANDING is nav_state AUTO.LAND, which only vehicle_status carries; ours
+                    # may predate a command (a HOLD that took, its vehicle_status lost), and
+                    # this sample's arrival time would make it fresh enough to confirm a LAND
+                    # (docs/px4.md, "Fresh state"): the next vehicle_status says it instead
+                    return []
+                return [ExtendedSysState(landed)]
             case "vehicle_gps_position":
                 return [self._gps(f)]
             case "home_position":
