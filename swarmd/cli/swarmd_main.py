@@ -113,7 +113,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
     try:
-        secrets = load_node_secrets(config, bundle)
+        secrets = load_node_secrets(config, bundle, user.own_uid if user else frozenset())
     except NodeSecretsError as exc:
         return _fail(f"node key rejected: {exc}", EX_CONFIG)
     # the anti-rollback floor (docs/security.md, "Bundle rollback"), read only: a refusal
