@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import pathlib
 import socket
 import stat
 import struct
@@ -24,11 +25,11 @@ from swarmd.bundle.keys import parse_node_keys
 from swarmd.bundle.model import Bundle
 from swarmd.bundle.safeopen import (
     NODE_KEY_CAP,
+    TRUSTED_FIX,
+    SharedFolder,
     TooLarge,
-    open_folder,
-    read_file,
+    read_trusted,
     unreadable_why,
-    writers_problem,
 )
 from swarmd.config import DaemonConfig, Px4Section
 from swarmd.discovery.config import EngineConfig
@@ -91,41 +92,25 @@ def read_node_key(path: str, also: frozenset[int] = frozenset()) -> bytes:
         "flash this node with 'swarmctl bundle flash BUNDLE --node NAME --keys DIR' "
         "(or set bundle.node_key)"
     )
-    folder_path = os.path.dirname(os.path.abspath(path))
     try:
-        folder = open_folder(folder_path)
+        return read_trusted(
+            pathlib.Path(os.path.abspath(path)),
+            NODE_KEY_CAP,
+            also=also,
+            judge=lambda info: refuse_shared_secret(path, info),
+        )
+    except FileNotFoundError:
+        raise NodeSecretsError(f"{path}: node key not found; fix: {flash}") from None
+    except SharedFolder as exc:
+        raise NodeSecretsError(f"{path}: {exc.strerror}; fix: {TRUSTED_FIX}") from None
+    except TooLarge:
+        raise NodeSecretsError(
+            f"{path}: over {NODE_KEY_CAP} bytes, not a node key (238 bytes); fix: {flash}"
+        ) from None
     except OSError as exc:
         raise NodeSecretsError(
-            f"{path}: folder {folder_path} cannot be opened ({unreadable_why(exc)}); fix: {flash}"
+            f"{path}: cannot read the node key ({unreadable_why(exc)}); fix: {flash}"
         ) from None
-    if folder is None:
-        raise NodeSecretsError(f"{path}: node key not found; fix: {flash}")
-    with folder:
-        why = writers_problem(folder.info, also)
-        if why is not None:
-            raise NodeSecretsError(
-                f"{path}: folder {folder_path} is {why}, so another user could swap it; fix: "
-                "make it and its folder writable by root or swarmd alone (chmod go-w; "
-                "/etc/swarmd/keys, /var/lib/swarmd)"
-            )
-        try:
-            return read_file(
-                folder,
-                os.path.basename(path),
-                NODE_KEY_CAP,
-                also=also,
-                judge=lambda info: refuse_shared_secret(path, info),
-            )
-        except FileNotFoundError:
-            raise NodeSecretsError(f"{path}: node key not found; fix: {flash}") from None
-        except TooLarge:
-            raise NodeSecretsError(
-                f"{path}: over {NODE_KEY_CAP} bytes, not a node key (238 bytes); fix: {flash}"
-            ) from None
-        except OSError as exc:
-            raise NodeSecretsError(
-                f"{path}: cannot read the node key ({unreadable_why(exc)}); fix: {flash}"
-            ) from None
 
 
 def enforce_bundle_floor(config: DaemonConfig, bundle: Bundle, *, commit: bool) -> FloorResult:

@@ -15,10 +15,7 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
-import subprocess
-import sys
 import tracemalloc
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -45,10 +42,8 @@ from swarmd.px4.provision import SigningKeyError, signing_key_for
 from swarmd.swarm import statefile
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
 from swarmd.swarm.statefile import NodeState, StateDirError, boot, state_path
-from tests.daemon_support import BundleFiles, write_bundle
+from tests.daemon_support import BundleFiles, as_nobody, write_bundle
 
-SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
-NOBODY = 65534
 CLOCK = 1_800_000_000.0  # the wall clock the epochs are drawn from
 PLANTED_EPOCH = 4_000_000_000  # a high epoch: the node would skip ahead to it
 HANG_BOUND_S = 10.0  # a FIFO read blocks forever; this test fails instead
@@ -87,17 +82,6 @@ def _attempt(call: Callable[[], T], error: type[E]) -> T | E:
         return call()
     except error as exc:
         return exc
-
-
-def _as_nobody(script: str, *args: str) -> None:
-    subprocess.run(
-        [SYSTEM_PYTHON, "-c", script, *args],
-        user=NOBODY,
-        group=NOBODY,
-        extra_groups=[],
-        timeout=60,
-        check=True,
-    )
 
 
 PLANT = (
@@ -140,7 +124,7 @@ def _swap_after(
         result = real(*args, **kwargs)
         if not done:
             done.append(True)
-            _as_nobody(SWAP, str(state), str(aside), str(theirs))
+            as_nobody(SWAP, str(state), str(aside), str(theirs))
         return result
 
     monkeypatch.setattr(module, name, checked_then_swapped)
@@ -165,7 +149,7 @@ def test_an_epoch_folder_swapped_after_its_check_is_not_read_or_written(
     name = epoch_mod.epoch_path(parent, "uav1").name
     state = _root_folder(parent, {name: "100\n"})
     theirs = parent / "theirs"
-    _as_nobody(PLANT, str(theirs), name, f"{PLANTED_EPOCH}\n")
+    as_nobody(PLANT, str(theirs), name, f"{PLANTED_EPOCH}\n")
     aside = _swap_after(monkeypatch, epoch_mod, "refuse_shared_dir", state, theirs)
     result = _attempt(lambda: next_epoch(state, "uav1", CLOCK), EpochError)
     if isinstance(result, EpochError):  # the folder written through is judged again: theirs
@@ -188,7 +172,7 @@ def test_a_state_folder_swapped_after_its_check_is_not_read_or_written(
     real = json.dumps({"boot": 5, "executed": [["lead", 7]]})
     state = _root_folder(parent, {name: real})
     theirs = parent / "theirs"
-    _as_nobody(PLANT, str(theirs), name, json.dumps({"boot": 41, "executed": []}))
+    as_nobody(PLANT, str(theirs), name, json.dumps({"boot": 41, "executed": []}))
     aside = _swap_after(monkeypatch, statefile, "refuse_shared_dir", state, theirs)
     loaded = _attempt(lambda: boot(state, "uav1", wall_now=CLOCK), StateDirError)
     if isinstance(loaded, StateDirError):
@@ -218,7 +202,7 @@ def test_a_floor_folder_swapped_after_its_check_cannot_lower_the_floor(
     floor = json.dumps({"serial": 7, "sha256": "ab" * 32})
     state = _root_folder(parent, {name: floor})
     theirs = parent / "theirs"
-    _as_nobody(PLANT, str(theirs), name, json.dumps({"serial": 1, "sha256": "cd" * 32}))
+    as_nobody(PLANT, str(theirs), name, json.dumps({"serial": 1, "sha256": "cd" * 32}))
     _swap_after(monkeypatch, floor_mod, "refuse_shared_dir", state, theirs)
     with pytest.raises(BundleError, match="serial"):
         floor_mod.enforce(_bundle(3), source="b.swb", state_dir=state, node="uav1", commit=True)
@@ -241,7 +225,7 @@ def test_a_node_key_folder_swapped_after_its_check_is_not_read(
     state = _root_folder(parent, {"node.key": pem})
     os.chmod(state / "node.key", 0o600)
     theirs = parent / "theirs"
-    _as_nobody(PLANT, str(theirs), "node.key", "FIFO")
+    as_nobody(PLANT, str(theirs), "node.key", "FIFO")
     # main checked node.key's mode by path, then read it by path
     _swap_after(monkeypatch, daemon_setup, "refuse_shared_secret", state, theirs)
     config = _key_config(state / "node.key", files)

@@ -206,6 +206,39 @@ def read_file(
         os.close(fd)
 
 
+class SharedFolder(OSError):
+    """A trusted file's folder another user may write (``read_trusted``); ``strerror``:
+    which folder and why, ``TRUSTED_FIX`` the fix."""
+
+
+TRUSTED_FIX: Final = (
+    "make it and its folder writable by root or swarmd alone (chmod go-w; /etc/swarmd/keys, "
+    "/var/lib/swarmd)"
+)
+
+
+def read_trusted(
+    path: Path,
+    cap: int,
+    *,
+    also: frozenset[int] = frozenset(),
+    judge: Callable[[os.stat_result], None] | None = None,
+) -> bytes:
+    """A key file's bytes (node.key, the PX4 signing key) through its folder's descriptor:
+    the folder judged on it (``config.check_trusted_files``' rule, so a folder swapped
+    in since that check is refused: ``SharedFolder``), then ``read_file``. Raises
+    ``FileNotFoundError`` (no file, or no folder), ``SharedFolder`` or ``read_file``'s."""
+    folder = open_folder(path.parent)
+    if folder is None:
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", str(path))
+    with folder:
+        why = writers_problem(folder.info, also)
+        if why is not None:
+            problem = f"folder {path.parent} is {why}, so another user could swap it"
+            raise SharedFolder(errno.EPERM, problem, str(path))
+        return read_file(folder, path.name, cap, also=also, judge=judge)
+
+
 def unreadable_why(exc: OSError) -> str:
     """A short reason for ``read_file``'s ``OSError`` (a symlink, a FIFO, an owner, a cap)."""
     if exc.errno == errno.ELOOP:

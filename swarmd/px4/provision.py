@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
 import os
 import time
 from pathlib import Path
@@ -23,11 +22,11 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from swarmd.bundle.keys import load_node_keys
 from swarmd.bundle.safeopen import (
     SIGNING_KEY_CAP,
+    TRUSTED_FIX,
+    SharedFolder,
     TooLarge,
-    open_folder,
-    read_file,
+    read_trusted,
     unreadable_why,
-    writers_problem,
 )
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec, SetupSigning
@@ -92,18 +91,9 @@ def _read_signing_key(key_file: str, also: frozenset[int]) -> bytes:
             )
 
     try:
-        folder = open_folder(path.parent)
-        if folder is None:
-            raise FileNotFoundError(errno.ENOENT, "No such file or directory")
-        with folder:
-            why = writers_problem(folder.info, also)
-            if why is not None:
-                raise SigningKeyError(
-                    f"{where}: folder {path.parent} is {why}, so another user could swap it; "
-                    "fix: make it and its folder writable by root or swarmd alone (chmod go-w; "
-                    "/etc/swarmd/keys)"
-                )
-            return read_file(folder, path.name, SIGNING_KEY_CAP, also=also, judge=private)
+        return read_trusted(path, SIGNING_KEY_CAP, also=also, judge=private)
+    except SharedFolder as exc:
+        raise SigningKeyError(f"{where}: {exc.strerror}; fix: {TRUSTED_FIX}") from None
     except TooLarge:
         raise SigningKeyError(
             f"{where}: over {SIGNING_KEY_CAP} bytes, not a key (65 bytes); fix: {fix}"
