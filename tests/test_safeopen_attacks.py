@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
 import tracemalloc
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -38,11 +39,19 @@ from swarmd.config import BundleConfig, DaemonConfig
 from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
 from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS, MAX_SEEN_OUTCOMES
 from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResult
+from swarmd.exitcodes import EX_CONFIG
 from swarmd.px4.provision import SigningKeyError, signing_key_for
 from swarmd.swarm import statefile
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
 from swarmd.swarm.statefile import NodeState, StateDirError, boot, state_path
-from tests.daemon_support import BundleFiles, as_nobody, write_bundle
+from tests.daemon_support import (
+    SWARMD,
+    BundleFiles,
+    as_nobody,
+    clean_env,
+    loopback_config,
+    write_bundle,
+)
 
 CLOCK = 1_800_000_000.0  # the wall clock the epochs are drawn from
 PLANTED_EPOCH = 4_000_000_000  # a high epoch: the node would skip ahead to it
@@ -400,3 +409,30 @@ def test_a_symlinked_folder_is_followed_only_from_a_folder_others_cannot_write(
         next_epoch(shared / "swarmd", "uav1", CLOCK)
     line = str(caught.value)
     assert "\n" not in line and str(shared / "swarmd") in line and "bundle.node_key" in line
+
+
+@pytest.mark.parametrize("which", ["bundle", "trusted_key"])
+def test_a_fifo_at_the_bundle_or_its_key_is_refused_by_check_config(
+    workdir: Path, which: str
+) -> None:
+    """The bundle and the swarm key, a FIFO at either name in a root folder (the path
+    checks pass: root's, mode 0644): on main ``check-config`` waited on the open until the
+    test's bound killed it. Now both are read through their judged folder: one line, 78."""
+    files = write_bundle(workdir / "etc", 2, domain_id=0)
+    config = loopback_config(workdir, files)
+    path = files.path if which == "bundle" else files.trusted_key
+    path.unlink()
+    os.mkfifo(path, 0o644)
+    try:
+        proc = subprocess.run(
+            [SWARMD, "check-config", "--config", str(config)],
+            capture_output=True,
+            text=True,
+            timeout=HANG_BOUND_S + 20,
+            env=clean_env(),
+            check=False,
+        )
+    except subprocess.TimeoutExpired:
+        pytest.fail("check-config waited on the FIFO")
+    assert proc.returncode == EX_CONFIG, proc.stderr
+    assert proc.stderr.count("\n") == 1 and str(path) in proc.stderr, proc.stderr

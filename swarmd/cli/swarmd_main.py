@@ -105,6 +105,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
             config.bundle.trusted_key,
             expected_sha256=config.bundle.expected_sha256,
             allow_dev=config.bundle.allow_dev,
+            # read through the folders just judged (safeopen: swapped since: refused)
+            trusted_owners=user.own_uid if user else frozenset(),
         )
     except BundleError as exc:
         return _fail(f"bundle rejected: {exc}", EX_CONFIG)
