@@ -41,6 +41,7 @@ from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS, MAX_SEEN_OUTCOMES
 from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResult
 from swarmd.exitcodes import EX_CONFIG
 from swarmd.px4.provision import SigningKeyError, signing_key_for
+from swarmd.px4.signing import px4_key_file
 from swarmd.swarm import statefile
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
 from swarmd.swarm.statefile import NodeState, StateDirError, boot, state_path
@@ -387,7 +388,9 @@ def test_the_key_caps_are_far_above_the_real_keys(tmp_path: Path) -> None:
     print(f"node.key: {len(node_key)} bytes, cap {safeopen.NODE_KEY_CAP}")
     assert len(node_key) * 100 < safeopen.NODE_KEY_CAP
     assert len(str(2**32 - 1)) + 1 <= 11 < safeopen.EPOCH_CAP
-    assert 65 * 100 < safeopen.SIGNING_KEY_CAP
+    px4_key = px4_key_file(bytes(32), 2**64 - 1)  # what 'swarmctl px4 key --out' writes
+    print(f"px4 key file: {len(px4_key)} bytes (as hex: 65), cap {safeopen.SIGNING_KEY_CAP}")
+    assert max(len(px4_key), 65) * 100 < safeopen.SIGNING_KEY_CAP
 
 
 def test_a_symlinked_folder_is_followed_only_from_a_folder_others_cannot_write(

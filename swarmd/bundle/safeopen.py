@@ -53,7 +53,7 @@ TEMP_TOKEN_BYTES: Final = 8
 # wrong file (a disk image, a sparse file of terabytes) never fills the memory.
 NODE_KEY_CAP: Final = 64 * 1024  # two PKCS#8 PEM blocks: 238 bytes (test_safeopen_attacks)
 EPOCH_CAP: Final = 4096  # one decimal u32 and a newline: at most 11 bytes
-SIGNING_KEY_CAP: Final = 64 * 1024  # 64 hex digits and a newline: 65 bytes
+SIGNING_KEY_CAP: Final = 64 * 1024  # PX4's key file: 40 bytes; 64 hex digits + newline: 65
 # executed ids, outcomes and decisions at their caps with the longest strings: under 2 MiB
 # (test_safeopen_attacks.py::test_the_largest_state_file_is_far_under_its_cap)
 STATE_FILE_CAP: Final = 16 * 1024 * 1024

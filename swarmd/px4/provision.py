@@ -96,7 +96,7 @@ def _read_signing_key(key_file: str, also: frozenset[int]) -> bytes:
         raise SigningKeyError(f"{where}: {exc.strerror}; fix: {TRUSTED_FIX}") from None
     except TooLarge:
         raise SigningKeyError(
-            f"{where}: over {SIGNING_KEY_CAP} bytes, not a key (65 bytes); fix: {fix}"
+            f"{where}: over {SIGNING_KEY_CAP} bytes, not a key (40 bytes, 65 as hex); fix: {fix}"
         ) from None
     except OSError as exc:
         raise SigningKeyError(f"{where}: cannot read ({unreadable_why(exc)}); fix: {fix}") from None
