@@ -35,7 +35,9 @@ from swarmd.bundle.errors import BundleError
 from swarmd.bundle.floor import FloorError, floor_path
 from swarmd.bundle.keys import dev_node_keys
 from swarmd.bundle.model import Bundle
+from swarmd.cli.swarmd_main import main as swarmd_main
 from swarmd.config import BundleConfig, DaemonConfig
+from swarmd.config import model as config_model
 from swarmd.daemon_setup import NodeSecretsError, load_node_secrets
 from swarmd.dataplane.ledger import MAX_EXECUTED_COMMANDS, MAX_SEEN_OUTCOMES
 from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResult
@@ -414,16 +416,17 @@ def test_a_symlinked_folder_is_followed_only_from_a_folder_others_cannot_write(
     assert "\n" not in line and str(shared / "swarmd") in line and "bundle.node_key" in line
 
 
-@pytest.mark.parametrize("which", ["bundle", "trusted_key"])
-def test_a_fifo_at_the_bundle_or_its_key_is_refused_by_check_config(
+@pytest.mark.parametrize("which", ["bundle", "trusted_key", "config"])
+def test_a_fifo_at_the_bundle_its_key_or_the_config_is_refused_by_check_config(
     workdir: Path, which: str
 ) -> None:
-    """The bundle and the swarm key, a FIFO at either name in a root folder (the path
-    checks pass: root's, mode 0644): on main ``check-config`` waited on the open until the
-    test's bound killed it. Now both are read through their judged folder: one line, 78."""
+    """The bundle, the swarm key or the config, a FIFO at its name in a root folder (the
+    path checks pass: root's, mode 0644): on main ``check-config`` waited on the open until
+    the test's bound killed it. Now each is opened ``O_NONBLOCK`` and must be a regular
+    file (the bundle and key through their judged folder): one line, 78."""
     files = write_bundle(workdir / "etc", 2, domain_id=0)
     config = loopback_config(workdir, files)
-    path = files.path if which == "bundle" else files.trusted_key
+    path = {"bundle": files.path, "trusted_key": files.trusted_key, "config": config}[which]
     path.unlink()
     os.mkfifo(path, 0o644)
     try:
@@ -439,3 +442,41 @@ def test_a_fifo_at_the_bundle_or_its_key_is_refused_by_check_config(
         pytest.fail("check-config waited on the FIFO")
     assert proc.returncode == EX_CONFIG, proc.stderr
     assert proc.stderr.count("\n") == 1 and str(path) in proc.stderr, proc.stderr
+
+
+@needs_root
+def test_a_config_swapped_between_its_read_and_its_check_is_refused(
+    parent: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The config is read, then judged by path: nobody, who may rename entries in the
+    config folder's parent, has their own folder there when the daemon reads (their
+    config: node uav2) and the real one back when it checks. On main ``check-config``
+    said ok for uav2. Now the file read is judged (its ``fstat`` at the read)."""
+    files = write_bundle(parent.parent / "bundle", 2, domain_id=0)
+    real = parent / "etc"
+    real.mkdir(mode=0o755)
+    config = loopback_config(real, files)
+    text = config.read_text()
+    theirs_text = text.replace("node: uav1", "node: uav2")
+    assert theirs_text != text
+    theirs = parent / "theirs"
+    as_nobody(PLANT, str(theirs), config.name, theirs_text)
+    os.chmod(theirs, 0o755)  # noqa: S103 - nobody's own folder, readable as /etc/swarmd is
+    aside = parent / "aside"
+    as_nobody(SWAP, str(real), str(aside), str(theirs))  # theirs at the config's path
+    real_check: Callable[..., Any] = config_model.trust_problem
+    swapped: list[bool] = []
+
+    def swap_back_then_check(path: Any, also: frozenset[int] = frozenset()) -> Any:
+        if not swapped:  # the config was read; the real folder is back for its check
+            swapped.append(True)
+            as_nobody(SWAP, str(real), str(theirs), str(aside))
+        return real_check(path, also)
+
+    monkeypatch.setattr(config_model, "trust_problem", swap_back_then_check)
+    code = swarmd_main(["check-config", "--config", str(config)])
+    out, err = capsys.readouterr()
+    assert swapped
+    assert "uav2" not in out
+    assert code == EX_CONFIG, (out, err)
+    assert err.count("\n") == 1 and str(config) in err
