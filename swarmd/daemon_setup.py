@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import pathlib
 import socket
 import stat
 import struct
@@ -20,7 +21,16 @@ from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.bundle.errors import BundleError, KeyFileError
 from swarmd.bundle.floor import FloorError, FloorResult, FloorWriteError, serial_of
 from swarmd.bundle.floor import enforce as enforce_floor
+from swarmd.bundle.keys import parse_node_keys
 from swarmd.bundle.model import Bundle
+from swarmd.bundle.safeopen import (
+    NODE_KEY_CAP,
+    TRUSTED_FIX,
+    SharedFolder,
+    TooLarge,
+    read_trusted,
+    unreadable_why,
+)
 from swarmd.config import DaemonConfig, Px4Section
 from swarmd.discovery.config import EngineConfig
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, StartupError
@@ -45,27 +55,25 @@ class NodeSecretsError(ValueError):
     """node.key is missing, of the old format, or not this node's; ``str()`` is one line."""
 
 
-def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
+def load_node_secrets(
+    config: DaemonConfig, bundle: Bundle, also: frozenset[int] = frozenset()
+) -> NodeSecrets:
     """This node's private keys: ``bundle.node_key`` (default node.key beside the bundle).
 
     A dev bundle without a node key uses the publicly derivable dev keys, so
     ``--unsigned-dev`` labs need no key files; a signed bundle always needs the file. The
-    keys must be the ones the bundle lists for ``config.node``. Raises ``NodeSecretsError``.
+    keys must be the ones the bundle lists for ``config.node``. ``also``: the daemon's uid
+    when ``check-config`` judges for the unit's user. Raises ``NodeSecretsError``.
     """
     path = config.bundle.node_key_path
     if bundle.dev and config.bundle.node_key is None and not os.path.exists(path):
         secrets = NodeSecrets.dev(bundle.swarm, config.node)
     else:
-        refuse_shared_secret(path)
         try:
-            secrets = NodeSecrets.load(path)
+            keys = parse_node_keys(read_node_key(path, also), path)
         except KeyFileError as exc:
-            if exc.problem == "key file not found":
-                raise NodeSecretsError(
-                    f"{path}: node key not found; fix: flash this node with "
-                    "'swarmctl bundle flash BUNDLE --node NAME --keys DIR' (or set bundle.node_key)"
-                ) from None
             raise NodeSecretsError(str(exc)) from None
+        secrets = NodeSecrets(keys.ed25519, keys.x25519)
     try:
         KeyRing.from_bundle(bundle, config.node, secrets)
     except NodeKeyMismatch as exc:
@@ -73,6 +81,36 @@ def load_node_secrets(config: DaemonConfig, bundle: Bundle) -> NodeSecrets:
     except KeyError:
         pass  # a node outside the bundle is reported by the node check, naming its line
     return secrets
+
+
+def read_node_key(path: str, also: frozenset[int] = frozenset()) -> bytes:
+    """node.key's bytes, read through its folder's descriptor (``safeopen``): the folder
+    judged on it (``check_trusted_files``' rule, so a folder swapped since that check is
+    refused), the file a regular one of a trusted owner, private (``refuse_shared_secret``
+    on its ``fstat``), at most ``NODE_KEY_CAP`` bytes. Raises ``NodeSecretsError``."""
+    flash = (
+        "flash this node with 'swarmctl bundle flash BUNDLE --node NAME --keys DIR' "
+        "(or set bundle.node_key)"
+    )
+    try:
+        return read_trusted(
+            pathlib.Path(os.path.abspath(path)),
+            NODE_KEY_CAP,
+            also=also,
+            judge=lambda info: refuse_shared_secret(path, info),
+        )
+    except FileNotFoundError:
+        raise NodeSecretsError(f"{path}: node key not found; fix: {flash}") from None
+    except SharedFolder as exc:
+        raise NodeSecretsError(f"{path}: {exc.strerror}; fix: {TRUSTED_FIX}") from None
+    except TooLarge:
+        raise NodeSecretsError(
+            f"{path}: over {NODE_KEY_CAP} bytes, not a node key (238 bytes); fix: {flash}"
+        ) from None
+    except OSError as exc:
+        raise NodeSecretsError(
+            f"{path}: cannot read the node key ({unreadable_why(exc)}); fix: {flash}"
+        ) from None
 
 
 def enforce_bundle_floor(config: DaemonConfig, bundle: Bundle, *, commit: bool) -> FloorResult:
@@ -121,19 +159,15 @@ def raise_bundle_floor(config: DaemonConfig, bundle: Bundle, log: Any) -> None:
         )
 
 
-def refuse_shared_secret(path: str) -> None:
+def refuse_shared_secret(path: str, info: os.stat_result) -> None:
     """Like ssh with a private key: a node.key other users may read is refused.
 
     Whoever reads it can sign SPDP and user data as this drone and derive its MAVLink
-    signing key (docs/security.md). Raises ``NodeSecretsError`` naming file, mode and fix;
-    a missing file is left to the loader's own message."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return
-    if st.st_mode & 0o077:
+    signing key (docs/security.md). ``info``: the file's ``fstat`` (``read_node_key``).
+    Raises ``NodeSecretsError`` naming file, mode and fix."""
+    if info.st_mode & 0o077:
         raise NodeSecretsError(
-            f"{path}: mode {stat.S_IMODE(st.st_mode):04o} lets other users read this node's "
+            f"{path}: mode {stat.S_IMODE(info.st_mode):04o} lets other users read this node's "
             f"private keys; fix: chmod 600 {path} (owner swarmd)"
         )
 

@@ -24,6 +24,7 @@ import os
 import socket
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any, Final, assert_never
 
 from swarmd.auth.keys import NodeSecrets
@@ -45,7 +46,7 @@ from swarmd.px4.transport import (
     unprivileged_port_start,
 )
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
-from swarmd.px4.xrce_key import XrceKeyError
+from swarmd.px4.xrce_key import XrceKey, XrceKeyError
 from swarmd.px4.xrce_key import check as check_xrce_key
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
 from swarmd.swarm import issuer
@@ -207,7 +208,7 @@ class SwarmApp:
         ``start`` would log as a warning and go on (a state file it would replace)."""
         notes: list[str] = []
         if self.config.px4.enabled:
-            self._px4_bridge(write=False)
+            self._px4_bridge(write=False, user=user)
         if self.config.dataplane.enabled:
             state = self._state(lambda d, n: preview(d, n, user))
             if state.recovered_from:
@@ -217,7 +218,7 @@ class SwarmApp:
             self._make_plane(state)
         return notes
 
-    def _px4_bridge(self, *, write: bool) -> Px4Bridge:
+    def _px4_bridge(self, *, write: bool, user: DaemonUser | None = None) -> Px4Bridge:
         """The PX4 bridge of the config, built and not started; ``write``: an XRCE agent's
         key file is generated (or its mode fixed) when it must be, else only read."""
         px4 = self.config.px4
@@ -240,10 +241,12 @@ class SwarmApp:
                     node=self.me.name,
                     key_file=px4.signing_key,
                     seed=seed,
+                    also=user.own_uid if user else frozenset(),
                 )
             except SigningKeyError as exc:
                 raise StartupError(str(exc), EX_CONFIG) from None
-        xrce_key = self._xrce_key(write=write) if px4.backend == "xrce-agent" else px4.xrce_key
+        xrce = px4.backend == "xrce-agent"
+        xrce_key = self._xrce_key(write=write, user=user) if xrce else px4.xrce_key
         try:
             return Px4Bridge.from_config(
                 Px4Config(
@@ -269,7 +272,7 @@ class SwarmApp:
         except ValueError as exc:
             raise StartupError(f"px4.connection {px4.connection}: {exc}", EX_OSERR) from None
 
-    def _xrce_key(self, *, write: bool) -> int | None:
+    def _xrce_key(self, *, write: bool, user: DaemonUser | None = None) -> int | None:
         """The vehicle key the XRCE agent is bound to: ``px4.xrce_key``, else the one kept
         with the node's secrets, generated at the first start (docs/px4.md, "One agent, one
         vehicle"). ``write=False``: the file read only, None when there is none yet."""
@@ -279,8 +282,13 @@ class SwarmApp:
                 self.log.info("xrce_key", source="px4.xrce_key")
             return configured
         folder = os.path.dirname(os.path.abspath(self.config.bundle.node_key_path))
+        key: XrceKey | None
         try:
-            key = load_or_create_xrce_key(folder) if write else check_xrce_key(folder)
+            if write:
+                key = load_or_create_xrce_key(folder)
+            else:  # check-config: the folder's owners as the daemon's user sees them
+                owners = user.trusted_owners(Path(folder)) if user else frozenset()
+                key = check_xrce_key(folder, owners)
         except XrceKeyError as exc:
             raise StartupError(f"px4.xrce_key: {exc}", EX_CANTCREAT) from None
         if key is None or not write:

@@ -6,6 +6,9 @@ Shared by the mission checker (``swarmd.bundle.mission``) and the daemon config
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -59,9 +62,30 @@ def read_text(
     path: str | Path, error: type[FieldError], *, missing_fix: str, what: str = "file"
 ) -> str:
     """The file's text, or ``error`` saying why it cannot be read."""
+    return _read(path, error, missing_fix=missing_fix, what=what, regular=False)[0]
+
+
+def read_regular_text(
+    path: str | Path, error: type[FieldError], *, missing_fix: str, what: str = "file"
+) -> tuple[str, os.stat_result]:
+    """``read_text`` of a regular file only, opened ``O_NONBLOCK`` (a FIFO never holds the
+    reader), and the ``fstat`` of what was read: the daemon's config, judged afterwards
+    on this very file (``DaemonConfig.check_trusted_files``), not on whatever its path
+    names by then (docs/security.md, the local user)."""
+    return _read(path, error, missing_fix=missing_fix, what=what, regular=True)
+
+
+def _read(
+    path: str | Path, error: type[FieldError], *, missing_fix: str, what: str, regular: bool
+) -> tuple[str, os.stat_result]:
     file = str(path)
+    flags = os.O_RDONLY | os.O_CLOEXEC | (os.O_NONBLOCK if regular else 0)
     try:
-        with open(path, "rb") as f:
+        fd = os.open(path, flags)
+        with open(fd, "rb") as f:
+            info = os.fstat(fd)
+            if regular and not stat.S_ISREG(info.st_mode):
+                raise OSError(errno.EINVAL, "not a regular file")
             raw = f.read(MAX_FILE_BYTES + 1)  # bounded: a path may name /dev/zero
         if len(raw) > MAX_FILE_BYTES:
             raise error(
@@ -71,7 +95,7 @@ def read_text(
                 f"{what} larger than {MAX_FILE_BYTES // (1024 * 1024)} MiB",
                 "give the right file",
             )
-        return raw.decode("utf-8")
+        return raw.decode("utf-8"), info
     except FileNotFoundError:
         raise error(file, None, "-", f"{what} not found", missing_fix) from None
     except UnicodeDecodeError as exc:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -31,6 +32,22 @@ BIN = Path(sys.executable).parent  # the venv's console scripts (swarmd, swarmd-
 SWARMD = str(BIN / "swarmd")
 REPO = Path(__file__).resolve().parent.parent
 SWARM3 = REPO / "firmware_bundle" / "missions" / "swarm3.yaml"  # the 3-node dev mission
+
+
+NOBODY = 65534  # the local user the attack tests act as (root runs them)
+SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
+
+
+def as_nobody(script: str, *args: str) -> None:
+    """Run a Python ``script`` as user nobody (no groups): another local user's act."""
+    subprocess.run(
+        [SYSTEM_PYTHON, "-c", script, *args],
+        user=NOBODY,
+        group=NOBODY,
+        extra_groups=[],
+        timeout=60,
+        check=True,
+    )
 
 
 def bundle_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

@@ -1,5 +1,5 @@
 """The state file under ``kill -9`` at each step of its atomic write (``statefile.py``,
-``bundle.keys.write_file_atomic``: temporary file, fsync, rename, fsync of the folder;
+``bundle.safeopen.write_atomic``: temporary file, fsync, rename, fsync of the folder;
 session 12 review).
 
 The executed ids are written before the vehicle moves (docs/dataplane.md, "Exactly once"
@@ -24,19 +24,18 @@ from swarmd.swarm import statefile
 CHILD = """
 import os, signal, sys
 from pathlib import Path
-import swarmd.bundle.keys as keys
+import swarmd.bundle.safeopen as safeopen
 from swarmd.swarm import statefile
 
 step = sys.argv[2]
 def die(*args, **kwargs):
     os.kill(os.getpid(), signal.SIGKILL)
-real_fsync, real_replace, real_fsync_dir = os.fsync, os.replace, keys.fsync_dir
 if step == "fsync":
     os.fsync = die
 elif step == "rename":
-    os.replace = die
+    os.rename = die  # safeopen.write_atomic: renameat through the folder's descriptor
 elif step == "dir":
-    keys.fsync_dir = die
+    safeopen.sync_folder = die
 state = statefile.load(Path(sys.argv[1]))
 state.executed.append(("lead", 2))
 state.save()

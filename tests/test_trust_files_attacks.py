@@ -13,18 +13,22 @@ naming it, the config field and the fix (exit 78), before trusting anything read
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from swarmd.exitcodes import EX_CONFIG
-from tests.daemon_support import SWARMD, BundleFiles, clean_env, loopback_config, write_bundle
-
-SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin") or sys.executable
-NOBODY = 65534
+from tests.daemon_support import (
+    NOBODY,
+    SWARMD,
+    SYSTEM_PYTHON,
+    BundleFiles,
+    as_nobody,
+    clean_env,
+    loopback_config,
+    write_bundle,
+)
 
 
 def _check_config(config: Path, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
@@ -126,17 +130,6 @@ def _nobodys_folder(workdir: Path) -> Path:
     return folder
 
 
-def _as_nobody(script: str, *args: str) -> None:
-    subprocess.run(
-        [SYSTEM_PYTHON, "-c", script, *args],
-        user=NOBODY,
-        group=NOBODY,
-        extra_groups=[],
-        timeout=60,
-        check=True,
-    )
-
-
 @pytest.mark.skipif(os.geteuid() != 0, reason="needs root to act as another local user")
 @pytest.mark.parametrize("where", ["in-their-folder", "their-file-in-a-root-folder"])
 def test_a_px4_signing_key_another_user_wrote_is_refused(
@@ -153,7 +146,7 @@ def test_a_px4_signing_key_another_user_wrote_is_refused(
     if where != "in-their-folder":
         key.touch(mode=0o600)
         os.chown(key, NOBODY, NOBODY)
-    _as_nobody(
+    as_nobody(
         "import os, sys\n"
         "fd = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)\n"
         "os.write(fd, b'ab' * 32 + b'\\n')\n",
@@ -179,7 +172,7 @@ def test_a_node_key_fifo_in_another_users_folder_is_refused_not_waited_on(
     before anything in it is opened."""
     folder = _nobodys_folder(workdir)
     node_key = folder / "node.key"
-    _as_nobody("import os, sys\nos.mkfifo(sys.argv[1], 0o600)\n", str(node_key))
+    as_nobody("import os, sys\nos.mkfifo(sys.argv[1], 0o600)\n", str(node_key))
     config = _with_node_key(loopback_config(workdir, files), node_key)
     try:
         proc = _check_config(config, timeout_s=15.0)

@@ -24,12 +24,22 @@ is passed in, so the module imports no clock.
 
 from __future__ import annotations
 
+import errno
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
 from swarmd.auth.freshness import U32_MAX
-from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
+from swarmd.bundle.keys import node_state_path, open_state_dir, refuse_shared_dir
+from swarmd.bundle.safeopen import (
+    EPOCH_CAP,
+    Folder,
+    held,
+    open_folder,
+    read_file,
+    unreadable_why,
+    write_atomic,
+)
 from swarmd.bundle.statedir import DaemonUser, refuse_unwritable_dir
 
 FILE_PATTERN: Final = "auth-epoch-{node}"
@@ -51,14 +61,29 @@ def epoch_path(state_dir: str | Path, node: str) -> Path:
     return node_state_path(state_dir, FILE_PATTERN, node)
 
 
-def read_epoch(path: Path) -> tuple[int | None, str | None]:
-    """(stored value, problem): (None, None) for a missing file."""
+def read_epoch(
+    path: Path, folder: Folder | None = None, also: frozenset[int] = frozenset()
+) -> tuple[int | None, str | None]:
+    """(stored value, problem): (None, None) for a missing file. ``folder``: ``path``'s
+    folder as judged (``safeopen``: the file is read through it, never by path; None:
+    opened here); ``also``: its owners trusted beside root and swarmd. A symlink, a FIFO,
+    a file of another owner or one over ``EPOCH_CAP`` is unreadable: the epoch then comes
+    from the clock, and the next write replaces it."""
+    opened = folder if folder is not None else open_folder(path.parent)
+    if opened is None:
+        return None, None
     try:
-        text = path.read_text(encoding="ascii")
+        raw = read_file(opened, path.name, EPOCH_CAP, also=also)
+        text = raw.decode("ascii")
     except FileNotFoundError:
         return None, None
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
+        return None, f"unreadable ({unreadable_why(exc)})"
+    except UnicodeDecodeError as exc:
         return None, f"unreadable ({exc})"
+    finally:
+        if folder is None:
+            opened.close()
     try:
         value = int(text.strip())
     except ValueError:
@@ -78,11 +103,21 @@ def plan_epoch(
 
     Raises ``EpochError``; writes nothing."""
     directory = Path(state_dir)
+    with held(open_state_dir(directory, "bundle.node_key", EpochError)) as folder:
+        return _plan(folder, directory, node, wallclock_s, user)
+
+
+def _plan(
+    folder: Folder | None, directory: Path, node: str, wallclock_s: float, user: DaemonUser
+) -> EpochResult:
+    """``plan_epoch`` in the opened ``folder`` (None: not there yet): judged on its
+    descriptor, the stored epoch read through it (``safeopen``)."""
     # the epoch lives beside node.key: a folder others can write could hold a planted one
-    refuse_shared_dir(directory, "bundle.node_key", EpochError, user.trusted_owners(directory))
+    owners = user.trusted_owners(directory)
+    refuse_shared_dir(folder, "bundle.node_key", EpochError, owners)
     refuse_unwritable_dir(directory, "bundle.node_key", EpochError, user)
     path = epoch_path(directory, node)
-    stored, problem = read_epoch(path)
+    stored, problem = read_epoch(path, folder, owners) if folder is not None else (None, None)
     if stored is not None and stored >= U32_MAX:
         raise EpochError(
             f"{path}: boot epoch exhausted (2^32 - 1); fix: rotate this node's keys "
@@ -99,17 +134,29 @@ def next_epoch(
     state_dir: str | Path, node: str, wallclock_s: float, user: DaemonUser | None = None
 ) -> EpochResult:
     """Raise this node's epoch and make it durable before returning it; ``user``: whose
-    writes are judged (None: this process's).
+    writes are judged (None: this process's). The folder is judged, the stored epoch read
+    and the new one written through one descriptor (``safeopen``).
 
     Raises ``EpochError`` when the directory cannot be written or the epoch is exhausted."""
     judged = user if user is not None else DaemonUser.this_process()
-    planned = plan_epoch(state_dir, node, wallclock_s, judged)
+    planned = plan_epoch(state_dir, node, wallclock_s, judged)  # refusals before any write
+    directory = Path(state_dir)
     try:
-        planned.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
-        # fsync file and folder
-        write_file_atomic(planned.path, f"{planned.epoch}\n".encode("ascii"), 0o644)
+        directory.mkdir(parents=True, exist_ok=True, mode=0o750)
     except OSError as exc:
         raise EpochError(
             f"cannot persist the boot epoch in {planned.path}: {exc.strerror}"
         ) from None
+    with held(open_state_dir(directory, "bundle.node_key", EpochError)) as folder:
+        # judged again on the descriptor written through: the folder may be new, or swapped
+        planned = _plan(folder, directory, node, wallclock_s, judged)
+        try:
+            if folder is None:
+                raise FileNotFoundError(errno.ENOENT, "No such file or directory")
+            # fsync file and folder
+            write_atomic(folder, planned.path.name, f"{planned.epoch}\n".encode("ascii"), 0o644)
+        except OSError as exc:
+            raise EpochError(
+                f"cannot persist the boot epoch in {planned.path}: {exc.strerror}"
+            ) from None
     return planned

@@ -33,6 +33,13 @@ from typing import Final
 
 from swarmd.auth.freshness import U32_MAX, Freshness
 from swarmd.bundle.keys import node_state_path, write_file_atomic
+from swarmd.bundle.safeopen import (
+    TooLarge,
+    open_folder,
+    read_file,
+    unreadable_why,
+    writers_problem,
+)
 
 FILE_PATTERN: Final = "auth-windows-{node}"
 # how often a moved window is written: an fsync every few seconds at most on an SD card
@@ -79,16 +86,29 @@ def decode_windows(data: bytes) -> LoadedWindows:
 
 
 def load_windows(path: Path) -> LoadedWindows:
-    """The persisted highs; empty (problem None) for a missing file."""
+    """The persisted highs; empty (problem None) for a missing file. Read through its
+    folder's descriptor (``swarmd.bundle.safeopen``): the folder judged on it (one another
+    user could write, or swapped in since the epoch's check, is not read), the file a
+    regular one of a trusted owner (a FIFO never blocks the start), at most
+    ``MAX_FILE_BYTES``."""
     try:
-        with path.open("rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
-    except FileNotFoundError:
-        return LoadedWindows({}, None)
+        folder = open_folder(path.parent)
     except OSError as exc:
-        return LoadedWindows({}, f"unreadable ({exc.strerror})")
-    if len(data) > MAX_FILE_BYTES:
-        return LoadedWindows({}, f"larger than {MAX_FILE_BYTES} octets")
+        return LoadedWindows({}, f"unreadable ({unreadable_why(exc)})")
+    if folder is None:
+        return LoadedWindows({}, None)
+    with folder:
+        why = writers_problem(folder.info)
+        if why is not None:
+            return LoadedWindows({}, f"not read: folder {path.parent} is {why}")
+        try:
+            data = read_file(folder, path.name, MAX_FILE_BYTES)
+        except FileNotFoundError:
+            return LoadedWindows({}, None)
+        except TooLarge:
+            return LoadedWindows({}, f"larger than {MAX_FILE_BYTES} octets")
+        except OSError as exc:
+            return LoadedWindows({}, f"unreadable ({unreadable_why(exc)})")
     return decode_windows(data)
 
 

@@ -11,9 +11,10 @@ highest one it accepted, with that bundle's content hash, in one small file per 
 
 in the folder of node.key (``bundle.node_key``; ``/var/lib/swarmd`` on a drone, the state
 directory), beside the boot epoch (``swarmd.auth.epoch``), under the state file's rules:
-the folder must be writable by this daemon's user alone (checked before reading), the file
-is read ``O_NOFOLLOW | O_NONBLOCK`` and only as a regular file, writes are atomic with a
-random ``O_EXCL | O_NOFOLLOW`` temp name (``keys.write_file_atomic``).
+the folder must be writable by this daemon's user alone, judged on the descriptor the file
+is then read and written through (``swarmd.bundle.safeopen``: no check-then-open race); the
+file is read ``O_NOFOLLOW | O_NONBLOCK``, only as a regular file of a trusted owner, at most
+``MAX_FLOOR_BYTES``; writes are atomic with a random ``O_EXCL | O_NOFOLLOW`` temp name.
 
 At start-up, before anything is sent (``check``):
 
@@ -40,16 +41,22 @@ from __future__ import annotations
 
 import errno
 import json
-import os
 import re
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
 from swarmd.bundle.errors import BundleError, FileProblem
-from swarmd.bundle.keys import node_state_path, refuse_shared_dir, write_file_atomic
+from swarmd.bundle.keys import node_state_path, open_state_dir, refuse_shared_dir
 from swarmd.bundle.model import SERIAL_MAX, Bundle
+from swarmd.bundle.safeopen import (
+    Folder,
+    held,
+    open_folder,
+    read_file,
+    unreadable_why,
+    write_atomic,
+)
 
 FILE_PREFIX: Final = "bundle-floor-"
 FILE_PATTERN: Final = FILE_PREFIX + "{node}"
@@ -83,16 +90,24 @@ def serial_of(bundle: Bundle) -> int:
     return LEGACY_SERIAL if bundle.serial is None else bundle.serial
 
 
-def read_floor(path: Path, bundle_source: str) -> Floor | None:
+def read_floor(path: Path, bundle_source: str, folder: Folder | None = None) -> Floor | None:
     """The floor at ``path``; None when there is none. ``FloorError`` when it does not parse
-    (``bundle_source`` names the bundle in the fix)."""
+    (``bundle_source`` names the bundle in the fix). ``folder``: ``path``'s folder as judged
+    (``safeopen``: read through it, never by path; None: opened here)."""
+    opened = folder if folder is not None else open_folder(path.parent)
+    if opened is None:
+        return None
     try:
-        raw = _read_regular(path)
+        # never through a symlink (a link to a lower floor elsewhere would lower it), never
+        # blocking (a FIFO would hang start-up with no line saying why): safeopen.read_file
+        raw = read_file(opened, path.name, MAX_FLOOR_BYTES)
     except FileNotFoundError:
         return None
     except OSError as exc:
-        why = "a symlink, not a file" if exc.errno == errno.ELOOP else exc.strerror
-        raise _corrupt(path, bundle_source, f"unreadable ({why})") from None
+        raise _corrupt(path, bundle_source, f"unreadable ({unreadable_why(exc)})") from None
+    finally:
+        if folder is None:
+            opened.close()
     return parse_floor(raw, path, bundle_source)
 
 
@@ -113,22 +128,6 @@ def parse_floor(raw: bytes, path: Path, bundle_source: str) -> Floor:
     except (ValueError, KeyError, TypeError) as exc:  # json's errors are ValueErrors
         raise _corrupt(path, bundle_source, f"corrupt ({type(exc).__name__}: {exc})") from None
     return Floor(serial, bytes.fromhex(sha))
-
-
-def _read_regular(path: Path) -> bytes:
-    """At most ``MAX_FLOOR_BYTES + 1`` bytes of the regular file at ``path``, under the
-    state file's rules (``swarmd.px4.xrce_key`` reads its key so):
-    never through a symlink (``O_NOFOLLOW``:
-    a link to a lower floor elsewhere would lower it) and never blocking (``O_NONBLOCK``: a
-    FIFO would hang start-up with no line saying why); anything but a regular file is an
-    ``OSError``."""
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise OSError(errno.EINVAL, "not a regular file")
-        return os.read(fd, MAX_FLOOR_BYTES + 1)
-    finally:
-        os.close(fd)
 
 
 def _corrupt(path: Path, bundle_source: str, why: str) -> FloorError:
@@ -170,13 +169,24 @@ def check(bundle: Bundle, floor: Floor | None, *, source: str, path: Path) -> bo
     return False  # the very bundle of the floor: a restart
 
 
-def raise_floor(path: Path, bundle: Bundle) -> None:
-    """Record ``bundle`` as the floor, atomically; ``FloorWriteError`` on failure."""
+def raise_floor(path: Path, bundle: Bundle, folder: Folder | None = None) -> None:
+    """Record ``bundle`` as the floor, atomically; ``FloorWriteError`` on failure.
+    ``folder``: ``path``'s folder as judged (written through it); None: created when
+    missing, opened and judged here."""
     body = {"serial": serial_of(bundle), "sha256": bundle.content_sha256.hex()}
     data = json.dumps(body, separators=(",", ":")).encode("ascii") + b"\n"
     try:
+        if folder is not None:
+            write_atomic(folder, path.name, data, FLOOR_FILE_MODE)
+            return
         path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
-        write_file_atomic(path, data, FLOOR_FILE_MODE)
+        with held(open_state_dir(path.parent, "bundle.node_key", FloorWriteError)) as made:
+            refuse_shared_dir(made, "bundle.node_key", FloorWriteError)
+            if made is None:
+                raise FileNotFoundError(errno.ENOENT, "No such file or directory")
+            write_atomic(made, path.name, data, FLOOR_FILE_MODE)
+    except FloorWriteError:
+        raise
     except OSError as exc:
         raise FloorWriteError(
             f"cannot persist the bundle floor in {path}: {exc.strerror}"
@@ -200,11 +210,13 @@ def enforce(
     Raises ``BundleError`` (refused: exit 78), ``FloorError`` (corrupt floor: exit 78),
     ``FloorWriteError`` (unsafe or unwritable folder: exit 73)."""
     directory = Path(state_dir)
-    # a folder others can write could hold a planted floor (or a planted low one)
-    refuse_shared_dir(directory, "bundle.node_key", FloorWriteError)
     path = floor_path(directory, node)
-    previous = read_floor(path, source)
-    raised = check(bundle, previous, source=source, path=path)
-    if raised and commit:
-        raise_floor(path, bundle)
+    # judged, read and written through one descriptor (safeopen: no check-then-open race)
+    with held(open_state_dir(directory, "bundle.node_key", FloorWriteError)) as folder:
+        # a folder others can write could hold a planted floor (or a planted low one)
+        refuse_shared_dir(folder, "bundle.node_key", FloorWriteError)
+        previous = read_floor(path, source, folder) if folder is not None else None
+        raised = check(bundle, previous, source=source, path=path)
+        if raised and commit:
+            raise_floor(path, bundle, folder)
     return FloorResult(path, previous, raised)

@@ -28,9 +28,7 @@ import contextlib
 import errno
 import hashlib
 import os
-import pwd
 import re
-import secrets
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,16 +40,21 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.asymmetric.x25519 import X25519PrivateKey, X25519PublicKey
 
 from swarmd.bundle.errors import KeyFileError
+from swarmd.bundle.safeopen import (
+    TEMP_TOKEN_BYTES,
+    Folder,
+    open_folder,
+    unreadable_why,
+    write_atomic,
+    writers_problem,
+)
 
 SIGNING_KEY_FILE: Final = "swarm-signing.key"
 SIGNING_PUB_FILE: Final = "swarm-signing.pub"
 NODES_DIR: Final = "nodes"
 PRIVATE_MODE: Final = 0o600
-SERVICE_USER: Final = "swarmd"  # systemd/swarmd.service's User=
 PUBLIC_MODE: Final = 0o644
 PUBLIC_KEY_BYTES: Final = 32
-# write_file_atomic's temporary name: ".<name>.tmp-" and this many random octets in hex
-TEMP_TOKEN_BYTES: Final = 8
 _DEV_DOMAIN: Final = b"swarmd insecure dev key v1|"
 _PEM_BLOCK: Final = re.compile(
     rb"-----BEGIN ([A-Z ]+)-----\r?\n.*?-----END \1-----\r?\n?", re.DOTALL
@@ -279,7 +282,8 @@ def _read(path: str | Path, fix: str) -> bytes:
 
 
 def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
-    """Write ``data`` to ``path`` via a same-directory temp file, fsync and rename.
+    """Write ``data`` to ``path`` via a same-directory temp file, fsync and rename
+    (``safeopen.write_atomic``, every step through one descriptor of the folder).
 
     The temp file is created with ``mode`` already set, so a private key is never readable
     by others, not even for the instant between create and chmod. Its name is random and
@@ -287,38 +291,18 @@ def write_file_atomic(path: Path, data: bytes, mode: int) -> None:
     ``.<name>.tmp-<pid>``) a symlink planted there by anyone who can write the folder made
     us truncate and overwrite what it pointed at (docs/security-history.md,
     "Local boundaries (session 10 review)"); now a planted name is never opened, only missed.
+    The folder is not judged here (the keygen's, the flasher's): the state files' writers
+    judge theirs first and write through ``safeopen.write_atomic`` with that descriptor.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
-    for _attempt in range(16):  # 2^64 names: a collision is a planted file, try another
-        tmp = temp_name(path)
-        try:
-            fd = os.open(tmp, flags, mode)
-            break
-        except FileExistsError:
-            continue
-    else:
-        raise FileExistsError(errno.EEXIST, "no free temporary name", str(path.parent))
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fchmod(f.fileno(), mode)  # O_CREAT's mode is masked by the umask
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
-    fsync_dir(path.parent)
+    folder = open_folder(path.parent, follow=True)
+    if folder is None:
+        raise FileNotFoundError(errno.ENOENT, "folder vanished", str(path.parent))
+    with folder:
+        write_atomic(folder, path.name, data, mode)
 
 
-def temp_name(path: Path) -> Path:
-    """A fresh temporary name beside ``path`` (``TEMP_NAME``): random, so never planted."""
-    return path.with_name(f".{path.name}.tmp-{secrets.token_hex(TEMP_TOKEN_BYTES)}")
-
-
-def remove_left_temps(path: Path) -> int:
+def remove_left_temps(path: Path, folder: Folder | None = None) -> int:
     """Remove the temporary files ``write_file_atomic`` left beside ``path`` when its
     process died mid-write (``kill -9``, a power cut: tests/test_cmd_state_kill.py), and
     return how many. Call it at start-up, before anything of this daemon writes ``path``.
@@ -326,25 +310,33 @@ def remove_left_temps(path: Path) -> int:
     Only this file's own temp names (``.<name>.tmp-<16 hex>``: another node's file and its
     writer, in a shared folder, are never touched), only regular files (``lstat``: a
     symlink or a folder of that name is left, never followed) owned by this process's
-    uid. The folder is writable by this daemon's user alone (``refuse_shared_dir``), so
-    nothing else can swap a name between the check and the unlink."""
+    uid. ``folder``: ``path``'s folder as its caller opened and judged it (None: opened
+    here), so the names listed and removed are in the folder judged (``safeopen``)."""
     pattern = re.compile(re.escape(f".{path.name}.tmp-") + f"[0-9a-f]{{{2 * TEMP_TOKEN_BYTES}}}")
+    opened = folder if folder is not None else open_folder(path.parent, follow=True)
+    if opened is None:
+        return 0
     removed = 0
     try:
-        entries = list(os.scandir(path.parent))
-    except FileNotFoundError:
-        return 0
-    for entry in entries:
-        if not pattern.fullmatch(entry.name):
-            continue
+        handle = opened.handle()
         try:
-            info = entry.stat(follow_symlinks=False)
-            if not stat.S_ISREG(info.st_mode) or info.st_uid != os.geteuid():
+            entries = list(os.scandir(handle))
+        finally:
+            os.close(handle)
+        for entry in entries:
+            if not pattern.fullmatch(entry.name):
                 continue
-            os.unlink(entry.path)
-        except FileNotFoundError:
-            continue
-        removed += 1
+            try:
+                info = os.stat(entry.name, dir_fd=opened.fd, follow_symlinks=False)
+                if not stat.S_ISREG(info.st_mode) or info.st_uid != os.geteuid():
+                    continue
+                os.unlink(entry.name, dir_fd=opened.fd)
+            except FileNotFoundError:
+                continue
+            removed += 1
+    finally:
+        if folder is None:
+            opened.close()
     return removed
 
 
@@ -359,27 +351,14 @@ def others_can_write(directory: Path, also: frozenset[int] = frozenset()) -> str
     that user plant a state file or a key the daemon believes (docs/security-history.md,
     "Local boundaries (session 10 review)"). Root owning it is fine (root is out of scope). A
     missing or unreachable path is not refused here: the caller creates it, as its own,
-    or fails to with its own one line.
+    or fails to with its own one line. By path: the state folders are judged on their
+    descriptor (``refuse_shared_dir``, ``safeopen.writers_problem``), the same rules.
     """
     try:
         st = os.stat(directory)
     except OSError:
         return None
-    if st.st_uid not in _trusted_owners() | also:
-        return f"owned by uid {st.st_uid}, not by root, swarmd or this daemon's user"
-    if st.st_mode & 0o022:
-        who = "others" if st.st_mode & 0o002 else "its group"
-        return f"writable by {who} (mode {st.st_mode & 0o7777:04o})"
-    return None
-
-
-def _trusted_owners() -> set[int]:
-    """Root, this process's user, and the service's user (``User=swarmd`` in
-    systemd/swarmd.service): root running the daemon by hand reads swarmd's flashed files."""
-    owners = {0, os.geteuid()}
-    with contextlib.suppress(KeyError):
-        owners.add(pwd.getpwnam(SERVICE_USER).pw_uid)
-    return owners
+    return writers_problem(st, also)
 
 
 # what may stay of a node name in a state file's name (the rest becomes "_"): a name is the
@@ -394,15 +373,32 @@ def node_state_path(state_dir: str | Path, pattern: str, node: str) -> Path:
     return Path(state_dir) / pattern.format(node=_STATE_NAME_UNSAFE.sub("_", node))
 
 
+def open_state_dir(directory: Path, field: str, error: type[OSError]) -> Folder | None:
+    """The state folder ``directory`` opened once (``safeopen.open_folder``: its last
+    component not followed), None when it does not exist yet; ``error`` (one line naming
+    the folder, ``field`` and the fix) when it cannot be opened as a folder. The caller
+    judges it (``refuse_shared_dir``) and reads and writes its files through it."""
+    try:
+        return open_folder(directory)
+    except OSError as exc:
+        raise error(
+            f"{directory} cannot be opened as a folder ({unreadable_why(exc)}), so swarmd's "
+            f"state cannot be judged there; fix: point {field} at a real folder only swarmd "
+            "writes (/var/lib/swarmd)"
+        ) from None
+
+
 def refuse_shared_dir(
-    directory: Path, field: str, error: type[OSError], also: frozenset[int] = frozenset()
+    folder: Folder | None, field: str, error: type[OSError], also: frozenset[int] = frozenset()
 ) -> None:
     """Raise ``error`` (one line naming the folder, the config field and the fix) when
-    another local user could write ``directory`` (``others_can_write``, ``also``)."""
-    why = others_can_write(directory, also)
-    if why is not None:
+    another local user could write ``folder`` (judged on its descriptor: the folder read and
+    written afterwards is this one, whatever its path names by then; ``writers_problem``,
+    ``also``). A folder that does not exist yet (None) is the caller's to create."""
+    why = None if folder is None else writers_problem(folder.info, also)
+    if folder is not None and why is not None:
         raise error(
-            f"{directory} is {why}, so another user could plant swarmd's state there; "
+            f"{folder.path} is {why}, so another user could plant swarmd's state there; "
             f"fix: chown it to swarmd and chmod 700 it, or point {field} at a folder "
             "only swarmd writes (/var/lib/swarmd)"
         )

@@ -39,7 +39,7 @@ from swarmd.bundle.encoding import (
     split,
 )
 from swarmd.bundle.errors import BundleError, KeyFileError
-from swarmd.bundle.keys import PUBLIC_KEY_BYTES, fingerprint, load_public_key
+from swarmd.bundle.keys import PUBLIC_KEY_BYTES, fingerprint, load_public_key, parse_public_key
 from swarmd.bundle.model import (
     SERIAL_MAX,
     Bundle,
@@ -58,6 +58,13 @@ from swarmd.bundle.model import (
     is_serial,
 )
 from swarmd.bundle.ros2 import graph_from_value
+from swarmd.bundle.safeopen import (
+    TRUSTED_FIX,
+    SharedFolder,
+    TooLarge,
+    read_trusted,
+    unreadable_why,
+)
 from swarmd.exitcodes import EX_CONFIG
 from swarmd.rtps.ports import metatraffic_unicast_port, user_unicast_port
 from swarmd.rtps.types import GuidPrefix
@@ -164,17 +171,28 @@ def load_bundle(
     *,
     expected_sha256: bytes | None = None,
     allow_dev: bool = False,
+    trusted_owners: frozenset[int] | None = None,
 ) -> Bundle:
     """Load and verify the bundle at ``path`` for the daemon.
 
     ``trusted_key`` is the swarm signing public key: raw 32 bytes, or the path of a PEM or
-    hex key file. Raises ``BundleError`` (one line) on any failure, never anything else for
-    bad file content.
+    hex key file. ``trusted_owners``: not None for the daemon (``swarmd run`` and
+    ``check-config``: the daemon's uid beside root and swarmd): both files are then read
+    through their folder's descriptor, the folder judged on it (``safeopen.read_trusted``:
+    a folder swapped in since ``check_trusted_files`` is refused, a FIFO or a symlink at
+    the name too). Raises ``BundleError`` (one line) on any failure, never anything else
+    for bad file content.
     """
     source = str(path)
     anchor: bytes | None
     if trusted_key is None or isinstance(trusted_key, bytes):
         anchor = trusted_key
+    elif trusted_owners is not None:
+        raw = _read_judged(Path(trusted_key), trusted_owners, "trusted key: ")
+        try:
+            anchor = parse_public_key(raw, str(trusted_key))
+        except KeyFileError as exc:
+            raise BundleError(exc.file, f"trusted key: {exc.problem}", exc.fix) from None
     else:
         try:
             anchor = load_public_key(trusted_key)
@@ -183,9 +201,12 @@ def load_bundle(
     if anchor is not None and len(anchor) != PUBLIC_KEY_BYTES:
         raise BundleError(source, "trusted key is not 32 bytes", "give an Ed25519 public key")
     try:
-        with open(path, "rb") as f:
-            # bounded: a wrong path (/dev/zero, a disk image) must not fill the memory
-            data = f.read(MAX_FILE_BYTES + 1)
+        if trusted_owners is not None:
+            data = _read_judged(Path(path), trusted_owners, "")
+        else:
+            with open(path, "rb") as f:
+                # bounded: a wrong path (/dev/zero, a disk image) must not fill the memory
+                data = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         raise BundleError(
             source, "bundle file not found", "flash one with 'swarmctl bundle flash'"
@@ -207,6 +228,26 @@ def load_bundle(
         expected_sha256=expected_sha256,
         allow_dev=allow_dev,
     )
+
+
+def _read_judged(path: Path, owners: frozenset[int], what: str) -> bytes:
+    """``path`` through its judged folder (``safeopen.read_trusted``), at most
+    ``MAX_FILE_BYTES``; a missing bundle is ``FileNotFoundError`` (the caller's line),
+    anything else a ``BundleError`` naming ``what`` ("trusted key: ", or "" the bundle)."""
+    try:
+        return read_trusted(path, MAX_FILE_BYTES, also=owners)
+    except FileNotFoundError:
+        if not what:
+            raise
+        problem, fix = f"{what}key file not found", "give the swarm's swarm-signing.pub"
+    except SharedFolder as exc:
+        problem, fix = f"{what}{exc.strerror}", TRUSTED_FIX
+    except TooLarge:
+        problem = f"{what}larger than a bundle can be ({MAX_FILE_BYTES} bytes)"
+        fix = "flash one with 'swarmctl bundle flash'"
+    except OSError as exc:
+        problem, fix = f"{what}cannot read: {unreadable_why(exc)}", "check path and permissions"
+    raise BundleError(str(path), problem, fix)
 
 
 def load_bundle_or_exit(

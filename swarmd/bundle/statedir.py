@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from swarmd.bundle.keys import SERVICE_USER
+from swarmd.bundle.safeopen import SERVICE_USER
 
 UNKNOWN_UID: Final = -1  # a DynamicUser= uid: allocated by systemd at each start
 

@@ -119,6 +119,8 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
             config.bundle.trusted_key,
             expected_sha256=config.bundle.expected_sha256,
             allow_dev=config.bundle.allow_dev,
+            # read through the folders just judged (safeopen: swapped since: refused)
+            trusted_owners=user.own_uid if user else frozenset(),
         )
     except BundleError as exc:
         return _fail(f"bundle rejected: {exc}", EX_CONFIG)
@@ -127,7 +129,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     except ConfigError as exc:
         return _fail(f"config rejected: {exc}", EX_CONFIG)
     try:
-        secrets = load_node_secrets(config, bundle)
+        secrets = load_node_secrets(config, bundle, user.own_uid if user else frozenset())
     except NodeSecretsError as exc:
         return _fail(f"node key rejected: {exc}", EX_CONFIG)
     # the anti-rollback floor (docs/security.md, "Bundle rollback"), read only: a refusal

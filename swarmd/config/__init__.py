@@ -14,6 +14,7 @@ files it names), ``reader`` (the field readers and each section's known fields),
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from swarmd.config.checker import Checker
@@ -37,7 +38,7 @@ from swarmd.config.model import (
     trust_problem,
 )
 from swarmd.config.reader import FIELDS as _FIELDS
-from swarmd.yamldoc import composed, read_text
+from swarmd.yamldoc import composed, read_regular_text
 
 __all__ = [
     "DEFAULT_BUNDLE",
@@ -70,10 +71,11 @@ def load_config(path: str | Path, *, engine_fields: frozenset[str] | None = None
     fields); None skips that check.
     """
     file = str(path)
-    text = read_text(
+    text, read = read_regular_text(
         path, ConfigError, missing_fix="give the path of swarmd.yaml", what="config file"
     )
-    return parse_config(text, file, base=Path(path).parent, engine_fields=engine_fields)
+    config = parse_config(text, file, base=Path(path).parent, engine_fields=engine_fields)
+    return replace(config, read_stat=read)  # judged by check_trusted_files: what was read
 
 
 def parse_config(

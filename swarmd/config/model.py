@@ -13,6 +13,7 @@ from typing import Final
 
 from swarmd.bundle.keys import others_can_write
 from swarmd.bundle.model import Bundle, NotAParticipant, Participant
+from swarmd.bundle.safeopen import writers_problem
 from swarmd.link import SourceName
 from swarmd.yamldoc import FieldError
 
@@ -140,6 +141,9 @@ class DaemonConfig:
     log_level: str = "info"
     log_format: str = "auto"
     lines: dict[str, int] = field(default_factory=dict, compare=False, repr=False)
+    # the fstat of the config file as load_config read it: check_trusted_files judges that
+    # very file, whatever its path names by then (a swap between read and check)
+    read_stat: os.stat_result | None = field(default=None, compare=False, repr=False)
 
     def error(self, path: str, problem: str, fix: str) -> ConfigError:
         """A ``ConfigError`` pointing at ``path``'s line (for checks made after loading)."""
@@ -153,6 +157,9 @@ class DaemonConfig:
         before any of them is trusted, or opened. ``also``: the daemon's uid when
         ``check-config`` judges for the unit's user."""
         problem = trust_problem(self.file, also)
+        if problem is None and self.read_stat is not None:
+            why = writers_problem(self.read_stat, also)
+            problem = None if why is None else f"file {self.file} (as read) is {why}"
         if problem is not None:
             raise ConfigError(
                 self.file,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import time
 from pathlib import Path
 from typing import Final
@@ -19,6 +20,14 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from swarmd.bundle.keys import load_node_keys
+from swarmd.bundle.safeopen import (
+    SIGNING_KEY_CAP,
+    TRUSTED_FIX,
+    SharedFolder,
+    TooLarge,
+    read_trusted,
+    unreadable_why,
+)
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import MavlinkCodec, SetupSigning
 from swarmd.px4.messages import Heartbeat
@@ -46,27 +55,51 @@ def node_secret(node_key: str | Path) -> bytes:
     return ed25519_seed(load_node_keys(node_key).ed25519)
 
 
-def signing_key_for(*, swarm: str, node: str, key_file: str | None, seed: bytes) -> bytes:
-    """The PX4 link key: ``key_file`` if set, else derived from the node's secret ``seed``."""
+def signing_key_for(
+    *,
+    swarm: str,
+    node: str,
+    key_file: str | None,
+    seed: bytes,
+    also: frozenset[int] = frozenset(),
+) -> bytes:
+    """The PX4 link key: ``key_file`` if set, else derived from the node's secret ``seed``.
+    ``also``: the daemon's uid when ``check-config`` judges for the unit's user."""
     if key_file is None:
         return derive_key(seed, swarm, node)
-    try:
-        mode = Path(key_file).stat().st_mode
-        data = Path(key_file).read_bytes()
-    except OSError as exc:
-        raise SigningKeyError(
-            f"px4.signing_key {key_file}: cannot read ({exc.strerror}); fix: give the file "
-            "'swarmctl px4 key' wrote, or drop the field to derive it from node.key"
-        ) from None
-    if mode & 0o077:  # whoever reads it can speak for swarmd to PX4 (like node.key: 0600)
-        raise SigningKeyError(
-            f"px4.signing_key {key_file}: mode {mode & 0o777:o} lets other users read the key; "
-            f"fix: chmod 600 {key_file}"
-        )
+    data = _read_signing_key(key_file, also)
     try:
         return parse_key_file(data, f"px4.signing_key {key_file}")
     except ValueError as exc:
         raise SigningKeyError(str(exc)) from None
+
+
+def _read_signing_key(key_file: str, also: frozenset[int]) -> bytes:
+    """The key file's bytes through its folder's descriptor (``swarmd.bundle.safeopen``):
+    the folder judged on it (``check_trusted_files``' rule: one swapped in since is
+    refused), the file a regular one of a trusted owner, never a symlink or a FIFO, private
+    (0600), at most ``SIGNING_KEY_CAP`` bytes. Raises ``SigningKeyError`` (one line)."""
+    where = f"px4.signing_key {key_file}"
+    fix = "give the file 'swarmctl px4 key' wrote, or drop the field to derive it from node.key"
+    path = Path(key_file)
+
+    def private(info: os.stat_result) -> None:
+        if info.st_mode & 0o077:  # whoever reads it speaks for swarmd to PX4 (like node.key)
+            raise SigningKeyError(
+                f"{where}: mode {info.st_mode & 0o777:o} lets other users read the key; "
+                f"fix: chmod 600 {key_file}"
+            )
+
+    try:
+        return read_trusted(path, SIGNING_KEY_CAP, also=also, judge=private)
+    except SharedFolder as exc:
+        raise SigningKeyError(f"{where}: {exc.strerror}; fix: {TRUSTED_FIX}") from None
+    except TooLarge:
+        raise SigningKeyError(
+            f"{where}: over {SIGNING_KEY_CAP} bytes, not a key (40 bytes, 65 as hex); fix: {fix}"
+        ) from None
+    except OSError as exc:
+        raise SigningKeyError(f"{where}: cannot read ({unreadable_why(exc)}); fix: {fix}") from None
 
 
 async def setup_signing(

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.bundle.keys import PRIVATE_MODE, write_file_atomic
+from swarmd.bundle.safeopen import READ_FLAGS, open_folder, unreadable_why, writers_problem
 
 XRCE_KEY_FILE: Final = "px4-xrce-key"
 # PX4's UXRCE_DDS_KEY is an INT32 parameter: a generated key stays positive so the operator
@@ -60,7 +61,7 @@ def generate_key(draw: int | None = None) -> int:
 def load_or_create(secrets_dir: str | Path) -> XrceKey:
     """The key in ``secrets_dir/px4-xrce-key``, generated and written (0600) when absent."""
     path = xrce_key_path(secrets_dir)
-    existing = _read_key(path, fix_mode=True)
+    existing = _read_key(path, fix_mode=True, also=frozenset())
     if existing is not None:
         return existing
     value = generate_key()
@@ -74,26 +75,39 @@ def load_or_create(secrets_dir: str | Path) -> XrceKey:
     return XrceKey(value, path, created=True, mode_fixed=False)
 
 
-def check(secrets_dir: str | Path) -> XrceKey | None:
+def check(secrets_dir: str | Path, also: frozenset[int] = frozenset()) -> XrceKey | None:
     """``load_or_create`` by reading only (``swarmd check-config``): an existing file is read
     and refused as the daemon would refuse it, its mode reported (``mode_fixed``) and never
     changed; a missing one gives None (its folder is the boot epoch's, which
-    ``swarmd.auth.epoch.plan_epoch`` judges). Raises ``XrceKeyError``."""
-    return _read_key(xrce_key_path(secrets_dir), fix_mode=False)
+    ``swarmd.auth.epoch.plan_epoch`` judges). ``also``: the folder's owners trusted beside
+    root and swarmd (the daemon's user, as check-config judges it). Raises ``XrceKeyError``."""
+    return _read_key(xrce_key_path(secrets_dir), fix_mode=False, also=also)
 
 
-def _read_key(path: Path, *, fix_mode: bool) -> XrceKey | None:
+def _read_key(path: Path, *, fix_mode: bool, also: frozenset[int]) -> XrceKey | None:
     """The key file at ``path``, None when there is none; ``fix_mode``: make a file others
     may read 0600 (the daemon does; a check does not write)."""
     fix = f"delete {path} to generate a new key, then set UXRCE_DDS_KEY on PX4 to it"
     unreadable = f"{path}: cannot read the XRCE key"
     try:
-        # O_NONBLOCK: a FIFO planted here must be refused at fstat, not hang the open
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except FileNotFoundError:
-        return None
+        folder = open_folder(path.parent)
     except OSError as exc:
-        raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
+        raise XrceKeyError(f"{unreadable}: {unreadable_why(exc)}; fix: {fix}") from None
+    if folder is None:
+        return None
+    with folder:
+        # judged on the descriptor the key is read through (swarmd.bundle.safeopen): a
+        # folder swapped in since the epoch's check of it is refused, not read
+        why = writers_problem(folder.info, also)
+        if why is not None:
+            raise XrceKeyError(f"{unreadable}: folder {path.parent} is {why}; fix: {fix}")
+        try:
+            # O_NONBLOCK: a FIFO planted here must be refused at fstat, not hang the open
+            fd = os.open(path.name, READ_FLAGS, dir_fd=folder.fd)
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):

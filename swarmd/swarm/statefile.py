@@ -50,6 +50,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,9 +59,19 @@ from typing import Final, TypeGuard
 
 from swarmd.bundle.keys import (
     node_state_path,
+    open_state_dir,
     refuse_shared_dir,
     remove_left_temps,
     write_file_atomic,
+)
+from swarmd.bundle.safeopen import (
+    STATE_FILE_CAP,
+    Folder,
+    held,
+    open_folder,
+    read_file,
+    unreadable_why,
+    write_atomic,
 )
 from swarmd.bundle.statedir import DaemonUser, refuse_unwritable_dir
 from swarmd.dataplane.ledger import KeptOutcome
@@ -101,6 +113,8 @@ class NodeState:
     decisions_dropped: int = 0
     decisions_problem: str | None = None
     decision_ids_kept: int = 0
+    # the state folder as ``boot`` opened and judged it: every save goes through it
+    folder: Folder | None = field(default=None, compare=False, repr=False)
 
     def save(self) -> None:
         """Write atomically; raises ``StateDirError`` (one line) on failure."""
@@ -115,8 +129,12 @@ class NodeState:
         data = json.dumps(body, separators=(",", ":")).encode("utf-8")
         try:
             # a random O_EXCL|O_NOFOLLOW temp name: a symlink planted at the old fixed
-            # "<file>.tmp" made this write go through to its target (session 10 review)
-            write_file_atomic(self.path, data, STATE_FILE_MODE)
+            # "<file>.tmp" made this write go through to its target (session 10 review);
+            # through the folder ``boot`` judged, whatever its path names now (safeopen)
+            if self.folder is not None:
+                write_atomic(self.folder, self.path.name, data, STATE_FILE_MODE)
+            else:
+                write_file_atomic(self.path, data, STATE_FILE_MODE)
         except OSError as exc:
             raise StateDirError(f"cannot write {self.path}: {exc.strerror}") from None
 
@@ -129,11 +147,24 @@ def check_dir(state_dir: str | Path, user: DaemonUser) -> Path:
     """The state directory, refused (``StateDirError``, one line) when another user could
     write it or ``user`` (the daemon's) could not create or write it. Reads only."""
     directory = Path(state_dir)
-    refuse_shared_dir(
-        directory, "dataplane.state_dir", StateDirError, user.trusted_owners(directory)
-    )
-    refuse_unwritable_dir(directory, "dataplane.state_dir", StateDirError, user)
-    return directory
+    with held(_judged_dir(directory, user)):
+        return directory
+
+
+def _judged_dir(directory: Path, user: DaemonUser) -> Folder | None:
+    """``directory`` opened and judged on its descriptor (``safeopen``: what is judged is
+    what is read and written); None when it does not exist yet. The caller closes it."""
+    folder = open_state_dir(directory, "dataplane.state_dir", StateDirError)
+    try:
+        refuse_shared_dir(
+            folder, "dataplane.state_dir", StateDirError, user.trusted_owners(directory)
+        )
+        refuse_unwritable_dir(directory, "dataplane.state_dir", StateDirError, user)
+    except BaseException:
+        if folder is not None:
+            folder.close()
+        raise
+    return folder
 
 
 def preview(
@@ -144,12 +175,28 @@ def preview(
     never creates the folder, removes a temporary file or writes the state file
     (``swarmd check-config``, docs/operations.md). ``wall_now``: the wall clock decision
     times are judged against (None: ``time.time()``). Raises ``StateDirError``."""
-    directory = check_dir(state_dir, user)
-    path = state_path(directory, node)
-    if path.is_dir() and not path.is_symlink():
-        # the atomic write renames over it, and a rename cannot replace a folder
-        raise StateDirError(f"cannot write {path}: it is a folder; fix: remove it")
-    state = load(path, wall_now)
+    directory = Path(state_dir)
+    with held(_judged_dir(directory, user)) as folder:
+        owners = user.trusted_owners(directory)
+        return _counted(folder, state_path(directory, node), wall_now, owners)
+
+
+def _counted(
+    folder: Folder | None, path: Path, wall_now: float | None, also: frozenset[int]
+) -> NodeState:
+    """The state in ``folder`` (None: not there yet) with this boot counted, in memory;
+    ``also``: the file's owners trusted beside root and swarmd (the daemon's)."""
+    if folder is None:
+        state = NodeState(path, missing=True)
+    else:
+        try:
+            info = os.stat(path.name, dir_fd=folder.fd, follow_symlinks=False)
+        except FileNotFoundError:
+            info = None
+        if info is not None and stat.S_ISDIR(info.st_mode):
+            # the atomic write renames over it, and a rename cannot replace a folder
+            raise StateDirError(f"cannot write {path}: it is a folder; fix: remove it")
+        state = load(path, wall_now, folder, also)
     state.boot = _next_boot(state.boot)
     return state
 
@@ -168,37 +215,62 @@ def boot(
 ) -> NodeState:
     """Load the node's state, count this boot and save it before anything is sent;
     ``user``: whose writes are judged (None: this process's); ``wall_now``: as ``preview``.
+    The folder is judged, the file read and every later save written through one
+    descriptor of it (``safeopen``), kept in ``NodeState.folder``.
 
     Raises ``StateDirError`` when the directory cannot be created or written.
     """
     wall_now = time.time() if wall_now is None else wall_now
     who = user if user is not None else DaemonUser.this_process()
-    planned = preview(state_dir, node, who, wall_now=wall_now)
+    planned = preview(state_dir, node, who, wall_now=wall_now)  # refusals before any write
     directory = planned.path.parent
     try:
         directory.mkdir(parents=True, exist_ok=True, mode=0o750)
     except OSError as exc:
         raise StateDirError(f"cannot create state directory {directory}: {exc.strerror}") from None
-    # a crash inside write_file_atomic leaves its temporary file (tests/test_cmd_state_kill.py)
-    removed = remove_left_temps(planned.path)
-    state = load(planned.path, wall_now)
-    state.temps_removed = removed
-    state.boot = _next_boot(state.boot)
-    state.save()
+    folder = _judged_dir(Path(state_dir), who)  # judged again: new, or swapped since
+    if folder is None:
+        raise StateDirError(f"cannot create state directory {directory}: it vanished")
+    try:
+        # a crash inside write_atomic leaves its temporary file (tests/test_cmd_state_kill.py)
+        removed = remove_left_temps(planned.path, folder)
+        state = _counted(folder, planned.path, wall_now, who.trusted_owners(directory))
+        state.temps_removed = removed
+        state.folder = folder
+        state.save()
+    except BaseException:
+        folder.close()
+        raise
     return state
 
 
-def load(path: Path, wall_now: float | None = None) -> NodeState:
+def load(
+    path: Path,
+    wall_now: float | None = None,
+    folder: Folder | None = None,
+    also: frozenset[int] = frozenset(),
+) -> NodeState:
     """The state at ``path``; a missing file starts afresh (``missing``), a corrupt one is
     replaced. ``wall_now``: the wall clock (Unix seconds) the kept decisions' times are
-    judged against (``DECISION_CLOCK_SLACK_S``; None: ``time.time()``)."""
+    judged against (``DECISION_CLOCK_SLACK_S``; None: ``time.time()``). ``folder``:
+    ``path``'s folder as judged, read through (``safeopen``; None: opened here). A symlink,
+    a FIFO, a file of another owner (than root, swarmd, ``also``) or one over
+    ``STATE_FILE_CAP`` is unreadable."""
     wall_now = time.time() if wall_now is None else wall_now
+    opened = folder if folder is not None else open_folder(path.parent)
+    if opened is None:
+        return NodeState(path, missing=True)
     try:
-        raw = path.read_text(encoding="utf-8")
+        raw = read_file(opened, path.name, STATE_FILE_CAP, also=also).decode("utf-8")
     except FileNotFoundError:
         return NodeState(path, missing=True)
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
+        return NodeState(path, recovered_from=f"unreadable ({unreadable_why(exc)})")
+    except UnicodeDecodeError as exc:
         return NodeState(path, recovered_from=f"unreadable ({exc})")
+    finally:
+        if folder is None:
+            opened.close()
     try:
         body = json.loads(raw)
         boot_count = body["boot"]
