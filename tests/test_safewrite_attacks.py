@@ -21,6 +21,7 @@ import pytest
 from swarmd.auth import windows as windows_mod
 from swarmd.auth.freshness import Freshness
 from swarmd.auth.windows import load_windows, save_windows, windows_path
+from swarmd.bundle import safeopen
 from swarmd.bundle.floor import floor_path
 from swarmd.bundle.keys import dev_node_keys
 from swarmd.px4 import xrce_key as xrce_key_mod
@@ -109,3 +110,20 @@ def test_check_config_judges_the_floors_folder_as_the_units_user(workdir: Path) 
     proc = run_swarmd("check-config", "--config", str(cfg), "--user", "nobody")
     assert "owned by uid" not in proc.stderr, proc.stderr  # main: the floor's check, 73
     assert proc.returncode == 0, proc
+
+
+@needs_root
+def test_a_swap_after_a_saves_own_check_writes_the_real_folder(
+    parent: Path,  # noqa: F811 - the fixture
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The save's own check, then the swap: the write goes through the descriptor judged,
+    into the real folder (wherever nobody moved it), never into theirs."""
+    state = _root_folder(parent, {})
+    theirs = parent / "theirs"
+    as_nobody(PLANT, str(theirs), "placeholder", "x")
+    aside = _swap_after(monkeypatch, safeopen, "writers_problem", state, theirs)
+    path = windows_path(state, "uav1")
+    save_windows(path, HIGHS)
+    assert _names(state) == ["placeholder"]  # theirs: nothing written
+    assert load_windows(windows_path(aside, "uav1")).highs == HIGHS
