@@ -31,6 +31,7 @@ from swarmd.bundle.safeopen import (
     read_trusted,
     unreadable_why,
 )
+from swarmd.bundle.statedir import DaemonUser
 from swarmd.config import DaemonConfig, Px4Section
 from swarmd.discovery.config import EngineConfig
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, StartupError
@@ -113,19 +114,25 @@ def read_node_key(path: str, also: frozenset[int] = frozenset()) -> bytes:
         ) from None
 
 
-def enforce_bundle_floor(config: DaemonConfig, bundle: Bundle, *, commit: bool) -> FloorResult:
+def enforce_bundle_floor(
+    config: DaemonConfig, bundle: Bundle, *, commit: bool, user: DaemonUser | None = None
+) -> FloorResult:
     """This node's anti-rollback floor (``swarmd.bundle.floor.enforce``, docs/security.md
     "Bundle rollback") in the folder of node.key, its refusals as the one-line
     ``StartupError``: 78 for a rolled-back bundle or a corrupt floor, 73 for a folder that is
     unsafe or cannot be written. ``swarmd`` checks it before anything runs
-    (``commit=False``), ``Daemon.start`` again before the first send, raising the floor."""
+    (``commit=False``; ``user``: check-config's daemon user, whose folder and files it
+    trusts, as the epoch's check does), ``Daemon.start`` again before the first send,
+    raising the floor (as this process)."""
+    state_dir = config.bundle.node_state_dir
     try:
         return enforce_floor(
             bundle,
             source=config.bundle.path,
-            state_dir=config.bundle.node_state_dir,
+            state_dir=state_dir,
             node=config.node,
             commit=commit,
+            also=user.trusted_owners(pathlib.Path(state_dir)) if user is not None else frozenset(),
         )
     except BundleError as exc:
         raise StartupError(f"bundle rejected: {exc}", EX_CONFIG) from None

@@ -17,8 +17,9 @@ Format: one line per sender, ``<prefix hex> <epoch> <seq>``, at most the bundle'
 (the caller only ever saves bundle prefixes; lines for prefixes outside the bundle are
 ignored on load). A missing file is a first start; an unreadable or corrupt one is
 reported and ignored (the receiver starts with empty windows, as before this file existed),
-never a reason not to start. Written with ``write_file_atomic`` (temp file, fsync, rename,
-directory fsync), so a crash mid-write leaves the previous file.
+never a reason not to start. Written through the folder's descriptor, judged at each save
+(``safeopen.write_atomic``: temp file, fsync, rename, folder fsync), so a crash mid-write
+leaves the previous file and a folder swapped in at the path is never written into.
 
 The one other module in ``swarmd.auth`` that touches a file (with ``epoch``); the daemon
 calls it, the verifier itself stays sans-IO.
@@ -32,12 +33,14 @@ from pathlib import Path
 from typing import Final
 
 from swarmd.auth.freshness import U32_MAX, Freshness
-from swarmd.bundle.keys import node_state_path, write_file_atomic
+from swarmd.bundle.keys import node_state_path
 from swarmd.bundle.safeopen import (
     TooLarge,
+    judged_folder,
     open_folder,
     read_file,
     unreadable_why,
+    write_atomic,
     writers_problem,
 )
 
@@ -114,5 +117,12 @@ def load_windows(path: Path) -> LoadedWindows:
 
 def save_windows(path: Path, highs: dict[bytes, Freshness]) -> None:
     """Durably replace the file. Raises ``OSError`` (the caller logs and carries on: the
-    windows in memory still hold; only a restart would lose them)."""
-    write_file_atomic(path, encode_windows(highs), 0o640)
+    windows in memory still hold; only a restart would lose them).
+
+    Each save reopens the folder and judges it again on that descriptor, as ``load_windows``
+    does, then writes through it (``safeopen.write_atomic``): a folder swapped in at the
+    path since the start is refused (``SharedFolder``), never written into. Reopened, not
+    held: the cost is one open and one ``fstat`` per save (at most one per
+    ``SAVE_PERIOD_S``), and the daemon keeps no descriptor of its own for its whole life."""
+    with judged_folder(path) as folder:
+        write_atomic(folder, path.name, encode_windows(highs), 0o640)

@@ -90,17 +90,23 @@ def serial_of(bundle: Bundle) -> int:
     return LEGACY_SERIAL if bundle.serial is None else bundle.serial
 
 
-def read_floor(path: Path, bundle_source: str, folder: Folder | None = None) -> Floor | None:
+def read_floor(
+    path: Path,
+    bundle_source: str,
+    folder: Folder | None = None,
+    also: frozenset[int] = frozenset(),
+) -> Floor | None:
     """The floor at ``path``; None when there is none. ``FloorError`` when it does not parse
     (``bundle_source`` names the bundle in the fix). ``folder``: ``path``'s folder as judged
-    (``safeopen``: read through it, never by path; None: opened here)."""
+    (``safeopen``: read through it, never by path; None: opened here); ``also``: the file's
+    owners trusted beside root and swarmd (the daemon's user, as check-config judges it)."""
     opened = folder if folder is not None else open_folder(path.parent)
     if opened is None:
         return None
     try:
         # never through a symlink (a link to a lower floor elsewhere would lower it), never
         # blocking (a FIFO would hang start-up with no line saying why): safeopen.read_file
-        raw = read_file(opened, path.name, MAX_FLOOR_BYTES)
+        raw = read_file(opened, path.name, MAX_FLOOR_BYTES, also=also)
     except FileNotFoundError:
         return None
     except OSError as exc:
@@ -201,11 +207,19 @@ class FloorResult:
 
 
 def enforce(
-    bundle: Bundle, *, source: str, state_dir: str | Path, node: str, commit: bool
+    bundle: Bundle,
+    *,
+    source: str,
+    state_dir: str | Path,
+    node: str,
+    commit: bool,
+    also: frozenset[int] = frozenset(),
 ) -> FloorResult:
     """Check ``bundle`` (read from ``source``) against the node's floor and, when
     ``commit``, raise the floor to it. ``check-config`` passes ``commit=False``: a bundle
-    checked but never run must not lock out the one the drone runs now.
+    checked but never run must not lock out the one the drone runs now; and ``also``, the
+    owners the daemon's user trusts beside root and swarmd (``DaemonUser.trusted_owners``,
+    as the epoch's check): its folder and floor are judged as ``run`` will judge them.
 
     Raises ``BundleError`` (refused: exit 78), ``FloorError`` (corrupt floor: exit 78),
     ``FloorWriteError`` (unsafe or unwritable folder: exit 73)."""
@@ -214,8 +228,8 @@ def enforce(
     # judged, read and written through one descriptor (safeopen: no check-then-open race)
     with held(open_state_dir(directory, "bundle.node_key", FloorWriteError)) as folder:
         # a folder others can write could hold a planted floor (or a planted low one)
-        refuse_shared_dir(folder, "bundle.node_key", FloorWriteError)
-        previous = read_floor(path, source, folder) if folder is not None else None
+        refuse_shared_dir(folder, "bundle.node_key", FloorWriteError, also)
+        previous = read_floor(path, source, folder, also) if folder is not None else None
         raised = check(bundle, previous, source=source, path=path)
         if raised and commit:
             raise_floor(path, bundle, folder)

@@ -228,15 +228,23 @@ def read_trusted(
     the folder judged on it (``config.check_trusted_files``' rule, so a folder swapped
     in since that check is refused: ``SharedFolder``), then ``read_file``. Raises
     ``FileNotFoundError`` (no file, or no folder), ``SharedFolder`` or ``read_file``'s."""
+    with judged_folder(path, also) as folder:
+        return read_file(folder, path.name, cap, also=also, judge=judge)
+
+
+def judged_folder(path: Path, also: frozenset[int] = frozenset()) -> Folder:
+    """The folder of the file ``path``, opened and judged on that descriptor
+    (``writers_problem``), for the file to be read or written through it. Raises
+    ``FileNotFoundError`` (no folder), ``SharedFolder`` or ``open_folder``'s ``OSError``."""
     folder = open_folder(path.parent)
     if folder is None:
         raise FileNotFoundError(errno.ENOENT, "No such file or directory", str(path))
-    with folder:
-        why = writers_problem(folder.info, also)
-        if why is not None:
-            problem = f"folder {path.parent} is {why}, so another user could swap it"
-            raise SharedFolder(errno.EPERM, problem, str(path))
-        return read_file(folder, path.name, cap, also=also, judge=judge)
+    why = writers_problem(folder.info, also)
+    if why is not None:
+        folder.close()
+        problem = f"folder {path.parent} is {why}, so another user could swap it"
+        raise SharedFolder(errno.EPERM, problem, str(path))
+    return folder
 
 
 def unreadable_why(exc: OSError) -> str:

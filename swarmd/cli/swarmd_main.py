@@ -137,7 +137,7 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     # (`check-config` never does: a bundle checked but not run must not lock out the
     # bundle the drone runs now)
     try:
-        enforce_bundle_floor(config, bundle, commit=False)
+        enforce_bundle_floor(config, bundle, commit=False, user=user)
     except StartupError as exc:
         return _fail(str(exc), exc.exit_code)
     if user is not None:  # check-config

@@ -14,6 +14,7 @@ which bounds what such a user can do (docs/px4.md).
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 import stat
@@ -21,8 +22,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from swarmd.bundle.keys import PRIVATE_MODE, write_file_atomic
-from swarmd.bundle.safeopen import READ_FLAGS, open_folder, unreadable_why, writers_problem
+from swarmd.bundle.keys import PRIVATE_MODE
+from swarmd.bundle.safeopen import (
+    READ_FLAGS,
+    Folder,
+    held,
+    judged_folder,
+    unreadable_why,
+    write_atomic,
+)
 
 XRCE_KEY_FILE: Final = "px4-xrce-key"
 # PX4's UXRCE_DDS_KEY is an INT32 parameter: a generated key stays positive so the operator
@@ -59,20 +67,37 @@ def generate_key(draw: int | None = None) -> int:
 
 
 def load_or_create(secrets_dir: str | Path) -> XrceKey:
-    """The key in ``secrets_dir/px4-xrce-key``, generated and written (0600) when absent."""
+    """The key in ``secrets_dir/px4-xrce-key``, generated and written (0600) when absent.
+
+    One descriptor of the folder, held from its judgement through the read and the first
+    write (``safeopen.write_atomic``): the key is written into the very folder judged and
+    found without a key, never into one swapped in at its path since (the key is private:
+    in another user's folder they would read it). Held, not reopened: it is one step at
+    start-up, and a reopen would judge a second folder, not the one found empty."""
     path = xrce_key_path(secrets_dir)
-    existing = _read_key(path, fix_mode=True, also=frozenset())
-    if existing is not None:
-        return existing
-    value = generate_key()
     try:
-        write_file_atomic(path, f"{value}\n".encode(), PRIVATE_MODE)
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
     except OSError as exc:
-        raise XrceKeyError(
-            f"{path}: cannot write the XRCE key: {exc.strerror}; fix: make "
-            f"{path.parent} writable by swarmd, or set px4.xrce_key"
-        ) from None
+        raise _unwritable(path, exc) from None
+    with held(_open_judged(path, frozenset())) as folder:
+        if folder is None:  # removed since the mkdir: nothing judged, nothing written
+            raise _unwritable(path, FileNotFoundError(errno.ENOENT, "No such file or directory"))
+        existing = _read_key(path, folder, fix_mode=True)
+        if existing is not None:
+            return existing
+        value = generate_key()
+        try:
+            write_atomic(folder, path.name, f"{value}\n".encode(), PRIVATE_MODE)
+        except OSError as exc:
+            raise _unwritable(path, exc) from None
     return XrceKey(value, path, created=True, mode_fixed=False)
+
+
+def _unwritable(path: Path, exc: OSError) -> XrceKeyError:
+    return XrceKeyError(
+        f"{path}: cannot write the XRCE key: {exc.strerror}; fix: make "
+        f"{path.parent} writable by swarmd, or set px4.xrce_key"
+    )
 
 
 def check(secrets_dir: str | Path, also: frozenset[int] = frozenset()) -> XrceKey | None:
@@ -81,33 +106,40 @@ def check(secrets_dir: str | Path, also: frozenset[int] = frozenset()) -> XrceKe
     changed; a missing one gives None (its folder is the boot epoch's, which
     ``swarmd.auth.epoch.plan_epoch`` judges). ``also``: the folder's owners trusted beside
     root and swarmd (the daemon's user, as check-config judges it). Raises ``XrceKeyError``."""
-    return _read_key(xrce_key_path(secrets_dir), fix_mode=False, also=also)
+    path = xrce_key_path(secrets_dir)
+    with held(_open_judged(path, also)) as folder:
+        return None if folder is None else _read_key(path, folder, fix_mode=False)
 
 
-def _read_key(path: Path, *, fix_mode: bool, also: frozenset[int]) -> XrceKey | None:
-    """The key file at ``path``, None when there is none; ``fix_mode``: make a file others
-    may read 0600 (the daemon does; a check does not write)."""
-    fix = f"delete {path} to generate a new key, then set UXRCE_DDS_KEY on PX4 to it"
+def _fix(path: Path) -> str:
+    return f"delete {path} to generate a new key, then set UXRCE_DDS_KEY on PX4 to it"
+
+
+def _open_judged(path: Path, also: frozenset[int]) -> Folder | None:
+    """The key's folder opened once and judged on that descriptor (``safeopen``: a folder
+    swapped in since the epoch's check of it is refused); None when there is none.
+    ``also``: the folder's owners trusted beside root and swarmd. Raises ``XrceKeyError``."""
     unreadable = f"{path}: cannot read the XRCE key"
     try:
-        folder = open_folder(path.parent)
-    except OSError as exc:
-        raise XrceKeyError(f"{unreadable}: {unreadable_why(exc)}; fix: {fix}") from None
-    if folder is None:
+        return judged_folder(path, also)
+    except FileNotFoundError:
         return None
-    with folder:
-        # judged on the descriptor the key is read through (swarmd.bundle.safeopen): a
-        # folder swapped in since the epoch's check of it is refused, not read
-        why = writers_problem(folder.info, also)
-        if why is not None:
-            raise XrceKeyError(f"{unreadable}: folder {path.parent} is {why}; fix: {fix}")
-        try:
-            # O_NONBLOCK: a FIFO planted here must be refused at fstat, not hang the open
-            fd = os.open(path.name, READ_FLAGS, dir_fd=folder.fd)
-        except FileNotFoundError:
-            return None
-        except OSError as exc:
-            raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
+    except OSError as exc:  # SharedFolder's strerror names the folder and why
+        raise XrceKeyError(f"{unreadable}: {unreadable_why(exc)}; fix: {_fix(path)}") from None
+
+
+def _read_key(path: Path, folder: Folder, *, fix_mode: bool) -> XrceKey | None:
+    """The key file ``path`` in its judged ``folder``, None when there is none;
+    ``fix_mode``: make a file others may read 0600 (the daemon does; a check does not)."""
+    fix = _fix(path)
+    unreadable = f"{path}: cannot read the XRCE key"
+    try:
+        # O_NONBLOCK: a FIFO planted here must be refused at fstat, not hang the open
+        fd = os.open(path.name, READ_FLAGS, dir_fd=folder.fd)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise XrceKeyError(f"{unreadable}: {exc.strerror}; fix: {fix}") from None
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
