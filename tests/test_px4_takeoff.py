@@ -33,6 +33,7 @@ from swarmd.px4.messages import (
     Heartbeat,
     HomePosition,
     Observation,
+    StateReset,
     SysStatus,
     VehicleCommand,
 )
@@ -351,6 +352,27 @@ def test_no_liftoff_times_out_and_disarms() -> None:
     assert v.failure().reason is FailReason.NO_LIFTOFF
     last = v.sent[-1]
     assert last.command == MavCmd.COMPONENT_ARM_DISARM and last.params[0] == 0.0
+
+
+def test_a_state_reset_while_lifting_is_unknown_not_disarmed() -> None:
+    """XRCE's new session (``StateReset``) empties the state mid-climb: no HEARTBEAT is not
+    a disarm (no ``disarmed`` failure, no DISARM sent); the new life's state decides."""
+    v = Scripted()
+    v.start()
+    v.armed = True
+    v.feed(v.heartbeat())  # armed: ARM confirmed by state
+    v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
+    assert v.phase() is TakeoffPhase.LIFTING
+    sent = len(v.sent)
+    v.now = 1.0
+    v.feed(StateReset("new XRCE session"))
+    v.feed(SysStatus(SENSOR_PREARM_CHECK, 90, 16000))
+    assert v.outcome() is None and len(v.sent) == sent
+    v.mode, v.landed = MODE_TAKEOFF, LandedState.TAKEOFF
+    v.now = 1.5
+    v.feed(v.heartbeat())
+    v.feed(ExtendedSysState(v.landed))
+    assert isinstance(v.outcome(), TakeoffSucceeded)
 
 
 def test_success_needs_armed_and_airborne_state_not_just_acks() -> None:

@@ -363,7 +363,11 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
     def _check_state(self, now: float) -> None:
         """Confirm steps by what the vehicle reports, whatever happened to the ACKs."""
         v = self.vehicle
-        armed = bool(v.armed)
+        if v.armed is None:
+            # no HEARTBEAT since a StateReset (XRCE: a new session): unknown, not disarmed;
+            # nothing is confirmed or failed on it, the timers still run
+            return
+        armed = v.armed
         if armed:
             self._seen_armed = True
         elif self._seen_armed and self.phase in (TakeoffPhase.TAKING_OFF, TakeoffPhase.LIFTING):
