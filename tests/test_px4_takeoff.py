@@ -19,6 +19,8 @@ from swarmd.px4.constants import (
     MavCmd,
     MavResult,
     MavState,
+    Px4AutoSubMode,
+    Px4MainMode,
 )
 from swarmd.px4.mavlink_codec import Message
 from swarmd.px4.messages import (
@@ -31,6 +33,7 @@ from swarmd.px4.messages import (
     Heartbeat,
     HomePosition,
     Observation,
+    StateReset,
     SysStatus,
     VehicleCommand,
 )
@@ -169,6 +172,46 @@ def test_lost_commands_run_out_of_retries() -> None:
     assert link.now - t0 == pytest.approx(2.0)
 
 
+def _in_takeoff_mode_by_another_ground_station(link: VirtualLink) -> None:
+    """A GCS (system 255) puts the disarmed vehicle in AUTO.TAKEOFF: PX4 waits for an ARM,
+    then climbs to MIS_TAKEOFF_ALT."""
+    mode = VehicleCommand.make(MavCmd.DO_SET_MODE, p1=1.0, p2=float(Px4MainMode.AUTO),
+                               p3=float(Px4AutoSubMode.TAKEOFF))  # fmt: skip
+    link.sim.receive(mode, (255, 190), link.now)
+    link.run_until(link.now + 1.5)  # our state now shows the mode
+    assert link.sim.mode == MODE_TAKEOFF and not link.sim.armed
+
+
+def test_someone_elses_takeoff_mode_does_not_confirm_our_nav_takeoff() -> None:
+    """Our NAV_TAKEOFF is lost every time. PX4 was already in AUTO.TAKEOFF (another ground
+    station's mode), so our ARM alone made it climb to MIS_TAKEOFF_ALT: mode and lift-off
+    showed at once and ended the NAV_TAKEOFF's retries, and the take-off was reported done
+    while PX4 climbed to 2.5 m, not our 10 m. Now only what our NAV_TAKEOFF alone produces
+    confirms it (here: its ACK, never heard): ``takeoff_no_ack``. [main: TakeoffSucceeded]"""
+
+    def drop_takeoff(msg: Message, direction: str, now: float) -> bool:
+        return isinstance(msg, VehicleCommand) and msg.command == MavCmd.NAV_TAKEOFF
+
+    link = ready_link(drop=drop_takeoff)
+    _in_takeoff_mode_by_another_ground_station(link)
+    seq = fly(link, 10.0)
+    assert isinstance(seq.outcome, TakeoffFailed), seq.outcome
+    assert seq.outcome.reason is FailReason.TAKEOFF_NO_ACK
+    assert [c.confirmation for c in commands(link, MavCmd.NAV_TAKEOFF)] == [0, 1, 2, 3]
+    link.run_until(link.now + 10.0)
+    assert link.sim.alt_m == pytest.approx(2.5)  # MIS_TAKEOFF_ALT: what the report says
+
+
+def test_someone_elses_takeoff_mode_then_our_nav_takeoff_acked_reaches_our_altitude() -> None:
+    """The same vehicle, our NAV_TAKEOFF heard: its ACK confirms it, PX4 climbs to ours."""
+    link = ready_link()
+    _in_takeoff_mode_by_another_ground_station(link)
+    seq = fly(link, 10.0)
+    assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
+    link.run_until(link.now + 15.0)
+    assert link.sim.alt_m == pytest.approx(10.0)
+
+
 # ---- scripted vehicle: exact control over what the autopilot says ------------------------
 
 
@@ -298,14 +341,38 @@ def test_no_liftoff_times_out_and_disarms() -> None:
     v.feed(v.heartbeat())  # armed bit: ARM confirmed by state, no ACK needed
     assert v.phase() is TakeoffPhase.TAKING_OFF
     v.mode = MODE_TAKEOFF
-    v.feed(v.heartbeat())  # mode AUTO.TAKEOFF: NAV_TAKEOFF confirmed by state
+    v.feed(v.heartbeat())  # received with NAV_TAKEOFF's send: may predate it, confirms nothing
+    assert v.phase() is TakeoffPhase.TAKING_OFF
+    v.now = 0.5  # an ack timeout after the send: mode AUTO.TAKEOFF confirms NAV_TAKEOFF
+    v.feed(v.heartbeat())
     assert v.phase() is TakeoffPhase.LIFTING
     v.advance_to_timer()
-    assert v.now == pytest.approx(8.0)
+    assert v.now == pytest.approx(8.5)
     assert isinstance(v.outcome(), TakeoffFailed)
     assert v.failure().reason is FailReason.NO_LIFTOFF
     last = v.sent[-1]
     assert last.command == MavCmd.COMPONENT_ARM_DISARM and last.params[0] == 0.0
+
+
+def test_a_state_reset_while_lifting_is_unknown_not_disarmed() -> None:
+    """XRCE's new session (``StateReset``) empties the state mid-climb: no HEARTBEAT is not
+    a disarm (no ``disarmed`` failure, no DISARM sent); the new life's state decides."""
+    v = Scripted()
+    v.start()
+    v.armed = True
+    v.feed(v.heartbeat())  # armed: ARM confirmed by state
+    v.ack(MavCmd.NAV_TAKEOFF, MavResult.ACCEPTED)
+    assert v.phase() is TakeoffPhase.LIFTING
+    sent = len(v.sent)
+    v.now = 1.0
+    v.feed(StateReset("new XRCE session"))
+    v.feed(SysStatus(SENSOR_PREARM_CHECK, 90, 16000))
+    assert v.outcome() is None and len(v.sent) == sent
+    v.mode, v.landed = MODE_TAKEOFF, LandedState.TAKEOFF
+    v.now = 1.5
+    v.feed(v.heartbeat())
+    v.feed(ExtendedSysState(v.landed))
+    assert isinstance(v.outcome(), TakeoffSucceeded)
 
 
 def test_success_needs_armed_and_airborne_state_not_just_acks() -> None:
@@ -416,7 +483,7 @@ def test_ground_reference_is_home_then_the_current_gps_altitude(
     assert takeoff.params[6] == pytest.approx(target)  # param7: AMSL
     airborne = Heartbeat(12, 2, 1 | 128, MODE_TAKEOFF.custom_mode, MavState.ACTIVE)
     for obs in (airborne, ExtendedSysState(LandedState.IN_AIR)):
-        state.observe(obs, 0.3)
-        seq.observe(obs, 0.3)
+        state.observe(obs, 0.6)  # an ack timeout after NAV_TAKEOFF's send: fresh
+        seq.observe(obs, 0.6)
     assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
     assert seq.outcome.altitude_ref == ref and seq.outcome.target_amsl_m == pytest.approx(target)

@@ -21,8 +21,9 @@ from __future__ import annotations
 import pytest
 
 from swarmd.px4.actions import NOT_CONFIRMED
-from swarmd.px4.constants import COMP_ID_ONBOARD_COMPUTER, MavCmd
+from swarmd.px4.constants import COMP_ID_ONBOARD_COMPUTER, LandedState, MavCmd
 from swarmd.px4.messages import command_name
+from swarmd.px4.readiness import Reason
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleCore, VehicleRequest
 from swarmd.px4.xrce_translate import NAV_AUTO_LAND, Px4Translator
 from tests.test_xrce_translate import SYSID, _sample
@@ -70,6 +71,13 @@ class Px4Samples:
         self.core.request(VehicleRequest(token, kind), t)
         self.at(t)
         return [MavCmd(c.command) for c in self.core.datagrams_to_send()]
+
+    def new_session(self, t: float) -> None:
+        """The agent's SessionCreated of PX4's new life, fed as the backend feeds it."""
+        self.at(t)
+        for obs in self.translator.new_session():
+            self.core.receive_datagram(obs, None, t)
+        self.at(t)
 
     def finished(self, token: int) -> TaskFinished | None:
         return next((e for e in self.done if e.token == token), None)
@@ -164,7 +172,7 @@ def test_an_aborts_disarm_is_done_by_a_rebooted_px4s_first_disarmed_status() -> 
     ABORT is done, and that is true (a rebooted PX4 is disarmed: PX4 arms only on a command)."""
     px4 = _vehicle(armed=True, nav=NAV_LOITER, landed=True)
     assert px4.request(10.0, 1, TaskKind.ABORT) == [MavCmd.COMPONENT_ARM_DISARM]
-    px4.translator.new_session()  # the agent's SessionCreated of the new life
+    px4.new_session(11.1)  # the agent's SessionCreated of the new life
     px4.status(11.2, armed=False, nav=NAV_MANUAL)  # SITL restarts within a second
     done = px4.finished(1)
     assert done is not None and done.ok
@@ -176,10 +184,78 @@ def test_a_land_is_never_done_by_a_rebooted_px4_on_the_ground() -> None:
     LANDING, so the LAND that never ran is never reported done; it fails."""
     px4 = _vehicle(armed=True, nav=NAV_LOITER, landed=False)
     assert px4.request(10.0, 1, TaskKind.LAND) == [MavCmd.NAV_LAND]
-    px4.translator.new_session()
+    px4.new_session(10.9)
     for i in range(8):
         px4.status(11.0 + 0.5 * i, armed=False, nav=NAV_MANUAL)
         px4.land_detected(11.1 + 0.5 * i, landed=True)
     px4.at(20.0)
     done = px4.finished(1)
     assert done is not None and not done.ok
+
+
+def _ready_on_the_ground() -> Px4Samples:
+    """A PX4 heard for a second, disarmed on the ground, with all readiness needs."""
+    px4 = _vehicle(armed=False, nav=NAV_LOITER, landed=True)
+    px4.feed(9.6, "BatteryStatus", remaining=0.9, voltage_v=16.0)
+    px4.feed(9.6, "SensorGps", fix_type=3, satellites_used=12, eph=0.9, latitude_deg=47.39,
+             longitude_deg=8.54, altitude_msl_m=488.0)  # fmt: skip
+    px4.feed(9.6, "HomePosition", lat=47.39, lon=8.54, alt=488.0, valid_alt=True,
+             valid_hpos=True)  # fmt: skip
+    px4.status(9.9, armed=False, nav=NAV_LOITER)
+    assert px4.core.readiness(9.9).ready
+    return px4
+
+
+def test_a_new_session_says_nothing_of_the_last_lifes_landed_state_to_an_abort() -> None:
+    """PX4 flew (in the air, armed, Hold), then rebooted on the ground (a brown-out in a hard
+    landing). The new life's first vehicle_status (disarmed, Manual) came before its first
+    vehicle_land_detected (PX4 may take about a second). The last life's ``landed`` (False)
+    made that status read IN_AIR, so an ABORT then sent NAV_LAND to a disarmed vehicle on the
+    ground. Now the new session forgets it: landed unknown, disarmed by a fresh status, so
+    the ABORT has nothing to do (``ABORT: land, disarm or nothing``). [main: NAV_LAND sent]"""
+    px4 = _vehicle(armed=True, nav=NAV_LOITER, landed=False)
+    px4.new_session(10.0)
+    px4.status(10.4, armed=False, nav=NAV_MANUAL)
+    assert px4.request(10.5, 1, TaskKind.ABORT) == []
+    assert px4.core.state.landed_state is None
+    done = px4.finished(1)
+    assert done is not None and done.ok and done.reason == "on_ground_disarmed"
+    px4.land_detected(10.9, landed=True)  # the new life's land detector: on the ground
+    assert px4.core.state.landed_state is LandedState.ON_GROUND
+
+
+def test_an_abort_between_a_new_session_and_its_first_status_lands() -> None:
+    """In the moment between the new session and its first vehicle_status nothing is known:
+    the ABORT lands, as with a link gone quiet (the state is too old to say "on the ground"),
+    and a LAND is never confirmed by the last life's heartbeat. (Documents the choice; main
+    did the same here, from the last life's IN_AIR.)"""
+    px4 = _vehicle(armed=True, nav=NAV_AUTO_LAND, landed=False)
+    px4.new_session(10.0)
+    assert px4.core.state.heartbeat is None and px4.core.state.armed is None
+    assert px4.request(10.1, 1, TaskKind.ABORT) == [MavCmd.NAV_LAND]
+    px4.at(10.7)  # an ack timeout after the send; the last life said AUTO.LAND
+    assert px4.finished(1) is None
+
+
+def test_readiness_does_not_judge_a_new_life_by_the_last_ones_samples() -> None:
+    """A vehicle ready on the ground reboots: its new life's first vehicle_status alone made
+    it ready again with the last life's GPS fix, home, battery and landed state, before any
+    of those samples of the new life arrived. Now each must come again. [main: ready]"""
+    px4 = _ready_on_the_ground()
+    px4.new_session(10.0)
+    assert px4.core.readiness(10.0).reason is Reason.NO_HEARTBEAT
+    px4.status(10.4, armed=False, nav=NAV_LOITER)
+    verdict = px4.core.readiness(10.4)
+    assert not verdict.ready and verdict.battery_pct is None and verdict.gps_fix is None
+    assert verdict.landed_state is None and not verdict.home
+    for name, values in (
+        ("BatteryStatus", {"remaining": 0.9, "voltage_v": 16.0}),
+        ("VehicleLandDetected", {"landed": True}),
+        ("SensorGps", {"fix_type": 3, "satellites_used": 12, "eph": 0.9,
+                       "latitude_deg": 47.39, "longitude_deg": 8.54, "altitude_msl_m": 488.0}),
+        ("HomePosition", {"lat": 47.39, "lon": 8.54, "alt": 488.0, "valid_alt": True,
+                          "valid_hpos": True}),
+    ):  # fmt: skip
+        px4.feed(10.6, name, **values)
+    px4.status(10.9, armed=False, nav=NAV_LOITER)
+    assert px4.core.readiness(10.9).ready

@@ -186,6 +186,18 @@ class TopicLayout:
 
 
 @dataclass(frozen=True, slots=True)
+class StateReset:
+    """A backend's word that everything it said of the vehicle so far may be another life's.
+
+    XRCE-DDS sends it on a new session (PX4 rebooted, or its client reconnected): the
+    vehicle's facts (armed, mode, landed, battery, position) are unknown until the new
+    session's samples say them again (docs/px4.md, "Fresh state"). MAVLink never sends it.
+    """
+
+    why: str
+
+
+@dataclass(frozen=True, slots=True)
 class VehicleCommand:
     """A command for the autopilot (COMMAND_LONG 76 on MAVLink, VehicleCommand on DDS).
 
@@ -239,6 +251,7 @@ Observation = (
     | StatusText
     | TopicLayout
     | ArmingBlockers
+    | StateReset
 )
 """What a backend hands to the vehicle state and the take-off sequence."""
 

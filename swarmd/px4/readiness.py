@@ -38,6 +38,7 @@ from swarmd.px4.messages import (
     Heartbeat,
     HomePosition,
     Observation,
+    StateReset,
     StatusText,
     SysStatus,
     TopicLayout,
@@ -127,6 +128,21 @@ class VehicleState:
                     self.layout_problems.pop(obs.topic, None)
                 else:
                     self.layout_problems[obs.topic] = obs.problem
+            case StateReset():
+                self.forget_vehicle()
+
+    def forget_vehicle(self) -> None:
+        """Every fact of the vehicle becomes unknown (``StateReset``: a new XRCE session may
+        be a rebooted PX4). Readiness says ``no_heartbeat`` and no action is confirmed until
+        the new life's samples arrive; what the backend cannot read stays (``layout_problems``,
+        lifted only by a sample that decodes)."""
+        self.heartbeat = self.heartbeat_at = None
+        self.sys_status = self.sys_status_at = None
+        self.extended = self.extended_at = None
+        self.gps = self.home = self.position = None
+        self.last_ack = None
+        self.last_warning = self.last_warning_at = None
+        self.arming_blockers = ()
 
     @property
     def armed(self) -> bool | None:

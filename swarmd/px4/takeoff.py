@@ -43,6 +43,13 @@ the armed bit in HEARTBEAT for ARM, mode AUTO.TAKEOFF or leaving the ground for 
 and success itself is only declared from state: armed and ``landed_state`` TAKEOFF or
 IN_AIR (EXTENDED_SYS_STATE), never from an ACK alone.
 
+NAV_TAKEOFF's confirmation by state must show what only our command produced
+(``_takeoff_shows``): state received an ack timeout after its first send (the actions'
+"fresh" rule, docs/px4.md "Fresh state"), and a mode or a lift-off the vehicle did not have
+when we sent it. A vehicle another ground station had put in AUTO.TAKEOFF while disarmed
+climbs on our ARM alone, to ``MIS_TAKEOFF_ALT``: its mode and its lift-off say nothing of our
+altitude, so there only the ACK confirms, and no ACK fails ``takeoff_no_ack``.
+
 Phases (all transitions are in ``_TRANSITIONS``)::
 
     IDLE --ready--> ARMING --armed--> TAKING_OFF --accepted--> LIFTING --airborne--> SUCCEEDED
@@ -56,6 +63,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
 
+from swarmd.px4.actions import fresh
 from swarmd.px4.command_sender import (
     AckReceived,
     CommandFinished,
@@ -223,6 +231,10 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         self._lift_deadline: float | None = None
         self._arm_sent = False
         self._seen_armed = False
+        # NAV_TAKEOFF: state received from here on may confirm it (``_takeoff_shows``), unless
+        # the vehicle already climbed or sat in AUTO.TAKEOFF when we sent it
+        self._takeoff_fresh_from: float | None = None
+        self._took_off_before = False
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -351,7 +363,11 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
     def _check_state(self, now: float) -> None:
         """Confirm steps by what the vehicle reports, whatever happened to the ACKs."""
         v = self.vehicle
-        armed = bool(v.armed)
+        if v.armed is None:
+            # no HEARTBEAT since a StateReset (XRCE: a new session): unknown, not disarmed;
+            # nothing is confirmed or failed on it, the timers still run
+            return
+        armed = v.armed
         if armed:
             self._seen_armed = True
         elif self._seen_armed and self.phase in (TakeoffPhase.TAKING_OFF, TakeoffPhase.LIFTING):
@@ -366,10 +382,9 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         airborne = v.landed_state in AIRBORNE
         if self.phase is TakeoffPhase.ARMING and armed:
             self._step_done(now, "armed bit set in HEARTBEAT")
-        elif self.phase is TakeoffPhase.TAKING_OFF and armed:
+        elif self.phase is TakeoffPhase.TAKING_OFF and armed and self._takeoff_shows():
             mode = v.heartbeat.mode if v.heartbeat is not None else None
-            if airborne or mode == MODE_TAKEOFF:
-                self._step_done(now, f"mode {mode}, landed_state {_name(v.landed_state)}")
+            self._step_done(now, f"mode {mode}, landed_state {_name(v.landed_state)}")
         if self.phase is TakeoffPhase.LIFTING and armed and airborne:
             self._succeed(now)
 
@@ -378,12 +393,28 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             self._set_phase(TakeoffPhase.TAKING_OFF, now, f"arm confirmed: {why}")
             self._settle(now, why)
             alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
+            v = self.vehicle
+            self._takeoff_fresh_from = now + self.config.command.ack_timeout_s
+            self._took_off_before = v.landed_state in AIRBORNE or (
+                v.heartbeat is not None and v.heartbeat.mode == MODE_TAKEOFF
+            )
             self._send(VehicleCommand.make(MavCmd.NAV_TAKEOFF, p7=alt), now)
         elif self.phase is TakeoffPhase.TAKING_OFF:
             self._settle(now, why)
             self._lift_deadline = now + self.config.liftoff_timeout_s
             self._set_phase(TakeoffPhase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
             self._check_state(now)
+
+    def _takeoff_shows(self) -> bool:
+        """Does the state show what only our NAV_TAKEOFF produced (module docstring)? Mode
+        AUTO.TAKEOFF in a fresh HEARTBEAT, or TAKEOFF/IN_AIR in a fresh EXTENDED_SYS_STATE,
+        where the state held at the send showed neither."""
+        v, since = self.vehicle, self._takeoff_fresh_from
+        if since is None or self._took_off_before:
+            return False
+        mode = v.heartbeat is not None and v.heartbeat.mode == MODE_TAKEOFF
+        airborne = v.landed_state in AIRBORNE
+        return (fresh(v.heartbeat_at, since) and mode) or (fresh(v.extended_at, since) and airborne)
 
     def _succeed(self, now: float) -> None:
         v = self.vehicle

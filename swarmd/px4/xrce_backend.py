@@ -32,7 +32,7 @@ from typing import Any, Final, Literal
 
 from swarmd.driver import Driver
 from swarmd.px4.backend import ObservationSink
-from swarmd.px4.messages import VehicleCommand
+from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.transport import (
     XRCE_SOCKET,
     ByteLink,
@@ -333,16 +333,20 @@ class XrceBackend:
             elif isinstance(dest, tuple):
                 self._transport.sendto(data, dest)
 
+    def _deliver(self, observations: list[Observation]) -> None:
+        if self._sink is not None and self._loop is not None:
+            now = self._loop.time()
+            for obs in observations:
+                self._sink(obs, now)
+
     def _event(self, event: XrceEvent) -> None:
         match event:
             case SampleReceived():
                 self.counters["samples"] += 1
-                if self._sink is not None and self._loop is not None:
-                    now = self._loop.time()
-                    for obs in self.translator.sample(event.topic_name, event.data):
-                        self._sink(obs, now)
+                self._deliver(self.translator.sample(event.topic_name, event.data))
             case SessionCreated():
-                self.translator.new_session()  # whose samples: the next vehicle_status says
+                # whose samples, and every vehicle fact: the new session's samples say
+                self._deliver(self.translator.new_session())
                 self.session = "established"
                 self.client = f"{_peer(event.source)} key {event.client_key.hex()}"
                 self.counters["sessions"] += 1

@@ -11,8 +11,13 @@ from arming and ``failsafe``, autopilot PX4) and, with ``battery_status``, the `
 One vehicle: ``vehicle_status.system_id`` (PX4's ``MAV_SYS_ID``) must be this vehicle's
 MAVLink system id. A ``vehicle_status`` of any other vehicle is dropped and counted
 (``foreign_samples``), and so is every other topic of the session until a ``vehicle_status``
-has said whose it is (the other topics carry no system id of their own); ``new_session``
-forgets the identity when the agent's session changes.
+has said whose it is (the other topics carry no system id of their own).
+
+A new session (``new_session``: the agent's SessionCreated) may be a rebooted PX4, so it
+forgets the identity and every vehicle fact the mapping carries (nav_state, landed, PREARM,
+battery, failsafe flags, release) and returns a ``StateReset`` for the vehicle state: nothing
+of the last life (its landed flag above all, which a PX4 rebooted on the ground would
+otherwise keep for up to a second) is said of the new one.
 
 A sample whose layout matches no PX4 release (v1.14..v1.17) is not guessed at: it is
 counted, ``problem`` names it, and a ``TopicLayout`` naming it makes readiness false with
@@ -40,6 +45,7 @@ from swarmd.px4.messages import (
     Heartbeat,
     HomePosition,
     Observation,
+    StateReset,
     SysStatus,
     TopicLayout,
     VehicleCommand,
@@ -121,10 +127,24 @@ class Px4Translator:
         pool = self.releases or set(topics.RELEASES)
         return max(pool, key=lambda r: tuple(map(int, r.split("."))))
 
-    def new_session(self) -> None:
-        """The agent's session changed: whose samples they are is unknown until the next
-        ``vehicle_status``."""
+    def new_session(self) -> list[Observation]:
+        """The agent's session changed: whose samples they are, and every fact of the vehicle,
+        are unknown until the new session's samples say them (module docstring). Returns the
+        ``StateReset`` the vehicle state must see before the new session's first sample."""
         self._identified = False
+        self._forget_vehicle()
+        return [StateReset("new XRCE session")]
+
+    def _forget_vehicle(self) -> None:
+        # what __init__ sets for the vehicle (not the counters, nor the unreadable topics:
+        # their TopicLayout problem stays until a sample of the topic decodes)
+        self.releases = set(topics.RELEASES)  # a reboot may be a new firmware
+        self.blockers = None
+        self._nav_state = None
+        self._landed = None
+        self._prearm = None
+        self._battery_pct = -1
+        self._voltage_mv = 0xFFFF
 
     def sample(self, topic_name: str, data: bytes) -> list[Observation]:
         if topics.is_command_reply(topic_name):  # the vehicle_command service's reply
