@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Final
 
-from swarmd.px4.messages import Observation
+from swarmd.px4.messages import Observation, StateReset
 from swarmd.px4.xrce_backend import Mode, XrceBackend
 
 ETH_P_ALL: Final = 0x0003
@@ -63,7 +63,9 @@ async def serve(port: int, seconds: float, mode: Mode = "xrce-agent") -> dict[st
 
     def sink(obs: Observation, now: float) -> None:
         counts[type(obs).__name__] = counts.get(type(obs).__name__, 0) + 1
-        first.set()
+        # a new session's StateReset comes before PX4's time sync and first sample
+        if not isinstance(obs, StateReset):
+            first.set()
 
     await backend.start(sink)
     loop = asyncio.get_running_loop()
