@@ -123,8 +123,19 @@ class Drone:
     member_of: str  # a group whose /etc/group line lists the user
 
 
+# shadow-utils lock /etc/passwd and /etc/group (lckpwdf: 15 s, then exit 1/10); another
+# process on the machine adding a user (a test of another checkout) can hold the lock
+LOCKED_TRIES = 4
+
+
 def _sh(*argv: str) -> None:
-    subprocess.run(argv, check=True, capture_output=True, timeout=WAIT_S)  # noqa: S603
+    for _ in range(LOCKED_TRIES - 1):
+        done = subprocess.run(argv, check=False, capture_output=True, timeout=WAIT_S)  # noqa: S603
+        if done.returncode == 0 or b"lock" not in done.stderr.lower():
+            break
+    else:
+        done = subprocess.run(argv, check=False, capture_output=True, timeout=WAIT_S)  # noqa: S603
+    done.check_returncode()
 
 
 def _gone(drone: Drone) -> bool:
@@ -152,13 +163,16 @@ def drone() -> Iterator[Drone]:
             "-g", made.own_group, "-G", made.member_of, made.user)  # fmt: skip
         yield made
     finally:
-        for argv in (
-            ("userdel", made.user),
-            ("groupdel", made.own_group),
-            ("groupdel", made.group),
-            ("groupdel", made.member_of),
-        ):
-            subprocess.run(argv, check=False, capture_output=True, timeout=WAIT_S)  # noqa: S603
+        for _ in range(LOCKED_TRIES):
+            for argv in (
+                ("userdel", made.user),
+                ("groupdel", made.own_group),
+                ("groupdel", made.group),
+                ("groupdel", made.member_of),
+            ):
+                subprocess.run(argv, check=False, capture_output=True, timeout=WAIT_S)  # noqa: S603
+            if _gone(made):
+                break
         assert _gone(made), "the test's user or groups were left behind"
 
 
