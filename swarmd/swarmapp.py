@@ -49,6 +49,7 @@ from swarmd.px4.vehicle import TaskFinished, VehicleRequest
 from swarmd.px4.xrce_key import XrceKey, XrceKeyError
 from swarmd.px4.xrce_key import check as check_xrce_key
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
+from swarmd.statefile import NodeState, StateDirError, boot, preview
 from swarmd.swarm import issuer
 from swarmd.swarm.commander import RESTARTED_RUNNING, CommandTracker, KeptDecision, ReadinessTable
 from swarmd.swarm.core import SwarmCore, SwarmSettings
@@ -72,7 +73,6 @@ from swarmd.swarm.events import (
 )
 from swarmd.swarm.member import NO_VEHICLE
 from swarmd.swarm.roles import Roles
-from swarmd.swarm.statefile import NodeState, StateDirError, boot, preview
 from swarmd.userdata import UserDataSocket
 
 Datagram = tuple[bytes, tuple[str, int]]

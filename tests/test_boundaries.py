@@ -77,6 +77,10 @@ ALLOWED: dict[str, frozenset[str]] = {
     "sockdiag": frozenset(),
     # the user-data UDP socket SwarmApp hands to the driver (daemon tier, not the swarm core)
     "userdata": CORE | {"udp"},
+    # the state file: a member's boot count and decisions, read and written through one
+    # judged folder descriptor (daemon tier; it reads the wall clock its kept times are
+    # judged against, so it cannot be the swarm core's)
+    "statefile": CORE | {"dataplane", "swarm"},
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
     # the nftables table (and iptables chain) of swarmd's loopback ports, generated from the
     # config (text only; swarmd local-firewall runs nft or iptables-restore: cli); a
@@ -89,7 +93,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
     "swarmapp": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
-    | {"config", "control", "driver", "logs", "userdata"},
+    | {"config", "control", "driver", "logs", "userdata", "statefile"},
     # what the daemon derives before it starts: secrets, address, engine settings, link
     # sources, SPDP sockets, the systemd socket name (daemon tier, split from daemon.py)
     "daemon_setup": CORE | {"auth", "discovery", "link", "px4", "config", "udp", "sdlisten"},
@@ -154,9 +158,9 @@ SANS_IO = [
             {"transport", "mavlink_backend", "bridge", "xrce_backend", "provision", "portowner"}
         ),
     ),
-    # the swarm's I/O: the state file (core.py and its two sides, issuer.py and member.py,
-    # are sans-IO; the user-data socket is the daemon tier's swarmd/userdata.py)
-    SansIO("swarm", frozenset({"statefile"})),
+    # every module: core.py and its two sides, issuer.py and member.py; the swarm's I/O is
+    # the daemon tier's (swarmd/statefile.py, swarmd/userdata.py)
+    SansIO("swarm"),
 ]
 NO_LOOP = ("asyncio", "socket", "selectors")
 NO_IO = frozenset({"asyncio", "socket", "selectors", "threading", "time", "trio"})

@@ -21,12 +21,12 @@ from typing import Any
 
 from structlog.testing import capture_logs
 
+from swarmd import statefile
 from swarmd.auth.epoch import epoch_path
 from swarmd.cli.outcomes_cmd import render_kept, to_json
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.exitcodes import EX_FAILED
 from swarmd.rawclock import run_on_raw_clock
-from swarmd.swarm import statefile
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, DecisionLog, KeptDecision
 from tests.daemon_support import run_domain, write_bundle
 from tests.test_cmd_in_flight import Flight, _issue, _reboot

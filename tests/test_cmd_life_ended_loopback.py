@@ -29,8 +29,8 @@ from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
+from swarmd.statefile import state_path
 from swarmd.swarm.commander import RESTARTED_RUNNING
-from swarmd.swarm.statefile import state_path
 from tests.daemon_support import run_domain, write_bundle
 from tests.test_cmd_memory_loopback import _can_make_immutable, _executor, _immutable
 from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until

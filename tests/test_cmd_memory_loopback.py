@@ -42,12 +42,12 @@ import pytest
 from structlog.testing import capture_logs
 from swarmd_lab.px4.vehicle_sim import start_sim
 
+from swarmd import statefile
 from swarmd.dataplane.types import Command, CommandKind
 from swarmd.exitcodes import EX_CANTCREAT, StartupError
 from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
-from swarmd.swarm import statefile
-from swarmd.swarm.statefile import state_path
+from swarmd.statefile import state_path
 from tests.daemon_support import run_domain, write_bundle
 from tests.test_takeoff_loopback import Swarm, _mavlink_port, _sim, until
 

@@ -33,6 +33,7 @@ from swarmd.dataplane import MAX_EXECUTED_COMMANDS
 from swarmd.dataplane.types import CommandKind, CommandResult
 from swarmd.discovery import EngineConfig
 from swarmd.px4.vehicle import TaskKind, VehicleRequest
+from swarmd.statefile import boot, load, state_path
 from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     NOT_REACHED,
@@ -44,7 +45,6 @@ from swarmd.swarm.commander import (
 )
 from swarmd.swarm.core import DEFAULT_VALID_FOR_S, MAX_REREPORTED, REREPORT_WINDOW_S, SwarmCore
 from swarmd.swarm.events import OutcomeRecorded, OutcomesReReported, PersistExecuted
-from swarmd.swarm.statefile import boot, load, state_path
 from tests.test_cmd_in_flight import Flight
 from tests.test_cmd_validity import _Outcomes
 from tests.test_dataplane_swarm import address_of

@@ -37,8 +37,8 @@ from swarmd_lab.demo.observe import read_log
 from swarmd.dataplane import TOPIC_OUTCOME
 from swarmd.dataplane.types import CommandResult
 from swarmd.dataplane.writer import HEARTBEAT_BACKOFF, HEARTBEAT_PERIOD_S, MAX_HEARTBEAT_PERIOD_S
+from swarmd.statefile import load, state_path
 from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE
-from swarmd.swarm.statefile import load, state_path
 from tests.conftest import LanFactory
 from tests.daemon_support import BIN
 from tests.test_flight_netns import Swarm, cut, heal, until

@@ -19,13 +19,13 @@ from pathlib import Path
 
 import pytest
 
-from swarmd.swarm import statefile
+from swarmd import statefile
 
 CHILD = """
 import os, signal, sys
 from pathlib import Path
 import swarmd.bundle.safeopen as safeopen
-from swarmd.swarm import statefile
+from swarmd import statefile
 
 step = sys.argv[2]
 def die(*args, **kwargs):

@@ -16,14 +16,14 @@ from typing import Final
 
 import pytest
 
-from swarmd import config, control, peerlog, udp
+from swarmd import config, control, peerlog, statefile, udp
 from swarmd.auth import epoch, windows
 from swarmd.bundle import floor
 from swarmd.cli import firewall_cmd, status_cmd, swarmctl, swarmd_main
 from swarmd.dataplane.types import CommandKind
 from swarmd.px4 import xrce_key
 from swarmd.px4.readiness import Reason
-from swarmd.swarm import commander, issuer, statefile
+from swarmd.swarm import commander, issuer
 
 ROOT: Final = Path(__file__).resolve().parent.parent
 OPERATIONS: Final = "docs/operations.md"

@@ -26,7 +26,7 @@ from typing import Any, TypeVar, cast
 
 import pytest
 
-from swarmd import daemon_setup
+from swarmd import daemon_setup, statefile
 from swarmd.auth import epoch as epoch_mod
 from swarmd.auth.epoch import EpochError, next_epoch
 from swarmd.auth.windows import load_windows, windows_path
@@ -44,9 +44,8 @@ from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResu
 from swarmd.exitcodes import EX_CONFIG
 from swarmd.px4.provision import SigningKeyError, signing_key_for
 from swarmd.px4.signing import px4_key_file
-from swarmd.swarm import statefile
+from swarmd.statefile import NodeState, StateDirError, boot, state_path
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
-from swarmd.swarm.statefile import NodeState, StateDirError, boot, state_path
 from tests.daemon_support import (
     SWARMD,
     BundleFiles,

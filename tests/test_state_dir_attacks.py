@@ -19,7 +19,7 @@ import pytest
 
 from swarmd.auth.epoch import EpochError, next_epoch
 from swarmd.bundle.keys import write_file_atomic
-from swarmd.swarm.statefile import NodeState, StateDirError, boot, state_path
+from swarmd.statefile import NodeState, StateDirError, boot, state_path
 
 VICTIM_BYTES = b"-----BEGIN PRIVATE KEY-----\nnot to be touched\n"
 

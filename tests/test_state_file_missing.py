@@ -1,6 +1,6 @@
 """A state file deleted between two lives is logged, and counted in status.
 
-The state file (``dataplane.state_dir``, swarmd.swarm.statefile) is the drone's record of
+The state file (``dataplane.state_dir``, swarmd.statefile) is the drone's record of
 the commands it ran. A missing one starts afresh, which is right on a first boot; on a
 node that booted before (its boot epoch file held an earlier epoch) it means the record
 was deleted, and the new life then refuses its earlier lives' commands ``memory_lost``
@@ -19,7 +19,7 @@ from structlog.testing import capture_logs
 
 from swarmd.bundle.loader import load_bundle
 from swarmd.config import load_config
-from swarmd.swarm.statefile import state_path
+from swarmd.statefile import state_path
 from tests.daemon_support import (
     BundleFiles,
     in_process_daemon,

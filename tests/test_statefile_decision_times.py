@@ -20,13 +20,13 @@ from typing import Any
 import structlog
 from structlog.testing import capture_logs
 
+from swarmd import statefile
 from swarmd.auth.keys import KeyRing
 from swarmd.bundle.loader import load_bundle
 from swarmd.config import load_config
 from swarmd.daemon_setup import load_node_secrets
-from swarmd.swarm import statefile
+from swarmd.statefile import DECISION_CLOCK_SLACK_S
 from swarmd.swarm.commander import KeptDecision
-from swarmd.swarm.statefile import DECISION_CLOCK_SLACK_S
 from swarmd.swarmapp import SwarmApp
 from tests.daemon_support import loopback_config, run_domain, run_swarmd, write_bundle
 

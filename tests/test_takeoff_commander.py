@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from swarmd.dataplane.types import CommandResult, Readiness
+from swarmd.statefile import boot, load, state_path
 from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     NO_REPORT,
@@ -19,7 +20,6 @@ from swarmd.swarm.commander import (
     CommandTracker,
     ReadinessTable,
 )
-from swarmd.swarm.statefile import boot, load, state_path
 
 
 def sample(node: str, seq: int, ready: bool, reason: str = "", landed: int = 1) -> Readiness:

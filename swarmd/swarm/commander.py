@@ -418,7 +418,7 @@ def _mark(
         entry.save_failed, entry.save_mark = False, at
 
 
-# One decision as the state file keeps it (``swarm.statefile``, key ``decisions``): the life
+# One decision as the state file keeps it (``statefile``, key ``decisions``): the life
 # (the state file's boot counter, ``DataPlane.incarnation``) that decided it, the command,
 # what was decided and when. ``received_at`` is on the clock of whoever holds it: the
 # core's ``now`` in memory, Unix seconds in the file (the daemon converts both ways,
