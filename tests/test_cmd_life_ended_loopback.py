@@ -109,6 +109,24 @@ def test_an_accepted_row_ends_when_its_member_restarts_without_its_record(
     assert [(e["member"], e["reason"]) for e in ended] == [("uav2", RESTARTED_RUNNING)], ended
 
 
+async def _marked_hold(swarm: Swarm, workdir: Path, *, done: bool) -> tuple[Any, int]:
+    """uav1 sends uav2 a HOLD while uav2's state dir is immutable, and waits until its row
+    says ``save_failed`` (and, ``done``, ``completed``): uav1's app and the HOLD's id."""
+    app = swarm.commander.app
+    assert app is not None
+    await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
+    with _immutable(workdir / "state"):
+        sent = app.request_command({"kind": "hold", "only": ["uav2"]})
+        cid = int(sent["command_id"])
+
+        def marked() -> bool:
+            row = _snap(app, cid)["nodes"]["uav2"]
+            return bool(row["save_failed"]) and (not done or row["state"] == "completed")
+
+        await until(marked, lambda: _snap(app, cid))
+    return app, cid
+
+
 def test_a_failed_save_then_a_write_that_holds_it_clears_the_commanders_mark(
     workdir: Path,
 ) -> None:
@@ -121,16 +139,8 @@ def test_a_failed_save_then_a_write_that_holds_it_clears_the_commanders_mark(
     async def main() -> None:
         await _start(swarm)
         try:
-            app = swarm.commander.app
-            assert app is not None
-            await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
-            with _immutable(workdir / "state"):
-                sent = app.request_command({"kind": "hold", "only": ["uav2"]})
-                cid = ids["first"] = int(sent["command_id"])
-                await until(
-                    lambda: bool(_snap(app, cid)["nodes"]["uav2"]["save_failed"]),
-                    lambda: _snap(app, cid),
-                )
+            app, cid = await _marked_hold(swarm, workdir, done=False)
+            ids["first"] = cid
             again = app.request_command({"kind": "hold", "only": ["uav2"]})
             second = int(again["command_id"])
             await until(
@@ -167,19 +177,7 @@ def test_a_clear_lost_to_a_restart_is_sent_by_the_next_life(
     async def main() -> None:
         await _start(swarm)
         try:
-            app = swarm.commander.app
-            assert app is not None
-            await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
-            with _immutable(workdir / "state"):
-                sent = app.request_command({"kind": "hold", "only": ["uav2"]})
-                cid = int(sent["command_id"])
-                await until(
-                    lambda: (
-                        _snap(app, cid)["nodes"]["uav2"]["state"] == "completed"
-                        and bool(_snap(app, cid)["nodes"]["uav2"]["save_failed"])
-                    ),
-                    lambda: _snap(app, cid),
-                )
+            app, cid = await _marked_hold(swarm, workdir, done=True)
             member = swarm.daemons[1].app
             assert member is not None and member.plane is not None
             plane = member.plane
