@@ -7,7 +7,8 @@ One small JSON file per node in the state directory (``dataplane.state_dir``, sy
     {"boot": 7, "executed": [["lead", 30064771073], ...],
      "outcomes": [["lead", 30064771073, 1, "IN_AIR"], ...],
      "decisions": [[6, "lead", 30064771073, "takeoff", "completed", "IN_AIR",
-                    1795797000.25, 4.1], ...]}
+                    1795797000.25, 4.1], ...],
+     "told_unsaved": [["lead", 30064771073]]}
 
 Why: the data plane's exactly-once argument (docs/dataplane.md, "Exactly once") needs an
 ``incarnation`` that grows with every restart (sequence numbers and command ids of a
@@ -24,7 +25,11 @@ which exactly-once depends on, are kept. ``decisions`` is the member's ``Decisio
 (``swarm.commander.KeptDecision``: life, commander, id, kind, state, reason, when received
 in Unix seconds, how long the final answer took), so ``swarmctl outcomes`` in a later life
 lists what the earlier ones decided, with kind and time; at most ``MAX_DECIDED_COMMANDS``
-(64) entries over all lives, the newest. Same compatibility: a file without it loads with
+(64) entries over all lives, the newest. ``told_unsaved`` ([commander, id] pairs, one per
+kept decision at most) names the decisions whose commander was told their record was not
+saved, so a later life that holds their final answer says it is (docs/dataplane.md, "A
+clear lost to a restart"); at load an entry naming no kept decision, or of another
+shape, is left out alone. Same compatibility: a file without it loads with
 none, an unreadable list is dropped alone. A decision whose time cannot be right (NaN,
 infinite, negative, or later than the wall clock at load by more than
 ``DECISION_CLOCK_SLACK_S``; its answer likewise) is dropped alone and counted
@@ -103,6 +108,9 @@ class NodeState:
     outcomes: list[KeptOutcome] = field(default_factory=list)
     # received_at in Unix seconds (wall clock: the only one two lives share)
     decisions: list[KeptDecision] = field(default_factory=list)
+    # (commander, id) of kept decisions whose commander was told they were not saved: the
+    # next life says they are (``swarm.commander.DecisionLog.told_unsaved``)
+    told_unsaved: list[tuple[str, int]] = field(default_factory=list)
     recovered_from: str | None = None  # why an unreadable file was replaced, for the log
     temps_removed: int = 0  # left-over temporary files removed at boot, for the log
     # no file was there: a first boot, or a deleted file (the caller knows which: the boot
@@ -126,6 +134,8 @@ class NodeState:
             body["outcomes"] = [list(kept) for kept in self.outcomes]
         if self.decisions:  # the same: without any, as before they were kept
             body["decisions"] = [list(kept) for kept in self.decisions[-MAX_DECIDED_COMMANDS:]]
+        if self.told_unsaved:  # the same
+            body["told_unsaved"] = [[c, i] for c, i in self.told_unsaved[-MAX_DECIDED_COMMANDS:]]
         data = json.dumps(body, separators=(",", ":")).encode("utf-8")
         try:
             # a random O_EXCL|O_NOFOLLOW temp name: a symlink planted at the old fixed
@@ -310,7 +320,29 @@ def load(
             known.add(key)
             state.executed.append(key)
             state.decision_ids_kept += 1
+    state.told_unsaved = _told_unsaved(body.get("told_unsaved"), state.decisions)
     return state
+
+
+def _told_unsaved(raw: object, decisions: list[KeptDecision]) -> list[tuple[str, int]]:
+    """The file's ``told_unsaved``: each entry a [commander, id] naming a decision kept, at
+    most one per decision; anything else (not a list, an entry of another shape, a
+    decision not kept or dropped at load) is left out. Leaving one out only keeps a
+    commander's mark standing (the alarm side), so nothing here refuses the file."""
+    if not isinstance(raw, list):
+        return []
+    kept = {(d.commander, d.command_id) for d in decisions}
+    told: list[tuple[str, int]] = []
+    for entry in raw[-MAX_DECIDED_COMMANDS:]:
+        if not isinstance(entry, list) or len(entry) != 2:
+            continue
+        commander, command_id = entry
+        if not isinstance(commander, str) or type(command_id) is not int:  # not a bool
+            continue
+        key = (commander, command_id)
+        if key in kept and key not in told:
+            told.append(key)
+    return told
 
 
 def _time_problem(decision: KeptDecision, wall_now: float) -> str | None:

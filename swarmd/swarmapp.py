@@ -179,6 +179,7 @@ class SwarmApp:
                 ),
                 # the earlier lives' decisions, dated on this life's clock
                 earlier_decisions=[_on_clock(d, -offset) for d in earlier],
+                told_unsaved=() if self.state is None else self.state.told_unsaved,
             )
             self.driver = Driver(
                 self.core,
@@ -570,6 +571,7 @@ class SwarmApp:
         self.state.outcomes = list(event.outcomes)
         offset = self._wall_offset()
         self.state.decisions = [_on_clock(d, offset) for d in event.decisions]
+        self.state.told_unsaved = list(event.told_unsaved)
         error: str | None = None
         try:
             self.state.save()

@@ -100,6 +100,7 @@ class Flight:
             link_q=lambda: 0.8,
             settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
             earlier_decisions=kept.decisions,  # one clock here: nothing to convert
+            told_unsaved=kept.told_unsaved,
         )
         swarm.cores[name] = core
         if start:

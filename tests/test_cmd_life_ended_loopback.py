@@ -14,6 +14,10 @@ real RTPS, each with a vehicle simulator on its own MAVLink port); uav1 commands
   +i``) while it takes a HOLD, so uav1's row says ``save_failed``; the dir is writable
   again and uav1 sends another HOLD, whose write holds the whole record: uav2 tells uav1
   (``OUTCOME_NOW_SAVED``) and the first row's mark goes.
+- *The same clear, lost to a restart* (session 16): as above, but uav2's daemon never
+  sends the clear (its plane drops it, as a daemon that dies between the write and the
+  send) and restarts: the new life, whose file holds the HOLD's final answer and that
+  uav1 was told it was unsaved, re-reports it flagged saved and the mark goes.
 
 Waits have caps; nothing asserts how fast anything happened.
 """
@@ -27,6 +31,7 @@ import pytest
 from structlog.testing import capture_logs
 from swarmd_lab.px4.vehicle_sim import start_sim
 
+from swarmd.dataplane.types import OUTCOME_NOW_SAVED
 from swarmd.px4.transport import parse_connection
 from swarmd.rawclock import run_on_raw_clock
 from swarmd.statefile import state_path
@@ -104,6 +109,24 @@ def test_an_accepted_row_ends_when_its_member_restarts_without_its_record(
     assert [(e["member"], e["reason"]) for e in ended] == [("uav2", RESTARTED_RUNNING)], ended
 
 
+async def _marked_hold(swarm: Swarm, workdir: Path, *, done: bool) -> tuple[Any, int]:
+    """uav1 sends uav2 a HOLD while uav2's state dir is immutable, and waits until its row
+    says ``save_failed`` (and, ``done``, ``completed``): uav1's app and the HOLD's id."""
+    app = swarm.commander.app
+    assert app is not None
+    await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
+    with _immutable(workdir / "state"):
+        sent = app.request_command({"kind": "hold", "only": ["uav2"]})
+        cid = int(sent["command_id"])
+
+        def marked() -> bool:
+            row = _snap(app, cid)["nodes"]["uav2"]
+            return bool(row["save_failed"]) and (not done or row["state"] == "completed")
+
+        await until(marked, lambda: _snap(app, cid))
+    return app, cid
+
+
 def test_a_failed_save_then_a_write_that_holds_it_clears_the_commanders_mark(
     workdir: Path,
 ) -> None:
@@ -116,16 +139,8 @@ def test_a_failed_save_then_a_write_that_holds_it_clears_the_commanders_mark(
     async def main() -> None:
         await _start(swarm)
         try:
-            app = swarm.commander.app
-            assert app is not None
-            await until(lambda: bool(swarm.table()["uav2"]["ready"]), swarm.table)
-            with _immutable(workdir / "state"):
-                sent = app.request_command({"kind": "hold", "only": ["uav2"]})
-                cid = ids["first"] = int(sent["command_id"])
-                await until(
-                    lambda: bool(_snap(app, cid)["nodes"]["uav2"]["save_failed"]),
-                    lambda: _snap(app, cid),
-                )
+            app, cid = await _marked_hold(swarm, workdir, done=False)
+            ids["first"] = cid
             again = app.request_command({"kind": "hold", "only": ["uav2"]})
             second = int(again["command_id"])
             await until(
@@ -149,3 +164,47 @@ def test_a_failed_save_then_a_write_that_holds_it_clears_the_commanders_mark(
         if e["event"] == "command_outcome_received" and e.get("command_id") == ids["first"]
     ]
     assert False in heard and heard[-1] is True, heard
+
+
+def test_a_clear_lost_to_a_restart_is_sent_by_the_next_life(
+    workdir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    if not _can_make_immutable(workdir):
+        pytest.skip("needs chattr +i (root, a file system with the immutable flag)")
+    files = write_bundle(workdir, 2, domain_id=run_domain(), lease_s=20.0)
+    swarm = Swarm(workdir, files)
+
+    async def main() -> None:
+        await _start(swarm)
+        try:
+            app, cid = await _marked_hold(swarm, workdir, done=True)
+            member = swarm.daemons[1].app
+            assert member is not None and member.plane is not None
+            plane = member.plane
+            sends = plane.report_outcome
+            dropped: list[int] = []
+
+            def without_clears(command_id: int, *args: Any, **kwargs: Any) -> int:
+                if kwargs.get("flags", 0) & OUTCOME_NOW_SAVED:
+                    dropped.append(command_id)  # the daemon died before it went out
+                    return 0
+                return sends(command_id, *args, **kwargs)
+
+            monkeypatch.setattr(plane, "report_outcome", without_clears)
+            app.request_command({"kind": "hold", "only": ["uav2"]})  # its write holds cid
+            await until(lambda: dropped == [cid], lambda: (dropped, _executor(swarm, 1)))
+            assert _snap(app, cid)["nodes"]["uav2"]["save_failed"] is True
+            await swarm.daemons[1].stop("test")
+            reborn = swarm.daemon(1)
+            await reborn.start()
+            swarm.daemons[1] = reborn
+            await until(
+                lambda: not _snap(app, cid)["nodes"]["uav2"]["save_failed"],
+                lambda: (_snap(app, cid), _executor(swarm, 1)),
+            )
+            assert _executor(swarm, 1).get("told_saved") == 1
+            assert _snap(app, cid)["nodes"]["uav2"]["state"] == "completed"
+        finally:
+            await swarm.stop()
+
+    run_on_raw_clock(main())

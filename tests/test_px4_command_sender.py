@@ -253,16 +253,38 @@ def test_in_progress_pays_no_debt_and_is_not_credited_while_one_is_owed() -> Non
     assert s.get_timer() == pytest.approx(3.23) and s.pending(later)
 
 
-def test_owed_answers_are_forgotten_after_the_window_and_capped() -> None:
+def test_owed_answers_past_the_cap_are_pooled_and_forgotten_after_the_window() -> None:
+    """More debts than ``MAX_OWED_PER_COMMAND`` on one number are kept as a count (memory
+    bounded: the rest ride on one counter), each answer pays one, and all go when the
+    window ends. The number cap evicts the oldest number (never reached by a vehicle)."""
     owed = OwedAcks(1.0)
     owed.owe(MavCmd.NAV_LAND, 10, 0.0)  # more than a command's 1 + 3 sends
-    assert owed.owes(MavCmd.NAV_LAND, 0.5) == MAX_OWED_PER_COMMAND
-    assert owed.evicted == 10 - MAX_OWED_PER_COMMAND
+    assert owed.owes(MavCmd.NAV_LAND, 0.5) == 10
+    assert len(owed._owed[MavCmd.NAV_LAND].times) == MAX_OWED_PER_COMMAND
+    assert owed.stats()["pooled"] == 10 - MAX_OWED_PER_COMMAND
+    for _ in range(3):
+        assert owed.pay(ack(MavCmd.NAV_LAND, MavResult.DENIED), 0.6)
+    assert owed.owes(MavCmd.NAV_LAND, 0.6) == 7
     assert owed.owes(MavCmd.NAV_LAND, 1.0) == 0  # the window is over
+    assert (owed.paid, owed.forgotten, owed.evicted) == (3, 7, 0)
     for command in range(MAX_OWED_COMMANDS + 3):
         owed.owe(command, 1, 2.0 + command / 100)
     assert sum(owed.owes(c, 2.2) for c in range(MAX_OWED_COMMANDS + 3)) == MAX_OWED_COMMANDS
     assert owed.owes(0, 2.2) == 0  # the oldest number went first
+    assert owed.evicted == 3
+
+
+def test_pooled_debts_expire_with_the_latest_of_them_and_before_the_kept_ones() -> None:
+    """Two commands' debts, the second pushing the first's into the pool: the pool expires
+    at the first's expiry, the kept ones at the second's; a retransmission forgets both."""
+    owed = OwedAcks(1.0)
+    owed.owe(MavCmd.NAV_LAND, 4, 0.0)  # until 1.0
+    owed.owe(MavCmd.NAV_LAND, 4, 0.5)  # until 1.5: the first four pooled
+    assert owed.owes(MavCmd.NAV_LAND, 0.9) == 8
+    assert owed.owes(MavCmd.NAV_LAND, 1.0) == 4
+    owed.forget(MavCmd.NAV_LAND)
+    assert owed.owes(MavCmd.NAV_LAND, 1.1) == 0
+    assert owed.forgotten == 8
 
 
 _RESULTS = [

@@ -10,10 +10,13 @@ loopback socket. What other tests pin already is named in docs/security.md's tab
 from __future__ import annotations
 
 import asyncio
+import re
 import socket
 from collections.abc import Callable
 
+from swarmd.px4 import actions, takeoff
 from swarmd.px4.actions import NOT_CONFIRMED
+from swarmd.px4.command_sender import MAX_OWED_COMMANDS
 from swarmd.px4.constants import (
     COMP_ID_AUTOPILOT1,
     SENSOR_PREARM_CHECK,
@@ -122,7 +125,7 @@ def test_a_late_refusal_of_an_earlier_land_does_not_fail_a_later_one() -> None:
     core.receive_datagram(_heartbeat(MODE_LAND), None, 1.2)
     (later,) = _finished(core)
     assert (later.token, later.ok) == (2, True)
-    assert core.owed.stats() == {"paid": 1, "forgotten": 0, "evicted": 0}
+    assert core.owed.stats() == {"paid": 1, "forgotten": 0, "pooled": 0, "evicted": 0}
 
 
 def test_a_failed_takeoffs_disarm_answer_does_not_arm_the_next_takeoff() -> None:
@@ -218,3 +221,86 @@ async def _until(check: Callable[[], bool]) -> None:
             await asyncio.sleep(0.01)
 
     await asyncio.wait_for(poll(), BOUND_S)
+
+
+def _in_the_air(core: VehicleCore, now: float) -> None:
+    for obs in (_heartbeat(MODE_LOITER), SysStatus(SENSOR_PREARM_CHECK, 90, 16000)):
+        core.receive_datagram(obs, None, now)
+    core.receive_datagram(ExtendedSysState(LandedState.IN_AIR), None, now)
+
+
+def test_late_refusals_beyond_four_owed_answers_do_not_fail_the_last_land() -> None:
+    """One vehicle owes more than ``MAX_OWED_PER_COMMAND`` answers of one number: the
+    operator sends LAND six times within 0.25 s (each supersedes the one before, whose one
+    NAV_LAND is owed its answer: five debts). PX4's five answers to them come late, each
+    DENIED, then its ACCEPTED to the last, and it lands. Every refusal pays a debt; the
+    last LAND completes. [main: the table kept four and dropped the oldest; the fifth
+    DENIED was credited to the last LAND, FAILED DENIED while the vehicle lands]"""
+    core = VehicleCore()
+    _in_the_air(core, 0.0)
+    for token in range(1, 7):
+        core.request(VehicleRequest(token, TaskKind.LAND), (token - 1) * 0.05)
+    sent = core.datagrams_to_send()
+    assert [(c.command, c.confirmation) for c in sent] == [(MavCmd.NAV_LAND, 0)] * 6
+    superseded = _finished(core)
+    assert [(d.token, d.ok) for d in superseded] == [(t, False) for t in range(1, 6)]
+    for i in range(5):
+        core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.DENIED), None, 0.3 + i / 100)
+    core.receive_datagram(CommandAck(MavCmd.NAV_LAND, MavResult.ACCEPTED), None, 0.36)
+    assert _finished(core) == []
+    core.receive_datagram(_heartbeat(MODE_LAND), None, 0.8)  # an ack timeout after the send
+    (last,) = _finished(core)
+    assert (last.token, last.ok) == (6, True)
+    assert core.owed.stats()["paid"] == 5
+
+
+def test_a_failed_takeoffs_four_arms_and_its_disarm_are_all_owed() -> None:
+    """One task alone owes five answers of ARM's number: a take-off's ARM goes four times
+    (1 + 3 retries) without an answer and fails ``arm_no_ack``, then sends its one DISARM
+    (ARM's number). The operator takes off again at once; the five late answers (ARM
+    ACCEPTED four times, the DISARM's ACCEPTED) arrive while the new ARM waits, and the
+    vehicle is disarmed. None of them may move the new take-off to NAV_TAKEOFF. [main: four
+    kept, the fifth answer credited to the new ARM: NAV_TAKEOFF sent to a disarmed
+    vehicle]"""
+    core = VehicleCore()
+
+    def telemetry(now: float) -> None:
+        for obs in (
+            Heartbeat(12, 2, 1, MODE_LOITER.custom_mode, MavState.STANDBY),  # disarmed
+            SysStatus(SENSOR_PREARM_CHECK, 90, 16000),
+            ExtendedSysState(LandedState.ON_GROUND),
+            GpsRawInt(GpsFixType.FIX_3D, 12),
+            HomePosition(0, 0, 488_000),
+        ):
+            core.receive_datagram(obs, None, now)
+
+    telemetry(0.0)
+    core.request(VehicleRequest(1, TaskKind.TAKEOFF, alt_m=5.0), 0.0)
+    for now in (0.5, 1.0, 1.5, 2.0):  # no answer: three retransmissions, then give up
+        telemetry(now)
+        core.handle_timer(now)
+    (first,) = _finished(core)
+    assert (first.ok, first.reason) == (False, "arm_no_ack")
+    sent = [(c.command, c.params[0]) for c in core.datagrams_to_send()]
+    arm = MavCmd.COMPONENT_ARM_DISARM
+    assert sent == [(arm, 1.0)] * 4 + [(arm, 0.0)]  # four ARMs, the one DISARM
+    core.request(VehicleRequest(2, TaskKind.TAKEOFF, alt_m=5.0), 2.1)
+    assert [(c.command, c.params[0]) for c in core.datagrams_to_send()] == [(arm, 1.0)]
+    for i in range(5):
+        core.receive_datagram(CommandAck(arm, MavResult.ACCEPTED), None, 2.15 + i / 100)
+    assert core.datagrams_to_send() == []  # no NAV_TAKEOFF to a disarmed vehicle
+    assert _finished(core) == []
+    assert core.owed.stats()["paid"] == 5
+
+
+def test_the_vehicle_sends_fewer_command_numbers_than_the_owed_tables_rows() -> None:
+    """``MAX_OWED_COMMANDS`` evicts a whole number's debts (their answers then credited), so
+    it must never be reached: the sender's only callers, the take-off and the actions, send
+    four numbers (ARM/DISARM, NAV_TAKEOFF, NAV_LAND, DO_SET_MODE)."""
+    numbers = set()
+    for module in (takeoff, actions):
+        assert module.__file__ is not None
+        with open(module.__file__, encoding="utf-8") as source:
+            numbers |= set(re.findall(r"VehicleCommand\.make\(\s*MavCmd\.(\w+)", source.read()))
+    assert numbers == {"COMPONENT_ARM_DISARM", "NAV_TAKEOFF", "NAV_LAND", "DO_SET_MODE"}
+    assert len(numbers) < MAX_OWED_COMMANDS

@@ -371,6 +371,7 @@ def test_the_largest_state_file_is_far_under_its_cap(tmp_path: Path) -> None:
         outcomes=[(long_name, big, CommandResult.FAILED.value, reason)] * MAX_SEEN_OUTCOMES,
         decisions=[KeptDecision(2**31 - 1, long_name, big, long_name, "failed", reason, CLOCK, 1e9)]
         * MAX_DECIDED_COMMANDS,
+        told_unsaved=[(long_name, big)] * MAX_DECIDED_COMMANDS,
     )
     state.save()
     from swarmd.bundle import safeopen  # here: the attack tests above also run on main

@@ -36,10 +36,14 @@ failed take-off's DISARM, which has ARM's number) would be taken as a later comm
 COMMAND_LONG transmission may draw one final answer, so when a command ends (any finish)
 with fewer final answers than sends, the difference is *owed*, per command number. An ack
 first pays such a debt (dropped, counted ``paid``) before it is matched to the pending
-command. Bounded: at most ``MAX_OWED_PER_COMMAND`` per number and ``MAX_OWED_COMMANDS``
-numbers (oldest evicted), each debt forgotten ``owed_window_s`` after its command ended,
-and a retransmission forgets its number's debts: a debt whose answer was lost swallows at
-most the answer to the later command's first transmission, never one to a retransmission.
+command. Bounded: ``MAX_OWED_PER_COMMAND`` debts per number are kept one by one, more
+are pooled as a count (one vehicle owes five on ARM's number after one failed take-off, and
+one per superseded LAND, so no cap a vehicle cannot pass exists; a debt dropped would let
+its late answer fail the next command), at most ``MAX_OWED_COMMANDS`` numbers (the vehicle
+sends four), each debt forgotten ``owed_window_s`` after its command ended (a pooled one
+with the latest of the pool), and a retransmission forgets its number's debts: a debt
+whose answer was lost swallows at most the answer to the later command's first
+transmission, never one to a retransmission.
 IN_PROGRESS never pays (the final answer is still owed) and is not credited while a debt
 is owed. Senders of one vehicle share one ``OwedAcks`` (``swarmd.px4.vehicle``), so a
 debt survives the task that made it.
@@ -146,25 +150,49 @@ SenderEvent = CommandSent | AckReceived | CommandFinished
 
 
 MAX_OWED_PER_COMMAND: Final = 4
-"""Answers owed per command number: one command's 1 + 3 sends. A vehicle that never answers
-(or a flood of superseding sends) cannot make the table swallow more than this many acks."""
+"""Debts kept one by one per command number (one command's 1 + 3 sends), each with its own
+expiry. More than that is normal for one vehicle: a take-off whose four ARMs went
+unanswered then sends its DISARM (five on ARM's number), and each LAND a later LAND
+supersedes owes one more, as many as the operator sends within ``owed_window_s``. The debts
+beyond it are *pooled*: kept as a count that expires with the latest of them, so memory
+stays bounded and no owed answer is ever credited to a later command. Only our own sends
+create debts; whatever PX4 answers, a retransmission still forgets them all."""
 MAX_OWED_COMMANDS: Final = 8
-"""Command numbers with debts (the sender carries four kinds); only our own sends create rows, the
-cap keeps that true of any future caller. The number with the oldest debt is evicted."""
+"""Command numbers with debts. The vehicle sends four (ARM/DISARM, NAV_TAKEOFF, NAV_LAND,
+DO_SET_MODE: ``tests/test_px4_stale_ack.py`` pins it), so this is never reached; the cap
+keeps that true of any future caller. The number with the oldest debt is evicted."""
+
+
+@dataclass(slots=True)
+class _Debts:
+    """One command number's debts: up to ``MAX_OWED_PER_COMMAND`` expiry times, oldest
+    first, and the older ones pooled as a count with the latest of their expiries (never
+    later than ``times[0]``: ``now`` only grows)."""
+
+    times: deque[float]
+    pooled: int = 0
+    pooled_until: float = 0.0
+
+    def count(self) -> int:
+        return self.pooled + len(self.times)
+
+    def oldest(self) -> float:
+        return self.pooled_until if self.pooled else self.times[0]
 
 
 class OwedAcks:
     """Per command number, the answers ended commands still owe (module docstring, "Answers
-    still owed"): a deque of expiry times, oldest first. Pure, keyed by ``now``; expired
-    debts are dropped when touched, so it needs no timer."""
+    still owed"): ``_Debts``, oldest first. Pure, keyed by ``now``; expired debts are
+    dropped when touched, so it needs no timer."""
 
     def __init__(self, window_s: float) -> None:
         self.window_s = window_s
-        self._owed: dict[int, deque[float]] = {}
+        self._owed: dict[int, _Debts] = {}
         self._last: tuple[CommandAck, bool] | None = None
         self.paid = 0  # acks dropped as an earlier command's answer
         self.forgotten = 0  # debts expired or cleared by a retransmission
-        self.evicted = 0  # debts dropped by a cap (MAX_OWED_*): their answers may be credited
+        self.pooled = 0  # debts past MAX_OWED_PER_COMMAND, kept as a count (_Debts)
+        self.evicted = 0  # debts dropped by MAX_OWED_COMMANDS: their answers may be credited
 
     def owe(self, command: int, count: int, now: float) -> None:
         """An ended command of number ``command`` left ``count`` transmissions unanswered."""
@@ -174,37 +202,45 @@ class OwedAcks:
         debts = self._owed.get(command)
         if debts is None:
             if len(self._owed) >= MAX_OWED_COMMANDS:
-                oldest = min(self._owed, key=lambda c: self._owed[c][0])
-                self.evicted += len(self._owed.pop(oldest))
-            debts = self._owed[command] = deque()
+                oldest = min(self._owed, key=lambda c: self._owed[c].oldest())
+                self.evicted += self._owed.pop(oldest).count()
+            debts = self._owed[command] = _Debts(deque())
         for _ in range(count):
-            if len(debts) >= MAX_OWED_PER_COMMAND:
-                debts.popleft()
-                self.evicted += 1
-            debts.append(now + self.window_s)
+            if len(debts.times) >= MAX_OWED_PER_COMMAND:
+                # pooled, not dropped: an answer owed and forgotten would be credited to
+                # the next command of this number (a late DENIED failing a LAND PX4 flies)
+                debts.pooled_until = debts.times.popleft()
+                debts.pooled += 1
+                self.pooled += 1
+            debts.times.append(now + self.window_s)
 
     def forget(self, command: int) -> None:
         """A retransmission of ``command``: its answer is what we wait for now, so nothing
         owed before it may swallow it (a lost debt costs at most one retransmission)."""
         debts = self._owed.pop(command, None)
-        if debts:
-            self.forgotten += len(debts)
+        if debts is not None:
+            self.forgotten += debts.count()
 
     def owes(self, command: int, now: float) -> int:
         self._prune(now)
-        return len(self._owed.get(command, ()))
+        debts = self._owed.get(command)
+        return 0 if debts is None else debts.count()
 
     def pay(self, ack: CommandAck, now: float) -> bool:
         """Is ``ack`` an earlier command's answer (True: drop it)? A final result pays one
-        debt; IN_PROGRESS pays none but is dropped while one is owed. Several senders of one
-        vehicle share this table and see the same observation: its first verdict stands."""
+        debt, the oldest; IN_PROGRESS pays none but is dropped while one is owed. Several
+        senders of one vehicle share this table and see the same observation: its first
+        verdict stands."""
         if self._last is not None and self._last[0] is ack:
             return self._last[1]
         verdict = self.owes(ack.command, now) > 0
         if verdict and ack.result != MavResult.IN_PROGRESS:
             debts = self._owed[ack.command]
-            debts.popleft()
-            if not debts:
+            if debts.pooled:
+                debts.pooled -= 1
+            else:
+                debts.times.popleft()
+            if not debts.count():
                 del self._owed[ack.command]
             self.paid += 1
         self._last = (ack, verdict)
@@ -212,15 +248,23 @@ class OwedAcks:
 
     def stats(self) -> dict[str, int]:
         """Counters for ``swarmctl status`` (px4 ``owed_acks``)."""
-        return {"paid": self.paid, "forgotten": self.forgotten, "evicted": self.evicted}
+        return {
+            "paid": self.paid,
+            "forgotten": self.forgotten,
+            "pooled": self.pooled,
+            "evicted": self.evicted,
+        }
 
     def _prune(self, now: float) -> None:
         for command in list(self._owed):
             debts = self._owed[command]
-            while debts and debts[0] <= now:
-                debts.popleft()
+            if debts.pooled and debts.pooled_until <= now:
+                self.forgotten += debts.pooled
+                debts.pooled = 0
+            while debts.times and debts.times[0] <= now:
+                debts.times.popleft()
                 self.forgotten += 1
-            if not debts:
+            if not debts.count():
                 del self._owed[command]
 
 

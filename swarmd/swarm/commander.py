@@ -457,13 +457,25 @@ class DecisionLog:
 
     ``unsaved``: the decisions whose record the daemon failed to write to the state file
     (``save_failed``), until a later write succeeds (``saved``): each write holds the
-    whole list, so one success saves them all (docs/dataplane.md, "A failed save")."""
+    whole list, so one success saves them all (docs/dataplane.md, "A failed save").
 
-    def __init__(self, life: int = 0, earlier: Iterable[KeptDecision] = ()) -> None:
+    ``told_unsaved``: the decisions whose commander was told so (``OUTCOME_NOT_SAVED``), by
+    this life or, restored from the state file (``told_unsaved`` there), an earlier one.
+    Kept while the decision is: the clear that follows goes on the outcome writer, in
+    memory, and a restart before it reaches the commander loses it, so every later life
+    whose file holds the decision's final answer says it is saved (``clear_owed``)."""
+
+    def __init__(
+        self,
+        life: int = 0,
+        earlier: Iterable[KeptDecision] = (),
+        told_unsaved: Iterable[tuple[str, int]] = (),
+    ) -> None:
         self.life = life
         self._decided: OrderedDict[tuple[str, int], _Decided] = OrderedDict()
         self.evicted = 0
         self.unsaved: set[tuple[str, int]] = set()  # bounded: keys of ``_decided`` only
+        self.told_unsaved: set[tuple[str, int]] = set()  # the same bound
         for kept in earlier:
             self._decided[kept.commander, kept.command_id] = _Decided(
                 kept.command_id,
@@ -477,6 +489,11 @@ class DecisionLog:
             )
             self._decided.move_to_end((kept.commander, kept.command_id))
         self._evict()
+        # only an earlier life's decision kept here: the file's list is checked at load,
+        # and a hand-made one names nothing else (bounded by the kept decisions)
+        self.told_unsaved = {
+            (c, i) for c, i in told_unsaved if (d := self._decided.get((c, i))) and d.life != life
+        }
 
     def decided(
         self,
@@ -496,6 +513,7 @@ class DecisionLog:
             # evicted it): this life's decision is a new row
             del self._decided[key]
             self.unsaved.discard(key)
+            self.told_unsaved.discard(key)
             entry = None
         if entry is None:
             self._decided[key] = _Decided(
@@ -517,6 +535,27 @@ class DecisionLog:
             return False
         self.unsaved.add(key)
         return True
+
+    def told(self, commander: str, command_id: int) -> None:
+        """Its commander was told the record of this decision was not saved."""
+        if (commander, command_id) in self._decided:
+            self.told_unsaved.add((commander, command_id))
+
+    def clear_owed(self, commander: str, command_id: int) -> bool:
+        """Is an earlier life's decision, told unsaved, held here with its final answer (so
+        the file this life loaded, and wrote at boot, holds it): its commander may still
+        show the mark, and this life tells it the record is saved (``Member.rereport``).
+        Not while this life holds it unsaved; never for a decision held only ACCEPTED,
+        whose final answer a failed write lost (the mark is then right)."""
+        key = (commander, command_id)
+        d = self._decided.get(key)
+        return (
+            d is not None
+            and d.life != self.life
+            and key in self.told_unsaved
+            and key not in self.unsaved
+            and d.state != CommandResult.ACCEPTED.name.lower()
+        )
 
     def current(self, commander: str, command_id: int) -> tuple[str, str, str] | None:
         """This life's decision on ``commander``'s ``command_id`` as last reported: (kind,
@@ -570,6 +609,7 @@ class DecisionLog:
         while len(self._decided) > MAX_DECIDED_COMMANDS:
             key, _ = self._decided.popitem(last=False)
             self.unsaved.discard(key)
+            self.told_unsaved.discard(key)
             self.evicted += 1
 
 

@@ -137,9 +137,11 @@ class SwarmCore:
         link_q: Callable[[], float],
         settings: SwarmSettings | None = None,
         earlier_decisions: Iterable[KeptDecision] = (),
+        told_unsaved: Iterable[tuple[str, int]] = (),
     ) -> None:
         """``earlier_decisions``: what the member's earlier lives decided, from the state
-        file, on this life's clock (``swarmctl outcomes``)."""
+        file, on this life's clock (``swarmctl outcomes``); ``told_unsaved``: which of them
+        their commanders were told were not saved (``Member``)."""
         self.roles = roles
         self.plane = plane
         self.has_vehicle = verdict is not None
@@ -165,6 +167,7 @@ class SwarmCore:
             events=self._events,
             counters=self.counters,
             earlier=earlier_decisions,
+            told_unsaved=told_unsaved,
         )
         self.decisions = self.member.decisions  # what this member decided (swarmctl outcomes)
         self.executor_counters = self.member.counters

@@ -26,12 +26,15 @@ class PersistExecuted:
     reason) next to the ids, for re-reporting after a restart; ``decisions``: the member's
     ``DecisionLog`` with kind, time and life, for ``swarmctl outcomes`` in a later life).
     ``command``: the (commander, id) whose receipt or decision asked for this write, so the
-    daemon can name it if the write fails (``SwarmCore.state_saved``)."""
+    daemon can name it if the write fails (``SwarmCore.state_saved``). ``told_unsaved``:
+    the decisions whose commander was told their record was not saved (a later life that
+    holds their final answer tells it they are: ``DecisionLog.told_unsaved``)."""
 
     executed: tuple[tuple[str, int], ...]
     outcomes: tuple[KeptOutcome, ...] = ()
     decisions: tuple[KeptDecision, ...] = ()
     command: tuple[str, int] | None = None
+    told_unsaved: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

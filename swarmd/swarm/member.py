@@ -37,7 +37,9 @@ save"); its commander is told: the decision's outcome goes again, flagged
 ``OUTCOME_NOT_SAVED``, and so do its later outcomes while it stays unsaved; when a later
 write holds it, it goes once more flagged ``OUTCOME_NOW_SAVED`` and the commander clears
 its mark. Each carries ``save_gen``, the writes answered so far in this life, so the
-commander applies only the newest word (``state_saved``).
+commander applies only the newest word (``state_saved``). The state file keeps which
+decisions were told unsaved (``DecisionLog.told_unsaved``): a clear that died with its
+life is sent by the next, in its re-report (``rereport``).
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
 "Outcomes across a restart"); they only answer, nothing is executed.
@@ -160,9 +162,11 @@ class Member:
         events: deque[SwarmEvent],
         counters: dict[str, int],
         earlier: Iterable[KeptDecision] = (),
+        told_unsaved: Iterable[tuple[str, int]] = (),
     ) -> None:
         """``earlier``: what this node's earlier lives decided, from the state file
-        (``received_at`` already on this life's clock)."""
+        (``received_at`` already on this life's clock); ``told_unsaved``: which of them
+        their commanders were told were not saved (``DecisionLog.told_unsaved``)."""
         self.roles = roles
         self.plane = plane
         self.has_vehicle = verdict is not None
@@ -173,7 +177,7 @@ class Member:
         # what this member decided, in this life and, as kept, its earlier ones (swarmctl
         # outcomes); a life is the state file's boot counter, the plane's incarnation
         life = 0 if plane is None else plane.incarnation
-        self.decisions = DecisionLog(life, earlier)
+        self.decisions = DecisionLog(life, earlier, told_unsaved)
         self.counters: dict[str, int] = {}  # the executor's (``status``)
         # ids of the commands this node's commander gave its own drone: their outcomes go
         # to its tracker, not on the wire; bounded like ``_seen`` (never dropping one still
@@ -415,6 +419,7 @@ class Member:
                 tuple(plane.executed_outcomes),
                 self.decisions.kept(),
                 (commander, command_id),
+                tuple(sorted(self.decisions.told_unsaved)),
             )
         )
 
@@ -458,6 +463,8 @@ class Member:
         result = CommandResult[state.upper()]
         saved = flag == OUTCOME_NOW_SAVED
         self._count("told_saved" if saved else "told_not_saved")
+        if not saved:
+            self.decisions.told(commander, command_id)  # kept in the file: ``rereport``
         self._events.append(OutcomeReported(command_id, kind.upper(), result, reason, saved))
         self.plane.report_outcome(
             command_id,
@@ -474,7 +481,15 @@ class Member:
         within ``REREPORT_WINDOW_S`` of its start, send it, once, the outcomes its earlier
         lives decided for its commands, on the outcome writer it already authenticates.
         Only an answer: nothing is executed (docs/dataplane.md, "Outcomes across a
-        restart")."""
+        restart").
+
+        A decision whose commander an earlier life told it was not saved, held here with
+        its final answer (``DecisionLog.clear_owed``), goes flagged ``OUTCOME_NOW_SAVED``:
+        that life's clear may have died with it (sent after the write that held the
+        decision, on a writer that lives in memory), and the commander's mark would stay
+        for good. Its ``save_gen`` is at least 1: ``statefile.boot`` wrote the file this
+        life loaded before anything was sent, this life's first write, and a later life's
+        word is newer than any of an earlier life at the commander (``_mark``: by epoch)."""
         if self.plane is None or commander in self._rereported:
             return
         if self._rereport_until is None:
@@ -490,13 +505,25 @@ class Member:
         self._rereported.add(commander)
         ids: list[int] = []
         for _, command_id, result, reason in earlier:
+            clear = result != CommandResult.ACCEPTED.value and self.decisions.clear_owed(
+                commander, command_id
+            )
+            flags, gen = (OUTCOME_NOW_SAVED, max(self._save_gen, 1)) if clear else (0, 0)
             try:
                 self.plane.report_outcome(
-                    command_id, CommandResult(result), now, reason, commander=commander
+                    command_id,
+                    CommandResult(result),
+                    now,
+                    reason,
+                    commander=commander,
+                    flags=flags,
+                    save_gen=gen,
                 )
             except (ValueError, PayloadError):  # a state file edited by hand: skip it
                 self._count("rereport_invalid")
                 continue
+            if clear:
+                self._count("told_saved")
             ids.append(command_id)
         self._counters["outcomes_rereported"] += len(ids)
         self._events.append(OutcomesReReported(commander, tuple(ids)))
