@@ -28,6 +28,14 @@ classes hold its state and status (``daemon_status.py``: ``status``, ``healthy``
 watchdog, ``STATUS=``) and its routing of discovery's events (``daemon_events.py``); what it
 works out before it starts, the bundle floor and the PX4 listen socket included, is in
 ``daemon_setup.py``.
+
+Start-up order: the discovery engine is built as soon as its keys, epoch and link sample
+are in hand, and its passive clock runs from then (paper section 4.1); the swarm layer
+(``SwarmApp``: the PX4 bridge, pymavlink, the data plane), the ROS 2 relay and the control
+socket are imported only after it, inside that window (issue 20, the reboot: a restarted
+drone's first announcement is its start-up plus the window; docs/benchmarks.md, "Daemon
+start-up"). Their refusals still come before ``READY=1``, and the engine's timer is armed
+where it was: at the end of ``start``, or earlier by a datagram heard during its awaits.
 """
 
 from __future__ import annotations
@@ -42,7 +50,7 @@ import socket
 import time
 from collections.abc import Mapping
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmd import __version__
 from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch, plan_epoch
@@ -54,7 +62,6 @@ from swarmd.bundle.keys import remove_left_temps
 from swarmd.bundle.model import Bundle
 from swarmd.bundle.statedir import DaemonUser
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
-from swarmd.control import ControlServer
 from swarmd.daemon_events import DaemonEvents
 from swarmd.daemon_setup import (
     NodeSecretsError,
@@ -75,10 +82,13 @@ from swarmd.link.monitor import LinkMonitor
 from swarmd.link.source import LinkSource
 from swarmd.peerlog import PeerHistory
 from swarmd.rawclock import RawClockEventLoop
-from swarmd.ros2app import Ros2App, require_ros2_graph
 from swarmd.sdnotify import Notifier, watchdog_interval_s
-from swarmd.swarmapp import SwarmApp
 from swarmd.udp import RECV_BUFFER_BYTES, BatchedSocket, Datagram, rcvbuf_capped
+
+if TYPE_CHECKING:  # imported in start(), once the engine is built ("Start-up order" above)
+    from swarmd.control import ControlServer
+    from swarmd.ros2app import Ros2App
+    from swarmd.swarmapp import SwarmApp
 
 
 class Daemon(DaemonEvents):
@@ -218,6 +228,12 @@ class Daemon(DaemonEvents):
             log=self.log,
             on_core_error=lambda: self.count("engine_exceptions"),
         )
+        # the engine's passive clock runs from here (paper section 4.1): what only the
+        # swarm layer, the relay and the control socket need (PX4 link, pymavlink, the data
+        # plane) is imported now, inside that window, not before it (docs/benchmarks.md,
+        # "Daemon start-up"); their refusals below still come before READY=1
+        from swarmd.swarmapp import SwarmApp
+
         # before the first datagram can arrive: peers discovered while it starts are kept
         # and replayed to the data plane once it is up
         app = SwarmApp(
@@ -272,6 +288,8 @@ class Daemon(DaemonEvents):
                 fix="sysctl net.core.rmem_max=4194304 (docs/deploy.md)",
             )
         if self.config.ros2.relay:
+            from swarmd.ros2app import Ros2App  # relay configs only
+
             try:
                 self.ros2 = Ros2App(
                     self.config,
@@ -293,6 +311,8 @@ class Daemon(DaemonEvents):
             self.app = None
             await self._close_transports()
             raise
+        from swarmd.control import ControlServer
+
         self._control = ControlServer(
             self.config.control_socket,
             {
@@ -366,6 +386,8 @@ class Daemon(DaemonEvents):
                 f"rebuild the bundle with ipv4: {self.local_ipv4} for {me.name}",
             )
         if self.config.ros2.relay:
+            from swarmd.ros2app import require_ros2_graph  # relay configs only
+
             require_ros2_graph(self.config, self.bundle)
         try:
             return KeyRing.from_bundle(self.bundle, self.config.node, self._secrets)
@@ -387,6 +409,8 @@ class Daemon(DaemonEvents):
         (``SwarmApp.check``). Each refusal is ``start``'s own one-line ``StartupError``, from
         the same function. Sockets stay out: binding one is its only test. Returns what
         ``start`` would warn about and go on."""
+        from swarmd.swarmapp import SwarmApp
+
         planned = self._plan_epoch(user)
         app = SwarmApp(
             self.config,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 import os
 import random
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmd import __version__
 from swarmd.auth.epoch import EpochResult
@@ -19,7 +19,6 @@ from swarmd.auth.keys import KeyRing, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.model import Bundle
 from swarmd.config import DaemonConfig
-from swarmd.control import ControlServer
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import Event
@@ -27,10 +26,13 @@ from swarmd.discovery.inputs import LinkSample
 from swarmd.driver import Driver
 from swarmd.link.monitor import LinkMonitor
 from swarmd.peerlog import PeerHistory
-from swarmd.ros2app import Ros2App
 from swarmd.sdnotify import Notifier
-from swarmd.swarmapp import SwarmApp
 from swarmd.udp import BatchedSocket, Datagram
+
+if TYPE_CHECKING:  # the daemon imports them once its engine runs (swarmd/daemon.py)
+    from swarmd.control import ControlServer
+    from swarmd.ros2app import Ros2App
+    from swarmd.swarmapp import SwarmApp
 
 
 class DaemonStatus:

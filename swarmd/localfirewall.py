@@ -62,7 +62,6 @@ from typing import Final
 
 from swarmd.config import DaemonConfig
 from swarmd.loopback import plain_address
-from swarmd.ros2.relay import LOOPBACK
 
 FAMILY: Final = "inet"
 TABLE: Final = "swarmd_local"
@@ -284,6 +283,10 @@ def local_firewall(config: DaemonConfig) -> LocalFirewall:
     notes: list[str] = []
     ros2 = config.ros2
     if ros2.relay:
+        # only relay configs pay for the relay's import: `swarmd run` imports this module
+        # (its parser's `local-firewall`) before its engine starts
+        from swarmd.ros2.relay import LOOPBACK
+
         if ros2.node_users is None:
             notes.append(_unguarded(config, "ros2.node_users", f"[{LOOPBACK}]:{ros2.relay_port}"))
         else:

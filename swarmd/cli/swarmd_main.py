@@ -21,11 +21,15 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import fields
+from typing import TYPE_CHECKING
 
 from swarmd import __version__
 from swarmd.cli import firewall_cmd
 from swarmd.config import ConfigError, load_config
 from swarmd.exitcodes import EX_CONFIG, EX_USAGE, StartupError
+
+if TYPE_CHECKING:
+    from swarmd.cli.sandbox_check import Unit
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,8 +89,6 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     from swarmd.bundle.errors import BundleError
     from swarmd.bundle.loader import load_bundle
     from swarmd.bundle.statedir import DaemonUser
-    from swarmd.cli.sandbox_check import Unit, load_unit, sandbox_note
-    from swarmd.cli.unit_user import judged_user
     from swarmd.daemon import Daemon, run
     from swarmd.daemon_setup import NodeSecretsError, enforce_bundle_floor, load_node_secrets
     from swarmd.discovery.config import EngineConfig
@@ -100,6 +102,10 @@ def main(argv: Sequence[str] | None = None, *, before_run: Callable[[], None] | 
     user: DaemonUser | None = None  # check-config's: whose view it judges from
     unit: Unit | None = None
     if args.command == "check-config":
+        # check-config's own (the unit file, its user): `run` does not import them
+        from swarmd.cli.sandbox_check import load_unit, sandbox_note
+        from swarmd.cli.unit_user import judged_user
+
         try:
             # the unit run will run under: its sandbox and whom it runs the daemon as
             unit = load_unit(args.unit)

@@ -34,12 +34,16 @@ class Px4Fields(FieldReader):
         where = f.get("connection")
         if where is not None:
             connection = self.string(where, "px4.connection", "a connection string")
-            from swarmd.px4.xrce_backend import parse_xrce_connection
-
             try:
-                endpoint = (parse_xrce_connection if xrce else parse_connection)(
-                    connection, "px4.connection"
-                )
+                if xrce:
+                    # only XRCE configs pay for the backend's import (asyncio, the XRCE
+                    # agent): a MAVLink drone's start-up does not (docs/benchmarks.md,
+                    # "Daemon start-up")
+                    from swarmd.px4.xrce_backend import parse_xrce_connection
+
+                    endpoint = parse_xrce_connection(connection, "px4.connection")
+                else:
+                    endpoint = parse_connection(connection, "px4.connection")
             except ValueError as exc:
                 relay(where, "px4.connection", exc)
             allow_network = (

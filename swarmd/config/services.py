@@ -8,23 +8,24 @@ import yaml
 
 from swarmd.config.model import DataplaneSection, Ros2Section
 from swarmd.config.reader import FieldReader, Nodes
-from swarmd.dataplane.validity import MIN_REPORT_PERIOD_MS
 
 
 class ServiceFields(FieldReader):
     def dataplane(self, f: Nodes) -> DataplaneSection:
         d = DataplaneSection()
-        period = (
-            self.number(
+        period = d.readiness_period_s
+        if "readiness_period_s" in f:
+            # the data plane package is imported only when the field is set: the daemon
+            # loads it once its engine runs (docs/benchmarks.md, "Daemon start-up")
+            from swarmd.dataplane.validity import MIN_REPORT_PERIOD_MS
+
+            period = self.number(
                 f["readiness_period_s"],
                 "dataplane.readiness_period_s",
                 MIN_REPORT_PERIOD_MS / 1000.0,  # the report log's cap assumes it
                 60.0,
                 " s",
             )
-            if "readiness_period_s" in f
-            else d.readiness_period_s
-        )
         stale = (
             self.number(f["stale_after_s"], "dataplane.stale_after_s", 0.1, 600.0, " s")
             if "stale_after_s" in f
