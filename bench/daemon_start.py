@@ -107,6 +107,7 @@ class Tree:
     name: str
     path: Path
     work: Path
+    commit: str  # HEAD of the checkout, or the commit git:REV named when measured
     runs: list[dict[str, Any]] = field(default_factory=list)
 
 
@@ -295,13 +296,19 @@ def trees(specs: Sequence[str], scratch: Path) -> Iterator[list[Tree]]:
         if not where:
             raise SystemExit(f"--tree {spec}: expected NAME=PATH or NAME=git:REV")
         work = scratch / name
-        path = (
-            unpack(where[4:], scratch / f"{name}-src")
-            if where.startswith("git:")
-            else Path(where).resolve()
-        )
+        if where.startswith("git:"):
+            rev, path = where[4:], unpack(where[4:], scratch / f"{name}-src")
+        else:
+            rev, path = "HEAD", Path(where).resolve()
+        commit = subprocess.run(
+            ["git", "-C", str(path if rev == "HEAD" else ROOT), "rev-parse", "--short", rev],
+            capture_output=True,
+            text=True,
+            check=False,
+            timeout=30,
+        ).stdout.strip()
         work.mkdir(parents=True)
-        made.append(Tree(name, path, work))
+        made.append(Tree(name, path, work, commit or "unknown"))
     yield made
 
 
@@ -356,7 +363,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 "repeats": args.repeats,
                 "without": args.without,
                 "trees": {
-                    t.name: {"path": str(t.path), "summary": summary(t.runs), "runs": t.runs}
+                    t.name: {
+                        "path": str(t.path),
+                        "commit": t.commit,
+                        "summary": summary(t.runs),
+                        "runs": t.runs,
+                    }
                     for t in made
                 },
             }
@@ -369,7 +381,10 @@ def table(doc: dict[str, Any]) -> str:
         f"daemon start-up, N = {doc['n']}, Q = {doc['q']}, {doc['repeats']} starts per tree"
         + (f", without {', '.join(doc['without'])}" if doc.get("without") else "")
         + " (median / p90, seconds from exec; cpu = user+sys of the process)",
-        f"{'measure':22}" + "".join(f"{n:>22}" for n in names) + "   ratio to " + names[0],
+        f"{'measure':22}"
+        + "".join(f"{n + ' ' + doc['trees'][n].get('commit', ''):>22}" for n in names)
+        + "   ratio to "
+        + names[0],
     ]
     for m in MEASURES:
         cells, ratios = [], []
