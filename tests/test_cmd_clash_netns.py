@@ -184,6 +184,7 @@ def test_a_land_while_the_takeoff_runs_supersedes_it(
     mine = {r["command_id"]: (r["state"], r["reason"]) for r in kept["ran"]}
     assert mine == {takeoff: ("failed", "superseded: land"), land: ("completed", "")}, mine
     assert swarm.executor().get("received_takeoff", 0) == 1
+    assert swarm.sim_events(BYSTANDER, "armed") == []  # the copies name their target
 
 
 # ---- 2. a LAND that cannot arrive --------------------------------------------------------
@@ -214,7 +215,7 @@ def test_a_land_withdrawn_while_cut_never_runs_after_the_heal(
         lambda: swarm.status(MEMBER)["px4"],
     )
     assert swarm.row(takeoff)["state"] != "completed"
-    # both sides lose each other by lease (nothing from uav2's side reaches uav1)
+    # uav1 loses uav2 by lease: nothing of uav2's crosses the cut
     until(
         lambda: any(
             c["peer"] == "uav2" and c["change"] == "lost"
