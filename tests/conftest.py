@@ -47,8 +47,14 @@ def _sweep_dead_namespaces() -> None:
 
 
 @pytest.fixture
-def lan_factory() -> Iterator[LanFactory]:
-    """``make(n, subnet=None) -> Lan``: an entered LAN of n hosts, closed after the test."""
+def lan_factory(workdir: Path) -> Iterator[LanFactory]:
+    """``make(n, subnet=None) -> Lan``: an entered LAN of n hosts, closed after the test.
+
+    It asks for ``workdir`` so that pytest, which tears fixtures down in the reverse order,
+    closes the LAN (SIGTERM to its daemons, which write their replay windows into the
+    workdir as they stop) before the workdir is removed. Before, a test that named
+    ``lan_factory`` first left its workdir behind with those files in it (hundreds of
+    ``/tmp/swt-*`` directories holding only ``auth-windows-*``)."""
     lans: list[Lan] = []
 
     def make(size: int, subnet: str | None = None) -> Lan:
