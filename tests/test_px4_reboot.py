@@ -15,20 +15,27 @@ on UDP; the simulator reboots with ``SimVehicle.reboot`` (silent while it boots)
 
 from __future__ import annotations
 
+import asyncio
+from collections.abc import Callable
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from swarmd_lab.px4.sim_model import REBOOT_S, SimConfig
+from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.cli.status_cmd import render_px4_backend
 from swarmd.px4.boot_watch import BOOT_CLOCK_WRAP, REBOOT_JUMP_MS, BootWatch
+from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER, LandedState
 from swarmd.px4.linkguard import AutopilotPin
+from swarmd.px4.mavlink_backend import MavlinkBackend
 from swarmd.px4.mavlink_codec import MavlinkCodec
 from swarmd.px4.mavlink_intake import MavlinkIntake
 from swarmd.px4.messages import BootClock, Observation, StateReset, VehicleCommand
 from swarmd.px4.readiness import Reason
 from swarmd.px4.signing import TICKS_PER_S, timestamp_from_unix
 from swarmd.px4.takeoff import TakeoffPhase
+from swarmd.px4.transport import UdpLink, parse_connection
 from swarmd.px4.vehicle import (
     ON_GROUND_DISARMED,
     ReadinessChanged,
@@ -344,3 +351,70 @@ def test_a_reset_exactly_at_each_new_life_whatever_the_jitter_wrap_and_reorder(
     ]
     assert resets == firsts[1:]
     assert REBOOT_JUMP_MS == 1000
+
+
+# ---- the asyncio backend and bridge, real UDP on loopback ----------------------------------
+
+
+class _Log:
+    """The bridge's logger, kept: (event, fields) per line."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, dict[str, object]]] = []
+
+    def info(self, event: str, **fields: object) -> None:
+        self.lines.append((event, fields))
+
+
+def test_the_bridge_forgets_a_rebooted_simulator_logs_one_line_and_counts_it() -> None:
+    """The MAVLink backend over loopback UDP against ``swarmd-vehicle-sim``'s protocol: the
+    simulator reboots (1 s of silence: shorter than the heartbeat timeout, so the boot
+    clock going back alone tells it); the bridge logs one ``px4_state_reset`` line, counts
+    it in the status, and is ready again on the new life's own facts."""
+    bound_s = 20.0
+
+    async def scenario() -> None:
+        log = _Log()
+        config = Px4Config(connection="udpin:127.0.0.1:0", sysid=1)
+        bridge = Px4Bridge.from_config(config, log=log)
+        await bridge.start()
+        assert isinstance(bridge.backend, MavlinkBackend)
+        link = bridge.backend.link
+        assert isinstance(link, UdpLink) and link.local_port is not None
+        sim = await start_sim(
+            SimConfig(gps_fix_after_s=0.3),
+            parse_connection(f"udpout:127.0.0.1:{link.local_port}"),
+            seed=1,
+        )
+
+        async def until(check: Callable[[], bool]) -> None:
+            async def poll() -> None:
+                while not check():  # noqa: ASYNC110 - a test probe, not protocol logic
+                    await asyncio.sleep(0.05)
+
+            await asyncio.wait_for(poll(), bound_s)
+
+        def resets() -> int:
+            boot = bridge.status()["backend"]["boot_clock"]
+            assert isinstance(boot, dict)
+            count = boot["resets"]
+            assert isinstance(count, int)
+            return count
+
+        try:
+            loop = asyncio.get_running_loop()
+            # a life of 3 s at least: longer than the next one's boot plus the 1 s jump
+            await until(lambda: bridge.readiness().ready and loop.time() > sim.model.boot + 3.0)
+            sim.reboot(boot_s=1.0)
+            await until(lambda: resets() == 1)
+            await until(lambda: bridge.readiness().ready)
+            events = [fields for event, fields in log.lines if event == "px4_state_reset"]
+            assert len(events) == 1 and events[0]["backend"] == "mavlink"
+            assert "SYSTEM_TIME" in str(events[0]["why"])
+            line = render_px4_backend(bridge.status()["backend"])
+            assert line.endswith("PX4 rebooted 1 times (boot clock)"), line
+        finally:
+            sim.close()
+            await bridge.close()
+
+    asyncio.run(scenario())
