@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
+from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -24,7 +25,13 @@ from swarmd_lab.px4.sim_model import REBOOT_S, SimConfig
 from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd.cli.status_cmd import render_px4_backend
-from swarmd.px4.boot_watch import BOOT_CLOCK_WRAP, REBOOT_JUMP_MS, BootWatch
+from swarmd.px4.boot_watch import (
+    BOOT_CLOCK_WRAP,
+    REBOOT_JUMP_MS,
+    SILENCE_S,
+    UNDECIDED_MAX_S,
+    BootWatch,
+)
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER, LandedState
 from swarmd.px4.linkguard import AutopilotPin
@@ -418,3 +425,14 @@ def test_the_bridge_forgets_a_rebooted_simulator_logs_one_line_and_counts_it() -
             await bridge.close()
 
     asyncio.run(scenario())
+
+
+def test_docs_state_the_boot_watchs_numbers() -> None:
+    """docs/px4.md's rule, read against the constants that set it."""
+    root = Path(__file__).resolve().parent.parent
+    text = " ".join((root / "docs/px4.md").read_text(encoding="utf-8").split())
+    assert f"back by more than {REBOOT_JUMP_MS / 1000:g} s (`REBOOT_JUMP_MS`)" in text
+    assert f"After {SILENCE_S:g} s with no trusted frame" in text
+    assert f"With no boot clock {UNDECIDED_MAX_S:g} s after the silence" in text
+    assert f"power-cycle once after S s: silent {REBOOT_S:g} s" in text
+    assert f"a reboot (`SimVehicle.reboot`, `--reboot-after`): silent for {REBOOT_S:g} s" in text
