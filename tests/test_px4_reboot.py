@@ -265,12 +265,15 @@ def test_the_boot_clock_rule_step_by_step() -> None:
     assert watch.batch([("ATTITUDE", 600_000)], 1, 0.0).reset is None
     assert watch.batch([("ATTITUDE", 599_500)], 1, 0.01).reset is None  # late: 0.5 s back
     assert watch.counts["late"] == 1
-    # another message's clock lags this one's by more than the jump: its own stream
-    assert watch.batch([("GLOBAL_POSITION_INT", 598_000)], 1, 0.02).reset is None
-    reset = watch.batch([("ATTITUDE", 4_000)], 1, 5.0).reset
-    assert reset is not None and "ATTITUDE" in reset  # back by 596 s: a new life
+    assert watch.batch([("GLOBAL_POSITION_INT", 599_900)], 1, 0.02).reset is None
+    # each message keeps its own clock: a GLOBAL_POSITION_INT that stopped (fix lost) and
+    # comes back 10 s behind the ATTITUDE's is judged against its own last value
+    assert watch.batch([("ATTITUDE", 610_000)], 1, 1.0).reset is None
+    assert watch.batch([("GLOBAL_POSITION_INT", 600_100)], 1, 1.01).reset is None
+    reset = watch.batch([("ATTITUDE", 4_000)], 1, 2.0).reset
+    assert reset is not None and "ATTITUDE" in reset  # back by 606 s: a new life
     # the new life's first GLOBAL_POSITION_INT is its own first value, not a second reboot
-    assert watch.batch([("GLOBAL_POSITION_INT", 4_010)], 1, 5.01).reset is None
+    assert watch.batch([("GLOBAL_POSITION_INT", 4_010)], 1, 2.01).reset is None
     assert watch.counts["resets"] == 1
 
 
@@ -301,6 +304,27 @@ def test_after_a_silence_frames_wait_for_the_boot_clock() -> None:
     unknown = watch.batch([], 1, 9.0)
     assert unknown.deliver and unknown.reset is not None and "unknown" in unknown.reset
     assert watch.counts["dropped_after_silence"] == 3
+    # a life of 2 s, then 3 s of silence and a boot clock at 2.5 s: forward of the last
+    # value, so no jump back, but 2.5 s behind where the same life would be: a new life
+    watch = BootWatch()
+    watch.batch([("SYSTEM_TIME", 2_000)], 1, 0.0)
+    short = watch.batch([("SYSTEM_TIME", 2_500)], 1, 3.0).reset
+    assert short is not None and "after a silence" in short
+
+
+def test_after_a_silence_a_message_the_last_life_never_sent_is_judged_by_another() -> None:
+    """The last life had no GPS fix, so no GLOBAL_POSITION_INT; the new life's first boot
+    clock after the silence is one. Judged against SYSTEM_TIME's clock it is a new life.
+    [without the cross-check: taken as the same life, no reset]"""
+    watch = BootWatch()
+    watch.batch([("SYSTEM_TIME", 600_000)], 1, 0.0)
+    reset = watch.batch([("GLOBAL_POSITION_INT", 3_500)], 1, 4.0).reset
+    assert reset is not None and "GLOBAL_POSITION_INT" in reset
+    # and without a silence a first GLOBAL_POSITION_INT of the same life is no reboot
+    watch = BootWatch()
+    watch.batch([("SYSTEM_TIME", 600_000)], 1, 0.0)
+    assert watch.batch([("GLOBAL_POSITION_INT", 599_990)], 1, 0.5).reset is None
+    assert watch.counts["resets"] == 0
 
 
 # One life: a first boot-clock value, then frames every step_ms of PX4's clock, some pairs

@@ -24,11 +24,14 @@ judges each batch of frames the backend accepted (one UDP datagram, or one read 
   passed 2^32 is the wrap, not a reboot.
 - **after a silence**: a PX4 that reboots is silent while it boots. After ``SILENCE_S``
   (2.5 s, readiness' heartbeat timeout: the state is already ``heartbeat_stale``) with no
-  frame, the next frames may be a new life's, so a batch without the boot clock is dropped
-  (counted) until one with it decides. A rebooted PX4's first HEARTBEAT thus never meets
-  the last life's landed state; it costs at most one heartbeat after a silence. If no
-  boot clock comes within ``UNDECIDED_MAX_S`` (a firmware that streams none), whose life
-  it is stays unknown: a reset, the safe side, and frames flow again.
+  frame, the next frames may be a new life's. The first boot clock must then be where the
+  same life's would be now (its last value plus the silence counted on our clock, less
+  the jump), else it is a new life: this tells apart a life shorter than the next one's
+  boot, which the jump back alone would not. Until a boot clock comes, a batch without one
+  is dropped (counted), so a rebooted PX4's first HEARTBEAT never meets the last life's
+  landed state; it costs at most one heartbeat after a silence. If no boot clock comes
+  within ``UNDECIDED_MAX_S`` (a firmware that streams none), whose life it is stays
+  unknown: a reset, the safe side, and frames flow again.
 
 Only frames the link already trusts reach it: the backend checks the system and
 component, the pinned address and, with signing, the signature and its freshness first
@@ -118,27 +121,33 @@ class BootWatch:
     def _judge(self, message: str, time_boot_ms: int, now: float, silence: bool) -> str | None:
         """Why ``message`` at ``time_boot_ms`` is a new life, or None (the same one).
         ``silence``: the first boot clock after a silence (module docstring)."""
-        last = self.clocks.get(message)
-        if last is None:
+        own = self.clocks.get(message)
+        # a message not heard yet (GLOBAL_POSITION_INT once a fix comes) is judged against
+        # the newest other one: it carries the same clock, a little older at most
+        ref = own if own is not None else self._newest()
+        if ref is None:
             self.clocks[message] = (time_boot_ms, now)
-            return None
-        last_ms, last_at = last
+            # after a silence, with nothing of the last life to compare: unknown, reset
+            return "a boot clock after a silence, none before it to compare" if silence else None
+        last_ms, last_at = ref
         # where the same life's clock would be now, counted on ours
         expected = last_ms + round((now - last_at) * 1000)
+        late = False
         if silence:
             same = self._kept_time(time_boot_ms, expected)
         elif time_boot_ms >= last_ms:
             same = True
         elif last_ms - time_boot_ms <= self.jump_ms:
-            self.counts["late"] += 1  # reordered: keep the newest
-            return None
+            self.counts["late"] += 1  # reordered: the same life, its newest value kept
+            same = late = True
         else:
             same = expected + self.jump_ms >= BOOT_CLOCK_WRAP and (
                 time_boot_ms <= expected + self.jump_ms - BOOT_CLOCK_WRAP
             )
             self.counts["wraps"] += same
         if same:
-            self.clocks[message] = (time_boot_ms, now)
+            if own is None or not late:
+                self.clocks[message] = (time_boot_ms, now)
             return None
         # a new life: every message's clock starts over from its first frame
         self.clocks.clear()
@@ -149,6 +158,10 @@ class BootWatch:
                 f"where its last life would say {expected % BOOT_CLOCK_WRAP}"
             )
         return f"PX4 rebooted: {message}.time_boot_ms went back from {last_ms} to {time_boot_ms}"
+
+    def _newest(self) -> tuple[int, float] | None:
+        """The boot clock heard last, of any message."""
+        return max(self.clocks.values(), key=lambda clock: clock[1], default=None)
 
     def _kept_time(self, time_boot_ms: int, expected: int) -> bool:
         """After a silence: did this clock run on through it? The same life's is near
