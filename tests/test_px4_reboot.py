@@ -191,6 +191,22 @@ def test_a_takeoff_lifting_when_px4_reboots_waits_then_fails_disarmed() -> None:
     assert done is not None and not done.ok and done.reason.startswith("disarmed"), done
 
 
+def test_a_land_sent_as_px4_reboots_is_never_done_by_the_new_life() -> None:
+    """A LAND whose NAV_LAND reaches a PX4 that is rebooting: nothing answers for the 3 s of
+    the boot, longer than the LAND's 2 s of retries, so it ends ``no_ack``; the new life's
+    state (AUTO.LOITER, on the ground) never confirms it. As over XRCE (``A PX4 that
+    reboots``); main ended the same way."""
+    bench = MavBench()
+    bench.fly()
+    bench.request(2, TaskKind.LAND)
+    bench.sim.reboot(bench.now)
+    bench.run(10.0, stop=lambda: bench.finished(2) is not None)
+    done = bench.finished(2)
+    assert done is not None and not done.ok and done.reason == "no_ack", done
+    bench.run(2.0)
+    assert bench.finished(2) == done and bench.intake.boot.counts["resets"] == 1
+
+
 # ---- only trusted frames reset --------------------------------------------------------------
 
 
