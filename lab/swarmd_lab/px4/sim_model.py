@@ -10,8 +10,10 @@ a companion or GCS) and ``handle_timer(now)`` (the next stream or physics deadli
 ``get_timer()``); it emits ``(message, is_broadcast)`` through ``messages_to_send()`` and
 log records through ``next_log()``. Streams follow PX4's ONBOARD mavlink mode
 (``mavlink_main.cpp``): HEARTBEAT 1 Hz, SYS_STATUS 5 Hz, EXTENDED_SYS_STATE 5 Hz,
-HOME_POSITION 0.5 Hz; GPS_RAW_INT at 5 Hz (PX4: per GNSS update) and GLOBAL_POSITION_INT at
-10 Hz (PX4: 50 Hz; fewer frames, same information). Stream phases are drawn from the
+HOME_POSITION 0.5 Hz, SYSTEM_TIME 1 Hz (the boot clock); GPS_RAW_INT at 5 Hz (PX4: per GNSS
+update) and GLOBAL_POSITION_INT at 10 Hz (PX4: 50 Hz; fewer frames, same information).
+``reboot`` power-cycles it: silent while it boots, then a new life (docs/px4.md, "Fresh
+state"). Stream phases are drawn from the
 injected ``random.Random`` so two simulators never tick in lockstep.
 """
 
