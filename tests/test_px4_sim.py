@@ -21,6 +21,7 @@ from swarmd.px4.messages import (
     MODE_LAND,
     MODE_LOITER,
     MODE_TAKEOFF,
+    BootClock,
     CommandAck,
     Heartbeat,
     Observation,
@@ -32,8 +33,8 @@ from swarmd.px4.messages import (
 COMPANION = (1, 191)
 
 
-def run(sim: SimVehicle, until: float, now: float) -> tuple[float, list[Observation]]:
-    out: list[Observation] = []
+def run(sim: SimVehicle, until: float, now: float) -> tuple[float, list[Observation | BootClock]]:
+    out: list[Observation | BootClock] = []
     while sim.get_timer() <= until:
         now = sim.get_timer()
         sim.handle_timer(now)

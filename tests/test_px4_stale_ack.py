@@ -206,7 +206,7 @@ async def _acks_filtered() -> None:
         px4.sendto(autopilot.encode(ours), to)  # the last, so all others were read before it
         await _until(lambda: len(seen) == 2)
         assert seen[1] == ours
-        assert be.foreign == 3
+        assert be.intake.foreign == 3
         pin = be.stats()["autopilot"]
         assert isinstance(pin, dict) and pin["dropped_address"] == 1
     finally:

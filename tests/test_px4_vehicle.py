@@ -24,6 +24,7 @@ from swarmd.px4.constants import (
 from swarmd.px4.messages import (
     MODE_LAND,
     MODE_LOITER,
+    BootClock,
     CommandAck,
     ExtendedSysState,
     GpsRawInt,
@@ -65,7 +66,7 @@ class Bench:
         self.drop = drop
         self.events: list[VehicleEvent] = []
         self.sent: list[VehicleCommand] = []
-        self._queue: list[tuple[float, int, str, Observation | VehicleCommand]] = []
+        self._queue: list[tuple[float, int, str, Observation | VehicleCommand | BootClock]] = []
         self._seq = itertools.count()
 
     def run(self, seconds: float, stop: Callable[[], bool] | None = None) -> None:
@@ -83,19 +84,22 @@ class Bench:
             self.now = max(self.now, t)
             if self._queue and self._queue[0][0] <= self.now:
                 _, _, direction, msg = heapq.heappop(self._queue)
-                if direction == "down":
-                    assert isinstance(msg, VehicleCommand)
-                    self.sim.receive(msg, (self.sim.config.sysid, 191), self.now)
-                    self._pump_sim()
-                else:
-                    assert not isinstance(msg, VehicleCommand)
-                    self.core.receive_datagram(msg, None, self.now)
+                self._deliver(direction, msg)
             elif self.sim.get_timer() <= self.now:
                 self.sim.handle_timer(self.now)
                 self._pump_sim()
             else:
                 self.core.handle_timer(self.now)
             self._pump_core()
+
+    def _deliver(self, direction: str, msg: Observation | VehicleCommand | BootClock) -> None:
+        """A message reaches its side now (down: the vehicle, up: the core)."""
+        if direction == "down":
+            assert isinstance(msg, VehicleCommand)
+            self.sim.receive(msg, (self.sim.config.sysid, 191), self.now)
+            self._pump_sim()
+        elif not isinstance(msg, VehicleCommand | BootClock):  # BootClock: MAVLink's alone
+            self.core.receive_datagram(msg, None, self.now)
 
     def request(self, token: int, kind: TaskKind, alt_m: float | None = None) -> None:
         self.core.request(VehicleRequest(token, kind, alt_m), self.now)
@@ -119,8 +123,8 @@ class Bench:
         self.run(10.0, stop=lambda: self.sim.landed == LandedState.IN_AIR)
         assert self.sim.landed == LandedState.IN_AIR
 
-    def _enqueue(self, direction: str, msg: Observation | VehicleCommand) -> None:
-        if self.drop is not None and self.drop(msg, direction):
+    def _enqueue(self, direction: str, msg: Observation | VehicleCommand | BootClock) -> None:
+        if self.drop is not None and not isinstance(msg, BootClock) and self.drop(msg, direction):
             return
         heapq.heappush(self._queue, (self.now + self.latency_s, next(self._seq), direction, msg))
 

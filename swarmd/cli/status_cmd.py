@@ -419,6 +419,10 @@ def render_px4_backend(b: dict[str, Any]) -> str:
     refused += _sum_counters(signing if isinstance(signing, dict) else {}, "dropped_")
     if refused:  # forged or stray frames on the PX4 link (docs/px4.md "Trust on the PX4 link")
         line += f", refused {refused}"
+    boot = b.get("boot_clock")
+    resets = boot.get("resets") if isinstance(boot, dict) else None
+    if isinstance(resets, int) and resets:  # MAVLink: PX4 lives told apart ("Fresh state")
+        line += f", PX4 rebooted {resets} times (boot clock)"
     return line
 
 

@@ -31,7 +31,7 @@ from swarmd.px4.actions import ActionFinished
 from swarmd.px4.backend import VehicleBackend
 from swarmd.px4.command_sender import AckReceived, CommandSent
 from swarmd.px4.mavlink_backend import MavlinkBackend
-from swarmd.px4.messages import Observation, VehicleCommand
+from swarmd.px4.messages import Observation, StateReset, VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState
 from swarmd.px4.takeoff import (
     TakeoffConfig,
@@ -223,6 +223,10 @@ class Px4Bridge:
         return self._driver
 
     def _observe(self, obs: Observation, now: float) -> None:
+        if isinstance(obs, StateReset):
+            # a new PX4 life (XRCE: a new session; MAVLink: its boot clock went back): every
+            # fact of the last one is forgotten (docs/px4.md, "Fresh state")
+            self._info("px4_state_reset", backend=self.backend.name, why=obs.why)
         self._drive().datagram_received(obs, None)
 
     def _on_event(self, event: VehicleEvent) -> None:

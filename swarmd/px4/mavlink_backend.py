@@ -4,7 +4,8 @@ Identity (reference 1.1): we are component 191 (MAV_COMP_ID_ONBOARD_COMPUTER) of
 vehicle's own system id, and send HEARTBEAT at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER /
 MAV_AUTOPILOT_INVALID / MAV_STATE_ACTIVE from the event loop that does the work, so a wedged
 loop stops the heartbeat (MAVLink heartbeat service advice). Only messages from the
-autopilot, (sysid, component 1), reach the logic; ACKs must be addressed to us or broadcast.
+autopilot, (sysid, component 1), reach the logic; ACKs must be addressed to us or broadcast
+(``mavlink_intake``, which also tells a rebooted PX4 by its boot clock: ``boot_watch``).
 Commands always target component 1 explicitly (``mavutil`` sometimes derives 0).
 
 Trust (issue 10, attack 6): on UDP only the autopilot's pinned address is heard and
@@ -36,8 +37,9 @@ from swarmd.px4.constants import (
     MavState,
 )
 from swarmd.px4.linkguard import REPIN_AFTER_S, AutopilotPin
-from swarmd.px4.mavlink_codec import MavlinkCodec, SetupSigning
-from swarmd.px4.messages import CommandAck, Heartbeat, HomePosition, VehicleCommand
+from swarmd.px4.mavlink_codec import MavlinkCodec
+from swarmd.px4.mavlink_intake import MavlinkIntake
+from swarmd.px4.messages import Heartbeat, VehicleCommand
 from swarmd.px4.signing import timestamp_from_unix
 from swarmd.px4.transport import (
     ByteLink,
@@ -90,15 +92,16 @@ class MavlinkBackend:
             self.pin = AutopilotPin(configured=fixed, repin_after_s=repin_after_s)
         # udpin: the socket systemd bound for us (swarmd-px4.socket), else bound at start()
         self._inherited = inherited if self.endpoint.kind == "udpin" else None
-        self._datagrams = self.endpoint.kind != "serial"  # UDP: frames never span datagrams
+        datagrams = self.endpoint.kind != "serial"  # UDP: frames never span datagrams
         self._link: ByteLink | None = None
         self._sink: ObservationSink | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._hb_timer: asyncio.TimerHandle | None = None
         self._hb_count = 0
-        self._seen_autopilot = False
-        self._have_home = False
-        self.foreign = 0  # well-formed messages from other systems/components
+        # the autopilot's frames judged (pin, signature, sender, PX4's boot clock)
+        self.intake = MavlinkIntake(
+            self.codec, sysid=sysid, compid=compid, pin=self.pin, datagrams=datagrams
+        )
         self.commands_sent = 0
         self.heartbeats_sent = 0
 
@@ -133,7 +136,9 @@ class MavlinkBackend:
             "decoded": self.codec.decoded,
             "bad_frames": self.codec.bad_frames,
             "ignored": self.codec.ignored,
-            "foreign": self.foreign,
+            "foreign": self.intake.foreign,
+            # PX4 lives told apart by its boot clock (docs/px4.md, "Fresh state")
+            "boot_clock": self.intake.boot.stats(),
             "heartbeats_sent": self.heartbeats_sent,
             "commands_sent": self.commands_sent,
             "link": None if self._link is None else self._link.stats(),
@@ -187,7 +192,7 @@ class MavlinkBackend:
         self._write(self._encode(hb))
         self.heartbeats_sent += 1
         self._hb_count += 1
-        want_home = self._seen_autopilot and not self._have_home
+        want_home = self.intake.seen_autopilot and not self.intake.have_home
         if want_home and self._hb_count % HOME_REQUEST_EVERY == 1:
             self.send(VehicleCommand.make(MavCmd.REQUEST_MESSAGE, p1=MSG_ID_HOME_POSITION))
         # fixed grid: a slow callback does not drift the 1 Hz schedule
@@ -200,36 +205,11 @@ class MavlinkBackend:
         if self._loop is None or self._sink is None:
             return  # not started
         now = self._loop.time()
-        pin = self.pin if source is not None else None
-        if pin is not None and source is not None and not pin.admit_datagram(source, now):
-            return  # not the autopilot's address: dropped before decoding, counted
         if self.codec.signing:
             self.codec.advance_clock(timestamp_from_unix(time.time()))
-        for frame in self.codec.feed(data, datagram=self._datagrams):
-            msg = frame.msg
-            if frame.src_system != self.sysid or frame.src_component != COMP_ID_AUTOPILOT1:
-                self.foreign += 1
-                continue
-            if pin is not None and source is not None:
-                was = pin.address
-                if not pin.admit_frame(source, isinstance(msg, Heartbeat), now):
-                    continue  # not pinned yet and not the pinning heartbeat
-                if pin.address != was:
-                    self._sync_remote()  # replies go to the new pin, and only there
-            if isinstance(msg, VehicleCommand | SetupSigning):
-                self.foreign += 1  # the autopilot commanding or keying someone: not for us
-                continue
-            if isinstance(msg, CommandAck):
-                if msg.target_system not in (0, self.sysid) or msg.target_component not in (
-                    0,
-                    self.compid,
-                ):
-                    self.foreign += 1  # an answer to the GCS or another companion
-                    continue
-                if msg.command == MavCmd.REQUEST_MESSAGE:
-                    continue  # our own home request
-            if isinstance(msg, Heartbeat):
-                self._seen_autopilot = True
-            elif isinstance(msg, HomePosition):
-                self._have_home = True
-            self._sink(msg, now)
+        was = None if self.pin is None else self.pin.address
+        observations = self.intake.receive(data, source, now)
+        if self.pin is not None and self.pin.address != was:
+            self._sync_remote()  # replies go to the new pin, and only there, before any
+        for obs in observations:
+            self._sink(obs, now)

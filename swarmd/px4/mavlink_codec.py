@@ -25,6 +25,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from swarmd.px4.messages import (
+    BootClock,
     CommandAck,
     ExtendedSysState,
     GlobalPositionInt,
@@ -50,7 +51,16 @@ class SetupSigning:
     initial_timestamp: int
 
 
-Message = Observation | VehicleCommand | SetupSigning
+Message = Observation | VehicleCommand | SetupSigning | BootClock
+
+# Messages PX4 streams with its boot clock ``time_boot_ms`` ("Timestamp (time since system
+# boot)", MAVLink common.xml) and nothing readiness reads: decoded for that field alone
+# (``BootClock``), so ``boot_watch`` can tell a rebooted PX4 (docs/px4.md, "Fresh state").
+# PX4's ONBOARD mode streams ATTITUDE 100 Hz, ATTITUDE_QUATERNION 50 Hz, LOCAL_POSITION_NED
+# 30 Hz and SYSTEM_TIME 1 Hz (mavlink_main.cpp); GLOBAL_POSITION_INT (50 Hz) carries it too.
+BOOT_CLOCK_MESSAGES = frozenset(
+    {"SYSTEM_TIME", "ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED"}
+)
 
 _UINT16_MAX = 0xFFFF
 
@@ -63,6 +73,16 @@ class Frame:
     src_system: int
     src_component: int
     signed: bool = False  # True: its signature checked against our key (signing on)
+
+    @property
+    def boot_clock(self) -> tuple[str, int] | None:
+        """(message name, ``time_boot_ms``) when the message carries PX4's boot clock."""
+        match self.msg:
+            case BootClock():
+                return self.msg.message, self.msg.time_boot_ms
+            case GlobalPositionInt():
+                return "GLOBAL_POSITION_INT", self.msg.time_boot_ms
+        return None
 
 
 class MavlinkCodec:
@@ -177,6 +197,8 @@ class MavlinkCodec:
 
 def decode_message(m: Any) -> Message | None:
     """A pymavlink message object -> our dataclass, or None for messages we do not model."""
+    if m.get_type() in BOOT_CLOCK_MESSAGES:
+        return BootClock(m.get_type(), int(m.time_boot_ms))
     match m.get_type():
         case "HEARTBEAT":
             return Heartbeat(
@@ -314,8 +336,25 @@ def _encoder(tx: Any, msg: Message) -> Any:
             return tx.setup_signing_encode(
                 msg.target_system, msg.target_component, list(msg.secret_key), msg.initial_timestamp
             )
+        case BootClock():
+            return _boot_clock_encoder(tx, msg)
         case VehicleCommand():
             return tx.command_long_encode(
                 msg.target_system, msg.target_component, msg.command, msg.confirmation, *msg.params
             )
     raise TypeError(f"cannot encode {type(msg).__name__}")
+
+
+def _boot_clock_encoder(tx: Any, msg: BootClock) -> Any:
+    # the simulator and the tests send these; every field but the boot clock is zero
+    t = msg.time_boot_ms
+    match msg.message:
+        case "SYSTEM_TIME":
+            return tx.system_time_encode(0, t)
+        case "ATTITUDE":
+            return tx.attitude_encode(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        case "ATTITUDE_QUATERNION":
+            return tx.attitude_quaternion_encode(t, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        case "LOCAL_POSITION_NED":
+            return tx.local_position_ned_encode(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    raise TypeError(f"cannot encode {msg.message}")

@@ -189,12 +189,25 @@ class TopicLayout:
 class StateReset:
     """A backend's word that everything it said of the vehicle so far may be another life's.
 
-    XRCE-DDS sends it on a new session (PX4 rebooted, or its client reconnected): the
-    vehicle's facts (armed, mode, landed, battery, position) are unknown until the new
-    session's samples say them again (docs/px4.md, "Fresh state"). MAVLink never sends it.
+    XRCE-DDS sends it on a new session (PX4 rebooted, or its client reconnected), MAVLink
+    when PX4's boot clock went back (``boot_watch``): the vehicle's facts (armed, mode,
+    landed, battery, position) are unknown until the new life's messages say them again
+    (docs/px4.md, "Fresh state").
     """
 
     why: str
+
+
+@dataclass(frozen=True, slots=True)
+class BootClock:
+    """A MAVLink message read only for its ``time_boot_ms`` (SYSTEM_TIME, ATTITUDE, ...).
+
+    PX4's boot clock tells one life from the next (``boot_watch``); it is never an
+    observation: the backend judges it and hands the vehicle state a ``StateReset`` at most.
+    """
+
+    message: str  # the MAVLink message name, e.g. "SYSTEM_TIME"
+    time_boot_ms: int
 
 
 @dataclass(frozen=True, slots=True)

@@ -132,10 +132,11 @@ class VehicleState:
                 self.forget_vehicle()
 
     def forget_vehicle(self) -> None:
-        """Every fact of the vehicle becomes unknown (``StateReset``: a new XRCE session may
-        be a rebooted PX4). Readiness says ``no_heartbeat`` and no action is confirmed until
-        the new life's samples arrive; what the backend cannot read stays (``layout_problems``,
-        lifted only by a sample that decodes)."""
+        """Every fact of the vehicle becomes unknown (``StateReset``: a new XRCE session, or
+        PX4's MAVLink boot clock gone back, may be a rebooted PX4). Readiness says
+        ``no_heartbeat`` and no action is confirmed until the new life's messages arrive; what
+        the backend cannot read stays (``layout_problems``, lifted only by a sample that
+        decodes)."""
         self.heartbeat = self.heartbeat_at = None
         self.sys_status = self.sys_status_at = None
         self.extended = self.extended_at = None

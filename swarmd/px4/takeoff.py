@@ -364,7 +364,7 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         """Confirm steps by what the vehicle reports, whatever happened to the ACKs."""
         v = self.vehicle
         if v.armed is None:
-            # no HEARTBEAT since a StateReset (XRCE: a new session): unknown, not disarmed;
+            # no HEARTBEAT since a StateReset (a new PX4 life): unknown, not disarmed;
             # nothing is confirmed or failed on it, the timers still run
             return
         armed = v.armed

@@ -10,8 +10,10 @@ a companion or GCS) and ``handle_timer(now)`` (the next stream or physics deadli
 ``get_timer()``); it emits ``(message, is_broadcast)`` through ``messages_to_send()`` and
 log records through ``next_log()``. Streams follow PX4's ONBOARD mavlink mode
 (``mavlink_main.cpp``): HEARTBEAT 1 Hz, SYS_STATUS 5 Hz, EXTENDED_SYS_STATE 5 Hz,
-HOME_POSITION 0.5 Hz; GPS_RAW_INT at 5 Hz (PX4: per GNSS update) and GLOBAL_POSITION_INT at
-10 Hz (PX4: 50 Hz; fewer frames, same information). Stream phases are drawn from the
+HOME_POSITION 0.5 Hz, SYSTEM_TIME 1 Hz (the boot clock); GPS_RAW_INT at 5 Hz (PX4: per GNSS
+update) and GLOBAL_POSITION_INT at 10 Hz (PX4: 50 Hz; fewer frames, same information).
+``reboot`` power-cycles it: silent while it boots, then a new life (docs/px4.md, "Fresh
+state"). Stream phases are drawn from the
 injected ``random.Random`` so two simulators never tick in lockstep.
 """
 
@@ -45,6 +47,7 @@ from swarmd.px4.messages import (
     MODE_LAND,
     MODE_LOITER,
     MODE_TAKEOFF,
+    BootClock,
     CommandAck,
     ExtendedSysState,
     GlobalPositionInt,
@@ -102,6 +105,11 @@ _STREAMS: Final[dict[str, float]] = {  # name -> period in seconds (PX4 ONBOARD 
     "GLOBAL_POSITION_INT": 0.1,
     "HOME_POSITION": 2.0,
 }
+# SYSTEM_TIME (1 Hz in PX4's ONBOARD list) carries the boot clock before any fix; first, so
+# a boot's first update sends it with the HEARTBEAT (its phase draws no random number, so
+# the seeded schedules of the streams above are those of before it was added)
+_ALL_STREAMS: Final[dict[str, float]] = {"SYSTEM_TIME": 1.0, **_STREAMS}
+REBOOT_S: Final = 3.0  # silent while booting: a flight controller boots in seconds
 
 
 class SimVehicle:
@@ -114,7 +122,25 @@ class SimVehicle:
     def __init__(self, config: SimConfig, rng: random.Random, now: float) -> None:
         self.config = config
         self._rng = rng
+        self._log: deque[tuple[str, dict[str, Any]]] = deque()
+        self._power_on(now)
+        self._due = {name: now + rng.uniform(0.0, period) for name, period in _STREAMS.items()}
+        self._due["HEARTBEAT"] = now  # announce at once
+        self._due["SYSTEM_TIME"] = now  # every PX4 stream sends at its first update
+
+    def reboot(self, now: float, boot_s: float = REBOOT_S) -> None:
+        """Power-cycle at ``now``: silent for ``boot_s`` (PX4 loads NuttX, parameters,
+        sensors, the estimator), then a new life, disarmed on the ground with no fix and no
+        home, its boot clock (``time_boot_ms``) counted from ``now``. Commands sent
+        meanwhile are never heard."""
+        self._power_on(now)
+        self.awake_at = now + boot_s
+        self._due = dict.fromkeys(_ALL_STREAMS, self.awake_at)  # first update: all at once
+        self._log_event("reboot", now, boot_s=boot_s)
+
+    def _power_on(self, now: float) -> None:
         self.boot = now
+        self.awake_at = now
         self.armed = False
         self.mode: Px4Mode = MODE_LOITER  # PX4 boots a multicopter in Hold without RC
         self.landed = LandedState.ON_GROUND
@@ -123,19 +149,16 @@ class SimVehicle:
         # the land detector (PX4 vehicle_land_detected): all three true on the ground
         self.ground_contact = self.maybe_landed = self.landed_detected = True
         self.touchdown_at: float | None = None  # when the descent stopped at the ground
-        self.target_alt_m = config.mis_takeoff_alt_m
-        self.battery = config.battery_pct
+        self.target_alt_m = self.config.mis_takeoff_alt_m
+        self.battery = self.config.battery_pct
         self.fix = GpsFixType.NO_FIX
         self.satellites = 0
         self.home_set = False
         self.armed_at: float | None = None
         self.taken_off = False  # since arming (PX4 _have_taken_off_since_arming)
         self.landed_at: float | None = None
-        self._arm_rejects_left = config.reject_arms
-        self._out: list[Observation] = []
-        self._log: deque[tuple[str, dict[str, Any]]] = deque()
-        self._due = {name: now + rng.uniform(0.0, period) for name, period in _STREAMS.items()}
-        self._due["HEARTBEAT"] = now  # announce at once
+        self._arm_rejects_left = self.config.reject_arms
+        self._out: list[Observation | BootClock] = []
         self._physics_at = now + PHYSICS_DT_S
         self._last_physics = now
         self.commands_received = 0
@@ -147,8 +170,8 @@ class SimVehicle:
 
         ``object``: whatever the codec decoded (it may be MAVLink-only, like SETUP_SIGNING);
         naming the codec's type here would import pymavlink into this sans-IO model."""
-        if not isinstance(msg, VehicleCommand):
-            return  # companion / GCS heartbeats etc.
+        if not isinstance(msg, VehicleCommand) or now < self.awake_at:
+            return  # companion / GCS heartbeats etc.; nothing is heard while booting
         if msg.target_system not in (0, self.config.sysid):
             return  # PX4 ignores commands for another system
         if msg.target_component not in (0, COMP_ID_AUTOPILOT1):
@@ -164,7 +187,9 @@ class SimVehicle:
 
     def handle_timer(self, now: float) -> None:
         self._physics(now)
-        for name, period in _STREAMS.items():
+        if now < self.awake_at:
+            self._out.clear()  # booting: the mavlink module has not started yet
+        for name, period in _ALL_STREAMS.items():
             if now >= self._due[name]:
                 self._stream(name, now)
                 # keep the grid (no drift) but never queue a burst after a long stall
@@ -175,7 +200,7 @@ class SimVehicle:
     def get_timer(self) -> float:
         return min(self._physics_at, *self._due.values())
 
-    def messages_to_send(self) -> list[Observation]:
+    def messages_to_send(self) -> list[Observation | BootClock]:
         out, self._out = self._out, []
         return out
 
@@ -432,12 +457,17 @@ class SimVehicle:
                             lon_e7=lon,
                             alt_mm=round((c.home_amsl_m + self.alt_m) * 1000),
                             relative_alt_mm=round(self.alt_m * 1000),
-                            time_boot_ms=round((now - self.boot) * 1000) & 0xFFFFFFFF,
+                            time_boot_ms=self._boot_ms(now),
                         )
                     )
             case "HOME_POSITION":
                 if self.home_set:
                     self._out.append(self._home())
+            case "SYSTEM_TIME":
+                self._out.append(BootClock("SYSTEM_TIME", self._boot_ms(now)))
+
+    def _boot_ms(self, now: float) -> int:
+        return round((now - self.boot) * 1000) & 0xFFFFFFFF  # a uint32: wraps at 49.7 days
 
     def _home(self) -> HomePosition:
         c = self.config

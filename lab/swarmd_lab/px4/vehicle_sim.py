@@ -38,7 +38,7 @@ from swarmd.px4.constants import COMP_ID_AUTOPILOT1
 from swarmd.px4.mavlink_codec import Frame, MavlinkCodec, SetupSigning
 from swarmd.px4.signing import parse_key_file, timestamp_from_unix
 from swarmd.px4.transport import BadConnectionString, Endpoint, parse_connection
-from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
+from swarmd_lab.px4.sim_model import REBOOT_S, SimConfig, SimVehicle
 
 LogSink = Callable[[str, dict[str, Any]], None]
 
@@ -140,6 +140,11 @@ class SimProtocol(asyncio.DatagramProtocol):
         if self._transport is not None and not self._transport.is_closing():
             self._timer = self._loop.call_at(self.model.get_timer(), self._on_timer)
 
+    def reboot(self, boot_s: float = REBOOT_S) -> None:
+        """Power-cycle the simulated PX4 now (``SimVehicle.reboot``: silent for ``boot_s``)."""
+        self.model.reboot(self._loop.time(), boot_s)
+        self._pump()
+
     @property
     def local_port(self) -> int:
         if self._transport is None:
@@ -210,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed for stream phases and GPS noise")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="exit after S seconds (default: run until SIGINT/SIGTERM)")  # fmt: skip
+    p.add_argument("--reboot-after", type=float, default=None, metavar="S",
+                   help="power-cycle the simulated PX4 once after S seconds (silent "
+                   f"{REBOOT_S:g} s, then a new life: disarmed, no fix, no home)")  # fmt: skip
     p.add_argument("--json-log", action="store_true", help="JSON lines on stderr")
     p.add_argument("--signing-key", metavar="FILE", default=None,
                    help="MAVLink 2 signing on with this key (PX4's 40-byte key file, 32 raw "
@@ -225,6 +233,8 @@ def config_from_args(args: argparse.Namespace) -> tuple[SimConfig, Endpoint]:
         raise ValueError(f"--battery {args.battery}: out of range; fix: 0..100")
     if args.gps_fix_after < 0 or args.reject_arms < 0:
         raise ValueError("--gps-fix-after and --reject-arms must be >= 0")
+    if args.reboot_after is not None and args.reboot_after < 0:
+        raise ValueError(f"--reboot-after {args.reboot_after}: fix: >= 0 seconds")
     if args.listen is not None:
         text = args.listen if args.listen.startswith("udp") else f"udpin:{args.listen}"
         endpoint = parse_connection(text, "--listen")
@@ -266,6 +276,8 @@ async def _run(config: SimConfig, endpoint: Endpoint, args: argparse.Namespace) 
     )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
+    if args.reboot_after is not None:
+        loop.call_later(args.reboot_after, sim.reboot)
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     try:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from swarmd.px4.constants import COMP_ID_AUTOPILOT1, COMP_ID_ONBOARD_COMPUTER
 from swarmd.px4.mavlink_codec import MavlinkCodec, Message, SetupSigning
-from swarmd.px4.messages import VehicleCommand
+from swarmd.px4.messages import BootClock, VehicleCommand
 from swarmd.px4.readiness import VehicleState
 from swarmd.px4.takeoff import SequenceEvent, TakeoffSequence
 from swarmd_lab.px4.sim_model import SimVehicle
@@ -127,8 +127,8 @@ class VirtualLink:
             self._pump_sim()
             return
         for frame in self._companion_codec.feed(d.data, datagram=True):
-            if isinstance(frame.msg, VehicleCommand | SetupSigning):
-                continue
+            if isinstance(frame.msg, VehicleCommand | SetupSigning | BootClock):
+                continue  # BootClock: the MAVLink backend's (boot_watch), no observation
             self.state.observe(frame.msg, self.now)
             if self.sequence is not None:
                 self.sequence.observe(frame.msg, self.now)
