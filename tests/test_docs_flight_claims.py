@@ -5,9 +5,11 @@ docs/benchmarks.md's flight matrix is generated from the run files (between the
 targets cell by cell. The prose around it, and the README's summary of it, is written by
 hand and drifts: session 15 wrote "every target met in every cell" beside a block whose
 targets list said the reboot at N = 20 was "not met" (2.021 s). These checks find every
-such universal claim ("every target", "in every cell", "all five cells") outside the block
-and hold it against the block's own verdicts: a cell the block says is not met must be
-named in the claim (its scenario and N) as the exception, or the claim must be narrowed.
+such universal claim ("every target", "in every cell", "all five cells", "met its targets",
+"within its 2 s target") outside the block and hold it against the block's own verdicts,
+for the targets, N and scenarios the claim (or its paragraph's first sentence) names: a
+cell the block says is not met must be named in the claim as the exception ("but ... the
+reboot at N = 20"), or the claim must be narrowed. Quotations are not claims.
 
 A claim that names the runs it speaks of, as a parenthesised ``(r4-r6)`` or ``(r7)``, is
 about those runs, not the matrix: it is judged from those run files, by the same rules
@@ -36,13 +38,21 @@ RUNS: Final = ROOT / "bench" / "results" / "flight-stagger" / "runs"
 OTHER_DOCS: Final = ("README.md", "docs/ros2.md", "docs/testbed.md")
 ROS2_SWARMD: Final = "ros2-swarmd"
 
-# "every target", "every other target", "all targets", "in every cell", "all five cells"
-UNIVERSAL: Final = re.compile(r"\b(?:every|all)\s+(?:\w+\s+)?(?:targets?|cells?)\b", re.I)
-ALL_TARGETS: Final = re.compile(r"\b(?:every|all)\s+(?:\w+\s+)?targets?\b", re.I)
+# "every target", "every other target", "all targets", "in every cell", "all five cells";
+# "met its targets", "within its 2 s target" (of the scenarios the clause or its paragraph's
+# first sentence names: "The reboot: ... within its 2 s target")
+UNIVERSAL: Final = re.compile(
+    r"\b(?:every|all)\s+(?:\w+\s+)?(?:targets?|cells?)\b"
+    r"|\b(?:within|met|meets|holds)\s+(?:its|the|their)\s+(?:2 s\s+)?targets?\b",
+    re.I,
+)
+ALL_TARGETS: Final = re.compile(
+    r"\b(?:every|all)\s+(?:\w+\s+)?targets?\b|\bmeet?s?\s+(?:its|their)\s+targets\b", re.I
+)
 # which target a clause speaks of, by its words (flight_verdicts.RULES' keys)
 TARGET_WORDS: Final = {
     "false": r"false loss",
-    "rediscovery": r"re-discover|[≤<] ?2 s|within 2 s|slowest pair",
+    "rediscovery": r"re-discover|[≤<] ?2 s|within 2 s|2 s target|slowest pair",
     "frames": r"frames per rejoining pair|discovery frames",
     "readiness": r"readiness",
     "commands": r"\bcommands?\b",
@@ -129,12 +139,30 @@ def _sizes(clause: str) -> set[int]:
     return named or set(SIZES)
 
 
-def _named(clause: str, cell: Cell) -> bool:
-    """Whether the clause names ``cell`` as its exception: its scenario, and its N when the
-    clause names any."""
+EVERY_CELL: Final = re.compile(r"\b(?:every|all)\s+(?:\w+\s+)?cells?\b", re.I)
+
+
+def _scenarios(clause: str, lead: str) -> set[str]:
+    """The scenarios a claim speaks of: every one when it says "every cell" (a scenario it
+    names is then an example: "in every cell (the slowest pair, the fly-out's)"); else those
+    it names, else those its paragraph's first sentence names ("**The reboot**: ...")."""
+    if EVERY_CELL.search(clause):
+        return set(SCENARIOS)
+    for text in (clause, lead):
+        named = {s for s in SCENARIOS if s in text}
+        if named:
+            return named
+    return set(SCENARIOS)
+
+
+def _named(clause: str, lead: str, cell: Cell) -> bool:
+    """Whether the clause names ``cell`` as its exception: its scenario (or the paragraph
+    is about it), and its N when the clause names any."""
     n, scenario = cell
     named_n = {m for m in SIZES if re.search(rf"\bN ?= ?{m}\b", clause)}
-    return bool(EXCEPTION.search(clause)) and scenario in clause and (not named_n or n in named_n)
+    spoken_of = _scenarios(clause, lead)
+    about = scenario in clause or (spoken_of != set(SCENARIOS) and scenario in spoken_of)
+    return bool(EXCEPTION.search(clause)) and about and (not named_n or n in named_n)
 
 
 @functools.cache
@@ -164,7 +192,7 @@ def false_claims(prose: str, block: Judged) -> list[str]:
         clause = re.sub(r'"[^"]*"', '""', said)
         if not UNIVERSAL.search(clause):
             continue
-        targets, sizes = _targets(clause), _sizes(clause)
+        targets, sizes, scenarios = _targets(clause), _sizes(clause), _scenarios(clause, lead)
         if not targets:
             continue  # "every cell but one has one run": not a target
         if ON_ROS2_SWARMD.search(clause) or (
@@ -187,7 +215,7 @@ def false_claims(prose: str, block: Judged) -> list[str]:
                 f"swarmd N={n} {scenario} {t}: not met"
                 for t in sorted(targets)
                 for n, scenario in sorted(judge.swarmd_not_met[t])
-                if n in sizes and not _named(clause, (n, scenario))
+                if n in sizes and scenario in scenarios and not _named(clause, lead, (n, scenario))
             ]
         out += [f"{m}, yet: {clause!r}" for m in missed]
     return out
@@ -236,6 +264,12 @@ def test_session_15s_false_claim_is_caught() -> None:
         "reported), and the operator's answers the same as r6's at the code before in every cell.",
         "- swarmd: no false losses; re-discovery within 2 s in every cell (slowest pair "
         "0.33-1.66 s).",
+        "- **The reboot**: the stock stacks see the restarted drone again sooner than swarmd "
+        "does; the restarted swarmd keeps the paper's passive window before it announces, "
+        'within its 2 s target ("Not done").',
+        "- **swarmd's reboot is slower than the stock stacks'** (the reboot rows of the "
+        "block's re-discovery tables): the restarted drone keeps the paper's passive window "
+        "before it announces. Within the 2 s target; not changed.",
     ]
     for text in before:
         found = false_claims(text, SESSION_15)
@@ -247,7 +281,13 @@ def test_session_15s_false_claim_is_caught() -> None:
         "Re-discovery ≤ 2 s holds in every cell but the reboot at N = 20.",
         "No false loss, readiness ≥ 99 % and the commands target in every cell.",
         'Session 15\'s note said "every target met in every cell": it was wrong.',
+        "- **The reboot**: the restarted swarmd keeps the paper's passive window, within its "
+        "2 s target but for one run at N = 20 on a loaded host.",
+        "- **The split**: swarmd met its 2 s target there.",
     ]
+    # "every cell" is every cell, whatever scenario it names as an example
+    example = "Re-discovery ≤ 2 s is met in every cell (the slowest pair 1.86 s, the fly-out)."
+    assert false_claims(example, SESSION_15) != []
     for text in after:
         assert false_claims(text, SESSION_15) == [], text
 
