@@ -150,6 +150,32 @@ def test_targets_at_their_boundaries(target: str, fields: dict[str, Any], met: b
     assert ("**met**" if met else "**not met**") in v.text
 
 
+@pytest.mark.parametrize(
+    ("ratio", "shown", "met"),
+    [
+        (0.9895, "98.9 %", False),  # was shown as 99.0 % beside its "not met"
+        (0.98949, "98.9 %", False),
+        (0.99, "99.0 %", True),
+        (0.99951, "100.0 %", True),  # rounding up elsewhere is kept
+        (0.97459, "97.5 %", False),
+    ],
+)
+def test_a_readiness_under_the_target_never_reads_as_the_target(
+    ratio: float, shown: str, met: bool
+) -> None:
+    """ROS 2 on swarmd's blackout at N = 20 (1,195 of 1,208, ratio 0.9895) read 99.0 % in the
+    matrix and was judged under 99 %: the figure shown must agree with the verdict."""
+    runs = files(record(ratio=ratio))
+    assert fm.cell(runs, measure("readiness")) == shown
+    (v,) = [
+        v
+        for v in fm.verdicts(runs)
+        if v.target == "readiness" and v.scenario == "split" and v.n == 10
+    ]
+    assert v.met is met
+    assert v.text.endswith(f": {shown}")
+
+
 def test_one_failing_valid_run_fails_the_cell_and_an_invalid_one_does_not() -> None:
     ok, bad = record(run=1, red_max=1.0), record(run=2, red_max=5.0)
     invalid_bad = record(run=3, red_max=50.0, valid=False)

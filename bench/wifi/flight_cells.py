@@ -111,6 +111,14 @@ def frames_per_pair(run: Run) -> float | None:
     return _num((_m(run).get("frames_per_rejoining_pair") or {}).get("per_pair"))
 
 
+# issue 20's readiness target, in percent (``flight_verdicts`` judges it)
+READINESS_MIN_PCT: Final = 99.0
+# the readiness spec: ".1f", but a value under the target is never rounded up onto it, so
+# a run at 98.95 % reads 98.9 %, not the 99.0 % its verdict refuses (ROS 2 on swarmd's
+# blackout at N = 20, 1,195 of 1,208: docs/benchmarks.md)
+PCT_DOWN: Final = "down.1f"
+
+
 def readiness(run: Run) -> float | None:
     ratio = _num((_m(run).get("readiness_delivery") or {}).get("ratio"))
     return None if ratio is None else 100.0 * ratio
@@ -218,7 +226,7 @@ MEASURES: Final = (
     Measure("re-discovery p50", rediscovery_p50, " s", ".2f"),
     Measure("re-discovery max", rediscovery_max, " s", ".2f", note=never_note),
     Measure("discovery frames per rejoining pair", frames_per_pair, "", ".2f"),
-    Measure("readiness delivery", readiness, " %", ".1f"),
+    Measure("readiness delivery", readiness, " %", PCT_DOWN),
     Measure(
         "commands", command_faults, "", ".0f", show=commands_text,
         legend="issued / (command, member) pairs / run twice / run late / unreached, not "
@@ -320,7 +328,12 @@ def valid(files: Sequence[RunFile]) -> list[RunFile]:
 
 
 def _fmt(x: float, spec: str) -> str:
-    return "never" if math.isinf(x) else f"{x:{spec}}"
+    if math.isinf(x):
+        return "never"
+    if spec == PCT_DOWN:
+        text = f"{x:.1f}"
+        return f"{math.floor(x * 10) / 10:.1f}" if x < READINESS_MIN_PCT <= float(text) else text
+    return f"{x:{spec}}"
 
 
 def summary(values: Sequence[float], spec: str, unit: str) -> str:

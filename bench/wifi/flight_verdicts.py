@@ -17,6 +17,8 @@ from bench.wifi.flight_cells import (
     COLUMNS,
     COMMAND_FAULTS,
     COMMAND_OTHERS,
+    PCT_DOWN,
+    READINESS_MIN_PCT,
     SCENARIOS,
     SIZES,
     SWARMD,
@@ -41,7 +43,7 @@ from bench.wifi.flight_measures import Q_MOVED_MIN
 FALSE_LOSSES_MAX: Final = 0
 REDISCOVERY_MAX_S: Final = 2.0
 FRAMES_PER_PAIR_MAX: Final = 4.0
-READINESS_MIN: Final = 0.99
+READINESS_MIN: Final = READINESS_MIN_PCT / 100.0
 # the scenarios with a heal (a return after a gap every rejoining pair shares); fade's
 # window runs from the drone's first return to its last re-discovery, the whole fade with
 # every renewal in it, and reboot has no rejoining pairs: the frames target is not theirs
@@ -192,7 +194,7 @@ RULES: Final = (
     ),
     Rule(
         "readiness", "readiness delivery among drones in range ≥ 99 %",
-        readiness, lambda v: v >= 100.0 * READINESS_MIN, "≥ 99 %", ".1f", " %",
+        readiness, lambda v: v >= 100.0 * READINESS_MIN, "≥ 99 %", PCT_DOWN, " %",
     ),
     Rule(
         "commands",
