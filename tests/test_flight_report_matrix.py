@@ -176,6 +176,30 @@ def test_a_readiness_under_the_target_never_reads_as_the_target(
     assert v.text.endswith(f": {shown}")
 
 
+@pytest.mark.parametrize(
+    ("red_max", "shown", "met"),
+    [
+        (2.004, "2.01 s", False),  # ".2f" read 2.00 s beside its "not met"
+        (2.0, "2.00 s", True),
+        (1.996, "2.00 s", True),  # rounding up elsewhere is kept
+        (2.021, "2.02 s", False),
+    ],
+)
+def test_a_rediscovery_over_the_target_never_reads_as_the_target(
+    red_max: float, shown: str, met: bool
+) -> None:
+    """The same rule as readiness's, for the 2 s bound: the figure agrees with the verdict."""
+    runs = files(record(red_max=red_max))
+    assert fm.cell(runs, measure("re-discovery max")) == shown
+    (v,) = [
+        v
+        for v in fm.verdicts(runs)
+        if v.target == "rediscovery" and v.scenario == "split" and v.n == 10
+    ]
+    assert v.met is met
+    assert f": {shown}" in v.text
+
+
 def test_one_failing_valid_run_fails_the_cell_and_an_invalid_one_does_not() -> None:
     ok, bad = record(run=1, red_max=1.0), record(run=2, red_max=5.0)
     invalid_bad = record(run=3, red_max=50.0, valid=False)

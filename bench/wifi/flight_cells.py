@@ -117,6 +117,11 @@ READINESS_MIN_PCT: Final = 99.0
 # a run at 98.95 % reads 98.9 %, not the 99.0 % its verdict refuses (ROS 2 on swarmd's
 # blackout at N = 20, 1,195 of 1,208: docs/benchmarks.md)
 PCT_DOWN: Final = "down.1f"
+# issue 20's re-discovery target, in seconds (``flight_verdicts`` judges it)
+REDISCOVERY_MAX_S: Final = 2.0
+# the re-discovery spec: ".2f", but a value over the target is never rounded down onto it,
+# so 2.004 s reads 2.01 s, not the 2.00 s its verdict refuses
+S_UP: Final = "up.2f"
 
 
 def readiness(run: Run) -> float | None:
@@ -224,7 +229,7 @@ MEASURES: Final = (
     Measure("loss reported, p50 of each run", loss_reported_p50, " s", ".1f", note=missed_note),
     Measure("false losses, sum over the valid runs", false_losses, "", ".0f", total=True),
     Measure("re-discovery p50", rediscovery_p50, " s", ".2f"),
-    Measure("re-discovery max", rediscovery_max, " s", ".2f", note=never_note),
+    Measure("re-discovery max", rediscovery_max, " s", S_UP, note=never_note),
     Measure("discovery frames per rejoining pair", frames_per_pair, "", ".2f"),
     Measure("readiness delivery", readiness, " %", PCT_DOWN),
     Measure(
@@ -327,20 +332,23 @@ def valid(files: Sequence[RunFile]) -> list[RunFile]:
 # --- cells -----------------------------------------------------------------------------
 
 
-def _fmt(x: float, spec: str) -> str:
+def fmt(x: float, spec: str) -> str:
     if math.isinf(x):
         return "never"
     if spec == PCT_DOWN:
         text = f"{x:.1f}"
         return f"{math.floor(x * 10) / 10:.1f}" if x < READINESS_MIN_PCT <= float(text) else text
+    if spec == S_UP:
+        text = f"{x:.2f}"
+        return f"{math.ceil(x * 100) / 100:.2f}" if x > REDISCOVERY_MAX_S >= float(text) else text
     return f"{x:{spec}}"
 
 
 def summary(values: Sequence[float], spec: str, unit: str) -> str:
     """``median (min-max)``, or the one value."""
     mid = statistics.median(values)
-    med = _fmt(mid, spec) + ("" if math.isinf(mid) else unit)
-    low, high = _fmt(min(values), spec), _fmt(max(values), spec)
+    med = fmt(mid, spec) + ("" if math.isinf(mid) else unit)
+    low, high = fmt(min(values), spec), fmt(max(values), spec)
     if low == high:
         return med
     return f"{med} ({low}-{high})"
@@ -366,7 +374,7 @@ def cell(files: Sequence[RunFile], measure: Measure, older: int = 0) -> str:
     if measure.show is not None:
         text = measure.show([f.run for f in ok if measure.read(f.run) is not None])
     elif measure.total:
-        text = f"{_fmt(sum(values), measure.spec)}{measure.unit}"
+        text = f"{fmt(sum(values), measure.spec)}{measure.unit}"
     else:
         text = summary(values, measure.spec, measure.unit)
     if measure.note is not None:

@@ -19,6 +19,8 @@ from bench.wifi.flight_cells import (
     COMMAND_OTHERS,
     PCT_DOWN,
     READINESS_MIN_PCT,
+    REDISCOVERY_MAX_S,
+    S_UP,
     SCENARIOS,
     SIZES,
     SWARMD,
@@ -28,6 +30,7 @@ from bench.wifi.flight_cells import (
     command_faults,
     command_sum,
     false_losses,
+    fmt,
     frames_per_pair,
     readiness,
     rediscovery_max,
@@ -41,7 +44,6 @@ from bench.wifi.flight_measures import Q_MOVED_MIN
 
 # issue 20's targets for swarmd
 FALSE_LOSSES_MAX: Final = 0
-REDISCOVERY_MAX_S: Final = 2.0
 FRAMES_PER_PAIR_MAX: Final = 4.0
 READINESS_MIN: Final = READINESS_MIN_PCT / 100.0
 # the scenarios with a heal (a return after a gap every rejoining pair shares); fade's
@@ -183,7 +185,7 @@ RULES: Final = (
         "rediscovery",
         "re-discovery ≤ 2 s (each valid run's slowest pair; reboot: either way after the "
         "restart too)",
-        rediscovery_max, lambda v: v <= REDISCOVERY_MAX_S, "≤ 2 s", ".2f", " s", _p50_note,
+        rediscovery_max, lambda v: v <= REDISCOVERY_MAX_S, "≤ 2 s", S_UP, " s", _p50_note,
     ),
     Rule(
         "frames",
@@ -376,7 +378,7 @@ def _cost_text(cost: Cost, rule: Rule) -> str:
     mid = cost.median()
     if mid is None:
         return "-"
-    value = "never" if math.isinf(mid) else f"{mid:{rule.spec}}{rule.unit}"
+    value = fmt(mid, rule.spec) + ("" if math.isinf(mid) else rule.unit)
     never = sum(1 for v in cost.cells.values() if math.isinf(v))
     also = f"; {never} never" if never else ""
     cells = len(cost.cells)
