@@ -259,9 +259,11 @@ class SpdpParticipant:
                 if name not in kw:
                     kw[name] = decode(p, little)
         elif vendor_params:
-            # another vendor's 0x8A0x PIDs mean something else to it: keep them opaque
-            extras.extend(vendor_params)
-            extras.sort(key=plist.params.index)
+            # another vendor's 0x8A0x PIDs mean something else to it: keep them opaque, in
+            # wire order, in one pass. (A sort keyed by ``params.index`` was quadratic: one
+            # forged 64 KiB DATA(p) of 16,000 parameters under an invented prefix cost
+            # seconds of the daemon's loop; docs/security.md, "Foreign participants".)
+            extras = [p for p in plist.params if p.pid not in _MODELLED]
         return cls(guid, extra_parameters=tuple(extras), **kw)  # type: ignore[arg-type]
 
 

@@ -34,9 +34,17 @@ from swarmd.rtps.message import (
     Submessage,
     encode_message,
 )
-from swarmd.rtps.spdp import SpdpParticipant, encode_spdp, encode_spdp_dispose
+from swarmd.rtps.parameters import Parameter
+from swarmd.rtps.spdp import (
+    _MODELLED,
+    SWARMD_PIDS,
+    SpdpParticipant,
+    encode_spdp,
+    encode_spdp_dispose,
+)
 from swarmd.rtps.types import (
     PROTOCOLVERSION_SWARMD,
+    VENDORID_FASTDDS,
     VENDORID_SWARMD,
     EntityId,
     GuidPrefix,
@@ -232,6 +240,32 @@ def foreign_participant(prefix: GuidPrefix, name: str, sn: int = 1) -> bytes:
         default_unicast_locators=(Locator.udpv4("10.255.255.1", 7411),),
     )
     return encode_spdp(part, sequence_number=sn, timestamp=Time(0, 0))
+
+
+# The largest UDP payload over IPv4 (65,535 - 20 IP - 8 UDP): Wi-Fi carries it as 45 IP
+# fragments, and the SPDP sockets read up to 65,535 octets (swarmd.udp.MAX_DATAGRAM).
+MAX_UDP_PAYLOAD: Final = 65_507
+
+
+def bloated_participant(prefix: GuidPrefix, size: int = MAX_UDP_PAYLOAD, sn: int = 1) -> bytes:
+    """A stock-vendor (Fast DDS) DATA(p) of ``size`` octets at most: a participant of no
+    bundle whose parameter list is padded with empty parameters of distinct unknown PIDs,
+    4 octets each (~16,000 in a full datagram), and one swarmd vendor PID (0x8A01), which
+    another vendor's list keeps opaque; listed as a foreign participant once decoded. What
+    a forger sends to make one decode as costly as it can (docs/security.md, "Foreign
+    participants and floods")."""
+    base = SpdpParticipant(  # no domain id: the receiver's own (DDSI-RTPS 9.6.2.2)
+        prefix,
+        vendor_id=VENDORID_FASTDDS,
+        domain_id=None,
+        extra_parameters=(Parameter(min(SWARMD_PIDS), b""),),
+    )
+    room = (size - len(encode_spdp(base, sequence_number=sn, timestamp=None))) // 4
+    skip = SWARMD_PIDS | _MODELLED | {0x0000, 0x0001}  # PAD and SENTINEL
+    pids = (pid for pid in range(0x1000, 0x10000) if pid not in skip)
+    padding = tuple(Parameter(next(pids), b"") for _ in range(max(0, room)))
+    part = dataclasses.replace(base, extra_parameters=base.extra_parameters + padding)
+    return encode_spdp(part, sequence_number=sn, timestamp=None)
 
 
 def flood_pool(

@@ -1,0 +1,137 @@
+"""What one forged SPDP datagram under an invented prefix costs to decode (review 16).
+
+Attacker 1 of docs/security.md, no key: a datagram whose RTPS header names a GUID prefix
+outside the bundle is decoded (within the foreign decode budget) to be listed as a foreign
+participant. The budget counted datagrams, 50 a second, on the premise that a decode costs
+~50 us. Two things broke it:
+
+- the codec sorted another vendor's parameters by ``params.index``, quadratic in their
+  number: one 64 KiB DATA(p) of ~16,000 empty parameters and one swarmd vendor PID cost
+  ~2 s of the daemon's loop on this machine (``bench/foreign_decode_cost.py``), and the
+  budget let 50 of them through at once;
+- even decoded in one pass, a decode's work grows with the datagram's octets (~9 ms for
+  64 KiB), so a count of datagrams does not bound it: the budget is now also in octets.
+
+The first counts parameter comparisons, the second runs the engine on virtual time, the
+third sends the datagrams to a real daemon's SPDP port on loopback (64 KiB datagrams do
+arrive whole) and asserts counters only.
+"""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+import swarmd.rtps.parameters as parameters
+from swarmd.discovery.foreign import (
+    FOREIGN_DECODE_BURST,
+    FOREIGN_DECODE_OCTET_BURST,
+    FOREIGN_DECODE_OCTETS_PER_S,
+)
+from swarmd.rawclock import run_on_raw_clock
+from swarmd.rtps.parameters import Parameter
+from swarmd.rtps.spdp import SWARMD_PIDS, SpdpAlive, decode_spdp
+from swarmd.rtps.types import GuidPrefix
+from tests.attacker.forge import MAX_UDP_PAYLOAD, bloated_participant, foreign_participant
+from tests.daemon_support import loopback_daemon, run_domain, write_bundle
+from tests.test_daemon_loopback import _until
+from tests.test_discovery_auth import receiver
+
+
+def _invented(i: int) -> GuidPrefix:
+    return GuidPrefix(b"\xf0\x0d" + i.to_bytes(10, "big"))
+
+
+def test_decoding_a_forged_data_p_compares_each_parameter_a_bounded_number_of_times(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Linear work: the decoder compares no parameter with the others (it used to, for a
+    sort by list position, ~n^2 / 2 comparisons: 56,000 for this one Wi-Fi frame)."""
+    compared = 0
+
+    class Counted(Parameter):
+        __slots__ = ()
+
+        def __eq__(self, other: object) -> bool:
+            nonlocal compared
+            compared += 1
+            return tuple.__eq__(self, other)
+
+        def __ne__(self, other: object) -> bool:
+            return not self == other
+
+        __hash__ = tuple.__hash__
+
+    monkeypatch.setattr(parameters, "_new_parameter", lambda _cls, fields: Counted(*fields))
+    datagram = bloated_participant(_invented(1), size=1400)
+    _header, (sample,) = decode_spdp(datagram)
+    assert isinstance(sample, SpdpAlive)
+    n = len(sample.participant.extra_parameters)
+    assert n > 300  # the forgery: one frame, hundreds of parameters kept opaque, in order
+    pids = [p.pid for p in sample.participant.extra_parameters]
+    assert pids[0] in SWARMD_PIDS and pids[1:] == sorted(pids[1:])  # as on the wire
+    assert compared <= n
+
+
+def test_a_flood_of_maximum_size_foreign_datagrams_decodes_a_bounded_number_of_octets() -> None:
+    """The foreign decode budget holds octets as well as datagrams: at one instant only what
+    fits its octet burst is decoded (it was 50 datagrams of 64 KiB, whatever their size),
+    and over a flood no more than its octet rate; a stock participant's small DATA(p) is
+    decoded as before once the flood stops."""
+    e = receiver()
+    pool = [bloated_participant(_invented(i)) for i in range(8)]
+    assert all(len(d) > MAX_UDP_PAYLOAD - 8 for d in pool)
+    for i in range(100):
+        e.receive_datagram(pool[i % len(pool)], ("10.7.0.9", 7400), 0.5)
+    dropped = e.counters()["dropped"]
+    decoded = dropped["not_in_bundle"]
+    assert decoded * len(pool[0]) <= FOREIGN_DECODE_OCTET_BURST
+    assert decoded < FOREIGN_DECODE_BURST
+    assert dropped["foreign_budget"] == 100 - decoded
+    # ten seconds of 100 a second: the octet rate bounds what is decoded
+    flood_s, count = 10.0, 1000
+    for i in range(count):
+        e.receive_datagram(pool[i % len(pool)], ("10.7.0.9", 7400), 0.5 + flood_s * i / count)
+    decoded = e.counters()["dropped"]["not_in_bundle"]
+    octets = decoded * len(pool[0])
+    assert octets <= FOREIGN_DECODE_OCTET_BURST + FOREIGN_DECODE_OCTETS_PER_S * (flood_s + 0.5)
+    # after the flood, a stock participant's ordinary DATA(p) is decoded and listed
+    stock = _invented(999)
+    e.receive_datagram(foreign_participant(stock, "stock-node"), ("10.7.0.8", 7400), 12.0)
+    assert stock in {f.guid_prefix for f in e.foreign(12.0)}
+
+
+def test_a_daemon_decodes_at_most_one_of_a_burst_of_bloated_datagrams(workdir: Path) -> None:
+    """Real sockets: three 64 KiB forgeries under invented prefixes to a daemon's unicast
+    SPDP port, back to back. One fits the octet burst and is decoded (and listed), the
+    others are counted unread (on main all three were decoded, ~2 s of the loop each)."""
+    files = write_bundle(workdir, 2, domain_id=run_domain())
+    pool = [bloated_participant(_invented(100 + i)) for i in range(3)]
+
+    async def main() -> None:
+        daemon = loopback_daemon(workdir, files, "uav1")
+        await daemon.start()
+        try:
+            engine = daemon.engine
+            assert engine is not None
+            sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                for datagram in pool:
+                    sender.sendto(datagram, ("127.0.0.1", engine.metatraffic_port))
+            finally:
+                sender.close()
+
+            def seen() -> int:
+                dropped = engine.counters()["dropped"]
+                return int(dropped.get("not_in_bundle", 0) + dropped.get("foreign_budget", 0))
+
+            await _until(lambda: seen() == len(pool), lambda: str(engine.counters()["dropped"]))
+            dropped = engine.counters()["dropped"]
+            assert dropped.get("not_in_bundle", 0) == 1
+            assert dropped.get("foreign_budget", 0) == len(pool) - 1
+        finally:
+            await daemon.stop("test")
+
+    run_on_raw_clock(main())
