@@ -711,3 +711,52 @@ def test_a_local_flood_of_invented_participants_is_reported_at_a_bounded_rate() 
     assert relay.counters["unknown_suppressed"] == n - len(reports)
     assert sum(r.suppressed for r in reports) <= relay.counters["unknown_suppressed"]
     assert len(relay.status(flood_s)["unknown"]) == MAX_UNKNOWN_PARTICIPANTS
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(("node", "dispose", "unknown", "garbage")),
+            st.integers(min_value=1, max_value=40),
+            st.integers(min_value=1024, max_value=65535),
+        ),
+        max_size=30,
+    )
+)
+def test_whatever_a_local_sender_sends_the_relay_answers_only_the_bundles_loopback_ports(
+    script: list[tuple[str, int, int]],
+) -> None:
+    """Review 16, held: the relay is no reflector. Whatever a local process sends it (a
+    declared node's DATA(p) at any SN, so restarts at will; its dispose; invented
+    participants; garbage), from any source port, everything it sends goes to a loopback
+    port the bundle gives one of this drone's nodes, never to the sender's port, and one
+    datagram draws at most what a node's start draws (every relayed participant, each
+    sibling's DATA(p), a dispose and a DATA(p) to each sibling)."""
+    participants = _participants()
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    mine = [p for p in participants if p.drone == "lead"]
+    allowed = {(LOOPBACK, p.metatraffic_port) for p in mine}
+    bound = len(participants) + 3 * len(mine)
+    assert {dst for _, dst in relay.datagrams_to_send()} <= allowed
+    node = mine[0]
+    for t, (kind, sn, port) in enumerate(script):
+        now = 0.1 * (t + 1)
+        if kind == "node":
+            data = _local_spdp(node, sn)
+        elif kind == "dispose":
+            data = encode_spdp_dispose(
+                GuidPrefix(node.guid_prefix), sequence_number=sn, timestamp=None
+            )
+        elif kind == "unknown":
+            data = _local_spdp(_invented(node, sn), 1)
+        else:
+            data = bytes([sn]) * 40
+        relay.receive_datagram(data, (LOOPBACK, port), now)
+        out = relay.datagrams_to_send()
+        assert {dst for _, dst in out} <= allowed
+        assert len(out) <= bound
+        relay.handle_timer(now)
+        assert {dst for _, dst in relay.datagrams_to_send()} <= allowed
