@@ -19,17 +19,23 @@ arrive whole) and asserts counters only.
 
 from __future__ import annotations
 
+import asyncio
+import json
 import socket
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
 
 import swarmd.rtps.parameters as parameters
+from swarmd.control import MAX_LINE_BYTES, encode_line, request
+from swarmd.daemon import Daemon
 from swarmd.discovery.foreign import (
     FOREIGN_DECODE_BURST,
     FOREIGN_DECODE_OCTET_BURST,
     FOREIGN_DECODE_OCTETS_PER_S,
 )
+from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.rawclock import run_on_raw_clock
 from swarmd.rtps.parameters import Parameter
 from swarmd.rtps.spdp import SWARMD_PIDS, SpdpAlive, decode_spdp
@@ -103,35 +109,80 @@ def test_a_flood_of_maximum_size_foreign_datagrams_decodes_a_bounded_number_of_o
     assert stock in {f.guid_prefix for f in e.foreign(12.0)}
 
 
+async def _sent_to_a_daemon(
+    workdir: Path, pool: list[bytes], check: Callable[[Daemon], Awaitable[None]]
+) -> None:
+    """Start uav1's daemon on loopback, send ``pool`` to its unicast SPDP port back to
+    back, wait until it read them all, then ``check`` it; stopped either way."""
+    files = write_bundle(workdir, 2, domain_id=run_domain())
+    daemon = loopback_daemon(workdir, files, "uav1")
+    await daemon.start()
+    try:
+        engine = daemon.engine
+        assert engine is not None
+        sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            for datagram in pool:
+                sender.sendto(datagram, ("127.0.0.1", engine.metatraffic_port))
+        finally:
+            sender.close()
+        await _until(
+            lambda: daemon.counters.get("rx_unicast", 0) >= len(pool),
+            lambda: str(daemon.counters),
+        )
+        await check(daemon)
+    finally:
+        await daemon.stop("test")
+
+
 def test_a_daemon_decodes_at_most_one_of_a_burst_of_bloated_datagrams(workdir: Path) -> None:
     """Real sockets: three 64 KiB forgeries under invented prefixes to a daemon's unicast
     SPDP port, back to back. One fits the octet burst and is decoded (and listed), the
     others are counted unread (on main all three were decoded, ~2 s of the loop each)."""
-    files = write_bundle(workdir, 2, domain_id=run_domain())
     pool = [bloated_participant(_invented(100 + i)) for i in range(3)]
 
-    async def main() -> None:
-        daemon = loopback_daemon(workdir, files, "uav1")
-        await daemon.start()
-        try:
-            engine = daemon.engine
-            assert engine is not None
-            sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            try:
-                for datagram in pool:
-                    sender.sendto(datagram, ("127.0.0.1", engine.metatraffic_port))
-            finally:
-                sender.close()
+    async def check(daemon: Daemon) -> None:
+        assert daemon.engine is not None
+        dropped = daemon.engine.counters()["dropped"]
+        assert dropped.get("not_in_bundle", 0) == 1
+        assert dropped.get("foreign_budget", 0) == len(pool) - 1
 
-            def seen() -> int:
-                dropped = engine.counters()["dropped"]
-                return int(dropped.get("not_in_bundle", 0) + dropped.get("foreign_budget", 0))
+    run_on_raw_clock(_sent_to_a_daemon(workdir, pool, check))
 
-            await _until(lambda: seen() == len(pool), lambda: str(engine.counters()["dropped"]))
-            dropped = engine.counters()["dropped"]
-            assert dropped.get("not_in_bundle", 0) == 1
-            assert dropped.get("foreign_budget", 0) == len(pool) - 1
-        finally:
-            await daemon.stop("test")
 
-    run_on_raw_clock(main())
+# A name of control characters: each one 6 octets in the status's JSON (\u0001), so 12 of
+# these participants make a status reply longer than swarmctl takes (64 x MAX_LINE_BYTES).
+HUGE_NAME = "\x01" * 60_000
+
+
+def test_invented_participants_with_huge_names_cannot_grow_the_status() -> None:
+    """Review 16: an ENTITY_NAME was taken at any length (the codec's 256-octet bound, which
+    Fast DDS applies, was never used), so the foreign table's 64 rows could hold 64 KiB
+    names each, in every ``swarmctl status`` and in the log. Now a DATA(p) whose name or
+    domain tag is longer than ``MAX_STRING_OCTETS`` is refused (``decode_error``), as Fast
+    DDS refuses it. The budgets are let refill between datagrams: only the names decide."""
+    e = receiver()
+    for i in range(MAX_FOREIGN):
+        e.receive_datagram(
+            foreign_participant(_invented(500 + i), HUGE_NAME), ("10.7.0.9", 7400), 2.0 * i
+        )
+    now = 2.0 * MAX_FOREIGN
+    assert len(encode_line(e.status(now))) < MAX_LINE_BYTES
+    assert e.counters()["dropped"]["decode_error"] == MAX_FOREIGN
+    # an ordinary stock name is listed as before
+    e.receive_datagram(foreign_participant(_invented(999), "stock-node"), ("10.7.0.8", 7400), now)
+    assert [f.name for f in e.foreign(now)] == ["stock-node"]
+
+
+def test_swarmctl_status_survives_invented_participants_with_huge_names(workdir: Path) -> None:
+    """Real sockets: 12 such datagrams to a daemon's SPDP port, then the control socket's
+    status, as ``swarmctl status`` asks it. On main the 12 were decoded at once (the
+    budget's burst) and the reply was over 4 MiB: swarmctl refused it, "reply too long"."""
+    pool = [foreign_participant(_invented(600 + i), HUGE_NAME) for i in range(12)]
+
+    async def check(daemon: Daemon) -> None:
+        status = await asyncio.to_thread(request, str(workdir / "uav1.sock"), "status")
+        assert status["node"] == "uav1"
+        assert len(json.dumps(status)) < MAX_LINE_BYTES
+
+    run_on_raw_clock(_sent_to_a_daemon(workdir, pool, check))

@@ -231,10 +231,12 @@ def mac(
 
 
 def foreign_participant(prefix: GuidPrefix, name: str, sn: int = 1) -> bytes:
-    """Issue 10 attack 8: a participant of no bundle whose ENTITY_NAME is ``name``."""
+    """Issue 10 attack 8: a participant of no bundle whose ENTITY_NAME is ``name``, in
+    whatever domain the receiver is (no domain id: DDSI-RTPS 9.6.2.2)."""
     part = SpdpParticipant(
         prefix,
         vendor_id=VENDORID_SWARMD,
+        domain_id=None,
         entity_name=name,
         metatraffic_unicast_locators=(Locator.udpv4("10.255.255.1", 7410),),
         default_unicast_locators=(Locator.udpv4("10.255.255.1", 7411),),
