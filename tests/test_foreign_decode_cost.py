@@ -26,10 +26,13 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
+from swarmd_lab.testing import auth_for, peer_datagram
 
 import swarmd.rtps.parameters as parameters
 from swarmd.control import MAX_LINE_BYTES, encode_line, request
 from swarmd.daemon import Daemon
+from swarmd.discovery import PeerDiscovered
+from swarmd.discovery.engine import MAX_PENDING_EVENTS
 from swarmd.discovery.foreign import (
     FOREIGN_DECODE_BURST,
     FOREIGN_DECODE_OCTET_BURST,
@@ -40,10 +43,15 @@ from swarmd.rawclock import run_on_raw_clock
 from swarmd.rtps.parameters import Parameter
 from swarmd.rtps.spdp import SWARMD_PIDS, SpdpAlive, decode_spdp
 from swarmd.rtps.types import GuidPrefix
-from tests.attacker.forge import MAX_UDP_PAYLOAD, bloated_participant, foreign_participant
+from tests.attacker.forge import (
+    MAX_UDP_PAYLOAD,
+    bloated_participant,
+    foreign_participant,
+    many_samples,
+)
 from tests.daemon_support import loopback_daemon, run_domain, write_bundle
 from tests.test_daemon_loopback import _until
-from tests.test_discovery_auth import receiver
+from tests.test_discovery_auth import A1, BUNDLE, drain, receiver
 
 
 def _invented(i: int) -> GuidPrefix:
@@ -186,3 +194,21 @@ def test_swarmctl_status_survives_invented_participants_with_huge_names(workdir:
         assert len(json.dumps(status)) < MAX_LINE_BYTES
 
     run_on_raw_clock(_sent_to_a_daemon(workdir, pool, check))
+
+
+def test_drop_reports_of_a_forged_datagram_never_push_a_peers_event_out() -> None:
+    """Review 16: the engine's queue of undrained events holds ``MAX_PENDING_EVENTS`` and
+    made room by dropping the oldest, whatever it was. One forged datagram of 1,024 minimal
+    DATA(p)s in another domain is 1,024 drop reports (``wrong_domain``, one a sample): read
+    in the same batch after a member's genuine DATA(p), it pushed that member's
+    ``PeerDiscovered`` out before the daemon drained it, so the data plane never had the
+    member up. A drop report now never displaces anything; a peer's event makes room by
+    displacing the oldest drop report first."""
+    e = receiver()
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1, epoch=3)), A1, 0.1)
+    flood = many_samples(_invented(700), MAX_PENDING_EVENTS)
+    assert len(flood) <= MAX_UDP_PAYLOAD
+    e.receive_datagram(flood, ("10.7.0.9", 7400), 0.1)  # the same batch: nothing drained
+    assert e.counters()["dropped"]["wrong_domain"] == MAX_PENDING_EVENTS  # every one counted
+    found = [x for x in drain(e) if isinstance(x, PeerDiscovered)]
+    assert [x.name for x in found] == [BUNDLE.participants[1].name]

@@ -22,6 +22,7 @@ from swarmd.bundle.model import EndpointKind, endpoint_entity_id
 from swarmd.dataplane.seal import seal as seal_user_data
 from swarmd.dataplane.seal import user_data_key
 from swarmd.dataplane.types import Command, CommandKind, Readiness, encode_sample
+from swarmd.rtps.buffer import Writer
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import (
     AckNack,
@@ -34,9 +35,13 @@ from swarmd.rtps.message import (
     Submessage,
     encode_message,
 )
-from swarmd.rtps.parameters import Parameter
+from swarmd.rtps.parameters import Parameter, Pid, push_parameter_list
 from swarmd.rtps.spdp import (
     _MODELLED,
+    ENTITYID_PARTICIPANT,
+    ENTITYID_SPDP_READER,
+    ENTITYID_SPDP_WRITER,
+    PL_CDR_LE,
     SWARMD_PIDS,
     SpdpParticipant,
     encode_spdp,
@@ -268,6 +273,24 @@ def bloated_participant(prefix: GuidPrefix, size: int = MAX_UDP_PAYLOAD, sn: int
     padding = tuple(Parameter(next(pids), b"") for _ in range(max(0, room)))
     part = dataclasses.replace(base, extra_parameters=base.extra_parameters + padding)
     return encode_spdp(part, sequence_number=sn, timestamp=None)
+
+
+def many_samples(prefix: GuidPrefix, count: int, domain_id: int = 0xBAD) -> bytes:
+    """One datagram of ``count`` minimal DATA(p)s (a GUID and a domain id, 60 octets each:
+    1,024 fit in one UDP payload) of a participant of no bundle, of another domain. A
+    receiver refuses each on its own (``wrong_domain``), a drop report each."""
+    params = [
+        Parameter(Pid.PARTICIPANT_GUID, prefix.value + ENTITYID_PARTICIPANT.value),
+        Parameter(Pid.DOMAIN_ID, domain_id.to_bytes(4, "little")),
+    ]
+    payload = Writer(little=True)
+    payload.push_bytes(PL_CDR_LE + b"\x00\x00")
+    push_parameter_list(payload, tuple(params))
+    sample = Data(
+        ENTITYID_SPDP_READER, ENTITYID_SPDP_WRITER, 1, serialized_payload=payload.getvalue()
+    )
+    header = Header(PROTOCOLVERSION_SWARMD, VENDORID_FASTDDS, prefix)
+    return encode_message(header, [sample] * count)
 
 
 def flood_pool(
