@@ -38,9 +38,6 @@ from swarmd.rtps.message import (
 from swarmd.rtps.parameters import Parameter, Pid, push_parameter_list
 from swarmd.rtps.spdp import (
     _MODELLED,
-    ENTITYID_PARTICIPANT,
-    ENTITYID_SPDP_READER,
-    ENTITYID_SPDP_WRITER,
     PL_CDR_LE,
     SWARMD_PIDS,
     SpdpParticipant,
@@ -48,6 +45,9 @@ from swarmd.rtps.spdp import (
     encode_spdp_dispose,
 )
 from swarmd.rtps.types import (
+    ENTITYID_PARTICIPANT,
+    ENTITYID_SPDP_READER,
+    ENTITYID_SPDP_WRITER,
     PROTOCOLVERSION_SWARMD,
     VENDORID_FASTDDS,
     VENDORID_SWARMD,
