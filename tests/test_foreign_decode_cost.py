@@ -20,6 +20,7 @@ arrive whole) and asserts counters only.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import socket
 from collections.abc import Awaitable, Callable
@@ -29,9 +30,10 @@ import pytest
 from swarmd_lab.testing import auth_for, peer_datagram
 
 import swarmd.rtps.parameters as parameters
+from swarmd.auth.spdp import PLACEHOLDER
 from swarmd.control import MAX_LINE_BYTES, encode_line, request
 from swarmd.daemon import Daemon
-from swarmd.discovery import PeerDiscovered
+from swarmd.discovery import PeerDiscovered, PeerRos2Liveness
 from swarmd.discovery.engine import MAX_PENDING_EVENTS
 from swarmd.discovery.foreign import (
     FOREIGN_DECODE_BURST,
@@ -40,8 +42,9 @@ from swarmd.discovery.foreign import (
 )
 from swarmd.discovery.peers import MAX_FOREIGN
 from swarmd.rawclock import run_on_raw_clock
+from swarmd.rtps.message import Data, Submessage, decode_header, decode_message, encode_message
 from swarmd.rtps.parameters import Parameter
-from swarmd.rtps.spdp import SWARMD_PIDS, SpdpAlive, decode_spdp
+from swarmd.rtps.spdp import MAX_SPDP_SAMPLES, SWARMD_PIDS, SpdpAlive, decode_spdp, encode_spdp
 from swarmd.rtps.types import GuidPrefix
 from tests.attacker.forge import (
     MAX_UDP_PAYLOAD,
@@ -196,19 +199,58 @@ def test_swarmctl_status_survives_invented_participants_with_huge_names(workdir:
     run_on_raw_clock(_sent_to_a_daemon(workdir, pool, check))
 
 
-def test_drop_reports_of_a_forged_datagram_never_push_a_peers_event_out() -> None:
+def test_drop_reports_of_forged_datagrams_never_push_a_peers_event_out() -> None:
     """Review 16: the engine's queue of undrained events holds ``MAX_PENDING_EVENTS`` and
     made room by dropping the oldest, whatever it was. One forged datagram of 1,024 minimal
-    DATA(p)s in another domain is 1,024 drop reports (``wrong_domain``, one a sample): read
-    in the same batch after a member's genuine DATA(p), it pushed that member's
+    DATA(p)s in another domain was 1,024 drop reports (``wrong_domain``, one a sample):
+    read in the same batch after a member's genuine DATA(p), it pushed that member's
     ``PeerDiscovered`` out before the daemon drained it, so the data plane never had the
-    member up. A drop report now never displaces anything; a peer's event makes room by
-    displacing the oldest drop report first."""
+    member up. A datagram now carries at most ``MAX_SPDP_SAMPLES`` (the next test), and
+    the queue's rule holds whatever fills it: a drop report never displaces anything. Here
+    more reports than the queue holds, over time and never drained (the daemon drains each
+    batch): the member's event is still there."""
     e = receiver()
     e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1, epoch=3)), A1, 0.1)
-    flood = many_samples(_invented(700), MAX_PENDING_EVENTS)
-    assert len(flood) <= MAX_UDP_PAYLOAD
-    e.receive_datagram(flood, ("10.7.0.9", 7400), 0.1)  # the same batch: nothing drained
-    assert e.counters()["dropped"]["wrong_domain"] == MAX_PENDING_EVENTS  # every one counted
+    pool = [many_samples(_invented(700 + i), MAX_SPDP_SAMPLES) for i in range(8)]
+    for i in range(MAX_PENDING_EVENTS // 2):
+        e.receive_datagram(pool[i % len(pool)], ("10.7.0.9", 7400), 0.1 + 0.05 * i)
+    assert e.counters()["dropped"]["wrong_domain"] > MAX_PENDING_EVENTS  # every one counted
     found = [x for x in drain(e) if isinstance(x, PeerDiscovered)]
     assert [x.name for x in found] == [BUNDLE.participants[1].name]
+
+
+def _captured_many(count: int) -> bytes:
+    """A captured member's (uav1's) one signed datagram of ``count`` DATA(p)s of itself,
+    its relay's alive word flipping from one to the next (PID 0x8A06), the last one
+    carrying the authenticator: genuine, its tag and signature hold."""
+    samples: list[Submessage] = []
+    for i in range(count):
+        plain = peer_datagram(BUNDLE, 1, sequence_number=1 + i, ros2_alive=bytes([1 + i % 2]))
+        _header, (alive,) = decode_spdp(plain)
+        assert isinstance(alive, SpdpAlive)
+        part = alive.participant
+        if i == count - 1:
+            part = dataclasses.replace(part, authenticator=PLACEHOLDER)
+        single = encode_spdp(part, sequence_number=1 + i, timestamp=None)
+        samples += [sm for sm in decode_message(single).submessages if isinstance(sm, Data)]
+    header = decode_header(plain)
+    return auth_for(BUNDLE, 1, epoch=3).seal(encode_message(header, samples))
+
+
+def test_a_captured_members_datagram_of_many_samples_is_refused_whole() -> None:
+    """Review 16: the decoder took any number of DATA(p)s in one datagram, and a captured
+    member's are genuine (one signature covers them all). 200 of itself, its ROS 2 alive
+    word flipping from each to the next, were 200 ``PeerRos2Liveness`` events (a
+    ``peer_ros2_liveness`` info line each, and at 40 such datagrams a burst, enough to push
+    other peers' events out of the full queue). swarmd sends one DATA(p) a datagram, stock
+    stacks too: more than ``MAX_SPDP_SAMPLES`` is a ``decode_error``, before any is read."""
+    e = receiver()
+    many = _captured_many(200)
+    assert len(many) <= MAX_UDP_PAYLOAD
+    e.receive_datagram(many, A1, 0.1)
+    events = drain(e)
+    assert sum(isinstance(x, PeerRos2Liveness) for x in events) <= MAX_SPDP_SAMPLES
+    assert e.counters()["dropped"]["decode_error"] == 1
+    # its ordinary one-sample datagrams are taken as before
+    e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth_for(BUNDLE, 1, epoch=4)), A1, 0.2)
+    assert [x.name for x in drain(e) if isinstance(x, PeerDiscovered)] == ["uav1"]
