@@ -246,11 +246,13 @@ class Ros2App:
                     restarted=restarted,
                 )
             case UnknownParticipantHeard(guid_prefix=prefix, vendor=vendor, name=name):
+                # rate-limited in the relay: ``suppressed`` more were not reported one by one
                 self.log.warning(
                     "ros2_unknown_participant",
                     guid_prefix=str(prefix),
                     vendor=vendor,
                     name=name,
+                    suppressed=event.suppressed,
                     fix="start the node with the profile 'swarmctl ros2 profile --via-swarmd' "
                     "wrote for this drone",
                 )

@@ -16,7 +16,7 @@ every ``HEARTBEAT_PERIOD_S``) never meets it. Virtual time, the data plane's in-
 
 from __future__ import annotations
 
-from swarmd.dataplane import TOPIC_COMMAND, CommandKind
+from swarmd.dataplane import TOPIC_COMMAND, CommandKind, DataPlane
 from swarmd.dataplane.writer import (
     ACKNACK_REPLY_BURST,
     ACKNACK_REPLY_RATE,
@@ -50,15 +50,23 @@ def acknack_flood(rate: int, flood_s: float) -> tuple[int, int, int, int]:
         ack = AckNack(CMD_R, CMD_W, everything, 1_000 + k, final=True)
         datagram = sealed(swarm, "m01", m01, "lead", ack, seq=50_000 + k)
         acknack_bytes += len(datagram)
-        lead.receive_datagram(datagram, ATTACKER, start + k / rate)
-        while lead.next_event() is not None:
-            pass
-        for data, to in lead.datagrams_to_send():
-            if to == victim:
-                sent_to_victim += 1
-                sent_bytes += len(data)
+        datagrams, octets = drawn(lead, datagram, start + k / rate, victim)
+        sent_to_victim += datagrams
+        sent_bytes += octets
     assert lead.counters["rx_authenticated"] >= count  # genuine: every one accepted
     return count, acknack_bytes, sent_to_victim, sent_bytes
+
+
+def drawn(
+    plane: DataPlane, datagram: bytes, now: float, victim: tuple[str, int]
+) -> tuple[int, int]:
+    """What ``datagram``, received by ``plane`` at ``now`` (from the attacker), makes it send
+    ``victim``: (datagrams, octets)."""
+    plane.receive_datagram(datagram, ATTACKER, now)
+    while plane.next_event() is not None:
+        pass
+    sent = [len(data) for data, to in plane.datagrams_to_send() if to == victim]
+    return len(sent), sum(sent)
 
 
 def test_a_captured_members_acknack_flood_draws_a_bounded_stream_to_its_locator() -> None:

@@ -27,6 +27,8 @@ from swarmd.ros2.relay import (
     MIN_NODE_LEASE_S,
     SIBLING_REMATCH_MAX_S,
     SIBLING_REMATCH_S,
+    UNKNOWN_REPORT_BURST,
+    UNKNOWN_REPORTS_PER_S,
     Ros2Relay,
 )
 from swarmd.ros2.relay_events import (
@@ -562,6 +564,21 @@ def test_only_a_siblings_undirected_announcement_is_passed_on() -> None:
     assert (undirected, (LOOPBACK, talker.metatraffic_port)) in relay.datagrams_to_send()
 
 
+def _invented(like: Ros2Participant, i: int) -> Ros2Participant:
+    """``like`` under an invented GUID prefix, number ``i``: no bundle places it here."""
+    return Ros2Participant(
+        like.drone,
+        like.drone_index,
+        like.node,
+        bytes.fromhex("010f0bad00000000") + i.to_bytes(4, "big"),
+        like.participant_id,
+        like.metatraffic_port,
+        like.user_port,
+        like.endpoints,
+        like.first_user_id,
+    )
+
+
 def test_an_unknown_participant_is_shown_never_relayed_and_its_table_is_capped() -> None:
     relay = _relay("lead")
     relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
@@ -570,17 +587,7 @@ def test_an_unknown_participant_is_shown_never_relayed_and_its_table_is_capped()
     stranger = _by(_participants(), "lead")
     n = MAX_UNKNOWN_PARTICIPANTS + 5
     for i in range(n):
-        forged = Ros2Participant(
-            stranger.drone,
-            stranger.drone_index,
-            stranger.node,
-            bytes.fromhex("010f0bad00000000") + i.to_bytes(4, "big"),
-            stranger.participant_id,
-            stranger.metatraffic_port,
-            stranger.user_port,
-            stranger.endpoints,
-            stranger.first_user_id,
-        )
+        forged = _invented(stranger, i)
         relay.receive_datagram(_local_spdp(forged, 1), ("::1", 40000 + i), float(i))
     assert relay.datagrams_to_send() == []  # nothing relayed, nothing answered
     events = _events(relay)
@@ -683,3 +690,73 @@ def test_status_view_shows_the_graph_participant_and_no_hostile_value() -> None:
     )
     assert "ros2 graph: - node entries served to - local graph readers, - up to date" in hostile
     assert not any("\x1b" in line for line in hostile)
+
+
+def test_a_local_flood_of_invented_participants_is_reported_at_a_bounded_rate() -> None:
+    """Review 16: a local process (any user, without ``ros2.node_users``) cycling more
+    invented prefixes than the unknown table holds made each datagram a new participant and
+    a ``ros2_unknown_participant`` warning line: journald's rate limit then drops the
+    daemon's other lines too. Reported at most ``UNKNOWN_REPORTS_PER_S`` a second (burst
+    ``UNKNOWN_REPORT_BURST``), each report saying how many it stands for; the table and
+    its counters still see every one."""
+    relay = _relay("lead")
+    stranger = _by(_participants(), "lead")
+    n, flood_s = 400, 2.0
+    for i in range(n):
+        forged = _invented(stranger, i)
+        relay.receive_datagram(_local_spdp(forged, 1), ("::1", 40000), flood_s * i / n)
+    reports = [e for e in _events(relay) if isinstance(e, UnknownParticipantHeard)]
+    assert len(reports) <= UNKNOWN_REPORT_BURST + UNKNOWN_REPORTS_PER_S * flood_s
+    assert relay.counters["rx_unknown"] == n
+    assert relay.counters["unknown_suppressed"] == n - len(reports)
+    assert sum(r.suppressed for r in reports) <= relay.counters["unknown_suppressed"]
+    assert len(relay.status(flood_s)["unknown"]) == MAX_UNKNOWN_PARTICIPANTS
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(("node", "dispose", "unknown", "garbage")),
+            st.integers(min_value=1, max_value=40),
+            st.integers(min_value=1024, max_value=65535),
+        ),
+        max_size=30,
+    )
+)
+def test_whatever_a_local_sender_sends_the_relay_answers_only_the_bundles_loopback_ports(
+    script: list[tuple[str, int, int]],
+) -> None:
+    """Review 16, held: the relay is no reflector. Whatever a local process sends it (a
+    declared node's DATA(p) at any SN, so restarts at will; its dispose; invented
+    participants; garbage), from any source port, everything it sends goes to a loopback
+    port the bundle gives one of this drone's nodes, never to the sender's port, and one
+    datagram draws at most what a node's start draws (every relayed participant, each
+    sibling's DATA(p), a dispose and a DATA(p) to each sibling)."""
+    participants = _participants()
+    relay = _relay("lead")
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 0.0)
+    relay.peer_discovered("drone-2", ADDRESS["drone-2"], 0.0)
+    mine = [p for p in participants if p.drone == "lead"]
+    allowed = {(LOOPBACK, p.metatraffic_port) for p in mine}
+    bound = len(participants) + 3 * len(mine)
+    assert {dst for _, dst in relay.datagrams_to_send()} <= allowed
+    node = mine[0]
+    for t, (kind, sn, port) in enumerate(script):
+        now = 0.1 * (t + 1)
+        if kind == "node":
+            data = _local_spdp(node, sn)
+        elif kind == "dispose":
+            data = encode_spdp_dispose(
+                GuidPrefix(node.guid_prefix), sequence_number=sn, timestamp=None
+            )
+        elif kind == "unknown":
+            data = _local_spdp(_invented(node, sn), 1)
+        else:
+            data = bytes([sn]) * 40
+        relay.receive_datagram(data, (LOOPBACK, port), now)
+        out = relay.datagrams_to_send()
+        assert {dst for _, dst in out} <= allowed
+        assert len(out) <= bound
+        relay.handle_timer(now)
+        assert {dst for _, dst in relay.datagrams_to_send()} <= allowed

@@ -117,6 +117,12 @@ class Endpoints:
             return Refused("invalid_sn", f"GAP {sm.gap_start} {sm.gap_list.base}")
         return topic, reader.on_gap(remote, sm)
 
+    def may_answer(self, reader_id: EntityId, remote: Guid, now: float) -> bool:
+        """Whether our reader ``reader_id`` may send writer ``remote`` the ACKNACK it made
+        (its answer budget, ``ReliableReader.may_answer``)."""
+        entry = self.find_reader(reader_id, remote)
+        return entry is not None and entry[1].may_answer(remote, now)
+
     def find_reader(self, reader_id: EntityId, remote: Guid) -> tuple[Topic, Reader] | None:
         """Our reader ``reader_id`` if it is matched with writer ``remote``."""
         if reader_id == ENTITYID_UNKNOWN:  # spec 8.4.15.3: to every matched reader of it

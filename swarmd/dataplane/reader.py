@@ -30,6 +30,17 @@ from swarmd.rtps.types import Guid
 # Out-of-order samples held per writer while a hole is repaired. Stops a writer (or a forger
 # of its GUID) from growing reader memory by sending SNs far ahead of the hole.
 MAX_BUFFERED_SAMPLES: Final = 64
+# A reader answers a writer's HEARTBEATs at most this often (review 16). Each ACKNACK goes to
+# the writer's participant's signed locator, a victim of a captured member's choice where
+# the bundle pins no address, and is larger than the HEARTBEAT that drew it: without a bound
+# a captured member's HEARTBEATs drew one each, at any rate (the twin of the writer's
+# ACKNACK_REPLY_RATE). An honest writer HEARTBEATs at most every HEARTBEAT_PERIOD_S (0.2 s):
+# twice that pace, as the writer's bound is. Past it the HEARTBEAT still moves the reader
+# (skips, deliveries); only its answer waits for the next HEARTBEAT (DDSI-RTPS 8.4.12.1:
+# a reader may delay its response, heartbeatResponseDelay). Spent once per writer per
+# datagram received (the plane answers only a datagram's last HEARTBEAT of each writer).
+HEARTBEAT_REPLY_RATE: Final = 10.0
+HEARTBEAT_REPLY_BURST: Final = 4.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +61,7 @@ class ReaderCounters:
     skipped: int = 0  # SNs passed over because the writer no longer has them (lost for good)
     gapped: int = 0
     heartbeats_stale: int = 0
+    heartbeats_unanswered: int = 0  # past HEARTBEAT_REPLY_RATE: taken, not answered
     acknacks_sent: int = 0
 
 
@@ -91,6 +103,9 @@ class BestEffortReader:
     def on_heartbeat(self, writer: Guid, hb: Heartbeat) -> ReaderResult:
         return ReaderResult()  # a best-effort reader never acknowledges (spec 8.4.11)
 
+    def may_answer(self, writer: Guid, now: float) -> bool:
+        return False  # it never has an answer to send
+
     def on_gap(self, writer: Guid, gap: Gap) -> ReaderResult:
         return ReaderResult()
 
@@ -105,6 +120,9 @@ class WriterProxy:
     last_heartbeat_count: int = 0
     last_heartbeat_sn: int = 0  # highest lastSN announced
     acknack_count: int = 0
+    # answers to its HEARTBEATs left (a token bucket: HEARTBEAT_REPLY_RATE), as of reply_at
+    reply_tokens: float = HEARTBEAT_REPLY_BURST
+    reply_at: float | None = None
 
 
 class ReliableReader:
@@ -189,6 +207,24 @@ class ReliableReader:
             final=not missing,
         )
         return ReaderResult(delivered, [Outgoing(writer.prefix, acknack)])
+
+    def may_answer(self, writer: Guid, now: float) -> bool:
+        """Whether the ACKNACK ``on_heartbeat`` made for ``writer`` may go out now: one
+        token of the writer's answer budget (``HEARTBEAT_REPLY_RATE``); the caller sends
+        at most one per writer per datagram received. Refused, it is counted
+        (``heartbeats_unanswered``) and the next HEARTBEAT is answered instead."""
+        proxy = self.proxies.get(writer)
+        if proxy is None:
+            return False
+        if proxy.reply_at is not None and now > proxy.reply_at:
+            refill = (now - proxy.reply_at) * HEARTBEAT_REPLY_RATE
+            proxy.reply_tokens = min(HEARTBEAT_REPLY_BURST, proxy.reply_tokens + refill)
+        proxy.reply_at = now if proxy.reply_at is None else max(proxy.reply_at, now)
+        if proxy.reply_tokens < 1.0:
+            self.counters.heartbeats_unanswered += 1
+            return False
+        proxy.reply_tokens -= 1.0
+        return True
 
     # --- helpers ----------------------------------------------------------------------------
 

@@ -88,7 +88,7 @@ from swarmd.bundle.model import Bundle, Participant
 from swarmd.discovery.awareness import draw_passive_timer_s, passive_window_s
 from swarmd.discovery.config import EngineConfig, resolve_timing
 from swarmd.discovery.debts import Debts
-from swarmd.discovery.events import DropReason, Event, PeerLost, PhaseChanged
+from swarmd.discovery.events import DropReason, Event, PacketDropped, PeerLost, PhaseChanged
 from swarmd.discovery.foreign import ForeignParticipants
 from swarmd.discovery.inputs import LinkSample
 from swarmd.discovery.leases import Leases
@@ -120,7 +120,8 @@ from swarmd.rtps.spdp import Vouch
 from swarmd.rtps.types import GuidPrefix
 
 # A driver that stops draining events (or a garbage flood, one PacketDropped per datagram)
-# must not grow memory without bound: keep the newest 1024, count the rest.
+# must not grow memory without bound: keep 1024, count the rest; a drop report never pushes
+# a peer's event out (``_emit``).
 MAX_PENDING_EVENTS: Final = 1024
 # (The same for datagrams not collected yet: sending.MAX_PENDING_DATAGRAMS.)
 BUNDLE_DIGEST_BYTES: Final = 16
@@ -752,7 +753,20 @@ class DiscoveryEngine:
             self._pull.sent(now, self._rng, announcing=self.phase in (_ANNOUNCE, _STEADY))
 
     def _emit(self, event: Event) -> None:
-        if len(self._events) >= MAX_PENDING_EVENTS:
-            self._events.popleft()
+        events = self._events
+        if len(events) >= MAX_PENDING_EVENTS:
+            # Full (the owner is not draining, or one batch brought this many). A drop
+            # report never displaces anything: one forged datagram of 1,024 refused samples
+            # pushed a peer's PeerDiscovered out before the daemon drained it (review 16).
+            # A peer's event makes room by displacing the oldest drop report, else the
+            # oldest event (a scan, only when full).
             self._events_dropped += 1
-        self._events.append(event)
+            if type(event) is PacketDropped:
+                return
+            for i, old in enumerate(events):
+                if type(old) is PacketDropped:
+                    del events[i]
+                    break
+            else:
+                events.popleft()
+        events.append(event)

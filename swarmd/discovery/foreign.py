@@ -29,6 +29,14 @@ FOREIGN_REPORT_BURST: Final = 10.0
 # A stock participant renews about once a second; beyond the budget it is only counted.
 FOREIGN_DECODES_PER_S: Final = 50.0
 FOREIGN_DECODE_BURST: Final = 50.0
+# ... and at most this many octets a second (review 16): a decode's work grows with the
+# datagram's octets (~0.15 us an octet at worst, ~0.09 for a stock Cyclone DATA(p):
+# bench/foreign_decode_cost.py), so a count of datagrams alone let 50 forged 64 KiB
+# datagrams a second cost ~0.5 s of the loop's second. 50 Wi-Fi frames of 1,500 octets: a
+# stock participant's DATA(p) (~300-700 octets) is held back by the count first, and one
+# datagram of any size (at most 65,507 octets over IPv4) fits the burst.
+FOREIGN_DECODE_OCTETS_PER_S: Final = 50.0 * 1500
+FOREIGN_DECODE_OCTET_BURST: Final = 50.0 * 1500
 
 
 class ForeignParticipants:
@@ -37,7 +45,15 @@ class ForeignParticipants:
     ``dropped`` is the receive path's drop counter (a sighting is a dropped DATA(p)), shared
     so that ``counters()`` has one count per ``DropReason``."""
 
-    __slots__ = ("_dropped", "_reports", "decode_budget", "suppressed", "suppressed_total", "table")
+    __slots__ = (
+        "_dropped",
+        "_reports",
+        "decode_budget",
+        "decode_octets",
+        "suppressed",
+        "suppressed_total",
+        "table",
+    )
 
     def __init__(self, dropped: Counter[DropReason], now: float) -> None:
         self.table = ForeignTable(MAX_FOREIGN)
@@ -47,6 +63,20 @@ class ForeignParticipants:
         self.suppressed_total = 0  # all of them folded into a later report (a counter)
         # unauthenticated datagrams outside the bundle we may still decode (auth on only)
         self.decode_budget = TokenBucket(FOREIGN_DECODES_PER_S, FOREIGN_DECODE_BURST, now)
+        self.decode_octets = TokenBucket(
+            FOREIGN_DECODE_OCTETS_PER_S, FOREIGN_DECODE_OCTET_BURST, now
+        )
+
+    def may_decode(self, octets: int, now: float) -> bool:
+        """Whether a datagram of ``octets`` under a prefix outside the bundle may be decoded
+        now (auth on): a token of the count budget and its size in the octet budget, both
+        spent only when both are there."""
+        count, size = self.decode_budget, self.decode_octets
+        if not count.has_token(now) or size.balance(now) < octets:
+            return False
+        count.spend()
+        size.spend(octets)
+        return True
 
     def see(
         self, part: SpdpParticipant, reason: DropReason, now: float

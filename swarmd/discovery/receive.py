@@ -195,8 +195,9 @@ class ReceivePath:
             elif prefix == self._my_prefix:
                 self.dropped[DropReason.OWN] += 1  # our own multicast, looped back
                 return
-            elif not self._foreign.decode_budget.take(now):
-                self.dropped[DropReason.FOREIGN_BUDGET] += 1  # a flood: not even decoded
+            elif not self._foreign.may_decode(len(raw), now):
+                # a flood, of datagrams or of octets: not even decoded
+                self.dropped[DropReason.FOREIGN_BUDGET] += 1
                 return
         try:
             sender, samples = received.decode(raw)

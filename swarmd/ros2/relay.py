@@ -99,6 +99,8 @@ from swarmd.ros2.relay_local import (
     SIBLING_REMATCH_MAX_S,
     SIBLING_REMATCH_S,
     START_ANSWERS,
+    UNKNOWN_REPORT_BURST,
+    UNKNOWN_REPORTS_PER_S,
     LocalNodes,
 )
 from swarmd.ros2.relay_remote import RemoteDrones
@@ -108,6 +110,7 @@ from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import SpdpAlive, decode_spdp
 from swarmd.rtps.types import GuidPrefix
+from swarmd.tokenbucket import TokenBucket
 
 __all__ = [  # the bounds live with the concern they bound; tests and docs name them here
     "DEFAULT_RELAY_PORT",
@@ -123,6 +126,8 @@ __all__ = [  # the bounds live with the concern they bound; tests and docs name 
     "SIBLING_REMATCH_MAX_S",
     "SIBLING_REMATCH_S",
     "START_ANSWERS",
+    "UNKNOWN_REPORTS_PER_S",
+    "UNKNOWN_REPORT_BURST",
     "Ros2Relay",
 ]
 
@@ -199,6 +204,9 @@ class Ros2Relay(LocalNodes, RemoteDrones):
         # per drone, the restart counts of its last word (absent or None: it sent none)
         self._remote_restarts: dict[str, tuple[int, ...] | None] = {}
         self._unknown: dict[GuidPrefix, UnknownParticipant] = {}
+        # their reports, at a bounded rate (a local flood of invented prefixes: relay_local)
+        self._unknown_reports = TokenBucket(UNKNOWN_REPORTS_PER_S, UNKNOWN_REPORT_BURST, 0.0)
+        self._unknown_suppressed = 0
         self._out: list[tuple[bytes, tuple[str, int]]] = []
         self._events: deque[RelayEvent] = deque(maxlen=MAX_EVENTS)
         self._next_renewal: float | None = None
@@ -224,6 +232,7 @@ class Ros2Relay(LocalNodes, RemoteDrones):
             "rx_remote_prefix": 0,
             "rx_unknown": 0,
             "unknown_evicted": 0,
+            "unknown_suppressed": 0,
             "undeclared_dropped": 0,
             "tx_spdp": 0,
             "tx_dispose": 0,

@@ -19,6 +19,7 @@ from swarmd.ros2.relay_state import LocalNode, RemoteDrone, UnknownParticipant
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.spdp import BES_SPDP_ONLY, SpdpParticipant, encode_spdp, encode_spdp_dispose
 from swarmd.rtps.types import Duration, GuidPrefix, VendorId
+from swarmd.tokenbucket import TokenBucket
 
 
 class Announcer:
@@ -42,6 +43,8 @@ class Announcer:
     _remote_alive: dict[str, tuple[bool, ...]]
     _remote_restarts: dict[str, tuple[int, ...] | None]
     _unknown: dict[GuidPrefix, UnknownParticipant]
+    _unknown_reports: TokenBucket
+    _unknown_suppressed: int
     _out: list[tuple[bytes, tuple[str, int]]]
     _events: deque[RelayEvent]
     _next_renewal: float | None

@@ -26,11 +26,13 @@ class LocalParticipantHeard(RelayEvent):
 @dataclass(frozen=True, slots=True)
 class UnknownParticipantHeard(RelayEvent):
     """A participant the bundle does not place on this drone announced itself on loopback;
-    it is shown, never relayed. ``vendor`` as two hex octets."""
+    it is shown, never relayed. ``vendor`` as two hex octets. ``suppressed``: how many new
+    ones since the last report were not reported one by one (a flood: relay_local)."""
 
     guid_prefix: GuidPrefix
     vendor: str
     name: str | None
+    suppressed: int = 0
 
 
 @dataclass(frozen=True, slots=True)

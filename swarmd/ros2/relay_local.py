@@ -24,6 +24,13 @@ from swarmd.rtps.types import GuidPrefix, VendorId
 
 # unknown prefixes heard on loopback: a local process may invent any number of them
 MAX_UNKNOWN_PARTICIPANTS: Final = 16
+# A local process cycling more invented prefixes than the table holds makes every datagram
+# a new participant (review 16): each was a warning line (``ros2_unknown_participant``),
+# and journald's per-unit rate limit then drops the daemon's other lines. Reported about
+# once a second (burst 10), each report saying how many it stands for, as discovery's
+# foreign participants are (swarmd.discovery.foreign).
+UNKNOWN_REPORTS_PER_S: Final = 1.0
+UNKNOWN_REPORT_BURST: Final = 10.0
 # undeclared endpoints kept per local participant (a node creating endpoints in a loop)
 MAX_UNDECLARED_PER_PARTICIPANT: Final = 32
 # A starting Fast DDS participant sends its first DATA(p) before it listens: its
@@ -233,7 +240,14 @@ class LocalNodes(Announcer):
             self.counters["unknown_evicted"] += 1
         vendor = participant.vendor_id.value.hex()
         self._unknown[prefix] = UnknownParticipant(prefix, vendor, participant.entity_name, now, 1)
-        self._events.append(UnknownParticipantHeard(prefix, vendor, participant.entity_name))
+        if not self._unknown_reports.take(now):
+            self.counters["unknown_suppressed"] += 1
+            self._unknown_suppressed += 1
+            return
+        suppressed, self._unknown_suppressed = self._unknown_suppressed, 0
+        self._events.append(
+            UnknownParticipantHeard(prefix, vendor, participant.entity_name, suppressed)
+        )
 
     def _check_endpoints(self, local: LocalNode, participant: SpdpParticipant) -> None:
         for name, value in participant.properties:

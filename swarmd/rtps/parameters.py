@@ -55,7 +55,10 @@ class Pid:
     MUST_UNDERSTAND_FLAG: Final = 0x4000
 
 
-# Fast DDS rejects PID_ENTITY_NAME longer than 256 octets (ParameterSerializer.hpp)
+# Fast DDS rejects PID_ENTITY_NAME longer than 256 octets (ParameterSerializer.hpp), and so
+# does ``value_string`` (ENTITY_NAME, DOMAIN_TAG): a foreign participant's name is kept in
+# the foreign table and shown in every ``swarmctl status`` (review 16: 64 KiB names made the
+# status longer than swarmctl takes). swarmd's own names are at most 129 octets (bundle).
 MAX_STRING_OCTETS: Final = 256
 
 
@@ -230,6 +233,12 @@ def _string_at(data: bytes, pos: int, little: bool, what: str) -> tuple[str, int
 
 
 def value_string(param: Parameter, little: bool) -> str:
+    """A CDR string parameter of at most ``MAX_STRING_OCTETS`` octets (its NUL aside)."""
+    n = value_u32(param, little)  # its octets and their NUL
+    if n > MAX_STRING_OCTETS + 1:
+        raise DecodeError(
+            f"parameter 0x{param.pid:04x}: a string of {n - 1} octets, over {MAX_STRING_OCTETS}"
+        )
     return _string_at(param.value, 0, little, f"parameter 0x{param.pid:04x}")[0]
 
 

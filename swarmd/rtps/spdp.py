@@ -259,9 +259,11 @@ class SpdpParticipant:
                 if name not in kw:
                     kw[name] = decode(p, little)
         elif vendor_params:
-            # another vendor's 0x8A0x PIDs mean something else to it: keep them opaque
-            extras.extend(vendor_params)
-            extras.sort(key=plist.params.index)
+            # another vendor's 0x8A0x PIDs mean something else to it: keep them opaque, in
+            # wire order, in one pass. (A sort keyed by ``params.index`` was quadratic: one
+            # forged 64 KiB DATA(p) of 16,000 parameters under an invented prefix cost
+            # seconds of the daemon's loop; docs/security.md, "Foreign participants".)
+            extras = [p for p in plist.params if p.pid not in _MODELLED]
         return cls(guid, extra_parameters=tuple(extras), **kw)  # type: ignore[arg-type]
 
 
@@ -359,6 +361,12 @@ class SpdpDisposed:
 
 SpdpSample = SpdpAlive | SpdpDisposed
 
+# SPDP samples one datagram may carry (review 16). swarmd sends one DATA(p) or DATA(p[UD]) a
+# datagram, and so do the stock stacks; a datagram of hundreds is someone making one
+# datagram do the work (and the events, and the log lines) of hundreds: a captured
+# member's, under one signature, or an invented participant's, within the decode budget.
+MAX_SPDP_SAMPLES: Final = 4
+
 
 def _decode_payload_plist(payload: bytes) -> ParameterList:
     encapsulation = payload[:2]
@@ -414,11 +422,19 @@ def _spdp_sample(
 def decode_spdp(datagram: bytes) -> tuple[Header, list[SpdpSample]]:
     """Decode a datagram and return its header and every SPDP sample in it.
 
-    Submessages other than SPDP DATA are ignored (but must be well-formed). Raises
+    Submessages other than SPDP DATA are ignored (but must be well-formed). More than
+    ``MAX_SPDP_SAMPLES`` SPDP DATA in one datagram is refused before any is read. Raises
     ``DecodeError`` and nothing else, for any input.
     """
     try:
         message = decode_message(datagram)
+        spdp = sum(
+            1
+            for sm in message.submessages
+            if isinstance(sm, Data) and sm.writer_id == ENTITYID_SPDP_WRITER
+        )
+        if spdp > MAX_SPDP_SAMPLES:
+            raise DecodeError(f"{spdp} SPDP samples in one datagram, more than {MAX_SPDP_SAMPLES}")
         destination: GuidPrefix | None = None
         timestamp: Time | None = None
         samples: list[SpdpSample] = []

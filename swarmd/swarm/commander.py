@@ -27,6 +27,7 @@ from swarmd.dataplane.convert import LANDED_STATES
 from swarmd.dataplane.types import CommandResult, Readiness
 from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.swarm.events import SentBy
+from swarmd.tokenbucket import TokenBucket
 
 # Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
 # flight, the cap only stops a runaway script from growing the daemon.
@@ -63,6 +64,53 @@ NO_REPORT: Final = "no_report"  # nothing received from this member yet
 PEER_LOST: Final = "peer_lost"  # discovery lost the member (lease expired or it left)
 REPORT_STALE: Final = "report_stale"  # reports stopped for longer than stale_after_s
 NOT_A_MEMBER: Final = "not_a_member"  # --only named a node that does not report readiness
+
+
+# A member's readiness changes are logged (``member_readiness``). A captured member writes
+# genuine samples as fast as it likes, each flipping the verdict: a log line per sample at
+# the commander (review 16, the twin of the outcome flood). At most this many reported a
+# second per member (an honest one changes a few times a flight), the rest counted.
+READINESS_REPORTS_PER_S: Final = 1.0
+READINESS_REPORT_BURST: Final = 10.0
+
+Verdict = tuple[bool, str | None]  # (ready, reason), ``ReadinessTable.verdict``
+
+
+class ReadinessReports:
+    """Which of each member's readiness changes are reported (logged): every one within
+    ``READINESS_REPORTS_PER_S`` (burst ``READINESS_REPORT_BURST``), the rest counted
+    (``suppressed``). A member whose change was held back is reported again by ``catch_up``
+    (the readiness tick) once the budget allows, so the log ends on the table's word.
+    One bucket per member the table tracks (bundle-bounded)."""
+
+    def __init__(self) -> None:
+        self._budgets: dict[str, TokenBucket] = {}
+        self._said: dict[str, Verdict] = {}  # the last verdict reported, per member
+        self._held: set[str] = set()  # members whose latest change was not reported
+        self.suppressed = 0
+
+    def changed(self, member: str, verdict: Verdict, now: float, *, retry: bool = False) -> bool:
+        """The table's verdict for ``member`` changed to ``verdict``: report it now?
+        ``retry``: the tick asking again for a held change (not counted twice)."""
+        if self._said.get(member) == verdict:
+            self._held.discard(member)  # back to what the log says already
+            return False
+        budget = self._budgets.get(member)
+        if budget is None:
+            budget = self._budgets[member] = TokenBucket(
+                READINESS_REPORTS_PER_S, READINESS_REPORT_BURST, now
+            )
+        if not budget.take(now):
+            self.suppressed += 0 if retry else 1
+            self._held.add(member)
+            return False
+        self._said[member] = verdict
+        self._held.discard(member)
+        return True
+
+    def held(self) -> list[str]:
+        """Members whose latest change was held back (``catch_up`` them)."""
+        return sorted(self._held)
 
 
 @dataclass(slots=True)

@@ -62,8 +62,11 @@ from swarmd.dataplane.validity import stamp_ms
 from swarmd.px4.vehicle import TaskFinished
 from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
+    READINESS_REPORT_BURST,
+    READINESS_REPORTS_PER_S,
     CommandTracker,
     KeptDecision,
+    ReadinessReports,
     ReadinessTable,
 )
 from swarmd.swarm.events import (
@@ -115,6 +118,8 @@ __all__ = [
     "REREPORT_WINDOW_S",
     "UNKNOWN_OUTCOME_REPORTS_PER_S",
     "UNKNOWN_OUTCOME_REPORT_BURST",
+    "READINESS_REPORTS_PER_S",
+    "READINESS_REPORT_BURST",
 ]
 
 
@@ -148,6 +153,8 @@ class SwarmCore:
         self.settings = settings or SwarmSettings()
         self._link_q = link_q
         self.table = ReadinessTable(roles.members, stale_after_s=self.settings.stale_after_s)
+        # which of its changes are logged, at a bounded rate per member (review 16)
+        self._readiness_reports = ReadinessReports()
         if roles.is_commander and self.has_vehicle:
             self.table.add_local(roles.me)  # the commander's own drone flies with the swarm
         # the commander's commands: issued (issuer.py), its own drone's outcomes (member.py)
@@ -156,6 +163,7 @@ class SwarmCore:
             "readiness_published": 0,
             "outcomes_rereported": 0,
             "unknown_outcomes_suppressed": 0,
+            "readiness_changes_suppressed": 0,
         }
         self._events: deque[SwarmEvent] = deque()
         # the member's side: what this node decides for the commands it receives
@@ -328,7 +336,7 @@ class SwarmCore:
                     self.table.on_report(node, sample, count, now)
                     after = self.table.verdict(node, now)
                     if before != after:
-                        self._events.append(MemberReadinessChanged(node, after[0], after[1]))
+                        self._readiness_changed(node, after, now)
                 case CommandReceived(commander=commander, command=command):
                     self._events.append(PeerTrafficVerified(commander))
                     self.member.received(commander, command, now)
@@ -342,8 +350,20 @@ class SwarmCore:
                 case _:
                     assert_never(event)
 
+    def _readiness_changed(
+        self, node: str, verdict: tuple[bool, str | None], now: float, *, retry: bool = False
+    ) -> None:
+        """Report a member's new verdict (the log's ``member_readiness``) within its budget;
+        held back, it is counted and caught up by the tick (``ReadinessReports``)."""
+        reports = self._readiness_reports
+        if reports.changed(node, verdict, now, retry=retry):
+            self._events.append(MemberReadinessChanged(node, verdict[0], verdict[1]))
+        self.counters["readiness_changes_suppressed"] = reports.suppressed
+
     def _tick(self, now: float) -> None:
         self._tick_at = now + self.settings.readiness_period_s
+        for node in self._readiness_reports.held():
+            self._readiness_changed(node, self.table.verdict(node, now), now, retry=True)
         if not (self.roles.reports_readiness or self.table.names):
             return
         self._seq += 1

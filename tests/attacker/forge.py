@@ -22,6 +22,7 @@ from swarmd.bundle.model import EndpointKind, endpoint_entity_id
 from swarmd.dataplane.seal import seal as seal_user_data
 from swarmd.dataplane.seal import user_data_key
 from swarmd.dataplane.types import Command, CommandKind, Readiness, encode_sample
+from swarmd.rtps.buffer import Writer
 from swarmd.rtps.locator import Locator
 from swarmd.rtps.message import (
     AckNack,
@@ -34,9 +35,21 @@ from swarmd.rtps.message import (
     Submessage,
     encode_message,
 )
-from swarmd.rtps.spdp import SpdpParticipant, encode_spdp, encode_spdp_dispose
+from swarmd.rtps.parameters import Parameter, Pid, push_parameter_list
+from swarmd.rtps.spdp import (
+    _MODELLED,
+    PL_CDR_LE,
+    SWARMD_PIDS,
+    SpdpParticipant,
+    encode_spdp,
+    encode_spdp_dispose,
+)
 from swarmd.rtps.types import (
+    ENTITYID_PARTICIPANT,
+    ENTITYID_SPDP_READER,
+    ENTITYID_SPDP_WRITER,
     PROTOCOLVERSION_SWARMD,
+    VENDORID_FASTDDS,
     VENDORID_SWARMD,
     EntityId,
     GuidPrefix,
@@ -223,15 +236,61 @@ def mac(
 
 
 def foreign_participant(prefix: GuidPrefix, name: str, sn: int = 1) -> bytes:
-    """Issue 10 attack 8: a participant of no bundle whose ENTITY_NAME is ``name``."""
+    """Issue 10 attack 8: a participant of no bundle whose ENTITY_NAME is ``name``, in
+    whatever domain the receiver is (no domain id: DDSI-RTPS 9.6.2.2)."""
     part = SpdpParticipant(
         prefix,
         vendor_id=VENDORID_SWARMD,
+        domain_id=None,
         entity_name=name,
         metatraffic_unicast_locators=(Locator.udpv4("10.255.255.1", 7410),),
         default_unicast_locators=(Locator.udpv4("10.255.255.1", 7411),),
     )
     return encode_spdp(part, sequence_number=sn, timestamp=Time(0, 0))
+
+
+# The largest UDP payload over IPv4 (65,535 - 20 IP - 8 UDP): Wi-Fi carries it as 45 IP
+# fragments, and the SPDP sockets read up to 65,535 octets (swarmd.udp.MAX_DATAGRAM).
+MAX_UDP_PAYLOAD: Final = 65_507
+
+
+def bloated_participant(prefix: GuidPrefix, size: int = MAX_UDP_PAYLOAD, sn: int = 1) -> bytes:
+    """A stock-vendor (Fast DDS) DATA(p) of ``size`` octets at most: a participant of no
+    bundle whose parameter list is padded with empty parameters of distinct unknown PIDs,
+    4 octets each (~16,000 in a full datagram), and one swarmd vendor PID (0x8A01), which
+    another vendor's list keeps opaque; listed as a foreign participant once decoded. What
+    a forger sends to make one decode as costly as it can (docs/security.md, "Foreign
+    participants and floods")."""
+    base = SpdpParticipant(  # no domain id: the receiver's own (DDSI-RTPS 9.6.2.2)
+        prefix,
+        vendor_id=VENDORID_FASTDDS,
+        domain_id=None,
+        extra_parameters=(Parameter(min(SWARMD_PIDS), b""),),
+    )
+    room = (size - len(encode_spdp(base, sequence_number=sn, timestamp=None))) // 4
+    skip = SWARMD_PIDS | _MODELLED | {0x0000, 0x0001}  # PAD and SENTINEL
+    pids = (pid for pid in range(0x1000, 0x10000) if pid not in skip)
+    padding = tuple(Parameter(next(pids), b"") for _ in range(max(0, room)))
+    part = dataclasses.replace(base, extra_parameters=base.extra_parameters + padding)
+    return encode_spdp(part, sequence_number=sn, timestamp=None)
+
+
+def many_samples(prefix: GuidPrefix, count: int, domain_id: int = 0xBAD) -> bytes:
+    """One datagram of ``count`` minimal DATA(p)s (a GUID and a domain id, 60 octets each:
+    1,024 fit in one UDP payload) of a participant of no bundle, of another domain. A
+    receiver refuses each on its own (``wrong_domain``), a drop report each."""
+    params = [
+        Parameter(Pid.PARTICIPANT_GUID, prefix.value + ENTITYID_PARTICIPANT.value),
+        Parameter(Pid.DOMAIN_ID, domain_id.to_bytes(4, "little")),
+    ]
+    payload = Writer(little=True)
+    payload.push_bytes(PL_CDR_LE + b"\x00\x00")
+    push_parameter_list(payload, tuple(params))
+    sample = Data(
+        ENTITYID_SPDP_READER, ENTITYID_SPDP_WRITER, 1, serialized_payload=payload.getvalue()
+    )
+    header = Header(PROTOCOLVERSION_SWARMD, VENDORID_FASTDDS, prefix)
+    return encode_message(header, [sample] * count)
 
 
 def flood_pool(
