@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import IntEnum
 
 from swarmd.px4.constants import (
     MODE_FLAG_SAFETY_ARMED,
@@ -19,6 +20,7 @@ from swarmd.px4.constants import (
     MavCmd,
     Px4AutoSubMode,
     Px4MainMode,
+    Px4PosctlSubMode,
 )
 
 NAN = math.nan
@@ -41,17 +43,25 @@ class Px4Mode:
 
     @property
     def name(self) -> str:
-        """``AUTO.TAKEOFF``, ``POSCTL``, or ``MODE(main,sub)`` for numbers PX4 did not define."""
+        """``AUTO.TAKEOFF``, ``POSCTL``, ``POSCTL.ORBIT``, or ``MODE(main,sub)`` for numbers
+        PX4 did not define. A sub-mode is named where PX4 defines one (AUTO, POSCTL) and shown
+        as a number on any other main mode, so two modes never read alike."""
         try:
             main = Px4MainMode(self.main).name
         except ValueError:
             return f"MODE({self.main},{self.sub})"
-        if self.main != Px4MainMode.AUTO:
+        subs: type[IntEnum] | None = {
+            Px4MainMode.AUTO: Px4AutoSubMode,
+            Px4MainMode.POSCTL: Px4PosctlSubMode,
+        }.get(Px4MainMode(self.main))
+        if self.sub == 0 and self.main != Px4MainMode.AUTO:
             return main
         try:
-            return f"AUTO.{Px4AutoSubMode(self.sub).name}"
+            if subs is not None:
+                return f"{main}.{subs(self.sub).name}"
         except ValueError:
-            return f"AUTO.{self.sub}"
+            pass
+        return f"{main}.{self.sub}"
 
     def __str__(self) -> str:
         return self.name
