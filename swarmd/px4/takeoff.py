@@ -418,21 +418,24 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             self._set_phase(TakeoffPhase.TAKING_OFF, now, f"arm confirmed: {why}")
             self._settle(now, why)
             alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
-            v = self.vehicle
             self._takeoff_fresh_from = now + self.config.command.ack_timeout_s
-            # armed (so a HEARTBEAT sent after our ARM took effect: readiness pinned disarmed,
-            # links deliver in order), still on the ground, in a mode that stays there
-            self._state_may_confirm = (
-                v.armed is True
-                and v.landed_state not in AIRBORNE
-                and arm_mode_problem(v.heartbeat) is None
-            )
+            self._state_may_confirm = self._armed_where_it_stays()
             self._send(VehicleCommand.make(MavCmd.NAV_TAKEOFF, p7=alt), now)
         elif self.phase is TakeoffPhase.TAKING_OFF:
             self._settle(now, why)
             self._lift_deadline = now + self.config.liftoff_timeout_s
             self._set_phase(TakeoffPhase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
             self._check_state(now)
+
+    def _armed_where_it_stays(self) -> bool:
+        """Armed (a HEARTBEAT sent after our ARM took effect: readiness pinned disarmed, and
+        links deliver in order), still on the ground, in a mode of ``STAYS_ON_GROUND``."""
+        v = self.vehicle
+        return (
+            v.armed is True
+            and v.landed_state not in AIRBORNE
+            and arm_mode_problem(v.heartbeat) is None
+        )
 
     def _takeoff_shows(self) -> bool:
         """Does the state show what only our NAV_TAKEOFF produced (module docstring)? Mode
