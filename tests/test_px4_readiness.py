@@ -19,6 +19,7 @@ from swarmd.px4.constants import (
 )
 from swarmd.px4.messages import (
     MODE_LOITER,
+    MODE_TAKEOFF,
     ExtendedSysState,
     GpsRawInt,
     Heartbeat,
@@ -37,6 +38,7 @@ from swarmd.px4.readiness import (
 
 CONFIG = ReadinessConfig(min_battery_pct=30.0)
 GOOD_HB = Heartbeat(12, 2, 1, MODE_LOITER.custom_mode, MavState.STANDBY)
+IN_TAKEOFF_MODE = replace(GOOD_HB, custom_mode=MODE_TAKEOFF.custom_mode)  # flies on ARM
 GOOD_SYS = SysStatus(SENSOR_PREARM_CHECK | 0x2F, 80, 16200)
 GOOD: tuple[Observation, ...] = (
     GOOD_HB,
@@ -69,6 +71,7 @@ BREAKAGES: list[tuple[str, tuple[Observation, ...], ReadinessConfig, Reason]] = 
     ("armed", (replace(GOOD_HB, base_mode=129, system_status=4),), CONFIG, Reason.ARMED),
     ("failsafe", (replace(GOOD_HB, system_status=MavState.CRITICAL),), CONFIG, Reason.NOT_STANDBY),
     ("booting", (replace(GOOD_HB, system_status=MavState.BOOT),), CONFIG, Reason.NOT_STANDBY),
+    ("takeoff mode", (IN_TAKEOFF_MODE,), CONFIG, Reason.FLIGHT_MODE),
     ("prearm clear", (replace(GOOD_SYS, sensors_health=0x2F),), CONFIG, Reason.PREARM_FAILED),
     (
         "prearm only in present/enabled (never counts on PX4)",
@@ -112,13 +115,16 @@ def test_first_failing_condition_wins_in_documented_order() -> None:
     order = [
         Reason.ARMED,
         Reason.NOT_STANDBY,
+        Reason.FLIGHT_MODE,
         Reason.PREARM_FAILED,
         Reason.NOT_ON_GROUND,
         Reason.NO_3D_FIX,
         Reason.NO_HOME,
         Reason.BATTERY_LOW,
     ]
-    hb = replace(GOOD_HB, base_mode=129, system_status=MavState.ACTIVE)
+    hb = replace(
+        GOOD_HB, base_mode=129, custom_mode=MODE_TAKEOFF.custom_mode, system_status=MavState.ACTIVE
+    )
     sys = SysStatus(0, 5, 14000)
     ext = ExtendedSysState(LandedState.IN_AIR)
     gps = GpsRawInt(GpsFixType.NO_FIX, 0)
@@ -135,17 +141,19 @@ def test_first_failing_condition_wins_in_documented_order() -> None:
         elif step == 1:
             hb = replace(hb, system_status=MavState.STANDBY)
         elif step == 2:
-            sys = replace(sys, sensors_health=SENSOR_PREARM_CHECK)
+            hb = replace(hb, custom_mode=MODE_LOITER.custom_mode)
         elif step == 3:
-            ext = ExtendedSysState(LandedState.ON_GROUND)
+            sys = replace(sys, sensors_health=SENSOR_PREARM_CHECK)
         elif step == 4:
-            gps = GpsRawInt(GpsFixType.RTK_FIXED, 20)
+            ext = ExtendedSysState(LandedState.ON_GROUND)
         elif step == 5:
-            home = HomePosition(1, 2, 3)
+            gps = GpsRawInt(GpsFixType.RTK_FIXED, 20)
         elif step == 6:
+            home = HomePosition(1, 2, 3)
+        elif step == 7:
             sys = replace(sys, battery_remaining=100)
     assert seen == [*order, None]
-    assert len(CONDITIONS) == 11  # + unknown_layout, failsafe_flag (XRCE only; test_xrce_translate)
+    assert len(CONDITIONS) == 12  # + unknown_layout, failsafe_flag (XRCE only; test_xrce_translate)
 
 
 def test_prearm_reason_quotes_px4() -> None:

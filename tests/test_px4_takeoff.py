@@ -172,44 +172,50 @@ def test_lost_commands_run_out_of_retries() -> None:
     assert link.now - t0 == pytest.approx(2.0)
 
 
-def _in_takeoff_mode_by_another_ground_station(link: VirtualLink) -> None:
+def _takeoff_mode_by_another_ground_station(link: VirtualLink) -> None:
     """A GCS (system 255) puts the disarmed vehicle in AUTO.TAKEOFF: PX4 waits for an ARM,
     then climbs to MIS_TAKEOFF_ALT."""
     mode = VehicleCommand.make(MavCmd.DO_SET_MODE, p1=1.0, p2=float(Px4MainMode.AUTO),
                                p3=float(Px4AutoSubMode.TAKEOFF))  # fmt: skip
     link.sim.receive(mode, (255, 190), link.now)
-    link.run_until(link.now + 1.5)  # our state now shows the mode
     assert link.sim.mode == MODE_TAKEOFF and not link.sim.armed
 
 
-def test_someone_elses_takeoff_mode_does_not_confirm_our_nav_takeoff() -> None:
-    """Our NAV_TAKEOFF is lost every time. PX4 was already in AUTO.TAKEOFF (another ground
-    station's mode), so our ARM alone made it climb to MIS_TAKEOFF_ALT: mode and lift-off
-    showed at once and ended the NAV_TAKEOFF's retries, and the take-off was reported done
-    while PX4 climbed to 2.5 m, not our 10 m. Now only what our NAV_TAKEOFF alone produces
-    confirms it (here: its ACK, never heard): ``takeoff_no_ack``. [main: TakeoffSucceeded]"""
+def test_someone_elses_takeoff_mode_is_refused_before_any_arm() -> None:
+    """Another ground station's AUTO.TAKEOFF: our ARM alone would make PX4 climb to
+    MIS_TAKEOFF_ALT. Readiness refuses the mode (``flight_mode``) and nothing is sent.
+    [main: ARM sent, the take-off reported done at PX4's 2.5 m, or ``takeoff_no_ack``]"""
+    link = ready_link()
+    _takeoff_mode_by_another_ground_station(link)
+    link.run_until(link.now + 1.5)  # our state now shows the mode
+    seq = fly(link, 10.0)
+    assert isinstance(seq.outcome, TakeoffFailed), seq.outcome
+    assert (seq.outcome.reason, seq.outcome.cause) == (FailReason.NOT_READY, "flight_mode")
+    assert "AUTO.TAKEOFF" in seq.outcome.detail
+    assert link.sent_down == []
+    link.run_until(link.now + 10.0)
+    assert not link.sim.armed and link.sim.alt_m == 0.0
+
+
+def test_takeoff_mode_switched_while_our_arm_is_on_the_wire_does_not_confirm_nav_takeoff() -> None:
+    """The race readiness cannot close: the GCS's mode switch reaches PX4 after readiness
+    read Hold and before our ARM (5 ms on the wire). PX4 arms in AUTO.TAKEOFF and climbs to
+    MIS_TAKEOFF_ALT; our NAV_TAKEOFF is lost every time. Its mode and lift-off, there before
+    NAV_TAKEOFF was sent, never confirm it: ``takeoff_no_ack``, the operator told it failed."""
 
     def drop_takeoff(msg: Message, direction: str, now: float) -> bool:
         return isinstance(msg, VehicleCommand) and msg.command == MavCmd.NAV_TAKEOFF
 
     link = ready_link(drop=drop_takeoff)
-    _in_takeoff_mode_by_another_ground_station(link)
-    seq = fly(link, 10.0)
+    seq = TakeoffSequence(link.state, 10.0)
+    link.start(seq)  # ARM queued, Hold read
+    _takeoff_mode_by_another_ground_station(link)
+    link.run_until(link.now + 30.0, stop=lambda: seq.done)
     assert isinstance(seq.outcome, TakeoffFailed), seq.outcome
     assert seq.outcome.reason is FailReason.TAKEOFF_NO_ACK
     assert [c.confirmation for c in commands(link, MavCmd.NAV_TAKEOFF)] == [0, 1, 2, 3]
     link.run_until(link.now + 10.0)
     assert link.sim.alt_m == pytest.approx(2.5)  # MIS_TAKEOFF_ALT: what the report says
-
-
-def test_someone_elses_takeoff_mode_then_our_nav_takeoff_acked_reaches_our_altitude() -> None:
-    """The same vehicle, our NAV_TAKEOFF heard: its ACK confirms it, PX4 climbs to ours."""
-    link = ready_link()
-    _in_takeoff_mode_by_another_ground_station(link)
-    seq = fly(link, 10.0)
-    assert isinstance(seq.outcome, TakeoffSucceeded), seq.outcome
-    link.run_until(link.now + 15.0)
-    assert link.sim.alt_m == pytest.approx(10.0)
 
 
 # ---- scripted vehicle: exact control over what the autopilot says ------------------------

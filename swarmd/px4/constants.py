@@ -123,6 +123,15 @@ class Px4MainMode(IntEnum):
     RATTITUDE = 8
 
 
+class Px4PosctlSubMode(IntEnum):
+    """PX4_CUSTOM_SUB_MODE_POSCTL (px4_custom_mode.h); only meaningful with main mode POSCTL.
+    ORBIT is ``vehicle_status`` NAVIGATION_STATE_ORBIT (``get_px4_custom_mode``)."""
+
+    POSCTL = 0
+    ORBIT = 1
+    SLOW = 2
+
+
 class Px4AutoSubMode(IntEnum):
     """PX4_CUSTOM_SUB_MODE_AUTO (px4_custom_mode.h); only meaningful with main mode AUTO."""
 

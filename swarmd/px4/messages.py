@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import IntEnum
+from typing import Final
 
 from swarmd.px4.constants import (
     MODE_FLAG_SAFETY_ARMED,
@@ -19,9 +21,17 @@ from swarmd.px4.constants import (
     MavCmd,
     Px4AutoSubMode,
     Px4MainMode,
+    Px4PosctlSubMode,
 )
 
 NAN = math.nan
+
+
+# the main modes whose sub-modes PX4 names (px4_custom_mode.h)
+_SUB_MODES: Final[dict[Px4MainMode, type[IntEnum]]] = {
+    Px4MainMode.AUTO: Px4AutoSubMode,
+    Px4MainMode.POSCTL: Px4PosctlSubMode,
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,17 +51,21 @@ class Px4Mode:
 
     @property
     def name(self) -> str:
-        """``AUTO.TAKEOFF``, ``POSCTL``, or ``MODE(main,sub)`` for numbers PX4 did not define."""
+        """``AUTO.TAKEOFF``, ``POSCTL``, ``POSCTL.ORBIT``, or ``MODE(main,sub)`` for numbers
+        PX4 did not define. A sub-mode is named where PX4 defines one (AUTO, POSCTL) and shown
+        as a number on any other main mode, so two modes never read alike."""
         try:
-            main = Px4MainMode(self.main).name
+            main = Px4MainMode(self.main)
         except ValueError:
             return f"MODE({self.main},{self.sub})"
-        if self.main != Px4MainMode.AUTO:
-            return main
+        if self.sub == 0 and main != Px4MainMode.AUTO:
+            return main.name
+        subs = _SUB_MODES.get(main)
         try:
-            return f"AUTO.{Px4AutoSubMode(self.sub).name}"
-        except ValueError:
-            return f"AUTO.{self.sub}"
+            sub = str(self.sub) if subs is None else subs(self.sub).name
+        except ValueError:  # a sub-mode number PX4 did not define
+            sub = str(self.sub)
+        return f"{main.name}.{sub}"
 
     def __str__(self) -> str:
         return self.name

@@ -8,9 +8,21 @@ the conditions of ``CONDITIONS`` in order and reports the first that fails, so a
 always sees one stable reason code and one human line. Order matters: a topic the backend
 cannot read (``TopicLayout``, XRCE only) hides the facts everything else judges, so it
 comes first; a dead link makes every other field stale, so it comes next; "armed" and "not
-in STANDBY" explain a missing PREARM bit, so they come before it; PX4's own verdict (PREARM)
+in STANDBY" explain a missing PREARM bit, so they come before it, and so does the flight
+mode (PX4 judges PREARM against the current mode's requirements); PX4's own verdict (PREARM)
 comes before swarmd's stricter checks (3D fix, home, battery) because PX4 arms without GNSS
 by default (COM_ARM_WO_GPS=1) and a swarm needs global position, hence both.
+
+The flight mode (``arm_mode_problem``, one rule for both backends: MAVLink's
+``custom_mode`` and XRCE's ``nav_state`` both arrive as ``Heartbeat.mode``): PX4 flies on
+ARM alone in some modes. Armed in AUTO.TAKEOFF it climbs to ``MIS_TAKEOFF_ALT``, in
+AUTO.MISSION it starts the uploaded mission, in OFFBOARD it follows whatever setpoints
+another program streams (docs.px4.io flight_modes_mc/takeoff, flight_modes/offboard:
+"before arming in offboard mode"). Another ground station or an RC switch may have put the
+disarmed vehicle there, and our ARM would start that flight. So readiness accepts only the
+modes of ``STAYS_ON_GROUND``, known to keep an armed vehicle on the ground until told more
+(an allow-list: a mode PX4 adds later, or an external ROS 2 mode, is refused until someone
+checks what it does on ARM).
 
 Sans-IO: no clock, no I/O. ``now`` is monotonic seconds (the driver's ``loop.time()``).
 """
@@ -28,8 +40,12 @@ from swarmd.px4.constants import (
     LandedState,
     MavSeverity,
     MavState,
+    Px4AutoSubMode,
+    Px4MainMode,
 )
 from swarmd.px4.messages import (
+    MODE_LOITER,
+    MODE_TAKEOFF,
     ArmingBlockers,
     CommandAck,
     ExtendedSysState,
@@ -38,6 +54,7 @@ from swarmd.px4.messages import (
     Heartbeat,
     HomePosition,
     Observation,
+    Px4Mode,
     StateReset,
     StatusText,
     SysStatus,
@@ -70,6 +87,7 @@ class Reason(StrEnum):
     NOT_PX4 = "not_px4"
     ARMED = "armed"
     NOT_STANDBY = "not_standby"
+    FLIGHT_MODE = "flight_mode"
     PREARM_FAILED = "prearm_failed"
     FAILSAFE_FLAG = "failsafe_flag"
     NOT_ON_GROUND = "not_on_ground"
@@ -77,6 +95,46 @@ class Reason(StrEnum):
     NO_HOME = "no_home"
     BATTERY_UNKNOWN = "battery_unknown"
     BATTERY_LOW = "battery_low"
+
+
+# The modes in which an armed vehicle on the ground stays there until told more (module
+# docstring), each with why. Every other mode is refused (``arm_mode_problem``).
+STAYS_ON_GROUND: Final[dict[Px4Mode, str]] = {
+    # manual modes: thrust is the pilot's throttle stick, nothing climbs without it
+    Px4Mode(Px4MainMode.MANUAL): "thrust is the pilot's throttle stick",
+    Px4Mode(Px4MainMode.STABILIZED): "thrust is the pilot's throttle stick",
+    Px4Mode(Px4MainMode.ACRO): "thrust is the pilot's throttle stick",
+    # assisted modes: the throttle stick is a climb rate and a centred (or absent) stick
+    # holds the altitude, on the ground too (docs.px4.io flight_modes_mc/altitude, position).
+    # POSCTL is sub-mode 0 only: POSCTL.ORBIT is NAVIGATION_STATE_ORBIT, which flies
+    Px4Mode(Px4MainMode.ALTCTL): "climbs only on the pilot's throttle stick",
+    Px4Mode(Px4MainMode.POSCTL): "climbs only on the pilot's throttle stick",
+    # Hold: navigator's Loiter gives an idle setpoint while landed (navigator/loiter.cpp,
+    # NAV_CMD_IDLE); the mode MAVSDK arms in and a multicopter without RC boots in
+    MODE_LOITER: "Hold idles on the ground (PX4 navigator, Loiter)",
+}
+# What some refused modes do on ARM, for the operator's detail only (the rule is the list
+# above): PX4 docs, flight_modes_mc/takeoff, flight_modes_mc/mission, flight_modes/offboard
+_FLIES_ON_ARM: Final[dict[Px4Mode, str]] = {
+    MODE_TAKEOFF: "climbs to MIS_TAKEOFF_ALT on ARM alone",
+    Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.VTOL_TAKEOFF): "climbs on ARM alone",
+    Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.MISSION): "starts its mission on ARM alone",
+    Px4Mode(Px4MainMode.OFFBOARD): "follows another program's setpoints on ARM alone",
+}
+
+
+def arm_mode_problem(heartbeat: Heartbeat | None) -> str | None:
+    """Why an ARM in the vehicle's current mode might start a flight nobody asked for, or
+    None when the mode is one of ``STAYS_ON_GROUND``. No HEARTBEAT: the mode is unknown,
+    which is a problem too. One rule for readiness and for every ARM the take-off sends."""
+    if heartbeat is None:
+        return "no HEARTBEAT: the flight mode is unknown"
+    mode = heartbeat.mode
+    if mode in STAYS_ON_GROUND:
+        return None
+    allowed = ", ".join(m.name for m in STAYS_ON_GROUND)
+    what = _FLIES_ON_ARM.get(mode, "is not a mode known to stay on the ground when armed")
+    return f"mode {mode.name} {what}; a take-off arms only in {allowed}"
 
 
 @dataclass(slots=True)
@@ -260,6 +318,13 @@ def _standby(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, s
     return None
 
 
+def _mode(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
+    if s.heartbeat is None:  # _link reported it already
+        return None
+    problem = arm_mode_problem(s.heartbeat)
+    return None if problem is None else (Reason.FLIGHT_MODE, problem)
+
+
 def _prearm(s: VehicleState, now: float, c: ReadinessConfig) -> tuple[Reason, str] | None:
     if s.sys_status is None:
         return Reason.PREARM_FAILED, "no SYS_STATUS yet"
@@ -323,6 +388,7 @@ CONDITIONS: Final[tuple[Check, ...]] = (
     _px4,
     _disarmed,
     _standby,
+    _mode,
     _prearm,
     _failsafe,
     _ground,

@@ -43,12 +43,26 @@ the armed bit in HEARTBEAT for ARM, mode AUTO.TAKEOFF or leaving the ground for 
 and success itself is only declared from state: armed and ``landed_state`` TAKEOFF or
 IN_AIR (EXTENDED_SYS_STATE), never from an ACK alone.
 
+The flight mode, at every ARM: PX4 flies on ARM alone in some modes (AUTO.TAKEOFF climbs to
+``MIS_TAKEOFF_ALT``, AUTO.MISSION starts its mission, OFFBOARD follows another program's
+setpoints), and another ground station or an RC switch may put the disarmed vehicle in one.
+``start`` arms only when readiness holds, which includes the mode (readiness
+``flight_mode``: one of ``STAYS_ON_GROUND``); a mode switched after the readiness report
+the commander saw is refused there, nothing sent (``not_ready``). While ARMING, the state
+is judged again before each retransmission of ARM (``_check_state`` runs before the
+sender's timer): a mode that left the list, or became unknown (a StateReset), ends the
+sequence ``mode_changed`` with no further ARM, and the one DISARM covers the ARMs sent.
+
 NAV_TAKEOFF's confirmation by state must show what only our command produced
 (``_takeoff_shows``): state received an ack timeout after its first send (the actions'
-"fresh" rule, docs/px4.md "Fresh state"), and a mode or a lift-off the vehicle did not have
-when we sent it. A vehicle another ground station had put in AUTO.TAKEOFF while disarmed
-climbs on our ARM alone, to ``MIS_TAKEOFF_ALT``: its mode and its lift-off say nothing of our
-altitude, so there only the ACK confirms, and no ACK fails ``takeoff_no_ack``.
+"fresh" rule, docs/px4.md "Fresh state"), and a mode or a lift-off after a state, held at
+the send, that showed the vehicle armed on the ground in a mode that stays there. Our
+state is up to a HEARTBEAT period old: a mode switch to AUTO.TAKEOFF in that window, or
+while our ARM is on the wire, is a race readiness cannot close, and PX4 then arms in it
+and climbs to ``MIS_TAKEOFF_ALT``. The first armed HEARTBEAT shows AUTO.TAKEOFF either way,
+so when the ARM was confirmed by its ACK before any armed HEARTBEAT (the usual case:
+NAV_TAKEOFF leaves at once), only NAV_TAKEOFF's ACK confirms it, and no ACK is
+``takeoff_no_ack``, never a success at an altitude we did not ask for.
 
 Phases (all transitions are in ``_TRANSITIONS``)::
 
@@ -75,7 +89,7 @@ from swarmd.px4.command_sender import (
 )
 from swarmd.px4.constants import GpsFixType, LandedState, MavCmd
 from swarmd.px4.messages import MODE_TAKEOFF, Observation, VehicleCommand
-from swarmd.px4.readiness import ReadinessConfig, VehicleState, readiness
+from swarmd.px4.readiness import ReadinessConfig, VehicleState, arm_mode_problem, readiness
 
 COM_DISARM_PRFLT_S: Final = 10.0  # PX4 commander default: pre-flight auto-disarm
 MIS_TAKEOFF_ALT_M: Final = 2.5  # PX4 navigator default, used when param7 is NaN
@@ -121,6 +135,9 @@ class FailReason(StrEnum):
     BAD_ALTITUDE = "bad_altitude"
     ARM_REJECTED = "arm_rejected"  # ``cause`` = the last MAV_RESULT name
     ARM_NO_ACK = "arm_no_ack"
+    # while arming, the mode left the modes that stay on the ground (readiness flight_mode),
+    # or became unknown: no further ARM, one DISARM (module docstring)
+    MODE_CHANGED = "mode_changed"
     TAKEOFF_REJECTED = "takeoff_rejected"
     TAKEOFF_NO_ACK = "takeoff_no_ack"
     DISARMED = "disarmed"  # the vehicle disarmed itself (auto-disarm, failsafe, RC)
@@ -231,10 +248,11 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         self._lift_deadline: float | None = None
         self._arm_sent = False
         self._seen_armed = False
-        # NAV_TAKEOFF: state received from here on may confirm it (``_takeoff_shows``), unless
-        # the vehicle already climbed or sat in AUTO.TAKEOFF when we sent it
+        # NAV_TAKEOFF: state received from here on may confirm it (``_takeoff_shows``), only
+        # if the state at its send showed the vehicle armed on the ground in a mode that stays
+        # there: then a take-off mode or a lift-off can only be our command's
         self._takeoff_fresh_from: float | None = None
-        self._took_off_before = False
+        self._state_may_confirm = False
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -363,6 +381,13 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
     def _check_state(self, now: float) -> None:
         """Confirm steps by what the vehicle reports, whatever happened to the ACKs."""
         v = self.vehicle
+        if self.phase is TakeoffPhase.ARMING and not v.armed:
+            # before any retransmission of ARM (handle_timer checks state first): only in a
+            # mode that stays on the ground, the rule readiness applied at start
+            problem = arm_mode_problem(v.heartbeat)
+            if problem is not None:
+                self._fail(now, FailReason.MODE_CHANGED, None, f"while arming: {problem}")
+                return
         if v.armed is None:
             # no HEARTBEAT since a StateReset (a new PX4 life): unknown, not disarmed;
             # nothing is confirmed or failed on it, the timers still run
@@ -393,11 +418,8 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             self._set_phase(TakeoffPhase.TAKING_OFF, now, f"arm confirmed: {why}")
             self._settle(now, why)
             alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
-            v = self.vehicle
             self._takeoff_fresh_from = now + self.config.command.ack_timeout_s
-            self._took_off_before = v.landed_state in AIRBORNE or (
-                v.heartbeat is not None and v.heartbeat.mode == MODE_TAKEOFF
-            )
+            self._state_may_confirm = self._armed_where_it_stays()
             self._send(VehicleCommand.make(MavCmd.NAV_TAKEOFF, p7=alt), now)
         elif self.phase is TakeoffPhase.TAKING_OFF:
             self._settle(now, why)
@@ -405,12 +427,23 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             self._set_phase(TakeoffPhase.LIFTING, now, f"NAV_TAKEOFF confirmed: {why}")
             self._check_state(now)
 
+    def _armed_where_it_stays(self) -> bool:
+        """Armed (a HEARTBEAT sent after our ARM took effect: readiness pinned disarmed, and
+        links deliver in order), still on the ground, in a mode of ``STAYS_ON_GROUND``."""
+        v = self.vehicle
+        return (
+            v.armed is True
+            and v.landed_state not in AIRBORNE
+            and arm_mode_problem(v.heartbeat) is None
+        )
+
     def _takeoff_shows(self) -> bool:
         """Does the state show what only our NAV_TAKEOFF produced (module docstring)? Mode
         AUTO.TAKEOFF in a fresh HEARTBEAT, or TAKEOFF/IN_AIR in a fresh EXTENDED_SYS_STATE,
-        where the state held at the send showed neither."""
+        where the state held at the send showed the vehicle armed, on the ground, in a mode
+        of ``STAYS_ON_GROUND``; any other state at the send leaves it to the ACK."""
         v, since = self.vehicle, self._takeoff_fresh_from
-        if since is None or self._took_off_before:
+        if since is None or not self._state_may_confirm:
             return False
         mode = v.heartbeat is not None and v.heartbeat.mode == MODE_TAKEOFF
         airborne = v.landed_state in AIRBORNE
