@@ -115,6 +115,13 @@ class DaemonUnreachable(RuntimeError):
     """swarmctl cannot talk to the daemon; ``str()`` is one line saying why and what to do."""
 
 
+class ReplyLost(DaemonUnreachable):
+    """The request reached the daemon whole but its answer never came back (the connection
+    closed, the wait ran out, or the answer did not parse): the daemon may have carried it
+    out. A command request it carried out has gone to the drones (session 16 command
+    review, ``tests/test_cmd_reply_lost.py``)."""
+
+
 class RequestError(RuntimeError):
     """The daemon answered ``ok: false``."""
 
@@ -356,19 +363,28 @@ class ControlClient:
         assert self._sock is not None  # noqa: S101 - connect() sets it or raises
         try:
             self._sock.sendall(encode_line({"cmd": cmd, **args}))
-            line = self._readline()
         except TimeoutError:
             raise DaemonUnreachable(
-                f"swarmd did not answer within {self.timeout:g} s on {self.path}"
+                f"swarmd did not take the request within {self.timeout:g} s on {self.path}"
             ) from None
         except OSError as exc:
             raise DaemonUnreachable(f"lost the connection to swarmd: {exc.strerror}") from None
+        # from here the daemon holds the whole line: it may carry the request out whatever
+        # becomes of its answer (a daemon held up past our wait still reads it)
+        try:
+            line = self._readline()
+        except TimeoutError:
+            raise ReplyLost(
+                f"swarmd did not answer within {self.timeout:g} s on {self.path}"
+            ) from None
+        except OSError as exc:
+            raise ReplyLost(f"lost the connection to swarmd: {exc.strerror}") from None
         try:
             reply = json.loads(line)
         except ValueError:
-            raise DaemonUnreachable(f"swarmd sent a malformed reply on {self.path}") from None
+            raise ReplyLost(f"swarmd sent a malformed reply on {self.path}") from None
         if not isinstance(reply, dict) or "ok" not in reply:
-            raise DaemonUnreachable(f"swarmd sent a malformed reply on {self.path}")
+            raise ReplyLost(f"swarmd sent a malformed reply on {self.path}")
         if not reply["ok"]:
             raise RequestError(str(reply.get("error", "request failed")))
         return reply.get("result")

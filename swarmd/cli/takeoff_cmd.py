@@ -20,7 +20,9 @@ says a later write held it.
 
 Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
 1 some drone refused, failed, was unreachable while the command was valid, or did not
-answer in time; 2 the daemon is not reachable;
+answer in time, or the daemon took the command request and its answer never came (it may
+have sent the command: "A command request left unanswered"); 2 the daemon is not
+reachable (nothing sent);
 3 ``--require-all`` and not every targeted drone became ready (nothing sent); 64 usage
 (not the commander, unknown node, bad altitude, a validity out of range, data plane
 disabled); 130 interrupted
@@ -38,7 +40,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
-from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+from swarmd.control import ControlClient, DaemonUnreachable, ReplyLost, RequestError
 from swarmd.dataplane.types import CommandKind
 from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.exitcodes import (
@@ -102,7 +104,8 @@ def _description(what: str, *, takeoff: bool = False) -> str:
             else "Exit 0 every targeted drone confirmed; "
         )
         + "1 one refused, failed, was unreachable while the command was valid, or did not "
-        "answer within --timeout; 2 the daemon is not reachable; "
+        "answer within --timeout, or swarmd took the request and its answer never came (it "
+        "may have sent it); 2 the daemon is not reachable (nothing sent); "
         + ("3 --require-all and not every drone became ready: nothing sent; " if takeoff else "")
         + "64 not the commander, an unknown --only drone, "
         + ("a bad altitude, " if takeoff else "")
@@ -187,6 +190,8 @@ def _takeoff(args: argparse.Namespace) -> int:
             reply = client.request("takeoff", **request)
         except RequestError as exc:
             return _usage(str(exc))
+        except ReplyLost as exc:
+            return _reply_lost(run, "takeoff", exc)
         if not reply["sent"]:  # nobody ready, or one fell back between wait and send
             refused = reply.get("refused") or {}
             code = EX_NOT_READY if args.require_all else EX_FAILED
@@ -210,9 +215,40 @@ def _simple(args: argparse.Namespace) -> int:
             reply = client.request("command", **request)
         except RequestError as exc:
             return _usage(str(exc))
+        except ReplyLost as exc:
+            return _reply_lost(run, args.kind, exc)
         return _follow(client, run, reply, args.kind)
 
     return _session(args, body)
+
+
+def _reply_lost(run: _Run, kind: str, exc: ReplyLost) -> int:
+    """The command request reached the daemon and its answer did not come back: it may
+    have gone to the drones, so not "not reachable" (exit 2, which says nothing was sent)
+    but not confirmed (exit 1), and where to look (session 16 command review)."""
+    print(
+        f"swarmctl: {safe_text(str(exc))}; the {kind.upper()} request reached swarmd, which "
+        "may have sent it to the drones: 'swarmctl outcomes' lists the commands it sent "
+        "(unless it restarted since), 'swarmctl status' shows the drones",
+        file=sys.stderr,
+    )
+    _final(run.args, None, {"sent": None, "error": str(exc)}, EX_FAILED)
+    return EX_FAILED
+
+
+def _connection_lost(
+    run: _Run, kind: str, cid: int, snap: dict[str, Any], exc: DaemonUnreachable
+) -> int:
+    """The daemon stopped answering while we followed a command it had sent: the command
+    is out there, so exit 1 (not confirmed), never 2 ("not reachable": nothing sent)."""
+    print(
+        f"swarmctl: {safe_text(str(exc))}; {kind.upper()} command {cid:#x} was sent: "
+        f"'swarmctl outcomes {cid:#x}' tells what became of it (unless swarmd restarted "
+        "since), 'swarmctl status' shows the drones",
+        file=sys.stderr,
+    )
+    _final(run.args, cid, {**snap, "sent": True, "error": str(exc)}, EX_FAILED)
+    return EX_FAILED
 
 
 def _usage(message: str) -> int:
@@ -292,7 +328,10 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
     snap: dict[str, Any] = {}
     while True:
-        snap = client.request("outcomes", command_id=cid)
+        try:
+            snap = client.request("outcomes", command_id=cid)
+        except DaemonUnreachable as exc:
+            return _connection_lost(run, kind, cid, snap, exc)
         for name, node in snap["nodes"].items():
             if node.get("save_failed") and name not in told_not_saved:
                 told_not_saved.add(name)  # docs/operations.md, "state_save_failed"
