@@ -32,7 +32,7 @@ import select
 import socket
 import stat
 import struct
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -361,24 +361,12 @@ class ControlClient:
         if self._sock is None:
             self.connect()
         assert self._sock is not None  # noqa: S101 - connect() sets it or raises
-        try:
+        with self._transport_errors(DaemonUnreachable, "take the request"):
             self._sock.sendall(encode_line({"cmd": cmd, **args}))
-        except TimeoutError:
-            raise DaemonUnreachable(
-                f"swarmd did not take the request within {self.timeout:g} s on {self.path}"
-            ) from None
-        except OSError as exc:
-            raise DaemonUnreachable(f"lost the connection to swarmd: {exc.strerror}") from None
         # from here the daemon holds the whole line: it may carry the request out whatever
         # becomes of its answer (a daemon held up past our wait still reads it)
-        try:
+        with self._transport_errors(ReplyLost, "answer"):
             line = self._readline()
-        except TimeoutError:
-            raise ReplyLost(
-                f"swarmd did not answer within {self.timeout:g} s on {self.path}"
-            ) from None
-        except OSError as exc:
-            raise ReplyLost(f"lost the connection to swarmd: {exc.strerror}") from None
         try:
             reply = json.loads(line)
         except ValueError:
@@ -388,6 +376,16 @@ class ControlClient:
         if not reply["ok"]:
             raise RequestError(str(reply.get("error", "request failed")))
         return reply.get("result")
+
+    @contextlib.contextmanager
+    def _transport_errors(self, error: type[DaemonUnreachable], step: str) -> Iterator[None]:
+        """A timeout or a socket error in ``step`` as ``error``, one line for the operator."""
+        try:
+            yield
+        except TimeoutError:
+            raise error(f"swarmd did not {step} within {self.timeout:g} s on {self.path}") from None
+        except OSError as exc:
+            raise error(f"lost the connection to swarmd: {exc.strerror}") from None
 
     def _closed_by_daemon(self) -> bool:
         """Whether the daemon closed this connection while it sat idle: its deadline line,
