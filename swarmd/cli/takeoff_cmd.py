@@ -9,7 +9,8 @@ until every targeted drone is ready (nothing is sent if that does not happen wit
 Every command has a validity (``--valid-for``; defaults per kind in
 ``swarmd.swarm.issuer.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
 it for good. A drone that did not answer while the command was valid is reported
-``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity"). A
+``unreachable``: the command can no longer start there; if it started, its answer was
+lost and comes late (docs/dataplane.md, "Validity"). A
 drone whose daemon restarted before its answer arrived tells the commander afterwards what
 it did; such a row is marked as told after a restart (``after_restart`` in ``--json``;
 docs/dataplane.md, "Outcomes across a restart"); one that accepted it and restarted with
@@ -380,9 +381,13 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                     )
                     continue
                 if state == UNREACHABLE:
+                    # no answer is all the commander knows: the drone may have run it and
+                    # its answers been lost since (session 16 command review)
                     run.say(
-                        f"  {name}: unreachable while the command was valid "
-                        f"({_seconds(snap.get('valid_for_s'))}); it can no longer run there"
+                        f"  {name}: unreachable: no answer while the command was valid "
+                        f"({_seconds(snap.get('valid_for_s'))}); it can no longer start "
+                        "there, and if it did start, its answer is late "
+                        f"(swarmctl outcomes {cid:#x})"
                     )
                     continue
                 extra = f" ({reason_text(node.get('reason'))})" if node.get("reason") else ""
@@ -418,7 +423,7 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
             f"{kind}: {sum(n['state'] == 'completed' for n in nodes.values())}/{len(nodes)} "
             + ("confirmed airborne" if kind == "takeoff" else "confirmed")
             + (
-                f"; unreachable while valid, will not run there: {', '.join(unreachable)}"
+                f"; no answer while valid, can no longer start there: {', '.join(unreachable)}"
                 if unreachable
                 else ""
             )
