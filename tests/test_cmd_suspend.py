@@ -18,6 +18,7 @@ swarm of ``tests/test_swarm_core.py`` (``Swarm``, ``MemNet``).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -26,6 +27,7 @@ import pytest
 from swarmd_lab.memnet import Address
 
 from swarmd.dataplane.validity import EXPIRED
+from swarmd.px4.vehicle import TaskKind
 from swarmd.rawclock import RawClockEventLoop
 from swarmd.swarm.commander import NOT_REACHED, UNREACHABLE
 from swarmd.swarm.core import SwarmCore
@@ -83,6 +85,7 @@ class SuspendableHost:
         self._true = true
         self.asleep = False
         self.socket_buffer: list[tuple[bytes, Any]] = []
+        self._due = self._fire = math.inf  # the core's deadline, and the true time it falls
 
     def receive_datagram(self, data: bytes, source: Any, now: float) -> None:
         if self.asleep:
@@ -92,15 +95,20 @@ class SuspendableHost:
 
     def handle_timer(self, now: float) -> None:
         if not self.asleep:
-            self.core.handle_timer(self._clock())
+            # fired at the true time the host's clock reaches the core's deadline: read as
+            # at least that (the two clocks' float sums differ in the last bits)
+            self.core.handle_timer(max(self._clock(), self._due if now >= self._fire else 0.0))
 
     def datagrams_to_send(self) -> Sequence[tuple[bytes, Address]]:
         return [] if self.asleep else self.core.datagrams_to_send()
 
     def get_timer(self) -> float | None:
         deadline = None if self.asleep else self.core.get_timer()
+        if deadline is None:
+            return None
         # the core's deadline is on the host's clock; the network runs on the true time
-        return None if deadline is None else deadline + self._true() - self._clock()
+        self._due, self._fire = deadline, deadline + self._true() - self._clock()
+        return self._fire
 
     def next_event(self) -> SwarmEvent | None:
         return None if self.asleep else self.core.next_event()
@@ -239,3 +247,39 @@ def test_on_the_real_kernel_the_clock_is_raw_plus_the_sleep_since_boot(
     now = loop.time()
     after = raw_plus_sleep()
     assert before <= now <= after, (before, now, after)
+
+
+def test_a_commander_that_slept_dates_its_table_and_commands_on_the_time_that_passed(
+    loop: RawClockEventLoop, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The commander's host sleeps a minute. On resume, before any new report: its table
+    knows the reports are a minute old (``report_stale``), and a LAND issued at once
+    echoes m01's last report with the minute in its age, so m01 runs it.
+    [fails on main: the table said ready on minute-old reports, and the LAND echoed a
+    near-zero age, so m01 refused it `expired` although it reached it at once]"""
+    swarm = Swarm(2, seed=17)
+    kernel = PlayedKernel(lambda: swarm.net.now)
+    lead = swarm.ids["lead"]
+    clock = _daemon_clock(loop, kernel, monkeypatch)
+    host = SuspendableHost(swarm.lead, clock, lambda: swarm.net.now)
+    swarm.net.replace(lead, host)
+    swarm.run(3.0)
+    # nothing waits in its socket buffer (a report read after the sleep is dated at its
+    # read: docs/dataplane.md, "A host that sleeps")
+    swarm.net.isolate(lead)
+    swarm.run(0.05)
+    host.asleep = True
+    kernel.suspend()
+    swarm.run(SLEEP_S)
+    kernel.resume()
+    swarm.net.isolate(lead, False)
+    host.resume()
+    swarm.net.poke(lead)
+    rows = swarm.lead.table.rows(clock())
+    assert (rows["m01"]["ready"], rows["m01"]["reason"]) == (False, "report_stale"), rows
+    sent = swarm.lead.request_command({"kind": "land", "only": ["m01"]}, clock())
+    swarm.net.poke(lead)
+    swarm.run(3.0)
+    row = swarm.lead.request_outcomes({"command_id": sent["command_id"]}, clock())["nodes"]
+    assert row["m01"]["state"] == "completed", row
+    assert [r.kind for r in swarm.requests("m01")] == [TaskKind.LAND]
