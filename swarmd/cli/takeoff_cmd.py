@@ -238,10 +238,11 @@ def _reply_lost(run: _Run, kind: str, exc: ReplyLost) -> int:
 
 
 def _connection_lost(
-    run: _Run, kind: str, cid: int, snap: dict[str, Any], exc: DaemonUnreachable
+    run: _Run, kind: str, cid: int, snap: dict[str, Any], exc: DaemonUnreachable | RequestError
 ) -> int:
-    """The daemon stopped answering while we followed a command it had sent: the command
-    is out there, so exit 1 (not confirmed), never 2 ("not reachable": nothing sent)."""
+    """The daemon stopped answering about a command it had sent while we followed it: the
+    command is out there, so exit 1 (not confirmed), never 2 ("not reachable": nothing
+    sent), nor a traceback."""
     print(
         f"swarmctl: {safe_text(str(exc))}; {kind.upper()} command {cid:#x} was sent: "
         f"'swarmctl outcomes {cid:#x}' tells what became of it (unless swarmd restarted "
@@ -331,7 +332,9 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     while True:
         try:
             snap = client.request("outcomes", command_id=cid)
-        except DaemonUnreachable as exc:
+        except (DaemonUnreachable, RequestError) as exc:
+            # gone, or a daemon that no longer knows the command (a new life of it, or
+            # the command pushed out of the ones it keeps): it was sent all the same
             return _connection_lost(run, kind, cid, snap, exc)
         for name, node in snap["nodes"].items():
             if node.get("save_failed") and name not in told_not_saved:
