@@ -17,6 +17,7 @@ carried out, and closes without an answer, or stays silent past swarmctl's wait.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import socket
@@ -63,6 +64,7 @@ class PlayedCommander:
         self.follow_dies = follow_dies
         self.follow_forgets = follow_forgets
         self.taken: list[dict[str, Any]] = []  # the state-changing requests it carried out
+        self._stopping = False
         self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self._listener.bind(str(path))
         self._listener.listen(4)
@@ -71,14 +73,20 @@ class PlayedCommander:
         self._thread.start()
 
     def close(self) -> None:
-        self._listener.close()
+        self._stopping = True
+        with contextlib.suppress(OSError), socket.socket(socket.AF_UNIX) as poke:
+            poke.connect(str(self.path))  # wakes a thread waiting in accept
         self._thread.join(SERVE_S)
+        self._listener.close()
         assert not self._thread.is_alive()
 
     def _serve(self) -> None:
         try:
             while True:
                 conn, _ = self._listener.accept()
+                if self._stopping:
+                    conn.close()
+                    return
                 with conn:
                     conn.settimeout(SERVE_S)
                     if not self._connection(conn):
