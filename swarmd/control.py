@@ -32,7 +32,7 @@ import select
 import socket
 import stat
 import struct
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -113,6 +113,13 @@ class ControlSocketUnsafe(RuntimeError):
 
 class DaemonUnreachable(RuntimeError):
     """swarmctl cannot talk to the daemon; ``str()`` is one line saying why and what to do."""
+
+
+class ReplyLost(DaemonUnreachable):
+    """The request reached the daemon whole but its answer never came back (the connection
+    closed, the wait ran out, or the answer did not parse): the daemon may have carried it
+    out. A command request it carried out has gone to the drones (session 16 command
+    review, ``tests/test_cmd_reply_lost.py``)."""
 
 
 class RequestError(RuntimeError):
@@ -354,24 +361,31 @@ class ControlClient:
         if self._sock is None:
             self.connect()
         assert self._sock is not None  # noqa: S101 - connect() sets it or raises
-        try:
+        with self._transport_errors(DaemonUnreachable, "take the request"):
             self._sock.sendall(encode_line({"cmd": cmd, **args}))
+        # from here the daemon holds the whole line: it may carry the request out whatever
+        # becomes of its answer (a daemon held up past our wait still reads it)
+        with self._transport_errors(ReplyLost, "answer"):
             line = self._readline()
-        except TimeoutError:
-            raise DaemonUnreachable(
-                f"swarmd did not answer within {self.timeout:g} s on {self.path}"
-            ) from None
-        except OSError as exc:
-            raise DaemonUnreachable(f"lost the connection to swarmd: {exc.strerror}") from None
         try:
             reply = json.loads(line)
         except ValueError:
-            raise DaemonUnreachable(f"swarmd sent a malformed reply on {self.path}") from None
+            raise ReplyLost(f"swarmd sent a malformed reply on {self.path}") from None
         if not isinstance(reply, dict) or "ok" not in reply:
-            raise DaemonUnreachable(f"swarmd sent a malformed reply on {self.path}")
+            raise ReplyLost(f"swarmd sent a malformed reply on {self.path}")
         if not reply["ok"]:
             raise RequestError(str(reply.get("error", "request failed")))
         return reply.get("result")
+
+    @contextlib.contextmanager
+    def _transport_errors(self, error: type[DaemonUnreachable], step: str) -> Iterator[None]:
+        """A timeout or a socket error in ``step`` as ``error``, one line for the operator."""
+        try:
+            yield
+        except TimeoutError:
+            raise error(f"swarmd did not {step} within {self.timeout:g} s on {self.path}") from None
+        except OSError as exc:
+            raise error(f"lost the connection to swarmd: {exc.strerror}") from None
 
     def _closed_by_daemon(self) -> bool:
         """Whether the daemon closed this connection while it sat idle: its deadline line,

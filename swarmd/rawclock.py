@@ -10,8 +10,17 @@ crystal's count, never slewed nor stepped (clock_gettime(2)). So the daemon runs
 selector loop whose ``time()`` reads it; asyncio schedules ``call_at``/``call_later``,
 ``sleep`` and timeouts on the loop's own ``time()``, so every deadline stays on one clock.
 
+Linux stops CLOCK_MONOTONIC_RAW, like CLOCK_MONOTONIC, while the system is suspended; only
+CLOCK_BOOTTIME counts the sleep (clock_gettime(2)). A member host put to sleep (a Jetson's
+suspend) then read its elapsed time without the sleep, and a command that waited in its
+socket buffer through the suspend ran as if no time had passed: a TAKEOFF a minute late,
+after the commander had told the operator it could no longer run there (session 16
+command review, ``tests/test_cmd_suspend.py``). So the loop's clock is the raw clock plus
+the time the system has slept since boot, CLOCK_BOOTTIME minus CLOCK_MONOTONIC: both are
+slewed alike, so their difference is only the sleep, as the kernel measured it.
+
 Linux only, like the daemon (netlink, sd_notify, SO_BINDTODEVICE): CLOCK_MONOTONIC_RAW is
-Linux's (since 2.6.28).
+Linux's (since 2.6.28), CLOCK_BOOTTIME too (since 2.6.39).
 """
 
 from __future__ import annotations
@@ -24,11 +33,23 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 
+def raw_clock() -> float:
+    """CLOCK_MONOTONIC_RAW plus the time the system has been suspended since boot (seconds):
+    the crystal's count, never slewed nor stepped, that also counts a sleep."""
+    # The order matters: a thread paused between two reads makes the sum stale by the pause
+    # (BOOTTIME read first, MONOTONIC and RAW after it alike), never ahead of the next
+    # call's, so the clock never steps back (test_cmd_suspend.py, with a slewed MONOTONIC).
+    boot = time.clock_gettime(time.CLOCK_BOOTTIME)
+    monotonic = time.clock_gettime(time.CLOCK_MONOTONIC)
+    return time.clock_gettime(time.CLOCK_MONOTONIC_RAW) + (boot - monotonic)
+
+
 class RawClockEventLoop(asyncio.SelectorEventLoop):
-    """A selector event loop whose ``time()`` is CLOCK_MONOTONIC_RAW (seconds)."""
+    """A selector event loop whose ``time()`` is ``raw_clock()``: CLOCK_MONOTONIC_RAW,
+    suspends counted (seconds)."""
 
     def time(self) -> float:
-        return time.clock_gettime(time.CLOCK_MONOTONIC_RAW)
+        return raw_clock()
 
 
 def run_on_raw_clock(main: Coroutine[Any, Any, T]) -> T:

@@ -12,8 +12,9 @@ tick by +-10 %. So a member on such a clock runs a command late.
   command issued before the member's life began as issued in it; two clocks within the
   crystal tolerance (+-100 ppm) do neither.
 - The property the daemon now has: ``swarmd run`` drives its daemon on an event loop whose
-  ``time()`` is CLOCK_MONOTONIC_RAW (the crystal, never slewed): ``loop.time()`` read
-  between two raw reads lies between them. Not a timing assertion: the two clocks differ
+  ``time()`` is CLOCK_MONOTONIC_RAW (the crystal, never slewed; plus the time the host
+  slept, tests/test_cmd_suspend.py): ``loop.time()`` read between two raw reads lies
+  between them. Not a timing assertion: the two clocks differ
   by whatever NTP has slewed since boot (0.25 s on the build host), and the check is an
   ordering, whatever the speed of the machine.
 """
@@ -105,7 +106,12 @@ def test_clocks_within_the_crystal_tolerance_never_run_late(
 
 
 def _raw() -> float:
-    return time.clock_gettime(time.CLOCK_MONOTONIC_RAW)
+    """CLOCK_MONOTONIC_RAW plus the sleep since boot (BOOTTIME minus MONOTONIC, read first:
+    ``swarmd.rawclock``'s order, so two reads are ordered as the calls are;
+    tests/test_cmd_suspend.py)."""
+    boot = time.clock_gettime(time.CLOCK_BOOTTIME)
+    monotonic = time.clock_gettime(time.CLOCK_MONOTONIC)
+    return time.clock_gettime(time.CLOCK_MONOTONIC_RAW) + (boot - monotonic)
 
 
 async def _bracket() -> tuple[float, float, float]:

@@ -313,7 +313,7 @@ def test_swarmctl_says_a_restarted_member_will_not_be_sent_the_command(
     assert code == 1
     assert "uav3: unreachable: it restarted before it acknowledged the command" in out
     assert "can no longer run there" in out
-    assert out.splitlines()[-1].endswith("will not run there: uav3")
+    assert out.splitlines()[-1].endswith("can no longer start there: uav3")
 
 
 def rejoin_delays(seed: int, loss: float) -> list[float]:

@@ -402,7 +402,7 @@ def _follow_output(
     return code, capsys.readouterr().out
 
 
-def test_swarmctl_says_unreachable_and_that_it_can_no_longer_run(
+def test_swarmctl_says_unreachable_and_that_it_can_no_longer_start(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     tracker = CommandTracker()
@@ -412,10 +412,10 @@ def test_swarmctl_says_unreachable_and_that_it_can_no_longer_run(
     assert snap is not None
     code, out = _follow_output(snap, capsys)
     assert code == 1  # as for any drone that did not confirm (docs/operations.md)
-    assert "uav3: unreachable while the command was valid (3 s)" in out
-    assert "can no longer run there" in out
+    assert "uav3: unreachable: no answer while the command was valid (3 s)" in out
+    assert "can no longer start there" in out
     assert "timeout" not in out and "timed out" not in out
-    assert out.splitlines()[-1].endswith("will not run there: uav3")
+    assert out.splitlines()[-1].endswith("can no longer start there: uav3")
 
 
 def test_swarmctl_timing_out_within_the_validity_says_it_may_still_run(

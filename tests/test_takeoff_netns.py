@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ import pytest
 from swarmd_lab.netns import Lan
 
 from swarmd.control import DaemonUnreachable, RequestError, request
+from swarmd.rawclock import raw_clock
 from tests.conftest import LanFactory
 from tests.daemon_support import (
     BIN,
@@ -141,7 +141,7 @@ def test_readiness_takeoff_refusal_and_link_loss(lan_factory: LanFactory, workdi
     assert len(drones.sim_events(1, "armed")) == 1
 
     # PX4 link loss: the simulator dies; the commander's table flips within 3 s of it
-    killed_at = time.monotonic()  # CLOCK_MONOTONIC: the same clock as the daemons' loops
+    killed_at = raw_clock()  # the daemons' loops' clock (swarmd.rawclock), on this host
     drones.sims[2].send_signal(signal.SIGKILL)
     drones.sims[2].wait(timeout=10)
     until(lambda: drones.table()["uav3"]["reason"] == "heartbeat_stale", drones.table)

@@ -9,7 +9,8 @@ until every targeted drone is ready (nothing is sent if that does not happen wit
 Every command has a validity (``--valid-for``; defaults per kind in
 ``swarmd.swarm.issuer.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
 it for good. A drone that did not answer while the command was valid is reported
-``unreachable``: the command can no longer run there (docs/dataplane.md, "Validity"). A
+``unreachable``: the command can no longer start there; if it started, its answer was
+lost and comes late (docs/dataplane.md, "Validity"). A
 drone whose daemon restarted before its answer arrived tells the commander afterwards what
 it did; such a row is marked as told after a restart (``after_restart`` in ``--json``;
 docs/dataplane.md, "Outcomes across a restart"); one that accepted it and restarted with
@@ -20,7 +21,9 @@ says a later write held it.
 
 Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for take-off);
 1 some drone refused, failed, was unreachable while the command was valid, or did not
-answer in time; 2 the daemon is not reachable;
+answer in time, or the daemon took the command request and its answer never came (it may
+have sent the command: "A command request left unanswered"); 2 the daemon is not
+reachable (nothing sent);
 3 ``--require-all`` and not every targeted drone became ready (nothing sent); 64 usage
 (not the commander, unknown node, bad altitude, a validity out of range, data plane
 disabled); 130 interrupted
@@ -38,7 +41,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
-from swarmd.control import ControlClient, DaemonUnreachable, RequestError
+from swarmd.control import ControlClient, DaemonUnreachable, ReplyLost, RequestError
 from swarmd.dataplane.types import CommandKind
 from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.exitcodes import (
@@ -102,7 +105,8 @@ def _description(what: str, *, takeoff: bool = False) -> str:
             else "Exit 0 every targeted drone confirmed; "
         )
         + "1 one refused, failed, was unreachable while the command was valid, or did not "
-        "answer within --timeout; 2 the daemon is not reachable; "
+        "answer within --timeout, or swarmd took the request and its answer never came (it "
+        "may have sent it); 2 the daemon is not reachable (nothing sent); "
         + ("3 --require-all and not every drone became ready: nothing sent; " if takeoff else "")
         + "64 not the commander, an unknown --only drone, "
         + ("a bad altitude, " if takeoff else "")
@@ -187,6 +191,8 @@ def _takeoff(args: argparse.Namespace) -> int:
             reply = client.request("takeoff", **request)
         except RequestError as exc:
             return _usage(str(exc))
+        except ReplyLost as exc:
+            return _reply_lost(run, "takeoff", exc)
         if not reply["sent"]:  # nobody ready, or one fell back between wait and send
             refused = reply.get("refused") or {}
             code = EX_NOT_READY if args.require_all else EX_FAILED
@@ -210,9 +216,41 @@ def _simple(args: argparse.Namespace) -> int:
             reply = client.request("command", **request)
         except RequestError as exc:
             return _usage(str(exc))
+        except ReplyLost as exc:
+            return _reply_lost(run, args.kind, exc)
         return _follow(client, run, reply, args.kind)
 
     return _session(args, body)
+
+
+def _reply_lost(run: _Run, kind: str, exc: ReplyLost) -> int:
+    """The command request reached the daemon and its answer did not come back: it may
+    have gone to the drones, so not "not reachable" (exit 2, which says nothing was sent)
+    but not confirmed (exit 1), and where to look (session 16 command review)."""
+    print(
+        f"swarmctl: {safe_text(str(exc))}; the {kind.upper()} request reached swarmd, which "
+        "may have sent it to the drones: 'swarmctl outcomes' lists the commands it sent "
+        "(unless it restarted since), 'swarmctl status' shows the drones",
+        file=sys.stderr,
+    )
+    _final(run.args, None, {"sent": None, "error": str(exc)}, EX_FAILED)
+    return EX_FAILED
+
+
+def _connection_lost(
+    run: _Run, kind: str, cid: int, snap: dict[str, Any], exc: DaemonUnreachable | RequestError
+) -> int:
+    """The daemon stopped answering about a command it had sent while we followed it: the
+    command is out there, so exit 1 (not confirmed), never 2 ("not reachable": nothing
+    sent), nor a traceback."""
+    print(
+        f"swarmctl: {safe_text(str(exc))}; {kind.upper()} command {cid:#x} was sent: "
+        f"'swarmctl outcomes {cid:#x}' tells what became of it (unless swarmd restarted "
+        "since), 'swarmctl status' shows the drones",
+        file=sys.stderr,
+    )
+    _final(run.args, cid, {**snap, "sent": True, "error": str(exc)}, EX_FAILED)
+    return EX_FAILED
 
 
 def _usage(message: str) -> int:
@@ -292,7 +330,12 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
     snap: dict[str, Any] = {}
     while True:
-        snap = client.request("outcomes", command_id=cid)
+        try:
+            snap = client.request("outcomes", command_id=cid)
+        except (DaemonUnreachable, RequestError) as exc:
+            # gone, or a daemon that no longer knows the command (a new life of it, or
+            # the command pushed out of the ones it keeps): it was sent all the same
+            return _connection_lost(run, kind, cid, snap, exc)
         for name, node in snap["nodes"].items():
             if node.get("save_failed") and name not in told_not_saved:
                 told_not_saved.add(name)  # docs/operations.md, "state_save_failed"
@@ -341,9 +384,13 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
                     )
                     continue
                 if state == UNREACHABLE:
+                    # no answer is all the commander knows: the drone may have run it and
+                    # its answers been lost since (session 16 command review)
                     run.say(
-                        f"  {name}: unreachable while the command was valid "
-                        f"({_seconds(snap.get('valid_for_s'))}); it can no longer run there"
+                        f"  {name}: unreachable: no answer while the command was valid "
+                        f"({_seconds(snap.get('valid_for_s'))}); it can no longer start "
+                        "there, and if it did start, its answer is late "
+                        f"(swarmctl outcomes {cid:#x})"
                     )
                     continue
                 extra = f" ({reason_text(node.get('reason'))})" if node.get("reason") else ""
@@ -379,7 +426,7 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
             f"{kind}: {sum(n['state'] == 'completed' for n in nodes.values())}/{len(nodes)} "
             + ("confirmed airborne" if kind == "takeoff" else "confirmed")
             + (
-                f"; unreachable while valid, will not run there: {', '.join(unreachable)}"
+                f"; no answer while valid, can no longer start there: {', '.join(unreachable)}"
                 if unreachable
                 else ""
             )

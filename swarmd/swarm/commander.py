@@ -46,7 +46,7 @@ LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 # unreachable earlier, because the member restarted (RESTARTED), waits as long before it
 # counts as settled: the new life's re-report may be under repair just the same.
 UNREACHABLE_GRACE_S: Final = 2.0
-UNREACHABLE: Final = "unreachable"  # state: no answer while valid; it can no longer run there
+UNREACHABLE: Final = "unreachable"  # state: no answer while valid; it can no longer start there
 NOT_REACHED: Final = "not_reached_while_valid"  # its reason
 # Another reason for it, known before the validity ends: the member restarted (a new boot
 # epoch) before it acknowledged the command, and its copy, dated on the earlier life's
