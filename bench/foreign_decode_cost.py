@@ -97,7 +97,7 @@ def main() -> int:
         # the whole receive path, once per datagram (a fresh engine: its budgets full)
         costs: list[float] = []
         for _ in range(max(1, args.repeat // 2)):
-            received._memo.clear()
+            received.clear_memo()
             fresh = engine_for(bundle, 0, auth=auth_for(bundle, 0))
             start = time.process_time()
             fresh.receive_datagram(datagram, ("10.7.0.9", 7400), 0.0)
@@ -116,7 +116,7 @@ def main() -> int:
     ]
     start = time.process_time()
     for i in range(count):
-        received._memo.clear()  # each forgery new to the decoder, as a real flood's would be
+        received.clear_memo()  # each forgery new to the decoder, as a real flood's would be
         engine.receive_datagram(pool[i % len(pool)], ("10.7.0.9", 7400), i / args.rate)
     spent = time.process_time() - start
     dropped = engine.counters()["dropped"]
