@@ -3,9 +3,9 @@
 ``received.decode`` keeps decoded datagrams for reuse (a simulator hands one multicast to
 N - 1 engines in a row). It was capped at 256 entries only, and a datagram may be 64 KiB: a
 forger's stock-vendor DATA(p) of ~16,000 empty parameters, one decode a second within the
-foreign budget, decodes into ~1.7 MB of objects (its parameters are kept), so 256 of them
-held ~436 MB of a Jetson Nano's 4 GB, shared with the GPU; a DATA(p) of ~1,160 unicast
-locators per list, ~376 kB each (``/tmp``-free measurement: this test). Now the memo also
+foreign budget, decodes into ~1.8 MB of objects (its parameters are kept), so 256 of them
+held 452 MB of a Jetson Nano's 4 GB, shared with the GPU; 500 of two distinct 1,100-locator
+lists each 199 MB, memo and interned lists (``bench/decode_memo_memory.py``). Now the memo also
 caps its octets (``DECODE_MEMO_OCTETS``) and takes no datagram over
 ``DECODE_MEMO_MAX_DATAGRAM``; long locator lists are not interned.
 
@@ -29,10 +29,10 @@ from swarmd.rtps.types import VENDORID_SWARMD, GuidPrefix
 from tests.attacker.forge import MAX_UDP_PAYLOAD, bloated_participant
 from tests.test_discovery_auth import drain, receiver
 
-# more than the memo's 256 entries; 20 of 64 KiB are already ~34 MB (~436 MB at 256) on main
+# more than the memo's 256 entries; on main 10 of 64 KiB already held 17.7 MB
 SIZES = [(MAX_UDP_PAYLOAD, 20), (4096, 300), (1500, 300)]
 # What a flood of decodable forgeries may leave behind in the decode memo and the interned
-# locator lists: a few MB (main: one 64 KiB forgery alone ~1.7 MB, 256 of them ~436 MB)
+# locator lists: a few MB (main: one 64 KiB forgery alone ~1.8 MB, 256 of them 452 MB)
 RETAINED_MAX = 8_000_000
 TEMPLATE_PREFIX = GuidPrefix(b"\xf0\x0d" + b"\xee" * 10)
 

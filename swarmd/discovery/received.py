@@ -96,10 +96,10 @@ Decoded = tuple[bytes, tuple[Alive | SpdpDisposed, ...]]
 # process hands the same multicast (the same bytes object) to N - 1 of them back to back.
 # A daemon sees each datagram once; the memo then costs one dict lookup.
 DECODE_MEMO_ENTRIES: Final = 256
-# ... and in octets (session 16, h-insider16): a decode holds up to ~26 times its datagram's
+# ... and in octets (session 16, h-insider16): a decode holds up to ~27 times its datagram's
 # octets (a stock-vendor DATA(p) of empty parameters keeps each as an object: 64 KiB held
-# ~1.7 MB), and entries alone let a forger's one decode a second fill 256 of them, ~436 MB
-# of a Jetson Nano's 4 GB (``tests/test_decode_memo_memory.py``, tracemalloc). A datagram
+# ~1.8 MB), and entries alone let a forger's one decode a second fill 256 of them, 452 MB
+# of a Jetson Nano's 4 GB (``bench/decode_memo_memory.py``, tracemalloc). A datagram
 # over DECODE_MEMO_MAX_DATAGRAM is not kept (swarmd's and stock DATA(p)s are 300-700
 # octets; nothing re-reads a large one), and the kept ones total at most
 # DECODE_MEMO_OCTETS (256 of a simulator's ~400-octet multicasts fit).
@@ -176,9 +176,9 @@ def decode_fresh(data: bytes) -> Decoded:
 # one of its datagrams to the next and the receive path's "did it move?" test is an identity
 # check in C (equal Locators compare through their dataclass __eq__, in Python). Bounded: a
 # flood of invented locators only clears it. A list longer than MAX_INTERNED_LIST_LOCATORS is
-# not kept (a swarmd peer announces one locator a list, a stock node one an interface): 1,000
-# of a forger's 1,100-locator lists held 155 MB (session 16, tracemalloc; such a list is
-# compared by value instead).
+# not kept (a swarmd peer announces one locator a list, a stock node one an interface): 500
+# forged DATA(p)s of two distinct 1,100-locator lists held 199 MB with the memo's entries
+# (``bench/decode_memo_memory.py``; such a list is compared by value instead).
 MAX_INTERNED_LOCATOR_LISTS: Final = 1024
 MAX_INTERNED_LIST_LOCATORS: Final = 4
 _locator_lists: dict[tuple[Locator, ...], tuple[Locator, ...]] = {}
