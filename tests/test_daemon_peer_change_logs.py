@@ -15,16 +15,17 @@ counters and log lines asserted, no timing.
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 
 from structlog.testing import capture_logs
 from swarmd_lab.testing import auth_for, peer_datagram
 
+from swarmd.daemon import Daemon
 from swarmd.daemon_events import PEER_CHANGE_REPORT_BURST
 from swarmd.rawclock import run_on_raw_clock
-from tests.daemon_support import loopback_daemon, run_domain, write_bundle
+from tests.daemon_support import run_domain, write_bundle
 from tests.test_daemon_loopback import _peer, _until
+from tests.test_foreign_decode_cost import _sent_to_a_daemon
 
 DATAGRAMS = 40  # its verification budget's burst: all taken at once
 
@@ -49,35 +50,24 @@ def test_a_captured_members_moves_and_liveness_flips_are_logged_at_a_bounded_rat
         for i in range(DATAGRAMS)
     ]
 
-    async def attack() -> None:
-        daemon = loopback_daemon(workdir, files, "uav1")
-        await daemon.start()
-        try:
-            engine = daemon.engine
-            assert engine is not None
-            sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            try:
-                for datagram in pool:
-                    sender.sendto(datagram, ("127.0.0.1", engine.metatraffic_port))
-            finally:
-                sender.close()
-            newest = f"127.0.0.{1 + DATAGRAMS}"
-            await _until(
-                lambda: any(newest in str(x) for x in engine.peers()[0].default_unicast_locators),
-                lambda: str(engine.counters()),
-            )
-            changes = DATAGRAMS - 1  # the first is its discovery
-            logged = [e for e in logs if e["event"] == "peer_locators_changed"]
-            flips = [e for e in logs if e["event"] == "peer_ros2_liveness"]
-            # on main: 39 and 40 lines
-            assert 1 <= len(logged) <= PEER_CHANGE_REPORT_BURST + 1
-            assert 1 <= len(flips) <= PEER_CHANGE_REPORT_BURST + 1
-            suppressed = daemon.status()["counters"]["daemon"]["peer_changes_suppressed"]
-            # liveness: its first word is news too (the discovery carries it)
-            assert suppressed == changes - len(logged) + (changes + 1) - len(flips)
-            assert _peer(daemon.status(), "uav2")["state"] == "discovered"
-        finally:
-            await daemon.stop("test")
+    async def check(daemon: Daemon) -> None:
+        engine = daemon.engine
+        assert engine is not None
+        newest = f"127.0.0.{1 + DATAGRAMS}"
+        await _until(
+            lambda: any(newest in str(x) for x in engine.peers()[0].default_unicast_locators),
+            lambda: str(engine.counters()),
+        )
+        changes = DATAGRAMS - 1  # the first is its discovery
+        logged = [e for e in logs if e["event"] == "peer_locators_changed"]
+        flips = [e for e in logs if e["event"] == "peer_ros2_liveness"]
+        # on main: 39 and 40 lines
+        assert 1 <= len(logged) <= PEER_CHANGE_REPORT_BURST + 1
+        assert 1 <= len(flips) <= PEER_CHANGE_REPORT_BURST + 1
+        suppressed = daemon.status()["counters"]["daemon"]["peer_changes_suppressed"]
+        # liveness: its first word is news too (the discovery carries it)
+        assert suppressed == changes - len(logged) + (changes + 1) - len(flips)
+        assert _peer(daemon.status(), "uav2")["state"] == "discovered"
 
     with capture_logs() as logs:
-        run_on_raw_clock(attack())
+        run_on_raw_clock(_sent_to_a_daemon(workdir, pool, check, files))
