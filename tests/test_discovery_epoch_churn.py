@@ -12,16 +12,16 @@ A real drone cannot restart faster than its daemon starts (``RESTART_MIN_INTERVA
 receive.py), so a peer's restarts are honoured at most once per that interval; a faster
 rise is still taken for freshness (the replay window moved with it) and counted
 (``restarts_coalesced``), and honoured by the peer's first datagram after the interval.
-Virtual time only.
+Virtual time only. The last test measures the residual: leaving and returning is not bounded here.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from swarmd_lab.testing import auth_for, peer_datagram
+from swarmd_lab.testing import auth_for, leave_or_return_datagram, peer_datagram
 
-from swarmd.discovery import Event, PeerDiscovered, PeerRestarted
+from swarmd.discovery import Event, PeerDiscovered, PeerLost, PeerRestarted
 from swarmd.discovery.receive import RESTART_MIN_INTERVAL_S
 from tests.test_discovery_auth import A1, BUNDLE, drain, receiver
 
@@ -78,3 +78,26 @@ def test_an_honest_restart_is_honoured_at_once() -> None:
         e.receive_datagram(peer_datagram(BUNDLE, 1, auth=auth), A1, now)
         assert [(r.epoch, r.previous_epoch) for r in _restarts(drain(e))] == [(epoch, epoch - 1)]
     assert e.counters()["restarts_coalesced"] == 0
+
+
+def test_leaving_and_returning_is_not_bounded_by_the_restart_interval() -> None:
+    """The residual (docs/security.md, "A captured member's lives"), measured: a signed
+    dispose and a signed DATA(p) in turn, 20 a second, are a ``PeerLost`` and a
+    ``PeerDiscovered`` per pair at the receiver (a relay dispose and announcement each, a
+    log line each), with or without a new epoch. If this is ever bounded, change the doc."""
+    for new_epoch in (False, True):
+        e = receiver()
+        auth = auth_for(BUNDLE, 1, epoch=10)
+        lost = found = 0
+        for i in range(2, 2 + RATE_PER_S * SECONDS):
+            now = i / RATE_PER_S
+            if new_epoch:
+                auth = auth_for(BUNDLE, 1, epoch=10 + i, now=now)
+            e.receive_datagram(
+                leave_or_return_datagram(BUNDLE, 1, sequence_number=i, auth=auth), A1, now
+            )
+            events = drain(e)
+            lost += sum(isinstance(x, PeerLost) for x in events)
+            found += sum(isinstance(x, PeerDiscovered) for x in events)
+        assert (lost, found) == (RATE_PER_S * SECONDS // 2, RATE_PER_S * SECONDS // 2)
+        assert e.counters()["restarts_coalesced"] == 0
