@@ -62,7 +62,7 @@ from swarmd.bundle.keys import remove_left_temps
 from swarmd.bundle.model import Bundle
 from swarmd.bundle.statedir import DaemonUser
 from swarmd.config import ConfigError, DaemonConfig, config_mode_problem
-from swarmd.daemon_events import DaemonEvents
+from swarmd.daemon_events import DaemonEvents, peer_change_reports
 from swarmd.daemon_setup import (
     NodeSecretsError,
     engine_config,
@@ -139,6 +139,8 @@ class Daemon(DaemonEvents):
         self.stopped = asyncio.Event()
         # lost/regained/restarted peers for the operator in flight (swarmctl watch)
         self.peer_history = PeerHistory()
+        # which of a peer's moves and ROS 2 liveness changes are logged (daemon_events.py)
+        self._peer_changes = peer_change_reports()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transports: dict[str, BatchedSocket] = {}
         self.driver: Driver[bytes, Datagram, Event] | None = None

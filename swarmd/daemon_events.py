@@ -8,6 +8,9 @@ ROS 2 liveness). Split out of ``daemon.py`` by concern at 757 lines (style.md ru
 
 from __future__ import annotations
 
+from typing import Final
+
+from swarmd.changereports import ChangeReports
 from swarmd.daemon_status import DaemonStatus
 from swarmd.discovery.events import (
     Event,
@@ -22,6 +25,20 @@ from swarmd.discovery.events import (
 )
 from swarmd.peerlog import PeerChangeKind
 from swarmd.rtps.types import GuidPrefix
+
+# A peer's moves and ROS 2 liveness words are logged (``peer_locators_changed``,
+# ``peer_ros2_liveness``). A captured member's signed datagrams change them at will: up to 4
+# lines a datagram (MAX_SPDP_SAMPLES) within its 20 a second (session 16, h-insider16). At
+# most this many a second per peer and kind, the rest counted (``peer_changes_suppressed``);
+# an honest drone moves a few times a flight and its relay's word changes as its nodes
+# start (the burst). What is done with each change (the data plane, the relay) is not held.
+PEER_CHANGE_REPORTS_PER_S: Final = 1.0
+PEER_CHANGE_REPORT_BURST: Final = 10.0
+
+
+def peer_change_reports() -> ChangeReports[tuple[str, str], object]:
+    """The daemon's budget of peer-change log lines, keyed by (peer, kind)."""
+    return ChangeReports(PEER_CHANGE_REPORTS_PER_S, PEER_CHANGE_REPORT_BURST)
 
 
 class DaemonEvents(DaemonStatus):
@@ -49,7 +66,9 @@ class DaemonEvents(DaemonStatus):
                 self._ros2_peer(name, event.guid_prefix)
             case PeerLocatorsChanged(name=name, default_unicast_locators=user):
                 # authenticated: the peer itself moved its address
-                self.log.info("peer_locators_changed", peer=name, user=[str(x) for x in user])
+                moved = (event.metatraffic_unicast_locators, user)
+                if self._report_change(name, "locators", moved):
+                    self.log.info("peer_locators_changed", peer=name, user=[str(x) for x in user])
                 if self.app is not None:
                     self.app.peer_moved(name, self._peer_ipv4(event.guid_prefix))
                 self._ros2_peer(name, event.guid_prefix)
@@ -64,7 +83,8 @@ class DaemonEvents(DaemonStatus):
                 self._ros2_peer(name, event.guid_prefix, restarted=True)
             case PeerRos2Liveness(name=name, alive=alive):
                 # authenticated (the engine takes PID 0x8A06 only from a DATA(p) it accepted)
-                self.log.info("peer_ros2_liveness", peer=name, alive=alive.hex())
+                if self._report_change(name, "ros2_liveness", alive):
+                    self.log.info("peer_ros2_liveness", peer=name, alive=alive.hex())
                 if self.ros2 is not None:
                     self.ros2.peer_liveness(name, alive)
             case PeerLost(name=name, reason=reason):
@@ -90,6 +110,13 @@ class DaemonEvents(DaemonStatus):
                 self.log.debug("packet_dropped", reason=reason, source=f"{source[0]}:{source[1]}")
             case _:  # Event is concrete, so match cannot be exhaustive; log what is new
                 self.log.info("engine_event", event_type=type(event).__name__)
+
+    def _report_change(self, name: str, kind: str, value: object) -> bool:
+        """Whether the log gets this change of ``name``'s ``kind`` (its budget: above)."""
+        reports = self._peer_changes
+        said = reports.changed((name, kind), value, self._drive().now())
+        self.counters["peer_changes_suppressed"] = reports.suppressed
+        return said
 
     def _ros2_liveness(self, alive: bytes) -> None:
         """Our relay's nodes changed liveness: into our signed DATA(p) (docs/ros2.md)."""

@@ -18,6 +18,7 @@ from swarmd.auth.epoch import EpochResult
 from swarmd.auth.keys import KeyRing, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.model import Bundle
+from swarmd.changereports import ChangeReports
 from swarmd.config import DaemonConfig
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.engine import DiscoveryEngine
@@ -55,6 +56,7 @@ class DaemonStatus:
     driver: Driver[bytes, Datagram, Event] | None
     stopped: asyncio.Event
     peer_history: PeerHistory
+    _peer_changes: ChangeReports[tuple[str, str], object]
     app: SwarmApp | None
     ros2: Ros2App | None
     _secrets: NodeSecrets

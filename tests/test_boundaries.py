@@ -49,12 +49,15 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the token bucket every budget is made of (auth, discovery, swarm, XRCE key checks, the
     # ROS 2 relay's reports): a leaf
     "tokenbucket": frozenset(),
+    # which of a peer's changes reach the log, a token bucket per key (the commander's
+    # readiness lines, the daemon's peer moves and ROS 2 liveness: session 16)
+    "changereports": frozenset({"tokenbucket"}),
     # the one asyncio driver: it knows the driving protocol and no core
     "driver": frozenset({"sansio"}),
     # px4's asyncio adapter (bridge) runs its core through the driver; its sans-IO modules
     # cannot (the driver imports asyncio: test_sans_io_rooms)
     "px4": CORE | {"xrce", "driver", "senderuid", "loopback"},
-    "swarm": CORE | {"auth", "dataplane", "discovery", "px4", "tokenbucket"},
+    "swarm": CORE | {"auth", "dataplane", "discovery", "px4", "tokenbucket", "changereports"},
     # adapters and the daemon tier
     "link": frozenset({"discovery", "exitcodes"}),  # produces discovery's LinkSample
     # remote strings made safe for a terminal: swarmctl's views and the daemon's console log
@@ -104,8 +107,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     # Daemon's base classes, split from daemon.py by concern (daemon tier)
     "daemon_status": CORE
     | {"auth", "discovery", "link", "config", "control", "driver", "peerlog", "sdnotify"}
-    | {"swarmapp", "ros2app", "udp"},
-    "daemon_events": CORE | {"discovery", "peerlog", "daemon_status"},
+    | {"swarmapp", "ros2app", "udp", "changereports"},
+    "daemon_events": CORE | {"discovery", "peerlog", "daemon_status", "changereports"},
     # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
     "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid"},
     "daemon": CORE

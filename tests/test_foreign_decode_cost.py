@@ -52,7 +52,7 @@ from tests.attacker.forge import (
     foreign_participant,
     many_samples,
 )
-from tests.daemon_support import loopback_daemon, run_domain, write_bundle
+from tests.daemon_support import BundleFiles, loopback_daemon, run_domain, write_bundle
 from tests.test_daemon_loopback import _until
 from tests.test_discovery_auth import A1, BUNDLE, drain, receiver
 
@@ -121,11 +121,16 @@ def test_a_flood_of_maximum_size_foreign_datagrams_decodes_a_bounded_number_of_o
 
 
 async def _sent_to_a_daemon(
-    workdir: Path, pool: list[bytes], check: Callable[[Daemon], Awaitable[None]]
+    workdir: Path,
+    pool: list[bytes],
+    check: Callable[[Daemon], Awaitable[None]],
+    files: BundleFiles | None = None,
 ) -> None:
-    """Start uav1's daemon on loopback, send ``pool`` to its unicast SPDP port back to
-    back, wait until it read them all, then ``check`` it; stopped either way."""
-    files = write_bundle(workdir, 2, domain_id=run_domain())
+    """Start uav1's daemon on loopback (of ``files``, else a new bundle of 2), send ``pool``
+    to its unicast SPDP port back to back, wait until it read them all, then ``check`` it;
+    stopped either way."""
+    if files is None:
+        files = write_bundle(workdir, 2, domain_id=run_domain())
     daemon = loopback_daemon(workdir, files, "uav1")
     await daemon.start()
     try:

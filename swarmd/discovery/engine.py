@@ -553,6 +553,8 @@ class DiscoveryEngine:
             "tx_multicast": sent["tx_multicast"],
             "tx_unicast": sent["tx_unicast"],
             "events_dropped": self._events_dropped,
+            # a peer's epoch rises within RESTART_MIN_INTERVAL_S of its last honoured restart
+            "restarts_coalesced": self._receive.restarts_coalesced,
             "datagrams_dropped": sent["datagrams_dropped"],
             # new foreign participants folded into a later report
             "foreign_suppressed": self._foreign.suppressed_total,

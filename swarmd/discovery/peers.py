@@ -65,7 +65,10 @@ class Peer:
     last_rx: float | None = None
     link_quality_permille: int | None = None
     times_discovered: int = 0
-    epoch: int | None = None  # its boot epoch, from its latest authenticated DATA(p)
+    # its boot epoch: the life whose restart we honoured last (receive.RESTART_MIN_INTERVAL_S:
+    # a faster rise is fresh but waits), from its authenticated DATA(p)
+    epoch: int | None = None
+    restarted_at: float | None = None  # when we last honoured its restart (PeerRestarted)
     # its relay's alive ROS 2 participants (PID 0x8A06), from its latest accepted DATA(p)
     ros2_alive: bytes | None = None
     # matched endpoints, computed when first discovered: a bundle row per peer would cost

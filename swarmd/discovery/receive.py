@@ -56,6 +56,21 @@ _ANNOUNCE: Final = Phase.ANNOUNCE
 _STOPPED: Final = Phase.STOPPED
 _DISCOVERED: Final = PeerState.DISCOVERED
 
+# A peer's restarts (its signed boot epoch rose: ``PeerRestarted``) are honoured at most once
+# per this interval. Each one resets the data plane's pair session, makes the ROS 2 relay
+# dispose and re-announce the peer's nodes to every local node, and writes log lines; a
+# captured member's key signs any epoch, so it could restart on every datagram, 20 a second
+# (its verification budget). A daemon raises its epoch once per start and sends its first
+# datagram after READY=1 (swarmd.auth.epoch; docs/benchmarks.md, "Daemon start-up"), and a
+# life is heard only if it sent before it died, so two rises of an honest peer are at least
+# one start-up to the first SPDP apart: 0.288 s at the fastest of 60 measured starts, READY=1
+# 0.268 s (``bench/daemon_start.py``, bench/results/daemon_start/, a 2-core x86 host; a
+# Jetson Nano is slower; systemd waits RestartSec=2s after a crash). A faster rise is taken
+# for freshness (the replay window moves with it) and counted (``restarts_coalesced``); the
+# peer's first datagram past the interval honours its newest epoch, so a restart is late,
+# never lost (docs/security.md, "Epoch churn").
+RESTART_MIN_INTERVAL_S: Final = 0.25
+
 
 class ReceivePath:
     """The engine's receive path and what it alone keeps: the drop counters, the received
@@ -95,6 +110,7 @@ class ReceivePath:
         "_vouching",
         "dropped",
         "phase",
+        "restarts_coalesced",
         "rx_datagrams",
         "sought_by",
     )
@@ -149,6 +165,7 @@ class ReceivePath:
         # a Counter, so no reason can raise KeyError out of receive_datagram
         self.dropped = dropped
         self.rx_datagrams = 0
+        self.restarts_coalesced = 0  # epoch rises within RESTART_MIN_INTERVAL_S, held back
         self._foreign = foreign
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
@@ -290,8 +307,23 @@ class ReceivePath:
         if fresh is not None:
             # a new life, whatever its SN (the epoch is signed: not a forger's word)
             epoch_rose = previous_epoch is not None and fresh.epoch > previous_epoch
+            honoured_at = peer.restarted_at
+            if (
+                epoch_rose
+                and not newly
+                and honoured_at is not None
+                and now - honoured_at < RESTART_MIN_INTERVAL_S
+            ):
+                # faster than a daemon starts: a captured member churning its epoch. Fresh
+                # all the same (its window moved); peer.epoch stays the honoured life's, so
+                # its first datagram past the interval honours the newest
+                epoch_rose = False
+                self.restarts_coalesced += 1
+            else:
+                if epoch_rose and not newly:
+                    peer.restarted_at = now
+                peer.epoch = fresh.epoch
             restarted = restarted or epoch_rose
-            peer.epoch = fresh.epoch
         meta, default = alive.metatraffic_locators, alive.default_locators
         # the lists are interned (``received.interned``): unchanged ones are the same object
         moved = not newly and (

@@ -96,18 +96,43 @@ Decoded = tuple[bytes, tuple[Alive | SpdpDisposed, ...]]
 # process hands the same multicast (the same bytes object) to N - 1 of them back to back.
 # A daemon sees each datagram once; the memo then costs one dict lookup.
 DECODE_MEMO_ENTRIES: Final = 256
+# ... and in octets (session 16, h-insider16): a decode holds up to ~27 times its datagram's
+# octets (a stock-vendor DATA(p) of empty parameters keeps each as an object: 64 KiB held
+# ~1.8 MB), and entries alone let a forger's one decode a second fill 256 of them, 452 MB
+# of a Jetson Nano's 4 GB (``bench/decode_memo_memory.py``, tracemalloc). A datagram
+# over DECODE_MEMO_MAX_DATAGRAM is not kept (swarmd's and stock DATA(p)s are 300-700
+# octets; nothing re-reads a large one), and the kept ones total at most
+# DECODE_MEMO_OCTETS (256 of a simulator's ~400-octet multicasts fit).
+DECODE_MEMO_MAX_DATAGRAM: Final = 4096
+DECODE_MEMO_OCTETS: Final = 128 * 1024
 _memo: dict[bytes, Decoded] = {}
+_memo_octets = 0  # the kept datagrams' octets
+
+
+def clear_memo() -> None:
+    """Forget every memoised decode (benchmarks and tests: each datagram new to the decoder)."""
+    global _memo_octets
+    _memo.clear()
+    _memo_octets = 0
 
 
 def decode(data: bytes) -> Decoded:
     """``decode_fresh``, memoised. Errors are not cached: garbage costs a full decode each
     time, as it should."""
+    global _memo_octets
     hit = _memo.get(data)
     if hit is None:
         hit = decode_fresh(data)
-        if len(_memo) >= DECODE_MEMO_ENTRIES:
-            del _memo[next(iter(_memo))]
-        _memo[data] = hit
+        size = len(data)
+        if size <= DECODE_MEMO_MAX_DATAGRAM:
+            while _memo and (
+                len(_memo) >= DECODE_MEMO_ENTRIES or _memo_octets + size > DECODE_MEMO_OCTETS
+            ):
+                oldest = next(iter(_memo))
+                _memo_octets -= len(oldest)
+                del _memo[oldest]
+            _memo[data] = hit
+            _memo_octets += size
     return hit
 
 
@@ -150,12 +175,18 @@ def decode_fresh(data: bytes) -> Decoded:
 # Locator lists seen lately, so that a peer's unchanged lists are the same tuple object from
 # one of its datagrams to the next and the receive path's "did it move?" test is an identity
 # check in C (equal Locators compare through their dataclass __eq__, in Python). Bounded: a
-# flood of invented locators only clears it.
+# flood of invented locators only clears it. A list longer than MAX_INTERNED_LIST_LOCATORS is
+# not kept (a swarmd peer announces one locator a list, a stock node one an interface): 500
+# forged DATA(p)s of two distinct 1,100-locator lists held 199 MB with the memo's entries
+# (``bench/decode_memo_memory.py``; such a list is compared by value instead).
 MAX_INTERNED_LOCATOR_LISTS: Final = 1024
+MAX_INTERNED_LIST_LOCATORS: Final = 4
 _locator_lists: dict[tuple[Locator, ...], tuple[Locator, ...]] = {}
 
 
 def interned(locators: tuple[Locator, ...]) -> tuple[Locator, ...]:
+    if len(locators) > MAX_INTERNED_LIST_LOCATORS:
+        return locators
     found = _locator_lists.get(locators)
     if found is None:
         if len(_locator_lists) >= MAX_INTERNED_LOCATOR_LISTS:

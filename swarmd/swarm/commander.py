@@ -23,11 +23,11 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final, NamedTuple
 
+from swarmd.changereports import ChangeReports
 from swarmd.dataplane.convert import LANDED_STATES
 from swarmd.dataplane.types import CommandResult, Readiness
 from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.swarm.events import SentBy
-from swarmd.tokenbucket import TokenBucket
 
 # Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
 # flight, the cap only stops a runaway script from growing the daemon.
@@ -76,37 +76,15 @@ READINESS_REPORT_BURST: Final = 10.0
 Verdict = tuple[bool, str | None]  # (ready, reason), ``ReadinessTable.verdict``
 
 
-class ReadinessReports:
+class ReadinessReports(ChangeReports[str, Verdict]):
     """Which of each member's readiness changes are reported (logged): every one within
     ``READINESS_REPORTS_PER_S`` (burst ``READINESS_REPORT_BURST``), the rest counted
     (``suppressed``). A member whose change was held back is reported again by ``catch_up``
     (the readiness tick) once the budget allows, so the log ends on the table's word.
-    One bucket per member the table tracks (bundle-bounded)."""
+    One bucket per member the table tracks (bundle-bounded); ``swarmd.changereports``."""
 
     def __init__(self) -> None:
-        self._budgets: dict[str, TokenBucket] = {}
-        self._said: dict[str, Verdict] = {}  # the last verdict reported, per member
-        self._held: set[str] = set()  # members whose latest change was not reported
-        self.suppressed = 0
-
-    def changed(self, member: str, verdict: Verdict, now: float, *, retry: bool = False) -> bool:
-        """The table's verdict for ``member`` changed to ``verdict``: report it now?
-        ``retry``: the tick asking again for a held change (not counted twice)."""
-        if self._said.get(member) == verdict:
-            self._held.discard(member)  # back to what the log says already
-            return False
-        budget = self._budgets.get(member)
-        if budget is None:
-            budget = self._budgets[member] = TokenBucket(
-                READINESS_REPORTS_PER_S, READINESS_REPORT_BURST, now
-            )
-        if not budget.take(now):
-            self.suppressed += 0 if retry else 1
-            self._held.add(member)
-            return False
-        self._said[member] = verdict
-        self._held.discard(member)
-        return True
+        super().__init__(READINESS_REPORTS_PER_S, READINESS_REPORT_BURST)
 
     def held(self) -> list[str]:
         """Members whose latest change was held back (``catch_up`` them)."""
