@@ -151,7 +151,7 @@ def test_the_view_names_every_drone_that_did_not_execute_and_why() -> None:
     assert "sent by ops (uid 1001, pid 4242)" in text
     assert "UNREACHABLE" in text and "not_reached_while_valid" in text  # the outcome table
     assert lines[-1].strip() == (
-        "1/3 executed; did not: uav3 (unreachable: not_reached_while_valid), "
+        "1/3 executed; not reported executed: uav3 (unreachable: not_reached_while_valid), "
         "uav4 (rejected: expired)"
     )
 
@@ -201,7 +201,7 @@ def test_an_open_command_says_so_and_a_member_shows_what_it_ran() -> None:
     lines = render_kept({"issued": [open_cmd], "ran": [ran]}, WALL_NOW)
     assert "sent by - (no control socket client)" in lines[1]
     assert lines[lines.index("") - 1].strip() == (
-        "0/1 executed; did not: uav2 (pending) (still open; valid for 4.5 s more)"
+        "0/1 executed; not reported executed: uav2 (pending) (still open; valid for 4.5 s more)"
     )
     assert any(ln.split()[:5] == ["0x12", "TAKEOFF", "uav1", "COMPLETED", "IN_AIR"] for ln in lines)
     assert render_kept({"role": "member", "issued": [], "ran": []}, WALL_NOW) == [
@@ -348,8 +348,9 @@ def test_a_real_daemon_shows_what_became_of_a_command(workdir: Path) -> None:
     rows = {ln.split()[0]: ln.split()[1:3] for ln in human.stdout.splitlines() if "uav" in ln}
     assert rows["uav2"] == ["REJECTED", "px4_disabled"], human.stdout
     assert rows["uav3"] == ["UNREACHABLE", "not_reached_while_valid"], human.stdout
-    assert "0/2 executed; did not: uav2 (rejected: px4_disabled), uav3 (unreachable" in (
-        human.stdout
+    assert (
+        "0/2 executed; not reported executed: uav2 (rejected: px4_disabled), uav3 (unreachable"
+        in (human.stdout)
     )
 
     assert as_json.returncode == EX_FAILED, as_json.stderr

@@ -222,7 +222,8 @@ def _life(life: Any, current: Any) -> str:
 
 
 def _summary(c: dict[str, Any]) -> str:
-    """``3/4 executed; did not: uav3 (unreachable: not_reached_while_valid)``."""
+    """``3/4 executed; not reported executed: uav3 (unreachable: not_reached_while_valid)``:
+    a drone with no answer (unreachable, pending) may still have run it (docs/operations.md)."""
     nodes = c.get("nodes") or {}
     missing = not_executed(c)
     line = f"{len(nodes) - len(missing)}/{len(nodes)} executed"
@@ -235,7 +236,7 @@ def _summary(c: dict[str, Any]) -> str:
             else name
             for name, v in missing.items()
         ]
-        line += "; did not: " + ", ".join(why)
+        line += "; not reported executed: " + ", ".join(why)
     if not c.get("done", True):
         left = c.get("valid_left_s")
         line += " (still open" + (
