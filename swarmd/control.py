@@ -7,6 +7,10 @@ the last reply, and each reply taken by the client within the same deadline::
     -> {"cmd": "status"}
     <- {"ok": true, "result": {...}}
     <- {"ok": false, "error": "unknown command 'x'; known: peers, ping, status"}
+    <- {"ok": false, "error": "swarmd is stopping: ...", "code": "stopping"}
+
+A refusal may carry a ``code`` (only ``STOPPING`` so far): what a client decides on, where
+the ``error`` line is only for the operator, so no client matches its words.
 
 The socket is a Unix stream socket (default ``/run/swarmd/swarmd.sock``, mode 0660), so
 access is file permissions: root and the ``swarmd`` group. It works over ``ssh drone
@@ -50,6 +54,11 @@ CLIENT_TIMEOUT_S: Final = 2.0  # swarmctl's wait for one reply
 # client that sends half a line) frees its slot: without it MAX_CLIENTS of them locked
 # swarmctl out for good (docs/security.md, "Control socket").
 REQUEST_DEADLINE_S: Final = 10.0
+
+# A refusal's ``code``: the daemon is stopping (its swarm core no longer runs) and carried
+# out nothing of the request, so a command was not sent: swarmctl's "not reachable, nothing
+# sent" (exit 2), not a usage error (docs/operations.md, "Exit codes"; session 16)
+STOPPING: Final = "stopping"
 
 Handler = Callable[[Mapping[str, Any]], Any]
 
@@ -122,12 +131,22 @@ class ReplyLost(DaemonUnreachable):
     review, ``tests/test_cmd_reply_lost.py``)."""
 
 
+class DaemonStopping(DaemonUnreachable):
+    """The daemon answered ``code: stopping``: it is shutting down and carried out nothing of
+    the request (a command was not sent); ``str()`` is one line."""
+
+
 class RequestError(RuntimeError):
     """The daemon answered ``ok: false``."""
 
 
 class RequestInvalid(ValueError):
-    """A handler refuses a request (bad argument, wrong node); ``str()`` goes to the client."""
+    """A handler refuses a request (bad argument, wrong node); ``str()`` goes to the client,
+    and ``code`` (``STOPPING``, or None) with it as the reply's ``code``."""
+
+    def __init__(self, message: str, *, code: str | None = None) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 def encode_line(obj: Any) -> bytes:
@@ -271,7 +290,10 @@ class ControlServer:
         try:
             return {"ok": True, "result": handler(request, peer)}
         except RequestInvalid as exc:
-            return {"ok": False, "error": str(exc)}
+            reply: dict[str, Any] = {"ok": False, "error": str(exc)}
+            if exc.code is not None:
+                reply["code"] = exc.code
+            return reply
         except Exception as exc:  # a handler bug must not take the daemon down
             return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 
@@ -374,7 +396,14 @@ class ControlClient:
         if not isinstance(reply, dict) or "ok" not in reply:
             raise ReplyLost(f"swarmd sent a malformed reply on {self.path}")
         if not reply["ok"]:
-            raise RequestError(str(reply.get("error", "request failed")))
+            error = str(reply.get("error", "request failed"))
+            if reply.get("code") == STOPPING:
+                raise DaemonStopping(
+                    f"swarmd on {self.path} answered: {error}; it carried out nothing of "
+                    "the request, so nothing was sent: run it again once swarmd is back "
+                    "('systemctl status swarmd')"
+                )
+            raise RequestError(error)
         return reply.get("result")
 
     @contextlib.contextmanager

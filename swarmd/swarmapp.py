@@ -31,7 +31,7 @@ from swarmd.auth.keys import NodeSecrets
 from swarmd.bundle.model import Bundle
 from swarmd.bundle.statedir import DaemonUser
 from swarmd.config import DaemonConfig
-from swarmd.control import PeerCredentials, RequestInvalid
+from swarmd.control import STOPPING, PeerCredentials, RequestInvalid
 from swarmd.dataplane import DataPlane, PairKeys
 from swarmd.dataplane.convert import ReadinessVerdict
 from swarmd.driver import Driver
@@ -657,7 +657,9 @@ class SwarmApp:
         except issuer.RequestInvalid as exc:
             raise RequestInvalid(str(exc)) from None
         if answer is None:  # the driver closed: the swarm core no longer runs
-            raise RequestInvalid("the daemon is stopping")
+            # nothing ran (Driver.call): its code tells swarmctl "nothing sent", exit 2,
+            # where a bare refusal read as a usage error, 64 (session 16)
+            raise RequestInvalid("the daemon is stopping", code=STOPPING)
         return answer
 
     # ---- status ---------------------------------------------------------------------------

@@ -23,7 +23,7 @@ Exit codes (docs/operations.md): 0 every targeted drone confirmed (airborne, for
 1 some drone refused, failed, was unreachable while the command was valid, or did not
 answer in time, or the daemon took the command request and its answer never came (it may
 have sent the command: "A command request left unanswered"); 2 the daemon is not
-reachable (nothing sent);
+reachable or answered that it is stopping (nothing sent);
 3 ``--require-all`` and not every targeted drone became ready (nothing sent); 64 usage
 (not the commander, unknown node, bad altitude, a validity out of range, data plane
 disabled); 130 interrupted
@@ -106,7 +106,7 @@ def _description(what: str, *, takeoff: bool = False) -> str:
         )
         + "1 one refused, failed, was unreachable while the command was valid, or did not "
         "answer within --timeout, or swarmd took the request and its answer never came (it "
-        "may have sent it); 2 the daemon is not reachable (nothing sent); "
+        "may have sent it); 2 the daemon is not reachable or is stopping (nothing sent); "
         + ("3 --require-all and not every drone became ready: nothing sent; " if takeoff else "")
         + "64 not the commander, an unknown --only drone, "
         + ("a bad altitude, " if takeoff else "")
