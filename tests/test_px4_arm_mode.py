@@ -107,6 +107,8 @@ def test_the_allowed_modes_and_why() -> None:
     assert not set(FLIES_ON_ARM) & set(STAYS_ON_GROUND)
     orbit = Px4Mode(Px4MainMode.POSCTL, Px4PosctlSubMode.ORBIT)
     assert orbit not in STAYS_ON_GROUND and orbit.name == "POSCTL.ORBIT"
+    slow = Px4Mode(Px4MainMode.POSCTL, Px4PosctlSubMode.SLOW)  # Position Slow
+    assert slow in STAYS_ON_GROUND and slow.name == "POSCTL.SLOW"
 
 
 # ---- the vehicle core, fed by hand: the test plays PX4 -----------------------------------
@@ -284,18 +286,48 @@ def _status(release: str, nav_state: int) -> tuple[str, bytes]:
     return topics.dds_topic(topic, "out", layout[1]), topics.encode_fields(layout, values)
 
 
-# nav_state (vehicle_status.msg): 2 POSCTL, 4 AUTO_LOITER, 3 AUTO_MISSION, 14 OFFBOARD,
-# 17 AUTO_TAKEOFF, 21 ORBIT, 22 AUTO_VTOL_TAKEOFF, 23 EXTERNAL1 (a ROS 2 mode)
-@pytest.mark.parametrize(
-    ("nav_state", "ready"),
-    [(2, True), (4, True), (3, False), (14, False), (17, False), (21, False), (22, False),
-     (23, False)],
-)  # fmt: skip
+# Every nav_state of vehicle_status.msg 1.14-1.17 (/work/shared/peers/xrce/px4_msgs), the
+# mode PX4's get_px4_custom_mode reports for it over MAVLink, and whether a take-off arms
+# there (docs/px4.md, "nav_state"). The free slots and anything past NAVIGATION_STATE_MAX
+# (31) are unknown: MODE(0,0), refused.
+NAV_STATES: list[tuple[int, str, bool]] = [
+    (0, "MANUAL", True),
+    (1, "ALTCTL", True),
+    (2, "POSCTL", True),
+    (3, "AUTO.MISSION", False),
+    (4, "AUTO.LOITER", True),
+    (5, "AUTO.RTL", False),
+    (6, "POSCTL.SLOW", True),  # POSITION_SLOW, 1.15+
+    (7, "MODE(0,0)", False),  # FREE5
+    (8, "ALTITUDE_CRUISE", False),  # 1.17 (UNUSED3/FREE4 before)
+    (9, "MODE(0,0)", False),  # FREE3
+    (10, "ACRO", True),
+    (11, "MODE(0,0)", False),  # FREE2
+    (12, "AUTO.LAND", False),  # DESCEND
+    (13, "TERMINATION", False),
+    (14, "OFFBOARD", False),
+    (15, "STABILIZED", True),
+    (16, "MODE(0,0)", False),  # FREE1
+    (17, "AUTO.TAKEOFF", False),
+    (18, "AUTO.LAND", False),
+    (19, "AUTO.FOLLOW_TARGET", False),
+    (20, "AUTO.PRECLAND", False),
+    (21, "POSCTL.ORBIT", False),
+    (22, "AUTO.VTOL_TAKEOFF", False),
+    *[(23 + i, f"AUTO.EXTERNAL{i + 1}", False) for i in range(8)],  # 1.15+, ROS 2 modes
+    (31, "MODE(0,0)", False),  # NAVIGATION_STATE_MAX
+    (255, "MODE(0,0)", False),
+]
+
+
+@pytest.mark.parametrize(("nav_state", "name", "ready"), NAV_STATES)
 @pytest.mark.parametrize("release", ["1.14", "1.17"])
 def test_xrce_nav_state_is_judged_by_the_same_rule(
-    release: str, nav_state: int, ready: bool
+    release: str, nav_state: int, name: str, ready: bool
 ) -> None:
-    """[main: ready in every nav_state; ORBIT read as POSCTL]"""
+    """The mode is named as PX4 names it, and the detail names it. [main: ready in every
+    nav_state; ORBIT read as POSCTL; session 16: 6 POSITION_SLOW, 8, 13, 23-30 read
+    MODE(0,0) (6 refused, the others unnamed) or 13 AUTO.LAND]"""
     t = Px4Translator(sysid=3)
     state = VehicleState()
     for obs in t.sample(*_status(release, nav_state)):
@@ -304,6 +336,20 @@ def test_xrce_nav_state_is_judged_by_the_same_rule(
         state.observe(obs, 0.0)
     config = ReadinessConfig(require_home=False, allow_unknown_battery=True)
     verdict = readiness(state, 0.0, config)
+    assert verdict.mode == name
     assert verdict.ready is ready, verdict.detail
     if not ready:
         assert verdict.reason is Reason.FLIGHT_MODE
+        assert name in verdict.detail
+
+
+@pytest.mark.parametrize("sub", range(11, 19))  # PX4_CUSTOM_SUB_MODE_EXTERNAL1-8
+def test_an_external_mode_over_mavlink_is_named_and_refused_as_another_programs_code(
+    sub: int,
+) -> None:
+    """HEARTBEAT custom_mode AUTO with sub-mode 11-18 (PX4_CUSTOM_SUB_MODE_EXTERNAL1-8): a
+    ROS 2 program's mode. [session 16: read AUTO.11 and 'not a mode known']"""
+    c = Core(mode=Px4Mode(Px4MainMode.AUTO, sub))
+    verdict = c.core.readiness(c.now)
+    assert verdict.reason is Reason.FLIGHT_MODE
+    assert f"AUTO.EXTERNAL{sub - 10}" in verdict.detail and "external mode" in verdict.detail

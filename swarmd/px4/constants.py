@@ -111,7 +111,8 @@ class MavSeverity(IntEnum):
 
 
 class Px4MainMode(IntEnum):
-    """PX4_CUSTOM_MAIN_MODE (px4_custom_mode.h)."""
+    """PX4_CUSTOM_MAIN_MODE (px4_custom_mode.h). 9 (SIMPLE) is reserved and never sent, so
+    unnamed here: it reads ``MODE(9,0)``."""
 
     MANUAL = 1
     ALTCTL = 2
@@ -121,6 +122,8 @@ class Px4MainMode(IntEnum):
     OFFBOARD = 6
     STABILIZED = 7
     RATTITUDE = 8
+    TERMINATION = 10  # nav_state 13 (flight termination)
+    ALTITUDE_CRUISE = 11  # nav_state 8, PX4 1.17 (fixed-wing Altitude Cruise)
 
 
 class Px4PosctlSubMode(IntEnum):
@@ -145,6 +148,16 @@ class Px4AutoSubMode(IntEnum):
     FOLLOW_TARGET = 8
     PRECLAND = 9
     VTOL_TAKEOFF = 10
+    # nav_state 23-30 (PX4 >= 1.15): modes another program registers and runs over ROS 2
+    # (PX4 user guide, "PX4 external (ROS 2) modes")
+    EXTERNAL1 = 11
+    EXTERNAL2 = 12
+    EXTERNAL3 = 13
+    EXTERNAL4 = 14
+    EXTERNAL5 = 15
+    EXTERNAL6 = 16
+    EXTERNAL7 = 17
+    EXTERNAL8 = 18
 
 
 # Message ids used by the simulator's REQUEST_MESSAGE handling

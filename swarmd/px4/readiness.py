@@ -21,8 +21,8 @@ another program streams (docs.px4.io flight_modes_mc/takeoff, flight_modes/offbo
 "before arming in offboard mode"). Another ground station or an RC switch may have put the
 disarmed vehicle there, and our ARM would start that flight. So readiness accepts only the
 modes of ``STAYS_ON_GROUND``, known to keep an armed vehicle on the ground until told more
-(an allow-list: a mode PX4 adds later, or an external ROS 2 mode, is refused until someone
-checks what it does on ARM).
+(an allow-list: a mode PX4 adds later is refused until someone checks what it does on ARM;
+an external ROS 2 mode is refused for good, its code being another program's).
 
 Sans-IO: no clock, no I/O. ``now`` is monotonic seconds (the driver's ``loop.time()``).
 """
@@ -42,6 +42,7 @@ from swarmd.px4.constants import (
     MavState,
     Px4AutoSubMode,
     Px4MainMode,
+    Px4PosctlSubMode,
 )
 from swarmd.px4.messages import (
     MODE_LOITER,
@@ -109,17 +110,35 @@ STAYS_ON_GROUND: Final[dict[Px4Mode, str]] = {
     # POSCTL is sub-mode 0 only: POSCTL.ORBIT is NAVIGATION_STATE_ORBIT, which flies
     Px4Mode(Px4MainMode.ALTCTL): "climbs only on the pilot's throttle stick",
     Px4Mode(Px4MainMode.POSCTL): "climbs only on the pilot's throttle stick",
+    # Position Slow (nav_state 6, PX4 1.15+): Position mode with lower speed limits, the
+    # sticks mean the same (docs.px4.io flight_modes_mc/position_slow)
+    Px4Mode(Px4MainMode.POSCTL, Px4PosctlSubMode.SLOW): "climbs only on the pilot's throttle "
+    "stick (Position mode, slower)",
     # Hold: navigator's Loiter gives an idle setpoint while landed (navigator/loiter.cpp,
     # NAV_CMD_IDLE); the mode MAVSDK arms in and a multicopter without RC boots in
     MODE_LOITER: "Hold idles on the ground (PX4 navigator, Loiter)",
 }
-# What some refused modes do on ARM, for the operator's detail only (the rule is the list
-# above): PX4 docs, flight_modes_mc/takeoff, flight_modes_mc/mission, flight_modes/offboard
+# External modes (nav_state 23-30, PX4 1.15+): a ROS 2 program registers each and PX4 runs
+# its code (PX4 user guide, "PX4 external (ROS 2) modes"); what it does on ARM is that
+# program's choice, which swarmd cannot check, so refused whatever it is
+_EXTERNAL_MODES: Final = tuple(
+    Px4Mode(Px4MainMode.AUTO, sub)
+    for sub in range(Px4AutoSubMode.EXTERNAL1, Px4AutoSubMode.EXTERNAL8 + 1)
+)
+# Why some refused modes are refused, for the operator's detail only (the rule is the list
+# above): PX4 docs, flight_modes_mc/takeoff, flight_modes_mc/mission, flight_modes/offboard,
+# flight_modes_fw/altitude_cruise
 _FLIES_ON_ARM: Final[dict[Px4Mode, str]] = {
     MODE_TAKEOFF: "climbs to MIS_TAKEOFF_ALT on ARM alone",
     Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.VTOL_TAKEOFF): "climbs on ARM alone",
     Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.MISSION): "starts its mission on ARM alone",
     Px4Mode(Px4MainMode.OFFBOARD): "follows another program's setpoints on ARM alone",
+    Px4Mode(Px4MainMode.ALTITUDE_CRUISE): "is a fixed-wing mode not checked on ARM",
+    Px4Mode(Px4MainMode.TERMINATION): "is flight termination",
+    **{
+        mode: "is an external mode: another program's code decides what it does on ARM"
+        for mode in _EXTERNAL_MODES
+    },
 }
 
 

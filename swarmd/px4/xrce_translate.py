@@ -59,13 +59,18 @@ ARMING_STATE_ARMED: Final = 2
 NAV_AUTO_TAKEOFF: Final = 17
 NAV_AUTO_LAND: Final = 18
 # vehicle_status.nav_state -> PX4 custom mode (main, sub), as PX4's get_px4_custom_mode()
-# (px4_custom_mode.h): ORBIT (21) is POSCTL with sub-mode ORBIT, not plain POSCTL, which
-# readiness lets arm (``STAYS_ON_GROUND``). A nav_state not here reads MODE(0,0): unknown,
+# (px4_custom_mode.h), for every nav_state of vehicle_status.msg 1.14-1.17
+# (/work/shared/peers/xrce/px4_msgs; docs/px4.md, "nav_state"): ORBIT (21) is POSCTL with
+# sub-mode ORBIT, not plain POSCTL, which readiness lets arm (``STAYS_ON_GROUND``);
+# POSITION_SLOW (6, 1.15+) POSCTL.SLOW; ALTITUDE_CRUISE (8, 1.17) its own main mode;
+# TERMINATION (13) its own main mode; EXTERNAL1-8 (23-30, 1.15+) AUTO sub-modes 11-18. The
+# free slots (7, 9, 11, 16; 8 before 1.17) and anything later read MODE(0,0): unknown,
 # which readiness refuses (``flight_mode``)
 NAV_TO_MODE: Final = {
-    0: (1, 0), 1: (2, 0), 2: (3, 0), 3: (4, 4), 4: (4, 3), 5: (4, 5), 10: (5, 0),
-    12: (4, 6), 13: (4, 6), 14: (6, 0), 15: (7, 0), 17: (4, 2), 18: (4, 6), 19: (4, 8),
-    20: (4, 9), 21: (3, 1), 22: (4, 10),
+    0: (1, 0), 1: (2, 0), 2: (3, 0), 3: (4, 4), 4: (4, 3), 5: (4, 5), 6: (3, 2), 8: (11, 0),
+    10: (5, 0), 12: (4, 6), 13: (10, 0), 14: (6, 0), 15: (7, 0), 17: (4, 2), 18: (4, 6),
+    19: (4, 8), 20: (4, 9), 21: (3, 1), 22: (4, 10),
+    **{23 + i: (4, 11 + i) for i in range(8)},
 }  # fmt: skip
 # FailsafeFlags.msg, "Per-mode requirements": each mode_req_* is a bitmask over nav_state of
 # the modes that need a condition, and the condition's flag says it is missing. PX4 refuses
