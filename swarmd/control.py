@@ -400,8 +400,7 @@ class ControlClient:
             if reply.get("code") == STOPPING:
                 raise DaemonStopping(
                     f"swarmd on {self.path} answered: {error}; it carried out nothing of "
-                    "the request, so nothing was sent: run it again once swarmd is back "
-                    "('systemctl status swarmd')"
+                    f"this {cmd!r} request"
                 )
             raise RequestError(error)
         return reply.get("result")

@@ -23,9 +23,10 @@ from structlog.testing import capture_logs
 
 from swarmd.cli import swarmctl
 from swarmd.control import STOPPING, ControlServer, RequestInvalid
-from swarmd.exitcodes import EX_UNREACHABLE
+from swarmd.exitcodes import EX_FAILED, EX_UNREACHABLE
 from swarmd.rawclock import run_on_raw_clock
 from tests.daemon_support import run_domain, write_bundle
+from tests.test_cmd_reply_lost import COMMAND_ID, PlayedCommander
 from tests.test_takeoff_loopback import Swarm
 
 ARGS = {
@@ -67,7 +68,7 @@ def test_a_command_asked_of_a_stopping_daemon_exits_not_reachable_nothing_sent(
     code = _run_on_a_stopping_commander(workdir, argv)
     out, err = capsys.readouterr()
     assert code == EX_UNREACHABLE, err
-    assert "stopping" in err and "nothing was sent" in err, err
+    assert "stopping" in err and f"the {kind.upper()} command was not sent" in err, err
     if as_json:  # as every other exit 2: nothing on stdout (a script reads the code)
         assert out == ""
 
@@ -86,3 +87,21 @@ def test_the_refusal_carries_its_code_on_the_wire() -> None:
     refused = server.dispatch(b'{"cmd": "takeoff"}')
     assert refused["ok"] is False and refused["code"] == STOPPING
     assert server.dispatch(b'{"cmd": "command"}') == {"ok": False, "error": "bad altitude"}
+
+
+def test_a_daemon_stopping_while_swarmctl_follows_a_sent_command_says_it_was_sent(
+    workdir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Guard: the code says the daemon ran nothing of *this* request. A command already
+    sent is out there: exit 1 and where to look, as for any loss while following
+    (tests/test_cmd_reply_lost.py), never 2 or "not sent"."""
+    sock = workdir / "c.sock"
+    daemon = PlayedCommander(sock, "none", "closed", follow_stopping=True)
+    try:
+        code = swarmctl.main(["land", "--socket", str(sock), "--timeout", "1"])
+    finally:
+        daemon.close()
+    err = capsys.readouterr().err
+    assert len(daemon.taken) == 1
+    assert code == EX_FAILED, err
+    assert f"swarmctl outcomes {COMMAND_ID:#x}" in err and "not sent" not in err, err

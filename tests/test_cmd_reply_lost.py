@@ -47,7 +47,7 @@ class PlayedCommander:
     (``closed``: the connection closes; ``silent``: it stays open and mute until the
     client hangs up). ``outcomes`` answers with one pending row, or (``follow_dies``)
     closes the connection: the daemon restarted while swarmctl followed, or
-    (``follow_forgets``) no longer knows the command."""
+    (``follow_forgets``) no longer knows the command, or (``follow_stopping``) is stopping."""
 
     def __init__(
         self,
@@ -57,12 +57,14 @@ class PlayedCommander:
         *,
         follow_dies: bool = False,
         follow_forgets: bool = False,
+        follow_stopping: bool = False,
     ):
         self.path = path
         self.dies_on = dies_on
         self.how = how
         self.follow_dies = follow_dies
         self.follow_forgets = follow_forgets
+        self.follow_stopping = follow_stopping
         self.taken: list[dict[str, Any]] = []  # the state-changing requests it carried out
         self._stopping = False
         self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -113,6 +115,11 @@ class PlayedCommander:
                 return False  # ... or never comes: the daemon is gone
             if cmd == "outcomes" and self.follow_dies:
                 return False
+            if cmd == "outcomes" and self.follow_stopping:
+                # the daemon stopping while swarmctl follows (tests/test_cmd_daemon_stopping)
+                stopping = {"ok": False, "error": "the daemon is stopping", "code": "stopping"}
+                conn.sendall(encode_line(stopping))
+                continue
             if cmd == "outcomes" and self.follow_forgets:
                 # a new life of the daemon, or the command pushed out of its 64
                 error = f"unknown command id {COMMAND_ID}"

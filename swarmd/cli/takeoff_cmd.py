@@ -41,7 +41,13 @@ from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
 from swarmd.cli.status_cmd import socket_argument, table
-from swarmd.control import ControlClient, DaemonUnreachable, ReplyLost, RequestError
+from swarmd.control import (
+    ControlClient,
+    DaemonStopping,
+    DaemonUnreachable,
+    ReplyLost,
+    RequestError,
+)
 from swarmd.dataplane.types import CommandKind
 from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.exitcodes import (
@@ -191,6 +197,8 @@ def _takeoff(args: argparse.Namespace) -> int:
             reply = client.request("takeoff", **request)
         except RequestError as exc:
             return _usage(str(exc))
+        except DaemonStopping as exc:
+            return _stopping("takeoff", exc)
         except ReplyLost as exc:
             return _reply_lost(run, "takeoff", exc)
         if not reply["sent"]:  # nobody ready, or one fell back between wait and send
@@ -216,11 +224,25 @@ def _simple(args: argparse.Namespace) -> int:
             reply = client.request("command", **request)
         except RequestError as exc:
             return _usage(str(exc))
+        except DaemonStopping as exc:
+            return _stopping(args.kind, exc)
         except ReplyLost as exc:
             return _reply_lost(run, args.kind, exc)
         return _follow(client, run, reply, args.kind)
 
     return _session(args, body)
+
+
+def _stopping(kind: str, exc: DaemonStopping) -> int:
+    """The daemon answered the command request that it is stopping: it ran nothing of it
+    (``Driver.call``), so "not reachable, nothing sent" (exit 2), as when it is not running;
+    with ``--json`` nothing on stdout, as every exit 2 (session 16)."""
+    print(
+        f"swarmctl: {safe_text(str(exc))}: the {kind.upper()} command was not sent; run it "
+        "again once swarmd is back ('systemctl status swarmd')",
+        file=sys.stderr,
+    )
+    return EX_UNREACHABLE
 
 
 def _reply_lost(run: _Run, kind: str, exc: ReplyLost) -> int:
