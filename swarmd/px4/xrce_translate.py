@@ -61,7 +61,9 @@ NAV_AUTO_LAND: Final = 18
 # vehicle_status.nav_state -> PX4 custom mode (main, sub), as PX4's get_px4_custom_mode()
 # (px4_custom_mode.h): ORBIT (21) is POSCTL with sub-mode ORBIT, not plain POSCTL, which
 # readiness lets arm (``STAYS_ON_GROUND``). A nav_state not here reads MODE(0,0): unknown,
-# which readiness refuses (``flight_mode``)
+# which readiness refuses (``flight_mode``). One deliberate difference: TERMINATION (13),
+# which PX4 spells MANUAL and refuses over MAVLink by the HEARTBEAT's FLIGHT_TERMINATION
+# status, reads AUTO.LAND here, where no status says it (test_px4_arm_mode, termination)
 NAV_TO_MODE: Final = {
     0: (1, 0), 1: (2, 0), 2: (3, 0), 3: (4, 4), 4: (4, 3), 5: (4, 5), 10: (5, 0),
     12: (4, 6), 13: (4, 6), 14: (6, 0), 15: (7, 0), 17: (4, 2), 18: (4, 6), 19: (4, 8),
