@@ -38,7 +38,9 @@ def raw_clock() -> float:
     the crystal's count, never slewed nor stepped, that also counts a sleep."""
     # The order matters: a thread paused between two reads makes the sum stale by the pause
     # (BOOTTIME read first, MONOTONIC and RAW after it alike), never ahead of the next
-    # call's, so the clock never steps back (test_cmd_suspend.py, with a slewed MONOTONIC).
+    # call's. Stale by more than the pause, though, when NTP runs MONOTONIC faster than RAW
+    # (the pause times the slew): an earlier call can then read later, so the loop's
+    # ``time()`` never gives less than it gave (``RawClockEventLoop``; test_cmd_suspend.py).
     boot = time.clock_gettime(time.CLOCK_BOOTTIME)
     monotonic = time.clock_gettime(time.CLOCK_MONOTONIC)
     return time.clock_gettime(time.CLOCK_MONOTONIC_RAW) + (boot - monotonic)
@@ -48,8 +50,20 @@ class RawClockEventLoop(asyncio.SelectorEventLoop):
     """A selector event loop whose ``time()`` is ``raw_clock()``: CLOCK_MONOTONIC_RAW,
     suspends counted (seconds)."""
 
+    _last: float = float("-inf")
+
     def time(self) -> float:
-        return raw_clock()
+        # Never earlier than a time it already gave. The read order above only keeps the
+        # sum from stepping back while MONOTONIC runs slower than RAW; NTP slews it either
+        # way (chrony speeds it up while the system clock is behind, and corrects a slow
+        # crystal for good), and then a pause between the BOOTTIME and MONOTONIC reads
+        # makes the sum early by the pause times the slew: 0.3 ms for a 4 ms pause at
+        # chrony's 8 % (tests/test_cmd_suspend.py, the slew either way). asyncio and the
+        # cores read deadlines and elapsed times off this clock and assume it monotonic.
+        now = raw_clock()
+        if now > self._last:
+            self._last = now
+        return self._last
 
 
 def run_on_raw_clock(main: Coroutine[Any, Any, T]) -> T:

@@ -201,9 +201,10 @@ def test_the_daemons_clock_never_runs_backwards_when_a_read_is_paused(
 ) -> None:
     """The sleep since boot is a difference of two clocks, read one after the other, and a
     thread can be paused between any two reads. Read in the order BOOTTIME, MONOTONIC,
-    RAW, a pause only makes that read stale, never ahead of the next one, whatever the
-    slew between MONOTONIC and RAW. [MONOTONIC before BOOTTIME, or RAW between them: the
-    clock steps back; of the six orders only RAW, MONOTONIC, BOOTTIME also holds]"""
+    RAW, a pause only makes that read stale, never ahead of the next one, while MONOTONIC
+    runs slower than RAW (the next test: either way, by the loop's guard). [MONOTONIC
+    before BOOTTIME, or RAW between them: the clock steps back; of the six orders only RAW,
+    MONOTONIC, BOOTTIME also holds]"""
     true = [300.0]
     kernel = PlayedKernel(lambda: true[0], slew=-0.08)
     kernel.suspend()
@@ -230,6 +231,38 @@ def test_the_daemons_clock_never_runs_backwards_when_a_read_is_paused(
     seen = [read() for _ in range(8)]
     assert all(b > a for a, b in zip(seen, seen[1:], strict=False)), seen
     assert seen[-1] - seen[0] == pytest.approx(true[0] - 300.0 - 30.0, abs=0.01)
+
+
+@pytest.mark.parametrize("slew", [-0.08, 0.08, -0.0005, 0.0005])
+@pytest.mark.parametrize("paused_read", range(3, 12))
+def test_the_daemons_clock_never_runs_backwards_whichever_way_ntp_slews(
+    loop: RawClockEventLoop, monkeypatch: pytest.MonkeyPatch, slew: float, paused_read: int
+) -> None:
+    """NTP slews CLOCK_MONOTONIC either way against the raw clock: chrony runs it fast
+    while the system clock is behind (up to 8 %), and a slow crystal's frequency is
+    corrected for good (up to 500 ppm). A call paused after any one read, with calls before
+    and after it (each read 1 us apart), never reads earlier than the call before it.
+    [on main: a pause between the BOOTTIME and MONOTONIC reads with MONOTONIC fast steps
+    the clock back by the pause times the slew, 0.32 ms at 8 % for a 4 ms pause]"""
+    true = [300.0]
+    kernel = PlayedKernel(lambda: true[0], slew=slew)
+    kernel.suspend()
+    true[0] += 30.0
+    kernel.resume()
+    reads = [0]
+
+    def paused(clock: int) -> float:
+        value = kernel.clock_gettime(clock)
+        if reads[0] == paused_read:
+            true[0] += 0.004
+        reads[0] += 1
+        true[0] += 1e-6
+        return value
+
+    with monkeypatch.context() as patch:
+        patch.setattr(time, "clock_gettime", paused)
+        seen = [loop.time() for _ in range(5)]
+    assert all(b >= a for a, b in zip(seen, seen[1:], strict=False)), seen
 
 
 def test_on_the_real_kernel_the_clock_is_raw_plus_the_sleep_since_boot(

@@ -353,3 +353,36 @@ def test_an_external_mode_over_mavlink_is_named_and_refused_as_another_programs_
     verdict = c.core.readiness(c.now)
     assert verdict.reason is Reason.FLIGHT_MODE
     assert f"AUTO.EXTERNAL{sub - 10}" in verdict.detail and "external mode" in verdict.detail
+
+
+def test_flight_termination_is_never_ready_whichever_backend_spells_it() -> None:
+    """PX4's own custom mode for NAVIGATION_STATE_TERMINATION is MANUAL
+    (``get_px4_custom_mode``), which ``STAYS_ON_GROUND`` allows: over MAVLink the HEARTBEAT's
+    system_status (FLIGHT_TERMINATION, PX4's HEARTBEAT stream) is what refuses it. The XRCE
+    translator has no such status, so it reads nav_state 13 as TERMINATION, off the list.
+    Pins both refusals: a translator changed to PX4's spelling (MANUAL) would let a
+    terminated vehicle read ready over XRCE. [holds on main]"""
+    config = ReadinessConfig(require_home=False, allow_unknown_battery=True)
+    facts: tuple[Observation, ...] = (
+        ExtendedSysState(LandedState.ON_GROUND),
+        GpsRawInt(GpsFixType.FIX_3D, 12),
+    )
+    mavlink = VehicleState()
+    terminated = Heartbeat(
+        autopilot=12,  # MAV_AUTOPILOT_PX4
+        vehicle_type=2,
+        base_mode=1,
+        custom_mode=Px4Mode(Px4MainMode.MANUAL).custom_mode,
+        system_status=MavState.FLIGHT_TERMINATION,
+    )
+    for obs in (terminated, *facts):
+        mavlink.observe(obs, 0.0)
+    assert not readiness(mavlink, 0.0, config).ready
+    for release in ("1.14", "1.17"):
+        xrce = VehicleState()
+        for obs in Px4Translator(sysid=3).sample(*_status(release, 13)):
+            xrce.observe(obs, 0.0)
+        for obs in facts:
+            xrce.observe(obs, 0.0)
+        verdict = readiness(xrce, 0.0, config)
+        assert not verdict.ready and verdict.reason is Reason.FLIGHT_MODE, verdict.detail

@@ -343,6 +343,29 @@ def test_after_a_silence_a_message_the_last_life_never_sent_is_judged_by_another
     assert watch.counts["resets"] == 0
 
 
+def test_frames_that_waited_out_a_stall_of_the_daemon_are_the_same_life() -> None:
+    """The link is honest and PX4 never stops; the daemon's loop does (a loaded companion,
+    a long callback, a host suspend), for longer than the heartbeat timeout. The frames PX4
+    sent meanwhile wait in the socket or UART buffer and are read at once when the loop
+    runs again: their boot clock is where it was when they were sent, just past the last
+    value, but the silence counted on our clock says it should be 2.7 s on. A new life
+    cannot show a boot clock past the silence (it booted within it) and past the last
+    life's last value: these are the same life. [on main: a StateReset, which ends a
+    take-off still arming (mode_changed) and forgets the vehicle's state]"""
+    watch = BootWatch()
+    for n in range(51):  # 0.5 s of ATTITUDE at 100 Hz
+        assert watch.batch([("ATTITUDE", 600_000 + 10 * n)], 1, n / 100).reset is None
+    # the loop stalls from 0.5 s to 3.2 s; the buffered frames are read in a burst
+    for n in range(1, 6):
+        verdict = watch.batch([("ATTITUDE", 600_500 + 10 * n)], 1, 3.2 + n * 1e-4)
+        assert verdict.deliver and verdict.reset is None
+    assert watch.counts["resets"] == 0
+    # the short life of the rule above is still told apart: its clock is within the silence
+    watch = BootWatch()
+    watch.batch([("SYSTEM_TIME", 2_000)], 1, 0.0)
+    assert watch.batch([("SYSTEM_TIME", 2_500)], 1, 3.0).reset is not None
+
+
 # One life: a first boot-clock value, then frames every step_ms of PX4's clock, some pairs
 # arriving swapped (UDP reordering), several messages each lagging the clock by its own age.
 # Every life outlives its successor's boot time by more than the jump (REBOOT_JUMP_MS plus

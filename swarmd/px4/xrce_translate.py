@@ -65,7 +65,9 @@ NAV_AUTO_LAND: Final = 18
 # POSITION_SLOW (6, 1.15+) POSCTL.SLOW; ALTITUDE_CRUISE (8, 1.17) its own main mode;
 # TERMINATION (13) its own main mode; EXTERNAL1-8 (23-30, 1.15+) AUTO sub-modes 11-18. The
 # free slots (7, 9, 11, 16; 8 before 1.17) and anything later read MODE(0,0): unknown,
-# which readiness refuses (``flight_mode``)
+# which readiness refuses (``flight_mode``). TERMINATION differs from MAVLink on purpose:
+# PX4's HEARTBEAT spells it MANUAL and refuses it by its FLIGHT_TERMINATION status, which
+# XRCE has no word for; here it is its own mode, off the list (test_px4_arm_mode, termination)
 NAV_TO_MODE: Final = {
     0: (1, 0), 1: (2, 0), 2: (3, 0), 3: (4, 4), 4: (4, 3), 5: (4, 5), 6: (3, 2), 8: (11, 0),
     10: (5, 0), 12: (4, 6), 13: (10, 0), 14: (6, 0), 15: (7, 0), 17: (4, 2), 18: (4, 6),
