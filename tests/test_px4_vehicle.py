@@ -296,3 +296,22 @@ def test_every_task_kind_is_dispatched() -> None:
             core.handle_timer(t)
         events = list(iter(core.next_event, None))
         assert [e.token for e in events if isinstance(e, TaskFinished)] == [i], kind
+
+
+def test_a_landed_vehicle_takes_off_again_once_put_back_in_hold() -> None:
+    """After a LAND, PX4 keeps AUTO.LAND on the ground, off the ``flight_mode`` allow-list
+    (session 16), so a second take-off is refused until the vehicle is in Hold again: the
+    operator's way back is ``swarmctl hold`` (docs/operations.md, "Readiness reasons"). A
+    HOLD on the ground succeeds, and the take-off after it flies."""
+    b = Bench()
+    b.fly()
+    assert b.run_task(2, TaskKind.LAND).ok
+    b.run(30.0, stop=lambda: not b.sim.armed)
+    assert not b.sim.armed and b.sim.mode == MODE_LAND
+    b.run(3.0)
+    refused = b.core.readiness(b.now)
+    assert not refused.ready and refused.reason.value == "flight_mode", refused
+    assert b.run_task(3, TaskKind.HOLD).ok
+    b.run(3.0)
+    assert b.core.readiness(b.now).ready
+    assert b.run_task(4, TaskKind.TAKEOFF, 4.0).ok
