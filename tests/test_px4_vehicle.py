@@ -34,7 +34,7 @@ from swarmd.px4.messages import (
     SysStatus,
     VehicleCommand,
 )
-from swarmd.px4.readiness import VehicleState
+from swarmd.px4.readiness import Reason, VehicleState
 from swarmd.px4.takeoff import TakeoffSucceeded
 from swarmd.px4.vehicle import (
     ON_GROUND_DISARMED,
@@ -310,7 +310,7 @@ def test_a_landed_vehicle_takes_off_again_once_put_back_in_hold() -> None:
     assert not b.sim.armed and b.sim.mode == MODE_LAND
     b.run(3.0)
     refused = b.core.readiness(b.now)
-    assert not refused.ready and refused.reason.value == "flight_mode", refused
+    assert not refused.ready and refused.reason is Reason.FLIGHT_MODE, refused
     assert b.run_task(3, TaskKind.HOLD).ok
     b.run(3.0)
     assert b.core.readiness(b.now).ready
