@@ -69,6 +69,9 @@ class Peer:
     # a faster rise is fresh but waits), from its authenticated DATA(p)
     epoch: int | None = None
     restarted_at: float | None = None  # when we last honoured its restart (PeerRestarted)
+    # when its own signed DATA(p[UD]) last lost it: its return is held until
+    # receive.RESTART_MIN_INTERVAL_S after (a captured member leaving and returning)
+    disposed_at: float | None = None
     # its relay's alive ROS 2 participants (PID 0x8A06), from its latest accepted DATA(p)
     ros2_alive: bytes | None = None
     # matched endpoints, computed when first discovered: a bundle row per peer would cost

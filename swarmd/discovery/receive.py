@@ -68,7 +68,14 @@ _DISCOVERED: Final = PeerState.DISCOVERED
 # Jetson Nano is slower; systemd waits RestartSec=2s after a crash). A faster rise is taken
 # for freshness (the replay window moves with it) and counted (``restarts_coalesced``); the
 # peer's first datagram past the interval honours its newest epoch, so a restart is late,
-# never lost (docs/security.md, "Epoch churn").
+# never lost (docs/security.md, "Epoch churn"). The same interval holds a peer's return after
+# its own signed dispose (``Peer.disposed_at``): an honest daemon disposes only as it stops,
+# and its next life sends no sooner than a start-up later (the figures above; ``systemctl
+# restart`` starts it at once, a failure waits RestartSec=2s first: systemd/swarmd.service),
+# so a return within the interval is a captured member leaving and returning, each a
+# ``PeerLost`` and a ``PeerDiscovered`` at every drone. It is held (not listed, nothing
+# moves), counted (``returns_held``), and honoured by the peer's first datagram past the
+# interval: late by at most the interval, never lost (docs/security.md, "Leave and return").
 RESTART_MIN_INTERVAL_S: Final = 0.25
 
 
@@ -111,6 +118,7 @@ class ReceivePath:
         "dropped",
         "phase",
         "restarts_coalesced",
+        "returns_held",
         "rx_datagrams",
         "sought_by",
     )
@@ -166,6 +174,7 @@ class ReceivePath:
         self.dropped = dropped
         self.rx_datagrams = 0
         self.restarts_coalesced = 0  # epoch rises within RESTART_MIN_INTERVAL_S, held back
+        self.returns_held = 0  # DATA(p) within RESTART_MIN_INTERVAL_S of its sender's dispose
         self._foreign = foreign
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
@@ -233,7 +242,7 @@ class ReceivePath:
                 self._on_alive(sample, source, now, fresh)
             else:
                 assert isinstance(sample, SpdpDisposed)  # noqa: S101 - decode makes no other
-                self._on_disposed(sample, source)
+                self._on_disposed(sample, source, now)
         if self.phase is _ANNOUNCE and not self._debts.any_pending():
             self._settle()  # (asks any_pending again: the armed set is empty now)
 
@@ -283,6 +292,15 @@ class ReceivePath:
             return
         if self._auth is not None:
             self._auth.note_address(prefix, source)  # used: its budget lives there now
+        disposed_at = peer.disposed_at
+        if disposed_at is not None:
+            # set only as its own dispose lost it, cleared once it is heard again
+            if now - disposed_at < RESTART_MIN_INTERVAL_S:
+                # back sooner than a daemon restarts after its dispose: held, nothing moves
+                # (RESTART_MIN_INTERVAL_S); its first datagram past the interval counts
+                self.returns_held += 1
+                return
+            peer.disposed_at = None
         self._heard(peer, alive, source, now, fresh)
 
     def _heard(
@@ -546,7 +564,7 @@ class ReceivePath:
             delay = debts.rejoin_delay() if rejoin else debts.reply_delay()
             debts.arm(peer, now + delay)
 
-    def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int]) -> None:
+    def _on_disposed(self, sample: SpdpDisposed, source: tuple[str, int], now: float) -> None:
         if sample.destination is not None and sample.destination != self._my_guid:
             self._drop(DropReason.NOT_FOR_ME, source)
             return
@@ -555,6 +573,7 @@ class ReceivePath:
             self._foreign.disposed(sample.guid_prefix)
             return
         if peer.discovered:
+            peer.disposed_at = now  # its return waits RESTART_MIN_INTERVAL_S (see there)
             self._lose(peer, "disposed")
 
     def _see_foreign(self, alive: Alive, reason: DropReason, now: float) -> None:
