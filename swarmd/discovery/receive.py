@@ -75,7 +75,8 @@ _DISCOVERED: Final = PeerState.DISCOVERED
 # so a return within the interval is a captured member leaving and returning, each a
 # ``PeerLost`` and a ``PeerDiscovered`` at every drone. It is held (not listed, nothing
 # moves), counted (``returns_held``), and honoured by the peer's first datagram past the
-# interval: late by at most the interval, never lost (docs/security.md, "Leave and return").
+# interval: late by at most the interval, never lost (docs/security.md, "A captured member's
+# lives").
 RESTART_MIN_INTERVAL_S: Final = 0.25
 
 
