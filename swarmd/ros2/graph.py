@@ -38,7 +38,11 @@ discovery has. The writer's GUID is the capability: its prefix is random per swa
 and only ever sent on loopback, so an outsider cannot forge a sample the node's reader
 takes (a DATA from an unmatched writer is dropped), though the reader's port is open to the
 air as every unique-flow port of stock ROS 2 is. An ACKNACK only makes the writer resend its
-samples to a bundle-known loopback port, at most once per ``MIN_RESEND_S`` per reader.
+samples to a bundle-known loopback port, at most once per ``MIN_RESEND_S`` per reader; a
+sample the reader has never been sent goes at its first NACK, so the DATA the limit lets
+through is bounded by the relay's announcements, and a drone found 0.1 s after another does
+not wait a heartbeat (up to 0.5 s) for its name (docs/benchmarks.md, "ROS 2 on swarmd's
+slow pairs, split").
 Sans-IO: driven by ``receive_datagram``, ``handle_timer`` and the relay's calls;
 ``receive_datagram`` raises nothing.
 """
@@ -277,6 +281,7 @@ class _Proxy:
     reader_id: EntityId
     port: int
     acked_below: int = 0  # every SN below this is acknowledged (ACKNACK base)
+    sent_below: int = 1  # every SN below this was sent (DATA or GAP) to this reader once
     next_heartbeat: float | None = None
     heartbeat_s: float = FIRST_HEARTBEAT_S
     last_data: float | None = None
@@ -397,6 +402,7 @@ class GraphParticipant:
         proxy = self._proxies.get(local)
         if proxy is not None:
             proxy.acked_below = 0
+            proxy.sent_below = 1
             proxy.last_data = None
             self._offer(proxy, now)
 
@@ -475,9 +481,6 @@ class GraphParticipant:
         if proxy.next_heartbeat is None:
             proxy.heartbeat_s = FIRST_HEARTBEAT_S
             proxy.next_heartbeat = now + FIRST_HEARTBEAT_S
-        if proxy.last_data is not None and now - proxy.last_data < MIN_RESEND_S:
-            self.counters["graph_resend_limited"] += 1
-            return
         # a preemptive ACKNACK (empty set: Fast DDS sends one when it matches the writer)
         # asks for everything from its base, a NACK for its members (DDSI-RTPS 8.4.15.3);
         # below the first sample nothing is available (the HEARTBEAT says so)
@@ -485,6 +488,15 @@ class GraphParticipant:
         lo = max(state.base, available[0] if available else self._sn + 1)
         requested = set(state.members())
         hi = self._sn if state.num_bits == 0 else max(requested, default=0)
+        # the limit holds resends only: a sample published since this reader was last sent
+        # anything goes at once (each at most once outside the limit, so a NACK flood still
+        # draws one DATA per MIN_RESEND_S). Before, a drone found within 0.2 s of the last
+        # DATA waited for the next heartbeat, up to FIRST_HEARTBEAT_S later
+        fresh = max(lo, proxy.sent_below) <= min(hi, self._sn)
+        limited = proxy.last_data is not None and now - proxy.last_data < MIN_RESEND_S
+        if limited and not fresh:
+            self.counters["graph_resend_limited"] += 1
+            return
         submessages: list[Submessage] = []
         start = lo
         for sn in (s for s in available if lo <= s <= hi):
@@ -501,6 +513,7 @@ class GraphParticipant:
             submessages.append(self._gap(proxy, start, hi + 1))
         submessages.append(self._heartbeat(proxy))
         proxy.last_data = now
+        proxy.sent_below = max(proxy.sent_below, min(hi, self._sn) + 1)
         self._send(proxy, submessages)
 
     def _gap(self, proxy: _Proxy, start: int, end: int) -> Gap:
