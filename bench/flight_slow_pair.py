@@ -14,6 +14,18 @@ lost the same peer within 0.1 s (a vouched lease's end: docs/discovery.md, "Vouc
 when they found it again; what each side decoded of the other per second (the channel's
 ``heard``: any MAC frame, discovery or not); the peer's renewals counted at each status poll
 (the run records no per-frame sends). Nothing asserted: a reading.
+
+    .venv/bin/python -m bench.flight_slow_pair --parts RUN.json [RUN.json ...]
+
+``--parts`` splits every re-discovery of each run into its stages instead: the return (the
+truth's sample), the first frame decoded each way (the channel's 1 s ``heard`` records: "by
+t" is the end of the first record, at or after the return less the truth's 0.5 s step, that
+holds one), the observer's re-discovery, and what lies between the last two. In a swarmd run
+the re-discovery is swarmd's own PeerDiscovered/PeerRegained (dated by ``ago_s``); in a ROS 2
+on swarmd run it is the node's graph listing the drone (polled every 0.25 s), and swarmd's
+own event under it is not in the run file. One line per run (the distributions), one per
+pair slower than ``--over``, and with several runs one line per cell (contender, scenario,
+N) over them all: whether the channel's side has the same shape in two contenders' runs.
 """
 
 from __future__ import annotations
@@ -62,6 +74,7 @@ def slow_returns(run: Mapping[str, Any], over_s: float) -> list[dict[str, Any]]:
                             "back": back,
                             "found": found[0],
                             "in_range_s": flight_measures.in_range_time(runs, back, found[0]),
+                            "early": flight_measures.listed_before_return(mine, lost, a, back),
                             "spans": [r for r in runs if r[1] >= lost[-1] and r[0] <= found[0]],
                         }
                     )
@@ -121,6 +134,97 @@ def renewals(run: Mapping[str, Any], node: int, t0: float, t1: float) -> list[st
     ]
 
 
+def first_heard(run: Mapping[str, Any], i: int, j: int, t0: float) -> float | None:
+    """The end of the first 1 s ``heard`` record at or after ``t0`` in which i decoded a
+    frame of j (any MAC frame: discovery, user data, the relay's traffic), or None."""
+    for h in run.get("heard", []):
+        if h["t"] >= t0 and str(j) in h["rx"][i]:
+            return float(h["t"])
+    return None
+
+
+def stages(run: Mapping[str, Any], over_s: float) -> list[dict[str, Any]]:
+    """``slow_returns`` (re-listed before the return left out: the measure counts those 0 s)
+    with ``heard_ij`` (i decoded j by), ``heard_ji`` and ``both`` (the later of the two;
+    None where a side decoded nothing in the run)."""
+    out = []
+    for r in slow_returns(run, over_s):
+        if r["early"]:
+            continue
+        t0 = r["back"] - flight_measures.TOLERANCE_S
+        ij = first_heard(run, r["observer"], r["peer"], t0)
+        ji = first_heard(run, r["peer"], r["observer"], t0)
+        both = None if ij is None or ji is None else max(ij, ji)
+        out.append({**r, "heard_ij": ij, "heard_ji": ji, "both": both})
+    return out
+
+
+def observed(run: Mapping[str, Any]) -> str:
+    """What a run's re-discovery times are the times of."""
+    if run.get("contender") == "ros2-swarmd":
+        return "the ROS 2 graph (swarmd's own PeerDiscovered: not in the run file)"
+    if (run.get("observer") or {}).get("source") == "peer event lines":
+        return "the stack's own API"
+    return "swarmd's own PeerDiscovered/PeerRegained"
+
+
+def _q(values: Sequence[float]) -> str:
+    if not values:
+        return "-"
+    s = sorted(values)
+    pick = [s[min(len(s) - 1, round(q * (len(s) - 1)))] for q in (0.5, 0.9)]
+    return "/".join(f"{v:.2f}" for v in (*pick, s[-1]))
+
+
+def stage_summary(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The distributions over ``stages`` rows (p50/p90/max, seconds after the return)."""
+    seen = [r for r in rows if r["both"] is not None]
+    both = [r["both"] - r["back"] for r in seen]
+    first = [min(r["heard_ij"], r["heard_ji"]) - r["back"] for r in seen]
+    one_way = sum(abs(r["heard_ij"] - r["heard_ji"]) >= 1.0 for r in seen)
+    found = [max(0.0, r["found"] - r["back"]) for r in rows]
+    after = [r["found"] - r["both"] for r in seen]
+    return (
+        f"{len(rows)} re-discoveries; first frame one way by {_q(first)}, both ways by "
+        f"{_q(both)} (p50/p90/max s after the return), one way only for a record or more at "
+        f"{one_way}; re-discovered {_q(found)}; re-discovery minus both ways {_q(after)}"
+    )
+
+
+def parts_report(paths: Sequence[Path], over_s: float) -> str:
+    """``--parts`` (module doc): per run its distributions and its pairs over ``over_s``,
+    then per cell over the runs given."""
+    out: list[str] = []
+    cells: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
+    for path in paths:
+        run = json.loads(path.read_text())
+        rows = stages(run, -1.0)
+        key = (str(run.get("contender")), str(run["scenario"]), int(run["n"]))
+        cells.setdefault(key, []).extend(rows)
+        out.append(f"{path.name}: re-discovery is {observed(run)}")
+        out.append(f"  {stage_summary(rows)}")
+        for r in rows:
+            if r["found"] - r["back"] <= over_s:
+                continue
+            i, j = r["observer"], r["peer"]
+            out.append(
+                f"  uav{i + 1} of uav{j + 1}: back {r['back']:.2f} s; uav{i + 1} decoded "
+                f"uav{j + 1} by {_by(r['heard_ij'], r['back'])}, uav{j + 1} decoded uav{i + 1} "
+                f"by {_by(r['heard_ji'], r['back'])}; re-discovered {r['found']:.3f} s "
+                f"(+{r['found'] - r['back']:.3f} s"
+                + ("" if r["both"] is None else f", {r['found'] - r['both']:+.3f} s after both")
+                + ")"
+            )
+    if len(paths) > 1:
+        for (contender, scenario, n), rows in sorted(cells.items()):
+            out.append(f"{contender} {scenario} N = {n}, all runs: {stage_summary(rows)}")
+    return "\n".join(out)
+
+
+def _by(t: float | None, back: float) -> str:
+    return "never" if t is None else f"{t:.1f} s (+{t - back:.1f})"
+
+
 def report(path: Path, over_s: float) -> str:
     run = json.loads(path.read_text())
     rows = slow_returns(run, over_s)
@@ -155,15 +259,24 @@ def main(argv: Sequence[str]) -> int:
         prog="python -m bench.flight_slow_pair",
         description="A flight run's slow re-discoveries, read from its own records.",
     )
-    parser.add_argument("run", type=Path, help="a flight run file (*.json)")
+    parser.add_argument("run", type=Path, nargs="+", help="flight run files (*.json)")
     parser.add_argument(
         "--over", type=float, default=2.0, help="the clock time a re-discovery must pass (s)"
     )
+    parser.add_argument(
+        "--parts",
+        action="store_true",
+        help="every re-discovery split into return, first frames each way and the report",
+    )
     args = parser.parse_args(argv)
-    if not args.run.is_file():
-        print(f"{args.run}: no such run file", file=sys.stderr)
-        return 66  # EX_NOINPUT
-    print(report(args.run, args.over))
+    for path in args.run:
+        if not path.is_file():
+            print(f"{path}: no such run file", file=sys.stderr)
+            return 66  # EX_NOINPUT
+    if args.parts:
+        print(parts_report(args.run, args.over))
+    else:
+        print("\n".join(report(path, args.over) for path in args.run))
     return 0
 
 
