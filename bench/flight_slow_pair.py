@@ -146,21 +146,31 @@ def first_heard(run: Mapping[str, Any], i: int, j: int, t0: float) -> float | No
 def stages(run: Mapping[str, Any], over_s: float) -> list[dict[str, Any]]:
     """``slow_returns`` (re-listed before the return left out: the measure counts those 0 s)
     with ``heard_ij`` (i decoded j by), ``heard_ji`` and ``both`` (the later of the two;
-    None where a side decoded nothing in the run)."""
+    None where a side decoded nothing in the run), and ``swarmd_found``: in a ROS 2 on
+    swarmd run that has them (``swarmd_changes``, since this tool's session), swarmd's own
+    re-discovery of the peer under the graph's (None where the file has none)."""
+    under = run.get("swarmd_changes") or {}
     out = []
     for r in slow_returns(run, over_s):
         if r["early"]:
             continue
-        t0 = r["back"] - flight_measures.TOLERANCE_S
-        ij = first_heard(run, r["observer"], r["peer"], t0)
-        ji = first_heard(run, r["peer"], r["observer"], t0)
+        i, j, t0 = r["observer"], r["peer"], r["back"] - flight_measures.TOLERANCE_S
+        ij, ji = first_heard(run, i, j, t0), first_heard(run, j, i, t0)
         both = None if ij is None or ji is None else max(ij, ji)
-        out.append({**r, "heard_ij": ij, "heard_ji": ji, "both": both})
+        ups = [
+            float(t)
+            for t, p, c in under.get(str(i), ())
+            if p == j and c in flight_measures.UP_KINDS and float(t) >= t0
+        ]
+        found = min(ups, default=None)
+        out.append({**r, "heard_ij": ij, "heard_ji": ji, "both": both, "swarmd_found": found})
     return out
 
 
 def observed(run: Mapping[str, Any]) -> str:
     """What a run's re-discovery times are the times of."""
+    if run.get("contender") == "ros2-swarmd" and "swarmd_changes" in run:
+        return "the ROS 2 graph, swarmd's own PeerDiscovered/PeerRegained under it"
     if run.get("contender") == "ros2-swarmd":
         return "the ROS 2 graph (swarmd's own PeerDiscovered: not in the run file)"
     if (run.get("observer") or {}).get("source") == "peer event lines":
@@ -184,10 +194,16 @@ def stage_summary(rows: Sequence[Mapping[str, Any]]) -> str:
     one_way = sum(abs(r["heard_ij"] - r["heard_ji"]) >= 1.0 for r in seen)
     found = [max(0.0, r["found"] - r["back"]) for r in rows]
     after = [r["found"] - r["both"] for r in seen]
+    under = [r for r in rows if r["swarmd_found"] is not None]
     return (
         f"{len(rows)} re-discoveries; first frame one way by {_q(first)}, both ways by "
         f"{_q(both)} (p50/p90/max s after the return), one way only for a record or more at "
         f"{one_way}; re-discovered {_q(found)}; re-discovery minus both ways {_q(after)}"
+    ) + (
+        ""
+        if not under
+        else f"; swarmd's own {_q([max(0.0, r['swarmd_found'] - r['back']) for r in under])}"
+        f", the graph after it {_q([r['found'] - r['swarmd_found'] for r in under])}"
     )
 
 
@@ -214,11 +230,17 @@ def parts_report(paths: Sequence[Path], over_s: float) -> str:
                 f"(+{r['found'] - r['back']:.3f} s"
                 + ("" if r["both"] is None else f", {r['found'] - r['both']:+.3f} s after both")
                 + ")"
+                + _swarmd_part(r)
             )
     if len(paths) > 1:
         for (contender, scenario, n), rows in sorted(cells.items()):
             out.append(f"{contender} {scenario} N = {n}, all runs: {stage_summary(rows)}")
     return "\n".join(out)
+
+
+def _swarmd_part(r: Mapping[str, Any]) -> str:
+    t = r["swarmd_found"]
+    return "" if t is None else f"; swarmd's own {t:.3f} s, the graph {r['found'] - t:+.3f} s after"
 
 
 def _by(t: float | None, back: float) -> str:

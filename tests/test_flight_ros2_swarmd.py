@@ -215,3 +215,27 @@ def test_ros2_on_swarmd_is_a_flight_contender_with_swarmds_loss_timer() -> None:
     assert flight_run.LOSS_TIMER_S["ros2-swarmd"] == flight_run.LEASE_S
     for refused in ("ros2-ds", "ros2-static"):
         assert refused not in flight_run.FLIGHT_CONTENDERS
+
+
+def test_swarmd_under_the_nodes_is_polled_for_its_own_peer_changes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the run file then has swarmd's own re-discoveries beside the graph's
+    # (bench/flight_slow_pair.py --parts: what swarmd took, what the relay added)
+    c, _ = contender("ros2-swarmd", tmp_path)
+    asked: list[tuple[str, str]] = []
+
+    def request(sock: str, cmd: str) -> object:
+        asked.append((sock, cmd))
+        change = {"seq": 1, "peer": "uav1", "change": "regained", "ago_s": 0.5}
+        return {"daemon": {"pid": 42}, "peer_changes": {"changes": [change], "last_seq": 1}}
+
+    monkeypatch.setattr(flight_run, "request", request)
+    under = flight_run.swarmd_under(c, 3)
+    under.poll(100.0)
+    under.poll(100.25)
+    assert asked == [
+        (str(ros2_contenders.swarmd_socket(c, i)), "status") for i in (0, 1, 2, 0)
+    ]  # the daemons' own sockets, round robin; never the readiness table (the node's)
+    assert under.changes[1] == [(99.5, 0, "regained")] and under.readiness == []
+    assert under.changes[0] == [(99.5, 0, "regained")]  # one change, taken once per life

@@ -81,3 +81,15 @@ def test_parts_reports_each_run_its_slow_pairs_and_each_cell(
     ]
     # every re-discovery of the cut counted, in both
     assert all(" 49 re-discoveries" in line for line in cells)
+
+
+def test_parts_read_swarmds_own_re_discovery_where_the_run_has_it() -> None:
+    # runs flown after this change record swarmd's peer changes under the graph's
+    # (flight_run.swarmd_under); here one made up for uav16's pair
+    run = json.loads(ROS2_CUT.read_text())
+    run["swarmd_changes"] = {"15": [[57.9, 0, "lost"], [94.9, 0, "regained"]]}
+    rows = stages(run, 2.0)
+    row = next(r for r in rows if (r["observer"], r["peer"]) == (15, 0))
+    assert row["swarmd_found"] == 94.9
+    assert all(r["swarmd_found"] is None for r in rows if r["observer"] != 15)
+    assert "under it" in observed(run)

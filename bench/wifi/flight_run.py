@@ -118,8 +118,11 @@ def flight_channel(
 class SwarmdObserver:
     """Reads the daemons during a flight: peer changes (by daemon life) and readiness."""
 
-    def __init__(self, socks: Sequence[Path], names: Sequence[str]) -> None:
+    def __init__(
+        self, socks: Sequence[Path], names: Sequence[str], *, readiness: bool = True
+    ) -> None:
         self.socks = list(socks)
+        self.ask_readiness = readiness  # False: swarmd under ROS 2 (the node counts it)
         self.index = {name: i for i, name in enumerate(names)}
         self.changes: dict[int, list[tuple[float, int, str]]] = {i: [] for i in range(len(socks))}
         self.readiness: list[tuple[float, dict[int, int]]] = []
@@ -145,6 +148,8 @@ class SwarmdObserver:
             if isinstance(st, dict):
                 self.polls += 1
                 self._take(i, st, now)
+        if not self.ask_readiness:
+            return
         table = self._ask(0, "readiness")
         if isinstance(table, dict):
             counts = {
@@ -223,6 +228,16 @@ class PeerLogObserver:
 
 
 Observer = SwarmdObserver | PeerLogObserver
+
+
+def swarmd_under(c: contenders_mod.Contender, n: int) -> SwarmdObserver:
+    """Status polls of the swarmd daemons a ROS 2 on swarmd contender runs beside its nodes
+    (their control sockets: ``ros2_contenders.swarmd_socket``); no readiness asked."""
+    from bench.wifi.ros2_contenders import Ros2Contender, swarmd_socket
+
+    assert isinstance(c, Ros2Contender)
+    socks = [swarmd_socket(c, i) for i in range(n)]
+    return SwarmdObserver(socks, [f"uav{i + 1}" for i in range(n)], readiness=False)
 
 
 def _restart(c: contenders_mod.Contender, node: int, state: str, env: Mapping[str, str]) -> None:
@@ -304,6 +319,10 @@ def run_flight(
                 assert isinstance(c, contenders_mod.PeerContender)
                 c.flight_events = True
                 obs = PeerLogObserver(n)
+            # ROS 2 on swarmd: swarmd's own peer changes too, under the node's graph, so
+            # that a slow re-discovery splits into swarmd's and the relay's share
+            # (``python -m bench.flight_slow_pair --parts``; docs/benchmarks.md)
+            under = swarmd_under(c, n) if contender in ROS2_ON_SWARMD else None
             env = contenders_mod._clean_env(dil.env())
             cmds = flight_commands.prepare(c, scenario, work, env, dil.real_s) if commands else None
             down: dict[int, list[list[float]]] = {}
@@ -344,6 +363,8 @@ def run_flight(
                     if cmds is not None:
                         cmds.tick(now - launch)
                     obs.poll(now)
+                    if under is not None:
+                        under.poll(now)
                     print(
                         f"\rflight {scenario.name} {contender} n={n}: {now - launch:5.1f}/"
                         f"{scenario.duration_s:.0f} s",
@@ -387,7 +408,7 @@ def run_flight(
     record = assemble(
         contender, scenario, run, stats, go_info, launch, obs, down, restarts, heard,
         max_lag_ms=max_lag_ms, scheduling=sched, dilation=dil.k, tx_counters=c.obs.tx_counters,
-        stagger=(stagger_s, offsets, started), concurrent_runs=beside,
+        stagger=(stagger_s, offsets, started), concurrent_runs=beside, under=under,
     )  # fmt: skip
     if issued is not None:
         flight_commands.attach(record, issued[0], scenario, issued[1])
@@ -412,11 +433,14 @@ def assemble(
     tx_counters: Mapping[str, int],
     stagger: tuple[float, Sequence[float], Sequence[float]] = (0.0, (), ()),
     concurrent_runs: int = 0,
+    under: SwarmdObserver | None = None,
 ) -> dict[str, Any]:
     """The run file's dict. ``stagger``: ``--stagger-s``, each drone's planned start after
     the release and its start as released (experiment seconds; empty: all at the release).
-    ``concurrent_runs``: other testbed runs in flight beside this one (``--beside``; the
-    campaign raises it if one starts later; older files lack it: 0, ``flight_cells.beside``).
+    ``under``: swarmd's own observer under a ROS 2 stack (ROS 2 on swarmd), recorded as
+    ``swarmd_changes`` beside the stack's ``changes``. ``concurrent_runs``: other testbed
+    runs in flight beside this one (``--beside``; the campaign raises it if one starts
+    later; older files lack it: 0, ``flight_cells.beside``).
     Every measure starts at a scenario phase or command cue after ``flight.MAX_STAGGER_S``,
     so none counts a stack that had not started yet as lost or late."""
     stagger_s, offsets, started = stagger
@@ -430,11 +454,13 @@ def assemble(
     disc = metrics.frame_series(stats, int(go_sim), window, classes)
     lease_s = LOSS_TIMER_S[contender]
     go_exp = float(go_info.get("go_wall", launch))
-    changes = {
-        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v) if t - go_exp <= window]
-        for i, v in obs.changes.items()
-    }
+    changes = _since_go(obs.changes, go_exp, window)
     readiness = [(round(t - go_exp, 3), table) for t, table in obs.readiness]
+    extra: dict[str, Any] = {}
+    if under is not None:
+        dated = _since_go(under.changes, go_exp, window)
+        extra["swarmd_changes"] = {str(i): v for i, v in dated.items()}
+        extra["swarmd_observer"] = under.summary()
     renewals = [[round(t - go_exp, 3), *rest] for t, *rest in obs.renewals]
     truth = scenario.truth()
     first_move = min((t for t, _, _ in scenario.waypoints if t > 0), default=None)
@@ -475,6 +501,7 @@ def assemble(
         "pps": m["pps"],
         "tx_counters": dict(tx_counters),
         "observer": obs.summary(),
+        **extra,
         "go": {"sim_s": go_sim, "wall": go_exp, "harness_launch": launch},
         "load_avg_at_start": list(os.getloadavg()),
         "concurrent_runs": concurrent_runs,
@@ -487,6 +514,16 @@ def assemble(
             **stagger_setup(stagger_s, offsets, started, scenario.n),
             "commit": source_commit(),
         },
+    }
+
+
+def _since_go(
+    changes: Mapping[int, Sequence[tuple[float, int, str]]], go_exp: float, window: int
+) -> dict[int, list[tuple[float, int, str]]]:
+    """Observed changes dated from go (the stacks' clock at go), up to the window's end."""
+    return {
+        i: [(round(t - go_exp, 3), p, c) for t, p, c in sorted(v) if t - go_exp <= window]
+        for i, v in changes.items()
     }
 
 
