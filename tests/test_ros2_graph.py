@@ -187,6 +187,16 @@ def test_the_sample_follows_the_readers_acknack_and_heartbeats_stop_once_acknowl
     assert graph.status()["readers_up_to_date"] == 1
 
 
+def _lead_two_remotes_and_graph() -> tuple[
+    Ros2Participant, GuidPrefix, GuidPrefix, GraphParticipant
+]:
+    """The lead's node, drone-1's and drone-2's participants, the lead's graph writer."""
+    participants = _participants()
+    lead = next(p for p in participants if p.drone == "lead")
+    one, two = (GuidPrefix(p.guid_prefix) for p in participants if p.drone != "lead")
+    return lead, one, two, _graph(participants)
+
+
 def _data_sns(graph: GraphParticipant) -> list[int]:
     return [sm.writer_sn for sm in _submessages(graph.datagrams_to_send()) if isinstance(sm, Data)]
 
@@ -195,10 +205,7 @@ def test_a_drone_found_just_after_another_gets_its_sample_at_the_readers_nack() 
     # ROS 2 on swarmd's fly-out at N = 20: drones come back 0.1 s apart; the second one's
     # sample waited for the next heartbeat (0.5 s) because the first one's DATA had gone
     # within MIN_RESEND_S (docs/benchmarks.md, "ROS 2 on swarmd's slow pairs, split")
-    participants = _participants()
-    lead = next(p for p in participants if p.drone == "lead")
-    one, two = (GuidPrefix(p.guid_prefix) for p in participants if p.drone != "lead")
-    graph = _graph(participants)
+    lead, one, two, graph = _lead_two_remotes_and_graph()
     assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, []), 0.0)  # matched
     graph.publish(one, 1.0)
     graph.datagrams_to_send()  # its HEARTBEAT
@@ -214,10 +221,7 @@ def test_a_drone_found_just_after_another_gets_its_sample_at_the_readers_nack() 
 def test_a_nack_flood_draws_each_new_sample_once_and_resends_once_per_min_resend() -> None:
     # the attack: a local process repeats the reader's NACK (of a new sample, of a sent
     # one, of numbers the writer never had) 1000 times within MIN_RESEND_S
-    participants = _participants()
-    lead = next(p for p in participants if p.drone == "lead")
-    one, two = (GuidPrefix(p.guid_prefix) for p in participants if p.drone != "lead")
-    graph = _graph(participants)
+    lead, one, two, graph = _lead_two_remotes_and_graph()
     graph.publish(one, 0.0)
     assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1]), 0.0)
     assert _data_sns(graph) == [1]
@@ -234,10 +238,7 @@ def test_a_nack_flood_draws_each_new_sample_once_and_resends_once_per_min_resend
 
 
 def test_a_replaced_sample_is_a_gap_and_a_withdrawn_one_is_no_longer_offered() -> None:
-    participants = _participants()
-    lead = next(p for p in participants if p.drone == "lead")
-    one, two = (GuidPrefix(p.guid_prefix) for p in participants if p.drone != "lead")
-    graph = _graph(participants)
+    lead, one, two, graph = _lead_two_remotes_and_graph()
     graph.publish(one, 0.0)  # 1
     graph.publish(two, 0.0)  # 2
     graph.publish(two, 0.0)  # 3: drone-2 announced again, sample 2 is gone
