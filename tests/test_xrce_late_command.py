@@ -159,6 +159,15 @@ class Edge:
             (e for e in self.events if isinstance(e, TaskFinished) and e.token == token), None
         )
 
+    def takeoff_until_done(self, token: int = 1, limit_s: float = 15.0) -> TaskFinished:
+        """Request a take-off and run until it ends (bounded: ``limit_s`` virtual seconds)."""
+        self.takeoff(token)
+        end = self.clock.now + limit_s
+        while (done := self.finished(token)) is None:
+            assert self.clock.now < end, "the take-off never ended"
+            self.run(self.clock.now + 0.05)
+        return done
+
     def arms_at_px4(self) -> list[float]:
         return [t for t, c, p1 in self.px4_commands if c == MavCmd.COMPONENT_ARM_DISARM and p1 == 1]
 
@@ -177,13 +186,7 @@ def test_arms_written_into_a_link_outage_never_reach_px4_after_the_takeoff_gave_
     edge.run_until_ready()
     edge.run(edge.clock.now + 1.0)
     edge.link_up = False
-    edge.takeoff()
-    start = edge.clock.now
-    while edge.finished() is None:
-        assert edge.clock.now < start + 5.0, "the take-off never ended"
-        edge.run(edge.clock.now + 0.05)
-    done = edge.finished()
-    assert done is not None
+    done = edge.takeoff_until_done(limit_s=5.0)
     assert not done.ok
     assert done.reason == "arm_no_ack"
     gave_up = edge.clock.now
@@ -197,12 +200,7 @@ def test_arms_written_into_a_link_outage_never_reach_px4_after_the_takeoff_gave_
     expired = edge.backend.stats().get("commands_expired", 0)
     assert expired >= 4 if release == "1.16" else expired == 0
     # and the stream moves on: the next take-off's ARM is not stuck behind them
-    edge.takeoff(token=2)
-    while edge.finished(2) is None:
-        assert edge.clock.now < gave_up + 20.0, "the second take-off never ended"
-        edge.run(edge.clock.now + 0.05)
-    again = edge.finished(2)
-    assert again is not None
+    again = edge.takeoff_until_done(token=2)
     assert again.ok, again.reason
 
 
@@ -212,12 +210,6 @@ def test_a_takeoff_over_a_healthy_link_still_arms_and_flies(release: str) -> Non
     command's frames must not cost a healthy link its commands)."""
     edge = Edge(release)
     edge.run_until_ready()
-    edge.takeoff()
-    start = edge.clock.now
-    while edge.finished() is None:
-        assert edge.clock.now < start + 15.0, "the take-off never ended"
-        edge.run(edge.clock.now + 0.05)
-    done = edge.finished()
-    assert done is not None
+    done = edge.takeoff_until_done()
     assert done.ok, done.reason
     assert len(edge.arms_at_px4()) == 1
