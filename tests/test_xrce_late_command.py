@@ -33,7 +33,9 @@ from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.readiness import ReadinessConfig
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleCore, VehicleEvent, VehicleRequest
 from swarmd.px4.xrce_backend import XrceBackend
-from swarmd.xrce.events import Address
+from swarmd.xrce.agent import XrceAgent
+from swarmd.xrce.client import XrceClient
+from swarmd.xrce.events import Address, SampleReceived, XrceEvent
 
 # the stand-in's core topic set has no home_position (docs/px4.md): readiness without it
 READY = ReadinessConfig(require_home=False)
@@ -76,14 +78,32 @@ class _Standin:
         return None
 
 
-class Edge:
+class _Wire:
+    """One virtual clock, and a link that carries each datagram after ``LATENCY_S`` while
+    it is up and drops it while it is down."""
+
+    def __init__(self) -> None:
+        self.clock = VirtualClock()
+        self.loop: Any = _Loop(self.clock)
+        self.link_up = True
+
+    def carry(self, deliver: Callable[[], None]) -> None:
+        if self.link_up:
+            self.clock.call_at(self.clock.now + LATENCY_S, deliver)
+
+    def run(self, until: float) -> None:
+        while (t := self.clock.next_time()) is not None and t <= until:
+            self.clock.run_next()
+        self.clock.now = max(self.clock.now, until)
+
+
+class Edge(_Wire):
     """swarmd (vehicle core + XRCE agent backend) and the PX4 stand-in, joined by a link
     that can go down."""
 
     def __init__(self, release: str) -> None:
-        self.clock = VirtualClock()
-        loop: Any = _Loop(self.clock)
-        self.link_up = True
+        super().__init__()
+        loop = self.loop
         self.events: list[VehicleEvent] = []
         self.core = VehicleCore(readiness_config=READY)
         self.backend = XrceBackend("xrce-agent", "udp:127.0.0.1:888", sysid=1, expected_key=KEY)
@@ -116,9 +136,8 @@ class Edge:
     # ---- the link ---------------------------------------------------------------------
 
     def _to_px4(self, out: tuple[bytes, Address]) -> None:
-        if self.link_up:
-            data = out[0]
-            self.clock.call_at(self.clock.now + LATENCY_S, lambda: self._px4_in(data))
+        data = out[0]
+        self.carry(lambda: self._px4_in(data))
 
     def _px4_in(self, data: bytes) -> None:
         self.px4_driver.datagram_received(data, "agent")
@@ -131,19 +150,10 @@ class Edge:
                 )
 
     def _to_swarmd(self, out: tuple[bytes, Address]) -> None:
-        if self.link_up:
-            data = out[0]
-            self.clock.call_at(
-                self.clock.now + LATENCY_S,
-                lambda: self.backend._receive(data, "px4"),  # noqa: SLF001
-            )
+        data = out[0]
+        self.carry(lambda: self.backend._receive(data, "px4"))  # noqa: SLF001
 
     # ---- driving ----------------------------------------------------------------------
-
-    def run(self, until: float) -> None:
-        while (t := self.clock.next_time()) is not None and t <= until:
-            self.clock.run_next()
-        self.clock.now = max(self.clock.now, until)
 
     def run_until_ready(self, limit: float = 30.0) -> None:
         while not self.core.readiness(self.clock.now).ready:
@@ -213,3 +223,67 @@ def test_a_takeoff_over_a_healthy_link_still_arms_and_flies(release: str) -> Non
     done = edge.takeoff_until_done()
     assert done.ok, done.reason
     assert len(edge.arms_at_px4()) == 1
+
+
+class ClientEdge(_Wire):
+    """swarmd as a second client (``xrce-client``) of an agent standing in for
+    MicroXRCEAgent (swarmd's own agent, unbound), joined by a link that can go down."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        loop = self.loop
+        self.agent = XrceAgent()
+        self.backend = XrceBackend("xrce-client", "udp:127.0.0.1:8888", sysid=1)
+        self.commands: list[tuple[float, bytes]] = []  # vehicle_command samples at the agent
+        backend = self.backend
+        backend._loop = loop  # noqa: SLF001 - what start() does, without the socket
+        backend._driver = Driver(  # noqa: SLF001
+            backend.engine, transmit=self._to_agent, on_event=backend._event,  # noqa: SLF001
+            name="xrce-client", loop=loop,
+        )  # fmt: skip
+        self.agent_driver: Driver[bytes, tuple[bytes, Address], XrceEvent] = Driver(
+            self.agent, transmit=self._to_swarmd, on_event=self._agent_event, name="agent",
+            loop=loop,
+        )  # fmt: skip
+        client = self.client
+        backend._driver.call(lambda now: client.connect("agent", now))  # noqa: SLF001
+
+    def _to_agent(self, out: tuple[bytes, Address]) -> None:
+        data = out[0]
+        self.carry(lambda: self.agent_driver.datagram_received(data, "swarmd"))
+
+    def _to_swarmd(self, out: tuple[bytes, Address]) -> None:
+        data = out[0]
+        self.carry(lambda: self.backend._receive(data, "agent"))  # noqa: SLF001
+
+    def _agent_event(self, event: XrceEvent) -> None:
+        if isinstance(event, SampleReceived) and "vehicle_command" in event.topic_name:
+            self.commands.append((self.clock.now, event.data))
+
+    @property
+    def client(self) -> XrceClient:
+        engine = self.backend.engine
+        assert isinstance(engine, XrceClient)
+        return engine
+
+
+def test_as_a_client_a_command_written_into_an_outage_never_reaches_the_agent_late() -> None:
+    """``xrce-client``: swarmd writes ``vehicle_command`` on its own reliable stream to
+    MicroXRCEAgent, which repairs what the agent did not acknowledge. An ARM written while
+    the link is down for 2 s (inside the session: three missed 1 s pings end it) must not
+    reach the agent after its life (0.5 s), and a command written after the outage still
+    does [the first fails on main: the ARM delivered 2 s late]."""
+    edge = ClientEdge()
+    edge.run(2.0)
+    assert edge.client.state == "established"
+    edge.link_up = False
+    edge.backend.send(VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=1.0))
+    written = edge.clock.now
+    edge.run(written + 2.0)
+    edge.link_up = True
+    edge.run(written + 5.0)
+    assert edge.client.state == "established"  # the session survived the outage
+    assert edge.commands == []
+    edge.backend.send(VehicleCommand.make(MavCmd.NAV_LAND))
+    edge.run(edge.clock.now + 1.0)
+    assert len(edge.commands) == 1
