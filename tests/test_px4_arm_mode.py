@@ -228,6 +228,29 @@ def test_an_unknown_mode_is_not_ready_and_says_so() -> None:
     assert "MODE(9,0)" in verdict.detail and "not a mode known" in verdict.detail
 
 
+@pytest.mark.parametrize(
+    ("mode", "raw"),
+    [
+        (Px4Mode(9, 0), "custom_mode 0x00090000"),  # a main mode PX4 does not define
+        (Px4Mode(4, 19), "custom_mode 0x13040000"),  # AUTO.19: a later PX4's sub-mode
+        (Px4Mode(3, 9), "custom_mode 0x09030000"),  # POSCTL.9
+    ],
+)
+def test_an_unknown_mavlink_mode_names_its_raw_custom_mode(mode: Px4Mode, raw: str) -> None:
+    """The detail carries HEARTBEAT.custom_mode as PX4 sent it, the number an operator
+    looks up in a later PX4's px4_custom_mode.h [main: MODE(9,0) or AUTO.19 alone]."""
+    c = Core(mode=mode)
+    verdict = c.core.readiness(c.now)
+    assert verdict.reason is Reason.FLIGHT_MODE
+    assert raw in verdict.detail
+    assert mode.name in verdict.detail
+
+
+def test_a_known_mode_carries_no_raw_number() -> None:
+    c = Core(mode=MODE_TAKEOFF)
+    assert "custom_mode" not in c.core.readiness(c.now).detail
+
+
 # ---- any mode, any order: ARM only ever in a mode that stays on the ground ----------------
 
 ANY_MODE = st.builds(Px4Mode, st.integers(0, 12), st.integers(0, 20)) | st.sampled_from(
@@ -341,6 +364,10 @@ def test_xrce_nav_state_is_judged_by_the_same_rule(
     if not ready:
         assert verdict.reason is Reason.FLIGHT_MODE
         assert name in verdict.detail
+    # an unknown nav_state is named by its number, the only name it has [main: MODE(0,0)
+    # alone, nav_state 7 and 31 read alike]; a known one needs none
+    raw = f"vehicle_status.nav_state {nav_state}"
+    assert (raw in verdict.detail) is (name == "MODE(0,0)")
 
 
 @pytest.mark.parametrize("sub", range(11, 19))  # PX4_CUSTOM_SUB_MODE_EXTERNAL1-8

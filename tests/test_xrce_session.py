@@ -277,9 +277,24 @@ def test_reliable_window_across_the_wrap() -> None:
     out.push(b"x")
     out.push(b"y")
     assert out.heartbeat() == (0xFFFF, 0x0000)
-    assert out.on_acknack(0xFFFF, 0b10) == [b"y"]
-    assert out.on_acknack(0x0001, 0) == [] and out.heartbeat() is None
+    assert out.on_acknack(0xFFFF, 0b10, 0.0) == [b"y"]
+    assert out.on_acknack(0x0001, 0, 0.0) == [] and out.heartbeat() is None
     assert AckNack(0, 0, 0x80) == AckNack(0, 0, 0x80)
+
+
+def test_an_expired_message_is_repaired_only_as_its_stand_in() -> None:
+    """A message pushed with an expiry is sent again as itself before it and as its stand-in
+    at and after it; the stand-in keeps its sequence number, so the gap is filled
+    (docs/security.md, "A command frame delivered late")."""
+    out = ReliableOut()
+    out.push(b"arm", (1.0, b"nothing"))
+    out.push(b"status")
+    assert out.on_acknack(0, 0b11, 0.5) == [b"arm", b"status"]
+    assert out.expired == 0
+    assert out.on_acknack(0, 0b11, 1.0) == [b"nothing", b"status"]
+    assert out.on_acknack(0, 0b01, 9.0) == [b"nothing"]
+    assert out.expired == 1 and out.heartbeat() == (0, 1)
+    assert out.on_acknack(2, 0, 9.0) == [] and out.heartbeat() is None and not out.expiry
 
 
 def test_agent_refuses_nothing_px4_creates() -> None:

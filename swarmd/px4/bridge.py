@@ -114,6 +114,7 @@ class Px4Bridge:
                 loopback_user=config.loopback_user,
                 log=log,
                 inherited=config.listen_socket,
+                command_life_s=config.takeoff.command.ack_timeout_s,
             )
         else:
             backend = MavlinkBackend(

@@ -67,6 +67,18 @@ class Px4Mode:
             sub = str(self.sub)
         return f"{main.name}.{sub}"
 
+    @property
+    def known(self) -> bool:
+        """PX4 defines this (main, sub), so ``name`` spells it out rather than in numbers."""
+        try:
+            main = Px4MainMode(self.main)
+        except ValueError:
+            return False
+        if self.sub == 0 and main != Px4MainMode.AUTO:
+            return True
+        subs = _SUB_MODES.get(main)
+        return subs is not None and self.sub in {int(m) for m in subs}
+
     def __str__(self) -> str:
         return self.name
 
@@ -85,6 +97,10 @@ class Heartbeat:
     base_mode: int
     custom_mode: int
     system_status: int
+    # XRCE-DDS: the vehicle_status.nav_state the mode was read from (None over MAVLink). A
+    # nav_state PX4 1.14-1.17 leaves free, or one of a later PX4, maps to no mode (0, 0):
+    # the number itself is what names it to the operator (readiness ``flight_mode``)
+    nav_state: int | None = None
 
     @property
     def armed(self) -> bool:

@@ -153,7 +153,18 @@ def arm_mode_problem(heartbeat: Heartbeat | None) -> str | None:
         return None
     allowed = ", ".join(m.name for m in STAYS_ON_GROUND)
     what = _FLIES_ON_ARM.get(mode, "is not a mode known to stay on the ground when armed")
-    return f"mode {mode.name} {what}; a take-off arms only in {allowed}"
+    return f"mode {mode.name}{_raw_mode(heartbeat)} {what}; a take-off arms only in {allowed}"
+
+
+def _raw_mode(heartbeat: Heartbeat) -> str:
+    """The number PX4 sent, for a mode swarmd cannot name: a free ``nav_state`` slot or a
+    later PX4's mode reads MODE(0,0) over XRCE, and MODE(main,sub) says only part of a
+    MAVLink ``custom_mode``; the raw number is what the operator looks up."""
+    if heartbeat.mode.known:
+        return ""
+    if heartbeat.nav_state is not None:
+        return f" (vehicle_status.nav_state {heartbeat.nav_state})"
+    return f" (HEARTBEAT.custom_mode {heartbeat.custom_mode:#010x})"
 
 
 @dataclass(slots=True)

@@ -140,6 +140,9 @@ class FailReason(StrEnum):
     MODE_CHANGED = "mode_changed"
     TAKEOFF_REJECTED = "takeoff_rejected"
     TAKEOFF_NO_ACK = "takeoff_no_ack"
+    # the retransmission of ARM or NAV_TAKEOFF fell due while swarmd's loop did not run (a
+    # stall, a suspend): sent that late it would start the flight late; one DISARM instead
+    HELD_UP = "held_up"
     DISARMED = "disarmed"  # the vehicle disarmed itself (auto-disarm, failsafe, RC)
     NO_LIFTOFF = "no_liftoff"
     CANCELLED = "cancelled"
@@ -314,6 +317,21 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         self._check_state(now)
         if self._finished():
             return
+        due = self._sender.get_timer()
+        late = self.config.command.ack_timeout_s
+        if due is not None and now - due >= late:
+            # the loop did not run for an ack timeout past the retransmission's time (a
+            # stall, a host suspended): ARM or NAV_TAKEOFF sent now would start the flight
+            # that much late, past the budget the operator's validity was judged against
+            # (docs/security.md, "A command frame delivered late"); the one DISARM instead
+            self._fail(
+                now,
+                FailReason.HELD_UP,
+                None,
+                f"swarmd's loop was held up {now - due:.1f} s past the retransmission of "
+                f"{self._step_label()}: not sent that late",
+            )
+            return
         self._sender.handle_timer(now)
         self._drain(now)
         if self._finished():
@@ -342,6 +360,9 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
     def arm_sent(self) -> bool:
         """ARM went out: the vehicle may arm whatever the state shows yet (ABORT's cue)."""
         return self._arm_sent
+
+    def _step_label(self) -> str:
+        return "ARM" if self.phase is TakeoffPhase.ARMING else "NAV_TAKEOFF"
 
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 

@@ -32,6 +32,7 @@ from typing import Any, Final, Literal
 
 from swarmd.driver import Driver
 from swarmd.px4.backend import ObservationSink
+from swarmd.px4.command_sender import SenderConfig
 from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.transport import (
     XRCE_SOCKET,
@@ -63,6 +64,13 @@ Mode = Literal["xrce-agent", "xrce-client"]
 DEFAULT_XRCE_CONNECTION: Final = "udp:127.0.0.1:888"
 SERIAL_PEER: Final = "serial"
 SERVICE: Final = "vehicle_command"  # PX4's replier (>= 1.15), rq/rr/fmu/vehicle_command...
+# How long one command frame may be repaired by the XRCE reliable stream (DDS-XRCE 1.0
+# §8.4.2): the command sender's ack timeout. By then the sender has sent its own next copy
+# (a new frame, ``confirmation`` + 1) or given the command up and its outcome is on its
+# way to the operator, so a repair later would only deliver the command late: a take-off's
+# ARMs written into a link outage reached PX4 after the take-off failed ``arm_no_ack``
+# (docs/security.md, "A command frame delivered late"). Later repairs send a stand-in.
+COMMAND_LIFE_S: Final = SenderConfig().ack_timeout_s
 
 
 def parse_xrce_connection(text: str, field: str = "px4.connection") -> Endpoint:
@@ -108,10 +116,12 @@ class XrceBackend:
         log: Any = None,
         inherited: socket.socket | None = None,
         sender_uids: SenderUids | None = None,
+        command_life_s: float = COMMAND_LIFE_S,
     ) -> None:
         """``loopback_user`` (xrce-agent): the uid PX4 SITL runs as; the agent then drops
         every other local user's loopback datagram, told by the kernel's socket table
-        (``sender_uids``, swarmd.senderuid; injected by tests)."""
+        (``sender_uids``, swarmd.senderuid; injected by tests). ``command_life_s``: how long
+        a command's frame may be repaired on a reliable stream (``COMMAND_LIFE_S``)."""
         if not 1 <= sysid <= 255:
             raise ValueError("px4.sysid must be 1..255")
         self.mode: Mode = mode
@@ -138,6 +148,7 @@ class XrceBackend:
                 publications={dds_topic("vehicle_command", "in", 0, namespace): _cmd_type()},
                 domain_id=domain_id,
             )
+        self.command_life_s = command_life_s
         self.counters: Counter[str] = Counter()
         self.loopback_user = loopback_user if mode == "xrce-agent" else None
         # who sent a loopback datagram: looked up only when the agent tells users apart
@@ -239,9 +250,10 @@ class XrceBackend:
 
         def publish(now: float) -> int:
             sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
+            until = now + self.command_life_s  # never repaired after it (COMMAND_LIFE_S)
             if service and isinstance(engine, XrceAgent):
-                return engine.request(SERVICE, sample, now)
-            return engine.publish(topic, sample, now)
+                return engine.request(SERVICE, sample, now, until=until)
+            return engine.publish(topic, sample, now, until=until)
 
         sent = self._driver.call(publish)
         self.counters["commands_unrouted"] += 0 if sent else 1
@@ -274,6 +286,9 @@ class XrceBackend:
             "foreign_system_id": self.translator.foreign_system_id,
             "unidentified_samples": self.translator.unidentified_samples,
             "dropped": dict(self.engine.dropped),
+            # command frames whose repair came too late: a stand-in went instead (a link
+            # outage or a stalled PX4; docs/security.md, "A command frame delivered late")
+            "commands_expired": self.engine.stand_ins,
             "bad_frames": self._deframer.dropped,
         }
         # the counters a status reader polls are there from the start, at 0 (a JSON reader

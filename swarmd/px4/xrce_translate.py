@@ -273,6 +273,7 @@ class Px4Translator:
             base_mode=MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MODE_FLAG_SAFETY_ARMED if armed else 0),
             custom_mode=(main & 0xFF) << 16 | (sub & 0xFF) << 24,
             system_status=status,
+            nav_state=nav,
         )
         out: list[Observation] = [hb, self._sys_status()]
         if self._landed is not None:

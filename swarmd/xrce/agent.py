@@ -56,7 +56,7 @@ from typing import Final
 
 from swarmd.xrce.binary import parse_endpoint, parse_service, parse_topic
 from swarmd.xrce.buffer import DecodeError
-from swarmd.xrce.endpoint import Endpoint, receive_stream
+from swarmd.xrce.endpoint import Endpoint, receive_stream, stand_in
 from swarmd.xrce.events import (
     Address,
     ClientRefused,
@@ -278,9 +278,13 @@ class XrceAgent(Endpoint):
             return [] if vehicle is None else [vehicle]
         return list(self.sessions.values())
 
-    def publish(self, topic_name: str, data: bytes, now: float) -> int:
+    def publish(
+        self, topic_name: str, data: bytes, now: float, *, until: float | None = None
+    ) -> int:
         """Send ``data`` to every reader of ``topic_name`` that asked (READ_DATA), in the bound
-        vehicle's session only (every session when unbound).
+        vehicle's session only (every session when unbound). ``until``: on a reliable
+        stream, repaired as itself only before that time, then as a message that does
+        nothing (``ReliableOut``): a command's frame, worth sending while its sender waits.
 
         Returns how many readers it went to (0: nobody subscribed yet).
         """
@@ -295,19 +299,20 @@ class XrceAgent(Endpoint):
                     continue
                 sub = Data(req.request_id, oid, data)
                 if req.stream_id >= 0x80:
-                    self._send_reliable(s, [sub], now)
+                    self._send_reliable(s, [sub], now, until)
                 else:
                     self._send_best_effort(s, [sub])
                 s.samples_out += 1
                 sent += 1
         return sent
 
-    def request(self, service: str, data: bytes, now: float) -> int:
+    def request(self, service: str, data: bytes, now: float, *, until: float | None = None) -> int:
         """Send a request to every client replier of ``service`` that asked (READ_DATA).
 
         eProsima's replier DATA carries the request's SampleIdentity (writer GUID, sequence
         number: 24 octets) before the sample; the replier echoes it in its reply. Bound: the
-        vehicle's session only.
+        vehicle's session only. ``until``: as for ``publish`` (PX4's replier reads on the
+        reliable stream, so a request is repaired until then and never after).
         """
         sent = 0
         for s in self._targets():
@@ -319,7 +324,7 @@ class XrceAgent(Endpoint):
                 identity = REQUESTER_GUID + struct.pack("<iI", 0, self._request_seq & 0xFFFFFFFF)
                 sub = Data(req.request_id, oid, identity + data)
                 if req.stream_id >= 0x80:
-                    self._send_reliable(s, [sub], now)
+                    self._send_reliable(s, [sub], now, until)
                 else:
                     self._send_best_effort(s, [sub])
                 sent += 1
@@ -483,8 +488,10 @@ class XrceAgent(Endpoint):
                 self._send_reliable(s, [StatusReply(sub.request_id, sub.object_id, st)], now)
             case AckNack():
                 if sub.stream_id == STREAM_RELIABLE:
-                    for msg in s.rel_out.on_acknack(sub.first_unacked, sub.nack_bitmap):
+                    expired = s.rel_out.expired
+                    for msg in s.rel_out.on_acknack(sub.first_unacked, sub.nack_bitmap, now):
                         self._out.append((msg, s.source))
+                    self.stand_ins += s.rel_out.expired - expired
                     if s.rel_out.heartbeat() is None:
                         s.heartbeat_at = None
             case Heartbeat():
@@ -577,10 +584,13 @@ class XrceAgent(Endpoint):
         s.be_out_seq = seq_add(seq, 1)
         self._out.append((encode_message(self._header(s, STREAM_BEST_EFFORT, seq), subs), s.source))
 
-    def _send_reliable(self, s: Session, subs: list[Submessage], now: float) -> None:
+    def _send_reliable(
+        self, s: Session, subs: list[Submessage], now: float, until: float | None = None
+    ) -> None:
         seq = s.rel_out.next_seq
-        msg = encode_message(self._header(s, STREAM_RELIABLE, seq), subs)
-        s.rel_out.push(msg)
+        header = self._header(s, STREAM_RELIABLE, seq)
+        msg = encode_message(header, subs)
+        s.rel_out.push(msg, None if until is None else (until, stand_in(header)))
         self._out.append((msg, s.source))
         if s.heartbeat_at is None:
             s.heartbeat_at = now + HEARTBEAT_PERIOD_S

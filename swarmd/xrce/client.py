@@ -30,7 +30,7 @@ from swarmd.xrce.binary import (
     encode_topic,
 )
 from swarmd.xrce.buffer import DecodeError
-from swarmd.xrce.endpoint import Endpoint, receive_stream
+from swarmd.xrce.endpoint import Endpoint, receive_stream, stand_in
 from swarmd.xrce.events import (
     Address,
     EntityCreated,
@@ -139,11 +139,15 @@ class XrceClient(Endpoint):
         self.state = "idle"
         self._connect_at = self._ping_at = self._heartbeat_at = None
 
-    def publish(self, topic_name: str, data: bytes, now: float) -> int:
+    def publish(
+        self, topic_name: str, data: bytes, now: float, *, until: float | None = None
+    ) -> int:
+        """WRITE_DATA on the reliable stream. ``until``: repaired as itself only before that
+        time, then as a message that does nothing (``ReliableOut``; a command's frame)."""
         oid = self._writers.get(topic_name)
         if self.state != "established" or oid is None:
             return 0
-        self._send_reliable([WriteData(self._next_request(), oid, data)], now)
+        self._send_reliable([WriteData(self._next_request(), oid, data)], now, until)
         return 1
 
     # ---- driving ----------------------------------------------------------------------------
@@ -215,8 +219,12 @@ class XrceClient(Endpoint):
                         self._emit(SampleReceived(self.agent, topic, typ, sub.data))
                 case AckNack():
                     if sub.stream_id == STREAM_RELIABLE:
-                        for msg in self._rel_out.on_acknack(sub.first_unacked, sub.nack_bitmap):
+                        expired = self._rel_out.expired
+                        for msg in self._rel_out.on_acknack(
+                            sub.first_unacked, sub.nack_bitmap, now
+                        ):
                             self._out.append((msg, self.agent))
+                        self.stand_ins += self._rel_out.expired - expired
                 case Heartbeat():
                     self._rel_in.on_heartbeat(sub.first_unacked, sub.last_unacked)
                     first, bitmap = self._rel_in.acknack(sub.last_unacked)
@@ -329,9 +337,12 @@ class XrceClient(Endpoint):
         if self.agent is not None:
             self._out.append((encode_message(self._header(0, 0), subs), self.agent))
 
-    def _send_reliable(self, subs: list[Submessage], now: float) -> None:
-        msg = encode_message(self._header(STREAM_RELIABLE, self._rel_out.next_seq), subs)
-        self._rel_out.push(msg)
+    def _send_reliable(
+        self, subs: list[Submessage], now: float, until: float | None = None
+    ) -> None:
+        header = self._header(STREAM_RELIABLE, self._rel_out.next_seq)
+        msg = encode_message(header, subs)
+        self._rel_out.push(msg, None if until is None else (until, stand_in(header)))
         if self.agent is not None:
             self._out.append((msg, self.agent))
         if self._heartbeat_at is None:

@@ -9,7 +9,14 @@ from typing import Final
 
 from swarmd.xrce.buffer import DecodeError
 from swarmd.xrce.events import Address, PacketDropped, XrceEvent
-from swarmd.xrce.message import AckNack, Header, Submessage, split_submessages
+from swarmd.xrce.message import (
+    AckNack,
+    Header,
+    Heartbeat,
+    Submessage,
+    encode_message,
+    split_submessages,
+)
 from swarmd.xrce.streams import BestEffortIn, ReliableIn
 
 MAX_EVENTS: Final = 4096  # undrained events kept; the driver drains after every input
@@ -25,6 +32,8 @@ class Endpoint:
         self._events: deque[XrceEvent] = deque()
         self.dropped: Counter[str] = Counter()
         self.events_lost = 0
+        # repairs sent as a stand-in: the message had expired (a command frame given up)
+        self.stand_ins = 0
 
     def datagrams_to_send(self) -> list[tuple[bytes, Address]]:
         out, self._out = self._out, []
@@ -77,3 +86,14 @@ def receive_stream(
     first, bitmap = rin.acknack()
     reply(header, [AckNack(first, bitmap, stream)])
     return True
+
+
+def stand_in(header: Header) -> bytes:
+    """A reliable message that does nothing, to send at ``header``'s sequence number in
+    place of one that expired (``streams.ReliableOut``): a HEARTBEAT naming that message
+    alone. The receiver takes it in order as any message and answers an ACKNACK; Micro
+    XRCE-DDS's client (``read_submessage_heartbeat``) and ours note the stream's last
+    sequence number, nothing else. The sequence is filled, so what waits behind it moves.
+    """
+    seq = header.sequence_nr
+    return encode_message(header, [Heartbeat(seq, seq, header.stream_id)])

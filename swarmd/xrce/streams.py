@@ -97,19 +97,35 @@ class ReliableIn:
 
 @dataclass(slots=True)
 class ReliableOut:
-    """A reliable output stream: history of unacknowledged messages by sequence number."""
+    """A reliable output stream: history of unacknowledged messages by sequence number.
+
+    A message pushed with an *expiry* (a time, and a stand-in: another message of the same
+    sequence number that does nothing) is sent again as itself only before that time; a
+    repair asked for later sends the stand-in. A command frame is worth repeating only
+    while its sender still waits for its answer: later, the repeat would deliver the
+    command after its sender gave it up (docs/security.md, "A command frame delivered
+    late"). The message cannot simply be dropped: Micro XRCE-DDS's client ignores a
+    HEARTBEAT's first sequence number (``uxr_process_heartbeat``), so a gap in a reliable
+    stream is never skipped and every later message would wait behind it.
+    """
 
     next_seq: int = 0
     history: dict[int, bytes] = field(default_factory=dict)  # seq -> whole datagram
+    # seq -> (until when the message itself may be sent again, its stand-in)
+    expiry: dict[int, tuple[float, bytes]] = field(default_factory=dict)
     evicted: int = 0
+    expired: int = 0  # repairs that sent a stand-in, not the late message
 
-    def push(self, build: bytes) -> int:
+    def push(self, build: bytes, expiry: tuple[float, bytes] | None = None) -> int:
         seq = self.next_seq
         self.next_seq = seq_add(seq, 1)
         self.history[seq] = build
+        if expiry is not None:
+            self.expiry[seq] = expiry
         while len(self.history) > MAX_RELIABLE_HISTORY:
             oldest = min(self.history, key=lambda s: seq_diff(s, self.next_seq))
             del self.history[oldest]
+            self.expiry.pop(oldest, None)
             self.evicted += 1
         return seq
 
@@ -118,19 +134,28 @@ class ReliableOut:
             return self.next_seq
         return min(self.history, key=lambda s: seq_diff(s, self.next_seq))
 
-    def on_acknack(self, first_unacked: int, bitmap: int) -> list[bytes]:
-        """Forget what is acknowledged; return the NACKed messages to send again."""
+    def on_acknack(self, first_unacked: int, bitmap: int, now: float) -> list[bytes]:
+        """Forget what is acknowledged; return the NACKed messages to send again (a stand-in
+        for each one past its expiry at ``now``)."""
         if seq_diff(first_unacked, self.next_seq) > 0:
             return []  # acknowledges what we never sent: forged or confused, ignore
         for s in list(self.history):
             if seq_lt(s, first_unacked):
                 del self.history[s]
+                self.expiry.pop(s, None)
         out = []
         for i in range(16):
             if bitmap & (1 << i):
-                body = self.history.get(seq_add(first_unacked, i))
-                if body is not None:
-                    out.append(body)
+                seq = seq_add(first_unacked, i)
+                body = self.history.get(seq)
+                if body is None:
+                    continue
+                until = self.expiry.get(seq)
+                if until is not None and now >= until[0]:
+                    body = self.history[seq] = until[1]  # from now on, only the stand-in
+                    del self.expiry[seq]
+                    self.expired += 1
+                out.append(body)
         return out
 
     def heartbeat(self) -> tuple[int, int] | None:
