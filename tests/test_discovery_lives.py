@@ -32,14 +32,14 @@ CRASH_LOOP_S = 2.0 + 0.288
 
 
 def test_the_first_lives_are_free_at_any_pace_and_the_next_waits_for_the_decay() -> None:
-    d = LifeDamping(3)
+    d = LifeDamping()
     for k in range(FREE_LIVES):
         assert not d.held(1, k * 0.25)
         d.honoured(1, k * 0.25)
     now = (FREE_LIVES - 1) * 0.25
     assert d.held(1, now)
     # held exactly until the penalty has decayed back to the limit
-    until = d.reuse_at[1]
+    until = d.reuse_at(1)
     assert math.isclose(d.penalty(1, until), FLAP_PENALTY_LIMIT)
     assert d.held(1, until - 0.001)
     assert not d.held(1, until)
@@ -51,7 +51,7 @@ def test_the_first_lives_are_free_at_any_pace_and_the_next_waits_for_the_decay()
 
 
 def test_the_penalty_halves_every_half_life() -> None:
-    d = LifeDamping(2)
+    d = LifeDamping()
     d.honoured(1, 10.0)
     assert d.penalty(1, 10.0) == FLAP_PENALTY
     assert math.isclose(d.penalty(1, 10.0 + FLAP_HALF_LIFE_S), FLAP_PENALTY / 2)
@@ -63,14 +63,14 @@ def test_the_penalty_halves_every_half_life() -> None:
 def test_a_peer_honoured_as_soon_as_allowed_forever_gets_one_life_per_hold_max() -> None:
     """The steady state of a churn at the fastest pace the damping allows: every hold is
     ``FLAP_HOLD_MAX_S`` (the penalty peaks at limit + 1), never longer."""
-    d = LifeDamping(2)
+    d = LifeDamping()
     now = 0.0
     honoured = []
     while now < 3600.0:
         if not d.held(1, now):
             d.honoured(1, now)
             honoured.append(now)
-        now = max(now + 0.25, d.reuse_at[1])
+        now = max(now + 0.25, d.reuse_at(1))
     assert d.penalty(1, now) <= FLAP_PENALTY_LIMIT + FLAP_PENALTY
     gaps = [b - a for a, b in zip(honoured[FREE_LIVES - 1 :], honoured[FREE_LIVES:], strict=False)]
     assert gaps
@@ -80,7 +80,7 @@ def test_a_peer_honoured_as_soon_as_allowed_forever_gets_one_life_per_hold_max()
 
 
 def test_lives_an_hour_apart_are_never_held() -> None:
-    d = LifeDamping(2)
+    d = LifeDamping()
     for k in range(24):
         assert not d.held(1, k * 3600.0)
         d.honoured(1, k * 3600.0)

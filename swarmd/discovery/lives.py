@@ -30,8 +30,9 @@ dispose) and is never held; a crash loop (systemd's ``RestartSec=2s``) has its f
 and 4 restarts seen at once and the next ones late, by at most ``FLAP_HOLD_MAX_S``
 (docs/security.md, "A captured member's lives").
 
-Pure: time is the ``now`` argument, the state is three floats per bundle index (a stranger
-adds no row: only a bundle peer's verified DATA(p) or dispose reaches ``honoured``).
+Pure: time is the ``now`` argument, the state is three floats per bundle peer that had a
+life (a stranger adds no row: only a bundle peer's verified DATA(p) or dispose reaches
+``honoured``).
 """
 
 from __future__ import annotations
@@ -57,37 +58,42 @@ _NEVER: Final = -math.inf
 
 
 class LifeDamping:
-    """Per bundle peer: its penalty, when it was last set, and until when its next life is
-    held (``reuse_at``: a plain list, read once per restart or return on the receive path)."""
+    """Per bundle peer that ever had a life honoured (a row only then, at most the bundle's
+    size; none in an honest swarm that never restarts, so a 1000-engine simulation carries
+    no table of 1000 rows each): its penalty, when that was set, and until when its next
+    life is held."""
 
-    __slots__ = ("_at", "_penalty", "reuse_at")
+    __slots__ = ("_rows",)
 
-    def __init__(self, size: int) -> None:
-        self._penalty = [0.0] * size
-        self._at = [0.0] * size
-        # by bundle index: a life before this time is held (-inf: none is)
-        self.reuse_at: list[float] = [_NEVER] * size
+    def __init__(self) -> None:
+        # bundle index -> (penalty, when set, held until): written only by ``honoured``
+        self._rows: dict[int, tuple[float, float, float]] = {}
 
     def penalty(self, index: int, now: float) -> float:
         """The peer's penalty decayed to ``now`` (RFC 2439, section 4.1: exponential decay)."""
-        penalty = self._penalty[index]
-        if penalty == 0.0:
+        row = self._rows.get(index)
+        if row is None:
             return 0.0
-        elapsed = max(0.0, now - self._at[index])  # a driver never goes back; be safe anyway
+        penalty, at, _ = row
+        elapsed = max(0.0, now - at)  # a driver never goes back; be safe anyway
         return penalty * math.exp2(-elapsed / FLAP_HALF_LIFE_S)
+
+    def reuse_at(self, index: int) -> float:
+        """When the peer's next life may be honoured (-inf: at once)."""
+        row = self._rows.get(index)
+        return _NEVER if row is None else row[2]
 
     def held(self, index: int, now: float) -> bool:
         """True while the peer's next life must wait: its penalty is above the limit."""
-        return now < self.reuse_at[index]
+        return now < self.reuse_at(index)
 
     def honoured(self, index: int, now: float) -> None:
         """The peer's life was honoured at ``now``: its penalty grows by one, and past the
         limit its next life waits until the penalty has decayed back to it."""
         penalty = self.penalty(index, now) + FLAP_PENALTY
-        self._penalty[index] = penalty
-        self._at[index] = now
-        self.reuse_at[index] = (
+        until = (
             now + FLAP_HALF_LIFE_S * math.log2(penalty / FLAP_PENALTY_LIMIT)
             if penalty > FLAP_PENALTY_LIMIT
             else _NEVER
         )
+        self._rows[index] = (penalty, now, until)

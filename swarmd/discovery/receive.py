@@ -184,7 +184,7 @@ class ReceivePath:
         # of both, those held by the peer's penalty past the interval (lives.LifeDamping)
         self.lives_damped = 0
         # its lives (honoured restarts and returns) damped over time: ours alone, by index
-        self._lives = LifeDamping(bundle.size)
+        self._lives = LifeDamping()
         self._foreign = foreign
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
