@@ -553,10 +553,7 @@ class DiscoveryEngine:
             "tx_multicast": sent["tx_multicast"],
             "tx_unicast": sent["tx_unicast"],
             "events_dropped": self._events_dropped,
-            # a peer's epoch rises within RESTART_MIN_INTERVAL_S of its last honoured restart
-            "restarts_coalesced": self._receive.restarts_coalesced,
-            # a peer's DATA(p) within RESTART_MIN_INTERVAL_S of its own dispose, held
-            "returns_held": self._receive.returns_held,
+            **self._receive.lives_counters(),  # restarts and returns held (receive.py)
             "datagrams_dropped": sent["datagrams_dropped"],
             # new foreign participants folded into a later report
             "foreign_suppressed": self._foreign.suppressed_total,

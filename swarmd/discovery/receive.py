@@ -43,6 +43,7 @@ from swarmd.discovery.events import (
 )
 from swarmd.discovery.foreign import ForeignParticipants
 from swarmd.discovery.leases import Leases
+from swarmd.discovery.lives import LifeDamping
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase
 from swarmd.discovery.received import Alive
@@ -76,7 +77,9 @@ _DISCOVERED: Final = PeerState.DISCOVERED
 # ``PeerLost`` and a ``PeerDiscovered`` at every drone. It is held (not listed, nothing
 # moves), counted (``returns_held``), and honoured by the peer's first datagram past the
 # interval: late by at most the interval, never lost (docs/security.md, "A captured member's
-# lives").
+# lives"). Over time a peer's lives (honoured restarts and returns) are damped too
+# (``lives.LifeDamping``, RFC 2439): past its first few, its next one waits up to
+# ``lives.FLAP_HOLD_MAX_S``, held and honoured the same way.
 RESTART_MIN_INTERVAL_S: Final = 0.25
 
 
@@ -96,6 +99,7 @@ class ReceivePath:
         "_index_of",
         "_lease_queue",
         "_leases",
+        "_lives",
         "_local_dotted",
         "_local_octets",
         "_lose",
@@ -117,6 +121,7 @@ class ReceivePath:
         "_held_until",
         "_vouching",
         "dropped",
+        "lives_damped",
         "phase",
         "restarts_coalesced",
         "returns_held",
@@ -176,6 +181,10 @@ class ReceivePath:
         self.rx_datagrams = 0
         self.restarts_coalesced = 0  # epoch rises within RESTART_MIN_INTERVAL_S, held back
         self.returns_held = 0  # DATA(p) within RESTART_MIN_INTERVAL_S of its sender's dispose
+        # of both, those held by the peer's penalty past the interval (lives.LifeDamping)
+        self.lives_damped = 0
+        # its lives (honoured restarts and returns) damped over time: ours alone, by index
+        self._lives = LifeDamping()
         self._foreign = foreign
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
@@ -247,6 +256,18 @@ class ReceivePath:
         if self.phase is _ANNOUNCE and not self._debts.any_pending():
             self._settle()  # (asks any_pending again: the armed set is empty now)
 
+    def lives_counters(self) -> dict[str, int]:
+        """The holds of a peer's lives (``RESTART_MIN_INTERVAL_S``, ``lives.LifeDamping``)."""
+        return {
+            # a peer's epoch rises held: within the interval of its last honoured restart,
+            # or while its penalty is above the limit
+            "restarts_coalesced": self.restarts_coalesced,
+            # a peer's DATA(p) held after its own dispose, for the same two reasons
+            "returns_held": self.returns_held,
+            # of both, those held by the penalty alone (past the interval)
+            "lives_damped": self.lives_damped,
+        }
+
     def peer_by_prefix(self, prefix: bytes) -> Peer | None:
         """The bundle peer whose GUID prefix octets are ``prefix``; None for us or a stranger."""
         index = self._index_of.get(prefix)
@@ -296,12 +317,15 @@ class ReceivePath:
         disposed_at = peer.disposed_at
         if disposed_at is not None:
             # set only as its own dispose lost it, cleared once it is heard again
-            if now - disposed_at < RESTART_MIN_INTERVAL_S:
-                # back sooner than a daemon restarts after its dispose: held, nothing moves
-                # (RESTART_MIN_INTERVAL_S); its first datagram past the interval counts
+            soon = now - disposed_at < RESTART_MIN_INTERVAL_S
+            if soon or self._lives.held(peer.index, now):
+                # back sooner than a daemon restarts after its dispose, or past its free
+                # lives (lives.py): held, nothing moves; its first datagram past both counts
                 self.returns_held += 1
+                self.lives_damped += not soon
                 return
             peer.disposed_at = None
+            self._lives.honoured(peer.index, now)  # a life: its return, found below
         self._heard(peer, alive, source, now, fresh)
 
     def _heard(
@@ -326,21 +350,22 @@ class ReceivePath:
         if fresh is not None:
             # a new life, whatever its SN (the epoch is signed: not a forger's word)
             epoch_rose = previous_epoch is not None and fresh.epoch > previous_epoch
-            honoured_at = peer.restarted_at
-            if (
-                epoch_rose
-                and not newly
-                and honoured_at is not None
-                and now - honoured_at < RESTART_MIN_INTERVAL_S
-            ):
-                # faster than a daemon starts: a captured member churning its epoch. Fresh
-                # all the same (its window moved); peer.epoch stays the honoured life's, so
-                # its first datagram past the interval honours the newest
-                epoch_rose = False
-                self.restarts_coalesced += 1
-            else:
-                if epoch_rose and not newly:
+            if epoch_rose and not newly:
+                honoured_at = peer.restarted_at
+                soon = honoured_at is not None and now - honoured_at < RESTART_MIN_INTERVAL_S
+                if soon or self._lives.held(peer.index, now):
+                    # faster than a daemon starts, or past its free lives (lives.py): a
+                    # captured member churning its epoch. Fresh all the same (its window
+                    # moved); peer.epoch stays the honoured life's, so its first datagram
+                    # past both honours the newest
+                    epoch_rose = False
+                    self.restarts_coalesced += 1
+                    self.lives_damped += not soon
+                else:
                     peer.restarted_at = now
+                    self._lives.honoured(peer.index, now)  # a life: its restart
+                    peer.epoch = fresh.epoch
+            else:
                 peer.epoch = fresh.epoch
             restarted = restarted or epoch_rose
         meta, default = alive.metatraffic_locators, alive.default_locators

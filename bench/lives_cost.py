@@ -1,0 +1,166 @@
+"""What a peer's lives cost a drone, and what their damping costs an honest peer
+(docs/security.md, "A captured member's lives"; swarmd/discovery/lives.py).
+
+    .venv/bin/python -m bench.lives_cost [--seconds 60] [--rate 20] [--lives 8]
+
+One receiver (``uav0`` of a 3-drone bundle, authenticated) on virtual time, its timers run
+between datagrams; ``uav1`` is scripted. Two parts:
+
+* *the captured member*: for ``--seconds`` it sends ``--rate`` datagrams a second, all
+  genuine and fresh: its DATA(p) with a new epoch each time (epoch churn), or its signed
+  dispose and DATA(p) in turn, in one epoch or a new one each time (leaving and returning).
+  Printed: the restarts (``PeerRestarted``), losses and discoveries the receiver had, in all
+  and after the first 5 s, and the holds counted.
+* *an honest peer* whose lives follow one another as fast as systemd makes them: a crash
+  loop (no dispose; ``Restart=on-failure``, ``RestartSec=2s``: each life sends its first
+  DATA(p) 2 s plus a start-up, 0.288 s at the fastest, after the last one died) and a series
+  of ``systemctl restart`` (a dispose, then the next life a start-up later). Each life lives
+  ``--alive`` seconds sending a DATA(p) every 0.1 s (denser than a daemon's renewals, so the
+  lateness printed is the hold's, not a renewal's wait); the last one stays. Printed per
+  life: when its first DATA(p) came and when the receiver took that life or a newer one
+  (``PeerRestarted`` or ``PeerDiscovered`` in its epoch or later).
+
+Nothing asserted (``tests/test_discovery_epoch_churn.py`` and ``tests/test_discovery_lives.py``
+assert the bounds). It runs on any commit with ``swarmd_lab.testing``, before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from swarmd_lab.testing import (
+    auth_for,
+    engine_for,
+    leave_or_return_datagram,
+    make_bundle,
+    node_ipv4,
+    peer_datagram,
+)
+
+from swarmd.discovery import DiscoveryEngine, PeerDiscovered, PeerLost, PeerRestarted
+
+BUNDLE = make_bundle(3)
+SOURCE = (node_ipv4(1), 7412)  # uav1's metatraffic address
+RESTART_SEC_S = 2.0  # systemd/swarmd.service
+START_UP_S = 0.288  # the fastest start-up to the first SPDP of 60 (bench/daemon_start.py)
+SETTLE_S = 5.0  # "after the first few seconds"
+
+
+@dataclass(slots=True)
+class Tally:
+    restarts: int = 0
+    lost: int = 0
+    found: int = 0
+    late_restarts: int = 0  # after SETTLE_S
+    late_lost: int = 0
+    late_found: int = 0
+
+
+def _step(e: DiscoveryEngine, data: bytes, now: float) -> list[object]:
+    timer = e.get_timer()
+    while timer is not None and timer < now:
+        e.handle_timer(timer)
+        timer = e.get_timer()
+    e.receive_datagram(data, SOURCE, now)
+    out: list[object] = []
+    while (event := e.next_event()) is not None:
+        out.append(event)
+    return out
+
+
+def churn(
+    seconds: float, rate: int, *, leave: bool, new_epoch: bool
+) -> tuple[Tally, dict[str, int]]:
+    """The captured member's ``seconds`` of churn; the receiver's tally and hold counters."""
+    e = engine_for(BUNDLE, 0, auth=auth_for(BUNDLE, 0))
+    auth = auth_for(BUNDLE, 1, epoch=10)
+    _step(e, peer_datagram(BUNDLE, 1, sequence_number=2, auth=auth), 0.0)  # found once
+    tally = Tally()
+    count = int(seconds * rate)
+    for i in range(1, count + 1):
+        now = i / rate
+        if new_epoch:
+            auth = auth_for(BUNDLE, 1, epoch=10 + i, now=now)
+        if leave:
+            data = leave_or_return_datagram(BUNDLE, 1, sequence_number=i + 2, auth=auth)
+        else:
+            data = peer_datagram(BUNDLE, 1, sequence_number=2, auth=auth)
+        late = now > SETTLE_S
+        for x in _step(e, data, now):
+            if isinstance(x, PeerRestarted):
+                tally.restarts += 1
+                tally.late_restarts += late
+            elif isinstance(x, PeerLost):
+                tally.lost += 1
+                tally.late_lost += late
+            elif isinstance(x, PeerDiscovered):
+                tally.found += 1
+                tally.late_found += late
+    counters = e.counters()
+    holds = {k: counters.get(k, 0) for k in ("restarts_coalesced", "returns_held", "lives_damped")}
+    return tally, holds
+
+
+def honest(lives: int, alive_s: float, *, dispose: bool) -> list[tuple[int, float, float | None]]:
+    """Per life: (its number, its first DATA(p), when the receiver took it or a newer one)."""
+    e = engine_for(BUNDLE, 0, auth=auth_for(BUNDLE, 0))
+    gap = START_UP_S if dispose else RESTART_SEC_S + START_UP_S  # death to next first DATA(p)
+    first = [k * (alive_s + gap) for k in range(lives)]
+    end = first[-1] + 60.0  # the last life stays a minute
+    taken: dict[int, float] = {}  # epoch -> when taken
+    for k, start in enumerate(first):
+        epoch = 1 + k
+        stop = end if k == lives - 1 else start + alive_s
+        sn, now = 1, start
+        auth = auth_for(BUNDLE, 1, epoch=epoch, now=now)  # one life: its counter runs on
+        while now < stop:
+            for x in _step(e, peer_datagram(BUNDLE, 1, sequence_number=sn, auth=auth), now):
+                if isinstance(x, PeerRestarted | PeerDiscovered) and x.epoch is not None:
+                    taken.setdefault(x.epoch, now)
+            sn += 1
+            now = round(now + 0.1, 6)
+        if dispose and k < lives - 1:
+            _step(e, leave_or_return_datagram(BUNDLE, 1, sequence_number=sn | 1, auth=auth), stop)
+    assert sum(e.counters()["dropped"].values()) == 0, "the honest peer's datagrams were refused"  # noqa: S101
+    out: list[tuple[int, float, float | None]] = []
+    for k, start in enumerate(first):
+        seen = [t for epoch, t in taken.items() if epoch >= 1 + k and t >= start]
+        out.append((k + 1, start, min(seen) if seen else None))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.lives_cost", description=__doc__)
+    parser.add_argument("--seconds", type=float, default=60.0, help="the churn (default 60)")
+    parser.add_argument("--rate", type=int, default=20, help="its datagrams a second (20)")
+    parser.add_argument("--lives", type=int, default=8, help="the honest peer's lives (8)")
+    parser.add_argument("--alive", type=float, default=0.5, help="each life's run, s (0.5)")
+    args = parser.parse_args(argv)
+    print(f"a captured member, {args.rate} genuine datagrams a second for {args.seconds:g} s:")
+    for label, leave, new_epoch in (
+        ("epoch churn", False, True),
+        ("leaving and returning", True, False),
+        ("leaving and returning, a new epoch each", True, True),
+    ):
+        t, holds = churn(args.seconds, args.rate, leave=leave, new_epoch=new_epoch)
+        print(
+            f"  {label}: restarts {t.restarts}, lost {t.lost}, found {t.found} "
+            f"(after {SETTLE_S:g} s: {t.late_restarts}, {t.late_lost}, {t.late_found}); "
+            + ", ".join(f"{k} {v}" for k, v in holds.items())
+        )
+    for label, dispose in (
+        (f"a crash loop (RestartSec={RESTART_SEC_S:g}s)", False),
+        ("systemctl restart over and over", True),
+    ):
+        print(f"an honest peer, {label}, each life {args.alive:g} s, start-up {START_UP_S} s:")
+        for k, start, seen in honest(args.lives, args.alive, dispose=dispose):
+            late = "never" if seen is None else f"{seen:.2f} s ({seen - start:+.2f} s)"
+            print(f"  life {k}: first DATA(p) at {start:.2f} s, taken at {late}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
