@@ -18,6 +18,7 @@ from typing import Any
 import pytest
 
 from swarmd.cli import swarmctl, takeoff_cmd
+from swarmd.control import DaemonUnreachable
 from swarmd.exitcodes import EX_FAILED, EX_INTERRUPTED, EX_NOT_READY, EX_OK
 
 COMMAND_ID = 0x6B09A20700000001
@@ -48,7 +49,7 @@ class Played:
     is ``no_report``, never heard since boot); ``reply``: the answer to the request that
     sends; ``outcome(age)``: the ``nodes`` and ``done`` of the sent command ``age``
     seconds after it went out; ``interrupt``: the request (and its call number) at which
-    the operator presses Ctrl-C."""
+    the operator presses Ctrl-C; ``lost``: the one at which the daemon goes."""
 
     def __init__(
         self,
@@ -58,12 +59,14 @@ class Played:
         reply: dict[str, Any],
         outcome: Callable[[float], tuple[dict[str, Any], bool]],
         interrupt: tuple[str, int] | None = None,
+        lost: tuple[str, int] | None = None,
     ) -> None:
         self.clock = clock
         self.ready = ready
         self.reply = reply
         self.outcome = outcome
         self.interrupt = interrupt
+        self.lost = lost
         self.calls: dict[str, int] = {}
         self.sent_at: float | None = None
 
@@ -80,6 +83,8 @@ class Played:
         self.calls[cmd] = self.calls.get(cmd, 0) + 1
         if self.interrupt == (cmd, self.calls[cmd]):
             raise KeyboardInterrupt
+        if self.lost == (cmd, self.calls[cmd]):  # the commander's daemon restarted
+            raise DaemonUnreachable("lost the connection to swarmd: Connection reset by peer")
         if cmd == "status":
             rows: dict[str, dict[str, Any]] = {n: {} for n in DRONES}
             return {"node": "uav1", "role": "commander", "dataplane": {"enabled": True},
@@ -322,3 +327,41 @@ def test_the_readiness_wait_says_how_long_it_may_last_and_what_comes_after(
     _run(monkeypatch, played, [*argv, "--timeout", "5"], False)
     first = capsys.readouterr().out.splitlines()[0]
     assert "up to 5 s" in first and "uav3 (no_report)" in first and then in first, first
+
+
+@pytest.mark.parametrize("as_json", [False, True])
+@pytest.mark.parametrize("at", [1, 7])
+def test_a_commander_lost_while_following_leaves_every_drone_named_once(
+    clock: Clock,
+    monkeypatch: pytest.MonkeyPatch,
+    at: int,
+    as_json: bool,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The commander's daemon restarts while swarmctl follows: at its first look (``1``),
+    or after uav1 answered (``7``, 1.2 s in). Each drone is named once with the last answer known.
+    [fails on main: a drone with no answer yet named only in the "sent to" line; with
+    --json no ``nodes`` at all when the first look failed]"""
+
+    def outcome(age: float) -> tuple[dict[str, Any], bool]:
+        nodes, _ = _airborne_after_one_second(age)
+        nodes["uav2"] = _row("pending")
+        return nodes, False
+
+    played = Played(clock, ready={n: True for n in DRONES}, reply=SENT, outcome=outcome,
+                    lost=("outcomes", at))  # fmt: skip
+    code = _run(monkeypatch, played, ["takeoff"], as_json)
+    out, err = capsys.readouterr()
+    assert code == EX_FAILED
+    assert f"swarmctl outcomes {COMMAND_ID:#x}" in err and "on each drone" in err, err
+    uav1 = "completed" if at > 1 else "pending"
+    if as_json:
+        final = json.loads(out)
+        assert final["sent"] is True and final["error"]
+        assert {n: v["state"] for n, v in final["nodes"].items()} == {
+            "uav1": uav1, "uav2": "pending", "uav3": "refused"}  # fmt: skip
+    else:
+        table = out[out.index("last known") :].splitlines()
+        for name, state in (("uav1", uav1), ("uav2", "pending"), ("uav3", "refused")):
+            (row,) = [line for line in table if line.split()[0] == name]
+            assert row.split()[1] == state.upper(), table

@@ -315,14 +315,33 @@ def _connection_lost(
     """The daemon stopped answering about a command it had sent while we followed it: the
     command is out there, so exit 1 (not confirmed), never 2 ("not reachable": nothing
     sent), nor a traceback."""
+    if not run.args.json:
+        # every drone once, with the last answer heard from it (session 17: before, a
+        # drone that had not answered yet was named only in the "sent to" line)
+        print("last known, before swarmd stopped answering:")
+        print("\n".join(render_outcomes(snap)))
     print(
         f"swarmctl: {safe_text(str(exc))}; {kind.upper()} command {cid:#x} was sent: "
-        f"'swarmctl outcomes {cid:#x}' tells what became of it (unless swarmd restarted "
-        "since), 'swarmctl status' shows the drones",
+        f"'swarmctl outcomes {cid:#x}' tells what became of it (a restarted swarmd no "
+        "longer knows it: then 'swarmctl outcomes' on each drone says what that drone "
+        "decided), 'swarmctl status' shows the drones",
         file=sys.stderr,
     )
     _final(run.args, cid, {**snap, "sent": True, "error": str(exc)}, EX_FAILED)
     return EX_FAILED
+
+
+def _as_sent(reply: dict[str, Any]) -> dict[str, Any]:
+    """The command as the daemon's answer to the send describes it, in the shape of its
+    outcome entry: what swarmctl knows before its first look (every row ``pending`` but
+    the refused ones), so an end before that look names every drone too."""
+    row = {"reason": None, "latency_s": None, "done_s": None, "after_restart": False,
+           "save_failed": False}  # fmt: skip
+    nodes = {str(n): {"state": "pending", **row} for n in reply.get("ready") or []}
+    for name, reason in (reply.get("refused") or {}).items():
+        nodes[str(name)] = {**row, "state": "refused", "reason": reason}
+    return {"command_id": reply.get("command_id"), "valid_for_s": reply.get("valid_for_s"),
+            "done": False, "nodes": nodes}  # fmt: skip
 
 
 def _usage(message: str) -> int:
@@ -408,7 +427,7 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     seen: dict[str, str] = {}
     told_not_saved: set[str] = set()
     ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
-    snap: dict[str, Any] = {}
+    snap = run.snap = _as_sent(reply)
     while True:
         try:
             snap = client.request("outcomes", command_id=cid)
