@@ -17,9 +17,9 @@ from typing import Any
 
 import pytest
 
-from swarmd.cli import swarmctl, takeoff_cmd
+from swarmd.cli import outcomes_cmd, swarmctl, takeoff_cmd
 from swarmd.control import DaemonUnreachable
-from swarmd.exitcodes import EX_FAILED, EX_INTERRUPTED, EX_NOT_READY, EX_OK
+from swarmd.exitcodes import EX_FAILED, EX_INTERRUPTED, EX_NOT_READY, EX_OK, EX_UNREACHABLE
 
 COMMAND_ID = 0x6B09A20700000001
 HOSTILE = "uav9\x1b[2J\u202e"
@@ -365,3 +365,19 @@ def test_a_commander_lost_while_following_leaves_every_drone_named_once(
         for name, state in (("uav1", uav1), ("uav2", "pending"), ("uav3", "refused")):
             (row,) = [line for line in table if line.split()[0] == name]
             assert row.split()[1] == state.upper(), table
+
+
+@pytest.mark.parametrize("argv", [[], [f"{COMMAND_ID:#x}"]])
+def test_a_restarted_commanders_outcomes_say_where_its_earlier_commands_are(
+    monkeypatch: pytest.MonkeyPatch, argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The commander's daemon restarted after the take-off: it keeps no command of its
+    earlier life, its drones keep their decisions. [fails on main: "no commands kept
+    here" (exit 0) or "unknown command id" (exit 2), and nowhere else to look]"""
+    answer = {"role": "commander", "issued": [], "issued_evicted": 0, "ran": [],
+              "ran_evicted": 0, "life": 8}  # fmt: skip
+    monkeypatch.setattr(outcomes_cmd, "request", lambda _sock, _cmd: answer)
+    code = swarmctl.main(["outcomes", *argv, "--socket", "/nonexistent"])
+    out, err = capsys.readouterr()
+    assert code == (EX_UNREACHABLE if argv else EX_OK)
+    assert "this life of its daemon" in out + err and "on each drone" in out + err
