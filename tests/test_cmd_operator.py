@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -381,3 +382,24 @@ def test_a_restarted_commanders_outcomes_say_where_its_earlier_commands_are(
     out, err = capsys.readouterr()
     assert code == (EX_UNREACHABLE if argv else EX_OK)
     assert "this life of its daemon" in out + err and "on each drone" in out + err
+
+
+def test_swarmctl_help_lists_every_exit_code_operations_md_gives_swarmctl(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """[fails on main: ``swarmctl --help`` named no exit code]"""
+    text = (Path(__file__).parents[1] / "docs" / "operations.md").read_text()
+    section = text[text.index("\n## Exit codes\n") :]
+    section = section[: section.index("\n## ", 1)]
+    codes = [
+        cells[0]
+        for line in section.splitlines()
+        if line.startswith("| ")
+        and (cells := [c.strip() for c in line.strip("|").split("|")])[0].isdigit()
+        and cells[2]
+    ]
+    assert "130" in codes and "3" in codes
+    with pytest.raises(SystemExit):
+        swarmctl.main(["--help"])
+    epilog = " ".join(capsys.readouterr().out.split("Exit codes", 1)[1].split())
+    assert [c for c in codes if f" {c} " not in epilog.replace(";", " ")] == []
