@@ -119,7 +119,7 @@ def _description(what: str, *, takeoff: bool = False) -> str:
         + "64 not the commander, an unknown --only drone, "
         + ("a bad altitude, " if takeoff else "")
         + "a --valid-for outside what the daemon takes, the data plane disabled; "
-        "130 interrupted (a command sent keeps running)."
+        "130 interrupted (a command sent keeps running; the last line names it)."
     )
 
 
