@@ -40,9 +40,18 @@ from swarmd.cli.status_cmd import fail_unreachable, socket_argument, table
 from swarmd.cli.takeoff_cmd import reason_text, render_outcomes, sent_by_text
 from swarmd.control import DaemonUnreachable, RequestError, request
 from swarmd.exitcodes import EX_FAILED, EX_OK
+from swarmd.swarm.commander import MAX_TRACKED_COMMANDS
 from swarmd.terminal import safe_text, safe_tree
 
 EXECUTED: Final = "completed"  # the one state that means "it did what it was told"
+# A commander keeps the commands it issued in memory, for this life of its daemon only
+# (``CommandTracker``); its drones keep their decisions across lives (session 17: an
+# empty or unknown answer after a commander restart named nowhere else to look).
+EARLIER_LIFE: Final = (
+    "the commander keeps only the commands this life of its daemon issued (the last "
+    f"{MAX_TRACKED_COMMANDS}); for one from before a restart, 'swarmctl outcomes' on each "
+    "drone says what that drone decided"
+)
 
 
 def register(sub: Any) -> None:
@@ -87,6 +96,7 @@ def _outcomes(args: argparse.Namespace) -> int:
     if shown is None:
         return fail_unreachable(
             f"unknown command id {args.command_id:#x}: not among the commands kept here"
+            + (f"; {EARLIER_LIFE}" if answer.get("role") == "commander" else "")
         )
     wall_now = time.time()
     code = exit_code(shown)
@@ -209,8 +219,11 @@ def render_kept(shown: dict[str, Any], wall_now: float) -> list[str]:
             for r in ran
         ]
         lines += table(["ID", "KIND", "FROM", "RESULT", "REASON", "RECEIVED", "LIFE"], rows)
+    role = str(shown.get("role", "?"))
     if not lines:
-        lines.append(f"no commands kept here (role {safe_text(str(shown.get('role', '?')))})")
+        lines.append(f"no commands kept here (role {safe_text(role)})")
+    if role == "commander" and not shown["issued"]:
+        lines.append(EARLIER_LIFE[0].upper() + EARLIER_LIFE[1:])
     return lines
 
 

@@ -4,7 +4,9 @@
 asked: by default until every targeted drone has reported (then the ready ones are sent the
 command and the others are listed as refused with their reason); with ``--require-all``
 until every targeted drone is ready (nothing is sent if that does not happen within
-``--timeout``). Then it sends the command and follows each drone's outcome to the end.
+``--timeout``). Then it sends the command and follows each drone's outcome to the end, for
+up to ``--timeout`` again (a wait for readiness that used the budget does not leave the
+command unfollowed). Ctrl-C says whether the command went out and how to follow it.
 
 Every command has a validity (``--valid-for``; defaults per kind in
 ``swarmd.swarm.issuer.DEFAULT_VALID_FOR_S``): a drone that has not received it by then refuses
@@ -87,7 +89,7 @@ def register(sub: Any) -> None:
         help="wait until every targeted drone is ready; send nothing otherwise",
     )  # fmt: skip
     _common(takeoff, default_timeout=60.0)
-    takeoff.set_defaults(func=_takeoff)
+    takeoff.set_defaults(func=_takeoff, kind="takeoff")
     for kind, text in (
         ("land", "land the drones where they are (NAV_LAND)"),
         ("hold", "hold position (PX4 Hold mode)"),
@@ -117,7 +119,7 @@ def _description(what: str, *, takeoff: bool = False) -> str:
         + "64 not the commander, an unknown --only drone, "
         + ("a bad altitude, " if takeoff else "")
         + "a --valid-for outside what the daemon takes, the data plane disabled; "
-        "130 interrupted (a command sent keeps running)."
+        "130 interrupted (a command sent keeps running; the last line names it)."
     )
 
 
@@ -141,7 +143,8 @@ def _common(p: argparse.ArgumentParser, *, default_timeout: float) -> None:
     socket_argument(p)
     p.add_argument(
         "--timeout", type=float, default=default_timeout, metavar="S",
-        help=f"give up after S seconds in all (default {default_timeout:g})",
+        help=f"give up waiting after S seconds: for readiness (takeoff), then, once the "
+        f"command is sent, for the drones' answers (default {default_timeout:g})",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object at the end")
 
@@ -155,6 +158,11 @@ class _Run:
         # with --json, stdout carries only the final object; progress goes to stderr
         self.progress: TextIO = sys.stderr if args.json else sys.stdout
         self._last = ""
+        # what Ctrl-C leaves behind (``_interrupted``): the kind whose request is on its
+        # way to the daemon, then the command it sent and the last outcome snapshot
+        self.sending: str | None = None
+        self.sent: int | None = None
+        self.snap: dict[str, Any] = {}
 
     def say(self, line: str) -> None:
         if line != self._last:
@@ -164,6 +172,12 @@ class _Run:
 
     def expired(self) -> bool:
         return time.monotonic() >= self.deadline
+
+    def follow_from_now(self) -> None:
+        """A command was sent: following it gets a full ``--timeout`` of its own. A take-off
+        whose readiness wait used the budget (a member lost, or never heard since boot)
+        was otherwise sent and left at once, every drone ``pending`` (session 17)."""
+        self.deadline = time.monotonic() + max(0.0, float(self.args.timeout))
 
 
 def _session(args: argparse.Namespace, body: Callable[[ControlClient, _Run], int]) -> int:
@@ -176,8 +190,33 @@ def _session(args: argparse.Namespace, body: Callable[[ControlClient, _Run], int
         print(f"swarmctl: {safe_text(str(exc))}", file=sys.stderr)
         return EX_UNREACHABLE
     except KeyboardInterrupt:  # a command already sent keeps running on the drones
-        print("swarmctl: interrupted", file=sys.stderr)
-        return EX_INTERRUPTED
+        return _interrupted(run)
+
+
+def _interrupted(run: _Run) -> int:
+    """Ctrl-C: say whether a command went out and how to follow it; with ``--json`` the
+    final object too (``sent``: true, null for not known, false), as for every other end
+    after the daemon answered. Before, one line "interrupted" left a running command
+    unnamed (session 17)."""
+    kind = str(getattr(run.args, "kind", "takeoff")).upper()
+    if run.sent is not None:
+        print(
+            f"swarmctl: interrupted; {kind} command {run.sent:#x} was sent and keeps running "
+            f"on the drones: 'swarmctl outcomes {run.sent:#x}' tells what became of it",
+            file=sys.stderr,
+        )
+        _final(run.args, run.sent, {**run.snap, "sent": True}, EX_INTERRUPTED)
+    elif run.sending is not None:
+        print(
+            f"swarmctl: interrupted while swarmd took the {kind} request; it may have sent "
+            "it to the drones: 'swarmctl outcomes' lists the commands it sent",
+            file=sys.stderr,
+        )
+        _final(run.args, None, {"sent": None}, EX_INTERRUPTED)
+    else:
+        print(f"swarmctl: interrupted; the {kind} command was not sent", file=sys.stderr)
+        _final(run.args, None, {"sent": False}, EX_INTERRUPTED)
+    return EX_INTERRUPTED
 
 
 def _takeoff(args: argparse.Namespace) -> int:
@@ -193,6 +232,7 @@ def _takeoff(args: argparse.Namespace) -> int:
             request["alt_m"] = args.alt
         if args.valid_for is not None:
             request["valid_for_s"] = args.valid_for
+        run.sending = "takeoff"
         try:
             reply = client.request("takeoff", **request)
         except RequestError as exc:
@@ -202,10 +242,19 @@ def _takeoff(args: argparse.Namespace) -> int:
         except ReplyLost as exc:
             return _reply_lost(run, "takeoff", exc)
         if not reply["sent"]:  # nobody ready, or one fell back between wait and send
+            run.sending = None
             refused = reply.get("refused") or {}
+            # --require-all: the others were ready, and are named too (session 17)
+            ready = [n for n in reply.get("ready") or [] if n not in refused]
             code = EX_NOT_READY if args.require_all else EX_FAILED
-            run.say("not sent, no drone is ready: " + _reasons(refused))
-            _final(args, None, {"refused": refused}, code)
+            if ready:
+                run.say(
+                    f"not sent (--require-all): not ready: {_reasons(refused)}; ready, "
+                    f"not sent: {', '.join(ready)}"
+                )
+            else:
+                run.say("not sent, no drone is ready: " + _reasons(refused))
+            _final(args, None, {"sent": False, "ready": ready, "refused": refused}, code)
             return code
         return _follow(client, run, reply, "takeoff")
 
@@ -220,6 +269,7 @@ def _simple(args: argparse.Namespace) -> int:
         request: dict[str, Any] = {"kind": args.kind, "only": targets}
         if args.valid_for is not None:
             request["valid_for_s"] = args.valid_for
+        run.sending = args.kind
         try:
             reply = client.request("command", **request)
         except RequestError as exc:
@@ -265,14 +315,33 @@ def _connection_lost(
     """The daemon stopped answering about a command it had sent while we followed it: the
     command is out there, so exit 1 (not confirmed), never 2 ("not reachable": nothing
     sent), nor a traceback."""
+    if not run.args.json:
+        # every drone once, with the last answer heard from it (session 17: before, a
+        # drone that had not answered yet was named only in the "sent to" line)
+        print("last known, before swarmd stopped answering:")
+        print("\n".join(render_outcomes(snap)))
     print(
         f"swarmctl: {safe_text(str(exc))}; {kind.upper()} command {cid:#x} was sent: "
-        f"'swarmctl outcomes {cid:#x}' tells what became of it (unless swarmd restarted "
-        "since), 'swarmctl status' shows the drones",
+        f"'swarmctl outcomes {cid:#x}' tells what became of it (a restarted swarmd no "
+        "longer knows it: then 'swarmctl outcomes' on each drone says what that drone "
+        "decided), 'swarmctl status' shows the drones",
         file=sys.stderr,
     )
     _final(run.args, cid, {**snap, "sent": True, "error": str(exc)}, EX_FAILED)
     return EX_FAILED
+
+
+def _as_sent(reply: dict[str, Any]) -> dict[str, Any]:
+    """The command as the daemon's answer to the send describes it, in the shape of its
+    outcome entry: what swarmctl knows before its first look (every row ``pending`` but
+    the refused ones), so an end before that look names every drone too."""
+    row = {"reason": None, "latency_s": None, "done_s": None, "after_restart": False,
+           "save_failed": False}  # fmt: skip
+    nodes = {str(n): {"state": "pending", **row} for n in reply.get("ready") or []}
+    for name, reason in (reply.get("refused") or {}).items():
+        nodes[str(name)] = {**row, "state": "refused", "reason": reason}
+    return {"command_id": reply.get("command_id"), "valid_for_s": reply.get("valid_for_s"),
+            "done": False, "nodes": nodes}  # fmt: skip
 
 
 def _usage(message: str) -> int:
@@ -321,17 +390,23 @@ def _wait_for_readiness(
             if t not in ready
         }
         unheard = {t: r for t, r in waiting.items() if r in UNHEARD}
-        run.say(
-            f"readiness: {len(ready)}/{len(targets)} ready"
-            + (f"; waiting for {_reasons(waiting)}" if waiting else "")
-        )
+        # how long the wait may last and what comes after: a drone lost, or never heard
+        # since boot, holds it for the whole --timeout, with no line in between (session 17)
+        line = f"readiness: {len(ready)}/{len(targets)} ready"
+        if waiting and (require_all or unheard):
+            then = "sent only if all become ready" if require_all else "then sent to the ready ones"
+            line += f"; waiting up to {run.args.timeout:g} s for {_reasons(waiting)}; {then}"
+        elif waiting:
+            line += f"; not ready: {_reasons(waiting)}"
+        run.say(line)
         done = not waiting if require_all else not unheard
         if done:
             return ready
         if run.expired():
             if require_all:
                 run.say(f"gave up: not every drone became ready ({_reasons(waiting)}); not sent")
-                _final(run.args, None, {"not_ready": waiting}, EX_NOT_READY)
+                body = {"sent": False, "ready": ready, "not_ready": waiting}
+                _final(run.args, None, body, EX_NOT_READY)
                 return None
             return ready
         time.sleep(POLL_S)
@@ -339,6 +414,8 @@ def _wait_for_readiness(
 
 def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) -> int:
     cid = int(reply["command_id"])
+    run.sent = cid
+    run.follow_from_now()
     refused = reply.get("refused") or {}
     sent_to = reply.get("ready") or []
     valid_for = reply.get("valid_for_s")
@@ -350,10 +427,11 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     seen: dict[str, str] = {}
     told_not_saved: set[str] = set()
     ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
-    snap: dict[str, Any] = {}
+    snap = run.snap = _as_sent(reply)
     while True:
         try:
             snap = client.request("outcomes", command_id=cid)
+            run.snap = snap
         except (DaemonUnreachable, RequestError) as exc:
             # gone, or a daemon that no longer knows the command (a new life of it, or
             # the command pushed out of the ones it keeps): it was sent all the same
@@ -437,7 +515,7 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     ok = all(n["state"] == "completed" for n in nodes.values())
     code = EX_OK if ok else EX_FAILED
     if run.args.json:
-        _final(run.args, cid, snap, code)
+        _final(run.args, cid, {**snap, "sent": True}, code)
     else:
         print("\n".join(render_outcomes(snap)))
         sender = sent_by_text(snap)
@@ -448,7 +526,8 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
             f"{kind}: {sum(n['state'] == 'completed' for n in nodes.values())}/{len(nodes)} "
             + ("confirmed airborne" if kind == "takeoff" else "confirmed")
             + (
-                f"; no answer while valid, can no longer start there: {', '.join(unreachable)}"
+                "; no answer while valid, can no longer start there: "
+                + safe_text(", ".join(unreachable))
                 if unreachable
                 else ""
             )
@@ -468,7 +547,7 @@ def _still_valid(snap: dict[str, Any]) -> str:
     if silent and isinstance(left, int | float) and left > 0:
         return (
             f" (timed out waiting for the rest; still valid for {left:g} s: "
-            f"it may yet run on {', '.join(silent)})"
+            f"it may yet run on {safe_text(', '.join(silent))})"
         )
     return " (timed out waiting for the rest)"
 
