@@ -77,11 +77,11 @@ COMMAND_LIFE_S: Final = SenderConfig().ack_timeout_s
 
 def _life(command: VehicleCommand, until: float) -> float | None:
     """Until when ``command``'s frame may be repaired as itself (``COMMAND_LIFE_S``); None:
-    as long as the session lives. A DISARM (param1 0) stops
-    motion, and a failed take-off's is sent once and left to the link (takeoff.py): with a
-    life, an outage a little longer than it left PX4 armed on the ground after the ARM that
-    reached it (review 17). Late, it still lands behind the frames before it, and PX4
-    refuses a non-forced one in the air."""
+    as long as the session lives. A DISARM (param1 0) stops motion, and a failed take-off's
+    is sent once and left to the link (takeoff.py): with a life, an outage a little longer
+    than it left PX4 armed on the ground after the ARM that reached it (review 17). Late,
+    it still lands behind the frames before it, and PX4 refuses a non-forced one in the
+    air."""
     if command.command == MavCmd.COMPONENT_ARM_DISARM and command.params[0] == 0.0:
         return None
     return until
