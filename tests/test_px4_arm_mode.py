@@ -413,3 +413,21 @@ def test_flight_termination_is_never_ready_whichever_backend_spells_it() -> None
             xrce.observe(obs, 0.0)
         verdict = readiness(xrce, 0.0, config)
         assert not verdict.ready and verdict.reason is Reason.FLIGHT_MODE, verdict.detail
+
+
+@pytest.mark.parametrize("release", ["1.14", "1.17"])
+def test_every_nav_state_px4_can_send_reads_as_a_short_printable_line(release: str) -> None:
+    """Review 17: the raw ``nav_state`` in the readiness detail is peer-controlled; it is a
+    u8 read as an int, so whatever PX4 (or a forger on its link) sends, the detail stays
+    one short line of printable ASCII: data, not a terminal sequence, in ``swarmctl``, the
+    log and ``--json`` alike (pins: holds on main)."""
+    t = Px4Translator(sysid=3)
+    config = ReadinessConfig(require_home=False, allow_unknown_battery=True)
+    for nav_state in range(256):
+        state = VehicleState()
+        for obs in t.sample(*_status(release, nav_state)):
+            state.observe(obs, 0.0)
+        for obs in (ExtendedSysState(LandedState.ON_GROUND), GpsRawInt(GpsFixType.FIX_3D, 12)):
+            state.observe(obs, 0.0)
+        detail = readiness(state, 0.0, config).detail
+        assert detail.isascii() and detail.isprintable() and len(detail) <= 200, detail

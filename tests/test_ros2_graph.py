@@ -237,6 +237,25 @@ def test_a_nack_flood_draws_each_new_sample_once_and_resends_once_per_min_resend
     assert graph.counters["graph_resend_limited"] == 2999
 
 
+def test_a_nack_of_numbers_never_published_gaps_none_of_them() -> None:
+    """Review 17: a NACK naming a number the writer has not published yet (a buggy node, or
+    a local process speaking as one) was answered with a GAP up to that number: DDSI-RTPS
+    8.3.7.4 makes those numbers irrelevant to the reader, so the node would drop the next
+    drones' samples when they came (Fast DDS takes a GAPped number as received). The GAP
+    stops at the last number published [fails on main: GAP 2..40 after DATA 1]."""
+    lead, one, two, graph = _lead_two_remotes_and_graph()
+    graph.publish(one, 0.0)
+    graph.datagrams_to_send()
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1, 40]), 0.0)
+    sms = _submessages(graph.datagrams_to_send())
+    assert [sm.writer_sn for sm in sms if isinstance(sm, Data)] == [1]
+    assert not any(isinstance(sm, Gap) for sm in sms)
+    graph.publish(two, 1.0)  # sample 2: never declared irrelevant, so the node takes it
+    graph.datagrams_to_send()
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 2, [2]), 1.0)
+    assert _data_sns(graph) == [2]
+
+
 def test_a_replaced_sample_is_a_gap_and_a_withdrawn_one_is_no_longer_offered() -> None:
     lead, one, two, graph = _lead_two_remotes_and_graph()
     graph.publish(one, 0.0)  # 1

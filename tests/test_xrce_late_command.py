@@ -287,3 +287,43 @@ def test_as_a_client_a_command_written_into_an_outage_never_reaches_the_agent_la
     edge.backend.send(VehicleCommand.make(MavCmd.NAV_LAND))
     edge.run(edge.clock.now + 1.0)
     assert len(edge.commands) == 1
+
+
+class _CutWhenArmed(Edge):
+    """The link goes down both ways the moment PX4 arms: PX4 took the first ARM, and its
+    answer and everything after are lost until ``link_up`` is set again."""
+
+    cut_at: float | None = None
+
+    def _to_swarmd(self, out: tuple[bytes, Address]) -> None:
+        if self.cut_at is None and self.px4.vehicle.armed:
+            self.link_up = False
+            self.cut_at = self.clock.now
+        super()._to_swarmd(out)
+
+
+def test_a_failed_takeoffs_disarm_written_into_an_outage_still_disarms_px4() -> None:
+    """Review 17: PX4 took the first ARM, then the link went down both ways; the take-off
+    gave up ``arm_no_ack`` and sent its one DISARM into the outage, which ended 0.6 s later
+    (2.65 s in all: PX4's session lived). The DISARM does not start motion: it must reach
+    PX4 when the link is back, as the reliable stream delivered it before the command
+    life. On main it had the ARMs' 0.5 s life, went as a stand-in, and PX4 sat armed on
+    the ground (until its pre-flight disarm, 10 s after arming) while the operator read
+    ``arm_no_ack`` [fails on main: PX4 armed 3 s after the give-up, no DISARM at PX4]. The
+    late ARMs still never reach it."""
+    edge = _CutWhenArmed("1.16")
+    edge.run_until_ready()
+    edge.run(edge.clock.now + 1.0)
+    done = edge.takeoff_until_done(limit_s=5.0)
+    assert done.reason == "arm_no_ack"
+    armed_at_give_up = edge.px4.vehicle.armed
+    assert armed_at_give_up  # PX4 took the first ARM; only its answers were lost
+    gave_up = edge.clock.now
+    edge.run(gave_up + 0.6)
+    edge.link_up = True
+    edge.run(gave_up + 3.0)
+    assert edge.backend.session == "established"
+    assert not edge.px4.vehicle.armed
+    disarms = [t for t, c, p1 in edge.px4_commands if c == MavCmd.COMPONENT_ARM_DISARM and p1 == 0]
+    assert len(disarms) == 1
+    assert len(edge.arms_at_px4()) == 1  # the first ARM only: the retransmissions expired

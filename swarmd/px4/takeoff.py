@@ -256,6 +256,9 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         # there: then a take-off mode or a lift-off can only be our command's
         self._takeoff_fresh_from: float | None = None
         self._state_may_confirm = False
+        # NAV_TAKEOFF's retransmission fell due while the loop was held up: until then the
+        # answer and state that waited are read before the take-off is judged held_up
+        self._held_until: float | None = None
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -324,6 +327,16 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             # stall, a host suspended): ARM or NAV_TAKEOFF sent now would start the flight
             # that much late, past the budget the operator's validity was judged against
             # (docs/security.md, "A command frame delivered late"); the one DISARM instead
+            if self.phase is TakeoffPhase.TAKING_OFF and self._held_until is None:
+                # but PX4 may have taken the first NAV_TAKEOFF: its answer and its state
+                # wait behind this timer (asyncio runs a due timer after at most one
+                # datagram), and a DISARM now meets a vehicle spooling up or already in the
+                # air (refused there: FAILED while it climbs). Read them for one ack
+                # timeout, sending nothing, then judge (review 17)
+                self._held_until = now + late
+                return
+            if self._held_until is not None and now < self._held_until:
+                return
             self._fail(
                 now,
                 FailReason.HELD_UP,
@@ -332,6 +345,7 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
                 f"{self._step_label()}: not sent that late",
             )
             return
+        self._held_until = None  # an answer moved the deadline (IN_PROGRESS): on time
         self._sender.handle_timer(now)
         self._drain(now)
         if self._finished():
@@ -368,6 +382,12 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
 
     def _finished(self) -> bool:
         return self.phase in (TakeoffPhase.SUCCEEDED, TakeoffPhase.FAILED)
+
+    def get_timer(self) -> float | None:
+        due = super().get_timer()
+        if due is None or self._held_until is None:
+            return due
+        return max(due, self._held_until)  # the sender's past deadline: not sent (held_up)
 
     def _own_deadline(self) -> float | None:
         return self._lift_deadline

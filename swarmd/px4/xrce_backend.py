@@ -33,6 +33,7 @@ from typing import Any, Final, Literal
 from swarmd.driver import Driver
 from swarmd.px4.backend import ObservationSink
 from swarmd.px4.command_sender import SenderConfig
+from swarmd.px4.constants import MavCmd
 from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.transport import (
     XRCE_SOCKET,
@@ -70,7 +71,20 @@ SERVICE: Final = "vehicle_command"  # PX4's replier (>= 1.15), rq/rr/fmu/vehicle
 # way to the operator, so a repair later would only deliver the command late: a take-off's
 # ARMs written into a link outage reached PX4 after the take-off failed ``arm_no_ack``
 # (docs/security.md, "A command frame delivered late"). Later repairs send a stand-in.
+# Not a DISARM (``_life``): it starts no motion, and a failed take-off sends it once.
 COMMAND_LIFE_S: Final = SenderConfig().ack_timeout_s
+
+
+def _life(command: VehicleCommand, until: float) -> float | None:
+    """Until when ``command``'s frame may be repaired as itself (``COMMAND_LIFE_S``); None:
+    as long as the session lives. A DISARM (param1 0) stops motion, and a failed take-off's
+    is sent once and left to the link (takeoff.py): with a life, an outage a little longer
+    than it left PX4 armed on the ground after the ARM that reached it (review 17). Late,
+    it still lands behind the frames before it, and PX4 refuses a non-forced one in the
+    air."""
+    if command.command == MavCmd.COMPONENT_ARM_DISARM and command.params[0] == 0.0:
+        return None
+    return until
 
 
 def parse_xrce_connection(text: str, field: str = "px4.connection") -> Endpoint:
@@ -250,7 +264,7 @@ class XrceBackend:
 
         def publish(now: float) -> int:
             sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
-            until = now + self.command_life_s  # never repaired after it (COMMAND_LIFE_S)
+            until = _life(command, now + self.command_life_s)
             if service and isinstance(engine, XrceAgent):
                 return engine.request(SERVICE, sample, now, until=until)
             return engine.publish(topic, sample, now, until=until)

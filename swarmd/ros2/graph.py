@@ -487,7 +487,9 @@ class GraphParticipant:
         available = sorted(self._history.payloads)
         lo = max(state.base, available[0] if available else self._sn + 1)
         requested = set(state.members())
-        hi = self._sn if state.num_bits == 0 else max(requested, default=0)
+        # never past the last number published: a GAP there would make the reader drop the
+        # next drones' samples (DDSI-RTPS 8.3.7.4; a buggy or forged NACK, review 17)
+        hi = self._sn if state.num_bits == 0 else min(max(requested, default=0), self._sn)
         # the limit holds resends only: a sample published since this reader was last sent
         # anything goes at once (each at most once outside the limit, so a NACK flood still
         # draws one DATA per MIN_RESEND_S). Before, a drone found within 0.2 s of the last
