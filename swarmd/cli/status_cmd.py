@@ -1,7 +1,10 @@
 """``swarmctl status | peers | watch``: ask the local daemon over its control socket.
 
 On the commander the human view ends with the swarm's readiness table (per drone: ready or
-the failing reason, reports received, age of the last one).
+the failing reason, reports received, age of the last one), then the commands it sent
+(``commands_view``: per command the drones per state and the ones not answered,
+unreachable or refused); on a drone, the command its vehicle runs now. ``watch`` adds a
+line per command sent and per drone answer, the take-off follow's own lines.
 
 A daemon that is not running gives one line on stderr and exit code 2. ``--json`` prints
 the daemon's status object unchanged (schema in docs/operations.md), for scripts and
