@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any
 
@@ -79,13 +80,16 @@ def _swarmctl(monkeypatch: pytest.MonkeyPatch, daemon: PlayedDaemon, argv: list[
     return swarmctl.main([*argv, "--socket", "/nonexistent"])
 
 
-def _shown(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], swarm: Swarm, name: str,
-    *argv: str,
-) -> str:  # fmt: skip
-    """``swarmctl status ARGV`` on ``name``'s played daemon: its exit 0, then its stdout."""
-    assert _swarmctl(monkeypatch, PlayedDaemon(swarm, name), ["status", *argv]) == EX_OK
-    return capsys.readouterr().out
+@pytest.fixture
+def show(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> Callable[..., str]:
+    """``show(swarm, name, *argv)``: ``swarmctl status ARGV`` on ``name``'s played daemon,
+    its exit 0, then its stdout."""
+
+    def run(swarm: Swarm, name: str, *argv: str) -> str:
+        assert _swarmctl(monkeypatch, PlayedDaemon(swarm, name), ["status", *argv]) == EX_OK
+        return capsys.readouterr().out
+
+    return run
 
 
 def _takeoff_in_progress() -> tuple[Swarm, int]:
@@ -102,43 +106,41 @@ def _takeoff_in_progress() -> tuple[Swarm, int]:
 
 
 def test_status_on_the_commander_shows_a_takeoff_in_progress_and_who_has_not_answered(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    show: Callable[..., str],
 ) -> None:
     """[fails on main: the human status had no commands part; only --json had them]"""
     swarm, cid = _takeoff_in_progress()
-    out = _shown(monkeypatch, capsys, swarm, "lead")
+    out = show(swarm, "lead")
     assert f"TAKEOFF {cid:#x}" in out, out
     assert "accepted 2, pending 1, refused 1" in out, out
     assert "no answer yet: m03" in out and "refused: m04 (no_3d_fix)" in out, out
     assert "open: may still start for" in out, out
 
     swarm.run(VALID_S + 3.0)  # the validity and its grace are over
-    out = _shown(monkeypatch, capsys, swarm, "lead")
+    out = show(swarm, "lead")
     assert "completed 2, unreachable 1, refused 1" in out, out
     assert "unreachable: m03 (not_reached_while_valid)" in out and ", done" in out, out
 
 
-def test_status_on_a_member_names_the_command_it_runs_now(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_status_on_a_member_names_the_command_it_runs_now(show: Callable[..., str]) -> None:
     """[fails on main: a member's status said nothing of the take-off its vehicle flew]"""
     swarm, cid = _takeoff_in_progress()
-    out = _shown(monkeypatch, capsys, swarm, "m01")
+    out = show(swarm, "m01")
     assert f"running now: TAKEOFF {cid:#x} from lead" in out, out
     swarm.run(2.0)  # the vehicle reached the air: the task ended
-    assert "running now: no command" in _shown(monkeypatch, capsys, swarm, "m01")
+    assert "running now: no command" in show(swarm, "m01")
 
 
 def test_status_json_keeps_its_keys_and_adds_the_running_command(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    show: Callable[..., str],
 ) -> None:
     """``--json`` is the daemon's object unchanged: ``commands`` as before, ``executor``
     with ``running`` and ``counters`` as before and ``commands`` added."""
     swarm, cid = _takeoff_in_progress()
-    lead = json.loads(_shown(monkeypatch, capsys, swarm, "lead", "--json"))
+    lead = json.loads(show(swarm, "lead", "--json"))
     (command,) = lead["commands"]
     assert command["command_id"] == cid and set(command["nodes"]) == {"m01", "m02", "m03", "m04"}
-    executor = json.loads(_shown(monkeypatch, capsys, swarm, "m01", "--json"))["executor"]
+    executor = json.loads(show(swarm, "m01", "--json"))["executor"]
     assert executor["running"] == 1 and executor["counters"]["received_takeoff"] == 1
     (task,) = executor["commands"]
     assert (task["command_id"], task["kind"], task["commander"], task["saved"]) == (
@@ -241,6 +243,8 @@ def test_status_bounds_the_commands_and_names_it_shows() -> None:
     assert f"    no answer yet: {', '.join(names[:NAMES_SHOWN])}{more}" in lines, lines
     assert f"    [not saved on drone]: {', '.join(names[:NAMES_SHOWN])}{more}" in lines, lines
     assert len(lines) < 20
+    (none,) = render_commands({"role": "commander", "commands": []})
+    assert none.startswith("commands sent: none since this daemon started"), none
 
 
 def test_peer_strings_in_the_commands_part_are_shown_never_obeyed() -> None:

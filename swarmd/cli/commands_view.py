@@ -11,7 +11,7 @@ names, reasons) as they came: ``takeoff`` and ``watch`` pass each line through
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
 from swarmd.dataplane.validity import MEMORY_LOST
@@ -80,12 +80,13 @@ def sent_line(
         f"{kind.upper()} command {_cid(command_id)} sent to {len(sent_to)} drone(s): "
         + ", ".join(sent_to)
         + (f"; valid for {valid:g} s" if valid is not None else "")
-        + (f"; refused: {_named(refused.items())}" if refused else "")
+        + (f"; refused: {reasons(refused)}" if refused else "")
     )
 
 
-def _named(pairs: Iterable[tuple[str, object]]) -> str:
-    return ", ".join(f"{n} ({r})" for n, r in pairs) or "-"
+def reasons(by_name: Mapping[str, object]) -> str:
+    """``uav3 (no_report), uav4 (no_3d_fix)``, or ``-`` for none."""
+    return ", ".join(f"{n} ({r})" for n, r in by_name.items()) or "-"
 
 
 class FollowLines:
@@ -237,7 +238,11 @@ def render_commands(status: Mapping[str, Any]) -> list[str]:
     commands = [c for c in status.get("commands") or [] if isinstance(c, dict)]
     if status.get("role") == "commander":
         if not commands:
-            lines.append("commands sent: none in this life of the daemon (swarmctl outcomes)")
+            # a commander keeps only this life's commands (outcomes_cmd.EARLIER_LIFE)
+            lines.append(
+                "commands sent: none since this daemon started (one sent before a restart: "
+                "'swarmctl outcomes' on each drone)"
+            )
         else:
             lines.append("commands sent, newest first (every drone of one: swarmctl outcomes ID):")
         for c in reversed(commands[-COMMANDS_SHOWN:]):

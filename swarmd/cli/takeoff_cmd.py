@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
-from swarmd.cli.commands_view import FollowLines, reason_text, sent_line
+from swarmd.cli.commands_view import FollowLines, reason_text, reasons, sent_line
 from swarmd.cli.status_cmd import socket_argument, table
 from swarmd.control import (
     ControlClient,
@@ -248,11 +248,11 @@ def _takeoff(args: argparse.Namespace) -> int:
             code = EX_NOT_READY if args.require_all else EX_FAILED
             if ready:
                 run.say(
-                    f"not sent (--require-all): not ready: {_reasons(refused)}; ready, "
+                    f"not sent (--require-all): not ready: {reasons(refused)}; ready, "
                     f"not sent: {', '.join(ready)}"
                 )
             else:
-                run.say("not sent, no drone is ready: " + _reasons(refused))
+                run.say("not sent, no drone is ready: " + reasons(refused))
             _final(args, None, {"sent": False, "ready": ready, "refused": refused}, code)
             return code
         return _follow(client, run, reply, "takeoff")
@@ -372,10 +372,6 @@ def _check_commander(client: ControlClient, only: list[str] | None) -> list[str]
     return list(dict.fromkeys(only))
 
 
-def _reasons(refused: dict[str, str]) -> str:
-    return ", ".join(f"{n} ({r})" for n, r in refused.items()) or "-"
-
-
 def _wait_for_readiness(
     client: ControlClient, run: _Run, targets: Sequence[str], require_all: bool
 ) -> list[str] | None:
@@ -394,16 +390,16 @@ def _wait_for_readiness(
         line = f"readiness: {len(ready)}/{len(targets)} ready"
         if waiting and (require_all or unheard):
             then = "sent only if all become ready" if require_all else "then sent to the ready ones"
-            line += f"; waiting up to {run.args.timeout:g} s for {_reasons(waiting)}; {then}"
+            line += f"; waiting up to {run.args.timeout:g} s for {reasons(waiting)}; {then}"
         elif waiting:
-            line += f"; not ready: {_reasons(waiting)}"
+            line += f"; not ready: {reasons(waiting)}"
         run.say(line)
         done = not waiting if require_all else not unheard
         if done:
             return ready
         if run.expired():
             if require_all:
-                run.say(f"gave up: not every drone became ready ({_reasons(waiting)}); not sent")
+                run.say(f"gave up: not every drone became ready ({reasons(waiting)}); not sent")
                 body = {"sent": False, "ready": ready, "not_ready": waiting}
                 _final(run.args, None, body, EX_NOT_READY)
                 return None
