@@ -694,7 +694,7 @@ class SwarmApp:
             "px4": px4,
             "dataplane": dataplane,
             "commands": swarm.tracker.recent(now) if self.is_commander else [],
-            "executor": swarm.executor_status(),
+            "executor": swarm.executor_status(now),
         }
 
     def _core(self) -> SwarmCore:

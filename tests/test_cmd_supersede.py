@@ -16,8 +16,9 @@ from typing import Any
 import pytest
 
 from swarmd.cli import takeoff_cmd
+from swarmd.cli.commands_view import reason_text, superseded_by
 from swarmd.cli.outcomes_cmd import render_kept
-from swarmd.cli.takeoff_cmd import reason_text, render_outcomes, superseded_by
+from swarmd.cli.takeoff_cmd import render_outcomes
 from swarmd.dataplane.types import CommandResult
 from swarmd.px4.constants import MavState
 from swarmd.px4.messages import MODE_LAND, MODE_LOITER, Heartbeat, Observation

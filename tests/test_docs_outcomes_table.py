@@ -19,8 +19,9 @@ from typing import Any, Final
 
 import pytest
 
+from swarmd.cli.commands_view import reason_text
 from swarmd.cli.outcomes_cmd import render_kept
-from swarmd.cli.takeoff_cmd import reason_text, render_outcomes
+from swarmd.cli.takeoff_cmd import render_outcomes
 from swarmd.dataplane.types import CommandResult
 from swarmd.dataplane.validity import EXPIRED, MEMORY_LOST
 from swarmd.px4.actions import CONFIRM_TIMEOUT_S, NOT_CONFIRMED, ActionKind, action_command

@@ -36,8 +36,9 @@ import time
 from collections.abc import Callable
 from typing import Any, Final
 
+from swarmd.cli.commands_view import reason_text
 from swarmd.cli.status_cmd import fail_unreachable, socket_argument, table
-from swarmd.cli.takeoff_cmd import reason_text, render_outcomes, sent_by_text
+from swarmd.cli.takeoff_cmd import render_outcomes, sent_by_text
 from swarmd.control import DaemonUnreachable, RequestError, request
 from swarmd.exitcodes import EX_FAILED, EX_OK
 from swarmd.swarm.commander import MAX_TRACKED_COMMANDS

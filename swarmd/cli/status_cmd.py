@@ -1,7 +1,10 @@
 """``swarmctl status | peers | watch``: ask the local daemon over its control socket.
 
 On the commander the human view ends with the swarm's readiness table (per drone: ready or
-the failing reason, reports received, age of the last one).
+the failing reason, reports received, age of the last one), then the commands it sent
+(``commands_view``: per command the drones per state and the ones not answered,
+unreachable or refused); on a drone, the command its vehicle runs now. ``watch`` adds a
+line per command sent and per drone answer, the take-off follow's own lines.
 
 A daemon that is not running gives one line on stderr and exit code 2. ``--json`` prints
 the daemon's status object unchanged (schema in docs/operations.md), for scripts and
@@ -22,6 +25,7 @@ import time
 from collections.abc import Sequence
 from typing import Any, Final, TextIO
 
+from swarmd.cli.commands_view import CommandWatch, render_commands
 from swarmd.config import DEFAULT_SOCKET
 from swarmd.control import REQUEST_DEADLINE_S, ControlClient, DaemonUnreachable, RequestError
 from swarmd.exitcodes import EX_OK, EX_UNREACHABLE
@@ -100,21 +104,29 @@ def _watch(args: argparse.Namespace) -> int:
     frames = 0
     tty = sys.stdout.isatty()
     shown_seq: int | None = None  # the newest peer change already printed
+    commands = CommandWatch()  # each command's sends and verdicts, said once
     log: list[str] = []  # on a terminal the screen is redrawn: keep the changes under it
     try:
         with ControlClient(args.socket) as client:
             while True:
                 status = client.request("status")
-                fresh, shown_seq = new_peer_changes(status, shown_seq, time.time())
+                wall_now = time.time()
+                fresh, shown_seq = new_peer_changes(status, shown_seq, wall_now)
+                fresh = [f"peer change: {ln}" for ln in fresh]
+                if isinstance(status, dict):
+                    # the take-off follow's lines (commands_view), made safe here: drone
+                    # names and reasons are data (issue 10, attack 8)
+                    at = _clock(0, wall_now)
+                    fresh += [f"command: {at}  {safe_text(ln)}" for ln in commands.update(status)]
                 if tty and not args.json:
                     sys.stdout.write(CLEAR_SCREEN)
                 _print_status(status, args.json, sys.stdout, compact_json=True)
                 if not args.json and fresh:
                     log = (log + fresh)[-WATCH_LOG_LINES:]
                     if not tty:  # a pipe or a file: each change once, as it happens
-                        sys.stdout.write("".join(f"peer change: {ln}\n" for ln in fresh))
+                        sys.stdout.write("".join(f"{ln}\n" for ln in fresh))
                 if tty and not args.json and log:
-                    sys.stdout.write("peer changes while watching:\n")
+                    sys.stdout.write("changes while watching:\n")
                     sys.stdout.write("".join(f"  {ln}\n" for ln in log))
                 sys.stdout.flush()
                 frames += 1
@@ -297,6 +309,7 @@ def _render_status(status: dict[str, Any], wall_now: float) -> list[str]:
         )
         lines += ["  " + ln for ln in _render_peer_changes(recent, wall_now, 0)]
     lines += render_swarm(status)
+    lines += render_commands(status)  # already made safe above (terminal.safe_tree)
     return lines
 
 

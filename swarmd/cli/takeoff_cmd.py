@@ -42,6 +42,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
+from swarmd.cli.commands_view import FollowLines, reason_text, reasons, sent_line
 from swarmd.cli.status_cmd import socket_argument, table
 from swarmd.control import (
     ControlClient,
@@ -51,7 +52,6 @@ from swarmd.control import (
     RequestError,
 )
 from swarmd.dataplane.types import CommandKind
-from swarmd.dataplane.validity import MEMORY_LOST
 from swarmd.exitcodes import (
     EX_FAILED,
     EX_INTERRUPTED,
@@ -60,8 +60,7 @@ from swarmd.exitcodes import (
     EX_UNREACHABLE,
     EX_USAGE,
 )
-from swarmd.px4.actions import SUPERSEDED
-from swarmd.swarm.commander import RESTARTED, RESTARTED_RUNNING, UNREACHABLE
+from swarmd.swarm.commander import UNREACHABLE
 from swarmd.swarm.issuer import DEFAULT_VALID_FOR_S
 from swarmd.terminal import safe_text, safe_tree
 
@@ -249,11 +248,11 @@ def _takeoff(args: argparse.Namespace) -> int:
             code = EX_NOT_READY if args.require_all else EX_FAILED
             if ready:
                 run.say(
-                    f"not sent (--require-all): not ready: {_reasons(refused)}; ready, "
+                    f"not sent (--require-all): not ready: {reasons(refused)}; ready, "
                     f"not sent: {', '.join(ready)}"
                 )
             else:
-                run.say("not sent, no drone is ready: " + _reasons(refused))
+                run.say("not sent, no drone is ready: " + reasons(refused))
             _final(args, None, {"sent": False, "ready": ready, "refused": refused}, code)
             return code
         return _follow(client, run, reply, "takeoff")
@@ -373,10 +372,6 @@ def _check_commander(client: ControlClient, only: list[str] | None) -> list[str]
     return list(dict.fromkeys(only))
 
 
-def _reasons(refused: dict[str, str]) -> str:
-    return ", ".join(f"{n} ({r})" for n, r in refused.items()) or "-"
-
-
 def _wait_for_readiness(
     client: ControlClient, run: _Run, targets: Sequence[str], require_all: bool
 ) -> list[str] | None:
@@ -395,16 +390,16 @@ def _wait_for_readiness(
         line = f"readiness: {len(ready)}/{len(targets)} ready"
         if waiting and (require_all or unheard):
             then = "sent only if all become ready" if require_all else "then sent to the ready ones"
-            line += f"; waiting up to {run.args.timeout:g} s for {_reasons(waiting)}; {then}"
+            line += f"; waiting up to {run.args.timeout:g} s for {reasons(waiting)}; {then}"
         elif waiting:
-            line += f"; not ready: {_reasons(waiting)}"
+            line += f"; not ready: {reasons(waiting)}"
         run.say(line)
         done = not waiting if require_all else not unheard
         if done:
             return ready
         if run.expired():
             if require_all:
-                run.say(f"gave up: not every drone became ready ({_reasons(waiting)}); not sent")
+                run.say(f"gave up: not every drone became ready ({reasons(waiting)}); not sent")
                 body = {"sent": False, "ready": ready, "not_ready": waiting}
                 _final(run.args, None, body, EX_NOT_READY)
                 return None
@@ -419,14 +414,8 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     refused = reply.get("refused") or {}
     sent_to = reply.get("ready") or []
     valid_for = reply.get("valid_for_s")
-    run.say(
-        f"{kind.upper()} command {cid:#x} sent to {len(sent_to)} drone(s): {', '.join(sent_to)}"
-        + (f"; valid for {valid_for:g} s" if isinstance(valid_for, int | float) else "")
-        + (f"; refused: {_reasons(refused)}" if refused else "")
-    )
-    seen: dict[str, str] = {}
-    told_not_saved: set[str] = set()
-    ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
+    run.say(sent_line(kind, cid, sent_to, valid_for, refused))
+    follow = FollowLines()
     snap = run.snap = _as_sent(reply)
     while True:
         try:
@@ -436,78 +425,9 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
             # gone, or a daemon that no longer knows the command (a new life of it, or
             # the command pushed out of the ones it keeps): it was sent all the same
             return _connection_lost(run, kind, cid, snap, exc)
-        for name, node in snap["nodes"].items():
-            if node.get("save_failed") and name not in told_not_saved:
-                told_not_saved.add(name)  # docs/operations.md, "state_save_failed"
-                run.say(
-                    f"  {name}: its daemon could not write its record of this command to "
-                    "its state file (the command still runs there; after a restart it "
-                    "will not re-report this answer)"
-                )
-            elif not node.get("save_failed") and name in told_not_saved:
-                told_not_saved.discard(name)  # a later write held it (session 15)
-                run.say(f"  {name}: its daemon wrote its record of this command after all")
-            state = node["state"]
-            if (
-                state == "accepted"
-                and node.get("reason") == RESTARTED_RUNNING
-                and not node.get("after_restart")
-                and name not in ended
-                # only once the row is settled: until its grace is over the new life's
-                # re-report of what the earlier one decided (a COMPLETED among them) may
-                # still be under repair, and "no completion will come" would be false
-                # (docs/dataplane.md, "Outcomes across a restart"; review 15)
-                and (snap["done"] or run.expired())
-            ):
-                ended.add(name)  # docs/dataplane.md, "Outcomes across a restart"
-                run.say(
-                    f"  {name}: its daemon restarted before the task ended, with no record "
-                    "of it to re-report: no completion will come (its readiness shows what "
-                    "the vehicle did)"
-                )
-            if seen.get(name) != state and state != "pending":
-                seen[name] = state
-                if state == UNREACHABLE and node.get("reason") == RESTARTED:
-                    run.say(
-                        f"  {name}: unreachable: it restarted before it acknowledged the "
-                        "command, which is not sent to its new life and can no longer run "
-                        "there (its readiness shows what the vehicle did)"
-                    )
-                    continue
-                if state == "rejected" and node.get("reason") == MEMORY_LOST:
-                    # docs/operations.md, "memory_lost"
-                    run.say(
-                        f"  {name}: refused (memory_lost): its daemon restarted without its "
-                        "record of the commands it ran, and this one was issued before; it "
-                        "may have run it then (its readiness shows what the vehicle did). "
-                        "Issue a new command to run it now"
-                    )
-                    continue
-                if state == UNREACHABLE:
-                    # no answer is all the commander knows: the drone may have run it and
-                    # its answers been lost since (session 16 command review)
-                    run.say(
-                        f"  {name}: unreachable: no answer while the command was valid "
-                        f"({_seconds(snap.get('valid_for_s'))}); it can no longer start "
-                        "there, and if it did start, its answer is late "
-                        f"(swarmctl outcomes {cid:#x})"
-                    )
-                    continue
-                extra = f" ({reason_text(node.get('reason'))})" if node.get("reason") else ""
-                at = node.get("done_s") if node.get("done_s") is not None else node["latency_s"]
-                when = f" after {at:.3f} s" if isinstance(at, int | float) else ""
-                if node.get("after_restart"):
-                    # docs/dataplane.md, "Outcomes across a restart"
-                    when += ", told by the drone after its daemon restarted"
-                later = superseded_by(node.get("reason"))
-                if later is not None:
-                    # docs/px4.md, "Two requests, one vehicle"
-                    run.say(
-                        f"  {name}: {state}: superseded on the drone by a later {later}; "
-                        f"this {kind.upper()} stopped there and sent nothing more{when}"
-                    )
-                    continue
-                run.say(f"  {name}: {state}{extra}{when}")
+        # the same lines swarmctl watch prints for this command (commands_view)
+        for line in follow.lines(snap, kind, expired=run.expired()):
+            run.say("  " + line)
         if snap["done"] or run.expired():
             break
         time.sleep(POLL_S)
@@ -536,10 +456,6 @@ def _follow(client: ControlClient, run: _Run, reply: dict[str, Any], kind: str) 
     return code
 
 
-def _seconds(value: object) -> str:
-    return f"{value:g} s" if isinstance(value, int | float) else "its validity"
-
-
 def _still_valid(snap: dict[str, Any]) -> str:
     """What a timed-out wait leaves open: drones that may still start the command."""
     silent = [n for n, v in snap["nodes"].items() if v["state"] == "pending"]
@@ -565,24 +481,6 @@ def sent_by_text(snap: dict[str, Any]) -> str | None:
         return None
     name = who.get("user") or "uid without a name"
     return f"sent by {name} (uid {who.get('uid')}, pid {who.get('pid')})"
-
-
-def superseded_by(reason: object) -> str | None:
-    """``LAND`` for the reason ``superseded: land``: a later LAND, HOLD or ABORT took the
-    vehicle over from this command's task (docs/px4.md, "Two requests, one vehicle")."""
-    if not isinstance(reason, str):
-        return None
-    code, sep, later = reason.partition(":")
-    if code != SUPERSEDED or not sep or not later.strip():
-        return None
-    return later.strip().upper()
-
-
-def reason_text(reason: object) -> str:
-    """A drone's reason code as a table cell: the code itself, but ``superseded by LAND``
-    for ``superseded: land``; JSON keeps the exact code."""
-    later = superseded_by(reason)
-    return str(reason or "-") if later is None else f"{SUPERSEDED} by {later}"
 
 
 def render_outcomes(snap: dict[str, Any]) -> list[str]:

@@ -321,8 +321,9 @@ class SwarmCore:
 
     # ---- status (pure: evaluated when asked) --------------------------------------------
 
-    def executor_status(self) -> dict[str, Any]:
-        return self.member.status()
+    def executor_status(self, now: float | None = None) -> dict[str, Any]:
+        """``executor`` of ``status``: with ``now``, each running command's age too."""
+        return self.member.status(now)
 
     # ---- internals: data plane ----------------------------------------------------------
 

@@ -52,7 +52,7 @@ from __future__ import annotations
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Final, assert_never
+from typing import Any, Final, NamedTuple, assert_never
 
 from swarmd.dataplane import DataPlane
 from swarmd.dataplane.convert import ReadinessVerdict
@@ -146,6 +146,15 @@ class NoVehicle:
 NO_VEHICLE: Final = NoVehicle()
 
 
+class _Task(NamedTuple):
+    """The command a vehicle task runs, and when this node received it (its clock)."""
+
+    kind: CommandKind
+    commander: str
+    command_id: int
+    started_at: float
+
+
 class Member:
     """What this node decides for the commands it receives (see the module docstring).
 
@@ -183,9 +192,9 @@ class Member:
         # to its tracker, not on the wire; bounded like ``_seen`` (never dropping one still
         # running, whose outcome must not go on the wire)
         self._own: OrderedDict[int, None] = OrderedDict()
-        # task token -> (kind, commander, command id), on the vehicle. The token is ours
+        # task token -> the command its task runs, on the vehicle. The token is ours
         # (``_new_token``): ids are unique per commander only
-        self._running: OrderedDict[int, tuple[CommandKind, str, int]] = OrderedDict()
+        self._running: OrderedDict[int, _Task] = OrderedDict()
         # task tokens: this life's boot epoch in the high 32 bits, a counter in the low, so
         # a task of an earlier life never answers for one of this life's. The daemon's
         # vehicle core ends with its process (PX4 never sees a token), so only a vehicle
@@ -232,7 +241,7 @@ class Member:
         """The commander's own drone is a target of ``command``: run it here at issue."""
         self._own[command.command_id] = None
         me = self.roles.me
-        running = {cid for _, commander, cid in self._running.values() if commander == me}
+        running = {t.command_id for t in self._running.values() if t.commander == me}
         for old in [i for i in self._own if i not in running][:-MAX_RUNNING_IDS]:
             del self._own[old]
         self.execute(self.roles.me, command, now)
@@ -242,7 +251,7 @@ class Member:
         running = self._running.pop(done.token, None)
         if running is None:
             return  # not ours (a direct take-off through the bridge), or reported already
-        kind, commander, command_id = running
+        kind, commander, command_id, _ = running
         if done.ok:
             result = CommandResult.COMPLETED
         elif isinstance(done.outcome, TakeoffFailed) and (
@@ -255,9 +264,22 @@ class Member:
             result = CommandResult.FAILED
         self._report(command_id, kind.name, result, done.reason, now, commander)
 
-    def status(self) -> dict[str, Any]:
+    def status(self, now: float | None = None) -> dict[str, Any]:
+        """``executor`` in ``swarmctl status --json``: how many tasks run, and which
+        commands they run (``commands``, oldest first; ``age_s`` since received, None
+        without ``now``), so a drone's own status names what it does now (session 17)."""
         return {
             "running": len(self._running),
+            "commands": [
+                {
+                    "command_id": t.command_id,
+                    "kind": t.kind.name.lower(),
+                    "commander": t.commander,
+                    "age_s": None if now is None else round(now - t.started_at, 3),
+                    "saved": (t.commander, t.command_id) not in self.decisions.unsaved,
+                }
+                for t in self._running.values()
+            ],
             "counters": dict(sorted(self.counters.items())),
         }
 
@@ -323,7 +345,7 @@ class Member:
         # our own tag, not the id: another commander's command with the same id may run
         # here too, and an ABORT or a LAND must never wait for, or be refused by, it
         token = self._new_token()
-        self._running[token] = (kind, commander, command.command_id)
+        self._running[token] = _Task(kind, commander, command.command_id, now)
         alt = float(command.altitude_m) if takeoff else None
         origin = (commander, command.command_id)
         self._events.append(VehicleRequest(token, task, alt, origin))
