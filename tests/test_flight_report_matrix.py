@@ -224,6 +224,11 @@ def test_verdicts_are_for_swarmd_only_and_not_known_without_a_valid_run() -> Non
     assert not [v for v in vs if v.target == "frames" and v.scenario in ("fade", "reboot")]
 
 
+def newer(_: str, made: str) -> bool:
+    """A stand-in for ``since_counts``: the commits named "new..." are the since's or after."""
+    return made.startswith("new")
+
+
 def test_since_commit_drops_older_runs_on_swarmd_only() -> None:
     """ROS 2 on swarmd's daemon is swarmd: its runs at an older engine are left out like
     swarmd's own (before, they mixed into its medians); a stock stack's never are."""
@@ -235,7 +240,7 @@ def test_since_commit_drops_older_runs_on_swarmd_only() -> None:
         record(contender="zenoh", commit="old0000000"),
         record(n=5),  # outside the matrix
     )
-    sel = fm.select(runs, lambda c: c.startswith("new"))
+    sel = fm.select(runs, newer)
     assert [(f.run["contender"], f.run["run"]) for f in sel.runs] == [
         ("swarmd", 2), ("ros2-swarmd", 2), ("zenoh", 1),
     ]  # fmt: skip
@@ -243,9 +248,12 @@ def test_since_commit_drops_older_runs_on_swarmd_only() -> None:
         ("swarmd", "old0000000"), ("ros2-swarmd", "old1111111"),
     ]  # fmt: skip
     assert len(sel.outside) == 1
-    text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"),
-                    counts=lambda c: c.startswith("new"), since="new0000")  # fmt: skip
-    assert "(swarmd, ROS 2 on swarmd): only runs at `new0000` or after count" in text
+    text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"), counts=newer,
+                    since=fm.Since("new0000"))  # fmt: skip
+    assert (
+        "- swarmd: runs at `new0000` or after (the engine as shipped); left out, older: 1" in text
+    )
+    assert "- ROS 2 on swarmd: runs at `new0000` or after (the engine as shipped); left" in text
     assert (
         "- `old1111111`: 1 run file(s), 2026-11-26 18:11 UTC (ros2-swarmd N=10: split r1)" in text
     )
@@ -260,8 +268,8 @@ def test_a_cell_with_only_older_runs_says_so_not_not_run() -> None:
         record("split", commit="new0000000"),
         record("split", contender="ros2-swarmd", commit="old1111111"),
     )
-    text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"),
-                    counts=lambda c: c.startswith("new"), since="new0000")  # fmt: skip
+    text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"), counts=newer,
+                    since=fm.Since("new0000"))  # fmt: skip
     runs_table = text.split("**runs, valid/total (time dilation k)**, N = 10:")[1]
     cells = [[c.strip() for c in line.strip("|").split("|")] for line in runs_table.split("\n")]
     rows = {row[0]: row for row in cells[3:8]}
@@ -269,11 +277,11 @@ def test_a_cell_with_only_older_runs_says_so_not_not_run() -> None:
     assert rows["split"][1] == "1/1 (k 1)"
     assert rows["split"][7] == "older runs only (1)"  # ROS 2 on swarmd's column
     assert rows["reboot"][1] == "not run"  # never flown at all
-    sel = fm.select(runs, lambda c: c.startswith("new"))
+    sel = fm.select(runs, newer)
     readiness = fm.tables(sel.runs, 10, sel.older)
     start = readiness.index("**readiness delivery**, N = 10:")
     assert "| fade | older runs only (2) | not run |" in readiness[start + 4 + 1]
-    assert 'left out, older: 3 run file(s) (a cell that has only these says "older' in text
+    assert 'says "older runs only (n)", not "not run". The 3 older run file(s) left out:' in text
     # without --since-commit every run counts: the cell is measured, not "older"
     assert "older runs only" not in fm.block(
         runs, command="cmd", docs_dir=Path("/nowhere"), counts=None, since=None
@@ -408,16 +416,17 @@ def test_docs_flight_matrix_is_what_the_committed_runs_generate(page: str) -> No
     assert found, f"no generated flight matrix in docs/{page}"
     raw = shlex.split(found.group(1))
     assert "--matrix" in raw
-    since = raw[raw.index("--since-commit") + 1] if "--since-commit" in raw else None
+    since = flight_matrix.parse_since(flight_matrix.since_args(raw))
     shallow = subprocess.run(
         ["git", "-C", str(repo), "rev-parse", "--is-shallow-repository"],  # noqa: S607
         capture_output=True, text=True, check=False,
     ).stdout.strip()  # fmt: skip
     if since is not None and shallow != "false":
-        pytest.skip("a shallow or git-less checkout cannot tell which runs descend from " + since)
-    skip = {"--matrix", "--since-commit", "--write-docs", since, f"docs/{page}"}
+        pytest.skip(f"a shallow or git-less checkout cannot tell which runs descend from {since}")
+    skip = {"--matrix", "--since-commit", "--write-docs", f"docs/{page}"}
+    skip |= set(flight_matrix.since_args(raw))
     paths = [repo / a for a in raw if a not in skip]
-    counts = None if since is None else flight_matrix.git_descends(since, repo)
+    counts = flight_matrix.since_counts(since, repo)
     text = flight_matrix.block(
         flight_matrix.load(paths),
         command=".venv/bin/python -m bench.wifi.flight_report " + shlex.join(raw),

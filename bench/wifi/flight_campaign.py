@@ -15,8 +15,9 @@ contender's directory: swarmd's in ``--swarmd-out``, every other contender's in
 staggered start that the matrix reads (the lockstep runs before it: docs/flight-lockstep.md).
 A file counts when the matrix would use it: valid by its own fields (``flight_cells.is_valid``,
 the matrix's judge) and, for a contender whose daemon is swarmd (swarmd, ROS 2 on swarmd),
-made at ``--since-commit`` or after (``flight_cells.current``, the matrix's rule; by default
-the commit that docs/benchmarks.md's generated block names). Every other file is kept and
+made at its ``--since-commit`` or after (``flight_cells.current`` and ``Since``, the matrix's
+rule: a default and any contender's own, ``ros2-swarmd=C``; by default those that
+docs/benchmarks.md's generated block names). Every other file is kept and
 listed in the plan, not counted: invalid (the file's ``invalid_reason`` and lag p99), older
 (its commit) or unreadable (why); the cell's next free repeat number is planned in its place.
 A cell's missing runs are taken round by round (round r: a cell's r-th valid run, whatever
@@ -46,13 +47,22 @@ import itertools
 import json
 import re
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Final
 
 from bench.wifi import flight, flight_matrix, flight_schedule
-from bench.wifi.flight_cells import commit, current, is_valid, read_run, validity
+from bench.wifi.flight_cells import (
+    Counts,
+    Since,
+    commit,
+    current,
+    is_valid,
+    parse_since,
+    read_run,
+    validity,
+)
 from bench.wifi.flight_run import (
     FLIGHT_CONTENDERS,
     PEER_OBSERVED,
@@ -141,7 +151,7 @@ class Plan:
     size: int  # cells planned: sizes x scenarios x contenders
     cells: list[Cell]  # to fly, in campaign order (module doc)
     held: list[Held]  # every run file in a planned cell's place, counted or not
-    since: str | None  # --since-commit for the contenders on swarmd (None: every commit)
+    since: Since | None  # --since-commit for the contenders on swarmd (None: every commit)
 
     def counted(self) -> int:
         """Valid runs the matrix would use, up to ``repeats`` per cell."""
@@ -158,7 +168,7 @@ def judge(
     n: int,
     scenario: str,
     contender: str,
-    counts: Callable[[str], bool] | None,
+    counts: Counts | None,
 ) -> Held:
     """A run file as the matrix would take it (module doc): the matrix's own rule and judge
     (``flight_cells.current``, ``is_valid``), not a second one."""
@@ -174,7 +184,7 @@ def judge(
     if placed != (scenario, contender, n, repeat):
         return held(UNREADABLE, f"unreadable: holds {placed}, not the cell its name says")
     if not current(run, counts):
-        return held(OLDER, f"older: made at {commit(run)}, before --since-commit")
+        return held(OLDER, f"older: made at {commit(run)}, before its --since-commit")
     return held(VALID if is_valid(run) else INVALID, validity(run))
 
 
@@ -183,7 +193,7 @@ def held_files(
     n: int,
     scenario: str,
     contender: str,
-    counts: Callable[[str], bool] | None,
+    counts: Counts | None,
 ) -> list[Held]:
     """The run files among ``names`` in the cell's place (any k), by repeat, judged."""
     pattern = re.compile(
@@ -207,12 +217,13 @@ def plan(
     dilation: dict[int, float],
     swarmd_out: Path,
     stock_out: Path,
-    counts: Callable[[str], bool] | None = None,
-    since: str | None = None,
+    counts: Counts | None = None,
+    since: Since | None = None,
 ) -> Plan:
     """The run files in every cell's place, and the runs that would bring each cell to
     ``repeats`` valid ones, in campaign order (module doc); ``counts``: whether a run on
-    swarmd's commit counts (``flight_matrix.git_descends(since)``; None: every commit)."""
+    swarmd counts at its commit (``flight_matrix.since_counts(since)``; None: every
+    commit)."""
     listing: dict[Path, list[Path]] = {}
     held: list[Held] = []
     cells: list[Cell] = []
@@ -252,6 +263,10 @@ def plan_lines(p: Plan, parallel: int = 1) -> list[str]:
         else f"about {hours_at_once(todo, parallel):.1f} h at up to {parallel} dilated at once"
     )
     since = f"runs on swarmd from {p.since} on" if p.since else "runs of every commit"
+    if p.since is not None and p.since.own:
+        own = ", ".join(f"{c} from {at} on" for c, at in p.since.own)
+        head = f"runs on swarmd from {p.since.default} on; " if p.since.default else ""
+        since = f"{head}{own}"
     lines = [
         f"flight campaign: {p.counted()} of {p.repeats * p.size} valid runs counted "
         f"({p.repeats} in each of {p.size} cells; {since}); {len(todo)} to run, about "
@@ -318,10 +333,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--swarmd-out", type=Path, default=SWARMD_OUT)
     p.add_argument("--stock-out", type=Path, default=STOCK_OUT)
     p.add_argument(
-        "--since-commit", metavar="C",
-        help="count the runs on swarmd (swarmd, ROS 2 on swarmd) made at C or after it, as "
-        "flight_report --matrix does; default: the commit docs/benchmarks.md's matrix block "
-        "names; 'any': every commit",
+        "--since-commit", metavar="[CONTENDER=]C", action="append", default=[],
+        help="count the runs on swarmd (swarmd, ROS 2 on swarmd) made at C or after it, and "
+        "CONTENDER's at its own C (repeatable), as flight_report --matrix does; default: "
+        "those docs/benchmarks.md's matrix block names; 'any': every commit",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--run", action="store_true", help="run the missing cells (root)")
@@ -349,10 +364,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error("--repeats: at least 1")
     if args.parallel < 1:
         p.error("--parallel: at least 1")
-    since = args.since_commit or flight_matrix.documented_since(DOCS)
-    since = None if since == "any" else since
+    if "any" in args.since_commit and args.since_commit != ["any"]:
+        p.error("--since-commit any: alone (every commit counts)")
     try:
-        counts = None if since is None else flight_matrix.git_descends(since, REPO)
+        since = (
+            parse_since([v for v in args.since_commit if v != "any"])
+            if args.since_commit
+            else flight_matrix.documented_since(DOCS)
+        )
+        counts = flight_matrix.since_counts(since, REPO)
     except ValueError as exc:
         p.error(str(exc))
     found = plan(

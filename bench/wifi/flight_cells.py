@@ -278,13 +278,82 @@ def commit(run: Run) -> str:
 # list equal to those two).
 ON_SWARMD: Final = ("swarmd", "swarmd-paper", "swarmd-noaware", "swarmd-stock", "ros2-swarmd")
 
+# (contender, the run file's commit) -> whether the run counts: ``Since`` by git history
+# (flight_matrix.since_counts), or a stand-in in the tests
+Counts = Callable[[str, str], bool]
 
-def current(run: Run, counts: Callable[[str], bool] | None) -> bool:
-    """Whether the matrix reads ``run`` under ``--since-commit`` (``counts``: whether a
-    commit is the one named or after it; None: every run counts). A contender on swarmd
-    counts only at such a commit; a stock stack always (its stack is the third-party
-    package, the harness the same). The matrix and the campaign's plan share this rule."""
-    return counts is None or run.get("contender") not in ON_SWARMD or counts(commit(run))
+
+@dataclass(frozen=True, slots=True)
+class Since:
+    """``--since-commit``: from which commit on the runs of each contender on swarmd count.
+
+    ``default`` (``--since-commit C``) holds for every contender on swarmd: the engine as
+    shipped. ``own`` (``--since-commit CONTENDER=C``) replaces it for that contender, for a
+    change that only its runs go through: ROS 2 on swarmd after a fix to the relay's graph
+    writer (swarmd/ros2/graph.py), which swarmd's own runs never touch. Name a commit at or
+    after ``default``: the contender's daemon is still swarmd's engine. A stock stack has no
+    since (``current``: its runs count at any commit)."""
+
+    default: str | None = None
+    own: tuple[tuple[str, str], ...] = ()  # (contender, commit), in ON_SWARMD's order
+
+    def of(self, contender: str) -> str | None:
+        """The commit from which ``contender``'s runs count; None: at any commit."""
+        if contender not in ON_SWARMD:
+            return None
+        return dict(self.own).get(contender, self.default)
+
+    def commits(self) -> list[str]:
+        """Every commit named, each once, ``default`` first."""
+        return list(dict.fromkeys(at for at in (self.default, *dict(self.own).values()) if at))
+
+    def args(self) -> list[str]:
+        """The ``--since-commit`` values that spell it (``parse_since`` reads them back)."""
+        head = [] if self.default is None else [self.default]
+        return head + [f"{c}={at}" for c, at in self.own]
+
+    def __str__(self) -> str:
+        return ", ".join(self.args())
+
+
+def parse_since(values: Sequence[str]) -> Since | None:
+    """``--since-commit`` values (repeatable) as one ``Since``: ``C`` at most once (every
+    contender on swarmd), ``CONTENDER=C`` at most once per contender (that one); None when
+    there are none. ``ValueError`` naming the value when a value names no commit, two
+    defaults or a contender twice (which would hold?), or a contender not on swarmd (a stock
+    stack's runs count at any commit: a since for it would be silently ignored)."""
+    default: str | None = None
+    own: dict[str, str] = {}
+    for value in values:
+        contender, named, at = value.rpartition("=")
+        if not at or any(ch.isspace() for ch in at) or (named and not contender):
+            raise ValueError(f"--since-commit {value!r}: not C or CONTENDER=C")
+        if not named:
+            if default is not None:
+                raise ValueError(f"--since-commit {value}: a second default (also {default})")
+            default = at
+        elif contender not in ON_SWARMD:
+            raise ValueError(
+                f"--since-commit {value}: {contender!r} is not a contender on swarmd "
+                f"({', '.join(ON_SWARMD)}); a stock stack's runs count at any commit"
+            )
+        elif contender in own:
+            raise ValueError(f"--since-commit {value}: {contender} named twice")
+        else:
+            own[contender] = at
+    if default is None and not own:
+        return None
+    return Since(default, tuple((c, own[c]) for c in ON_SWARMD if c in own))
+
+
+def current(run: Run, counts: Counts | None) -> bool:
+    """Whether the matrix reads ``run`` under ``--since-commit`` (``counts``: whether the
+    run's contender counts at the run's commit, ``Since``; None: every run counts). A
+    contender on swarmd counts only at such a commit; a stock stack always (its stack is the
+    third-party package, the harness the same). The matrix and the campaign's plan share
+    this rule."""
+    contender = str(run.get("contender"))
+    return counts is None or contender not in ON_SWARMD or counts(contender, commit(run))
 
 
 def is_valid(run: Run) -> bool:

@@ -19,11 +19,14 @@ Which runs on swarmd count: ``--since-commit C`` keeps the runs of every contend
 daemon is swarmd (swarmd, ROS 2 on swarmd: ``flight_cells.ON_SWARMD``) whose
 ``setup.commit`` is C or a descendant of it (the engine as shipped: name the last commit
 that changed the engine, ``git log -1 --format=%h -- swarmd/discovery/``); older ones are
-left out and listed with their commit and cells. Without it, every run passed counts (name
-the directories of the engine as shipped). The stock stacks' runs are never filtered by
-commit: their stacks are the third-party packages, the harness the same. The rule is
-``flight_cells.current``, which ``flight_campaign`` shares, so the campaign plans runs for
-the cells the matrix would leave empty.
+left out and listed with their commit and cells. ``--since-commit CONTENDER=C`` (again, once
+per contender) gives one contender on swarmd its own C instead, for a change only its runs
+go through: ``ros2-swarmd=C`` after a fix to the relay's graph writer. Without any, every
+run passed counts (name the directories of the engine as shipped). The stock stacks' runs
+are never filtered by commit: their stacks are the third-party packages, the harness the
+same. The rule is ``flight_cells.current`` with ``Since`` (``since_counts``), which
+``flight_campaign`` shares, so the campaign plans runs for the cells the matrix would leave
+empty; it reads the since from the docs' block (``documented_since``).
 
 ``--write-docs FILE`` rewrites the lines between ``BEGIN`` and ``END`` in FILE (the
 "Flight" section of docs/benchmarks.md), naming the command that generated them, and the
@@ -52,9 +55,11 @@ from bench.wifi.flight_cells import (
     SCENARIOS,
     SIZES,
     SWARMD,
+    Counts,
     Measure,
     Run,
     RunFile,
+    Since,
     beside,
     cell,
     cell_runs,
@@ -62,6 +67,7 @@ from bench.wifi.flight_cells import (
     current,
     dilation,
     is_valid,
+    parse_since,
     read_run,
     rediscovery_max,
     rediscovery_p50,
@@ -83,11 +89,12 @@ from bench.wifi.flight_verdicts import (
 
 __all__ = [
     "BEGIN", "COLUMNS", "END", "MEASURES", "RULES", "SCENARIOS", "SECTION", "SIZES", "SWARMD",
-    "ON_SWARMD", "Measure", "Run", "RunFile", "Selection", "Verdict", "beside", "block",
-    "cell", "cell_runs", "commit", "commit_lines", "current", "dilation", "documented_since",
-    "figure_lines", "figure_run", "git_descends", "is_valid", "load", "read_run",
-    "rediscovery_max", "rediscovery_p50", "runs_cell", "select", "side_by_side", "standings",
-    "started", "summary", "tables", "valid", "validity", "verdict_lines", "verdicts", "write_docs",
+    "ON_SWARMD", "Counts", "Measure", "Run", "RunFile", "Selection", "Since", "Verdict",
+    "beside", "block", "cell", "cell_runs", "commit", "commit_lines", "current", "dilation",
+    "documented_since", "figure_lines", "figure_run", "git_descends", "is_valid", "load",
+    "parse_since", "read_run", "rediscovery_max", "rediscovery_p50", "runs_cell", "select",
+    "side_by_side", "since_args", "since_counts", "since_lines", "standings", "started",
+    "summary", "tables", "valid", "validity", "verdict_lines", "verdicts", "write_docs",
 ]  # fmt: skip
 
 BEGIN: Final = "<!-- flight-matrix:begin (python -m bench.wifi.flight_report --matrix) -->"
@@ -144,17 +151,40 @@ def git_descends(since: str, repo: Path) -> Callable[[str], bool]:
     return check
 
 
+def since_counts(since: Since | None, repo: Path) -> Counts | None:
+    """``current``'s rule for ``since`` by the repository's history: a contender's run
+    counts when its commit is the contender's since (``Since.of``) or a descendant of it.
+    ``ValueError`` when a commit named is not one of ``repo`` (``git_descends``), or when a
+    contender's own since is not at or after the default: its daemon is still swarmd's
+    engine, and runs of an engine older than the one shipped would count for it."""
+    if since is None:
+        return None
+    checks = {at: git_descends(at, repo) for at in since.commits()}
+    if since.default is not None:
+        for contender, at in since.own:
+            if not checks[since.default](at):
+                raise ValueError(
+                    f"--since-commit {contender}={at}: before the default {since.default}"
+                )
+
+    def counts(contender: str, made_by: str) -> bool:
+        at = since.of(contender)
+        return at is None or checks[at](made_by)
+
+    return counts
+
+
 @dataclass(frozen=True, slots=True)
 class Selection:
     """The runs the matrix reads, and those it leaves out (with why)."""
 
     runs: list[RunFile]
-    older: list[RunFile]  # runs on swarmd before ``--since-commit`` (``current``)
+    older: list[RunFile]  # runs on swarmd before their ``--since-commit`` (``current``)
     outside: list[RunFile]  # N or contender not in the matrix
     duplicates: int
 
 
-def select(files: Sequence[RunFile], counts: Callable[[str], bool] | None) -> Selection:
+def select(files: Sequence[RunFile], counts: Counts | None) -> Selection:
     """The matrix's runs: N in ``SIZES``, a contender of ``COLUMNS``, a contender on swarmd's
     only at a commit ``counts`` (``current``, when given); the same run read twice (same
     scenario, contender, N, k, repeat, commit and start) once."""
@@ -266,8 +296,8 @@ def block(
     *,
     command: str,
     docs_dir: Path,
-    counts: Callable[[str], bool] | None,
-    since: str | None,
+    counts: Counts | None,
+    since: Since | None,
 ) -> str:
     """The generated block, markers included."""
     sel = select(files, counts)
@@ -295,20 +325,7 @@ def block(
         *commit_lines(runs),
     ]
     if since is not None:
-        on_swarmd = ", ".join(title for c, title in COLUMNS if c in ON_SWARMD)
-        lines += [
-            "",
-            f"The contenders on swarmd ({on_swarmd}): only runs at `{since}` or after count "
-            "(the engine as shipped)"
-            + (
-                f"; left out, older: {len(sel.older)} run file(s) (a cell that has only "
-                'these says "older runs only (n)", not "not run"):'
-                if sel.older
-                else "."
-            ),
-        ]
-        if sel.older:
-            lines += ["", *commit_lines(sel.older)]
+        lines += ["", *since_lines(since, sel.older)]
     if sel.outside:
         what = sorted({f"{f.run['contender']} N={f.run['n']}" for f in sel.outside})
         lines += ["", f"Not in the matrix (N or contender): {len(sel.outside)} run file(s): "
@@ -336,6 +353,39 @@ def block(
     return "\n".join(lines)
 
 
+def since_lines(since: Since, older: Sequence[RunFile]) -> list[str]:
+    """Which runs of each contender on swarmd in the matrix count (``Since``), how many
+    older run files each leaves out, and those files by commit."""
+    left: dict[str, int] = defaultdict(int)
+    for f in older:
+        left[str(f.run["contender"])] += 1
+    out = [
+        f"Which runs on swarmd count (`--since-commit {since}`; a stock stack's run counts "
+        "at any commit):",
+        "",
+    ]
+    for c, title in COLUMNS:
+        if c not in ON_SWARMD:
+            continue
+        at = since.of(c)
+        which = "at any commit" if at is None else f"at `{at}` or after"
+        why = (
+            "" if at is None
+            else f" (its own, `{c}={at}`)" if c in dict(since.own)
+            else " (the engine as shipped)"
+        )  # fmt: skip
+        out.append(f"- {title}: runs {which}{why}; left out, older: {left[c]} run file(s)")
+    if older:
+        out += [
+            "",
+            'A cell that has only older runs says "older runs only (n)", not "not run". '
+            f"The {len(older)} older run file(s) left out:",
+            "",
+            *commit_lines(older),
+        ]
+    return out
+
+
 def side_by_side(runs: Sequence[RunFile]) -> list[str]:
     """Every contender against swarmd's targets (``flight_verdicts.standings``): the
     heading, a one-line header saying the targets are swarmd's, the legend, a table per N."""
@@ -360,10 +410,23 @@ def side_by_side(runs: Sequence[RunFile]) -> list[str]:
     ]
 
 
-def documented_since(docs: Path) -> str | None:
-    """The ``--since-commit`` that the block in ``docs`` names in its "Generated by"
-    command: which runs on swarmd the documented matrix counts (None: no block, no file, or
-    a block made without it)."""
+def since_args(raw: Sequence[str]) -> list[str]:
+    """The ``--since-commit`` values of a command line (``--since-commit X`` and
+    ``--since-commit=X``, as argparse takes them), in order."""
+    out: list[str] = []
+    for k, arg in enumerate(raw):
+        if arg == "--since-commit" and k + 1 < len(raw):
+            out.append(raw[k + 1])
+        elif arg.startswith("--since-commit="):
+            out.append(arg.partition("=")[2])
+    return out
+
+
+def documented_since(docs: Path) -> Since | None:
+    """The ``--since-commit`` values that the block in ``docs`` names in its "Generated by"
+    command, default and per contender (``parse_since``): which runs on swarmd the
+    documented matrix counts (None: no block, no file, or a block made without it).
+    ``ValueError`` when the command names them wrongly."""
     import re
     import shlex
 
@@ -373,9 +436,7 @@ def documented_since(docs: Path) -> str | None:
         return None
     start, end = text.find(BEGIN), text.find(END)
     found = re.search(r"Generated by `([^`]*)`", text[start:end]) if 0 <= start < end else None
-    raw = shlex.split(found.group(1)) if found else []
-    at = raw.index("--since-commit") + 1 if "--since-commit" in raw else len(raw)
-    return raw[at] if at < len(raw) else None
+    return parse_since(since_args(shlex.split(found.group(1)) if found else []))
 
 
 def write_docs(docs: Path, text: str) -> None:

@@ -2,7 +2,8 @@
 
     .venv/bin/python -m bench.wifi.flight_report bench/results/flight/runs/*.json
     .venv/bin/python -m bench.wifi.flight_report --matrix RUNS... [--since-commit C] \
-        [--write-docs docs/benchmarks.md]      # the matrix: bench/wifi/flight_matrix.py
+        [--since-commit CONTENDER=C] [--write-docs docs/benchmarks.md]
+        # the matrix: bench/wifi/flight_matrix.py
     .venv/bin/python -m bench.wifi.flight_report --lag RUNS... [--flew-beside FILE...]
         # ns-3 lag of the dilated runs flown alone against those flown beside another
 
@@ -277,10 +278,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument(
         "--since-commit",
-        default=None,
-        metavar="C",
+        action="append",
+        default=[],
+        metavar="[CONTENDER=]C",
         help="with --matrix: count only the runs on swarmd (swarmd, ROS 2 on swarmd) made at "
-        "C or a descendant of it",
+        "C or a descendant of it; CONTENDER=C (repeatable, once per contender on swarmd): "
+        "that contender's own C instead, e.g. ros2-swarmd=C after a change to the relay",
     )
     p.add_argument(
         "--write-docs",
@@ -296,7 +299,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.lag:
         print("\n".join(lag_table(flight_matrix.load(args.runs), args.flew_beside)))
         return 0
-    if args.since_commit is not None or args.write_docs is not None:
+    if args.since_commit or args.write_docs is not None:
         p.error("--since-commit and --write-docs go with --matrix")
     if args.table:
         runs = [json.loads(path.read_text()) for path in args.runs]
@@ -315,15 +318,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def matrix(paths: Sequence[Path], since: str | None, docs: Path | None, raw: list[str]) -> int:
+def matrix(
+    paths: Sequence[Path], since_values: Sequence[str], docs: Path | None, raw: list[str]
+) -> int:
     """``--matrix``: the block of ``bench/wifi/flight_matrix.py``, printed or written."""
     repo = Path(__file__).resolve().parents[2]
     command = ".venv/bin/python -m bench.wifi.flight_report " + shlex.join(raw)
     docs_dir = (docs if docs is not None else repo / "docs" / "x.md").resolve().parent
     try:
-        counts = None if since is None else flight_matrix.git_descends(since, repo)
+        since = flight_matrix.parse_since(since_values)
+        counts = flight_matrix.since_counts(since, repo)
         files = flight_matrix.load(paths)
-    except ValueError as exc:  # an unknown commit, or a run file cut short: judge nothing
+    except ValueError as exc:  # a since misnamed, or a run file cut short: judge nothing
         print(f"flight_report: {exc}", file=sys.stderr)
         return 2
     text = flight_matrix.block(
