@@ -84,7 +84,7 @@ def test_a_contenders_own_since_holds_for_it_alone() -> None:
     ]  # fmt: skip
     text = fm.block(runs, command="cmd", docs_dir=Path("/nowhere"),
                     counts=_counts(RELAY_FIX), since=RELAY_FIX)  # fmt: skip
-    assert "Which runs on swarmd count (`--since-commit mid, ros2-swarmd=new`" in text
+    assert "Which runs on swarmd count (`--since-commit mid --since-commit ros2-swarmd=new`" in text
     assert (
         "- swarmd: runs at `mid` or after (the engine as shipped); left out, older: 1 run file(s)"
         in text

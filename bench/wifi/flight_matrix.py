@@ -359,8 +359,9 @@ def since_lines(since: Since, older: Sequence[RunFile]) -> list[str]:
     left: dict[str, int] = defaultdict(int)
     for f in older:
         left[str(f.run["contender"])] += 1
+    spelled = " ".join(f"--since-commit {at}" for at in since.args())
     out = [
-        f"Which runs on swarmd count (`--since-commit {since}`; a stock stack's run counts "
+        f"Which runs on swarmd count (`{spelled}`; a stock stack's run counts "
         "at any commit):",
         "",
     ]
