@@ -361,8 +361,7 @@ def since_lines(since: Since, older: Sequence[RunFile]) -> list[str]:
         left[str(f.run["contender"])] += 1
     spelled = " ".join(f"--since-commit {at}" for at in since.args())
     out = [
-        f"Which runs on swarmd count (`{spelled}`; a stock stack's run counts "
-        "at any commit):",
+        f"Which runs on swarmd count (`{spelled}`; a stock stack's run counts at any commit):",
         "",
     ]
     for c, title in COLUMNS:
