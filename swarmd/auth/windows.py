@@ -117,7 +117,15 @@ def load_windows(path: Path) -> LoadedWindows:
 
 def save_windows(path: Path, highs: dict[bytes, Freshness]) -> None:
     """Durably replace the file. Raises ``OSError`` (the caller logs and carries on: the
-    windows in memory still hold; only a restart would lose them).
+    windows in memory still hold; only a restart would lose them). ``write_windows`` with
+    ``encode_windows(highs)``: the daemon encodes on its loop and writes on its writer
+    thread (``swarmd.filewriter``)."""
+    write_windows(path, encode_windows(highs))
+
+
+def write_windows(path: Path, data: bytes) -> None:
+    """Replace the file with ``data`` (``encode_windows``'); blocking (two fsyncs), safe on
+    another thread. Raises ``OSError``.
 
     Each save reopens the folder and judges it again on that descriptor, as ``load_windows``
     does, then writes through it (``safeopen.write_atomic``): a folder swapped in at the
@@ -125,4 +133,4 @@ def save_windows(path: Path, highs: dict[bytes, Freshness]) -> None:
     held: the cost is one open and one ``fstat`` per save (at most one per
     ``SAVE_PERIOD_S``), and the daemon keeps no descriptor of its own for its whole life."""
     with judged_folder(path) as folder:
-        write_atomic(folder, path.name, encode_windows(highs), 0o640)
+        write_atomic(folder, path.name, data, 0o640)
