@@ -49,8 +49,8 @@ class _Job:
 class FileWriter:
     """Blocking file writes run on one thread at a time, coalesced per key (module
     docstring). ``submit`` and ``flush`` are called on the event loop; ``counters``:
-    ``writes``, ``coalesced`` (saves replaced by a newer one before they started),
-    ``errors``."""
+    ``writes``, ``writes_coalesced`` (saves replaced by a newer one before they started),
+    ``write_errors``; ``swarmctl status`` shows them as ``file_*``."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -60,7 +60,7 @@ class FileWriter:
         # submitted writes whose ``done`` has not run yet (loop side only)
         self._outstanding = 0
         self._idle: asyncio.Event | None = None
-        self.counters: dict[str, int] = {"writes": 0, "coalesced": 0, "errors": 0}
+        self.counters: dict[str, int] = {"writes": 0, "writes_coalesced": 0, "write_errors": 0}
 
     @property
     def outstanding(self) -> int:
@@ -83,7 +83,7 @@ class FileWriter:
             else:  # not started yet: the newer state replaces it, both are answered
                 job.write = write
                 job.done.append(done)
-                self.counters["coalesced"] += 1
+                self.counters["writes_coalesced"] += 1
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=THREAD_NAME)
                 self._thread.start()
@@ -118,7 +118,7 @@ class FileWriter:
         """On the loop: the write ended; tell each caller, in submission order."""
         self.counters["writes"] += 1
         if error is not None:
-            self.counters["errors"] += 1
+            self.counters["write_errors"] += 1
         for done in job.done:
             try:
                 done(error)

@@ -110,7 +110,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     # Daemon's base classes, split from daemon.py by concern (daemon tier)
     "daemon_status": CORE
     | {"auth", "discovery", "link", "config", "control", "driver", "peerlog", "sdnotify"}
-    | {"swarmapp", "ros2app", "udp", "changereports"},
+    | {"swarmapp", "ros2app", "udp", "changereports", "filewriter"},
     "daemon_events": CORE | {"discovery", "peerlog", "daemon_status", "changereports"},
     # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
     "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid"},

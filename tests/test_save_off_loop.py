@@ -158,6 +158,12 @@ def _open_when_handled(daemon: Daemon, disk: SlowDisk) -> None:
     loop.call_later(0.01, tick)
 
 
+def _files(daemon: Daemon) -> dict[str, int]:
+    """The writer's counters in ``swarmctl status --json``."""
+    daemon_counters: dict[str, int] = daemon.status()["counters"]["daemon"]
+    return {k: v for k, v in daemon_counters.items() if k.startswith("file_")}
+
+
 async def _until(cond: Callable[[], bool], what: str) -> None:
     loop = asyncio.get_running_loop()
     deadline = loop.time() + WAIT_S
@@ -315,6 +321,8 @@ def test_a_blocked_windows_write_leaves_the_loop_running(
 
             await _until(lambda: saved() == Freshness(3, 40), "the windows on disk")
             assert disk.log == ["write_started", "datagram_handled", "written"]
+            await _until(lambda: _files(daemon)["file_writes_pending"] == 0, "the answer")
+            assert _files(daemon)["file_writes"] >= 1  # swarmctl status counts them
         finally:
             disk.gate.set()
             await daemon.stop("test")
@@ -360,7 +368,7 @@ def test_the_writer_coalesces_to_the_newest_and_answers_every_save_in_order() ->
         assert written == [1, 3]
         assert [t for t in told if t[0] != 4] == [(1, None), (2, None), (3, None)]
         assert (4, "OSError") in told
-        assert writer.counters == {"writes": 3, "coalesced": 1, "errors": 1}
+        assert writer.counters == {"writes": 3, "writes_coalesced": 1, "write_errors": 1}
         assert writer.outstanding == 0
 
     asyncio.run(main())
