@@ -13,8 +13,10 @@ Asserted as well: the write-ahead holds across the thread (a vehicle request emi
 a ``PersistExecuted`` reaches the bridge only once that write has ended); a write that
 fails is still told (``state_save_failed``, counted, the core's ``state_saved``) and the
 command still runs; a stop while a write is blocked waits for it (the last state is on
-disk when ``stop`` returns); the writer coalesces (the newest state wins) and answers
-every save.
+disk when ``stop`` returns); a take-off runs to success while a save blocks (on main it
+failed: the loop, and the in-process vehicle simulator on it, stood still for the write;
+``no_liftoff`` there, where a real PX4 on its own CPU would have met a late retransmission,
+``held_up``); the writer coalesces (the newest state wins) and answers every save.
 """
 
 from __future__ import annotations
@@ -31,12 +33,16 @@ from typing import Any
 
 import pytest
 from structlog.testing import capture_logs
+from swarmd_lab.px4.sim_model import SimConfig
+from swarmd_lab.px4.vehicle_sim import start_sim
 
 from swarmd import statefile
 from swarmd.auth import windows as windows_mod
 from swarmd.auth.freshness import Freshness
 from swarmd.bundle.safeopen import Folder, write_atomic
 from swarmd.daemon import Daemon
+from swarmd.px4.takeoff import TakeoffSucceeded
+from swarmd.px4.transport import parse_connection
 from swarmd.px4.vehicle import TaskKind, VehicleRequest
 from swarmd.rawclock import run_on_raw_clock
 from swarmd.swarm.events import PersistExecuted
@@ -48,6 +54,7 @@ from tests.daemon_support import (
     swarm_sections,
     write_bundle,
 )
+from tests.test_takeoff_loopback import N, _mavlink_port
 
 GATE_S = 10.0  # how long a blocked write waits for the loop: a bound, not a measure
 WAIT_S = 20.0
@@ -325,6 +332,54 @@ def test_a_blocked_windows_write_leaves_the_loop_running(
             assert _files(daemon)["file_writes"] >= 1  # swarmctl status counts them
         finally:
             disk.gate.set()
+            await daemon.stop("test")
+
+    run_on_raw_clock(main())
+
+
+def test_a_take_off_completes_while_a_windows_save_blocks(
+    workdir: Path, files: BundleFiles, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The case that made it matter: a take-off in progress (the vehicle simulator on its
+    MAVLink port, the bridge's own take-off) while the replay windows' save blocks. The
+    save's gate opens only when the take-off has ended, so the take-off runs to the end on
+    the daemon's loop during the write, and succeeds (on main the write held the loop, and
+    the take-off with it, until the gate gave up)."""
+
+    async def main() -> None:
+        port = _mavlink_port(N)  # beyond the ports tests/test_takeoff_loopback.py uses
+        extra = swarm_sections(workdir / "state", f"udpin:127.0.0.1:{port}", period_s=0.5)
+        daemon = loopback_daemon(workdir, files, "uav1", extra=extra)
+        await daemon.start()
+        endpoint = parse_connection(f"udpout:127.0.0.1:{port}")
+        sim = await start_sim(SimConfig(sysid=1, gps_fix_after_s=0.2), endpoint, seed=0)
+        disk = SlowDisk(daemon._windows_path.name)
+        try:
+            bridge = _app(daemon).bridge
+            auth = daemon._spdp_auth
+            assert bridge is not None and auth is not None
+            await _until(lambda: bridge.readiness().ready, "the simulated vehicle ready")
+            monkeypatch.setattr(windows_mod, "write_atomic", disk)
+            takeoff = asyncio.create_task(bridge.takeoff(5.0))
+
+            def ended(_task: object) -> None:
+                disk.log.append("takeoff_ended")
+                disk.gate.set()
+
+            takeoff.add_done_callback(ended)
+            await _until(lambda: bridge.state.armed is True, "the vehicle armed")
+            prefix = files.bundle.participants[1].guid_prefix.value
+            auth.verifier.restore({prefix: Freshness(3, 40)})
+            auth.verifier.windows_changed = True
+            disk.armed = True
+            daemon._save_windows()
+            outcome = await asyncio.wait_for(takeoff, WAIT_S)
+            assert isinstance(outcome, TakeoffSucceeded), outcome
+            await _until(lambda: disk.log[-1] in ("written", "gate_timeout"), "the write's end")
+            assert disk.log == ["write_started", "takeoff_ended", "written"]
+        finally:
+            disk.gate.set()
+            sim.close()
             await daemon.stop("test")
 
     run_on_raw_clock(main())
