@@ -8,8 +8,10 @@ Now the daemon keeps each bundle sender's highest verified freshness in the stat
 directory, ``auth-windows-<node>`` next to ``auth-epoch-<node>``, and restores it at
 start-up (``SpdpVerifier.restore``: that value and the 64 below it count as seen).
 
-When: every ``SAVE_PERIOD_S`` while a window moved, and at a clean stop. A capture made in
-the last ``SAVE_PERIOD_S`` before a crash can still be replayed once after it (the same
+When: every ``SAVE_PERIOD_S`` while a window moved, and at a clean stop, written on the
+daemon's writer thread (``swarmd.filewriter``: never on the loop; a save not started yet is
+replaced by the newer one). A capture made in the last ``SAVE_PERIOD_S`` (plus the write's
+own time) before a crash can still be replayed once after it (the same
 bound as the sender's own risk: docs/security.md, "Residual risks"); a dead member's last
 datagrams are long persisted by the time anyone could replay them.
 
