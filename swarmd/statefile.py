@@ -41,8 +41,9 @@ Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old
 file, never half of one. ``boot``'s write is made at start-up, before anything is sent; the
 running daemon's run on its writer thread (``encode`` on the loop, ``write`` on the thread:
 ``swarmd.filewriter``), so a slow SD card's fsync never stalls the loop. A crash mid-write
-leaves the temporary file (``.<file>.tmp-<16 hex>``); ``boot`` removes this node's before it loads (``remove_left_temps``: regular
-files of this daemon's uid, symlinks never followed), counted in ``temps_removed``.
+leaves the temporary file (``.<file>.tmp-<16 hex>``); ``boot`` removes this node's before
+it loads (``remove_left_temps``: regular files of this daemon's uid, symlinks never
+followed), counted in ``temps_removed``.
 
 The directory must be writable by this daemon's user alone (or root): start-up refuses one
 others can write, whose files another user could have planted (docs/security-history.md,
