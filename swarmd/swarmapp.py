@@ -137,6 +137,7 @@ class SwarmApp:
         self._saves_asked = 0
         self._saves_answered = 0
         self._held: deque[tuple[int, VehicleRequest]] = deque()
+        self._stopping = False  # stop() began: a held request no longer goes to the vehicle
         # verified user data from a peer, by name: the daemon feeds it to discovery
         self.on_peer_traffic: Callable[[str], None] | None = None
 
@@ -427,6 +428,7 @@ class SwarmApp:
         )
 
     async def stop(self) -> None:
+        self._stopping = True
         if self.driver is not None:
             self.driver.close()
         # the last state written before we exit; a vehicle request still waiting for its
@@ -618,7 +620,7 @@ class SwarmApp:
         if self.driver is not None and self.core is not None:
             swarm = self.core
             self.driver.call(lambda now: swarm.state_saved(command, why, now))
-        while self._held and self._held[0][0] <= self._saves_answered:
+        while not self._stopping and self._held and self._held[0][0] <= self._saves_answered:
             self._submit(self._held.popleft()[1])
 
     def _vehicle_request(self, request: VehicleRequest) -> None:

@@ -272,7 +272,9 @@ def test_a_stop_during_a_blocked_write_waits_for_it(
     workdir: Path, files: BundleFiles, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """SIGTERM (``run``'s stop) while a write is blocked: ``stop`` returns after the write
-    ended, so the newest state is on disk when the process exits."""
+    ended, so the newest state is on disk when the process exits. The vehicle request that
+    waited for it never reaches the closing PX4 link (dropped, logged): a stop loses a
+    command, never starts one on its way out."""
 
     async def main() -> None:
         daemon = _daemon(workdir, files)
@@ -287,17 +289,24 @@ def test_a_stop_during_a_blocked_write_waits_for_it(
                 disk.gate.set()
 
             app = _app(daemon)
+            bridge = FakeBridge()
+            app.bridge = bridge  # type: ignore[assignment]
             app._on_event(PersistExecuted((COMMAND,), command=COMMAND))
             newer = (COMMAND, ("uav2", 8))
             app._on_event(PersistExecuted(newer, command=("uav2", 8)))  # coalesced: newest
+            app._on_event(HOLD)
             loop.call_later(0.05, open_gate)
-            await daemon.stop("test")
+            with capture_logs() as logs:
+                await daemon.stop("test")
             disk.log.append("stopped")
         finally:
             disk.gate.set()
             await daemon.stop("test")
         assert disk.log == ["write_started", "opened_during_stop", "written", "stopped"]
         assert _kept(daemon) == [list(c) for c in newer]
+        assert bridge.submitted == []
+        dropped = [e for e in logs if e["event"] == "vehicle_requests_dropped_stopping"]
+        assert [e["count"] for e in dropped] == [1]
 
     run_on_raw_clock(main())
 
