@@ -56,7 +56,13 @@ from swarmd import __version__
 from swarmd.auth.epoch import EpochError, EpochResult, epoch_path, next_epoch, plan_epoch
 from swarmd.auth.keys import KeyRing, NodeKeyMismatch, NodeSecrets
 from swarmd.auth.spdp import SpdpAuth
-from swarmd.auth.windows import SAVE_PERIOD_S, load_windows, save_windows, windows_path
+from swarmd.auth.windows import (
+    SAVE_PERIOD_S,
+    encode_windows,
+    load_windows,
+    windows_path,
+    write_windows,
+)
 from swarmd.bundle.floor import floor_path
 from swarmd.bundle.keys import remove_left_temps
 from swarmd.bundle.model import Bundle
@@ -78,6 +84,7 @@ from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import Event
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_OSERR, EX_UNAVAILABLE, StartupError
+from swarmd.filewriter import FileWriter
 from swarmd.link.monitor import LinkMonitor
 from swarmd.link.source import LinkSource
 from swarmd.peerlog import PeerHistory
@@ -124,6 +131,10 @@ class Daemon(DaemonEvents):
         self._spdp_auth: SpdpAuth | None = None
         self._windows_path = windows_path(self._state_dir, config.node)
         self._windows_timer: asyncio.TimerHandle | None = None
+        # every save while running (replay windows, the swarm's state file) is written on
+        # this writer's thread, never on the loop: a slow SD card's fsync stalled it
+        # (swarmd.filewriter); stop() flushes it
+        self.writer = FileWriter()
         self.log = log
         self.notifier = notifier if notifier is not None else Notifier(env)
         # sd_listen_fds(3): read (and unset) once; a copy when the caller passed its own
@@ -246,6 +257,7 @@ class Daemon(DaemonEvents):
             keys=self.keyring,  # user data is MAC'd per pair and bound to epochs
             epoch=self.epoch.epoch,
             node_secrets=self._secrets,
+            writer=self.writer,
             px4_socket=px4_listen_socket(
                 self.config.px4,
                 os.environ if self._listen_env is None else self._listen_env,
@@ -445,6 +457,8 @@ class Daemon(DaemonEvents):
             self.driver.close()
         if self.app is not None:
             await self.app.stop()
+        # the last windows and state written before we exit (systemd's stop waits for us)
+        await self.writer.flush()
         if self._control is not None:
             await self._control.close()
         await self._close_transports()
@@ -487,19 +501,24 @@ class Daemon(DaemonEvents):
         out.sendto(*datagram)
 
     def _save_windows(self) -> None:
-        """Persist the SPDP replay windows if one moved (swarmd.auth.windows)."""
+        """Persist the SPDP replay windows if one moved (swarmd.auth.windows): encoded now,
+        written on the writer's thread (swarmd.filewriter); a newer save replaces one not
+        started yet, and a failed one is tried again next period."""
         auth = self._spdp_auth
         if auth is None or not auth.verifier.windows_changed:
             return
         auth.verifier.windows_changed = False  # a window moving during the write: next time
-        try:
-            save_windows(self._windows_path, auth.verifier.snapshot())
-        except OSError as exc:
-            auth.verifier.windows_changed = True  # try again next period
-            self.count("auth_windows_save_errors")
-            self.log.warning(
-                "auth_windows_save_failed", path=str(self._windows_path), error=str(exc)
-            )
+        path, data = self._windows_path, encode_windows(auth.verifier.snapshot())
+        self.writer.submit("auth_windows", partial(write_windows, path, data), self._windows_saved)
+
+    def _windows_saved(self, error: Exception | None) -> None:
+        """On the loop: the writer ended a save of the windows."""
+        auth = self._spdp_auth
+        if error is None or auth is None:
+            return
+        auth.verifier.windows_changed = True  # try again next period
+        self.count("auth_windows_save_errors")
+        self.log.warning("auth_windows_save_failed", path=str(self._windows_path), error=str(error))
 
     def _windows_tick(self) -> None:
         self._save_windows()

@@ -25,6 +25,7 @@ from swarmd.discovery.engine import DiscoveryEngine
 from swarmd.discovery.events import Event
 from swarmd.discovery.inputs import LinkSample
 from swarmd.driver import Driver
+from swarmd.filewriter import FileWriter
 from swarmd.link.monitor import LinkMonitor
 from swarmd.peerlog import PeerHistory
 from swarmd.sdnotify import Notifier
@@ -66,6 +67,7 @@ class DaemonStatus:
     _watchdog: asyncio.TimerHandle | None
     _link_task: asyncio.Task[None] | None
     _control: ControlServer | None
+    writer: FileWriter
     _status_line: str
     _ready: bool
     _started_wall: float
@@ -153,6 +155,10 @@ class DaemonStatus:
             counters["daemon"]["control_clients_refused"] = self._control.rejected_clients
             counters["daemon"]["control_clients_idle_closed"] = self._control.idle_clients_closed
             counters["daemon"]["control_clients_slow_closed"] = self._control.slow_clients_closed
+        # the saves on the writer's thread (swarmd.filewriter): a slow card shows as pending
+        for name, value in self.writer.counters.items():
+            counters["daemon"][f"file_{name}"] = value
+        counters["daemon"]["file_writes_pending"] = self.writer.outstanding
         st["counters"] = counters
         if self.app is not None:
             st.update(self.app.status())

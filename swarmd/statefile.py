@@ -38,9 +38,12 @@ infinite, negative, or later than the wall clock at load by more than
 and exactly once rests on the id (docs/dataplane.md, "Exactly once" 3).
 
 Writes are atomic (temporary file, fsync, rename), so a power cut leaves the old or the new
-file, never half of one. A crash mid-write leaves the temporary file (``.<file>.tmp-<16
-hex>``); ``boot`` removes this node's before it loads (``remove_left_temps``: regular
-files of this daemon's uid, symlinks never followed), counted in ``temps_removed``.
+file, never half of one. ``boot``'s write is made at start-up, before anything is sent; the
+running daemon's run on its writer thread (``encode`` on the loop, ``write`` on the thread:
+``swarmd.filewriter``), so a slow SD card's fsync never stalls the loop. A crash mid-write
+leaves the temporary file (``.<file>.tmp-<16 hex>``); ``boot`` removes this node's before
+it loads (``remove_left_temps``: regular files of this daemon's uid, symlinks never
+followed), counted in ``temps_removed``.
 
 The directory must be writable by this daemon's user alone (or root): start-up refuses one
 others can write, whose files another user could have planted (docs/security-history.md,
@@ -125,7 +128,14 @@ class NodeState:
     folder: Folder | None = field(default=None, compare=False, repr=False)
 
     def save(self) -> None:
-        """Write atomically; raises ``StateDirError`` (one line) on failure."""
+        """Write atomically, here and now; raises ``StateDirError`` (one line) on failure.
+        ``boot`` calls it before anything is sent; the running daemon instead encodes on
+        its loop (``encode``) and writes on its writer thread (``write``,
+        ``swarmd.filewriter``)."""
+        self.write(self.encode())
+
+    def encode(self) -> bytes:
+        """The file's bytes for the state held now (a snapshot: later changes are not in it)."""
         body: dict[str, object] = {
             "boot": self.boot,
             "executed": [[c, i] for c, i in self.executed],
@@ -136,7 +146,12 @@ class NodeState:
             body["decisions"] = [list(kept) for kept in self.decisions[-MAX_DECIDED_COMMANDS:]]
         if self.told_unsaved:  # the same
             body["told_unsaved"] = [[c, i] for c, i in self.told_unsaved[-MAX_DECIDED_COMMANDS:]]
-        data = json.dumps(body, separators=(",", ":")).encode("utf-8")
+        return json.dumps(body, separators=(",", ":")).encode("utf-8")
+
+    def write(self, data: bytes) -> None:
+        """Replace the file with ``data`` (``encode``'s) atomically; blocking (two fsyncs),
+        safe on another thread (it reads only ``path`` and ``folder``, fixed at ``boot``).
+        Raises ``StateDirError`` (one line) on failure."""
         try:
             # a random O_EXCL|O_NOFOLLOW temp name: a symlink planted at the old fixed
             # "<file>.tmp" made this write go through to its target (session 10 review);

@@ -11,8 +11,10 @@ only does their I/O:
   ``Bundle.user_port``; the peer's boot epoch from its signed SPDP, to which the plane binds
   every datagram it sends it: docs/security.md);
 - the user-data UDP socket feeds the driver; the driver sends what the core queued;
-- ``PersistExecuted`` writes the state file (write-ahead), ``VehicleRequest`` goes to the
-  bridge, whose ``TaskFinished`` and readiness changes come back into the core;
+- ``PersistExecuted`` writes the state file on the writer's thread (``swarmd.filewriter``:
+  the loop never waits for an fsync), ``VehicleRequest`` goes to the bridge once every
+  write asked for before it has ended (the write-ahead), and the bridge's ``TaskFinished``
+  and readiness changes come back into the core;
 - the control socket's ``takeoff``/``command``/``outcomes`` requests call the core at
   ``loop.time()``; its ``RequestInvalid`` becomes the control socket's.
 """
@@ -23,7 +25,9 @@ import asyncio
 import os
 import socket
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
+from functools import partial
 from pathlib import Path
 from typing import Any, Final, assert_never
 
@@ -36,6 +40,7 @@ from swarmd.dataplane import DataPlane, PairKeys
 from swarmd.dataplane.convert import ReadinessVerdict
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_CANTCREAT, EX_CONFIG, EX_OSERR, StartupError
+from swarmd.filewriter import FileWriter
 from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.provision import SigningKeyError, ed25519_seed, signing_key_for
 from swarmd.px4.readiness import Readiness, ReadinessConfig
@@ -97,11 +102,13 @@ class SwarmApp:
         node_secrets: NodeSecrets | None = None,
         px4_socket: socket.socket | None = None,
         booted_before: bool = False,
+        writer: FileWriter | None = None,
     ) -> None:
         """``keys`` (the daemon's ``KeyRing``) and ``epoch`` (this boot's, the one its SPDP
         announces) authenticate the data plane's datagrams (docs/security.md).
         ``booted_before``: this node's boot epoch file held an earlier epoch, so a missing
-        state file was deleted, not never written (``state_file_missing``)."""
+        state file was deleted, not never written (``state_file_missing``). ``writer``:
+        the daemon's writer thread (None: one of this app's own)."""
         self.config = config
         self.bundle = bundle
         self.log = log
@@ -124,6 +131,13 @@ class SwarmApp:
         # discovered peers -> (address, boot epoch), replayed on start
         self._up: dict[str, tuple[str | None, int]] = {}
         self.counters: dict[str, int] = {"state_save_errors": 0, "state_file_missing": 0}
+        self.writer = writer if writer is not None else FileWriter()
+        # the write-ahead across threads: state writes asked for and answered so far, and
+        # the vehicle requests waiting, each with the writes that must end before it goes
+        self._saves_asked = 0
+        self._saves_answered = 0
+        self._held: deque[tuple[int, VehicleRequest]] = deque()
+        self._stopping = False  # stop() began: a held request no longer goes to the vehicle
         # verified user data from a peer, by name: the daemon feeds it to discovery
         self.on_peer_traffic: Callable[[str], None] | None = None
 
@@ -414,8 +428,16 @@ class SwarmApp:
         )
 
     async def stop(self) -> None:
+        self._stopping = True
         if self.driver is not None:
             self.driver.close()
+        # the last state written before we exit; a vehicle request still waiting for its
+        # write goes nowhere: the bridge closes now (the safe side, "a crash loses a
+        # command, never repeats one")
+        await self.writer.flush()
+        if self._held:
+            self.log.warning("vehicle_requests_dropped_stopping", count=len(self._held))
+            self._held.clear()
         if self.socket is not None:
             self.socket.close()
         if self.bridge is not None:
@@ -478,8 +500,7 @@ class SwarmApp:
             case PersistExecuted():
                 self._persist(event)
             case VehicleRequest():
-                if self.bridge is not None:
-                    self.bridge.submit(event)
+                self._vehicle_request(event)
             case MemberReadinessChanged(member=member, ready=ready, reason=reason):
                 self.log.info("member_readiness", member=member, ready=ready, reason=reason)
             case CommandIssued():
@@ -562,9 +583,9 @@ class SwarmApp:
                 assert_never(event)
 
     def _persist(self, event: PersistExecuted) -> None:
-        """Write the state file. A failed write is told (logged ``state_save_failed`` with
-        the command it would have kept, counted, the decision marked unsaved for ``swarmctl
-        outcomes``) and does not stop the command: docs/dataplane.md, "A failed save"."""
+        """Write the state file, on the writer's thread (``swarmd.filewriter``): encoded
+        now, so the write holds this event's state (or a newer one's, which holds it too).
+        Each event is answered (``_saved``) once the write that holds it has ended."""
         if self.state is None:
             return
         self.state.executed = list(event.executed)
@@ -572,22 +593,49 @@ class SwarmApp:
         offset = self._wall_offset()
         self.state.decisions = [_on_clock(d, offset) for d in event.decisions]
         self.state.told_unsaved = list(event.told_unsaved)
-        error: str | None = None
-        try:
-            self.state.save()
-        except StateDirError as exc:
-            error = str(exc)
+        self._saves_asked += 1
+        write = partial(self.state.write, self.state.encode())
+        self.writer.submit("state", write, partial(self._saved, event.command))
+
+    def _saved(self, command: tuple[str, int] | None, error: Exception | None) -> None:
+        """On the loop: a write of the state file ended. A failed write is told (logged
+        ``state_save_failed`` with the command it would have kept, counted, the decision
+        marked unsaved for ``swarmctl outcomes``, its commander told ``[not saved on
+        drone]``) and does not stop the command: docs/dataplane.md, "A failed save". Then
+        the vehicle requests it held go (``_vehicle_request``)."""
+        why: str | None = None
+        if error is not None:
+            why = str(error)
             self.counters["state_save_errors"] += 1
-            commander, command_id = event.command or (None, None)
+            commander, command_id = command or (None, None)
             self.log.error(
                 "state_save_failed",
-                error=error,
+                error=why,
                 commander=commander,
                 command_id=command_id,
                 effect="the command still runs; after a restart its answer is not re-reported "
                 "and no copy of it runs again (docs/dataplane.md, 'A failed save')",
             )
-        self._core().state_saved(event.command, error, self._driver().now())
+        self._saves_answered += 1
+        if self.driver is not None and self.core is not None:
+            swarm = self.core
+            self.driver.call(lambda now: swarm.state_saved(command, why, now))
+        while not self._stopping and self._held and self._held[0][0] <= self._saves_answered:
+            self._submit(self._held.popleft()[1])
+
+    def _vehicle_request(self, request: VehicleRequest) -> None:
+        """To the bridge once every state write asked for before it has ended: the
+        write-ahead (``PersistExecuted`` before ``VehicleRequest``, docs/dataplane.md,
+        "Exactly once") now that writes run on another thread; in order, behind any
+        request still waiting."""
+        if self._held or self._saves_answered < self._saves_asked:
+            self._held.append((self._saves_asked, request))
+            return
+        self._submit(request)
+
+    def _submit(self, request: VehicleRequest) -> None:
+        if self.bridge is not None:
+            self.bridge.submit(request)
 
     def _wall_offset(self) -> float:
         """Unix time minus the core's clock (``loop.time()``, CLOCK_MONOTONIC_RAW): the

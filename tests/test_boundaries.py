@@ -86,6 +86,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     # judged folder descriptor (daemon tier; it reads the wall clock its kept times are
     # judged against, so it cannot be the swarm core's)
     "statefile": CORE | {"dataplane", "swarm"},
+    # the daemon's file writes on one thread, off the loop: the state file and the replay
+    # windows, coalesced (daemon tier; a leaf)
+    "filewriter": frozenset(),
     "config": CORE | {"discovery", "px4", "link", "dataplane", "swarm"},
     # the nftables table (and iptables chain) of swarmd's loopback ports, generated from the
     # config (text only; swarmd local-firewall runs nft or iptables-restore: cli); a
@@ -98,7 +101,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
     "swarmapp": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
-    | {"config", "control", "driver", "logs", "userdata", "statefile"},
+    | {"config", "control", "driver", "logs", "userdata", "statefile", "filewriter"},
     # what the daemon derives before it starts: secrets, address, engine settings, link
     # sources, SPDP sockets, the systemd socket name (daemon tier, split from daemon.py)
     "daemon_setup": CORE | {"auth", "discovery", "link", "px4", "config", "udp", "sdlisten"},
@@ -107,7 +110,7 @@ ALLOWED: dict[str, frozenset[str]] = {
     # Daemon's base classes, split from daemon.py by concern (daemon tier)
     "daemon_status": CORE
     | {"auth", "discovery", "link", "config", "control", "driver", "peerlog", "sdnotify"}
-    | {"swarmapp", "ros2app", "udp", "changereports"},
+    | {"swarmapp", "ros2app", "udp", "changereports", "filewriter"},
     "daemon_events": CORE | {"discovery", "peerlog", "daemon_status", "changereports"},
     # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
     "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid"},
@@ -127,6 +130,7 @@ ALLOWED: dict[str, frozenset[str]] = {
         "swarmapp",
         "ros2app",
         "udp",
+        "filewriter",
     },
     "cli": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}

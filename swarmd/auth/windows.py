@@ -8,8 +8,10 @@ Now the daemon keeps each bundle sender's highest verified freshness in the stat
 directory, ``auth-windows-<node>`` next to ``auth-epoch-<node>``, and restores it at
 start-up (``SpdpVerifier.restore``: that value and the 64 below it count as seen).
 
-When: every ``SAVE_PERIOD_S`` while a window moved, and at a clean stop. A capture made in
-the last ``SAVE_PERIOD_S`` before a crash can still be replayed once after it (the same
+When: every ``SAVE_PERIOD_S`` while a window moved, and at a clean stop, written on the
+daemon's writer thread (``swarmd.filewriter``: never on the loop; a save not started yet is
+replaced by the newer one). A capture made in the last ``SAVE_PERIOD_S`` (plus the write's
+own time) before a crash can still be replayed once after it (the same
 bound as the sender's own risk: docs/security.md, "Residual risks"); a dead member's last
 datagrams are long persisted by the time anyone could replay them.
 
@@ -117,7 +119,15 @@ def load_windows(path: Path) -> LoadedWindows:
 
 def save_windows(path: Path, highs: dict[bytes, Freshness]) -> None:
     """Durably replace the file. Raises ``OSError`` (the caller logs and carries on: the
-    windows in memory still hold; only a restart would lose them).
+    windows in memory still hold; only a restart would lose them). ``write_windows`` with
+    ``encode_windows(highs)``: the daemon encodes on its loop and writes on its writer
+    thread (``swarmd.filewriter``)."""
+    write_windows(path, encode_windows(highs))
+
+
+def write_windows(path: Path, data: bytes) -> None:
+    """Replace the file with ``data`` (``encode_windows``'); blocking (two fsyncs), safe on
+    another thread. Raises ``OSError``.
 
     Each save reopens the folder and judges it again on that descriptor, as ``load_windows``
     does, then writes through it (``safeopen.write_atomic``): a folder swapped in at the
@@ -125,4 +135,4 @@ def save_windows(path: Path, highs: dict[bytes, Freshness]) -> None:
     held: the cost is one open and one ``fstat`` per save (at most one per
     ``SAVE_PERIOD_S``), and the daemon keeps no descriptor of its own for its whole life."""
     with judged_folder(path) as folder:
-        write_atomic(folder, path.name, encode_windows(highs), 0o640)
+        write_atomic(folder, path.name, data, 0o640)
