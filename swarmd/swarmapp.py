@@ -627,7 +627,9 @@ class SwarmApp:
         """To the bridge once every state write asked for before it has ended: the
         write-ahead (``PersistExecuted`` before ``VehicleRequest``, docs/dataplane.md,
         "Exactly once") now that writes run on another thread; in order, behind any
-        request still waiting."""
+        request still waiting. A wait past the command's validity is the vehicle core's to
+        judge when the request reaches it (``not_after``: docs/dataplane.md, "Validity at
+        the vehicle")."""
         if self._held or self._saves_answered < self._saves_asked:
             self._held.append((self._saves_asked, request))
             return

@@ -150,6 +150,10 @@ class FailReason(StrEnum):
     # requests, one vehicle"): the sequence ended at once and sent nothing more, no DISARM
     SUPERSEDED = "superseded"
     BUSY = "busy"  # another task is running (the vehicle core's answer; never from a sequence)
+    # the request reached the vehicle core after its command's validity end (``not_after``:
+    # held behind a slow state write): refused before anything was sent (the vehicle core's
+    # answer; docs/dataplane.md, "Validity at the vehicle")
+    EXPIRED_BEFORE_START = "expired_before_start"
 
 
 class GroundRef(StrEnum):

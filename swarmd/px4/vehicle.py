@@ -13,6 +13,10 @@ earliest of the heartbeat-stale deadline and the running tasks' timers) and
 went quiet", by the timer), ``TaskFinished`` once per request, and the tasks' own events
 (phases, commands sent, acks) for the log.
 
+A request of a kind in ``EXPIRES`` (TAKEOFF) that arrives at or after its ``not_after``
+(its command's validity end, set by the swarm member) starts nothing: its ``TaskFinished``
+says ``expired_before_start`` (docs/dataplane.md, "Validity at the vehicle").
+
 Tasks: **at most one runs** (docs/px4.md, "Two requests, one vehicle"). A request that
 arrives while a task runs meets ``RULES``: a TAKEOFF is refused ``busy`` (a take-off only
 starts from quiet, so it never undoes a LAND, HOLD or ABORT implicitly); a LAND, HOLD or
@@ -107,6 +111,14 @@ RULES: Final[dict[tuple[TaskKind, TaskKind], Meet]] = {
 }
 
 
+# The kinds a request's ``not_after`` stops from starting late (docs/dataplane.md, "Validity
+# at the vehicle"). A TAKEOFF started after its validity is the flight the operator was
+# told can no longer happen. LAND, HOLD and ABORT stop the vehicle: the member accepted
+# them, so the operator counts on them, and run late they still only stop it (a later
+# TAKEOFF waits behind them, in order); refused, the drone would fly on unstopped.
+EXPIRES: Final = frozenset({TaskKind.TAKEOFF})
+
+
 @dataclass(frozen=True, slots=True)
 class VehicleRequest:
     """One task for the vehicle, tagged with the caller's ``token``: the tag its
@@ -118,6 +130,11 @@ class VehicleRequest:
     # what the token stands for, for logs and tests (the swarm: the commander and its
     # command id); the vehicle never reads it
     origin: tuple[str, int] | None = None
+    # the command's validity end on the core's clock (the member's judgement when it
+    # decided); None: no validity (a direct request). A kind in ``EXPIRES`` reaching the
+    # core at or after it is refused ``expired_before_start`` (docs/dataplane.md,
+    # "Validity at the vehicle")
+    not_after: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -199,6 +216,9 @@ class VehicleCore:
     def request(self, request: VehicleRequest, now: float) -> None:
         """Start the task ``request`` names; its end is a ``TaskFinished`` event. A task
         running meets it by ``RULES``: refused ``busy``, or superseded by it."""
+        if request.kind in EXPIRES and request.not_after is not None and now >= request.not_after:
+            self._refuse_expired(request, now)
+            return
         running = self._tasks[0] if self._tasks else None  # at most one (module docstring)
         armed_maybe = False
         if running is not None:
@@ -311,6 +331,16 @@ class VehicleCore:
         if request.kind is TaskKind.TAKEOFF:
             outcome = TakeoffFailed(FailReason.BUSY, None, why, 0.0)
         self._events.append(TaskFinished(request.token, False, str(FailReason.BUSY), outcome))
+
+    def _refuse_expired(self, request: VehicleRequest, now: float) -> None:
+        """The request came after its command's validity end (held for a state write): no
+        frame, and its end says so, for the operator (docs/dataplane.md, "Validity at the
+        vehicle"). The last check before PX4: every request reaches the vehicle here."""
+        assert request.not_after is not None  # noqa: S101 - the caller checked it
+        why = f"{now - request.not_after:.3f} s after its validity end"
+        reason = FailReason.EXPIRED_BEFORE_START
+        outcome = TakeoffFailed(reason, None, why, 0.0)
+        self._events.append(TaskFinished(request.token, False, str(reason), outcome))
 
     def _supersede(self, task: _Task, by: VehicleRequest, now: float) -> None:
         """End ``task`` for ``by``: its TaskFinished first, and nothing of it on the wire."""

@@ -19,7 +19,10 @@ may have run it, and its record of executed ids (the state file) may be lost
 Without a vehicle every command is REJECTED ``px4_disabled``. TAKEOFF is refused at once
 (REJECTED, reason = the readiness code) when the vehicle is not ready *now* (the
 commander's view is up to one report old), else ACCEPTED at once (the commander's latency
-measure) and sent to the vehicle; LAND, HOLD and ABORT are ACCEPTED and sent, always. The
+measure) and sent to the vehicle; LAND, HOLD and ABORT are ACCEPTED and sent, always. Each
+request carries the command's validity end on our clock (``VehicleRequest.not_after``): it
+may wait for the state write, and the vehicle refuses a TAKEOFF reaching it after that,
+``expired_before_start`` (REJECTED; docs/dataplane.md, "Validity at the vehicle"). The
 vehicle's ``TaskFinished`` becomes COMPLETED (reason: the landed state after a take-off,
 the command's label after an ABORT) or FAILED (``superseded: land`` for a task a later LAND,
 HOLD or ABORT took over: docs/px4.md, "Two requests, one vehicle"; REJECTED for a take-off
@@ -255,10 +258,12 @@ class Member:
         if done.ok:
             result = CommandResult.COMPLETED
         elif isinstance(done.outcome, TakeoffFailed) and (
-            done.outcome.reason in (FailReason.NOT_READY, FailReason.BUSY)
+            done.outcome.reason
+            in (FailReason.NOT_READY, FailReason.BUSY, FailReason.EXPIRED_BEFORE_START)
         ):
-            # refused before anything was sent: not ready, or another task runs (the
-            # vehicle's RULES: a take-off never interrupts a LAND, HOLD or ABORT)
+            # refused before anything was sent: not ready, another task runs (the
+            # vehicle's RULES: a take-off never interrupts a LAND, HOLD or ABORT), or it
+            # reached the vehicle after its validity end (held for the state write)
             result = CommandResult.REJECTED
         else:
             result = CommandResult.FAILED
@@ -348,7 +353,20 @@ class Member:
         self._running[token] = _Task(kind, commander, command.command_id, now)
         alt = float(command.altitude_m) if takeoff else None
         origin = (commander, command.command_id)
-        self._events.append(VehicleRequest(token, task, alt, origin))
+        not_after = self._not_after(commander, command, now)
+        self._events.append(VehicleRequest(token, task, alt, origin, not_after))
+
+    def _not_after(self, commander: str, command: Command, now: float) -> float | None:
+        """The command's validity end on our clock, for the vehicle to check again when the
+        request actually reaches it (it may wait for the state write: docs/dataplane.md,
+        "Validity at the vehicle"). Our own drone's command is issued ``now``; another
+        commander's is dated by its echo (``judge``, valid here: ``_may_run`` passed).
+        None: no validity to keep (``valid_ms`` 0, only our own drone's can be)."""
+        if command.valid_ms == 0:
+            return None
+        if commander == self.roles.me:
+            return now + command.valid_ms / 1000.0
+        return now + judge(command, self.roles.me, now).remaining_ms / 1000.0
 
     def _new_token(self) -> int:
         """A tag for a vehicle task, unique in this life (``_token_base``); 2^32 − 1 tasks
