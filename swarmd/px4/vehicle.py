@@ -150,6 +150,7 @@ class _Task:
     # PX4 may arm after the state we hold was sent, so an ABORT superseding this task
     # disarms even when our state says disarmed (``_abort``)
     armed_maybe: bool = False
+    reported: bool = False  # its TaskFinished is out (a failed take-off may still run)
 
 
 class VehicleCore:
@@ -172,6 +173,9 @@ class VehicleCore:
         # when the last ARM (a take-off's, retransmissions too) went on the wire: until a
         # HEARTBEAT received an ack timeout later, the vehicle may be armed whatever we hold
         self.last_arm_at: float | None = None
+        # failed take-offs whose DISARM repeats ended with the vehicle maybe still armed on
+        # the ground (takeoff, "disarm_unconfirmed"): ``swarmctl status`` px4
+        self.disarm_unconfirmed = 0
         self._tasks: list[_Task] = []
         self._last_key: tuple[bool, str | None] | None = None
         self._stale_at: float | None = None
@@ -202,7 +206,10 @@ class VehicleCore:
         running = self._tasks[0] if self._tasks else None  # at most one (module docstring)
         armed_maybe = False
         if running is not None:
-            if RULES[(running.kind, request.kind)] is Meet.BUSY:
+            # a failed take-off repeating its DISARM (takeoff, module docstring) is over for
+            # the operator: any request, a new take-off too, stops the repeats and runs
+            tail = isinstance(running.runner, TakeoffSequence) and running.runner.disarming
+            if RULES[(running.kind, request.kind)] is Meet.BUSY and not tail:
                 self._refuse_busy(request, running)
                 return
             runner = running.runner
@@ -315,8 +322,10 @@ class VehicleCore:
     def _supersede(self, task: _Task, by: VehicleRequest, now: float) -> None:
         """End ``task`` for ``by``: its TaskFinished first, and nothing of it on the wire."""
         origin = "" if by.origin is None else f", {by.origin[0]} command {by.origin[1]:#x}"
-        task.superseded_by = by.kind
-        task.runner.supersede(now, f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})")
+        runner = task.runner
+        if not (isinstance(runner, TakeoffSequence) and runner.disarming):
+            task.superseded_by = by.kind  # else the take-off's failure stands as its outcome
+        runner.supersede(now, f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})")
         self._settle(now)
 
     def _action(
@@ -353,18 +362,25 @@ class VehicleCore:
             self._out += sent
             while (event := runner.next_event()) is not None:
                 self._events.append(event)
-            if runner.done:
-                self._tasks.remove(task)
+            if runner.outcome is not None and not task.reported:
+                # reported at its outcome: a failed take-off then still repeats its DISARM
+                # (takeoff, module docstring), the task kept until ``done``
+                task.reported = True
                 if _disarm_refused(task):
                     # PX4 refuses a plain DISARM in the air: our "on the ground" was older
                     # than a lift-off (an ABORT at the moment a superseded take-off's motors
                     # lifted it). Land instead, under the same token: the ABORT still stops
                     # the vehicle, where before it FAILED and PX4 climbed on to the take-off
                     # altitude (review 15). Never a forced disarm (module docstring).
+                    self._tasks.remove(task)
                     again = VehicleRequest(task.token, task.kind)
                     self._action(again, ActionKind.LAND, now, abort=True)
                     continue
                 self._events.append(_finished(task))
+            if runner.done:
+                self._tasks.remove(task)
+                if isinstance(runner, TakeoffSequence) and runner.disarm_unconfirmed:
+                    self.disarm_unconfirmed += 1
         verdict = readiness(self.state, now, self.readiness_config)
         key = (verdict.ready, None if verdict.reason is None else str(verdict.reason))
         if key != self._last_key:
