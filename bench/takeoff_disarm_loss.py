@@ -19,18 +19,15 @@ reading, not a test: nothing asserted.
 from __future__ import annotations
 
 import argparse
-import random
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-
-from swarmd_lab.px4.sim_model import SimConfig, SimVehicle
-from swarmd_lab.px4.virtual import VirtualLink
+from typing import Any
 
 import swarmd.px4.vehicle as vehicle_module
+from bench.takeoff_loss import lossy_link
+from bench.xrce_takeoff_loss import LossyEdge
 from swarmd.px4.constants import LandedState
-from swarmd.px4.readiness import VehicleState
-from swarmd.px4.takeoff import FailReason, TakeoffPhase, TakeoffSequence
-from tests.test_xrce_late_command import Edge
+from swarmd.px4.takeoff import TakeoffPhase, TakeoffSequence
 
 AFTER_S = 3.0  # how long after the reported failure the vehicle is looked at
 
@@ -38,25 +35,14 @@ AFTER_S = 3.0  # how long after the reported failure the vehicle is looked at
 class OneDisarm(TakeoffSequence):
     """Session 16: a failure's DISARM sent once, abandoned at once, never repeated."""
 
-    def _fail(
-        self,
-        now: float,
-        reason: FailReason,
-        cause: str | None,
-        detail: str,
-        *,
-        disarm: bool = True,
-        repeat: bool = True,
-    ) -> None:
-        super()._fail(now, reason, cause, detail, disarm=disarm, repeat=False)
+    def _fail(self, *args: Any, **kwargs: Any) -> None:
+        super()._fail(*args, **{**kwargs, "repeat": False})
 
 
 def mavlink_one(rule: type[TakeoffSequence], seed: int, loss: float) -> tuple[bool, bool, bool]:
     """Failed?, left armed on the ground ``AFTER_S`` after?, reported disarm_unconfirmed?"""
-    rng = random.Random(seed)
-    sim = SimVehicle(SimConfig(gps_fix_after_s=1.0), random.Random(3), 0.0)
-    link = VirtualLink(sim, VehicleState(), 0.0, drop=lambda msg, d, now: rng.random() < loss)
-    link.run_until(5.0)
+    link = lossy_link(seed, loss)
+    sim = link.sim
     seq = rule(link.state, 5.0)
     link.start(seq)
     link.run_until(link.now + 30.0, stop=lambda: seq.outcome is not None)
@@ -65,19 +51,6 @@ def mavlink_one(rule: type[TakeoffSequence], seed: int, loss: float) -> tuple[bo
     link.run_until(link.now + AFTER_S)
     armed = sim.armed and sim.landed == LandedState.ON_GROUND
     return True, armed, seq.disarm_unconfirmed
-
-
-class _LossyEdge(Edge):
-    """The XRCE edge (PX4 1.14) with every datagram lost with probability ``loss``."""
-
-    def __init__(self, seed: int) -> None:
-        self.rng = random.Random(seed)
-        self.loss = 0.0
-        super().__init__("1.14")
-
-    def carry(self, deliver: Callable[[], None]) -> None:
-        if self.rng.random() >= self.loss:
-            super().carry(deliver)
 
 
 @contextmanager
@@ -93,16 +66,10 @@ def _sequence(rule: type[TakeoffSequence]) -> Iterator[None]:
 
 
 def xrce_one(rule: type[TakeoffSequence], seed: int, loss: float) -> tuple[bool, bool, bool]:
-    edge = _LossyEdge(seed)
+    edge = LossyEdge(seed, "1.14")
     with _sequence(rule):
-        edge.run_until_ready()
-        edge.run(edge.clock.now + 1.0)
-        edge.loss = loss
-        try:
-            done = edge.takeoff_until_done(limit_s=20.0)
-        except AssertionError:
-            return False, False, False  # never ended: not a failure reported
-        if done.ok:
+        done = edge.lossy_takeoff(loss)
+        if done is None or done.ok:  # None: never ended, no failure reported
             return False, False, False
         edge.run(edge.clock.now + AFTER_S)
     px4 = edge.px4.vehicle
