@@ -21,17 +21,19 @@ task ends at once with its own ``TaskFinished`` (reason ``superseded: <new kind>
 detail naming the new request for the log) and sends nothing after that, not even a failed
 take-off's DISARM; its pending command is cancelled, so the answers it is still owed are
 paid from the shared ``OwedAcks`` and cannot settle the new task's command of the same
-number. Then the new task starts. LAND, HOLD and DISARM are ``actions.VehicleAction``s,
-all commands through the ``CommandSender``; each confirms only from state received an ack
-timeout after its send (``actions``, "fresh"). ABORT lands a vehicle in the air, disarms one
-armed on the ground, or one that may be armed without our state showing it yet: its
-superseded take-off had sent ARM (also through a LAND, HOLD or ABORT that superseded it in
-turn), or the last ARM on the wire (``last_arm_at``) is newer than the HEARTBEAT we hold,
-less an ack timeout (PX4 may carry that ARM out before our DISARM). Never a forced disarm,
-which PX4 would obey in the air: a DISARM PX4 refuses (it is in the air after all, our
-landed state older than its lift-off) is followed by a LAND under the same request
-(``_disarm_refused``). A vehicle on the ground and disarmed, by a HEARTBEAT newer than the
-last ARM, needs nothing (``on_ground_disarmed``).
+number. Then the new task starts. A failed take-off still repeating its DISARM (``takeoff``,
+module docstring) has reported its failure already: any request, a TAKEOFF too, stops the
+repeats and runs, and no second ``TaskFinished`` follows. LAND, HOLD and DISARM are
+``actions.VehicleAction``s, all commands through the ``CommandSender``; each confirms only
+from state received an ack timeout after its send (``actions``, "fresh"). ABORT lands a
+vehicle in the air, disarms one armed on the ground, or one that may be armed without our
+state showing it yet: its superseded take-off had sent ARM (also through a LAND, HOLD or
+ABORT that superseded it in turn), or the last ARM on the wire (``last_arm_at``) is newer
+than the HEARTBEAT we hold, less an ack timeout (PX4 may carry that ARM out before our
+DISARM). Never a forced disarm, which PX4 would obey in the air: a DISARM PX4 refuses (it is
+in the air after all, our landed state older than its lift-off) is followed by a LAND under
+the same request (``_disarm_refused``). A vehicle on the ground and disarmed, by a HEARTBEAT
+newer than the last ARM, needs nothing (``on_ground_disarmed``).
 """
 
 from __future__ import annotations
