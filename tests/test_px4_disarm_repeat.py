@@ -200,3 +200,44 @@ def test_xrce_best_effort_repeats_the_lost_disarm() -> None:
     vehicle = edge.px4.vehicle
     assert not vehicle.armed and vehicle.landed == LandedState.ON_GROUND
     assert edge.core.disarm_unconfirmed == 0
+
+
+def _run_out(v: Scripted) -> list[float]:
+    """Drive the sequence's timers with no further telemetry; the DISARMs' send times."""
+    times: list[float] = []
+    while (timer := v.seq.get_timer()) is not None:
+        v.now = timer
+        v.seq.handle_timer(v.now)
+        sent = v.seq.commands_to_send()
+        times += [v.now for c in sent if _is_disarm(c)]
+        v.sent += sent
+    return times
+
+
+def test_a_link_silent_after_nav_takeoff_stops_the_repeats() -> None:
+    """NAV_TAKEOFF went out, then nothing from PX4: our last ON_GROUND may predate a
+    lift-off, so the DISARM is not repeated once the state is older than the heartbeat
+    timeout (2.5 s)."""
+    v = Scripted()
+    v.start()
+    v.ack(MavCmd.COMPONENT_ARM_DISARM, MavResult.ACCEPTED)  # NAV_TAKEOFF leaves at 0
+    for _ in range(4):
+        v.advance_to_timer()  # unanswered: takeoff_no_ack at 2 s, the first DISARM
+    times = [v.now] + _run_out(v)
+    assert v.failure().reason is FailReason.TAKEOFF_NO_ACK
+    assert all(t <= 2.5 for t in times)  # the state (t = 0) went stale at 2.5 s
+    assert v.seq.done and v.seq.disarm_unconfirmed
+
+
+def test_before_nav_takeoff_an_older_on_ground_still_gets_the_repeats() -> None:
+    """Only our ARM went out (no answer, no telemetry since t = 0): the vehicle cannot have
+    left the ground on our commands, so the DISARM is repeated in full."""
+    v = Scripted()
+    v.start()
+    for _ in range(4):
+        v.advance_to_timer()  # ARM unanswered: arm_no_ack at 2 s
+    first = v.now
+    times = [first] + _run_out(v)
+    assert v.failure().reason is FailReason.ARM_NO_ACK
+    assert [round(t - first, 3) for t in times] == [0.0, 0.5, 1.0, 1.5]
+    assert v.seq.done and v.seq.disarm_unconfirmed
