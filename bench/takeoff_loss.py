@@ -56,12 +56,19 @@ class BeforeRule(TakeoffSequence):
         return (fresh(v.heartbeat_at, since) and mode) or (fresh(v.extended_at, since) and airborne)
 
 
-def one(rule: type[TakeoffSequence], seed: int, loss: float) -> tuple[str, bool]:
-    """The outcome's code and whether the simulated vehicle flew."""
+def lossy_link(seed: int, loss: float) -> VirtualLink:
+    """The simulator ready at 5 s, every MAVLink message lost with ``loss`` both ways."""
     rng = random.Random(seed)
     sim = SimVehicle(SimConfig(gps_fix_after_s=1.0), random.Random(3), 0.0)
     link = VirtualLink(sim, VehicleState(), 0.0, drop=lambda msg, d, now: rng.random() < loss)
     link.run_until(5.0)
+    return link
+
+
+def one(rule: type[TakeoffSequence], seed: int, loss: float) -> tuple[str, bool]:
+    """The outcome's code and whether the simulated vehicle flew."""
+    link = lossy_link(seed, loss)
+    sim = link.sim
     seq = rule(link.state, 5.0)
     link.start(seq)
     link.run_until(link.now + 30.0, stop=lambda: seq.done)

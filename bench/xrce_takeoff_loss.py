@@ -24,33 +24,40 @@ from collections import Counter
 from collections.abc import Callable
 
 from swarmd.px4.constants import LandedState
+from swarmd.px4.vehicle import TaskFinished
 from tests.test_xrce_late_command import Edge
 
 
-class _LossyEdge(Edge):
+class LossyEdge(Edge):
     """The edge with every datagram lost with probability ``loss`` (0 until set)."""
 
-    def __init__(self, seed: int) -> None:
+    def __init__(self, seed: int, release: str = "1.16") -> None:
         self.rng = random.Random(seed)
         self.loss = 0.0
-        super().__init__("1.16")
+        super().__init__(release)
 
     def carry(self, deliver: Callable[[], None]) -> None:
         if self.rng.random() >= self.loss:
             super().carry(deliver)
 
+    def lossy_takeoff(self, loss: float) -> TaskFinished | None:
+        """Ready, then a take-off with ``loss`` each way: its end, or None (never ended)."""
+        self.run_until_ready()
+        self.run(self.clock.now + 1.0)
+        self.loss = loss
+        try:
+            return self.takeoff_until_done(limit_s=20.0)
+        except AssertionError:
+            return None
+
 
 def one(seed: int, loss: float, life: float) -> tuple[str, int, bool]:
     """The outcome's code, the stand-ins sent, and whether a failure left PX4 armed on the
     ground 3 s after it."""
-    edge = _LossyEdge(seed)
+    edge = LossyEdge(seed)
     edge.backend.command_life_s = life
-    edge.run_until_ready()
-    edge.run(edge.clock.now + 1.0)
-    edge.loss = loss
-    try:
-        done = edge.takeoff_until_done(limit_s=20.0)
-    except AssertionError:
+    done = edge.lossy_takeoff(loss)
+    if done is None:
         return "never_ended", 0, False
     edge.run(edge.clock.now + 3.0)
     vehicle = edge.px4.vehicle

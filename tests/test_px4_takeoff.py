@@ -169,7 +169,9 @@ def test_lost_commands_run_out_of_retries() -> None:
     arms = [c for c in commands(link, MavCmd.COMPONENT_ARM_DISARM) if c.params[0] == 1.0]
     assert [c.confirmation for c in arms] == [0, 1, 2, 3]
     assert seq.outcome.elapsed_s == pytest.approx(4 * 0.5)  # virtual time: 4 x ack timeout
-    assert link.now - t0 == pytest.approx(2.0)
+    # reported once the DISARM repeats end: a fresh HEARTBEAT reads disarmed (1 Hz), within
+    # the DISARM's own sender budget (tests/test_px4_disarm_repeat.py)
+    assert 2.0 < link.now - t0 <= 4.0
 
 
 def _takeoff_mode_by_another_ground_station(link: VirtualLink) -> None:
@@ -307,7 +309,7 @@ def test_denied_is_final_and_not_retried() -> None:
     assert isinstance(v.outcome(), TakeoffFailed)
     assert (v.failure().reason, v.failure().cause) == (FailReason.ARM_REJECTED, "DENIED")
     assert [c.params[0] for c in v.sent] == [1.0, 0.0]  # one arm, then the safety disarm
-    assert v.seq.get_timer() is None
+    assert v.seq.disarming  # the DISARM waits for its answer (test_px4_disarm_repeat)
 
 
 def test_in_progress_stretches_the_wait() -> None:

@@ -34,6 +34,8 @@ from swarmd.px4.mavlink_backend import MavlinkBackend
 from swarmd.px4.messages import Observation, StateReset, VehicleCommand
 from swarmd.px4.readiness import Readiness, ReadinessConfig, VehicleState
 from swarmd.px4.takeoff import (
+    DISARM_UNCONFIRMED,
+    DisarmRepeatsEnded,
     TakeoffConfig,
     TakeoffFailed,
     TakeoffPhaseChanged,
@@ -214,6 +216,8 @@ class Px4Bridge:
             "backend": self.backend.stats(),
             # late answers to ended commands dropped, not credited (docs/security.md case 2)
             "owed_acks": self.core.owed.stats(),
+            # failed take-offs that left the vehicle maybe armed on the ground (docs/px4.md)
+            "disarm_unconfirmed": self.core.disarm_unconfirmed,
         }
 
     # ---- driving --------------------------------------------------------------------------
@@ -261,6 +265,11 @@ class Px4Bridge:
                 self._info("px4_command_ack", command=event.command, result=event.result)
             case TakeoffSucceeded() | TakeoffFailed():
                 self._info("px4_takeoff_outcome", **_outcome_dict(event))
+            case DisarmRepeatsEnded():
+                # after a failed take-off's outcome: did its DISARM arrive (docs/px4.md, "A
+                # failed take-off's DISARM")? Unconfirmed: the vehicle may sit armed
+                ended = "confirmed" if event.confirmed else "stopped" if event.stopped else None
+                self._info("px4_takeoff_disarm", ended=ended or DISARM_UNCONFIRMED, why=event.why)
             case ActionFinished():
                 self._info(
                     "px4_action_outcome",

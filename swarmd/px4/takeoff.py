@@ -17,9 +17,26 @@ PX4 1.14 to main and puts the altitude in the command itself. (A)'s risk is PX4'
 auto-disarm (``COM_DISARM_PRFLT`` = 10 s: armed, on the ground, no take-off -> disarm, the
 "arms then disarms in a loop" reports). Our worst case from ARM accepted to NAV_TAKEOFF
 accepted is (1 + retries) x ack timeout = 2 s with the defaults, well inside 10 s, and
-``TakeoffConfig.check`` refuses budgets that are not. After any failure once ARM has gone
-out we send one DISARM (param1 = 0, not forced; PX4 refuses a non-forced disarm in the air,
-so this can only stop a vehicle sitting armed on the ground).
+``TakeoffConfig.check`` refuses budgets that are not.
+
+The DISARM after a failure (docs/px4.md, "A failed take-off's DISARM"): once ARM has gone
+out, any failure sends DISARM (param1 = 0, never the 21196 force: PX4 refuses a non-forced
+disarm in the air, so it can only stop a vehicle sitting armed on the ground). The failure
+is usually a lossy link, which loses that DISARM too; then PX4 stays armed on the ground,
+props maybe spinning (COM_PREARM_MODE), until COM_DISARM_PRFLT (10 s). So the failure is
+reported at once (``outcome``, ``TakeoffFailed``) but the sequence is not ``done``: it
+retransmits the DISARM through the sender (confirmation 1, 2, 3; the same ack timeout and
+retries: at most 4 sends in 2 s with the defaults) until PX4 answers ACCEPTED or a fresh
+HEARTBEAT reads disarmed, and only while the vehicle reads ON_GROUND: any other landed
+state (in the air, unknown: a StateReset forgets it) stops the repeats at once, and so does
+a link silent for the heartbeat timeout once NAV_TAKEOFF went out (the vehicle may have
+lifted off since; before NAV_TAKEOFF only our ARM went out, in a mode that stays on the
+ground, so the last ON_GROUND stands). Their end is a ``DisarmRepeatsEnded``
+event; ``confirmed`` False (``disarm_unconfirmed``) means the vehicle may still be armed.
+A supersede or cancel ends them at once, nothing more sent (the newer request owns the
+vehicle: ``VehicleCore`` lets any request supersede these repeats). ``cancel`` itself
+sends its DISARM once, unrepeated: the caller (often the closing driver) drives nothing
+more.
 
 Altitude (``alt_m``, metres above the ground): NAV_TAKEOFF param7 is **AMSL** (navigator),
 so param7 = ground reference + alt_m. The ground reference (``ground_reference``) is
@@ -95,6 +112,9 @@ COM_DISARM_PRFLT_S: Final = 10.0  # PX4 commander default: pre-flight auto-disar
 MIS_TAKEOFF_ALT_M: Final = 2.5  # PX4 navigator default, used when param7 is NaN
 MAX_TAKEOFF_ALT_M: Final = 120.0  # common legal ceiling for small UAS (EU/FAA); a typo guard
 AIRBORNE: Final = frozenset({LandedState.TAKEOFF, LandedState.IN_AIR})
+# a failed take-off's DISARM repeats ended without seeing the vehicle disarmed (the log's
+# and ``swarmctl status``'s name for ``DisarmRepeatsEnded`` with ``confirmed`` False)
+DISARM_UNCONFIRMED: Final = "disarm_unconfirmed"
 
 
 @dataclass(frozen=True, slots=True)
@@ -219,12 +239,24 @@ class TakeoffFailed(TakeoffEvent):
     elapsed_s: float
 
 
-SequenceEvent = TakeoffPhaseChanged | TakeoffSucceeded | TakeoffFailed | CommandSent | AckReceived
+@dataclass(frozen=True, slots=True)
+class DisarmRepeatsEnded(TakeoffEvent):
+    """The failed take-off's DISARM repeats are over (module docstring). ``confirmed``:
+    PX4 accepted it or a fresh HEARTBEAT read disarmed; False (``disarm_unconfirmed``): the
+    vehicle may still be armed on the ground, or it is not there (``why`` says which)."""
+
+    confirmed: bool
+    stopped: bool  # a newer request or a cancel ended them: neither confirmed nor unconfirmed
+    why: str
+
+
+TakeoffOwnEvent = TakeoffPhaseChanged | TakeoffSucceeded | TakeoffFailed | DisarmRepeatsEnded
+SequenceEvent = TakeoffOwnEvent | CommandSent | AckReceived
 """What ``TakeoffSequence.next_event`` returns: its phases and outcome, and the sender's
 ``CommandSent``/``AckReceived`` for each step's command."""
 
 
-class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | TakeoffFailed]):
+class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
     """One take-off attempt. Create, ``start(now)``, then drive until ``done``.
 
     Driven by ``start``, ``observe`` and ``handle_timer``; outputs ``commands_to_send``,
@@ -263,6 +295,12 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         # NAV_TAKEOFF's retransmission fell due while the loop was held up: until then the
         # answer and state that waited are read before the take-off is judged held_up
         self._held_until: float | None = None
+        # the failure's DISARM, repeated until it shows (module docstring): its sender handle
+        # and when a HEARTBEAT may confirm it ("fresh")
+        self._disarm_handle: int | None = None
+        self._repeating = False
+        self._disarm_fresh_from = 0.0
+        self.disarm_unconfirmed = False  # the repeats ended with the vehicle maybe armed
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -312,6 +350,11 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         """An autopilot message (already fed to the shared ``VehicleState``)."""
         if self._finished():
             return
+        if self.disarming:
+            self._sender.observe(obs, now)
+            self._drain(now)
+            self._check_disarm(now)
+            return
         self._sender.observe(obs, now)
         self._drain(now)
         if not self._finished():
@@ -320,6 +363,13 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
     def handle_timer(self, now: float) -> None:
         """Call at (or after) ``get_timer()``; early calls are harmless."""
         if self._finished():
+            return
+        if self.disarming:
+            # a DISARM sent late is harmless (on the ground only): no held-up rule here
+            self._check_disarm(now)
+            if self.disarming:
+                self._sender.handle_timer(now)
+                self._drain(now)
             return
         self._check_state(now)
         if self._finished():
@@ -365,14 +415,26 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
             )
 
     def cancel(self, now: float, why: str = "cancelled by caller") -> None:
-        if not self._finished():
-            self._fail(now, FailReason.CANCELLED, None, why)
+        """End now; a take-off that sent ARM sends its DISARM once, never repeated (the
+        caller, often the closing driver, drives nothing more)."""
+        if self.disarming:
+            self._end_disarm(now, f"stopped: {why}", confirmed=False, stopped=True)
+        elif not self._finished():
+            self._fail(now, FailReason.CANCELLED, None, why, repeat=False)
 
     def supersede(self, now: float, why: str) -> None:
         """A later request took the vehicle over: end now and send nothing more, not even the
-        DISARM a failure sends (PX4 obeys the last command: ours must be the later one's)."""
-        if not self._finished():
+        DISARM a failure sends (PX4 obeys the last command: ours must be the later one's).
+        During the failure's DISARM repeats the failure stands, and the repeats stop."""
+        if self.disarming:
+            self._end_disarm(now, f"stopped: {why}", confirmed=False, stopped=True)
+        elif not self._finished():
             self._fail(now, FailReason.SUPERSEDED, None, why, disarm=False)
+
+    @property
+    def disarming(self) -> bool:
+        """Failed (reported), and still repeating the failure's DISARM (module docstring)."""
+        return self._repeating
 
     @property
     def arm_sent(self) -> bool:
@@ -385,7 +447,8 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 
     def _finished(self) -> bool:
-        return self.phase in (TakeoffPhase.SUCCEEDED, TakeoffPhase.FAILED)
+        ended = self.phase in (TakeoffPhase.SUCCEEDED, TakeoffPhase.FAILED)
+        return ended and not self.disarming
 
     def get_timer(self) -> float | None:
         due = super().get_timer()
@@ -402,6 +465,13 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         self._handle = self._sender.send(command, now)
 
     def _on_finished(self, done: CommandFinished, now: float) -> None:
+        if done.handle == self._disarm_handle:
+            self._disarm_handle = None
+            if done.finish is Finish.ACCEPTED:
+                self._end_disarm(now, "DISARM ACCEPTED", confirmed=True)
+            elif done.finish in (Finish.REFUSED, Finish.NO_ACK):
+                self._end_disarm(now, f"DISARM {done.why}", confirmed=False)
+            return
         if done.handle != self._handle or self._finished():
             return  # a command the sequence settled, or cancelled, already
         self._handle = None
@@ -523,24 +593,62 @@ class TakeoffSequence(SenderTask[TakeoffPhaseChanged | TakeoffSucceeded | Takeof
         detail: str,
         *,
         disarm: bool = True,
+        repeat: bool = True,
     ) -> None:
         if self._handle is not None:
             self._sender.cancel(self._handle, now, f"{reason}")
             self._handle = None
         self._lift_deadline = None
+        self._held_until = None
         if self._arm_sent and disarm:
-            # leave nothing armed on the ground; PX4 refuses a non-forced disarm in the air.
-            # Sent once through the sender and abandoned at once: its answer has ARM's number
-            # and would answer the next take-off's ARM (mavlink.io, "Command Protocol": an ack
-            # has no request id), so the sender owes it (command_sender, "Answers still owed")
+            # leave nothing armed on the ground (module docstring, the DISARM after a failure).
+            # Its answer has ARM's number and may answer the next take-off's ARM (mavlink.io,
+            # "Command Protocol": an ack has no request id); a DISARM ended unanswered is owed
+            # by the sender (command_sender, "Answers still owed")
             handle = self._sender.send(
                 VehicleCommand.make(MavCmd.COMPONENT_ARM_DISARM, p1=0.0), now
             )
-            self._sender.cancel(handle, now, "the failed take-off's one DISARM")
+            if repeat:
+                self._disarm_handle = handle
+                self._repeating = True
+                self._disarm_fresh_from = now + self.config.command.ack_timeout_s
+            else:
+                self._sender.cancel(handle, now, "the cancelled take-off's one DISARM")
             self._drain(now)
         self.outcome = TakeoffFailed(reason, cause, detail, now - self._t0)
         self._set_phase(TakeoffPhase.FAILED, now, f"{reason}: {detail}")
         self._events.append(self.outcome)
+        if self._repeating:
+            self._check_disarm(now)  # on the ground? (the first DISARM went out regardless)
+
+    def _check_disarm(self, now: float) -> None:
+        """During the repeats: a fresh HEARTBEAT reading disarmed ends them; a vehicle not
+        read ON_GROUND gets no further DISARM (module docstring)."""
+        v = self.vehicle
+        if v.armed is False and fresh(v.heartbeat_at, self._disarm_fresh_from):
+            self._end_disarm(now, "a HEARTBEAT reads disarmed", confirmed=True)
+        elif v.landed_state != LandedState.ON_GROUND:
+            why = f"not repeated: landed_state {_name(v.landed_state)}"
+            self._end_disarm(now, why, confirmed=False)
+        elif self._takeoff_fresh_from is not None and not v.heard_within(
+            now, self.readiness_config.heartbeat_timeout_s
+        ):
+            # NAV_TAKEOFF went out: "on the ground" from a link silent since may predate a
+            # lift-off (readiness' rule). Before it, only our ARM went, in a mode that stays
+            # on the ground (checked before every send of ARM), so an older ON_GROUND stands
+            self._end_disarm(now, "not repeated: no recent state", confirmed=False)
+
+    def _end_disarm(self, now: float, why: str, *, confirmed: bool, stopped: bool = False) -> None:
+        """The repeats are over: say how (``DisarmRepeatsEnded``)."""
+        if not self._repeating:
+            return
+        self._repeating = False
+        if self._disarm_handle is not None:
+            handle, self._disarm_handle = self._disarm_handle, None
+            self._sender.cancel(handle, now, why)
+            self._drain(now)
+        self.disarm_unconfirmed = not (confirmed or stopped)
+        self._events.append(DisarmRepeatsEnded(confirmed, stopped, why))
 
     def _set_phase(self, new: TakeoffPhase, now: float, why: str) -> None:
         if new not in _TRANSITIONS[self.phase]:

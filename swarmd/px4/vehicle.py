@@ -25,17 +25,19 @@ task ends at once with its own ``TaskFinished`` (reason ``superseded: <new kind>
 detail naming the new request for the log) and sends nothing after that, not even a failed
 take-off's DISARM; its pending command is cancelled, so the answers it is still owed are
 paid from the shared ``OwedAcks`` and cannot settle the new task's command of the same
-number. Then the new task starts. LAND, HOLD and DISARM are ``actions.VehicleAction``s,
-all commands through the ``CommandSender``; each confirms only from state received an ack
-timeout after its send (``actions``, "fresh"). ABORT lands a vehicle in the air, disarms one
-armed on the ground, or one that may be armed without our state showing it yet: its
-superseded take-off had sent ARM (also through a LAND, HOLD or ABORT that superseded it in
-turn), or the last ARM on the wire (``last_arm_at``) is newer than the HEARTBEAT we hold,
-less an ack timeout (PX4 may carry that ARM out before our DISARM). Never a forced disarm,
-which PX4 would obey in the air: a DISARM PX4 refuses (it is in the air after all, our
-landed state older than its lift-off) is followed by a LAND under the same request
-(``_disarm_refused``). A vehicle on the ground and disarmed, by a HEARTBEAT newer than the
-last ARM, needs nothing (``on_ground_disarmed``).
+number. Then the new task starts. A failed take-off still repeating its DISARM (``takeoff``,
+module docstring) has reported its failure already: any request, a TAKEOFF too, stops the
+repeats and runs, and no second ``TaskFinished`` follows. LAND, HOLD and DISARM are
+``actions.VehicleAction``s, all commands through the ``CommandSender``; each confirms only
+from state received an ack timeout after its send (``actions``, "fresh"). ABORT lands a
+vehicle in the air, disarms one armed on the ground, or one that may be armed without our
+state showing it yet: its superseded take-off had sent ARM (also through a LAND, HOLD or
+ABORT that superseded it in turn), or the last ARM on the wire (``last_arm_at``) is newer
+than the HEARTBEAT we hold, less an ack timeout (PX4 may carry that ARM out before our
+DISARM). Never a forced disarm, which PX4 would obey in the air: a DISARM PX4 refuses (it is
+in the air after all, our landed state older than its lift-off) is followed by a LAND under
+the same request (``_disarm_refused``). A vehicle on the ground and disarmed, by a HEARTBEAT
+newer than the last ARM, needs nothing (``on_ground_disarmed``).
 """
 
 from __future__ import annotations
@@ -167,6 +169,7 @@ class _Task:
     # PX4 may arm after the state we hold was sent, so an ABORT superseding this task
     # disarms even when our state says disarmed (``_abort``)
     armed_maybe: bool = False
+    reported: bool = False  # its TaskFinished is out (a failed take-off may still run)
 
 
 class VehicleCore:
@@ -189,6 +192,9 @@ class VehicleCore:
         # when the last ARM (a take-off's, retransmissions too) went on the wire: until a
         # HEARTBEAT received an ack timeout later, the vehicle may be armed whatever we hold
         self.last_arm_at: float | None = None
+        # failed take-offs whose DISARM repeats ended with the vehicle maybe still armed on
+        # the ground (takeoff, "disarm_unconfirmed"): ``swarmctl status`` px4
+        self.disarm_unconfirmed = 0
         self._tasks: list[_Task] = []
         self._last_key: tuple[bool, str | None] | None = None
         self._stale_at: float | None = None
@@ -222,7 +228,10 @@ class VehicleCore:
         running = self._tasks[0] if self._tasks else None  # at most one (module docstring)
         armed_maybe = False
         if running is not None:
-            if RULES[(running.kind, request.kind)] is Meet.BUSY:
+            # a failed take-off repeating its DISARM (takeoff, module docstring) is over for
+            # the operator: any request, a new take-off too, stops the repeats and runs
+            tail = isinstance(running.runner, TakeoffSequence) and running.runner.disarming
+            if RULES[(running.kind, request.kind)] is Meet.BUSY and not tail:
                 self._refuse_busy(request, running)
                 return
             runner = running.runner
@@ -345,8 +354,10 @@ class VehicleCore:
     def _supersede(self, task: _Task, by: VehicleRequest, now: float) -> None:
         """End ``task`` for ``by``: its TaskFinished first, and nothing of it on the wire."""
         origin = "" if by.origin is None else f", {by.origin[0]} command {by.origin[1]:#x}"
-        task.superseded_by = by.kind
-        task.runner.supersede(now, f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})")
+        runner = task.runner
+        if not (isinstance(runner, TakeoffSequence) and runner.disarming):
+            task.superseded_by = by.kind  # else the take-off's failure stands as its outcome
+        runner.supersede(now, f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})")
         self._settle(now)
 
     def _action(
@@ -383,18 +394,25 @@ class VehicleCore:
             self._out += sent
             while (event := runner.next_event()) is not None:
                 self._events.append(event)
-            if runner.done:
-                self._tasks.remove(task)
+            if runner.outcome is not None and not task.reported:
+                # reported at its outcome: a failed take-off then still repeats its DISARM
+                # (takeoff, module docstring), the task kept until ``done``
+                task.reported = True
                 if _disarm_refused(task):
                     # PX4 refuses a plain DISARM in the air: our "on the ground" was older
                     # than a lift-off (an ABORT at the moment a superseded take-off's motors
                     # lifted it). Land instead, under the same token: the ABORT still stops
                     # the vehicle, where before it FAILED and PX4 climbed on to the take-off
                     # altitude (review 15). Never a forced disarm (module docstring).
+                    self._tasks.remove(task)
                     again = VehicleRequest(task.token, task.kind)
                     self._action(again, ActionKind.LAND, now, abort=True)
                     continue
                 self._events.append(_finished(task))
+            if runner.done:
+                self._tasks.remove(task)
+                if isinstance(runner, TakeoffSequence) and runner.disarm_unconfirmed:
+                    self.disarm_unconfirmed += 1
         verdict = readiness(self.state, now, self.readiness_config)
         key = (verdict.ready, None if verdict.reason is None else str(verdict.reason))
         if key != self._last_key:
