@@ -37,7 +37,8 @@ COMMAND_LONG transmission may draw one final answer, so when a command ends (any
 with fewer final answers than sends, the difference is *owed*, per command number. An ack
 first pays such a debt (dropped, counted ``paid``) before it is matched to the pending
 command. Bounded: ``MAX_OWED_PER_COMMAND`` debts per number are kept one by one, more
-are pooled as a count (one vehicle owes five on ARM's number after one failed take-off, and
+are pooled as a count (one vehicle owes up to eight on ARM's number after one failed
+take-off: four ARMs, then up to four DISARMs, px4.md "A failed take-off's DISARM"; and
 one per superseded LAND, so no cap a vehicle cannot pass exists; a debt dropped would let
 its late answer fail the next command), at most ``MAX_OWED_COMMANDS`` numbers (the vehicle
 sends four), each debt forgotten ``owed_window_s`` after its command ended (a pooled one
@@ -152,7 +153,8 @@ SenderEvent = CommandSent | AckReceived | CommandFinished
 MAX_OWED_PER_COMMAND: Final = 4
 """Debts kept one by one per command number (one command's 1 + 3 sends), each with its own
 expiry. More than that is normal for one vehicle: a take-off whose four ARMs went
-unanswered then sends its DISARM (five on ARM's number), and each LAND a later LAND
+unanswered then sends its DISARM, repeated up to four times while unanswered (up to eight
+on ARM's number), and each LAND a later LAND
 supersedes owes one more, as many as the operator sends within ``owed_window_s``. The debts
 beyond it are *pooled*: kept as a count that expires with the latest of them, so memory
 stays bounded and no owed answer is ever credited to a later command. Only our own sends
