@@ -50,7 +50,8 @@ class FileWriter:
     """Blocking file writes run on one thread at a time, coalesced per key (module
     docstring). ``submit`` and ``flush`` are called on the event loop; ``counters``:
     ``writes``, ``writes_coalesced`` (saves replaced by a newer one before they started),
-    ``write_errors``; ``swarmctl status`` shows them as ``file_*``."""
+    ``write_errors``, ``thread_start_errors`` (the thread could not start: written on the
+    loop instead); ``swarmctl status`` shows them as ``file_*``."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -60,7 +61,12 @@ class FileWriter:
         # submitted writes whose ``done`` has not run yet (loop side only)
         self._outstanding = 0
         self._idle: asyncio.Event | None = None
-        self.counters: dict[str, int] = {"writes": 0, "writes_coalesced": 0, "write_errors": 0}
+        self.counters: dict[str, int] = {
+            "writes": 0,
+            "writes_coalesced": 0,
+            "write_errors": 0,
+            "thread_start_errors": 0,
+        }
 
     @property
     def outstanding(self) -> int:
@@ -75,6 +81,7 @@ class FileWriter:
             self._idle = asyncio.Event()
         assert self._idle is not None  # noqa: S101 - set with the loop
         self._idle.clear()
+        thread: threading.Thread | None = None
         with self._lock:
             job = self._pending.get(key)
             if job is None:
@@ -85,8 +92,18 @@ class FileWriter:
                 job.done.append(done)
                 self.counters["writes_coalesced"] += 1
             if self._thread is None:
-                self._thread = threading.Thread(target=self._run, name=THREAD_NAME)
-                self._thread.start()
+                thread = self._thread = threading.Thread(target=self._run, name=THREAD_NAME)
+        if thread is None:
+            return
+        try:
+            thread.start()
+        except RuntimeError:
+            # no thread (EAGAIN: a task or memory limit). Left set, ``_thread`` would keep
+            # every later write queued for good, and every vehicle request held behind
+            # them, a LAND's included (review 17b): write here, on the loop, the way
+            # every save ran before session 17; ``_run`` ends by clearing ``_thread``
+            self.counters["thread_start_errors"] += 1
+            self._run()
 
     async def flush(self) -> None:
         """Wait until every write submitted so far has ended and its ``done`` has run."""

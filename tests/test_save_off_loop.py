@@ -432,7 +432,84 @@ def test_the_writer_coalesces_to_the_newest_and_answers_every_save_in_order() ->
         assert written == [1, 3]
         assert [t for t in told if t[0] != 4] == [(1, None), (2, None), (3, None)]
         assert (4, "OSError") in told
-        assert writer.counters == {"writes": 3, "writes_coalesced": 1, "write_errors": 1}
+        assert writer.counters == {
+            "writes": 3,
+            "writes_coalesced": 1,
+            "write_errors": 1,
+            "thread_start_errors": 0,
+        }
         assert writer.outstanding == 0
 
     asyncio.run(main())
+
+
+def _no_thread(times: int) -> Callable[[threading.Thread], None]:
+    """``threading.Thread.start`` that fails (EAGAIN: ``can't start new thread``) for the
+    writer's thread, ``times`` times, then starts threads again."""
+    real, left = threading.Thread.start, [times]
+
+    def start(thread: threading.Thread) -> None:
+        if thread.name == "swarmd-files" and left[0] > 0:
+            left[0] -= 1
+            raise RuntimeError("can't start new thread")
+        real(thread)
+
+    return start
+
+
+def test_a_writer_thread_that_cannot_start_still_writes_and_answers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Review 17b: the thread's start failed (a task or memory limit) once. On main the
+    writer kept the unstarted thread as its own, so no later save ever started: every
+    caller waited for good (and ``submit`` raised into the caller). Now the save is
+    written on the loop instead, every caller is answered and the next save has its
+    thread again."""
+    from swarmd.filewriter import FileWriter
+
+    monkeypatch.setattr(threading.Thread, "start", _no_thread(1))
+
+    async def main() -> None:
+        writer = FileWriter()
+        written: list[int] = []
+        told: list[int] = []
+        for n in (1, 2):
+            writer.submit("state", lambda n=n: written.append(n), lambda _e, n=n: told.append(n))  # type: ignore[misc]
+            await asyncio.wait_for(writer.flush(), WAIT_S)
+        assert written == [1, 2]
+        assert told == [1, 2]
+        assert writer.counters["thread_start_errors"] == 1
+        assert writer.outstanding == 0
+
+    asyncio.run(main())
+
+
+def test_a_vehicle_request_goes_when_the_writer_thread_cannot_start(
+    workdir: Path, files: BundleFiles, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17b, the daemon's view of the above: a received command's write-ahead and
+    its vehicle request, dispatched by the driver as in flight. On main the write's
+    ``submit`` raised (counted as a handler error), the write never ran and the request
+    was held for good: no LAND or ABORT after it would have reached the vehicle, and the
+    stop's flush waited for ever (systemd's SIGKILL after ``TimeoutStopSec``). Now the
+    file holds the command, the request reaches the bridge and the stop returns."""
+
+    async def main() -> None:
+        daemon = _daemon(workdir, files)
+        await daemon.start()
+        try:
+            app = _app(daemon)
+            bridge = FakeBridge()
+            app.bridge = bridge  # type: ignore[assignment]
+            monkeypatch.setattr(threading.Thread, "start", _no_thread(1))
+            core = app._core()
+            core._events.extend([PersistExecuted((COMMAND,), command=COMMAND), HOLD])
+            app._driver().drain()
+            await _until(lambda: bool(bridge.submitted), "the held request")
+            assert bridge.submitted == [HOLD]
+            assert list(COMMAND) in _kept(daemon)
+        finally:
+            # bounded: on main the stop's flush waited for the write that never ran
+            await asyncio.wait_for(daemon.stop("test"), WAIT_S)
+
+    run_on_raw_clock(main())
