@@ -19,6 +19,13 @@ its ``done`` joins the list. When a write ends, each of its ``done(error)`` runs
 save went: ``swarmapp.SwarmApp._persist`` (the write-ahead before the vehicle moves, and
 the ``[not saved on drone]`` report of a failed save), ``daemon.Daemon._save_windows``.
 
+The thread is started from the loop's next turn (``call_soon``), not inside ``submit``: the
+saves one loop callback asks for become one write. A received command is two
+``PersistExecuted`` in one drain (its id, then its outcome) before its ``VehicleRequest``;
+started at once, the first write ran alone and the request waited for two writes in a row,
+two fsyncs of a slow card against a take-off's 3 s validity (review 17b; the request is
+refused ``expired_before_start`` past it, docs/dataplane.md).
+
 ``flush()`` waits, on the loop, until every submitted write has ended and its ``done`` has
 run: the daemon's stop (SIGTERM, ``systemctl stop``) writes the last state before it exits.
 The thread exists only while writes are queued and is not a daemon thread, so even an
@@ -57,6 +64,7 @@ class FileWriter:
         self._lock = threading.Lock()
         self._pending: dict[str, _Job] = {}  # key -> its newest write not started yet
         self._thread: threading.Thread | None = None
+        self._start_asked = False  # a thread start is queued on the loop (loop side only)
         self._loop: asyncio.AbstractEventLoop | None = None
         # submitted writes whose ``done`` has not run yet (loop side only)
         self._outstanding = 0
@@ -81,7 +89,6 @@ class FileWriter:
             self._idle = asyncio.Event()
         assert self._idle is not None  # noqa: S101 - set with the loop
         self._idle.clear()
-        thread: threading.Thread | None = None
         with self._lock:
             job = self._pending.get(key)
             if job is None:
@@ -91,10 +98,19 @@ class FileWriter:
                 job.write = write
                 job.done.append(done)
                 self.counters["writes_coalesced"] += 1
-            if self._thread is None:
-                thread = self._thread = threading.Thread(target=self._run, name=THREAD_NAME)
-        if thread is None:
-            return
+            idle = self._thread is None
+        if idle and not self._start_asked:  # a running thread picks the job up itself
+            self._start_asked = True
+            self._loop.call_soon(self._start)
+
+    def _start(self) -> None:
+        """On the loop, the turn after the first ``submit`` of a burst (module docstring):
+        start the thread for what is queued, unless one runs already."""
+        self._start_asked = False
+        with self._lock:
+            if self._thread is not None or not self._pending:
+                return
+            thread = self._thread = threading.Thread(target=self._run, name=THREAD_NAME)
         try:
             thread.start()
         except RuntimeError:

@@ -513,3 +513,50 @@ def test_a_vehicle_request_goes_when_the_writer_thread_cannot_start(
             await asyncio.wait_for(daemon.stop("test"), WAIT_S)
 
     run_on_raw_clock(main())
+
+
+def test_a_received_commands_saves_are_one_write_before_its_request(
+    workdir: Path, files: BundleFiles, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Review 17b: a received command is two ``PersistExecuted`` in one drain (its id, then
+    its outcome) before its ``VehicleRequest``. The writer started its thread inside the
+    first ``submit``, so the first write ran alone and the request waited for two writes
+    in a row (two fsyncs of a slow card against a take-off's 3 s validity). Now the saves
+    of one loop callback are one write: the request goes after that one, and the file
+    holds both."""
+
+    async def main() -> None:
+        daemon = _daemon(workdir, files)
+        await daemon.start()
+        disk = _slow_state_disk(monkeypatch, daemon)
+        try:
+            app = _app(daemon)
+            bridge = FakeBridge()
+            app.bridge = bridge  # type: ignore[assignment]
+            writer = daemon.writer
+            await _until(lambda: writer.outstanding == 0, "start-up saves")
+            before = dict(writer.counters)
+            disk.bridge, disk.armed = bridge, True
+            newer = (COMMAND, ("uav2", 8))
+            core = app._core()
+            core._events.extend(
+                [
+                    PersistExecuted((COMMAND,), command=COMMAND),
+                    PersistExecuted(newer, command=("uav2", 8)),
+                    HOLD,
+                ]
+            )
+            app._driver().drain()
+            asyncio.get_running_loop().call_later(0.05, disk.gate.set)
+            await _until(lambda: bool(bridge.submitted), "the held request")
+            after = dict(writer.counters)
+            assert disk.log == ["write_started", "written"]
+            assert disk.submitted_at_write == []  # the write-ahead still holds
+            assert after["writes"] - before["writes"] == 1
+            assert after["writes_coalesced"] - before["writes_coalesced"] == 1
+            assert _kept(daemon) == [list(c) for c in newer]
+        finally:
+            disk.gate.set()
+            await daemon.stop("test")
+
+    run_on_raw_clock(main())
