@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -146,6 +147,16 @@ def test_a_commander_restarted_mid_command_leaves_every_drone_named_and_a_place_
     assert ran_id == cid and decided in ("accepted", ran_state), (decided, ran)
 
 
+# swarmctl as an ssh session starts it: SIGHUP at its default action and not blocked (sshd's
+# children have both). Ignored and blocked dispositions pass through fork and exec, so a
+# suite run under ``nohup`` (SIG_IGN) would otherwise hand swarmctl a hang-up it ignores
+SSH_SESSION = (
+    "import os, signal, sys; signal.signal(signal.SIGHUP, signal.SIG_DFL); "
+    "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGHUP}); "
+    "os.execv(sys.argv[1], sys.argv[1:])"
+)
+
+
 def test_a_dropped_ssh_session_ends_the_follow_never_the_command(
     lan_factory: LanFactory, workdir: Path
 ) -> None:
@@ -157,14 +168,14 @@ def test_a_dropped_ssh_session_ends_the_follow_never_the_command(
     out = workdir / "land.out"
     with out.open("wb") as sink:
         follow = swarm.lan[0].popen(
-            [str(BIN / "swarmctl"), "land", "--valid-for", "30", "--timeout", "60",
-             "--socket", str(swarm.daemons.socks[0])],
+            [sys.executable, "-c", SSH_SESSION, str(BIN / "swarmctl"), "land",
+             "--valid-for", "30", "--timeout", "60", "--socket", str(swarm.daemons.socks[0])],
             stdout=sink,
         )  # fmt: skip
     try:
         until(lambda: " sent to " in out.read_text(), out.read_text)  # the LAND went out
         follow.send_signal(signal.SIGHUP)
-        assert follow.wait(timeout=10) == -signal.SIGHUP  # no handler: it just ends
+        assert follow.wait(timeout=30) == -signal.SIGHUP  # no handler: it just ends
     finally:
         if follow.poll() is None:
             follow.kill()
