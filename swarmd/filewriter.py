@@ -16,8 +16,9 @@ state wins; every save holds the whole file, so the replaced one's content is in
 its ``done`` joins the list. When a write ends, each of its ``done(error)`` runs on the loop
 (``call_soon_threadsafe``), in the order they were submitted, with the write's error
 (None: written). So the loop never waits for a write, and every caller learns how its
-save went: ``swarmapp.SwarmApp._persist`` (the write-ahead before the vehicle moves, and
-the ``[not saved on drone]`` report of a failed save), ``daemon.Daemon._save_windows``.
+save went: ``swarmapp_saves.StateSaves._persist`` (the write-ahead before the vehicle
+moves, and the ``[not saved on drone]`` report of a failed save),
+``daemon.Daemon._save_windows``.
 
 The thread is started from the loop's next turn (``call_soon``), not inside ``submit``: the
 saves one loop callback asks for become one write. A received command is two

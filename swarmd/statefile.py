@@ -117,7 +117,7 @@ class NodeState:
     recovered_from: str | None = None  # why an unreadable file was replaced, for the log
     temps_removed: int = 0  # left-over temporary files removed at boot, for the log
     # no file was there: a first boot, or a deleted file (the caller knows which: the boot
-    # epoch says whether this node started before, swarmapp.SwarmApp._boot_dataplane)
+    # epoch says whether this node started before, swarmapp_saves.StateSaves._boot_dataplane)
     missing: bool = False
     # kept decisions dropped at load for a time that cannot be right (``load``), the first
     # one's problem, and how many of their ids were missing from ``executed`` and added

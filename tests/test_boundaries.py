@@ -101,7 +101,18 @@ ALLOWED: dict[str, frozenset[str]] = {
     # the swarm's wiring: its core, socket, state file and PX4 bridge (SwarmApp)
     "swarmapp": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce"}
-    | {"config", "control", "driver", "logs", "userdata", "statefile", "filewriter"},
+    | {"config", "control", "driver", "logs", "userdata", "statefile", "filewriter"}
+    | {"swarmapp_status", "swarmapp_px4", "swarmapp_saves", "swarmapp_events"}
+    | {"swarmapp_requests"},
+    # SwarmApp's concerns, its base classes (split from swarmapp.py at 773 lines): each may
+    # import what it uses of swarmapp's rooms and the concerns below it, never swarmapp
+    "swarmapp_status": CORE
+    | {"dataplane", "px4", "swarm", "config", "driver", "userdata", "statefile"},
+    "swarmapp_px4": CORE | {"auth", "dataplane", "px4", "swarm", "swarmapp_status"},
+    "swarmapp_saves": CORE
+    | {"dataplane", "px4", "swarm", "statefile", "filewriter", "swarmapp_status"},
+    "swarmapp_events": CORE | {"px4", "swarm", "swarmapp_status", "swarmapp_saves"},
+    "swarmapp_requests": CORE | {"swarm", "control", "swarmapp_status"},
     # what the daemon derives before it starts: secrets, address, engine settings, link
     # sources, SPDP sockets, the systemd socket name (daemon tier, split from daemon.py)
     "daemon_setup": CORE | {"auth", "discovery", "link", "px4", "config", "udp", "sdlisten"},

@@ -31,6 +31,11 @@ from tests.daemon_support import (
 # loaded by the daemon once its engine runs, never before it
 AFTER_THE_ENGINE = (
     "swarmd.swarmapp",
+    "swarmd.swarmapp_status",
+    "swarmd.swarmapp_px4",
+    "swarmd.swarmapp_saves",
+    "swarmd.swarmapp_events",
+    "swarmd.swarmapp_requests",
     "swarmd.px4.bridge",
     "swarmd.px4.xrce_backend",
     "swarmd.xrce",

@@ -26,7 +26,8 @@ import errno
 import json
 import socket
 import threading
-from collections.abc import Callable, MutableMapping
+from collections.abc import AsyncIterator, Callable, MutableMapping
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -129,6 +130,26 @@ def _slow_state_disk(monkeypatch: pytest.MonkeyPatch, daemon: Daemon) -> SlowDis
     return disk
 
 
+@asynccontextmanager
+async def _slow_member(
+    workdir: Path, files: BundleFiles, monkeypatch: pytest.MonkeyPatch
+) -> AsyncIterator[tuple[Daemon, SwarmApp, SlowDisk, FakeBridge]]:
+    """uav1's daemon started, its state file written through a ``SlowDisk`` (not armed yet:
+    it writes at once) and its PX4 bridge a ``FakeBridge``. On the way out the gate opens
+    and the daemon stops, within ``WAIT_S`` (a stop that waits for ever fails the test)."""
+    daemon = _daemon(workdir, files)
+    await daemon.start()
+    disk = _slow_state_disk(monkeypatch, daemon)
+    try:
+        app = _app(daemon)
+        bridge = FakeBridge()
+        app.bridge = bridge  # type: ignore[assignment]
+        yield daemon, app, disk, bridge
+    finally:
+        disk.gate.set()
+        await asyncio.wait_for(daemon.stop("test"), WAIT_S)
+
+
 def _kept(daemon: Daemon) -> list[list[Any]]:
     state = _app(daemon).state
     assert state is not None
@@ -206,13 +227,7 @@ def _command_on_a_slow_disk(
     ``fail``: the write then fails (EROFS)."""
 
     async def main() -> Seen:
-        daemon = _daemon(workdir, files)
-        await daemon.start()
-        disk = _slow_state_disk(monkeypatch, daemon)
-        try:
-            app = _app(daemon)
-            bridge = FakeBridge()
-            app.bridge = bridge  # type: ignore[assignment]
+        async with _slow_member(workdir, files, monkeypatch) as (daemon, app, disk, bridge):
             disk.poke, disk.bridge, disk.fail = _poke_daemon(daemon), bridge, fail
             disk.armed = True
             _open_when_handled(daemon, disk)
@@ -230,9 +245,6 @@ def _command_on_a_slow_disk(
                 dict(app.counters),
                 executor,
             )
-        finally:
-            disk.gate.set()
-            await daemon.stop("test")
 
     return run_on_raw_clock(main())
 
@@ -277,10 +289,7 @@ def test_a_stop_during_a_blocked_write_waits_for_it(
     command, never starts one on its way out."""
 
     async def main() -> None:
-        daemon = _daemon(workdir, files)
-        await daemon.start()
-        disk = _slow_state_disk(monkeypatch, daemon)
-        try:
+        async with _slow_member(workdir, files, monkeypatch) as (daemon, app, disk, bridge):
             disk.armed = True
             loop = asyncio.get_running_loop()
 
@@ -288,9 +297,6 @@ def test_a_stop_during_a_blocked_write_waits_for_it(
                 disk.log.append("opened_during_stop" if daemon.stopped.is_set() else "opened")
                 disk.gate.set()
 
-            app = _app(daemon)
-            bridge = FakeBridge()
-            app.bridge = bridge  # type: ignore[assignment]
             app._on_event(PersistExecuted((COMMAND,), command=COMMAND))
             newer = (COMMAND, ("uav2", 8))
             app._on_event(PersistExecuted(newer, command=("uav2", 8)))  # coalesced: newest
@@ -299,9 +305,6 @@ def test_a_stop_during_a_blocked_write_waits_for_it(
             with capture_logs() as logs:
                 await daemon.stop("test")
             disk.log.append("stopped")
-        finally:
-            disk.gate.set()
-            await daemon.stop("test")
         assert disk.log == ["write_started", "opened_during_stop", "written", "stopped"]
         assert _kept(daemon) == [list(c) for c in newer]
         assert bridge.submitted == []
@@ -495,12 +498,9 @@ def test_a_vehicle_request_goes_when_the_writer_thread_cannot_start(
     file holds the command, the request reaches the bridge and the stop returns."""
 
     async def main() -> None:
-        daemon = _daemon(workdir, files)
-        await daemon.start()
-        try:
-            app = _app(daemon)
-            bridge = FakeBridge()
-            app.bridge = bridge  # type: ignore[assignment]
+        # the stop on the way out is bounded: on main its flush waited for the write that
+        # never ran
+        async with _slow_member(workdir, files, monkeypatch) as (daemon, app, _disk, bridge):
             monkeypatch.setattr(threading.Thread, "start", _no_thread(1))
             core = app._core()
             core._events.extend([PersistExecuted((COMMAND,), command=COMMAND), HOLD])
@@ -508,9 +508,6 @@ def test_a_vehicle_request_goes_when_the_writer_thread_cannot_start(
             await _until(lambda: bool(bridge.submitted), "the held request")
             assert bridge.submitted == [HOLD]
             assert list(COMMAND) in _kept(daemon)
-        finally:
-            # bounded: on main the stop's flush waited for the write that never ran
-            await asyncio.wait_for(daemon.stop("test"), WAIT_S)
 
     run_on_raw_clock(main())
 
@@ -526,13 +523,7 @@ def test_a_received_commands_saves_are_one_write_before_its_request(
     holds both."""
 
     async def main() -> None:
-        daemon = _daemon(workdir, files)
-        await daemon.start()
-        disk = _slow_state_disk(monkeypatch, daemon)
-        try:
-            app = _app(daemon)
-            bridge = FakeBridge()
-            app.bridge = bridge  # type: ignore[assignment]
+        async with _slow_member(workdir, files, monkeypatch) as (daemon, app, disk, bridge):
             writer = daemon.writer
             await _until(lambda: writer.outstanding == 0, "start-up saves")
             before = dict(writer.counters)
@@ -555,8 +546,5 @@ def test_a_received_commands_saves_are_one_write_before_its_request(
             assert after["writes"] - before["writes"] == 1
             assert after["writes_coalesced"] - before["writes_coalesced"] == 1
             assert _kept(daemon) == [list(c) for c in newer]
-        finally:
-            disk.gate.set()
-            await daemon.stop("test")
 
     run_on_raw_clock(main())
