@@ -17,10 +17,11 @@ import asyncio
 import secrets
 import socket
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
 
 from swarmd.bundle.model import Bundle
 from swarmd.bundle.ros2 import Ros2Graph, Ros2Participant, bundle_ros2_participants
+from swarmd.changereports import LineBudget
 from swarmd.config import DaemonConfig
 from swarmd.driver import Driver
 from swarmd.exitcodes import EX_OSERR, StartupError
@@ -40,6 +41,20 @@ from swarmd.ros2.relay_events import (
 )
 from swarmd.senderuid import SenderUids, log_firewall_expected
 from swarmd.udp import BatchedSocket, Datagram
+
+# The relay's lines about what others make happen: a peer's node stopped, back or restarted
+# (``ros2_remote_node_liveness``), a peer served at a new address (``ros2_relay_peer``), a
+# local node's new life (``ros2_participant_heard``, ``ros2_node_liveness``). A captured
+# member's signed DATA(p)s flip its word and move it at its verification budget (20 a second,
+# 4 samples each), and a local process of any user (``ros2.node_users`` unset) cycles a
+# declared node's lives as fast as it sends: one line each was a flood that journald's
+# per-unit rate limit answers by dropping the daemon's other lines too (review 18; the
+# daemon's own lines for the same changes: swarmd.daemon_events). At most this many a
+# second per peer or node and kind, burst 10 (a drone's nodes starting together), the next
+# line saying how many were held back; counted ``lines_suppressed``. What the relay does
+# is not held: it still disposes and announces, and signs every life.
+RELAY_LINES_PER_S: Final = 1.0
+RELAY_LINE_BURST: Final = 10.0
 
 
 def require_ros2_graph(
@@ -104,6 +119,8 @@ class Ros2App:
         self.transport: BatchedSocket | None = None
         self.transport4: BatchedSocket | None = None
         self.driver: Driver[bytes, Datagram, RelayEvent] | None = None
+        # keyed by (line, bundle drone or node name): bounded by the bundle
+        self.lines: LineBudget[tuple[str, str]] = LineBudget(RELAY_LINES_PER_S, RELAY_LINE_BURST)
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         """Bind [::1]:ros2.relay_port and start driving the core; ``StartupError`` (one
@@ -212,6 +229,7 @@ class Ros2App:
         out = self.relay.status(now)
         shared = self.sender_uids.counters["port_shared"] if self.sender_uids is not None else 0
         out["counters"]["sender_port_shared"] = shared
+        out["counters"]["lines_suppressed"] = self.lines.suppressed
         return out
 
     # ---- internals -----------------------------------------------------------------------
@@ -236,11 +254,21 @@ class Ros2App:
 
         self.driver.datagrams_received(batch, receive)
 
+    def _budgeted(self, event: str, about: str, **fields: Any) -> None:
+        """Log info line ``event`` about peer or node ``about`` unless its budget holds it
+        back (``RELAY_LINES_PER_S``); it says how many of them were held back since the
+        last (``suppressed``)."""
+        now = self.driver.now() if self.driver is not None else 0.0
+        held = self.lines.take((event, about), now)
+        if held is not None:
+            self.log.info(event, **fields, suppressed=held)
+
     def _on_event(self, event: RelayEvent) -> None:
         match event:
             case LocalParticipantHeard(node=node, guid_prefix=prefix, restarted=restarted):
-                self.log.info(
+                self._budgeted(
                     "ros2_participant_heard",
+                    node,
                     node=node,
                     guid_prefix=str(prefix),
                     restarted=restarted,
@@ -266,14 +294,21 @@ class Ros2App:
                     fix="declare the endpoint in the mission's ros2 section and re-flash",
                 )
             case LocalLivenessChanged(alive=alive, node=node, up=up):
-                self.log.info("ros2_node_liveness", node=node, up=up, alive=alive.hex())
+                self._budgeted("ros2_node_liveness", node, node=node, up=up, alive=alive.hex())
                 if self.on_liveness is not None:
-                    self.on_liveness(alive)
+                    self.on_liveness(alive)  # every change: the word swarmd signs is not held
             case RemoteNodeLiveness(drone=drone, node=node, up=up, restarted=restarted):
-                self.log.info(
-                    "ros2_remote_node_liveness", peer=drone, node=node, up=up, restarted=restarted
+                self._budgeted(
+                    "ros2_remote_node_liveness",
+                    drone,
+                    peer=drone,
+                    node=node,
+                    up=up,
+                    restarted=restarted,
                 )
             case RemoteParticipantsRelayed(drone=drone, participants=n, up=up, restarted=again):
-                self.log.info("ros2_relay_peer", peer=drone, participants=n, up=up, restarted=again)
+                self._budgeted(
+                    "ros2_relay_peer", drone, peer=drone, participants=n, up=up, restarted=again
+                )
             case _:
                 self.log.info("ros2_relay_event", event_type=type(event).__name__)

@@ -50,7 +50,8 @@ ALLOWED: dict[str, frozenset[str]] = {
     # ROS 2 relay's reports): a leaf
     "tokenbucket": frozenset(),
     # which of a peer's changes reach the log, a token bucket per key (the commander's
-    # readiness lines, the daemon's peer moves and ROS 2 liveness: session 16)
+    # readiness lines, the daemon's peer moves and ROS 2 liveness: session 16; the ROS 2
+    # relay's lines: review 18)
     "changereports": frozenset({"tokenbucket"}),
     # the one asyncio driver: it knows the driving protocol and no core
     "driver": frozenset({"sansio"}),
@@ -123,8 +124,9 @@ ALLOWED: dict[str, frozenset[str]] = {
     | {"auth", "discovery", "link", "config", "control", "driver", "peerlog", "sdnotify"}
     | {"swarmapp", "ros2app", "udp", "changereports", "filewriter"},
     "daemon_events": CORE | {"discovery", "peerlog", "daemon_status", "changereports"},
-    # the ROS 2 relay's wiring: its core, its [::1] socket, its driver (daemon tier)
-    "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid"},
+    # the ROS 2 relay's wiring: its core, its [::1] socket, its driver, its lines' budget
+    # (review 18) (daemon tier)
+    "ros2app": CORE | {"ros2", "config", "driver", "udp", "senderuid", "changereports"},
     "daemon": CORE
     | {"auth", "dataplane", "discovery", "px4", "swarm", "xrce", "link"}
     | {

@@ -256,6 +256,37 @@ def test_a_nack_of_numbers_never_published_gaps_none_of_them() -> None:
     assert _data_sns(graph) == [2]
 
 
+def test_an_acknack_past_the_last_number_published_acknowledges_nothing() -> None:
+    """Review 18: an ACKNACK whose base is past the writer's last number + 1 (a buggy node,
+    or a local process speaking as one: ``ros2.node_users`` unset) said numbers never
+    published were received. The reader then looked up to date (``readers_up_to_date``)
+    and was sent no HEARTBEAT again, so a sample whose DATA was lost on the way was not
+    offered again until the next drone's came. Fast DDS's own writer ignores such an
+    ACKNACK whole (``StatefulWriter::process_acknack``, "Inconsistent acknack received").
+    [fails on main: no heartbeat due after the forged ACKNACK]"""
+    lead, one, _two, graph = _lead_two_remotes_and_graph()
+    graph.publish(one, 0.0)
+    graph.datagrams_to_send()
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1]), 0.01)
+    assert _data_sns(graph) == [1]  # lost on the way to the node
+    # the forgery: "every number below 2**40 received"
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 2**40, []), 0.02)
+    assert graph.datagrams_to_send() == []
+    assert graph.status()["readers_up_to_date"] == 0
+    assert graph.counters["graph_rx_inconsistent"] == 1
+    # heartbeats go on until the reader acknowledges sample 1; its NACK gets it again
+    due = graph.get_timer()
+    assert due is not None
+    graph.handle_timer(due)
+    assert any(isinstance(sm, Heartbeat) for sm in _submessages(graph.datagrams_to_send()))
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 1, [1]), due)
+    assert _data_sns(graph) == [1]
+    # the node's own acknowledgement of what was published still ends the heartbeats
+    assert graph.receive_datagram(_acknack(lead, graph.writer_id, 2, []), due + 0.1)
+    assert graph.get_timer() is None
+    assert graph.status()["readers_up_to_date"] == 1
+
+
 def test_a_replaced_sample_is_a_gap_and_a_withdrawn_one_is_no_longer_offered() -> None:
     lead, one, two, graph = _lead_two_remotes_and_graph()
     graph.publish(one, 0.0)  # 1

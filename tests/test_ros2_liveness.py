@@ -27,6 +27,7 @@ from swarmd.discovery import (
 )
 from swarmd.discovery.events import Event
 from swarmd.ros2.relay import (
+    LIVENESS_MIN_INTERVAL_S,
     LOOPBACK,
     Ros2Relay,
 )
@@ -358,6 +359,44 @@ def test_a_remote_nodes_new_life_is_disposed_and_announced_again() -> None:
     relay.datagrams_to_send()
     relay.peer_liveness("drone-1", b"\x01\x05", 9.0)
     assert _sent(relay) == []
+
+
+def _drive_to(relay: Ros2Relay, now: float) -> None:
+    """The driver: every timer due by ``now``, at its deadline."""
+    while (due := relay.get_timer()) is not None and due <= now:
+        relay.handle_timer(due)
+
+
+def test_a_captured_members_word_changing_on_every_sample_moves_its_nodes_at_a_bounded_rate() -> (
+    None
+):
+    """Review 18, attacker 2: drone-1's key signs a new restart count for its talker in every
+    DATA(p), 4 a datagram at its verification budget (20 a second) for 2.5 s: 200 words, each
+    a new life. Its restarts are spaced (0.25 s) and damped in discovery, but each word
+    disposed and announced its node again at every local node: 200 re-matches. Now a drone's
+    word is acted on at most once per ``LIVENESS_MIN_INTERVAL_S``, the latest held word at
+    the interval's end: late, never lost. [fails on main: 200 disposes]"""
+    relay, one, _two = _lead_with_two_peers()
+    relay.peer_liveness("drone-1", b"\x01\x00", 0.0)  # its first word: the base
+    words, flood_s = 200, 2.5
+    for k in range(words // 4):
+        now = k * flood_s / (words // 4)
+        _drive_to(relay, now)
+        for j in range(4):
+            relay.peer_liveness("drone-1", bytes((1, (4 * k + j + 1) & 0xFF)), now)
+    _drive_to(relay, flood_s + LIVENESS_MIN_INTERVAL_S)
+    sent = _sent(relay)
+    disposes = sent.count(("dispose", one))
+    assert 1 <= disposes <= flood_s / LIVENESS_MIN_INTERVAL_S + 1
+    assert relay.counters["remote_restarts"] == disposes
+    assert relay.counters["remote_liveness_held"] >= words - disposes
+    # never lost: its last word is the one acted on last (then nothing is held)
+    relay.peer_liveness("drone-1", bytes((1, words & 0xFF)), 10.0)  # the same word again
+    assert _sent(relay) == []
+    # an honest relay's changes, at most one per 0.5 s on the air: each acted on at once
+    for k in range(1, 4):
+        relay.peer_liveness("drone-1", bytes((1, (words + k) & 0xFF)), 10.0 + 0.5 * k)
+        assert _sent(relay) == [("dispose", one), ("alive", one)]
 
 
 ROS2_BUNDLE = build_dev_bundle(parse_mission(MISSION)).bundle

@@ -344,6 +344,7 @@ class GraphParticipant:
         self.counters: dict[str, int] = {
             "graph_rx_acknack": 0,
             "graph_rx_ignored": 0,
+            "graph_rx_inconsistent": 0,
             "graph_tx_data": 0,
             "graph_tx_gap": 0,
             "graph_tx_heartbeat": 0,
@@ -474,6 +475,13 @@ class GraphParticipant:
         return Heartbeat(proxy.reader_id, self.writer_id, first, self._sn, self._count)
 
     def _acknack(self, proxy: _Proxy, state: SequenceNumberSet, now: float) -> None:
+        if state.base > self._sn + 1:
+            # it says numbers never published were received: inconsistent, ignored whole as
+            # Fast DDS's writer does (StatefulWriter::process_acknack). Taken, it made the
+            # reader look up to date for good: no more heartbeats, so a lost DATA was not
+            # offered again (a buggy node, or a local process speaking as one; review 18)
+            self.counters["graph_rx_inconsistent"] += 1
+            return
         proxy.acked_below = max(proxy.acked_below, state.base)
         if state.base > self._sn:
             proxy.next_heartbeat = None  # up to date

@@ -103,7 +103,7 @@ from swarmd.ros2.relay_local import (
     UNKNOWN_REPORTS_PER_S,
     LocalNodes,
 )
-from swarmd.ros2.relay_remote import RemoteDrones
+from swarmd.ros2.relay_remote import LIVENESS_MIN_INTERVAL_S, RemoteDrones
 from swarmd.ros2.relay_spdp import is_wlp
 from swarmd.ros2.relay_state import LocalNode, RemoteDrone, UnknownParticipant
 from swarmd.rtps.errors import DecodeError
@@ -114,6 +114,7 @@ from swarmd.tokenbucket import TokenBucket
 
 __all__ = [  # the bounds live with the concern they bound; tests and docs name them here
     "DEFAULT_RELAY_PORT",
+    "LIVENESS_MIN_INTERVAL_S",
     "LOOPBACK",
     "MAX_EVENTS",
     "MAX_NODE_LEASE_S",
@@ -203,6 +204,10 @@ class Ros2Relay(LocalNodes, RemoteDrones):
         self._remote_alive: dict[str, tuple[bool, ...]] = {}
         # per drone, the restart counts of its last word (absent or None: it sent none)
         self._remote_restarts: dict[str, tuple[int, ...] | None] = {}
+        # per drone, when its word last moved a node here, and the word held since (changes
+        # within LIVENESS_MIN_INTERVAL_S: relay_remote); bundle drones only
+        self._liveness_acted: dict[str, float] = {}
+        self._liveness_held: dict[str, bytes] = {}
         self._unknown: dict[GuidPrefix, UnknownParticipant] = {}
         # their reports, at a bounded rate (a local flood of invented prefixes: relay_local)
         self._unknown_reports = TokenBucket(UNKNOWN_REPORTS_PER_S, UNKNOWN_REPORT_BURST, 0.0)
@@ -241,6 +246,7 @@ class Ros2Relay(LocalNodes, RemoteDrones):
             "tx_sibling_dispose": 0,
             "sibling_dispose_deferred": 0,
             "liveness_unknown_drone": 0,
+            "remote_liveness_held": 0,
             "remote_restarts": 0,
         }
 
@@ -299,6 +305,7 @@ class Ros2Relay(LocalNodes, RemoteDrones):
                 self._send_dispose_to_siblings(local, local.last_spdp)
             if local.alive and local.alive_until is not None and now >= local.alive_until:
                 self._set_local_alive(local, False)
+        self.release_liveness(now)
         if self._next_renewal is not None and now >= self._next_renewal:
             self._renew_all(now)
         if self.graph is not None:
@@ -317,6 +324,9 @@ class Ros2Relay(LocalNodes, RemoteDrones):
         ]
         if self._next_renewal is not None:
             deadlines.append(self._next_renewal)
+        held_due = self.liveness_due()
+        if held_due is not None:
+            deadlines.append(held_due)
         graph_due = self.graph.get_timer() if self.graph is not None else None
         if graph_due is not None:
             deadlines.append(graph_due)

@@ -42,6 +42,8 @@ class Announcer:
     _present: dict[str, RemoteDrone]
     _remote_alive: dict[str, tuple[bool, ...]]
     _remote_restarts: dict[str, tuple[int, ...] | None]
+    _liveness_acted: dict[str, float]
+    _liveness_held: dict[str, bytes]
     _unknown: dict[GuidPrefix, UnknownParticipant]
     _unknown_reports: TokenBucket
     _unknown_suppressed: int

@@ -7,10 +7,26 @@ unauthenticated.
 
 from __future__ import annotations
 
+from typing import Final
+
+from swarmd.bundle.ros2 import Ros2Participant
 from swarmd.ros2.relay_announce import Announcer
 from swarmd.ros2.relay_events import RemoteNodeLiveness, RemoteParticipantsRelayed
 from swarmd.ros2.relay_state import RemoteDrone
 from swarmd.rtps.types import GuidPrefix
+
+# A drone's liveness word (PID 0x8A06) is acted on at most once per this interval. Its
+# swarmd signs what it likes about its own nodes, and a captured member changed its word on
+# every DATA(p) (4 a datagram, 20 datagrams a second): each change disposed or announced its
+# nodes again at every local node of every drone, 80 re-matches a second, while its restarts
+# are spaced by the same 0.25 s and damped (swarmd.discovery.receive RESTART_MIN_INTERVAL_S,
+# swarmd.discovery.lives; review 18). A change within the interval is held, the latest word
+# acted on at its end: late, never lost (a restart count is compared with the last word acted
+# on, so the lives in between are not missed). An honest relay's changes reach the air with
+# the engine's pulled-in multicast, at most one per retransmit_min_gap_s (0.5 s)
+# (swarmd.discovery.engine ``set_ros2_alive``), so they are not held, but one that reaches a
+# drone sooner (a directed DATA(p), a start-up announcement), and that by less than 0.25 s.
+LIVENESS_MIN_INTERVAL_S: Final = 0.25
 
 
 class RemoteDrones(Announcer):
@@ -61,11 +77,48 @@ class RemoteDrones(Announcer):
         its swarmd's DATA(p), which the discovery engine accepted: authenticated). A node
         that stopped is disposed (DATA(p[UD])) at every local node, one that is back is
         announced again at once; both only while swarmd has the drone. Bits past the
-        drone's participants are ignored, missing ones are "not alive"."""
+        drone's participants are ignored, missing ones are "not alive". Acted on at most
+        once per ``LIVENESS_MIN_INTERVAL_S`` per drone: a change within it is held, the
+        latest word acted on at its end (``release_liveness``)."""
         remote = self._remote_by_drone.get(drone)
         if not remote:
             self.counters["liveness_unknown_drone"] += 1
             return
+        acted = self._liveness_acted.get(drone)
+        if acted is not None and now < acted + LIVENESS_MIN_INTERVAL_S:
+            self._liveness_held[drone] = alive  # the latest one wins
+            self.counters["remote_liveness_held"] += 1
+            return
+        self._liveness_held.pop(drone, None)
+        if self._act_on_liveness(drone, remote, alive, now):
+            self._liveness_acted[drone] = now
+
+    def liveness_due(self) -> float | None:
+        """When the earliest held liveness word is acted on (``LIVENESS_MIN_INTERVAL_S``)."""
+        return min(
+            (self._liveness_acted[d] + LIVENESS_MIN_INTERVAL_S for d in self._liveness_held),
+            default=None,
+        )
+
+    def release_liveness(self, now: float) -> None:
+        """Act on the held words whose drone's interval is over."""
+        due = [
+            d
+            for d in self._liveness_held
+            if now >= self._liveness_acted[d] + LIVENESS_MIN_INTERVAL_S
+        ]
+        for drone in due:
+            alive = self._liveness_held.pop(drone)
+            remote = self._remote_by_drone[drone]
+            if self._act_on_liveness(drone, remote, alive, now):
+                self._liveness_acted[drone] = now
+
+    def _act_on_liveness(
+        self, drone: str, remote: list[Ros2Participant], alive: bytes, now: float
+    ) -> bool:
+        """``peer_liveness``'s work; True when a node of ``drone`` was disposed, announced
+        or reported (the interval starts)."""
+        acted = False
         new = tuple(
             i // 8 < len(alive) and bool(alive[i // 8] >> (i % 8) & 1) for i in range(len(remote))
         )
@@ -88,6 +141,7 @@ class RemoteDrones(Announcer):
             )
             if was == up and not restarted:
                 continue
+            acted = True
             self._events.append(RemoteNodeLiveness(drone, p.node.name, up, restarted))
             if restarted:
                 self.counters["remote_restarts"] += 1
@@ -102,3 +156,4 @@ class RemoteDrones(Announcer):
                     self.graph.publish(GuidPrefix(p.guid_prefix), now)
             else:
                 self._send_dispose(p)
+        return acted

@@ -1,0 +1,132 @@
+"""The log lines the ROS 2 relay's adapter (swarmd.ros2app) writes for what others make
+happen (review 18).
+
+Session 16 (h-insider16) bounded the daemon's own lines for a captured member's signed
+changes (``peer_ros2_liveness``, ``peer_locators_changed``: 1 a second per peer, burst 10),
+and review 16 the relay's ``ros2_unknown_participant``. The relay's own lines for the same
+changes were left: the daemon hands the relay every ``PeerRos2Liveness`` and every move
+(``swarmd.daemon_events``: only its own line is budgeted), and the relay logged a
+``ros2_remote_node_liveness`` per node per flip and a ``ros2_relay_peer`` per move. On its
+own drone, a local process (any user, without ``ros2.node_users``) sending a declared
+node's dispose and DATA(p) in turn made three lines of each pair
+(``ros2_node_liveness`` twice, ``ros2_participant_heard``), as fast as it could send. Such
+floods make journald's per-unit rate limit drop the daemon's other lines. Now each of
+those lines is logged at most ``RELAY_LINES_PER_S`` a second per peer or node (burst
+``RELAY_LINE_BURST``), the next one carrying how many were held back (``suppressed``),
+counted ``lines_suppressed``; what the relay does (disposes, announcements, the signed
+liveness word) is not held.
+
+Real sockets and the real adapter (as tests/test_local_uid.py); counts, no timing
+asserted (the budget's refill over the run's own time is allowed for).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from typing import Any
+
+from swarmd.ros2app import RELAY_LINE_BURST, RELAY_LINES_PER_S, Ros2App
+from swarmd.rtps.spdp import encode_spdp_dispose
+from swarmd.rtps.types import GuidPrefix
+from tests.test_local_uid import _lead_node, _Log, _node_spdp, _ros2_app, _until
+
+FLIPS = 200  # a captured member's 10 s at its verification budget of 20 signed DATA(p)/s
+PAIRS = 200  # a local process's dispose + DATA(p) pairs, sent back to back
+
+
+def _allowed(elapsed_s: float) -> float:
+    """The most lines one key may have in a run of ``elapsed_s``: its burst and the refill."""
+    return RELAY_LINE_BURST + RELAY_LINES_PER_S * elapsed_s
+
+
+def _lines(lines: list[tuple[str, dict[str, Any]]], event: str) -> list[dict[str, Any]]:
+    return [fields for name, fields in lines if name == event]
+
+
+def test_a_captured_members_flips_and_moves_reach_the_relays_lines_at_a_bounded_rate() -> None:
+    """drone-1 (its key captured) flips its talker's alive bit and moves its address on
+    every signed DATA(p): the daemon passes each on (authenticated), the relay announces
+    the node at each new address and acts on its word (at most once per
+    ``LIVENESS_MIN_INTERVAL_S``: tests/test_ros2_liveness.py), and logs a bounded number of
+    lines. [fails on main: 200 ``ros2_remote_node_liveness`` and 201 ``ros2_relay_peer``
+    lines]"""
+
+    def relayed(app: Ros2App) -> bool:
+        return any(
+            r["drone"] == "drone-1" and r["state"] == "relayed" for r in app.status(0.0)["remote"]
+        )
+
+    async def main() -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]], float]:
+        log = _Log()
+        app = _ros2_app(None, log, [])
+        loop = asyncio.get_running_loop()
+        app.start(loop)
+        try:
+            start = loop.time()
+            app.peer_up("drone-1", "10.42.0.11")
+            for i in range(FLIPS):
+                app.peer_liveness("drone-1", bytes((i % 2,)))  # down, up, down, ...
+                app.peer_up("drone-1", f"10.42.{1 + i // 200}.{11 + i % 200}")
+            # its last word (up) is acted on at the interval's end: late, never lost
+            assert await _until(lambda: relayed(app))
+            return app.status(0.0), log.lines, loop.time() - start
+        finally:
+            app.close()
+
+    status, lines, elapsed = asyncio.run(main())
+    flips = _lines(lines, "ros2_remote_node_liveness")
+    moves = _lines(lines, "ros2_relay_peer")
+    assert 1 <= len(flips) <= _allowed(elapsed)
+    assert 1 <= len(moves) <= _allowed(elapsed)
+    # every move held back is counted; the relay served each new address
+    assert status["counters"]["lines_suppressed"] >= FLIPS + 1 - len(moves)
+    assert status["counters"]["tx_spdp"] >= FLIPS
+    row = next(r for r in status["remote"] if r["drone"] == "drone-1")
+    last = FLIPS - 1
+    assert row["user_locator"].startswith(f"10.42.{1 + last // 200}.{11 + last % 200}:")
+
+
+def test_a_local_process_cycling_a_declared_nodes_lives_reaches_the_log_at_a_bounded_rate() -> None:
+    """A local process (any user: ``ros2.node_users`` unset) sends the lead's declared
+    node's DATA(p[UD]) and DATA(p) in turn: each pair is a life to the relay (it is trusted
+    as the node, docs/security.md), and each life still reaches the signed liveness word.
+    The lines about it are bounded. [fails on main: 400 ``ros2_node_liveness`` and 200
+    ``ros2_participant_heard`` lines for 200 pairs]"""
+
+    async def main() -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]], list[bytes], float]:
+        log, alive = _Log(), list[bytes]()
+        app = _ros2_app(None, log, alive)
+        loop = asyncio.get_running_loop()
+        app.start(loop)
+        relay_at = ("::1", app.config.ros2.relay_port)
+        node = _lead_node()
+        dispose = encode_spdp_dispose(
+            GuidPrefix(node.guid_prefix), sequence_number=2, timestamp=None
+        )
+        try:
+            start = loop.time()
+            with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as sender:
+                sender.bind(("::1", 0))
+                for i in range(PAIRS):
+                    sender.sendto(dispose, relay_at)
+                    sender.sendto(_node_spdp(node, 1), relay_at)
+                    if i % 20 == 19:  # let the loop read: the socket's buffer is finite
+                        await _until(lambda n=2 * (i + 1): app.relay.counters["rx"] >= n)
+            assert await _until(lambda: app.relay.counters["rx"] >= 2 * PAIRS)
+            return app.status(0.0), log.lines, alive, loop.time() - start
+        finally:
+            app.close()
+
+    status, lines, alive, elapsed = asyncio.run(main())
+    liveness = _lines(lines, "ros2_node_liveness")
+    heard = _lines(lines, "ros2_participant_heard")
+    assert 1 <= len(liveness) <= _allowed(elapsed)
+    assert 1 <= len(heard) <= _allowed(elapsed)
+    # what swarmd signs moved with every life: the lines are held, not the word
+    assert len(alive) == 2 * PAIRS
+    assert status["local"][0]["restarts"] == (PAIRS - 1) % 256
+    counters = status["counters"]
+    assert counters["lines_suppressed"] == 2 * PAIRS - len(liveness) + PAIRS - len(heard)
+    # the line after a pause says what it stands for
+    assert all(isinstance(f["suppressed"], int) for f in liveness + heard)
