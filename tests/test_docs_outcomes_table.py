@@ -113,7 +113,13 @@ def _reasons() -> set[str]:
 
 def _marks() -> set[str]:
     """The ``[...]`` marks the tables add after a reason, from the renderers themselves."""
-    node = {"state": "completed", "reason": None, "after_restart": True, "save_failed": True}
+    node = {
+        "state": "completed",
+        "reason": None,
+        "after_restart": True,
+        "save_failed": True,
+        "disarm_unconfirmed": True,
+    }
     lines = render_outcomes({"nodes": {"uav1": node}})
     ran = {"command_id": 1, "kind": "land", "state": "completed", "reason": "", "saved": False}
     lines += render_kept({"issued": [], "ran": [ran], "life": 1}, 0.0)
@@ -136,7 +142,12 @@ def test_every_reason_is_in_the_table() -> None:
 
 def test_every_mark_is_in_the_table() -> None:
     marks = _marks()
-    assert marks == {"[after restart]", "[not saved on drone]", "[not saved]"}
+    assert marks == {
+        "[after restart]",
+        "[not saved on drone]",
+        "[not saved]",
+        "[disarm not confirmed]",
+    }
     cells = _first_cells()
     assert [m for m in sorted(marks) if f"`{m}`" not in cells] == []
 
