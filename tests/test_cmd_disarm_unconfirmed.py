@@ -22,6 +22,7 @@ from typing import Any
 
 from swarmd.cli.commands_view import CommandWatch, FollowLines, render_commands
 from swarmd.cli.takeoff_cmd import render_outcomes
+from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import MavCmd
 from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
@@ -153,3 +154,16 @@ def test_a_confirmed_disarm_changes_nothing() -> None:
     assert "disarm" not in " ".join(render_commands({"role": "commander", "commands": snaps[-1:]}))
     counters = swarm.cores["m01"].executor_status()["counters"]
     assert "takeoff_disarm_unconfirmed" not in counters
+
+
+def test_the_bridge_hands_the_amendment_to_its_task_listener() -> None:
+    """The daemon's path: the bridge gives ``DisarmUnconfirmed`` to the listener it gives
+    each ``TaskFinished`` (``SwarmApp._on_task_finished`` -> ``SwarmCore.task_finished``)."""
+    from swarmd.px4.vehicle import DisarmUnconfirmed
+
+    bridge = Px4Bridge.from_config(Px4Config(connection="udpin:127.0.0.1:0", sysid=1))
+    heard: list[object] = []
+    bridge.on_task_finished(heard.append)
+    event = DisarmUnconfirmed(7, "takeoff_no_ack", "DISARM no ack after 4 sends")
+    bridge._on_event(event)  # noqa: SLF001 - the driver's callback, without a loop
+    assert heard == [event]

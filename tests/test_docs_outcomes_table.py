@@ -172,6 +172,7 @@ def test_every_row_says_what_happened_whether_it_runs_and_what_to_do() -> None:
         (TakeoffConfig().liftoff_timeout_s, "not seen off the ground within {:g} s"),
         (MAX_TAKEOFF_ALT_M, "outside (0, {:g}] m"),
         (commander.UNREACHABLE_GRACE_S, "(and {:g} s after, for an answer on its way)"),
+        (commander.DISARM_WINDOW_S, "so a failed take-off's row settles {:g} s after it"),
     ],
 )
 def test_the_numbers_in_the_table_are_the_codes(value: float, sentence: str) -> None:
