@@ -51,27 +51,28 @@ class VehicleSwarm(Swarm):
     (its ``TaskFinished``, a ``DisarmUnconfirmed`` after it) goes back to m01's core, as
     the daemon's bridge hands it on (``SwarmApp._on_task_finished``)."""
 
-    def __init__(self, *, disarms_lost: bool) -> None:
+    def __init__(self, *, disarms_lost: bool, node: str = "m01") -> None:
         self.bench = Bench(drop=_lose(disarms_lost))
-        self.handed = 0  # bench events already handed to m01
-        super().__init__(1, seed=18)
+        self.handed = 0  # bench events already handed to ``node``
+        self.node = node  # m01, or the commander's own drone (lead)
+        super().__init__(1, seed=18, lead_vehicle=node == "lead")
         self.net.call_at(STEP_S, self._drive)
 
     def _drive(self, now: float) -> None:
         bench = self.bench
         bench.run(max(0.0, now - bench.now))
         new, self.handed = bench.events[self.handed :], len(bench.events)
-        core = self.cores["m01"]
+        core = self.cores[self.node]
         for event in new:
             if isinstance(event, TaskFinished) or type(event).__name__ == "DisarmUnconfirmed":
                 core.task_finished(event, now)  # type: ignore[arg-type]  # main lacks it
         if new:
-            self.net.poke(self.ids["m01"])
+            self.net.poke(self.ids[self.node])
         self.net.call_at(now + STEP_S, self._drive)
 
     def _on_event(self, node_id: int, event: SwarmEvent, now: float) -> None:
-        if isinstance(event, VehicleRequest) and node_id == self.ids["m01"]:
-            self.events["m01"].append(event)
+        if isinstance(event, VehicleRequest) and node_id == self.ids[self.node]:
+            self.events[self.node].append(event)
             self.bench.run(max(0.0, now - self.bench.now))
             self.bench.core.request(event, now)
             self.bench._pump_core()
@@ -167,3 +168,21 @@ def test_the_bridge_hands_the_amendment_to_its_task_listener() -> None:
     event = DisarmUnconfirmed(7, "takeoff_no_ack", "DISARM no ack after 4 sends")
     bridge._on_event(event)  # noqa: SLF001 - the driver's callback, without a loop
     assert heard == [event]
+
+
+def test_the_commanders_own_drone_marks_its_row_too() -> None:
+    """The commander's drone runs its command at issue and records its own outcomes in its
+    tracker (no wire): the amendment marks that row the same way."""
+    swarm = VehicleSwarm(disarms_lost=True, node="lead")
+    swarm.run(3.0)
+    request: dict[str, Any] = {"kind": "takeoff", "alt_m": 5.0, "only": ["lead"]}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_command(request, now))
+    cid = int(sent["command_id"])
+    snap = swarm.run_until_done(cid)
+    node = snap["nodes"]["lead"]
+    assert (node["state"], node["reason"], node["disarm_unconfirmed"]) == (
+        "failed",
+        "takeoff_no_ack",
+        True,
+    )
+    assert swarm.bench.sim.armed
