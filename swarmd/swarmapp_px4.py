@@ -23,7 +23,7 @@ from swarmd.px4.transport import (
     parse_connection,
     unprivileged_port_start,
 )
-from swarmd.px4.vehicle import TaskFinished
+from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished
 from swarmd.px4.xrce_key import XrceKey, XrceKeyError
 from swarmd.px4.xrce_key import check as check_xrce_key
 from swarmd.px4.xrce_key import load_or_create as load_or_create_xrce_key
@@ -169,6 +169,6 @@ class VehicleLink(SwarmAppStatus):
         swarm, driver = self._core(), self._driver()
         driver.call(lambda now: swarm.vehicle_changed(verdict.ready, reason, now))
 
-    def _on_task_finished(self, done: TaskFinished) -> None:
+    def _on_task_finished(self, done: TaskFinished | DisarmUnconfirmed) -> None:
         swarm, driver = self._core(), self._driver()
         driver.call(lambda now: swarm.task_finished(done, now))

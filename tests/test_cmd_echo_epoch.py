@@ -29,7 +29,7 @@ import pytest
 
 from swarmd.dataplane.types import Command, CommandKind, CommandResult, TimeEcho
 from swarmd.dataplane.validity import EXPIRED, MEMORY_LOST, another_life, stamp_ms
-from swarmd.px4.vehicle import TaskFinished, VehicleRequest
+from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished, VehicleRequest
 from swarmd.swarm.core import SwarmCore, SwarmSettings
 from swarmd.swarm.events import CommandBeforeLife, OutcomeReported
 from swarmd.swarm.roles import Roles
@@ -70,7 +70,7 @@ class ClockedCore(SwarmCore):
     def peer_down(self, name: str, now: float) -> None:
         super().peer_down(name, self.local(now))
 
-    def task_finished(self, done: TaskFinished, now: float) -> None:
+    def task_finished(self, done: TaskFinished | DisarmUnconfirmed, now: float) -> None:
         super().task_finished(done, self.local(now))
 
 

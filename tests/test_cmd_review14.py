@@ -97,7 +97,7 @@ def test_an_abort_with_the_running_takeoffs_own_id_is_a_duplicate(own_drone: boo
 
 
 def test_a_reserved_flag_bit_is_ignored_by_the_dedup_too() -> None:
-    """A member of a later build sets a flag this build does not know (bit 2) on an answer
+    """A member of a later build sets a flag this build does not know (bit 3) on an answer
     it already gave. The wire says reserved bits are ignored on receipt
     (docs/wire.md, "The outcome's flags"); the commander's dedup keyed the whole octet, so
     the same answer was taken again: a second ``OutcomeRecorded`` (log line) for one
@@ -126,15 +126,16 @@ def test_a_reserved_flag_bit_is_ignored_by_the_dedup_too() -> None:
         )
         swarm.run(0.5)
 
-    # reserved bits only: the answer it gave (bit 1 is OUTCOME_NOW_SAVED since session 15)
-    for flags in (0x04, 0x80, 0xFC):
+    # reserved bits only: the answer it gave (bit 1 is OUTCOME_NOW_SAVED since session 15,
+    # bit 2 OUTCOME_DISARM_UNCONFIRMED since session 18)
+    for flags in (0x08, 0x80, 0xF8):
         answer_again(flags)
     assert recorded() == before
     row = _row(flight, cid)
     assert (row["state"], row["save_failed"]) == ("completed", False)
     lead = swarm.lead.plane
     assert lead is not None and lead.counters["outcome_duplicate"] >= 3
-    for flags in (OUTCOME_NOT_SAVED | 0x04, OUTCOME_NOT_SAVED | 0x08):
+    for flags in (OUTCOME_NOT_SAVED | 0x08, OUTCOME_NOT_SAVED | 0x10):
         answer_again(flags)
     assert recorded() == [*before, (done, False)]  # bit 0 is new once, the rest ignored
     row = _row(flight, cid)

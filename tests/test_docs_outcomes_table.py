@@ -113,7 +113,13 @@ def _reasons() -> set[str]:
 
 def _marks() -> set[str]:
     """The ``[...]`` marks the tables add after a reason, from the renderers themselves."""
-    node = {"state": "completed", "reason": None, "after_restart": True, "save_failed": True}
+    node = {
+        "state": "completed",
+        "reason": None,
+        "after_restart": True,
+        "save_failed": True,
+        "disarm_unconfirmed": True,
+    }
     lines = render_outcomes({"nodes": {"uav1": node}})
     ran = {"command_id": 1, "kind": "land", "state": "completed", "reason": "", "saved": False}
     lines += render_kept({"issued": [], "ran": [ran], "life": 1}, 0.0)
@@ -136,7 +142,12 @@ def test_every_reason_is_in_the_table() -> None:
 
 def test_every_mark_is_in_the_table() -> None:
     marks = _marks()
-    assert marks == {"[after restart]", "[not saved on drone]", "[not saved]"}
+    assert marks == {
+        "[after restart]",
+        "[not saved on drone]",
+        "[not saved]",
+        "[disarm not confirmed]",
+    }
     cells = _first_cells()
     assert [m for m in sorted(marks) if f"`{m}`" not in cells] == []
 
@@ -161,6 +172,7 @@ def test_every_row_says_what_happened_whether_it_runs_and_what_to_do() -> None:
         (TakeoffConfig().liftoff_timeout_s, "not seen off the ground within {:g} s"),
         (MAX_TAKEOFF_ALT_M, "outside (0, {:g}] m"),
         (commander.UNREACHABLE_GRACE_S, "(and {:g} s after, for an answer on its way)"),
+        (commander.DISARM_WINDOW_S, "so a failed take-off's row settles {:g} s after it"),
     ],
 )
 def test_the_numbers_in_the_table_are_the_codes(value: float, sentence: str) -> None:

@@ -260,3 +260,32 @@ def test_peer_strings_in_the_commands_part_are_shown_never_obeyed() -> None:
     assert f"    rejected: {shown} ({shown})" in lines, lines
     assert f"running now: LAND 0x1 from {shown}, received 1.0 s ago [not saved]" in lines, lines
     assert not any("\x1b" in ln or "\u202e" in ln for ln in lines)
+
+
+def test_watch_on_a_drone_prints_when_its_running_command_changes(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``swarmctl watch`` piped, on a member, while the commander's LAND runs there (the
+    played vehicle takes 1 s): a line when it starts running and one when it ends, each
+    once; the redrawn ``running now:`` line alone said it before. [fails on main: no
+    line]"""
+    swarm = Swarm(1)
+    swarm.run(2.0)
+    daemon = PlayedDaemon(swarm, "m01")
+    sent: dict[str, Any] = {}
+
+    def sleep(seconds: float) -> None:
+        if not sent:  # the operator lands from the commander after the first frame
+            sent.update(swarm.call("lead", lambda now: swarm.lead.request_command(
+                {"kind": "land"}, now)))  # fmt: skip
+        swarm.run(seconds / 2)
+
+    daemon.sleep = sleep  # type: ignore[method-assign]
+    assert _swarmctl(monkeypatch, daemon, ["watch", "--count", "8"]) == EX_OK
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("command: ")]
+    events = [ln.split("  ", 1)[1] for ln in lines]
+    cid = f"{sent['command_id']:#x}"
+    assert events == [
+        f"running now: LAND {cid} from lead",
+        f"no longer running: LAND {cid} from lead",
+    ], events

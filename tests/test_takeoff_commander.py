@@ -81,6 +81,7 @@ def test_tracker_outcomes_accepted_then_final_once() -> None:
         "done_s": 1.0,
         "after_restart": False,
         "save_failed": False,
+        "disarm_unconfirmed": False,
     }
     assert snap["nodes"]["b"]["state"] == "pending"
     assert snap["nodes"]["c"] == {
@@ -90,6 +91,7 @@ def test_tracker_outcomes_accepted_then_final_once() -> None:
         "done_s": None,
         "after_restart": False,
         "save_failed": False,
+        "disarm_unconfirmed": False,
     }
     tracker.record(7, "b", CommandResult.REJECTED, "armed", 100.5)
     done = tracker.snapshot(7, 103.0)

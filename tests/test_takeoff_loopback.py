@@ -154,6 +154,7 @@ def test_readiness_takeoff_and_refusal(workdir: Path) -> None:
                 "done_s": None,
                 "after_restart": False,
                 "save_failed": False,
+                "disarm_unconfirmed": False,
             }
             assert swarm.sims[0].model.armed and swarm.sims[1].model.armed
             assert not swarm.sims[2].model.armed

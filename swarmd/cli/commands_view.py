@@ -37,6 +37,10 @@ NAMED: Final = (
     ("failed", "failed"),
 )
 
+# the mark of a row whose failed take-off's DISARM was never confirmed (``disarm_unconfirmed``
+# in --json; docs/operations.md, "What swarmctl tells you about a command")
+DISARM_MARK: Final = "disarm not confirmed"
+
 
 def superseded_by(reason: object) -> str | None:
     """``LAND`` for the reason ``superseded: land``: a later LAND, HOLD or ABORT took the
@@ -99,6 +103,7 @@ class FollowLines:
         self.seen: dict[str, str] = {}
         self.told_not_saved: set[str] = set()
         self.ended: set[str] = set()  # accepted, then its life ended with nothing re-reported
+        self.told_armed: set[str] = set()  # a failed take-off's DISARM not confirmed (once)
 
     def lines(self, snap: Mapping[str, Any], kind: str, *, expired: bool = False) -> list[str]:
         """The lines ``snap`` adds (``uav1: accepted after 0.012 s``); ``expired``: the
@@ -144,10 +149,18 @@ class FollowLines:
                 "to re-report: no completion will come (its readiness shows what the "
                 "vehicle did)"
             )
-        if self.seen.get(name) == state or state == "pending":
-            return out
-        self.seen[name] = state
-        out.append(self._verdict(name, state, node, snap, kind, cid))
+        if self.seen.get(name) != state and state != "pending":
+            self.seen[name] = state
+            out.append(self._verdict(name, state, node, snap, kind, cid))
+        if node.get("disarm_unconfirmed") and name not in self.told_armed:
+            # after its failure line: the amendment comes up to 2 s later (docs/px4.md,
+            # "A failed take-off's DISARM")
+            self.told_armed.add(name)
+            out.append(
+                f"{name}: {DISARM_MARK}: the failed take-off's DISARM was never confirmed; "
+                f"the vehicle may still be armed (on the ground, props maybe spinning, or in "
+                f"the air): check it (swarmctl status) and send 'swarmctl abort --only {name}'"
+            )
         return out
 
     @staticmethod
@@ -197,14 +210,39 @@ class FollowLines:
 
 class CommandWatch:
     """``swarmctl watch``'s command events: a line when a command appears in the status
-    (sent since the watch began) and each ``FollowLines`` line for it. The first status
+    (sent since the watch began) and each ``FollowLines`` line for it, and on a drone a
+    line when the command its vehicle runs changes (session 18). The first status
     primes it: what the screen already shows is not news. Bounded: a command that leaves
     the status's list (the commander keeps the last 8 there) is forgotten."""
 
     def __init__(self) -> None:
         self._follow: dict[object, FollowLines] | None = None
+        # the drone's running commands (executor), each "KIND 0x... from NODE", as last seen
+        self._running: list[str] | None = None
 
     def update(self, status: Mapping[str, Any]) -> list[str]:
+        return self._commands(status) + self._runs(status)
+
+    def _runs(self, status: Mapping[str, Any]) -> list[str]:
+        """A line when the command this drone's vehicle runs changes (the ``running now:``
+        line of ``status``): one starts, one ends. The first frame primes it."""
+        executor = status.get("executor")
+        if not isinstance(executor, dict):
+            return []
+        tasks = [t for t in executor.get("commands") or [] if isinstance(t, dict)]
+        now = [
+            f"{str(t.get('kind', '?')).upper()} {_cid(t.get('command_id'))} "
+            f"from {t.get('commander', '?')}"
+            for t in tasks
+        ]
+        before, self._running = self._running, now
+        if before is None:
+            return []
+        return [f"running now: {c}" for c in now if c not in before] + [
+            f"no longer running: {c}" for c in before if c not in now
+        ]
+
+    def _commands(self, status: Mapping[str, Any]) -> list[str]:
         commands = [c for c in status.get("commands") or [] if isinstance(c, dict)]
         first, known = self._follow is None, self._follow or {}
         self._follow = {}
@@ -286,6 +324,9 @@ def _command(c: Mapping[str, Any]) -> list[str]:
     unsaved = [n for n, v in nodes.items() if v.get("save_failed")]
     if unsaved:
         lines.append(f"  [not saved on drone]: {_bounded(unsaved, cid)}")
+    armed = [n for n, v in nodes.items() if v.get("disarm_unconfirmed")]
+    if armed:
+        lines.append(f"  [{DISARM_MARK}], may still be armed: {_bounded(armed, cid)}")
     return lines
 
 

@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any, Final, TextIO
 
-from swarmd.cli.commands_view import FollowLines, reason_text, reasons, sent_line
+from swarmd.cli.commands_view import DISARM_MARK, FollowLines, reason_text, reasons, sent_line
 from swarmd.cli.status_cmd import socket_argument, table
 from swarmd.control import (
     ControlClient,
@@ -335,7 +335,7 @@ def _as_sent(reply: dict[str, Any]) -> dict[str, Any]:
     outcome entry: what swarmctl knows before its first look (every row ``pending`` but
     the refused ones), so an end before that look names every drone too."""
     row = {"reason": None, "latency_s": None, "done_s": None, "after_restart": False,
-           "save_failed": False}  # fmt: skip
+           "save_failed": False, "disarm_unconfirmed": False}  # fmt: skip
     nodes = {str(n): {"state": "pending", **row} for n in reply.get("ready") or []}
     for name, reason in (reply.get("refused") or {}).items():
         nodes[str(name)] = {**row, "state": "refused", "reason": reason}
@@ -495,6 +495,8 @@ def render_outcomes(snap: dict[str, Any]) -> list[str]:
             reason += " [after restart]"
         if n.get("save_failed"):
             reason += " [not saved on drone]"
+        if n.get("disarm_unconfirmed"):
+            reason += f" [{DISARM_MARK}]"
         rows.append(
             [
                 name,

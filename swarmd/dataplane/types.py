@@ -22,7 +22,7 @@ IDL equivalent (module ``swarmd``, every struct ``@final``, XCDR1 encoding)::
     };
     struct CommandOutcome {            // swarm/outcome, member -> commander
       uint64 command_id; string<64> node; CommandResult result; string<128> reason;
-      uint8 flags;                     // OUTCOME_NOT_SAVED, OUTCOME_NOW_SAVED
+      uint8 flags;                     // OUTCOME_NOT_SAVED, _NOW_SAVED, _DISARM_UNCONFIRMED
       uint32 save_gen;                 // the member's state-file writes answered in its life
     };                                 // flags and save_gen: on the wire only when not 0
 
@@ -73,9 +73,14 @@ OUTCOME_NOT_SAVED: Final = 0x01
 # all (a later write held it), so the commander clears the row's mark; ``save_gen`` orders
 # the two (a replayed or reordered older mark cannot set it again).
 OUTCOME_NOW_SAVED: Final = 0x02
+# ``CommandOutcome.flags`` (session 18): the FAILED take-off this answers left its DISARM
+# unconfirmed, so the vehicle may still be armed; sent again with the failure's result and
+# reason up to 2 s after it (docs/px4.md, "A failed take-off's DISARM"). An amendment the
+# commander marks on the row (``disarm_unconfirmed``), never a second execution.
+OUTCOME_DISARM_UNCONFIRMED: Final = 0x04
 # The flags this build reads; what an outcome's dedup keys (``received.py``): a reserved bit
 # set on an answer already taken must not make it new (docs/wire.md, "The outcome's flags").
-OUTCOME_KNOWN_FLAGS: Final = OUTCOME_NOT_SAVED | OUTCOME_NOW_SAVED
+OUTCOME_KNOWN_FLAGS: Final = OUTCOME_NOT_SAVED | OUTCOME_NOW_SAVED | OUTCOME_DISARM_UNCONFIRMED
 # A command's validity (docs/dataplane.md, "Validity"): longer than any operator means, short
 # of the wrap of the u32 millisecond stamps; a value above is garbage, not a long validity.
 MAX_VALID_MS: Final = 600_000

@@ -42,6 +42,7 @@ from swarmd.px4.takeoff import (
     TakeoffSucceeded,
 )
 from swarmd.px4.vehicle import (
+    DisarmUnconfirmed,
     ReadinessChanged,
     TaskFinished,
     TaskKind,
@@ -52,7 +53,8 @@ from swarmd.px4.vehicle import (
 
 Outcome = TakeoffSucceeded | TakeoffFailed
 ReadinessListener = Callable[[Readiness], None]
-TaskListener = Callable[[TaskFinished], None]
+# a task's end, and the amendment a failed take-off's unconfirmed DISARM adds to it
+TaskListener = Callable[[TaskFinished | DisarmUnconfirmed], None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,7 +170,9 @@ class Px4Bridge:
     # ---- tasks ----------------------------------------------------------------------------
 
     def on_task_finished(self, listener: TaskListener) -> None:
-        """Call ``listener`` with each ``TaskFinished`` of a ``submit``ted request."""
+        """Call ``listener`` with each ``TaskFinished`` of a ``submit``ted request, and with
+        the ``DisarmUnconfirmed`` that may follow a failed take-off's (the operator is told:
+        docs/px4.md, "A failed take-off's DISARM")."""
         self._task_listeners.append(listener)
 
     def submit(self, request: VehicleRequest) -> None:
@@ -253,6 +257,9 @@ class Px4Bridge:
                     return
                 for task_listener in list(self._task_listeners):
                     task_listener(event)
+            case DisarmUnconfirmed():
+                for task_listener in list(self._task_listeners):
+                    task_listener(event)  # px4_takeoff_disarm logged it (DisarmRepeatsEnded)
             case TakeoffPhaseChanged():
                 self._info(
                     "px4_takeoff_phase", old=str(event.old), new=str(event.new), why=event.why

@@ -374,6 +374,13 @@ class CommandSender:
     def pending(self, handle: int) -> bool:
         return self._by_handle(handle) is not None
 
+    def would_send(self, now: float) -> bool:
+        """Would ``handle_timer(now)`` put a frame on the wire (a retransmission due, its
+        budget not spent)? The take-off asks before it lets one go (its validity)."""
+        return any(
+            p.deadline <= now and p.sent <= self.config.retries for p in self._pending.values()
+        )
+
     # ---- internals ----------------------------------------------------------------------
 
     def _by_handle(self, handle: int) -> _Pending | None:

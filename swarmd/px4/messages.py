@@ -11,7 +11,7 @@ XRCE-DDS). The XRCE-DDS backend maps ``VehicleStatus``/``VehicleLandDetected``/
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Final
 
@@ -248,6 +248,11 @@ class VehicleCommand:
     (MAVSDK ``maybe_reserved``), so that is the default. ``target_system`` 0 means "the
     backend's vehicle"; the backend fills it in. ``confirmation`` counts retransmissions
     (MAVLink command protocol: 0 first, then 1, 2, ...).
+
+    ``not_after`` is never on the wire: the end of the operator's validity for a command
+    that starts motion (a take-off's ARM and NAV_TAKEOFF), on the sender's clock
+    (``loop.time()``); a backend that repairs frames by itself (the XRCE reliable stream)
+    repairs none past it (docs/dataplane.md, "Validity at the vehicle"). None: no bound.
     """
 
     command: int
@@ -255,6 +260,7 @@ class VehicleCommand:
     confirmation: int = 0
     target_system: int = 0
     target_component: int = 1
+    not_after: float | None = field(default=None, compare=False)
 
     @classmethod
     def make(
@@ -275,7 +281,7 @@ class VehicleCommand:
     def retransmission(self, confirmation: int) -> VehicleCommand:
         return VehicleCommand(
             self.command, self.params, min(confirmation, 255), self.target_system,
-            self.target_component,
+            self.target_component, self.not_after,
         )  # fmt: skip
 
     @property

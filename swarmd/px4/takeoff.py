@@ -81,6 +81,19 @@ so when the ARM was confirmed by its ACK before any armed HEARTBEAT (the usual c
 NAV_TAKEOFF leaves at once), only NAV_TAKEOFF's ACK confirms it, and no ACK is
 ``takeoff_no_ack``, never a success at an altitude we did not ask for.
 
+Validity (``not_after``, the command's validity end on our clock; docs/dataplane.md,
+"Validity at the vehicle"): it bounds every ARM and NAV_TAKEOFF frame, the last as well as
+the first. PX4 cannot tell a retransmission from the first copy, so any copy may be the one
+that starts the flight; bounding the first alone let a take-off started just before the end
+put a NAV_TAKEOFF on the wire up to ~4 s after it (two budgets of 1 + 3 sends). So a
+retransmission due at or after ``not_after``, or a NAV_TAKEOFF whose ARM was confirmed
+then, is not sent: ``expired_mid_start``. Before NAV_TAKEOFF went out, the DISARM follows at
+once (its ground-only repeats); after, PX4 may have taken the first copy and be climbing,
+so the state is read for one ack timeout first, sending nothing, exactly as ``held_up``
+does. Answers and state that arrive after ``not_after`` are still read: they are about a
+frame that left in time. Each frame carries ``not_after`` (``VehicleCommand``) so that a
+backend that repairs frames by itself (XRCE's reliable stream) repairs none past it.
+
 Phases (all transitions are in ``_TRANSITIONS``)::
 
     IDLE --ready--> ARMING --armed--> TAKING_OFF --accepted--> LIFTING --airborne--> SUCCEEDED
@@ -90,7 +103,7 @@ Phases (all transitions are in ``_TRANSITIONS``)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Final
 
@@ -174,6 +187,11 @@ class FailReason(StrEnum):
     # held behind a slow state write): refused before anything was sent (the vehicle core's
     # answer; docs/dataplane.md, "Validity at the vehicle")
     EXPIRED_BEFORE_START = "expired_before_start"
+    # started in time, but its next ARM or NAV_TAKEOFF (a retransmission, or NAV_TAKEOFF
+    # after an ARM confirmed late) fell at or after ``not_after``: not sent; the DISARM
+    # instead (after NAV_TAKEOFF went out, once the state had an ack timeout to show it
+    # taken, as ``held_up``: module docstring, "Validity")
+    EXPIRED_MID_START = "expired_mid_start"
 
 
 class GroundRef(StrEnum):
@@ -271,9 +289,14 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
         config: TakeoffConfig | None = None,
         readiness_config: ReadinessConfig | None = None,
         owed: OwedAcks | None = None,
+        not_after: float | None = None,
     ) -> None:
+        """``not_after``: the command's validity end on the caller's clock (the request's,
+        ``VehicleRequest.not_after``); no ARM or NAV_TAKEOFF leaves at or after it. None:
+        no validity (a direct take-off)."""
         self.vehicle = vehicle
         self.alt_m = alt_m
+        self.not_after = not_after
         self.config = config or TakeoffConfig()
         self.config.check()
         super().__init__(self.config.command, owed)  # owed: the vehicle's, shared
@@ -295,12 +318,14 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
         # NAV_TAKEOFF's retransmission fell due while the loop was held up: until then the
         # answer and state that waited are read before the take-off is judged held_up
         self._held_until: float | None = None
+        self._hold_reason: FailReason | None = None  # held_up or expired_mid_start
         # the failure's DISARM, repeated until it shows (module docstring): its sender handle
         # and when a HEARTBEAT may confirm it ("fresh")
         self._disarm_handle: int | None = None
         self._repeating = False
         self._disarm_fresh_from = 0.0
         self.disarm_unconfirmed = False  # the repeats ended with the vehicle maybe armed
+        self.disarm_why: str | None = None  # how they ended (``DisarmRepeatsEnded.why``)
 
     # ---- inputs -------------------------------------------------------------------------
 
@@ -309,6 +334,12 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
         if self.phase is not TakeoffPhase.IDLE:
             return
         self._t0 = now
+        if self._past_validity(now):
+            # the vehicle core refuses such a request before it builds a sequence; a caller
+            # driving the sequence itself gets the same answer
+            why = f"started {now - (self.not_after or now):.3f} s after its validity end"
+            self._fail(now, FailReason.EXPIRED_BEFORE_START, None, why)
+            return
         verdict = readiness(self.vehicle, now, self.readiness_config)
         if not verdict.ready:
             cause = None if verdict.reason is None else str(verdict.reason)
@@ -376,11 +407,13 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
             return
         due = self._sender.get_timer()
         late = self.config.command.ack_timeout_s
-        if due is not None and now - due >= late:
-            # the loop did not run for an ack timeout past the retransmission's time (a
-            # stall, a host suspended): ARM or NAV_TAKEOFF sent now would start the flight
-            # that much late, past the budget the operator's validity was judged against
-            # (docs/security.md, "A command frame delivered late"); the one DISARM instead
+        reason = self._not_now(due, now)
+        if due is not None and reason is not None:
+            # Not sent: a retransmission due after the loop was held up for an ack timeout
+            # (a stall, a host suspended), or one that would leave at or after the
+            # command's validity end (module docstring, "Validity"). ARM or NAV_TAKEOFF sent
+            # now would start the flight late (docs/security.md, "A command frame delivered
+            # late"); the DISARM instead
             if self.phase is TakeoffPhase.TAKING_OFF and self._held_until is None:
                 # but PX4 may have taken the first NAV_TAKEOFF: its answer and its state
                 # wait behind this timer (asyncio runs a due timer after at most one
@@ -388,18 +421,25 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
                 # air (refused there: FAILED while it climbs). Read them for one ack
                 # timeout, sending nothing, then judge (review 17)
                 self._held_until = now + late
+                self._hold_reason = reason
                 return
             if self._held_until is not None and now < self._held_until:
                 return
-            self._fail(
-                now,
-                FailReason.HELD_UP,
-                None,
-                f"swarmd's loop was held up {now - due:.1f} s past the retransmission of "
-                f"{self._step_label()}: not sent that late",
-            )
+            reason = self._hold_reason or reason
+            if reason is FailReason.HELD_UP:
+                detail = (
+                    f"swarmd's loop was held up {now - due:.1f} s past the retransmission of "
+                    f"{self._step_label()}: not sent that late"
+                )
+            else:
+                detail = (
+                    f"the next {self._step_label()} fell due {due - (self.not_after or due):.3f}"
+                    " s after the command's validity end: not sent"
+                )
+            self._fail(now, reason, None, detail)
             return
         self._held_until = None  # an answer moved the deadline (IN_PROGRESS): on time
+        self._hold_reason = None
         self._sender.handle_timer(now)
         self._drain(now)
         if self._finished():
@@ -444,6 +484,22 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
     def _step_label(self) -> str:
         return "ARM" if self.phase is TakeoffPhase.ARMING else "NAV_TAKEOFF"
 
+    def _past_validity(self, now: float) -> bool:
+        return self.not_after is not None and now >= self.not_after
+
+    def _not_now(self, due: float | None, now: float) -> FailReason | None:
+        """Why the step's retransmission due at ``due`` may not leave now, if it may not:
+        the loop held up an ack timeout past it (``held_up``), or the command's validity
+        over (``expired_mid_start``, only when the sender would send a frame: a spent
+        budget gives up as usual)."""
+        if due is None or due > now:
+            return None
+        if now - due >= self.config.command.ack_timeout_s:
+            return FailReason.HELD_UP
+        if self._past_validity(now) and self._sender.would_send(now):
+            return FailReason.EXPIRED_MID_START
+        return None
+
     # ---- outputs: SenderTask's commands_to_send, get_timer, next_event, done ------------
 
     def _finished(self) -> bool:
@@ -462,7 +518,9 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
     # ---- internals ----------------------------------------------------------------------
 
     def _send(self, command: VehicleCommand, now: float) -> None:
-        self._handle = self._sender.send(command, now)
+        # ARM and NAV_TAKEOFF carry the validity end, for a backend that repairs frames by
+        # itself (XRCE's reliable stream: none repaired past it)
+        self._handle = self._sender.send(replace(command, not_after=self.not_after), now)
 
     def _on_finished(self, done: CommandFinished, now: float) -> None:
         if done.handle == self._disarm_handle:
@@ -530,8 +588,18 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
 
     def _step_done(self, now: float, why: str) -> None:
         if self.phase is TakeoffPhase.ARMING:
-            self._set_phase(TakeoffPhase.TAKING_OFF, now, f"arm confirmed: {why}")
             self._settle(now, why)
+            if self._past_validity(now):
+                # the vehicle armed on an ARM sent in time, but NAV_TAKEOFF would leave after
+                # the validity end: not sent, the DISARM instead (nothing climbs yet)
+                late = now - (self.not_after or now)
+                detail = (
+                    f"ARM confirmed ({why}) {late:.3f} s after the command's validity end: "
+                    "NAV_TAKEOFF not sent"
+                )
+                self._fail(now, FailReason.EXPIRED_MID_START, None, detail)
+                return
+            self._set_phase(TakeoffPhase.TAKING_OFF, now, f"arm confirmed: {why}")
             alt = math.nan if self.target_amsl_m is None else self.target_amsl_m
             self._takeoff_fresh_from = now + self.config.command.ack_timeout_s
             self._state_may_confirm = self._armed_where_it_stays()
@@ -600,6 +668,7 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
             self._handle = None
         self._lift_deadline = None
         self._held_until = None
+        self._hold_reason = None
         if self._arm_sent and disarm:
             # leave nothing armed on the ground (module docstring, the DISARM after a failure).
             # Its answer has ARM's number and may answer the next take-off's ARM (mavlink.io,
@@ -648,6 +717,7 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
             self._sender.cancel(handle, now, why)
             self._drain(now)
         self.disarm_unconfirmed = not (confirmed or stopped)
+        self.disarm_why = why
         self._events.append(DisarmRepeatsEnded(confirmed, stopped, why))
 
     def _set_phase(self, new: TakeoffPhase, now: float, why: str) -> None:

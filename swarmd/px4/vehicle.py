@@ -15,7 +15,9 @@ went quiet", by the timer), ``TaskFinished`` once per request, and the tasks' ow
 
 A request of a kind in ``EXPIRES`` (TAKEOFF) that arrives at or after its ``not_after``
 (its command's validity end, set by the swarm member) starts nothing: its ``TaskFinished``
-says ``expired_before_start`` (docs/dataplane.md, "Validity at the vehicle").
+says ``expired_before_start`` (docs/dataplane.md, "Validity at the vehicle"). A take-off
+started in time gets it too: no ARM or NAV_TAKEOFF leaves at or after it
+(``expired_mid_start``, ``takeoff`` module docstring, "Validity").
 
 Tasks: **at most one runs** (docs/px4.md, "Two requests, one vehicle"). A request that
 arrives while a task runs meets ``RULES``: a TAKEOFF is refused ``busy`` (a take-off only
@@ -155,7 +157,20 @@ class TaskFinished:
     outcome: TakeoffOutcome | ActionFinished | None
 
 
-VehicleEvent = ReadinessChanged | TaskFinished | SequenceEvent | ActionEvent
+@dataclass(frozen=True, slots=True)
+class DisarmUnconfirmed:
+    """After a take-off's failure (its ``TaskFinished`` went first): its DISARM repeats
+    ended without PX4 accepting the DISARM or a fresh HEARTBEAT reading disarmed, so the
+    vehicle may still be armed (``takeoff``, "disarm_unconfirmed"). An amendment of the
+    task's end for the operator, never a second end: nothing runs again. Up to the sender's
+    budget (2 s with the defaults) after the failure."""
+
+    token: int
+    reason: str  # the failure's code, as its TaskFinished said it
+    why: str  # how the repeats ended (``DisarmRepeatsEnded.why``)
+
+
+VehicleEvent = ReadinessChanged | TaskFinished | DisarmUnconfirmed | SequenceEvent | ActionEvent
 
 
 @dataclass(slots=True)
@@ -249,6 +264,7 @@ class VehicleCore:
                     config=self.takeoff_config,
                     readiness_config=self.readiness_config,
                     owed=self.owed,
+                    not_after=request.not_after,  # bounds every ARM and NAV_TAKEOFF too
                 )
                 self.last_takeoff = seq
                 self._run(_Task(request.token, TaskKind.TAKEOFF, seq), now)
@@ -413,6 +429,11 @@ class VehicleCore:
                 self._tasks.remove(task)
                 if isinstance(runner, TakeoffSequence) and runner.disarm_unconfirmed:
                     self.disarm_unconfirmed += 1
+                    # the operator is told, not only the counter (docs/px4.md, "A failed
+                    # take-off's DISARM"): the failure's code again, with the amendment
+                    reason = _finished(task).reason
+                    why = runner.disarm_why or ""
+                    self._events.append(DisarmUnconfirmed(task.token, reason, why))
         verdict = readiness(self.state, now, self.readiness_config)
         key = (verdict.ready, None if verdict.reason is None else str(verdict.reason))
         if key != self._last_key:

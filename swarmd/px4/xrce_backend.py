@@ -264,7 +264,13 @@ class XrceBackend:
 
         def publish(now: float) -> int:
             sample = self.translator.command(command, round((now + self._clock_offset) * 1e6))
-            until = _life(command, now + self.command_life_s)
+            life = now + self.command_life_s
+            if command.not_after is not None:
+                # never repaired past the operator's validity: a take-off's ARM or
+                # NAV_TAKEOFF delivered after it would start the flight late (takeoff.py,
+                # "Validity")
+                life = min(life, command.not_after)
+            until = _life(command, life)
             if service and isinstance(engine, XrceAgent):
                 return engine.request(SERVICE, sample, now, until=until)
             return engine.publish(topic, sample, now, until=until)

@@ -27,6 +27,8 @@ from swarmd.changereports import ChangeReports
 from swarmd.dataplane.convert import LANDED_STATES
 from swarmd.dataplane.types import CommandResult, Readiness
 from swarmd.dataplane.validity import MEMORY_LOST
+from swarmd.px4.actions import SUPERSEDED
+from swarmd.px4.command_sender import SenderConfig
 from swarmd.swarm.events import SentBy
 
 # Commands whose outcomes the commander keeps for swarmctl; an operator issues a handful per
@@ -58,6 +60,13 @@ RESTARTED: Final = "restarted_before_acknowledging"
 # will come (the new life does not run it), and whether the vehicle finished is for its
 # readiness rows to say (docs/dataplane.md, "Outcomes across a restart").
 RESTARTED_RUNNING: Final = "restarted_before_finishing"
+# A FAILED take-off repeats its DISARM for up to the command sender's budget (1 + 3 sends,
+# 0.5 s apart: 2 s) and, when it never shows, its member amends the row
+# (``OUTCOME_DISARM_UNCONFIRMED``: the vehicle may still be armed). The row counts as
+# settled only this long after the failure, so ``swarmctl takeoff`` is still following when
+# the amendment comes (1 s more for its transit or repair behind the failure's answer).
+# A superseded take-off sends no DISARM: settled at once.
+DISARM_WINDOW_S: Final = SenderConfig().budget_s() + 1.0
 
 # Effective-readiness reasons the commander adds to the members' own codes (docs/operations.md)
 NO_REPORT: Final = "no_report"  # nothing received from this member yet
@@ -214,6 +223,9 @@ class _NodeOutcome:
     # the command, with no final answer: that life ended, the new one never runs it
     # (docs/dataplane.md, "Outcomes across a restart"); None while it has not
     life_ended_at: float | None = None
+    # its failed take-off's DISARM was never confirmed: the vehicle may still be armed
+    # (``OUTCOME_DISARM_UNCONFIRMED``, up to ``DISARM_WINDOW_S`` after the failure)
+    disarm_unconfirmed: bool = False
 
 
 @dataclass(slots=True)
@@ -230,6 +242,18 @@ class _Tracked:
 
 
 FINAL_RESULTS: Final = (CommandResult.COMPLETED, CommandResult.REJECTED, CommandResult.FAILED)
+
+
+def _disarm_may_follow(t: _Tracked, o: _NodeOutcome, now: float) -> bool:
+    """A FAILED take-off row whose member may still amend it (``DISARM_WINDOW_S``)."""
+    return (
+        t.kind == "takeoff"
+        and o.result == CommandResult.FAILED
+        and not o.disarm_unconfirmed
+        and not o.reason.startswith(SUPERSEDED)
+        and o.final_at is not None
+        and now < o.final_at + DISARM_WINDOW_S
+    )
 
 
 class CommandTracker:
@@ -284,6 +308,7 @@ class CommandTracker:
         not_saved: bool = False,
         now_saved: bool = False,
         save_gen: int = 0,
+        disarm_unconfirmed: bool = False,
     ) -> bool:
         """A member's outcome; False when it answers no command we track (or not to it).
         ``not_saved``: flagged ``OUTCOME_NOT_SAVED`` (sets the row's ``save_failed``);
@@ -296,7 +321,11 @@ class CommandTracker:
         command is valid"). It fills only what the row does not know yet, and marks the
         row ``after_restart``; a row with a final result keeps it (a replayed or repeated
         old outcome cannot change it). A later life's ``memory_lost`` (it refused a copy
-        it could not date into its own life) fills only a row with no answer yet."""
+        it could not date into its own life) fills only a row with no answer yet.
+
+        ``disarm_unconfirmed``: flagged ``OUTCOME_DISARM_UNCONFIRMED``, the amendment of a
+        FAILED take-off whose DISARM was not confirmed: marks the row (for good: nothing
+        unmarks a vehicle that may be armed but the operator's look at it)."""
         tracked = self._commands.get(command_id)
         if tracked is None or node not in tracked.outcomes:
             self.unknown_outcomes += 1
@@ -312,6 +341,8 @@ class CommandTracker:
         if later and entry.result is None:
             entry.after_restart = True
         _mark(entry, epoch, not_saved, now_saved, save_gen)
+        if disarm_unconfirmed and result == CommandResult.FAILED:
+            entry.disarm_unconfirmed = True
         if result == CommandResult.ACCEPTED:
             if entry.accepted_at is None:
                 entry.accepted_at = now
@@ -382,6 +413,8 @@ class CommandTracker:
                 state, reason = UNREACHABLE, NOT_REACHED
             else:
                 settled = False
+            if _disarm_may_follow(t, o, now):
+                settled = False
             nodes[name] = {
                 "state": state,
                 "reason": reason,
@@ -389,6 +422,7 @@ class CommandTracker:
                 "done_s": None if o.final_at is None else round(o.final_at - t.sent_at, 4),
                 "after_restart": o.after_restart,
                 "save_failed": o.save_failed,
+                "disarm_unconfirmed": o.disarm_unconfirmed,
             }
         for name, reason in t.refused.items():
             nodes[name] = {
@@ -398,6 +432,7 @@ class CommandTracker:
                 "done_s": None,
                 "after_restart": False,
                 "save_failed": False,
+                "disarm_unconfirmed": False,
             }
         return {
             "command_id": t.command_id,

@@ -59,7 +59,7 @@ from swarmd.dataplane import (
 from swarmd.dataplane.convert import ReadinessVerdict, readiness_sample
 from swarmd.dataplane.types import Command
 from swarmd.dataplane.validity import stamp_ms
-from swarmd.px4.vehicle import TaskFinished
+from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished
 from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     READINESS_REPORT_BURST,
@@ -278,9 +278,13 @@ class SwarmCore:
             self._tick(now)
         self._last_key = key
 
-    def task_finished(self, done: TaskFinished, now: float) -> None:
-        """The vehicle ended the task of command ``done.token``."""
-        self.member.task_finished(done, now)
+    def task_finished(self, done: TaskFinished | DisarmUnconfirmed, now: float) -> None:
+        """The vehicle ended the task of command ``done.token``, or amended the end of a
+        failed take-off: its DISARM was not confirmed (``Member.disarm_unconfirmed``)."""
+        if isinstance(done, DisarmUnconfirmed):
+            self.member.disarm_unconfirmed(done, now)
+        else:
+            self.member.task_finished(done, now)
 
     # ---- the commander's requests -------------------------------------------------------
 

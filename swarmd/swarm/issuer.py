@@ -27,6 +27,7 @@ from typing import Any, Final
 from swarmd.dataplane import CommandIdsExhausted, DataPlane
 from swarmd.dataplane.types import (
     MAX_VALID_MS,
+    OUTCOME_DISARM_UNCONFIRMED,
     OUTCOME_NOT_SAVED,
     OUTCOME_NOW_SAVED,
     CommandKind,
@@ -199,6 +200,7 @@ class Issuer:
             not_saved=not_saved,
             now_saved=bool(outcome.flags & OUTCOME_NOW_SAVED),
             save_gen=outcome.save_gen,
+            disarm_unconfirmed=bool(outcome.flags & OUTCOME_DISARM_UNCONFIRMED),
         )
         if not known and not self._unknown_outcome_reports.take(now):
             # an answer to no command we sent: counted by the tracker, reported at a

@@ -60,6 +60,7 @@ from typing import Any, Final, NamedTuple, assert_never
 from swarmd.dataplane import DataPlane
 from swarmd.dataplane.convert import ReadinessVerdict
 from swarmd.dataplane.types import (
+    OUTCOME_DISARM_UNCONFIRMED,
     OUTCOME_NOT_SAVED,
     OUTCOME_NOW_SAVED,
     Command,
@@ -76,7 +77,7 @@ from swarmd.dataplane.validity import (
     judge,
 )
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
-from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleRequest
+from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.commander import (
     MAX_TRACKED_COMMANDS,
     CommandTracker,
@@ -198,6 +199,10 @@ class Member:
         # task token -> the command its task runs, on the vehicle. The token is ours
         # (``_new_token``): ids are unique per commander only
         self._running: OrderedDict[int, _Task] = OrderedDict()
+        # task token -> the FAILED take-off it ran, until its DISARM repeats end: their
+        # ``DisarmUnconfirmed`` amends that outcome (``disarm_unconfirmed``); bounded like
+        # ``_seen`` (the repeats last 2 s, so only a flood of failures evicts one)
+        self._failed_takeoffs: OrderedDict[int, tuple[str, int, str]] = OrderedDict()
         # task tokens: this life's boot epoch in the high 32 bits, a counter in the low, so
         # a task of an earlier life never answers for one of this life's. The daemon's
         # vehicle core ends with its process (PX4 never sees a token), so only a vehicle
@@ -267,7 +272,31 @@ class Member:
             result = CommandResult.REJECTED
         else:
             result = CommandResult.FAILED
+            if kind == CommandKind.TAKEOFF:
+                self._failed_takeoffs[done.token] = (commander, command_id, done.reason)
+                while len(self._failed_takeoffs) > MAX_RUNNING_IDS:
+                    self._failed_takeoffs.popitem(last=False)
         self._report(command_id, kind.name, result, done.reason, now, commander)
+
+    def disarm_unconfirmed(self, event: DisarmUnconfirmed, now: float) -> None:
+        """A take-off of ours failed and its DISARM was never confirmed: the vehicle may
+        still be armed. Its commander is told, on the failure's outcome again (FAILED, the
+        same reason) flagged ``OUTCOME_DISARM_UNCONFIRMED``: an amendment the commander
+        marks on the row and swarmctl prints, never a second execution (docs/px4.md, "A
+        failed take-off's DISARM"). A confirmed DISARM sends nothing."""
+        failed = self._failed_takeoffs.pop(event.token, None)
+        if failed is None:
+            return  # not ours (a direct take-off through the bridge), or evicted
+        commander, command_id, reason = failed
+        self._count("takeoff_disarm_unconfirmed")
+        kind = CommandKind.TAKEOFF.name
+        result = CommandResult.FAILED
+        if commander == self.roles.me and command_id in self._own:
+            self._tracker.record(
+                command_id, commander, result, reason, now, disarm_unconfirmed=True
+            )
+            return
+        self._answer(commander, command_id, kind, result, reason, now, OUTCOME_DISARM_UNCONFIRMED)
 
     def status(self, now: float | None = None) -> dict[str, Any]:
         """``executor`` in ``swarmctl status --json``: how many tasks run, and which
@@ -439,16 +468,33 @@ class Member:
             self._tracker.record(command_id, self.roles.me, result, reason, now)
             return
         self.decisions.decided(commander, command_id, kind, result, reason, now)
-        # a decision whose record a write already failed to keep says so in each outcome
-        saved = (commander, command_id) not in self.decisions.unsaved
-        self._events.append(OutcomeReported(command_id, kind, result, reason, saved))
-        if self.plane is not None:
-            flags, gen = (0, 0) if saved else (OUTCOME_NOT_SAVED, self._save_gen)
-            self.plane.report_outcome(
-                command_id, result, now, reason, commander=commander, flags=flags, save_gen=gen
-            )
+        if self._answer(commander, command_id, kind, result, reason, now):
             # the second write: the outcome next to its id, for a re-report after a restart
             self._persist(commander, command_id)
+
+    def _answer(
+        self,
+        commander: str,
+        command_id: int,
+        kind: str,
+        result: CommandResult,
+        reason: str,
+        now: float,
+        flags: int = 0,
+    ) -> bool:
+        """Send ``commander`` this outcome, with ``flags``; False without a plane. A
+        decision whose record a write already failed to keep says so in each outcome."""
+        saved = (commander, command_id) not in self.decisions.unsaved
+        self._events.append(OutcomeReported(command_id, kind, result, reason, saved))
+        if self.plane is None:
+            return False
+        gen = 0
+        if not saved:
+            flags, gen = flags | OUTCOME_NOT_SAVED, self._save_gen
+        self.plane.report_outcome(
+            command_id, result, now, reason, commander=commander, flags=flags, save_gen=gen
+        )
+        return True
 
     def _persist(self, commander: str, command_id: int) -> None:
         assert self.plane is not None  # noqa: S101 - callers checked it

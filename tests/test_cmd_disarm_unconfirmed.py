@@ -1,0 +1,188 @@
+"""The operator is told when a failed take-off's DISARM was never confirmed (docs/px4.md, "A
+failed take-off's DISARM"; session 18).
+
+A take-off that fails after its ARM repeats its DISARM on the ground for up to 2 s. When
+neither PX4's answer nor a fresh HEARTBEAT shows it, the vehicle may still be armed, props
+maybe spinning. Until session 18 that was a counter (``px4.disarm_unconfirmed``) and a log
+line on the drone: the operator read FAILED and might walk up to an armed drone. Now the
+member amends its answer (the same FAILED and reason, flagged
+``OUTCOME_DISARM_UNCONFIRMED``), the commander marks the row, and ``swarmctl takeoff``'s
+follow, ``watch`` and ``status`` say it; a confirmed DISARM changes nothing.
+
+The swarm on ``MemNet`` (virtual time) with m01's vehicle requests handed to a real
+``VehicleCore`` flying the simulated PX4 (``Bench``) whose link loses every NAV_TAKEOFF
+(the take-off fails ``takeoff_no_ack`` armed on the ground) and, in the attack, every
+DISARM too. The attack test fails on main: the row said ``failed`` and nothing more.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from swarmd.cli.commands_view import CommandWatch, FollowLines, render_commands
+from swarmd.cli.takeoff_cmd import render_outcomes
+from swarmd.px4.bridge import Px4Bridge, Px4Config
+from swarmd.px4.constants import MavCmd
+from swarmd.px4.messages import Observation, VehicleCommand
+from swarmd.px4.vehicle import TaskFinished, VehicleRequest
+from swarmd.swarm.events import SwarmEvent
+from tests.test_px4_vehicle import Bench
+from tests.test_swarm_core import Swarm
+
+STEP_S = 0.01  # how often m01's vehicle is driven to the swarm's clock
+
+
+def _lose(disarms: bool) -> Callable[[Observation | VehicleCommand, str], bool]:
+    """Every NAV_TAKEOFF lost on the way down, and every DISARM too when ``disarms``."""
+
+    def drop(msg: Observation | VehicleCommand, direction: str) -> bool:
+        if direction != "down" or not isinstance(msg, VehicleCommand):
+            return False
+        disarm = msg.command == MavCmd.COMPONENT_ARM_DISARM and msg.params[0] == 0.0
+        return msg.command == MavCmd.NAV_TAKEOFF or (disarms and disarm)
+
+    return drop
+
+
+class VehicleSwarm(Swarm):
+    """m01's requests reach a real ``VehicleCore`` (``Bench``, its link losing what
+    ``_lose`` says), driven on the swarm's clock; everything the core reports for a task
+    (its ``TaskFinished``, a ``DisarmUnconfirmed`` after it) goes back to m01's core, as
+    the daemon's bridge hands it on (``SwarmApp._on_task_finished``)."""
+
+    def __init__(self, *, disarms_lost: bool, node: str = "m01") -> None:
+        self.bench = Bench(drop=_lose(disarms_lost))
+        self.handed = 0  # bench events already handed to ``node``
+        self.node = node  # m01, or the commander's own drone (lead)
+        super().__init__(1, seed=18, lead_vehicle=node == "lead")
+        self.net.call_at(STEP_S, self._drive)
+
+    def _drive(self, now: float) -> None:
+        bench = self.bench
+        bench.run(max(0.0, now - bench.now))
+        new, self.handed = bench.events[self.handed :], len(bench.events)
+        core = self.cores[self.node]
+        for event in new:
+            if isinstance(event, TaskFinished) or type(event).__name__ == "DisarmUnconfirmed":
+                core.task_finished(event, now)  # type: ignore[arg-type]  # main lacks it
+        if new:
+            self.net.poke(self.ids[self.node])
+        self.net.call_at(now + STEP_S, self._drive)
+
+    def _on_event(self, node_id: int, event: SwarmEvent, now: float) -> None:
+        if isinstance(event, VehicleRequest) and node_id == self.ids[self.node]:
+            self.events[self.node].append(event)
+            self.bench.run(max(0.0, now - self.bench.now))
+            self.bench.core.request(event, now)
+            self.bench._pump_core()
+            return
+        super()._on_event(node_id, event, now)
+
+
+def _failed_takeoff(disarms_lost: bool) -> tuple[VehicleSwarm, int, list[dict[str, Any]]]:
+    """A take-off to m01 that fails; the commander's snapshots while the follow would run
+    (every 0.25 s until the row settles)."""
+    swarm = VehicleSwarm(disarms_lost=disarms_lost)
+    swarm.run(3.0)
+    request: dict[str, Any] = {"alt_m": 5.0, "valid_for_s": 10.0}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_takeoff(request, now))
+    assert sent["sent"] and sent["ready"] == ["m01"], sent
+    cid = int(sent["command_id"])
+    snaps: list[dict[str, Any]] = []
+    for _ in range(200):  # 50 s of virtual time at most
+        swarm.run(0.25)
+        snap = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)
+        snaps.append(snap)
+        if snap["done"]:
+            break
+    assert snaps[-1]["done"], snaps[-1]
+    return swarm, cid, snaps
+
+
+def _follow(snaps: list[dict[str, Any]]) -> list[str]:
+    """What ``swarmctl takeoff`` prints while it follows (the same ``FollowLines``)."""
+    follow = FollowLines()
+    return [line for snap in snaps for line in follow.lines(snap, "takeoff")]
+
+
+def test_an_unconfirmed_disarm_reaches_the_operator() -> None:
+    """Every DISARM lost: the vehicle stays armed on the ground after ``takeoff_no_ack``.
+    [main: the row said failed, no mark, the follow ended at the failure]"""
+    swarm, cid, snaps = _failed_takeoff(disarms_lost=True)
+    node = snaps[-1]["nodes"]["m01"]
+    assert (node["state"], node["reason"]) == ("failed", "takeoff_no_ack")
+    assert node.get("disarm_unconfirmed") is True
+    assert swarm.bench.sim.armed  # honest: it is armed, and the operator is told
+    assert swarm.bench.core.disarm_unconfirmed == 1
+    lines = _follow(snaps)
+    assert lines[0].startswith("m01: accepted")
+    assert lines[1].startswith("m01: failed (takeoff_no_ack)")
+    assert "DISARM was never confirmed" in lines[2] and "abort --only m01" in lines[2]
+    assert len(lines) == 3
+    (row,) = [r for r in render_outcomes(snaps[-1]) if "m01" in r]
+    assert "[disarm not confirmed]" in row
+    status = {"role": "commander", "commands": [snaps[-1]]}
+    assert any("disarm not confirmed" in ln and "m01" in ln for ln in render_commands(status))
+    # swarmctl watch, started before the failure: the amendment is a line of its own
+    watch = CommandWatch()
+    watch.update({"commands": [snaps[0]]})
+    said = [ln for snap in snaps[1:] for ln in watch.update({"commands": [snap]})]
+    assert sum("DISARM was never confirmed" in ln for ln in said) == 1
+    # an amendment, never a second execution: one request, one TAKEOFF received
+    m01 = swarm.cores["m01"]
+    assert len([e for e in swarm.events["m01"] if isinstance(e, VehicleRequest)]) == 1
+    counters = m01.executor_status()["counters"]
+    assert counters.get("received_takeoff") == 1
+    assert counters.get("takeoff_disarm_unconfirmed") == 1
+    assert counters.get("outcome_failed") == 1
+
+
+def test_a_confirmed_disarm_changes_nothing() -> None:
+    """The control: the DISARM arrives, PX4 disarms: no amendment, no mark, the follow says
+    the failure alone (the row settles once the window for an amendment is over)."""
+    swarm, cid, snaps = _failed_takeoff(disarms_lost=False)
+    node = snaps[-1]["nodes"]["m01"]
+    assert (node["state"], node["reason"]) == ("failed", "takeoff_no_ack")
+    assert node["disarm_unconfirmed"] is False
+    assert not swarm.bench.sim.armed
+    assert swarm.bench.core.disarm_unconfirmed == 0
+    lines = _follow(snaps)
+    assert [ln.split(" after ")[0] for ln in lines] == [
+        "m01: accepted",
+        "m01: failed (takeoff_no_ack)",
+    ]
+    assert "disarm" not in " ".join(render_commands({"role": "commander", "commands": snaps[-1:]}))
+    counters = swarm.cores["m01"].executor_status()["counters"]
+    assert "takeoff_disarm_unconfirmed" not in counters
+
+
+def test_the_bridge_hands_the_amendment_to_its_task_listener() -> None:
+    """The daemon's path: the bridge gives ``DisarmUnconfirmed`` to the listener it gives
+    each ``TaskFinished`` (``SwarmApp._on_task_finished`` -> ``SwarmCore.task_finished``)."""
+    from swarmd.px4.vehicle import DisarmUnconfirmed
+
+    bridge = Px4Bridge.from_config(Px4Config(connection="udpin:127.0.0.1:0", sysid=1))
+    heard: list[object] = []
+    bridge.on_task_finished(heard.append)
+    event = DisarmUnconfirmed(7, "takeoff_no_ack", "DISARM no ack after 4 sends")
+    bridge._on_event(event)  # noqa: SLF001 - the driver's callback, without a loop
+    assert heard == [event]
+
+
+def test_the_commanders_own_drone_marks_its_row_too() -> None:
+    """The commander's drone runs its command at issue and records its own outcomes in its
+    tracker (no wire): the amendment marks that row the same way."""
+    swarm = VehicleSwarm(disarms_lost=True, node="lead")
+    swarm.run(3.0)
+    request: dict[str, Any] = {"kind": "takeoff", "alt_m": 5.0, "only": ["lead"]}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_command(request, now))
+    cid = int(sent["command_id"])
+    snap = swarm.run_until_done(cid)
+    node = snap["nodes"]["lead"]
+    assert (node["state"], node["reason"], node["disarm_unconfirmed"]) == (
+        "failed",
+        "takeoff_no_ack",
+        True,
+    )
+    assert swarm.bench.sim.armed
