@@ -26,7 +26,7 @@ from tests.peers.cyclone import CyclonePeer
 # the attack tests' fixtures (``lab_module``: one attacked swarm per module; ``lab``: it,
 # restarted after a test that damaged it), found by pytest for every module that asks for
 # them instead of imported into each (tests/attacker/lab.py)
-pytest_plugins = ["tests.attacker.lab"]
+pytest_plugins = ["tests.attacker.lab", "tests.interrupt"]
 
 LanFactory = Callable[..., Lan]
 CycloneFactory = Callable[[Namespace], CyclonePeer]
@@ -39,11 +39,21 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
             pytest.skip(reason)
 
 
+# the name bases of the suite's namespaces: ``Lan``'s default and the attack swarms'
+# (tests/attacker/lab.py); never ``swf``, the Wi-Fi testbed's, which a benchmark may hold
+SUITE_BASES = ("swn", "atk", "spf")
+
+
+def sweep_dead_runs() -> list[str]:
+    """Remove the suite's namespaces left by killed earlier runs (only those whose creating
+    process is gone); return their names."""
+    return [name for base in SUITE_BASES for name in cleanup_dead_runs(base)]
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _sweep_dead_namespaces() -> None:
-    """Remove namespaces left by killed earlier runs (only those whose creator is gone)."""
     if unavailable_reason() is None:
-        cleanup_dead_runs()
+        sweep_dead_runs()
 
 
 @pytest.fixture

@@ -51,6 +51,9 @@ _IP_TIMEOUT_S: Final = 10.0
 _STOP_TIMEOUT_S: Final = 3.0
 
 _counter = itertools.count(1)
+# Every namespace a ``NamespaceRecord`` of this process holds (insertion order), so a second
+# Ctrl-C can delete them all at once without the records' owners (``delete_recorded``).
+_recorded: dict[str, None] = {}
 
 
 class NetnsError(RuntimeError):
@@ -157,6 +160,7 @@ class NamespaceRecord:
         if name in list_namespaces():
             raise NetnsError(f"namespace {name} already exists; remove it with cleanup_stale")
         self.names.append(name)
+        _recorded[name] = None
         _ip("netns", "add", name)
         _ip("-n", name, "link", "set", "lo", "up")
 
@@ -164,7 +168,21 @@ class NamespaceRecord:
         """Kill what runs in them and delete every recorded namespace (idempotent)."""
         for name in reversed(self.names):
             delete_namespace(name)
+            _recorded.pop(name, None)
         self.names.clear()
+
+
+def delete_recorded() -> list[str]:
+    """Kill what runs in, and delete, every namespace this process's records still hold,
+    newest first; return the names of those that still existed. For a run that must stop at
+    once, or whose records' owners were cut short (Ctrl-C in the test suite,
+    tests/interrupt.py)."""
+    existing = set(list_namespaces())
+    names = list(reversed(_recorded))
+    for name in names:
+        delete_namespace(name)
+        _recorded.pop(name, None)
+    return [name for name in names if name in existing]
 
 
 def add_veth(hub: str, port: str, host: str, ifname: str = IFNAME) -> None:
