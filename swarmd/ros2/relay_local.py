@@ -169,7 +169,6 @@ class LocalNodes(Announcer):
         if local is not None:
             local.left = True
             local.last_spdp = None
-            local.undeclared, local.undeclared_not_kept = (), 0  # its endpoints are gone
             self._set_local_alive(local, False)
 
     def _set_local_alive(self, local: LocalNode, alive: bool, restarted: bool = False) -> None:
@@ -254,8 +253,9 @@ class LocalNodes(Announcer):
     def _check_endpoints(self, local: LocalNode, participant: SpdpParticipant) -> None:
         """The node's undeclared endpoints are what its latest DATA(p) lists: Fast DDS's
         static EDP puts every endpoint a participant has in each DATA(p) it sends, so a new
-        life (after its dispose, or numbering from 1 again) starts with none and a node
-        fixed and restarted no longer shows its old rows (review 18b). The first
+        life (after its dispose, or numbering from 1 again) replaces them at its first
+        DATA(p) and a node fixed and restarted no longer shows its old rows (review 18b;
+        a node that left keeps its last ones on show). The first
         ``MAX_UNDECLARED_PER_PARTICIPANT`` in the DATA(p)'s own order are kept, the rest
         counted (shown as not shown, counter ``undeclared_dropped``). Kept across
         datagrams, a local process speaking as the node (``ros2.node_users`` unset) filled
