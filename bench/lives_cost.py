@@ -1,5 +1,5 @@
 """What a peer's lives cost a drone, and what their damping costs an honest peer
-(docs/security.md, "A captured member's lives"; swarmd/discovery/lives.py).
+(docs/security.md, "A captured member's lives"; swarmd/lives.py).
 
     .venv/bin/python -m bench.lives_cost [--seconds 60] [--rate 20] [--lives 8]
 
@@ -20,6 +20,13 @@ between datagrams; ``uav1`` is scripted. Two parts:
   life: when its first DATA(p) came and when the receiver took that life or a newer one
   (``PeerRestarted`` or ``PeerDiscovered`` in its epoch or later).
 
+A third part, *the ROS 2 liveness word* (review 18b): the lead's ROS 2 relay of
+``firmware_bundle/missions/swarm3-ros2.yaml`` with drone-1 found; drone-1's captured key
+signs a new liveness word (PID 0x8A06: a new restart count of its talker) in each of 4
+samples a datagram, ``--rate`` datagrams a second for ``--seconds``. Printed: the lives the
+relay acted on (each a dispose and an announcement of the talker at every local node) and
+the words held.
+
 Nothing asserted (``tests/test_discovery_epoch_churn.py`` and ``tests/test_discovery_lives.py``
 assert the bounds). It runs on any commit with ``swarmd_lab.testing``, before and after.
 """
@@ -30,6 +37,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from swarmd_lab.testing import (
     auth_for,
@@ -40,7 +48,12 @@ from swarmd_lab.testing import (
     peer_datagram,
 )
 
+from swarmd.bundle.build import build_dev_bundle
+from swarmd.bundle.mission import parse_mission
+from swarmd.bundle.ros2 import bundle_ros2_participants
 from swarmd.discovery import DiscoveryEngine, PeerDiscovered, PeerLost, PeerRestarted
+from swarmd.ros2.relay import Ros2Relay
+from swarmd.ros2.relay_events import RemoteNodeLiveness
 
 BUNDLE = make_bundle(3)
 SOURCE = (node_ipv4(1), 7412)  # uav1's metatraffic address
@@ -132,6 +145,34 @@ def honest(lives: int, alive_s: float, *, dispose: bool) -> list[tuple[int, floa
     return out
 
 
+def ros2_word_churn(seconds: float, rate: int) -> tuple[int, dict[str, int]]:
+    """The captured member's ``seconds`` of liveness words at a relay: the lives it acted on
+    (``RemoteNodeLiveness``, up: a re-match at every local node) and its hold counters."""
+    mission = Path(__file__).resolve().parent.parent / "firmware_bundle/missions/swarm3-ros2.yaml"
+    bundle = build_dev_bundle(parse_mission(mission.read_text())).bundle
+    relay = Ros2Relay(bundle_ros2_participants(bundle), "lead", domain_id=0, lease_s=8.0)
+    relay.peer_discovered("drone-1", "10.42.0.11", 0.0)
+    relay.peer_liveness("drone-1", b"\x01\x00", 0.0)  # its first word: the base
+    lives = 0
+
+    def run_to(now: float) -> None:
+        nonlocal lives
+        while (due := relay.get_timer()) is not None and due <= now:
+            relay.handle_timer(due)
+        while (event := relay.next_event()) is not None:  # its queue is bounded: drain
+            lives += isinstance(event, RemoteNodeLiveness) and event.up
+
+    for k in range(int(seconds * rate)):
+        now = k / rate
+        run_to(now)
+        for j in range(4):  # MAX_SPDP_SAMPLES a datagram
+            relay.peer_liveness("drone-1", bytes((1, (4 * k + j + 1) & 0xFF)), now)
+        run_to(now)
+    run_to(seconds)
+    held = ("remote_liveness_held", "remote_liveness_damped")
+    return lives, {k: relay.counters.get(k, 0) for k in held}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.lives_cost", description=__doc__)
     parser.add_argument("--seconds", type=float, default=60.0, help="the churn (default 60)")
@@ -151,6 +192,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"(after {SETTLE_S:g} s: {t.late_restarts}, {t.late_lost}, {t.late_found}); "
             + ", ".join(f"{k} {v}" for k, v in holds.items())
         )
+    lives, holds = ros2_word_churn(args.seconds, args.rate)
+    print(
+        f"  its ROS 2 liveness word, 4 new ones a datagram: lives acted on at a relay {lives}; "
+        + ", ".join(f"{k} {v}" for k, v in holds.items())
+    )
     for label, dispose in (
         (f"a crash loop (RestartSec={RESTART_SEC_S:g}s)", False),
         ("systemctl restart over and over", True),

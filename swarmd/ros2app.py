@@ -44,7 +44,8 @@ from swarmd.udp import BatchedSocket, Datagram
 
 # The relay's lines about what others make happen: a peer's node stopped, back or restarted
 # (``ros2_remote_node_liveness``), a peer served at a new address (``ros2_relay_peer``), a
-# local node's new life (``ros2_participant_heard``, ``ros2_node_liveness``). A captured
+# local node's new life (``ros2_participant_heard``, ``ros2_node_liveness``) and its
+# undeclared endpoints (``ros2_undeclared_endpoint``, review 18b). A captured
 # member's signed DATA(p)s flip its word and move it at its verification budget (20 a second,
 # 4 samples each), and a local process of any user (``ros2.node_users`` unset) cycles a
 # declared node's lives as fast as it sends: one line each was a flood that journald's
@@ -254,14 +255,14 @@ class Ros2App:
 
         self.driver.datagrams_received(batch, receive)
 
-    def _budgeted(self, event: str, about: str, **fields: Any) -> None:
-        """Log info line ``event`` about peer or node ``about`` unless its budget holds it
-        back (``RELAY_LINES_PER_S``); it says how many of them were held back since the
-        last (``suppressed``)."""
+    def _budgeted(self, event: str, about: str, *, warning: bool = False, **fields: Any) -> None:
+        """Log info (or warning) line ``event`` about peer or node ``about`` unless its
+        budget holds it back (``RELAY_LINES_PER_S``); it says how many of them were held
+        back since the last (``suppressed``)."""
         now = self.driver.now() if self.driver is not None else 0.0
         held = self.lines.take((event, about), now)
         if held is not None:
-            self.log.info(event, **fields, suppressed=held)
+            (self.log.warning if warning else self.log.info)(event, **fields, suppressed=held)
 
     def _on_event(self, event: RelayEvent) -> None:
         match event:
@@ -285,8 +286,12 @@ class Ros2App:
                     "wrote for this drone",
                 )
             case UndeclaredEndpoint(node=node, kind=kind, user_id=uid, entity_id=entity):
-                self.log.warning(
+                # a row appears with each list that names it (review 18b: the rows are the
+                # node's latest DATA(p)'s), and a local process can send new lists at will
+                self._budgeted(
                     "ros2_undeclared_endpoint",
+                    node,
+                    warning=True,
                     node=node,
                     kind=kind,
                     user_id=uid,

@@ -38,17 +38,20 @@ ALLOWED: dict[str, frozenset[str]] = {
     # stock ROS 2 nodes' Fast DDS profiles from the bundle (text only, no ROS 2) and the
     # sans-IO SPDP relay the daemon runs for them on loopback (its unknown-participant
     # reports take a token bucket: review 16)
-    "ros2": CORE | {"tokenbucket"},
+    "ros2": CORE | {"tokenbucket", "lives"},
     # authentication lives beside the codec, used by discovery and the data plane
     "auth": CORE | {"tokenbucket"},
     # the sans-IO cores
-    "discovery": CORE | {"auth", "tokenbucket"},
+    "discovery": CORE | {"auth", "tokenbucket", "lives"},
     "dataplane": CORE | {"auth"},
     # the driving protocol, declared once (swarmd/sansio.py): a leaf
     "sansio": frozenset(),
     # the token bucket every budget is made of (auth, discovery, swarm, XRCE key checks, the
     # ROS 2 relay's reports): a leaf
     "tokenbucket": frozenset(),
+    # a peer's lives damped over time (RFC 2439): discovery's restarts and returns, and the
+    # ROS 2 relay's acting on a drone's liveness word (review 18b): a leaf
+    "lives": frozenset(),
     # which of a peer's changes reach the log, a token bucket per key (the commander's
     # readiness lines, the daemon's peer moves and ROS 2 liveness: session 16; the ROS 2
     # relay's lines: review 18)

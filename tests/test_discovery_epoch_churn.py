@@ -32,8 +32,8 @@ from swarmd_lab.testing import auth_for, leave_or_return_datagram, peer_datagram
 
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.discovery import DiscoveryEngine, Event, PeerDiscovered, PeerLost, PeerRestarted
-from swarmd.discovery.lives import FLAP_HOLD_MAX_S, FLAP_PENALTY_LIMIT
 from swarmd.discovery.receive import RESTART_MIN_INTERVAL_S
+from swarmd.lives import FLAP_HOLD_MAX_S, FLAP_PENALTY_LIMIT
 from tests.test_discovery_auth import A1, BUNDLE, drain, receiver
 
 RATE_PER_S = 20  # the member's verification budget (swarmd.auth.budget): all of it

@@ -27,7 +27,7 @@ from swarmd_lab.testing import (
     node_ipv4,
 )
 
-from swarmd.discovery import lives
+from swarmd import lives
 from swarmd.discovery.config import EngineConfig
 from swarmd.discovery.events import PeerDiscovered
 

@@ -1,4 +1,4 @@
-"""A peer's lives damped over time (swarmd/discovery/lives.py; RFC 2439 route-flap damping).
+"""A peer's lives damped over time (swarmd/lives.py; RFC 2439 route-flap damping).
 
 The pure class on hand-set time first, then what it does to an honest peer through the
 engine: a crash loop, a fly-out and back, and one restart after the penalty decayed. The
@@ -15,7 +15,7 @@ from swarmd_lab.testing import auth_for, leave_or_return_datagram, peer_datagram
 
 from swarmd.auth.spdp import SpdpAuth
 from swarmd.discovery import DiscoveryEngine, PeerDiscovered, PeerLost, PeerRestarted
-from swarmd.discovery.lives import (
+from swarmd.lives import (
     FLAP_HALF_LIFE_S,
     FLAP_HOLD_MAX_S,
     FLAP_PENALTY,

@@ -17,6 +17,7 @@ from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Participant, bundle_ros2_pa
 from swarmd.ros2.graph import (
     GRAPH_READER_PORT_TOP,
     LOOPBACK4,
+    MAX_DATAGRAM,
     MIN_RESEND_S,
     UNIQUE_FLOW_SPAN,
     GraphParticipant,
@@ -45,6 +46,7 @@ from swarmd.rtps.message import (
 )
 from swarmd.rtps.spdp import SpdpAlive, decode_spdp
 from swarmd.rtps.types import EntityId, GuidPrefix, ProtocolVersion, VendorId
+from tests.test_ros2_profile import big_mission
 
 REPO = Path(__file__).resolve().parent.parent
 MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
@@ -110,10 +112,10 @@ def test_the_bundles_samples_round_trip(p: Ros2Participant) -> None:
 G_PREFIX = graph_participant_prefix(bytes(range(1, 11)))
 
 
-def _graph(participants: tuple[Ros2Participant, ...]) -> GraphParticipant:
+def _graph(participants: tuple[Ros2Participant, ...], drone: str = "lead") -> GraphParticipant:
     return GraphParticipant(
         participants,
-        "lead",
+        drone,
         prefix=G_PREFIX,
         relay_locator=Locator.udpv6("::1", 7399),
         domain_id=0,
@@ -285,6 +287,36 @@ def test_an_acknack_past_the_last_number_published_acknowledges_nothing() -> Non
     assert graph.receive_datagram(_acknack(lead, graph.writer_id, 2, []), due + 0.1)
     assert graph.get_timer() is None
     assert graph.status()["readers_up_to_date"] == 1
+
+
+@pytest.mark.parametrize(("publishes", "datagrams"), [(98, 1), (99, 2)])
+def test_the_answer_to_a_first_acknack_is_split_at_the_datagram_limit(
+    publishes: int, datagrams: int
+) -> None:
+    """Review 18b: the answer to a reader's first ACKNACK carries every remote participant's
+    sample, and went as one message: 40 drones whose node has 102 endpoints (98 topics and
+    ROS 2's own) make 65,276 octets, 103 endpoints 65,900, over Fast DDS's 65,500
+    (``MAX_DATAGRAM``; a valid bundle allows ~530 KB). Now it is split into complete
+    messages (header, INFO_DST, then DATAs), each within the limit, every sample once and in
+    order, the HEARTBEAT last. [fails on main: one datagram of 65,900 octets]"""
+    participants = bundle_ros2_participants(
+        build_dev_bundle(parse_mission(big_mission(40, publishes))).bundle
+    )
+    lead, *remote = participants
+    graph = _graph(participants, "d0")
+    for p in remote:
+        graph.publish(GuidPrefix(p.guid_prefix), 0.0)
+    graph.datagrams_to_send()
+    graph.receive_datagram(_acknack(lead, graph.writer_id, 1, []), 0.1)
+    out = graph.datagrams_to_send()
+    assert len(out) == datagrams
+    assert all(len(d) <= MAX_DATAGRAM and dest == (LOOPBACK4, 6999) for d, dest in out)
+    messages = [decode_message(d) for d, _ in out]
+    assert all(m.header.guid_prefix == G_PREFIX for m in messages)
+    assert all(m.submessages[0] == InfoDst(GuidPrefix(lead.guid_prefix)) for m in messages)
+    subs = [sm for m in messages for sm in m.submessages[1:]]
+    assert [sm.writer_sn for sm in subs if isinstance(sm, Data)] == list(range(1, len(remote) + 1))
+    assert isinstance(subs[-1], Heartbeat) and not any(isinstance(sm, Gap) for sm in subs)
 
 
 def test_a_replaced_sample_is_a_gap_and_a_withdrawn_one_is_no_longer_offered() -> None:

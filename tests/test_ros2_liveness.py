@@ -9,9 +9,11 @@ The real-process tests are tests/test_ros2_relay_netns.py and tests/test_ros2_re
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
+import pytest
 from swarmd_lab.testing import auth_for, engine_for, make_bundle, node_ipv4, peer_datagram
 
 from swarmd.bundle.build import build_dev_bundle
@@ -26,6 +28,7 @@ from swarmd.discovery import (
     PeerRos2Liveness,
 )
 from swarmd.discovery.events import Event
+from swarmd.lives import FLAP_HOLD_MAX_S, FLAP_PENALTY_LIMIT
 from swarmd.ros2.relay import (
     LIVENESS_MIN_INTERVAL_S,
     LOOPBACK,
@@ -389,14 +392,121 @@ def test_a_captured_members_word_changing_on_every_sample_moves_its_nodes_at_a_b
     disposes = sent.count(("dispose", one))
     assert 1 <= disposes <= flood_s / LIVENESS_MIN_INTERVAL_S + 1
     assert relay.counters["remote_restarts"] == disposes
-    assert relay.counters["remote_liveness_held"] >= words - disposes
-    # never lost: its last word is the one acted on last (then nothing is held)
-    relay.peer_liveness("drone-1", bytes((1, words & 0xFF)), 10.0)  # the same word again
+    held = relay.counters["remote_liveness_held"] + relay.counters["remote_liveness_damped"]
+    assert held >= words - disposes
+    # never lost: its last word is the one acted on last (then nothing is held; review
+    # 18b's damping holds it up to FLAP_HOLD_MAX_S)
+    _drive_to(relay, flood_s + FLAP_HOLD_MAX_S)
+    assert relay.liveness_due() is None
+    _sent(relay)  # its renewals meanwhile
+    relay.peer_liveness("drone-1", bytes((1, words & 0xFF)), 30.0)  # the same word again
     assert _sent(relay) == []
     # an honest relay's changes, at most one per 0.5 s on the air: each acted on at once
+    relay, one, _two = _lead_with_two_peers()
+    relay.peer_liveness("drone-1", b"\x01\x00", 0.0)
     for k in range(1, 4):
-        relay.peer_liveness("drone-1", bytes((1, (words + k) & 0xFF)), 10.0 + 0.5 * k)
+        relay.peer_liveness("drone-1", bytes((1, k)), 0.5 * k)
         assert _sent(relay) == [("dispose", one), ("alive", one)]
+
+
+def _churn(relay: Ros2Relay, seconds: float, *, flip: bool) -> None:
+    """A captured drone-1 for ``seconds``: 4 new words a datagram at its verification
+    budget (20 a second), a new restart count each (``flip``: its bit down and up in turn
+    instead); the relay's timers run between datagrams, as the driver runs them."""
+    per_s, per_datagram = 20, 4
+    for k in range(int(seconds * per_s)):
+        now = k / per_s
+        _drive_to(relay, now)
+        for j in range(per_datagram):
+            n = per_datagram * k + j + 1
+            word = bytes((n & 1, 0)) if flip else bytes((1, n & 0xFF))
+            relay.peer_liveness("drone-1", word, now)
+    _drive_to(relay, seconds + FLAP_HOLD_MAX_S)
+
+
+@pytest.mark.parametrize("flip", [False, True], ids=["restart-count", "bit-flip"])
+def test_a_captured_members_word_churning_for_a_minute_draws_a_handful_of_rematches(
+    flip: bool,
+) -> None:
+    """Review 18b, attacker 2: drone-1's key signs a new liveness word in every sample for a
+    minute, 80 a second. Spaced alone (0.25 s), every drone's relay re-matched its node at
+    every local node 4 times a second, 240 in the minute. Now the lives a word brings (a
+    node back, or restarted) are damped as discovery damps a peer's lives (swarmd/lives.py,
+    RFC 2439, one penalty per drone): the first 4 at once, then one per ``FLAP_HOLD_MAX_S``
+    at most. [fails on main: 240 announcements in the minute]"""
+    relay, one, _two = _lead_with_two_peers()
+    relay.peer_liveness("drone-1", b"\x01\x00", 0.0)  # its first word: the base
+    _churn(relay, 60.0, flip=flip)
+    moves = [e for e in _events(relay) if isinstance(e, RemoteNodeLiveness)]
+    lives = sum(e.up for e in moves)  # each a re-match at every local node
+    lives_at_most = FREE_LIVES + math.ceil(60.0 / FLAP_HOLD_MAX_S)  # 4 free + 3 = 7
+    assert FREE_LIVES <= lives <= lives_at_most
+    assert len(moves) - lives <= lives + 1  # a stop only after a life
+    assert _sent(relay).count(("dispose", one)) <= 2 * lives + 1
+    assert relay.counters["remote_liveness_damped"] > 0
+
+
+FREE_LIVES = int(FLAP_PENALTY_LIMIT) + 1
+
+
+def _node_life(relay: Ros2Relay, n: int, now: float, *, stop: bool) -> bool:
+    """drone-1's talker's ``n``-th new life, as its honest relay says it: a stop (bit
+    down) then its start (``stop``), or a restart under the same GUIDs (the count); True
+    when the lead's relay acted on the life (announced the node again) at its word."""
+    if stop:
+        relay.peer_liveness("drone-1", bytes((0, n - 1)), now)
+        now += 0.5  # swarmd's next pulled-in multicast carries the start
+        _drive_to(relay, now)
+        assert RemoteNodeLiveness("drone-1", "talker", up=False) in _events(relay)  # at once
+    relay.peer_liveness("drone-1", bytes((1, n)), now)
+    return _rematched(relay)
+
+
+def _rematched(relay: Ros2Relay) -> bool:
+    return any(isinstance(e, RemoteNodeLiveness) and e.up for e in _events(relay))
+
+
+@pytest.mark.parametrize("stop", [False, True], ids=["restart", "stop-and-start"])
+def test_an_honest_nodes_lives_are_acted_on_at_once_and_a_crash_loop_late_never_lost(
+    stop: bool,
+) -> None:
+    """The honest shapes of tests/test_discovery_lives.py, for a node: a few restarts (or
+    stops and starts) an hour apart are all acted on at once; a crash loop at systemd's
+    fastest (RestartSec=2s and a start-up) has its first 4 lives at once, the next late by
+    at most ``FLAP_HOLD_MAX_S``, and its last word is the one that stays."""
+    relay, _one, _two = _lead_with_two_peers()
+    relay.peer_liveness("drone-1", b"\x01\x00", 0.0)
+    for n in range(1, 13):  # one every 300 s
+        now = 300.0 * n
+        _drive_to(relay, now)
+        assert _node_life(relay, n, now, stop=stop)
+    # a crash loop, 2.288 s apart: free lives at once, then held
+    base, start = 12, 300.0 * 13
+    for k in range(FREE_LIVES):
+        _drive_to(relay, start + 2.288 * k)
+        assert _node_life(relay, base + 1 + k, start + 2.288 * k, stop=stop)
+    late = start + 2.288 * FREE_LIVES
+    _drive_to(relay, late)
+    assert not _node_life(relay, base + FREE_LIVES + 1, late, stop=stop)
+    assert relay.counters["remote_liveness_damped"] == 1
+    _drive_to(relay, late + FLAP_HOLD_MAX_S)  # late, never lost
+    assert _rematched(relay)
+    rows = {r["drone"]: r["state"] for r in relay.status(late + 30.0)["remote"]}
+    assert rows["drone-1"] == "relayed"
+
+
+def test_a_drone_flying_out_and_back_past_its_free_lives_is_announced_at_once() -> None:
+    """A fly-out and back is swarmd's PeerLost and PeerDiscovered, no word: never held,
+    whatever the drone's penalty (tests/test_discovery_lives.py's fly-out, for the relay)."""
+    relay, one, _two = _lead_with_two_peers()
+    relay.peer_liveness("drone-1", b"\x01\x00", 0.0)
+    _churn(relay, 5.0, flip=False)  # its penalty past the limit
+    _sent(relay)
+    assert relay.counters["remote_liveness_damped"] > 0
+    relay.peer_lost("drone-1", 40.0)
+    assert _sent(relay) == [("dispose", one)]
+    relay.peer_discovered("drone-1", ADDRESS["drone-1"], 41.0)
+    assert _sent(relay) == [("alive", one)]
 
 
 ROS2_BUNDLE = build_dev_bundle(parse_mission(MISSION)).bundle

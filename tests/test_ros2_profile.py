@@ -19,13 +19,19 @@ from swarmd.bundle.loader import read_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import (
     GRAPH_TOPIC,
+    MAX_NODE_ENDPOINTS,
     MAX_USER_ID,
     Ros2EndpointKind,
+    Ros2Graph,
+    Ros2Node,
     bundle_ros2_participants,
+    node_endpoints,
 )
 from swarmd.cli.swarmctl import main as swarmctl
-from swarmd.ros2.graph import graph_reader_port
+from swarmd.ros2.graph import MAX_DATAGRAM, encode_entities_info, entities_info, graph_reader_port
 from swarmd.ros2.profile import ProfileError, drone_profiles
+from swarmd.ros2.relay import Ros2Relay
+from swarmd.rtps.spdp import encode_spdp
 
 REPO = Path(__file__).resolve().parent.parent
 MISSION = (REPO / "firmware_bundle" / "missions" / "swarm3-ros2.yaml").read_text()
@@ -99,21 +105,52 @@ def test_a_bad_graph_is_one_line_naming_the_field(old: str, new: str, field: str
     assert "m.yaml:" in line and field in line and "fix:" in line
 
 
-def test_more_endpoints_than_static_ids_is_refused() -> None:
-    drones = "\n".join(
+def big_mission(drones: int, publishes: int) -> str:
+    """``drones`` drones (d0, d1, ...), each with one ROS 2 node ``n`` publishing
+    ``publishes`` topics: its endpoints are these and ROS 2's own (``_BUILTIN``)."""
+    participants = "\n".join(
         f"  - {{name: d{i}, index: {i}, role: member, mavlink_sysid: {i % 250 + 1}}}"
-        for i in range(300)
+        for i in range(drones)
     )
-    topics = "\n".join(f"    - {{name: /t{i}, type: std_msgs/msg/String}}" for i in range(120))
-    pubs = ", ".join(f"/t{i}" for i in range(120))
-    text = (
-        f"swarm: big\ndomain_id: 0\nparticipants:\n{drones}\ntopics:\n"
+    topics = "\n".join(
+        f"    - {{name: /t{i}, type: std_msgs/msg/String}}" for i in range(publishes)
+    )
+    pubs = ", ".join(f"/t{i}" for i in range(publishes))
+    return (
+        f"swarm: big\ndomain_id: 0\nparticipants:\n{participants}\ntopics:\n"
         "  - {name: a, type: x::Y, writers: all, readers: all}\n"
         f"ros2:\n  topics:\n{topics}\n  nodes:\n"
         f"    - {{name: n, drones: all, publishes: [{pubs}]}}\n"
     )
+
+
+def test_more_endpoints_than_static_ids_is_refused() -> None:
     with pytest.raises(MissionError, match=str(MAX_USER_ID)):
-        parse_mission(text, "big.yaml")
+        parse_mission(big_mission(300, 120), "big.yaml")
+
+
+def test_a_node_whose_announcement_would_not_fit_one_datagram_is_refused() -> None:
+    """Review 18b: every datagram swarmd sends a node must fit Fast DDS's receive limit
+    (``MAX_DATAGRAM``, 65,500 octets; no DATA_FRAG here). The largest per node is the
+    relay's DATA(p) for it, 60 octets per endpoint: a node of ``MAX_NODE_ENDPOINTS`` at the
+    highest user ids a bundle allows fits, one more endpoint is refused at build with one
+    line naming the node."""
+    builtin = len(node_endpoints(Ros2Graph(0, (), (), ()), Ros2Node("n", 0, (), (), (), (), ())))
+    drones = MAX_USER_ID // MAX_NODE_ENDPOINTS  # the last drone's ids are above 31,000
+    bundle = build_dev_bundle(
+        parse_mission(big_mission(drones, MAX_NODE_ENDPOINTS - builtin))
+    ).bundle
+    participants = bundle_ros2_participants(bundle)
+    last = participants[-1]
+    assert len(last.endpoints) == MAX_NODE_ENDPOINTS and last.first_user_id > 31_000
+    relay = Ros2Relay(participants, "d0", domain_id=0, lease_s=20.0)
+    spdp = encode_spdp(relay.synthesized(last, "10.0.0.1"), sequence_number=1 << 40, timestamp=None)
+    assert len(spdp) <= MAX_DATAGRAM
+    assert len(encode_entities_info(entities_info(last))) < MAX_DATAGRAM // 4
+    with pytest.raises(MissionError) as info:
+        parse_mission(big_mission(3, MAX_NODE_ENDPOINTS - builtin + 1), "big.yaml")
+    message = str(info.value)
+    assert "\n" not in message and "ros2.nodes[0]" in message and "split" in message
 
 
 def _profiles(drone: str, relay_port: int | None = None, mission: str = MISSION) -> dict[str, str]:

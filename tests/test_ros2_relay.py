@@ -630,6 +630,69 @@ def test_undeclared_endpoints_are_reported_by_node_and_capped() -> None:
     assert relay.counters["undeclared_dropped"] == 2 * 3
 
 
+LO = ("::1", 40000)  # the node's own socket
+
+
+def _local_dispose(p: Ros2Participant, sn: int) -> bytes:
+    """A node's DATA(p[UD]) as it shuts down."""
+    return encode_spdp_dispose(GuidPrefix(p.guid_prefix), sequence_number=sn, timestamp=None)
+
+
+def _undeclared_rows(relay: Ros2Relay, now: float) -> list[str]:
+    return [u["entity_id"] for u in relay.status(now)["local"][0]["undeclared_endpoints"]]
+
+
+def _extra(entities: range) -> tuple[tuple[str, str], ...]:
+    """Undeclared writers (no id: Fast DDS says 65535 when a node has none), by entity."""
+    return tuple(("eProsimaEDPStatic_Writer_ALIVE_ID_65535", f"0.0.{i}.3") for i in entities)
+
+
+@pytest.mark.parametrize("how", ["dispose", "killed"])
+def test_a_nodes_undeclared_rows_are_those_of_its_current_life(how: str) -> None:
+    """Review 18b: a node's undeclared endpoints stayed in ``swarmctl status`` across its
+    lives, so a node fixed and restarted still showed the old rows. They are what its
+    latest DATA(p) lists: a new life (after its dispose, or killed and started again,
+    numbering from 1) starts with none. [fails on main: the old row stays]"""
+    lead = _by(_participants(), "lead")
+    relay = _relay("lead")
+    declared = static_edp_properties(lead)
+    relay.receive_datagram(_local_spdp(lead, 1, (*declared, *_extra(range(1, 2)))), LO, 0.0)
+    relay.receive_datagram(_local_spdp(lead, 2, (*declared, *_extra(range(1, 2)))), LO, 1.0)
+    assert _undeclared_rows(relay, 1.0) == ["0.0.1.3"]
+    if how == "dispose":
+        relay.receive_datagram(_local_dispose(lead, 3), LO, 2.0)
+    relay.receive_datagram(_local_spdp(lead, 1, declared), LO, 3.0)  # fixed, started again
+    assert _undeclared_rows(relay, 3.0) == []
+    assert relay.status(3.0)["local"][0]["restarts"] == 1
+
+
+def test_a_local_forger_filling_the_undeclared_rows_cannot_hide_a_real_endpoint() -> None:
+    """Review 18b, a local process of any user (``ros2.node_users`` unset) sends a
+    declared node's DATA(p) listing 40 invented undeclared endpoints: the 32 rows
+    (``MAX_UNDECLARED_PER_PARTICIPANT``) filled for good, and the node's own undeclared
+    writer, in its next DATA(p), was never shown. The rows are what the node's latest
+    DATA(p) lists, the first 32 in its own order and a count of the rest: the forgery
+    shows until the node's next DATA(p), then the node's own rows are back.
+    [fails on main: the real writer is not listed]"""
+    lead = _by(_participants(), "lead")
+    relay = _relay("lead")
+    declared = static_edp_properties(lead)
+    real = (*declared, *_extra(range(200, 201)))
+    relay.receive_datagram(_local_spdp(lead, 1, real), LO, 0.0)
+    forged = (*declared, *_extra(range(1, 41)))
+    relay.receive_datagram(_local_spdp(lead, 2, forged), ("::1", 40999), 0.5)
+    row = relay.status(0.5)["local"][0]
+    assert len(row["undeclared_endpoints"]) == MAX_UNDECLARED_PER_PARTICIPANT
+    assert row["undeclared_not_shown"] == 40 - MAX_UNDECLARED_PER_PARTICIPANT
+    relay.receive_datagram(_local_spdp(lead, 3, real), LO, 3.0)  # the node's next renewal
+    row = relay.status(3.0)["local"][0]
+    assert _undeclared_rows(relay, 3.0) == ["0.0.200.3"]
+    assert row["undeclared_not_shown"] == 0
+    # each row is reported once while it stays listed, again only after it was gone
+    reported = [e.entity_id for e in _events(relay) if isinstance(e, UndeclaredEndpoint)]
+    assert reported.count("0.0.200.3") == 2 and len(reported) == 2 + MAX_UNDECLARED_PER_PARTICIPANT
+
+
 def test_peers_without_ros2_nodes_or_address_are_ignored() -> None:
     relay = _relay("lead")
     relay.peer_discovered("drone-1", None, 0.0)

@@ -27,12 +27,13 @@ import socket
 from typing import Any
 
 from swarmd.ros2app import RELAY_LINE_BURST, RELAY_LINES_PER_S, Ros2App
-from swarmd.rtps.spdp import encode_spdp_dispose
-from swarmd.rtps.types import GuidPrefix
+from swarmd.rtps.spdp import SpdpParticipant, encode_spdp, encode_spdp_dispose
+from swarmd.rtps.types import Duration, GuidPrefix, VendorId
 from tests.test_local_uid import _lead_node, _Log, _node_spdp, _ros2_app, _until
 
 FLIPS = 200  # a captured member's 10 s at its verification budget of 20 signed DATA(p)/s
 PAIRS = 200  # a local process's dispose + DATA(p) pairs, sent back to back
+LISTS = 100  # a local process's DATA(p)s of a node, two lists of 32 undeclared in turn
 
 
 def _allowed(elapsed_s: float) -> float:
@@ -68,8 +69,9 @@ def test_a_captured_members_flips_and_moves_reach_the_relays_lines_at_a_bounded_
             for i in range(FLIPS):
                 app.peer_liveness("drone-1", bytes((i % 2,)))  # down, up, down, ...
                 app.peer_up("drone-1", f"10.42.{1 + i // 200}.{11 + i % 200}")
-            # its last word (up) is acted on at the interval's end: late, never lost
-            assert await _until(lambda: relayed(app))
+            # its last word (up) is acted on at the interval's end, or held by the drone's
+            # damping (review 18b, up to FLAP_HOLD_MAX_S): late, never lost
+            assert await _until(lambda: relayed(app) or app.relay.liveness_due() is not None)
             return app.status(0.0), log.lines, loop.time() - start
         finally:
             app.close()
@@ -87,38 +89,41 @@ def test_a_captured_members_flips_and_moves_reach_the_relays_lines_at_a_bounded_
     assert row["user_locator"].startswith(f"10.42.{1 + last // 200}.{11 + last % 200}:")
 
 
+async def _sent_to_the_leads_relay(
+    datagrams: list[bytes],
+) -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]], list[bytes], float]:
+    """``datagrams`` from one local socket (any user: ``ros2.node_users`` unset) to the
+    lead's relay, run by the real adapter: its status, log lines, the liveness words it
+    handed swarmd, and the run's own time."""
+    log, alive = _Log(), list[bytes]()
+    app = _ros2_app(None, log, alive)
+    loop = asyncio.get_running_loop()
+    app.start(loop)
+    relay_at = ("::1", app.config.ros2.relay_port)
+    try:
+        start = loop.time()
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as sender:
+            sender.bind(("::1", 0))
+            for i, data in enumerate(datagrams):
+                sender.sendto(data, relay_at)
+                if i % 40 == 39:  # let the loop read: the socket's buffer is finite
+                    await _until(lambda n=i + 1: app.relay.counters["rx"] >= n)
+        assert await _until(lambda: app.relay.counters["rx"] >= len(datagrams))
+        return app.status(0.0), log.lines, alive, loop.time() - start
+    finally:
+        app.close()
+
+
 def test_a_local_process_cycling_a_declared_nodes_lives_reaches_the_log_at_a_bounded_rate() -> None:
     """A local process (any user: ``ros2.node_users`` unset) sends the lead's declared
     node's DATA(p[UD]) and DATA(p) in turn: each pair is a life to the relay (it is trusted
     as the node, docs/security.md), and each life still reaches the signed liveness word.
     The lines about it are bounded. [fails on main: 400 ``ros2_node_liveness`` and 200
     ``ros2_participant_heard`` lines for 200 pairs]"""
-
-    async def main() -> tuple[dict[str, Any], list[tuple[str, dict[str, Any]]], list[bytes], float]:
-        log, alive = _Log(), list[bytes]()
-        app = _ros2_app(None, log, alive)
-        loop = asyncio.get_running_loop()
-        app.start(loop)
-        relay_at = ("::1", app.config.ros2.relay_port)
-        node = _lead_node()
-        dispose = encode_spdp_dispose(
-            GuidPrefix(node.guid_prefix), sequence_number=2, timestamp=None
-        )
-        try:
-            start = loop.time()
-            with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as sender:
-                sender.bind(("::1", 0))
-                for i in range(PAIRS):
-                    sender.sendto(dispose, relay_at)
-                    sender.sendto(_node_spdp(node, 1), relay_at)
-                    if i % 20 == 19:  # let the loop read: the socket's buffer is finite
-                        await _until(lambda n=2 * (i + 1): app.relay.counters["rx"] >= n)
-            assert await _until(lambda: app.relay.counters["rx"] >= 2 * PAIRS)
-            return app.status(0.0), log.lines, alive, loop.time() - start
-        finally:
-            app.close()
-
-    status, lines, alive, elapsed = asyncio.run(main())
+    node = _lead_node()
+    dispose = encode_spdp_dispose(GuidPrefix(node.guid_prefix), sequence_number=2, timestamp=None)
+    pairs = [dispose, _node_spdp(node, 1)] * PAIRS
+    status, lines, alive, elapsed = asyncio.run(_sent_to_the_leads_relay(pairs))
     liveness = _lines(lines, "ros2_node_liveness")
     heard = _lines(lines, "ros2_participant_heard")
     assert 1 <= len(liveness) <= _allowed(elapsed)
@@ -130,3 +135,40 @@ def test_a_local_process_cycling_a_declared_nodes_lives_reaches_the_log_at_a_bou
     assert counters["lines_suppressed"] == 2 * PAIRS - len(liveness) + PAIRS - len(heard)
     # the line after a pause says what it stands for
     assert all(isinstance(f["suppressed"], int) for f in liveness + heard)
+
+
+def _listing(node_prefix: bytes, sn: int, entities: range) -> bytes:
+    """A declared node's DATA(p) listing undeclared writers (no id: 65535) by entity."""
+    return encode_spdp(
+        SpdpParticipant(
+            GuidPrefix(node_prefix),
+            lease_duration=Duration.from_seconds(100.0),
+            vendor_id=VendorId(b"\x01\x0f"),
+            entity_name="/",
+            properties=tuple(
+                ("eProsimaEDPStatic_Writer_ALIVE_ID_65535", f"0.0.{i}.3") for i in entities
+            ),
+        ),
+        sequence_number=sn,
+        timestamp=None,
+    )
+
+
+def test_a_local_process_alternating_undeclared_lists_reaches_the_log_at_a_bounded_rate() -> None:
+    """Review 18b: a node's undeclared rows are what its latest DATA(p) lists, and a row is
+    reported when it appears. A local process (``ros2.node_users`` unset) sending the
+    node's DATA(p) with two lists of 32 in turn makes every datagram 32 new rows; the
+    ``ros2_undeclared_endpoint`` warnings are budgeted as the relay's other lines, per node.
+    [without the budget: 32 lines a datagram, 3,200 here]"""
+    prefix = _lead_node().guid_prefix
+    lists = [
+        _listing(prefix, 2 + i, range(1, 33) if i % 2 == 0 else range(101, 133))
+        for i in range(LISTS)
+    ]
+    status, lines, _alive, elapsed = asyncio.run(_sent_to_the_leads_relay(lists))
+    undeclared = _lines(lines, "ros2_undeclared_endpoint")
+    assert 1 <= len(undeclared) <= _allowed(elapsed)
+    assert status["local"][0]["undeclared_not_shown"] == 0
+    assert len(status["local"][0]["undeclared_endpoints"]) == 32
+    # every row reported reached the budget (the relay's event queue may drop some first)
+    assert 0 < status["counters"]["lines_suppressed"] <= 32 * LISTS - len(undeclared)

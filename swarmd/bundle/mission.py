@@ -30,10 +30,12 @@ from swarmd.bundle.model import (
     Role,
 )
 from swarmd.bundle.ros2 import (
+    MAX_NODE_ENDPOINTS,
     Ros2Graph,
     Ros2Node,
     Ros2Service,
     Ros2Topic,
+    node_endpoints,
     ros2_participants,
 )
 from swarmd.rtps.ports import (
@@ -612,7 +614,19 @@ class _Checker:
                     ("calls", known_services),
                 )
             ]
-            nodes.append(Ros2Node(name, i, drones, refs[0], refs[1], refs[2], refs[3]))
+            ros2_node = Ros2Node(name, i, drones, refs[0], refs[1], refs[2], refs[3])
+            declared = Ros2Graph(ros_domain, tuple(topics), tuple(services), ())
+            count = len(node_endpoints(declared, ros2_node))
+            if count > MAX_NODE_ENDPOINTS:
+                self.fail(
+                    item,
+                    path,
+                    f"node {name!r} has {count} DDS endpoints (topics, two per service, "
+                    f"ROS 2's own), over {MAX_NODE_ENDPOINTS}: its discovery announcement would "
+                    "not fit one UDP datagram",
+                    "split it into several nodes",
+                )
+            nodes.append(ros2_node)
         graph = Ros2Graph(ros_domain, tuple(topics), tuple(services), tuple(nodes))
         try:
             ros2_participants(swarm, {p.name: p.index for p in participants}, graph)

@@ -38,6 +38,14 @@ ROS2_TAG_BYTES: Final = 6
 MAX_USER_ID: Final = 32767
 MAX_ROS2_DRONE_INDEX: Final = 0xFFFF  # two prefix bytes
 MAX_ROS2_NODE_INDEX: Final = 0xFFFF  # two prefix bytes
+# DDS endpoints of one node (its topics, twice its services, ROS 2's own). What swarmd
+# sends about a node must fit one UDP datagram (no DATA_FRAG here): the SPDP DATA(p) its
+# relay announces for the node carries a static EDP property per endpoint, 60 octets
+# each: 60,076 octets for 1,000 endpoints at user ids above 31,000, under Fast DDS's
+# 65,500-octet message limit with room for what the node's own DATA(p) adds; its graph
+# sample is 16,016 (tests/test_ros2_profile.py, review 18b; docs/ros2.md "Graph
+# preloading").
+MAX_NODE_ENDPOINTS: Final = 1000
 
 
 class Ros2EndpointKind(StrEnum):
@@ -259,6 +267,12 @@ def ros2_participants(
                     f"ROS 2 domain {graph.domain_id}"
                 )
             endpoints = node_endpoints(graph, node)
+            if len(endpoints) > MAX_NODE_ENDPOINTS:
+                raise ValueError(
+                    f"node {node.name!r} has {len(endpoints)} DDS endpoints, over "
+                    f"{MAX_NODE_ENDPOINTS}: its discovery announcement would not fit one UDP "
+                    "datagram"
+                )
             out.append(
                 Ros2Participant(
                     drone=drone,

@@ -365,6 +365,9 @@ def render_ros2(ros2: Any) -> list[str]:
                         "not in the bundle: matches nothing",
                     ]
                 )
+        more = r.get("undeclared_not_shown")
+        if isinstance(more, int) and more > 0:
+            rows.append(["", f"  undeclared: {more} more", "", "", "not shown"])
     for r in remote:
         rows.append(
             [

@@ -43,11 +43,11 @@ from swarmd.discovery.events import (
 )
 from swarmd.discovery.foreign import ForeignParticipants
 from swarmd.discovery.leases import Leases
-from swarmd.discovery.lives import LifeDamping
 from swarmd.discovery.peers import Peer, PeerState
 from swarmd.discovery.phases import Phase
 from swarmd.discovery.received import Alive
 from swarmd.discovery.seek import Seek, SoughtBy
+from swarmd.lives import LifeDamping
 from swarmd.rtps.errors import DecodeError
 from swarmd.rtps.spdp import SpdpDisposed, Vouch
 

@@ -72,7 +72,8 @@ from swarmd.rtps.message import (
     SequenceNumberSet,
     Submessage,
     decode_message,
-    encode_message,
+    encode_header,
+    encode_submessage,
 )
 from swarmd.rtps.spdp import BES_SPDP_ONLY, SpdpParticipant
 from swarmd.rtps.types import (
@@ -98,6 +99,17 @@ GID_SIZE: Final = 16  # rmw_dds_common/msg/Gid: char[16] (Kilted: GUID prefix + 
 MAX_NAME: Final = 256  # string<=256 node_namespace / node_name
 # a decoded sample's sequences (nodes, GIDs): bounds the work a forged payload can cause
 MAX_SEQUENCE: Final = 4096
+# The most octets of one datagram to a node's graph reader: Fast DDS's default
+# maxMessageSize (s_maximumMessageSize, TransportInterface.hpp; the size of its receive
+# buffer), under UDP's 65,507 over IPv4. The answer to a reader's first ACKNACK carries
+# every remote participant's sample, 16 octets per endpoint, and a valid bundle holds up to
+# 32,767 endpoints (swarmd.bundle.ros2 MAX_USER_ID): over 500 KB. Sent as one message it
+# passed this limit at 39 remote nodes of 103 endpoints (65,900 octets; review 18b,
+# docs/ros2.md "Graph preloading"); now the submessages are split over as many messages as
+# needed, each complete (DDSI-RTPS 2.5 8.3: any number of submessages per message, any
+# number of messages). One sample always fits: a node has at most MAX_NODE_ENDPOINTS
+# (1,000), a sample of 16,016 octets.
+MAX_DATAGRAM: Final = 65_500
 CDR_BE: Final = b"\x00\x00"
 CDR_LE: Final = b"\x00\x01"
 
@@ -349,6 +361,7 @@ class GraphParticipant:
             "graph_tx_gap": 0,
             "graph_tx_heartbeat": 0,
             "graph_resend_limited": 0,
+            "graph_tx_split": 0,
         }
 
     @property
@@ -532,6 +545,21 @@ class GraphParticipant:
         return Gap(proxy.reader_id, self.writer_id, start, SequenceNumberSet(end, 0))
 
     def _send(self, proxy: _Proxy, submessages: list[Submessage]) -> None:
-        header = Header(FASTDDS_PROTOCOL_VERSION, VendorId(VENDOR_EPROSIMA), self.prefix)
-        sms: list[Submessage] = [InfoDst(GuidPrefix(proxy.participant.guid_prefix)), *submessages]
-        self._out.append((encode_message(header, sms), (LOOPBACK4, proxy.port)))
+        """``submessages`` to ``proxy``'s reader, in order, in as few messages as
+        ``MAX_DATAGRAM`` allows; each opens with the header and INFO_DST, so each stands
+        alone (a HEARTBEAT last stays last)."""
+        head = encode_header(
+            Header(FASTDDS_PROTOCOL_VERSION, VendorId(VENDOR_EPROSIMA), self.prefix)
+        ) + encode_submessage(InfoDst(GuidPrefix(proxy.participant.guid_prefix)))
+        to = (LOOPBACK4, proxy.port)
+        parts: list[bytes] = []
+        size = len(head)
+        for sm in submessages:
+            raw = encode_submessage(sm)
+            if parts and size + len(raw) > MAX_DATAGRAM:
+                self._out.append((head + b"".join(parts), to))
+                self.counters["graph_tx_split"] += 1
+                parts, size = [], len(head)
+            parts.append(raw)
+            size += len(raw)
+        self._out.append((head + b"".join(parts), to))

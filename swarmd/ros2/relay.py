@@ -87,6 +87,7 @@ from collections import deque
 from typing import Any, Final
 
 from swarmd.bundle.ros2 import Ros2EndpointKind, Ros2Participant
+from swarmd.lives import LifeDamping
 from swarmd.ros2.graph import GraphParticipant
 from swarmd.ros2.relay_events import RelayEvent
 from swarmd.ros2.relay_local import (
@@ -208,6 +209,9 @@ class Ros2Relay(LocalNodes, RemoteDrones):
         # within LIVENESS_MIN_INTERVAL_S: relay_remote); bundle drones only
         self._liveness_acted: dict[str, float] = {}
         self._liveness_held: dict[str, bytes] = {}
+        # the lives their words brought, damped per drone (relay_remote, swarmd.lives)
+        self._liveness_lives = LifeDamping()
+        self._drone_index = {d: i for i, d in enumerate(self._remote_by_drone)}
         self._unknown: dict[GuidPrefix, UnknownParticipant] = {}
         # their reports, at a bounded rate (a local flood of invented prefixes: relay_local)
         self._unknown_reports = TokenBucket(UNKNOWN_REPORTS_PER_S, UNKNOWN_REPORT_BURST, 0.0)
@@ -247,6 +251,7 @@ class Ros2Relay(LocalNodes, RemoteDrones):
             "sibling_dispose_deferred": 0,
             "liveness_unknown_drone": 0,
             "remote_liveness_held": 0,
+            "remote_liveness_damped": 0,
             "remote_restarts": 0,
         }
 
@@ -365,8 +370,9 @@ class Ros2Relay(LocalNodes, RemoteDrones):
                     else round(now - local.heard_at, 3),
                     "undeclared_endpoints": [
                         {"kind": kind.lower(), "user_id": uid, "entity_id": entity}
-                        for kind, uid, entity in sorted(local.undeclared or ())
+                        for kind, uid, entity in local.undeclared
                     ],
+                    "undeclared_not_shown": local.undeclared_not_kept,
                 }
             )
         remote_rows = []

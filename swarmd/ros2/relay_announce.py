@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections import deque
 
 from swarmd.bundle.ros2 import VENDOR_EPROSIMA, Ros2Participant
+from swarmd.lives import LifeDamping
 from swarmd.ros2.graph import GraphParticipant
 from swarmd.ros2.relay_events import RelayEvent
 from swarmd.ros2.relay_spdp import FASTDDS_PROTOCOL_VERSION, static_edp_properties
@@ -44,6 +45,8 @@ class Announcer:
     _remote_restarts: dict[str, tuple[int, ...] | None]
     _liveness_acted: dict[str, float]
     _liveness_held: dict[str, bytes]
+    _liveness_lives: LifeDamping
+    _drone_index: dict[str, int]
     _unknown: dict[GuidPrefix, UnknownParticipant]
     _unknown_reports: TokenBucket
     _unknown_suppressed: int

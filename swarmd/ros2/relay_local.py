@@ -31,7 +31,8 @@ MAX_UNKNOWN_PARTICIPANTS: Final = 16
 # foreign participants are (swarmd.discovery.foreign).
 UNKNOWN_REPORTS_PER_S: Final = 1.0
 UNKNOWN_REPORT_BURST: Final = 10.0
-# undeclared endpoints kept per local participant (a node creating endpoints in a loop)
+# undeclared endpoints shown per local participant: of its latest DATA(p), the first in its
+# order (a node creating endpoints in a loop, or a local process speaking as it)
 MAX_UNDECLARED_PER_PARTICIPANT: Final = 32
 # A starting Fast DDS participant sends its first DATA(p) before it listens: its
 # RTPSParticipantImpl::enable() runs BuiltinProtocols::enable() (the first announcement)
@@ -250,6 +251,19 @@ class LocalNodes(Announcer):
         )
 
     def _check_endpoints(self, local: LocalNode, participant: SpdpParticipant) -> None:
+        """The node's undeclared endpoints are what its latest DATA(p) lists: Fast DDS's
+        static EDP puts every endpoint a participant has in each DATA(p) it sends, so a new
+        life (after its dispose, or numbering from 1 again) replaces them at its first
+        DATA(p) and a node fixed and restarted no longer shows its old rows (review 18b;
+        a node that left keeps its last ones on show). The first
+        ``MAX_UNDECLARED_PER_PARTICIPANT`` in the DATA(p)'s own order are kept, the rest
+        counted (shown as not shown, counter ``undeclared_dropped``). Kept across
+        datagrams, a local process speaking as the node (``ros2.node_users`` unset) filled
+        them with invented ones for good and hid the node's own; now its rows last until
+        the node's next DATA(p). A row is reported (``UndeclaredEndpoint``) when it
+        appears, not at every renewal that lists it again."""
+        rows: list[tuple[str, int, str]] = []
+        not_kept = 0
         for name, value in participant.properties:
             m = STATIC_EDP_PROPERTY.fullmatch(name)
             if m is None:
@@ -257,14 +271,20 @@ class LocalNodes(Announcer):
             kind, uid = m.group(1), int(m.group(2))
             if (kind, uid) in local.declared:
                 continue
-            undeclared = local.undeclared if local.undeclared is not None else set()
-            local.undeclared = undeclared
             key = (kind, uid, value[:32])
-            if key in undeclared:
+            if key in rows:
                 continue
-            if len(undeclared) >= MAX_UNDECLARED_PER_PARTICIPANT:
-                self.counters["undeclared_dropped"] += 1
+            if len(rows) >= MAX_UNDECLARED_PER_PARTICIPANT:
+                not_kept += 1
                 continue
-            undeclared.add(key)
-            p = local.participant
-            self._events.append(UndeclaredEndpoint(p.drone, p.node.name, kind.lower(), uid, key[2]))
+            rows.append(key)
+        self.counters["undeclared_dropped"] += not_kept
+        before = local.undeclared or ()
+        local.undeclared = tuple(rows)
+        local.undeclared_not_kept = not_kept
+        p = local.participant
+        for kind, uid, entity in rows:
+            if (kind, uid, entity) not in before:
+                self._events.append(
+                    UndeclaredEndpoint(p.drone, p.node.name, kind.lower(), uid, entity)
+                )

@@ -7,6 +7,7 @@ unauthenticated.
 
 from __future__ import annotations
 
+import math
 from typing import Final
 
 from swarmd.bundle.ros2 import Ros2Participant
@@ -18,14 +19,23 @@ from swarmd.rtps.types import GuidPrefix
 # A drone's liveness word (PID 0x8A06) is acted on at most once per this interval. Its
 # swarmd signs what it likes about its own nodes, and a captured member changed its word on
 # every DATA(p) (4 a datagram, 20 datagrams a second): each change disposed or announced its
-# nodes again at every local node of every drone, 80 re-matches a second, while its restarts
-# are spaced by the same 0.25 s and damped (swarmd.discovery.receive RESTART_MIN_INTERVAL_S,
-# swarmd.discovery.lives; review 18). A change within the interval is held, the latest word
-# acted on at its end: late, never lost (a restart count is compared with the last word acted
-# on, so the lives in between are not missed). An honest relay's changes reach the air with
-# the engine's pulled-in multicast, at most one per retransmit_min_gap_s (0.5 s)
-# (swarmd.discovery.engine ``set_ros2_alive``), so they are not held, but one that reaches a
-# drone sooner (a directed DATA(p), a start-up announcement), and that by less than 0.25 s.
+# nodes again at every local node of every drone, 80 re-matches a second (review 18). A
+# change within the interval is held, the latest word acted on at its end: late, never lost
+# (a restart count is compared with the last word acted on, so the lives in between are not
+# missed). An honest relay's changes reach the air with the engine's pulled-in multicast, at
+# most one per retransmit_min_gap_s (0.5 s) (swarmd.discovery.engine ``set_ros2_alive``), so
+# they are not held, but one that reaches a drone sooner (a directed DATA(p), a start-up
+# announcement), and that by less than 0.25 s.
+#
+# Over time, the lives a word brings (a node back, or restarted under the same GUIDs: each
+# a re-match at every local node) are damped as discovery damps the drone's own restarts
+# and returns (swarmd.lives, RFC 2439; review 18b): one penalty per drone, +1 per word
+# acted on that brings a life, halved every minute; above the limit such a word is held
+# until the penalty has decayed back to it, at most FLAP_HOLD_MAX_S (24.9 s), the latest
+# word winning. Spaced alone, a captured member's churn cost 240 re-matches a minute; now
+# the first 4 and one per 24.9 s after. A word that only stops nodes is no life (as a
+# dispose is none in discovery): it waits for the interval only, so a stopped node's
+# writers stop at once; a stop can only follow a life acted on.
 LIVENESS_MIN_INTERVAL_S: Final = 0.25
 
 
@@ -78,60 +88,64 @@ class RemoteDrones(Announcer):
         that stopped is disposed (DATA(p[UD])) at every local node, one that is back is
         announced again at once; both only while swarmd has the drone. Bits past the
         drone's participants are ignored, missing ones are "not alive". Acted on at most
-        once per ``LIVENESS_MIN_INTERVAL_S`` per drone: a change within it is held, the
-        latest word acted on at its end (``release_liveness``)."""
+        once per ``LIVENESS_MIN_INTERVAL_S`` per drone, and a word that brings a life not
+        while the drone's penalty holds it (``LifeDamping``): held, the latest word acted
+        on when due (``release_liveness``)."""
         remote = self._remote_by_drone.get(drone)
         if not remote:
             self.counters["liveness_unknown_drone"] += 1
             return
-        acted = self._liveness_acted.get(drone)
-        if acted is not None and now < acted + LIVENESS_MIN_INTERVAL_S:
+        if now < self._liveness_ready_at(drone, remote, alive):
             self._liveness_held[drone] = alive  # the latest one wins
-            self.counters["remote_liveness_held"] += 1
+            spaced = now < self._liveness_acted.get(drone, -LIVENESS_MIN_INTERVAL_S) + (
+                LIVENESS_MIN_INTERVAL_S
+            )
+            self.counters["remote_liveness_held" if spaced else "remote_liveness_damped"] += 1
             return
         self._liveness_held.pop(drone, None)
-        if self._act_on_liveness(drone, remote, alive, now):
-            self._liveness_acted[drone] = now
+        self._act_on_liveness(drone, remote, alive, now)
 
     def liveness_due(self) -> float | None:
-        """When the earliest held liveness word is acted on (``LIVENESS_MIN_INTERVAL_S``)."""
+        """When the earliest held liveness word is acted on."""
         return min(
-            (self._liveness_acted[d] + LIVENESS_MIN_INTERVAL_S for d in self._liveness_held),
+            (
+                self._liveness_ready_at(d, self._remote_by_drone[d], word)
+                for d, word in self._liveness_held.items()
+            ),
             default=None,
         )
 
     def release_liveness(self, now: float) -> None:
-        """Act on the held words whose drone's interval is over."""
+        """Act on the held words that are due."""
         due = [
             d
-            for d in self._liveness_held
-            if now >= self._liveness_acted[d] + LIVENESS_MIN_INTERVAL_S
+            for d, word in self._liveness_held.items()
+            if now >= self._liveness_ready_at(d, self._remote_by_drone[d], word)
         ]
         for drone in due:
             alive = self._liveness_held.pop(drone)
-            remote = self._remote_by_drone[drone]
-            if self._act_on_liveness(drone, remote, alive, now):
-                self._liveness_acted[drone] = now
+            self._act_on_liveness(drone, self._remote_by_drone[drone], alive, now)
 
-    def _act_on_liveness(
-        self, drone: str, remote: list[Ros2Participant], alive: bytes, now: float
-    ) -> bool:
-        """``peer_liveness``'s work; True when a node of ``drone`` was disposed, announced
-        or reported (the interval starts)."""
-        acted = False
-        new = tuple(
-            i // 8 < len(alive) and bool(alive[i // 8] >> (i % 8) & 1) for i in range(len(remote))
-        )
-        # the restart counts after the bitmap (a relay that sends none: no restart is seen)
-        counted = len(alive) >= (len(remote) + 7) // 8 + len(remote)
-        restarts = tuple(alive[(len(remote) + 7) // 8 :][: len(remote)]) if counted else None
+    def _liveness_ready_at(self, drone: str, remote: list[Ros2Participant], alive: bytes) -> float:
+        """When ``drone``'s word ``alive`` may be acted on: the interval after the last word
+        acted on, and, if it brings a life, the end of the drone's hold."""
+        acted = self._liveness_acted.get(drone)
+        ready = -math.inf if acted is None else acted + LIVENESS_MIN_INTERVAL_S
+        if any(up for _i, up, _restarted in self._liveness_changes(drone, remote, alive)):
+            ready = max(ready, self._liveness_lives.reuse_at(self._drone_index[drone]))
+        return ready
+
+    def _liveness_changes(
+        self, drone: str, remote: list[Ros2Participant], alive: bytes
+    ) -> list[tuple[int, bool, bool]]:
+        """(participant index, up, restarted) for each of ``drone``'s participants that the
+        word ``alive`` moves from the last word acted on: stopped, back (up), or a new life
+        of a node that was and is alive (up and restarted: its proxies must go)."""
+        new, restarts = _decode_word(alive, len(remote))
         old = self._remote_alive.get(drone, (True,) * len(remote))
         old_restarts = self._remote_restarts.get(drone)
-        self._remote_alive[drone] = new
-        self._remote_restarts[drone] = restarts
-        present = self._present.get(drone)
-        for i, (p, was, up) in enumerate(zip(remote, old, new, strict=True)):
-            # a new life of a node that was and is alive: its proxies must go (DATA(p[UD]))
+        changes = []
+        for i, (was, up) in enumerate(zip(old, new, strict=True)):
             restarted = (
                 was
                 and up
@@ -139,9 +153,25 @@ class RemoteDrones(Announcer):
                 and old_restarts is not None
                 and restarts[i] != old_restarts[i]
             )
-            if was == up and not restarted:
-                continue
-            acted = True
+            if was != up or restarted:
+                changes.append((i, up, restarted))
+        return changes
+
+    def _act_on_liveness(
+        self, drone: str, remote: list[Ros2Participant], alive: bytes, now: float
+    ) -> None:
+        """``peer_liveness``'s work. A word that moved a node starts the interval; one that
+        brought a life adds to the drone's penalty."""
+        changes = self._liveness_changes(drone, remote, alive)
+        self._remote_alive[drone], self._remote_restarts[drone] = _decode_word(alive, len(remote))
+        if not changes:
+            return
+        self._liveness_acted[drone] = now
+        if any(up for _i, up, _restarted in changes):
+            self._liveness_lives.honoured(self._drone_index[drone], now)
+        present = self._present.get(drone)
+        for i, up, restarted in changes:
+            p = remote[i]
             self._events.append(RemoteNodeLiveness(drone, p.node.name, up, restarted))
             if restarted:
                 self.counters["remote_restarts"] += 1
@@ -156,4 +186,13 @@ class RemoteDrones(Announcer):
                     self.graph.publish(GuidPrefix(p.guid_prefix), now)
             else:
                 self._send_dispose(p)
-        return acted
+
+
+def _decode_word(alive: bytes, count: int) -> tuple[tuple[bool, ...], tuple[int, ...] | None]:
+    """A liveness word (PID 0x8A06) over ``count`` participants: the alive bits (LSB of
+    byte 0 first; missing ones are not alive), then the restart counts (None when the
+    word has none: a relay that sends only the bitmap)."""
+    bits = tuple(i // 8 < len(alive) and bool(alive[i // 8] >> (i % 8) & 1) for i in range(count))
+    counted = len(alive) >= (count + 7) // 8 + count
+    restarts = tuple(alive[(count + 7) // 8 :][:count]) if counted else None
+    return bits, restarts

@@ -24,8 +24,10 @@ class LocalNode:
     alive: bool = True
     alive_until: float | None = None
     restarts: int = 0  # lives after the first this relay saw, modulo 256 (PID 0x8A06)
-    # (kind, uid, entity id): nodes without ids all say 65535, their entity ids differ
-    undeclared: set[tuple[str, int, str]] | None = None
+    # (kind, uid, entity id) of its latest DATA(p) (relay_local ``_check_endpoints``): nodes
+    # without ids all say 65535, their entity ids differ; and how many more it listed
+    undeclared: tuple[tuple[str, int, str], ...] = ()
+    undeclared_not_kept: int = 0
     # its latest DATA(p) datagram as it sent it (to everyone, its own header): passed on to
     # a sibling node of this drone that starts, with the relay's start answers
     last_spdp: bytes | None = None
