@@ -186,3 +186,52 @@ def test_the_commanders_own_drone_marks_its_row_too() -> None:
         True,
     )
     assert swarm.bench.sim.armed
+
+
+def _failed_then(kind: str) -> tuple[VehicleSwarm, dict[str, Any], dict[str, Any]]:
+    """A take-off to m01 fails (every NAV_TAKEOFF and DISARM lost), and while its DISARM
+    repeats run the commander sends ``kind`` to m01: the take-off's and its snapshots once
+    both settled."""
+    swarm = VehicleSwarm(disarms_lost=True)
+    swarm.run(3.0)
+    request: dict[str, Any] = {"alt_m": 5.0, "valid_for_s": 10.0}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_takeoff(request, now))
+    cid = int(sent["command_id"])
+    for _ in range(400):  # 20 s of virtual time at most
+        swarm.run(0.05)
+        snap = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)
+        if snap["nodes"]["m01"]["state"] == "failed":
+            break
+    assert snap["nodes"]["m01"]["state"] == "failed", snap
+    seq = swarm.bench.core.last_takeoff
+    assert seq is not None and seq.disarming  # the repeats run: the new request stops them
+    second = {"kind": kind, "only": ["m01"]}
+    then = swarm.call("lead", lambda now: swarm.lead.request_command(second, now))
+    return swarm, swarm.run_until_done(cid), swarm.run_until_done(int(then["command_id"]))
+
+
+def test_a_hold_that_stops_the_disarm_repeats_still_leaves_the_operator_told() -> None:
+    """Review 18: a request that reaches the vehicle while a failed take-off repeats its
+    DISARM stops the repeats (vehicle.py: any request runs). A HOLD does not disarm, so the
+    vehicle stays armed on the ground, and the DISARM was never confirmed: the take-off's row
+    must say so. [main: the repeats counted as "stopped", no amendment, no mark, while the
+    vehicle sat armed]"""
+    swarm, takeoff, hold = _failed_then("hold")
+    assert swarm.bench.sim.armed  # honest: still armed after the HOLD
+    node = takeoff["nodes"]["m01"]
+    assert (node["state"], node["reason"]) == ("failed", "takeoff_no_ack")
+    assert node["disarm_unconfirmed"] is True
+    assert hold["nodes"]["m01"]["state"] == "completed"
+    counters = swarm.cores["m01"].executor_status()["counters"]
+    assert counters.get("takeoff_disarm_unconfirmed") == 1
+    assert swarm.bench.core.disarm_unconfirmed == 1
+
+
+def test_an_abort_that_stops_the_disarm_repeats_owns_the_disarm() -> None:
+    """The control: an ABORT stops the repeats and disarms the vehicle itself (its own row
+    says how); the take-off's row gets no mark (nothing is left unconfirmed)."""
+    swarm, takeoff, abort = _failed_then("abort")
+    node = takeoff["nodes"]["m01"]
+    assert (node["state"], node["disarm_unconfirmed"]) == ("failed", False)
+    assert abort["nodes"]["m01"]["state"] in ("completed", "failed")
+    assert "takeoff_disarm_unconfirmed" not in swarm.cores["m01"].executor_status()["counters"]
