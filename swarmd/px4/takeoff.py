@@ -93,7 +93,9 @@ once (its ground-only repeats); after, PX4 may have taken the first copy and be 
 so the state is read for one ack timeout first, sending nothing, exactly as ``held_up``
 does. Answers and state that arrive after ``not_after`` are still read: they are about a
 frame that left in time. Each frame carries ``not_after`` (``VehicleCommand``) so that a
-backend that repairs frames by itself (XRCE's reliable stream) repairs none past it.
+backend that repairs frames by itself (XRCE's reliable stream) repairs none past it. A
+frame leaves in the step that checked it: ``observe`` empties the sender once the state is
+judged (a NAV_TAKEOFF an armed HEARTBEAT released waited for the next input, review 18).
 
 Phases (all transitions are in ``_TRANSITIONS``)::
 
@@ -391,6 +393,11 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
         self._drain(now)
         if not self._finished():
             self._check_state(now)
+            # what the state just decided leaves now: a NAV_TAKEOFF after an ARM the state
+            # confirmed, checked against ``not_after`` at this ``now``. Left in the sender, it
+            # went out at the next input that drained it, unchecked: after the validity end
+            # on a quiet link, just ahead of the DISARM of the failure it caused (review 18)
+            self._drain(now)
 
     def handle_timer(self, now: float) -> None:
         """Call at (or after) ``get_timer()``; early calls are harmless."""
