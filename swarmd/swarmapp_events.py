@@ -100,13 +100,16 @@ class CoreEvents(StateSaves):
                     reason=RESTARTED_RUNNING,
                 )
             case OutcomeReported():
-                self.log.info(
+                # a failed take-off's amendment is a warning: the vehicle may still be armed
+                # (docs/operations.md, "What swarmctl tells you about a command")
+                (self.log.warning if event.disarm_unconfirmed else self.log.info)(
                     "command_outcome",
                     command_id=event.command_id,
                     kind=event.kind,
                     result=event.result.name,
                     reason=event.reason,
                     saved=event.saved,
+                    disarm_unconfirmed=event.disarm_unconfirmed,
                 )
             case OutcomesReReported():
                 self.log.info(
@@ -115,7 +118,7 @@ class CoreEvents(StateSaves):
                     command_ids=list(event.command_ids),
                 )
             case OutcomeRecorded():
-                self.log.info(
+                (self.log.warning if event.disarm_unconfirmed else self.log.info)(
                     "command_outcome_received",
                     member=event.member,
                     command_id=event.command_id,
@@ -123,6 +126,7 @@ class CoreEvents(StateSaves):
                     reason=event.reason,
                     known=event.known,
                     saved=event.saved,
+                    disarm_unconfirmed=event.disarm_unconfirmed,
                 )
             case PeerTrafficVerified(node=node):
                 if self.on_peer_traffic is not None:

@@ -26,7 +26,7 @@ from swarmd.px4.bridge import Px4Bridge, Px4Config
 from swarmd.px4.constants import MavCmd
 from swarmd.px4.messages import Observation, VehicleCommand
 from swarmd.px4.vehicle import TaskFinished, VehicleRequest
-from swarmd.swarm.events import SwarmEvent
+from swarmd.swarm.events import OutcomeRecorded, OutcomeReported, SwarmEvent
 from tests.test_px4_vehicle import Bench
 from tests.test_swarm_core import Swarm
 
@@ -186,3 +186,127 @@ def test_the_commanders_own_drone_marks_its_row_too() -> None:
         True,
     )
     assert swarm.bench.sim.armed
+
+
+def _failed_then(kind: str) -> tuple[VehicleSwarm, dict[str, Any], dict[str, Any]]:
+    """A take-off to m01 fails (every NAV_TAKEOFF and DISARM lost), and while its DISARM
+    repeats run the commander sends ``kind`` to m01: the take-off's and its snapshots once
+    both settled."""
+    swarm = VehicleSwarm(disarms_lost=True)
+    swarm.run(3.0)
+    request: dict[str, Any] = {"alt_m": 5.0, "valid_for_s": 10.0}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_takeoff(request, now))
+    cid = int(sent["command_id"])
+    for _ in range(400):  # 20 s of virtual time at most
+        swarm.run(0.05)
+        snap = swarm.lead.request_outcomes({"command_id": cid}, swarm.net.now)
+        if snap["nodes"]["m01"]["state"] == "failed":
+            break
+    assert snap["nodes"]["m01"]["state"] == "failed", snap
+    seq = swarm.bench.core.last_takeoff
+    assert seq is not None and seq.disarming  # the repeats run: the new request stops them
+    second = {"kind": kind, "only": ["m01"]}
+    then = swarm.call("lead", lambda now: swarm.lead.request_command(second, now))
+    return swarm, swarm.run_until_done(cid), swarm.run_until_done(int(then["command_id"]))
+
+
+def test_a_hold_that_stops_the_disarm_repeats_still_leaves_the_operator_told() -> None:
+    """Review 18: a request that reaches the vehicle while a failed take-off repeats its
+    DISARM stops the repeats (vehicle.py: any request runs). A HOLD does not disarm, so the
+    vehicle stays armed on the ground, and the DISARM was never confirmed: the take-off's row
+    must say so. [main: the repeats counted as "stopped", no amendment, no mark, while the
+    vehicle sat armed]"""
+    swarm, takeoff, hold = _failed_then("hold")
+    assert swarm.bench.sim.armed  # honest: still armed after the HOLD
+    node = takeoff["nodes"]["m01"]
+    assert (node["state"], node["reason"]) == ("failed", "takeoff_no_ack")
+    assert node["disarm_unconfirmed"] is True
+    assert hold["nodes"]["m01"]["state"] == "completed"
+    counters = swarm.cores["m01"].executor_status()["counters"]
+    assert counters.get("takeoff_disarm_unconfirmed") == 1
+    assert swarm.bench.core.disarm_unconfirmed == 1
+
+
+def test_an_abort_that_stops_the_disarm_repeats_owns_the_disarm() -> None:
+    """The control: an ABORT stops the repeats and disarms the vehicle itself (its own row
+    says how); the take-off's row gets no mark (nothing is left unconfirmed)."""
+    swarm, takeoff, abort = _failed_then("abort")
+    node = takeoff["nodes"]["m01"]
+    assert (node["state"], node["disarm_unconfirmed"]) == ("failed", False)
+    assert abort["nodes"]["m01"]["state"] in ("completed", "failed")
+    assert "takeoff_disarm_unconfirmed" not in swarm.cores["m01"].executor_status()["counters"]
+
+
+def test_the_amendment_is_in_both_journals_not_a_copy_of_the_failure() -> None:
+    """Review 18: the amendment's events, which the daemon logs (``command_outcome`` on the
+    drone, ``command_outcome_received`` on the commander, warnings when flagged), say what
+    it is. The journal is what is left once ``swarmctl takeoff`` exited or the commander
+    restarted. [main: both lines repeated the failure's fields word for word]"""
+    swarm, cid, _ = _failed_takeoff(disarms_lost=True)
+
+    def flagged(events: list[SwarmEvent], kind: type) -> list[bool]:
+        return [
+            bool(getattr(e, "disarm_unconfirmed", False))
+            for e in events
+            if isinstance(e, OutcomeReported | OutcomeRecorded)
+            and type(e) is kind
+            and e.command_id == cid
+            and e.result.name == "FAILED"
+        ]
+
+    assert flagged(swarm.events["m01"], OutcomeReported) == [False, True]
+    assert flagged(swarm.events["lead"], OutcomeRecorded) == [False, True]
+
+
+def test_the_commanders_own_drone_logs_its_amendment_too() -> None:
+    """The commander's own drone records to its tracker, not the wire: it logs the
+    amendment as its own ``command_outcome`` all the same. [main: nothing logged]"""
+    swarm = VehicleSwarm(disarms_lost=True, node="lead")
+    swarm.run(3.0)
+    request: dict[str, Any] = {"kind": "takeoff", "alt_m": 5.0, "only": ["lead"]}
+    sent = swarm.call("lead", lambda now: swarm.lead.request_command(request, now))
+    cid = int(sent["command_id"])
+    swarm.run_until_done(cid)
+    told = [
+        bool(getattr(e, "disarm_unconfirmed", False))
+        for e in swarm.events["lead"]
+        if isinstance(e, OutcomeReported) and e.command_id == cid and e.result.name == "FAILED"
+    ]
+    assert told == [False, True]
+
+
+class _Log:
+    """The daemon's logger as ``CoreEvents._on_event`` calls it: (level, event, fields)."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str, dict[str, Any]]] = []
+
+    def __getattr__(self, level: str) -> Callable[..., None]:
+        return lambda event, **fields: self.lines.append((level, event, fields))
+
+
+def test_the_daemon_logs_the_amendment_as_a_warning() -> None:
+    """``SwarmApp``'s event handler: the flagged outcome is a warning with
+    ``disarm_unconfirmed: true`` on both ends; an unflagged one stays an info line."""
+    from types import SimpleNamespace
+
+    from swarmd.dataplane.types import CommandResult
+    from swarmd.swarmapp_events import CoreEvents
+
+    log = _Log()
+    app: Any = SimpleNamespace(log=log)
+    failed = CommandResult.FAILED
+    for armed in (False, True):
+        CoreEvents._on_event(  # noqa: SLF001 - the driver's callback, without a daemon
+            app, OutcomeReported(7, "TAKEOFF", failed, "takeoff_no_ack", disarm_unconfirmed=armed)
+        )
+        CoreEvents._on_event(  # noqa: SLF001
+            app,
+            OutcomeRecorded("m01", 7, failed, "takeoff_no_ack", True, disarm_unconfirmed=armed),
+        )
+    assert [(lvl, ev, f["disarm_unconfirmed"]) for lvl, ev, f in log.lines] == [
+        ("info", "command_outcome", False),
+        ("info", "command_outcome_received", False),
+        ("warning", "command_outcome", True),
+        ("warning", "command_outcome_received", True),
+    ]

@@ -27,7 +27,7 @@ from swarmd.px4.takeoff import (
     TakeoffPhase,
     TakeoffSequence,
 )
-from swarmd.px4.vehicle import TaskFinished, TaskKind
+from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished, TaskKind
 from tests.test_px4_takeoff import Scripted
 from tests.test_px4_vehicle import Bench
 from tests.test_xrce_late_command import Edge
@@ -149,7 +149,12 @@ def test_a_land_stops_the_repeats_and_the_failure_stands() -> None:
     assert [e.token for e in b.events if isinstance(e, TaskFinished)] == [1, 2]  # one each
     assert not any(_is_disarm(c) for c in b.sent[n:])  # never fights the LAND
     assert b.sent[n].command == MavCmd.NAV_LAND
-    assert b.core.disarm_unconfirmed == 0  # stopped by a newer request, not unconfirmed
+    # the LAND does not disarm: the DISARM stays unconfirmed, and the operator is told
+    # (review 18; an ABORT, which disarms itself, is not: test_cmd_disarm_unconfirmed.py)
+    assert b.core.disarm_unconfirmed == 1
+    (told,) = [e for e in b.events if isinstance(e, DisarmUnconfirmed)]
+    assert (told.token, told.reason) == (1, "takeoff_no_ack")
+    assert "superseded by LAND" in told.why
 
 
 def test_a_new_takeoff_stops_the_repeats_not_refused_busy() -> None:

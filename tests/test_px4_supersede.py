@@ -97,9 +97,11 @@ class Spy:
                 if hasattr(cls, "supersede"):
                     supersede = cls.supersede
 
-                    def superseded(task: Any, now: float, why: str, _s: Any = supersede) -> None:
+                    def superseded(
+                        task: Any, now: float, why: str, _s: Any = supersede, **kw: Any
+                    ) -> None:
                         spy.over.add(id(task))
-                        _s(task, now, why)
+                        _s(task, now, why, **kw)  # the take-off's ``disarms`` (review 18)
 
                     mp.setattr(cls, "supersede", superseded)
             yield self

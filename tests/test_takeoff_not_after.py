@@ -29,11 +29,18 @@ from swarmd_lab.px4.virtual import VirtualLink
 
 from swarmd.px4.constants import LandedState, MavCmd, MavResult
 from swarmd.px4.mavlink_codec import Message
-from swarmd.px4.messages import ExtendedSysState, Observation, VehicleCommand
+from swarmd.px4.messages import (
+    CommandAck,
+    ExtendedSysState,
+    Heartbeat,
+    Observation,
+    VehicleCommand,
+)
 from swarmd.px4.readiness import VehicleState
 from swarmd.px4.takeoff import TakeoffPhase, TakeoffSequence
 from swarmd.px4.vehicle import TaskFinished, TaskKind, VehicleCore, VehicleEvent, VehicleRequest
 from tests.test_px4_takeoff import Scripted
+from tests.test_px4_vehicle import Bench
 from tests.test_xrce_late_command import Edge
 
 EXPIRED_MID_START = "expired_mid_start"  # FailReason.EXPIRED_MID_START (a literal: main lacks it)
@@ -305,3 +312,79 @@ def test_xrce_the_reliable_stream_repairs_no_nav_takeoff_past_the_validity_end()
     done = edge.finished()
     assert done is not None and done.reason == EXPIRED_MID_START
     assert not edge.px4.vehicle.armed and edge.px4.vehicle.landed == LandedState.ON_GROUND
+
+
+# ---- a NAV_TAKEOFF the state confirmed the ARM for leaves then, not at the next input --------
+
+
+class _SilentAfterArmed:
+    """The link up from PX4: every COMMAND_ACK lost (the ARM is confirmed by state), and
+    nothing at all once the first armed HEARTBEAT is through (an outage, or a quiet link)."""
+
+    def __init__(self) -> None:
+        self.armed_at: float | None = None
+
+    def __call__(self, msg: object, direction: str) -> bool:
+        if direction != "up" or self.armed_at is not None:
+            return direction == "up"
+        if isinstance(msg, Heartbeat) and msg.armed:
+            self.armed_at = -1.0  # the last message through; delivered at once (1 ms)
+            return False
+        return isinstance(msg, CommandAck)
+
+
+def _state_confirmed(valid_s: float | None) -> tuple[Bench, list[tuple[float, VehicleCommand]]]:
+    """A take-off whose ARM only the state confirms, the link up silent right after; every
+    command with the time it left the vehicle core (``datagrams_to_send``)."""
+    b = Bench(latency_s=0.001)
+    b.run(3.0)
+    b.drop = _SilentAfterArmed()
+    sent: list[tuple[float, VehicleCommand]] = []
+    pump = b._pump_core  # noqa: SLF001 - the bench's one exit for the core's frames
+
+    def timed() -> None:
+        before = len(b.sent)
+        pump()
+        sent.extend((b.now, c) for c in b.sent[before:])
+
+    b._pump_core = timed  # type: ignore[method-assign]  # noqa: SLF001
+    not_after = None if valid_s is None else b.now + valid_s
+    b.core.request(VehicleRequest(1, TaskKind.TAKEOFF, 4.0, ("lead", 1), not_after), b.now)
+    timed()
+    b.run(10.0)
+    return b, sent
+
+
+def _armed_confirmed_at(b: Bench) -> float:
+    """When the sequence took the armed HEARTBEAT as the ARM's confirmation."""
+    seq = b.core.last_takeoff
+    assert seq is not None and seq.phase is not TakeoffPhase.ARMING
+    heard = b.core.state.heartbeat_at
+    assert heard is not None
+    return heard
+
+
+def test_a_nav_takeoff_after_an_arm_confirmed_by_state_leaves_at_once() -> None:
+    """Review 18: the armed HEARTBEAT confirms ARM (its ACK lost) in time, and the link goes
+    quiet. The sequence decided NAV_TAKEOFF then, but left it in its command sender until
+    the next input that drained it, so it first went out with the next timer, after the
+    validity end, just before the DISARM of the ``expired_mid_start`` it caused. [main:
+    NAV_TAKEOFF left 1 s after the ARM was confirmed and 0.95 s after ``not_after``]"""
+    probe, _ = _state_confirmed(None)  # when does the armed HEARTBEAT arrive? (seeded sim)
+    confirmed = _armed_confirmed_at(probe)
+    b, sent = _state_confirmed(confirmed + 0.05 - 3.0)  # valid until 50 ms after it
+    assert _armed_confirmed_at(b) == confirmed
+    not_after = confirmed + 0.05
+    navs = [t for t, c in sent if c.command == MavCmd.NAV_TAKEOFF]
+    assert navs and navs[0] == confirmed  # decided and sent in the same step
+    assert [t for t, c in sent if _motion(c) and t >= not_after] == []
+
+
+def test_without_a_validity_the_first_nav_takeoff_is_not_held_back_either() -> None:
+    """The same take-off with no validity (a direct take-off): its first NAV_TAKEOFF leaves
+    when the state confirms the ARM. [main: it left an ack timeout later, with its own
+    first retransmission]"""
+    b, sent = _state_confirmed(None)
+    confirmed = _armed_confirmed_at(b)
+    navs = [(t, c.confirmation) for t, c in sent if c.command == MavCmd.NAV_TAKEOFF]
+    assert navs[0] == (confirmed, 0)

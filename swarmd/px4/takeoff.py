@@ -34,9 +34,10 @@ lifted off since; before NAV_TAKEOFF only our ARM went out, in a mode that stays
 ground, so the last ON_GROUND stands). Their end is a ``DisarmRepeatsEnded``
 event; ``confirmed`` False (``disarm_unconfirmed``) means the vehicle may still be armed.
 A supersede or cancel ends them at once, nothing more sent (the newer request owns the
-vehicle: ``VehicleCore`` lets any request supersede these repeats). ``cancel`` itself
-sends its DISARM once, unrepeated: the caller (often the closing driver) drives nothing
-more.
+vehicle: ``VehicleCore`` lets any request supersede these repeats); a supersede by a request
+that does not disarm the vehicle itself (all but an ABORT) leaves ``disarm_unconfirmed``.
+``cancel`` itself sends its DISARM once, unrepeated: the caller (often the closing driver)
+drives nothing more.
 
 Altitude (``alt_m``, metres above the ground): NAV_TAKEOFF param7 is **AMSL** (navigator),
 so param7 = ground reference + alt_m. The ground reference (``ground_reference``) is
@@ -92,7 +93,9 @@ once (its ground-only repeats); after, PX4 may have taken the first copy and be 
 so the state is read for one ack timeout first, sending nothing, exactly as ``held_up``
 does. Answers and state that arrive after ``not_after`` are still read: they are about a
 frame that left in time. Each frame carries ``not_after`` (``VehicleCommand``) so that a
-backend that repairs frames by itself (XRCE's reliable stream) repairs none past it.
+backend that repairs frames by itself (XRCE's reliable stream) repairs none past it. A
+frame leaves in the step that checked it: ``observe`` empties the sender once the state is
+judged (a NAV_TAKEOFF an armed HEARTBEAT released waited for the next input, review 18).
 
 Phases (all transitions are in ``_TRANSITIONS``)::
 
@@ -390,6 +393,11 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
         self._drain(now)
         if not self._finished():
             self._check_state(now)
+            # what the state just decided leaves now: a NAV_TAKEOFF after an ARM the state
+            # confirmed, checked against ``not_after`` at this ``now``. Left in the sender, it
+            # went out at the next input that drained it, unchecked: after the validity end
+            # on a quiet link, just ahead of the DISARM of the failure it caused (review 18)
+            self._drain(now)
 
     def handle_timer(self, now: float) -> None:
         """Call at (or after) ``get_timer()``; early calls are harmless."""
@@ -462,12 +470,16 @@ class TakeoffSequence(SenderTask[TakeoffOwnEvent]):
         elif not self._finished():
             self._fail(now, FailReason.CANCELLED, None, why, repeat=False)
 
-    def supersede(self, now: float, why: str) -> None:
+    def supersede(self, now: float, why: str, *, disarms: bool = False) -> None:
         """A later request took the vehicle over: end now and send nothing more, not even the
         DISARM a failure sends (PX4 obeys the last command: ours must be the later one's).
-        During the failure's DISARM repeats the failure stands, and the repeats stop."""
+        During the failure's DISARM repeats the failure stands, and the repeats stop, the
+        DISARM unconfirmed (``disarm_unconfirmed``: the operator is told) unless the later
+        request ``disarms`` the vehicle itself (an ABORT, whose own outcome says how that
+        went). A HOLD, LAND or TAKEOFF does not: a HOLD left the vehicle armed on the ground
+        with nothing said (review 18)."""
         if self.disarming:
-            self._end_disarm(now, f"stopped: {why}", confirmed=False, stopped=True)
+            self._end_disarm(now, f"stopped: {why}", confirmed=False, stopped=disarms)
         elif not self._finished():
             self._fail(now, FailReason.SUPERSEDED, None, why, disarm=False)
 

@@ -29,7 +29,8 @@ take-off's DISARM; its pending command is cancelled, so the answers it is still 
 paid from the shared ``OwedAcks`` and cannot settle the new task's command of the same
 number. Then the new task starts. A failed take-off still repeating its DISARM (``takeoff``,
 module docstring) has reported its failure already: any request, a TAKEOFF too, stops the
-repeats and runs, and no second ``TaskFinished`` follows. LAND, HOLD and DISARM are
+repeats and runs, and no second ``TaskFinished`` follows; a ``DisarmUnconfirmed`` does unless
+the request is an ABORT (it disarms the vehicle itself; review 18). LAND, HOLD and DISARM are
 ``actions.VehicleAction``s, all commands through the ``CommandSender``; each confirms only
 from state received an ack timeout after its send (``actions``, "fresh"). ABORT lands a
 vehicle in the air, disarms one armed on the ground, or one that may be armed without our
@@ -373,7 +374,13 @@ class VehicleCore:
         runner = task.runner
         if not (isinstance(runner, TakeoffSequence) and runner.disarming):
             task.superseded_by = by.kind  # else the take-off's failure stands as its outcome
-        runner.supersede(now, f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})")
+        why = f"superseded by {by.kind.upper()} (token {by.token:#x}{origin})"
+        # a failed take-off's DISARM repeats stopped by a request that does not disarm the
+        # vehicle itself leave it maybe armed: said (``DisarmUnconfirmed``); an ABORT does
+        if isinstance(runner, TakeoffSequence):
+            runner.supersede(now, why, disarms=by.kind is TaskKind.ABORT)
+        else:
+            runner.supersede(now, why)
         self._settle(now)
 
     def _action(

@@ -150,6 +150,9 @@ class OutcomeReported:
     # False: sent flagged ``OUTCOME_NOT_SAVED``, its record could not be written (a
     # decision's later outcome, or the same one again when the failure is learnt after it)
     saved: bool = True
+    # the failed take-off's amendment (``OUTCOME_DISARM_UNCONFIRMED``): its DISARM was never
+    # confirmed, the vehicle may still be armed; the log line says so, not only the row
+    disarm_unconfirmed: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -171,6 +174,9 @@ class OutcomeRecorded:
     reason: str
     known: bool
     saved: bool = True  # False: the member flagged it OUTCOME_NOT_SAVED
+    # flagged OUTCOME_DISARM_UNCONFIRMED: the vehicle may still be armed (the journal keeps
+    # it past the tracker, which a restart empties)
+    disarm_unconfirmed: bool = False
 
 
 @dataclass(frozen=True, slots=True)

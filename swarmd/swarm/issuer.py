@@ -190,6 +190,7 @@ class Issuer:
 
     def outcome_received(self, node: str, outcome: CommandOutcome, epoch: int, now: float) -> None:
         not_saved = bool(outcome.flags & OUTCOME_NOT_SAVED)  # the other bits: reserved
+        armed = bool(outcome.flags & OUTCOME_DISARM_UNCONFIRMED)
         known = self.tracker.record(
             outcome.command_id,
             node,
@@ -200,7 +201,7 @@ class Issuer:
             not_saved=not_saved,
             now_saved=bool(outcome.flags & OUTCOME_NOW_SAVED),
             save_gen=outcome.save_gen,
-            disarm_unconfirmed=bool(outcome.flags & OUTCOME_DISARM_UNCONFIRMED),
+            disarm_unconfirmed=armed,
         )
         if not known and not self._unknown_outcome_reports.take(now):
             # an answer to no command we sent: counted by the tracker, reported at a
@@ -209,7 +210,13 @@ class Issuer:
             return
         self._events.append(
             OutcomeRecorded(
-                node, outcome.command_id, outcome.result, outcome.reason, known, not not_saved
+                node,
+                outcome.command_id,
+                outcome.result,
+                outcome.reason,
+                known,
+                not not_saved,
+                disarm_unconfirmed=armed,
             )
         )
 

@@ -292,6 +292,8 @@ class Member:
         kind = CommandKind.TAKEOFF.name
         result = CommandResult.FAILED
         if commander == self.roles.me and command_id in self._own:
+            told = OutcomeReported(command_id, kind, result, reason, disarm_unconfirmed=True)
+            self._events.append(told)
             self._tracker.record(
                 command_id, commander, result, reason, now, disarm_unconfirmed=True
             )
@@ -485,7 +487,9 @@ class Member:
         """Send ``commander`` this outcome, with ``flags``; False without a plane. A
         decision whose record a write already failed to keep says so in each outcome."""
         saved = (commander, command_id) not in self.decisions.unsaved
-        self._events.append(OutcomeReported(command_id, kind, result, reason, saved))
+        armed = bool(flags & OUTCOME_DISARM_UNCONFIRMED)
+        told = OutcomeReported(command_id, kind, result, reason, saved, disarm_unconfirmed=armed)
+        self._events.append(told)
         if self.plane is None:
             return False
         gen = 0
