@@ -8,7 +8,8 @@ One small JSON file per node in the state directory (``dataplane.state_dir``, sy
      "outcomes": [["lead", 30064771073, 1, "IN_AIR"], ...],
      "decisions": [[6, "lead", 30064771073, "takeoff", "completed", "IN_AIR",
                     1795797000.25, 4.1], ...],
-     "told_unsaved": [["lead", 30064771073]]}
+     "told_unsaved": [["lead", 30064771073]],
+     "disarm_unconfirmed": [["lead", 30064771074]]}
 
 Why: the data plane's exactly-once argument (docs/dataplane.md, "Exactly once") needs an
 ``incarnation`` that grows with every restart (sequence numbers and command ids of a
@@ -30,7 +31,12 @@ kept decision at most) names the decisions whose commander was told their record
 saved, so a later life that holds their final answer says it is (docs/dataplane.md, "A
 clear lost to a restart"); at load an entry naming no kept decision, or of another
 shape, is left out alone. Same compatibility: a file without it loads with
-none, an unreadable list is dropped alone. A decision whose time cannot be right (NaN,
+none, an unreadable list is dropped alone. ``disarm_unconfirmed`` ([commander, id] pairs,
+at most ``MAX_DISARM_MARKS``, the newest) names the failed take-offs whose DISARM was never
+confirmed, so a later life's re-report of that FAILED still says the vehicle may be armed
+(docs/dataplane.md, "Outcomes across a restart"); at load an entry naming no kept FAILED
+outcome, or of another shape, is left out alone (a mark can only ride on a re-report of
+one), the same compatibility as ``told_unsaved``. A decision whose time cannot be right (NaN,
 infinite, negative, or later than the wall clock at load by more than
 ``DECISION_CLOCK_SLACK_S``; its answer likewise) is dropped alone and counted
 (``decisions_dropped``), the rest kept; its (commander, id), when well formed, stays in
@@ -85,7 +91,7 @@ from swarmd.bundle.statedir import DaemonUser, refuse_unwritable_dir
 from swarmd.dataplane.ledger import KeptOutcome
 from swarmd.dataplane.types import MAX_NAME_CHARS, MAX_REASON_CHARS, CommandResult
 from swarmd.dataplane.writer import MAX_INCARNATION
-from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
+from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, MAX_DISARM_MARKS, KeptDecision
 
 FILE_PATTERN: Final = "dataplane-{node}.json"
 # How far past this life's wall clock a kept decision's time (or its answer's) may lie and
@@ -114,6 +120,9 @@ class NodeState:
     # (commander, id) of kept decisions whose commander was told they were not saved: the
     # next life says they are (``swarm.commander.DecisionLog.told_unsaved``)
     told_unsaved: list[tuple[str, int]] = field(default_factory=list)
+    # (commander, id) of the kept FAILED take-offs whose DISARM was never confirmed: the
+    # next life re-reports them flagged so (``swarm.member.Member.rereport``)
+    disarm_unconfirmed: list[tuple[str, int]] = field(default_factory=list)
     recovered_from: str | None = None  # why an unreadable file was replaced, for the log
     temps_removed: int = 0  # left-over temporary files removed at boot, for the log
     # no file was there: a first boot, or a deleted file (the caller knows which: the boot
@@ -146,6 +155,9 @@ class NodeState:
             body["decisions"] = [list(kept) for kept in self.decisions[-MAX_DECIDED_COMMANDS:]]
         if self.told_unsaved:  # the same
             body["told_unsaved"] = [[c, i] for c, i in self.told_unsaved[-MAX_DECIDED_COMMANDS:]]
+        if self.disarm_unconfirmed:  # the same
+            marks = self.disarm_unconfirmed[-MAX_DISARM_MARKS:]
+            body["disarm_unconfirmed"] = [[c, i] for c, i in marks]
         return json.dumps(body, separators=(",", ":")).encode("utf-8")
 
     def write(self, data: bytes) -> None:
@@ -335,29 +347,34 @@ def load(
             known.add(key)
             state.executed.append(key)
             state.decision_ids_kept += 1
-    state.told_unsaved = _told_unsaved(body.get("told_unsaved"), state.decisions)
+    kept = {(d.commander, d.command_id) for d in state.decisions}
+    state.told_unsaved = _pairs(body.get("told_unsaved"), kept, MAX_DECIDED_COMMANDS)
+    failed = {(c, i) for c, i, result, _ in outcomes if result == CommandResult.FAILED.value}
+    state.disarm_unconfirmed = _pairs(body.get("disarm_unconfirmed"), failed, MAX_DISARM_MARKS)
     return state
 
 
-def _told_unsaved(raw: object, decisions: list[KeptDecision]) -> list[tuple[str, int]]:
-    """The file's ``told_unsaved``: each entry a [commander, id] naming a decision kept, at
-    most one per decision; anything else (not a list, an entry of another shape, a
-    decision not kept or dropped at load) is left out. Leaving one out only keeps a
-    commander's mark standing (the alarm side), so nothing here refuses the file."""
+def _pairs(raw: object, known: set[tuple[str, int]], cap: int) -> list[tuple[str, int]]:
+    """A list of [commander, id] pairs from the file (``told_unsaved``,
+    ``disarm_unconfirmed``): the last ``cap`` entries read, each kept once if it names one
+    of ``known`` (a kept decision; a kept FAILED outcome); anything else (not a list, an
+    entry of another shape, a pair not known or dropped at load) is left out. Nothing here
+    refuses the file: leaving out a ``told_unsaved`` entry keeps a commander's mark
+    standing (the alarm side); a ``disarm_unconfirmed`` entry left out names no outcome a
+    re-report could carry."""
     if not isinstance(raw, list):
         return []
-    kept = {(d.commander, d.command_id) for d in decisions}
-    told: list[tuple[str, int]] = []
-    for entry in raw[-MAX_DECIDED_COMMANDS:]:
+    pairs: list[tuple[str, int]] = []
+    for entry in raw[-cap:]:
         if not isinstance(entry, list) or len(entry) != 2:
             continue
         commander, command_id = entry
         if not isinstance(commander, str) or type(command_id) is not int:  # not a bool
             continue
         key = (commander, command_id)
-        if key in kept and key not in told:
-            told.append(key)
-    return told
+        if key in known and key not in pairs:
+            pairs.append(key)
+    return pairs
 
 
 def _time_problem(decision: KeptDecision, wall_now: float) -> str | None:

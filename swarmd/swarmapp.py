@@ -138,6 +138,7 @@ class SwarmApp(ControlRequests, CoreEvents, VehicleLink):
                 # the earlier lives' decisions, dated on this life's clock
                 earlier_decisions=[on_clock(d, -offset) for d in earlier],
                 told_unsaved=() if self.state is None else self.state.told_unsaved,
+                disarm_unconfirmed=() if self.state is None else self.state.disarm_unconfirmed,
             )
             self.driver = Driver(
                 self.core,

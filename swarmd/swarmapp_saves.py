@@ -110,6 +110,7 @@ class StateSaves(SwarmAppStatus):
         offset = self._wall_offset()
         self.state.decisions = [on_clock(d, offset) for d in event.decisions]
         self.state.told_unsaved = list(event.told_unsaved)
+        self.state.disarm_unconfirmed = list(event.disarm_unconfirmed)
         self._saves_asked += 1
         write = partial(self.state.write, self.state.encode())
         self.writer.submit("state", write, partial(self._saved, event.command))

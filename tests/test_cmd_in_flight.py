@@ -101,6 +101,7 @@ class Flight:
             settings=SwarmSettings(readiness_period_s=0.5, stale_after_s=3.0),
             earlier_decisions=kept.decisions,  # one clock here: nothing to convert
             told_unsaved=kept.told_unsaved,
+            disarm_unconfirmed=kept.disarm_unconfirmed,
         )
         swarm.cores[name] = core
         if start:

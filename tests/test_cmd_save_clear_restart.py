@@ -20,17 +20,74 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from swarmd.dataplane.types import CommandKind, CommandResult
-from swarmd.statefile import boot, load, state_path
+from swarmd.statefile import NodeState, boot, load
 from swarmd.swarm.commander import MAX_DECIDED_COMMANDS, KeptDecision
 from swarmd.swarm.events import PersistExecuted
 from tests.test_cmd_in_flight import Flight, _issue, _reboot
 from tests.test_cmd_save_failed import _issued_onto_a_full_disk, _row
 
 CLOCK = time.time()  # the wall clock the kept decisions' times are judged against
+
+
+# Entries of a state file's [commander, id] list (``told_unsaved``, ``disarm_unconfirmed``)
+# that no load keeps: another shape, an unhashable field, a bool id, a name that is not a
+# string, a pair naming nothing kept; and a kept pair (5) named twice, kept once.
+HOSTILE_PAIRS: Final[list[Any]] = [
+    "x",
+    ["lead"],
+    ["lead", 5, 1],
+    [["lead"], 5],
+    [{"a": 1}, 5],
+    ["lead", True],
+    [7, 5],
+    ["lead", 99],  # names nothing kept
+    ["lead", 5],
+    ["lead", 5],  # once
+]
+
+
+def saved_and_booted(
+    state: NodeState, key: str, pairs: list[tuple[str, int]]
+) -> tuple[Path, dict[str, Any]]:
+    """``state`` (node m01's) with its list ``key`` set to ``pairs``, saved, and read back by
+    the next ``boot``: the same pairs, nothing replaced. The file's path and body."""
+    setattr(state, key, pairs)
+    state.save()
+    again = boot(state.path.parent, "m01", wall_now=CLOCK)
+    assert getattr(again, key) == pairs and again.recovered_from is None
+    return again.path, json.loads(again.path.read_text())
+
+
+def load_hostile_pairs(
+    path: Path, body: dict[str, Any], key: str, cap: int, extra: Sequence[Any] = ()
+) -> NodeState:
+    """The state file ``body`` at ``path`` loaded with its list ``key`` holding the kept
+    pair ("lead", 6) first, then more entries than are read (``cap``: 6 is past the bound),
+    ``HOSTILE_PAIRS`` and ``extra``. Before that, each value of ``key`` that is not a list
+    loads as an empty list, the rest of the file standing."""
+    for raw in ('"x"', "{}", "7", "null", "[[1e400, 5]]"):
+        body[key] = json.loads(raw)
+        path.write_text(json.dumps(body))
+        assert getattr(load(path, CLOCK), key) == []
+    body[key] = [["lead", 6]] + [["lead", 99]] * (10 * cap) + HOSTILE_PAIRS + list(extra)
+    path.write_text(json.dumps(body))
+    return load(path, CLOCK)
+
+
+def load_without(path: Path, body: dict[str, Any], key: str) -> NodeState:
+    """The state file ``body`` at ``path`` without ``key`` (a file of a build before it)
+    loaded; saved again, it is written without the key (nothing to keep: as before)."""
+    del body[key]
+    path.write_text(json.dumps(body))
+    old = load(path, CLOCK)
+    old.save()
+    assert key not in json.loads(path.read_text())
+    return old
 
 
 def _clear_lost(seed: int) -> tuple[Flight, int]:
@@ -115,40 +172,13 @@ def test_the_state_file_keeps_what_was_told_unsaved_and_bounds_it_at_load(
     first.decisions = [
         KeptDecision(1, "lead", i, "hold", "completed", "", CLOCK - 10.0, 1.0) for i in (5, 6)
     ]
-    first.told_unsaved = [("lead", 6)]
-    first.save()
-    second = boot(tmp_path, "m01", wall_now=CLOCK)
-    assert second.told_unsaved == [("lead", 6)] and second.recovered_from is None
-    path = state_path(tmp_path, "m01")
-    body = json.loads(path.read_text())
-    hostile: list[Any] = [
-        "x",
-        ["lead"],
-        ["lead", 5, 1],
-        [["lead"], 5],
-        ["lead", True],
-        [7, 5],
-        ["lead", 99],  # no such decision kept
-        ["lead", 5],
-        ["lead", 5],  # once
-    ]
-    # ("lead", 6) first, then more entries than are read: it is past the bound
-    body["told_unsaved"] = [["lead", 6]] + [["lead", 99]] * (10 * MAX_DECIDED_COMMANDS) + hostile
-    path.write_text(json.dumps(body))
-    third = load(path, CLOCK)
+    path, body = saved_and_booted(first, "told_unsaved", [("lead", 6)])
+    third = load_hostile_pairs(path, body, "told_unsaved", MAX_DECIDED_COMMANDS)
     assert third.told_unsaved == [("lead", 5)]
     assert (third.executed, len(third.decisions), third.recovered_from) == (
         [("lead", 5), ("lead", 6)],
         2,
         None,
     )
-    for raw in ('"x"', "{}", "7", "null"):
-        body["told_unsaved"] = json.loads(raw)
-        path.write_text(json.dumps(body))
-        assert load(path, CLOCK).told_unsaved == []
-    del body["told_unsaved"]
-    path.write_text(json.dumps(body))
-    old = load(path, CLOCK)
+    old = load_without(path, body, "told_unsaved")
     assert (old.told_unsaved, len(old.decisions)) == ([], 2)
-    old.save()
-    assert "told_unsaved" not in json.loads(path.read_text())

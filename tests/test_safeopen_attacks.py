@@ -361,6 +361,8 @@ def test_an_oversized_epoch_or_state_file_is_not_read_whole(tmp_path: Path, whic
 def test_the_largest_state_file_is_far_under_its_cap(tmp_path: Path) -> None:
     """The cap must never refuse a file swarmd wrote: every list at its cap, every string
     at its longest, and each reason character one JSON writes as six (``\\u00e9``)."""
+    from swarmd.swarm.commander import MAX_DISARM_MARKS  # here: as safeopen below
+
     long_name = "n" * MAX_NAME_CHARS
     reason = "\u00e9" * (MAX_REASON_CHARS // 2)  # two UTF-8 octets each
     big = 2**63 - 1
@@ -372,6 +374,7 @@ def test_the_largest_state_file_is_far_under_its_cap(tmp_path: Path) -> None:
         decisions=[KeptDecision(2**31 - 1, long_name, big, long_name, "failed", reason, CLOCK, 1e9)]
         * MAX_DECIDED_COMMANDS,
         told_unsaved=[(long_name, big)] * MAX_DECIDED_COMMANDS,
+        disarm_unconfirmed=[(long_name, big)] * MAX_DISARM_MARKS,
     )
     state.save()
     from swarmd.bundle import safeopen  # here: the attack tests above also run on main

@@ -38,6 +38,12 @@ MAX_TRACKED_COMMANDS: Final = 64
 # same handful per flight; the cap stops a captured commander's flood of fresh ids from
 # growing the list (the data plane's executed set, the durable record, has its own cap).
 MAX_DECIDED_COMMANDS: Final = MAX_TRACKED_COMMANDS
+# Failed take-offs whose DISARM was never confirmed that a member keeps marked, in memory and
+# in its state file (``disarm_unconfirmed``), so a later life's re-report still says the
+# vehicle may be armed (docs/dataplane.md, "Outcomes across a restart"). A re-report carries
+# at most this many outcomes per commander (``member.MAX_REREPORTED``); the cap stops a run
+# of failures (a captured commander's take-offs on a lossy PX4 link) from growing the list.
+MAX_DISARM_MARKS: Final = MAX_TRACKED_COMMANDS
 LANDED_STATE_NAMES: Final = {v: k for k, v in LANDED_STATES.items()}
 
 # After a command's validity ends, how long the commander still waits for a target's first

@@ -143,10 +143,12 @@ class SwarmCore:
         settings: SwarmSettings | None = None,
         earlier_decisions: Iterable[KeptDecision] = (),
         told_unsaved: Iterable[tuple[str, int]] = (),
+        disarm_unconfirmed: Iterable[tuple[str, int]] = (),
     ) -> None:
         """``earlier_decisions``: what the member's earlier lives decided, from the state
         file, on this life's clock (``swarmctl outcomes``); ``told_unsaved``: which of them
-        their commanders were told were not saved (``Member``)."""
+        their commanders were told were not saved; ``disarm_unconfirmed``: the failed
+        take-offs whose DISARM an earlier life never saw confirmed (``Member``)."""
         self.roles = roles
         self.plane = plane
         self.has_vehicle = verdict is not None
@@ -176,6 +178,7 @@ class SwarmCore:
             counters=self.counters,
             earlier=earlier_decisions,
             told_unsaved=told_unsaved,
+            disarm_unconfirmed=disarm_unconfirmed,
         )
         self.decisions = self.member.decisions  # what this member decided (swarmctl outcomes)
         self.executor_counters = self.member.counters

@@ -28,13 +28,16 @@ class PersistExecuted:
     ``command``: the (commander, id) whose receipt or decision asked for this write, so the
     daemon can name it if the write fails (``SwarmCore.state_saved``). ``told_unsaved``:
     the decisions whose commander was told their record was not saved (a later life that
-    holds their final answer tells it they are: ``DecisionLog.told_unsaved``)."""
+    holds their final answer tells it they are: ``DecisionLog.told_unsaved``).
+    ``disarm_unconfirmed``: the failed take-offs whose DISARM was never confirmed (a later
+    life re-reports them flagged ``OUTCOME_DISARM_UNCONFIRMED``: ``Member.rereport``)."""
 
     executed: tuple[tuple[str, int], ...]
     outcomes: tuple[KeptOutcome, ...] = ()
     decisions: tuple[KeptDecision, ...] = ()
     command: tuple[str, int] | None = None
     told_unsaved: tuple[tuple[str, int], ...] = ()
+    disarm_unconfirmed: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

@@ -45,7 +45,9 @@ decisions were told unsaved (``DecisionLog.told_unsaved``): a clear that died wi
 life is sent by the next, in its re-report (``rereport``).
 After a restart the outcomes an earlier life persisted are re-reported, once, to each
 commander found within ``REREPORT_WINDOW_S`` of ``start`` (``rereport``; docs/dataplane.md,
-"Outcomes across a restart"); they only answer, nothing is executed.
+"Outcomes across a restart"); they only answer, nothing is executed. A failed take-off's
+amendment (its DISARM never confirmed) is kept and written with its outcome, so the
+re-report of that FAILED is flagged ``OUTCOME_DISARM_UNCONFIRMED`` again.
 
 Split out of ``core.py`` by concern; ``SwarmCore`` drives it. Sans-IO; no clock.
 """
@@ -79,6 +81,7 @@ from swarmd.dataplane.validity import (
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished, TaskKind, VehicleRequest
 from swarmd.swarm.commander import (
+    MAX_DISARM_MARKS,
     MAX_TRACKED_COMMANDS,
     CommandTracker,
     DecisionLog,
@@ -176,10 +179,13 @@ class Member:
         counters: dict[str, int],
         earlier: Iterable[KeptDecision] = (),
         told_unsaved: Iterable[tuple[str, int]] = (),
+        disarm_unconfirmed: Iterable[tuple[str, int]] = (),
     ) -> None:
         """``earlier``: what this node's earlier lives decided, from the state file
         (``received_at`` already on this life's clock); ``told_unsaved``: which of them
-        their commanders were told were not saved (``DecisionLog.told_unsaved``)."""
+        their commanders were told were not saved (``DecisionLog.told_unsaved``);
+        ``disarm_unconfirmed``: the failed take-offs whose DISARM an earlier life never saw
+        confirmed (the state file's, ``rereport`` flags them)."""
         self.roles = roles
         self.plane = plane
         self.has_vehicle = verdict is not None
@@ -203,6 +209,13 @@ class Member:
         # ``DisarmUnconfirmed`` amends that outcome (``disarm_unconfirmed``); bounded like
         # ``_seen`` (the repeats last 2 s, so only a flood of failures evicts one)
         self._failed_takeoffs: OrderedDict[int, tuple[str, int, str]] = OrderedDict()
+        # (commander, id) of the failed take-offs whose DISARM was never confirmed, this
+        # life's and the earlier lives' (the state file's): kept with the outcome, so a
+        # later life's re-report still says the vehicle may be armed; newest
+        # ``MAX_DISARM_MARKS``
+        self._disarm_marks: OrderedDict[tuple[str, int], None] = OrderedDict()
+        for key in disarm_unconfirmed:
+            self._keep_disarm_mark(key)
         # task tokens: this life's boot epoch in the high 32 bits, a counter in the low, so
         # a task of an earlier life never answers for one of this life's. The daemon's
         # vehicle core ends with its process (PX4 never sees a token), so only a vehicle
@@ -298,7 +311,19 @@ class Member:
                 command_id, commander, result, reason, now, disarm_unconfirmed=True
             )
             return
-        self._answer(commander, command_id, kind, result, reason, now, OUTCOME_DISARM_UNCONFIRMED)
+        if self._answer(
+            commander, command_id, kind, result, reason, now, OUTCOME_DISARM_UNCONFIRMED
+        ):
+            # kept with the outcome, written as the outcome is (a write after the answer,
+            # not ahead of anything): a later life re-reports the amendment too (``rereport``)
+            self._keep_disarm_mark((commander, command_id))
+            self._persist(commander, command_id)
+
+    def _keep_disarm_mark(self, key: tuple[str, int]) -> None:
+        self._disarm_marks[key] = None
+        self._disarm_marks.move_to_end(key)
+        while len(self._disarm_marks) > MAX_DISARM_MARKS:
+            self._disarm_marks.popitem(last=False)
 
     def status(self, now: float | None = None) -> dict[str, Any]:
         """``executor`` in ``swarmctl status --json``: how many tasks run, and which
@@ -510,6 +535,7 @@ class Member:
                 self.decisions.kept(),
                 (commander, command_id),
                 tuple(sorted(self.decisions.told_unsaved)),
+                tuple(self._disarm_marks),
             )
         )
 
@@ -599,6 +625,11 @@ class Member:
                 commander, command_id
             )
             flags, gen = (OUTCOME_NOW_SAVED, max(self._save_gen, 1)) if clear else (0, 0)
+            marked = (commander, command_id) in self._disarm_marks
+            if marked and result == CommandResult.FAILED.value:
+                # the earlier life's amendment: its DISARM was never confirmed, and the
+                # commander (restarted, or its amendment lost with that life) must hear it
+                flags |= OUTCOME_DISARM_UNCONFIRMED
             try:
                 self.plane.report_outcome(
                     command_id,
