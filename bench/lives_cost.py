@@ -27,6 +27,13 @@ samples a datagram, ``--rate`` datagrams a second for ``--seconds``. Printed: th
 relay acted on (each a dispose and an announcement of the talker at every local node) and
 the words held.
 
+A fourth, *an honest swarmd restart at a relay* (h-restartword18): the lead's engine and
+relay joined as the daemon joins them; drone-1's talker had restarted twice under its old
+swarmd (its count 2), then its swarmd restarts (a new epoch, its relay's word back to all
+alive, counts 0). Printed: the talker's disposes at the lead's local nodes for that restart
+(each one of a re-match), and how many of the talker's own lives in the new life, 0.5 s
+apart, are acted on at once before one is damped.
+
 Nothing asserted (``tests/test_discovery_epoch_churn.py`` and ``tests/test_discovery_lives.py``
 assert the bounds). It runs on any commit with ``swarmd_lab.testing``, before and after.
 """
@@ -48,12 +55,21 @@ from swarmd_lab.testing import (
     peer_datagram,
 )
 
+from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import bundle_ros2_participants
-from swarmd.discovery import DiscoveryEngine, PeerDiscovered, PeerLost, PeerRestarted
+from swarmd.discovery import (
+    DiscoveryEngine,
+    PeerDiscovered,
+    PeerLost,
+    PeerRestarted,
+    PeerRos2Liveness,
+)
 from swarmd.ros2.relay import Ros2Relay
 from swarmd.ros2.relay_events import RemoteNodeLiveness
+from swarmd.rtps.spdp import SpdpDisposed, decode_spdp
+from swarmd.rtps.types import GuidPrefix
 
 BUNDLE = make_bundle(3)
 SOURCE = (node_ipv4(1), 7412)  # uav1's metatraffic address
@@ -173,6 +189,51 @@ def ros2_word_churn(seconds: float, rate: int) -> tuple[int, dict[str, int]]:
     return lives, {k: relay.counters.get(k, 0) for k in held}
 
 
+def ros2_honest_restart() -> tuple[int, int]:
+    """An honest restart of drone-1's swarmd at the lead (the fourth part): the talker's
+    disposes for it, and the talker's next lives acted on at once (of 8, 0.5 s apart)."""
+    mission = Path(__file__).resolve().parent.parent / "firmware_bundle/missions/swarm3-ros2.yaml"
+    bundle = build_dev_bundle(parse_mission(mission.read_text())).bundle
+    participants = bundle_ros2_participants(bundle)
+    talker = GuidPrefix(next(p for p in participants if p.drone == "drone-1").guid_prefix)
+    engine = engine_for(bundle, 0, auth=auth_for(bundle, 0))
+    relay = Ros2Relay(participants, "lead", domain_id=0, lease_s=8.0)
+    source = ("10.42.0.11", 7412)
+    sn = 0
+
+    def hear(auth: SpdpAuth, word: bytes, now: float) -> int:
+        """drone-1's DATA(p) carrying ``word``, routed as swarmd.daemon_events routes it:
+        the talker's disposes the relay sent."""
+        nonlocal sn
+        sn += 1
+        datagram = peer_datagram(bundle, 1, sequence_number=sn, auth=auth, ros2_alive=word)
+        engine.receive_datagram(datagram, source, now)
+        while (e := engine.next_event()) is not None:
+            if isinstance(e, PeerDiscovered | PeerRestarted):
+                relay.peer_discovered(
+                    e.name, "10.42.0.11", now, restarted=isinstance(e, PeerRestarted)
+                )
+            elif isinstance(e, PeerRos2Liveness):
+                relay.peer_liveness(e.name, e.alive, now)
+        disposes = 0
+        for data, _dest in relay.datagrams_to_send():
+            disposes += sum(
+                isinstance(s, SpdpDisposed) and s.guid_prefix == talker
+                for s in decode_spdp(data)[1]
+            )
+        return disposes
+
+    hear(auth_for(bundle, 1, epoch=5), b"\x01\x02", 0.1)  # its old life's word: the base
+    life = auth_for(bundle, 1, epoch=6, now=10.0)  # its new life (a counter of its own)
+    disposes = hear(life, b"\x01\x00", 10.0)
+    at_once = 0
+    for n in range(1, 9):
+        if not hear(life, bytes((1, n)), 10.0 + 0.5 * n):
+            break
+        at_once += 1
+    return disposes, at_once
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.lives_cost", description=__doc__)
     parser.add_argument("--seconds", type=float, default=60.0, help="the churn (default 60)")
@@ -196,6 +257,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"  its ROS 2 liveness word, 4 new ones a datagram: lives acted on at a relay {lives}; "
         + ", ".join(f"{k} {v}" for k, v in holds.items())
+    )
+    disposes, at_once = ros2_honest_restart()
+    print(
+        "an honest swarmd restart at a relay, its talker counted 2 before: the talker "
+        f"disposed {disposes} times for it; its next lives acted on at once: {at_once}"
     )
     for label, dispose in (
         (f"a crash loop (RestartSec={RESTART_SEC_S:g}s)", False),
