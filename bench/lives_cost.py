@@ -66,8 +66,9 @@ from swarmd.discovery import (
     PeerRestarted,
     PeerRos2Liveness,
 )
+from swarmd.lives import FLAP_HOLD_MAX_S
 from swarmd.ros2.relay import Ros2Relay
-from swarmd.ros2.relay_events import RemoteNodeLiveness
+from swarmd.ros2.relay_events import RemoteNodeLiveness, RemoteParticipantsRelayed
 from swarmd.rtps.spdp import SpdpDisposed, decode_spdp
 from swarmd.rtps.types import GuidPrefix
 
@@ -189,49 +190,86 @@ def ros2_word_churn(seconds: float, rate: int) -> tuple[int, dict[str, int]]:
     return lives, {k: relay.counters.get(k, 0) for k in held}
 
 
+class _Lead:
+    """The lead's engine and ROS 2 relay joined as swarmd.daemon_events joins them, hearing
+    drone-1 (the fourth and fifth parts)."""
+
+    def __init__(self) -> None:
+        mission = Path(__file__).resolve().parent.parent / "firmware_bundle/missions"
+        self.bundle = build_dev_bundle(parse_mission((mission / "swarm3-ros2.yaml").read_text()))
+        participants = bundle_ros2_participants(self.bundle.bundle)
+        self.talker = GuidPrefix(next(p for p in participants if p.drone == "drone-1").guid_prefix)
+        self.engine = engine_for(self.bundle.bundle, 0, auth=auth_for(self.bundle.bundle, 0))
+        self.relay = Ros2Relay(participants, "lead", domain_id=0, lease_s=8.0)
+        self.sn = 0
+        self.restarts = 0  # the relay's re-matches for drone-1's restarts
+        self.word_lives = 0  # and for the lives its word brought
+
+    def auth(self, epoch: int, now: float) -> SpdpAuth:
+        return auth_for(self.bundle.bundle, 1, epoch=epoch, now=now)
+
+    def hear(self, auth: SpdpAuth, word: bytes, now: float) -> int:
+        """drone-1's DATA(p) carrying ``word``, its events routed to the relay in their
+        order: the talker's disposes the relay sent for it."""
+        self.sn += 1
+        datagram = peer_datagram(
+            self.bundle.bundle, 1, sequence_number=self.sn, auth=auth, ros2_alive=word
+        )
+        self.engine.receive_datagram(datagram, ("10.42.0.11", 7412), now)
+        while (e := self.engine.next_event()) is not None:
+            if isinstance(e, PeerDiscovered | PeerRestarted):
+                restarted = isinstance(e, PeerRestarted)
+                self.relay.peer_discovered(e.name, "10.42.0.11", now, restarted=restarted)
+            elif isinstance(e, PeerRos2Liveness):
+                self.relay.peer_liveness(e.name, e.alive, now)
+        return self.run_to(now)
+
+    def run_to(self, now: float) -> int:
+        """The relay's timers due by ``now``; the talker's disposes since the last call."""
+        while (due := self.relay.get_timer()) is not None and due <= now:
+            self.relay.handle_timer(due)
+        while (event := self.relay.next_event()) is not None:  # bounded queue: drain
+            self.restarts += isinstance(event, RemoteParticipantsRelayed) and event.restarted
+            self.word_lives += isinstance(event, RemoteNodeLiveness) and event.up
+        return sum(
+            isinstance(s, SpdpDisposed) and s.guid_prefix == self.talker
+            for data, _dest in self.relay.datagrams_to_send()
+            for s in decode_spdp(data)[1]
+        )
+
+
 def ros2_honest_restart() -> tuple[int, int]:
     """An honest restart of drone-1's swarmd at the lead (the fourth part): the talker's
     disposes for it, and the talker's next lives acted on at once (of 8, 0.5 s apart)."""
-    mission = Path(__file__).resolve().parent.parent / "firmware_bundle/missions/swarm3-ros2.yaml"
-    bundle = build_dev_bundle(parse_mission(mission.read_text())).bundle
-    participants = bundle_ros2_participants(bundle)
-    talker = GuidPrefix(next(p for p in participants if p.drone == "drone-1").guid_prefix)
-    engine = engine_for(bundle, 0, auth=auth_for(bundle, 0))
-    relay = Ros2Relay(participants, "lead", domain_id=0, lease_s=8.0)
-    source = ("10.42.0.11", 7412)
-    sn = 0
-
-    def hear(auth: SpdpAuth, word: bytes, now: float) -> int:
-        """drone-1's DATA(p) carrying ``word``, routed as swarmd.daemon_events routes it:
-        the talker's disposes the relay sent."""
-        nonlocal sn
-        sn += 1
-        datagram = peer_datagram(bundle, 1, sequence_number=sn, auth=auth, ros2_alive=word)
-        engine.receive_datagram(datagram, source, now)
-        while (e := engine.next_event()) is not None:
-            if isinstance(e, PeerDiscovered | PeerRestarted):
-                relay.peer_discovered(
-                    e.name, "10.42.0.11", now, restarted=isinstance(e, PeerRestarted)
-                )
-            elif isinstance(e, PeerRos2Liveness):
-                relay.peer_liveness(e.name, e.alive, now)
-        disposes = 0
-        for data, _dest in relay.datagrams_to_send():
-            disposes += sum(
-                isinstance(s, SpdpDisposed) and s.guid_prefix == talker
-                for s in decode_spdp(data)[1]
-            )
-        return disposes
-
-    hear(auth_for(bundle, 1, epoch=5), b"\x01\x02", 0.1)  # its old life's word: the base
-    life = auth_for(bundle, 1, epoch=6, now=10.0)  # its new life (a counter of its own)
-    disposes = hear(life, b"\x01\x00", 10.0)
+    lead = _Lead()
+    lead.hear(lead.auth(5, 0.0), b"\x01\x02", 0.1)  # its old life's word: the base
+    life = lead.auth(6, 10.0)  # its new life (a counter of its own)
+    disposes = lead.hear(life, b"\x01\x00", 10.0)
     at_once = 0
     for n in range(1, 9):
-        if not hear(life, bytes((1, n)), 10.0 + 0.5 * n):
+        if not lead.hear(life, bytes((1, n)), 10.0 + 0.5 * n):
             break
         at_once += 1
     return disposes, at_once
+
+
+def ros2_restarts_and_words(seconds: float, rate: int) -> tuple[int, int]:
+    """The fifth part: drone-1's captured key signs a new restart count in every DATA(p)
+    and a new epoch in every 6th (0.3 s apart: past discovery's spacing) for ``seconds``:
+    the re-matches of the talker the lead's relay made for its restarts and its words."""
+    lead = _Lead()
+    epoch = 1
+    auth = lead.auth(epoch, 0.0)
+    lead.hear(auth, b"\x01\x00", 0.0)
+    for k in range(1, int(seconds * rate)):
+        now = k / rate
+        lead.run_to(now)
+        if k % 6 == 0:
+            epoch += 1
+            auth = lead.auth(epoch, now)
+        lead.hear(auth, bytes((1, k & 0xFF)), now)
+    lead.run_to(seconds + FLAP_HOLD_MAX_S)
+    return lead.restarts, lead.word_lives
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -257,6 +295,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"  its ROS 2 liveness word, 4 new ones a datagram: lives acted on at a relay {lives}; "
         + ", ".join(f"{k} {v}" for k, v in holds.items())
+    )
+    restarts, word_lives = ros2_restarts_and_words(args.seconds, args.rate)
+    print(
+        "  its ROS 2 liveness word in every datagram and a new epoch every 0.3 s: re-matches "
+        f"at a relay for its restarts {restarts}, for its words {word_lives}"
     )
     disposes, at_once = ros2_honest_restart()
     print(
