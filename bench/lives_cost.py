@@ -27,6 +27,13 @@ samples a datagram, ``--rate`` datagrams a second for ``--seconds``. Printed: th
 relay acted on (each a dispose and an announcement of the talker at every local node) and
 the words held.
 
+A fourth, *an honest swarmd restart at a relay* (h-restartword18): the lead's engine and
+relay joined as the daemon joins them; drone-1's talker had restarted twice under its old
+swarmd (its count 2), then its swarmd restarts (a new epoch, its relay's word back to all
+alive, counts 0). Printed: the talker's disposes at the lead's local nodes for that restart
+(each one of a re-match), and how many of the talker's own lives in the new life, 0.5 s
+apart, are acted on at once before one is damped.
+
 Nothing asserted (``tests/test_discovery_epoch_churn.py`` and ``tests/test_discovery_lives.py``
 assert the bounds). It runs on any commit with ``swarmd_lab.testing``, before and after.
 """
@@ -48,12 +55,22 @@ from swarmd_lab.testing import (
     peer_datagram,
 )
 
+from swarmd.auth.spdp import SpdpAuth
 from swarmd.bundle.build import build_dev_bundle
 from swarmd.bundle.mission import parse_mission
 from swarmd.bundle.ros2 import bundle_ros2_participants
-from swarmd.discovery import DiscoveryEngine, PeerDiscovered, PeerLost, PeerRestarted
+from swarmd.discovery import (
+    DiscoveryEngine,
+    PeerDiscovered,
+    PeerLost,
+    PeerRestarted,
+    PeerRos2Liveness,
+)
+from swarmd.lives import FLAP_HOLD_MAX_S
 from swarmd.ros2.relay import Ros2Relay
-from swarmd.ros2.relay_events import RemoteNodeLiveness
+from swarmd.ros2.relay_events import RemoteNodeLiveness, RemoteParticipantsRelayed
+from swarmd.rtps.spdp import SpdpDisposed, decode_spdp
+from swarmd.rtps.types import GuidPrefix
 
 BUNDLE = make_bundle(3)
 SOURCE = (node_ipv4(1), 7412)  # uav1's metatraffic address
@@ -173,6 +190,88 @@ def ros2_word_churn(seconds: float, rate: int) -> tuple[int, dict[str, int]]:
     return lives, {k: relay.counters.get(k, 0) for k in held}
 
 
+class _Lead:
+    """The lead's engine and ROS 2 relay joined as swarmd.daemon_events joins them, hearing
+    drone-1 (the fourth and fifth parts)."""
+
+    def __init__(self) -> None:
+        mission = Path(__file__).resolve().parent.parent / "firmware_bundle/missions"
+        self.bundle = build_dev_bundle(parse_mission((mission / "swarm3-ros2.yaml").read_text()))
+        participants = bundle_ros2_participants(self.bundle.bundle)
+        self.talker = GuidPrefix(next(p for p in participants if p.drone == "drone-1").guid_prefix)
+        self.engine = engine_for(self.bundle.bundle, 0, auth=auth_for(self.bundle.bundle, 0))
+        self.relay = Ros2Relay(participants, "lead", domain_id=0, lease_s=8.0)
+        self.sn = 0
+        self.restarts = 0  # the relay's re-matches for drone-1's restarts
+        self.word_lives = 0  # and for the lives its word brought
+
+    def auth(self, epoch: int, now: float) -> SpdpAuth:
+        return auth_for(self.bundle.bundle, 1, epoch=epoch, now=now)
+
+    def hear(self, auth: SpdpAuth, word: bytes, now: float) -> int:
+        """drone-1's DATA(p) carrying ``word``, its events routed to the relay in their
+        order: the talker's disposes the relay sent for it."""
+        self.sn += 1
+        datagram = peer_datagram(
+            self.bundle.bundle, 1, sequence_number=self.sn, auth=auth, ros2_alive=word
+        )
+        self.engine.receive_datagram(datagram, ("10.42.0.11", 7412), now)
+        while (e := self.engine.next_event()) is not None:
+            if isinstance(e, PeerDiscovered | PeerRestarted):
+                restarted = isinstance(e, PeerRestarted)
+                self.relay.peer_discovered(e.name, "10.42.0.11", now, restarted=restarted)
+            elif isinstance(e, PeerRos2Liveness):
+                self.relay.peer_liveness(e.name, e.alive, now)
+        return self.run_to(now)
+
+    def run_to(self, now: float) -> int:
+        """The relay's timers due by ``now``; the talker's disposes since the last call."""
+        while (due := self.relay.get_timer()) is not None and due <= now:
+            self.relay.handle_timer(due)
+        while (event := self.relay.next_event()) is not None:  # bounded queue: drain
+            self.restarts += isinstance(event, RemoteParticipantsRelayed) and event.restarted
+            self.word_lives += isinstance(event, RemoteNodeLiveness) and event.up
+        return sum(
+            isinstance(s, SpdpDisposed) and s.guid_prefix == self.talker
+            for data, _dest in self.relay.datagrams_to_send()
+            for s in decode_spdp(data)[1]
+        )
+
+
+def ros2_honest_restart() -> tuple[int, int]:
+    """An honest restart of drone-1's swarmd at the lead (the fourth part): the talker's
+    disposes for it, and the talker's next lives acted on at once (of 8, 0.5 s apart)."""
+    lead = _Lead()
+    lead.hear(lead.auth(5, 0.0), b"\x01\x02", 0.1)  # its old life's word: the base
+    life = lead.auth(6, 10.0)  # its new life (a counter of its own)
+    disposes = lead.hear(life, b"\x01\x00", 10.0)
+    at_once = 0
+    for n in range(1, 9):
+        if not lead.hear(life, bytes((1, n)), 10.0 + 0.5 * n):
+            break
+        at_once += 1
+    return disposes, at_once
+
+
+def ros2_restarts_and_words(seconds: float, rate: int) -> tuple[int, int]:
+    """The fifth part: drone-1's captured key signs a new restart count in every DATA(p)
+    and a new epoch in every 6th (0.3 s apart: past discovery's spacing) for ``seconds``:
+    the re-matches of the talker the lead's relay made for its restarts and its words."""
+    lead = _Lead()
+    epoch = 1
+    auth = lead.auth(epoch, 0.0)
+    lead.hear(auth, b"\x01\x00", 0.0)
+    for k in range(1, int(seconds * rate)):
+        now = k / rate
+        lead.run_to(now)
+        if k % 6 == 0:
+            epoch += 1
+            auth = lead.auth(epoch, now)
+        lead.hear(auth, bytes((1, k & 0xFF)), now)
+    lead.run_to(seconds + FLAP_HOLD_MAX_S)
+    return lead.restarts, lead.word_lives
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.lives_cost", description=__doc__)
     parser.add_argument("--seconds", type=float, default=60.0, help="the churn (default 60)")
@@ -196,6 +295,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"  its ROS 2 liveness word, 4 new ones a datagram: lives acted on at a relay {lives}; "
         + ", ".join(f"{k} {v}" for k, v in holds.items())
+    )
+    restarts, word_lives = ros2_restarts_and_words(args.seconds, args.rate)
+    print(
+        "  its ROS 2 liveness word in every datagram and a new epoch every 0.3 s: re-matches "
+        f"at a relay for its restarts {restarts}, for its words {word_lives}"
+    )
+    disposes, at_once = ros2_honest_restart()
+    print(
+        "an honest swarmd restart at a relay, its talker counted 2 before: the talker "
+        f"disposed {disposes} times for it; its next lives acted on at once: {at_once}"
     )
     for label, dispose in (
         (f"a crash loop (RestartSec={RESTART_SEC_S:g}s)", False),

@@ -301,11 +301,16 @@ def test_a_peers_swarmd_restart_disposes_its_nodes_and_announces_them_again() ->
     relay.peer_discovered("drone-2", ADDRESS["drone-2"], 4.0, restarted=True)
     assert _sent(relay) == [("alive", two)]
     assert _events(relay) == [RemoteParticipantsRelayed("drone-2", 1, up=True)]
-    # a node its relay says is stopped was disposed already and stays so
+    # a node its relay said was stopped was disposed already: not again. Its new relay
+    # says every node alive until it has not heard one for a lease, so it is announced; the
+    # new life's word decides (the engine reports it right after the restart)
     relay.peer_liveness("drone-1", b"\x00", 5.0)
     assert _sent(relay) == [("dispose", one)]
     relay.peer_discovered("drone-1", ADDRESS["drone-1"], 6.0, restarted=True)
-    assert _sent(relay) == []
+    assert _sent(relay) == [("alive", one)]
+    relay.peer_liveness("drone-1", b"\x00", 6.0)
+    assert _sent(relay) == [("dispose", one)]  # a stop: no life, nothing damped
+    assert relay.counters["remote_liveness_damped"] == 0
 
 
 def test_a_local_nodes_new_life_is_counted_in_the_signed_liveness_word() -> None:

@@ -103,7 +103,9 @@ class PeerLocatorsChanged(Event):
 class PeerRos2Liveness(Event):
     """A discovered peer's relay says which of its drone's ROS 2 participants are alive
     (PID 0x8A06, docs/ros2.md "Node liveness"): reported when it differs from its previous
-    DATA(p)'s. Only ever from a DATA(p) the engine accepted: authenticated in the daemon,
+    DATA(p)'s, and a new life's first one always, after that life's ``PeerRestarted`` (a
+    word of a life whose restart is held waits with it). Only ever from a DATA(p) the
+    engine accepted: authenticated in the daemon,
     so a forged or replayed change never gets here. ``alive``: a bitmap over that drone's
     ROS 2 participants in bundle order, LSB of byte 0 = the first."""
 

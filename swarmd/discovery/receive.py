@@ -365,6 +365,7 @@ class ReceivePath:
                     peer.restarted_at = now
                     self._lives.honoured(peer.index, now)  # a life: its restart
                     peer.epoch = fresh.epoch
+                    peer.ros2_alive = None  # its new life's first word is reported (below)
             else:
                 peer.epoch = fresh.epoch
             restarted = restarted or epoch_rose
@@ -403,9 +404,23 @@ class ReceivePath:
             # hears more peers than before, the rule's spacing starts over (SoughtBy.heard)
             self.sought_by.heard(peer.index, heard)
         peer.link_quality_permille = alive.link_quality_permille
+        if epoch_rose and not newly and fresh is not None and previous_epoch is not None:
+            # Before its relay's word below: the ROS 2 relay takes a new life's first word
+            # as that life's baseline (its restart counts start again), not as its nodes'
+            # restarts after the re-match this restart makes (swarmd.ros2.relay_remote)
+            self._emit(
+                PeerRestarted(
+                    peer.participant.name, peer.participant.guid_prefix, fresh.epoch, previous_epoch
+                )
+            )
         ros2_alive = alive.ros2_alive
-        if ros2_alive is not None and ros2_alive != peer.ros2_alive:
-            # its ROS 2 nodes' liveness (absent: no relay there; the sim never sends it)
+        if (
+            ros2_alive is not None
+            and ros2_alive != peer.ros2_alive
+            and (fresh is None or fresh.epoch == peer.epoch)
+        ):
+            # its ROS 2 nodes' liveness (absent: no relay there; the sim never sends it), of
+            # the life we honour: a new life's word waits with its held restart (above)
             peer.ros2_alive = ros2_alive
             self._emit(
                 PeerRos2Liveness(peer.participant.name, peer.participant.guid_prefix, ros2_alive)
@@ -446,15 +461,6 @@ class ReceivePath:
             if peer.reack.permits(now):
                 peer.reack.mark(now)
                 rejoin = True
-            if epoch_rose and fresh is not None and previous_epoch is not None:
-                self._emit(
-                    PeerRestarted(
-                        peer.participant.name,
-                        peer.participant.guid_prefix,
-                        fresh.epoch,
-                        previous_epoch,
-                    )
-                )
         elif newly:
             peer.state = _DISCOVERED
             self._leases.heard.mark(index)

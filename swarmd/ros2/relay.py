@@ -42,7 +42,9 @@ proxies on the dispose, and matches the announcement afresh). It does so for
 
 - a drone whose swarmd restarted (``peer_discovered(restarted=True)``: the engine's
   ``PeerRestarted``, a higher boot epoch in an authenticated DATA(p)): its nodes restarted
-  with it, or will be matched again at no cost;
+  with it, or will be matched again at no cost. Its relay restarted too, so its liveness
+  word starts afresh: the new life's first word is the baseline, not restarts of its
+  nodes (``relay_remote``, ``_new_life``);
 - a node of another drone that restarted under a running swarmd: that drone's relay saw it
   (a smaller SPDP sequence number, or a ``DATA(p[UD])`` before) and counts the node's lives
   in the liveness word its swarmd signs (PID 0x8A06: the alive bitmap, then one octet per

@@ -50,7 +50,9 @@ class RemoteDrones(Announcer):
         restarted (the engine's ``PeerRestarted``: a higher epoch in an authenticated
         DATA(p), never anything else): its participants, announced before, are disposed at
         the local nodes and announced again at once, so their readers drop the writer
-        proxies of the earlier life (swarmd.ros2.relay, "A restart under the same GUIDs")."""
+        proxies of the earlier life (swarmd.ros2.relay, "A restart under the same GUIDs").
+        Its relay restarted too: its word starts afresh, as a new relay's does (all nodes
+        alive, restart counts 0), so the one kept is dropped (``_new_life``)."""
         remote = self._remote_by_drone.get(drone)
         if not remote or address is None:
             return
@@ -59,16 +61,34 @@ class RemoteDrones(Announcer):
             return
         self._present[drone] = RemoteDrone(drone, address, now)
         again = restarted and known is not None
+        announced = self._alive_remote(drone) if again else []
+        if restarted:
+            self._new_life(drone)
         self._events.append(RemoteParticipantsRelayed(drone, len(remote), up=True, restarted=again))
         self._send_graph_spdp(None)
         for p in self._alive_remote(drone):
-            if again:
+            if p in announced:
                 self._send_dispose(p)
             self._send_alive(p, address, now)
             if self.graph is not None:
                 self.graph.publish(GuidPrefix(p.guid_prefix), now)
         if self._next_renewal is None:
             self._next_renewal = now + self.period_s
+
+    def _new_life(self, drone: str) -> None:
+        """``drone``'s swarmd restarted (``PeerRestarted``, discovery's spacing and damping
+        passed): forget its relay's word, so the new life's first word (the engine reports
+        it, and after the restart: swarmd.discovery.receive) is its baseline. Its counts
+        start again at 0 with its relay, and a change from the old life's counts is no
+        restart of its nodes: the restart's own re-match (``peer_discovered``) has made
+        their proxies go already. Kept as the old life's, that word re-matched every node
+        whose count was not 0 a second time and added to the drone's penalty (h-restartword18).
+        What a captured member cannot gain: the penalty and the spacing are kept (a word
+        after the restart that brings a life is damped as any), and the word held for the
+        old life is dropped only because this re-match, damped by discovery, covers it."""
+        self._remote_alive.pop(drone, None)
+        self._remote_restarts.pop(drone, None)
+        self._liveness_held.pop(drone, None)
 
     def peer_lost(self, drone: str, now: float) -> None:
         """swarmd lost ``drone``: dispose its ROS 2 participants at every local node, so
