@@ -1,5 +1,5 @@
 """The daemon's event loop, on the clock the validity proof rests on (docs/dataplane.md,
-"The clock").
+"The clock it rests on").
 
 Every ``now`` the cores see is ``loop.time()`` (``driver.py``), and a command's validity is
 proved for clocks that each measure their own intervals within 100 ppm
