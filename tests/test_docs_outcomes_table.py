@@ -121,7 +121,14 @@ def _marks() -> set[str]:
         "disarm_unconfirmed": True,
     }
     lines = render_outcomes({"nodes": {"uav1": node}})
-    ran = {"command_id": 1, "kind": "land", "state": "completed", "reason": "", "saved": False}
+    ran = {
+        "command_id": 1,
+        "kind": "takeoff",
+        "state": "failed",
+        "reason": "",
+        "saved": False,
+        "disarm_unconfirmed": True,
+    }
     lines += render_kept({"issued": [], "ran": [ran], "life": 1}, 0.0)
     return set(re.findall(r"\[[a-z ]+\]", "\n".join(lines)))
 

@@ -13,7 +13,8 @@ operator can answer after a flight: did every drone do what I said, and which di
   its daemon and, as its state file kept them, in earlier ones (``ran``, each with its
   ``life``, the state file's boot counter; the answer's ``life`` is the current one); a
   decision whose record the daemon failed to write is marked ``[not saved]``
-  (``saved: false``).
+  (``saved: false``), a failed take-off whose DISARM was never confirmed
+  ``[disarm not confirmed]`` (``disarm_unconfirmed: true``): this drone may still be armed.
 
 A member runs a command id at most once (docs/dataplane.md, "Exactly once"), so one row per
 drone is the whole answer: ``completed`` is "it did it, once"; any other state is "it did
@@ -36,7 +37,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Final
 
-from swarmd.cli.commands_view import reason_text
+from swarmd.cli.commands_view import DISARM_MARK, reason_text
 from swarmd.cli.status_cmd import fail_unreachable, socket_argument, table
 from swarmd.cli.takeoff_cmd import render_outcomes, sent_by_text
 from swarmd.control import DaemonUnreachable, RequestError, request
@@ -213,7 +214,9 @@ def render_kept(shown: dict[str, Any], wall_now: float) -> list[str]:
                 str(r.get("kind", "?")).upper(),
                 str(r.get("commander", "?")),
                 str(r.get("state", "?")).upper(),
-                reason_text(r.get("reason")) + ("" if r.get("saved", True) else " [not saved]"),
+                reason_text(r.get("reason"))
+                + ("" if r.get("saved", True) else " [not saved]")
+                + (f" [{DISARM_MARK}]" if r.get("disarm_unconfirmed") else ""),
                 _clock(r.get("age_s"), wall_now),
                 _life(r.get("life"), life),
             ]

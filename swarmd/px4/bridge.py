@@ -274,9 +274,11 @@ class Px4Bridge:
                 self._info("px4_takeoff_outcome", **_outcome_dict(event))
             case DisarmRepeatsEnded():
                 # after a failed take-off's outcome: did its DISARM arrive (docs/px4.md, "A
-                # failed take-off's DISARM")? Unconfirmed: the vehicle may sit armed
+                # failed take-off's DISARM")? Unconfirmed: the vehicle may sit armed, a
+                # warning, so ``journalctl -p warning`` shows it (docs/operations.md, logs)
                 ended = "confirmed" if event.confirmed else "stopped" if event.stopped else None
-                self._info("px4_takeoff_disarm", ended=ended or DISARM_UNCONFIRMED, why=event.why)
+                log = self._warning if ended is None else self._info
+                log("px4_takeoff_disarm", ended=ended or DISARM_UNCONFIRMED, why=event.why)
             case ActionFinished():
                 self._info(
                     "px4_action_outcome",
@@ -293,6 +295,10 @@ class Px4Bridge:
     def _info(self, event: str, **fields: Any) -> None:
         if self._log is not None:
             self._log.info(event, **fields)
+
+    def _warning(self, event: str, **fields: Any) -> None:
+        if self._log is not None:
+            self._log.warning(event, **fields)
 
 
 def _outcome_dict(out: Outcome) -> dict[str, Any]:

@@ -19,7 +19,7 @@ received from every publisher"); its name and meaning are stable for the benchma
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Container, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final, NamedTuple
 
@@ -655,8 +655,16 @@ class DecisionLog:
             for d in self._decided.values()
         )
 
-    def recent(self, now: float) -> list[dict[str, Any]]:
-        """The JSON view, newest first (``outcomes`` without a command id, ``ran``)."""
+    def recent(
+        self, now: float, disarm_unconfirmed: Container[tuple[str, int]] = ()
+    ) -> list[dict[str, Any]]:
+        """The JSON view, newest first (``outcomes`` without a command id, ``ran``).
+        ``disarm_unconfirmed``: the member's marks (``Member.disarm_marks``), shown on the
+        failed take-off each names: an operator on the drone, the one that may be armed,
+        reads it there too (session 18). Only on a ``failed`` row: a mark names an earlier
+        life's failure, and a later life's row for the same id (``decided``, refused
+        ``memory_lost``) is another decision."""
+        failed = CommandResult.FAILED.name.lower()
         return [
             {
                 "command_id": d.command_id,
@@ -668,6 +676,8 @@ class DecisionLog:
                 "done_s": _done_s(d),
                 "life": d.life,
                 "saved": (d.commander, d.command_id) not in self.unsaved,
+                "disarm_unconfirmed": d.state == failed
+                and (d.commander, d.command_id) in disarm_unconfirmed,
             }
             for d in reversed(self._decided.values())
         ]

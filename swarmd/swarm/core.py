@@ -314,7 +314,7 @@ class SwarmCore:
                 "role": self.roles.role,
                 "issued": self.tracker.recent(now, limit=MAX_TRACKED_COMMANDS)[::-1],
                 "issued_evicted": self.tracker.evicted,
-                "ran": self.decisions.recent(now),
+                "ran": self.decisions.recent(now, self.member.disarm_marks),
                 "ran_evicted": self.decisions.evicted,
                 "life": self.decisions.life,  # each "ran" entry names the life that decided it
             }

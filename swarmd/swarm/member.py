@@ -55,7 +55,7 @@ Split out of ``core.py`` by concern; ``SwarmCore`` drives it. Sans-IO; no clock.
 from __future__ import annotations
 
 from collections import OrderedDict, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Container, Iterable
 from dataclasses import dataclass
 from typing import Any, Final, NamedTuple, assert_never
 
@@ -318,6 +318,12 @@ class Member:
             # not ahead of anything): a later life re-reports the amendment too (``rereport``)
             self._keep_disarm_mark((commander, command_id))
             self._persist(commander, command_id)
+
+    @property
+    def disarm_marks(self) -> Container[tuple[str, int]]:
+        """(commander, id) of the failed take-offs whose DISARM was never confirmed, this
+        life's and the earlier lives' kept (``swarmctl outcomes`` on the drone marks them)."""
+        return self._disarm_marks.keys()
 
     def _keep_disarm_mark(self, key: tuple[str, int]) -> None:
         self._disarm_marks[key] = None
