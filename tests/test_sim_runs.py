@@ -65,16 +65,32 @@ def test_the_engines_shared_decode_memo_changes_nothing(monkeypatch: pytest.Monk
     assert dumps(plain) == dumps(memo)
 
 
-def test_a_run_suspends_full_collections_and_restores_the_thresholds() -> None:
-    seen: list[tuple[int, int, int]] = []
+def test_a_swarmd_run_suspends_the_cyclic_collector_and_restores_it() -> None:
+    seen: list[tuple[bool, tuple[int, int, int]]] = []
 
     def progress(_fraction: float) -> None:
-        seen.append(gc.get_threshold())
+        seen.append((gc.isenabled(), gc.get_threshold()))
 
-    before = gc.get_threshold()
+    thresholds = gc.get_threshold()
+    assert gc.isenabled()
     run(Scenario("swarmd", 4, seed=1, window_s=3.0), progress)
-    assert seen and all(t[2] > 10**9 and t[:2] == before[:2] for t in seen)
-    assert gc.get_threshold() == before
+    assert seen and not any(enabled for enabled, _ in seen)
+    assert gc.isenabled() and gc.get_threshold() == thresholds
+    # a baseline model leaves cycles: its young collections go on, its full ones wait
+    seen.clear()
+    run(Scenario("zenoh-model", 4, seed=1, window_s=3.0), progress)
+    assert seen and all(on and t[2] > 10**9 and t[:2] == thresholds[:2] for on, t in seen)
+    assert gc.isenabled() and gc.get_threshold() == thresholds
+    gc.disable()
+    try:  # a caller that had it off (the CLI) keeps it off; a model's run still collects
+        run(Scenario("swarmd", 4, seed=1, window_s=3.0))
+        assert not gc.isenabled()
+        seen.clear()
+        run(Scenario("zenoh-model", 4, seed=1, window_s=3.0), progress)
+        assert seen and all(on for on, _ in seen)
+        assert not gc.isenabled() and gc.get_threshold() == thresholds
+    finally:
+        gc.enable()
 
 
 def test_cli_turns_vouching_off(capsys: pytest.CaptureFixture[str]) -> None:

@@ -28,8 +28,10 @@ from swarmd_lab.sim.workload import Workload
 
 WINDOW_S: Final = 60.0
 _DATA: Final = Kind.DATA  # bound once (a class-attribute lookup per frame otherwise)
-# the oldest generation's threshold during a run: never reached (_young_collections_only)
+# the oldest generation's threshold during a baseline model's run: never reached
 _NO_FULL_COLLECTION: Final = 2**31 - 1
+# the protocols whose runs suspend the cyclic collector whole (_collections_for)
+_SWARMD: Final = ("swarmd", "swarmd-auth")
 Progress = Callable[[float], None]
 
 
@@ -82,26 +84,43 @@ def run(
     ``wall()`` when every pair is discovered (the caller's clock; the result never sees it).
     """
     scenario.check()
-    with _young_collections_only():
+    with _collections_for(scenario.protocol):
         return _run(scenario, progress, milestones, wall)
 
 
 @contextmanager
-def _young_collections_only() -> Iterator[None]:
-    """Suspend CPython's full (oldest-generation) garbage collections for a run.
+def _collections_for(protocol: str) -> Iterator[None]:
+    """Suspend CPython's cyclic garbage collector for a swarmd run, and its full
+    (oldest-generation) collections for a baseline model's; reference counting goes on, and
+    the collector's state is restored afterwards.
 
-    A 1000-drone run builds ~10^6 long-lived objects (every engine's peer table) while it
-    runs, and each time that population grows by a quarter CPython traverses all of it: 18
-    full passes, ~7.5 s of a ~55 s run (measured with ``gc.callbacks``). The run makes no
-    long-lived reference cycles worth collecting (nothing has a finaliser, results do not
-    depend on when memory is freed); young collections go on as usual, and the thresholds
-    are restored afterwards."""
+    A 1000-drone run builds ~10^6 long-lived objects (every engine's peer table) and many
+    more that live a while (retry heap entries), and the collector traverses each container
+    that survives a young collection again in the next generation. Full collections were the
+    first cost (18 passes, ~7.5 s of a ~55 s run, ``gc.callbacks``; suspended since issue
+    13). The young collections that remained, with the full one at the interpreter's
+    exit, took 15.9 % of the instructions, 31.5 % of the L1 read misses and 58.0 % of the
+    read misses of a 2 MB cache in a process simulating the first 8 s of the 1000-drone
+    window (cachegrind; docs/simulator.md, "Session 18"), and a swarmd run leaves almost
+    nothing for them: ~40 objects in two 150-drone runs, beyond the imports' ~1,000
+    (``gc.get_stats``). Nothing in a run has a finaliser and no result depends on when memory
+    is freed. The baseline models do leave cycles (~10,000-30,000 objects in a 20-drone
+    run), so their young collections go on."""
+    enabled = gc.isenabled()
     thresholds = gc.get_threshold()
-    gc.set_threshold(thresholds[0], thresholds[1], _NO_FULL_COLLECTION)
+    if protocol in _SWARMD:
+        gc.disable()
+    else:
+        gc.set_threshold(thresholds[0], thresholds[1], _NO_FULL_COLLECTION)
+        gc.enable()  # even under a caller that turned it off (the CLI: __main__.py)
     try:
         yield
     finally:
         gc.set_threshold(*thresholds)
+        if enabled:
+            gc.enable()
+        else:
+            gc.disable()
 
 
 def _run(
