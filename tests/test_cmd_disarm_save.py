@@ -318,7 +318,7 @@ def test_every_outcome_sent_for_a_marked_failure_carries_the_mark(word: str) -> 
     swarm = flight.swarm
     failed = CommandResult.FAILED
 
-    def lines(events: list[Any], kind: type) -> list[bool]:
+    def lines(events: list[Any], kind: type[OutcomeRecorded | OutcomeReported]) -> list[bool]:
         return [
             e.disarm_unconfirmed
             for e in events
