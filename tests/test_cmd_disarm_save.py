@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from swarmd.dataplane.types import OUTCOME_DISARM_UNCONFIRMED, CommandKind, CommandResult
 from swarmd.px4.takeoff import FailReason, TakeoffFailed
 from swarmd.px4.vehicle import DisarmUnconfirmed, TaskFinished, TaskKind, VehicleRequest
@@ -40,6 +42,7 @@ from tests.test_cmd_save_clear_restart import (
     load_without,
     saved_and_booted,
 )
+from tests.test_cmd_save_failed import _saves
 from tests.test_dataplane_swarm import address_of
 from tests.test_swarm_core import VEHICLE_TASK_S
 
@@ -266,3 +269,68 @@ def test_a_restarted_commander_hears_the_mark_in_its_journal(tmp_path: Path) -> 
         if isinstance(e, OutcomeRecorded) and e.command_id == cid and not e.known
     ]
     assert unknown == [True]
+
+
+def _marked_and_told(seed: int, word: str) -> tuple[Flight, int]:
+    """A take-off to m01 fails and its DISARM is never confirmed (the amendment is sent and
+    heard); around it m01's disk says no: ``not-saved``, the amendment's own write fails (a
+    new failure is told, flagged ``OUTCOME_NOT_SAVED``); ``saved-after-all``, every write
+    fails from the take-off on and a later command's write holds the record (told once
+    more, flagged ``OUTCOME_NOW_SAVED``). The take-off's id."""
+    flight = Flight(2, seed)
+    swarm = flight.swarm
+    swarm.vehicles["m01"].answer = _fails
+    disk = {"full": False}
+    _saves(flight, "m01", lambda: disk["full"])
+    swarm.run(3.0)
+    disk["full"] = word == "saved-after-all"
+    cid, _ = _takeoff(flight)
+    swarm.run(VEHICLE_TASK_S + 0.5)
+    (request,) = swarm.requests("m01")
+    m01 = swarm.cores["m01"]
+    amendment = DisarmUnconfirmed(request.token, NO_ACK, "DISARM no ack after 4 sends")
+    disk["full"] = True
+    swarm.net.call_at(
+        swarm.net.now + DISARM_REPEATS_S, lambda now: m01.task_finished(amendment, now)
+    )
+    swarm.run(DISARM_REPEATS_S + 1.0)
+    assert m01.executor_counters["takeoff_disarm_unconfirmed"] == 1
+    if word == "saved-after-all":
+        disk["full"] = False
+        _issue(swarm, CommandKind.HOLD)  # its write holds the whole record
+        swarm.run(2.0)
+        assert m01.executor_counters["told_saved"] >= 1
+    else:
+        assert m01.executor_counters["told_not_saved"] == 1
+    return flight, cid
+
+
+@pytest.mark.parametrize("word", ["not-saved", "saved-after-all"])
+def test_every_outcome_sent_for_a_marked_failure_carries_the_mark(word: str) -> None:
+    """After the amendment, each outcome m01 sends for that FAILED (the "not saved" and
+    "saved after all" words too, ``Member._tell``) says the DISARM was never confirmed:
+    the commander's journal line for each (``OutcomeRecorded``, logged
+    ``command_outcome_received``) and m01's own (``OutcomeReported``, ``command_outcome``)
+    carry ``disarm_unconfirmed``, so an operator grepping the latest line of that command
+    is not told the opposite. The row keeps its mark either way. [fails on main: the word
+    after the amendment went unflagged, its lines ``disarm_unconfirmed`` false]"""
+    flight, cid = _marked_and_told(185, word)
+    swarm = flight.swarm
+    failed = CommandResult.FAILED
+
+    def lines(events: list[Any], kind: type[OutcomeRecorded | OutcomeReported]) -> list[bool]:
+        return [
+            e.disarm_unconfirmed
+            for e in events
+            if isinstance(e, kind) and e.command_id == cid and e.result == failed
+        ]
+
+    heard, told = (
+        lines(swarm.events["lead"], OutcomeRecorded),
+        lines(swarm.events["m01"], OutcomeReported),
+    )
+    # the failure, the amendment, the word after it
+    assert (heard, told) == ([False, True, True], [False, True, True])
+    assert _row(flight, cid)["disarm_unconfirmed"] is True
+    assert _row(flight, cid)["save_failed"] is (word == "not-saved")
+    assert len(flight.ran("m01", cid)) == 1

@@ -125,11 +125,17 @@ def test_an_honest_restart_is_one_rematch_and_its_counts_the_new_baseline(shape:
     assert [type(e) for e in lead.events if isinstance(e, PeerRestarted)] == [PeerRestarted]
     # the new life's counts are the baseline: its talker's own lives are seen, each once,
     # the first 4 at once (the drone's penalty at the relay was not touched by the restart)
-    now = restart + 10.0
+    free_lives_then_damped(lead, life, restart + 10.0)
+
+
+def free_lives_then_damped(lead: Lead, auth: SpdpAuth, now: float) -> None:
+    """drone-1's talker restarts under ``auth``, 0.5 s apart from ``now`` (its count 1, 2,
+    ...): its first 4 lives are acted on at once (dispose, alive), its 5th is damped, as
+    for a drone whose penalty at the relay is 0."""
     for n in range(1, FREE_LIVES + 1):
         now += 0.5
-        assert lead.hear(life, bytes((1, n)), now) == ["dispose", "alive"], n
-    assert lead.hear(life, bytes((1, FREE_LIVES + 1)), now + 0.5) == []  # damped
+        assert lead.hear(auth, bytes((1, n)), now) == ["dispose", "alive"], n
+    assert lead.hear(auth, bytes((1, FREE_LIVES + 1)), now + 0.5) == []  # damped
     assert lead.relay.counters["remote_liveness_damped"] == 1
 
 

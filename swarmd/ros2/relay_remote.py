@@ -35,7 +35,11 @@ from swarmd.rtps.types import GuidPrefix
 # word winning. Spaced alone, a captured member's churn cost 240 re-matches a minute; now
 # the first 4 and one per 24.9 s after. A word that only stops nodes is no life (as a
 # dispose is none in discovery): it waits for the interval only, so a stopped node's
-# writers stop at once; a stop can only follow a life acted on.
+# writers stop at once; a stop can only follow a life acted on. Nor is a word heard while
+# swarmd has lost the drone: it re-matches nothing, it only sets which of its nodes the
+# drone's return announces, and that return is discovery's (a life discovery damps, after
+# the drone's own dispose). The engine reports a returning drone's word before it finds
+# the drone, so charged, it cost an honest fly-out a free life (h-tidy18).
 LIVENESS_MIN_INTERVAL_S: Final = 0.25
 
 
@@ -110,7 +114,8 @@ class RemoteDrones(Announcer):
         drone's participants are ignored, missing ones are "not alive". Acted on at most
         once per ``LIVENESS_MIN_INTERVAL_S`` per drone, and a word that brings a life not
         while the drone's penalty holds it (``LifeDamping``): held, the latest word acted
-        on when due (``release_liveness``)."""
+        on when due (``release_liveness``). While swarmd has lost the drone a word is
+        spaced only: it moves no node, and is what its return announces."""
         remote = self._remote_by_drone.get(drone)
         if not remote:
             self.counters["liveness_unknown_drone"] += 1
@@ -148,10 +153,14 @@ class RemoteDrones(Announcer):
 
     def _liveness_ready_at(self, drone: str, remote: list[Ros2Participant], alive: bytes) -> float:
         """When ``drone``'s word ``alive`` may be acted on: the interval after the last word
-        acted on, and, if it brings a life, the end of the drone's hold."""
+        acted on, and, if it brings a life while swarmd has the drone, the end of the
+        drone's hold (held while lost, it would keep a node that came back from the
+        drone's return, up to ``FLAP_HOLD_MAX_S``)."""
         acted = self._liveness_acted.get(drone)
         ready = -math.inf if acted is None else acted + LIVENESS_MIN_INTERVAL_S
-        if any(up for _i, up, _restarted in self._liveness_changes(drone, remote, alive)):
+        if drone in self._present and any(
+            up for _i, up, _restarted in self._liveness_changes(drone, remote, alive)
+        ):
             ready = max(ready, self._liveness_lives.reuse_at(self._drone_index[drone]))
         return ready
 
@@ -181,15 +190,19 @@ class RemoteDrones(Announcer):
         self, drone: str, remote: list[Ros2Participant], alive: bytes, now: float
     ) -> None:
         """``peer_liveness``'s work. A word that moved a node starts the interval; one that
-        brought a life adds to the drone's penalty."""
+        brought a life while swarmd has the drone adds to the drone's penalty. While it is
+        lost the word only sets what is announced when swarmd finds it (a re-match that is
+        discovery's return: the engine reports a returning drone's word before it is found,
+        swarmd.discovery.receive ``_heard``), so it re-matches nothing and costs no penalty
+        (h-tidy18: it cost an honest fly-out one of its free word lives)."""
         changes = self._liveness_changes(drone, remote, alive)
         self._remote_alive[drone], self._remote_restarts[drone] = _decode_word(alive, len(remote))
         if not changes:
             return
         self._liveness_acted[drone] = now
-        if any(up for _i, up, _restarted in changes):
-            self._liveness_lives.honoured(self._drone_index[drone], now)
         present = self._present.get(drone)
+        if present is not None and any(up for _i, up, _restarted in changes):
+            self._liveness_lives.honoured(self._drone_index[drone], now)
         for i, up, restarted in changes:
             p = remote[i]
             self._events.append(RemoteNodeLiveness(drone, p.node.name, up, restarted))

@@ -311,12 +311,11 @@ class Member:
                 command_id, commander, result, reason, now, disarm_unconfirmed=True
             )
             return
-        if self._answer(
-            commander, command_id, kind, result, reason, now, OUTCOME_DISARM_UNCONFIRMED
-        ):
-            # kept with the outcome, written as the outcome is (a write after the answer,
-            # not ahead of anything): a later life re-reports the amendment too (``rereport``)
-            self._keep_disarm_mark((commander, command_id))
+        # marked first, so this answer and every later one for it carry the flag
+        # (``_flags``); kept with the outcome, written as the outcome is (a write after the
+        # answer, not ahead of anything): a later life re-reports the amendment too
+        self._keep_disarm_mark((commander, command_id))
+        if self._answer(commander, command_id, kind, result, reason, now):
             self._persist(commander, command_id)
 
     @property
@@ -515,21 +514,33 @@ class Member:
         now: float,
         flags: int = 0,
     ) -> bool:
-        """Send ``commander`` this outcome, with ``flags``; False without a plane. A
-        decision whose record a write already failed to keep says so in each outcome."""
+        """Send ``commander`` this outcome, with ``flags`` (``_tell``'s save word) and the
+        flags ``_flags`` adds; False without a plane. A decision whose record a write
+        already failed to keep says so in each outcome; a save word carries ``save_gen``."""
         saved = (commander, command_id) not in self.decisions.unsaved
+        flags = self._flags(commander, command_id, result, flags)
         armed = bool(flags & OUTCOME_DISARM_UNCONFIRMED)
         told = OutcomeReported(command_id, kind, result, reason, saved, disarm_unconfirmed=armed)
         self._events.append(told)
         if self.plane is None:
             return False
-        gen = 0
         if not saved:
-            flags, gen = flags | OUTCOME_NOT_SAVED, self._save_gen
+            flags |= OUTCOME_NOT_SAVED
+        gen = self._save_gen if flags & (OUTCOME_NOT_SAVED | OUTCOME_NOW_SAVED) else 0
         self.plane.report_outcome(
             command_id, result, now, reason, commander=commander, flags=flags, save_gen=gen
         )
         return True
+
+    def _flags(self, commander: str, command_id: int, result: CommandResult, flags: int) -> int:
+        """``flags`` and ``OUTCOME_DISARM_UNCONFIRMED`` on a FAILED this drone marks (its
+        DISARM never confirmed, ``_disarm_marks``): the one place that decides it, so every
+        outcome sent for that failure says so (the amendment, a "not saved" or "saved after
+        all" word, a later life's re-report), and no later line tells the operator
+        ``disarm_unconfirmed: false`` (docs/operations.md, the mark)."""
+        if result == CommandResult.FAILED and (commander, command_id) in self._disarm_marks:
+            flags |= OUTCOME_DISARM_UNCONFIRMED
+        return flags
 
     def _persist(self, commander: str, command_id: int) -> None:
         assert self.plane is not None  # noqa: S101 - callers checked it
@@ -582,20 +593,14 @@ class Member:
         if current is None or self.plane is None or commander == self.roles.me:
             return  # evicted, no plane, or our own drone's (never written)
         kind, state, reason = current
-        result = CommandResult[state.upper()]
         saved = flag == OUTCOME_NOW_SAVED
         self._count("told_saved" if saved else "told_not_saved")
         if not saved:
             self.decisions.told(commander, command_id)  # kept in the file: ``rereport``
-        self._events.append(OutcomeReported(command_id, kind.upper(), result, reason, saved))
-        self.plane.report_outcome(
-            command_id,
-            result,
-            now,
-            reason,
-            commander=commander,
-            flags=flag,
-            save_gen=self._save_gen,
+        # ``_answer``: the decision is unsaved (the word's ``saved``) exactly when ``flag``
+        # is ``OUTCOME_NOT_SAVED``, and a marked failure's word carries the mark (``_flags``)
+        self._answer(
+            commander, command_id, kind.upper(), CommandResult[state.upper()], reason, now, flag
         )
 
     def rereport(self, commander: str, now: float) -> None:
@@ -631,19 +636,18 @@ class Member:
                 commander, command_id
             )
             flags, gen = (OUTCOME_NOW_SAVED, max(self._save_gen, 1)) if clear else (0, 0)
-            marked = (commander, command_id) in self._disarm_marks
-            if marked and result == CommandResult.FAILED.value:
-                # the earlier life's amendment: its DISARM was never confirmed, and the
-                # commander (restarted, or its amendment lost with that life) must hear it
-                flags |= OUTCOME_DISARM_UNCONFIRMED
             try:
+                # an earlier life's amendment (``_flags``): its DISARM was never confirmed,
+                # and the commander (restarted, or the amendment lost with that life) must
+                # hear it
+                outcome = CommandResult(result)
                 self.plane.report_outcome(
                     command_id,
-                    CommandResult(result),
+                    outcome,
                     now,
                     reason,
                     commander=commander,
-                    flags=flags,
+                    flags=self._flags(commander, command_id, outcome, flags),
                     save_gen=gen,
                 )
             except (ValueError, PayloadError):  # a state file edited by hand: skip it
