@@ -81,7 +81,6 @@ from __future__ import annotations
 
 import random
 from collections import Counter, deque
-from collections.abc import Callable
 from typing import Any, Final
 
 from swarmd.auth.spdp import SpdpAuth
@@ -197,17 +196,10 @@ class DiscoveryEngine:
         "_hold_heap",
         "metatraffic_port",
         "phase",
-        "receive_datagram",
         "spdp_multicast",
         "user_port",
         "__dict__",
     )
-
-    # ``receive_datagram(data, source, now)``: handle one UDP payload from ``source``; never
-    # raises for any ``data``. It is ``ReceivePath.receive_datagram`` itself, bound in
-    # ``__init__``: a method here forwarding to it cost one more Python call per reception
-    # (~3M in a simulated 1000-drone minute; docs/discovery.md, "The receive path's cost").
-    receive_datagram: Callable[[bytes, tuple[str, int], float], None]
 
     def __init__(
         self,
@@ -344,7 +336,6 @@ class DiscoveryEngine:
             rejoined=self._rejoined,
             answer_seek=self._answer_seek,
         )
-        self.receive_datagram = receive.receive_datagram
         # what get_timer() (after every input) reads, one attribute away: the concerns' own
         # objects (never replaced), not copies; and the receive path's prefix lookup
         self._renewal = renewals.timer
@@ -357,6 +348,11 @@ class DiscoveryEngine:
             self.update_link_quality(link, now)
 
     # ------------------------------------------------------------------ inputs
+
+    def receive_datagram(self, data: bytes, source: tuple[str, int], now: float) -> None:
+        """Handle one UDP payload from ``source``. Never raises for any ``data``
+        (``receive.ReceivePath``)."""
+        self._receive.receive_datagram(data, source, now)
 
     def handle_timer(self, now: float) -> None:
         """Act on every deadline at or before ``now`` (call at ``get_timer()``)."""
