@@ -68,12 +68,8 @@ class Peer:
     # its boot epoch: the life whose restart we honoured last (receive.RESTART_MIN_INTERVAL_S:
     # a faster rise is fresh but waits), from its authenticated DATA(p)
     epoch: int | None = None
-    restarted_at: float | None = None  # when we last honoured its restart (PeerRestarted)
-    # when its own signed DATA(p[UD]) last lost it: its return is held until
-    # receive.RESTART_MIN_INTERVAL_S after (a captured member leaving and returning)
-    disposed_at: float | None = None
-    # its relay's alive ROS 2 participants (PID 0x8A06), from its latest accepted DATA(p)
-    ros2_alive: bytes | None = None
+    # (when we last honoured its restart, when its own dispose lost it, its relay's alive
+    # ROS 2 participants: rare, so in ReceivePath's side tables, not here)
     # matched endpoints, computed when first discovered: a bundle row per peer would cost
     # every engine O(N) ``Bundle.matches`` calls at start-up, mostly for nobody (sim at N=1000)
     matches: tuple[Match, ...] | None = None

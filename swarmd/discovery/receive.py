@@ -70,7 +70,7 @@ _DISCOVERED: Final = PeerState.DISCOVERED
 # for freshness (the replay window moves with it) and counted (``restarts_coalesced``); the
 # peer's first datagram past the interval honours its newest epoch, so a restart is late,
 # never lost (docs/security.md, "Epoch churn"). The same interval holds a peer's return after
-# its own signed dispose (``Peer.disposed_at``): an honest daemon disposes only as it stops,
+# its own signed dispose (``ReceivePath._disposed_at``): an honest daemon disposes only as it stops,
 # and its next life sends no sooner than a start-up later (the figures above; ``systemctl
 # restart`` starts it at once, a failure waits RestartSec=2s first: systemd/swarmd.service),
 # so a return within the interval is a captured member leaving and returning, each a
@@ -92,6 +92,7 @@ class ReceivePath:
         "_bundle",
         "_commander",
         "_debts",
+        "_disposed_at",
         "_digest",
         "_domain_id",
         "_emit",
@@ -115,6 +116,8 @@ class ReceivePath:
         "_peer_at",
         "_pin_at",
         "_reack_gap_s",
+        "_restarted_at",
+        "_ros2_alive",
         "_seek",
         "_seekers",
         "_settle",
@@ -185,6 +188,17 @@ class ReceivePath:
         self.lives_damped = 0
         # its lives (honoured restarts and returns) damped over time: ours alone, by index
         self._lives = LifeDamping()
+        # A peer's rare facts, by bundle index, kept off ``Peer``, which every engine reads
+        # on every reception (its three such fields cost +1.6 % CPU at N = 1000:
+        # docs/simulator.md, "Session 18"; docs/discovery.md, "Cost per datagram"): when its
+        # own signed dispose lost it (its return waits; cleared once honoured), when we last
+        # honoured its restart, and its relay's alive ROS 2 participants (PID 0x8A06) from
+        # its latest accepted DATA(p). Only a bundle peer's verified frame writes a row, its
+        # own: at most the bundle's N - 1 rows each, and empty in a swarm that never leaves,
+        # restarts or runs a relay (the simulator).
+        self._disposed_at: dict[int, float] = {}
+        self._restarted_at: dict[int, float] = {}
+        self._ros2_alive: dict[int, bytes] = {}
         self._foreign = foreign
         # the other concerns (each one attribute read per datagram; see the module docstring)
         self._leases = leases
@@ -314,7 +328,8 @@ class ReceivePath:
             return
         if self._auth is not None:
             self._auth.note_address(prefix, source)  # used: its budget lives there now
-        disposed_at = peer.disposed_at
+        disposed = self._disposed_at
+        disposed_at = disposed.get(peer.index) if disposed else None
         if disposed_at is not None:
             # set only as its own dispose lost it, cleared once it is heard again
             soon = now - disposed_at < RESTART_MIN_INTERVAL_S
@@ -324,7 +339,7 @@ class ReceivePath:
                 self.returns_held += 1
                 self.lives_damped += not soon
                 return
-            peer.disposed_at = None
+            del disposed[peer.index]
             self._lives.honoured(peer.index, now)  # a life: its return, found below
         self._heard(peer, alive, source, now, fresh)
 
@@ -351,7 +366,7 @@ class ReceivePath:
             # a new life, whatever its SN (the epoch is signed: not a forger's word)
             epoch_rose = previous_epoch is not None and fresh.epoch > previous_epoch
             if epoch_rose and not newly:
-                honoured_at = peer.restarted_at
+                honoured_at = self._restarted_at.get(peer.index)
                 soon = honoured_at is not None and now - honoured_at < RESTART_MIN_INTERVAL_S
                 if soon or self._lives.held(peer.index, now):
                     # faster than a daemon starts, or past its free lives (lives.py): a
@@ -362,10 +377,11 @@ class ReceivePath:
                     self.restarts_coalesced += 1
                     self.lives_damped += not soon
                 else:
-                    peer.restarted_at = now
+                    self._restarted_at[peer.index] = now
                     self._lives.honoured(peer.index, now)  # a life: its restart
                     peer.epoch = fresh.epoch
-                    peer.ros2_alive = None  # its new life's first word is reported (below)
+                    # its new life's first word is reported (below)
+                    self._ros2_alive.pop(peer.index, None)
             else:
                 peer.epoch = fresh.epoch
             restarted = restarted or epoch_rose
@@ -395,7 +411,8 @@ class ReceivePath:
             stopped_listing = lists_me
             lists_me = peer.lists_me = not lists_me
             if lists_me:
-                self.sought_by.forget(peer.index)  # it found us: the lost_us rule is done
+                if self._seekers:  # empty on the usual path: a peer first listing us
+                    self.sought_by.forget(peer.index)  # it found us: the lost_us rule is done
             else:
                 self.sought_by.lost_us(peer.index)  # it lost us: the rule's spacing starts
             self._leases.listed_by += 1 if lists_me else -1
@@ -416,12 +433,12 @@ class ReceivePath:
         ros2_alive = alive.ros2_alive
         if (
             ros2_alive is not None
-            and ros2_alive != peer.ros2_alive
+            and ros2_alive != self._ros2_alive.get(peer.index)
             and (fresh is None or fresh.epoch == peer.epoch)
         ):
             # its ROS 2 nodes' liveness (absent: no relay there; the sim never sends it), of
             # the life we honour: a new life's word waits with its held restart (above)
-            peer.ros2_alive = ros2_alive
+            self._ros2_alive[peer.index] = ros2_alive
             self._emit(
                 PeerRos2Liveness(peer.participant.name, peer.participant.guid_prefix, ros2_alive)
             )
@@ -605,7 +622,7 @@ class ReceivePath:
             self._foreign.disposed(sample.guid_prefix)
             return
         if peer.discovered:
-            peer.disposed_at = now  # its return waits RESTART_MIN_INTERVAL_S (see there)
+            self._disposed_at[peer.index] = now  # its return waits (RESTART_MIN_INTERVAL_S)
             self._lose(peer, "disposed")
 
     def _see_foreign(self, alive: Alive, reason: DropReason, now: float) -> None:
